@@ -1,0 +1,1 @@
+"""Offline training: dataset assembly, Bag-of-Words + SVM, evaluation, report, ONNX export."""
