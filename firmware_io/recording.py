@@ -14,6 +14,7 @@ crash never leaves a half-written file under the final name.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -180,10 +181,8 @@ class Recording:
             os.replace(tmp, path)
             _fsync_dir(path.parent)
         except BaseException:
-            try:
+            with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
-            except FileNotFoundError:
-                pass
             raise
         return path
 

@@ -13,7 +13,7 @@ import sys
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("runtime.demo_cli", "end-to-end demo on the simulated hand: simulate, train, export, emulate, detect"),
+    "demo": ("trainer.demo_cli", "end-to-end demo on the simulated hand: simulate, train, export, emulate, detect"),
     "simulate": ("firmware_io.simulate_cli", "write the paper's protocol (or a scripted session) from the simulated hand"),
     "import": ("firmware_io.import_cli", "convert DSA-Konqueror .dsa files or ROS bags to recordings"),
     "train": ("trainer.train_cli", "train BoW + SVM, evaluate as in the paper, write a report and the ONNX model"),

@@ -1,0 +1,37 @@
+"""The `handover` entry point: lists commands, refuses unknown ones, never imports the trainer for `run`."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from runtime import cli
+
+
+def test_help_lists_commands(capsys):
+    assert cli.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "usage: handover COMMAND" in out
+
+
+def test_unknown_command_is_one_clear_error(capsys):
+    assert cli.main(["no-such-command"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown command 'no-such-command'" in err
+
+
+def test_every_command_module_has_the_two_functions():
+    import importlib.util
+
+    for name, (module, _help) in cli.COMMANDS.items():
+        if importlib.util.find_spec(module) is None:
+            continue  # not built yet: it is simply not listed
+        mod = importlib.import_module(module)
+        assert callable(getattr(mod, "add_arguments", None)), name
+        assert callable(getattr(mod, "main", None)), name
+
+
+def test_cli_import_is_light():
+    code = "import sys, runtime.cli; print(sorted(m for m in ('sklearn', 'matplotlib', 'onnx', 'skl2onnx') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"
