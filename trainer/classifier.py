@@ -1,0 +1,131 @@
+"""The paper's classifier: Bag-of-Words histograms fed to a one-vs-one SVM.
+
+The paper trains a hard-margin SVM (Gaussian kernel; a linear one does as well once K, W, T
+are tuned). A hard margin is a large C. When ``C`` or ``gamma`` is None, it is chosen by a
+small stratified cross-validated grid search on the training histograms only (the codebook is
+unsupervised and fitted once on the training cases; the labels of the inner folds are never
+seen by it). The chosen values are in ``best_params_``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.model_selection import GridSearchCV, StratifiedKFold
+from sklearn.svm import SVC
+from sklearn.utils.multiclass import check_classification_targets
+from sklearn.utils.validation import check_is_fitted, column_or_1d
+
+from trainer.bow import BagOfWords, as_cases
+
+C_GRID = (1.0, 10.0, 100.0, 1000.0)
+"""Candidate C: up to 1000, i.e. close to the paper's hard margin on normalised histograms."""
+
+GAMMA_FACTORS = (0.1, 1.0, 10.0)
+"""Candidate gamma as multiples of scikit-learn's "scale" value 1 / (n_features * var(H))."""
+
+DEFAULT_C = 100.0
+"""Used when a search is impossible (a class with a single training case)."""
+
+CV_FOLDS = 3
+
+
+class BowSVC(ClassifierMixin, BaseEstimator):
+    """BagOfWords (K words, window W, derivative, active series) + SVC (one-vs-one).
+
+    Fitted: ``bow_`` (BagOfWords), ``svm_`` (sklearn SVC), ``classes_``, ``best_params_``
+    ({"C": ..., "gamma": ...} as used), ``n_features_in_``.
+    """
+
+    def __init__(
+        self,
+        n_words: int = 10,
+        window: int = 7,
+        kernel: str = "rbf",
+        C: float | None = None,
+        gamma: float | str | None = None,
+        per_pad: bool = False,
+        pad_sizes: Sequence[int] | None = None,
+        random_state=0,
+    ):
+        self.n_words = n_words
+        self.window = window
+        self.kernel = kernel
+        self.C = C
+        self.gamma = gamma
+        self.per_pad = per_pad
+        self.pad_sizes = pad_sizes
+        self.random_state = random_state
+
+    def fit(self, X, y):
+        if self.kernel not in ("rbf", "linear"):
+            raise ValueError(f"kernel must be 'rbf' or 'linear', got {self.kernel!r}")
+        if y is None:
+            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is None")
+        X = as_cases(X)
+        y = column_or_1d(y, warn=True)
+        if len(y) != len(X):
+            raise ValueError(f"y has {len(y)} labels for {len(X)} cases")
+        check_classification_targets(y)
+        self.classes_ = np.unique(y)
+        if len(self.classes_) < 2:
+            raise ValueError(f"need samples of at least 2 classes, got 1 class ({self.classes_[0]!r})")
+        self.bow_ = BagOfWords(
+            n_words=self.n_words,
+            window=self.window,
+            per_pad=self.per_pad,
+            pad_sizes=self.pad_sizes,
+            random_state=self.random_state,
+        ).fit(X)
+        hist = self.bow_.transform(X)
+        self.best_params_ = self._choose_params(hist, y)
+        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_)
+        self.svm_.fit(hist, y)
+        self.n_features_in_ = self.bow_.n_features_in_
+        return self
+
+    def _choose_params(self, hist: np.ndarray, y: np.ndarray) -> dict:
+        scale = 1.0 / (hist.shape[1] * max(float(hist.var()), 1e-12))
+        fixed: dict = {}
+        grid: dict = {}
+        if self.C is None:
+            grid["C"] = list(C_GRID)
+        else:
+            fixed["C"] = float(self.C)
+        if self.kernel == "rbf":
+            if self.gamma is None:
+                grid["gamma"] = [scale * f for f in GAMMA_FACTORS]
+            else:
+                fixed["gamma"] = self.gamma
+        if not grid:
+            return fixed
+        _, counts = np.unique(y, return_counts=True)
+        n_splits = min(CV_FOLDS, int(counts.min()))
+        if n_splits < 2:
+            return {"C": DEFAULT_C, "gamma": scale, **fixed} if self.kernel == "rbf" else {"C": DEFAULT_C, **fixed}
+        cv = StratifiedKFold(n_splits=n_splits, shuffle=True, random_state=0)
+        search = GridSearchCV(SVC(kernel=self.kernel, **fixed), grid, cv=cv, n_jobs=1)
+        search.fit(hist, y)
+        return {**fixed, **{k: float(v) for k, v in search.best_params_.items()}}
+
+    def transform_histograms(self, X) -> np.ndarray:
+        """The BoW features the SVM sees (for t-SNE and diagnostics)."""
+        check_is_fitted(self, "svm_")
+        return self.bow_.transform(X)
+
+    def decision_function(self, X) -> np.ndarray:
+        """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""
+        hist = self.transform_histograms(X)
+        return self.svm_.decision_function(hist)
+
+    def predict(self, X) -> np.ndarray:
+        """Class labels, decided by one-vs-one votes (ties -> the class listed first)."""
+        hist = self.transform_histograms(X)
+        return self.svm_.predict(hist)
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.three_d_array = True
+        return tags
