@@ -1,0 +1,284 @@
+"""The daemon's TOML configuration: dataclasses with defaults, and one clear message per error.
+
+Every key is checked (unknown keys too, since a typo would otherwise be silently ignored), and
+a problem raises :class:`ConfigError` whose message names the key, e.g.
+``trigger.fraction: must be a number in (0, 1), got 1.5``.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+MODES = ("trigger", "continuous")
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; the message names the key."""
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    url: str = "serial:///dev/dsacon32m"
+    stall_timeout_s: float = 2.0
+    """No frame for this long while streaming counts as a stall: reconnect."""
+    reconnect_min_s: float = 0.5
+    reconnect_max_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    pads: str = "distal"
+    """Pads in contact, as a layout selection (``distal``, ``all``, ``1,3,5``, ...)."""
+    events: tuple[str, ...] = ("pull", "push", "hold", "bump")
+    """Classes that are reported; other decisions are counted but not sent."""
+    mode: str = "trigger"
+    """``trigger`` (threshold starts a window) or ``continuous`` (needs a model with a dormant class)."""
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    folder: str = "/var/lib/handover/models"
+    poll_interval_s: float = 1.0
+    max_bytes: int = 64 * 1024 * 1024
+
+
+@dataclass(frozen=True)
+class TriggerConfig:
+    fraction: float | None = None
+    """Threshold as a fraction of full scale; None takes the model's (paper: 0.15)."""
+    hysteresis: float = 0.05
+    """Re-arm only once the max drops below (fraction - hysteresis) of full scale."""
+    refractory_s: float = 0.5
+    """No new trigger for this long after one (counted from the trigger frame)."""
+    baseline: bool = False
+    """Measure against a slowly tracked per-taxel baseline (the grasp itself may press the pads)."""
+    baseline_tau_s: float = 2.0
+    pre_frames: int = 0
+    """Frames before the trigger frame that belong to the window (0: the window starts at the trigger)."""
+
+
+@dataclass(frozen=True)
+class SinksConfig:
+    stdout: bool = True
+    udp: tuple[str, ...] = ()
+    """``host:port`` targets for one JSON datagram per event."""
+    unix: tuple[str, ...] = ()
+    """Paths of Unix datagram sockets to send each event to."""
+
+
+@dataclass(frozen=True)
+class OnnxConfig:
+    intra_op_threads: int = 1
+    allow_spinning: bool = False
+
+
+@dataclass(frozen=True)
+class Config:
+    device: DeviceConfig = field(default_factory=DeviceConfig)
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    trigger: TriggerConfig = field(default_factory=TriggerConfig)
+    sinks: SinksConfig = field(default_factory=SinksConfig)
+    onnxruntime: OnnxConfig = field(default_factory=OnnxConfig)
+    log_level: str = "info"
+    health_file: str | None = None
+    source: str = ""
+    """Where the configuration was read from (for messages)."""
+
+
+# -- parsing --------------------------------------------------------------------------------
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a TOML file; raises ConfigError naming the file or the key."""
+    p = Path(path)
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read config file ({exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+    cfg = config_from_dict(data)
+    return _replace(cfg, source=str(p))
+
+
+def config_from_dict(data: dict[str, Any]) -> Config:
+    """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
+    if not isinstance(data, dict):
+        raise ConfigError("config: must be a table")
+    sections = {"device", "scene", "model", "trigger", "sinks", "onnxruntime"}
+    top = {"log_level", "health_file"}
+    _no_unknown("", data, sections | top)
+    for name in sections:
+        if name in data and not isinstance(data[name], dict):
+            raise ConfigError(f"{name}: must be a table ([{name}])")
+
+    dev = data.get("device", {})
+    _no_unknown("device", dev, {f.name for f in fields(DeviceConfig)})
+    device = DeviceConfig(
+        url=_str("device.url", dev, DeviceConfig.url),
+        stall_timeout_s=_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s, lo=0.05),
+        reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s, lo=0.0),
+        reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s, lo=0.0),
+    )
+    if "://" not in device.url:
+        raise ConfigError(f"device.url: expected a URL like serial:///dev/ttyUSB0 or tcp://host:port, got {device.url!r}")
+    if device.reconnect_max_s < device.reconnect_min_s:
+        raise ConfigError("device.reconnect_max_s: must be >= device.reconnect_min_s")
+
+    sc = data.get("scene", {})
+    _no_unknown("scene", sc, {f.name for f in fields(SceneConfig)})
+    pads = sc.get("pads", SceneConfig.pads)
+    if isinstance(pads, list) and pads and all(isinstance(p, int) and not isinstance(p, bool) for p in pads):
+        pads = ",".join(str(p) for p in pads)
+    if not isinstance(pads, str) or not pads.strip():
+        raise ConfigError(f"scene.pads: must be a pad selection like 'distal' or [1, 3, 5], got {pads!r}")
+    _check_pads(pads)
+    events = _str_list("scene.events", sc, SceneConfig.events)
+    if not events:
+        raise ConfigError("scene.events: must name at least one event")
+    mode = _str("scene.mode", sc, SceneConfig.mode)
+    if mode not in MODES:
+        raise ConfigError(f"scene.mode: must be one of {', '.join(MODES)}, got {mode!r}")
+    scene = SceneConfig(pads=pads.strip(), events=events, mode=mode)
+
+    mo = data.get("model", {})
+    _no_unknown("model", mo, {f.name for f in fields(ModelConfig)})
+    model = ModelConfig(
+        folder=_str("model.folder", mo, ModelConfig.folder),
+        poll_interval_s=_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s, lo=0.01),
+        max_bytes=_int("model.max_bytes", mo, ModelConfig.max_bytes, lo=1024),
+    )
+
+    tr = data.get("trigger", {})
+    _no_unknown("trigger", tr, {f.name for f in fields(TriggerConfig)})
+    fraction = tr.get("fraction")
+    if fraction is not None:
+        fraction = _num("trigger.fraction", tr, 0.15)
+        if not 0.0 < fraction < 1.0:
+            raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
+    trigger = TriggerConfig(
+        fraction=fraction,
+        hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis, lo=0.0, hi=0.99),
+        refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s, lo=0.0),
+        baseline=_bool("trigger.baseline", tr, TriggerConfig.baseline),
+        baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s, lo=0.01),
+        pre_frames=_int("trigger.pre_frames", tr, TriggerConfig.pre_frames, lo=0, hi=1000),
+    )
+    if fraction is not None and trigger.hysteresis >= fraction:
+        raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")
+
+    si = data.get("sinks", {})
+    _no_unknown("sinks", si, {f.name for f in fields(SinksConfig)})
+    udp = _str_list("sinks.udp", si, ())
+    for target in udp:
+        parse_host_port(target, key="sinks.udp")
+    unix = _str_list("sinks.unix", si, ())
+    for path in unix:
+        if not path.startswith("/") and not path.startswith("@"):
+            raise ConfigError(f"sinks.unix: socket path must be absolute, got {path!r}")
+    sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix)
+
+    ox = data.get("onnxruntime", {})
+    _no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})
+    onnx_cfg = OnnxConfig(
+        intra_op_threads=_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads, lo=1, hi=64),
+        allow_spinning=_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
+    )
+
+    log_level = _str("log_level", data, "info").lower()
+    if log_level not in LOG_LEVELS:
+        raise ConfigError(f"log_level: must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
+    health = data.get("health_file")
+    if health is not None and (not isinstance(health, str) or not health.strip()):
+        raise ConfigError(f"health_file: must be a path, got {health!r}")
+    return Config(device, scene, model, trigger, sinks, onnx_cfg, log_level, health)
+
+
+def parse_host_port(target: str, key: str = "sinks.udp") -> tuple[str, int]:
+    """``host:port`` (``[v6]:port`` too) -> (host, port); ConfigError naming the key otherwise."""
+    host, sep, port = target.rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"{key}: expected host:port, got {target!r}")
+    return host, int(port)
+
+
+# -- helpers --------------------------------------------------------------------------------
+
+
+def _replace(cfg: Config, **changes: Any) -> Config:
+    from dataclasses import replace
+
+    return replace(cfg, **changes)
+
+
+def _no_unknown(section: str, table: dict, known: set[str]) -> None:
+    for key in table:
+        if key not in known:
+            name = f"{section}.{key}" if section else key
+            raise ConfigError(f"{name}: unknown key (known: {', '.join(sorted(known))})")
+
+
+def _str(key: str, table: dict, default: str) -> str:
+    value = table.get(key.rpartition(".")[2], default)
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{key}: must be a non-empty string, got {value!r}")
+    return value.strip()
+
+
+def _bool(key: str, table: dict, default: bool) -> bool:
+    value = table.get(key.rpartition(".")[2], default)
+    if not isinstance(value, bool):
+        raise ConfigError(f"{key}: must be true or false, got {value!r}")
+    return value
+
+
+def _num(key: str, table: dict, default: float, lo: float | None = None, hi: float | None = None) -> float:
+    value = table.get(key.rpartition(".")[2], default)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{key}: must be a number, got {value!r}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"{key}: must be >= {lo}, got {value}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{key}: must be <= {hi}, got {value}")
+    return float(value)
+
+
+def _int(key: str, table: dict, default: int, lo: int | None = None, hi: int | None = None) -> int:
+    value = table.get(key.rpartition(".")[2], default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{key}: must be an integer, got {value!r}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"{key}: must be >= {lo}, got {value}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{key}: must be <= {hi}, got {value}")
+    return value
+
+
+def _str_list(key: str, table: dict, default: tuple[str, ...]) -> tuple[str, ...]:
+    value = table.get(key.rpartition(".")[2], default)
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list | tuple) or not all(isinstance(v, str) and v.strip() for v in value):
+        raise ConfigError(f"{key}: must be a list of strings, got {value!r}")
+    return tuple(v.strip() for v in value)
+
+
+def _check_pads(pads: str) -> None:
+    """Reject selections no layout could satisfy (the real check runs when the device reports its layout)."""
+    from firmware_io.layout import LayoutError, SensorLayout
+
+    try:
+        SensorLayout.sdh2().pads(pads)
+    except LayoutError as exc:
+        if "no matrix" not in str(exc):  # indices are checked against the device's own layout later
+            raise ConfigError(f"scene.pads: {exc}") from None

@@ -1,0 +1,117 @@
+"""Health view: counters, latency median/p99 over a sliding window, a JSON status file at ~1 Hz.
+
+The same numbers make the systemd STATUS line. Recording a latency is one store into a
+preallocated array; percentiles are computed only when the status is written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("handover.health")
+
+
+class Health:
+    """All counters the daemon reports."""
+
+    def __init__(self, latency_window: int = 2048) -> None:
+        self.started = time.time()
+        self.frames_received = 0
+        self.frames_dropped = 0
+        self.crc_errors = 0
+        self.protocol_errors = 0
+        self.reconnects = 0
+        self.device_faults = 0
+        self.decisions = 0
+        self.events = 0
+        self.missed_deadlines = 0
+        self.sink_errors = 0
+        self.models_loaded = 0
+        self.models_rejected = 0
+        self.model_id: str | None = None
+        self.device_state = "starting"
+        self.last_error = ""
+        self._lat = np.zeros(latency_window, dtype=np.float64)
+        self._lat_n = 0
+        self.latency_max_us = 0.0
+        self._rate_t = time.monotonic()
+        self._rate_frames = 0
+        self.frame_rate = 0.0
+
+    def record_latency(self, latency_us: float) -> None:
+        self._lat[self._lat_n % self._lat.size] = latency_us
+        self._lat_n += 1
+        if latency_us > self.latency_max_us:
+            self.latency_max_us = latency_us
+
+    def latency_percentiles(self) -> tuple[float | None, float | None]:
+        n = min(self._lat_n, self._lat.size)
+        if n == 0:
+            return None, None
+        p50, p99 = np.percentile(self._lat[:n], [50, 99])
+        return float(p50), float(p99)
+
+    def update_rate(self, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        dt = now - self._rate_t
+        if dt >= 1.0:
+            self.frame_rate = (self.frames_received - self._rate_frames) / dt
+            self._rate_t, self._rate_frames = now, self.frames_received
+
+    def snapshot(self) -> dict:
+        p50, p99 = self.latency_percentiles()
+        return {
+            "time": time.time(),
+            "uptime_s": round(time.time() - self.started, 3),
+            "device_state": self.device_state,
+            "frame_rate_hz": round(self.frame_rate, 2),
+            "frames_received": self.frames_received,
+            "frames_dropped": self.frames_dropped,
+            "crc_errors": self.crc_errors,
+            "protocol_errors": self.protocol_errors,
+            "reconnects": self.reconnects,
+            "device_faults": self.device_faults,
+            "decisions": self.decisions,
+            "events": self.events,
+            "missed_deadlines": self.missed_deadlines,
+            "latency_p50_us": None if p50 is None else round(p50, 1),
+            "latency_p99_us": None if p99 is None else round(p99, 1),
+            "latency_max_us": round(self.latency_max_us, 1),
+            "sink_errors": self.sink_errors,
+            "models_loaded": self.models_loaded,
+            "models_rejected": self.models_rejected,
+            "model_id": self.model_id,
+            "last_error": self.last_error,
+        }
+
+    def status_line(self) -> str:
+        """One line for ``systemctl status``: rates, latency, model in use."""
+        p50, p99 = self.latency_percentiles()
+        lat = "latency -" if p50 is None else f"latency p50 {p50:.0f}us p99 {p99:.0f}us"
+        return (
+            f"{self.device_state}; {self.frame_rate:.1f} frames/s; {self.events} events; {lat}; "
+            f"missed {self.missed_deadlines}; dropped {self.frames_dropped}; crc {self.crc_errors}; "
+            f"model {self.model_id or 'none'}"
+        )
+
+
+def write_status_file(path: str | Path, data: dict) -> bool:
+    """Write JSON atomically (temp file in the same folder, then rename). False on failure."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=1) + "\n")
+        os.replace(tmp, p)
+        return True
+    except OSError as exc:
+        log.warning("health file %s: %s", p, exc)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        return False

@@ -1,0 +1,213 @@
+"""Model hot-swap: watch the model folder, validate new ``.onnx`` files off the hot path.
+
+A file is considered only when it is complete: dotfiles and ``*.tmp`` / ``*.part`` are
+ignored and its size, mtime and inode must be the same on two consecutive polls (the safe
+way to drop a model is to copy it to a temporary name in the folder and rename it). Files
+that are symlinks, writable by group or others, or owned by anyone but the service user or
+root are refused. A candidate is loaded with the model contract, checked against the scene,
+warmed up in this background thread and only then offered to the main loop, which swaps it
+in between two windows (one reference assignment). A rejected file is logged with its reason
+and never retried unless it changes; the old model keeps serving.
+
+Which model serves when several exist: the newest (by mtime) valid one.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import stat
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger("handover.models")
+
+IGNORED_SUFFIXES = (".tmp", ".part", ".partial", ".swp")
+
+
+@dataclass(frozen=True)
+class FileState:
+    """What a poll sees of one file; equal states on two polls mean the file is complete."""
+
+    path: Path
+    size: int
+    mtime_ns: int
+    inode: int
+    mode: int
+    uid: int
+
+
+@dataclass(frozen=True)
+class Rejection:
+    path: Path
+    reason: str
+
+
+def is_candidate_name(name: str) -> bool:
+    """``*.onnx`` that is not a dotfile or a temporary name."""
+    if name.startswith(".") or not name.endswith(".onnx"):
+        return False
+    return not any(name.endswith(s) for s in IGNORED_SUFFIXES)
+
+
+def permission_problem(st: FileState, service_uid: int | None = None) -> str | None:
+    """Why a file must not be trusted, or None."""
+    uid = os.geteuid() if service_uid is None else service_uid
+    if not stat.S_ISREG(st.mode):
+        return "not a regular file (symlinks and devices are refused)"
+    if st.mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"writable by group or others (mode {stat.S_IMODE(st.mode):o}); chmod 644 it"
+    if st.uid not in (uid, 0):
+        return f"owned by uid {st.uid}, not by the service user (uid {uid}) or root"
+    return None
+
+
+class ModelWatcher:
+    """Polls a folder; the newest valid model ends up in ``pending`` for the main loop to ``take()``."""
+
+    def __init__(
+        self,
+        folder: str | Path,
+        loader: Callable[[Path], Any],
+        check: Callable[[Any], str | None] | None = None,
+        poll_interval: float = 1.0,
+        warmup_runs: int = 3,
+        on_reject: Callable[[Rejection], None] | None = None,
+        service_uid: int | None = None,
+    ) -> None:
+        self.folder = Path(folder)
+        self.loader = loader
+        self.check = check
+        self.poll_interval = float(poll_interval)
+        self.warmup_runs = int(warmup_runs)
+        self.on_reject = on_reject
+        self.service_uid = service_uid
+        self.pending: Any = None
+        """A validated, warmed-up model waiting for the main loop (set by the watcher thread)."""
+        self.current_mtime_ns = -1
+        self.rejections: list[Rejection] = []
+        self.accepted: list[Path] = []
+        self._previous: dict[Path, FileState] = {}
+        self._tried: set[FileState] = set()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._folder_error_logged = False
+
+    # -- scanning -------------------------------------------------------------------------------
+    def _list(self) -> dict[Path, FileState]:
+        out: dict[Path, FileState] = {}
+        try:
+            entries = list(os.scandir(self.folder))
+        except OSError as exc:
+            if not self._folder_error_logged:
+                log.error("model folder %s: %s", self.folder, exc.strerror or exc)
+                self._folder_error_logged = True
+            return out
+        self._folder_error_logged = False
+        for entry in entries:
+            if not is_candidate_name(entry.name):
+                continue
+            try:
+                st = entry.stat(follow_symlinks=False)
+            except OSError:
+                continue
+            path = Path(entry.path)
+            out[path] = FileState(path, st.st_size, st.st_mtime_ns, st.st_ino, st.st_mode, st.st_uid)
+        return out
+
+    def poll(self, require_stable: bool = True) -> Any:
+        """One scan. Returns the newly accepted model (also stored in ``pending``) or None.
+
+        With ``require_stable=False`` (startup: nobody should be copying while the service
+        starts, and waiting a poll would delay READY) files are taken as they are.
+        """
+        now = self._list()
+        stable = [s for p, s in now.items() if not require_stable or self._previous.get(p) == s]
+        self._previous = now
+        fresh = [s for s in stable if s not in self._tried]
+        fresh.sort(key=lambda s: (s.mtime_ns, s.path.name), reverse=True)
+        accepted = None
+        for st in fresh:
+            self._tried.add(st)
+            if accepted is not None:
+                log.info("model %s: superseded by the newer %s; not loaded", st.path.name, accepted[0].path.name)
+                continue
+            if st.mtime_ns < self.current_mtime_ns:
+                log.info("model %s: older than the model in use; not loaded", st.path.name)
+                continue
+            model = self._validate(st)
+            if model is not None:
+                accepted = (st, model)
+        if accepted is None:
+            return None
+        st, model = accepted
+        self.current_mtime_ns = st.mtime_ns
+        self.accepted.append(st.path)
+        self.pending = model
+        return model
+
+    def _validate(self, st: FileState) -> Any:
+        problem = permission_problem(st, self.service_uid)
+        if problem is not None:
+            return self._reject(st.path, problem)
+        try:
+            model = self.loader(st.path)
+        except Exception as exc:  # the contract's own errors and anything a broken file can raise
+            return self._reject(st.path, str(exc) or type(exc).__name__)
+        if self.check is not None:
+            problem = self.check(model)
+            if problem is not None:
+                return self._reject(st.path, problem)
+        try:
+            self._warm_up(model)
+        except Exception as exc:
+            return self._reject(st.path, f"warm-up inference failed: {exc}")
+        log.info("model %s accepted (id %s)", st.path.name, getattr(model, "model_id", "?"))
+        return model
+
+    def _warm_up(self, model: Any) -> None:
+        meta = model.meta
+        T = int(meta["T"]) if isinstance(meta, dict) else int(meta.T)
+        C = int(meta["n_channels"]) if isinstance(meta, dict) else int(meta.n_channels)
+        x = np.zeros((1, T, C), dtype=np.float32)
+        for _ in range(self.warmup_runs):
+            model.run(x)
+
+    def _reject(self, path: Path, reason: str) -> None:
+        rejection = Rejection(path, reason)
+        self.rejections.append(rejection)
+        log.error("model %s rejected: %s; the model in use keeps serving", path.name, reason)
+        if self.on_reject is not None:
+            self.on_reject(rejection)
+        return None
+
+    def take(self) -> Any:
+        """The pending model (once), or None. Called by the main loop between two windows."""
+        model, self.pending = self.pending, None
+        return model
+
+    # -- background thread ----------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="model-watch", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_interval):
+            try:
+                self.poll()
+            except Exception:  # never let the watcher die silently
+                log.exception("model watcher poll failed")
+
+    def stop(self, timeout: float = 1.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None

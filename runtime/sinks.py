@@ -1,0 +1,174 @@
+"""Where events go: JSON lines on stdout (journald), UDP datagrams, Unix datagram sockets.
+
+An event is serialised once and handed to every sink. A sink that fails (no listener, full
+buffer, closed pipe) is logged (rate-limited) and counted, and never stops the daemon.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import socket
+import sys
+import time
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass
+from typing import IO
+
+log = logging.getLogger("handover.sinks")
+
+
+@dataclass
+class Event:
+    """One decision reported to the outside world."""
+
+    time: float
+    """Wall-clock time (Unix seconds) when the decision was made."""
+    cls: str
+    scores: dict[str, float]
+    latency_us: float
+    """From the arrival of the window's last frame (Frame.received) to the decision."""
+    model_id: str
+    frame_first: int
+    frame_last: int
+    device_time_ms: int = 0
+    missed_deadline: bool = False
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["class"] = d.pop("cls")
+        d["scores"] = {k: round(float(v), 6) for k, v in self.scores.items()}
+        d["latency_us"] = round(float(self.latency_us), 1)
+        return json.dumps(d, separators=(",", ":"))
+
+
+class Sink:
+    """Base: ``send(line)``; failures are counted in ``errors``."""
+
+    name = "sink"
+
+    def __init__(self) -> None:
+        self.sent = 0
+        self.errors = 0
+        self._last_log = 0.0
+
+    def send(self, line: str, data: bytes) -> None:
+        try:
+            self._send(line, data)
+            self.sent += 1
+        except (OSError, ValueError) as exc:
+            self.errors += 1
+            now = time.monotonic()
+            if now - self._last_log > 10.0:  # a dead listener must not flood the journal
+                self._last_log = now
+                log.warning("sink %s: %s (%d failures so far)", self.name, exc, self.errors)
+
+    def _send(self, line: str, data: bytes) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class StdoutSink(Sink):
+    """JSON lines on stdout: journald keeps them, a pipe can read them."""
+
+    name = "stdout"
+
+    def __init__(self, stream: IO[str] | None = None) -> None:
+        super().__init__()
+        self.stream = stream
+
+    def _send(self, line: str, data: bytes) -> None:
+        stream = self.stream or sys.stdout
+        stream.write(line + "\n")
+        stream.flush()
+
+    def flush(self) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            (self.stream or sys.stdout).flush()
+
+
+class UdpSink(Sink):
+    """One JSON datagram per event to host:port (a ROS node or any process can listen)."""
+
+    def __init__(self, host: str, port: int) -> None:
+        super().__init__()
+        self.name = f"udp://{host}:{port}"
+        info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+        self.address = info[4]
+        self.sock = socket.socket(info[0], socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+
+    def _send(self, line: str, data: bytes) -> None:
+        self.sock.sendto(data, self.address)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class UnixDatagramSink(Sink):
+    """One JSON datagram per event to a Unix datagram socket (``@name`` = abstract namespace)."""
+
+    def __init__(self, path: str) -> None:
+        super().__init__()
+        self.name = f"unix:{path}"
+        self.address = "\0" + path[1:] if path.startswith("@") else path
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+
+    def _send(self, line: str, data: bytes) -> None:
+        self.sock.sendto(data, self.address)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SinkSet:
+    """All configured sinks; ``emit(event)`` serialises once and sends to each."""
+
+    def __init__(self, sinks: Iterable[Sink]) -> None:
+        self.sinks = list(sinks)
+
+    @classmethod
+    def from_config(cls, cfg, stream: IO[str] | None = None) -> SinkSet:
+        """Build from a SinksConfig; a UDP host that does not resolve is logged and skipped."""
+        from runtime.config import parse_host_port
+
+        sinks: list[Sink] = []
+        if cfg.stdout:
+            sinks.append(StdoutSink(stream))
+        for target in cfg.udp:
+            host, port = parse_host_port(target)
+            try:
+                sinks.append(UdpSink(host, port))
+            except OSError as exc:
+                log.error("sink udp://%s: %s; events will not go there", target, exc)
+        for path in cfg.unix:
+            sinks.append(UnixDatagramSink(path))
+        return cls(sinks)
+
+    def emit(self, event: Event) -> None:
+        line = event.to_json()
+        data = line.encode()
+        for sink in self.sinks:
+            sink.send(line, data)
+
+    @property
+    def errors(self) -> int:
+        return sum(s.errors for s in self.sinks)
+
+    def flush(self) -> None:
+        for sink in self.sinks:
+            sink.flush()
+
+    def close(self) -> None:
+        for sink in self.sinks:
+            sink.flush()
+            sink.close()
+
+

@@ -1,0 +1,97 @@
+"""When to classify: a threshold trigger with hysteresis and refractory time, or continuously.
+
+The paper starts a trial when any taxel of the used pads exceeds about 15 % of full scale and
+classifies the T frames from there. Per frame the trigger costs one max over the scene's
+columns (plus one subtraction in baseline mode); while nothing touches, nothing else runs.
+
+``update(row, number)`` returns the frame number at which a window is due (the trigger frame
++ T - 1 - pre_frames), or -1. The caller runs the model when that frame has arrived.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class ThresholdTrigger:
+    """Fires when max(scene taxels) crosses ``on`` and re-arms below ``off``, not within refractory."""
+
+    def __init__(
+        self,
+        n_channels: int,
+        fullscale: float,
+        fraction: float = 0.15,
+        hysteresis: float = 0.05,
+        refractory_frames: int = 16,
+        window: int = 15,
+        pre_frames: int = 0,
+        baseline: bool = False,
+        baseline_alpha: float = 0.0156,
+    ) -> None:
+        if not 0.0 < fraction < 1.0:
+            raise ValueError("fraction must be in (0, 1)")
+        if not 0.0 <= hysteresis < fraction:
+            raise ValueError("hysteresis must be in [0, fraction)")
+        if pre_frames >= window:
+            raise ValueError("pre_frames must be smaller than the window")
+        self.on_level = float(fraction * fullscale)
+        self.off_level = float((fraction - hysteresis) * fullscale)
+        self.refractory_frames = int(refractory_frames)
+        self.window = int(window)
+        self.pre_frames = int(pre_frames)
+        self.baseline_mode = bool(baseline)
+        self.baseline_alpha = float(baseline_alpha)
+        self._baseline = np.zeros(n_channels, dtype=np.float32)
+        self._diff = np.zeros(n_channels, dtype=np.float32)
+        self._baseline_ready = False
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to armed, with no history (after a reconnect or a model change)."""
+        self.armed = True
+        self.last_trigger = -(1 << 62)
+        self.level = 0.0
+        self._baseline_ready = False
+        self.fired = 0
+
+    def update(self, row: np.ndarray, number: int) -> int:
+        """Feed one frame's scene columns; return the frame number a window ends at, or -1."""
+        if self.baseline_mode:
+            if not self._baseline_ready:
+                self._baseline[:] = row
+                self._baseline_ready = True
+            np.subtract(row, self._baseline, out=self._diff)
+            level = float(self._diff.max())
+        else:
+            level = float(row.max())
+        self.level = level
+        due = -1
+        if self.armed:
+            if level >= self.on_level and number - self.last_trigger >= self.refractory_frames:
+                self.armed = False
+                self.last_trigger = number
+                self.fired += 1
+                due = number + self.window - 1 - self.pre_frames
+        elif level < self.off_level:
+            self.armed = True
+        if self.baseline_mode and self.armed and due < 0:
+            # Track the grasp's own pressure only while nothing is happening.
+            self._diff *= self.baseline_alpha
+            self._baseline += self._diff
+        return due
+
+
+class ContinuousTrigger:
+    """Every frame ends a window once the ring holds T frames (models with a dormant class)."""
+
+    def __init__(self, window: int) -> None:
+        self.window = int(window)
+        self.pre_frames = 0
+        self.level = 0.0
+        self.fired = 0
+
+    def reset(self) -> None:
+        self.fired = 0
+
+    def update(self, row: np.ndarray, number: int) -> int:
+        return number
