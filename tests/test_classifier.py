@@ -1,0 +1,94 @@
+"""BowSVC: scikit-learn's estimator checks (with documented exceptions), determinism, searches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.utils.estimator_checks import parametrize_with_checks
+
+from trainer.bow import BagOfWords
+from trainer.classifier import BowSVC
+
+# The checks feed 2-D X with 2 to 5 columns; read as (n_cases, n_timepoints) with one channel,
+# each case has only 1 to 4 derivative values. Instances use W=1 and K=2 so those shapes are valid.
+_TOO_SHORT_SERIES = (
+    "2-D X with 2 columns (make_blobs) is one series of 2 timepoints: one derivative value per case, so "
+    "the K=2 histogram is one-hot and carries only the sign side of x1-x0 -- not enough to separate the "
+    "blobs to the check's 83 % or to keep 3 classes apart"
+)
+EXPECTED_FAILURES = {
+    "BowSVC": {
+        "check_classifiers_train": _TOO_SHORT_SERIES,
+        # With identical one-hot histograms for different classes the ovo votes tie; predict breaks
+        # ties by class order (as SVC does), argmax(decision_function) by confidence.
+        "check_classifiers_classes": _TOO_SHORT_SERIES + "; tied ovo votes (same as sklearn SVC on ties)",
+    },
+}
+
+
+def _expected_failed(estimator):
+    return EXPECTED_FAILURES.get(type(estimator).__name__, {})
+
+
+@parametrize_with_checks(
+    [BagOfWords(n_words=2, window=1, random_state=0), BowSVC(n_words=2, window=1, random_state=0)],
+    expected_failed_checks=_expected_failed,
+)
+def test_sklearn_estimator_checks(estimator, check):
+    check(estimator)
+
+
+def synthetic_series(n_per_class: int = 20, seed: int = 0, n_channels: int = 6, T: int = 15):
+    """Four classes of synthetic ramps (rising, falling, flat, spike) with noise and dead channels."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T, dtype=float)
+    shapes = {
+        "pull": 40.0 * t,
+        "push": 40.0 * (T - t),
+        "hold": np.full(T, 300.0),
+        "bump": 600.0 * np.exp(-0.5 * ((t - 5) / 1.2) ** 2),
+    }
+    X, y = [], []
+    for label, shape in shapes.items():
+        for _ in range(n_per_class):
+            case = shape * rng.uniform(0.6, 1.4, size=(n_channels, 1)) + rng.normal(0, 8, size=(n_channels, T))
+            case = np.clip(case, 0, 4095)
+            case[rng.random(n_channels) < 0.3] = 0.0
+            X.append(case)
+            y.append(label)
+    return np.asarray(X, dtype=np.float32), np.asarray(y)
+
+
+def test_learns_synthetic_ramps_and_is_deterministic():
+    X, y = synthetic_series(seed=0)
+    Xt, yt = synthetic_series(seed=1)
+    a = BowSVC(n_words=10, window=7, random_state=0).fit(X, y)
+    b = clone(a).fit(X, y)
+    assert a.score(Xt, yt) > 0.9  # synthetic data
+    np.testing.assert_array_equal(a.bow_.codebook_, b.bow_.codebook_)
+    np.testing.assert_array_equal(a.decision_function(Xt), b.decision_function(Xt))
+    assert list(a.classes_) == sorted(set(y))
+    assert a.decision_function(Xt).shape == (len(Xt), 4)
+    assert set(a.best_params_) == {"C", "gamma"}
+
+
+def test_fixed_params_skip_the_search_and_linear_kernel_has_no_gamma():
+    X, y = synthetic_series(n_per_class=8)
+    rbf = BowSVC(n_words=4, window=3, C=1e4, gamma=2.0).fit(X, y)
+    assert rbf.best_params_ == {"C": 1e4, "gamma": 2.0}
+    lin = BowSVC(n_words=4, window=3, kernel="linear").fit(X, y)
+    assert set(lin.best_params_) == {"C"} and lin.svm_.kernel == "linear"
+
+
+def test_per_pad_classifier_feature_count():
+    X, y = synthetic_series(n_per_class=8, n_channels=6)
+    clf = BowSVC(n_words=5, window=3, per_pad=True, pad_sizes=(4, 2)).fit(X, y)
+    assert clf.bow_.n_features_out_ == 10
+    assert clf.transform_histograms(X).shape == (len(X), 10)
+
+
+def test_bad_kernel_is_refused():
+    X, y = synthetic_series(n_per_class=4)
+    with pytest.raises(ValueError, match="kernel must be"):
+        BowSVC(kernel="poly").fit(X, y)
