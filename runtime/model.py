@@ -1,0 +1,319 @@
+"""The model file contract and its loader: one ONNX graph from raw frames to the decision.
+
+A model file is one self-contained ONNX graph (no external data) with
+
+- input ``frames`` float32 ``[N, T, C]`` (N dynamic; C = taxels of the model's pads in wire order),
+- outputs ``label`` int64 ``[N]`` (index into ``classes``) and ``scores`` float32
+  ``[N, n_classes]`` (scikit-learn's one-vs-rest scores: one-vs-one votes + confidence/(3(|conf|+1))),
+- metadata: ``metadata_props["handover"]`` = JSON (see ``REQUIRED_KEYS``),
+- operators of the standard domains only (``ai.onnx``, ``ai.onnx.ml``).
+
+The loader checks all of it before the daemon trusts a file and refuses with one
+``ModelContractError`` naming what is wrong. It needs onnxruntime only: metadata comes from
+``session.get_modelmeta()``, operator domains and external-data references from a small
+protobuf wire reader (``runtime.onnx_wire``), so the robot PC never installs ``onnx``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runtime.onnx_wire import WireError, summarize
+
+SCHEMA_VERSION = 1
+METADATA_KEY = "handover"
+INPUT_NAME = "frames"
+OUTPUT_NAMES = ("label", "scores")
+ALLOWED_DOMAINS = frozenset({"", "ai.onnx", "ai.onnx.ml"})
+DEFAULT_MAX_BYTES = 64 * 1024 * 1024
+"""A BoW + SVM graph is a few hundred kB; anything near this limit is not one of ours."""
+
+REQUIRED_KEYS = (
+    "schema_version",
+    "classes",
+    "T",
+    "W",
+    "K",
+    "pads",
+    "n_channels",
+    "pad_sizes",
+    "fullscale",
+    "trigger",
+    "sample_rate_hz",
+    "score",
+    "dormant_class",
+    "training",
+    "evaluation",
+)
+TRAINING_KEYS = ("data_fingerprint", "n_trials", "project_version", "date")
+
+
+class ModelContractError(ValueError):
+    """A model file that breaks the contract; the message names the file and the problem."""
+
+
+class ModelInputError(ValueError):
+    """Input frames the model refuses (wrong shape, non-finite values)."""
+
+
+@dataclass(frozen=True)
+class ModelMeta:
+    """The metadata a model file carries (``metadata_props["handover"]``)."""
+
+    schema_version: int
+    classes: tuple[str, ...]
+    T: int
+    W: int
+    K: int
+    pads: tuple[int, ...]
+    n_channels: int
+    pad_sizes: tuple[int, ...]
+    fullscale: float
+    trigger: dict
+    sample_rate_hz: float
+    score: str
+    dormant_class: str | None
+    training: dict
+    evaluation: dict
+    extra: dict = field(default_factory=dict)
+    """Keys beyond the required ones (e.g. ``feature_groups``, ``kernel``, ``reference``)."""
+
+    @property
+    def n_classes(self) -> int:
+        return len(self.classes)
+
+    def to_dict(self) -> dict:
+        d = {key: getattr(self, key) for key in REQUIRED_KEYS}
+        d["classes"], d["pads"], d["pad_sizes"] = list(self.classes), list(self.pads), list(self.pad_sizes)
+        return {**self.extra, **d}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ModelMeta:
+        """Validate the metadata on its own (types, ranges, internal consistency)."""
+        if not isinstance(d, dict):
+            raise ModelContractError("metadata is not a JSON object")
+        missing = [k for k in REQUIRED_KEYS if k not in d]
+        if missing:
+            raise ModelContractError(f"metadata lacks {', '.join(missing)}")
+        if d["schema_version"] != SCHEMA_VERSION:
+            raise ModelContractError(f"metadata schema_version {d['schema_version']!r}, this runtime reads {SCHEMA_VERSION}")
+        try:
+            classes = tuple(str(c) for c in d["classes"])
+            pads = tuple(_int(p, "pads") for p in d["pads"])
+            pad_sizes = tuple(_int(p, "pad_sizes") for p in d["pad_sizes"])
+            meta = cls(
+                schema_version=SCHEMA_VERSION,
+                classes=classes,
+                T=_int(d["T"], "T"),
+                W=_int(d["W"], "W"),
+                K=_int(d["K"], "K"),
+                pads=pads,
+                n_channels=_int(d["n_channels"], "n_channels"),
+                pad_sizes=pad_sizes,
+                fullscale=_positive(d["fullscale"], "fullscale"),
+                trigger=_dict(d["trigger"], "trigger"),
+                sample_rate_hz=_positive(d["sample_rate_hz"], "sample_rate_hz"),
+                score=str(d["score"]),
+                dormant_class=None if d["dormant_class"] is None else str(d["dormant_class"]),
+                training=_dict(d["training"], "training"),
+                evaluation=_dict(d["evaluation"], "evaluation"),
+                extra={k: v for k, v in d.items() if k not in REQUIRED_KEYS},
+            )
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, ModelContractError):
+                raise
+            raise ModelContractError(f"metadata: {exc}") from exc
+        meta._check()
+        return meta
+
+    def _check(self) -> None:
+        problems = []
+        if len(self.classes) < 2 or len(set(self.classes)) != len(self.classes):
+            problems.append(f"classes {list(self.classes)} must be at least 2 distinct names")
+        if self.dormant_class is not None and self.dormant_class not in self.classes:
+            problems.append(f"dormant_class {self.dormant_class!r} is not one of the classes")
+        if self.W < 1 or self.K < 1:
+            problems.append(f"W={self.W} and K={self.K} must be >= 1")
+        if self.T - 1 < self.W:
+            problems.append(f"T={self.T} leaves fewer than W={self.W} derivative steps")
+        if not self.pads or len(set(self.pads)) != len(self.pads) or min(self.pads) < 0:
+            problems.append(f"pads {list(self.pads)} must be distinct matrix indices")
+        if len(self.pad_sizes) != len(self.pads) or min(self.pad_sizes, default=0) < 1:
+            problems.append(f"pad_sizes {list(self.pad_sizes)} must give a positive size for each of the pads {list(self.pads)}")
+        if sum(self.pad_sizes) != self.n_channels:
+            problems.append(f"n_channels={self.n_channels} != sum(pad_sizes)={sum(self.pad_sizes)}")
+        fraction = self.trigger.get("fraction")
+        if not isinstance(fraction, int | float) or not 0.0 < float(fraction) < 1.0:
+            problems.append(f"trigger.fraction {fraction!r} must be a number in (0, 1)")
+        missing = [k for k in TRAINING_KEYS if k not in self.training]
+        if missing:
+            problems.append(f"training lacks {', '.join(missing)}")
+        if problems:
+            raise ModelContractError("metadata: " + "; ".join(problems))
+
+
+def _int(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ModelContractError(f"metadata: {name} must be an integer, got {value!r}")
+    return value
+
+
+def _positive(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+        raise ModelContractError(f"metadata: {name} must be a positive number, got {value!r}")
+    return float(value)
+
+
+def _dict(value, name: str) -> dict:
+    if not isinstance(value, dict):
+        raise ModelContractError(f"metadata: {name} must be an object, got {type(value).__name__}")
+    return value
+
+
+def session_options(intra_op_threads: int = 1, allow_spinning: bool = False):
+    """ORT options for a latency-bound daemon: one thread, no spinning (flat tail on a busy core)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = int(intra_op_threads)
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    spin = "1" if allow_spinning else "0"
+    opts.add_session_config_entry("session.intra_op.allow_spinning", spin)
+    opts.add_session_config_entry("session.inter_op.allow_spinning", spin)
+    opts.log_severity_level = 3
+    return opts
+
+
+class LoadedModel:
+    """A validated model, ready to run. ``run`` refuses bad input with ModelInputError."""
+
+    def __init__(self, path: Path, session, meta: ModelMeta, model_id: str, n_nodes: int, n_bytes: int):
+        self.path = path
+        self.meta = meta
+        self.model_id = model_id
+        self.n_nodes = n_nodes
+        self.n_bytes = n_bytes
+        self._session = session
+        self._shape = (meta.T, meta.n_channels)
+
+    def __repr__(self) -> str:
+        return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
+
+    def check_input(self, x) -> np.ndarray:
+        """float32 C-contiguous ``[N, T, C]`` with only finite values, or ModelInputError."""
+        arr = np.ascontiguousarray(x, dtype=np.float32)
+        if arr.ndim == 2 and arr.shape == self._shape:
+            arr = arr[None]
+        if arr.ndim != 3 or arr.shape[1:] != self._shape or arr.shape[0] < 1:
+            raise ModelInputError(
+                f"model {self.model_id} expects frames [N, {self._shape[0]}, {self._shape[1]}], got {list(np.shape(x))}"
+            )
+        if not np.isfinite(arr).all():
+            raise ModelInputError(f"model {self.model_id}: input frames contain NaN or infinity; refused")
+        return arr
+
+    def run(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Labels int64 ``[N]`` (indices into meta.classes) and scores float32 ``[N, n_classes]``."""
+        arr = self.check_input(x)
+        labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: arr})
+        return labels, scores
+
+    def warm_up(self, repeats: int = 3) -> None:
+        """Run a few zero windows so the first real inference does not pay for allocations."""
+        zeros = np.zeros((1, *self._shape), dtype=np.float32)
+        for _ in range(repeats):
+            self._session.run(OUTPUT_NAMES, {INPUT_NAME: zeros})
+
+
+def _check_io(session, meta: ModelMeta) -> None:
+    inputs, outputs = session.get_inputs(), session.get_outputs()
+    if [i.name for i in inputs] != [INPUT_NAME]:
+        raise ModelContractError(f"inputs {[i.name for i in inputs]}, expected exactly [{INPUT_NAME!r}]")
+    inp = inputs[0]
+    if inp.type != "tensor(float)":
+        raise ModelContractError(f"input {INPUT_NAME!r} is {inp.type}, expected tensor(float)")
+    if len(inp.shape) != 3 or list(inp.shape[1:]) != [meta.T, meta.n_channels] or isinstance(inp.shape[0], int) and inp.shape[0] < 1:
+        raise ModelContractError(
+            f"input {INPUT_NAME!r} has shape {inp.shape}, metadata says [N, T={meta.T}, C={meta.n_channels}]"
+        )
+    names = [o.name for o in outputs]
+    if sorted(names) != sorted(OUTPUT_NAMES):
+        raise ModelContractError(f"outputs {names}, expected {list(OUTPUT_NAMES)}")
+    by_name = {o.name: o for o in outputs}
+    label, scores = by_name["label"], by_name["scores"]
+    if label.type != "tensor(int64)" or len(label.shape) != 1:
+        raise ModelContractError(f"output 'label' is {label.type} {label.shape}, expected tensor(int64) [N]")
+    if scores.type != "tensor(float)" or len(scores.shape) != 2 or scores.shape[1] != meta.n_classes:
+        raise ModelContractError(
+            f"output 'scores' is {scores.type} {scores.shape}, expected tensor(float) [N, {meta.n_classes}] "
+            f"(one score per class of {list(meta.classes)})"
+        )
+
+
+def load_model(
+    path: str | Path,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    intra_op_threads: int = 1,
+    allow_spinning: bool = False,
+    warm_up: bool = True,
+) -> LoadedModel:
+    """Read, validate and open a model file; any breach raises ModelContractError naming it."""
+    import onnxruntime as ort
+
+    path = Path(path)
+    where = f"model {path}"
+    try:
+        size = path.stat().st_size
+        if size > max_bytes:
+            raise ModelContractError(f"{where}: {size} bytes exceeds the limit of {max_bytes}")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ModelContractError(f"{where}: cannot read ({exc.strerror or exc})") from exc
+    if len(data) > max_bytes:
+        raise ModelContractError(f"{where}: {len(data)} bytes exceeds the limit of {max_bytes}")
+    if not data:
+        raise ModelContractError(f"{where}: empty file")
+    try:
+        wire = summarize(data)
+    except WireError as exc:
+        raise ModelContractError(f"{where}: not an ONNX model or truncated ({exc})") from exc
+    if wire.external_data:
+        raise ModelContractError(f"{where}: references external data; a model must be one self-contained file")
+    foreign = sorted((wire.opset_domains | wire.node_domains) - ALLOWED_DOMAINS)
+    if foreign:
+        raise ModelContractError(f"{where}: uses non-standard operator domain(s) {foreign}; allowed: ai.onnx, ai.onnx.ml")
+    try:
+        session = ort.InferenceSession(
+            data, sess_options=session_options(intra_op_threads, allow_spinning), providers=["CPUExecutionProvider"]
+        )
+    except Exception as exc:  # onnxruntime raises several unrelated types for a bad graph
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ModelContractError(f"{where}: onnxruntime cannot load it: {first}") from exc
+    raw = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
+    if raw is None:
+        raise ModelContractError(f"{where}: no {METADATA_KEY!r} metadata (not a handover model)")
+    try:
+        meta_dict = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise ModelContractError(f"{where}: metadata is not valid JSON ({exc.msg} at {exc.pos})") from exc
+    try:
+        meta = ModelMeta.from_dict(meta_dict)
+        _check_io(session, meta)
+    except ModelContractError as exc:
+        raise ModelContractError(f"{where}: {exc}") from exc
+    model_id = hashlib.sha256(data).hexdigest()[:12]
+    model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data))
+    if warm_up:
+        try:
+            model.warm_up()
+        except Exception as exc:
+            raise ModelContractError(f"{where}: fails on a zero window: {str(exc).splitlines()[0]}") from exc
+    return model

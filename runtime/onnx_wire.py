@@ -1,0 +1,144 @@
+"""A minimal reader of the ONNX protobuf wire format: operator domains and external data.
+
+Why not the ``onnx`` package: the daemon installs numpy + onnxruntime only, and onnxruntime
+does not expose the graph's operator domains. Reading the few fields needed straight from the
+protobuf wire format (varints and length-delimited fields; see onnx/onnx.proto) is ~80 lines,
+has no dependency and no version skew, and is checked against ``onnx`` in the tests.
+
+Fields used (onnx.proto3 numbers): ModelProto.graph = 7, .opset_import = 8, .functions = 25;
+GraphProto.node = 1, .initializer = 5, .sparse_initializer = 15; NodeProto.attribute = 5,
+.domain = 7; AttributeProto.t = 5, .g = 6, .tensors = 10, .graphs = 11;
+TensorProto.external_data = 13, .data_location = 14; OperatorSetIdProto.domain = 1;
+FunctionProto.node = 4, .opset_import = 9, .domain = 10.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+
+class WireError(ValueError):
+    """Bytes that are not a well-formed protobuf message."""
+
+
+@dataclass
+class WireSummary:
+    """What the contract checks that onnxruntime's Python API does not tell."""
+
+    opset_domains: set[str] = field(default_factory=set)
+    node_domains: set[str] = field(default_factory=set)
+    n_nodes: int = 0
+    external_data: bool = False
+
+
+def _varint(buf: bytes, pos: int) -> tuple[int, int]:
+    result = shift = 0
+    while True:
+        if pos >= len(buf):
+            raise WireError("truncated varint")
+        byte = buf[pos]
+        pos += 1
+        result |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return result, pos
+        shift += 7
+        if shift > 63:
+            raise WireError("varint too long")
+
+
+def _fields(buf: bytes) -> Iterator[tuple[int, int, bytes | int]]:
+    """Yield (field number, wire type, value) of one message; length-delimited values as bytes."""
+    pos, end = 0, len(buf)
+    while pos < end:
+        key, pos = _varint(buf, pos)
+        number, wtype = key >> 3, key & 7
+        if wtype == 0:
+            value, pos = _varint(buf, pos)
+        elif wtype == 1:
+            value, pos = buf[pos : pos + 8], pos + 8
+        elif wtype == 2:
+            length, pos = _varint(buf, pos)
+            if pos + length > end:
+                raise WireError(f"field {number} runs past the end of its message")
+            value, pos = buf[pos : pos + length], pos + length
+        elif wtype == 5:
+            value, pos = buf[pos : pos + 4], pos + 4
+        else:
+            raise WireError(f"unsupported wire type {wtype} (field {number})")
+        if pos > end:
+            raise WireError("truncated message")
+        yield number, wtype, value
+
+
+def _tensor_is_external(buf: bytes) -> bool:
+    for number, _, value in _fields(buf):
+        if number == 13 or (number == 14 and value == 1):
+            return True
+    return False
+
+
+def _walk_graph(buf: bytes, out: WireSummary) -> None:
+    for number, wtype, value in _fields(buf):
+        if wtype != 2:
+            continue
+        if number == 1:
+            _walk_node(value, out)
+        elif number == 5 and _tensor_is_external(value):
+            out.external_data = True
+        elif number == 15:
+            for sub_number, sub_type, sub in _fields(value):
+                if sub_type == 2 and sub_number in (1, 2) and _tensor_is_external(sub):
+                    out.external_data = True
+
+
+def _walk_node(buf: bytes, out: WireSummary) -> None:
+    out.n_nodes += 1
+    domain = ""
+    for number, wtype, value in _fields(buf):
+        if number == 7 and wtype == 2:
+            domain = value.decode("utf-8", "replace")
+        elif number == 5 and wtype == 2:
+            for a_number, a_type, a_value in _fields(value):
+                if a_type != 2:
+                    continue
+                if a_number in (6, 11):
+                    _walk_graph(a_value, out)
+                elif a_number in (5, 10) and _tensor_is_external(a_value):
+                    out.external_data = True
+    out.node_domains.add(domain)
+
+
+def _opset_domain(buf: bytes) -> str:
+    for number, wtype, value in _fields(buf):
+        if number == 1 and wtype == 2:
+            return value.decode("utf-8", "replace")
+    return ""
+
+
+def summarize(model_bytes: bytes) -> WireSummary:
+    """Operator domains (opset imports and every node, subgraphs and functions included) and
+    whether any tensor lives in external data. Raises WireError on malformed bytes."""
+    out = WireSummary()
+    saw_graph = False
+    for number, wtype, value in _fields(model_bytes):
+        if wtype != 2:
+            continue
+        if number == 7:
+            saw_graph = True
+            _walk_graph(value, out)
+        elif number == 8:
+            out.opset_domains.add(_opset_domain(value))
+        elif number == 25:
+            for f_number, f_type, f_value in _fields(value):
+                if f_type != 2:
+                    continue
+                if f_number == 4:
+                    _walk_node(f_value, out)
+                elif f_number == 9:
+                    out.opset_domains.add(_opset_domain(f_value))
+                elif f_number == 10:
+                    out.node_domains.add(f_value.decode("utf-8", "replace"))
+    if not saw_graph:
+        raise WireError("no graph in the model")
+    return out

@@ -1,0 +1,285 @@
+"""Export a fitted BowSVC as ONE ONNX graph: raw frames ``[N, T, C]`` -> ``label``, ``scores``.
+
+Graph (standard ``ai.onnx`` domain only, opset 17, IR 8):
+
+1. active series: ``ReduceMax(|X|, time) > 0`` -> mask ``[N, C]``;
+2. derivative: a ``[-1, +1]`` convolution along time (exact for 12-bit integers), or, with
+   ``fold_derivative=True``, folded into the codeword kernel;
+3. one 2-D convolution over (time, taxel) with kernel ``-2 * codebook`` (``[K, 1, W, 1]``) and
+   bias ``||c_k||^2`` gives ``f_k = ||c_k||^2 - 2 w.c_k`` for every window and codeword at once
+   (``||w - c_k||^2 = ||w||^2 + f_k``; ``||w||^2`` does not change the argmin);
+4. ``ArgMin`` over codewords (first index on ties, like the reference), ``OneHot``, sum over
+   windows, mask, per-pad-group sums (one MatMul with a group indicator), divide by the number
+   of active windows (at least 1, so no NaN for an all-zero case);
+5. SVM: RBF kernel values from direct squared differences to the support vectors (no
+   ``||h||^2 - 2h.s + ||s||^2`` cancellation), one Gemm for all one-vs-one decisions, one Gemm
+   for the votes, one MatMul for the summed confidences, scikit-learn's ovr transform.
+   ``label`` = first class with the most votes (libsvm's ``predict``).
+
+This replaces skl2onnx's ``SVMClassifier`` + the long node chain it emits to mimic the ovr
+scores of a multi-class SVC without probabilities. The BoW part is also registered with
+skl2onnx (``register_skl2onnx``) so a ``BagOfWords`` inside a scikit-learn pipeline converts.
+Why explicit derivative by default: with the derivative folded, the dot products run on raw
+values (up to 4095) instead of differences, and float32 rounding error scales with the raw
+offset; see ``trainer.numerics`` for the bounds.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+OPSET = 17
+IR_VERSION = 8
+SCORE_MEANING = "sklearn ovr scores: one-vs-one votes + summed confidence / (3 * (|summed confidence| + 1))"
+
+
+# -- parameters taken from the fitted estimators ------------------------------------------------
+def svm_pair_coefficients(svm) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
+    """Per one-vs-one pair coefficients of every support vector, float64 ``[M, P]``, intercepts ``[P]``
+    and the pairs (i, j). Decision ``> 0`` votes for class i (libsvm's sign, also for two classes)."""
+    dual = np.asarray(getattr(svm, "_dual_coef_", svm.dual_coef_), dtype=np.float64)
+    intercept = np.asarray(getattr(svm, "_intercept_", svm.intercept_), dtype=np.float64)
+    n_support = np.asarray(svm.n_support_, dtype=np.int64)
+    n_classes = len(n_support)
+    starts = np.concatenate([[0], np.cumsum(n_support)])
+    pairs = [(i, j) for i in range(n_classes) for j in range(i + 1, n_classes)]
+    coef = np.zeros((int(starts[-1]), len(pairs)), dtype=np.float64)
+    for p, (i, j) in enumerate(pairs):
+        si, sj = slice(starts[i], starts[i + 1]), slice(starts[j], starts[j + 1])
+        coef[si, p] = dual[j - 1, si]
+        coef[sj, p] = dual[i, sj]
+    return coef, intercept.copy(), pairs
+
+
+def vote_matrices(pairs: list[tuple[int, int]], n_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``votes = pos @ vote_diff + vote_base`` (pos = decision > 0) and ``conf = dec @ conf_sign``."""
+    win_i = np.zeros((len(pairs), n_classes))
+    win_j = np.zeros((len(pairs), n_classes))
+    conf = np.zeros((len(pairs), n_classes))
+    for p, (i, j) in enumerate(pairs):
+        win_i[p, i] = win_j[p, j] = 1.0
+        conf[p, i], conf[p, j] = 1.0, -1.0
+    return win_i - win_j, win_j.sum(axis=0), conf
+
+
+# -- graph construction -------------------------------------------------------------------------
+class _Graph:
+    """Collects nodes and initializers with unique names."""
+
+    def __init__(self, prefix: str = ""):
+        self.nodes: list = []
+        self.initializers: list = []
+        self.prefix = prefix
+        self._n = 0
+
+    def name(self, hint: str) -> str:
+        self._n += 1
+        return f"{self.prefix}{hint}_{self._n}"
+
+    def const(self, hint: str, value, dtype=np.float32) -> str:
+        from onnx import numpy_helper
+
+        name = self.name(hint)
+        self.initializers.append(numpy_helper.from_array(np.asarray(value, dtype=dtype), name))
+        return name
+
+    def op(self, op_type: str, inputs: list[str], hint: str | None = None, outputs: list[str] | None = None, **attrs) -> str:
+        from onnx import helper
+
+        outs = outputs or [self.name(hint or op_type.lower())]
+        self.nodes.append(helper.make_node(op_type, inputs, outs, name=self.name(op_type), **attrs))
+        return outs[0]
+
+
+def bow_nodes(g: _Graph, frames: str, codebook: np.ndarray, pad_sizes: tuple[int, ...], n_timepoints: int,
+              fold_derivative: bool = False) -> str:
+    """Append the BoW transform of ``frames`` [N, T, C]; return the histogram name [N, G*K]."""
+    codebook = np.asarray(codebook, dtype=np.float64)
+    n_words, window = codebook.shape
+    n_windows = n_timepoints - window
+    n_channels = int(sum(pad_sizes))
+    n_groups = len(pad_sizes)
+
+    peak = g.op("ReduceMax", [g.op("Abs", [frames])], "peak", axes=[1], keepdims=0)
+    active = g.op("Cast", [g.op("Greater", [peak, g.const("zero", 0.0)])], "active", to=1)  # [N, C]
+
+    x4 = g.op("Unsqueeze", [frames, g.const("axis1", [1], np.int64)], "x4")  # [N, 1, T, C]
+    bias = (codebook**2).sum(axis=1)
+    if fold_derivative:
+        # sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), c[-1] = c[W] = 0
+        padded = np.zeros((n_words, window + 2))
+        padded[:, 1:-1] = codebook
+        kernel = -2.0 * (padded[:, :-1] - padded[:, 1:])
+        signal = x4
+    else:
+        deriv_kernel = np.array([-1.0, 1.0]).reshape(1, 1, 2, 1)
+        signal = g.op("Conv", [x4, g.const("deriv_kernel", deriv_kernel)], "deriv")  # [N, 1, T-1, C]
+        kernel = -2.0 * codebook
+    weights = g.const("codeword_kernel", kernel.reshape(n_words, 1, -1, 1))
+    scores = g.op("Conv", [signal, weights, g.const("codeword_sqnorm", bias)], "word_scores")  # [N, K, S, C]
+    words = g.op("ArgMin", [scores], "words", axis=1, keepdims=0)  # [N, S, C]
+    onehot = g.op("OneHot", [words, g.const("depth", n_words, np.int64), g.const("onoff", [0.0, 1.0])], "onehot", axis=-1)
+    per_channel = g.op("ReduceSum", [onehot, g.const("axis1", [1], np.int64)], "per_channel", keepdims=0)  # [N, C, K]
+    active3 = g.op("Unsqueeze", [active, g.const("axis2", [2], np.int64)], "active3")
+    masked = g.op("Mul", [per_channel, active3], "masked")
+
+    groups = np.zeros((n_groups, n_channels))
+    start = 0
+    for gi, size in enumerate(pad_sizes):
+        groups[gi, start : start + size] = 1.0
+        start += size
+    counts = g.op("MatMul", [g.const("group_of_channel", groups), masked], "counts")  # [N, G, K]
+    n_active = g.op("MatMul", [active, g.const("windows_per_channel", groups.T * n_windows)], "n_windows")  # [N, G]
+    denom = g.op("Max", [n_active, g.const("one", 1.0)], "denom")
+    denom3 = g.op("Unsqueeze", [denom, g.const("axis2", [2], np.int64)], "denom3")
+    hist = g.op("Div", [counts, denom3], "hist3")
+    return g.op("Reshape", [hist, g.const("hist_shape", [0, n_groups * n_words], np.int64)], "hist")
+
+
+def svm_nodes(g: _Graph, hist: str, svm, label_out: str = "label", scores_out: str = "scores") -> None:
+    """Append the one-vs-one SVM with votes, scikit-learn ovr scores and the voted label."""
+    coef, intercept, pairs = svm_pair_coefficients(svm)
+    n_classes = len(svm.classes_)
+    if svm.kernel == "rbf":
+        sv = np.asarray(svm.support_vectors_, dtype=np.float64)
+        h3 = g.op("Unsqueeze", [hist, g.const("axis1", [1], np.int64)], "h3")  # [N, 1, F]
+        diff = g.op("Sub", [h3, g.const("support_vectors", sv[None])], "diff")  # [N, M, F]
+        dist = g.op("ReduceSumSquare", [diff], "sqdist", axes=[2], keepdims=0)  # [N, M]
+        kern = g.op("Exp", [g.op("Mul", [dist, g.const("neg_gamma", -float(svm._gamma))], "scaled")], "kernel")
+        dec = g.op("Gemm", [kern, g.const("pair_coef", coef), g.const("pair_intercept", intercept)], "decision")
+    elif svm.kernel == "linear":
+        sv = np.asarray(svm.support_vectors_, dtype=np.float64)
+        dec = g.op("Gemm", [hist, g.const("pair_weights", sv.T @ coef), g.const("pair_intercept", intercept)], "decision")
+    else:
+        raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
+    vote_diff, vote_base, conf_sign = vote_matrices(pairs, n_classes)
+    pos = g.op("Cast", [g.op("Greater", [dec, g.const("zero", 0.0)])], "wins", to=1)
+    votes = g.op("Gemm", [pos, g.const("vote_diff", vote_diff), g.const("vote_base", vote_base)], "votes")
+    conf = g.op("MatMul", [dec, g.const("conf_sign", conf_sign)], "confidence")
+    scaled = g.op("Add", [g.op("Mul", [g.op("Abs", [conf]), g.const("three", 3.0)]), g.const("three", 3.0)], "conf_den")
+    g.op("Add", [votes, g.op("Div", [conf, scaled], "conf_term")], outputs=[scores_out])
+    g.op("ArgMax", [votes], outputs=[label_out], axis=1, keepdims=0)
+
+
+def build_graph(model, fold_derivative: bool = False):
+    """The ONNX ModelProto of a fitted BowSVC (no metadata yet)."""
+    from onnx import TensorProto, helper
+
+    bow, svm = model.bow_, model.svm_
+    n_timepoints, n_channels = int(bow.n_timepoints_), int(bow.n_channels_)
+    g = _Graph()
+    hist = bow_nodes(g, "frames", bow.codebook_, tuple(bow.pad_sizes_), n_timepoints, fold_derivative)
+    svm_nodes(g, hist, svm)
+    graph = helper.make_graph(
+        g.nodes,
+        "handover_bow_svm",
+        [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["N", n_timepoints, n_channels])],
+        [
+            helper.make_tensor_value_info("label", TensorProto.INT64, ["N"]),
+            helper.make_tensor_value_info("scores", TensorProto.FLOAT, ["N", len(model.classes_)]),
+        ],
+        g.initializers,
+    )
+    onnx_model = helper.make_model(
+        graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="tactile-handover", ir_version=IR_VERSION
+    )
+    return onnx_model
+
+
+# -- metadata and file ----------------------------------------------------------------------------
+def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict:
+    """Complete the caller's metadata with what the model itself determines; refuse contradictions."""
+    from runtime import __version__
+    from runtime.model import SCHEMA_VERSION
+
+    bow, svm = model.bow_, model.svm_
+    derived = {
+        "schema_version": SCHEMA_VERSION,
+        "classes": [str(c) for c in model.classes_],
+        "T": int(bow.n_timepoints_),
+        "W": int(bow.window),
+        "K": int(bow.n_words),
+        "n_channels": int(bow.n_channels_),
+    }
+    for key, value in derived.items():
+        if key in metadata and metadata[key] != value:
+            raise ValueError(f"metadata {key}={metadata[key]!r} contradicts the model ({value!r})")
+    meta = {
+        "fullscale": 4095.0,
+        "trigger": {"fraction": 0.15},
+        "sample_rate_hz": 32.0,
+        "score": SCORE_MEANING,
+        "dormant_class": None,
+        "evaluation": {},
+        **metadata,
+        **derived,
+    }
+    if "pad_sizes" not in meta:
+        meta["pad_sizes"] = list(bow.pad_sizes_) if bow.per_pad else [int(bow.n_channels_)]
+    training = {"project_version": __version__, "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}
+    meta["training"] = {**training, **meta.get("training", {})}
+    meta["feature_groups"] = [int(s) for s in bow.pad_sizes_]
+    meta["kernel"] = str(svm.kernel)
+    meta["svm"] = {"C": float(svm.C), "gamma": float(getattr(svm, "_gamma", 0.0)), "n_support_vectors": int(sum(svm.n_support_))}
+    meta["graph"] = {"opset": OPSET, "ir_version": IR_VERSION, "fold_derivative": bool(fold_derivative)}
+    return meta
+
+
+def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool = False) -> Path:
+    """Write the model as one ONNX file (atomically) and check it with the runtime's loader."""
+    import onnx
+
+    from runtime.model import METADATA_KEY, ModelMeta, load_model
+
+    meta = model_metadata(model, metadata, fold_derivative)
+    ModelMeta.from_dict(json.loads(json.dumps(meta)))
+    onnx_model = build_graph(model, fold_derivative)
+    onnx.helper.set_model_props(onnx_model, {METADATA_KEY: json.dumps(meta, sort_keys=True)})
+    onnx.checker.check_model(onnx_model, full_check=True)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(onnx_model.SerializeToString())
+            fh.flush()
+            os.fsync(fh.fileno())
+        load_model(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+# -- skl2onnx registration ----------------------------------------------------------------------
+def register_skl2onnx() -> None:
+    """Let skl2onnx convert a BagOfWords (inputs [N, C*T] flattened as scikit-learn sees it... no:
+    [N, C, T] aeon layout) to its float32 histogram with the same nodes as the exported graph."""
+    from skl2onnx import update_registered_converter
+    from skl2onnx.common.data_types import FloatTensorType
+
+    from trainer.bow import BagOfWords
+
+    def shape_calculator(operator):
+        n = operator.inputs[0].get_first_dimension()
+        operator.outputs[0].type = FloatTensorType([n, operator.raw_operator.n_features_out_])
+
+    def converter(scope, operator, container):
+        bow = operator.raw_operator
+        g = _Graph(prefix=scope.get_unique_variable_name("bow") + "_")
+        frames = g.op("Transpose", [operator.inputs[0].full_name], "frames", perm=[0, 2, 1])  # [N, C, T] -> [N, T, C]
+        hist = bow_nodes(g, frames, bow.codebook_, tuple(bow.pad_sizes_), int(bow.n_timepoints_))
+        g.op("Identity", [hist], outputs=[operator.outputs[0].full_name])
+        for init in g.initializers:
+            container.initializers.append(init)
+        for node in g.nodes:
+            container.nodes.append(node)
+
+    update_registered_converter(BagOfWords, "HandoverBagOfWords", shape_calculator, converter)
