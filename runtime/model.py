@@ -240,7 +240,7 @@ def _check_io(session, meta: ModelMeta) -> None:
     inp = inputs[0]
     if inp.type != "tensor(float)":
         raise ModelContractError(f"input {INPUT_NAME!r} is {inp.type}, expected tensor(float)")
-    if len(inp.shape) != 3 or list(inp.shape[1:]) != [meta.T, meta.n_channels] or isinstance(inp.shape[0], int) and inp.shape[0] < 1:
+    if len(inp.shape) != 3 or list(inp.shape[1:]) != [meta.T, meta.n_channels] or (isinstance(inp.shape[0], int) and inp.shape[0] < 1):
         raise ModelContractError(
             f"input {INPUT_NAME!r} has shape {inp.shape}, metadata says [N, T={meta.T}, C={meta.n_channels}]"
         )

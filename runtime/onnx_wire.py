@@ -72,10 +72,7 @@ def _fields(buf: bytes) -> Iterator[tuple[int, int, bytes | int]]:
 
 
 def _tensor_is_external(buf: bytes) -> bool:
-    for number, _, value in _fields(buf):
-        if number == 13 or (number == 14 and value == 1):
-            return True
-    return False
+    return any(number == 13 or (number == 14 and value == 1) for number, _, value in _fields(buf))
 
 
 def _walk_graph(buf: bytes, out: WireSummary) -> None:

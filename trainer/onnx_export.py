@@ -260,8 +260,8 @@ def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool =
 
 # -- skl2onnx registration ----------------------------------------------------------------------
 def register_skl2onnx() -> None:
-    """Let skl2onnx convert a BagOfWords (inputs [N, C*T] flattened as scikit-learn sees it... no:
-    [N, C, T] aeon layout) to its float32 histogram with the same nodes as the exported graph."""
+    """Let skl2onnx convert a fitted BagOfWords (input float32 ``[N, C, T]``, the aeon layout it is
+    fitted on) to its float32 histogram, with the same nodes as the exported graph."""
     from skl2onnx import update_registered_converter
     from skl2onnx.common.data_types import FloatTensorType
 
