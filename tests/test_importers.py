@@ -412,3 +412,43 @@ def test_import_command(tmp_path, capsys):
     assert Recording.load(out / "A1.hrec").layout.n_taxels == 486
     assert handover(["import", str(src / "x" / "A1.dsa"), "--out", str(out), "--pads", "palm"]) == 1
     assert "unknown pad selection" in capsys.readouterr().err
+
+
+def test_damaged_real_bag(tmp_path):
+    pytest.importorskip("rosbags")
+    real_data_dir()
+    if not BAGS:
+        pytest.skip("no .bag files")
+    data = BAGS[0].read_bytes()
+    half = tmp_path / "half.bag"
+    half.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RecordingError, match="not a readable ROS bag") as info:
+        read_rosbag(half)
+    assert str(half) in str(info.value)
+    # bags have no checksums: a damaged value is caught only when it cannot be a 12-bit reading
+    rng = np.random.default_rng(1)
+    damaged = tmp_path / "damaged.bag"
+    refused = 0
+    for _ in range(8):
+        buf = bytearray(data)
+        pos = int(rng.integers(len(buf) // 4, 3 * len(buf) // 4))
+        buf[pos : pos + 8] = b"\xff\x7f" * 4
+        damaged.write_bytes(bytes(buf))
+        try:
+            rec = read_rosbag(damaged)
+        except RecordingError as exc:
+            assert str(damaged) in str(exc)
+            refused += 1
+        else:
+            check_real_recording(rec)
+    assert refused > 0
+
+
+def test_missing_rosbags_gives_the_install_hint(monkeypatch, tmp_path):
+    import sys
+
+    bag = tmp_path / "x.bag"
+    bag.write_bytes(b"#ROSBAG V2.0\n")
+    monkeypatch.setitem(sys.modules, "rosbags.typesys", None)
+    with pytest.raises(RecordingError, match=r"tactile-handover\[train\]"):
+        read_rosbag(bag)

@@ -36,15 +36,15 @@ def keep_increasing(frames: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray,
     return frames[keep], stamps[keep], info
 
 
-def check_range(values: np.ndarray, fullscale: float, where: str) -> None:
-    """Refuse values that cannot be raw 12-bit taxel readings (negative, above full scale)."""
+def check_range(values: np.ndarray, fullscale: float, unit: str = "frame") -> None:
+    """Refuse values that cannot be raw 12-bit taxel readings; names the first bad frame and taxel."""
     if values.size == 0:
         return
     top = min(float(fullscale), MAX_12BIT)
-    lo, hi = values.min(), values.max()
-    if lo < 0 or hi > top:
-        bad = lo if lo < 0 else hi
-        raise RecordingError(f"{where}: taxel value {bad:g} outside 0..{top:g}")
+    bad = (values < 0) | (values > top)
+    if bad.any():
+        f, c = np.argwhere(bad)[0]
+        raise RecordingError(f"{unit} {f}, taxel {c}: value {values[f, c]:g} outside 0..{top:g}")
 
 
 def describe_timing(stamps: np.ndarray) -> dict:

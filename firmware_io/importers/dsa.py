@@ -226,5 +226,5 @@ def _expand(tokens: np.ndarray, per_frame: np.ndarray, layout: SensorLayout) -> 
     if fractional.any():
         f, c = np.argwhere(fractional)[0]
         raise RecordingError(f"frame {f}, taxel {c}: value {values[f, c]:g} is not a whole ADC count")
-    check_range(values, layout.fullscale, "frame data")
+    check_range(values, layout.fullscale, "frame")
     return values.astype(np.uint16)

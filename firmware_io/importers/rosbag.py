@@ -172,5 +172,5 @@ def _frames(messages: list[list], layout: SensorLayout) -> np.ndarray:
         if any(len(r) != m.cells_x * m.cells_y for r, m in zip(row, mats, strict=True)):
             raise RecordingError(f"message {k}: a tactile_array length does not match cells_x * cells_y")
         out[k] = np.concatenate(row)
-    check_range(out, layout.fullscale, "tactile data")
+    check_range(out, layout.fullscale, "message")
     return out.astype(np.uint16)
