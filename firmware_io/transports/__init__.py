@@ -1,0 +1,91 @@
+"""Open a DSACON32m byte link by URL, like pyserial's ``serial_for_url`` or python-can's interfaces.
+
+=====================================  =============================================================
+``serial:///dev/ttyUSB0?baud=115200``  RS232 / USB-serial adapter / CDC-ACM (pyserial), 8N1, no flow
+``/dev/ttyUSB0``, ``COM3``             same as ``serial://``
+``tcp://192.168.1.42:13000``           SDH-2 Ethernet (port 13000 by default)
+``usb://0403:6001?serial=..``          USB-serial bridge driven directly by pyusb (extra ``usb``)
+``hid://10c4:ea80``                    HID-to-UART bridge such as the CP2110 (hidapi, extra ``usb``)
+``sim://?seed=0&events=40``            the simulated hand behind an emulated controller, in process
+``replay://PATH?speed=1.0|max``        a recording (.hrec, .dsa, .bag) behind an emulated controller
+=====================================  =============================================================
+
+Each scheme maps to ``"module:Class"``; the module is imported only when the scheme is used,
+so pyusb and hidapi are needed only by those who use them. ``register_transport`` adds one.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+
+from firmware_io.transports.base import (
+    DeviceUnavailable,
+    EndOfStream,
+    MissingDependency,
+    ParsedURL,
+    Transport,
+    TransportError,
+)
+
+__all__ = [
+    "TRANSPORTS",
+    "DeviceUnavailable",
+    "EndOfStream",
+    "MissingDependency",
+    "Transport",
+    "TransportError",
+    "open_transport",
+    "register_transport",
+]
+
+TRANSPORTS: dict[str, str] = {
+    "serial": "firmware_io.transports.serial_port:SerialTransport",
+    "tcp": "firmware_io.transports.tcp:TcpTransport",
+    "usb": "firmware_io.transports.usb:UsbTransport",
+    "hid": "firmware_io.transports.hid:HidTransport",
+    "sim": "firmware_io.transports.emulated:SimTransport",
+    "replay": "firmware_io.transports.emulated:ReplayTransport",
+}
+
+_WINDOWS_PORT = re.compile(r"^COM\d+$", re.IGNORECASE)
+
+
+def register_transport(scheme: str, target: str | type) -> None:
+    """Add or replace a scheme: ``target`` is a Transport class or ``"module:Class"``."""
+    if not isinstance(target, str):
+        target = f"{target.__module__}:{target.__qualname__}"
+    TRANSPORTS[scheme.lower()] = target
+
+
+def _normalise(url: str) -> str:
+    """A bare device path is a serial port, as in pyserial."""
+    text = url.strip()
+    if text.startswith("/") or _WINDOWS_PORT.match(text):
+        return "serial://" + text
+    return text
+
+
+def _load(scheme: str, url: str) -> type:
+    target = TRANSPORTS.get(scheme)
+    if target is None:
+        known = ", ".join(f"{s}://" for s in TRANSPORTS)
+        where = f"unknown scheme {scheme + '://'!r}" if scheme else "no scheme"
+        raise TransportError(f"{url}: {where}; use one of {known} or a /dev path")
+    module_name, _, class_name = target.partition(":")
+    module = importlib.import_module(module_name)
+    return getattr(module, class_name)
+
+
+def open_transport(url: str, **opts: object) -> Transport:
+    """Open the link a URL names. Keyword options override the URL's ``?key=value`` options.
+
+    Raises TransportError for a bad URL, DeviceUnavailable when the device is absent or
+    refuses, MissingDependency when an optional package is missing (the message names the extra).
+    """
+    if not isinstance(url, str) or not url.strip():
+        raise TransportError("empty device URL; use e.g. serial:///dev/ttyUSB0 or tcp://192.168.1.42:13000")
+    url = _normalise(url)
+    parsed = ParsedURL(url)
+    cls = _load(parsed.scheme, url)
+    return cls.from_url(parsed, **opts)

@@ -1,0 +1,135 @@
+"""The one interface every byte transport implements, and its errors.
+
+A transport moves raw bytes between the host and a DSACON32m; it knows nothing of packets.
+``read`` waits at most ``timeout`` seconds and returns ``b""`` when nothing came, so a caller
+can keep its own deadlines (the protocol uses a gap timeout, not a whole-packet timeout).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from types import TracebackType
+from urllib.parse import parse_qs, urlsplit
+
+DEFAULT_READ_SIZE = 4096
+
+
+class TransportError(OSError):
+    """A transport that cannot be opened or used; the message names the URL and the cause."""
+
+
+class DeviceUnavailable(TransportError):
+    """The device is not there: unplugged, refused, closed the connection, or never existed."""
+
+
+class EndOfStream(DeviceUnavailable):
+    """A finite source (a replayed recording) has sent everything; reconnecting starts it again."""
+
+
+class MissingDependency(TransportError):
+    """An optional package or system library a transport needs is not installed."""
+
+
+class Transport(ABC):
+    """Bytes in, bytes out. Subclasses set ``url`` and implement the three methods."""
+
+    url: str = ""
+
+    @abstractmethod
+    def write(self, data: bytes) -> None:
+        """Send all of ``data`` or raise TransportError."""
+
+    @abstractmethod
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
+        """Up to ``max_bytes`` bytes; ``b""`` if none arrived within ``timeout`` seconds."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the device; closing twice is harmless."""
+
+    @property
+    def closed(self) -> bool:
+        return getattr(self, "_closed", False)
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.url}>"
+
+
+class ParsedURL:
+    """A device URL split into scheme, location (host:port, VID:PID or path) and options."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        parts = urlsplit(url)
+        self.scheme = parts.scheme.lower()
+        self.netloc = parts.netloc
+        self.path = parts.path
+        self.options: dict[str, str] = {}
+        try:
+            query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
+        except ValueError:
+            raise TransportError(f"{url}: cannot read the options after '?' (use key=value&key=value)") from None
+        for key, values in query.items():
+            self.options[key] = values[-1]
+
+    @property
+    def location(self) -> str:
+        """``netloc + path``: a path given as ``scheme://relative/file`` keeps its first part."""
+        return self.netloc + self.path
+
+    def option(self, opts: dict, name: str, default: object = None) -> object:
+        """Keyword options win over the URL's query string."""
+        if name in opts and opts[name] is not None:
+            return opts[name]
+        return self.options.get(name, default)
+
+    def check_options(self, allowed: set[str], opts: dict | None = None) -> None:
+        unknown = sorted(set(self.options) - allowed)
+        if unknown:
+            hint = ", ".join(sorted(allowed)) or "none"
+            raise TransportError(f"{self.url}: unknown option {unknown[0]!r} (this transport takes: {hint})")
+
+
+def parse_number(url: str, name: str, text: object, kind: type = float, minimum: float | None = None) -> float:
+    """One option value as a number, or a TransportError naming the option."""
+    try:
+        value = kind(text)
+    except (TypeError, ValueError):
+        raise TransportError(f"{url}: option {name}={text!r} is not a{'n integer' if kind is int else ' number'}") from None
+    if minimum is not None and value < minimum:
+        raise TransportError(f"{url}: option {name}={value} must be at least {minimum}")
+    return value
+
+
+def parse_bool(url: str, name: str, text: object) -> bool:
+    if isinstance(text, bool):
+        return text
+    t = str(text).strip().lower()
+    if t in ("1", "true", "yes", "on"):
+        return True
+    if t in ("0", "false", "no", "off", ""):
+        return False
+    raise TransportError(f"{url}: option {name}={text!r} must be 0 or 1")
+
+
+def parse_vid_pid(url: str, location: str) -> tuple[int, int]:
+    """``"0403:6001"`` (hex, as lsusb prints it) -> (0x0403, 0x6001)."""
+    text = location.strip("/")
+    parts = text.split(":")
+    if len(parts) != 2 or not all(parts):
+        raise TransportError(f"{url}: expected VID:PID in hex such as 0403:6001, got {text!r}")
+    try:
+        vid, pid = (int(p, 16) for p in parts)
+    except ValueError:
+        raise TransportError(f"{url}: VID:PID must be hexadecimal such as 0403:6001, got {text!r}") from None
+    if not (0 <= vid <= 0xFFFF and 0 <= pid <= 0xFFFF):
+        raise TransportError(f"{url}: VID and PID are 16-bit hex numbers, got {text!r}")
+    return vid, pid

@@ -1,0 +1,109 @@
+"""RS232, USB-serial adapters and CDC-ACM devices through pyserial: 115200 8N1, no flow control.
+
+The DSACON32m's serial settings are fixed (SDHLibrary hard-codes them). Reads wait with
+``select`` on the port's file descriptor instead of changing pyserial's timeout per call,
+which would reconfigure the port (a tcsetattr) on every read.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import time
+
+from firmware_io.transports.base import (
+    DEFAULT_READ_SIZE,
+    DeviceUnavailable,
+    MissingDependency,
+    ParsedURL,
+    Transport,
+    TransportError,
+    parse_bool,
+    parse_number,
+)
+
+DEFAULT_BAUD = 115200
+
+
+class SerialTransport(Transport):
+    """``serial:///dev/ttyUSB0?baud=115200&exclusive=1`` or a plain ``/dev/ttyUSB0``."""
+
+    def __init__(self, port: str, baud: int = DEFAULT_BAUD, exclusive: bool = True, url: str = "") -> None:
+        self.url = url or f"serial://{port}"
+        self.port = port
+        try:
+            import serial
+        except ImportError:
+            raise MissingDependency(f"{self.url}: needs pyserial (pip install pyserial)") from None
+        self._serial_mod = serial
+        try:
+            self._ser = serial.Serial(
+                port=port,
+                baudrate=baud,
+                bytesize=serial.EIGHTBITS,
+                parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE,
+                xonxoff=False,
+                rtscts=False,
+                dsrdtr=False,
+                timeout=0,
+                write_timeout=2.0,
+                exclusive=exclusive or None,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceUnavailable(f"{self.url}: cannot open serial port: {exc}") from None
+        try:
+            self._fd: int | None = self._ser.fileno()
+        except (AttributeError, serial.SerialException, OSError):
+            self._fd = None
+        self._closed = False
+
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> SerialTransport:
+        parsed.check_options({"baud", "exclusive"})
+        port = parsed.location
+        if not port:
+            raise TransportError(f"{parsed.url}: no port; use serial:///dev/ttyUSB0")
+        baud = int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1))
+        exclusive = parse_bool(parsed.url, "exclusive", parsed.option(opts, "exclusive", True))
+        return cls(port, baud=baud, exclusive=exclusive, url=parsed.url)
+
+    def write(self, data: bytes) -> None:
+        self._check_open()
+        try:
+            self._ser.write(data)
+            self._ser.flush()
+        except self._serial_mod.SerialTimeoutException:
+            raise TransportError(f"{self.url}: write timed out (port blocked?)") from None
+        except (self._serial_mod.SerialException, OSError) as exc:
+            raise DeviceUnavailable(f"{self.url}: write failed: {exc}") from None
+
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
+        self._check_open()
+        try:
+            data = self._ser.read(max_bytes)
+            if data or timeout <= 0:
+                return data
+            if self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], timeout)
+                return self._ser.read(max_bytes) if ready else b""
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                data = self._ser.read(max_bytes)
+                if data:
+                    return data
+                time.sleep(0.002)
+            return b""
+        except (self._serial_mod.SerialException, OSError) as exc:
+            raise DeviceUnavailable(f"{self.url}: read failed (unplugged?): {exc}") from None
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(self._serial_mod.SerialException, OSError):
+            self._ser.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise TransportError(f"{self.url}: transport is closed")

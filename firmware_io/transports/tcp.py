@@ -1,0 +1,102 @@
+"""SDH-2 Ethernet: the DSACON32m byte stream on TCP port 13000, unchanged from RS232.
+
+TCP_NODELAY is set (the SDHLibrary comments it out on Linux, so small commands wait for
+Nagle). A connection the device closes (recv returns nothing) is a DeviceUnavailable, never
+an endless stream of empty reads.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+
+from firmware_io.transports.base import (
+    DEFAULT_READ_SIZE,
+    DeviceUnavailable,
+    ParsedURL,
+    Transport,
+    TransportError,
+    parse_number,
+)
+
+DEFAULT_PORT = 13000
+
+
+class TcpTransport(Transport):
+    """``tcp://HOST[:PORT]?connect_timeout=3``."""
+
+    def __init__(self, host: str, port: int = DEFAULT_PORT, connect_timeout: float = 3.0, url: str = "") -> None:
+        self.url = url or f"tcp://{host}:{port}"
+        self.host, self.port = host, port
+        try:
+            self._sock = socket.create_connection((host, port), timeout=connect_timeout)
+        except socket.gaierror as exc:
+            raise DeviceUnavailable(f"{self.url}: unknown host {host!r}: {exc.strerror}") from None
+        except TimeoutError:
+            raise DeviceUnavailable(f"{self.url}: no answer within {connect_timeout:g} s (hand powered? cable?)") from None
+        except OSError as exc:
+            raise DeviceUnavailable(f"{self.url}: cannot connect: {exc.strerror or exc}") from None
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._sock.settimeout(None)
+        self._sock.setblocking(True)
+        self._closed = False
+
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> TcpTransport:
+        parsed.check_options({"connect_timeout"})
+        if not parsed.netloc:
+            raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
+        try:
+            host, port = _split_host_port(parsed.netloc)
+        except ValueError:
+            raise TransportError(f"{parsed.url}: expected tcp://HOST:PORT with a port 1..65535") from None
+        timeout = parse_number(parsed.url, "connect_timeout", parsed.option(opts, "connect_timeout", 3.0), float, 0.001)
+        return cls(host, port, connect_timeout=timeout, url=parsed.url)
+
+    def write(self, data: bytes) -> None:
+        self._check_open()
+        try:
+            self._sock.sendall(data)
+        except OSError as exc:
+            raise DeviceUnavailable(f"{self.url}: connection lost while sending: {exc.strerror or exc}") from None
+
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
+        self._check_open()
+        try:
+            ready, _, _ = select.select([self._sock], [], [], max(timeout, 0.0))
+            if not ready:
+                return b""
+            data = self._sock.recv(max_bytes)
+        except OSError as exc:
+            raise DeviceUnavailable(f"{self.url}: connection lost: {exc.strerror or exc}") from None
+        if not data:
+            raise DeviceUnavailable(f"{self.url}: the device closed the connection")
+        return data
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)
+        self._sock.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise TransportError(f"{self.url}: transport is closed")
+
+
+def _split_host_port(netloc: str) -> tuple[str, int]:
+    """``host``, ``host:port`` or ``[v6]:port``."""
+    if netloc.startswith("["):
+        host, _, rest = netloc[1:].partition("]")
+        port = int(rest[1:]) if rest.startswith(":") else DEFAULT_PORT
+    elif ":" in netloc:
+        host, _, p = netloc.rpartition(":")
+        port = int(p)
+    else:
+        host, port = netloc, DEFAULT_PORT
+    if not 0 < port < 65536:
+        raise ValueError(port)
+    return host, port
