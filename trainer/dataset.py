@@ -1,0 +1,267 @@
+"""From recordings to classifier input: the paper's trigger finds each trial's start, T frames follow.
+
+Within each labelled trial the first frame at which any taxel of the chosen pads reaches
+``fraction`` x full scale (paper: about 15 %) starts the window; the T frames from there (the
+trigger frame included, as in the runtime's trigger) form one case. A trial whose pads never
+reach the threshold, or that ends before T frames after its trigger, is listed in
+``Dataset.untriggered`` with the reason: never dropped silently, never padded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from firmware_io.layout import SensorLayout
+from firmware_io.recording import Recording, RecordingError, Trial, find_recordings, load_all
+
+DEFAULT_FRACTION = 0.15
+
+
+class DatasetError(ValueError):
+    """Recordings that cannot make a data set (no trials, different sensors, bad settings)."""
+
+
+@dataclass(frozen=True)
+class SkippedTrial:
+    """A labelled trial that gave no case, and why."""
+
+    subject: str
+    object: str
+    pose: str
+    action: str
+    run: int
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in ("subject", "object", "pose", "action", "run", "reason")}
+
+
+@dataclass
+class Dataset:
+    """Cases ``X`` float32 ``(n_cases, n_channels, T)`` with their labels and provenance."""
+
+    X: np.ndarray
+    y: np.ndarray
+    groups: np.ndarray
+    """Subject of each case (the unit of leave-one-subject-out)."""
+    objects: np.ndarray
+    poses: np.ndarray
+    runs: np.ndarray
+    trigger_offsets: np.ndarray
+    """Frame (within its trial) where each case starts."""
+    onsets: np.ndarray
+    """Annotated action onset within the trial (``trial.extra["onset"]``), -1 when unknown."""
+    untriggered: list[SkippedTrial]
+    layout: SensorLayout
+    pads: tuple[int, ...]
+    pad_sizes: tuple[int, ...]
+    T: int
+    fraction: float
+    fullscale: float
+    sample_rate_hz: float
+    fingerprint: str
+    sources: list[str] = field(default_factory=list)
+
+    @property
+    def n_trials(self) -> int:
+        """Labelled trials seen, cases plus skipped."""
+        return len(self.y) + len(self.untriggered)
+
+    @property
+    def n_untriggered(self) -> int:
+        return len(self.untriggered)
+
+    @property
+    def classes(self) -> list[str]:
+        return sorted(set(self.y.tolist()))
+
+    def subset(self, index: np.ndarray) -> Dataset:
+        """The same data set restricted to some cases (skipped trials kept for the record)."""
+        pick = {
+            name: getattr(self, name)[index]
+            for name in ("X", "y", "groups", "objects", "poses", "runs", "trigger_offsets", "onsets")
+        }
+        return Dataset(
+            **pick,
+            untriggered=self.untriggered,
+            layout=self.layout,
+            pads=self.pads,
+            pad_sizes=self.pad_sizes,
+            T=self.T,
+            fraction=self.fraction,
+            fullscale=self.fullscale,
+            sample_rate_hz=self.sample_rate_hz,
+            fingerprint=self.fingerprint,
+            sources=self.sources,
+        )
+
+    def summary(self) -> dict:
+        """Counts for reports: cases per class and subject, skipped trials and why."""
+        reasons: dict[str, int] = {}
+        for s in self.untriggered:
+            key = s.reason.split(":")[0]
+            reasons[key] = reasons.get(key, 0) + 1
+        known = self.onsets >= 0
+        delay = (self.trigger_offsets[known] - self.onsets[known]) if known.any() else np.zeros(0)
+        return {
+            "n_trials": self.n_trials,
+            "n_cases": len(self.y),
+            "n_untriggered": self.n_untriggered,
+            "untriggered_reasons": reasons,
+            "per_class": {c: int(np.sum(self.y == c)) for c in self.classes},
+            "per_subject": {s: int(np.sum(self.groups == s)) for s in sorted(set(self.groups.tolist()))},
+            "trigger_minus_onset_frames": (
+                {
+                    "median": float(np.median(delay)),
+                    "min": int(delay.min()),
+                    "max": int(delay.max()),
+                }
+                if len(delay)
+                else None
+            ),
+            "pads": list(self.pads),
+            "pad_sizes": list(self.pad_sizes),
+            "T": self.T,
+            "trigger_fraction": self.fraction,
+            "fullscale": self.fullscale,
+            "sample_rate_hz": self.sample_rate_hz,
+            "fingerprint": self.fingerprint,
+        }
+
+
+def trigger_frame(frames: np.ndarray, level: float) -> int:
+    """First row whose maximum reaches ``level``, or -1."""
+    if frames.size == 0:
+        return -1
+    hits = np.flatnonzero(frames.max(axis=1) >= level)
+    return int(hits[0]) if len(hits) else -1
+
+
+def fingerprint(recordings: Sequence[Recording]) -> str:
+    """sha256 over every recording's layout, frames, timestamps and trial labels (order matters)."""
+    h = hashlib.sha256()
+    for rec in recordings:
+        h.update(json.dumps(rec.layout.to_dict(), sort_keys=True).encode())
+        h.update(np.ascontiguousarray(rec.frames, dtype="<u2").tobytes())
+        h.update(np.ascontiguousarray(rec.timestamps, dtype="<f8").tobytes())
+        labels = [{k: v for k, v in t.to_dict().items() if k != "extra"} for t in rec.trials]
+        h.update(json.dumps(labels, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def build_dataset(
+    recordings: Sequence[Recording],
+    T: int = 15,
+    pads: str | Sequence[int] = "all",
+    fraction: float = DEFAULT_FRACTION,
+    sources: Sequence[str] = (),
+) -> Dataset:
+    """Cut one case per labelled trial: trigger within the trial, then T frames of the chosen pads."""
+    if T < 2:
+        raise DatasetError(f"T must be at least 2 frames, got {T}")
+    if not 0.0 < fraction < 1.0:
+        raise DatasetError(f"trigger fraction must be in (0, 1), got {fraction}")
+    if not recordings:
+        raise DatasetError("no recordings")
+    layout = recordings[0].layout
+    try:
+        pad_idx = layout.pads(pads)
+    except ValueError as exc:
+        raise DatasetError(str(exc)) from None
+    shapes = [(layout.matrices[p].cells_y, layout.matrices[p].cells_x) for p in pad_idx]
+    for i, rec in enumerate(recordings[1:], start=1):
+        other = [(rec.layout.matrices[p].cells_y, rec.layout.matrices[p].cells_x)
+                 for p in pad_idx if p < rec.layout.n_matrices]
+        if other != shapes:
+            name = sources[i] if i < len(sources) else f"recording {i}"
+            raise DatasetError(f"{name}: its pads {list(pad_idx)} differ from the first recording's")
+    fullscale = max(layout.matrices[p].fullscale for p in pad_idx)
+    level = fraction * fullscale
+    cols = layout.columns(pad_idx)
+
+    cases, labels, skipped = [], [], []
+    intervals = []
+    for rec in recordings:
+        if rec.n_frames > 1:
+            intervals.append(rec.sample_interval())
+        for trial in rec.trials:
+            window = _cut(rec, trial, cols, level, T)
+            if isinstance(window, str):
+                skipped.append(SkippedTrial(trial.subject, trial.object, trial.pose, trial.action, trial.run, window))
+                continue
+            start, frames = window
+            cases.append(frames.T)
+            onset = trial.extra.get("onset") if isinstance(trial.extra, dict) else None
+            labels.append((trial, start, _relative_onset(onset, trial)))
+    if not cases and not skipped:
+        raise DatasetError("the recordings hold no labelled trials")
+    n_ch = len(cols)
+    X = np.asarray(cases, dtype=np.float32).reshape(len(cases), n_ch, T)
+    rate = float(1.0 / np.median(intervals)) if intervals else float("nan")
+    return Dataset(
+        X=X,
+        y=np.asarray([t.action for t, _, _ in labels], dtype=object).astype(str),
+        groups=np.asarray([t.subject for t, _, _ in labels], dtype=object).astype(str),
+        objects=np.asarray([t.object for t, _, _ in labels], dtype=object).astype(str),
+        poses=np.asarray([t.pose for t, _, _ in labels], dtype=object).astype(str),
+        runs=np.asarray([t.run for t, _, _ in labels], dtype=np.int64),
+        trigger_offsets=np.asarray([s for _, s, _ in labels], dtype=np.int64),
+        onsets=np.asarray([o for _, _, o in labels], dtype=np.int64),
+        untriggered=skipped,
+        layout=layout,
+        pads=tuple(pad_idx),
+        pad_sizes=layout.pad_sizes(pad_idx),
+        T=int(T),
+        fraction=float(fraction),
+        fullscale=float(fullscale),
+        sample_rate_hz=rate,
+        fingerprint=fingerprint(recordings),
+        sources=list(sources),
+    )
+
+
+def _cut(rec: Recording, trial: Trial, cols: np.ndarray, level: float, T: int) -> tuple[int, np.ndarray] | str:
+    frames, _ = rec.trial_frames(trial)
+    selected = frames[:, cols]
+    start = trigger_frame(selected, level)
+    if start < 0:
+        return f"never triggered: max {int(selected.max()) if selected.size else 0} < {level:.0f}"
+    if start + T > len(selected):
+        return f"triggered too late: frame {start} of {len(selected)}, {T} frames needed"
+    return start, selected[start : start + T]
+
+
+def _relative_onset(onset, trial: Trial) -> int:
+    """Onset within the trial (the protocol's convention); an absolute index inside the trial is converted.
+
+    Only used for the report's trigger-minus-onset statistic; -1 when unknown.
+    """
+    if onset is None:
+        return -1
+    onset = int(onset)
+    if 0 <= onset < trial.n_frames:
+        return onset
+    if trial.first <= onset <= trial.last:
+        return onset - trial.first
+    return -1
+
+
+def load_dataset(
+    folder: str | os.PathLike,
+    T: int = 15,
+    pads: str | Sequence[int] = "all",
+    fraction: float = DEFAULT_FRACTION,
+) -> tuple[Dataset, list[Recording]]:
+    """Read every ``.hrec`` file of a folder and build the data set (RecordingError/DatasetError on trouble)."""
+    paths = find_recordings(folder)
+    if not paths:
+        raise RecordingError(f"{folder}: no .hrec recordings in this folder")
+    recordings = load_all(paths)
+    return build_dataset(recordings, T=T, pads=pads, fraction=fraction, sources=[Path(p).name for p in paths]), recordings
