@@ -57,8 +57,8 @@ class TriggerConfig:
     baseline: bool = False
     """Measure against a slowly tracked per-taxel baseline (the grasp itself may press the pads)."""
     baseline_tau_s: float = 2.0
-    pre_frames: int = 0
-    """Frames before the trigger frame that belong to the window (0: the window starts at the trigger)."""
+    pre_frames: int | None = None
+    """Frames before the trigger frame that belong to the window; None takes the model's (else 0)."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s, lo=0.0),
         reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s, lo=0.0),
     )
-    if "://" not in device.url:
+    if "://" not in device.url and not device.url.startswith("/"):
         raise ConfigError(f"device.url: expected a URL like serial:///dev/ttyUSB0 or tcp://host:port, got {device.url!r}")
     if device.reconnect_max_s < device.reconnect_min_s:
         raise ConfigError("device.reconnect_max_s: must be >= device.reconnect_min_s")
@@ -171,7 +171,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s, lo=0.0),
         baseline=_bool("trigger.baseline", tr, TriggerConfig.baseline),
         baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s, lo=0.01),
-        pre_frames=_int("trigger.pre_frames", tr, TriggerConfig.pre_frames, lo=0, hi=1000),
+        pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0, lo=0, hi=1000),
     )
     if fraction is not None and trigger.hysteresis >= fraction:
         raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")

@@ -171,6 +171,9 @@ class ModelWatcher:
         return model
 
     def _warm_up(self, model: Any) -> None:
+        if hasattr(model, "warm_up"):
+            model.warm_up(self.warmup_runs)
+            return
         meta = model.meta
         T = int(meta["T"]) if isinstance(meta, dict) else int(meta.T)
         C = int(meta["n_channels"]) if isinstance(meta, dict) else int(meta.n_channels)

@@ -1,0 +1,436 @@
+"""The detection daemon's main loop: frames -> ring -> trigger -> inference -> sinks.
+
+One thread does the hot path. Per frame: copy the scene's columns into the ring, one max for
+the trigger; only when a window's last frame has arrived does the model run, at once, and the
+time from that frame's arrival (``Frame.received``) to the decision is recorded. A decision
+later than one sample period is a missed deadline.
+
+Everything slow happens elsewhere or between frames: model files are validated and warmed
+up by the watcher thread and swapped in by one reference assignment between two windows;
+the health file is written about once a second; the device is reopened with backoff after
+an unplug or a stall; SIGTERM ends the loop within a read timeout (0.1 s); SIGHUP reloads
+the config and keeps the old one if the new one is invalid.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from firmware_io.layout import LayoutError, SensorLayout
+from runtime.config import Config, ConfigError, load_config
+from runtime.health import Health, write_status_file
+from runtime.model_watch import ModelWatcher, Rejection
+from runtime.ring import RingBuffer
+from runtime.sdnotify import Notifier
+from runtime.sinks import Event, SinkSet
+from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+
+log = logging.getLogger("handover.daemon")
+
+READ_TIMEOUT_S = 0.1
+"""Longest the loop blocks on the device: bounds the reaction to SIGTERM and the watchdog."""
+HEALTH_PERIOD_S = 1.0
+DEFAULT_RATE_HZ = 32.0
+
+
+def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None) -> str | None:
+    """Why a model cannot serve this scene (pads, channels, classes, mode), or None."""
+    meta = model.meta
+    lay = layout or SensorLayout.sdh2()
+    try:
+        pads = lay.pads(cfg.scene.pads)
+    except LayoutError as exc:
+        return f"scene.pads: {exc}"
+    if tuple(meta.pads) != tuple(pads):
+        return f"model expects pads {list(meta.pads)}, the scene uses {list(pads)} (scene.pads = {cfg.scene.pads!r})"
+    n = sum(lay.pad_sizes(pads))
+    if meta.n_channels != n:
+        return f"model expects {meta.n_channels} taxel columns, the device's pads {list(pads)} have {n}"
+    missing = [e for e in cfg.scene.events if e not in meta.classes]
+    if missing:
+        return f"model classes {list(meta.classes)} lack the scene's events {missing}"
+    if cfg.scene.mode == "continuous" and meta.dormant_class is None:
+        return "scene.mode = 'continuous' needs a model with a dormant class; this one has none"
+    return None
+
+
+class Daemon:
+    """The long-running service. ``run()`` returns the exit code."""
+
+    def __init__(
+        self,
+        cfg: Config,
+        notifier: Notifier | None = None,
+        stream: IO[str] | None = None,
+        client_factory: Callable[[str], Any] | None = None,
+        on_event: Callable[[Event], None] | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.notifier = notifier or Notifier()
+        self.stream = stream
+        self.client_factory = client_factory or _default_client
+        self.on_event = on_event
+        self.health = Health()
+        self.sinks = SinkSet.from_config(cfg.sinks, stream)
+        self.model: Any = None
+        self.layout: SensorLayout | None = None
+        self.client: Any = None
+        self.ring: RingBuffer | None = None
+        self.trigger: ThresholdTrigger | ContinuousTrigger | None = None
+        self.watcher: ModelWatcher | None = None
+        self._stop = False
+        self._reload = False
+        self._pending: list[int] = []
+        self._last_class: str | None = None
+        self._backoff = cfg.device.reconnect_min_s
+        self._next_connect = 0.0
+        self._last_frame_t = 0.0
+        self._last_ts: int | None = None
+        self._next_health = 0.0
+        self.period_s = 1.0 / DEFAULT_RATE_HZ
+        self.frames_seen: list[int] | None = None
+        """When a list, every frame number handled is appended (tests check that none is lost)."""
+
+    # -- control --------------------------------------------------------------------------------
+    def request_stop(self, *_: Any) -> None:
+        self._stop = True
+
+    def request_reload(self, *_: Any) -> None:
+        self._reload = True
+
+    def install_signal_handlers(self) -> None:
+        signal.signal(signal.SIGTERM, self.request_stop)
+        signal.signal(signal.SIGINT, self.request_stop)
+        signal.signal(signal.SIGHUP, self.request_reload)
+
+    # -- models ---------------------------------------------------------------------------------
+    def _load(self, path: Path) -> Any:
+        from runtime.model import load_model
+
+        ox = self.cfg.onnxruntime
+        return load_model(path, max_bytes=self.cfg.model.max_bytes, intra_op_threads=ox.intra_op_threads,
+                          allow_spinning=ox.allow_spinning, warm_up=False)
+
+    def _rejected(self, rejection: Rejection) -> None:
+        self.health.models_rejected += 1
+        self.health.last_error = f"model {rejection.path.name} rejected: {rejection.reason}"
+
+    def _start_watcher(self) -> None:
+        if self.watcher is not None:
+            self.watcher.stop()
+        self.watcher = ModelWatcher(
+            self.cfg.model.folder,
+            loader=self._load,
+            check=lambda m: scene_problem(m, self.cfg, self.layout),
+            poll_interval=self.cfg.model.poll_interval_s,
+            on_reject=self._rejected,
+        )
+        model = self.watcher.poll(require_stable=False)
+        self.watcher.take()
+        if model is not None:
+            self._use_model(model)
+        elif self.model is None:
+            log.warning("no valid model in %s yet; waiting for one (frames are read, nothing is classified)",
+                        self.cfg.model.folder)
+        self.watcher.start()
+
+    def _use_model(self, model: Any) -> None:
+        """Swap the serving model (one reference assignment) and fit the hot path to it."""
+        old = self.model
+        self.model = model
+        self.health.model_id = model.model_id
+        self.health.models_loaded += 1
+        self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        self._build_hot_path(keep_history=True)
+        what = "swapped in" if old is not None else "serving"
+        log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
+                 model.meta.T, ",".join(model.meta.classes))
+
+    def _build_hot_path(self, keep_history: bool) -> None:
+        """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""
+        if self.layout is None:
+            return
+        cols = self.layout.columns(self.cfg.scene.pads)
+        meta = self.model.meta if self.model is not None else None
+        T = int(meta.T) if meta else 15
+        tcfg = self.cfg.trigger
+        pre = tcfg.pre_frames if tcfg.pre_frames is not None else int((meta.trigger if meta else {}).get("pre_frames", 0))
+        capacity = max(64, 2 * (T + pre))
+        if self.ring is None or not keep_history or self.ring.columns.size != cols.size or not np.array_equal(
+            self.ring.columns, cols
+        ):
+            self.ring = RingBuffer(cols, capacity)
+        elif self.ring.capacity < capacity:
+            self.ring = self.ring.resized(capacity)
+        rate = 1.0 / self.period_s
+        old = self.trigger
+        if self.cfg.scene.mode == "continuous":
+            self.trigger = ContinuousTrigger(T)
+        else:
+            fraction = tcfg.fraction if tcfg.fraction is not None else float(meta.trigger["fraction"]) if meta else 0.15
+            fullscale = float(meta.fullscale) if meta else self.layout.fullscale
+            self.trigger = ThresholdTrigger(
+                int(cols.size), fullscale, fraction=fraction, hysteresis=min(tcfg.hysteresis, fraction * 0.99),
+                refractory_frames=math.ceil(tcfg.refractory_s * rate), window=T, pre_frames=min(pre, T - 1),
+                baseline=tcfg.baseline, baseline_alpha=min(1.0, 1.0 / max(1.0, tcfg.baseline_tau_s * rate)),
+            )
+            if isinstance(old, ThresholdTrigger) and keep_history:
+                self.trigger.armed, self.trigger.last_trigger = old.armed, old.last_trigger
+        self._pending.clear()
+
+    # -- device ---------------------------------------------------------------------------------
+    def _connect(self) -> None:
+        h = self.health
+        url = self.cfg.device.url
+        try:
+            client = self.client_factory(url)
+            layout = client.open()
+            client.start()
+        except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
+            h.device_state = "disconnected"
+            h.last_error = f"{url}: {_one_line(exc)}"
+            log.warning("device %s: %s; retrying in %.1f s", url, _one_line(exc), self._backoff)
+            self._next_connect = time.monotonic() + self._backoff
+            self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+            self._close_client()
+            return
+        self.client = client
+        first = self.layout is None
+        if self.layout != layout:
+            self.layout = layout
+            if self.model is not None:
+                problem = scene_problem(self.model, self.cfg, layout)
+                if problem:
+                    log.error("model %s does not fit the device: %s; waiting for another model",
+                              self.model.model_id, problem)
+                    self.model = None
+                    self.health.model_id = None
+            self._build_hot_path(keep_history=False)
+        else:
+            self.ring.reset()
+            self.trigger.reset()
+            self._pending.clear()
+        self._last_ts = None
+        self._last_frame_t = time.monotonic()
+        h.device_state = "streaming"
+        log.info("device %s %s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
+                 layout.n_taxels, self.cfg.scene.pads)
+
+    def _fault(self, reason: str) -> None:
+        h = self.health
+        h.device_faults += 1
+        h.reconnects += 1
+        h.device_state = "reconnecting"
+        h.last_error = f"{self.cfg.device.url}: {reason}"
+        log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
+        self._close_client()
+        self._next_connect = time.monotonic() + self._backoff
+        self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+
+    def _close_client(self) -> None:
+        if self.client is not None:
+            client, self.client = self.client, None
+            self._absorb_client_stats(client)
+            for action in ("stop", "close"):
+                with contextlib.suppress(Exception):
+                    getattr(client, action)()
+
+    def _absorb_client_stats(self, client: Any, final: bool = True) -> None:
+        """Fold the client's error counters into health (kept across reconnects)."""
+        stats = getattr(client, "stats", None)
+        if not isinstance(stats, dict):
+            return
+        crc = int(stats.get("crc_errors", 0))
+        proto = int(stats.get("protocol_errors", stats.get("bad_headers", 0)))
+        base_crc, base_proto = getattr(self, "_crc_base", 0), getattr(self, "_proto_base", 0)
+        self.health.crc_errors = base_crc + crc
+        self.health.protocol_errors = base_proto + proto
+        if final:
+            self._crc_base, self._proto_base = base_crc + crc, base_proto + proto
+
+    # -- the hot path -----------------------------------------------------------------------------
+    def handle_frame(self, frame: Any) -> None:
+        """One frame: ring, trigger, and inference if this frame ends a window."""
+        h = self.health
+        h.frames_received += 1
+        ts = frame.timestamp_ms
+        if self._last_ts is not None:
+            gap = ts - self._last_ts
+            period_ms = self.period_s * 1000.0
+            if gap > 1.5 * period_ms:
+                h.frames_dropped += round(gap / period_ms) - 1
+        self._last_ts = ts
+        if self.frames_seen is not None:
+            self.frames_seen.append(frame.number)
+        ring = self.ring
+        ring.push(frame.values, frame.number)
+        due = self.trigger.update(ring.latest(), frame.number)
+        if self.model is None:
+            return
+        pending = self._pending
+        if due >= 0:
+            pending.append(due)
+        if pending and frame.number >= pending[0]:
+            due = pending.pop(0)
+            if frame.number == due and ring.count >= self.model.meta.T:
+                self._classify(frame)
+
+    def _classify(self, frame: Any) -> None:
+        model = self.model
+        meta = model.meta
+        labels, scores = model.run(self.ring.window(meta.T))
+        decided = time.perf_counter()
+        latency_us = (decided - frame.received) * 1e6
+        h = self.health
+        h.decisions += 1
+        h.record_latency(latency_us)
+        missed = latency_us > self.period_s * 1e6
+        if missed:
+            h.missed_deadlines += 1
+        cls = meta.classes[int(labels[0])]
+        previous, self._last_class = self._last_class, cls
+        if cls not in self.cfg.scene.events:
+            return
+        if isinstance(self.trigger, ContinuousTrigger) and cls == previous:
+            return  # continuous mode reports when the decision changes, not every frame
+        event = Event(
+            time=time.time(),
+            cls=cls,
+            scores={c: float(s) for c, s in zip(meta.classes, scores[0], strict=True)},
+            latency_us=latency_us,
+            model_id=model.model_id,
+            frame_first=frame.number - meta.T + 1,
+            frame_last=frame.number,
+            device_time_ms=int(frame.timestamp_ms),
+            missed_deadline=missed,
+        )
+        h.events += 1
+        self.sinks.emit(event)
+        if self.on_event is not None:
+            self.on_event(event)
+
+    # -- housekeeping ---------------------------------------------------------------------------
+    def _housekeeping(self, now: float) -> None:
+        self.notifier.watchdog(now)
+        if self.watcher is not None and self.watcher.pending is not None and not self._pending:
+            model = self.watcher.take()
+            if model is not None:
+                self._use_model(model)
+        if now >= self._next_health:
+            self._next_health = now + HEALTH_PERIOD_S
+            self.write_health(now)
+
+    def write_health(self, now: float | None = None) -> None:
+        h = self.health
+        h.update_rate(now)
+        if self.client is not None:
+            self._absorb_client_stats(self.client, final=False)
+        h.sink_errors = self.sinks.errors
+        self.notifier.status(h.status_line())
+        if self.cfg.health_file:
+            write_status_file(self.cfg.health_file, h.snapshot())
+
+    def _do_reload(self) -> None:
+        self._reload = False
+        source = self.cfg.source
+        if not source:
+            log.warning("SIGHUP: no config file to reload")
+            return
+        self.notifier.reloading()
+        try:
+            new = load_config(source)
+        except ConfigError as exc:
+            log.error("SIGHUP: %s; keeping the running configuration", exc)
+            self.health.last_error = f"reload refused: {exc}"
+            self.notifier.ready(self.health.status_line())
+            return
+        old, self.cfg = self.cfg, new
+        _set_log_level(new.log_level)
+        self.sinks.close()
+        self.sinks = SinkSet.from_config(new.sinks, self.stream)
+        if new.device.url != old.device.url:
+            self._close_client()
+            self.layout = None
+            self._next_connect = 0.0
+        if new.scene != old.scene or new.model != old.model or new.onnxruntime != old.onnxruntime:
+            if self.model is not None and scene_problem(self.model, new, self.layout):
+                log.warning("the model in use does not fit the new scene; waiting for one that does")
+                self.model = None
+                self.health.model_id = None
+            if new.model != old.model or new.onnxruntime != old.onnxruntime:
+                self._start_watcher()
+        self._build_hot_path(keep_history=new.scene == old.scene)
+        log.info("configuration reloaded from %s", source)
+        self.notifier.ready(self.health.status_line())
+
+    # -- main loop ------------------------------------------------------------------------------
+    def run(self) -> int:
+        """Serve until SIGTERM / request_stop(); returns 0."""
+        _set_log_level(self.cfg.log_level)
+        self._start_watcher()
+        self.notifier.ready(self.health.status_line())
+        log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
+                 self.cfg.scene.pads, self.cfg.scene.mode)
+        try:
+            while not self._stop:
+                if self._reload:
+                    self._do_reload()
+                now = time.monotonic()
+                self._housekeeping(now)
+                if self.client is None:
+                    if now >= self._next_connect:
+                        self._connect()
+                    else:
+                        time.sleep(min(READ_TIMEOUT_S, self._next_connect - now))
+                    continue
+                try:
+                    frame = self.client.read_frame(timeout=READ_TIMEOUT_S)
+                except Exception as exc:  # unplug, closed link, end of a replay: reconnect
+                    self._fault(_one_line(exc))
+                    continue
+                if frame is None:
+                    if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
+                        self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)")
+                    continue
+                self._last_frame_t = time.monotonic()
+                self._backoff = self.cfg.device.reconnect_min_s
+                self.handle_frame(frame)
+        finally:
+            self.shutdown()
+        return 0
+
+    def shutdown(self) -> None:
+        """STOPPING=1, stop the watcher, close the device, flush the sinks, final health."""
+        self.notifier.stopping()
+        if self.watcher is not None:
+            self.watcher.stop(timeout=0.5)
+        self._close_client()
+        self.health.device_state = "stopped"
+        self.write_health()
+        self.sinks.close()
+        log.info("stopped: %d frames, %d events, %d missed deadlines", self.health.frames_received,
+                 self.health.events, self.health.missed_deadlines)
+
+
+def _default_client(url: str) -> Any:
+    from firmware_io.client import DSAClient
+
+    return DSAClient(url)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def _set_log_level(level: str) -> None:
+    logging.getLogger("handover").setLevel(level.upper())
