@@ -1,0 +1,422 @@
+"""DSACON32m client: open a controller, learn its pads, and read frames from it.
+
+Follows the SDHLibrary ``cDSA`` sequence with the corrections of the protocol reference
+(section 7): every retry and wait is bounded, EOF is a disconnect, ``error_code`` is
+checked in every reply, unexpected frames are queued rather than lost, and the old-firmware
+single-frame bug is handled by stop + drain. Not thread-safe: one thread owns a client.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_io import protocol as P
+from firmware_io.layout import SensorLayout
+from firmware_io.parser import StreamParser
+from firmware_io.transports.base import Transport, TransportError
+
+__all__ = ["DSAClient", "DSATimeout", "Frame"]
+
+READ_SIZE = 4096
+
+
+class DSATimeout(P.DSAError):
+    """The controller did not answer in time."""
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One full frame. ``number`` counts frames decoded since open (gaps = dropped frames);
+    ``timestamp_ms`` is device time unwrapped across the u32 wrap; ``received`` is
+    ``time.perf_counter()`` when the packet's last byte was parsed; ``values`` uint16 in wire order."""
+
+    number: int
+    timestamp_ms: int
+    received: float
+    values: np.ndarray
+
+
+TransportSource = str | Transport | Callable[[], Transport]
+
+
+class DSAClient:
+    """A DSACON32m reached through a URL (``tcp://..``, ``serial://..``, ``sim://``), a Transport,
+    or a zero-argument callable returning a Transport (a URL or callable allows ``reconnect``)."""
+
+    def __init__(
+        self,
+        source: TransportSource,
+        *,
+        rle: bool = True,
+        gap_timeout: float = 1.0,
+        stop_timeout: float = 3.0,
+        stop_tries: int = 3,
+        flush_quiet: float = 0.1,
+        flush_max: float = 1.0,
+        max_skipped_frames: int = 4,
+        max_queued_frames: int = 256,
+        reconnect_tries: int = 5,
+        backoff_initial: float = 0.1,
+        backoff_max: float = 5.0,
+        auto_reconnect: bool = True,
+        transport_opts: dict | None = None,
+    ) -> None:
+        self._source = source
+        self._transport: Transport | None = source if isinstance(source, Transport) else None
+        self.rle = rle
+        self.gap_timeout = gap_timeout
+        self.stop_timeout = stop_timeout
+        self.stop_tries = max(1, int(stop_tries))
+        self.flush_quiet = flush_quiet
+        self.flush_max = flush_max
+        self.max_skipped_frames = max_skipped_frames
+        self.reconnect_tries = max(1, int(reconnect_tries))
+        self.backoff_initial = backoff_initial
+        self.backoff_max = backoff_max
+        self.auto_reconnect = auto_reconnect
+        self.transport_opts = dict(transport_opts or {})
+
+        self.parser = StreamParser()
+        self.controller: P.ControllerInfo | None = None
+        self.sensor: P.SensorInfo | None = None
+        self.matrices: list[P.MatrixInfoReply] = []
+        self.layout: SensorLayout | None = None
+        self.streaming = False
+        self._frames: deque[Frame] = deque()
+        self._replies: deque[P.Packet] = deque()
+        self._max_queued = max_queued_frames
+        self._unwrap = P.TimestampUnwrapper()
+        self._number = 0
+        self._counts = {
+            "frames": 0,
+            "frames_stale": 0,
+            "frames_ignored": 0,
+            "decode_errors": 0,
+            "unexpected_replies": 0,
+            "reconnects": 0,
+            "timeouts": 0,
+        }
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        if isinstance(self._source, str):
+            return self._source
+        return getattr(self._transport, "url", "") or repr(self._transport)
+
+    def open(self) -> SensorLayout:
+        """Stop any running acquisition, flush, query controller/sensor/matrix info -> the layout."""
+        self._ensure_transport()
+        self.streaming = False
+        acked = self._send_stop(self.stop_tries)
+        self._flush(first_wait=self.flush_quiet if acked else self.flush_max)
+        self._frames.clear()
+        self.controller = P.ControllerInfo.decode(self._request(P.query_controller_info_request(), 0x01))
+        self.sensor = P.SensorInfo.decode(self._request(P.query_sensor_info_request(), 0x02))
+        if self.sensor.nb_matrices == 0:
+            raise P.ProtocolError(f"{self.url}: controller reports no tactile matrices (is the sensor connected?)")
+        self.matrices = [
+            P.MatrixInfoReply.decode(self._request(P.query_matrix_info_request(m), 0x0B))
+            for m in range(self.sensor.nb_matrices)
+        ]
+        self.layout = SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices))
+        self.parser.set_cells(self.layout.n_taxels)
+        return self.layout
+
+    def start(self) -> None:
+        """Push mode: the controller sends frames as fast as it can (about 30 fps)."""
+        self._require_open()
+        self._ack(P.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
+        self.streaming = True
+
+    def stop(self) -> None:
+        """Stop acquisition. Frames already received stay queued for read_frame."""
+        self.streaming = False
+        if not self._send_stop(self.stop_tries):
+            raise DSATimeout(f"{self.url}: controller did not acknowledge stop after {self.stop_tries} tries")
+
+    def close(self) -> None:
+        """Stop (one bounded try) and release the transport. Never hangs, never raises."""
+        transport = self._transport
+        if transport is None:
+            return
+        try:
+            if not transport.closed:
+                self._send_stop(1)
+        except (P.DSAError, OSError):
+            pass
+        finally:
+            self._transport = None
+            self.streaming = False
+            with contextlib.suppress(OSError):
+                transport.close()
+
+    def reconnect(self) -> SensorLayout:
+        """Reopen after a transport failure with exponential backoff; resume push mode if it was on."""
+        if isinstance(self._source, Transport):
+            raise TransportError(f"{self.url}: cannot reconnect a client given an open transport; pass a URL")
+        was_streaming = self.streaming
+        delay = self.backoff_initial
+        last: Exception | None = None
+        for attempt in range(self.reconnect_tries):
+            self._drop_transport()
+            if attempt:
+                time.sleep(delay)
+                delay = min(delay * 2, self.backoff_max)
+            try:
+                layout = self.open()
+                if self.layout is not None and layout.n_taxels != self.parser.n_cells:
+                    self.parser.set_cells(layout.n_taxels)
+                if was_streaming:
+                    self.start()
+                self._counts["reconnects"] += 1
+                return layout
+            except (TransportError, P.DSAError) as exc:
+                last = exc
+        self.streaming = False
+        raise TransportError(f"{self.url}: reconnect failed after {self.reconnect_tries} tries: {last}")
+
+    def __enter__(self) -> DSAClient:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- frames ----------------------------------------------------------------------------------
+    def read_frame(self, timeout: float = 1.0, newest: bool = False) -> Frame | None:
+        """The next frame, or None after ``timeout`` seconds. ``newest``: drop queued stale frames.
+
+        After a transport failure it reconnects (if allowed) and keeps waiting until the deadline.
+        """
+        self._require_open()
+        deadline = time.monotonic() + timeout
+        if newest:
+            self._pump_available()
+            self._keep_newest()
+        while not self._frames:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                self._counts["timeouts"] += 1
+                return None
+            try:
+                self._pump(min(remaining, self.gap_timeout))
+            except TransportError:
+                if not self.auto_reconnect or isinstance(self._source, Transport):
+                    raise
+                self.reconnect()
+            if newest:
+                self._keep_newest()
+        return self._frames.popleft()
+
+    def poll_frame(self, timeout: float = 1.0) -> Frame:
+        """One frame on request (acquisition stopped). Handles firmware <= R288 that pushes instead."""
+        self._require_open()
+        if self.streaming:
+            frame = self.read_frame(timeout, newest=True)
+            if frame is None:
+                raise DSATimeout(f"{self.url}: no frame within {timeout:g} s")
+            return frame
+        self._discard_queued()
+        self._ack(P.single_frame_request(rle=self.rle), frames_limit=None, timeout=timeout)
+        frame = self.read_frame(timeout)
+        if frame is None:
+            raise DSATimeout(f"{self.url}: no frame within {timeout:g} s after a single-frame request")
+        if self.controller is not None and self.controller.single_frame_broken:
+            # Old firmware started pushing: stop it, drain what it sent, continue with this frame.
+            self._send_stop(self.stop_tries)
+            self._flush(first_wait=self.flush_quiet)
+            self._discard_queued()
+        return frame
+
+    # -- other commands --------------------------------------------------------------------------
+    def get_sensitivity(self, matrix: int) -> P.SensitivityReply:
+        return P.SensitivityReply.decode(self._request(P.get_sensitivity_request(matrix), 0x12))
+
+    def set_sensitivity(self, matrix: int, value: float, persistent: bool = False) -> None:
+        """Persistent writes get no reply from the firmware (and wear its memory: ~100,000 writes)."""
+        req = P.SetSensitivityRequest(matrix, value, persistent=persistent)
+        self._command(req.to_packet(), 0x0F, expect_reply=not persistent)
+
+    def get_threshold(self, matrix: int) -> int:
+        return P.ThresholdReply.decode(self._request(P.get_threshold_request(matrix), 0x14)).threshold
+
+    def set_threshold(self, matrix: int, threshold: int, persistent: bool = False) -> None:
+        if self.controller is not None and self.controller.sw_version < 268:
+            raise P.DeviceError(P.DSAErrorCode.FEATURE_NOT_SUPPORTED, 0x13)
+        req = P.SetThresholdRequest(matrix, threshold, persistent=persistent)
+        self._command(req.to_packet(), 0x13, expect_reply=not persistent)
+
+    @property
+    def stats(self) -> dict[str, int]:
+        p = self.parser.stats
+        out = dict(self._counts)
+        out.update(
+            bytes_dropped=p.bytes_dropped,
+            packets_dropped=p.packets_dropped + self._counts["decode_errors"],
+            crc_errors=p.crc_errors,
+            bad_headers=p.bad_headers,
+            boot_queries=p.boot_queries,
+            bytes_in=p.bytes_in,
+        )
+        return out
+
+    # -- internals: transport --------------------------------------------------------------------
+    def _ensure_transport(self) -> Transport:
+        if self._transport is None:
+            if isinstance(self._source, str):
+                from firmware_io.transports import open_transport
+
+                self._transport = open_transport(self._source, **self.transport_opts)
+            elif callable(self._source):
+                self._transport = self._source()
+            else:
+                raise TransportError(f"{self.url}: the transport is closed")
+        return self._transport
+
+    def _drop_transport(self) -> None:
+        transport, self._transport = self._transport, None
+        if transport is not None and not isinstance(self._source, Transport):
+            with contextlib.suppress(OSError):
+                transport.close()
+        self.parser.reset()
+        self._unwrap.reset()
+
+    def _require_open(self) -> None:
+        if self.layout is None:
+            raise P.DSAError("call open() first")
+        if self._transport is None and isinstance(self._source, Transport):
+            raise TransportError(f"{self.url}: the client is closed")
+
+    def _write(self, data: bytes) -> None:
+        self._ensure_transport().write(data)
+
+    def _pump(self, timeout: float) -> int:
+        """Read once (up to ``timeout``) and parse: frames go to the frame queue, other packets to
+        ``self._replies``. Returns the number of bytes read (0 on a quiet line)."""
+        data = self._ensure_transport().read(READ_SIZE, timeout)
+        if not data:
+            if self.parser.pending:
+                self._dispatch(self.parser.flush_pending())
+            return 0
+        self._dispatch(self.parser.feed(data))
+        return len(data)
+
+    def _pump_available(self, limit: int = 64) -> None:
+        """Take in whatever bytes are already waiting, without blocking (at most ``limit`` reads)."""
+        for _ in range(limit):
+            data = self._ensure_transport().read(READ_SIZE, 0.0)
+            if not data:
+                return
+            self._dispatch(self.parser.feed(data))
+
+    def _dispatch(self, packets: list[P.Packet]) -> None:
+        for packet in packets:
+            if packet.packet_id == P.PacketId.FULL_FRAME:
+                self._queue_frame(packet)
+            else:
+                self._replies.append(packet)
+
+    def _queue_frame(self, packet: P.Packet) -> None:
+        if self.layout is None:
+            self._counts["frames_ignored"] += 1
+            return
+        try:
+            raw_ts, values = P.decode_frame_payload(packet.payload, self.layout.n_taxels)
+        except P.FrameDecodeError:
+            self._counts["decode_errors"] += 1
+            return
+        frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
+        self._number += 1
+        self._counts["frames"] += 1
+        if len(self._frames) >= self._max_queued:
+            self._frames.popleft()
+            self._counts["frames_stale"] += 1
+        self._frames.append(frame)
+
+    def _keep_newest(self) -> None:
+        while len(self._frames) > 1:
+            self._frames.popleft()
+            self._counts["frames_stale"] += 1
+
+    def _discard_queued(self) -> None:
+        self._counts["frames_stale"] += len(self._frames)
+        self._frames.clear()
+
+    def _flush(self, first_wait: float) -> None:
+        """Read and parse until the line is quiet: ``first_wait`` for the first byte, then
+        ``flush_quiet`` between chunks, never longer than ``flush_max`` in total."""
+        end = time.monotonic() + max(first_wait, self.flush_max)
+        wait = first_wait
+        while True:
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                break
+            if not self._pump(min(wait, remaining)):
+                break
+            wait = self.flush_quiet
+        self._replies.clear()
+
+    # -- internals: commands ---------------------------------------------------------------------
+    def _request(
+        self, packet: bytes, reply_id: int, frames_limit: int | None = -1, timeout: float | None = None
+    ) -> bytes:
+        """Send a command and return its reply payload.
+
+        Frames arriving meanwhile are queued. At most ``max_skipped_frames`` may arrive before
+        the reply (``frames_limit=None``: any number, bounded by ``timeout``); replies with another
+        id (late answers to earlier commands) are counted and skipped. The wait ends after
+        ``gap_timeout`` without a byte, or at ``timeout``.
+        """
+        if frames_limit == -1:
+            frames_limit = self.max_skipped_frames
+        self._replies.clear()
+        self._write(packet)
+        frames_before = self._counts["frames"] + self._counts["frames_ignored"] + self._counts["decode_errors"]
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            while self._replies:
+                reply = self._replies.popleft()
+                if reply.packet_id == reply_id:
+                    self._replies.clear()
+                    return reply.payload
+                self._counts["unexpected_replies"] += 1
+            seen = self._counts["frames"] + self._counts["frames_ignored"] + self._counts["decode_errors"]
+            if frames_limit is not None and seen - frames_before > frames_limit:
+                self._counts["timeouts"] += 1
+                raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {frames_limit} frames")
+            wait = self.gap_timeout
+            if deadline is not None:
+                wait = min(wait, deadline - time.monotonic())
+                if wait <= 0:
+                    self._counts["timeouts"] += 1
+                    raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {timeout:g} s")
+            if not self._pump(wait) and not self._replies and wait >= self.gap_timeout:
+                self._counts["timeouts"] += 1
+                raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} (silent for {wait:g} s)")
+
+    def _ack(self, packet: bytes, frames_limit: int | None = -1, timeout: float | None = None) -> None:
+        payload = self._request(packet, packet[3], frames_limit, timeout)
+        P.check_reply(payload, packet[3])
+
+    def _command(self, packet: bytes, reply_id: int, expect_reply: bool) -> None:
+        if expect_reply:
+            self._ack(packet)
+        else:
+            self._write(packet)
+
+    def _send_stop(self, tries: int) -> bool:
+        """Send stop up to ``tries`` times; True once acknowledged. Device errors count as not acked."""
+        for _ in range(tries):
+            try:
+                self._ack(P.stop_request(rle=self.rle), frames_limit=None, timeout=self.stop_timeout)
+                return True
+            except P.DSAError:
+                continue
+        return False
