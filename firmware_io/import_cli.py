@@ -103,11 +103,35 @@ def _summary(recording) -> str:
     return f"{n} frames, {duration:.1f} s, {rate}, {recording.layout.n_taxels} taxels{extra}"
 
 
+def _bad_pad_name(pads: str) -> str | None:
+    """A pad selection no sensor can satisfy (unknown name, empty), checked once before the batch.
+
+    Indices are checked per file, since a sensor other than the SDH-2 may have more pads.
+    """
+    from firmware_io.layout import LayoutError, SensorLayout
+
+    try:
+        SensorLayout.sdh2().pads(pads)
+    except LayoutError as exc:
+        if "no matrix" not in str(exc):
+            return str(exc)
+    return None
+
+
+def _report(src: Path, text: str) -> None:
+    print(f"{PROG}: {text if str(src) in text else f'{src}: {text}'}", file=sys.stderr)
+
+
 def main(args: argparse.Namespace) -> int:
     from firmware_io.importers import import_any
     from firmware_io.layout import LayoutError
     from firmware_io.recording import SUFFIX, RecordingError
 
+    if args.pads:
+        problem = _bad_pad_name(args.pads)
+        if problem:
+            print(f"{PROG}: {problem}", file=sys.stderr)
+            return 2
     sources, errors = _expand(args.sources)
     for e in errors:
         print(f"{PROG}: {e}", file=sys.stderr)
@@ -121,11 +145,13 @@ def main(args: argparse.Namespace) -> int:
                 recording = _subset(recording, args.pads)
             recording.save(target)
         except (RecordingError, LayoutError, OSError) as exc:
-            text = str(exc)
-            print(f"{PROG}: {text if str(src) in text else f'{src}: {text}'}", file=sys.stderr)
-            failed += 1
+            _report(src, str(exc))
+        except Exception as exc:  # one bad source must not stop the batch; say what broke
+            _report(src, f"unexpected {type(exc).__name__}: {exc}")
+        else:
+            print(f"{src} -> {target}: {_summary(recording)}")
             continue
-        print(f"{src} -> {target}: {_summary(recording)}")
+        failed += 1
     if failed:
         print(f"{PROG}: {failed} of {len(sources) + len(errors)} sources failed", file=sys.stderr)
         return 1

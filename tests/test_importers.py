@@ -410,8 +410,14 @@ def test_import_command(tmp_path, capsys):
 
     assert handover(["import", str(src / "x" / "A1.dsa"), "--out", str(out)]) == 0
     assert Recording.load(out / "A1.hrec").layout.n_taxels == 486
-    assert handover(["import", str(src / "x" / "A1.dsa"), "--out", str(out), "--pads", "palm"]) == 1
-    assert "unknown pad selection" in capsys.readouterr().err
+    capsys.readouterr()
+    assert handover(["import", str(src), "--out", str(out), "--pads", "palm"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handover import: unknown pad selection")
+    assert handover(["import", str(src / "x" / "A1.dsa"), "--out", str(out), "--pads", "7"]) == 1
+    assert "no matrix 7" in capsys.readouterr().err
+    assert handover(["import", str(tmp_path / "missing.dsa"), "--out", str(out)]) == 1
+    assert "missing.dsa: no such file" in capsys.readouterr().err
 
 
 def test_damaged_real_bag(tmp_path):
