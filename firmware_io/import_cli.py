@@ -99,6 +99,8 @@ def _summary(recording) -> str:
     ):
         if recording.meta.get(key):
             notes.append(f"{recording.meta[key]} {label}")
+    if recording.meta.get("dsa_dynamic_masks"):
+        notes.append(f"dynamic mask: matrices {', '.join(recording.meta['dsa_dynamic_masks'])} not fully read")
     extra = f" ({'; '.join(notes)})" if notes else ""
     return f"{n} frames, {duration:.1f} s, {rate}, {recording.layout.n_taxels} taxels{extra}"
 
