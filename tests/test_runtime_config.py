@@ -91,8 +91,11 @@ def test_cli_config_error_is_one_line_and_exit_2(tmp_path):
 
 
 def test_check_never_imports_training_packages(tmp_path):
+    from tests.tiny_models import tiny_model_bytes, write_model
+
     models = tmp_path / "models"
     models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
     cfg = tmp_path / "h.toml"
     cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n')
     code = (
@@ -102,3 +105,4 @@ def test_check_never_imports_training_packages(tmp_path):
     )
     proc = subprocess.run([sys.executable, "-c", code, str(cfg)], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert "HEAVY []" in proc.stdout, proc.stdout + proc.stderr
+    assert "would serve model" in proc.stdout and proc.returncode == 0

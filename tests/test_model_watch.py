@@ -1,0 +1,147 @@
+"""The model folder watcher: complete files only, trusted files only, broken ones refused."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from runtime.config import config_from_dict
+from runtime.daemon import scene_problem
+from runtime.model import load_model
+from runtime.model_watch import ModelWatcher, is_candidate_name
+from tests.tiny_models import tiny_model_bytes, write_model
+
+pytest.importorskip("onnx")
+
+
+def _watcher(folder: Path, **cfg) -> ModelWatcher:
+    config = config_from_dict(cfg)
+    return ModelWatcher(folder, loader=lambda p: load_model(p, warm_up=False),
+                        check=lambda m: scene_problem(m, config, None), poll_interval=0.05)
+
+
+def test_names():
+    assert is_candidate_name("m.onnx")
+    for name in (".m.onnx", "m.onnx.tmp", "m.onnx.part", "m.tmp", "m.txt", ".m.onnx.tmp"):
+        assert not is_candidate_name(name), name
+
+
+def test_startup_serves_the_newest_valid(tmp_path):
+    now = time.time()
+    write_model(tmp_path, "old.onnx", tiny_model_bytes(tag="old"), mtime=now - 100)
+    write_model(tmp_path, "new.onnx", tiny_model_bytes(tag="new"), mtime=now - 50)
+    (tmp_path / "newest-broken.onnx").write_bytes(b"not a model")
+    os.utime(tmp_path / "newest-broken.onnx", (now, now))
+    w = _watcher(tmp_path)
+    model = w.poll(require_stable=False)
+    assert model is not None and model.path.name == "new.onnx"
+    assert [r.path.name for r in w.rejections] == ["newest-broken.onnx"]
+
+
+def test_a_file_is_taken_only_when_stable_across_two_polls(tmp_path):
+    w = _watcher(tmp_path)
+    assert w.poll() is None
+    write_model(tmp_path, "m.onnx", tiny_model_bytes())
+    assert w.poll() is None  # first sighting
+    model = w.poll()
+    assert model is not None and w.take() is model and w.take() is None
+    assert w.poll() is None  # not loaded again
+
+
+def test_a_growing_file_is_not_picked_up(tmp_path):
+    data = tiny_model_bytes()
+    w = _watcher(tmp_path)
+    path = tmp_path / "copying.onnx"
+    path.write_bytes(data[: len(data) // 2])
+    os.chmod(path, 0o644)
+    assert w.poll() is None
+    with path.open("ab") as f:  # the copy goes on between polls
+        f.write(data[len(data) // 2 :])
+    assert w.poll() is None
+    assert w.rejections == []  # never tried while it changed
+    assert w.poll() is not None
+
+
+def test_temporary_names_are_ignored(tmp_path):
+    w = _watcher(tmp_path)
+    for name in (".m.onnx.tmp", "m.onnx.part", ".hidden.onnx"):
+        (tmp_path / name).write_bytes(tiny_model_bytes())
+        os.chmod(tmp_path / name, 0o644)
+    for _ in range(3):
+        assert w.poll() is None
+    assert w.rejections == []
+
+
+@pytest.mark.parametrize("mode", [0o666, 0o664, 0o646])
+def test_group_or_world_writable_is_refused(tmp_path, mode):
+    write_model(tmp_path, "open.onnx", tiny_model_bytes(), mode=mode)
+    w = _watcher(tmp_path)
+    assert w.poll(require_stable=False) is None
+    assert "writable by group or others" in w.rejections[0].reason
+
+
+def test_symlink_and_foreign_owner_are_refused(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    target = write_model(elsewhere, "m.onnx", tiny_model_bytes())
+    models = tmp_path / "models"
+    models.mkdir()
+    (models / "link.onnx").symlink_to(target)
+    w = _watcher(models)
+    assert w.poll(require_stable=False) is None
+    assert "not a regular file" in w.rejections[0].reason
+    # owned by the service user? pretend the service runs as another uid than the file's owner
+    w2 = ModelWatcher(elsewhere, loader=load_model, service_uid=os.geteuid() + 12345)
+    if os.geteuid() != 0:
+        assert w2.poll(require_stable=False) is None
+        assert "owned by uid" in w2.rejections[0].reason
+
+
+def test_broken_model_is_rejected_and_the_old_keeps_serving(tmp_path):
+    write_model(tmp_path, "good.onnx", tiny_model_bytes())
+    w = _watcher(tmp_path)
+    good = w.poll(require_stable=False)
+    assert good is not None
+    data = tiny_model_bytes(tag="next")
+    write_model(tmp_path, "truncated.onnx", data[: len(data) - 40])
+    w.poll()
+    assert w.poll() is None
+    assert w.rejections and w.rejections[0].path.name == "truncated.onnx"
+    assert "truncated.onnx" in w.rejections[0].reason
+
+
+def test_scene_mismatch_is_rejected_with_its_reason(tmp_path):
+    write_model(tmp_path, "all-pads.onnx", tiny_model_bytes(pads=(0, 1, 2, 3, 4, 5),
+                                                            pad_sizes=(84, 78, 84, 78, 84, 78)))
+    write_model(tmp_path, "three-classes.onnx", tiny_model_bytes(classes=("pull", "push", "hold")))
+    w = _watcher(tmp_path)
+    assert w.poll(require_stable=False) is None
+    reasons = {r.path.name: r.reason for r in w.rejections}
+    assert "pads" in reasons["all-pads.onnx"]
+    assert "bump" in reasons["three-classes.onnx"]
+    w2 = _watcher(tmp_path, scene={"pads": "all"})
+    model = w2.poll(require_stable=False)
+    assert model is not None and model.path.name == "all-pads.onnx"
+
+
+def test_continuous_mode_needs_a_dormant_class(tmp_path):
+    write_model(tmp_path, "m.onnx", tiny_model_bytes())
+    w = _watcher(tmp_path, scene={"mode": "continuous"})
+    assert w.poll(require_stable=False) is None
+    assert "dormant" in w.rejections[0].reason
+
+
+def test_background_thread_offers_a_dropped_model(tmp_path):
+    w = _watcher(tmp_path)
+    w.start()
+    try:
+        write_model(tmp_path, "m.onnx", tiny_model_bytes())
+        deadline = time.monotonic() + 5
+        while w.pending is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert w.take() is not None
+    finally:
+        w.stop()
