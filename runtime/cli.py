@@ -24,7 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "emulate": ("firmware_io.emulate_cli", "serve an emulated DSACON32m over TCP or a pseudo-terminal"),
     "dump": ("firmware_io.dump_cli", "print frames from any device URL (rate, per-pad sums, errors)"),
     "run": ("runtime.daemon_cli", "the detection daemon (systemd service)"),
-    "record": ("trainer.record_cli", "record a subject session following the paper's protocol"),
+    "record": ("firmware_io.record_cli", "record a subject session following the paper's protocol"),
     "plot": ("trainer.plot_cli", "plot a trial of a recording"),
     "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput"),
 }
