@@ -84,6 +84,7 @@ class Daemon:
         self.model: Any = None
         self.layout: SensorLayout | None = None
         self.client: Any = None
+        self.connected = False
         self.ring: RingBuffer | None = None
         self.trigger: ThresholdTrigger | ContinuousTrigger | None = None
         self.watcher: ModelWatcher | None = None
@@ -192,18 +193,19 @@ class Daemon:
         h = self.health
         url = self.cfg.device.url
         try:
-            client = self.client_factory(url)
-            layout = client.open()
-            client.start()
+            if self.client is None:
+                self.client = self.client_factory(url)
+            layout = self.client.open()
+            self.client.start()
         except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
             h.device_state = "disconnected"
-            h.last_error = f"{url}: {_one_line(exc)}"
-            log.warning("device %s: %s; retrying in %.1f s", url, _one_line(exc), self._backoff)
-            self._next_connect = time.monotonic() + self._backoff
-            self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+            reason = _one_line(exc).removeprefix(f"{url}: ")
+            h.last_error = f"{url}: {reason}"
+            log.warning("device %s: %s; retrying in %.1f s", url, reason, self._backoff)
+            self._schedule_reconnect()
             self._close_client()
             return
-        self.client = client
+        self.connected = True
         first = self.layout is None
         if self.layout != layout:
             self.layout = layout
@@ -215,7 +217,7 @@ class Daemon:
                     self.model = None
                     self.health.model_id = None
             self._build_hot_path(keep_history=False)
-        else:
+        else:  # the stream is not continuous across a reconnect: forget the history
             self.ring.reset()
             self.trigger.reset()
             self._pending.clear()
@@ -225,7 +227,12 @@ class Daemon:
         log.info("device %s %s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
                  layout.n_taxels, self.cfg.scene.pads)
 
+    def _schedule_reconnect(self) -> None:
+        self._next_connect = time.monotonic() + self._backoff
+        self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+
     def _fault(self, reason: str) -> None:
+        reason = reason.removeprefix(f"{self.cfg.device.url}: ")
         h = self.health
         h.device_faults += 1
         h.reconnects += 1
@@ -233,29 +240,22 @@ class Daemon:
         h.last_error = f"{self.cfg.device.url}: {reason}"
         log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
         self._close_client()
-        self._next_connect = time.monotonic() + self._backoff
-        self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+        self._schedule_reconnect()
 
     def _close_client(self) -> None:
+        self.connected = False
         if self.client is not None:
-            client, self.client = self.client, None
-            self._absorb_client_stats(client)
-            for action in ("stop", "close"):
-                with contextlib.suppress(Exception):
-                    getattr(client, action)()
+            with contextlib.suppress(Exception):
+                self.client.close()
 
-    def _absorb_client_stats(self, client: Any, final: bool = True) -> None:
-        """Fold the client's error counters into health (kept across reconnects)."""
-        stats = getattr(client, "stats", None)
+    def _absorb_client_stats(self) -> None:
+        """The client's error counters (cumulative over reconnects of the same client)."""
+        stats = getattr(self.client, "stats", None)
         if not isinstance(stats, dict):
             return
-        crc = int(stats.get("crc_errors", 0))
-        proto = int(stats.get("protocol_errors", stats.get("bad_headers", 0)))
-        base_crc, base_proto = getattr(self, "_crc_base", 0), getattr(self, "_proto_base", 0)
-        self.health.crc_errors = base_crc + crc
-        self.health.protocol_errors = base_proto + proto
-        if final:
-            self._crc_base, self._proto_base = base_crc + crc, base_proto + proto
+        self.health.crc_errors = int(stats.get("crc_errors", 0))
+        self.health.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
+        self.health.frames_stale = int(stats.get("frames_stale", 0))
 
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
@@ -332,8 +332,7 @@ class Daemon:
     def write_health(self, now: float | None = None) -> None:
         h = self.health
         h.update_rate(now)
-        if self.client is not None:
-            self._absorb_client_stats(self.client, final=False)
+        self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
         self.notifier.status(h.status_line())
         if self.cfg.health_file:
@@ -359,6 +358,7 @@ class Daemon:
         self.sinks = SinkSet.from_config(new.sinks, self.stream)
         if new.device.url != old.device.url:
             self._close_client()
+            self.client = None
             self.layout = None
             self._next_connect = 0.0
         if new.scene != old.scene or new.model != old.model or new.onnxruntime != old.onnxruntime:
@@ -386,7 +386,7 @@ class Daemon:
                     self._do_reload()
                 now = time.monotonic()
                 self._housekeeping(now)
-                if self.client is None:
+                if not self.connected:
                     if now >= self._next_connect:
                         self._connect()
                     else:
@@ -424,7 +424,8 @@ class Daemon:
 def _default_client(url: str) -> Any:
     from firmware_io.client import DSAClient
 
-    return DSAClient(url)
+    # The daemon reconnects itself (with backoff, answering SIGTERM and the watchdog meanwhile).
+    return DSAClient(url, auto_reconnect=False)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -25,6 +25,9 @@ class Health:
         self.started = time.time()
         self.frames_received = 0
         self.frames_dropped = 0
+        """Frames the device sent but we never saw (gaps in device time)."""
+        self.frames_stale = 0
+        """Frames received but discarded because the loop fell behind (client queue overflow)."""
         self.crc_errors = 0
         self.protocol_errors = 0
         self.reconnects = 0
@@ -74,6 +77,7 @@ class Health:
             "frame_rate_hz": round(self.frame_rate, 2),
             "frames_received": self.frames_received,
             "frames_dropped": self.frames_dropped,
+            "frames_stale": self.frames_stale,
             "crc_errors": self.crc_errors,
             "protocol_errors": self.protocol_errors,
             "reconnects": self.reconnects,

@@ -36,8 +36,8 @@ class Event:
     missed_deadline: bool = False
 
     def to_json(self) -> str:
-        d = asdict(self)
-        d["class"] = d.pop("cls")
+        d = {"class": self.cls, **asdict(self)}
+        del d["cls"]
         d["scores"] = {k: round(float(v), 6) for k, v in self.scores.items()}
         d["latency_us"] = round(float(self.latency_us), 1)
         return json.dumps(d, separators=(",", ":"))
