@@ -36,6 +36,8 @@ import numpy as np
 
 OPSET = 17
 IR_VERSION = 8
+HISTOGRAM = "histogram"
+"""Name of the BoW histogram tensor inside the graph (``handover verify`` exposes it)."""
 SCORE_MEANING = "sklearn ovr scores: one-vs-one votes + summed confidence / (3 * (|summed confidence| + 1))"
 
 
@@ -139,7 +141,8 @@ def bow_nodes(g: _Graph, frames: str, codebook: np.ndarray, pad_sizes: tuple[int
     denom = g.op("Max", [n_active, g.const("one", 1.0)], "denom")
     denom3 = g.op("Unsqueeze", [denom, g.const("axis2", [2], np.int64)], "denom3")
     hist = g.op("Div", [counts, denom3], "hist3")
-    return g.op("Reshape", [hist, g.const("hist_shape", [0, n_groups * n_words], np.int64)], "hist")
+    shape = g.const("hist_shape", [0, n_groups * n_words], np.int64)
+    return g.op("Reshape", [hist, shape], outputs=[g.prefix + HISTOGRAM])
 
 
 def svm_nodes(g: _Graph, hist: str, svm, label_out: str = "label", scores_out: str = "scores") -> None:

@@ -1,0 +1,93 @@
+"""``handover export MODEL.joblib --out model.onnx``: one ONNX graph from a trained model.
+
+A trained model file is a joblib of either a fitted ``BowSVC`` or ``{"model": BowSVC,
+"metadata": {...}}`` (what ``handover train`` keeps next to the ``.onnx``). The ``.joblib``
+stays next to the ``.onnx``: it is the float64 reference ``handover verify`` compares with, and
+its sha256 is written into the graph's metadata (``reference``) so the pair cannot be mixed up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import sys
+from pathlib import Path
+
+
+class ExportError(ValueError):
+    """A trained-model file or option that cannot be exported."""
+
+
+def load_trained(path: str | Path):
+    """(fitted BowSVC, metadata dict) from a joblib file; ExportError names what is wrong."""
+    import joblib
+
+    path = Path(path)
+    try:
+        obj = joblib.load(path)
+    except FileNotFoundError:
+        raise ExportError(f"{path}: no such file") from None
+    except Exception as exc:  # joblib/pickle raise many types for a broken file
+        raise ExportError(f"{path}: not a readable joblib file ({type(exc).__name__}: {exc})") from exc
+    metadata: dict = {}
+    if isinstance(obj, dict) and "model" in obj:
+        metadata = dict(obj.get("metadata") or {})
+        obj = obj["model"]
+    if not all(hasattr(obj, a) for a in ("bow_", "svm_", "classes_")):
+        raise ExportError(f"{path}: holds a {type(obj).__name__}, not a fitted BowSVC")
+    return obj, metadata
+
+
+def export_trained(source: str | Path, out: str | Path, pads: str | None = None, fold_derivative: bool = False) -> Path:
+    """Export a trained-model file; fills pads and training provenance it does not carry."""
+    from firmware_io.layout import SensorLayout
+    from trainer.onnx_export import export_onnx
+
+    source = Path(source)
+    model, metadata = load_trained(source)
+    n_channels = int(model.bow_.n_channels_)
+    if pads is not None or "pads" not in metadata:
+        layout = SensorLayout.sdh2()
+        try:
+            idx = layout.pads(pads or "distal")
+        except ValueError as exc:
+            raise ExportError(str(exc)) from None
+        sizes = layout.pad_sizes(idx)
+        if sum(sizes) != n_channels:
+            raise ExportError(
+                f"pads {pads or 'distal'} have {sum(sizes)} taxels but the model was trained on {n_channels}; pass --pads"
+            )
+        metadata["pads"], metadata["pad_sizes"] = list(idx), list(sizes)
+    training = {"data_fingerprint": "unknown", "n_trials": None, **metadata.get("training", {})}
+    metadata["training"] = training
+    out = Path(out)
+    ref_name = os.path.relpath(source.resolve(), out.resolve().parent)
+    metadata["reference"] = {"file": ref_name, "sha256": hashlib.sha256(source.read_bytes()).hexdigest()}
+    try:
+        return export_onnx(model, out, metadata, fold_derivative=fold_derivative)
+    except ValueError as exc:
+        raise ExportError(str(exc)) from exc
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", help="trained model (.joblib written by handover train)")
+    parser.add_argument("--out", help="ONNX file to write (default: MODEL with suffix .onnx)")
+    parser.add_argument("--pads", help="pads the model reads, when the model file does not say (e.g. distal, 1,3,5)")
+    parser.add_argument("--fold-derivative", action="store_true",
+                        help="fold the time derivative into the codeword kernel (one node less, less accurate)")
+
+
+def main(args: argparse.Namespace) -> int:
+    from runtime.model import ModelContractError, load_model
+
+    out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
+    try:
+        path = export_trained(args.model, out, args.pads, args.fold_derivative)
+        model = load_model(path)
+    except (ExportError, ModelContractError, OSError) as exc:
+        print(f"handover export: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {path}: id {model.model_id}, {model.n_nodes} nodes, {model.n_bytes} bytes, "
+          f"classes {', '.join(model.meta.classes)}, T={model.meta.T} W={model.meta.W} K={model.meta.K}")
+    return 0

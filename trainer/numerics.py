@@ -1,0 +1,144 @@
+"""The float64 reference of the exported graph and the float32 error bounds that define a near tie.
+
+Why bounds: the ONNX graph computes in float32 and the reference in float64, so a decision may
+legitimately differ where two alternatives are closer than float32 can tell apart. A difference
+is accepted only when it is such a *near tie*, defined here with standard rounding-error
+analysis (Higham, *Accuracy and Stability of Numerical Algorithms*, ch. 3): with unit roundoff
+``u = 2**-24`` and ``gamma(n) = n u / (1 - n u)``, a float32 sum of n products whose inputs are
+themselves rounded once is within ``gamma(n + 3) * sum |terms|`` of the exact value, in any
+summation order (FMA or not).
+
+**Codeword near tie.** The graph picks ``argmin_k f_k`` with ``f_k = ||c_k||^2 - 2 w.c_k``,
+w the float32 derivative window (exact for integer inputs). Its float32 error is at most
+``E_k = gamma(W + 3) * B_k`` with ``B_k = ||c_k||^2 + 2 sum_j |w_j| |c_kj|`` (raw values
+``x`` and the folded kernel instead of ``w`` and ``c`` when the derivative is folded). The
+float64 squared distances satisfy ``d_k - d_best = f_k - f_best`` exactly, so the graph can
+prefer ``k`` over the reference's ``best`` only if ``d_k - d_best <= E_k + E_best``. A window is
+a near tie when some k has ``d_k - d_best <= SAFETY * (E_k + E_best)``; its *relative margin* is
+``min_k (d_k - d_best) / (E_k + E_best)`` (in units of the bound, near tie below SAFETY).
+
+**SVM near tie.** A one-vs-one decision ``dec_p = sum_m a_mp K_m + b_p`` computed in float32 is
+within ``E_p`` of the float64 value (bound from ``svm_decision_bounds``); its vote can flip only
+when ``|dec_p| <= E_p``, a near tie with ``SAFETY``. ``SAFETY = 2`` absorbs second-order terms.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from trainer.onnx_export import svm_pair_coefficients, vote_matrices
+
+U32 = 2.0**-24
+SAFETY = 2.0
+
+
+def gamma(n: int) -> float:
+    return n * U32 / (1.0 - n * U32)
+
+
+# -- codewords --------------------------------------------------------------------------------
+def codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Relative margin of every window, float64 ``(n, c, S)``: the smallest gap to another codeword
+    in units of its float32 error bound (< SAFETY: near tie; inf with a single codeword), and the
+    absolute gap between the two smallest squared distances.
+
+    ``X`` is ``(n, c, T)`` of the float32 values the graph sees (cast to float64).
+    """
+    X = np.asarray(X, dtype=np.float64)
+    codebook = np.asarray(codebook, dtype=np.float64)
+    n_words, window = codebook.shape
+    deriv = X[:, :, 1:] - X[:, :, :-1]
+    win = np.lib.stride_tricks.sliding_window_view(deriv, window, axis=2)  # (n, c, S, W)
+    sqnorm = (codebook**2).sum(axis=1)
+    # expanded form is fine in float64: its rounding (~1e-16 * scale) is far below the float32 bound
+    dist = np.maximum((win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + sqnorm, 0.0)  # (n, c, S, K)
+    if fold_derivative:
+        padded = np.zeros((n_words, window + 2))
+        padded[:, 1:-1] = codebook
+        kernel = np.abs(padded[:, :-1] - padded[:, 1:])  # (K, W+1)
+        raw = np.lib.stride_tricks.sliding_window_view(X, window + 1, axis=2)
+        scale = sqnorm + 2.0 * np.abs(raw) @ kernel.T
+    else:
+        scale = sqnorm + 2.0 * np.abs(win) @ np.abs(codebook).T
+    err = gamma(window + 3) * scale  # (n, c, S, K)
+    best = np.argmin(dist, axis=-1)[..., None]
+    d_best = np.take_along_axis(dist, best, axis=-1)
+    e_best = np.take_along_axis(err, best, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = (dist - d_best) / (err + e_best)
+    others = np.arange(n_words) == best
+    rel = np.where(others, np.inf, rel).min(axis=-1)
+    gap = np.where(others, np.inf, dist - d_best).min(axis=-1)
+    return rel, gap
+
+
+def case_codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Per case, the smallest relative codeword margin and absolute gap over its active windows."""
+    rel, gap = codeword_margins(X, codebook, fold_derivative)
+    active = np.any(np.asarray(X) != 0, axis=2)[:, :, None]
+    rel = np.where(active, rel, np.inf).reshape(len(rel), -1).min(axis=1)
+    gap = np.where(active, gap, np.inf).reshape(len(gap), -1).min(axis=1)
+    return rel, gap
+
+
+# -- SVM ----------------------------------------------------------------------------------------
+def svm_pair_decisions(svm, hist: np.ndarray) -> np.ndarray:
+    """Float64 one-vs-one decisions ``(n, P)`` with libsvm's sign (> 0 votes for the first class),
+    from scikit-learn itself."""
+    if len(svm.classes_) == 2:
+        return -np.asarray(svm.decision_function(hist), dtype=np.float64)[:, None]
+    ovo = copy.copy(svm)
+    ovo.decision_function_shape = "ovo"
+    return np.asarray(ovo.decision_function(hist), dtype=np.float64)
+
+
+def svm_decision_bounds(svm, hist: np.ndarray) -> np.ndarray:
+    """Float32 error bound ``E_p`` of each one-vs-one decision of the graph, ``(n, P)``."""
+    hist = np.asarray(hist, dtype=np.float64)
+    coef, intercept, _ = svm_pair_coefficients(svm)
+    sv = np.asarray(svm.support_vectors_, dtype=np.float64)
+    n_features = hist.shape[1]
+    if svm.kernel == "linear":
+        weights = sv.T @ coef
+        return gamma(n_features + 4) * (np.abs(hist) @ np.abs(weights) + np.abs(intercept))
+    diff = hist[:, None, :] - sv[None]  # (n, M, F)
+    dist = (diff**2).sum(axis=-1)
+    d_err = gamma(n_features + 3) * (dist + 2.0 * (np.abs(diff) * (np.abs(hist)[:, None, :] + np.abs(sv)[None])).sum(-1))
+    g = float(svm._gamma)
+    kern = np.exp(-g * dist)
+    k_err = kern * np.expm1(g * d_err + 2.0 * U32 * g * dist + 6.0 * U32)
+    n_sv = sv.shape[0]
+    return np.abs(kern) @ np.abs(coef) * gamma(n_sv + 3) + k_err @ np.abs(coef) + gamma(n_sv + 3) * np.abs(intercept)
+
+
+def ovr_scores(dec: np.ndarray, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Votes (libsvm: ``dec > 0`` votes for the first class) and scikit-learn's ovr scores."""
+    pairs = [(i, j) for i in range(n_classes) for j in range(i + 1, n_classes)]
+    vote_diff, vote_base, conf_sign = vote_matrices(pairs, n_classes)
+    votes = (dec > 0).astype(np.float64) @ vote_diff + vote_base
+    conf = dec @ conf_sign
+    return votes, votes + conf / (3.0 * (np.abs(conf) + 1.0))
+
+
+# -- the whole reference -------------------------------------------------------------------------
+def reference(model, frames: np.ndarray, fold_derivative: bool = False) -> dict:
+    """Float64 reference of the graph on float32 ``frames`` ``[N, T, C]``: histogram, pair
+    decisions, their bounds, labels (``svm_.predict``), ovr scores and codeword margins."""
+    X = np.asarray(frames, dtype=np.float32).astype(np.float64).transpose(0, 2, 1)
+    hist = model.bow_.transform(X)
+    dec = svm_pair_decisions(model.svm_, hist)
+    n_classes = len(model.classes_)
+    _, scores = ovr_scores(dec, n_classes)
+    labels = np.searchsorted(model.classes_, model.svm_.predict(hist))
+    cw_margin, cw_gap = case_codeword_margins(X, model.bow_.codebook_, fold_derivative)
+    return {
+        "hist": hist,
+        "decisions": dec,
+        "decision_bounds": svm_decision_bounds(model.svm_, hist),
+        "labels": labels.astype(np.int64),
+        "scores": scores,
+        "codeword_margin": cw_margin,
+        "codeword_gap": cw_gap,
+    }

@@ -1,0 +1,247 @@
+"""Compare an exported graph with the float64 reference on the same windows.
+
+The reference is the fitted scikit-learn model the graph was exported from (``model.joblib``
+kept next to ``model.onnx``; its sha256 is in the ONNX metadata under ``reference``), run in
+float64: ``BagOfWords.transform`` + ``SVC.predict``/decision function. The graph is run with
+its BoW histogram exposed as an extra output, so every label disagreement can be traced to
+either a codeword choice (the histogram differs) or an SVM decision, each with its margin in
+units of the float32 error bound (``trainer.numerics``). A disagreement is accepted only as a
+near tie: margin below ``SAFETY``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trainer.numerics import SAFETY, reference
+
+BATCH = 256
+HIST_TOLERANCE = 1e-6
+"""Histogram entries are counts / windows in [0, 1]; float32 division is within 6e-8 of float64."""
+
+
+class VerifyError(ValueError):
+    """A model, reference or data set that cannot be verified; the message says why."""
+
+
+@dataclass
+class Disagreement:
+    case: int
+    source: str
+    graph_label: str
+    reference_label: str
+    codeword_margin: float
+    """Smallest relative codeword margin over the case's active windows (near tie < SAFETY)."""
+    codeword_gap: float
+    """Smallest absolute gap between the two nearest squared distances (float64)."""
+    svm_margin: float
+    """min over pairs of |decision| / float32 bound (near tie < SAFETY)."""
+    hist_max_abs_diff: float
+    near_tie: bool
+    reason: str
+
+
+@dataclass
+class VerifyReport:
+    n_cases: int = 0
+    agreement: float = 1.0
+    disagreements: list[Disagreement] = field(default_factory=list)
+    near_tie_disagreements: int = 0
+    unexplained_disagreements: int = 0
+    max_score_abs_diff: float = 0.0
+    max_score_abs_diff_same_votes: float = 0.0
+    """Over cases whose histogram and votes agree (no tie involved)."""
+    max_hist_abs_diff: float = 0.0
+    hist_mismatch_cases: int = 0
+    hist_mismatch_unexplained: int = 0
+    near_tie_cases: int = 0
+    """Cases with a codeword or SVM near tie, whatever the outcome."""
+    nan_or_inf_outputs: int = 0
+    nonfinite_input_refused: bool | None = None
+    by_source: dict = field(default_factory=dict)
+    safety: float = SAFETY
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["disagreements"] = [asdict(x) for x in self.disagreements]
+        return d
+
+    @property
+    def ok(self) -> bool:
+        return self.unexplained_disagreements == 0 and self.nan_or_inf_outputs == 0 and self.hist_mismatch_unexplained == 0
+
+
+class GraphRunner:
+    """The exported graph with its histogram as an extra output (single thread, like the daemon)."""
+
+    def __init__(self, onnx_path: str | Path):
+        import onnx
+        import onnxruntime as ort
+
+        from runtime.model import session_options
+        from trainer.onnx_export import HISTOGRAM
+
+        proto = onnx.load(str(onnx_path))
+        n_features = None
+        for node in proto.graph.node:
+            if HISTOGRAM in node.output:
+                shape = onnx.numpy_helper.to_array(next(i for i in proto.graph.initializer if i.name == node.input[1]))
+                n_features = int(shape[1])
+        if n_features is None:
+            raise VerifyError(f"{onnx_path}: no {HISTOGRAM!r} tensor in the graph (not exported by this project)")
+        proto.graph.output.append(onnx.helper.make_tensor_value_info(HISTOGRAM, onnx.TensorProto.FLOAT, ["N", n_features]))
+        self.session = ort.InferenceSession(proto.SerializeToString(), session_options(), providers=["CPUExecutionProvider"])
+
+    def run(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        labels, scores, hist = self.session.run(["label", "scores", "histogram"], {"frames": frames})
+        return labels, scores, hist
+
+
+def reference_path_for(onnx_path: Path, meta_extra: dict, explicit: str | Path | None) -> Path:
+    if explicit is not None:
+        return Path(explicit)
+    name = (meta_extra.get("reference") or {}).get("file")
+    return onnx_path.with_name(name) if name else onnx_path.with_suffix(".joblib")
+
+
+def load_reference(onnx_path: Path, meta_extra: dict, explicit: str | Path | None = None):
+    """The fitted scikit-learn model behind a graph; refuses a file whose sha256 does not match."""
+    from trainer.export_cli import load_trained
+
+    path = reference_path_for(onnx_path, meta_extra, explicit)
+    if not path.is_file():
+        raise VerifyError(f"reference model {path} not found (keep the .joblib next to the .onnx, or pass --reference)")
+    expected = (meta_extra.get("reference") or {}).get("sha256")
+    if expected and hashlib.sha256(path.read_bytes()).hexdigest() != expected:
+        raise VerifyError(f"reference model {path} is not the one this graph was exported from (sha256 differs)")
+    model, _ = load_trained(path)
+    return model
+
+
+def compare(model, runner: GraphRunner, frames: np.ndarray, sources: list[str], fold_derivative: bool = False,
+            report: VerifyReport | None = None) -> VerifyReport:
+    """Run graph and reference on ``frames`` float32 ``[N, T, C]``; accumulate into ``report``."""
+    report = report or VerifyReport()
+    classes = [str(c) for c in model.classes_]
+    n_done = report.n_cases
+    n_agree = round(report.agreement * report.n_cases)
+    for start in range(0, len(frames), BATCH):
+        batch = np.ascontiguousarray(frames[start : start + BATCH], dtype=np.float32)
+        src = sources[start : start + BATCH]
+        labels, scores, hist = runner.run(batch)
+        ref = reference(model, batch, fold_derivative)
+        finite = np.isfinite(scores).all(axis=1) & np.isfinite(hist).all(axis=1)
+        report.nan_or_inf_outputs += int((~finite).sum())
+        hist_diff = np.abs(hist.astype(np.float64) - ref["hist"]).max(axis=1)
+        score_diff = np.abs(scores.astype(np.float64) - ref["scores"]).max(axis=1)
+        same_votes = np.floor(scores + 0.5) == np.floor(ref["scores"] + 0.5)
+        svm_margin = (np.abs(ref["decisions"]) / np.maximum(ref["decision_bounds"], 1e-300)).min(axis=1)
+        cw_margin = ref["codeword_margin"]
+        cw_tie, svm_tie = cw_margin < SAFETY, svm_margin < SAFETY
+        hist_bad = hist_diff > HIST_TOLERANCE
+        report.max_score_abs_diff = max(report.max_score_abs_diff, float(np.nanmax(score_diff, initial=0.0)))
+        keep = same_votes.all(axis=1) & ~hist_bad
+        report.max_score_abs_diff_same_votes = max(
+            report.max_score_abs_diff_same_votes, float(np.nanmax(score_diff[keep], initial=0.0))
+        )
+        report.max_hist_abs_diff = max(report.max_hist_abs_diff, float(np.nanmax(hist_diff, initial=0.0)))
+        report.hist_mismatch_cases += int(hist_bad.sum())
+        report.hist_mismatch_unexplained += int((hist_bad & ~cw_tie).sum())
+        report.near_tie_cases += int((cw_tie | svm_tie).sum())
+        agree = labels == ref["labels"]
+        n_agree += int(agree.sum())
+        for i in np.flatnonzero(~agree):
+            if hist_bad[i]:
+                near, reason = bool(cw_tie[i]), "codeword choice (histogram differs)"
+            else:
+                near, reason = bool(svm_tie[i]), "SVM decision (same histogram)"
+            report.disagreements.append(
+                Disagreement(
+                    case=n_done + start + int(i),
+                    source=src[i],
+                    graph_label=classes[int(labels[i])],
+                    reference_label=classes[int(ref["labels"][i])],
+                    codeword_margin=float(cw_margin[i]),
+                    codeword_gap=float(ref["codeword_gap"][i]),
+                    svm_margin=float(svm_margin[i]),
+                    hist_max_abs_diff=float(hist_diff[i]),
+                    near_tie=near,
+                    reason=reason + ("" if near else ": NOT a near tie"),
+                )
+            )
+            report.near_tie_disagreements += int(near)
+            report.unexplained_disagreements += int(not near)
+        for s, a in zip(src, agree, strict=True):
+            entry = report.by_source.setdefault(s, {"n_cases": 0, "agree": 0})
+            entry["n_cases"] += 1
+            entry["agree"] += int(a)
+    report.n_cases = n_done + len(frames)
+    report.agreement = n_agree / report.n_cases if report.n_cases else 1.0
+    return report
+
+
+def check_nonfinite_refused(onnx_path: Path) -> bool:
+    """True when the runtime loader refuses NaN and infinity in the input frames."""
+    from runtime.model import ModelInputError, load_model
+
+    model = load_model(onnx_path)
+    shape = (1, model.meta.T, model.meta.n_channels)
+    refused = 0
+    for bad in (np.nan, np.inf, -np.inf):
+        x = np.zeros(shape, dtype=np.float32)
+        x[0, -1, 0] = bad
+        try:
+            model.run(x)
+        except ModelInputError:
+            refused += 1
+    return refused == 3
+
+
+# -- windows to verify on ---------------------------------------------------------------------------
+def trial_windows(recordings, meta, stride: int = 4, source: str = "simulated") -> tuple[np.ndarray, list[str]]:
+    """Every T-frame window (every ``stride``-th start) inside each labelled trial, model pads only."""
+    out, names = [], []
+    for rec in recordings:
+        cols = rec.layout.columns(list(meta.pads))
+        for trial in rec.trials:
+            frames, _ = rec.trial_frames(trial)
+            sel = frames[:, cols]
+            for s in range(0, len(sel) - meta.T + 1, stride):
+                out.append(sel[s : s + meta.T])
+                names.append(source)
+    if not out:
+        raise VerifyError(f"the {source} recordings have no trial of at least T={meta.T} frames")
+    return np.asarray(out, dtype=np.float32), names
+
+
+def simulated_windows(meta, seed: int, n_subjects: int, stride: int) -> tuple[np.ndarray, list[str]]:
+    """Held-out trials of the simulated protocol (a seed the training did not use)."""
+    from firmware_io.simulate import simulate_protocol
+
+    recs = simulate_protocol(seed=seed, n_subjects=n_subjects)
+    return trial_windows(recs, meta, stride, source="simulated (synthetic)")
+
+
+def recording_windows(folder: str | Path, meta, stride: int) -> tuple[np.ndarray, list[str]]:
+    from firmware_io.recording import RecordingError, find_recordings, load_all
+
+    try:
+        recs = load_all(find_recordings(folder))
+    except (OSError, RecordingError) as exc:
+        raise VerifyError(str(exc)) from exc
+    if not recs:
+        raise VerifyError(f"no recordings in {folder}")
+    return trial_windows(recs, meta, stride, source=f"recordings in {Path(folder).name}")
+
+
+def stress_windows(model, meta, seed: int = 0) -> tuple[np.ndarray, list[str]]:
+    from trainer.stress import stress_cases
+
+    families = stress_cases(meta.T, meta.n_channels, model.bow_.codebook_, seed)
+    frames = np.concatenate(list(families.values()))
+    names = [f"stress:{name}" for name, arr in families.items() for _ in range(len(arr))]
+    return frames, names

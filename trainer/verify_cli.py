@@ -1,0 +1,88 @@
+"""``handover verify MODEL.onnx [--data DIR] [--stress] [--json]``: the graph against float64.
+
+Runs the exported graph and the float64 scikit-learn reference (the ``.joblib`` next to the
+``.onnx``) on the same windows: held-out simulated trials (or the recordings in ``--data``)
+and, with ``--stress``, the stress families of ``trainer.stress``. Exit status 0 when every
+disagreement is a near tie and no output is NaN/inf, 1 otherwise, 2 when it cannot run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", help="exported model (.onnx)")
+    parser.add_argument("--reference", help="the trained .joblib (default: as named in the model's metadata)")
+    parser.add_argument("--data", help="folder of .hrec recordings (default: held-out simulated protocol)")
+    parser.add_argument("--seed", type=int, default=1000, help="simulator seed of the held-out trials (default 1000)")
+    parser.add_argument("--subjects", type=int, default=5, help="simulated subjects (default 5)")
+    parser.add_argument("--stride", type=int, default=4, help="frames between verified window starts (default 4)")
+    parser.add_argument("--stress", action="store_true", help="add the stress cases")
+    parser.add_argument("--no-trials", action="store_true", help="stress cases only (implies --stress)")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+
+
+def _print_report(report, path: Path) -> None:
+    print(f"verify {path}: {report.n_cases} cases, label agreement {100 * report.agreement:.3f} %")
+    for source, entry in sorted(report.by_source.items()):
+        print(f"  {source}: {entry['agree']}/{entry['n_cases']} agree")
+    print(f"  disagreements: {len(report.disagreements)} ({report.near_tie_disagreements} near ties, "
+          f"{report.unexplained_disagreements} unexplained)")
+    for d in report.disagreements[:50]:
+        print(f"    case {d.case} [{d.source}] graph={d.graph_label} reference={d.reference_label}: {d.reason}; "
+              f"codeword margin {d.codeword_margin:.3g} x bound (gap {d.codeword_gap:.3g}), "
+              f"SVM margin {d.svm_margin:.3g} x bound")
+    print(f"  max |score - reference|: {report.max_score_abs_diff:.3g} "
+          f"({report.max_score_abs_diff_same_votes:.3g} where histogram and votes agree)")
+    print(f"  max |histogram - reference|: {report.max_hist_abs_diff:.3g}; "
+          f"{report.hist_mismatch_cases} histograms differ ({report.hist_mismatch_unexplained} not at a near tie)")
+    print(f"  cases with a near tie (any outcome): {report.near_tie_cases}; NaN/inf outputs: {report.nan_or_inf_outputs}; "
+          f"non-finite input refused: {report.nonfinite_input_refused}")
+    print(f"  near tie: margin < {report.safety:g} x the float32 error bound (see trainer/numerics.py)")
+
+
+def main(args: argparse.Namespace) -> int:
+    from runtime.model import ModelContractError, load_model
+    from trainer.export_cli import ExportError
+    from trainer.verify import (
+        GraphRunner,
+        VerifyError,
+        VerifyReport,
+        check_nonfinite_refused,
+        compare,
+        load_reference,
+        recording_windows,
+        simulated_windows,
+        stress_windows,
+    )
+
+    path = Path(args.model)
+    try:
+        loaded = load_model(path)
+        meta = loaded.meta
+        model = load_reference(path, meta.extra, args.reference)
+        fold = bool(meta.extra.get("graph", {}).get("fold_derivative", False))
+        runner = GraphRunner(path)
+        report = VerifyReport()
+        if not args.no_trials:
+            if args.data:
+                frames, sources = recording_windows(args.data, meta, args.stride)
+            else:
+                frames, sources = simulated_windows(meta, args.seed, args.subjects, args.stride)
+            compare(model, runner, frames, sources, fold, report)
+        if args.stress or args.no_trials:
+            frames, sources = stress_windows(model, meta)
+            compare(model, runner, frames, sources, fold, report)
+        report.nonfinite_input_refused = check_nonfinite_refused(path)
+    except (ModelContractError, VerifyError, ExportError, OSError, ValueError) as exc:
+        print(f"handover verify: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(report.to_dict(), indent=2))
+    else:
+        _print_report(report, path)
+    return 0 if report.ok and report.nonfinite_input_refused else 1
