@@ -1,0 +1,295 @@
+"""DSAClient against the emulated controller (``sim://``, in process) and a scripted device
+for misbehaviour the emulator does not offer (silence, error replies, a device that never answers)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from firmware_io import protocol as P
+from firmware_io.client import DSAClient, DSATimeout, Frame
+from firmware_io.layout import SensorLayout
+from firmware_io.transports import DeviceUnavailable, Transport, TransportError
+
+FAST = "sim://?seed=3&events=2&realtime=0"
+QUICK = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet": 0.05}
+
+
+def sim_recording():
+    from firmware_io.frame_source import load_source
+
+    return load_source("sim", seed=3, events=2)
+
+
+# -- against the emulator -------------------------------------------------------------------------
+def test_open_builds_the_layout_from_the_controller() -> None:
+    with DSAClient(FAST) as client:
+        layout = client.layout
+        assert layout is not None and layout.n_taxels == 486
+        assert [(m.cells_x, m.cells_y) for m in layout.matrices] == [
+            (m.cells_x, m.cells_y) for m in SensorLayout.sdh2().matrices
+        ]
+        assert client.controller.firmware == "2.9.0.0"
+        assert client.sensor.nb_matrices == 6
+
+
+def test_push_frames_match_the_source_bit_for_bit() -> None:
+    rec = sim_recording()
+    with DSAClient(FAST) as client:
+        client.start()
+        frames = [client.read_frame(2.0) for _ in range(40)]
+        client.stop()
+    assert all(isinstance(f, Frame) for f in frames)
+    assert [f.number for f in frames] == list(range(40))
+    for i, f in enumerate(frames):
+        np.testing.assert_array_equal(f.values, rec.frames[i])
+        assert f.values.dtype == np.uint16
+    stamps = [f.timestamp_ms for f in frames]
+    expected = np.round((rec.timestamps[:40] - rec.timestamps[0]) * 1000).astype(int)
+    assert stamps == expected.tolist()
+    assert all(b.received >= a.received for a, b in itertools.pairwise(frames))
+
+
+def test_raw_frames_when_rle_is_off() -> None:
+    rec = sim_recording()
+    with DSAClient(FAST, rle=False) as client:
+        client.start()
+        f = client.read_frame(2.0)
+    np.testing.assert_array_equal(f.values, rec.frames[0])
+
+
+def test_newest_drops_stale_frames() -> None:
+    with DSAClient(FAST) as client:
+        client.start()
+        time.sleep(0.05)
+        first = client.read_frame(2.0)
+        newest = client.read_frame(2.0, newest=True)
+        assert newest.number > first.number + 1
+        assert client.stats["frames_stale"] >= newest.number - first.number - 1
+
+
+@pytest.mark.parametrize("old", [False, True])
+def test_poll_frame_single_frames_and_old_firmware(old: bool) -> None:
+    url = FAST + ("&old_firmware=1" if old else "")
+    rec = sim_recording()
+    with DSAClient(url, **QUICK) as client:
+        assert client.controller.single_frame_broken == old
+        a = client.poll_frame()
+        b = client.poll_frame()
+        np.testing.assert_array_equal(a.values, rec.frames[0])
+        assert b.timestamp_ms > a.timestamp_ms
+        # after the workaround nothing keeps arriving
+        assert client.read_frame(0.2) is None
+        assert not client._transport.emulator.pushing
+
+
+def test_boot_query_and_faults_are_counted_and_frames_survive() -> None:
+    url = FAST + "&fault=crc=0.05,garbage=0.05,drop=0.03,boot"
+    with DSAClient(url) as client:
+        client.start()
+        frames = [client.read_frame(2.0) for _ in range(300)]
+        emu = client._transport.emulator.stats
+        stats = client.stats
+    assert all(f is not None for f in frames)
+    assert stats["boot_queries"] == 3
+    assert stats["crc_errors"] >= emu.crc_corrupted > 0
+    assert stats["bytes_dropped"] >= emu.garbage_bytes > 0
+    numbers = [f.number for f in frames]
+    assert numbers == sorted(numbers) and len(set(numbers)) == 300
+    stamps = [f.timestamp_ms for f in frames]
+    assert all(b > a for a, b in itertools.pairwise(stamps))
+
+
+def test_timestamps_unwrap_across_the_u32_wrap() -> None:
+    start = 2**32 - 300
+    with DSAClient(FAST + f"&start_ms={start}") as client:
+        client.start()
+        stamps = [client.read_frame(2.0).timestamp_ms for _ in range(40)]
+    assert stamps[0] == start
+    assert stamps[-1] > 2**32
+    assert all(b > a for a, b in itertools.pairwise(stamps))
+
+
+def test_reconnect_after_disconnect_resumes_push() -> None:
+    url = FAST + "&fault=disconnect=30"
+    with DSAClient(url, backoff_initial=0.01) as client:
+        client.start()
+        frames = [client.read_frame(2.0) for _ in range(75)]
+        assert client.stats["reconnects"] >= 2
+        assert client.streaming
+    assert all(f is not None for f in frames)
+    assert [f.number for f in frames] == list(range(75))
+
+
+def test_realtime_rate_is_about_32_hz() -> None:
+    with DSAClient("sim://?seed=3&events=2") as client:
+        client.start()
+        t0 = time.monotonic()
+        n = sum(client.read_frame(1.0) is not None for _ in range(12))
+        elapsed = time.monotonic() - t0
+    assert n == 12
+    assert 0.2 < elapsed < 1.5  # synthetic stream at ~32 frames/s, loosely
+
+
+def test_sensitivity_and_threshold_commands() -> None:
+    with DSAClient(FAST, **QUICK) as client:
+        client.set_threshold(1, 321)
+        assert client.get_threshold(1) == 321
+        client.set_sensitivity(2, 0.25)
+        assert client.get_sensitivity(2).cur_sens == pytest.approx(0.25)
+        with pytest.raises(P.DeviceError, match="INDEX_OUT_OF_BOUNDS"):
+            client.get_threshold(9)
+
+
+def test_bad_url_is_a_transport_error() -> None:
+    with pytest.raises(TransportError):
+        DSAClient("nope://x").open()
+
+
+# -- a scripted device for misbehaviour --------------------------------------------------------
+class ScriptedDevice(Transport):
+    """Answers each request packet with whatever ``respond(packet)`` returns; can push frames."""
+
+    def __init__(self, respond: Callable[[P.Packet], bytes], push: Callable[[], bytes] | None = None) -> None:
+        self.url = "scripted://"
+        self.respond = respond
+        self.push = push
+        self.out = bytearray()
+        self.written: list[P.Packet] = []
+        self._closed = False
+        self.fail_reads = False
+
+    def write(self, data: bytes) -> None:
+        if self._closed:
+            raise TransportError("closed")
+        packet = P.decode_packet(data)
+        self.written.append(packet)
+        self.out += self.respond(packet)
+
+    def read(self, max_bytes: int = 4096, timeout: float = 0.1) -> bytes:
+        if self._closed:
+            raise TransportError("closed")
+        if self.fail_reads:
+            raise DeviceUnavailable("scripted://: connection closed by the device")
+        if self.push is not None:
+            self.out += self.push()
+        if not self.out:
+            time.sleep(min(timeout, 0.01))
+            return b""
+        data = bytes(self.out[:max_bytes])
+        del self.out[:max_bytes]
+        return data
+
+    def close(self) -> None:
+        self._closed = True
+
+
+def good_device(packet: P.Packet, *, nb: int = 2, sensor_code: int = 0) -> bytes:
+    pid = packet.packet_id
+    if pid == 0x01:
+        return P.ControllerInfo(sw_version=0x2900).to_packet()
+    if pid == 0x02:
+        if sensor_code:
+            return P.encode_ack(0x02, sensor_code)
+        return P.SensorInfo(nb_matrices=nb).to_packet()
+    if pid == 0x0B:
+        return P.MatrixInfoReply(cells_x=3, cells_y=4).to_packet()
+    if pid == 0x03:
+        return P.encode_ack(0x03)
+    return b""
+
+
+def test_scripted_open_and_error_code_checked_in_every_reply() -> None:
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev, **QUICK)
+    assert client.open().n_taxels == 24
+    assert [p.packet_id for p in dev.written] == [0x03, 0x01, 0x02, 0x0B, 0x0B]
+    assert dev.written[0].payload == b"\x01\x00\x00"  # stop, RLE flag, rate 0
+    dev2 = ScriptedDevice(lambda p: good_device(p, sensor_code=P.DSAErrorCode.NO_SENSOR))
+    with pytest.raises(P.DeviceError, match="E_NO_SENSOR"):
+        DSAClient(dev2, **QUICK).open()
+    dev3 = ScriptedDevice(lambda p: good_device(p, nb=0))
+    with pytest.raises(P.ProtocolError, match="no tactile matrices"):
+        DSAClient(dev3, **QUICK).open()
+
+
+def test_silent_device_open_is_bounded_and_close_never_hangs() -> None:
+    dev = ScriptedDevice(lambda p: b"")
+    client = DSAClient(dev, **QUICK)
+    t0 = time.monotonic()
+    with pytest.raises(DSATimeout):
+        client.open()
+    # 3 stop tries + flush + one query, each bounded
+    assert time.monotonic() - t0 < 3 * 0.3 + 0.3 + 0.3 + 1.0
+    assert sum(p.packet_id == 0x03 for p in dev.written) == 3  # stop tried three times, then goes on
+    assert client.stats["timeouts"] >= 4
+    t0 = time.monotonic()
+    client.close()
+    client.close()
+    assert time.monotonic() - t0 < 1.5
+    assert dev.closed
+
+
+def test_at_most_four_frames_skipped_waiting_for_a_reply_and_they_are_queued() -> None:
+    counter = iter(range(10**6))
+
+    def push() -> bytes:
+        return P.encode_frame(np.full(24, 7, np.uint16), next(counter), rle=True)
+
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev, **QUICK)
+    client.open()
+    dev.push = push  # the device now pushes frames and never answers 0x14
+    with pytest.raises(DSATimeout, match="within 4 frames"):
+        client.get_threshold(0)
+    dev.push = None
+    frames = [client.read_frame(0.2) for _ in range(5)]
+    assert all(f is not None for f in frames)
+    assert [f.timestamp_ms for f in frames] == list(range(5))
+
+
+def test_transport_failure_on_a_given_transport_is_raised() -> None:
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev, **QUICK)
+    client.open()
+    dev.fail_reads = True
+    with pytest.raises(TransportError):
+        client.read_frame(0.5)
+
+
+def test_reconnect_backs_off_exponentially_and_gives_up() -> None:
+    attempts: list[float] = []
+
+    def factory() -> Transport:
+        attempts.append(time.monotonic())
+        raise DeviceUnavailable("scripted://: no device")
+
+    client = DSAClient(factory, reconnect_tries=4, backoff_initial=0.05, backoff_max=1.0, **QUICK)
+    with pytest.raises(TransportError, match="reconnect failed after 4 tries"):
+        client.reconnect()
+    gaps = np.diff(attempts)
+    assert len(attempts) == 4
+    assert gaps[0] >= 0.05 and gaps[1] >= 0.1 and gaps[2] >= 0.2
+
+
+def test_reconnect_through_a_factory_recovers() -> None:
+    made: list[ScriptedDevice] = []
+
+    def factory() -> Transport:
+        if len(made) == 1:
+            made.append(None)  # type: ignore[arg-type]
+            raise DeviceUnavailable("scripted://: not yet")
+        dev = ScriptedDevice(good_device)
+        made.append(dev)
+        return dev
+
+    client = DSAClient(factory, backoff_initial=0.01, **QUICK)
+    client.open()
+    made[0].fail_reads = True
+    assert client.read_frame(0.3) is None  # reconnected, then no frame (not pushing)
+    assert client.stats["reconnects"] == 1
+    assert len(made) == 3
