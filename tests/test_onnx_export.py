@@ -1,0 +1,115 @@
+"""The exported graph reproduces BowSVC (labels, scores, histograms) with standard operators only."""
+
+from __future__ import annotations
+
+import joblib
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+
+from runtime.cli import main as handover
+from runtime.model import load_model
+from tests.onnx_fixtures import export, fit_model, frames_of, synthetic_cases
+from trainer.onnx_export import IR_VERSION, OPSET, export_onnx
+from trainer.verify import GraphRunner
+
+
+@pytest.fixture(scope="module")
+def rbf_model():
+    return fit_model("rbf", per_pad=True)
+
+
+@pytest.fixture(scope="module")
+def rbf_path(rbf_model, tmp_path_factory):
+    return export(rbf_model, tmp_path_factory.mktemp("rbf"))
+
+
+def _indices(model, X):
+    return np.searchsorted(model.classes_, model.predict(X))
+
+
+@pytest.mark.parametrize(("kernel", "per_pad", "fold"), [("rbf", True, False), ("rbf", False, False),
+                                                          ("linear", True, False), ("rbf", True, True)])
+def test_graph_matches_estimator(kernel, per_pad, fold, tmp_path):
+    model = fit_model(kernel, per_pad=per_pad)
+    path = export(model, tmp_path, fold_derivative=fold)
+    X, _ = synthetic_cases(n=64, seed=7)
+    labels, scores, hist = GraphRunner(path).run(frames_of(X))
+    np.testing.assert_array_equal(labels, _indices(model, X))
+    np.testing.assert_allclose(scores, model.decision_function(X), atol=1e-4)
+    np.testing.assert_allclose(hist, model.bow_.transform(X), atol=1e-6)
+    assert labels.dtype == np.int64 and scores.dtype == np.float32
+
+
+def test_two_classes(tmp_path):
+    model = fit_model("rbf", n_classes=2)
+    path = export(model, tmp_path)
+    X, _ = synthetic_cases(n=40, seed=3, n_classes=2)
+    labels, scores = load_model(path).run(frames_of(X))
+    np.testing.assert_array_equal(labels, _indices(model, X))
+    assert scores.shape == (40, 2)
+    # sklearn's binary decision_function is > 0 for classes_[1]; the ovr score of class 1 wins then
+    dec = model.decision_function(X)
+    assert np.all((scores[:, 1] > scores[:, 0]) == (dec > 0))
+
+
+def test_standard_domains_opset_and_dynamic_batch(rbf_path, rbf_model):
+    proto = onnx.load(str(rbf_path))
+    onnx.checker.check_model(proto, full_check=True)
+    assert proto.ir_version == IR_VERSION
+    assert {(o.domain, o.version) for o in proto.opset_import} == {("", OPSET)}
+    ops = {n.op_type for n in proto.graph.node}
+    assert all(n.domain == "" for n in proto.graph.node)
+    assert "SVMClassifier" not in ops and "Conv" in ops and "ArgMin" in ops
+    assert proto.graph.input[0].type.tensor_type.shape.dim[0].dim_param == "N"
+    model = load_model(rbf_path)
+    X, _ = synthetic_cases(n=37, seed=11)
+    for n in (1, 37):
+        labels, scores = model.run(frames_of(X[:n]))
+        assert labels.shape == (n,) and scores.shape == (n, 4)
+
+
+def test_metadata_complete_and_derived(rbf_path, rbf_model):
+    meta = load_model(rbf_path).meta
+    assert meta.classes == tuple(str(c) for c in rbf_model.classes_)
+    assert (meta.T, meta.W, meta.K, meta.n_channels) == (12, 5, 6, 16)
+    assert meta.extra["feature_groups"] == [6, 10]
+    assert meta.extra["kernel"] == "rbf"
+    assert meta.training["data_fingerprint"] == "synthetic-test"
+
+
+def test_metadata_contradicting_the_model_is_refused(rbf_model, tmp_path):
+    with pytest.raises(ValueError, match="T=99 contradicts"):
+        export_onnx(rbf_model, tmp_path / "m.onnx", {"T": 99, "pads": [1, 3], "pad_sizes": [6, 10],
+                                                     "training": {"data_fingerprint": "x", "n_trials": 1}})
+    assert not (tmp_path / "m.onnx").exists()
+
+
+def test_skl2onnx_converts_bag_of_words(rbf_model):
+    from skl2onnx import to_onnx
+
+    from trainer.onnx_export import register_skl2onnx
+
+    register_skl2onnx()
+    X, _ = synthetic_cases(n=20, seed=5)
+    proto = to_onnx(rbf_model.bow_, X[:1].astype(np.float32), target_opset=OPSET)
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    (hist,) = session.run(None, {session.get_inputs()[0].name: X.astype(np.float32)})
+    np.testing.assert_allclose(hist, rbf_model.bow_.transform(X), atol=1e-6)
+
+
+def test_export_cli(rbf_model, tmp_path, capsys):
+    src = tmp_path / "trained.joblib"
+    joblib.dump({"model": rbf_model, "metadata": {"training": {"data_fingerprint": "f", "n_trials": 3}}}, src)
+    assert handover(["export", str(src), "--out", str(tmp_path / "m.onnx"), "--pads", "1,3"]) == 1  # 16 != 156 taxels
+    assert "trained on 16" in capsys.readouterr().err
+    joblib.dump({"model": rbf_model, "metadata": {"pads": [1, 3], "pad_sizes": [6, 10],
+                                                  "training": {"data_fingerprint": "f", "n_trials": 3}}}, src)
+    assert handover(["export", str(src), "--out", str(tmp_path / "m.onnx")]) == 0
+    meta = load_model(tmp_path / "m.onnx").meta
+    assert meta.extra["reference"]["file"] == "trained.joblib"
+    (tmp_path / "junk.joblib").write_bytes(b"not a pickle")
+    assert handover(["export", str(tmp_path / "junk.joblib")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("handover export: ") and "Traceback" not in err
