@@ -1,0 +1,184 @@
+"""Benchmark: DSACON32m full-frame decoding, RLE and raw, in frames per second on one core.
+
+Frames come from the real SDH-2 recordings in ../shared/data (via the .dsa importer) when
+present, else from simulated frames (then labelled synthetic). Each frame is encoded as the
+controller would send it, then timed two ways:
+
+- ``payload``: ``decode_frame_payload`` alone (what the issue's 20,000 frames/s aim is about);
+- ``stream``: ``StreamParser.feed`` on the byte stream (preamble search, CRC) plus decoding.
+
+Usage: ``.venv/bin/python benchmarks/bench_decode.py [--frames 4000] [--repeats 7]``.
+Writes results/decode.json and results/decode.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from firmware_io import protocol as P  # noqa: E402
+from firmware_io.parser import StreamParser  # noqa: E402
+
+DATA = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data")) / "sdh2-dsa"
+
+
+def real_frames(limit: int) -> tuple[np.ndarray, str] | None:
+    """Up to ``limit`` real frames (uint16 [N, C]) from the .dsa recordings, or None."""
+    try:
+        from firmware_io.importers.dsa import read_dsa
+    except ImportError:
+        return None
+    files = sorted(DATA.rglob("*.dsa")) if DATA.is_dir() else []
+    chunks, names, total = [], [], 0
+    for path in files:
+        try:
+            rec = read_dsa(path)
+        except Exception as exc:  # a broken file only shrinks the sample
+            print(f"skip {path.name}: {exc}", file=sys.stderr)
+            continue
+        if rec.frames.shape[1] != 486:
+            continue
+        chunks.append(rec.frames)
+        names.append(str(path.relative_to(DATA)))
+        total += len(rec.frames)
+        if total >= limit:
+            break
+    if not chunks:
+        return None
+    frames = np.concatenate(chunks)[:limit]
+    return frames, f"real SDH-2 recordings ({len(names)} .dsa files from {DATA}: {', '.join(names[:4])}...)"
+
+
+def synthetic_frames(n: int, seed: int = 0) -> tuple[np.ndarray, str]:
+    """Sparse contact blobs over zeros: synthetic, not measured."""
+    rng = np.random.default_rng(seed)
+    frames = np.zeros((n, 486), np.uint16)
+    for i in range(n):
+        start = int(rng.integers(0, 486 - 40))
+        frames[i, start : start + 40] = rng.integers(0, 3500, 40)
+    return frames, "synthetic frames (sparse random blobs; no real data found)"
+
+
+def time_it(fn, repeats: int) -> list[float]:
+    out = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def bench(frames: np.ndarray, rle: bool, repeats: int) -> dict:
+    n, cells = frames.shape
+    payloads = [P.encode_frame_payload(f, i, rle=rle) for i, f in enumerate(frames)]
+    stream = b"".join(P.encode_packet(0, p) for p in payloads)
+    decode = P.decode_frame_payload
+
+    def payload_only() -> None:
+        for p in payloads:
+            decode(p, cells)
+
+    def whole_stream() -> None:
+        parser = StreamParser(cells)
+        for start in range(0, len(stream), 4096):
+            for packet in parser.feed(stream[start : start + 4096]):
+                decode(packet.payload, cells)
+
+    # check once that everything decodes to the source
+    assert all(np.array_equal(decode(p, cells)[1], f) for p, f in zip(payloads[:50], frames[:50], strict=True))
+    result = {"frames": n, "mean_payload_bytes": float(np.mean([len(p) for p in payloads]))}
+    for name, fn in (("payload", payload_only), ("stream", whole_stream)):
+        secs = time_it(fn, repeats)
+        per_frame = np.array(secs) / n
+        result[name] = {
+            "frames_per_s_median": n / statistics.median(secs),
+            "us_per_frame_median": float(np.median(per_frame) * 1e6),
+            "us_per_frame_min": float(per_frame.min() * 1e6),
+            "repeats": repeats,
+        }
+    return result
+
+
+def machine() -> dict:
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "cores_visible": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "load_avg_1m": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=4000)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--synthetic", action="store_true", help="skip the real recordings")
+    ap.add_argument("--out", type=Path, default=ROOT / "results")
+    args = ap.parse_args(argv)
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
+    found = None if args.synthetic else real_frames(args.frames)
+    frames, source = found if found is not None else synthetic_frames(args.frames)
+    results = {
+        "source": source,
+        "synthetic": found is None,
+        "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "machine": machine(),
+        "rle": bench(frames, rle=True, repeats=args.repeats),
+        "raw": bench(frames, rle=False, repeats=args.repeats),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "decode.json").write_text(json.dumps(results, indent=2) + "\n")
+    tag = " (synthetic)" if results["synthetic"] else ""
+    lines = [
+        f"# Frame decoding benchmark{tag}",
+        "",
+        f"Source: {source}. {len(frames)} frames of {frames.shape[1]} taxels, one core, median of "
+        f"{args.repeats} runs.",
+        "",
+        "| encoding | mean payload B | decode only: frames/s | us/frame | parser + CRC + decode: frames/s | us/frame |",
+        "|---|---|---|---|---|---|",
+    ]
+    for enc in ("rle", "raw"):
+        r = results[enc]
+        lines.append(
+            f"| {enc} | {r['mean_payload_bytes']:.0f} | {r['payload']['frames_per_s_median']:,.0f} | "
+            f"{r['payload']['us_per_frame_median']:.1f} | {r['stream']['frames_per_s_median']:,.0f} | "
+            f"{r['stream']['us_per_frame_median']:.1f} |"
+        )
+    m = results["machine"]
+    lines += [
+        "",
+        f"Machine: {m['cpu']}, {m['cores_visible']} cores visible (shared), load {m['load_avg_1m']}, "
+        f"Python {m['python']}, NumPy {m['numpy']}, {m['platform']}.",
+        f"Command: `{results['command']}`",
+        "",
+    ]
+    (args.out / "decode.md").write_text("\n".join(lines))
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
