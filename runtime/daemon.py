@@ -266,7 +266,7 @@ class Daemon:
         if self._last_ts is not None:
             gap = ts - self._last_ts
             period_ms = self.period_s * 1000.0
-            if gap > 1.5 * period_ms:
+            if gap > 1.9 * period_ms:  # device stamps jitter by up to ~0.8 period; a lost frame adds one
                 h.frames_dropped += round(gap / period_ms) - 1
         self._last_ts = ts
         if self.frames_seen is not None:

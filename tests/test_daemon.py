@@ -1,0 +1,254 @@
+"""The daemon end to end over the in-process simulated hand (sim://) and the TCP emulator.
+
+The models are toy graphs (tests/tiny_models.py): they decide a fixed class, so these tests
+check the plumbing (one decision per scripted event, model swap, refusal, reconnects,
+signals), not accuracy. The data is the simulated hand's (synthetic).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from firmware_io.frame_source import load_source
+from runtime.config import config_from_dict
+from runtime.daemon import Daemon
+from runtime.sinks import Event
+from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
+
+pytest.importorskip("onnx")
+ROOT = Path(__file__).resolve().parents[1]
+N_EVENTS = 6
+# The simulated hand presses lightly (synthetic); a low threshold makes every scripted event trigger.
+TRIGGER = {"fraction": 0.02, "hysteresis": 0.01, "refractory_s": 1.0}
+
+
+def _config(models: Path, url: str, **extra):
+    data = {"device": {"url": url, "reconnect_min_s": 0.05, "reconnect_max_s": 0.2},
+            "model": {"folder": str(models), "poll_interval_s": 0.05},
+            "sinks": {"stdout": False}, "trigger": TRIGGER}
+    for key, value in extra.items():
+        data.setdefault(key, {}).update(value)
+    return config_from_dict(data)
+
+
+def _serve(daemon: Daemon, until, timeout: float = 30.0) -> None:
+    """Run the daemon in a thread until ``until(daemon)`` holds; fail on timeout."""
+    def watch():
+        deadline = time.monotonic() + timeout
+        while not until(daemon) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        daemon.request_stop()
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    daemon.run()
+    watcher.join()
+    assert until(daemon), f"condition not reached within {timeout} s: {daemon.health.snapshot()}"
+
+
+def _bias(cls: str) -> tuple[float, ...]:
+    return tuple(1.0 if c == cls else 0.0 for c in CLASSES)
+
+
+@pytest.fixture
+def models(tmp_path) -> Path:
+    folder = tmp_path / "models"
+    folder.mkdir()
+    write_model(folder, "first.onnx", tiny_model_bytes(bias=_bias("pull")), mtime=time.time() - 10)
+    return folder
+
+
+def _trials():
+    return load_source("sim", seed=0, events=N_EVENTS).trials
+
+
+def test_one_decision_per_scripted_event_over_sim(models):
+    events: list[Event] = []
+    cfg = _config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0")
+    daemon = Daemon(cfg, on_event=events.append)
+    daemon.frames_seen = []
+    _serve(daemon, lambda d: d.health.device_faults >= 1)  # the end of the session
+    trials = _trials()
+    assert len(events) == len(trials)
+    for event, trial in zip(events, trials, strict=True):
+        assert trial.first <= event.frame_first and event.frame_last <= trial.last
+        assert event.frame_last - event.frame_first + 1 == 15
+        assert event.cls == "pull" and event.latency_us > 0
+    n = len(daemon.frames_seen)
+    assert daemon.frames_seen == list(range(n))  # no frame lost
+    assert daemon.health.frames_dropped == 0 and daemon.health.decisions == len(trials)
+    p50, p99 = daemon.health.latency_percentiles()
+    print(f"\nsim:// synthetic session: {len(events)} events, latency p50 {p50:.0f} us p99 {p99:.0f} us")
+
+
+def test_over_the_tcp_emulator_with_corrupted_frames(models):
+    from firmware_io.emulator import DeviceEmulator, FaultPlan
+    from firmware_io.emulator_server import TcpEmulatorServer
+
+    rec = load_source("sim", seed=0, events=N_EVENTS)
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=None, loop=False, faults=FaultPlan(crc=0.02))).start()
+    events: list[Event] = []
+    try:
+        daemon = Daemon(_config(models, server.url), on_event=events.append)
+        _serve(daemon, lambda d: d.health.frames_received >= rec.n_frames * 0.9 and d.health.device_faults >= 1)
+    finally:
+        server.stop()
+    h = daemon.health
+    assert h.crc_errors > 0  # counted, never fatal
+    assert N_EVENTS - 2 <= len(events) <= N_EVENTS  # a corrupted frame may cost a trigger, never the daemon
+
+
+def test_model_dropped_mid_stream_is_swapped_without_losing_a_frame(models):
+    events: list[Event] = []
+
+    def on_event(event: Event) -> None:
+        events.append(event)
+        if len(events) == 2:
+            write_model(models, "second.onnx", tiny_model_bytes(bias=_bias("push")))
+            deadline = time.monotonic() + 10  # hold the stream until the watcher thread has it ready
+            while daemon.watcher.pending is None and time.monotonic() < deadline:
+                time.sleep(0.01)
+
+    daemon = Daemon(_config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0"), on_event=on_event)
+    daemon.frames_seen = []
+    _serve(daemon, lambda d: d.health.device_faults >= 1)
+    assert [e.cls for e in events] == ["pull", "pull"] + ["push"] * (N_EVENTS - 2)
+    assert len({e.model_id for e in events[:2]}) == 1 and events[2].model_id != events[0].model_id
+    assert daemon.frames_seen == list(range(len(daemon.frames_seen)))
+    assert daemon.health.models_loaded == 2
+
+
+def test_broken_model_dropped_mid_stream_is_refused_and_the_old_keeps_serving(models):
+    events: list[Event] = []
+
+    def on_event(event: Event) -> None:
+        events.append(event)
+        if len(events) == 2:
+            data = tiny_model_bytes(bias=_bias("push"))
+            write_model(models, "broken.onnx", data[: len(data) // 2])
+            deadline = time.monotonic() + 10
+            while not daemon.watcher.rejections and time.monotonic() < deadline:
+                time.sleep(0.01)
+
+    daemon = Daemon(_config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0"), on_event=on_event)
+    _serve(daemon, lambda d: d.health.device_faults >= 1)
+    assert [e.cls for e in events] == ["pull"] * N_EVENTS
+    assert len({e.model_id for e in events}) == 1
+    assert daemon.health.models_rejected == 1
+    assert "broken.onnx" in daemon.health.last_error or daemon.watcher.rejections[0].path.name == "broken.onnx"
+
+
+def test_unplug_and_replug_are_survived(models):
+    events: list[Event] = []
+    url = f"sim://?events={N_EVENTS}&realtime=0&loop=1&fault=disconnect=250"
+    daemon = Daemon(_config(models, url), on_event=events.append)
+    _serve(daemon, lambda d: d.health.reconnects >= 3 and d.health.frames_received > 1000)
+    h = daemon.health
+    assert h.device_faults >= 3 and h.device_state == "stopped"
+    assert events and max(e.frame_last for e in events) > 750  # still deciding after three replugs
+
+
+def test_no_model_means_no_inference_and_no_crash(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    daemon = Daemon(_config(empty, f"sim://?events={N_EVENTS}&realtime=0&loop=0"))
+    _serve(daemon, lambda d: d.health.device_faults >= 1)
+    assert daemon.health.frames_received > 500 and daemon.health.decisions == 0
+
+
+def test_continuous_mode_reports_changes_of_a_dormant_model(tmp_path):
+    folder = tmp_path / "models"
+    folder.mkdir()
+    classes = (*CLASSES, "idle")
+    # scores: pull = mean(frames) (a touch), idle = 2 (nothing): a change of class is reported
+    write_model(folder, "c.onnx", tiny_model_bytes(classes=classes, weights=(1.0, 0, 0, 0, 0),
+                                                   bias=(0, -1, -1, -1, 2.0), dormant_class="idle"))
+    events: list[Event] = []
+    daemon = Daemon(_config(folder, f"sim://?events={N_EVENTS}&realtime=0&loop=0", scene={"mode": "continuous"}),
+                    on_event=events.append)
+    _serve(daemon, lambda d: d.health.device_faults >= 1)
+    h = daemon.health
+    assert h.decisions >= h.frames_received - 20  # every frame once the ring holds T frames
+    assert 1 <= len(events) < h.decisions / 10  # reported on change only
+    assert all(e.cls == "pull" for e in events)
+
+
+def _notify_socket(tmp_path: Path) -> tuple[socket.socket, str]:
+    path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(0.2)
+    return sock, path
+
+
+def _wait_for(sock: socket.socket, needle: str, timeout: float, seen: list[str]) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            seen.append(sock.recv(4096).decode())
+        except TimeoutError:
+            continue
+        if any(needle in m for m in seen):
+            return True
+    return False
+
+
+def test_service_notify_reload_and_sigterm(models, tmp_path):
+    """A real process: READY/STATUS/WATCHDOG/STOPPING on our socket, SIGHUP, SIGTERM within a second."""
+    sock, path = _notify_socket(tmp_path)
+    health = tmp_path / "status.json"
+    cfg = tmp_path / "h.toml"
+    text = (f'health_file = "{health}"\n[device]\nurl = "sim://?events={N_EVENTS}&speed=4"\n'
+            f'[model]\nfolder = "{models}"\npoll_interval_s = 0.1\n'
+            '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n')
+    cfg.write_text(text)
+    env = {**os.environ, "NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen: list[str] = []
+    try:
+        assert _wait_for(sock, "READY=1", 30, seen), seen
+        assert _wait_for(sock, "WATCHDOG=1", 5, seen), seen
+        assert _wait_for(sock, "frames/s", 5, seen), seen
+        # an invalid config on SIGHUP is refused and the daemon keeps running
+        cfg.write_text(text.replace("fraction = 0.02", "fraction = 7"))
+        proc.send_signal(signal.SIGHUP)
+        after: list[str] = []
+        assert _wait_for(sock, "RELOADING=1", 5, after), after
+        assert _wait_for(sock, "READY=1", 5, after), after
+        time.sleep(0.3)
+        assert proc.poll() is None
+        # a valid one is taken
+        cfg.write_text(text)
+        proc.send_signal(signal.SIGHUP)
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+        stop_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out, err = proc.communicate()
+    assert proc.returncode == 0, err
+    assert _wait_for(sock, "STOPPING=1", 1, seen), seen
+    assert "trigger.fraction" in err and "keeping the running configuration" in err
+    assert "configuration reloaded" in err
+    assert "Traceback" not in err
+    status = json.loads(health.read_text())
+    assert status["device_state"] == "stopped" and status["model_id"]
+    for line in out.splitlines():  # stdout carries only JSON events
+        assert json.loads(line)["class"] in CLASSES
+    print(f"\nSIGTERM -> exit in {stop_s * 1000:.0f} ms")
+    assert stop_s < 1.0
+    sock.close()
