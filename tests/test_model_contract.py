@@ -1,0 +1,175 @@
+"""The loader refuses every breach of the model contract with one clear ModelContractError."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import onnx
+import pytest
+from onnx import helper
+
+from runtime.model import METADATA_KEY, ModelContractError, ModelInputError, load_model
+from runtime.onnx_wire import summarize
+from tests.onnx_fixtures import export, fit_model
+
+
+@pytest.fixture(scope="module")
+def good_path(tmp_path_factory):
+    return export(fit_model("linear"), tmp_path_factory.mktemp("good"))
+
+
+@pytest.fixture
+def proto(good_path):
+    return onnx.load(str(good_path))
+
+
+def _meta(proto) -> dict:
+    return json.loads(next(p.value for p in proto.metadata_props if p.key == METADATA_KEY))
+
+
+def _with_meta(proto, meta: dict):
+    for p in proto.metadata_props:
+        if p.key == METADATA_KEY:
+            p.value = json.dumps(meta)
+    return proto
+
+
+def _save(proto, tmp_path, name="bad.onnx"):
+    path = tmp_path / name
+    path.write_bytes(proto.SerializeToString())
+    return path
+
+
+def _refused(path, match: str, **kw):
+    with pytest.raises(ModelContractError, match=match) as info:
+        load_model(path, **kw)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_good_model_loads_and_runs(good_path):
+    model = load_model(good_path)
+    assert len(model.model_id) == 12 and model.path == good_path
+    labels, scores = model.run(np.zeros((3, model.meta.T, model.meta.n_channels)))
+    assert labels.dtype == np.int64 and labels.shape == (3,)
+    assert scores.dtype == np.float32 and scores.shape == (3, model.meta.n_classes)
+    labels, _ = model.run(np.zeros((model.meta.T, model.meta.n_channels)))  # one window without batch axis
+    assert labels.shape == (1,)
+
+
+def test_unreadable_empty_truncated_garbage(good_path, tmp_path):
+    _refused(tmp_path / "missing.onnx", "cannot read")
+    (tmp_path / "empty.onnx").write_bytes(b"")
+    _refused(tmp_path / "empty.onnx", "empty file")
+    data = good_path.read_bytes()
+    for cut in (len(data) // 2, len(data) - 3, 10):
+        (tmp_path / "cut.onnx").write_bytes(data[:cut])
+        _refused(tmp_path / "cut.onnx", "truncated|cannot load")
+    (tmp_path / "text.onnx").write_text("hello, I am not a model\n" * 10)
+    _refused(tmp_path / "text.onnx", "not an ONNX model|cannot load")
+    (tmp_path / "rand.onnx").write_bytes(np.random.default_rng(0).bytes(4000))
+    _refused(tmp_path / "rand.onnx", "not an ONNX model|cannot load")
+
+
+def test_size_limit(good_path):
+    _refused(good_path, "exceeds the limit", max_bytes=100)
+
+
+def test_missing_or_broken_metadata(proto, tmp_path):
+    del proto.metadata_props[:]
+    _refused(_save(proto, tmp_path), "no 'handover' metadata")
+    proto.metadata_props.add(key=METADATA_KEY, value="{not json")
+    _refused(_save(proto, tmp_path), "not valid JSON")
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        (lambda m: m.pop("classes"), "lacks classes"),
+        (lambda m: m.update(schema_version=2), "schema_version"),
+        (lambda m: m.update(n_channels=17), r"n_channels=17 != sum\(pad_sizes\)"),
+        (lambda m: m.update(pad_sizes=[6, 10, 1], n_channels=17), "pad_sizes"),
+        (lambda m: m.update(T=13), r"shape .* metadata says \[N, T=13"),
+        (lambda m: m.update(W=12), "fewer than W=12"),
+        (lambda m: m.update(classes=["a", "b", "c"]), r"'scores' .* \[N, 3\]"),
+        (lambda m: m.update(classes=["a", "a", "b", "c"]), "distinct"),
+        (lambda m: m.update(dormant_class="idle"), "dormant_class"),
+        (lambda m: m.update(trigger={"fraction": 1.5}), "trigger.fraction"),
+        (lambda m: m.update(sample_rate_hz=-1), "sample_rate_hz"),
+        (lambda m: m["training"].pop("data_fingerprint"), "training lacks data_fingerprint"),
+        (lambda m: m.update(T="15"), "T must be an integer"),
+    ],
+)
+def test_inconsistent_metadata(proto, tmp_path, change, match):
+    meta = _meta(proto)
+    change(meta)
+    _refused(_save(_with_meta(proto, meta), tmp_path), match)
+
+
+def test_wrong_input_and_outputs(proto, tmp_path):
+    bad = onnx.ModelProto()
+    bad.CopyFrom(proto)
+    bad.graph.input[0].name = "x"
+    for node in bad.graph.node:
+        node.input[:] = ["x" if i == "frames" else i for i in node.input]
+    _refused(_save(bad, tmp_path), "inputs \\['x'\\]")
+    bad.CopyFrom(proto)
+    bad.graph.output[0].name = "label_renamed"
+    for node in bad.graph.node:
+        node.output[:] = ["label_renamed" if o == "label" else o for o in node.output]
+    _refused(_save(bad, tmp_path), "outputs")
+    bad.CopyFrom(proto)
+    cast = helper.make_node("Cast", ["scores_f"], ["scores"], to=onnx.TensorProto.DOUBLE)
+    for node in bad.graph.node:
+        node.output[:] = ["scores_f" if o == "scores" else o for o in node.output]
+    bad.graph.node.append(cast)
+    bad.graph.output[1].type.tensor_type.elem_type = onnx.TensorProto.DOUBLE
+    _refused(_save(bad, tmp_path), "tensor\\(double\\)")
+
+
+def test_non_standard_domain(proto, tmp_path):
+    proto.graph.node.append(helper.make_node("Relu", ["scores"], ["extra"], domain="com.example"))
+    proto.opset_import.append(helper.make_opsetid("com.example", 1))
+    _refused(_save(proto, tmp_path), "non-standard operator domain.*com.example")
+
+
+def test_external_data(proto, tmp_path):
+    from onnx.external_data_helper import convert_model_to_external_data
+
+    convert_model_to_external_data(proto, all_tensors_to_one_file=True, location="weights.bin", size_threshold=0)
+    onnx.save_model(proto, str(tmp_path / "ext.onnx"))
+    _refused(tmp_path / "ext.onnx", "external data")
+
+
+def test_wire_reader_agrees_with_onnx(good_path, proto):
+    wire = summarize(good_path.read_bytes())
+    assert wire.n_nodes == len(proto.graph.node)
+    assert wire.opset_domains == {o.domain for o in proto.opset_import}
+    assert wire.node_domains == {n.domain for n in proto.graph.node}
+    assert not wire.external_data
+
+
+def test_input_refused_at_the_boundary(good_path):
+    model = load_model(good_path)
+    shape = (2, model.meta.T, model.meta.n_channels)
+    for bad in (np.nan, np.inf, -np.inf):
+        x = np.zeros(shape, dtype=np.float32)
+        x[1, 3, 2] = bad
+        with pytest.raises(ModelInputError, match="NaN or infinity"):
+            model.run(x)
+    with pytest.raises(ModelInputError, match="expects frames"):
+        model.run(np.zeros((2, model.meta.T + 1, model.meta.n_channels)))
+    with pytest.raises(ModelInputError, match="expects frames"):
+        model.run(np.zeros((0, model.meta.T, model.meta.n_channels)))
+
+
+def test_runtime_never_imports_onnx_or_sklearn(good_path):
+    code = (
+        "import sys, runtime.model as m; x = m.load_model(sys.argv[1]); x.run(x.check_input("
+        "__import__('numpy').zeros((1, x.meta.T, x.meta.n_channels))));"
+        "bad = [k for k in ('onnx', 'sklearn', 'skl2onnx', 'matplotlib') if k in sys.modules]; print(bad)"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(good_path)], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
