@@ -95,6 +95,7 @@ class ModelWatcher:
         self._previous: dict[Path, FileState] = {}
         self._tried: set[FileState] = set()
         self._stop = threading.Event()
+        self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._folder_error_logged = False
 
@@ -148,7 +149,8 @@ class ModelWatcher:
         st, model = accepted
         self.current_mtime_ns = st.mtime_ns
         self.accepted.append(st.path)
-        self.pending = model
+        with self._lock:
+            self.pending = model
         return model
 
     def _validate(self, st: FileState) -> Any:
@@ -191,7 +193,8 @@ class ModelWatcher:
 
     def take(self) -> Any:
         """The pending model (once), or None. Called by the main loop between two windows."""
-        model, self.pending = self.pending, None
+        with self._lock:
+            model, self.pending = self.pending, None
         return model
 
     # -- background thread ----------------------------------------------------------------------
