@@ -90,6 +90,7 @@ class DSAClient:
         self.streaming = False
         self._frames: deque[Frame] = deque()
         self._replies: deque[P.Packet] = deque()
+        self._last_rx = 0.0
         self._max_queued = max_queued_frames
         self._unwrap = P.TimestampUnwrapper()
         self._number = 0
@@ -301,10 +302,14 @@ class DSAClient:
         """Read once (up to ``timeout``) and parse: frames go to the frame queue, other packets to
         ``self._replies``. Returns the number of bytes read (0 on a quiet line)."""
         data = self._ensure_transport().read(READ_SIZE, timeout)
+        now = time.monotonic()
         if not data:
-            if self.parser.pending:
+            # Silent for a whole gap timeout with bytes pending: the packet being waited for
+            # will not complete (a corrupt length); rescan what is behind it.
+            if self.parser.pending and now - self._last_rx >= self.gap_timeout:
                 self._dispatch(self.parser.flush_pending())
             return 0
+        self._last_rx = now
         self._dispatch(self.parser.feed(data))
         return len(data)
 
@@ -351,16 +356,16 @@ class DSAClient:
 
     def _flush(self, first_wait: float) -> None:
         """Read and parse until the line is quiet: ``first_wait`` for the first byte, then
-        ``flush_quiet`` between chunks, never longer than ``flush_max`` in total."""
-        end = time.monotonic() + max(first_wait, self.flush_max)
-        wait = first_wait
+        ``flush_quiet`` between chunks, never longer than ``max(first_wait, flush_max)``."""
+        start = time.monotonic()
+        end = start + max(first_wait, self.flush_max)
+        last, quiet = start, first_wait
         while True:
-            remaining = end - time.monotonic()
-            if remaining <= 0:
+            now = time.monotonic()
+            if now >= end or now - last >= quiet:
                 break
-            if not self._pump(min(wait, remaining)):
-                break
-            wait = self.flush_quiet
+            if self._pump(min(quiet - (now - last), end - now)):
+                last, quiet = time.monotonic(), self.flush_quiet
         self._replies.clear()
 
     # -- internals: commands ---------------------------------------------------------------------
@@ -378,8 +383,9 @@ class DSAClient:
             frames_limit = self.max_skipped_frames
         self._replies.clear()
         self._write(packet)
-        frames_before = self._counts["frames"] + self._counts["frames_ignored"] + self._counts["decode_errors"]
-        deadline = None if timeout is None else time.monotonic() + timeout
+        sent = time.monotonic()
+        frames_before = self._frames_seen()
+        deadline = None if timeout is None else sent + timeout
         while True:
             while self._replies:
                 reply = self._replies.popleft()
@@ -387,19 +393,30 @@ class DSAClient:
                     self._replies.clear()
                     return reply.payload
                 self._counts["unexpected_replies"] += 1
-            seen = self._counts["frames"] + self._counts["frames_ignored"] + self._counts["decode_errors"]
-            if frames_limit is not None and seen - frames_before > frames_limit:
+            if frames_limit is not None and self._frames_seen() - frames_before > frames_limit:
                 self._counts["timeouts"] += 1
                 raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {frames_limit} frames")
-            wait = self.gap_timeout
-            if deadline is not None:
-                wait = min(wait, deadline - time.monotonic())
-                if wait <= 0:
-                    self._counts["timeouts"] += 1
-                    raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {timeout:g} s")
-            if not self._pump(wait) and not self._replies and wait >= self.gap_timeout:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
                 self._counts["timeouts"] += 1
-                raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} (silent for {wait:g} s)")
+                raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {timeout:g} s")
+            quiet = now - max(sent, self._last_rx)
+            if quiet >= self.gap_timeout:
+                if self.parser.pending:
+                    self._dispatch(self.parser.flush_pending())
+                    if self._replies:
+                        continue
+                self._counts["timeouts"] += 1
+                raise DSATimeout(
+                    f"{self.url}: no reply to command 0x{reply_id:02X} (silent for {self.gap_timeout:g} s)"
+                )
+            wait = self.gap_timeout - quiet
+            if deadline is not None:
+                wait = min(wait, deadline - now)
+            self._pump(wait)
+
+    def _frames_seen(self) -> int:
+        return self._counts["frames"] + self._counts["frames_ignored"] + self._counts["decode_errors"]
 
     def _ack(self, packet: bytes, frames_limit: int | None = -1, timeout: float | None = None) -> None:
         payload = self._request(packet, packet[3], frames_limit, timeout)

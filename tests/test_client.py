@@ -293,3 +293,32 @@ def test_reconnect_through_a_factory_recovers() -> None:
     assert client.read_frame(0.3) is None  # reconnected, then no frame (not pushing)
     assert client.stats["reconnects"] == 1
     assert len(made) == 3
+
+
+def test_a_corrupt_length_before_a_reply_is_released_after_a_gap() -> None:
+    """The reply hidden behind a header whose length asks for more bytes than ever come."""
+
+    def respond(packet: P.Packet) -> bytes:
+        if packet.packet_id == 0x14:
+            bad = bytearray(P.ThresholdReply(5).to_packet())
+            bad[4:6] = b"\x30\x00"  # plausible (48) but wrong
+            return bytes(bad) + P.ThresholdReply(77).to_packet()
+        return good_device(packet)
+
+    client = DSAClient(ScriptedDevice(respond), **QUICK)
+    client.open()
+    assert client.get_threshold(0) == 77
+    assert client.stats["bytes_dropped"] > 0
+
+
+def test_partial_frame_survives_a_short_read_timeout() -> None:
+    frame = P.encode_frame(np.arange(24, dtype=np.uint16), 42, rle=False)
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev, **QUICK)
+    client.open()
+    dev.out += frame[:20]
+    assert client.read_frame(0.02) is None
+    dev.out += frame[20:]
+    f = client.read_frame(0.2)
+    assert f is not None and f.timestamp_ms == 42
+    np.testing.assert_array_equal(f.values, np.arange(24))
