@@ -28,6 +28,7 @@ class Motion:
     xd: np.ndarray  # distal contact centre across the pad
     np_: np.ndarray  # proximal normal force
     yp: np.ndarray  # proximal contact centre along the pad
+    shear: np.ndarray  # tangential force on the distal pad along it (+ toward the palm)
 
 
 def smooth(x: np.ndarray) -> np.ndarray:
@@ -46,7 +47,9 @@ def baseline(setup: TrialSetup, t: np.ndarray, rng: np.random.Generator) -> Moti
         step = rng.normal(0.0, 0.04, (2, n)).cumsum(axis=1)  # ~1 mm over 3 s
         yd = yd + step[0]
         xd = xd + step[1]
-    return Motion(nd, yd, xd, np.zeros((3, n)), np.full((3, n), PROXIMAL_ENTRY_MM))
+    weight = setup.obj.mass_kg * 9.81 * setup.pose.outward / 3.0  # carried by friction, toward the tip
+    shear = np.full((3, n), -weight)
+    return Motion(nd, yd, xd, np.zeros((3, n)), np.full((3, n), PROXIMAL_ENTRY_MM), shear)
 
 
 def pull(m: Motion, setup: TrialSetup, s: np.ndarray, rng: np.random.Generator) -> None:
@@ -79,6 +82,7 @@ def pull(m: Motion, setup: TrialSetup, s: np.ndarray, rng: np.random.Generator) 
     wedge = 1.0 + rng.uniform(0.5, 1.2) * k * smooth(s / ramp_s) * (1.0 - 0.6 * smooth(d / 8.0))
     m.nd *= wedge * gone
     m.yd -= shear + d
+    m.shear -= np.minimum(pull_f / 3.0, setup.friction * m.nd)
     if setup.obj.rolls:
         m.xd += rng.normal(0.0, 0.15) * d
 
@@ -98,9 +102,11 @@ def push(m: Motion, setup: TrialSetup, s: np.ndarray, rng: np.random.Generator) 
     press = 1.0 + 0.3 * k * smooth(s / (0.15 * move_s))
     m.nd *= press * (1.0 - smooth((d - lose_at) / rng.uniform(6.0, 10.0)))
     m.yd += d
+    push_f = 2.0 * k * smooth(s / (0.3 * move_s))
+    m.shear += np.minimum(push_f / 3.0, setup.friction * m.nd)
     reach = rng.uniform(12.0, 18.0)
     share = rng.lognormal(0.0, 0.2, 3)
-    m.np_ += 1.5 * k * share[:, None] * smooth((d - reach) / 6.0)[None, :]
+    m.np_ += 2.5 * k * share[:, None] * smooth((d - reach) / 6.0)[None, :]
     m.yp += np.clip(d - reach, 0.0, None) * 0.6
 
 
@@ -116,7 +122,7 @@ def hold(m: Motion, setup: TrialSetup, s: np.ndarray, rng: np.random.Generator) 
     take_over = rng.uniform(0.3, 0.9)
     angle = rng.uniform(-np.pi, np.pi)
     squeeze = rng.uniform(0.2, 0.6) * k * np.cos(angle - FINGER_ANGLES)
-    press = rng.uniform(0.0, 0.5) * k
+    press = rng.uniform(0.2, 0.8) * k
     sub = setup.subject
     phase = rng.uniform(0, 2 * np.pi, 2)
     pos_s = np.clip(s, 0.0, None)
@@ -124,6 +130,7 @@ def hold(m: Motion, setup: TrialSetup, s: np.ndarray, rng: np.random.Generator) 
                                + 0.6 * np.sin(2 * np.pi * 1.3 * pos_s + phase[1]))
     m.nd += r[None, :] * (press + squeeze[:, None] - take_over * d_n[:, None])
     m.nd *= 1.0 + r[None, :] * tremor[None, :]
+    m.shear *= 1.0 - take_over * r[None, :]
     if setup.obj.rolls:  # the hand damps the rolling: freeze the position at the onset
         i = int(np.searchsorted(s, 0.0))
         if i < m.yd.shape[1]:
@@ -150,6 +157,7 @@ def bump(m: Motion, setup: TrialSetup, s: np.ndarray, rng: np.random.Generator) 
     shape = pulse + 0.5 * ring
     m.nd += amp * (0.3 + side[:, None]) * shape[None, :]
     m.yd += 1.5 * side[:, None] * shape[None, :]
+    m.shear += 0.3 * amp * np.sin(angle) * shape[None, :]
     if setup.obj.rolls:
         m.yd += rng.uniform(-1.0, 1.0) * smooth(s / (3 * width))[None, :]
 

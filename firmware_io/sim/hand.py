@@ -41,6 +41,16 @@ def creep(t: np.ndarray, age_s: float) -> np.ndarray:
     return 1.0 + CREEP_GAIN * (1.0 - np.exp(-(t + age_s) / CREEP_TAU_S))
 
 
+SHEAR_TILT = 0.8
+"""assumed: a tangential load tilts the pressure under a soft pad toward its leading edge
+(moment balance of the shear acting above the surface); tilt ~ 0.8 x shear / normal force."""
+
+
+def shear_tilt(static_tilt: float, shear: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Torque bias of the patch: the object's own (plank) plus the shear's, limited to +-1.5."""
+    return np.clip(static_tilt + SHEAR_TILT * shear / np.maximum(normal, 0.2), -1.5, 1.5)
+
+
 def _pad_inputs(job: Job, m: Motion, finger: int, distal: bool, t: np.ndarray) -> dict:
     setup = job.setup
     force = (m.nd if distal else m.np_)[finger] * creep(t, setup.grasp_age_s if distal else 0.0)
@@ -53,7 +63,7 @@ def _pad_inputs(job: Job, m: Motion, finger: int, distal: bool, t: np.ndarray) -
         "wx": wx,
         "wy": wy,
         "sigma": np.full(n, float(blur_width(setup.obj.soft_mm, setup.taped))),
-        "tilt": np.full(n, setup.tilt[finger]),
+        "tilt": shear_tilt(setup.tilt[finger], m.shear[finger], m.nd[finger]) if distal else np.zeros(n),
     }
 
 

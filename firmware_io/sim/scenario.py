@@ -36,11 +36,11 @@ class ObjectModel:
 
 OBJECT_MODELS = {
     # tennis ball, 58 g: felt is soft, round Hertz contact a ~ F^(1/3); it rolls
-    "ball": ObjectModel("ball", 0.058, 1.2, 3.0, 0.0, 1 / 3, 1.0, True),
-    # cardboard tube: line contact across the whole pad width, width ~ F^(1/2)
-    "cylinder": ObjectModel("cylinder", 0.10, 0.6, 1.2, 12.0, 1 / 2, 0.9, False),
+    "ball": ObjectModel("ball", 0.058, 1.2, 3.2, 0.0, 1 / 3, 1.0, True),
+    # cardboard tube: line contact across the (curved) pad, width ~ F^(1/2)
+    "cylinder": ObjectModel("cylinder", 0.10, 0.6, 1.5, 8.0, 1 / 2, 0.9, False),
     # wooden plank: flat face, but the rounded finger pad limits the patch; torque bias
-    "plank": ObjectModel("plank", 0.15, 0.4, 5.5, 4.5, 0.0, 0.8, False),
+    "plank": ObjectModel("plank", 0.15, 0.4, 8.0, 6.5, 0.0, 0.8, False),
 }
 
 
@@ -71,10 +71,17 @@ POSE_MODELS = {
     "horizontal": PoseModel("horizontal", 1.0, float(np.pi), 0.0),
 }
 
-GRASP_FORCE_N = 1.3
-"""assumed: the SDH closes on the object with a light, fixed per-finger force (a handover
-grasp must be easy to release; the paper's 15 % trigger 'relatively low to avoid discarding
-samples' implies the resting grasp stayed mostly below it)."""
+GRASP_MIN_N = 0.5
+GRASP_SAFETY = 1.5
+"""assumed: a handover grasp is light (the robot must let go easily) but secure: per finger a
+minimum plus a safety factor times the share of the weight friction must carry,
+F = 0.5 N + 1.5 * m g / (3 mu). The paper's 15 % trigger, 'relatively low to avoid discarding
+samples', implies the resting grasp mostly stayed below it."""
+
+
+def grasp_force(obj: ObjectModel, friction: float) -> float:
+    """Per-finger grasp force (N) the hand closes with on this object."""
+    return GRASP_MIN_N + GRASP_SAFETY * obj.mass_kg * K.GRAVITY / (3.0 * friction)
 
 
 def pose_load(pose: PoseModel, obj: ObjectModel) -> tuple[np.ndarray, float]:
@@ -86,7 +93,7 @@ def pose_load(pose: PoseModel, obj: ObjectModel) -> tuple[np.ndarray, float]:
     """
     w = obj.mass_kg * K.GRAVITY
     d_n = 0.5 * w * pose.in_plane * np.cos(pose.in_plane_angle - FINGER_ANGLES)
-    d_n = d_n + 0.35 * w * pose.outward
+    d_n = d_n + 0.2 * w * pose.outward
     shift = -1.5 * pose.outward
     return d_n, shift
 
@@ -142,7 +149,8 @@ def make_trial(subject: Subject, obj: ObjectModel, pose: PoseModel, action: str,
                rng: np.random.Generator, taped: bool = True, onset_s: float | None = None) -> TrialSetup:
     """Draw one trial: the object's placement, this trial's variation, the onset."""
     d_n, shift = pose_load(pose, obj)
-    grasp = GRASP_FORCE_N * rng.lognormal(0.0, 0.12, 3) + d_n
+    friction = K.FRICTION_BARE * obj.friction_mult * (K.TAPE_FRICTION_FACTOR if taped else 1.0)
+    grasp = grasp_force(obj, friction) * rng.lognormal(0.0, 0.12, 3) + d_n
     if onset_s is None:
         onset_s = float(np.clip(subject.reaction_s + rng.normal(0.0, 0.15), 0.25, duration - 1.2))
     # the investigator places the object a little differently every run
@@ -150,7 +158,6 @@ def make_trial(subject: Subject, obj: ObjectModel, pose: PoseModel, action: str,
     y0 = y_place + shift + rng.normal(0.0, 1.5, 3)
     x0 = 10.2 + rng.normal(0.0, 1.5, 3)
     tilt = rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 0.9, 3) if obj.name == "plank" else np.zeros(3)
-    friction = K.FRICTION_BARE * obj.friction_mult * (K.TAPE_FRICTION_FACTOR if taped else 1.0)
     return TrialSetup(
         subject=subject, obj=obj, pose=pose, action=action, onset_s=onset_s,
         strength=subject.strength * float(rng.lognormal(0.0, 0.15)),
