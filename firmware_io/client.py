@@ -155,6 +155,9 @@ class DSAClient:
         finally:
             self._transport = None
             self.streaming = False
+            self.layout = None  # open() again (lazily reopening a URL) before reading frames
+            self.parser.reset()
+            self._unwrap.reset()
             with contextlib.suppress(OSError):
                 transport.close()
 

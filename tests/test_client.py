@@ -322,3 +322,18 @@ def test_partial_frame_survives_a_short_read_timeout() -> None:
     f = client.read_frame(0.2)
     assert f is not None and f.timestamp_ms == 42
     np.testing.assert_array_equal(f.values, np.arange(24))
+
+
+def test_close_then_open_again_on_the_same_client() -> None:
+    """What the daemon does after a fault: close, later open() the same client again."""
+    client = DSAClient(FAST)
+    client.open()
+    client.start()
+    assert client.read_frame(2.0) is not None
+    client.close()
+    with pytest.raises(P.DSAError, match="open"):
+        client.read_frame(0.1)
+    assert client.open().n_taxels == 486
+    client.start()
+    assert client.read_frame(2.0) is not None
+    client.close()
