@@ -85,6 +85,7 @@ class GraphRunner:
         from runtime.model import session_options
         from trainer.onnx_export import HISTOGRAM
 
+        self.path = Path(onnx_path)
         proto = onnx.load(str(onnx_path))
         n_features = None
         for node in proto.graph.node:

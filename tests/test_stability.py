@@ -1,0 +1,155 @@
+"""Numerical stability: the float32 graph against the float64 reference on hostile windows.
+
+Every decision that differs from the reference must be a true near tie (margin below SAFETY
+times the float32 error bound of trainer/numerics.py); no NaN or infinity ever comes out.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from runtime.model import load_model
+from tests.onnx_fixtures import PAD_SIZES, T, export, fit_model, frames_of, synthetic_cases
+from trainer.numerics import SAFETY, codeword_margins, reference
+from trainer.stress import stress_cases
+from trainer.verify import GraphRunner, VerifyReport, compare
+
+C = sum(PAD_SIZES)
+
+
+@pytest.fixture(scope="module")
+def rbf(tmp_path_factory):
+    model = fit_model("rbf")
+    return model, GraphRunner(export(model, tmp_path_factory.mktemp("rbf")))
+
+
+def _check(report: VerifyReport) -> None:
+    assert report.nan_or_inf_outputs == 0
+    assert report.unexplained_disagreements == 0, report.disagreements
+    assert report.hist_mismatch_unexplained == 0
+    for d in report.disagreements:
+        assert d.near_tie and min(d.codeword_margin, d.svm_margin) < SAFETY
+
+
+def _stress(model) -> tuple[np.ndarray, list[str]]:
+    families = stress_cases(T, C, model.bow_.codebook_, seed=1)
+    return np.concatenate(list(families.values())), [n for n, a in families.items() for _ in range(len(a))]
+
+
+def test_stress_families_present():
+    fams = stress_cases(T, C, np.eye(6, 5) * 100)
+    for name in ("all_zero", "one_active_taxel", "saturated", "alternating_frames", "constant_nonzero",
+                 "noise_on_offset", "between_codewords", "out_of_range"):
+        assert name in fams and fams[name].shape[1:] == (T, C) and fams[name].dtype == np.float32
+
+
+def test_stress_cases_agree_or_near_tie(rbf):
+    model, runner = rbf
+    frames, names = _stress(model)
+    report = compare(model, runner, frames, names)
+    _check(report)
+    assert report.agreement >= 0.95
+
+
+def test_all_zero_and_constant_windows(rbf):
+    model, runner = rbf
+    zero = np.zeros((1, T, C), dtype=np.float32)
+    _, scores, hist = runner.run(zero)
+    assert np.all(hist == 0) and np.isfinite(scores).all()
+    const = np.full((1, T, C), 3000.0, dtype=np.float32)  # derivative zero everywhere, all series active
+    labels, scores, hist = runner.run(const)
+    ref = reference(model, const)
+    np.testing.assert_allclose(hist, ref["hist"], atol=1e-6)
+    assert labels[0] == ref["labels"][0]
+
+
+def test_window_exactly_between_codewords_is_a_near_tie(rbf):
+    model, _ = rbf
+    cb = model.bow_.codebook_
+    ties = 0
+    for a in range(len(cb)):
+        for b in range(a + 1, len(cb)):
+            mid = (cb[a] + cb[b]) / 2.0
+            d = ((cb - mid) ** 2).sum(axis=1)
+            if np.delete(d, [a, b]).min(initial=np.inf) <= d[a]:
+                continue  # another codeword is nearer than a and b: not a tie between them
+            deriv = np.zeros(T - 1)
+            deriv[: cb.shape[1]] = mid
+            x = 2048.0 + np.concatenate([[0.0], np.cumsum(deriv)])
+            rel, _ = codeword_margins(x[None, None, :], cb)
+            assert rel[0, 0, 0] < SAFETY
+            ties += 1
+    assert ties >= 1
+    clear = 2048.0 + np.concatenate([[0.0], np.cumsum(np.r_[cb[2], np.zeros(T - 1 - cb.shape[1])])])
+    rel, _ = codeword_margins(clear[None, None, :], cb)
+    assert rel[0, 0, 0] > 1e3  # a window on a codeword is far from a tie
+
+
+def test_duplicate_codewords(tmp_path):
+    model = copy.deepcopy(fit_model("rbf"))
+    model.bow_.codebook_ = model.bow_.codebook_.copy()
+    model.bow_.codebook_[1] = model.bow_.codebook_[0]  # reference keeps the lowest index; so must the graph
+    runner = GraphRunner(export(model, tmp_path))
+    X, _ = synthetic_cases(n=64, seed=9)
+    frames, names = _stress(model)
+    report = compare(model, runner, np.concatenate([frames_of(X), frames]), ["sim"] * 64 + names)
+    _check(report)
+    _, _, hist = runner.run(frames_of(X))
+    assert np.all(hist[:, 1] == 0) and np.all(hist[:, 7] == 0)  # word 1 never wins, in both pad groups
+
+
+@pytest.mark.parametrize(("C_svm", "gamma"), [(1e6, 1e3), (1e6, 1e-4), (1e-3, 1.0), (1e4, 50.0)])
+def test_extreme_C_and_gamma(C_svm, gamma, tmp_path):
+    model = fit_model("rbf", C=C_svm, gamma=gamma)
+    runner = GraphRunner(export(model, tmp_path))
+    X, _ = synthetic_cases(n=64, seed=13)
+    frames, names = _stress(model)
+    report = compare(model, runner, np.concatenate([frames_of(X), frames]), ["sim"] * 64 + names)
+    _check(report)
+
+
+def test_float32_against_float64_throughout(rbf):
+    model, runner = rbf
+    X, _ = synthetic_cases(n=128, seed=21)
+    labels, scores, hist = runner.run(frames_of(X))
+    ref = reference(model, frames_of(X))
+    clear = ref["codeword_margin"] >= SAFETY
+    np.testing.assert_allclose(hist[clear], ref["hist"][clear], atol=1e-6)
+    svm_clear = clear & ((np.abs(ref["decisions"]) / ref["decision_bounds"]).min(axis=1) >= SAFETY)
+    np.testing.assert_array_equal(labels[svm_clear], ref["labels"][svm_clear])
+    np.testing.assert_allclose(scores[svm_clear], ref["scores"][svm_clear], atol=1e-4)
+
+
+window_values = st.one_of(
+    st.sampled_from([0.0, 1.0, 4094.0, 4095.0]),
+    st.integers(0, 4095).map(float),
+    st.floats(-1e5, 1e5, allow_nan=False, width=32),
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(arrays(np.float32, (2, T, C), elements=window_values))
+def test_random_windows_never_nan_and_only_near_ties_differ(rbf, frames):
+    model, runner = rbf
+    report = compare(model, runner, frames, ["hypothesis"] * 2)
+    _check(report)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.integers(0, T - 1), st.integers(0, C - 1), st.sampled_from([np.nan, np.inf, -np.inf]))
+def test_non_finite_input_refused(rbf_loaded, t, c, bad):
+    x = np.zeros((1, T, C), dtype=np.float32)
+    x[0, t, c] = bad
+    with pytest.raises(ValueError, match="NaN or infinity"):
+        rbf_loaded.run(x)
+
+
+@pytest.fixture(scope="module")
+def rbf_loaded(rbf):
+    return load_model(rbf[1].path)
