@@ -1,0 +1,160 @@
+"""HID-to-UART bridges through hidapi: ``hid://VID:PID?serial=..&baud=115200`` (e.g. the CP2110).
+
+What is implemented is the Silicon Labs CP2110/CP2114 report format (AN434):
+
+- UART data travels in interrupt reports whose report ID (1..63) is the number of data bytes
+  that follow. The host writes ``[n, b1..bn]``; the device sends the same form.
+- Feature report 0x41 (Get/Set UART Enable): ``[0x41, 1]`` enables the UART.
+- Feature report 0x50 (Get/Set UART Config): ``[0x50, baud u32 big-endian, parity (0 none),
+  flow control (0 none), data bits (3 = 8 bits), stop bits (0 = 1 stop bit)]``.
+- Feature report 0x43 (Purge FIFOs): ``[0x43, 3]`` empties both FIFOs at open.
+
+So open sends 0x50 (115200 8N1, no flow control), 0x41 and 0x43, then reads and writes data
+reports. hidapi is imported only here; ``device=`` (keyword) supplies an object with
+``hid.device``'s methods instead, which is how the tests drive it against an emulated bridge.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import struct
+import time
+
+from firmware_io.transports.base import (
+    DEFAULT_READ_SIZE,
+    DeviceUnavailable,
+    MissingDependency,
+    ParsedURL,
+    Transport,
+    TransportError,
+    parse_number,
+    parse_vid_pid,
+)
+
+DEFAULT_BAUD = 115200
+MAX_DATA_REPORT = 63
+REPORT_SIZE = 64
+UART_ENABLE = 0x41
+PURGE_FIFOS = 0x43
+UART_CONFIG = 0x50
+PARITY_NONE, FLOW_NONE, DATA_BITS_8, STOP_BITS_1 = 0, 0, 3, 0
+EXTRA_HINT = "pip install 'tactile-handover[usb]'"
+
+
+def uart_config_report(baud: int) -> bytes:
+    """Feature report 0x50 for ``baud`` 8N1 without flow control."""
+    return struct.pack(">BIBBBB", UART_CONFIG, baud, PARITY_NONE, FLOW_NONE, DATA_BITS_8, STOP_BITS_1)
+
+
+def data_reports(data: bytes) -> list[bytes]:
+    """Split bytes into CP2110 data reports ``[n, n bytes]``, n <= 63."""
+    return [bytes([len(chunk)]) + chunk for chunk in (data[i : i + MAX_DATA_REPORT] for i in range(0, len(data), MAX_DATA_REPORT))]
+
+
+class HidTransport(Transport):
+    """A CP2110-style HID UART bridge."""
+
+    def __init__(
+        self,
+        vid: int,
+        pid: int,
+        *,
+        serial: str | None = None,
+        baud: int = DEFAULT_BAUD,
+        device: object | None = None,
+        url: str = "",
+    ) -> None:
+        self.url = url or f"hid://{vid:04x}:{pid:04x}"
+        self._closed = True
+        self._buf = bytearray()
+        if device is None:
+            try:
+                import hid
+            except ImportError:
+                raise MissingDependency(f"{self.url}: needs the Python package hidapi ({EXTRA_HINT})") from None
+            if not hasattr(hid, "device"):
+                raise MissingDependency(
+                    f"{self.url}: the installed 'hid' module is not hidapi's (no hid.device); {EXTRA_HINT}"
+                )
+            device = hid.device()
+        self._dev = device
+        try:
+            self._dev.open(vid, pid, serial) if serial else self._dev.open(vid, pid)
+        except (OSError, ValueError) as exc:
+            raise DeviceUnavailable(
+                f"{self.url}: cannot open HID device {vid:04x}:{pid:04x} ({exc}); plugged in? permissions (udev rule)?"
+            ) from None
+        try:
+            self._feature(uart_config_report(baud))
+            self._feature(bytes([UART_ENABLE, 1]))
+            self._feature(bytes([PURGE_FIFOS, 3]))
+        except BaseException:
+            self._safe_close()
+            raise
+        self._closed = False
+
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> HidTransport:
+        parsed.check_options({"serial", "baud"})
+        url = parsed.url
+        vid, pid = parse_vid_pid(url, parsed.location)
+        return cls(
+            vid,
+            pid,
+            serial=parsed.option(opts, "serial") or None,
+            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1)),
+            device=opts.get("device"),
+            url=url,
+        )
+
+    def _feature(self, report: bytes) -> None:
+        try:
+            n = self._dev.send_feature_report(list(report))
+        except (OSError, ValueError) as exc:
+            raise DeviceUnavailable(f"{self.url}: feature report 0x{report[0]:02X} failed: {exc}") from None
+        if n is not None and n < 0:
+            raise TransportError(f"{self.url}: the bridge refused feature report 0x{report[0]:02X}")
+
+    def write(self, data: bytes) -> None:
+        self._check_open()
+        for report in data_reports(bytes(data)):
+            try:
+                n = self._dev.write(list(report))
+            except (OSError, ValueError) as exc:
+                raise DeviceUnavailable(f"{self.url}: write failed (unplugged?): {exc}") from None
+            if n is not None and n < 0:
+                raise DeviceUnavailable(f"{self.url}: write failed (unplugged?)")
+
+    def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
+        self._check_open()
+        deadline = time.monotonic() + max(timeout, 0.0)
+        while len(self._buf) < max_bytes:
+            wait_ms = 0 if self._buf else max(0, int((deadline - time.monotonic()) * 1000))
+            try:
+                report = self._dev.read(REPORT_SIZE, wait_ms)
+            except (OSError, ValueError) as exc:
+                raise DeviceUnavailable(f"{self.url}: read failed (unplugged?): {exc}") from None
+            if not report:
+                if self._buf or time.monotonic() >= deadline:
+                    break
+                continue
+            n = report[0]
+            if 1 <= n <= MAX_DATA_REPORT:
+                self._buf += bytes(report[1 : 1 + n])
+        out = bytes(self._buf[:max_bytes])
+        del self._buf[:max_bytes]
+        return out
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._safe_close()
+
+    def _safe_close(self) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            self._dev.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise TransportError(f"{self.url}: transport is closed")
