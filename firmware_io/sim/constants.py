@@ -24,10 +24,10 @@ STAMP_RESOLUTION_S = 0.001
 # (lag-1 autocorrelation of intervals measured -0.42: late frames, not a drifting clock).
 STAMP_BASE_JITTER_S = 0.0004
 """measured/fitted: small Gaussian jitter of the PC read time (gives the 31/32 ms mix)."""
-STAMP_LATE_PROB = 0.09
-STAMP_LATE_MEAN_S = 0.0022
+STAMP_LATE_PROB = 0.11
+STAMP_LATE_MEAN_S = 0.0018
 STAMP_VERY_LATE_PROB = 0.008
-STAMP_VERY_LATE_MEAN_S = 0.007
+STAMP_VERY_LATE_MEAN_S = 0.005
 """fitted to the real interval histogram: ~10 % of intervals lie outside 31-32 ms, tail to ~44 ms."""
 
 # -- sensor (DSA 9205 + DSACON32m) ---------------------------------------------------------------

@@ -22,8 +22,8 @@ def frame_stamps(n: int, rng: np.random.Generator, start: float = 0.0) -> np.nda
     very = rng.random(n) < K.STAMP_VERY_LATE_PROB
     delay += very * rng.exponential(K.STAMP_VERY_LATE_MEAN_S, n)
     # a late read never reaches the next frame's read
-    delay = np.minimum(delay, 0.8 * K.FRAME_PERIOD_S)
+    delay = np.minimum(delay, 0.5 * K.FRAME_PERIOD_S)
     t = start + k * K.FRAME_PERIOD_S + delay
     t = np.round(t / K.STAMP_RESOLUTION_S) * K.STAMP_RESOLUTION_S
-    # delays stay below 0.8 period, so consecutive stamps are >= 6 ms apart: strictly increasing
+    # delays stay below half a period, so stamps are >= 15 ms apart: strictly increasing
     return t
