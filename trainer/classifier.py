@@ -33,6 +33,37 @@ DEFAULT_C = 100.0
 CV_FOLDS = 3
 
 
+def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, gamma=None) -> dict:
+    """C (and gamma for rbf) by a stratified 3-fold grid search on these training features only.
+
+    Given values are kept; the grid covers only what is None. With a class of one case no
+    search is possible and DEFAULT_C / sklearn's "scale" gamma are used.
+    """
+    scale = 1.0 / (features.shape[1] * max(float(features.var()), 1e-12))
+    fixed: dict = {}
+    grid: dict = {}
+    if C is None:
+        grid["C"] = list(C_GRID)
+    else:
+        fixed["C"] = float(C)
+    if kernel == "rbf":
+        if gamma is None:
+            grid["gamma"] = [scale * f for f in GAMMA_FACTORS]
+        else:
+            fixed["gamma"] = gamma
+    if not grid:
+        return fixed
+    _, counts = np.unique(y, return_counts=True)
+    n_splits = min(CV_FOLDS, int(counts.min()))
+    if n_splits < 2:
+        defaults = {"C": DEFAULT_C, "gamma": scale} if kernel == "rbf" else {"C": DEFAULT_C}
+        return {**defaults, **fixed}
+    cv = StratifiedKFold(n_splits=n_splits, shuffle=True, random_state=0)
+    search = GridSearchCV(SVC(kernel=kernel, **fixed), grid, cv=cv, n_jobs=1)
+    search.fit(features, y)
+    return {**fixed, **{k: float(v) for k, v in search.best_params_.items()}}
+
+
 class BowSVC(ClassifierMixin, BaseEstimator):
     """BagOfWords (K words, window W, derivative, active series) + SVC (one-vs-one).
 
@@ -81,35 +112,11 @@ class BowSVC(ClassifierMixin, BaseEstimator):
             random_state=self.random_state,
         ).fit(X)
         hist = self.bow_.transform(X)
-        self.best_params_ = self._choose_params(hist, y)
+        self.best_params_ = choose_svm_params(hist, y, self.kernel, self.C, self.gamma)
         self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_)
         self.svm_.fit(hist, y)
         self.n_features_in_ = self.bow_.n_features_in_
         return self
-
-    def _choose_params(self, hist: np.ndarray, y: np.ndarray) -> dict:
-        scale = 1.0 / (hist.shape[1] * max(float(hist.var()), 1e-12))
-        fixed: dict = {}
-        grid: dict = {}
-        if self.C is None:
-            grid["C"] = list(C_GRID)
-        else:
-            fixed["C"] = float(self.C)
-        if self.kernel == "rbf":
-            if self.gamma is None:
-                grid["gamma"] = [scale * f for f in GAMMA_FACTORS]
-            else:
-                fixed["gamma"] = self.gamma
-        if not grid:
-            return fixed
-        _, counts = np.unique(y, return_counts=True)
-        n_splits = min(CV_FOLDS, int(counts.min()))
-        if n_splits < 2:
-            return {"C": DEFAULT_C, "gamma": scale, **fixed} if self.kernel == "rbf" else {"C": DEFAULT_C, **fixed}
-        cv = StratifiedKFold(n_splits=n_splits, shuffle=True, random_state=0)
-        search = GridSearchCV(SVC(kernel=self.kernel, **fixed), grid, cv=cv, n_jobs=1)
-        search.fit(hist, y)
-        return {**fixed, **{k: float(v) for k, v in search.best_params_.items()}}
 
     def transform_histograms(self, X) -> np.ndarray:
         """The BoW features the SVM sees (for t-SNE and diagnostics)."""

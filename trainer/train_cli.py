@@ -1,0 +1,283 @@
+"""``handover train``: train BoW + SVM on all data, evaluate as in the paper, write a report and the model.
+
+Without ``--data`` the paper's protocol is simulated first (synthetic data, labelled so in
+every number shown). Writes into ``--out``: report.md, metrics.json, PNG figures, model.joblib
+and, when the ONNX exporter is present, model.onnx.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+COMMAND = "train"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", help="folder of .hrec recordings (default: simulate the paper's protocol)")
+    parser.add_argument("--out", default="report", help="report folder (created; default ./report)")
+    parser.add_argument("--pads", default="all", help="pad selection: all, distal, proximal, thumb, 1,3,5 ...")
+    parser.add_argument("--K", type=int, default=10, help="number of words (k-means centres)")
+    parser.add_argument("--W", type=int, default=7, help="sliding window length (frames)")
+    parser.add_argument("--T", type=int, default=15, help="frames per case from the trigger")
+    parser.add_argument("--kernel", choices=("rbf", "linear"), default="rbf")
+    parser.add_argument("--C", type=float, default=None, help="SVM C (default: cross-validated search)")
+    parser.add_argument("--gamma", type=float, default=None, help="RBF gamma (default: cross-validated search)")
+    parser.add_argument("--per-pad", action="store_true", help="one histogram per pad instead of one per case")
+    parser.add_argument("--fraction", type=float, default=0.15, help="trigger level as a fraction of full scale")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulation, k-means and the splits")
+    parser.add_argument("--repeats", type=int, default=5, help="seeds of configuration 1 (80/20 splits)")
+    parser.add_argument("--sweep", dest="sweep_file", help="sweep.json from `handover sweep` (default: OUT/sweep.json "
+                        "if present, else a small built-in sweep)")
+    parser.add_argument("--no-sweep", action="store_true", help="skip the accuracy-vs-K/W/T figures")
+    parser.add_argument("--no-onnx", action="store_true", help="do not export model.onnx")
+    parser.add_argument("--json", action="store_true", help="print the metrics as JSON on stdout")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars or messages on stderr")
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The exact command that reproduces this run (written at the top of the report)."""
+    parts = ["handover", "train"]
+    if args.data:
+        parts += ["--data", str(args.data)]
+    parts += ["--out", str(args.out), "--pads", args.pads, "--K", str(args.K), "--W", str(args.W),
+              "--T", str(args.T), "--kernel", args.kernel, "--fraction", str(args.fraction),
+              "--seed", str(args.seed), "--repeats", str(args.repeats)]
+    for flag, value in (("--C", args.C), ("--gamma", args.gamma), ("--sweep", args.sweep_file)):
+        if value is not None:
+            parts += [flag, str(value)]
+    for flag, on in (("--per-pad", args.per_pad), ("--no-sweep", args.no_sweep), ("--no-onnx", args.no_onnx)):
+        if on:
+            parts.append(flag)
+    return " ".join(parts)
+
+
+def _fail(message: str) -> int:
+    print(f"handover {COMMAND}: {message}", file=sys.stderr)
+    return 2
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.layout import LayoutError
+    from firmware_io.recording import RecordingError
+    from trainer.dataset import DatasetError
+
+    if args.K < 1 or args.W < 1 or args.T < 2:
+        return _fail(f"K, W must be >= 1 and T >= 2 (got K={args.K}, W={args.W}, T={args.T})")
+    if args.T - 1 < args.W:
+        return _fail(f"W={args.W} needs T >= {args.W + 1} (got T={args.T})")
+    if args.repeats < 2:
+        return _fail("--repeats must be at least 2 (mean +/- std)")
+    try:
+        return run(args)
+    except (RecordingError, DatasetError, LayoutError, OSError) as exc:
+        return _fail(str(exc))
+    except ValueError as exc:
+        return _fail(f"cannot train: {exc}")
+
+
+def _progress(args, desc: str, total: int):
+    from tqdm import tqdm
+
+    def wrap(iterable):
+        return tqdm(iterable, desc=desc, total=total, file=sys.stderr, disable=args.quiet, leave=False)
+
+    return wrap
+
+
+def _say(args, text: str) -> None:
+    if not args.quiet:
+        print(text, file=sys.stderr, flush=True)
+
+
+def load_or_simulate(args) -> tuple[list, str, bool]:
+    """Recordings, a description of where they came from, and whether they are synthetic."""
+    from firmware_io.recording import find_recordings, load_all
+
+    if args.data:
+        paths = find_recordings(args.data)
+        if not paths:
+            raise FileNotFoundError(f"{args.data}: no .hrec recordings in this folder")
+        recs = load_all(paths)
+        synthetic = any(_looks_simulated(r.meta) for r in recs)
+        return recs, f"{len(paths)} recordings in {args.data}", synthetic
+    try:
+        from firmware_io.simulate import simulate_protocol
+    except ImportError as exc:
+        raise FileNotFoundError(f"no --data given and the simulator is not available ({exc})") from None
+    _say(args, f"simulating the paper's protocol (seed {args.seed}) ...")
+    recs = simulate_protocol(seed=args.seed)
+    return recs, f"simulated protocol, firmware_io.simulate.simulate_protocol(seed={args.seed})", True
+
+
+def _looks_simulated(meta: dict) -> bool:
+    text = json.dumps(meta, default=str).lower()
+    return bool(meta.get("synthetic")) or "simulat" in text or "synthetic" in text
+
+
+def run(args) -> int:
+    import joblib
+
+    from trainer import report
+    from trainer.baseline import BaselineSVC
+    from trainer.classifier import BowSVC
+    from trainer.dataset import build_dataset
+    from trainer.evaluation import config1, config2, tsne_embedding
+
+    t0 = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    recordings, source, synthetic = load_or_simulate(args)
+    ds = build_dataset(recordings, T=args.T, pads=args.pads, fraction=args.fraction)
+    summary = ds.summary()
+    _say(args, f"{ds.n_trials} trials, {len(ds.y)} cases, {ds.n_untriggered} untriggered "
+               f"{summary['untriggered_reasons'] or ''}")
+    if len(set(ds.y.tolist())) < 2 or len(ds.y) < 10:
+        raise ValueError(f"only {len(ds.y)} triggered cases of {len(set(ds.y.tolist()))} classes: too few to train")
+
+    bow = BowSVC(n_words=args.K, window=args.W, kernel=args.kernel, C=args.C, gamma=args.gamma,
+                 per_pad=args.per_pad, pad_sizes=ds.pad_sizes if args.per_pad else None, random_state=args.seed)
+    shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
+    base = BaselineSVC(pad_shapes=shapes, kernel="rbf")
+    seeds = list(range(args.seed, args.seed + args.repeats))
+    n_subjects = len(set(ds.groups.tolist()))
+
+    _say(args, "training the final model on all cases ...")
+    model = bow.fit(ds.X, ds.y)
+    _say(args, "evaluating (configuration 1, leave one subject out, baseline) ...")
+    c1 = config1(bow, ds.X, ds.y, seeds=seeds, progress=_progress(args, "config 1 (BoW)", len(seeds)))
+    c2 = config2(bow, ds.X, ds.y, ds.groups, progress=_progress(args, "LOSO (BoW)", n_subjects))
+    b1 = config1(base, ds.X, ds.y, seeds=seeds, progress=_progress(args, "config 1 (baseline)", len(seeds)))
+    b2 = config2(base, ds.X, ds.y, ds.groups, progress=_progress(args, "LOSO (baseline)", n_subjects))
+
+    sweep = None if args.no_sweep else _sweeps(args, recordings, out)
+
+    _say(args, "t-SNE of the histograms ...")
+    hist = model.transform_histograms(ds.X)
+    embedding = tsne_embedding(hist, seed=args.seed)
+
+    metrics = {
+        "synthetic": synthetic,
+        "data": source,
+        "fingerprint": ds.fingerprint,
+        "config1_accuracy_mean": c1["mean"],
+        "config1_accuracy_std": c1["std"],
+        "loso_accuracy": c2["accuracy"],
+        "loso_per_subject": c2["per_subject"],
+        "loso_subject_std": c2["subject_std"],
+        "baseline_config1_accuracy_mean": b1["mean"],
+        "baseline_config1_accuracy_std": b1["std"],
+        "baseline_loso_accuracy": b2["accuracy"],
+        "baseline_loso_subject_std": b2["subject_std"],
+        "K": args.K, "W": args.W, "T": args.T, "kernel": args.kernel, "per_pad": args.per_pad,
+        "pads": args.pads, "trigger_fraction": args.fraction, "seed": args.seed,
+        "best_params": model.best_params_,
+        "n_trials": ds.n_trials, "n_cases": len(ds.y), "n_untriggered": ds.n_untriggered,
+        "untriggered": [s.to_dict() for s in ds.untriggered],
+        "dataset": summary,
+        "config1": c1, "config2": c2, "baseline_config1": b1, "baseline_config2": b2,
+        "sweep": sweep,
+    }
+
+    joblib.dump(model, out / "model.joblib")
+    metrics["onnx"] = None if args.no_onnx else _export_onnx(args, model, ds, metrics, out)
+
+    _say(args, "writing figures and the report ...")
+    tag = " (synthetic)" if synthetic else ""
+    figures = {
+        "Confusion matrix, configuration 1": report.plot_confusion(
+            c1["confusion"], c1["labels"], f"config 1: pooled 80/20, {len(seeds)} seeds{tag}",
+            out / "confusion_config1.png").name,
+        "Confusion matrix, configuration 2": report.plot_confusion(
+            c2["confusion"], c2["labels"], f"config 2: leave one subject out{tag}", out / "confusion_loso.png").name,
+        "Baseline vs BoW": report.plot_baseline_vs_bow(metrics, out / "baseline_vs_bow.png", synthetic).name,
+        "t-SNE of the histograms": report.plot_tsne(embedding, ds.y, out / "tsne.png", synthetic).name,
+    }
+    if sweep:
+        for param in ("K", "W", "T"):
+            rows = [r for r in sweep["rows"] if r["param"] == param]
+            if rows:
+                fixed = ", ".join(f"{p}={args.__dict__[p]}" for p in ("K", "W", "T") if p != param)
+                figures[f"Accuracy vs {param}"] = report.plot_sweep(
+                    rows, param, fixed, out / f"sweep_{param}.png", synthetic).name
+    metrics["seconds"] = round(time.perf_counter() - t0, 1)
+    metrics["command"] = command_line(args)
+    report.write_metrics(out, metrics)
+    report.write_markdown(out, metrics, metrics["command"], figures)
+    _say(args, f"report written to {out / 'report.md'} ({metrics['seconds']:.0f} s)")
+    if args.json:
+        print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (
+            "loso_per_subject", "best_params")}, default=report._json_default))
+    return 0
+
+
+def _sweeps(args, recordings, out: Path) -> dict | None:
+    from trainer.sweeps import QUICK_K, QUICK_T, QUICK_W, run_sweeps
+
+    path = Path(args.sweep_file) if args.sweep_file else out / "sweep.json"
+    if path.is_file():
+        _say(args, f"sweep results from {path}")
+        try:
+            return json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise FileNotFoundError(f"{path}: not a sweep result ({exc})") from None
+    if args.sweep_file:
+        raise FileNotFoundError(f"{path}: no such sweep result")
+    base = {"K": args.K, "W": args.W, "T": args.T, "seed": args.seed, "per_pad": args.per_pad}
+    seeds = (args.seed, args.seed + 1)
+    n = len(QUICK_K) + len(QUICK_W) + len(QUICK_T)
+    _say(args, "small built-in sweep of K, W, T (`handover sweep` runs the full one) ...")
+    result = run_sweeps(recordings, base, QUICK_K, QUICK_W, QUICK_T, [args.kernel], args.pads, args.fraction,
+                        mode="config1", seeds=seeds, progress=_progress(args, "sweep", n))
+    result["description"] = "Small built-in sweep. " + result["description"]
+    return result
+
+
+def _export_onnx(args, model, ds, metrics: dict, out: Path) -> str | None:
+    """model.onnx through trainer.onnx_export when it exists; a failure is reported, not fatal."""
+    import importlib.util
+
+    if importlib.util.find_spec("trainer.onnx_export") is None:
+        return None
+    from runtime import __version__
+    from trainer.onnx_export import export_onnx
+
+    rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
+    meta = {
+        "pads": list(ds.pads),
+        "pad_sizes": list(ds.pad_sizes),
+        "fullscale": ds.fullscale,
+        "trigger": {"fraction": ds.fraction},
+        "sample_rate_hz": rate,
+        "training": {
+            "data_fingerprint": ds.fingerprint,
+            "data": metrics["data"],
+            "synthetic": metrics["synthetic"],
+            "n_trials": ds.n_trials,
+            "n_cases": len(ds.y),
+            "n_untriggered": ds.n_untriggered,
+            "project_version": __version__,
+            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "seed": args.seed,
+            "C": metrics["best_params"].get("C"),
+            "gamma": metrics["best_params"].get("gamma"),
+        },
+        "evaluation": {
+            "synthetic": metrics["synthetic"],
+            "config1_accuracy_mean": metrics["config1_accuracy_mean"],
+            "config1_accuracy_std": metrics["config1_accuracy_std"],
+            "config1_split": metrics["config1"]["split"],
+            "loso_accuracy": metrics["loso_accuracy"],
+            "loso_per_subject": metrics["loso_per_subject"],
+            "baseline_loso_accuracy": metrics["baseline_loso_accuracy"],
+        },
+    }
+    try:
+        path = export_onnx(model, out / "model.onnx", meta)
+    except Exception as exc:  # the report is still worth having; say what failed
+        print(f"handover {COMMAND}: model.onnx not written: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return f"export failed: {type(exc).__name__}: {exc}"
+    return f"written ({path.name}, {path.stat().st_size} bytes)"
