@@ -1,0 +1,118 @@
+"""``handover emulate``: serve an emulated DSACON32m on loopback TCP or a pseudo-terminal.
+
+Frames come from the simulated hand's scripted session (synthetic data) or any recording
+(.hrec, .dsa, .bag). Point any client at the printed URL, e.g. ``handover dump tcp://127.0.0.1:13000``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--listen", metavar="URL", help="tcp://127.0.0.1:PORT (loopback only; port 0 picks one)")
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal and print its path")
+    parser.add_argument("--source", default="sim", help="'sim' (simulated hand, default) or a recording file")
+    parser.add_argument("--events", type=int, default=40, help="scripted events of the simulated session (default 40)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated session and of fault injection")
+    parser.add_argument("--speed", default="1.0", help="playback speed: a factor (1.0 = recorded timing) or 'max'")
+    parser.add_argument(
+        "--fault",
+        default="",
+        help="faults to inject, e.g. crc=0.01,garbage=0.01,drop=0.01,stall=0.005:0.5,disconnect=300,boot",
+    )
+    parser.add_argument("--old-firmware", action="store_true", help="behave like firmware <= R288 (single frame pushes)")
+    parser.add_argument("--no-loop", action="store_true", help="stop sending at the end of the recording")
+    parser.add_argument("--duration", type=float, default=None, help="exit after this many seconds (default: Ctrl-C)")
+
+
+def _fail(message: str) -> int:
+    print(f"handover emulate: {message}", file=sys.stderr)
+    return 2
+
+
+def _speed(text: str) -> float | None:
+    if text.strip().lower() in ("max", "inf"):
+        return None
+    value = float(text)
+    if value <= 0:
+        raise ValueError
+    return value
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
+    from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+    from firmware_io.frame_source import load_source
+    from firmware_io.recording import RecordingError
+    from firmware_io.transports.base import ParsedURL, TransportError
+
+    try:
+        speed = _speed(args.speed)
+    except ValueError:
+        return _fail(f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
+    try:
+        faults = FaultPlan.parse(args.fault)
+    except FaultSpecError as exc:
+        return _fail(f"--fault: {exc}")
+    if args.events < 1:
+        return _fail("--events must be at least 1")
+    try:
+        recording = load_source(args.source, seed=args.seed, events=args.events)
+    except RecordingError as exc:
+        return _fail(str(exc))
+    emulator = DeviceEmulator(
+        recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed
+    )
+    try:
+        if args.pty:
+            server = PtyEmulatorServer(emulator)
+        else:
+            try:
+                parsed = ParsedURL(args.listen)
+            except TransportError as exc:
+                return _fail(str(exc))
+            if parsed.scheme != "tcp" or not parsed.netloc:
+                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+            host, _, port = parsed.netloc.rpartition(":")
+            if not host or not port.isdigit():
+                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+            server = TcpEmulatorServer(emulator, host=host, port=int(port))
+    except EmulatorServerError as exc:
+        return _fail(str(exc))
+
+    synthetic = " (synthetic)" if recording.meta.get("synthetic", args.source == "sim") else ""
+    what = "simulated hand" if args.source == "sim" else str(args.source)
+    rate = 1.0 / recording.sample_interval() if recording.n_frames > 1 else float("nan")
+    print(
+        f"emulated DSACON32m: {what}{synthetic}, {recording.n_frames} frames, {recording.layout.n_matrices} pads, "
+        f"{recording.layout.n_taxels} taxels, {rate:.1f} Hz, speed {args.speed}"
+        + (f", faults {args.fault}" if faults.any else ""),
+        flush=True,
+    )
+    if args.pty:
+        print(f"pty: {server.path}  (open serial://{server.path})", flush=True)
+    else:
+        print(f"listening: {server.url}", flush=True)
+    server.start()
+    try:
+        end = None if args.duration is None else time.monotonic() + args.duration
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
+            if server.error is not None:
+                return _fail(f"server stopped: {server.error}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    s = emulator.stats
+    print(
+        f"served {s.connections} connection(s), {s.commands} commands, {s.frames_sent} frames; "
+        f"faults: crc {s.crc_corrupted}, garbage {s.garbage_inserted}, truncated {s.packets_truncated}, "
+        f"stalls {s.stalls}, disconnects {s.disconnects}",
+        flush=True,
+    )
+    return 0
