@@ -173,3 +173,17 @@ def test_runtime_never_imports_onnx_or_sklearn(good_path):
     )
     out = subprocess.run([sys.executable, "-c", code, str(good_path)], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_inspect_card(good_path, tmp_path, capsys):
+    from runtime.cli import main as handover
+
+    assert handover(["inspect", str(good_path)]) == 0
+    out = capsys.readouterr().out
+    assert "detects: bump, hold, pull, push" in out and "nodes" in out and "synthetic-test" in out
+    assert handover(["inspect", str(good_path), "--json"]) == 0
+    card = json.loads(capsys.readouterr().out)
+    assert card["T"] == 12 and card["graph"]["n_nodes"] > 10 and card["pads"] == [1, 3]
+    (tmp_path / "bad.onnx").write_bytes(b"\x00" * 10)
+    assert handover(["inspect", str(tmp_path / "bad.onnx")]) == 1
+    assert capsys.readouterr().err.startswith("handover inspect: model ")
