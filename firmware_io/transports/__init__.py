@@ -39,7 +39,7 @@ __all__ = [
     "register_transport",
 ]
 
-TRANSPORTS: dict[str, str] = {
+TRANSPORTS: dict[str, str | type] = {
     "serial": "firmware_io.transports.serial_port:SerialTransport",
     "tcp": "firmware_io.transports.tcp:TcpTransport",
     "usb": "firmware_io.transports.usb:UsbTransport",
@@ -53,8 +53,6 @@ _WINDOWS_PORT = re.compile(r"^COM\d+$", re.IGNORECASE)
 
 def register_transport(scheme: str, target: str | type) -> None:
     """Add or replace a scheme: ``target`` is a Transport class or ``"module:Class"``."""
-    if not isinstance(target, str):
-        target = f"{target.__module__}:{target.__qualname__}"
     TRANSPORTS[scheme.lower()] = target
 
 
@@ -72,6 +70,8 @@ def _load(scheme: str, url: str) -> type:
         known = ", ".join(f"{s}://" for s in TRANSPORTS)
         where = f"unknown scheme {scheme + '://'!r}" if scheme else "no scheme"
         raise TransportError(f"{url}: {where}; use one of {known} or a /dev path")
+    if not isinstance(target, str):
+        return target
     module_name, _, class_name = target.partition(":")
     module = importlib.import_module(module_name)
     return getattr(module, class_name)

@@ -1,0 +1,212 @@
+"""Transports by URL: parsing and errors, missing optional packages, TCP EOF, and the pyusb and
+hidapi transports run against emulated bridges (pyusb backend object, hid.device stand-in)."""
+
+from __future__ import annotations
+
+import socket
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+from firmware_io.client import DSAClient
+from firmware_io.emulator import DeviceEmulator
+from firmware_io.emulator_links import EmulatedCp2110, EmulatedUsbBackend
+from firmware_io.frame_source import placeholder_session
+from firmware_io.layout import SensorLayout
+from firmware_io.transports import (
+    DeviceUnavailable,
+    MissingDependency,
+    TransportError,
+    open_transport,
+    register_transport,
+)
+from firmware_io.transports.hid import data_reports, uart_config_report
+from firmware_io.transports.usb import ftdi_baud_divisor, strip_ftdi_status
+
+
+@pytest.fixture(scope="module")
+def rec():
+    return placeholder_session(seed=2, events=1)
+
+
+@pytest.mark.parametrize(
+    ("url", "words"),
+    [
+        ("", "empty device URL"),
+        ("foo://x", "unknown scheme 'foo://'"),
+        ("ttyUSB0", "no scheme"),
+        ("usb://xyz", "VID:PID"),
+        ("usb://0403", "VID:PID"),
+        ("usb://12345:1", "16-bit"),
+        ("hid://10c4:ea80:1", "VID:PID"),
+        ("tcp://", "no host"),
+        ("tcp://host:99999", "port 1..65535"),
+        ("sim://?seed=x", "seed='x' is not an integer"),
+        ("sim://?bogus=1", "unknown option 'bogus'"),
+        ("sim://?fault=crc=5", "fault"),
+        ("replay://", "no file"),
+    ],
+)
+def test_bad_urls_give_one_clear_error(url, words):
+    with pytest.raises(TransportError) as info:
+        open_transport(url)
+    assert words in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_missing_devices_are_device_unavailable(tmp_path):
+    with pytest.raises(DeviceUnavailable, match="cannot open serial port"):
+        open_transport("/dev/tty-does-not-exist")
+    with pytest.raises(DeviceUnavailable, match="no such file"):
+        open_transport(f"replay://{tmp_path}/none.hrec")
+    with socket.socket() as s:  # a free port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(DeviceUnavailable, match="cannot connect"):
+        open_transport(f"tcp://127.0.0.1:{port}?connect_timeout=1")
+
+
+def test_missing_optional_packages_name_the_extra(monkeypatch):
+    for name in ("usb", "usb.core", "usb.util"):
+        monkeypatch.setitem(sys.modules, name, None)
+    monkeypatch.setitem(sys.modules, "hid", None)
+    with pytest.raises(MissingDependency, match=r"tactile-handover\[usb\]"):
+        open_transport("usb://0403:6001")
+    with pytest.raises(MissingDependency, match=r"tactile-handover\[usb\]"):
+        open_transport("hid://10c4:ea80")
+
+
+def test_missing_libusb_backend_is_explained():
+    import usb.backend.libusb1
+
+    if usb.backend.libusb1.get_backend() is not None:
+        pytest.skip("libusb is installed here; the message is for machines without it")
+    with pytest.raises(MissingDependency, match=r"libusb-1\.0"):
+        open_transport("usb://0403:6001")
+
+
+def test_register_transport_adds_a_scheme(rec):
+    from firmware_io.transports.emulated import EmulatedTransport
+
+    class Loopback(EmulatedTransport):
+        @classmethod
+        def from_url(cls, parsed, **opts):
+            return cls(DeviceEmulator(rec, speed=None), parsed.url)
+
+    register_transport("loop-test", Loopback)
+    with open_transport("loop-test://") as t:
+        assert isinstance(t, Loopback)
+
+
+def test_tcp_eof_is_device_unavailable():
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+
+    def accept_and_close():
+        conn, _ = server.accept()
+        conn.sendall(b"\x01\x02")
+        conn.close()
+
+    thread = threading.Thread(target=accept_and_close, daemon=True)
+    thread.start()
+    try:
+        with open_transport(f"tcp://127.0.0.1:{port}") as t:
+            assert t._sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+            got = b""
+            with pytest.raises(DeviceUnavailable, match="closed the connection"):
+                for _ in range(20):
+                    got += t.read(100, 1.0)
+            assert got == b"\x01\x02"
+    finally:
+        thread.join(2)
+        server.close()
+
+
+def test_bridge_helpers():
+    assert ftdi_baud_divisor(115200) == (26, 0)
+    assert ftdi_baud_divisor(9600) == (0x4138, 0)  # 312.5 -> 312 + 4/8 (code 1 -> bit 14)
+    assert strip_ftdi_status(b"\x01\x60", 64) == b""
+    data = b"\x01\x60" + bytes(range(62)) + b"\x01\x60abc"
+    assert strip_ftdi_status(data, 64) == bytes(range(62)) + b"abc"
+    assert uart_config_report(115200) == b"\x50\x00\x01\xc2\x00\x00\x00\x03\x00"
+    reports = data_reports(bytes(range(130)))
+    assert [r[0] for r in reports] == [63, 63, 4] and b"".join(r[1:] for r in reports) == bytes(range(130))
+
+
+def _check_client(transport, rec, n=12):
+    client = DSAClient(transport, gap_timeout=0.5, stop_timeout=1.0, flush_quiet=0.05)
+    layout = client.open()
+    sdh2 = SensorLayout.sdh2()
+    assert [(m.cells_x, m.cells_y, m.center) for m in layout.matrices] == [
+        (m.cells_x, m.cells_y, m.center) for m in sdh2.matrices
+    ]
+    client.start()
+    frames = [client.read_frame(timeout=2.0) for _ in range(n)]
+    assert all(f is not None for f in frames)
+    for i, f in enumerate(frames):
+        assert np.array_equal(f.values, rec.frames[i])
+    client.close()
+    return client
+
+
+@pytest.mark.parametrize(
+    ("chip", "vid", "expected"),
+    [
+        ("ftdi", 0x0403, [(0x40, 0x00, 0, 1), (0x40, 0x03, 26, 0), (0x40, 0x04, 8, 1), (0x40, 0x02, 0, 1)]),
+        ("cdc", 0x2341, [(0x21, 0x20, 0, 0), (0x21, 0x22, 3, 0)]),
+        ("cp210x", 0x10C4, [(0x41, 0x00, 1, 0), (0x41, 0x1E, 0, 0), (0x41, 0x03, 0x0800, 0)]),
+    ],
+)
+def test_usb_transport_through_emulated_pyusb_backend(rec, chip, vid, expected):
+    backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None), vid=vid, pid=0x6001, chip=chip)
+    transport = open_transport(f"usb://{vid:04x}:6001?serial=DSA00001", backend=backend)
+    assert transport.chip == chip
+    assert [r[:4] for r in backend.control_requests] == expected
+    if chip == "cdc":
+        assert backend.control_requests[0][4] == b"\x00\xc2\x01\x00\x00\x00\x08"  # 115200, 1 stop, none, 8
+        assert sorted(backend.detached) == [0, 1]
+    if chip == "cp210x":
+        assert backend.control_requests[1][4] == (115200).to_bytes(4, "little")
+    assert backend.claimed
+    _check_client(transport, rec)
+    assert backend.detached == [] and backend.claimed == set()  # kernel driver back, interface released
+
+
+def test_usb_transport_errors(rec):
+    backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
+    with pytest.raises(DeviceUnavailable, match="serial 'other'"):
+        open_transport("usb://0403:6001?serial=other", backend=backend)
+    with pytest.raises(DeviceUnavailable, match="no USB device 0403:6002"):
+        open_transport("usb://0403:6002", backend=backend)
+    with pytest.raises(TransportError, match="no interface 3"):
+        open_transport("usb://0403:6001?interface=3", backend=backend)
+    t = open_transport("usb://0403:6001", backend=backend)
+    assert t.read(64, 0.05) == b""  # idle FTDI: status bytes only
+    backend.unplugged = True
+    with pytest.raises(DeviceUnavailable, match="device gone"):
+        t.read(64, 0.05)
+    t.close()
+
+
+def test_hid_transport_through_cp2110_stand_in(rec):
+    device = EmulatedCp2110(DeviceEmulator(rec, speed=None))
+    transport = open_transport("hid://10c4:ea80", device=device)
+    assert device.uart_config == (115200, 0, 0, 3, 0) and device.uart_enabled
+    assert [r[0] for r in device.feature_reports] == [0x50, 0x41, 0x43]
+    _check_client(transport, rec)
+    assert not device.is_open
+
+
+def test_hid_transport_errors(rec):
+    device = EmulatedCp2110(DeviceEmulator(rec, speed=None))
+    with pytest.raises(DeviceUnavailable, match="cannot open HID device 10c4:ea81"):
+        open_transport("hid://10c4:ea81", device=device)
+    t = open_transport("hid://10c4:ea80", device=device)
+    assert t.read(10, 0.02) == b""
+    device.unplugged = True
+    with pytest.raises(DeviceUnavailable, match="unplugged"):
+        t.read(10, 0.02)
