@@ -437,7 +437,7 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
 
 
 def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
 
 def flagged_trials(rec: Recording) -> list[int]:
