@@ -16,7 +16,7 @@ from firmware_io.emulator import DeviceEmulator, FaultPlan
 from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
 from firmware_io.frame_source import placeholder_session
 from firmware_io.layout import SensorLayout
-from firmware_io.transports import DeviceUnavailable, EndOfStream, open_transport
+from firmware_io.transports import DeviceUnavailable, EndOfStream
 from tests.conftest import ROOT, dsa_files
 
 
@@ -92,9 +92,9 @@ def test_faults_are_counted_and_the_client_recovers(rec):
     assert c["bytes_dropped"] >= s.garbage_bytes
     assert c["boot_queries"] == 3
     ms = np.round((rec.timestamps - rec.timestamps[0]) * 1000).astype(int)
-    period = int(round(emulator._loop_period * 1000))
+    period = round(emulator._loop_period * 1000)
     for f in frames:  # every frame that arrived is an exact frame of the source
-        loops, rel = divmod(f.timestamp_ms, period)
+        _loops, rel = divmod(f.timestamp_ms, period)
         i = int(np.searchsorted(ms, rel))
         assert np.array_equal(f.values, rec.frames[i])
     assert frames[-1].number >= len(frames) - 1
