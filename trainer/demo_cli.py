@@ -1,0 +1,241 @@
+"""``handover demo``: the whole product end to end on the simulated hand (synthetic data).
+
+1. simulate the paper's protocol (5 subjects x 180 trials),
+2. train BoW + SVM, evaluate it (report) and export one ONNX graph,
+3. serve an emulated DSACON32m on loopback TCP that plays a scripted session of new,
+   unseen simulated subjects (a different seed: other strengths, speeds and styles),
+4. run the real daemon against it with the exported model, print every event as it
+   happens and compare the events with the script.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+COMMAND = "demo"
+SESSION_SEED_OFFSET = 1000
+"""The scripted session's seed = training seed + this: its subjects are not the trained ones."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="out/demo", help="working folder (data, report, models; default out/demo)")
+    parser.add_argument("--events", type=int, default=40, help="scripted events in the session (default 40)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the training protocol (default 0)")
+    parser.add_argument("--pads", default="all", help="pads the model and the scene use (default all)")
+    parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
+                        "as possible (latency figures then include queueing)")
+    parser.add_argument("--fault", default="", help="faults the emulator injects, e.g. crc=0.01,garbage=0.01")
+    parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/model.onnx exists")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    parser.add_argument("--quiet", action="store_true", help="only the summary")
+
+
+def _fail(message: str) -> int:
+    print(f"handover {COMMAND}: {message}", file=sys.stderr)
+    return 2
+
+
+def _say(args: argparse.Namespace, text: str) -> None:
+    if not args.quiet:
+        print(text, file=sys.stderr if args.json else sys.stdout, flush=True)
+
+
+def train_model(args: argparse.Namespace, out: Path) -> Path:
+    """Simulate, train, evaluate and export via ``handover train``; reuse an earlier model unless --retrain."""
+    from trainer import train_cli
+
+    report = out / "report"
+    model = report / "model.onnx"
+    stamp = report / "demo-args.json"
+    wanted = {"seed": args.seed, "pads": args.pads}
+    if model.is_file() and not args.retrain and stamp.is_file() and json.loads(stamp.read_text()) == wanted:
+        _say(args, f"[1-2/4] reusing the trained model {model} (--retrain to train again)")
+        return model
+    _say(args, f"[1/4] simulating the paper's protocol (synthetic, seed {args.seed}) and [2/4] training ...")
+    parser = argparse.ArgumentParser()
+    train_cli.add_arguments(parser)
+    targs = parser.parse_args(["--out", str(report), "--pads", args.pads, "--seed", str(args.seed),
+                               "--repeats", "3", "--no-sweep"] + (["--quiet"] if args.quiet or args.json else []))
+    code = train_cli.run(targs)
+    if code != 0 or not model.is_file():
+        raise RuntimeError("training did not produce model.onnx (see the messages above)")
+    stamp.write_text(json.dumps(wanted))
+    metrics = json.loads((report / "metrics.json").read_text())
+    _say(args, f"      synthetic data: {metrics['n_cases']} cases ({metrics['n_untriggered']} trials never "
+               f"triggered); leave-one-subject-out accuracy {metrics['loso_accuracy']:.1%}, pooled 80/20 "
+               f"{metrics['config1_accuracy_mean']:.1%} +/- {metrics['config1_accuracy_std']:.1%}; "
+               f"report {report / 'report.md'}")
+    return model
+
+
+def drop_model(model: Path, folder: Path) -> Path:
+    """Install a model the safe way the daemon expects: temp name in the folder, then rename."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob("*.onnx"):
+        old.unlink()
+    tmp = folder / f".{model.name}.tmp"
+    shutil.copyfile(model, tmp)
+    os.chmod(tmp, 0o644)
+    final = folder / "demo.onnx"
+    os.replace(tmp, final)
+    return final
+
+
+@dataclass
+class Outcome:
+    """What the daemon said about one scripted event."""
+
+    expected: str
+    detected: str | None = None
+    latency_us: float | None = None
+    extra: int = 0
+
+
+def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
+    return int(np.searchsorted(rel_ms, device_ms - start_ms, side="left"))
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
+    from firmware_io.emulator_server import TcpEmulatorServer
+    from firmware_io.simulate import demo_script, simulate_session
+    from runtime.config import Config, DeviceConfig, ModelConfig, SceneConfig, SinksConfig
+    from runtime.daemon import Daemon
+    from runtime.sdnotify import Notifier
+
+    if args.events < 4:
+        return _fail("--events must be at least 4 (one of each class)")
+    speed_text = args.speed.strip().lower()
+    try:
+        speed = None if speed_text in ("max", "inf") else float(speed_text)
+        if speed is not None and speed <= 0:
+            raise ValueError
+    except ValueError:
+        return _fail(f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
+    try:
+        faults = FaultPlan.parse(args.fault)
+    except FaultSpecError as exc:
+        return _fail(f"--fault: {exc}")
+    out = Path(args.out)
+    t_start = time.perf_counter()
+    try:
+        model_path = train_model(args, out)
+    except (OSError, ValueError, RuntimeError) as exc:
+        return _fail(str(exc))
+    model_dir = drop_model(model_path, out / "models").parent
+
+    session_seed = args.seed + SESSION_SEED_OFFSET
+    script = demo_script(args.events, seed=session_seed)
+    session = simulate_session(script, seed=session_seed)
+    emulator = DeviceEmulator(session, speed=speed, loop=False, faults=faults, seed=session_seed)
+    server = TcpEmulatorServer(emulator, host="127.0.0.1", port=0).start()
+    duration = session.timestamps[-1] - session.timestamps[0]
+    _say(args, f"[3/4] emulated DSACON32m on {server.url}: scripted session of {len(script)} events by unseen "
+               f"simulated subjects (synthetic, seed {session_seed}), {duration:.0f} s at speed {args.speed}")
+
+    cfg = Config(
+        device=DeviceConfig(url=server.url, stall_timeout_s=2.0, reconnect_min_s=0.2, reconnect_max_s=1.0),
+        scene=SceneConfig(pads=args.pads),
+        model=ModelConfig(folder=str(model_dir), poll_interval_s=0.5),
+        sinks=SinksConfig(stdout=False),
+        log_level="warning",
+    )
+    trials = session.trials
+    firsts = np.array([t.first for t in trials])
+    outcomes = [Outcome(t.action) for t in trials]
+    false_events: list[str] = []
+    rel_ms = np.round((session.timestamps - session.timestamps[0]) * 1000.0).astype(np.int64)
+
+    def on_event(event) -> None:
+        idx = _frame_index(rel_ms, event.device_time_ms, emulator.start_ms)
+        k = int(np.searchsorted(firsts, idx, side="right")) - 1
+        hit = k >= 0 and trials[k].first <= idx <= trials[k].last
+        if not hit:
+            false_events.append(event.cls)
+            _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  (no scripted event here)")
+            return
+        o = outcomes[k]
+        if o.detected is None:
+            o.detected, o.latency_us = event.cls, event.latency_us
+            mark = "ok " if event.cls == o.expected else "WRONG"
+            ev = script[k]
+            _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  {mark} scripted "
+                       f"{o.expected} ({ev.subject}, {ev.object}, pose {ev.pose})")
+        else:
+            o.extra += 1
+
+    daemon = Daemon(cfg, notifier=Notifier({}), on_event=on_event)
+    _say(args, "[4/4] daemon running with the exported model; events as they happen:")
+
+    def stop_when_done() -> None:
+        while not emulator.finished:
+            time.sleep(0.2)
+        time.sleep(1.5)  # let the last window complete
+        daemon.request_stop()
+
+    threading.Thread(target=stop_when_done, name="demo-stop", daemon=True).start()
+    try:
+        daemon.run()
+    finally:
+        server.stop()
+    h = daemon.health
+    lat = h._lat[: min(h._lat_n, h._lat.size)]
+    detected = [o for o in outcomes if o.detected is not None]
+    summary = {
+        "synthetic": True,
+        "events_expected": len(outcomes),
+        "events_detected": len(detected),
+        "events_correct": sum(o.detected == o.expected for o in detected),
+        "events_missed": len(outcomes) - len(detected),
+        "false_events": len(false_events),
+        "repeat_events": sum(o.extra for o in outcomes),
+        "decisions": int(h.decisions),
+        "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None,
+        "latency_p99_us": float(np.percentile(lat, 99)) if lat.size else None,
+        "latency_max_us": float(lat.max()) if lat.size else None,
+        "deadline_us": 1e6 / 32.0,
+        "missed_deadlines": int(h.missed_deadlines),
+        "frames_received": int(h.frames_received),
+        "frames_dropped": int(h.frames_dropped),
+        "crc_errors": int(h.crc_errors),
+        "model": str(model_path),
+        "seconds": round(time.perf_counter() - t_start, 1),
+    }
+    per_class: dict[str, list[int]] = {}
+    for o in outcomes:
+        c = per_class.setdefault(o.expected, [0, 0])
+        c[0] += 1
+        c[1] += o.detected == o.expected
+    summary["per_class_correct"] = {k: f"{v[1]}/{v[0]}" for k, v in sorted(per_class.items())}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        _print_summary(summary)
+    return 0
+
+
+def _print_summary(s: dict) -> None:
+    def us(v: float | None) -> str:
+        return "-" if v is None else f"{v:.0f} us"
+
+    print()
+    print("summary (synthetic session, unseen simulated subjects)")
+    print(f"  events: {s['events_expected']} scripted, {s['events_detected']} detected, "
+          f"{s['events_correct']} correct ({s['events_correct'] / max(1, s['events_expected']):.0%}), "
+          f"{s['events_missed']} missed, {s['false_events']} outside any scripted event")
+    print(f"  per class correct: {s['per_class_correct']}")
+    print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
+          f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
+          f"missed deadlines {s['missed_deadlines']}")
+    print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
+    print(f"  total {s['seconds']:.0f} s")
