@@ -1,0 +1,298 @@
+"""handover record / plot against the emulated controller with a scripted simulated subject (synthetic data).
+
+Sessions are short (1 pose x 1 object x 4 actions x 1 run, 2 s trials) and the emulator runs
+at 10x real time, so a whole session takes well under a second of wall time.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+
+import numpy as np
+import pytest
+
+from firmware_io.client import DSAClient
+from firmware_io.layout import SensorLayout
+from firmware_io.record_session import (
+    ProtocolPlan,
+    SessionError,
+    SessionIO,
+    SessionOptions,
+    SessionStore,
+    check_trigger,
+    flagged_trials,
+    recording_path,
+    run_session,
+)
+from firmware_io.recording import ACTIONS, Recording
+from firmware_io.scripted_subject import ScriptedSubject
+from firmware_io.terminal_view import sparkline, trial_view
+from runtime.cli import main as handover
+
+SPEED = 10.0
+SHORT = ["--poses", "down", "--objects", "ball", "--runs", "1", "--trial-seconds", "2", "--gap", "0",
+         "--countdown", "0", "--quiet"]
+PLAN = ProtocolPlan(("down",), ("ball",), ACTIONS, 1)
+KEYS = {("down", "ball", a, 1) for a in ACTIONS}
+
+
+def record(tmp_path, *extra, device=f"subject://?seed=3&speed={SPEED}", subject="s1") -> int:
+    return handover(["record", "--device", device, "--subject", subject, "--out", str(tmp_path), *SHORT, *extra])
+
+
+def keys(rec: Recording) -> list[tuple]:
+    return [(t.pose, t.object, t.action, t.run) for t in rec.trials]
+
+
+def open_session(tmp_path, subject: ScriptedSubject, **client_kw):
+    client = DSAClient(subject.connect, **client_kw)
+    layout = client.open()
+    client.start()
+    return client, SessionStore.open(recording_path(tmp_path, "s1"), "s1", layout)
+
+
+def auto_opts(**kw) -> SessionOptions:
+    base = {"trial_seconds": 2.0, "gap_seconds": 0.0, "auto": True, "retries": 0}
+    base.update(kw)
+    return SessionOptions(**base)
+
+
+def assert_consistent(rec: Recording) -> None:
+    """Every stored flag agrees with the frames: what the recorder said is what the file holds."""
+    for t in rec.trials:
+        frames, stamps = rec.trial_frames(t)
+        check = check_trigger(frames, rec.layout)
+        assert t.extra["triggered"] == check.triggered
+        assert t.extra["trigger_frame"] == check.first_frame
+        assert 55 <= t.n_frames <= 70  # 2 s at ~32 Hz
+        assert np.all(np.diff(stamps) > 0)
+
+
+# -- plan, trigger, terminal view ---------------------------------------------------------------
+def test_default_plan_is_the_papers_protocol():
+    slots = ProtocolPlan().slots()
+    assert len(slots) == 3 * 3 * 4 * 5
+    assert len(set(slots)) == len(slots)
+    assert slots[0].key == ("down", "ball", "pull", 1) and slots[1].key == ("down", "ball", "pull", 2)
+
+
+@pytest.mark.parametrize("kw", [{"runs": 0}, {"poses": ()}, {"actions": ("pull", "pull")}, {"objects": ("a b",)}])
+def test_bad_plan_names_the_problem(kw):
+    with pytest.raises(SessionError):
+        ProtocolPlan(**kw)
+
+
+def test_trigger_check_uses_fifteen_percent_of_full_scale():
+    layout = SensorLayout.sdh2()
+    frames = np.zeros((10, layout.n_taxels), np.uint16)
+    level = 0.15 * 4095
+    frames[4, 100] = int(np.ceil(level)) - 1
+    assert not check_trigger(frames, layout).triggered
+    frames[6, 100] = int(np.ceil(level))
+    check = check_trigger(frames, layout)
+    assert check.triggered and check.first_frame == 6
+    distal_only = check_trigger(frames, layout, pads="distal")  # column 100 is on pad 1 (distal, from 84)
+    assert distal_only.triggered
+    assert not check_trigger(frames, layout, pads="proximal").triggered
+
+
+def test_sparkline_shares_a_scale_and_squeezes_to_width():
+    assert sparkline([0, 1, 2, 4], top=4) == " ▂▄█"
+    assert sparkline(np.arange(1000), width=20)[-1] == "█"
+    assert len(sparkline(np.arange(1000), width=20)) == 20
+    layout = SensorLayout.sdh2()
+    frames = np.zeros((30, layout.n_taxels), np.uint16)
+    frames[10:20, layout.matrix_slice(3)] = 500
+    view = trial_view(frames, layout, trigger_frame=10).splitlines()
+    assert len(view) == layout.n_matrices + 1
+    assert "█" in view[3] and "█" not in view[0]
+
+
+# -- sessions -------------------------------------------------------------------------------------
+def test_full_short_session_records_every_trial_once(tmp_path, capsys):
+    assert record(tmp_path, "--auto") == 0
+    out = capsys.readouterr().out
+    assert "Go: pull!" in out and "session complete" in out and "f1 dist |" in out
+    rec = Recording.load(tmp_path / "subject_s1.hrec")
+    assert keys(rec) == [("down", "ball", a, 1) for a in ACTIONS]
+    assert rec.meta["subject"] == "s1" and rec.meta["synthetic"] is True
+    assert_consistent(rec)
+
+
+def test_interrupted_session_resumes_where_it_stopped(tmp_path):
+    subject = ScriptedSubject(seed=4, speed=SPEED)
+    client, store = open_session(tmp_path, subject)
+    gos = []
+
+    def cue(kind, slot):
+        if kind == "go":
+            gos.append(slot)
+            if len(gos) == 3:
+                raise KeyboardInterrupt  # Ctrl-C while the third trial is being recorded
+        return subject.cue(kind, slot)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_session(client, store, PLAN, auto_opts(), SessionIO(cue=cue))
+    client.close()
+    partial = Recording.load(store.path)
+    assert keys(partial) == [("down", "ball", "pull", 1), ("down", "ball", "push", 1)]
+
+    assert record(tmp_path, "--auto") == 0  # the same command again
+    rec = Recording.load(store.path)
+    assert sorted(keys(rec)) == sorted(KEYS) and len(rec.trials) == 4
+    np.testing.assert_array_equal(rec.trial_frames(rec.trials[0])[0], partial.trial_frames(partial.trials[0])[0])
+    assert [t.extra["session"] for t in rec.trials] == [1, 1, 2, 2]
+    assert_consistent(rec)
+
+
+def test_max_trials_then_rerun_completes(tmp_path, capsys):
+    assert record(tmp_path, "--auto", "--max-trials", "1") == 0
+    assert "1 of 4 trials done" in capsys.readouterr().out
+    assert record(tmp_path, "--auto") == 0
+    assert "1 of 4 trials already" in capsys.readouterr().out
+    assert sorted(keys(Recording.load(tmp_path / "subject_s1.hrec"))) == sorted(KEYS)
+
+
+def test_redo_and_discard_from_the_prompt(tmp_path, monkeypatch, capsys):
+    # trial 1: start, keep; trial 2: start, redo, start, keep; trial 3: start, discard; trial 4: start, keep
+    answers = "\n\n" + "\nr\n\n\n" + "\nd\n" + "\n\n"
+    monkeypatch.setattr(sys, "stdin", io.StringIO(answers))
+    assert record(tmp_path) == 0
+    out = capsys.readouterr().out
+    assert "r = redo" in out and "3 of 4 trials done" in out
+    rec = Recording.load(tmp_path / "subject_s1.hrec")
+    assert keys(rec) == [("down", "ball", "pull", 1), ("down", "ball", "push", 1), ("down", "ball", "bump", 1)]
+    assert [t.extra["attempt"] for t in rec.trials] == [1, 2, 1]
+    # the discarded slot comes back on the next run; end of input answers "quit" cleanly
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n\n"))
+    assert record(tmp_path) == 0
+    rec = Recording.load(tmp_path / "subject_s1.hrec")
+    assert sorted(keys(rec)) == sorted(KEYS)
+    assert_consistent(rec)
+
+
+def test_never_triggered_trial_is_flagged_and_repeated(tmp_path, capsys):
+    subject = ScriptedSubject(seed=3, speed=SPEED, lazy=[1, 3])  # does nothing on the 1st and 3rd go
+    client, store = open_session(tmp_path, subject)
+    shown: list[str] = []
+    result = run_session(client, store, PLAN, auto_opts(retries=1), SessionIO(show=shown.append, cue=subject.cue))
+    client.close()
+    assert any("never reached the trigger level" in s for s in shown)
+    rec = Recording.load(store.path)
+    assert sorted(keys(rec)) == sorted(KEYS)
+    assert rec.trials[0].extra["attempt"] == 2 and rec.trials[0].extra["scripted_subject"]["acted"]
+    assert result.redone >= 2
+    assert flagged_trials(rec) == result.flagged
+
+
+def test_never_triggered_trial_kept_flagged_without_retries(tmp_path):
+    subject = ScriptedSubject(seed=3, speed=SPEED, lazy=[2])
+    client, store = open_session(tmp_path, subject)
+    result = run_session(client, store, PLAN, auto_opts(retries=0), SessionIO(cue=subject.cue))
+    client.close()
+    rec = Recording.load(store.path)
+    assert 1 in flagged_trials(rec) and 1 in result.flagged
+    assert rec.trials[1].extra["peak"] == 0
+
+
+def test_link_drop_mid_trial_reconnects_and_records_the_trial_again(tmp_path):
+    subject = ScriptedSubject(seed=3, speed=SPEED, drop_at=[150])
+    client, store = open_session(tmp_path, subject)
+    shown: list[str] = []
+    result = run_session(client, store, PLAN, auto_opts(), SessionIO(show=shown.append, cue=subject.cue))
+    assert client.stats["reconnects"] == 1 and subject.connections == 2
+    client.close()
+    assert result.complete
+    rec = Recording.load(store.path)
+    assert sorted(keys(rec)) == sorted(KEYS) and len(rec.trials) == 4
+    assert_consistent(rec)
+    if any("reconnected during this trial" in s for s in shown):
+        assert len(subject.performed) == 5
+
+
+def test_unplugged_device_saves_exits_with_one_line_and_resumes(tmp_path, capsys):
+    code = record(tmp_path, "--auto", device=f"subject://?seed=3&speed={SPEED}&unplug=200")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1
+    assert err[0].startswith("handover record: device lost") and "run the same command again" in err[0]
+    partial = Recording.load(tmp_path / "subject_s1.hrec")
+    assert 1 <= len(partial.trials) < 4
+    assert record(tmp_path, "--auto") == 0
+    rec = Recording.load(tmp_path / "subject_s1.hrec")
+    assert sorted(keys(rec)) == sorted(KEYS)
+    assert_consistent(rec)
+
+
+def test_session_over_tcp(tmp_path):
+    from firmware_io.emulator_server import TcpEmulatorServer
+
+    subject = ScriptedSubject(seed=5, speed=SPEED)
+    with TcpEmulatorServer(subject.emulator) as server:
+        client = DSAClient(server.url)
+        layout = client.open()
+        client.start()
+        store = SessionStore.open(recording_path(tmp_path, "s2"), "s2", layout)
+        result = run_session(client, store, PLAN, auto_opts(), SessionIO(cue=subject.cue))
+        client.close()
+    assert result.complete
+    rec = Recording.load(store.path)
+    assert sorted(keys(rec)) == sorted(KEYS)
+    assert_consistent(rec)
+
+
+# -- files the trainer takes ---------------------------------------------------------------------
+def _two_subjects(tmp_path, runs: int) -> None:
+    for i, name in enumerate(("s1", "s2")):
+        extra = ["--auto", "--runs", str(runs), "--no-look"]
+        assert record(tmp_path, *extra, device=f"subject://?seed={10 + i}&speed={SPEED}", subject=name) == 0
+
+
+def test_recorded_files_assemble_into_a_dataset(tmp_path):
+    from trainer.dataset import load_dataset
+
+    _two_subjects(tmp_path, runs=1)
+    ds, recs = load_dataset(tmp_path)
+    assert ds.n_trials == 8 and set(ds.groups) <= {"s1", "s2"}
+    assert len(ds.y) == sum(t.extra["triggered"] for r in recs for t in r.trials) - sum(
+        1 for s in ds.untriggered if s.reason.startswith("triggered too late"))
+    assert ds.X.shape[1:] == (486, 15)
+    assert 25 < ds.sample_rate_hz < 40
+
+
+@pytest.mark.slow
+def test_recorded_files_train_a_model(tmp_path):
+    _two_subjects(tmp_path / "data", runs=3)
+    code = handover(["train", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "report"),
+                     "--no-sweep", "--no-onnx", "--repeats", "2", "--quiet"])
+    assert code == 0
+
+
+# -- errors and plots ------------------------------------------------------------------------------
+def test_bad_inputs_give_one_line(tmp_path, capsys):
+    assert record(tmp_path, "--auto", device="nosuch://x") != 0
+    assert record(tmp_path, "--auto", "--runs", "0") != 0
+    assert record(tmp_path, "--auto", "--fraction", "1.5") != 0
+    (tmp_path / "subject_s1.hrec").write_bytes(b"not a zip")
+    assert record(tmp_path, "--auto") != 0
+    for line in [x for x in capsys.readouterr().err.splitlines() if x]:
+        assert line.startswith("handover record: ")
+
+
+def test_file_of_another_subject_is_refused(tmp_path, capsys):
+    assert record(tmp_path, "--auto", "--max-trials", "1") == 0
+    (tmp_path / "subject_s1.hrec").rename(tmp_path / "subject_s9.hrec")
+    assert record(tmp_path, "--auto", subject="s9") == 2
+    assert "belongs to subject 's1'" in capsys.readouterr().err
+
+
+def test_plot_writes_a_figure_and_lists_trials(tmp_path, capsys):
+    assert record(tmp_path, "--auto", "--max-trials", "2", "--no-look") == 0
+    path = tmp_path / "subject_s1.hrec"
+    assert handover(["plot", str(path), "--list"]) == 0
+    assert "push run 1" in capsys.readouterr().out
+    png = tmp_path / "t.png"
+    assert handover(["plot", str(path), "--trial", "2", "--out", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert handover(["plot", str(path), "--trial", "9"]) == 2
+    assert handover(["plot", str(tmp_path / "missing.hrec")]) == 2
