@@ -1,0 +1,96 @@
+"""``handover sweep``: the paper's accuracy-vs-K, W, T curves (and kernel), longer than ``train``'s quick one.
+
+Writes ``OUT/sweep.json`` (which ``handover train --out OUT`` then uses for its figures) and
+``OUT/sweep_K.png``, ``sweep_W.png``, ``sweep_T.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+COMMAND = "sweep"
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive integers, got {text!r}")
+    return values
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trainer.sweeps import FULL_K, FULL_T, FULL_W
+
+    parser.add_argument("--data", help="folder of .hrec recordings (default: simulate the paper's protocol)")
+    parser.add_argument("--out", default="report", help="folder for sweep.json and the figures")
+    parser.add_argument("--pads", default="all")
+    parser.add_argument("--K", type=int, default=10, help="K kept fixed while W and T vary")
+    parser.add_argument("--W", type=int, default=7, help="W kept fixed while K and T vary")
+    parser.add_argument("--T", type=int, default=15, help="T kept fixed while K and W vary")
+    parser.add_argument("--K-values", type=_ints, default=FULL_K, help="e.g. 2,4,6,8,10,12,15,20,30")
+    parser.add_argument("--W-values", type=_ints, default=FULL_W)
+    parser.add_argument("--T-values", type=_ints, default=FULL_T)
+    parser.add_argument("--kernels", default="rbf,linear", help="comma-separated: rbf, linear")
+    parser.add_argument("--mode", choices=("config1", "loso"), default="config1",
+                        help="config1: pooled 80/20 over --repeats seeds; loso: leave one subject out")
+    parser.add_argument("--repeats", type=int, default=3, help="seeds per point in config1 mode")
+    parser.add_argument("--per-pad", action="store_true")
+    parser.add_argument("--fraction", type=float, default=0.15)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", action="store_true", help="print the sweep rows as JSON on stdout")
+    parser.add_argument("--quiet", action="store_true")
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.layout import LayoutError
+    from firmware_io.recording import RecordingError
+    from trainer.dataset import DatasetError
+
+    kernels = [k.strip() for k in args.kernels.split(",") if k.strip()]
+    bad = [k for k in kernels if k not in ("rbf", "linear")]
+    if bad or not kernels:
+        print(f"handover {COMMAND}: unknown kernel {bad[0] if bad else '(none)'!r}; use rbf and/or linear",
+              file=sys.stderr)
+        return 2
+    if args.repeats < 1:
+        print(f"handover {COMMAND}: --repeats must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        return _run(args, kernels)
+    except (RecordingError, DatasetError, LayoutError, OSError, ValueError) as exc:
+        print(f"handover {COMMAND}: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(args, kernels: list[str]) -> int:
+    from trainer import report
+    from trainer.sweeps import run_sweeps
+    from trainer.train_cli import _progress, _say, load_or_simulate
+
+    t0 = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    recordings, source, synthetic = load_or_simulate(args)
+    base = {"K": args.K, "W": args.W, "T": args.T, "seed": args.seed, "per_pad": args.per_pad}
+    n = len(kernels) * (len(args.K_values) + len(args.W_values) + len(args.T_values))
+    seeds = tuple(range(args.seed, args.seed + args.repeats))
+    result = run_sweeps(recordings, base, args.K_values, args.W_values, args.T_values, kernels, args.pads,
+                        args.fraction, mode=args.mode, seeds=seeds, progress=_progress(args, "sweep", n))
+    result.update(synthetic=synthetic, data=source, pads=args.pads, seconds=round(time.perf_counter() - t0, 1))
+    (out / "sweep.json").write_text(json.dumps(result, indent=1, default=report._json_default))
+    for param in ("K", "W", "T"):
+        rows = [r for r in result["rows"] if r["param"] == param]
+        if rows:
+            fixed = ", ".join(f"{p}={base[p]}" for p in ("K", "W", "T") if p != param)
+            report.plot_sweep(rows, param, fixed, out / f"sweep_{param}.png", synthetic)
+    _say(args, f"sweep written to {out / 'sweep.json'} ({result['seconds']:.0f} s)")
+    if args.json:
+        print(json.dumps(result, default=report._json_default))
+    return 0
