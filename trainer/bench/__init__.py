@@ -1,0 +1,1 @@
+"""Benchmarks behind ``handover bench``: pareto (error against run time), latency, throughput."""

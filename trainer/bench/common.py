@@ -1,0 +1,212 @@
+"""What every benchmark shares: machine info, percentiles, timing loops, the simulated data and
+a model trained on it, and writing ``results/<name>.{json,md,png}`` with the reproducing command.
+
+Everything trained here is trained on the simulated hand (synthetic data) and says so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import platform
+import shlex
+import sys
+import time
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+DEADLINE_US = 1e6 / 32.0
+"""One sample period at 32 Hz: the hard deadline of a decision."""
+
+DEFAULT_PARAMS = {"K": 10, "W": 7, "T": 15, "kernel": "rbf", "pads": "all", "per_pad": False}
+"""The shipped default model (``handover train`` without options)."""
+
+
+def machine_info() -> dict:
+    """CPU, cores, versions and the load average at the time of the call."""
+    import onnxruntime
+
+    cpu = "unknown"
+    with contextlib.suppress(OSError, StopIteration):
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        cpu = next(line.split(":", 1)[1].strip() for line in lines if line.startswith("model name"))
+    info = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+            "platform": platform.platform(), "numpy": np.__version__, "onnxruntime": onnxruntime.__version__,
+            "load_average": [round(v, 2) for v in os.getloadavg()]}
+    with contextlib.suppress(ImportError):
+        import sklearn
+
+        info["scikit-learn"] = sklearn.__version__
+    return info
+
+
+def percentiles(values_us) -> dict:
+    """median, p99, p99.9, max, mean and count of a sample in microseconds (None when empty)."""
+    v = np.asarray(values_us, dtype=np.float64)
+    if v.size == 0:
+        return {"n": 0, "p50": None, "p99": None, "p999": None, "max": None, "mean": None}
+    return {"n": int(v.size), "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
+            "p999": float(np.percentile(v, 99.9)), "max": float(v.max()), "mean": float(v.mean())}
+
+
+def deadline_ratio(stats: dict) -> dict:
+    """How many times each figure fits into one sample period (31.25 ms)."""
+    return {k: (DEADLINE_US / stats[k] if stats.get(k) else None) for k in ("p50", "p99", "p999", "max")}
+
+
+def time_calls(fn: Callable[[], object], repeats: int, warmup: int = 20, period_s: float | None = None) -> np.ndarray:
+    """Durations (us) of ``repeats`` calls; with ``period_s`` the calls are paced (sleep in between)."""
+    for _ in range(warmup):
+        fn()
+    out = np.empty(repeats)
+    clock = time.perf_counter_ns
+    next_t = time.perf_counter()
+    for i in range(repeats):
+        if period_s:
+            next_t += period_s
+            pause = next_t - time.perf_counter()
+            if pause > 0:
+                time.sleep(pause)
+        t0 = clock()
+        fn()
+        out[i] = clock() - t0
+    return out / 1000.0
+
+
+def command_line(name: str, args) -> str:
+    """The command that reproduces a result."""
+    parts = ["handover", "bench", name]
+    if getattr(args, "quick", False):
+        parts.append("--quick")
+    if getattr(args, "load", False):
+        parts.append("--load")
+    for opt in ("duration", "seed"):
+        value = getattr(args, opt, None)
+        if value is not None:
+            parts += [f"--{opt}", str(value)]
+    if getattr(args, "out", None) not in (None, "results"):
+        parts += ["--out", str(args.out)]
+    return shlex.join(parts)
+
+
+def write_results(out: str | Path, name: str, result: dict, markdown: list[str]) -> Path:
+    """results/<name>.json (machine + command included) and results/<name>.md; returns the json path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result, indent=2, default=_json_default) + "\n")
+    os.replace(tmp, path)
+    m = result["machine"]
+    md = list(markdown) + [
+        "",
+        f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
+        f"onnxruntime {m['onnxruntime']}" + (f", scikit-learn {m['scikit-learn']}" if "scikit-learn" in m else "")
+        + f". Load average at the start {result.get('load_before', m['load_average'])}, "
+        f"at the end {result.get('load_after', '?')} (the machine is shared; see the note).",
+        "",
+        f"Reproduce: `{result['command']}`",
+        "",
+    ]
+    (out / f"{name}.md").write_text("\n".join(md))
+    return path
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def fmt_us(v: float | None) -> str:
+    return "-" if v is None else (f"{v:.1f}" if v < 100 else f"{v:.0f}")
+
+
+def load_note(before: list[float], after: list[float], cores: int | None) -> str:
+    """An honest line about other work on the machine during the run."""
+    worst = max(before[0], after[0])
+    n = cores or 1
+    if worst < 0.5:
+        return "The machine was quiet during the run (1-minute load average below 0.5)."
+    return (f"The machine was shared with other work: 1-minute load average {before[0]:.2f} at the start and "
+            f"{after[0]:.2f} at the end on {n} cores; tails (p99, p99.9, max) include that interference.")
+
+
+# -- data and models (synthetic) -----------------------------------------------------------------
+@lru_cache(maxsize=4)
+def simulated_protocol(seed: int = 0, quick: bool = False) -> tuple:
+    """The paper's protocol from the simulated hand, simulated once per process (synthetic data)."""
+    from firmware_io.simulate import simulate_protocol
+
+    if quick:
+        return tuple(simulate_protocol(seed=seed, n_subjects=2, runs=1))
+    return tuple(simulate_protocol(seed=seed))
+
+
+def export_metadata(ds, model, evaluation: dict | None = None, seed: int = 0) -> dict:
+    """The metadata ``handover train`` writes, for a model trained on the simulated protocol."""
+    from runtime import __version__
+
+    rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
+    return {
+        "pads": list(ds.pads), "pad_sizes": list(ds.pad_sizes), "fullscale": ds.fullscale,
+        "trigger": {"fraction": ds.fraction}, "sample_rate_hz": rate,
+        "training": {"data_fingerprint": ds.fingerprint, "data": "simulated protocol (synthetic)", "synthetic": True,
+                     "n_trials": ds.n_trials, "n_cases": len(ds.y), "project_version": __version__,
+                     "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seed": seed,
+                     "C": model.best_params_.get("C"), "gamma": model.best_params_.get("gamma")},
+        "evaluation": {"synthetic": True, **(evaluation or {})},
+    }
+
+
+def train_default_model(folder: str | Path, seed: int = 0, quick: bool = False, name: str = "bench.onnx") -> Path:
+    """Train the default model (K=10, W=7, T=15, rbf, all pads) on the simulated protocol and export it."""
+    from trainer.classifier import BowSVC
+    from trainer.dataset import build_dataset
+    from trainer.onnx_export import export_onnx
+
+    ds = build_dataset(list(simulated_protocol(seed, quick)), T=DEFAULT_PARAMS["T"], pads=DEFAULT_PARAMS["pads"])
+    model = BowSVC(n_words=DEFAULT_PARAMS["K"], window=DEFAULT_PARAMS["W"], kernel=DEFAULT_PARAMS["kernel"],
+                   random_state=seed).fit(ds.X, ds.y)
+    return export_onnx(model, Path(folder) / name, export_metadata(ds, model, seed=seed))
+
+
+def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None, T: int = 15, gap: int = 5):
+    """A dense synthetic stream: the T frames from each simulated trial's trigger, back to back,
+    each followed by ``gap`` untouched frames (so the trigger re-arms). One window every T + gap
+    frames: the most inference work a threshold-triggered daemon can get at 32 Hz.
+    """
+    from firmware_io.recording import Recording, Trial
+    from trainer.dataset import build_dataset
+
+    recs = list(simulated_protocol(seed, quick))
+    ds = build_dataset(recs, T=T, pads="all")
+    layout = recs[0].layout
+    cols = layout.columns("all")
+    cases = ds.X if n_windows is None else ds.X[np.resize(np.arange(len(ds.X)), n_windows)]
+    period = T + gap
+    frames = np.zeros((len(cases) * period + gap, layout.n_taxels), dtype=np.uint16)
+    trials = []
+    for i, case in enumerate(cases):
+        start = gap + i * period
+        frames[start : start + T, cols] = case.T.astype(np.uint16)
+        trials.append(Trial("tap", "stream", "-", str(ds.y[i % len(ds.y)]), i, start, start + T - 1))
+    timestamps = np.arange(len(frames)) / 32.0
+    meta = {"synthetic": True, "source": "handover bench: simulated trial windows back to back"}
+    return Recording(layout, frames, timestamps, trials, meta)
+
+
+def progress(quiet: bool) -> Callable[[str], None]:
+    def say(text: str) -> None:
+        if not quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    return say

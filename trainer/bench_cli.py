@@ -1,0 +1,59 @@
+"""``handover bench pareto|latency|throughput|all``: the benchmarks, results in results/.
+
+Each benchmark writes ``<out>/<name>.json`` and ``.md`` (+ ``.png`` where a plot fits) with
+the machine it ran on and the command that reproduces it. ``--json`` prints the headline
+figures (onnx_p50_us, onnx_p99_us, sklearn_p50_us, speedup_vs_sklearn, e2e_p99_us,
+replay_frames_per_s, rss_mb, ... where they apply). Models are trained on the simulated hand
+(synthetic data). Run them on a machine as quiet as you can get: timings share the CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+COMMAND = "bench"
+BENCHMARKS = ("pareto", "latency", "throughput")
+HEADLINE = ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
+            "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_load_p99_us", "replay_frames_per_s",
+            "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("which", choices=(*BENCHMARKS, "all"), help="which benchmark to run")
+    parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")
+    parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
+    parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
+    parser.add_argument("--load", action="store_true", help="latency: also measure with two busy-loop processes")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="latency: seconds of the 32 Hz end-to-end run (default 300, --quick 3)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
+    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+
+
+def _fail(message: str) -> int:
+    print(f"handover {COMMAND}: {message}", file=sys.stderr)
+    return 2
+
+
+def main(args: argparse.Namespace) -> int:
+    from trainer.bench.common import progress
+
+    if args.duration is not None and args.duration <= 0:
+        return _fail(f"--duration must be positive, got {args.duration}")
+    args.say = progress(args.quiet)
+    which = BENCHMARKS if args.which == "all" else (args.which,)
+    figures: dict = {}
+    for name in which:
+        module = __import__(f"trainer.bench.{name}", fromlist=["run"])
+        try:
+            result = module.run(args)
+        except (OSError, ValueError, RuntimeError) as exc:
+            return _fail(f"{name}: {exc}")
+        figures[name] = {k: result[k] for k in HEADLINE if k in result}
+        args.say(f"{name}: wrote {args.out}/{name}.json and .md " + json.dumps(figures[name]))
+    if args.json:
+        flat = {k: v for f in figures.values() for k, v in f.items()}
+        print(json.dumps(flat if len(figures) > 1 else next(iter(figures.values()))))
+    return 0
