@@ -254,6 +254,7 @@ def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool =
             fh.flush()
             os.fsync(fh.fileno())
         load_model(tmp)
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600: the daemon's user must be able to read it
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
