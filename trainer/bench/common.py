@@ -44,6 +44,11 @@ def machine_info() -> dict:
     return info
 
 
+def load_average() -> list[float]:
+    """The 1, 5 and 15 minute load averages (other work on the shared machine)."""
+    return [round(float(v), 2) for v in os.getloadavg()]
+
+
 def percentiles(values_us) -> dict:
     """median, p99, p99.9, max, mean and count of a sample in microseconds (None when empty)."""
     v = np.asarray(values_us, dtype=np.float64)
@@ -102,7 +107,8 @@ def write_results(out: str | Path, name: str, result: dict, markdown: list[str])
     tmp.write_text(json.dumps(result, indent=2, default=_json_default) + "\n")
     os.replace(tmp, path)
     m = result["machine"]
-    md = list(markdown) + [
+    md = [
+        *markdown,
         "",
         f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
         f"onnxruntime {m['onnxruntime']}" + (f", scikit-learn {m['scikit-learn']}" if "scikit-learn" in m else "")

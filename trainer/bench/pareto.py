@@ -22,6 +22,7 @@ from trainer.bench.common import (
     command_line,
     export_metadata,
     fmt_us,
+    load_average,
     load_note,
     machine_info,
     percentiles,
@@ -127,7 +128,7 @@ def run(args) -> dict:
     from trainer.dataset import build_dataset
 
     say = args.say
-    load_before = list(np.round(__import__("os").getloadavg(), 2))
+    load_before = load_average()
     t_start = time.perf_counter()
     recordings = list(simulated_protocol(args.seed, args.quick))
     points = grid(args.quick)
@@ -191,7 +192,7 @@ def run(args) -> dict:
         "seconds": round(time.perf_counter() - t_start, 1),
         "machine": machine_info(),
         "load_before": load_before,
-        "load_after": list(np.round(__import__("os").getloadavg(), 2)),
+        "load_after": load_average(),
         "command": command_line(NAME, args),
     }
     result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])

@@ -1,0 +1,235 @@
+"""The end-to-end rig: an emulated DSACON32m in its own process, ``handover run`` in another,
+a UDP listener in this one.
+
+The emulator process stamps ``time.perf_counter()`` right after the socket ``send`` that
+carries the last byte of each frame (CLOCK_MONOTONIC: the same clock in every process on
+Linux), keyed by the frame's device timestamp; the listener stamps each event datagram on
+receipt and finds its frame by the event's ``device_time_ms``. Nothing in the emulator or
+daemon is edited: a DeviceEmulator subclass records where each frame ends in the byte stream
+and a TcpEmulatorServer subclass wraps the accepted socket's ``send``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import multiprocessing as mp
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+from firmware_io.emulator import DeviceEmulator
+from firmware_io.emulator_server import TcpEmulatorServer
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class StampingEmulator(DeviceEmulator):
+    """Records, for each frame, its device timestamp and the stream offset of its last byte."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.read_total = 0
+        self.frame_ends: deque[tuple[int, int]] = deque()  # (stream offset after the frame, stamp ms)
+
+    def read(self, max_bytes: int = 4096, now: float | None = None) -> bytes:
+        out = super().read(max_bytes, now)
+        self.read_total += len(out)
+        return out
+
+    def _emit_frame(self, now: float) -> None:
+        seq = self._next
+        super()._emit_frame(now)
+        loops, i = divmod(seq, self.recording.n_frames)
+        stamp = self.start_ms + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
+        self.frame_ends.append((self.read_total + len(self._out), stamp))
+
+
+class _TimedSocket:
+    """A socket whose ``send`` reports how many bytes have left so far, and when."""
+
+    def __init__(self, sock: socket.socket, on_sent) -> None:
+        self._sock = sock
+        self._on_sent = on_sent
+        self.sent_total = 0
+
+    def send(self, data) -> int:
+        n = self._sock.send(data)
+        t = time.perf_counter()
+        self.sent_total += n
+        self._on_sent(self.sent_total, t)
+        return n
+
+    def __getattr__(self, name):
+        return getattr(self._sock, name)
+
+
+class StampingServer(TcpEmulatorServer):
+    """TcpEmulatorServer that stamps the moment each frame's last byte is written to the socket."""
+
+    def __init__(self, emulator: StampingEmulator, **kwargs) -> None:
+        super().__init__(emulator, **kwargs)
+        self.sent_at: dict[int, float] = {}
+        self._base = 0  # emulator stream offset at which the current connection started
+
+    def _accept(self) -> None:
+        before = self._conn
+        super()._accept()
+        if self._conn is not None and self._conn is not before:
+            self.emulator.frame_ends.clear()
+            self._base = self.emulator.read_total
+            self._conn = _TimedSocket(self._conn, self._on_sent)
+
+    def _on_sent(self, total: int, t: float) -> None:
+        ends = self.emulator.frame_ends
+        while ends and ends[0][0] - self._base <= total:
+            self.sent_at[ends.popleft()[1]] = t
+
+
+def _serve(recording, speed, pipe) -> None:
+    """Child process: serve the recording once, then hand the send stamps back."""
+    emulator = StampingEmulator(recording, speed=speed, loop=False)
+    server = StampingServer(emulator, host="127.0.0.1", port=0).start()
+    pipe.send(server.port)
+    while not emulator.finished:
+        if pipe.poll(0.05):  # the parent wants to stop early
+            break
+    time.sleep(0.3)
+    server.stop()
+    pipe.send(server.sent_at)
+    pipe.close()
+
+
+class EmulatorProcess:
+    """The emulator serving ``recording`` at ``speed`` (None = as fast as possible) in a child process."""
+
+    def __init__(self, recording, speed: float | None) -> None:
+        ctx = mp.get_context("fork")
+        self._pipe, child = ctx.Pipe()
+        self.process = ctx.Process(target=_serve, args=(recording, speed, child), daemon=True)
+        self.process.start()
+        if not self._pipe.poll(20):
+            raise RuntimeError("the emulator process did not start")
+        self.port = int(self._pipe.recv())
+        self.url = f"tcp://127.0.0.1:{self.port}"
+
+    def wait_stamps(self, timeout: float) -> dict[int, float]:
+        """Frame stamp (device ms) -> perf_counter when its last byte was sent; waits for the end."""
+        if not self._pipe.poll(timeout):
+            self._pipe.send("stop")
+            if not self._pipe.poll(10):
+                raise RuntimeError("the emulator process did not finish")
+        stamps = self._pipe.recv()
+        self.process.join(5)
+        return stamps
+
+    def close(self) -> None:
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(2)
+
+
+class UdpListener:
+    """Receives event datagrams in a thread; each with its arrival time."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.events: list[tuple[float, dict]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bench-udp", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            t = time.perf_counter()
+            with contextlib.suppress(ValueError):
+                self.events.append((t, json.loads(data)))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1)
+        self.sock.close()
+
+
+def write_config(folder: Path, device_url: str, model_dir: Path, udp_port: int | None,
+                 log_level: str = "warning", poll_s: float = 1.0) -> Path:
+    """A daemon config for the rig: all pads, the UDP listener as the only sink."""
+    udp = f'["127.0.0.1:{udp_port}"]' if udp_port else "[]"
+    text = (f'log_level = "{log_level}"\n\n[device]\nurl = "{device_url}"\nstall_timeout_s = 5.0\n'
+            f'reconnect_min_s = 0.2\nreconnect_max_s = 1.0\n\n[scene]\npads = "all"\n\n'
+            f'[model]\nfolder = "{model_dir}"\npoll_interval_s = {poll_s}\n\n[sinks]\nstdout = false\nudp = {udp}\n')
+    path = folder / "handover.toml"
+    path.write_text(text)
+    return path
+
+
+def spawn_daemon(config: Path, env: dict | None = None) -> subprocess.Popen:
+    """``handover run --config FILE`` as a child process (stderr piped: its log)."""
+    full_env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+                **(env or {})}
+    return subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=str(ROOT),
+                            env=full_env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def stop_daemon(proc: subprocess.Popen, timeout: float = 5.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(2)
+    return proc.returncode
+
+
+def install_model(source: Path, folder: Path, name: str = "model.onnx") -> Path:
+    """The safe drop: copy to a dotfile in the folder, chmod 644, rename."""
+    folder.mkdir(parents=True, exist_ok=True)
+    tmp = folder / f".{name}.tmp"
+    tmp.write_bytes(Path(source).read_bytes())
+    os.chmod(tmp, 0o644)
+    final = folder / name
+    os.replace(tmp, final)
+    return final
+
+
+def busy_loop() -> None:  # pragma: no cover - runs in a child process
+    while True:
+        pass
+
+
+class CpuLoad:
+    """Two busy-loop processes (one per core) while the context is open."""
+
+    def __init__(self, n: int = 2) -> None:
+        self.n = n
+        self.procs: list = []
+
+    def __enter__(self) -> CpuLoad:
+        ctx = mp.get_context("fork")
+        self.procs = [ctx.Process(target=busy_loop, daemon=True) for _ in range(self.n)]
+        for p in self.procs:
+            p.start()
+        time.sleep(0.2)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for p in self.procs:
+            p.terminate()
+        for p in self.procs:
+            p.join(2)
