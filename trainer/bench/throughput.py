@@ -1,0 +1,320 @@
+"""Throughput and footprint: replay rate, the daemon's memory and CPU share at 32 Hz, start-up
+time to READY, and the time to swap a model.
+
+- replay: a dense synthetic stream (simulated trial windows back to back, one inference every 20
+  frames), pre-encoded as RLE packets, through StreamParser + decode + ring + trigger + model
+  (the daemon's hot path without the socket) as fast as possible; and the real Daemon reading
+  ``replay://FILE?speed=max`` (its emulator encodes the frames in the same thread, so this
+  figure is a lower bound).
+- footprint: ``handover run`` as a child process against the TCP emulator (another process) at
+  real speed; RSS from /proc/PID/status, CPU share = (utime + stime) / wall over the run.
+- start-up: from spawning ``handover run`` to its READY=1 on a NOTIFY_SOCKET we listen on.
+- swap: during the footprint run a new model file is renamed into the folder; time from the
+  rename to the daemon's "swapped in" log line and to its first event with the new model id.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trainer.bench import harness
+from trainer.bench.common import (
+    command_line,
+    load_average,
+    load_note,
+    machine_info,
+    tap_stream,
+    train_default_model,
+    write_results,
+)
+
+NAME = "throughput"
+GAP = 5
+
+
+def replay_hot_path(model, recording, repeats: int = 1) -> dict:
+    """Frames per second through parser + decode + ring + trigger + inference (no socket)."""
+    from firmware_io.parser import StreamParser
+    from firmware_io.protocol import PacketId, decode_frame_payload, encode_frame
+    from runtime.ring import RingBuffer
+    from runtime.trigger import ThresholdTrigger
+
+    layout = recording.layout
+    n = layout.n_taxels
+    stream = b"".join(encode_frame(f, int(i * 31), rle=True) for i, f in enumerate(recording.frames))
+    chunks = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
+    T = model.meta.T
+    cols = layout.columns(list(model.meta.pads))
+    frame_id = int(PacketId.FULL_FRAME)
+    best = None
+    for _ in range(repeats):
+        parser = StreamParser(n)
+        ring = RingBuffer(cols, 64)
+        trigger = ThresholdTrigger(cols.size, model.meta.fullscale, window=T, refractory_frames=16)
+        number, decisions, pending = 0, 0, []
+        t0 = time.perf_counter()
+        for chunk in chunks:
+            for pkt in parser.feed(chunk):
+                if pkt.packet_id != frame_id:
+                    continue
+                _, values = decode_frame_payload(pkt.payload, n)
+                ring.push(values, number)
+                due = trigger.update(ring.latest(), number)
+                if due >= 0:
+                    pending.append(due)
+                if pending and number == pending[0]:
+                    pending.pop(0)
+                    model.run(ring.window(T))
+                    decisions += 1
+                number += 1
+        seconds = time.perf_counter() - t0
+        if best is None or seconds < best[0]:
+            best = (seconds, number, decisions)
+    seconds, frames, decisions = best
+    return {"frames": frames, "decisions": decisions, "seconds": seconds, "frames_per_s": frames / seconds,
+            "bytes": len(stream)}
+
+
+def replay_daemon(model_path: Path, recording, work: Path) -> dict:
+    """The real Daemon reading replay://FILE?speed=max; frames/s from its first to its last frame."""
+    from runtime.config import Config, DeviceConfig, ModelConfig, SceneConfig, SinksConfig
+    from runtime.daemon import Daemon
+    from runtime.sdnotify import Notifier
+
+    path = recording.save(work / "stream.hrec")
+    models = work / "models-replay"
+    harness.install_model(model_path, models)
+    cfg = Config(device=DeviceConfig(url=f"replay://{path}?speed=max"), scene=SceneConfig(pads="all"),
+                 model=ModelConfig(folder=str(models)), sinks=SinksConfig(stdout=False), log_level="error")
+    daemon = Daemon(cfg, notifier=Notifier({}))
+    last = recording.n_frames - 1
+    marks: dict[str, float] = {}
+    handle = daemon.handle_frame
+
+    def timed(frame) -> None:
+        if frame.number == 0:
+            marks["first"] = time.perf_counter()
+        handle(frame)
+        if frame.number >= last:
+            marks["last"] = time.perf_counter()
+            daemon.request_stop()
+
+    daemon.handle_frame = timed
+    stopper = threading.Timer(120, daemon.request_stop)
+    stopper.start()
+    try:
+        daemon.run()
+    finally:
+        stopper.cancel()
+    if "last" not in marks:
+        raise RuntimeError("the daemon did not get through the replay within 120 s")
+    seconds = marks["last"] - marks["first"]
+    return {"frames": last, "decisions": int(daemon.health.decisions), "seconds": seconds,
+            "frames_per_s": last / seconds}
+
+
+def _proc_cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _proc_mem_mb(pid: int) -> dict:
+    out = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "VmHWM"):
+            out[key] = int(value.split()[0]) / 1024.0
+    return out
+
+
+class _NotifySocket:
+    """A NOTIFY_SOCKET we own: records when READY=1 arrives."""
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / "notify.sock"
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(str(self.path))
+
+    def wait_ready(self, timeout: float) -> float | None:
+        deadline = time.perf_counter() + timeout
+        while (left := deadline - time.perf_counter()) > 0:
+            self.sock.settimeout(left)
+            try:
+                data = self.sock.recv(4096)
+            except TimeoutError:
+                return None
+            if b"READY=1" in data.split(b"\n"):
+                return time.perf_counter()
+        return None
+
+    def close(self) -> None:
+        self.sock.close()
+        self.path.unlink(missing_ok=True)
+
+
+def startup(model_path: Path, work: Path, runs: int) -> dict:
+    """Spawn -> READY=1 of ``handover run`` (model loaded and warmed up; device connects after)."""
+    emulator = harness.EmulatorProcess(tap_stream(quick=True, n_windows=4, gap=GAP), 1.0)
+    models = work / "models-start"
+    harness.install_model(model_path, models)
+    config = harness.write_config(work, emulator.url, models, None)
+    times = []
+    try:
+        for _ in range(runs):
+            notify = _NotifySocket(work)
+            t0 = time.perf_counter()
+            proc = harness.spawn_daemon(config, env={"NOTIFY_SOCKET": str(notify.path)})
+            ready = notify.wait_ready(60)
+            harness.stop_daemon(proc)
+            notify.close()
+            if ready is None:
+                raise RuntimeError(f"handover run sent no READY=1 within 60 s: {proc.stderr.read()[-300:]}")
+            times.append(ready - t0)
+    finally:
+        emulator.close()
+    return {"runs": len(times), "seconds": times, "median_s": float(np.median(times)), "max_s": float(max(times))}
+
+
+def footprint_and_swap(model_path: Path, second_model: Path, work: Path, duration: float, seed: int = 0,
+                        quick: bool = False) -> dict:
+    """``handover run`` at 32 Hz: RSS, CPU share, and a model swap in the middle."""
+    n_windows = max(6, int(duration * 32 / (15 + GAP)))
+    stream = tap_stream(seed, quick, n_windows=n_windows, gap=GAP)
+    listener = harness.UdpListener()
+    emulator = harness.EmulatorProcess(stream, 1.0)
+    models = work / "models-run"
+    harness.install_model(model_path, models, "a.onnx")
+    config = harness.write_config(work, emulator.url, models, listener.port, log_level="info", poll_s=0.5)
+    proc = harness.spawn_daemon(config)
+    log_lines: list[tuple[float, str]] = []
+
+    def read_log() -> None:
+        for line in proc.stderr:
+            log_lines.append((time.perf_counter(), line.rstrip()))
+
+    reader = threading.Thread(target=read_log, daemon=True)
+    reader.start()
+    try:
+        give_up = time.perf_counter() + 60
+        while not listener.events and proc.poll() is None and time.perf_counter() < give_up:
+            time.sleep(0.05)  # serving once the first event is seen
+        t0, cpu0 = time.perf_counter(), _proc_cpu_s(proc.pid)
+        time.sleep(duration / 2)
+        old_ids = {e.get("model_id") for _, e in listener.events}
+        t_rename = time.perf_counter()
+        harness.install_model(second_model, models, "b.onnx")
+        time.sleep(duration / 2)
+        t1, cpu1 = time.perf_counter(), _proc_cpu_s(proc.pid)
+        mem = _proc_mem_mb(proc.pid)
+    finally:
+        harness.stop_daemon(proc)
+        emulator.close()
+        listener.close()
+        reader.join(2)
+    new_events = [t for t, e in listener.events if t > t_rename and e.get("model_id") not in old_ids]
+    swap_log = [t for t, line in log_lines if "swapped in" in line and t > t_rename]
+    return {"rss_mb": mem.get("VmRSS"), "rss_peak_mb": mem.get("VmHWM"), "cpu_share": (cpu1 - cpu0) / (t1 - t0),
+            "cpu_seconds": cpu1 - cpu0, "wall_seconds": t1 - t0, "events": len(listener.events),
+            "swap_to_log_s": (swap_log[0] - t_rename) if swap_log else None,
+            "swap_to_first_event_s": (new_events[0] - t_rename) if new_events else None,
+            "poll_interval_s": 0.5, "window_every_s": (15 + GAP) / 32}
+
+
+def variant_model(model_path: Path, folder: Path) -> Path:
+    """The same graph with one metadata field changed: a different file, so a different model id."""
+    import onnx
+
+    from runtime.model import METADATA_KEY
+
+    m = onnx.load(str(model_path))
+    for prop in m.metadata_props:
+        if prop.key == METADATA_KEY:
+            meta = json.loads(prop.value)
+            meta["training"]["variant"] = "bench swap"
+            prop.value = json.dumps(meta, sort_keys=True)
+    out = folder / "variant.onnx"
+    onnx.save(m, str(out))
+    return out
+
+
+def run(args) -> dict:
+    from runtime.model import load_model
+
+    say = args.say
+    load_before = load_average()
+    t_start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="handover-throughput-") as tmp:
+        work = Path(tmp)
+        say("throughput: training the default model on the simulated protocol (synthetic) ...")
+        model_path = train_default_model(work, seed=args.seed, quick=args.quick)
+        model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
+        stream = tap_stream(args.seed, args.quick, n_windows=40 if args.quick else 1000, gap=GAP)
+        say(f"throughput: replay of {stream.n_frames} frames through the hot path ...")
+        hot = replay_hot_path(model, stream, repeats=1 if args.quick else 3)
+        say("throughput: replay through the daemon (replay://, speed=max) ...")
+        daemon = replay_daemon(model_path, stream, work)
+        say("throughput: start-up to READY=1 ...")
+        start = startup(model_path, work, runs=1 if args.quick else 5)
+        duration = 3.0 if args.quick else 30.0
+        say(f"throughput: handover run at 32 Hz for {duration:.0f} s (RSS, CPU share, model swap) ...")
+        foot = footprint_and_swap(model_path, variant_model(model_path, work), work, duration, args.seed, args.quick)
+    result = {
+        "synthetic": True,
+        "replay_hot_path": hot,
+        "replay_daemon": daemon,
+        "startup": start,
+        "footprint": foot,
+        "replay_frames_per_s": hot["frames_per_s"],
+        "replay_daemon_frames_per_s": daemon["frames_per_s"],
+        "rss_mb": foot["rss_mb"],
+        "cpu_share": foot["cpu_share"],
+        "startup_to_ready_s": start["median_s"],
+        "swap_s": foot["swap_to_first_event_s"],
+        "seconds": round(time.perf_counter() - t_start, 1),
+        "machine": machine_info(),
+        "load_before": load_before,
+        "load_after": load_average(),
+        "command": command_line(NAME, args),
+    }
+    result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
+    write_results(args.out, NAME, result, markdown(result))
+    return result
+
+
+def _s(v: float | None, unit: str = "s", digits: int = 2) -> str:
+    return "-" if v is None else f"{v:.{digits}f} {unit}"
+
+
+def markdown(res: dict) -> list[str]:
+    h, d, st, f = res["replay_hot_path"], res["replay_daemon"], res["startup"], res["footprint"]
+    return [
+        "# Throughput and footprint (synthetic data)", "",
+        "Stream: simulated trial windows back to back (one inference every 20 frames: the most a "
+        "threshold-triggered daemon does at 32 Hz). Default model (K=10, W=7, T=15, rbf, all pads).", "",
+        "| figure | value |", "|---|---|",
+        f"| replay, hot path (parser + decode + ring + trigger + inference, no socket) | "
+        f"{h['frames_per_s']:,.0f} frames/s ({h['frames']} frames, {h['decisions']} inferences, {h['seconds']:.2f} s; "
+        f"{h['frames_per_s'] / 32:,.0f}x real time) |",
+        f"| replay, daemon reading replay://?speed=max (emulator encoding in the same thread) | "
+        f"{d['frames_per_s']:,.0f} frames/s ({d['frames']} frames, {d['decisions']} decisions) |",
+        f"| `handover run` resident memory at 32 Hz (VmRSS / peak VmHWM) | {_s(f['rss_mb'], 'MB', 1)} / "
+        f"{_s(f['rss_peak_mb'], 'MB', 1)} |",
+        f"| `handover run` CPU share at 32 Hz (CPU time / wall time, {f['wall_seconds']:.0f} s) | "
+        f"{100 * f['cpu_share']:.1f} % of one core |",
+        f"| start-up, spawn -> READY=1 (median of {st['runs']}, max) | {_s(st['median_s'])} ({_s(st['max_s'])}) |",
+        f"| model swap, rename -> \"swapped in\" log line | {_s(f['swap_to_log_s'])} |",
+        f"| model swap, rename -> first event with the new model id | {_s(f['swap_to_first_event_s'])} |",
+        "",
+        f"READY=1 is sent once the model is loaded and warmed up (the device connects after). The swap "
+        f"waits for two equal polls of the folder (poll interval {f['poll_interval_s']} s in this run) and the "
+        f"first event after it comes with the next window (one every {f['window_every_s']:.2f} s).", "",
+        res["note"],
+    ]
