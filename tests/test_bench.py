@@ -1,0 +1,103 @@
+"""Smoke tests of ``handover bench`` in --quick mode (tiny sizes): they run and write their files
+and keys. No timing is asserted: speed is measured by the benchmarks, not by unit tests."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from trainer import bench_cli
+from trainer.bench.common import deadline_ratio, percentiles, tap_stream
+from trainer.bench.pareto import grid, is_default, pareto_front
+
+
+def _args(which: str, out, *extra: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    bench_cli.add_arguments(parser)
+    return parser.parse_args([which, "--quick", "--quiet", "--json", "--out", str(out), *extra])
+
+
+def _run(which: str, tmp_path, capsys, *extra: str) -> tuple[dict, dict]:
+    assert bench_cli.main(_args(which, tmp_path, *extra)) == 0
+    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    result = json.loads((tmp_path / f"{which}.json").read_text())
+    md = (tmp_path / f"{which}.md").read_text()
+    assert result["command"].startswith(f"handover bench {which} --quick")
+    assert result["command"] in md and "Machine:" in md
+    for key in ("cpu", "cores", "python", "numpy", "onnxruntime", "load_average"):
+        assert key in result["machine"]
+    return printed, result
+
+
+def test_percentiles_and_deadline_ratio():
+    s = percentiles(np.arange(1, 1001, dtype=float))
+    assert s["n"] == 1000 and s["p50"] == pytest.approx(500.5) and s["max"] == 1000.0
+    assert s["p50"] <= s["p99"] <= s["p999"] <= s["max"]
+    assert deadline_ratio(s)["max"] == pytest.approx(31.25)
+    assert percentiles([])["p50"] is None
+
+
+def test_pareto_front_marks_only_undominated_points():
+    pts = [(10.0, 0.5), (20.0, 0.2), (30.0, 0.3), (5.0, 0.9), (20.0, 0.2)]
+    assert pareto_front(pts) == [True, True, False, True, True]
+
+
+def test_full_grid_holds_the_default_and_every_variant():
+    points = grid(quick=False)
+    assert sum(is_default(p) for p in points) == 1
+    assert {p["kernel"] for p in points} == {"rbf", "linear"}
+    assert {p["pads"] for p in points} == {"all", "distal"}
+    assert {p["per_pad"] for p in points} == {True, False}
+    assert all(p["T"] - 1 >= p["W"] for p in points)
+
+
+def test_tap_stream_triggers_once_per_window():
+    rec = tap_stream(quick=True, n_windows=5, gap=5)
+    assert len(rec.trials) == 5 and rec.meta["synthetic"]
+    cols = rec.layout.columns("all")
+    level = rec.frames[:, cols].max(axis=1)
+    for t in rec.trials:  # untouched before each window, so the trigger re-arms
+        assert level[t.first - 1] == 0
+
+
+def test_pareto_quick(tmp_path, capsys):
+    printed, result = _run("pareto", tmp_path, capsys)
+    assert (tmp_path / "pareto.png").stat().st_size > 0
+    for key in ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front"):
+        assert key in printed
+    kinds = {r["kind"] for r in result["rows"]}
+    assert {"bow", "sklearn", "baseline"} <= kinds
+    assert sum(r["default"] for r in result["rows"]) == 1
+    assert any(r["on_front"] for r in result["rows"])
+    assert all(0.0 <= r["loso_error"] <= 1.0 for r in result["rows"])
+    assert result["synthetic"] is True
+
+
+def test_latency_quick(tmp_path, capsys):
+    printed, result = _run("latency", tmp_path, capsys, "--duration", "2")
+    assert (tmp_path / "latency.png").stat().st_size > 0
+    for key in ("onnx_p50_us", "onnx_p99_us", "e2e_p99_us"):
+        assert printed[key] > 0
+    for stage in ("decode", "ring_push", "trigger", "inference"):
+        assert result["stages"][stage]["fast"]["n"] > 0 and result["stages"][stage]["32hz"]["n"] > 0
+    e2e = result["e2e_32hz"]
+    assert e2e["events"] >= 1 and e2e["unmatched"] == 0
+    assert e2e["e2e_us"]["p50"] > e2e["daemon_internal_us"]["p50"] > 0  # the wire and the sink add time
+
+
+def test_throughput_quick(tmp_path, capsys):
+    printed, result = _run("throughput", tmp_path, capsys)
+    assert printed["replay_frames_per_s"] > 0 and printed["rss_mb"] > 0
+    assert 0.0 < result["cpu_share"] < 2.0
+    assert result["startup_to_ready_s"] > 0
+    assert result["replay_hot_path"]["decisions"] == 40
+    assert "swap_to_log_s" in result["footprint"]  # may be None in 3 s on a busy machine
+
+
+def test_bad_duration_is_one_line(tmp_path, capsys):
+    assert bench_cli.main(_args("latency", tmp_path, "--duration", "-1")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handover bench: --duration")
