@@ -10,6 +10,20 @@ The float64 arithmetic here is the reference the exported ONNX graph must reprod
 5. a case's histogram counts the words of its active series' windows, divided by the number of
    those windows (all zeros when none), one histogram per case or one per pad group.
 
+Options beyond the paper (each off by default, so the defaults are the paper's method):
+
+- ``window=(5, 7, 9)``: several window lengths at once, one codebook of K words per length
+  (multi-scale), the histograms concatenated in the order of the lengths;
+- ``assignment="soft"``: each window adds ``softmax_k(-(d_k - min_j d_j) / tau)`` instead of a
+  one-hot word (``d_k`` its squared distance to word k). ``tau = temperature * s2`` with ``s2``
+  the mean squared distance of the k-means sample to its nearest word (fitted per scale, in
+  ``temperatures_``), so ``temperature`` is unit-free; subtracting the minimum keeps every
+  exponent <= 0 (no overflow, no NaN in float32);
+- ``level_features=True``: per pad (``pad_sizes``, or all channels as one pad) two numbers that
+  keep the static information the derivative removes: the window's mean level over the pad's
+  taxels and frames, and its mean slope ``(x[T-1] - x[0]) / (T - 1)`` averaged over the taxels,
+  both divided by ``fullscale``. They come last: ``[level_pad0 .. level_padG, slope_pad0 ..]``.
+
 Input is ``(n_cases, n_channels, n_timepoints)`` (aeon/sktime convention). A 2-D ``X`` is read as
 ``(n_cases, n_timepoints)`` with a single channel, which is how scikit-learn's estimator checks
 feed it.
@@ -97,6 +111,52 @@ def nearest_words(windows: np.ndarray, codebook: np.ndarray) -> tuple[np.ndarray
     return words.reshape(shape), margins.reshape(shape)
 
 
+def soft_assignment_sums(windows: np.ndarray, codebook: np.ndarray, tau: float) -> np.ndarray:
+    """Per series, the summed soft assignments of its windows: float64 ``(n, c, K)``.
+
+    ``windows``: ``(n, c, S, W)``. Each window's weights are ``softmax(-(d - min d) / tau)`` over
+    the K words, with ``d`` the squared distances computed as sums of squared differences.
+    """
+    codebook = np.asarray(codebook, dtype=np.float64)
+    n, c, n_windows, _ = windows.shape
+    n_words = codebook.shape[0]
+    out = np.empty((n, c, n_words), dtype=np.float64)
+    step = max(1, _CHUNK_ELEMENTS // max(1, c * n_windows * n_words * windows.shape[-1]))
+    for start in range(0, n, step):
+        block = np.asarray(windows[start : start + step], dtype=np.float64)
+        dist = np.empty((*block.shape[:-1], n_words), dtype=np.float64)
+        for k in range(n_words):
+            diff = block - codebook[k]
+            dist[..., k] = np.einsum("...j,...j->...", diff, diff)
+        z = np.exp(-(dist - dist.min(axis=-1, keepdims=True)) / tau)
+        out[start : start + step] = (z / z.sum(axis=-1, keepdims=True)).sum(axis=2)
+    return out
+
+
+def grouped_histograms(per_series: np.ndarray, active: np.ndarray, pad_sizes: Sequence[int], n_windows: int) -> np.ndarray:
+    """Histograms ``(n, G * K)`` from per-series word weights ``(n, c, K)`` summed over ``n_windows``
+    windows: active series only, divided by the group's number of active windows (zeros when none)."""
+    n_cases, _, n_words = per_series.shape
+    groups = channel_groups(pad_sizes)
+    indicator = (groups[None, :] == np.arange(len(pad_sizes))[:, None]).astype(np.float64)  # (G, c)
+    act = active.astype(np.float64)
+    counts = np.einsum("gc,nck->ngk", indicator, per_series * act[:, :, None])
+    totals = (act @ indicator.T) * n_windows  # (n, G)
+    hist = np.where(totals[:, :, None] > 0, counts / np.maximum(totals, 1)[:, :, None], 0.0)
+    return hist.reshape(n_cases, len(pad_sizes) * n_words)
+
+
+def level_features(X: np.ndarray, pad_sizes: Sequence[int], fullscale: float) -> np.ndarray:
+    """Per pad the mean level and the mean slope over the window, / fullscale: ``(n, 2 * G)``."""
+    X = np.asarray(X, dtype=np.float64)
+    groups = channel_groups(pad_sizes)
+    sizes = np.asarray(pad_sizes, dtype=np.float64)
+    n_t = X.shape[2]
+    levels = np.stack([X[:, groups == g, :].mean(axis=(1, 2)) for g in range(len(sizes))], axis=1)
+    slopes = np.stack([(X[:, groups == g, -1] - X[:, groups == g, 0]).mean(axis=1) for g in range(len(sizes))], axis=1)
+    return np.concatenate([levels / fullscale, slopes / ((n_t - 1) * fullscale)], axis=1)
+
+
 def channel_groups(pad_sizes: Sequence[int]) -> np.ndarray:
     """Group index of each channel, from consecutive pad sizes (e.g. (68, 68) -> 0..0, 1..1)."""
     return np.repeat(np.arange(len(pad_sizes)), np.asarray(pad_sizes, dtype=np.int64))
@@ -123,12 +183,16 @@ def word_histograms(words: np.ndarray, active: np.ndarray, pad_sizes: Sequence[i
 class BagOfWords(TransformerMixin, BaseEstimator):
     """Histogram of nearest k-means words over derivative windows of the active taxel series.
 
-    Parameters: ``n_words`` (K), ``window`` (W), ``per_pad`` (one histogram per pad group, needs
-    ``pad_sizes``: channels per pad, consecutive, summing to n_channels), ``max_windows`` (the
-    k-means sample is a seeded random subset of at most this many windows), ``random_state``.
+    Parameters: ``n_words`` (K), ``window`` (W, or a sequence of lengths: one codebook each),
+    ``per_pad`` (one histogram per pad group, needs ``pad_sizes``: channels per pad, consecutive,
+    summing to n_channels), ``max_windows`` (the k-means sample is a seeded random subset of at
+    most this many windows, per scale), ``random_state``, ``assignment`` ("hard" or "soft"),
+    ``temperature`` (soft only, unit-free), ``level_features``, ``fullscale`` (level features).
 
-    Fitted: ``codebook_`` float64 ``[K, W]``, ``pad_sizes_`` tuple, ``n_features_out_``,
-    ``n_channels_``, ``n_timepoints_``, ``n_features_in_`` (= n_channels * n_timepoints).
+    Fitted: ``codebook_`` float64 ``[K, W]`` (the first scale), ``extra_codebooks_`` (the other
+    scales), ``windows_``, ``temperatures_`` (absolute tau per scale), ``pad_sizes_`` tuple,
+    ``level_groups_``, ``n_features_out_``, ``n_channels_``, ``n_timepoints_``,
+    ``n_features_in_`` (= n_channels * n_timepoints).
     """
 
     def __init__(
@@ -139,6 +203,10 @@ class BagOfWords(TransformerMixin, BaseEstimator):
         pad_sizes: Sequence[int] | None = None,
         max_windows: int = 200000,
         random_state=None,
+        assignment: str = "hard",
+        temperature: float = 1.0,
+        level_features: bool = False,
+        fullscale: float = 4095.0,
     ):
         self.n_words = n_words
         self.window = window
@@ -146,6 +214,10 @@ class BagOfWords(TransformerMixin, BaseEstimator):
         self.pad_sizes = pad_sizes
         self.max_windows = max_windows
         self.random_state = random_state
+        self.assignment = assignment
+        self.temperature = temperature
+        self.level_features = level_features
+        self.fullscale = fullscale
 
     # -- fitting ------------------------------------------------------------------------------
     def _resolve_pad_sizes(self, n_channels: int) -> tuple[int, ...]:
@@ -159,13 +231,24 @@ class BagOfWords(TransformerMixin, BaseEstimator):
             sizes = (n_channels,)
         return sizes if self.per_pad else (n_channels,)
 
+    def _window_lengths(self) -> tuple[int, ...]:
+        lengths = tuple(int(w) for w in np.atleast_1d(self.window))
+        if not lengths or any(w < 1 for w in lengths) or len(set(lengths)) != len(lengths):
+            raise ValueError(f"window must be a length >= 1 or distinct lengths >= 1, got {self.window!r}")
+        return lengths
+
     def _check_params(self) -> None:
         if int(self.n_words) < 1:
             raise ValueError(f"n_words must be >= 1, got {self.n_words}")
-        if int(self.window) < 1:
-            raise ValueError(f"window must be >= 1, got {self.window}")
+        self._window_lengths()
         if int(self.max_windows) < 1:
             raise ValueError(f"max_windows must be >= 1, got {self.max_windows}")
+        if self.assignment not in ("hard", "soft"):
+            raise ValueError(f"assignment must be 'hard' or 'soft', got {self.assignment!r}")
+        if not float(self.temperature) > 0 or not np.isfinite(float(self.temperature)):
+            raise ValueError(f"temperature must be a positive number, got {self.temperature!r}")
+        if not float(self.fullscale) > 0 or not np.isfinite(float(self.fullscale)):
+            raise ValueError(f"fullscale must be a positive number, got {self.fullscale!r}")
 
     def fit(self, X, y=None):
         """Learn the codebook by k-means on the derivative windows of the active series."""
@@ -177,23 +260,34 @@ class BagOfWords(TransformerMixin, BaseEstimator):
                 f"X has {n_timepoints} feature(s) (timepoints) per series; the derivative needs at least 2"
             )
         pad_sizes = self._resolve_pad_sizes(n_channels)
-        windows = derivative_windows(X, int(self.window))
+        lengths = self._window_lengths()
         active = active_series(X)
-        sample = windows[active].reshape(-1, int(self.window))
         rng = check_random_state(self.random_state)
-        if len(sample) > int(self.max_windows):
-            pick = np.sort(rng.choice(len(sample), size=int(self.max_windows), replace=False))
-            sample = sample[pick]
-        if len(sample) < int(self.n_words):
-            raise ValueError(
-                f"only {len(sample)} windows of active (not all-zero) series to learn {self.n_words} words from"
-            )
-        kmeans = KMeans(n_clusters=int(self.n_words), n_init=KMEANS_N_INIT, random_state=rng)
-        kmeans.fit(sample)
-        self.codebook_ = np.ascontiguousarray(kmeans.cluster_centers_, dtype=np.float64)
-        self.inertia_ = float(kmeans.inertia_)
+        codebooks, temperatures, inertias = [], [], []
+        for length in lengths:
+            sample = derivative_windows(X, length)[active].reshape(-1, length)
+            if len(sample) > int(self.max_windows):
+                pick = np.sort(rng.choice(len(sample), size=int(self.max_windows), replace=False))
+                sample = sample[pick]
+            if len(sample) < int(self.n_words):
+                raise ValueError(
+                    f"only {len(sample)} windows of active (not all-zero) series to learn {self.n_words} words from"
+                )
+            kmeans = KMeans(n_clusters=int(self.n_words), n_init=KMEANS_N_INIT, random_state=rng)
+            kmeans.fit(sample)
+            codebooks.append(np.ascontiguousarray(kmeans.cluster_centers_, dtype=np.float64))
+            inertias.append(float(kmeans.inertia_))
+            spread = float(kmeans.inertia_) / len(sample)
+            temperatures.append(float(self.temperature) * (spread if spread > 0 else 1.0))
+        self.codebook_ = codebooks[0]
+        self.extra_codebooks_ = codebooks[1:]
+        self.windows_ = lengths
+        self.temperatures_ = tuple(temperatures)
+        self.inertia_ = inertias[0]
         self.pad_sizes_ = pad_sizes
-        self.n_features_out_ = int(self.n_words) * len(pad_sizes)
+        self.level_groups_ = tuple(int(s) for s in self.pad_sizes) if self.pad_sizes is not None else (n_channels,)
+        n_levels = 2 * len(self.level_groups_) if self.level_features else 0
+        self.n_features_out_ = int(self.n_words) * len(pad_sizes) * len(lengths) + n_levels
         self.n_channels_ = n_channels
         self.n_timepoints_ = n_timepoints
         self.n_features_in_ = n_channels * n_timepoints
@@ -211,6 +305,14 @@ class BagOfWords(TransformerMixin, BaseEstimator):
             )
         return X
 
+    def scales(self) -> list[tuple[int, np.ndarray, float]]:
+        """(window length, codebook, absolute temperature) of every scale, in feature order."""
+        check_is_fitted(self, "codebook_")
+        books = [self.codebook_, *getattr(self, "extra_codebooks_", [])]
+        windows = getattr(self, "windows_", (int(self.codebook_.shape[1]),))
+        temps = getattr(self, "temperatures_", (1.0,) * len(books))
+        return list(zip(windows, books, temps, strict=True))
+
     def words(self, X) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-window words, margins (runner-up minus best squared distance) and active mask.
 
@@ -218,18 +320,38 @@ class BagOfWords(TransformerMixin, BaseEstimator):
         ``(n, c)``. ``handover verify`` uses the margins to tell true near-ties from errors.
         """
         X = self._check_X(X)
-        windows = derivative_windows(X, int(self.window))
+        windows = derivative_windows(X, int(self.codebook_.shape[1]))
         words, margins = nearest_words(windows, self.codebook_)
         return words, margins, active_series(X)
 
     def transform(self, X) -> np.ndarray:
-        """Normalised word histograms, float64 ``(n_cases, n_features_out_)``."""
-        words, _, active = self.words(X)
-        return word_histograms(words, active, self.pad_sizes_, int(self.n_words))
+        """Normalised word histograms (one block per scale) then level features, float64
+        ``(n_cases, n_features_out_)``."""
+        X = self._check_X(X)
+        active = active_series(X)
+        parts = []
+        for length, codebook, tau in self.scales():
+            windows = derivative_windows(X, length)
+            if self.assignment == "soft":
+                sums = soft_assignment_sums(windows, codebook, tau)
+                parts.append(grouped_histograms(sums, active, self.pad_sizes_, windows.shape[2]))
+            else:
+                words, _ = nearest_words(windows, codebook)
+                parts.append(word_histograms(words, active, self.pad_sizes_, len(codebook)))
+        if self.level_features:
+            parts.append(level_features(X, self.level_groups_, float(self.fullscale)))
+        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         check_is_fitted(self, "codebook_")
-        names = [f"pad{g}_word{k}" for g in range(len(self.pad_sizes_)) for k in range(int(self.n_words))]
+        scales = self.scales()
+        names = []
+        for length, codebook, _ in scales:
+            prefix = f"w{length}_" if len(scales) > 1 else ""
+            names += [f"{prefix}pad{g}_word{k}" for g in range(len(self.pad_sizes_)) for k in range(len(codebook))]
+        if self.level_features:
+            n_groups = len(self.level_groups_)
+            names += [f"pad{g}_level" for g in range(n_groups)] + [f"pad{g}_slope" for g in range(n_groups)]
         return np.asarray(names, dtype=object)
 
     def __sklearn_tags__(self):

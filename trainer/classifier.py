@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.model_selection import GridSearchCV, StratifiedKFold
+from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_is_fitted, column_or_1d
@@ -67,8 +68,13 @@ def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, 
 class BowSVC(ClassifierMixin, BaseEstimator):
     """BagOfWords (K words, window W, derivative, active series) + SVC (one-vs-one).
 
-    Fitted: ``bow_`` (BagOfWords), ``svm_`` (sklearn SVC), ``classes_``, ``best_params_``
-    ({"C": ..., "gamma": ...} as used), ``n_features_in_``.
+    The options beyond the paper (``window`` as a sequence, ``assignment``, ``temperature``,
+    ``level_features``) are BagOfWords's; ``scale_features=True`` standardises the features
+    (StandardScaler, fitted on the training cases) before the SVM, which matters when histogram
+    entries and level features of different spread are mixed.
+
+    Fitted: ``bow_`` (BagOfWords), ``scaler_`` (StandardScaler or None), ``svm_`` (sklearn SVC),
+    ``classes_``, ``best_params_`` ({"C": ..., "gamma": ...} as used), ``n_features_in_``.
     """
 
     def __init__(
@@ -81,6 +87,10 @@ class BowSVC(ClassifierMixin, BaseEstimator):
         per_pad: bool = False,
         pad_sizes: Sequence[int] | None = None,
         random_state=0,
+        assignment: str = "hard",
+        temperature: float = 1.0,
+        level_features: bool = False,
+        scale_features: bool = False,
     ):
         self.n_words = n_words
         self.window = window
@@ -90,6 +100,10 @@ class BowSVC(ClassifierMixin, BaseEstimator):
         self.per_pad = per_pad
         self.pad_sizes = pad_sizes
         self.random_state = random_state
+        self.assignment = assignment
+        self.temperature = temperature
+        self.level_features = level_features
+        self.scale_features = scale_features
 
     def fit(self, X, y):
         if self.kernel not in ("rbf", "linear"):
@@ -110,28 +124,38 @@ class BowSVC(ClassifierMixin, BaseEstimator):
             per_pad=self.per_pad,
             pad_sizes=self.pad_sizes,
             random_state=self.random_state,
+            assignment=self.assignment,
+            temperature=self.temperature,
+            level_features=self.level_features,
         ).fit(X)
         hist = self.bow_.transform(X)
-        self.best_params_ = choose_svm_params(hist, y, self.kernel, self.C, self.gamma)
+        self.scaler_ = StandardScaler().fit(hist) if self.scale_features else None
+        features = self.svm_input(hist)
+        self.best_params_ = choose_svm_params(features, y, self.kernel, self.C, self.gamma)
         self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_)
-        self.svm_.fit(hist, y)
+        self.svm_.fit(features, y)
         self.n_features_in_ = self.bow_.n_features_in_
         return self
 
+    def svm_input(self, hist: np.ndarray) -> np.ndarray:
+        """What the SVM sees: the BoW features, standardised when ``scale_features``."""
+        scaler = getattr(self, "scaler_", None)
+        return hist if scaler is None else scaler.transform(hist)
+
     def transform_histograms(self, X) -> np.ndarray:
-        """The BoW features the SVM sees (for t-SNE and diagnostics)."""
+        """The BoW features before any scaling (the graph's ``histogram``; t-SNE, diagnostics)."""
         check_is_fitted(self, "svm_")
         return self.bow_.transform(X)
 
     def decision_function(self, X) -> np.ndarray:
         """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""
-        hist = self.transform_histograms(X)
-        return self.svm_.decision_function(hist)
+        features = self.svm_input(self.transform_histograms(X))
+        return self.svm_.decision_function(features)
 
     def predict(self, X) -> np.ndarray:
         """Class labels, decided by one-vs-one votes (ties -> the class listed first)."""
-        hist = self.transform_histograms(X)
-        return self.svm_.predict(hist)
+        features = self.svm_input(self.transform_histograms(X))
+        return self.svm_.predict(features)
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
