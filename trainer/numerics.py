@@ -17,6 +17,15 @@ prefer ``k`` over the reference's ``best`` only if ``d_k - d_best <= E_k + E_bes
 a near tie when some k has ``d_k - d_best <= SAFETY * (E_k + E_best)``; its *relative margin* is
 ``min_k (d_k - d_best) / (E_k + E_best)`` (in units of the bound, near tie below SAFETY).
 
+**Soft assignment** has no near tie: the float32 weights differ from the float64 ones by a
+bounded amount. With ``z_k = -(d_k - d_min) / tau`` the graph's exponent is off by at most
+``dz_k = (E_k + E_min) / tau + 4 u (|z_k| + 1)``, and a softmax moves by
+``|dp_k| <= p_k * expm1(dz_k + sum_j p_j dz_j)`` (plus ``gamma(K + 4) p_k`` for its own
+rounding); summed over windows this bounds every histogram entry (``histogram_error_bounds``).
+**Level features** are sums of float32 values: ``gamma(T + C + 4)`` times the sum of |terms|.
+These entry bounds are carried into the SVM bound (``svm_decision_bounds(..., input_error)``),
+through the StandardScaler when there is one.
+
 **SVM near tie.** A one-vs-one decision ``dec_p = sum_m a_mp K_m + b_p`` computed in float32 is
 within ``E_p`` of the float64 value (bound from ``svm_decision_bounds``); its vote can flip only
 when ``|dec_p| <= E_p``, a near tie with ``SAFETY``. ``SAFETY = 2`` absorbs second-order terms.
@@ -94,18 +103,24 @@ def svm_pair_decisions(svm, hist: np.ndarray) -> np.ndarray:
     return np.asarray(ovo.decision_function(hist), dtype=np.float64)
 
 
-def svm_decision_bounds(svm, hist: np.ndarray) -> np.ndarray:
-    """Float32 error bound ``E_p`` of each one-vs-one decision of the graph, ``(n, P)``."""
+def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = None) -> np.ndarray:
+    """Float32 error bound ``E_p`` of each one-vs-one decision of the graph, ``(n, P)``.
+
+    ``input_error`` ``(n, F)``: a bound on how far the graph's SVM input may be from ``hist``
+    (soft histograms, level features, scaling); zero when None.
+    """
     hist = np.asarray(hist, dtype=np.float64)
+    delta = np.zeros_like(hist) if input_error is None else np.asarray(input_error, dtype=np.float64)
     coef, intercept, _ = svm_pair_coefficients(svm)
     sv = np.asarray(svm.support_vectors_, dtype=np.float64)
     n_features = hist.shape[1]
     if svm.kernel == "linear":
         weights = sv.T @ coef
-        return gamma(n_features + 4) * (np.abs(hist) @ np.abs(weights) + np.abs(intercept))
+        return gamma(n_features + 4) * (np.abs(hist) @ np.abs(weights) + np.abs(intercept)) + delta @ np.abs(weights)
     diff = hist[:, None, :] - sv[None]  # (n, M, F)
     dist = (diff**2).sum(axis=-1)
     d_err = gamma(n_features + 3) * (dist + 2.0 * (np.abs(diff) * (np.abs(hist)[:, None, :] + np.abs(sv)[None])).sum(-1))
+    d_err = d_err + (2.0 * np.abs(diff) * delta[:, None, :] + delta[:, None, :] ** 2).sum(-1)
     g = float(svm._gamma)
     kern = np.exp(-g * dist)
     k_err = kern * np.expm1(g * d_err + 2.0 * U32 * g * dist + 6.0 * U32)
@@ -122,21 +137,115 @@ def ovr_scores(dec: np.ndarray, n_classes: int) -> tuple[np.ndarray, np.ndarray]
     return votes, votes + conf / (3.0 * (np.abs(conf) + 1.0))
 
 
+# -- soft assignment and level features ---------------------------------------------------------
+def soft_histogram_bounds(X: np.ndarray, codebook: np.ndarray, tau: float, pad_sizes, fold_derivative: bool = False
+                          ) -> np.ndarray:
+    """Bound on |graph - reference| of every soft-histogram entry of one scale, ``(n, G * K)``."""
+    from trainer.bow import channel_groups
+
+    X = np.asarray(X, dtype=np.float64)
+    codebook = np.asarray(codebook, dtype=np.float64)
+    n_words, window = codebook.shape
+    deriv = X[:, :, 1:] - X[:, :, :-1]
+    win = np.lib.stride_tricks.sliding_window_view(deriv, window, axis=2)  # (n, c, S, W)
+    sqnorm = (codebook**2).sum(axis=1)
+    dist = np.maximum((win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + sqnorm, 0.0)
+    if fold_derivative:
+        padded = np.zeros((n_words, window + 2))
+        padded[:, 1:-1] = codebook
+        kernel = np.abs(padded[:, :-1] - padded[:, 1:])
+        raw = np.lib.stride_tricks.sliding_window_view(X, window + 1, axis=2)
+        err = gamma(window + 3) * (sqnorm + 2.0 * np.abs(raw) @ kernel.T)
+    else:
+        err = gamma(window + 3) * (sqnorm + 2.0 * np.abs(win) @ np.abs(codebook).T)
+    best = np.argmin(dist, axis=-1)[..., None]
+    e_best = np.take_along_axis(err, best, axis=-1)
+    z = -(dist - np.take_along_axis(dist, best, axis=-1)) / tau
+    p = np.exp(z)
+    p /= p.sum(axis=-1, keepdims=True)
+    dz = (err + e_best) / tau + 4.0 * U32 * (np.abs(z) + 1.0)
+    spread = (p * dz).sum(axis=-1, keepdims=True)
+    dp = p * (np.expm1(np.minimum(dz + spread, 700.0)) + gamma(n_words + 4))  # (n, c, S, K)
+    n_windows = win.shape[2]
+    groups = channel_groups(pad_sizes)
+    indicator = (groups[None, :] == np.arange(len(pad_sizes))[:, None]).astype(np.float64)
+    active = np.any(X != 0, axis=2).astype(np.float64)
+    summed = np.einsum("gc,nck->ngk", indicator, dp.sum(axis=2) * active[:, :, None])
+    totals = (active @ indicator.T) * n_windows
+    bound = np.where(totals[:, :, None] > 0, summed / np.maximum(totals, 1)[:, :, None], 0.0)
+    bound = bound + gamma(int(n_windows * max(pad_sizes)) + 4)  # float32 sums of at most 1 and the division
+    return bound.reshape(len(X), -1)
+
+
+def level_feature_bounds(X: np.ndarray, level_groups, fullscale: float) -> np.ndarray:
+    """Bound on |graph - reference| of the level features, ``(n, 2G)``."""
+    from trainer.bow import level_features
+
+    X = np.asarray(X, dtype=np.float64)
+    n_t, n_c = X.shape[2], X.shape[1]
+    mags = level_features(np.abs(X), level_groups, fullscale)
+    groups = len(level_groups)
+    level_err = gamma(n_t + n_c + 4) * mags[:, :groups]
+    ends = np.abs(X[:, :, [0]]) + np.abs(X[:, :, [-1]])
+    slope_mag = level_features(np.concatenate([np.zeros_like(ends), ends], axis=2), level_groups, fullscale)[:, groups:]
+    return np.concatenate([level_err, gamma(n_c + 4) * slope_mag * (n_t - 1)], axis=1)
+
+
+def histogram_error_bounds(model, X: np.ndarray, hist: np.ndarray, fold_derivative: bool = False) -> np.ndarray:
+    """Bound ``(n, F)`` on how far the graph's ``histogram`` may be from the float64 one.
+
+    Hard words are exact counts away from a codeword near tie (those are judged by the codeword
+    margin), so only the final division's rounding counts there.
+    """
+    bow = getattr(model, "bow_", None)
+    if bow is None:
+        return np.zeros_like(hist)  # flattened series: float32 input values, exact in float64
+    parts = []
+    for _, codebook, tau in bow.scales():
+        if getattr(bow, "assignment", "hard") == "soft":
+            parts.append(soft_histogram_bounds(X, codebook, tau, bow.pad_sizes_, fold_derivative))
+        else:
+            parts.append(np.full((len(X), len(bow.pad_sizes_) * len(codebook)), 0.0))
+    if getattr(bow, "level_features", False):
+        parts.append(level_feature_bounds(X, bow.level_groups_, float(bow.fullscale)))
+    out = np.concatenate(parts, axis=1)
+    return out + 2.0 * U32 * np.abs(hist)
+
+
+def _svm_input_and_error(model, hist: np.ndarray, hist_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    scaler = getattr(model, "scaler_", None)
+    if scaler is None:
+        return hist, hist_err
+    feats = scaler.transform(hist)
+    err = (hist_err + gamma(2) * (np.abs(hist) + np.abs(scaler.mean_))) / scaler.scale_ + gamma(2) * np.abs(feats)
+    return feats, err
+
+
 # -- the whole reference -------------------------------------------------------------------------
 def reference(model, frames: np.ndarray, fold_derivative: bool = False) -> dict:
-    """Float64 reference of the graph on float32 ``frames`` ``[N, T, C]``: histogram, pair
-    decisions, their bounds, labels (``svm_.predict``), ovr scores and codeword margins."""
+    """Float64 reference of the graph on float32 ``frames`` ``[N, T, C]``: histogram (and the bound
+    on its float32 error), pair decisions, their bounds, labels (``svm_.predict``), ovr scores and
+    codeword margins (inf where there is no hard codeword choice)."""
     X = np.asarray(frames, dtype=np.float32).astype(np.float64).transpose(0, 2, 1)
-    hist = model.bow_.transform(X)
-    dec = svm_pair_decisions(model.svm_, hist)
+    hist = model.transform_histograms(X)
+    hist_err = histogram_error_bounds(model, X, hist, fold_derivative)
+    feats, feat_err = _svm_input_and_error(model, hist, hist_err)
+    dec = svm_pair_decisions(model.svm_, feats)
     n_classes = len(model.classes_)
     _, scores = ovr_scores(dec, n_classes)
-    labels = np.searchsorted(model.classes_, model.svm_.predict(hist))
-    cw_margin, cw_gap = case_codeword_margins(X, model.bow_.codebook_, fold_derivative)
+    labels = np.searchsorted(model.classes_, model.svm_.predict(feats))
+    cw_margin = np.full(len(X), np.inf)
+    cw_gap = np.full(len(X), np.inf)
+    bow = getattr(model, "bow_", None)
+    if bow is not None and getattr(bow, "assignment", "hard") == "hard":
+        for _, codebook, _ in bow.scales():
+            m, gp = case_codeword_margins(X, codebook, fold_derivative)
+            cw_margin, cw_gap = np.minimum(cw_margin, m), np.minimum(cw_gap, gp)
     return {
         "hist": hist,
+        "hist_error": hist_err,
         "decisions": dec,
-        "decision_bounds": svm_decision_bounds(model.svm_, hist),
+        "decision_bounds": svm_decision_bounds(model.svm_, feats, feat_err),
         "labels": labels.astype(np.int64),
         "scores": scores,
         "codeword_margin": cw_margin,

@@ -1,4 +1,10 @@
-"""Export a fitted BowSVC as ONE ONNX graph: raw frames ``[N, T, C]`` -> ``label``, ``scores``.
+"""Export a fitted BowSVC (or FlatSVC) as ONE ONNX graph: raw frames ``[N, T, C]`` -> ``label``, ``scores``.
+
+Options beyond the paper (see ``trainer.bow``) live in the same graph: one convolution per
+window length (multi-scale codebooks, derivative computed once), soft assignment as
+``Softmax(-(f - min f) / tau)`` over the words, level features (ReduceMean over time and a
+Gather of the first and last frames, each followed by a per-pad MatMul), all joined by one Concat
+into the ``histogram`` tensor, then an optional StandardScaler as Sub/Div before the SVM.
 
 Graph (standard ``ai.onnx`` domain only, opset 17, IR 8):
 
@@ -99,50 +105,122 @@ class _Graph:
         return outs[0]
 
 
-def bow_nodes(g: _Graph, frames: str, codebook: np.ndarray, pad_sizes: tuple[int, ...], n_timepoints: int,
-              fold_derivative: bool = False) -> str:
-    """Append the BoW transform of ``frames`` [N, T, C]; return the histogram name [N, G*K]."""
-    codebook = np.asarray(codebook, dtype=np.float64)
-    n_words, window = codebook.shape
-    n_windows = n_timepoints - window
-    n_channels = int(sum(pad_sizes))
-    n_groups = len(pad_sizes)
-
-    peak = g.op("ReduceMax", [g.op("Abs", [frames])], "peak", axes=[1], keepdims=0)
-    active = g.op("Cast", [g.op("Greater", [peak, g.const("zero", 0.0)])], "active", to=1)  # [N, C]
-
-    x4 = g.op("Unsqueeze", [frames, g.const("axis1", [1], np.int64)], "x4")  # [N, 1, T, C]
-    bias = (codebook**2).sum(axis=1)
-    if fold_derivative:
-        # sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), c[-1] = c[W] = 0
-        padded = np.zeros((n_words, window + 2))
-        padded[:, 1:-1] = codebook
-        kernel = -2.0 * (padded[:, :-1] - padded[:, 1:])
-        signal = x4
-    else:
-        deriv_kernel = np.array([-1.0, 1.0]).reshape(1, 1, 2, 1)
-        signal = g.op("Conv", [x4, g.const("deriv_kernel", deriv_kernel)], "deriv")  # [N, 1, T-1, C]
-        kernel = -2.0 * codebook
-    weights = g.const("codeword_kernel", kernel.reshape(n_words, 1, -1, 1))
-    scores = g.op("Conv", [signal, weights, g.const("codeword_sqnorm", bias)], "word_scores")  # [N, K, S, C]
-    words = g.op("ArgMin", [scores], "words", axis=1, keepdims=0)  # [N, S, C]
-    onehot = g.op("OneHot", [words, g.const("depth", n_words, np.int64), g.const("onoff", [0.0, 1.0])], "onehot", axis=-1)
-    per_channel = g.op("ReduceSum", [onehot, g.const("axis1", [1], np.int64)], "per_channel", keepdims=0)  # [N, C, K]
-    active3 = g.op("Unsqueeze", [active, g.const("axis2", [2], np.int64)], "active3")
-    masked = g.op("Mul", [per_channel, active3], "masked")
-
-    groups = np.zeros((n_groups, n_channels))
+def _group_matrix(pad_sizes: tuple[int, ...]) -> np.ndarray:
+    """``[G, C]`` indicator: 1 where channel c belongs to pad group g."""
+    groups = np.zeros((len(pad_sizes), int(sum(pad_sizes))))
     start = 0
     for gi, size in enumerate(pad_sizes):
         groups[gi, start : start + size] = 1.0
         start += size
+    return groups
+
+
+def _active_nodes(g: _Graph, frames: str) -> str:
+    """``[N, C]`` float mask of the series that are not all zero."""
+    peak = g.op("ReduceMax", [g.op("Abs", [frames])], "peak", axes=[1], keepdims=0)
+    return g.op("Cast", [g.op("Greater", [peak, g.const("zero", 0.0)])], "active", to=1)
+
+
+def _scale_nodes(g: _Graph, x4: str, deriv: str | None, active: str, codebook: np.ndarray, pad_sizes: tuple[int, ...],
+                 n_timepoints: int, soft_tau: float | None = None) -> str:
+    """One scale: word weights of every window, summed per series, grouped and normalised ``[N, G*K]``.
+
+    ``deriv`` is the explicit derivative ``[N, 1, T-1, C]``; None folds it into the kernel (raw ``x4``).
+    """
+    codebook = np.asarray(codebook, dtype=np.float64)
+    n_words, window = codebook.shape
+    n_windows = n_timepoints - window
+    n_groups = len(pad_sizes)
+    bias = (codebook**2).sum(axis=1)
+    if deriv is None:
+        # sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), c[-1] = c[W] = 0
+        padded = np.zeros((n_words, window + 2))
+        padded[:, 1:-1] = codebook
+        kernel, signal = -2.0 * (padded[:, :-1] - padded[:, 1:]), x4
+    else:
+        kernel, signal = -2.0 * codebook, deriv
+    weights = g.const("codeword_kernel", kernel.reshape(n_words, 1, -1, 1))
+    scores = g.op("Conv", [signal, weights, g.const("codeword_sqnorm", bias)], "word_scores")  # [N, K, S, C]
+    if soft_tau is None:
+        words = g.op("ArgMin", [scores], "words", axis=1, keepdims=0)  # [N, S, C]
+        onehot = g.op("OneHot", [words, g.const("depth", n_words, np.int64), g.const("onoff", [0.0, 1.0])], "onehot",
+                      axis=-1)
+        per_channel = g.op("ReduceSum", [onehot, g.const("axis1", [1], np.int64)], "per_channel", keepdims=0)  # [N, C, K]
+    else:
+        # softmax(-(f - min f) / tau): every exponent <= 0, so exp never overflows; f differs from
+        # the squared distance by ||w||^2, which the softmax does not see
+        lowest = g.op("ReduceMin", [scores], "lowest", axes=[1], keepdims=1)
+        shifted = g.op("Mul", [g.op("Sub", [scores, lowest], "shifted"), g.const("neg_inv_tau", -1.0 / soft_tau)], "z")
+        soft = g.op("Softmax", [shifted], "soft", axis=1)  # [N, K, S, C]
+        summed = g.op("ReduceSum", [soft, g.const("axis2", [2], np.int64)], "soft_sum", keepdims=0)  # [N, K, C]
+        per_channel = g.op("Transpose", [summed], "per_channel", perm=[0, 2, 1])  # [N, C, K]
+    active3 = g.op("Unsqueeze", [active, g.const("axis2", [2], np.int64)], "active3")
+    masked = g.op("Mul", [per_channel, active3], "masked")
+    groups = _group_matrix(pad_sizes)
     counts = g.op("MatMul", [g.const("group_of_channel", groups), masked], "counts")  # [N, G, K]
     n_active = g.op("MatMul", [active, g.const("windows_per_channel", groups.T * n_windows)], "n_windows")  # [N, G]
     denom = g.op("Max", [n_active, g.const("one", 1.0)], "denom")
     denom3 = g.op("Unsqueeze", [denom, g.const("axis2", [2], np.int64)], "denom3")
     hist = g.op("Div", [counts, denom3], "hist3")
-    shape = g.const("hist_shape", [0, n_groups * n_words], np.int64)
-    return g.op("Reshape", [hist, shape], outputs=[g.prefix + HISTOGRAM])
+    return g.op("Reshape", [hist, g.const("hist_shape", [0, n_groups * n_words], np.int64)], "scale_hist")
+
+
+def _level_nodes(g: _Graph, frames: str, level_groups: tuple[int, ...], fullscale: float, n_timepoints: int) -> str:
+    """Per pad mean level and mean slope over the window, / fullscale: ``[N, 2G]`` (levels, then slopes)."""
+    groups = _group_matrix(level_groups)
+    sizes = groups.sum(axis=1)
+    mean_t = g.op("ReduceMean", [frames], "mean_over_time", axes=[1], keepdims=0)  # [N, C]
+    levels = g.op("MatMul", [mean_t, g.const("level_weights", groups.T / (sizes * fullscale))], "levels")
+    last = g.op("Gather", [frames, g.const("last", n_timepoints - 1, np.int64)], "last_frame", axis=1)
+    first = g.op("Gather", [frames, g.const("first", 0, np.int64)], "first_frame", axis=1)
+    rise = g.op("Sub", [last, first], "rise")
+    slope_w = groups.T / (sizes * (n_timepoints - 1) * fullscale)
+    slopes = g.op("MatMul", [rise, g.const("slope_weights", slope_w)], "slopes")
+    return g.op("Concat", [levels, slopes], "level_features", axis=1)
+
+
+def bow_nodes(g: _Graph, frames: str, codebook: np.ndarray, pad_sizes: tuple[int, ...], n_timepoints: int,
+              fold_derivative: bool = False) -> str:
+    """Append the paper's BoW transform (one hard codebook) of ``frames`` [N, T, C]; return the histogram name."""
+    active = _active_nodes(g, frames)
+    x4 = g.op("Unsqueeze", [frames, g.const("axis1", [1], np.int64)], "x4")  # [N, 1, T, C]
+    deriv = None if fold_derivative else _derivative_nodes(g, x4)
+    hist = _scale_nodes(g, x4, deriv, active, codebook, pad_sizes, n_timepoints)
+    n_features = len(pad_sizes) * len(codebook)
+    return g.op("Reshape", [hist, g.const("hist_shape", [0, n_features], np.int64)], outputs=[g.prefix + HISTOGRAM])
+
+
+def _derivative_nodes(g: _Graph, x4: str) -> str:
+    deriv_kernel = np.array([-1.0, 1.0]).reshape(1, 1, 2, 1)
+    return g.op("Conv", [x4, g.const("deriv_kernel", deriv_kernel)], "deriv")  # [N, 1, T-1, C]
+
+
+def features_nodes(g: _Graph, frames: str, bow, fold_derivative: bool = False) -> str:
+    """Append every feature of a fitted BagOfWords (all scales, hard or soft, level features) of
+    ``frames`` [N, T, C] in the reference's order; return the ``histogram`` name ``[N, F]``."""
+    n_timepoints = int(bow.n_timepoints_)
+    pad_sizes = tuple(bow.pad_sizes_)
+    active = _active_nodes(g, frames)
+    x4 = g.op("Unsqueeze", [frames, g.const("axis1", [1], np.int64)], "x4")  # [N, 1, T, C]
+    deriv = None if fold_derivative else _derivative_nodes(g, x4)
+    soft = getattr(bow, "assignment", "hard") == "soft"
+    parts = [
+        _scale_nodes(g, x4, deriv, active, codebook, pad_sizes, n_timepoints, soft_tau=tau if soft else None)
+        for _, codebook, tau in bow.scales()
+    ]
+    if getattr(bow, "level_features", False):
+        parts.append(_level_nodes(g, frames, tuple(bow.level_groups_), float(bow.fullscale), n_timepoints))
+    joined = g.op("Concat", parts, "features", axis=1) if len(parts) > 1 else parts[0]
+    shape = g.const("hist_shape", [0, int(bow.n_features_out_)], np.int64)
+    return g.op("Reshape", [joined, shape], outputs=[g.prefix + HISTOGRAM])
+
+
+def scaler_nodes(g: _Graph, features: str, scaler) -> str:
+    """StandardScaler as ``(x - mean) / scale`` (scikit-learn's arithmetic and order)."""
+    if scaler is None:
+        return features
+    centred = g.op("Sub", [features, g.const("feature_mean", scaler.mean_)], "centred")
+    return g.op("Div", [centred, g.const("feature_scale", scaler.scale_)], "scaled_features")
 
 
 def svm_nodes(g: _Graph, hist: str, svm, label_out: str = "label", scores_out: str = "scores") -> None:
@@ -170,18 +248,30 @@ def svm_nodes(g: _Graph, hist: str, svm, label_out: str = "label", scores_out: s
     g.op("ArgMax", [votes], outputs=[label_out], axis=1, keepdims=0)
 
 
+def model_shape(model) -> tuple[int, int]:
+    """(T, C) of a fitted BowSVC or FlatSVC."""
+    inner = model.bow_ if hasattr(model, "bow_") else model
+    return int(inner.n_timepoints_), int(inner.n_channels_)
+
+
 def build_graph(model, fold_derivative: bool = False):
-    """The ONNX ModelProto of a fitted BowSVC (no metadata yet)."""
+    """The ONNX ModelProto of a fitted BowSVC or FlatSVC (no metadata yet)."""
     from onnx import TensorProto, helper
 
-    bow, svm = model.bow_, model.svm_
-    n_timepoints, n_channels = int(bow.n_timepoints_), int(bow.n_channels_)
+    n_timepoints, n_channels = model_shape(model)
     g = _Graph()
-    hist = bow_nodes(g, "frames", bow.codebook_, tuple(bow.pad_sizes_), n_timepoints, fold_derivative)
-    svm_nodes(g, hist, svm)
+    if hasattr(model, "bow_"):
+        hist = features_nodes(g, "frames", model.bow_, fold_derivative)
+        name = "handover_bow_svm"
+    else:  # flattened-series SVM: channel-major flattening, like X.reshape(n, C * T)
+        series = g.op("Transpose", ["frames"], "series", perm=[0, 2, 1])  # [N, C, T]
+        shape = g.const("hist_shape", [0, n_channels * n_timepoints], np.int64)
+        hist = g.op("Reshape", [series, shape], outputs=[HISTOGRAM])
+        name = "handover_flat_svm"
+    svm_nodes(g, scaler_nodes(g, hist, getattr(model, "scaler_", None)), model.svm_)
     graph = helper.make_graph(
         g.nodes,
-        "handover_bow_svm",
+        name,
         [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["N", n_timepoints, n_channels])],
         [
             helper.make_tensor_value_info("label", TensorProto.INT64, ["N"]),
@@ -201,14 +291,18 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
     from runtime import __version__
     from runtime.model import SCHEMA_VERSION
 
-    bow, svm = model.bow_, model.svm_
+    svm = model.svm_
+    bow = getattr(model, "bow_", None)
+    n_timepoints, n_channels = model_shape(model)
+    windows = [int(w) for w, _, _ in bow.scales()] if bow is not None else []
     derived = {
         "schema_version": SCHEMA_VERSION,
         "classes": [str(c) for c in model.classes_],
-        "T": int(bow.n_timepoints_),
-        "W": int(bow.window),
-        "K": int(bow.n_words),
-        "n_channels": int(bow.n_channels_),
+        "T": n_timepoints,
+        # a flattened-series SVM has no windows or words: 1 and 1 satisfy the contract's ranges
+        "W": max(windows) if windows else 1,
+        "K": int(bow.n_words) if bow is not None else 1,
+        "n_channels": n_channels,
     }
     for key, value in derived.items():
         if key in metadata and metadata[key] != value:
@@ -224,10 +318,23 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
         **derived,
     }
     if "pad_sizes" not in meta:
-        meta["pad_sizes"] = list(bow.pad_sizes_) if bow.per_pad else [int(bow.n_channels_)]
+        meta["pad_sizes"] = list(bow.pad_sizes_) if bow is not None and bow.per_pad else [n_channels]
     training = {"project_version": __version__, "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}
     meta["training"] = {**training, **meta.get("training", {})}
-    meta["feature_groups"] = [int(s) for s in bow.pad_sizes_]
+    meta["model_kind"] = "bow_svm" if bow is not None else "flat_svm"
+    if bow is not None:
+        meta["feature_groups"] = [int(s) for s in bow.pad_sizes_]
+        meta["features"] = {
+            "windows": windows,
+            "assignment": str(getattr(bow, "assignment", "hard")),
+            "temperatures": [float(t) for _, _, t in bow.scales()] if getattr(bow, "assignment", "hard") == "soft" else None,
+            "level_features": bool(getattr(bow, "level_features", False)),
+            "level_groups": [int(s) for s in getattr(bow, "level_groups_", ())],
+            "scale_features": getattr(model, "scaler_", None) is not None,
+            "n_features": int(bow.n_features_out_),
+        }
+    else:
+        meta["features"] = {"flattened": "channel-major C x T, standardised", "n_features": n_timepoints * n_channels}
     meta["kernel"] = str(svm.kernel)
     meta["svm"] = {"C": float(svm.C), "gamma": float(getattr(svm, "_gamma", 0.0)), "n_support_vectors": int(sum(svm.n_support_))}
     meta["graph"] = {"opset": OPSET, "ir_version": IR_VERSION, "fold_derivative": bool(fold_derivative)}
@@ -279,7 +386,7 @@ def register_skl2onnx() -> None:
         bow = operator.raw_operator
         g = _Graph(prefix=scope.get_unique_variable_name("bow") + "_")
         frames = g.op("Transpose", [operator.inputs[0].full_name], "frames", perm=[0, 2, 1])  # [N, C, T] -> [N, T, C]
-        hist = bow_nodes(g, frames, bow.codebook_, tuple(bow.pad_sizes_), int(bow.n_timepoints_))
+        hist = features_nodes(g, frames, bow)
         g.op("Identity", [hist], outputs=[operator.outputs[0].full_name])
         for init in g.initializers:
             container.initializers.append(init)

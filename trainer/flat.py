@@ -1,0 +1,83 @@
+"""The flattened-series SVM: a reference classifier that sees every raw value of the window.
+
+The whole ``C x T`` window, flattened channel-major (``X.reshape(n, C * T)``), standardised
+(StandardScaler fitted on the training cases) and fed to an SVC whose C/gamma come from the same
+cross-validated search as the BoW classifier. No derivative, no codebook: static pressure,
+position and timing all reach the SVM. It exports to one ONNX graph as well
+(``trainer.onnx_export.build_graph``: Transpose, Reshape, Sub, Div, the SVM nodes), so its
+latency is measured the same way as the BoW models'.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVC
+from sklearn.utils.multiclass import check_classification_targets
+from sklearn.utils.validation import check_is_fitted, column_or_1d
+
+from trainer.bow import as_cases
+from trainer.classifier import choose_svm_params
+
+
+class FlatSVC(ClassifierMixin, BaseEstimator):
+    """StandardScaler + SVC on the flattened ``(n_channels, n_timepoints)`` window.
+
+    Fitted: ``scaler_``, ``svm_``, ``classes_``, ``best_params_``, ``n_channels_``,
+    ``n_timepoints_``, ``n_features_in_``.
+    """
+
+    def __init__(self, kernel: str = "rbf", C: float | None = None, gamma: float | str | None = None):
+        self.kernel = kernel
+        self.C = C
+        self.gamma = gamma
+
+    def fit(self, X, y):
+        if self.kernel not in ("rbf", "linear"):
+            raise ValueError(f"kernel must be 'rbf' or 'linear', got {self.kernel!r}")
+        if y is None:
+            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is None")
+        X = as_cases(X)
+        y = column_or_1d(y, warn=True)
+        if len(y) != len(X):
+            raise ValueError(f"y has {len(y)} labels for {len(X)} cases")
+        check_classification_targets(y)
+        self.classes_ = np.unique(y)
+        if len(self.classes_) < 2:
+            raise ValueError(f"need samples of at least 2 classes, got 1 class ({self.classes_[0]!r})")
+        _, self.n_channels_, self.n_timepoints_ = X.shape
+        self.n_features_in_ = self.n_channels_ * self.n_timepoints_
+        flat = X.reshape(len(X), -1)
+        self.scaler_ = StandardScaler().fit(flat)
+        features = self.scaler_.transform(flat)
+        self.best_params_ = choose_svm_params(features, y, self.kernel, self.C, self.gamma)
+        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(features, y)
+        return self
+
+    def transform_histograms(self, X) -> np.ndarray:
+        """The flattened raw window (the graph's ``histogram`` tensor; no codebook here)."""
+        check_is_fitted(self, "svm_")
+        X = as_cases(X)
+        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
+            raise ValueError(
+                f"X has {X.shape[1] * X.shape[2]} features, but {type(self).__name__} is expecting "
+                f"{self.n_features_in_} features as input ({self.n_channels_} channels x {self.n_timepoints_} timepoints)"
+            )
+        return X.reshape(len(X), -1)
+
+    def svm_input(self, hist: np.ndarray) -> np.ndarray:
+        return self.scaler_.transform(hist)
+
+    def decision_function(self, X) -> np.ndarray:
+        features = self.svm_input(self.transform_histograms(X))
+        return self.svm_.decision_function(features)
+
+    def predict(self, X) -> np.ndarray:
+        features = self.svm_input(self.transform_histograms(X))
+        return self.svm_.predict(features)
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.three_d_array = True
+        return tags
