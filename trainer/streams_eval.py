@@ -1,0 +1,205 @@
+"""What matters on a deployed robot, measured on long streams: false events per hour of idle,
+detection delay from the person's onset, events missed, wrong class.
+
+The stream is replayed frame by frame through the daemon's own hot path
+(``runtime.daemon.Daemon.handle_frame``: ring buffer, threshold or continuous trigger, ONNX
+model, "report only changes" rule), fed in-process with the recorded frames, so what is
+measured is what the service would do. Three modes, the same streams for all:
+
+- ``threshold``: the paper's trigger (15 % of full scale, hysteresis, refractory) + the 4-class model;
+- ``baseline``: the same trigger measured against a slowly tracked per-taxel baseline + the 4-class model;
+- ``continuous``: every frame classified by the 5-class model with a dormant class.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_io.recording import Recording
+
+MODES = ("threshold", "baseline", "continuous")
+EARLY_FRAMES = 2
+"""A decision up to this many frames before the annotated onset still counts for the event
+(the onset is the start of a smooth movement, the frame grid is coarse)."""
+
+
+@dataclass(frozen=True)
+class Decision:
+    """An event the daemon reported: the frame that ended its window and the class."""
+
+    frame: int
+    cls: str
+    latency_us: float = 0.0
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A person's action: onset frame, last frame it can be reported at, the action."""
+
+    onset: int
+    end: int
+    action: str
+
+
+def replay(rec: Recording, model, mode: str, first_number: int = 0) -> list[Decision]:
+    """Feed every frame of ``rec`` to a fresh daemon in ``mode``; the events it reports."""
+    from firmware_io.client import Frame
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon, scene_problem
+
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    pads = ",".join(str(p) for p in model.meta.pads)
+    events = [c for c in model.meta.classes if c != model.meta.dormant_class]
+    cfg = config_from_dict({
+        "scene": {"pads": pads, "events": events, "mode": "continuous" if mode == "continuous" else "trigger"},
+        "trigger": {"baseline": mode == "baseline"},
+        "sinks": {"stdout": False},
+        "log_level": "warning",
+    })
+    problem = scene_problem(model, cfg, rec.layout)
+    if problem:
+        raise ValueError(f"model {model.model_id} cannot serve mode {mode!r}: {problem}")
+    out: list[Decision] = []
+    daemon = Daemon(cfg, on_event=lambda e: out.append(Decision(e.frame_last - first_number, e.cls, e.latency_us)))
+    daemon.layout = rec.layout
+    daemon._use_model(model)  # what the model watcher does when a model appears
+    stamps_ms = np.rint(rec.timestamps * 1000.0).astype(np.int64)
+    frames = rec.frames
+    clock = time.perf_counter
+    handle = daemon.handle_frame
+    for i in range(rec.n_frames):
+        handle(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
+    return out
+
+
+def truths_of(rec: Recording) -> list[Truth]:
+    """The scripted events of a session-like recording (absolute ``extra["onset"]``)."""
+    out = []
+    for tr in rec.trials:
+        onset = int(tr.extra["onset"])
+        out.append(Truth(onset, tr.last, tr.action))
+    return out
+
+
+def source_names(rec: Recording, n: int) -> np.ndarray:
+    """Per frame what is going on: an idle source, ``event`` inside a scripted event, or ``?``."""
+    codes = rec.meta.get("source_codes")
+    names = list(rec.meta.get("sources", ()))
+    if codes is None:
+        return np.full(n, "?", dtype=object)
+    table = np.asarray([*names, "event"], dtype=object)
+    return table[np.asarray(codes, dtype=np.int64)]  # -1 -> "event"
+
+
+def score(decisions: Sequence[Decision], truths: Sequence[Truth], n_frames: int, period_s: float,
+          sources: np.ndarray | None = None, early: int = EARLY_FRAMES) -> dict:
+    """Match reported events to the truth.
+
+    Each truth owns the frames ``[onset - early, end]``; its first decision there is the
+    detection (delay = decision frame - onset, wrong class when it differs), later ones are
+    duplicates. Decisions outside every owned span are false events; their rate is per hour of
+    the frames no truth owns. ``sources`` (per frame) attributes false events.
+    """
+    owner = np.full(n_frames, -1, dtype=np.int64)
+    for i, t in enumerate(truths):
+        owner[max(0, t.onset - early):min(n_frames, t.end + 1)] = i
+    first: dict[int, Decision] = {}
+    duplicates = 0
+    false: list[Decision] = []
+    for d in decisions:
+        i = int(owner[d.frame]) if 0 <= d.frame < n_frames else -1
+        if i < 0:
+            false.append(d)
+        elif i in first:
+            duplicates += 1
+        else:
+            first[i] = d
+    idle_frames = int(np.sum(owner < 0))
+    idle_h = idle_frames * period_s / 3600.0
+    delays = np.array([(first[i].frame - truths[i].onset) * period_s for i in sorted(first)])
+    wrong = sum(first[i].cls != truths[i].action for i in first)
+    per_action: dict[str, dict] = {}
+    for i, t in enumerate(truths):
+        a = per_action.setdefault(t.action, {"n": 0, "detected": 0, "correct": 0})
+        a["n"] += 1
+        a["detected"] += i in first
+        a["correct"] += i in first and first[i].cls == t.action
+    by_source: dict[str, int] = {}
+    if sources is not None:
+        for d in false:
+            name = str(sources[d.frame]) if 0 <= d.frame < n_frames else "?"
+            name = "pre_onset" if name == "event" else name
+            by_source[name] = by_source.get(name, 0) + 1
+    n = len(truths)
+    return {
+        "n_events": n,
+        "detected": len(first),
+        "missed": n - len(first),
+        "wrong_class": int(wrong),
+        "correct": len(first) - int(wrong),
+        "recall": len(first) / n if n else None,
+        "correct_rate": (len(first) - wrong) / n if n else None,
+        "duplicates": duplicates,
+        "delay_s": _stats(delays),
+        "per_action": per_action,
+        "false_events": len(false),
+        "idle_hours": idle_h,
+        "false_per_hour": len(false) / idle_h if idle_h > 0 else None,
+        "false_by_source": dict(sorted(by_source.items())),
+        "false_by_class": _count(d.cls for d in false),
+        "decisions": len(decisions),
+    }
+
+
+def _count(items) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for x in items:
+        out[x] = out.get(x, 0) + 1
+    return dict(sorted(out.items()))
+
+
+def _stats(x: np.ndarray) -> dict | None:
+    if len(x) == 0:
+        return None
+    p10, p50, p90 = np.percentile(x, [10, 50, 90])
+    return {"mean": float(x.mean()), "p10": float(p10), "median": float(p50), "p90": float(p90),
+            "min": float(x.min()), "max": float(x.max())}
+
+
+def merge_idle(scores: Sequence[dict]) -> dict:
+    """False events and idle hours summed over several idle parts."""
+    hours = sum(s["idle_hours"] for s in scores)
+    false = sum(s["false_events"] for s in scores)
+    by_source: dict[str, int] = {}
+    by_class: dict[str, int] = {}
+    for s in scores:
+        for k, v in s["false_by_source"].items():
+            by_source[k] = by_source.get(k, 0) + v
+        for k, v in s["false_by_class"].items():
+            by_class[k] = by_class.get(k, 0) + v
+    return {"idle_hours": hours, "false_events": false, "false_per_hour": false / hours if hours else None,
+            "false_by_source": dict(sorted(by_source.items())), "false_by_class": dict(sorted(by_class.items()))}
+
+
+def source_hours(recs: Sequence[Recording], period_s: float) -> dict[str, float]:
+    """Hours of each idle source over the streams (to read false events per source as rates)."""
+    out: dict[str, float] = {}
+    for rec in recs:
+        names = source_names(rec, rec.n_frames)
+        for name, n in zip(*np.unique(names.astype(str), return_counts=True), strict=True):
+            out[str(name)] = out.get(str(name), 0.0) + float(n) * period_s / 3600.0
+    return dict(sorted(out.items()))
+
+
+def latency_stats(decisions: Sequence[Decision]) -> dict | None:
+    """Median and p99 (us) from the last frame's arrival to the decision, over reported events."""
+    lat = np.array([d.latency_us for d in decisions if d.latency_us > 0])
+    if len(lat) == 0:
+        return None
+    p50, p99 = np.percentile(lat, [50, 99])
+    return {"n": len(lat), "median_us": float(p50), "p99_us": float(p99)}
