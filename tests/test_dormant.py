@@ -1,0 +1,258 @@
+"""Dormant class and continuous mode: idle streams, the 5-class data set and model, replay
+through the daemon's hot path, the stream metrics, and ``handover dormant``. Synthetic data."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+import pytest
+
+from firmware_io.layout import SensorLayout
+from firmware_io.recording import Recording
+from firmware_io.sim import constants as K
+from firmware_io.sim.idle import SOURCES, hold_motion, min_jerk, plan_hold, simulate_idle, simulate_mixed
+from firmware_io.simulate import ScriptedEvent, simulate_protocol
+from trainer import dormant
+from trainer import streams_eval as se
+
+LAYOUT = SensorLayout.sdh2()
+DISTAL = LAYOUT.columns("distal")
+
+
+@pytest.fixture(scope="module")
+def idle() -> Recording:
+    return simulate_idle(90.0, seed=4)
+
+
+@pytest.fixture(scope="module")
+def protocol() -> list[Recording]:
+    return simulate_protocol(seed=2, n_subjects=2, runs=1)
+
+
+@pytest.fixture(scope="module")
+def dds(protocol, idle) -> dormant.DormantDataset:
+    return dormant.build_dormant_dataset(protocol, [idle], T=15, pads="distal", seed=0, per_source=30)
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory, protocol, dds):
+    """A tiny 5-class and a tiny 4-class model, exported and loaded by the runtime's loader."""
+    from runtime.model import load_model
+    from trainer.classifier import BowSVC
+    from trainer.dataset import build_dataset
+
+    out = tmp_path_factory.mktemp("dormant-models")
+    common = {"pads": dds.pads, "pad_sizes": dds.pad_sizes, "fullscale": 4095.0, "fraction": 0.15,
+              "sample_rate_hz": 1 / K.FRAME_PERIOD_S}
+    five = BowSVC(C=10.0, gamma=10.0, random_state=0).fit(dds.X, dds.y)
+    p5 = dormant.export(five, out / "five.onnx", dormant_class=dormant.DORMANT, **common,
+                        training={"data_fingerprint": dds.fingerprint, "n_trials": 72})
+    ds = build_dataset(protocol, T=15, pads="distal")
+    four = BowSVC(C=10.0, gamma=10.0, random_state=0).fit(ds.X, ds.y)
+    p4 = dormant.export(four, out / "four.onnx", dormant_class=None, **common,
+                        training={"data_fingerprint": ds.fingerprint, "n_trials": ds.n_trials})
+    return {"five": load_model(p5), "four": load_model(p4)}
+
+
+# -- idle streams ----------------------------------------------------------------------------------
+def test_idle_stream_is_deterministic_and_parts_differ():
+    a = simulate_idle(30.0, seed=9)
+    b = simulate_idle(30.0, seed=9)
+    c = simulate_idle(30.0, seed=9, part=1)
+    np.testing.assert_array_equal(a.frames, b.frames)
+    np.testing.assert_array_equal(a.timestamps, b.timestamps)
+    assert a.meta["source_codes"] == b.meta["source_codes"]
+    assert a.frames.shape != c.frames.shape or not np.array_equal(a.frames, c.frames)
+
+
+def test_idle_stream_format_and_sources(idle):
+    assert idle.meta["synthetic"] is True
+    assert idle.n_frames * K.FRAME_PERIOD_S >= 90.0
+    assert idle.trials == []
+    code = np.asarray(idle.meta["source_codes"])
+    assert code.shape == (idle.n_frames,)
+    assert set(np.unique(code)) <= set(range(len(SOURCES)))
+    assert idle.frames.max() <= 4095 and not idle.frames[:, ~LAYOUT.static_mask()].any()
+    open_ = code == SOURCES.index("open")
+    quiet = code == SOURCES.index("quiet")
+    assert open_.any() and quiet.any()
+    assert not idle.frames[open_].any(), "an open hand reads exactly 0"
+    assert (idle.frames[quiet][:, DISTAL].max(axis=1) > 0).all(), "a held object presses the distal pads"
+    assert not idle.frames[:, LAYOUT.columns("proximal")].any(), "nobody pushes the object into the palm"
+
+
+def test_min_jerk_move_starts_and_ends_at_rest():
+    tau = np.linspace(-0.2, 1.2, 1401)
+    pos, acc = min_jerk(tau)
+    assert pos[0] == 0 and pos[-1] == 1 and np.all(np.diff(pos) >= 0)
+    assert math.isclose(acc.max(), 1.0, rel_tol=1e-3) and math.isclose(acc.min(), -1.0, rel_tol=1e-3)
+    assert abs(np.trapezoid(acc, tau)) < 1e-3, "the hand is at rest again after a move"
+
+
+def test_regrasp_dips_the_force_and_arm_moves_shift_load():
+    rng = np.random.default_rng(0)
+    plan = None
+    for _ in range(50):  # a hold with both a regrasp and an arm move
+        plan = plan_hold(rng, 90.0, obj="plank", pose="up")
+        if plan.regrasps and plan.moves:
+            break
+    assert plan is not None and plan.regrasps and plan.moves
+    t = (np.arange(plan.n_frames * K.SCANS_PER_FRAME) + 0.5) * K.FRAME_PERIOD_S / K.SCANS_PER_FRAME
+    m, gain = hold_motion(plan, t, np.random.default_rng(1))
+    r = plan.regrasps[0]
+    before = m.nd[:, np.searchsorted(t, r.start_s - 0.05)].sum()
+    bottom = m.nd[:, np.searchsorted(t, r.start_s + r.dip_s)].sum()
+    assert bottom < 0.8 * before
+    assert gain[np.searchsorted(t, r.start_s + r.dip_s + 0.01)] < gain[np.searchsorted(t, r.start_s - 0.01)], \
+        "creep starts over after a regrasp"
+    mv = plan.moves[0]
+    during = (t > mv.start_s) & (t < mv.start_s + mv.duration_s)
+    still = (t > plan.close_s + 0.5) & (t < mv.start_s)
+    if still.sum() > 10:
+        assert np.ptp(m.nd[:, during], axis=1).max() > np.ptp(m.nd[:, still], axis=1).max()
+
+
+def test_mixed_stream_fills_gaps_with_idle_holds():
+    events = [ScriptedEvent(3.0, "pull", "s1", "ball", "down"), ScriptedEvent(18.0, "bump", "s2", "plank", "up")]
+    rec = simulate_mixed(events, seed=5)
+    code = np.asarray(rec.meta["source_codes"])
+    assert len(rec.trials) == 2
+    for tr in rec.trials:
+        assert (code[tr.first:tr.last + 1] == -1).all()
+        assert tr.first <= tr.extra["onset"] <= tr.last
+    gap = slice(rec.trials[0].last + 1, rec.trials[1].first)
+    assert (code[gap] == SOURCES.index("quiet")).any(), "the gap between the events holds an untouched object"
+
+
+# -- the 5-class data set and model -------------------------------------------------------------------
+def test_action_window_positions():
+    starts = dormant.action_starts(onset=30, n_frames=95, T=15)
+    assert starts.min() == 30 - 15 + dormant.ACTION_VIEW_MIN and starts.max() == 30 + dormant.ACTION_LATE_MAX
+    assert len(dormant.action_starts(onset=90, n_frames=95, T=15)) == 0
+
+
+def test_dormant_dataset(dds, protocol):
+    assert dds.X.shape[1:] == (len(DISTAL), 15) and dds.X.dtype == np.float32
+    assert set(dds.y) == {"pull", "push", "hold", "bump", "dormant"}
+    s = dds.summary()
+    assert s["per_origin"]["pre_onset"] > 0 and s["per_origin"]["idle:quiet"] == 30
+    assert all(dds.y[dds.origin != "action"] == "dormant")
+    assert all(dds.groups[np.char.startswith(dds.origin, "idle")] == "idle")
+    # a pre-onset window is the grasp alone: it matches frames that end before the onset
+    tr = next(t for t in protocol[0].trials if t.extra["onset"] >= 16)
+    frames = protocol[0].frames[tr.first:tr.last + 1, DISTAL]
+    o = tr.extra["onset"]
+    assert any(np.array_equal(x, frames[o - 16:o - 1].T) for x in dds.X[dds.origin == "pre_onset"])
+
+
+def test_five_class_model_loads_with_its_dormant_class(models):
+    five, four = models["five"], models["four"]
+    assert five.meta.dormant_class == "dormant" and five.meta.n_classes == 5
+    assert four.meta.dormant_class is None and four.meta.n_classes == 4
+    labels, scores = five.run(np.zeros((2, 15, len(DISTAL)), np.float32))
+    assert scores.shape == (2, 5)
+    assert five.meta.classes[int(labels[0])] == "dormant", "an open hand (all zeros) is dormant"
+
+
+# -- replay through the daemon ----------------------------------------------------------------------
+def test_continuous_replay_reports_exactly_the_changes(models, idle):
+    five = models["five"]
+    rec = simulate_mixed([ScriptedEvent(3.0, "pull", "s1", "ball", "down"),
+                          ScriptedEvent(9.0, "hold", "s2", "cylinder", "horizontal")], seed=6)
+    rec = Recording(rec.layout, rec.frames[:400], rec.timestamps[:400], [], {})
+    decisions = se.replay(rec, five, "continuous")
+    x = rec.frames[:, DISTAL].astype(np.float32)
+    windows = np.lib.stride_tricks.sliding_window_view(x, 15, axis=0).transpose(0, 2, 1)
+    labels, _ = five.run(windows)
+    names = [five.meta.classes[int(k)] for k in labels]
+    expected, previous = [], None
+    for i, name in enumerate(names):
+        if name != "dormant" and name != previous:
+            expected.append((i + 14, name))
+        previous = name
+    assert [(d.frame, d.cls) for d in decisions] == expected
+    assert all(d.latency_us > 0 for d in decisions)
+
+
+def test_threshold_replay_fires_once_per_crossing(models):
+    four = models["four"]
+    frames = np.zeros((200, LAYOUT.n_taxels), np.uint16)
+    frames[50:80, DISTAL[:10]] = 700  # above 15 % of 4095 = 614
+    frames[120:125, DISTAL[:10]] = 700
+    rec = Recording(LAYOUT, frames, np.arange(200) * K.FRAME_PERIOD_S, [], {})
+    frames_of = [d.frame for d in se.replay(rec, four, "threshold")]
+    assert frames_of == [50 + 14, 120 + 14]
+    assert se.replay(rec, four, "baseline")[0].frame == 64
+    with pytest.raises(ValueError, match="dormant"):
+        se.replay(rec, four, "continuous")
+
+
+# -- metrics on a hand-made case -------------------------------------------------------------------
+def test_score_hand_made_case():
+    period = 0.03
+    truths = [se.Truth(100, 150, "pull"), se.Truth(300, 350, "bump"), se.Truth(600, 650, "hold")]
+    decisions = [se.Decision(105, "pull"), se.Decision(110, "hold"), se.Decision(200, "bump"),
+                 se.Decision(299, "hold"), se.Decision(900, "push"), se.Decision(96, "pull")]
+    sources = np.full(1000, "quiet", dtype=object)
+    sources[900] = "arm_move"
+    r = se.score(sorted(decisions, key=lambda d: d.frame), truths, 1000, period, sources)
+    # frame 96 is before 100 - 2: a false event; 105 detects the pull; 110 duplicates it;
+    # 200 false; 299 (within 2 frames early) detects the bump with the wrong class; the hold is missed
+    assert (r["detected"], r["missed"], r["wrong_class"], r["correct"], r["duplicates"]) == (2, 1, 1, 1, 1)
+    assert r["false_events"] == 3
+    owned = 3 * 53
+    assert math.isclose(r["idle_hours"], (1000 - owned) * period / 3600)
+    assert math.isclose(r["false_per_hour"], 3 / r["idle_hours"])
+    assert r["false_by_source"] == {"arm_move": 1, "quiet": 2}
+    assert math.isclose(r["delay_s"]["min"], -period) and math.isclose(r["delay_s"]["max"], 5 * period)
+    assert r["per_action"]["hold"] == {"n": 1, "detected": 0, "correct": 0}
+    merged = se.merge_idle([r, r])
+    assert merged["false_events"] == 6 and math.isclose(merged["false_per_hour"], r["false_per_hour"])
+
+
+def test_score_without_events_counts_every_decision_false():
+    r = se.score([se.Decision(10, "bump")], [], 3600, 1.0)
+    assert r["false_events"] == 1 and math.isclose(r["false_per_hour"], 1.0) and r["recall"] is None
+
+
+# -- CLI -------------------------------------------------------------------------------------------------
+def _args(*argv: str) -> argparse.Namespace:
+    from trainer import dormant_cli
+
+    parser = argparse.ArgumentParser()
+    dormant_cli.add_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--eval-seed", "0"], "--eval-seed must differ"),
+    (["--pads", "nonsense"], "--pads"),
+    (["--W", "20"], "T >= W + 1"),
+    (["--events", "0"], "must be positive"),
+])
+def test_cli_refuses_bad_options_in_one_line(argv, message, capsys, tmp_path):
+    from trainer import dormant_cli
+
+    assert dormant_cli.main(_args("--out", str(tmp_path), *argv)) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("handover dormant: ") and message in err and "\n" not in err
+
+
+@pytest.mark.slow
+def test_cli_quick_run_writes_results(tmp_path, capsys):
+    import json
+
+    from trainer import dormant_cli
+
+    code = dormant_cli.main(_args("--quick", "--json", "--quiet", "--out", str(tmp_path), "--idle-hours", "0.05",
+                                  "--events", "6", "--train-idle-min", "2"))
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["synthetic"] is True and set(summary["modes"]) == set(se.MODES)
+    for name in ("dormant.json", "dormant.md", "dormant_timeline.png", "dormant_tradeoff.png", "dormant_sources.png",
+                 "dormant-model/dormant.onnx", "dormant-model/paper.onnx"):
+        assert (tmp_path / name).is_file(), name
+    text = (tmp_path / "dormant.md").read_text()
+    assert "synthetic" in text and "handover dormant" in text
