@@ -27,6 +27,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--C", type=float, default=None, help="SVM C (default: cross-validated search)")
     parser.add_argument("--gamma", type=float, default=None, help="RBF gamma (default: cross-validated search)")
     parser.add_argument("--per-pad", action="store_true", help="one histogram per pad instead of one per case")
+    parser.add_argument("--windows", help="several window lengths at once, e.g. 5,7,9 (one codebook each; "
+                        "replaces --W)")
+    parser.add_argument("--assignment", choices=("hard", "soft"), default="hard",
+                        help="codeword assignment (paper: hard nearest word)")
+    parser.add_argument("--temperature", type=float, default=1.0,
+                        help="soft assignment temperature, in units of the k-means spread")
+    parser.add_argument("--level-features", action="store_true",
+                        help="add per-pad mean level and slope (keeps static pressure)")
+    parser.add_argument("--scale-features", action="store_true", help="standardise the features before the SVM")
     parser.add_argument("--fraction", type=float, default=0.15, help="trigger level as a fraction of full scale")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulation, k-means and the splits")
     parser.add_argument("--repeats", type=int, default=5, help="seeds of configuration 1 (80/20 splits)")
@@ -49,10 +58,35 @@ def command_line(args: argparse.Namespace) -> str:
     for flag, value in (("--C", args.C), ("--gamma", args.gamma), ("--sweep", args.sweep_file)):
         if value is not None:
             parts += [flag, str(value)]
-    for flag, on in (("--per-pad", args.per_pad), ("--no-sweep", args.no_sweep), ("--no-onnx", args.no_onnx)):
+    if args.windows:
+        parts += ["--windows", args.windows]
+    if args.assignment != "hard":
+        parts += ["--assignment", args.assignment, "--temperature", str(args.temperature)]
+    for flag, on in (("--per-pad", args.per_pad), ("--level-features", args.level_features),
+                     ("--scale-features", args.scale_features), ("--no-sweep", args.no_sweep),
+                     ("--no-onnx", args.no_onnx)):
         if on:
             parts.append(flag)
     return " ".join(parts)
+
+
+def parse_windows(text: str) -> int | tuple[int, ...]:
+    """``"5,7,9"`` -> (5, 7, 9); one length -> int (the paper's single codebook)."""
+    try:
+        lengths = tuple(int(p) for p in text.split(",") if p.strip())
+    except ValueError:
+        raise ValueError(f"--windows {text!r}: give window lengths separated by commas, e.g. 5,7,9") from None
+    if not lengths or min(lengths) < 1 or len(set(lengths)) != len(lengths):
+        raise ValueError(f"--windows {text!r}: lengths must be distinct integers >= 1")
+    return lengths[0] if len(lengths) == 1 else lengths
+
+
+def estimator_options(args) -> dict:
+    """The BowSVC keyword arguments of the options beyond the paper (paper's values by default)."""
+    return {"window": parse_windows(args.windows) if getattr(args, "windows", None) else args.W,
+            "assignment": getattr(args, "assignment", "hard"), "temperature": getattr(args, "temperature", 1.0),
+            "level_features": getattr(args, "level_features", False),
+            "scale_features": getattr(args, "scale_features", False)}
 
 
 def _fail(message: str) -> int:
@@ -71,6 +105,15 @@ def main(args: argparse.Namespace) -> int:
         return _fail(f"W={args.W} needs T >= {args.W + 1} (got T={args.T})")
     if args.repeats < 2:
         return _fail("--repeats must be at least 2 (mean +/- std)")
+    try:
+        window_arg = parse_windows(args.windows) if args.windows else args.W
+    except ValueError as exc:
+        return _fail(str(exc))
+    longest = max(window_arg) if isinstance(window_arg, tuple) else window_arg
+    if longest > args.T - 1:
+        return _fail(f"--windows {args.windows} needs T >= {longest + 1} (got T={args.T})")
+    if not args.temperature > 0:
+        return _fail(f"--temperature must be positive (got {args.temperature})")
     try:
         return run(args)
     except (RecordingError, DatasetError, LayoutError, OSError) as exc:
@@ -138,8 +181,9 @@ def run(args) -> int:
     if len(set(ds.y.tolist())) < 2 or len(ds.y) < 10:
         raise ValueError(f"only {len(ds.y)} triggered cases of {len(set(ds.y.tolist()))} classes: too few to train")
 
-    bow = BowSVC(n_words=args.K, window=args.W, kernel=args.kernel, C=args.C, gamma=args.gamma,
-                 per_pad=args.per_pad, pad_sizes=ds.pad_sizes if args.per_pad else None, random_state=args.seed)
+    bow = BowSVC(n_words=args.K, kernel=args.kernel, C=args.C, gamma=args.gamma, per_pad=args.per_pad,
+                 pad_sizes=ds.pad_sizes if (args.per_pad or args.level_features) else None, random_state=args.seed,
+                 **estimator_options(args))
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     base = BaselineSVC(pad_shapes=shapes, kernel="rbf")
     seeds = list(range(args.seed, args.seed + args.repeats))
