@@ -1,0 +1,85 @@
+"""``handover compare``: the paper's BoW + SVM against richer options and reference classifiers,
+side by side on the simulated protocol (synthetic) and the real recordings; writes
+``results/compare.{json,md,png}`` with the machine and the reproducing command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+from pathlib import Path
+
+COMMAND = "compare"
+
+
+def default_data_dir() -> Path:
+    """``$HANDOVER_SHARED_DATA`` or ``../shared/data`` beside the project."""
+    env = os.environ.get("HANDOVER_SHARED_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="2 simulated subjects, fewer models and repeats (a smoke run)")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    parser.add_argument("--out", default="results", help="folder for compare.json/.md/.png (default results/)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--n-jobs", type=int, default=2, help="parallel folds (at most 2)")
+    parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default $HANDOVER_SHARED_DATA or "
+                        "../shared/data)")
+    parser.add_argument("--no-real", action="store_true", help="simulated protocol only")
+    parser.add_argument("--no-minirocket", action="store_true", help="leave out aeon's MiniRocket")
+    parser.add_argument("--quiet", action="store_true")
+
+
+def command_line(args: argparse.Namespace) -> str:
+    parts = ["handover", "compare"]
+    for flag, on in (("--quick", args.quick), ("--no-real", args.no_real), ("--no-minirocket", args.no_minirocket)):
+        if on:
+            parts.append(flag)
+    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs), "--out", str(args.out)]
+    if args.data:
+        parts += ["--data", str(args.data)]
+    return shlex.join(parts)
+
+
+def _fail(message: str) -> int:
+    print(f"handover {COMMAND}: {message}", file=sys.stderr)
+    return 2
+
+
+def main(args: argparse.Namespace) -> int:
+    if not 1 <= args.n_jobs <= 2:
+        return _fail(f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
+    minirocket = not args.no_minirocket
+    if minirocket:
+        import importlib.util
+
+        if importlib.util.find_spec("aeon") is None:
+            return _fail("MiniRocket needs the Python package 'aeon' (pip install 'tactile-handover[bench]'), "
+                         "or pass --no-minirocket")
+    from trainer import compare
+    from trainer.bench.common import write_results
+
+    def say(text: str) -> None:
+        if not args.quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    data_dir = None if args.no_real else Path(args.data) if args.data else default_data_dir()
+    if args.data and not Path(args.data).is_dir():
+        return _fail(f"--data {args.data}: no such folder")
+    try:
+        res = compare.run(args.quick, args.seed, args.n_jobs, data_dir, minirocket, say)
+    except (OSError, ValueError) as exc:
+        return _fail(f"{type(exc).__name__}: {exc}")
+    res["command"] = command_line(args)
+    res["load_after"] = [round(v, 2) for v in os.getloadavg()]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    compare.plot(res, out / "compare.png")
+    path = write_results(out, "compare", res, compare.markdown(res))
+    say(f"written {path}, {out / 'compare.md'}, {out / 'compare.png'}")
+    if args.json:
+        print(json.dumps(res, default=str))
+    return 0
