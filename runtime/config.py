@@ -62,6 +62,20 @@ class TriggerConfig:
 
 
 @dataclass(frozen=True)
+class ContinuousConfig:
+    """The report rule of ``scene.mode = "continuous"`` (runtime/decision.py); chosen on a
+    synthetic validation stream, see docs/DORMANT.md."""
+
+    confirm_frames: int = 3
+    """A non-dormant class is reported once it has won this many frames in a row."""
+    min_margin: float = 0.0
+    """... each with at least this score margin over the runner-up (0 = any win counts)."""
+    rearm_frames: int = 8
+    """After a report, the next one needs dormant to have won this many frames in a row
+    (one report per interaction); 0 = report every change of the confirmed class."""
+
+
+@dataclass(frozen=True)
 class SinksConfig:
     stdout: bool = True
     udp: tuple[str, ...] = ()
@@ -82,6 +96,7 @@ class Config:
     scene: SceneConfig = field(default_factory=SceneConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     trigger: TriggerConfig = field(default_factory=TriggerConfig)
+    continuous: ContinuousConfig = field(default_factory=ContinuousConfig)
     sinks: SinksConfig = field(default_factory=SinksConfig)
     onnxruntime: OnnxConfig = field(default_factory=OnnxConfig)
     log_level: str = "info"
@@ -114,7 +129,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
-    sections = {"device", "scene", "model", "trigger", "sinks", "onnxruntime"}
+    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
     for name in sections:
@@ -176,6 +191,14 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if fraction is not None and trigger.hysteresis >= fraction:
         raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")
 
+    co = data.get("continuous", {})
+    _no_unknown("continuous", co, {f.name for f in fields(ContinuousConfig)})
+    continuous = ContinuousConfig(
+        confirm_frames=_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames, lo=1, hi=1000),
+        min_margin=_num("continuous.min_margin", co, ContinuousConfig.min_margin, lo=0.0, hi=1000.0),
+        rearm_frames=_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames, lo=0, hi=100000),
+    )
+
     si = data.get("sinks", {})
     _no_unknown("sinks", si, {f.name for f in fields(SinksConfig)})
     udp = _str_list("sinks.udp", si, ())
@@ -200,7 +223,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     health = data.get("health_file")
     if health is not None and (not isinstance(health, str) or not health.strip()):
         raise ConfigError(f"health_file: must be a path, got {health!r}")
-    return Config(device, scene, model, trigger, sinks, onnx_cfg, log_level, health)
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, log_level, health)
 
 
 def parse_host_port(target: str, key: str = "sinks.udp") -> tuple[str, int]:

@@ -27,6 +27,7 @@ import numpy as np
 
 from firmware_io.layout import LayoutError, SensorLayout
 from runtime.config import Config, ConfigError, load_config
+from runtime.decision import ContinuousDecision
 from runtime.health import Health, write_status_file
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.ring import RingBuffer
@@ -87,11 +88,12 @@ class Daemon:
         self.connected = False
         self.ring: RingBuffer | None = None
         self.trigger: ThresholdTrigger | ContinuousTrigger | None = None
+        self.decision: ContinuousDecision | None = None
+        """Continuous mode's report rule (confirm, margin, one report per interaction)."""
         self.watcher: ModelWatcher | None = None
         self._stop = False
         self._reload = False
         self._pending: list[int] = []
-        self._last_class: str | None = None
         self._backoff = cfg.device.reconnect_min_s
         self._next_connect = 0.0
         self._last_frame_t = 0.0
@@ -114,6 +116,20 @@ class Daemon:
         signal.signal(signal.SIGHUP, self.request_reload)
 
     # -- models ---------------------------------------------------------------------------------
+    def serve(self, model: Any, layout: SensorLayout) -> None:
+        """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame``.
+
+        For replays, benchmarks and embedding: no device, no model watcher. Raises ValueError
+        when the model cannot serve the configured scene (the watcher's check, one line).
+        """
+        problem = scene_problem(model, self.cfg, layout)
+        if problem:
+            raise ValueError(f"model {model.model_id}: {problem}")
+        if layout != self.layout:
+            self.layout = layout
+            self.ring = None
+        self._use_model(model)
+
     def _load(self, path: Path) -> Any:
         from runtime.model import load_model
 
@@ -174,8 +190,14 @@ class Daemon:
             self.ring = self.ring.resized(capacity)
         rate = 1.0 / self.period_s
         old = self.trigger
+        self.decision = None
         if self.cfg.scene.mode == "continuous":
             self.trigger = ContinuousTrigger(T)
+            if meta is not None and meta.dormant_class in meta.classes:
+                cc = self.cfg.continuous
+                self.decision = ContinuousDecision(
+                    len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
+                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
         else:
             fraction = tcfg.fraction if tcfg.fraction is not None else float(meta.trigger["fraction"]) if meta else 0.15
             fullscale = float(meta.fullscale) if meta else self.layout.fullscale
@@ -220,6 +242,8 @@ class Daemon:
         else:  # the stream is not continuous across a reconnect: forget the history
             self.ring.reset()
             self.trigger.reset()
+            if self.decision is not None:
+                self.decision.reset()
             self._pending.clear()
         self._last_ts = None
         self._last_frame_t = time.monotonic()
@@ -296,12 +320,14 @@ class Daemon:
         missed = latency_us > self.period_s * 1e6
         if missed:
             h.missed_deadlines += 1
-        cls = meta.classes[int(labels[0])]
-        previous, self._last_class = self._last_class, cls
+        index = int(labels[0])
+        if self.decision is not None:  # continuous mode: one report per confirmed interaction
+            index = self.decision.update(index, scores[0])
+            if index < 0:
+                return
+        cls = meta.classes[index]
         if cls not in self.cfg.scene.events:
             return
-        if isinstance(self.trigger, ContinuousTrigger) and cls == previous:
-            return  # continuous mode reports when the decision changes, not every frame
         event = Event(
             time=time.time(),
             cls=cls,

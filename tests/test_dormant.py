@@ -157,13 +157,18 @@ def test_five_class_model_loads_with_its_dormant_class(models):
 
 
 # -- replay through the daemon ----------------------------------------------------------------------
-def test_continuous_replay_reports_exactly_the_changes(models, idle):
-    five = models["five"]
+@pytest.fixture(scope="module")
+def short_mixed() -> Recording:
     rec = simulate_mixed([ScriptedEvent(3.0, "pull", "s1", "ball", "down"),
                           ScriptedEvent(9.0, "hold", "s2", "cylinder", "horizontal")], seed=6)
-    rec = Recording(rec.layout, rec.frames[:400], rec.timestamps[:400], [], {})
-    decisions = se.replay(rec, five, "continuous")
-    x = rec.frames[:, DISTAL].astype(np.float32)
+    return Recording(rec.layout, rec.frames[:400], rec.timestamps[:400], [], {})
+
+
+def test_continuous_replay_with_the_plain_rule_reports_exactly_the_changes(models, short_mixed):
+    five = models["five"]
+    plain = {"confirm_frames": 1, "min_margin": 0.0, "rearm_frames": 0}
+    decisions = se.replay(short_mixed, five, "continuous", rule=plain)
+    x = short_mixed.frames[:, DISTAL].astype(np.float32)
     windows = np.lib.stride_tricks.sliding_window_view(x, 15, axis=0).transpose(0, 2, 1)
     labels, _ = five.run(windows)
     names = [five.meta.classes[int(k)] for k in labels]
@@ -174,6 +179,32 @@ def test_continuous_replay_reports_exactly_the_changes(models, idle):
         previous = name
     assert [(d.frame, d.cls) for d in decisions] == expected
     assert all(d.latency_us > 0 for d in decisions)
+
+
+@pytest.mark.parametrize("rule", [
+    {"confirm_frames": 3, "min_margin": 0.0, "rearm_frames": 6},
+    {"confirm_frames": 2, "min_margin": 0.5, "rearm_frames": 0},
+    {},  # the config defaults
+])
+def test_continuous_replay_matches_the_offline_rule(models, short_mixed, rule):
+    five = models["five"]
+    labels, scores = se.frame_decisions(short_mixed, five, batch=97)  # batches need not divide the stream
+    assert labels.shape == (short_mixed.n_frames - 14,) and scores.shape == (len(labels), 5)
+    offline = se.apply_rule(labels, scores, five.meta, rule)
+    online = se.replay(short_mixed, five, "continuous", rule=rule)
+    assert [(d.frame, d.cls) for d in online] == [(d.frame, d.cls) for d in offline]
+
+
+def test_daemon_serve_refuses_a_model_that_does_not_fit(models):
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+
+    cfg = config_from_dict({"scene": {"pads": "distal", "mode": "continuous"}, "sinks": {"stdout": False}})
+    with pytest.raises(ValueError, match="dormant class"):
+        Daemon(cfg).serve(models["four"], LAYOUT)
+    daemon = Daemon(cfg)
+    daemon.serve(models["five"], LAYOUT)
+    assert daemon.decision is not None and daemon.decision.confirm_frames == cfg.continuous.confirm_frames
 
 
 def test_threshold_replay_fires_once_per_crossing(models):

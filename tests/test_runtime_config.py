@@ -49,6 +49,14 @@ def test_default_deploy_config_is_valid():
         ({"model": "here"}, "model"),
         ({"log_level": "loud"}, "log_level"),
         ({"frobnicate": 1}, "frobnicate"),
+        ({"continuous": {"confirm_frames": 0}}, "continuous.confirm_frames"),
+        ({"continuous": {"confirm_frames": 2.5}}, "continuous.confirm_frames"),
+        ({"continuous": {"min_margin": -0.1}}, "continuous.min_margin"),
+        ({"continuous": {"min_margin": "wide"}}, "continuous.min_margin"),
+        ({"continuous": {"rearm_frames": -1}}, "continuous.rearm_frames"),
+        ({"continuous": {"rearm_frames": True}}, "continuous.rearm_frames"),
+        ({"continuous": {"confirm": 3}}, "continuous.confirm"),
+        ({"continuous": 3}, "continuous"),
     ],
 )
 def test_each_error_names_its_key(data, key):
@@ -106,3 +114,10 @@ def test_check_never_imports_training_packages(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code, str(cfg)], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert "HEAVY []" in proc.stdout, proc.stdout + proc.stderr
     assert "would serve model" in proc.stdout and proc.returncode == 0
+
+
+def test_continuous_rule_keys():
+    cfg = config_from_dict({"continuous": {"confirm_frames": 4, "min_margin": 0.5, "rearm_frames": 0}})
+    assert (cfg.continuous.confirm_frames, cfg.continuous.min_margin, cfg.continuous.rearm_frames) == (4, 0.5, 0)
+    deployed = load_config(ROOT / "deploy" / "handover.toml").continuous
+    assert deployed == config_from_dict({}).continuous, "deploy/handover.toml shows the defaults"

@@ -45,8 +45,12 @@ class Truth:
     action: str
 
 
-def replay(rec: Recording, model, mode: str, first_number: int = 0) -> list[Decision]:
-    """Feed every frame of ``rec`` to a fresh daemon in ``mode``; the events it reports."""
+def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None) -> list[Decision]:
+    """Feed every frame of ``rec`` to a fresh daemon in ``mode``; the events it reports.
+
+    ``rule``: the ``[continuous]`` config table (confirm_frames, min_margin, rearm_frames) for
+    continuous mode; None takes the config defaults.
+    """
     from firmware_io.client import Frame
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon, scene_problem
@@ -58,6 +62,7 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0) -> list[Deci
     cfg = config_from_dict({
         "scene": {"pads": pads, "events": events, "mode": "continuous" if mode == "continuous" else "trigger"},
         "trigger": {"baseline": mode == "baseline"},
+        "continuous": dict(rule or {}),
         "sinks": {"stdout": False},
         "log_level": "warning",
     })
@@ -66,14 +71,53 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0) -> list[Deci
         raise ValueError(f"model {model.model_id} cannot serve mode {mode!r}: {problem}")
     out: list[Decision] = []
     daemon = Daemon(cfg, on_event=lambda e: out.append(Decision(e.frame_last - first_number, e.cls, e.latency_us)))
-    daemon.layout = rec.layout
-    daemon._use_model(model)  # what the model watcher does when a model appears
+    daemon.serve(model, rec.layout)
     stamps_ms = np.rint(rec.timestamps * 1000.0).astype(np.int64)
     frames = rec.frames
     clock = time.perf_counter
     handle = daemon.handle_frame
     for i in range(rec.n_frames):
         handle(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
+    return out
+
+
+def frame_decisions(rec: Recording, model, batch: int = 2048) -> tuple[np.ndarray, np.ndarray]:
+    """Offline: the model's label and scores for the window ending at every frame (T - 1 onwards).
+
+    Row ``i`` belongs to the window ending at frame ``i + T - 1``. Used to choose the report
+    rule's parameters cheaply; the daemon's replay must agree with it (tested).
+    """
+    T = int(model.meta.T)
+    cols = rec.layout.columns(list(model.meta.pads))
+    n = rec.n_frames - T + 1
+    labels = np.empty(max(n, 0), dtype=np.int64)
+    scores = np.empty((max(n, 0), len(model.meta.classes)), dtype=np.float32)
+    for a in range(0, max(n, 0), batch):
+        b = min(n, a + batch)
+        x = rec.frames[a:b + T - 1, cols].astype(np.float32)
+        windows = np.lib.stride_tricks.sliding_window_view(x, T, axis=0).transpose(0, 2, 1)
+        lab, sc = model.run(np.ascontiguousarray(windows))
+        labels[a:b], scores[a:b] = lab, sc
+    return labels, scores
+
+
+def apply_rule(labels: np.ndarray, scores: np.ndarray, model_meta, rule: dict | None = None,
+               first_frame: int | None = None) -> list[Decision]:
+    """Offline: the continuous report rule (runtime.decision, the daemon's own) on per-frame decisions."""
+    from runtime.config import config_from_dict
+    from runtime.decision import ContinuousDecision
+
+    cc = config_from_dict({"continuous": dict(rule or {})}).continuous
+    classes = list(model_meta.classes)
+    events = {i for i, c in enumerate(classes) if c != model_meta.dormant_class}
+    dec = ContinuousDecision(len(classes), classes.index(model_meta.dormant_class), cc.confirm_frames,
+                             cc.min_margin, cc.rearm_frames)
+    start = int(model_meta.T) - 1 if first_frame is None else first_frame
+    out = []
+    for i in range(len(labels)):
+        k = dec.update(int(labels[i]), scores[i])
+        if k >= 0 and k in events:
+            out.append(Decision(start + i, classes[k]))
     return out
 
 

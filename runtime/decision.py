@@ -1,0 +1,86 @@
+"""When continuous mode reports: from one decision per frame to one report per interaction.
+
+A model with a dormant class decides every frame. Reporting every change of that decision
+makes a poor event stream: the first windows of an action show only part of it (often read
+as another class), the decision flickers while the action goes on, and a report would fire
+again on every flicker. The rule here, per frame and in O(n_classes) scalar work:
+
+- a non-dormant class is *confirmed* when it has won ``confirm_frames`` frames in a row, each
+  with a score margin over the runner-up of at least ``min_margin`` (a frame below the margin,
+  another class or dormant breaks the run);
+- a confirmed class is reported only while the rule is *armed*; a report disarms it, and it
+  re-arms once dormant has won ``rearm_frames`` frames in a row (the interaction is over);
+- ``rearm_frames = 0`` never disarms: every change of the confirmed class is reported (with
+  ``confirm_frames = 1`` and ``min_margin = 0`` this is the plain report-on-change rule).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class ContinuousDecision:
+    """Per-frame labels and scores in, the class index to report (or -1) out."""
+
+    def __init__(self, n_classes: int, dormant: int, confirm_frames: int = 1, min_margin: float = 0.0,
+                 rearm_frames: int = 0) -> None:
+        if not 0 <= dormant < n_classes:
+            raise ValueError(f"dormant class index {dormant} is not one of {n_classes} classes")
+        if confirm_frames < 1:
+            raise ValueError("confirm_frames must be >= 1")
+        if min_margin < 0:
+            raise ValueError("min_margin must be >= 0")
+        if rearm_frames < 0:
+            raise ValueError("rearm_frames must be >= 0")
+        self.n_classes = int(n_classes)
+        self.dormant = int(dormant)
+        self.confirm_frames = int(confirm_frames)
+        self.min_margin = float(min_margin)
+        self.rearm_frames = int(rearm_frames)
+        self.reset()
+
+    def reset(self) -> None:
+        """Armed, no history (after a reconnect or a model change)."""
+        self.candidate = -1
+        self.run = 0
+        self.dormant_run = 0
+        self.armed = True
+        self.last_reported = -1
+        self.margin = 0.0
+
+    def update(self, label: int, scores: np.ndarray | None = None) -> int:
+        """One frame's decision (``scores``: that frame's score per class); the class to report, or -1."""
+        if label == self.dormant:
+            self.candidate, self.run = -1, 0
+            self.dormant_run += 1
+            if self.dormant_run >= self.rearm_frames:
+                self.armed = True
+                self.last_reported = -1
+            return -1
+        self.dormant_run = 0
+        if self.min_margin > 0.0:
+            self.margin = margin_of(scores, label)
+            if self.margin < self.min_margin:
+                self.candidate, self.run = -1, 0
+                return -1
+        if label == self.candidate:
+            self.run += 1
+        else:
+            self.candidate, self.run = label, 1
+        if self.run != self.confirm_frames or not self.armed or label == self.last_reported:
+            return -1
+        self.last_reported = label
+        if self.rearm_frames > 0:
+            self.armed = False
+        return label
+
+
+def margin_of(scores: np.ndarray | None, label: int) -> float:
+    """Score of ``label`` minus the best other score (no allocation: the row is restored in place)."""
+    if scores is None:
+        raise ValueError("min_margin > 0 needs the scores of each frame")
+    top = float(scores[label])
+    scores[label] = -np.inf
+    second = float(scores.max())
+    scores[label] = top
+    return top - second

@@ -1,0 +1,89 @@
+"""Continuous mode's report rule (runtime/decision.py) on hand-made label and score sequences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from runtime.decision import ContinuousDecision, margin_of
+
+D, PULL, PUSH, HOLD, BUMP = 0, 1, 2, 3, 4  # class indices; 0 is dormant here
+
+
+def _scores(label: int, margin: float) -> np.ndarray:
+    row = np.zeros(5, np.float32)
+    row[label] = 4.0
+    row[(label + 1) % 5] = 4.0 - margin
+    return row
+
+
+def _reports(rule: ContinuousDecision, labels, margins=None) -> list[tuple[int, int]]:
+    out = []
+    for i, k in enumerate(labels):
+        scores = _scores(k, 1.0 if margins is None else margins[i])
+        r = rule.update(k, scores)
+        if r >= 0:
+            out.append((i, r))
+    return out
+
+
+def test_plain_rule_reports_every_change_to_a_non_dormant_class():
+    rule = ContinuousDecision(5, D)  # confirm 1, no margin, rearm 0
+    labels = [D, PULL, PULL, PUSH, PULL, D, PULL, BUMP]
+    assert _reports(rule, labels) == [(1, PULL), (3, PUSH), (4, PULL), (6, PULL), (7, BUMP)]
+
+
+def test_confirm_needs_n_consecutive_wins():
+    rule = ContinuousDecision(5, D, confirm_frames=3)
+    labels = [PULL, PULL, BUMP, PULL, PULL, PULL, PULL, D, HOLD, HOLD, HOLD]
+    assert _reports(rule, labels) == [(5, PULL), (10, HOLD)]
+
+
+def test_dormant_breaks_a_run():
+    rule = ContinuousDecision(5, D, confirm_frames=2)
+    assert _reports(rule, [PUSH, D, PUSH, D, PUSH, PUSH]) == [(5, PUSH)]
+
+
+def test_margin_below_the_minimum_breaks_the_run():
+    rule = ContinuousDecision(5, D, confirm_frames=2, min_margin=0.5)
+    labels = [PULL, PULL, D, BUMP, BUMP, BUMP]
+    margins = [0.6, 0.4, 1.0, 0.7, 0.2, 0.9]
+    assert _reports(rule, labels, margins) == []
+    assert _reports(ContinuousDecision(5, D, 2, 0.5), [BUMP, BUMP], [0.5, 0.8]) == [(1, BUMP)]
+
+
+def test_one_report_per_interaction_and_rearm_after_m_dormant_frames():
+    rule = ContinuousDecision(5, D, confirm_frames=2, rearm_frames=3)
+    labels = [PULL, PULL,  # reported
+              BUMP, BUMP, PULL, PULL,  # same interaction: flicker, not reported
+              D, D, PUSH, PUSH,  # two dormant frames are not enough to re-arm
+              D, D, D,  # re-armed
+              PULL, PULL]  # a new interaction
+    assert _reports(rule, labels) == [(1, PULL), (14, PULL)]
+
+
+def test_reset_rearms_and_forgets_the_run():
+    rule = ContinuousDecision(5, D, confirm_frames=2, rearm_frames=50)
+    assert _reports(rule, [HOLD, HOLD]) == [(1, HOLD)]
+    assert rule.update(PUSH, _scores(PUSH, 1)) == -1 and not rule.armed
+    rule.reset()
+    assert rule.armed and rule.update(PUSH, _scores(PUSH, 1)) == -1
+    assert rule.update(PUSH, _scores(PUSH, 1)) == PUSH
+
+
+def test_margin_is_winner_minus_runner_up_and_leaves_the_scores_alone():
+    row = np.array([0.2, 3.3, 1.1, 2.9, -0.5], np.float32)
+    before = row.copy()
+    assert margin_of(row, 1) == pytest.approx(0.4, abs=1e-6)
+    assert margin_of(row, 3) == pytest.approx(-0.4, abs=1e-6)
+    np.testing.assert_array_equal(row, before)
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"dormant": 5}, "dormant"), ({"confirm_frames": 0}, "confirm_frames"),
+    ({"min_margin": -1.0}, "min_margin"), ({"rearm_frames": -1}, "rearm_frames"),
+])
+def test_bad_parameters_are_refused(kwargs, message):
+    args = {"n_classes": 5, "dormant": D, **kwargs}
+    with pytest.raises(ValueError, match=message):
+        ContinuousDecision(**args)
