@@ -9,8 +9,12 @@ will present them:
   the action;
 - *dormant* windows from the protocol's frames before the onset (the grasp baseline of every
   subject, object and pose) and from idle streams of the simulated hand (noise, creep, drift,
-  the arm's motion, regrasps, the hand closing and opening, the open hand), stratified by what
-  is going on so rare disturbances are represented.
+  the arm's motion, regrasps, the hand closing and opening, the open hand), stratified by the
+  rarest thing *in view* so transitions are represented however the window is placed over them;
+- *dormant* windows of handover sessions (the scripted-session renderer, training seed): the
+  hand closing on the object before the person acts (``place``) and the hand opening when the
+  object is taken away after the action (``take_away``). Neither is one of the four
+  interactions; a continuously classifying model sees every window over them.
 
 Models are the unchanged BowSVC and the unchanged ONNX exporter; the 5-class model's metadata
 names ``dormant_class`` so the daemon accepts it for ``scene.mode = "continuous"``.
@@ -35,6 +39,13 @@ ACTION_LATE_MAX = 4
 """... and starts at most this many frames after the onset."""
 WINDOWS_PER_TRIAL = 3
 IDLE_WINDOWS_PER_SOURCE = 250
+IDLE_FOLDS = 5
+"""Idle-stream windows get a group per contiguous fifth of each stream (for leave-one-out folds)."""
+TRANSITION_VISIBLE = 3
+"""A place / take-away window ends at least this many frames into the hand's 0.3 s close /
+open ramp (smoothstep: about a quarter of the way), so the transition is in view."""
+TRANSITION_PRIORITY = ("release", "grasp", "regrasp", "arm_move")
+"""The idle sources a window is attributed to when any of its frames shows them (rarest first)."""
 
 
 @dataclass
@@ -44,7 +55,7 @@ class DormantDataset:
     X: np.ndarray
     y: np.ndarray
     groups: np.ndarray
-    """Subject for protocol windows, ``idle`` for idle-stream windows."""
+    """Subject for protocol and session windows, ``idle0`` .. ``idle4`` for idle-stream windows."""
     origin: np.ndarray
     """``action``, ``pre_onset`` or ``idle:<source>``."""
     pads: tuple[int, ...]
@@ -104,30 +115,88 @@ def protocol_windows(recordings: Sequence[Recording], cols: np.ndarray, T: int, 
     return X, y, groups, origin
 
 
+def in_view(code: np.ndarray, names: Sequence[str], T: int) -> list[str | None]:
+    """Per window end frame: the rarest transition any frame of the window shows, else the end frame's source."""
+    out: list[str | None] = [None] * len(code)
+    for k in range(T - 1, len(code)):
+        out[k] = names[code[k]] if code[k] >= 0 else None
+    for name in reversed(TRANSITION_PRIORITY):  # later (rarer) names overwrite
+        if name not in names:
+            continue
+        hit = (code == names.index(name)).astype(np.int64)
+        seen = np.convolve(hit, np.ones(T, dtype=np.int64))[:len(code)]  # frames of `name` in [k-T+1, k]
+        for k in np.flatnonzero(seen[T - 1:] > 0) + T - 1:
+            out[k] = name
+    return out
+
+
 def idle_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, rng: np.random.Generator,
-                 per_source: int = IDLE_WINDOWS_PER_SOURCE) -> tuple[list, list]:
-    """Dormant windows from idle streams, up to ``per_source`` ending in each kind of idle frame."""
+                 per_source: int = IDLE_WINDOWS_PER_SOURCE) -> tuple[list, list, list]:
+    """Dormant windows from idle streams, up to ``per_source`` per kind of idle situation in view.
+
+    A window counts for a transition (release, grasp, regrasp, arm move) when any of its
+    frames shows it, otherwise for the source of its last frame. Returns windows, origins and
+    groups (``idle0`` .. ``idle4``: the contiguous fifth of its stream, for held-out folds).
+    """
     ends: dict[str, list[tuple[int, int]]] = {}
     for r, rec in enumerate(idle):
         code = np.asarray(rec.meta["source_codes"])
-        names = rec.meta["sources"]
-        for k in range(T - 1, rec.n_frames):
-            if code[k] >= 0:
-                ends.setdefault(names[code[k]], []).append((r, k))
-    X, origin = [], []
+        for k, name in enumerate(in_view(code, rec.meta["sources"], T)):
+            if name is not None:
+                ends.setdefault(name, []).append((r, k))
+    X, origin, groups = [], [], []
     for source in sorted(ends):
         pool = ends[source]
         for i in rng.choice(len(pool), size=min(per_source, len(pool)), replace=False):
             r, k = pool[i]
             X.append(idle[r].frames[k - T + 1:k + 1, cols].T)
             origin.append(f"idle:{source}")
-    return X, origin
+            groups.append(f"idle{IDLE_FOLDS * k // idle[r].n_frames}")
+    return X, origin, groups
+
+
+def session_windows(sessions: Sequence[Recording], cols: np.ndarray, T: int, rng: np.random.Generator,
+                    per_kind: int = IDLE_WINDOWS_PER_SOURCE) -> tuple[list, list, list]:
+    """Dormant windows of scripted sessions: the hand closing before the action, opening after it.
+
+    ``place``: windows that end between ``TRANSITION_VISIBLE`` frames into the close and the
+    last pre-onset frame; ``take_away``: windows that end from ``TRANSITION_VISIBLE`` frames
+    into the opening (``RELEASE_AFTER_S`` after the onset) until the opening has left the
+    window. Grouped by subject.
+    """
+    from firmware_io.sim import constants as K
+    from firmware_io.sim.session import RELEASE_AFTER_S
+
+    ramp = int(np.ceil(0.3 / K.FRAME_PERIOD_S))
+    pools: dict[str, list[tuple[int, int, str]]] = {"place": [], "take_away": []}
+    for r, rec in enumerate(sessions):
+        level = rec.frames[:, cols].max(axis=1)
+        for tr in rec.trials:
+            onset = int(tr.extra["onset"])
+            loaded = np.flatnonzero(level[tr.first:onset] > 0)
+            if len(loaded):
+                close = tr.first + int(loaded[0])
+                for k in range(max(close + TRANSITION_VISIBLE, T - 1), onset - 1):
+                    pools["place"].append((r, k, tr.subject))
+            release = round(float(tr.extra.get("onset_s", onset * K.FRAME_PERIOD_S)) / K.FRAME_PERIOD_S
+                                + RELEASE_AFTER_S / K.FRAME_PERIOD_S)
+            for k in range(release + TRANSITION_VISIBLE, min(rec.n_frames, release + ramp + T - 1)):
+                pools["take_away"].append((r, k, tr.subject))
+    X, origin, groups = [], [], []
+    for kind, pool in pools.items():
+        for i in rng.choice(len(pool), size=min(per_kind, len(pool)), replace=False) if pool else ():
+            r, k, subject = pool[i]
+            X.append(sessions[r].frames[k - T + 1:k + 1, cols].T)
+            origin.append(f"session:{kind}")
+            groups.append(subject)
+    return X, origin, groups
 
 
 def build_dormant_dataset(protocol: Sequence[Recording], idle: Sequence[Recording], T: int = 15,
                           pads: str | Sequence[int] = "all", seed: int = 0,
-                          per_source: int = IDLE_WINDOWS_PER_SOURCE) -> DormantDataset:
-    """Five classes (the four actions + dormant) from the protocol and idle streams."""
+                          per_source: int = IDLE_WINDOWS_PER_SOURCE,
+                          sessions: Sequence[Recording] = ()) -> DormantDataset:
+    """Five classes (the four actions + dormant) from the protocol, idle streams and sessions."""
     if not protocol:
         raise ValueError("no protocol recordings")
     layout = protocol[0].layout
@@ -135,11 +204,12 @@ def build_dormant_dataset(protocol: Sequence[Recording], idle: Sequence[Recordin
     cols = layout.columns(pad_idx)
     rng = np.random.default_rng(seed)
     X, y, groups, origin = protocol_windows(protocol, cols, T, rng)
-    Xi, oi = idle_windows(idle, cols, T, rng, per_source)
-    X += Xi
-    y += [DORMANT] * len(Xi)
-    groups += ["idle"] * len(Xi)
-    origin += oi
+    Xi, oi, gi = idle_windows(idle, cols, T, rng, per_source)
+    Xs, os_, gs = session_windows(sessions, cols, T, rng, per_source)
+    X += Xi + Xs
+    y += [DORMANT] * (len(Xi) + len(Xs))
+    groups += gi + gs
+    origin += oi + os_
     if not X:
         raise ValueError("no windows: trials lack onsets and no idle stream was given")
     return DormantDataset(
@@ -147,8 +217,53 @@ def build_dormant_dataset(protocol: Sequence[Recording], idle: Sequence[Recordin
         y=np.asarray(y).astype(str), groups=np.asarray(groups).astype(str), origin=np.asarray(origin).astype(str),
         pads=tuple(pad_idx), pad_sizes=tuple(layout.pad_sizes(pad_idx)), T=int(T),
         fullscale=float(max(layout.matrices[p].fullscale for p in pad_idx)),
-        fingerprint=fingerprint(list(protocol) + list(idle)),
+        fingerprint=fingerprint(list(protocol) + list(idle) + list(sessions)),
     )
+
+
+def leave_one_subject_out(ds: DormantDataset, K: int = 10, W: int = 7, kernel: str = "rbf", seed: int = 0,
+                          log=None) -> dict:
+    """Window-level leave-one-subject-out of the 5-class model: per-class recall, dormant included.
+
+    Fold i holds out subject i's protocol and session windows and the i-th fifth of the idle
+    streams (``idle<i>``); the model (C, gamma by its own inner cross-validation) is trained
+    on the rest. Same simulated hand in every fold (synthetic).
+    """
+    subjects = sorted({g for g in ds.groups.tolist() if not g.startswith("idle")})
+    idle_groups = sorted({g for g in ds.groups.tolist() if g.startswith("idle")})
+    classes = sorted(set(ds.y.tolist()))
+    confusion = np.zeros((len(classes), len(classes)), dtype=np.int64)
+    folds, per_origin = [], {}
+    for i, subject in enumerate(subjects):
+        test = ds.groups == subject
+        if idle_groups:
+            test |= ds.groups == idle_groups[i % len(idle_groups)]
+        if log:
+            log(f"  fold {i + 1}/{len(subjects)}: held out {subject} ({int(test.sum())} windows)")
+        model = train(ds.X[~test], ds.y[~test], K, W, kernel, seed)
+        pred = np.asarray(model.predict(ds.X[test])).astype(str)
+        truth = ds.y[test]
+        for t, q in zip(truth, pred, strict=True):
+            confusion[classes.index(t), classes.index(q)] += 1
+        for o, t, q in zip(ds.origin[test], truth, pred, strict=True):
+            row = per_origin.setdefault(str(o), [0, 0])
+            row[0] += int(t == q)
+            row[1] += 1
+        folds.append({"held_out": subject, "n": int(test.sum()), "accuracy": float(np.mean(truth == pred)),
+                      "recall": {c: _ratio(np.sum((truth == c) & (pred == c)), np.sum(truth == c)) for c in classes}})
+    acc = np.array([f["accuracy"] for f in folds])
+    return {
+        "classes": classes, "confusion": confusion.tolist(),
+        "recall": {c: _ratio(confusion[k, k], confusion[k].sum()) for k, c in enumerate(classes)},
+        "accuracy_mean": float(acc.mean()) if len(acc) else None, "accuracy_std": float(acc.std()) if len(acc) else None,
+        "recall_by_origin": {o: _ratio(a, n) for o, (a, n) in sorted(per_origin.items())},
+        "n_by_origin": {o: n for o, (_, n) in sorted(per_origin.items())},
+        "folds": folds,
+    }
+
+
+def _ratio(a, n) -> float | None:
+    return float(a) / float(n) if n else None
 
 
 def train(X: np.ndarray, y: np.ndarray, K: int = 10, W: int = 7, kernel: str = "rbf", seed: int = 0):

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-MODE_COLORS = {"threshold": "tab:red", "baseline": "tab:orange", "continuous": "tab:blue"}
+MODE_COLORS = {"threshold": "tab:red", "baseline": "tab:orange", "continuous_plain": "tab:gray",
+               "continuous": "tab:blue"}
 SOURCE_COLORS = {"arm_move": "#c6dbef", "regrasp": "#fdd0a2", "grasp": "#d9d9d9", "release": "#d9d9d9"}
 
 
@@ -118,6 +119,29 @@ def false_by_source(path: Path, idle: dict, hours: dict) -> str:
     ax.set_ylabel("false events per hour of that situation")
     ax.set_title("False events by what the idle hand was doing (synthetic)")
     ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
+
+
+def rule_grid(path: Path, rows: list[dict], chosen: dict) -> str:
+    """Every report rule tried on the validation streams: false events against correct first reports."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    confirm = np.array([r["confirm_frames"] for r in rows])
+    sc = ax.scatter([r["false_events"] + r["duplicates"] for r in rows], [r["correct"] for r in rows], c=confirm,
+                    cmap="viridis", s=[12 + 3 * r["rearm_frames"] for r in rows], alpha=0.75)
+    best = next(r for r in rows if all(r[k] == v for k, v in chosen.items()))
+    ax.scatter([best["false_events"] + best["duplicates"]], [best["correct"]], s=220, facecolors="none",
+               edgecolors="tab:red", lw=2, label=f"chosen {chosen}")
+    fig.colorbar(sc, ax=ax, label="confirm_frames (marker size: rearm_frames)")
+    ax.set_xscale("symlog")
+    ax.set_xlabel("false events + duplicates on the validation streams")
+    ax.set_ylabel("correct first reports")
+    ax.set_title("Continuous report rules on the validation streams (synthetic)")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
