@@ -139,12 +139,41 @@ def test_dormant_dataset(dds, protocol):
     s = dds.summary()
     assert s["per_origin"]["pre_onset"] > 0 and s["per_origin"]["idle:quiet"] == 30
     assert all(dds.y[dds.origin != "action"] == "dormant")
-    assert all(dds.groups[np.char.startswith(dds.origin, "idle")] == "idle")
+    idle_groups = set(dds.groups[np.char.startswith(dds.origin, "idle")].tolist())
+    assert idle_groups <= {f"idle{i}" for i in range(dormant.IDLE_FOLDS)} and len(idle_groups) > 1
     # a pre-onset window is the grasp alone: it matches frames that end before the onset
     tr = next(t for t in protocol[0].trials if t.extra["onset"] >= 16)
     frames = protocol[0].frames[tr.first:tr.last + 1, DISTAL]
     o = tr.extra["onset"]
     assert any(np.array_equal(x, frames[o - 16:o - 1].T) for x in dds.X[dds.origin == "pre_onset"])
+
+
+def test_windows_are_attributed_to_the_rarest_transition_in_view():
+    names = list(SOURCES)
+    q, g, r, o = (names.index(n) for n in ("quiet", "grasp", "release", "open"))
+    code = np.array([o] * 5 + [g] * 3 + [q] * 20 + [r] * 2 + [o] * 20)
+    view = dormant.in_view(code, names, T=5)
+    assert view[:4] == [None] * 4
+    assert view[5] == "grasp" and view[11] == "grasp" and view[12] == "quiet", "grasp in view until it leaves"
+    assert view[28] == "release" and view[33] == "release" and view[34] == "open"
+
+
+def test_session_windows_show_the_hand_closing_and_opening():
+    from firmware_io.simulate import simulate_session
+
+    events = [ScriptedEvent(3.0, "pull", "s1", "ball", "down"), ScriptedEvent(8.0, "hold", "s2", "plank", "up")]
+    rec = simulate_session(events, seed=3)
+    X, origin, groups = dormant.session_windows([rec], DISTAL, 15, np.random.default_rng(0), per_kind=1000)
+    origin = np.asarray(origin)
+    assert {"session:place", "session:take_away"} <= set(origin.tolist()) and set(groups) <= {"s1", "s2"}
+    for x, o in zip(X, origin, strict=True):
+        level = x.max(axis=0)  # per frame of the window
+        if o == "session:place":  # the object is held at the window's end (the grasp built up before)
+            assert level[-1] > 0
+        else:  # the hand opens: the pressure falls within the window (or the object was already gone)
+            assert level[0] >= level[-1]
+    assert (origin == "session:take_away").sum() == 2 * (10 + 14 - dormant.TRANSITION_VISIBLE), \
+        "every window from 3 frames into each 0.3 s opening until it has left the window"
 
 
 def test_five_class_model_loads_with_its_dormant_class(models):
@@ -285,5 +314,9 @@ def test_cli_quick_run_writes_results(tmp_path, capsys):
     for name in ("dormant.json", "dormant.md", "dormant_timeline.png", "dormant_tradeoff.png", "dormant_sources.png", "dormant_rules.png",
                  "dormant-model/dormant.onnx", "dormant-model/paper.onnx"):
         assert (tmp_path / name).is_file(), name
+    full = json.loads((tmp_path / "dormant.json").read_text())
+    assert set(full["loso"]["recall"]) == {"pull", "push", "hold", "bump", "dormant"}
+    assert set(full["rule"]["chosen"]) == {"confirm_frames", "min_margin", "rearm_frames"}
+    assert full["offline_rule_matches_daemon"] is True
     text = (tmp_path / "dormant.md").read_text()
     assert "synthetic" in text and "handover dormant" in text

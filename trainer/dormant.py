@@ -161,7 +161,7 @@ def session_windows(sessions: Sequence[Recording], cols: np.ndarray, T: int, rng
 
     ``place``: windows that end between ``TRANSITION_VISIBLE`` frames into the close and the
     last pre-onset frame; ``take_away``: windows that end from ``TRANSITION_VISIBLE`` frames
-    into the opening (``RELEASE_AFTER_S`` after the onset) until the opening has left the
+    into the opening (``RELEASE_AFTER_S`` after the onset) until the 0.3 s opening has left the
     window. Grouped by subject.
     """
     from firmware_io.sim import constants as K
