@@ -7,6 +7,7 @@ Frames come from the simulated hand's scripted session (synthetic data) or any r
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 
@@ -27,6 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--old-firmware", action="store_true", help="behave like firmware <= R288 (single frame pushes)")
     parser.add_argument("--no-loop", action="store_true", help="stop sending at the end of the recording")
     parser.add_argument("--duration", type=float, default=None, help="exit after this many seconds (default: Ctrl-C)")
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
 
 
 def _fail(message: str) -> int:
@@ -84,6 +89,7 @@ def main(args: argparse.Namespace) -> int:
     except EmulatorServerError as exc:
         return _fail(str(exc))
 
+    signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop ends like Ctrl-C: summary, clean close
     synthetic = " (synthetic)" if recording.meta.get("synthetic", args.source == "sim") else ""
     what = "simulated hand" if args.source == "sim" else str(args.source)
     rate = 1.0 / recording.sample_interval() if recording.n_frames > 1 else float("nan")
@@ -93,12 +99,12 @@ def main(args: argparse.Namespace) -> int:
         + (f", faults {args.fault}" if faults.any else ""),
         flush=True,
     )
-    if args.pty:
-        print(f"pty: {server.path}  (open serial://{server.path})", flush=True)
-    else:
-        print(f"listening: {server.url}", flush=True)
     server.start()
     try:
+        if args.pty:
+            print(f"pty: {server.path}  (open serial://{server.path})", flush=True)
+        else:
+            print(f"listening: {server.url}", flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))

@@ -81,14 +81,16 @@ class TcpEmulatorServer(_ServerBase):
 
     def __init__(self, emulator: DeviceEmulator, host: str = "127.0.0.1", port: int = 0) -> None:
         super().__init__(emulator)
+        bare = host[1:-1] if host.startswith("[") and host.endswith("]") else host
         try:
-            addr = ipaddress.ip_address(socket.gethostbyname(host))
+            addr = ipaddress.ip_address(bare if ":" in bare else socket.gethostbyname(bare))
         except (OSError, ValueError):
             raise EmulatorServerError(f"cannot resolve listen address {host!r}") from None
         if not addr.is_loopback:
-            raise EmulatorServerError(f"the emulator listens on loopback only (127.0.0.1), not {host!r}")
+            raise EmulatorServerError(f"the emulator listens on loopback only (127.0.0.1 or ::1), not {host!r}")
         self.host = str(addr)
-        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        family = socket.AF_INET6 if addr.version == 6 else socket.AF_INET
+        self._listener = socket.socket(family, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             self._listener.bind((self.host, port))
@@ -102,7 +104,8 @@ class TcpEmulatorServer(_ServerBase):
 
     @property
     def url(self) -> str:
-        return f"tcp://{self.host}:{self.port}"
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"tcp://{host}:{self.port}"
 
     def _run(self) -> None:
         while not self._stop.is_set():

@@ -171,6 +171,7 @@ class Recording:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         try:
+            os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; a recording is shared like any file
             with os.fdopen(fd, "wb") as fh:
                 with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_STORED) as zf:
                     zf.writestr("header.json", json.dumps(header, indent=1))
@@ -196,7 +197,9 @@ class Recording:
                 if "header.json" not in names:
                     raise RecordingError(f"{path}: not a handover recording (no header.json)")
                 header = json.loads(zf.read("header.json"))
-                if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+                if not isinstance(header, dict):
+                    raise RecordingError(f"{path}: not a handover recording (header is a {type(header).__name__})")
+                if header.get("format") != FORMAT_NAME:
                     raise RecordingError(f"{path}: not a handover recording (format {header.get('format')!r})")
                 if header.get("version") != FORMAT_VERSION:
                     raise RecordingError(
@@ -228,6 +231,12 @@ class Recording:
             return cls(layout, frames, stamps, trials, dict(header.get("meta", {})))
         except (RecordingError, LayoutError, KeyError, TypeError, ValueError) as exc:
             raise RecordingError(f"{path}: inconsistent recording: {exc}") from None
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _npy_bytes(arr: np.ndarray) -> bytes:

@@ -231,6 +231,35 @@ def test_emulate_cli_serves_tcp_to_dump(tmp_path):
         proc.communicate(timeout=10)
 
 
+def test_emulate_cli_stops_cleanly_on_sigterm_with_a_summary():
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "runtime.cli", "emulate", "--listen", "tcp://127.0.0.1:0", "--events", "1"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        for _ in range(5):
+            if proc.stdout.readline().startswith("listening: "):
+                break
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert "served 0 connection(s)" in out
+
+
+def test_tcp_server_on_ipv6_loopback(rec):
+    try:
+        server = TcpEmulatorServer(DeviceEmulator(rec, speed=None), host="[::1]")
+    except EmulatorServerError as exc:
+        pytest.skip(f"no IPv6 loopback here: {exc}")
+    with server:
+        assert server.url.startswith("tcp://[::1]:")
+        client = client_for(server.url)
+        assert client.open().n_taxels == rec.layout.n_taxels
+        client.close()
+
+
 def test_emulate_cli_bad_options_are_one_line(capsys):
     from firmware_io import emulate_cli
 

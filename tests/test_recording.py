@@ -222,8 +222,23 @@ def test_foreign_files(tmp_path):
         zf.writestr("header.json", json.dumps({"format": "something-else", "version": 1}))
     assert_refused(other_json, "not a handover recording")
 
+    for not_an_object in ([], "text", 3):
+        odd = tmp_path / "odd.hrec"
+        with zipfile.ZipFile(odd, "w") as zf:
+            zf.writestr("header.json", json.dumps(not_an_object))
+        assert_refused(odd, "not a handover recording")
+
     assert_refused(tmp_path / "missing.hrec", "no such file")
     assert_refused(tmp_path, "folder")
+
+
+def test_saved_file_follows_the_umask_not_mkstemps_0600(tmp_path):
+    old = os.umask(0o022)
+    try:
+        path = make_recording().save(tmp_path / "r.hrec")
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644
 
 
 def _rewrite_header(src: Path, dst: Path, **changes) -> None:
