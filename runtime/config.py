@@ -66,11 +66,11 @@ class ContinuousConfig:
     """The report rule of ``scene.mode = "continuous"`` (runtime/decision.py); chosen on a
     synthetic validation stream, see docs/DORMANT.md."""
 
-    confirm_frames: int = 3
+    confirm_frames: int = 8
     """A non-dormant class is reported once it has won this many frames in a row."""
     min_margin: float = 0.0
     """... each with at least this score margin over the runner-up (0 = any win counts)."""
-    rearm_frames: int = 8
+    rearm_frames: int = 4
     """After a report, the next one needs dormant to have won this many frames in a row
     (one report per interaction); 0 = report every change of the confirmed class."""
 
