@@ -21,13 +21,21 @@ from firmware_io.layout import SensorLayout
 from firmware_io.parser import StreamParser
 from firmware_io.transports.base import Transport, TransportError
 
-__all__ = ["DSAClient", "DSATimeout", "Frame"]
+__all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 
 READ_SIZE = 4096
+CANCEL_POLL_S = 0.05
+"""While a cancel predicate is set, no single read waits longer than this."""
 
 
 class DSATimeout(P.DSAError):
     """The controller did not answer in time."""
+
+
+class Cancelled(Exception):
+    """The caller's ``should_stop`` predicate asked to give up (e.g. SIGTERM while opening).
+
+    Deliberately not a DSAError or TransportError, so no retry loop swallows it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,6 +102,7 @@ class DSAClient:
         self._max_queued = max_queued_frames
         self._unwrap = P.TimestampUnwrapper()
         self._number = 0
+        self._should_stop: Callable[[], bool] | None = None
         self._counts = {
             "frames": 0,
             "frames_stale": 0,
@@ -111,8 +120,17 @@ class DSAClient:
             return self._source
         return getattr(self._transport, "url", "") or repr(self._transport)
 
-    def open(self) -> SensorLayout:
-        """Stop any running acquisition, flush, query controller/sensor/matrix info -> the layout."""
+    def open(self, should_stop: Callable[[], bool] | None = None) -> SensorLayout:
+        """Stop any running acquisition, flush, query controller/sensor/matrix info -> the layout.
+
+        Against a silent device this takes several seconds (bounded retries). ``should_stop`` is
+        called at least every 50 ms meanwhile; once it returns True the transport is dropped and
+        :class:`Cancelled` is raised.
+        """
+        with self._cancellable(should_stop):
+            return self._open()
+
+    def _open(self) -> SensorLayout:
         self._ensure_transport()
         self.streaming = False
         acked = self._send_stop(self.stop_tries)
@@ -130,11 +148,28 @@ class DSAClient:
         self.parser.set_cells(self.layout.n_taxels)
         return self.layout
 
-    def start(self) -> None:
-        """Push mode: the controller sends frames as fast as it can (about 30 fps)."""
+    def start(self, should_stop: Callable[[], bool] | None = None) -> None:
+        """Push mode: the controller sends frames as fast as it can (about 30 fps).
+        ``should_stop``: as for :meth:`open`."""
         self._require_open()
-        self._ack(P.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
+        with self._cancellable(should_stop):
+            self._ack(P.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
         self.streaming = True
+
+    @contextlib.contextmanager
+    def _cancellable(self, should_stop: Callable[[], bool] | None):
+        """Check ``should_stop`` between reads; on Cancelled drop the transport (no stop handshake
+        with a device that may never answer) so that ``close()`` afterwards returns at once."""
+        previous, self._should_stop = self._should_stop, should_stop
+        try:
+            yield
+        except Cancelled:
+            self._drop_transport()
+            self.layout = None
+            self.streaming = False
+            raise
+        finally:
+            self._should_stop = previous
 
     def stop(self) -> None:
         """Stop acquisition. Frames already received stay queued for read_frame."""
@@ -142,15 +177,19 @@ class DSAClient:
         if not self._send_stop(self.stop_tries):
             raise DSATimeout(f"{self.url}: controller did not acknowledge stop after {self.stop_tries} tries")
 
-    def close(self) -> None:
-        """Stop (one bounded try) and release the transport. Never hangs, never raises."""
+    def close(self, stop_timeout: float | None = None) -> None:
+        """Stop (one bounded try) and release the transport. Never hangs, never raises.
+
+        ``stop_timeout`` bounds the stop handshake (default: the gap timeout of a silent line,
+        up to ``self.stop_timeout`` while the device keeps sending); a service shutting down passes
+        a fraction of a second."""
         transport = self._transport
         if transport is None:
             return
         try:
             if not transport.closed:
-                self._send_stop(1)
-        except (P.DSAError, OSError):
+                self._send_stop(1, timeout=stop_timeout)
+        except (P.DSAError, OSError, Cancelled):
             pass
         finally:
             self._transport = None
@@ -304,6 +343,11 @@ class DSAClient:
     def _pump(self, timeout: float) -> int:
         """Read once (up to ``timeout``) and parse: frames go to the frame queue, other packets to
         ``self._replies``. Returns the number of bytes read (0 on a quiet line)."""
+        should_stop = self._should_stop
+        if should_stop is not None:
+            if should_stop():
+                raise Cancelled(f"{self.url}: cancelled")
+            timeout = min(timeout, CANCEL_POLL_S)
         data = self._ensure_transport().read(READ_SIZE, timeout)
         now = time.monotonic()
         if not data:
@@ -431,11 +475,11 @@ class DSAClient:
         else:
             self._write(packet)
 
-    def _send_stop(self, tries: int) -> bool:
+    def _send_stop(self, tries: int, timeout: float | None = None) -> bool:
         """Send stop up to ``tries`` times; True once acknowledged. Device errors count as not acked."""
         for _ in range(tries):
             try:
-                self._ack(P.stop_request(rle=self.rle), frames_limit=None, timeout=self.stop_timeout)
+                self._ack(P.stop_request(rle=self.rle), frames_limit=None, timeout=timeout or self.stop_timeout)
                 return True
             except P.DSAError:
                 continue

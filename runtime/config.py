@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 MODES = ("trigger", "continuous")
+KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
+"""The paper's four actions and the trainer's dormant class; a custom model may have others."""
 LOG_LEVELS = ("debug", "info", "warning", "error")
 
 
@@ -103,6 +105,8 @@ class Config:
     health_file: str | None = None
     source: str = ""
     """Where the configuration was read from (for messages)."""
+    warnings: tuple[str, ...] = ()
+    """Things that are allowed but probably wrong (an event name no known model has)."""
 
 
 # -- parsing --------------------------------------------------------------------------------
@@ -144,8 +148,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s, lo=0.0),
         reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s, lo=0.0),
     )
-    if "://" not in device.url and not device.url.startswith("/"):
-        raise ConfigError(f"device.url: expected a URL like serial:///dev/ttyUSB0 or tcp://host:port, got {device.url!r}")
+    _check_url(device.url)
     if device.reconnect_max_s < device.reconnect_min_s:
         raise ConfigError("device.reconnect_max_s: must be >= device.reconnect_min_s")
 
@@ -164,6 +167,11 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if mode not in MODES:
         raise ConfigError(f"scene.mode: must be one of {', '.join(MODES)}, got {mode!r}")
     scene = SceneConfig(pads=pads.strip(), events=events, mode=mode)
+    warnings = [
+        f"scene.events: {e!r} is not a known event ({', '.join(KNOWN_EVENTS)}); "
+        "it is reported only if the model has such a class"
+        for e in events if e not in KNOWN_EVENTS
+    ]
 
     mo = data.get("model", {})
     _no_unknown("model", mo, {f.name for f in fields(ModelConfig)})
@@ -223,7 +231,12 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     health = data.get("health_file")
     if health is not None and (not isinstance(health, str) or not health.strip()):
         raise ConfigError(f"health_file: must be a path, got {health!r}")
-    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, log_level, health)
+    if health is not None:
+        folder = Path(health).expanduser().parent
+        if not folder.is_dir():
+            raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, log_level, health,
+                  warnings=tuple(warnings))
 
 
 def parse_host_port(target: str, key: str = "sinks.udp") -> tuple[str, int]:
@@ -294,6 +307,17 @@ def _str_list(key: str, table: dict, default: tuple[str, ...]) -> tuple[str, ...
     if not isinstance(value, list | tuple) or not all(isinstance(v, str) and v.strip() for v in value):
         raise ConfigError(f"{key}: must be a list of strings, got {value!r}")
     return tuple(v.strip() for v in value)
+
+
+def _check_url(url: str) -> None:
+    """The transports' own parser and scheme table: a URL that could never open is a config
+    error here, not an endless "retrying" in the daemon. Nothing is opened."""
+    from firmware_io.transports import TransportError, validate_url
+
+    try:
+        validate_url(url)
+    except TransportError as exc:
+        raise ConfigError(f"device.url: {exc}") from None
 
 
 def _check_pads(pads: str) -> None:

@@ -28,7 +28,7 @@ import numpy as np
 from firmware_io.layout import LayoutError, SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.decision import ContinuousDecision
-from runtime.health import Health, write_status_file
+from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
@@ -40,10 +40,23 @@ log = logging.getLogger("handover.daemon")
 READ_TIMEOUT_S = 0.1
 """Longest the loop blocks on the device: bounds the reaction to SIGTERM and the watchdog."""
 HEALTH_PERIOD_S = 1.0
+SHUTDOWN_STOP_S = 0.3
+"""Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 DEFAULT_RATE_HZ = 32.0
 
 
-def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None) -> str | None:
+def events_problem(model: Any, events: tuple[str, ...]) -> str | None:
+    """``scene.events: 'pul' is not a class of model X (classes: ...)``, or None."""
+    classes = list(model.meta.classes)
+    missing = [e for e in events if e not in classes]
+    if not missing:
+        return None
+    names = ", ".join(repr(e) for e in missing)
+    verb = "is not a class" if len(missing) == 1 else "are not classes"
+    return f"scene.events: {names} {verb} of model {model.model_id} (classes: {', '.join(classes)})"
+
+
+def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None, check_events: bool = True) -> str | None:
     """Why a model cannot serve this scene (pads, channels, classes, mode), or None."""
     meta = model.meta
     lay = layout or SensorLayout.sdh2()
@@ -56,9 +69,8 @@ def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None) -> str |
     n = sum(lay.pad_sizes(pads))
     if meta.n_channels != n:
         return f"model expects {meta.n_channels} taxel columns, the device's pads {list(pads)} have {n}"
-    missing = [e for e in cfg.scene.events if e not in meta.classes]
-    if missing:
-        return f"model classes {list(meta.classes)} lack the scene's events {missing}"
+    if check_events and (problem := events_problem(model, cfg.scene.events)):
+        return problem
     if cfg.scene.mode == "continuous" and meta.dormant_class is None:
         return "scene.mode = 'continuous' needs a model with a dormant class; this one has none"
     return None
@@ -81,6 +93,7 @@ class Daemon:
         self.client_factory = client_factory or _default_client
         self.on_event = on_event
         self.health = Health()
+        self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
         self.sinks = SinkSet.from_config(cfg.sinks, stream)
         self.model: Any = None
         self.layout: SensorLayout | None = None
@@ -93,6 +106,8 @@ class Daemon:
         self.watcher: ModelWatcher | None = None
         self._stop = False
         self._reload = False
+        self.fatal: str | None = None
+        """Why the daemon gave up (a device URL that can never open, a missing package), or None."""
         self._pending: list[int] = []
         self._backoff = cfg.device.reconnect_min_s
         self._next_connect = 0.0
@@ -211,15 +226,32 @@ class Daemon:
         self._pending.clear()
 
     # -- device ---------------------------------------------------------------------------------
+    def _still_connecting(self) -> bool:
+        """The client's cancel predicate while it opens a device (seconds when the device is
+        silent): keeps the watchdog fed and answers SIGTERM within a read slice."""
+        self.notifier.watchdog()
+        return self._stop
+
     def _connect(self) -> None:
+        from firmware_io.client import Cancelled
+
         h = self.health
         url = self.cfg.device.url
         try:
             if self.client is None:
                 self.client = self.client_factory(url)
-            layout = self.client.open()
-            self.client.start()
+            layout = self.client.open(should_stop=self._still_connecting)
+            self.client.start(should_stop=self._still_connecting)
+        except Cancelled:
+            self._close_client()
+            return
         except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
+            fatal = _fatal_device_error(url, exc)
+            if fatal:
+                self.fatal = fatal
+                self._stop = True  # run() returns 2; the caller prints self.fatal (one line)
+                self._close_client()
+                return
             h.device_state = "disconnected"
             reason = _one_line(exc).removeprefix(f"{url}: ")
             h.last_error = f"{url}: {reason}"
@@ -266,11 +298,14 @@ class Daemon:
         self._close_client()
         self._schedule_reconnect()
 
-    def _close_client(self) -> None:
+    def _close_client(self, stop_timeout: float | None = None) -> None:
         self.connected = False
         if self.client is not None:
             with contextlib.suppress(Exception):
-                self.client.close()
+                if stop_timeout is None:
+                    self.client.close()
+                else:
+                    self.client.close(stop_timeout=stop_timeout)
 
     def _absorb_client_stats(self) -> None:
         """The client's error counters (cumulative over reconnects of the same client)."""
@@ -361,8 +396,8 @@ class Daemon:
         self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
         self.notifier.status(h.status_line())
-        if self.cfg.health_file:
-            write_status_file(self.cfg.health_file, h.snapshot())
+        if self.status_file is not None:
+            self.status_file.write(h.snapshot())
 
     def _do_reload(self) -> None:
         self._reload = False
@@ -380,8 +415,12 @@ class Daemon:
             return
         old, self.cfg = self.cfg, new
         _set_log_level(new.log_level)
+        for warning in new.warnings:
+            log.warning("%s", warning)
         self.sinks.close()
         self.sinks = SinkSet.from_config(new.sinks, self.stream)
+        if new.health_file != old.health_file:
+            self.status_file = StatusFile(new.health_file) if new.health_file else None
         if new.device.url != old.device.url:
             self._close_client()
             self.client = None
@@ -400,8 +439,11 @@ class Daemon:
 
     # -- main loop ------------------------------------------------------------------------------
     def run(self) -> int:
-        """Serve until SIGTERM / request_stop(); returns 0."""
+        """Serve until SIGTERM / request_stop(); returns 0, or 2 when the device URL can never
+        work (``self.fatal`` says why)."""
         _set_log_level(self.cfg.log_level)
+        for warning in self.cfg.warnings:
+            log.warning("%s", warning)
         self._start_watcher()
         self.notifier.ready(self.health.status_line())
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
@@ -432,15 +474,17 @@ class Daemon:
                 self.handle_frame(frame)
         finally:
             self.shutdown()
-        return 0
+        return 2 if self.fatal else 0
 
     def shutdown(self) -> None:
         """STOPPING=1, stop the watcher, close the device, flush the sinks, final health."""
         self.notifier.stopping()
         if self.watcher is not None:
             self.watcher.stop(timeout=0.5)
-        self._close_client()
-        self.health.device_state = "stopped"
+        self._close_client(stop_timeout=SHUTDOWN_STOP_S)
+        self.health.device_state = "stopped" if not self.fatal else "failed"
+        if self.fatal:
+            self.health.last_error = self.fatal
         self.write_health()
         self.sinks.close()
         log.info("stopped: %d frames, %d events, %d missed deadlines", self.health.frames_received,
@@ -452,6 +496,23 @@ def _default_client(url: str) -> Any:
 
     # The daemon reconnects itself (with backoff, answering SIGTERM and the watchdog meanwhile).
     return DSAClient(url, auto_reconnect=False)
+
+
+def _fatal_device_error(url: str, exc: BaseException) -> str | None:
+    """A device error no retry can cure: the URL itself is wrong, or a package is missing.
+
+    Everything else (unplugged, refused, silent, wrong replies) is retried with backoff."""
+    from firmware_io.transports import DeviceUnavailable, MissingDependency, TransportError, validate_url
+
+    if not isinstance(exc, TransportError) or isinstance(exc, DeviceUnavailable):
+        return None
+    if isinstance(exc, MissingDependency):
+        return f"device.url: {_one_line(exc)}"
+    try:
+        validate_url(url)
+    except TransportError as bad:
+        return f"device.url: {_one_line(bad)}"
+    return None  # e.g. a write timeout: a device condition, retried
 
 
 def _one_line(exc: BaseException) -> str:

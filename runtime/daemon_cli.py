@@ -1,7 +1,13 @@
-"""``handover run --config FILE [--check]``: the detection daemon (systemd service).
+"""``handover run --config FILE [--check [--require-model]]``: the detection daemon (systemd service).
 
 ``--check`` validates the config and the model folder (newest valid model against the scene)
-and exits: 0 when a model would serve, 1 when none would, 2 for a config error.
+without opening the device, and exits 2 for a config error (a bad key, a device URL that can
+never open, an event the serving model lacks) and 0 otherwise. An empty model folder is only
+a warning, because the daemon is built to start without a model and wait for one; with
+``--require-model`` it exits 1 instead (for scripts that need a model in place).
+
+The daemon itself exits 0 after SIGTERM and 2 when the device URL turns out to be unusable
+(e.g. a transport's package is missing): retrying would never help.
 """
 
 from __future__ import annotations
@@ -16,6 +22,8 @@ PROG = "handover run"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, metavar="FILE", help="TOML configuration (see deploy/handover.toml)")
     parser.add_argument("--check", action="store_true", help="validate the config and the model folder, then exit")
+    parser.add_argument("--require-model", action="store_true",
+                        help="with --check: exit 1 when no model in the folder would serve (default: a warning)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -29,26 +37,46 @@ def main(args: argparse.Namespace) -> int:
     logging.basicConfig(stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
     if args.check:
-        return _check(cfg)
+        return _check(cfg, require_model=args.require_model)
     from runtime.daemon import Daemon
 
     daemon = Daemon(cfg)
     daemon.install_signal_handlers()
-    return daemon.run()
+    code = daemon.run()
+    if daemon.fatal:
+        print(f"{PROG}: {daemon.fatal}", file=sys.stderr)
+    return code
 
 
-def _check(cfg) -> int:
+def _check(cfg, require_model: bool = False) -> int:
     """Report what the daemon would serve, without opening the device."""
-    from runtime.daemon import Daemon, scene_problem
+    from runtime.daemon import Daemon, events_problem, scene_problem
     from runtime.model_watch import ModelWatcher
 
+    for warning in cfg.warnings:
+        print(f"{PROG}: warning: {warning}", file=sys.stderr)
     daemon = Daemon(cfg)
-    watcher = ModelWatcher(cfg.model.folder, loader=daemon._load, check=lambda m: scene_problem(m, cfg, None))
-    model = watcher.poll(require_stable=False)
-    if model is None:
-        reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in watcher.rejections) or "no .onnx file"
-        print(f"{PROG}: config {cfg.source} is valid, but no model in {cfg.model.folder} would serve ({reasons})",
-              file=sys.stderr)
+
+    def newest(check_events: bool):
+        watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
+                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events))
+        return watcher.poll(require_stable=False), watcher.rejections
+
+    model, rejections = newest(check_events=True)
+    if model is not None:
+        print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
+        return 0
+    # A model that fits everything but an event name means a typo in scene.events (a config
+    # problem), not a reason to wait for another model.
+    fits_otherwise, _ = newest(check_events=False) if rejections else (None, [])
+    if fits_otherwise is not None:
+        print(f"{PROG}: {events_problem(fits_otherwise, cfg.scene.events)}", file=sys.stderr)
+        return 2
+    reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or "no .onnx file"
+    what = f"no model in {cfg.model.folder} would serve yet ({reasons})"
+    if require_model:
+        print(f"{PROG}: config {cfg.source} is valid, but {what}", file=sys.stderr)
         return 1
-    print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
+    print(f"{PROG}: warning: {what}; the daemon will wait for one", file=sys.stderr)
+    print(f"config {cfg.source} is valid")
     return 0

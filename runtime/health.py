@@ -106,16 +106,57 @@ class Health:
         )
 
 
+class StatusFile:
+    """The JSON status file, written atomically; an unwritable file never floods the log.
+
+    The first failure is logged, then at most one line every ``log_every_s`` seconds with the
+    number of failures since, and one line when writing works again.
+    """
+
+    def __init__(self, path: str | Path, log_every_s: float = 300.0) -> None:
+        self.path = Path(path)
+        self.log_every_s = float(log_every_s)
+        self.failures = 0
+        """Failed writes in total."""
+        self._unlogged = 0
+        self._last_log: float | None = None
+        self._failing = False
+
+    def write(self, data: dict, now: float | None = None) -> bool:
+        """True when written; False (and maybe one log line) when not."""
+        try:
+            _write_atomically(self.path, data)
+        except OSError as exc:
+            self.failures += 1
+            self._unlogged += 1
+            self._failing = True
+            now = time.monotonic() if now is None else now
+            if self._last_log is None or now - self._last_log >= self.log_every_s:
+                more = f" ({self._unlogged} failed writes since the last message)" if self._last_log is not None else ""
+                log.warning("health file %s: %s%s", self.path, exc.strerror or exc, more)
+                self._last_log, self._unlogged = now, 0
+            return False
+        if self._failing:
+            log.info("health file %s: written again (%d failed writes in total)", self.path, self.failures)
+            self._failing, self._last_log, self._unlogged = False, None, 0
+        return True
+
+
 def write_status_file(path: str | Path, data: dict) -> bool:
     """Write JSON atomically (temp file in the same folder, then rename). False on failure."""
-    p = Path(path)
+    try:
+        _write_atomically(Path(path), data)
+    except OSError:
+        return False
+    return True
+
+
+def _write_atomically(p: Path, data: dict) -> None:
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
     try:
         tmp.write_text(json.dumps(data, indent=1) + "\n")
         os.replace(tmp, p)
-        return True
-    except OSError as exc:
-        log.warning("health file %s: %s", p, exc)
+    except OSError:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
-        return False
+        raise

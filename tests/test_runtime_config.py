@@ -23,10 +23,24 @@ def test_defaults_are_the_papers():
     assert cfg.sinks.stdout is True
 
 
-def test_default_deploy_config_is_valid():
-    cfg = load_config(ROOT / "deploy" / "handover.toml")
+DEPLOYED_HEALTH = 'health_file = "/var/lib/handover/status.json"'
+
+
+def _deployed(tmp_path: Path) -> Config:
+    """deploy/handover.toml with its health file moved into tmp_path (systemd's StateDirectory
+    creates /var/lib/handover for the service; this machine has none)."""
+    text = (ROOT / "deploy" / "handover.toml").read_text()
+    assert DEPLOYED_HEALTH in text
+    copy = tmp_path / "handover.toml"
+    copy.write_text(text.replace(DEPLOYED_HEALTH, f'health_file = "{tmp_path / "status.json"}"'))
+    return load_config(copy)
+
+
+def test_default_deploy_config_is_valid(tmp_path):
+    cfg = _deployed(tmp_path)
     assert cfg.device.url.startswith("serial://")
     assert cfg.source.endswith("handover.toml")
+    assert cfg.warnings == ()
 
 
 @pytest.mark.parametrize(
@@ -45,6 +59,22 @@ def test_default_deploy_config_is_valid():
         ({"sinks": {"stdout": "yes"}}, "sinks.stdout"),
         ({"onnxruntime": {"intra_op_threads": 0}}, "onnxruntime.intra_op_threads"),
         ({"device": {"url": "ttyUSB0"}}, "device.url"),
+        # URLs the transports could never open: a config error, not an endless "retrying"
+        ({"device": {"url": "foo://x"}}, "device.url"),
+        ({"device": {"url": "tcp://127.0.0.1:"}}, "device.url"),
+        ({"device": {"url": "tcp://127.0.0.1:70000"}}, "device.url"),
+        ({"device": {"url": "tcp://:13000"}}, "device.url"),
+        ({"device": {"url": "tcp://host:1?timeout=3"}}, "device.url"),
+        ({"device": {"url": "sim://?seed=abc"}}, "device.url"),
+        ({"device": {"url": "sim://?events=0"}}, "device.url"),
+        ({"device": {"url": "sim://?fault=melt"}}, "device.url"),
+        ({"device": {"url": "serial://"}}, "device.url"),
+        ({"device": {"url": "serial:///dev/ttyUSB0?baud=fast"}}, "device.url"),
+        ({"device": {"url": "usb://0403"}}, "device.url"),
+        ({"device": {"url": "usb://0403:6001?chip=ch340"}}, "device.url"),
+        ({"device": {"url": "hid://zz:ea80"}}, "device.url"),
+        ({"device": {"url": "replay://"}}, "device.url"),
+        ({"health_file": "/nonexistent-handover-folder/status.json"}, "health_file"),
         ({"device": {"colour": "red"}}, "device.colour"),
         ({"model": "here"}, "model"),
         ({"log_level": "loud"}, "log_level"),
@@ -119,5 +149,41 @@ def test_check_never_imports_training_packages(tmp_path):
 def test_continuous_rule_keys():
     cfg = config_from_dict({"continuous": {"confirm_frames": 4, "min_margin": 0.5, "rearm_frames": 0}})
     assert (cfg.continuous.confirm_frames, cfg.continuous.min_margin, cfg.continuous.rearm_frames) == (4, 0.5, 0)
-    deployed = load_config(ROOT / "deploy" / "handover.toml").continuous
-    assert deployed == config_from_dict({}).continuous, "deploy/handover.toml shows the defaults"
+
+def test_deploy_config_shows_the_defaults(tmp_path):
+    deployed, defaults = _deployed(tmp_path), config_from_dict({})
+    assert deployed.continuous == defaults.continuous, "deploy/handover.toml shows the defaults"
+    assert deployed.trigger == defaults.trigger, "deploy/handover.toml shows the defaults"
+
+
+@pytest.mark.parametrize("url", ["serial:///dev/ttyUSB0", "/dev/dsacon32m", "tcp://192.168.1.42:13000",
+                                 "tcp://[::1]:13000?connect_timeout=0.5", "tcp://robot", "sim://?seed=3&events=5&realtime=0",
+                                 "replay:///data/x.hrec?speed=max&loop=1", "usb://0403:6001?chip=ftdi&interface=0",
+                                 "hid://10c4:ea80?baud=115200"])
+def test_good_urls_pass_without_opening_anything(url):
+    scheme = url.partition(":")[0]
+    if scheme in ("usb", "hid"):
+        pytest.importorskip(scheme)  # validate_url names the missing package otherwise
+    assert config_from_dict({"device": {"url": url}}).device.url == url
+
+
+@pytest.mark.parametrize("url", ["foo://x", "tcp://127.0.0.1:", "tcp://h:1?x=1", "sim://?seed=abc", "sim://?fault=melt",
+                                 "serial://", "usb://0403:6001?chip=ch340", "hid://10c4", "replay://"])
+def test_validate_url_agrees_with_open_transport(url):
+    """Whatever validate_url refuses, open_transport refuses too, with a TransportError that is
+    not DeviceUnavailable (so the check and the real thing cannot drift apart unnoticed)."""
+    from firmware_io.transports import DeviceUnavailable, TransportError, open_transport, validate_url
+
+    with pytest.raises(TransportError) as checked:
+        validate_url(url)
+    with pytest.raises(TransportError) as opened:
+        open_transport(url)
+    for info in (checked, opened):
+        assert not isinstance(info.value, DeviceUnavailable), info.value
+    assert str(checked.value).startswith(url + ":") or "scheme" in str(checked.value)
+
+
+def test_unknown_event_names_are_a_warning_not_an_error():
+    cfg = config_from_dict({"scene": {"events": ["pull", "pul"]}})
+    assert len(cfg.warnings) == 1 and "'pul'" in cfg.warnings[0] and cfg.warnings[0].startswith("scene.events:")
+    assert config_from_dict({"scene": {"events": ["pull", "dormant"]}}).warnings == ()
