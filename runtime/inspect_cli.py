@@ -44,6 +44,11 @@ def card(model) -> dict:
     }
 
 
+def _trials(n) -> str:
+    """``36 trials``; a model exported from a bare estimator file does not know its trials."""
+    return "an unknown number of trials (not recorded)" if n is None else f"{n} trials"
+
+
 def _text(c: dict) -> str:
     tr, ev = c["training"], c["evaluation"]
     lines = [
@@ -53,7 +58,7 @@ def _text(c: dict) -> str:
         f"  window: T={c['T']} frames ({c['window_seconds']} s at {c['sample_rate_hz']:g} Hz), "
         f"trigger at {100 * float(c['trigger'].get('fraction', 0)):.0f} % of {c['fullscale']:g}",
         f"  features: {c['K']} words of W={c['W']} derivative steps; SVM kernel {c['kernel']} {c['svm'] or ''}",
-        f"  trained on: {tr.get('n_trials')} trials, data {str(tr.get('data_fingerprint'))[:16]}, "
+        f"  trained on: {_trials(tr.get('n_trials'))}, data {str(tr.get('data_fingerprint'))[:16]}, "
         f"{tr.get('date')}, project {tr.get('project_version')}"
         + "".join(f", {k}: {v}" for k, v in tr.items() if k not in ("n_trials", "data_fingerprint", "date", "project_version")),
         "  accuracy: " + (", ".join(f"{k}: {v}" for k, v in ev.items()) if ev else "not recorded"),

@@ -92,3 +92,35 @@ def test_bad_kernel_is_refused():
     X, y = synthetic_series(n_per_class=4)
     with pytest.raises(ValueError, match="kernel must be"):
         BowSVC(kernel="poly").fit(X, y)
+
+
+def test_c_grid_reaches_a_practically_hard_margin():
+    from trainer.classifier import C_GRID
+
+    assert max(C_GRID) >= 1e6 and 1e4 in C_GRID and list(C_GRID) == sorted(C_GRID, reverse=True)
+
+
+def test_margin_report_tells_hard_from_soft():
+    from sklearn.svm import SVC
+
+    from trainer.classifier import margin_report
+
+    rng = np.random.default_rng(0)
+    apart = np.concatenate([rng.normal(-3, 0.3, (20, 2)), rng.normal(3, 0.3, (20, 2))])
+    y = np.repeat([0, 1], 20)
+    hard = margin_report(SVC(kernel="linear", C=1e6).fit(apart, y))
+    assert hard["hard_margin"] and hard["n_at_bound"] == 0 and hard["statement"].startswith("hard margin")
+    mixed = rng.normal(0, 1, (40, 2))
+    soft = margin_report(SVC(kernel="rbf", C=1.0).fit(mixed, y))
+    assert not soft["hard_margin"] and 0 < soft["n_at_bound"] <= soft["n_support_vectors"]
+    assert soft["share_at_bound"] == soft["n_at_bound"] / soft["n_support_vectors"]
+    assert "soft margin" in soft["statement"]
+
+
+def test_max_windows_and_fullscale_reach_the_bag_of_words():
+    rng = np.random.default_rng(1)
+    X = rng.integers(0, 2000, size=(12, 4, 10)).astype(np.float64)
+    y = np.repeat(["a", "b"], 6)
+    model = BowSVC(n_words=3, window=3, C=10.0, gamma=1.0, level_features=True, pad_sizes=(2, 2),
+                   max_windows=50, fullscale=1000.0).fit(X, y)
+    assert model.bow_.max_windows == 50 and model.bow_.fullscale == 1000.0

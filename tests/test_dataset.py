@@ -8,7 +8,17 @@ from protocol_standin import standin_recordings
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recording import Recording
-from trainer.dataset import DatasetError, build_dataset, fingerprint, load_dataset, trigger_frame
+from runtime.trigger import ThresholdTrigger
+from trainer.dataset import (
+    ABOVE_FROM_START,
+    DEFAULT_HYSTERESIS,
+    DatasetError,
+    build_dataset,
+    fingerprint,
+    load_dataset,
+    rising_trigger,
+    trigger_frame,
+)
 
 
 def _one_trial_recording(peak_at: int, value: int = 1000, n: int = 40) -> Recording:
@@ -33,8 +43,9 @@ def test_window_starts_at_the_trigger_of_the_chosen_pads_only():
     assert ds.X.shape == (1, 3 * 78, 15) and ds.X.dtype == np.float32
     assert ds.trigger_offsets[0] == 12 and ds.onsets[0] == 12
     assert ds.X[0].max() == 1000 and ds.X[0, :, 0].max() == 1000
-    # all pads: the proximal taxel at 4000 triggers at frame 0
-    assert build_dataset([rec], T=15, pads="all").trigger_offsets[0] == 0
+    # all pads: the proximal taxel at 4000 is above the level from the first frame: no rising edge
+    ds_all = build_dataset([rec], T=15, pads="all")
+    assert len(ds_all.y) == 0 and ds_all.untriggered[0].reason.startswith(ABOVE_FROM_START)
 
 
 def test_fraction_is_configurable_and_untriggered_trials_are_reported():
@@ -91,3 +102,59 @@ def test_load_dataset_reads_a_folder(tmp_path):
     write_standin(tmp_path, n_subjects=2, runs=1)
     ds, recs = load_dataset(tmp_path, T=12, pads="distal")
     assert len(recs) == 2 and ds.X.shape[2] == 12 and ds.sources == ["subject_s1.hrec", "subject_s2.hrec"]
+
+
+def _level_recording(levels: list[int], onset: int = 0) -> Recording:
+    """One distal taxel following ``levels`` frame by frame."""
+    layout = SensorLayout.sdh2()
+    frames = np.zeros((len(levels), layout.n_taxels), dtype=np.uint16)
+    frames[:, int(layout.columns("distal")[50])] = levels
+    fields = dict(subject="s1", object="ball", pose="up", action="pull", run=0, extra={"onset": onset})
+    return Recording.concatenate(layout, [(frames, np.arange(len(levels)) / 32.0, fields)])
+
+
+def test_trial_above_the_level_from_its_first_frame_is_not_a_trigger():
+    on = 0.15 * 4095  # 614
+    ds = build_dataset([_level_recording([700] * 40)], T=15, pads="distal")
+    assert len(ds.y) == 0 and ds.untriggered[0].reason.startswith(ABOVE_FROM_START)
+    assert ds.summary()["untriggered_reasons"] == {ABOVE_FROM_START: 1}
+    # dropping below the level but not below the re-arm level (10 % = 409) does not re-arm
+    ds = build_dataset([_level_recording([700] * 5 + [500] * 5 + [700] * 30)], T=15, pads="distal")
+    assert len(ds.y) == 0 and "never below the re-arm level" in ds.untriggered[0].reason
+    # below the re-arm level, then up again: a rising edge, the trigger is there
+    ds = build_dataset([_level_recording([700] * 5 + [300] * 5 + [700] * 30)], T=15, pads="distal")
+    assert list(ds.trigger_offsets) == [10] and ds.untriggered == []
+    # between the re-arm level and the level at the start: armed, fires when it reaches the level
+    ds = build_dataset([_level_recording([500] * 3 + [int(on) + 1] * 37)], T=15, pads="distal")
+    assert list(ds.trigger_offsets) == [3]
+
+
+def test_dataset_trigger_is_the_runtime_trigger():
+    """Fed frame by frame, the daemon's ThresholdTrigger (armed) fires where the data set says."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        levels = np.cumsum(rng.integers(-150, 151, size=60)).clip(0, 4095).astype(np.float32)[:, None]
+        start, _ = rising_trigger(levels, 4095.0, 0.15)
+        trig = ThresholdTrigger(1, 4095.0, fraction=0.15, hysteresis=DEFAULT_HYSTERESIS)
+        trig.armed = bool(levels[0, 0] < trig.on_level)
+        fired = [i for i in range(len(levels)) if trig.update(levels[i], i) >= 0]
+        assert start == (fired[0] if fired else -1)
+        if start > 0:
+            assert levels[start - 1, 0] < trig.on_level <= levels[start, 0]  # a rising edge
+
+
+def test_simulated_protocol_never_triggers_on_the_first_frame():
+    from firmware_io.simulate import simulate_protocol
+
+    ds = build_dataset(simulate_protocol(seed=0, n_subjects=1, runs=2), T=15, pads="all")
+    assert not np.any(ds.trigger_offsets == 0)
+    assert ds.n_trials == 2 * 3 * 3 * 4
+
+
+def test_windows_that_end_before_the_onset_are_counted():
+    # trigger at frame 2, onset at frame 20: the 15 frames (2..16) end before the action starts
+    early = _level_recording([0, 0] + [700] * 38, onset=20)
+    ontime = _level_recording([0, 0] + [700] * 38, onset=10)
+    ds = build_dataset([early, ontime], T=15, pads="distal")
+    assert ds.windows_before_onset == 1
+    assert ds.summary()["windows_before_onset"] == 1 and ds.summary()["n_cases_with_onset"] == 2

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
+import hashlib
 import json
 
 import pytest
@@ -44,8 +44,19 @@ def test_train_writes_the_report_and_json(tiny_data, tmp_path, capsys):
     text = (out / "report.md").read_text()
     assert text.splitlines()[5].startswith("handover train --data")
     assert "synthetic" in text and "untriggered: 1" in text
-    if importlib.util.find_spec("trainer.onnx_export") is not None:
-        assert (out / "model.onnx").is_file() or "export failed" in str(metrics.get("onnx"))
+    assert "windows that end before the annotated onset" in text and "SVM margin of the final model" in text
+    assert metrics["n_windows_before_onset"] >= 0 and metrics["W"] == 5 and metrics["windows"] == [5]
+    margin = metrics["svm_margin"]
+    assert margin["C"] == metrics["best_params"]["C"] and 0.0 <= margin["share_at_bound"] <= 1.0
+    assert ("hard margin" if margin["hard_margin"] else "soft margin") in text
+    saved = json.loads((out / "metrics.json").read_text())
+    assert saved["dataset"]["windows_before_onset"] == metrics["n_windows_before_onset"]
+    # the ONNX file names the joblib it was exported from by sha256: verify can refuse a mix-up
+    from runtime.model import load_model
+
+    ref = load_model(out / "model.onnx").meta.extra["reference"]
+    assert ref["file"] == "model.joblib"
+    assert ref["sha256"] == hashlib.sha256((out / "model.joblib").read_bytes()).hexdigest()
 
 
 def test_trained_model_is_deterministic_for_a_seed(tiny_data, tmp_path):
@@ -55,13 +66,46 @@ def test_trained_model_is_deterministic_for_a_seed(tiny_data, tmp_path):
     models = []
     for name in ("a", "b"):
         out = tmp_path / name
-        assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "distal", "--K", "5",
+        assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "5",
                          "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--quiet"]) == 0
-        models.append(joblib.load(out / "model.joblib"))
+        saved = joblib.load(out / "model.joblib")
+        assert set(saved) == {"model", "metadata"} and saved["metadata"]["pads"] == [0, 1, 2, 3, 4, 5]
+        models.append(saved["model"])
     np.testing.assert_array_equal(models[0].bow_.codebook_, models[1].bow_.codebook_)
     a, b = (json.loads((tmp_path / n / "metrics.json").read_text()) for n in ("a", "b"))
     assert a["config1"]["accuracies"] == b["config1"]["accuracies"]
     assert a["fingerprint"] == b["fingerprint"]
+
+
+def test_export_of_a_trained_file_needs_no_pads_and_keeps_the_card(tiny_data, tmp_path, capsys):
+    """handover export model.joblib (no --pads) on a model of all pads: the pads and the
+    provenance come from the file, not from the distal default."""
+    out = tmp_path / "prox"
+    assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "4",
+                     "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--quiet"]) == 0
+    rc = handover(["export", str(out / "model.joblib"), "--out", str(out / "exported.onnx")])
+    assert rc == 0, capsys.readouterr().err
+    from runtime.model import load_model
+
+    meta = load_model(out / "exported.onnx").meta
+    assert list(meta.pads) == [0, 1, 2, 3, 4, 5] and meta.n_channels == 486
+    assert meta.training["n_trials"] == 36 and meta.training["data_fingerprint"] != "unknown"
+    assert meta.evaluation["loso_accuracy"] is not None
+    capsys.readouterr()
+    assert handover(["inspect", str(out / "exported.onnx")]) == 0
+    card = capsys.readouterr().out
+    assert "None trials" not in card and "36" in card
+
+
+def test_failed_onnx_export_fails_the_command(tiny_data, tmp_path, capsys):
+    out = tmp_path / "fail"
+    (out / "model.onnx").mkdir(parents=True)  # the export cannot replace a directory
+    rc = handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "distal", "--K", "4",
+                   "--windows", "3,5", "--T", "10", "--repeats", "2", "--no-sweep", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "model.onnx not written" in err
+    metrics = json.loads((out / "metrics.json").read_text())  # the report is still written
+    assert metrics["windows"] == [3, 5] and metrics["W"] == 5 and metrics["onnx"].startswith("export failed")
 
 
 @pytest.mark.parametrize(

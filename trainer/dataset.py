@@ -1,15 +1,20 @@
-"""From recordings to classifier input: the paper's trigger finds each trial's start, T frames follow.
+"""From recordings to classifier input: the daemon's trigger finds each trial's start, T frames follow.
 
-Within each labelled trial the first frame at which any taxel of the chosen pads reaches
-``fraction`` x full scale (paper: about 15 %) starts the window; the T frames from there (the
-trigger frame included, as in the runtime's trigger) form one case. A trial whose pads never
-reach the threshold, or that ends before T frames after its trigger, is listed in
-``Dataset.untriggered`` with the reason: never dropped silently, never padded.
+Train and serve must cut the same windows, so each labelled trial is fed frame by frame to the
+runtime's own ``runtime.trigger.ThresholdTrigger`` (fires when the max of the chosen pads
+reaches ``fraction`` x full scale, paper: about 15 %; re-arms only below ``fraction -
+hysteresis``, the runtime's default hysteresis). It fires on a rising edge: a trial whose first
+frame is already at or above the level (the resting grip presses that hard) starts disarmed and
+triggers only if the level drops below the re-arm level and rises again. The T frames from the
+trigger (the trigger frame included, as in the runtime) form one case. A trial that never
+triggers, or that ends before T frames after its trigger, is listed in ``Dataset.untriggered``
+with the reason: never dropped silently, never padded.
 """
 
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import os
 from collections.abc import Sequence
@@ -20,8 +25,12 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recording import Recording, RecordingError, Trial, find_recordings, load_all
+from runtime.trigger import ThresholdTrigger
 
 DEFAULT_FRACTION = 0.15
+DEFAULT_HYSTERESIS = float(inspect.signature(ThresholdTrigger).parameters["hysteresis"].default)
+"""The runtime trigger's own default, so that training cuts the windows the daemon will cut."""
+ABOVE_FROM_START = "above the level from the first frame"
 
 
 class DatasetError(ValueError):
@@ -68,6 +77,8 @@ class Dataset:
     sample_rate_hz: float
     fingerprint: str
     sources: list[str] = field(default_factory=list)
+    hysteresis: float = DEFAULT_HYSTERESIS
+    """Re-arm below ``(fraction - hysteresis)`` x full scale (the runtime trigger's rule)."""
 
     @property
     def n_trials(self) -> int:
@@ -100,7 +111,14 @@ class Dataset:
             sample_rate_hz=self.sample_rate_hz,
             fingerprint=self.fingerprint,
             sources=self.sources,
+            hysteresis=self.hysteresis,
         )
+
+    @property
+    def windows_before_onset(self) -> int:
+        """Cases whose T frames all precede the annotated action onset (they cannot see the action)."""
+        known = self.onsets >= 0
+        return int(np.sum(known & (self.trigger_offsets + self.T - 1 < self.onsets)))
 
     def summary(self) -> dict:
         """Counts for reports: cases per class and subject, skipped trials and why."""
@@ -126,10 +144,15 @@ class Dataset:
                 if len(delay)
                 else None
             ),
+            "n_cases_with_onset": int(np.sum(known)),
+            "windows_before_onset": self.windows_before_onset,
             "pads": list(self.pads),
             "pad_sizes": list(self.pad_sizes),
             "T": self.T,
             "trigger_fraction": self.fraction,
+            "trigger_hysteresis": self.hysteresis,
+            "trigger_rule": "runtime.trigger.ThresholdTrigger: rising edge; a trial above the level from its first "
+                            "frame triggers only after dropping below the re-arm level",
             "fullscale": self.fullscale,
             "sample_rate_hz": self.sample_rate_hz,
             "fingerprint": self.fingerprint,
@@ -137,11 +160,41 @@ class Dataset:
 
 
 def trigger_frame(frames: np.ndarray, level: float) -> int:
-    """First row whose maximum reaches ``level``, or -1."""
+    """First row whose maximum reaches ``level``, or -1 (no edge rule; see ``rising_trigger``)."""
     if frames.size == 0:
         return -1
     hits = np.flatnonzero(frames.max(axis=1) >= level)
     return int(hits[0]) if len(hits) else -1
+
+
+def trigger_hysteresis(fraction: float, hysteresis: float = DEFAULT_HYSTERESIS) -> float:
+    """The hysteresis the daemon uses with this fraction (capped below the fraction, as in runtime.daemon)."""
+    return min(float(hysteresis), float(fraction) * 0.99)
+
+
+def rising_trigger(frames: np.ndarray, fullscale: float, fraction: float, hysteresis: float = DEFAULT_HYSTERESIS
+                   ) -> tuple[int, str | None]:
+    """(frame where the runtime's trigger fires within this trial, or -1; why not, or None).
+
+    Frames are fed to ``runtime.trigger.ThresholdTrigger`` one by one. The trigger starts armed
+    unless the first frame is already at or above the level (a trial is not its own rising edge).
+    """
+    if frames.size == 0:
+        return -1, "never triggered: no frames"
+    levels = frames.max(axis=1).astype(np.float32)
+    trig = ThresholdTrigger(1, fullscale, fraction=fraction, hysteresis=trigger_hysteresis(fraction, hysteresis),
+                            window=2)
+    trig.armed = bool(levels[0] < trig.on_level)
+    started_above = not trig.armed
+    for i in range(len(levels)):
+        if trig.update(levels[i : i + 1], i) >= 0:
+            return i, None
+    if started_above:
+        rearmed = bool((levels < trig.off_level).any())
+        return -1, (f"{ABOVE_FROM_START}: {int(levels[0])} >= {trig.on_level:.0f}, "
+                    + ("no rising edge after re-arming" if rearmed else
+                       f"never below the re-arm level {trig.off_level:.0f}"))
+    return -1, f"never triggered: max {int(levels.max())} < {trig.on_level:.0f}"
 
 
 def fingerprint(recordings: Sequence[Recording]) -> str:
@@ -162,8 +215,9 @@ def build_dataset(
     pads: str | Sequence[int] = "all",
     fraction: float = DEFAULT_FRACTION,
     sources: Sequence[str] = (),
+    hysteresis: float = DEFAULT_HYSTERESIS,
 ) -> Dataset:
-    """Cut one case per labelled trial: trigger within the trial, then T frames of the chosen pads."""
+    """Cut one case per labelled trial: the runtime's trigger within the trial, then T frames of the chosen pads."""
     if T < 2:
         raise DatasetError(f"T must be at least 2 frames, got {T}")
     if not 0.0 < fraction < 1.0:
@@ -183,7 +237,9 @@ def build_dataset(
             name = sources[i] if i < len(sources) else f"recording {i}"
             raise DatasetError(f"{name}: its pads {list(pad_idx)} differ from the first recording's")
     fullscale = max(layout.matrices[p].fullscale for p in pad_idx)
-    level = fraction * fullscale
+    hysteresis = trigger_hysteresis(fraction, hysteresis)
+    if hysteresis < 0:
+        raise DatasetError(f"trigger hysteresis must be >= 0, got {hysteresis}")
     cols = layout.columns(pad_idx)
 
     cases, labels, skipped = [], [], []
@@ -192,7 +248,7 @@ def build_dataset(
         if rec.n_frames > 1:
             intervals.append(rec.sample_interval())
         for trial in rec.trials:
-            window = _cut(rec, trial, cols, level, T)
+            window = _cut(rec, trial, cols, fullscale, fraction, hysteresis, T)
             if isinstance(window, str):
                 skipped.append(SkippedTrial(trial.subject, trial.object, trial.pose, trial.action, trial.run, window))
                 continue
@@ -224,15 +280,17 @@ def build_dataset(
         sample_rate_hz=rate,
         fingerprint=fingerprint(recordings),
         sources=list(sources),
+        hysteresis=hysteresis,
     )
 
 
-def _cut(rec: Recording, trial: Trial, cols: np.ndarray, level: float, T: int) -> tuple[int, np.ndarray] | str:
+def _cut(rec: Recording, trial: Trial, cols: np.ndarray, fullscale: float, fraction: float, hysteresis: float,
+         T: int) -> tuple[int, np.ndarray] | str:
     frames, _ = rec.trial_frames(trial)
     selected = frames[:, cols]
-    start = trigger_frame(selected, level)
+    start, why = rising_trigger(selected, fullscale, fraction, hysteresis)
     if start < 0:
-        return f"never triggered: max {int(selected.max()) if selected.size else 0} < {level:.0f}"
+        return str(why)
     if start + T > len(selected):
         return f"triggered too late: frame {start} of {len(selected)}, {T} frames needed"
     return start, selected[start : start + T]

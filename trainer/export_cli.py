@@ -1,7 +1,9 @@
 """``handover export MODEL.joblib --out model.onnx``: one ONNX graph from a trained model.
 
-A trained model file is a joblib of either a fitted ``BowSVC`` or ``{"model": BowSVC,
-"metadata": {...}}`` (what ``handover train`` keeps next to the ``.onnx``). The ``.joblib``
+A trained model file is a joblib of ``{"model": estimator, "metadata": {...}}`` (what
+``handover train`` keeps next to the ``.onnx``: pads, trigger, provenance, evaluation) or of a
+bare fitted estimator (``BowSVC``, ``FlatSVC``: anything with ``svm_`` and ``classes_``); a bare
+one carries no pads, so ``--pads`` (default distal) says which it reads. The ``.joblib``
 stays next to the ``.onnx``: it is the float64 reference ``handover verify`` compares with, and
 its sha256 is written into the graph's metadata (``reference``) so the pair cannot be mixed up.
 """
@@ -20,7 +22,7 @@ class ExportError(ValueError):
 
 
 def load_trained(path: str | Path):
-    """(fitted BowSVC, metadata dict) from a joblib file; ExportError names what is wrong."""
+    """(fitted BowSVC/FlatSVC, metadata dict) from a joblib file; ExportError names what is wrong."""
     import joblib
 
     path = Path(path)
@@ -34,19 +36,19 @@ def load_trained(path: str | Path):
     if isinstance(obj, dict) and "model" in obj:
         metadata = dict(obj.get("metadata") or {})
         obj = obj["model"]
-    if not all(hasattr(obj, a) for a in ("bow_", "svm_", "classes_")):
-        raise ExportError(f"{path}: holds a {type(obj).__name__}, not a fitted BowSVC")
+    if not all(hasattr(obj, a) for a in ("svm_", "classes_")):
+        raise ExportError(f"{path}: holds a {type(obj).__name__}, not a fitted BowSVC or FlatSVC")
     return obj, metadata
 
 
 def export_trained(source: str | Path, out: str | Path, pads: str | None = None, fold_derivative: bool = False) -> Path:
     """Export a trained-model file; fills pads and training provenance it does not carry."""
     from firmware_io.layout import SensorLayout
-    from trainer.onnx_export import export_onnx
+    from trainer.onnx_export import export_onnx, model_shape
 
     source = Path(source)
     model, metadata = load_trained(source)
-    n_channels = int(model.bow_.n_channels_)
+    _, n_channels = model_shape(model)
     if pads is not None or "pads" not in metadata:
         layout = SensorLayout.sdh2()
         try:
@@ -73,7 +75,8 @@ def export_trained(source: str | Path, out: str | Path, pads: str | None = None,
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", help="trained model (.joblib written by handover train)")
     parser.add_argument("--out", help="ONNX file to write (default: MODEL with suffix .onnx)")
-    parser.add_argument("--pads", help="pads the model reads, when the model file does not say (e.g. distal, 1,3,5)")
+    parser.add_argument("--pads", help="pads the model reads (default: as stored by handover train; for a bare "
+                        "estimator file: distal); e.g. distal, all, 1,3,5")
     parser.add_argument("--fold-derivative", action="store_true",
                         help="fold the time derivative into the codeword kernel (one node less, less accurate)")
 

@@ -119,6 +119,14 @@ def _class_table(per_class: dict) -> list[str]:
     return lines
 
 
+def _margin_lines(margin: dict | None) -> list[str]:
+    """The plain statement whether the fitted SVM is the paper's hard margin."""
+    if not margin:
+        return []
+    return ["", f"SVM margin of the final model: {margin['statement']}. Support vectors at the bound: "
+                f"{margin['n_at_bound']} of {margin['n_support_vectors']} ({100 * margin['share_at_bound']:.0f} %)."]
+
+
 def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, str]) -> Path:
     """report.md: the command, the data, the two configurations, baseline, sweeps, figures."""
     syn = metrics["synthetic"]
@@ -150,7 +158,9 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         f"- fingerprint (sha256 of frames, time stamps, labels): `{metrics['fingerprint'][:16]}...`",
         f"- pads {ds['pads']} ({metrics['pads']}), {sum(ds['pad_sizes'])} taxel series per case, "
         f"T = {metrics['T']} frames at {ds['sample_rate_hz']:.1f} Hz",
-        f"- trigger: any taxel of these pads >= {ds['trigger_fraction']:.2f} x full scale ({ds['fullscale']:.0f})",
+        f"- trigger: any taxel of these pads >= {ds['trigger_fraction']:.2f} x full scale ({ds['fullscale']:.0f}), "
+        "the runtime's rule (rising edge; a trial already above the level at its first frame triggers only after "
+        f"dropping below {ds['trigger_fraction'] - ds.get('trigger_hysteresis', 0.0):.2f} x full scale)",
         f"- labelled trials: {metrics['n_trials']}; cases: {ds['n_cases']}; "
         f"**untriggered: {metrics['n_untriggered']}** {ds['untriggered_reasons'] or ''} (listed in metrics.json, "
         "not padded, not in any split)",
@@ -160,14 +170,21 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         d = ds["trigger_minus_onset_frames"]
         lines.append(f"- trigger frame minus annotated action onset: median {d['median']:.0f}, "
                      f"range {d['min']}..{d['max']} frames")
+    if "windows_before_onset" in ds:
+        lines.append(f"- **windows that end before the annotated onset: {ds['windows_before_onset']}** of "
+                     f"{ds['n_cases_with_onset']} cases with an onset (their T frames cannot see the action)")
     lines += [
         "",
         "## Model",
         "",
-        f"BoW: K = {metrics['K']} words, W = {metrics['W']}, T = {metrics['T']}, per-pad histograms: "
+        f"BoW: K = {metrics['K']} words, "
+        + (f"W = {metrics['W']}" if len(metrics.get("windows", [0])) < 2 else
+           f"windows W = {', '.join(str(w) for w in metrics['windows'])} (one codebook each)")
+        + f", T = {metrics['T']}, per-pad histograms: "
         f"{metrics['per_pad']}; SVM kernel {metrics['kernel']}, one-vs-one, "
         f"C/gamma of the final model {metrics['best_params']} (chosen by stratified 3-fold search on "
         "the training cases of each fit). The final model is trained on all cases.",
+        *_margin_lines(metrics.get("svm_margin")),
         "",
         f"## Results ({label})",
         "",
@@ -212,7 +229,8 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "## Files",
         "",
         "- `metrics.json`: every number above, the untriggered trials, the confusion matrices",
-        "- `model.joblib`: the fitted BowSVC (scikit-learn)",
+        "- `model.joblib`: the fitted BowSVC (scikit-learn) and the model file's metadata "
+        "(`{\"model\": ..., \"metadata\": ...}`; `handover export model.joblib` rebuilds the same model.onnx)",
         f"- `model.onnx`: {metrics.get('onnx') or 'not written'}",
         "",
         f"Took {metrics['seconds']:.0f} s.",

@@ -166,7 +166,7 @@ def run(args) -> int:
 
     from trainer import report
     from trainer.baseline import BaselineSVC
-    from trainer.classifier import BowSVC
+    from trainer.classifier import BowSVC, margin_report
     from trainer.dataset import build_dataset
     from trainer.evaluation import config1, config2, tsne_embedding
 
@@ -183,7 +183,7 @@ def run(args) -> int:
 
     bow = BowSVC(n_words=args.K, kernel=args.kernel, C=args.C, gamma=args.gamma, per_pad=args.per_pad,
                  pad_sizes=ds.pad_sizes if (args.per_pad or args.level_features) else None, random_state=args.seed,
-                 **estimator_options(args))
+                 fullscale=ds.fullscale, **estimator_options(args))
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     base = BaselineSVC(pad_shapes=shapes, kernel="rbf")
     seeds = list(range(args.seed, args.seed + args.repeats))
@@ -203,6 +203,8 @@ def run(args) -> int:
     hist = model.transform_histograms(ds.X)
     embedding = tsne_embedding(hist, seed=args.seed)
 
+    window_opt = estimator_options(args)["window"]
+    windows = [int(w) for w in window_opt] if isinstance(window_opt, tuple) else [int(window_opt)]
     metrics = {
         "synthetic": synthetic,
         "data": source,
@@ -216,18 +218,27 @@ def run(args) -> int:
         "baseline_config1_accuracy_std": b1["std"],
         "baseline_loso_accuracy": b2["accuracy"],
         "baseline_loso_subject_std": b2["subject_std"],
-        "K": args.K, "W": args.W, "T": args.T, "kernel": args.kernel, "per_pad": args.per_pad,
-        "pads": args.pads, "trigger_fraction": args.fraction, "seed": args.seed,
+        "K": args.K, "W": max(windows), "windows": windows, "T": args.T, "kernel": args.kernel,
+        "per_pad": args.per_pad, "pads": args.pads, "trigger_fraction": args.fraction,
+        "trigger_hysteresis": ds.hysteresis, "seed": args.seed,
         "best_params": model.best_params_,
+        "svm_margin": margin_report(model.svm_),
         "n_trials": ds.n_trials, "n_cases": len(ds.y), "n_untriggered": ds.n_untriggered,
+        "n_windows_before_onset": ds.windows_before_onset,
         "untriggered": [s.to_dict() for s in ds.untriggered],
         "dataset": summary,
         "config1": c1, "config2": c2, "baseline_config1": b1, "baseline_config2": b2,
         "sweep": sweep,
     }
 
-    joblib.dump(model, out / "model.joblib")
-    metrics["onnx"] = None if args.no_onnx else _export_onnx(args, model, ds, metrics, out)
+    model_meta = model_metadata(args, ds, metrics)
+    joblib_path = out / "model.joblib"
+    joblib.dump({"model": model, "metadata": model_meta}, joblib_path)
+    onnx_ok = True
+    if args.no_onnx:
+        metrics["onnx"] = None
+    else:
+        onnx_ok, metrics["onnx"] = _export_onnx(model, model_meta, joblib_path, out)
 
     _say(args, "writing figures and the report ...")
     tag = " (synthetic)" if synthetic else ""
@@ -254,8 +265,8 @@ def run(args) -> int:
     _say(args, f"report written to {out / 'report.md'} ({metrics['seconds']:.0f} s)")
     if args.json:
         print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (
-            "loso_per_subject", "best_params")}, default=report._json_default))
-    return 0
+            "loso_per_subject", "best_params", "svm_margin")}, default=report._json_default))
+    return 0 if onnx_ok else 1
 
 
 def _sweeps(args, recordings, out: Path) -> dict | None:
@@ -280,21 +291,20 @@ def _sweeps(args, recordings, out: Path) -> dict | None:
     return result
 
 
-def _export_onnx(args, model, ds, metrics: dict, out: Path) -> str | None:
-    """model.onnx through trainer.onnx_export when it exists; a failure is reported, not fatal."""
-    import importlib.util
+def model_metadata(args, ds, metrics: dict) -> dict:
+    """What the model file must carry besides the estimator: pads, trigger, provenance, evaluation.
 
-    if importlib.util.find_spec("trainer.onnx_export") is None:
-        return None
+    Kept in model.joblib (``{"model": ..., "metadata": ...}``) so ``handover export`` of that
+    file writes the same model card as ``train``.
+    """
     from runtime import __version__
-    from trainer.onnx_export import export_onnx
 
     rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
-    meta = {
+    return {
         "pads": list(ds.pads),
         "pad_sizes": list(ds.pad_sizes),
         "fullscale": ds.fullscale,
-        "trigger": {"fraction": ds.fraction},
+        "trigger": {"fraction": ds.fraction, "hysteresis": ds.hysteresis},
         "sample_rate_hz": rate,
         "training": {
             "data_fingerprint": ds.fingerprint,
@@ -308,6 +318,8 @@ def _export_onnx(args, model, ds, metrics: dict, out: Path) -> str | None:
             "seed": args.seed,
             "C": metrics["best_params"].get("C"),
             "gamma": metrics["best_params"].get("gamma"),
+            "hard_margin": metrics["svm_margin"]["hard_margin"],
+            "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
         },
         "evaluation": {
             "synthetic": metrics["synthetic"],
@@ -319,9 +331,20 @@ def _export_onnx(args, model, ds, metrics: dict, out: Path) -> str | None:
             "baseline_loso_accuracy": metrics["baseline_loso_accuracy"],
         },
     }
+
+
+def _export_onnx(model, meta: dict, joblib_path: Path, out: Path) -> tuple[bool, str]:
+    """model.onnx beside model.joblib, whose sha256 it records as ``reference`` (so ``handover verify``
+    refuses a mismatching pair). A failure is reported on stderr and makes ``train`` exit 1."""
+    import hashlib
+
+    from trainer.onnx_export import export_onnx
+
+    digest = hashlib.sha256(joblib_path.read_bytes()).hexdigest()
+    meta = {**meta, "reference": {"file": joblib_path.name, "sha256": digest}}
     try:
         path = export_onnx(model, out / "model.onnx", meta)
-    except Exception as exc:  # the report is still worth having; say what failed
+    except Exception as exc:  # the report is still worth having; say what failed, exit non-zero
         print(f"handover {COMMAND}: model.onnx not written: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return f"export failed: {type(exc).__name__}: {exc}"
-    return f"written ({path.name}, {path.stat().st_size} bytes)"
+        return False, f"export failed: {type(exc).__name__}: {exc}"
+    return True, f"written ({path.name}, {path.stat().st_size} bytes)"
