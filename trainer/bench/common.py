@@ -87,12 +87,12 @@ def command_line(name: str, args) -> str:
     parts = ["handover", "bench", name]
     if getattr(args, "quick", False):
         parts.append("--quick")
-    if getattr(args, "load", False):
+    if name == "latency" and getattr(args, "load", False):
         parts.append("--load")
-    for opt in ("duration", "seed"):
-        value = getattr(args, opt, None)
-        if value is not None:
-            parts += [f"--{opt}", str(value)]
+    if name == "latency" and getattr(args, "duration", None) is not None:
+        parts += ["--duration", str(args.duration)]
+    if getattr(args, "seed", None) is not None:
+        parts += ["--seed", str(args.seed)]
     if getattr(args, "out", None) not in (None, "results"):
         parts += ["--out", str(args.out)]
     return shlex.join(parts)
