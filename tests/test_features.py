@@ -132,7 +132,7 @@ def test_graph_parity_on_cases_and_stress(exported):
     report = compare(model, runner, np.concatenate([frames_of(X), stress]), ["sim"] * 64 + ["stress"] * len(stress))
     _check(report)
     assert report.by_source["sim"]["agree"] >= 62  # synthetic; near ties are rare
-    labels, scores, hist = runner.run(frames_of(X))
+    _labels, _scores, hist = runner.run(frames_of(X))
     assert hist.shape == (64, model.bow_.n_features_out_)
     ref_hist = model.transform_histograms(X)
     tol = 2e-3 if model.bow_.assignment == "soft" else 1e-6
@@ -141,10 +141,10 @@ def test_graph_parity_on_cases_and_stress(exported):
 
 
 def test_metadata_describes_the_features(exported, tmp_path):
-    name, model, runner = exported
+    _name, model, runner = exported
     meta = load_model(runner.path).meta
     feats = meta.extra["features"]
-    assert feats["windows"] == [w for w, _, _ in model.bow_.scales()] and meta.W == max(feats["windows"])
+    assert feats["windows"] == [w for w, _, _ in model.bow_.scales()] and max(feats["windows"]) == meta.W
     assert feats["assignment"] == model.bow_.assignment and feats["n_features"] == model.bow_.n_features_out_
     assert feats["scale_features"] == bool(model.scale_features)
     assert meta.extra["model_kind"] == "bow_svm"
@@ -188,3 +188,20 @@ def test_flat_svm_graph_parity(kernel, tmp_path):
     labels, _, hist = runner.run(frames_of(Xt))
     np.testing.assert_array_equal(hist, Xt.reshape(64, -1))
     assert np.mean(labels == np.searchsorted(model.classes_, model.predict(Xt))) >= 0.98
+
+
+def test_verify_accepts_a_flat_svm_reference(tmp_path, capsys):
+    """load_trained takes any fitted model with svm_ and classes_ (bare or with metadata): verify runs."""
+    import joblib
+
+    from runtime.cli import main as handover
+    from trainer.export_cli import export_trained, load_trained
+
+    X, y = synthetic_cases(seed=0)
+    model = FlatSVC(kernel="linear", C=10.0).fit(X, y)
+    joblib.dump(model, tmp_path / "bare.joblib")
+    assert isinstance(load_trained(tmp_path / "bare.joblib")[0], FlatSVC)
+    joblib.dump({"model": model, "metadata": {"pads": [1, 3], "pad_sizes": list(PAD_SIZES),
+                 "training": {"data_fingerprint": "synthetic", "n_trials": 96}}}, tmp_path / "flat.joblib")
+    path = export_trained(tmp_path / "flat.joblib", tmp_path / "flat.onnx")
+    assert handover(["verify", str(path), "--no-trials"]) == 0, capsys.readouterr()

@@ -206,3 +206,55 @@ def test_verify_cli_on_held_out_simulated_trials(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["agreement"] >= 0.999 and report["unexplained_disagreements"] == 0
     assert report["nan_or_inf_outputs"] == 0
+
+
+def _swap_codewords(path, a: int = 0, b: int = 1):
+    """Rewrite the graph with codewords a and b swapped in the codeword kernel only (a real bug: the
+    bias ||c_k||^2 no longer matches its kernel row)."""
+    import onnx
+    from onnx import numpy_helper
+
+    proto = onnx.load(str(path))
+    init = next(i for i in proto.graph.initializer if i.name.startswith("codeword_kernel"))
+    kernel = numpy_helper.to_array(init).copy()
+    kernel[[a, b]] = kernel[[b, a]]
+    init.CopyFrom(numpy_helper.from_array(kernel, init.name))
+    onnx.save(proto, str(path))
+    return path
+
+
+def test_window_words_are_exposed_and_match_on_a_correct_graph(rbf):
+    model, runner = rbf
+    X, _ = synthetic_cases(n=40, seed=5)
+    _, _, _, words = runner.run_with_words(frames_of(X))
+    assert len(words) == 1 and words[0].shape == (40, T - 1 - 5 + 1, C)
+    report = compare(model, runner, frames_of(X), ["synthetic"] * 40)
+    assert report.window_word_mismatches_unexplained == 0 and report.ok
+
+
+def test_swapped_codewords_are_bugs_not_near_ties(tmp_path):
+    model = fit_model("rbf")
+    path = _swap_codewords(export(model, tmp_path))
+    X, _ = synthetic_cases(n=96, seed=7)
+    report = compare(model, GraphRunner(path), frames_of(X), ["synthetic"] * 96)
+    assert report.window_word_mismatches_unexplained > 0 and not report.ok
+    assert report.hist_mismatch_unexplained > 0
+    for d in report.disagreements:  # none excused as a near tie merely because some window is one
+        assert not d.near_tie, d
+
+
+def test_verify_cli_fails_on_a_graph_with_swapped_codewords(tmp_path, capsys):
+    import json
+
+    from runtime.cli import main as handover
+
+    path = _swap_codewords(_exported_with_reference(tmp_path))
+    assert handover(["verify", str(path), "--no-trials", "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["unexplained_disagreements"] > 0 or report["hist_mismatch_unexplained"] > 0
+    assert report["window_word_mismatches_unexplained"] > 0
+    # only windows built exactly between two codewords may still be excused: every window of such a
+    # case is a near tie, so either word is right there
+    excused = [d for d in report["disagreements"] if d["near_tie"]]
+    assert all(d["source"] == "stress:between_codewords" and "beyond the bound" not in d["reason"] for d in excused)
+    assert len(excused) < report["unexplained_disagreements"]

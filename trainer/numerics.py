@@ -83,6 +83,19 @@ def codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool 
     return rel, gap
 
 
+def window_codewords(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 nearest codeword of every window ``(n, c, S)`` (ties -> lowest k) and its relative
+    margin (as ``codeword_margins``): what the graph's ArgMin must reproduce window by window."""
+    X64 = np.asarray(X, dtype=np.float64)
+    codebook = np.asarray(codebook, dtype=np.float64)
+    deriv = X64[:, :, 1:] - X64[:, :, :-1]
+    win = np.lib.stride_tricks.sliding_window_view(deriv, codebook.shape[1], axis=2)
+    dist = (win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + (codebook**2).sum(axis=1)
+    rel, _ = codeword_margins(X64, codebook, fold_derivative)
+    return np.argmin(dist, axis=-1), rel
+
+
 def case_codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Per case, the smallest relative codeword margin and absolute gap over its active windows."""
     rel, gap = codeword_margins(X, codebook, fold_derivative)

@@ -3,10 +3,16 @@
 The reference is the fitted scikit-learn model the graph was exported from (``model.joblib``
 kept next to ``model.onnx``; its sha256 is in the ONNX metadata under ``reference``), run in
 float64: ``BagOfWords.transform`` + ``SVC.predict``/decision function. The graph is run with
-its BoW histogram exposed as an extra output, so every label disagreement can be traced to
-either a codeword choice (the histogram differs) or an SVM decision, each with its margin in
-units of the float32 error bound (``trainer.numerics``). A disagreement is accepted only as a
-near tie: margin below ``SAFETY``.
+its BoW histogram and its per-window word choices (every ``ArgMin`` over codewords) exposed as
+extra outputs, so every label disagreement can be traced to either codeword choices or an SVM
+decision, each with its margin in units of the float32 error bound (``trainer.numerics``).
+
+Word choices are compared window by window: a window whose word differs from the float64 one is
+excused only when *that window's* margin is below ``SAFETY`` (a near tie); any other differing
+window is a bug, whatever the label. A histogram difference is explained only when every
+differing window is a near tie and each entry moves by at most (near-tie windows / active
+windows) of its pad group, the most those windows can move it. A label disagreement is
+accepted only as a near tie.
 """
 
 from __future__ import annotations
@@ -60,6 +66,11 @@ class VerifyReport:
     hist_mismatch_unexplained: int = 0
     near_tie_cases: int = 0
     """Cases with a codeword or SVM near tie, whatever the outcome."""
+    window_word_mismatches: int = 0
+    """Active windows whose graph word differs from the float64 word."""
+    window_word_mismatches_near_tie: int = 0
+    window_word_mismatches_unexplained: int = 0
+    """Differing windows with a margin of at least SAFETY x bound: never a rounding effect."""
     nan_or_inf_outputs: int = 0
     nonfinite_input_refused: bool | None = None
     by_source: dict = field(default_factory=dict)
@@ -72,11 +83,14 @@ class VerifyReport:
 
     @property
     def ok(self) -> bool:
-        return self.unexplained_disagreements == 0 and self.nan_or_inf_outputs == 0 and self.hist_mismatch_unexplained == 0
+        return (self.unexplained_disagreements == 0 and self.nan_or_inf_outputs == 0
+                and self.hist_mismatch_unexplained == 0 and self.window_word_mismatches_unexplained == 0)
 
 
 class GraphRunner:
-    """The exported graph with its histogram as an extra output (single thread, like the daemon)."""
+    """The exported graph with its histogram and per-window words as extra outputs (single thread,
+    like the daemon). ``word_outputs``: the ArgMin tensors ``[N, S, C]``, one per hard scale, in
+    feature order."""
 
     def __init__(self, onnx_path: str | Path):
         import onnx
@@ -95,11 +109,71 @@ class GraphRunner:
         if n_features is None:
             raise VerifyError(f"{onnx_path}: no {HISTOGRAM!r} tensor in the graph (not exported by this project)")
         proto.graph.output.append(onnx.helper.make_tensor_value_info(HISTOGRAM, onnx.TensorProto.FLOAT, ["N", n_features]))
+        self.word_outputs = [node.output[0] for node in proto.graph.node if node.op_type == "ArgMin"]
+        for name in self.word_outputs:
+            proto.graph.output.append(onnx.helper.make_tensor_value_info(name, onnx.TensorProto.INT64, ["N", "S", "C"]))
         self.session = ort.InferenceSession(proto.SerializeToString(), session_options(), providers=["CPUExecutionProvider"])
 
     def run(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         labels, scores, hist = self.session.run(["label", "scores", "histogram"], {"frames": frames})
         return labels, scores, hist
+
+    def run_with_words(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
+        """Labels, scores, histogram and the word chosen for every window ``[N, S, C]`` per hard scale."""
+        out = self.session.run(["label", "scores", "histogram", *self.word_outputs], {"frames": frames})
+        return out[0], out[1], out[2], list(out[3:])
+
+
+@dataclass
+class WindowCheck:
+    """Window-by-window comparison of the graph's words with the float64 words, per case."""
+
+    mismatched: np.ndarray
+    """Differing active windows per case."""
+    unexplained: np.ndarray
+    """Differing active windows whose margin is not a near tie, per case."""
+    allowance: np.ndarray
+    """``(n, F)`` (or ``(n, 1)`` zeros without hard words): how far each histogram entry may move
+    through near-tie windows."""
+
+
+def check_windows(model, frames: np.ndarray, graph_words: list[np.ndarray], fold_derivative: bool = False
+                  ) -> WindowCheck:
+    """Compare the graph's per-window words with the reference's; no hard words -> nothing to check."""
+    from trainer.bow import channel_groups
+    from trainer.numerics import window_codewords
+
+    n = len(frames)
+    bow = getattr(model, "bow_", None)
+    mismatched, unexplained = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    if bow is None or getattr(bow, "assignment", "hard") != "hard":
+        return WindowCheck(mismatched, unexplained, np.zeros((n, 1)))  # broadcasts over any feature count
+    scales = bow.scales()
+    if len(graph_words) != len(scales):
+        raise VerifyError(f"the graph has {len(graph_words)} codeword choices (ArgMin) for {len(scales)} codebooks")
+    X = np.asarray(frames, dtype=np.float32).astype(np.float64).transpose(0, 2, 1)  # (n, c, T)
+    active = np.any(X != 0, axis=2)  # (n, c)
+    groups = channel_groups(bow.pad_sizes_)
+    indicator = (groups[None, :] == np.arange(len(bow.pad_sizes_))[:, None]).astype(np.float64)  # (G, c)
+    parts = []
+    for (_, codebook, _), words in zip(scales, graph_words, strict=True):
+        best, rel = window_codewords(X, codebook, fold_derivative)  # (n, c, S)
+        graph = np.asarray(words).transpose(0, 2, 1)  # [N, S, C] -> (n, c, S)
+        if graph.shape != best.shape:
+            raise VerifyError(f"graph words have shape {graph.shape}, the reference {best.shape}")
+        act = active[:, :, None]
+        tie = (rel < SAFETY) & act
+        differ = (graph != best) & act
+        mismatched += differ.sum(axis=(1, 2))
+        unexplained += (differ & ~tie).sum(axis=(1, 2))
+        n_windows = best.shape[2]
+        ties = tie.sum(axis=2) @ indicator.T  # (n, G) near-tie windows per group
+        windows = (active @ indicator.T) * n_windows
+        allow = np.where(windows > 0, ties / np.maximum(windows, 1), 0.0)
+        parts.append(np.repeat(allow, len(codebook), axis=1))  # group-major, like the histogram
+    if getattr(bow, "level_features", False):
+        parts.append(np.zeros((n, 2 * len(bow.level_groups_))))
+    return WindowCheck(mismatched, unexplained, np.concatenate(parts, axis=1))
 
 
 def reference_path_for(onnx_path: Path, meta_extra: dict, explicit: str | Path | None) -> Path:
@@ -133,14 +207,23 @@ def compare(model, runner: GraphRunner, frames: np.ndarray, sources: list[str], 
     for start in range(0, len(frames), BATCH):
         batch = np.ascontiguousarray(frames[start : start + BATCH], dtype=np.float32)
         src = sources[start : start + BATCH]
-        labels, scores, hist = runner.run(batch)
+        labels, scores, hist, words = runner.run_with_words(batch)
         ref = reference(model, batch, fold_derivative)
+        windows = check_windows(model, batch, words, fold_derivative)
         finite = np.isfinite(scores).all(axis=1) & np.isfinite(hist).all(axis=1)
         report.nan_or_inf_outputs += int((~finite).sum())
         entry_diff = np.abs(hist.astype(np.float64) - ref["hist"])
         hist_diff = entry_diff.max(axis=1)
         # soft words and level features: beyond the tolerance only what their float32 bound allows
-        hist_bad = (entry_diff > HIST_TOLERANCE + SAFETY * ref["hist_error"]).any(axis=1)
+        rounding = HIST_TOLERANCE + SAFETY * ref["hist_error"]
+        hist_bad = (entry_diff > rounding).any(axis=1)
+        # hard words: a histogram may differ only through windows whose word is a near tie, and by
+        # at most (near-tie windows / active windows) of the pad group
+        words_ok = windows.unexplained == 0
+        hist_explained = words_ok & ~(entry_diff > rounding + windows.allowance).any(axis=1)
+        report.window_word_mismatches += int(windows.mismatched.sum())
+        report.window_word_mismatches_unexplained += int(windows.unexplained.sum())
+        report.window_word_mismatches_near_tie += int((windows.mismatched - windows.unexplained).sum())
         score_diff = np.abs(scores.astype(np.float64) - ref["scores"]).max(axis=1)
         same_votes = np.floor(scores + 0.5) == np.floor(ref["scores"] + 0.5)
         svm_margin = (np.abs(ref["decisions"]) / np.maximum(ref["decision_bounds"], 1e-300)).min(axis=1)
@@ -153,13 +236,15 @@ def compare(model, runner: GraphRunner, frames: np.ndarray, sources: list[str], 
         )
         report.max_hist_abs_diff = max(report.max_hist_abs_diff, float(np.nanmax(hist_diff, initial=0.0)))
         report.hist_mismatch_cases += int(hist_bad.sum())
-        report.hist_mismatch_unexplained += int((hist_bad & ~cw_tie).sum())
+        report.hist_mismatch_unexplained += int((hist_bad & ~hist_explained).sum())
         report.near_tie_cases += int((cw_tie | svm_tie).sum())
         agree = labels == ref["labels"]
         n_agree += int(agree.sum())
         for i in np.flatnonzero(~agree):
-            if hist_bad[i]:
-                near, reason = bool(cw_tie[i]), "codeword choice (histogram differs)"
+            if hist_bad[i] or not words_ok[i]:
+                near, reason = bool(hist_explained[i] and cw_tie[i]), "codeword choice (histogram differs)"
+                if windows.unexplained[i]:
+                    reason += f", {int(windows.unexplained[i])} window(s) with a different word beyond the bound"
             else:
                 near, reason = bool(svm_tie[i]), "SVM decision (same histogram)"
             report.disagreements.append(
@@ -244,7 +329,10 @@ def recording_windows(folder: str | Path, meta, stride: int) -> tuple[np.ndarray
 def stress_windows(model, meta, seed: int = 0) -> tuple[np.ndarray, list[str]]:
     from trainer.stress import stress_cases
 
-    families = stress_cases(meta.T, meta.n_channels, model.bow_.codebook_, seed)
+    bow = getattr(model, "bow_", None)
+    # a flattened-series SVM has no codebook: windows between two arbitrary "codewords" still stress it
+    codebook = bow.codebook_ if bow is not None else np.eye(2, max(1, min(5, meta.T - 1))) * 100.0
+    families = stress_cases(meta.T, meta.n_channels, codebook, seed)
     frames = np.concatenate(list(families.values()))
     names = [f"stress:{name}" for name, arr in families.items() for _ in range(len(arr))]
     return frames, names

@@ -3,7 +3,8 @@
 Runs the exported graph and the float64 scikit-learn reference (the ``.joblib`` next to the
 ``.onnx``) on the same windows: held-out simulated trials (or the recordings in ``--data``)
 and, with ``--stress``, the stress families of ``trainer.stress``. Exit status 0 when every
-disagreement is a near tie and no output is NaN/inf, 1 otherwise, 2 when it cannot run.
+disagreement is a near tie, every window whose word differs from the float64 word is a near
+tie, and no output is NaN/inf; 1 otherwise; 2 when it cannot run.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ def _print_report(report, path: Path) -> None:
           f"({report.max_score_abs_diff_same_votes:.3g} where histogram and votes agree)")
     print(f"  max |histogram - reference|: {report.max_hist_abs_diff:.3g}; "
           f"{report.hist_mismatch_cases} histograms differ ({report.hist_mismatch_unexplained} not at a near tie)")
+    print(f"  windows whose word differs from float64: {report.window_word_mismatches} "
+          f"({report.window_word_mismatches_near_tie} near ties, {report.window_word_mismatches_unexplained} beyond the bound)")
     print(f"  cases with a near tie (any outcome): {report.near_tie_cases}; NaN/inf outputs: {report.nan_or_inf_outputs}; "
           f"non-finite input refused: {report.nonfinite_input_refused}")
     print(f"  near tie: margin < {report.safety:g} x the float32 error bound (see trainer/numerics.py)")
