@@ -2,10 +2,12 @@
 
 A model file is one self-contained ONNX graph (no external data) with
 
-- input ``frames`` float32 ``[N, T, C]`` (N dynamic; C = taxels of the model's pads in wire order),
+- input ``frames`` float32 ``[N, T, C]`` (N dynamic or symbolic, never fixed; C = taxels of the
+  model's pads in wire order),
 - outputs ``label`` int64 ``[N]`` (index into ``classes``) and ``scores`` float32
   ``[N, n_classes]`` (scikit-learn's one-vs-rest scores: one-vs-one votes + confidence/(3(|conf|+1))),
-- metadata: ``metadata_props["handover"]`` = JSON (see ``REQUIRED_KEYS``),
+- metadata: ``metadata_props["handover"]`` = JSON (see ``REQUIRED_KEYS``); ``classes`` a list of
+  names; for a BoW graph K and W agree with the codeword kernel initializers,
 - operators of the standard domains only (``ai.onnx``, ``ai.onnx.ml``).
 
 The loader checks all of it before the daemon trusts a file and refuses with one
@@ -103,8 +105,14 @@ class ModelMeta:
             raise ModelContractError(f"metadata lacks {', '.join(missing)}")
         if d["schema_version"] != SCHEMA_VERSION:
             raise ModelContractError(f"metadata schema_version {d['schema_version']!r}, this runtime reads {SCHEMA_VERSION}")
+        for key in ("classes", "pads", "pad_sizes"):
+            if not isinstance(d[key], list):
+                raise ModelContractError(f"metadata: {key} must be a list, got {d[key]!r}")
+        bad = [c for c in d["classes"] if not isinstance(c, str)]
+        if bad:
+            raise ModelContractError(f"metadata: classes must be names (strings), got {bad[0]!r}")
         try:
-            classes = tuple(str(c) for c in d["classes"])
+            classes = tuple(d["classes"])
             pads = tuple(_int(p, "pads") for p in d["pads"])
             pad_sizes = tuple(_int(p, "pad_sizes") for p in d["pad_sizes"])
             meta = cls(
@@ -220,10 +228,22 @@ class LoadedModel:
             raise ModelInputError(f"model {self.model_id}: input frames contain NaN or infinity; refused")
         return arr
 
-    def run(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """Labels int64 ``[N]`` (indices into meta.classes) and scores float32 ``[N, n_classes]``."""
+    def run(self, x, check: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Labels int64 ``[N]`` (indices into meta.classes) and scores float32 ``[N, n_classes]``.
+
+        ``check=False`` is ``run_trusted``: for callers that build ``x`` themselves.
+        """
+        if not check:
+            return self.run_trusted(x)
         arr = self.check_input(x)
         labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: arr})
+        return labels, scores
+
+    def run_trusted(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``run`` without ``check_input``: for the daemon's hot path, whose windows are float32
+        ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No copy,
+        no finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error)."""
+        labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x})
         return labels, scores
 
     def warm_up(self, repeats: int = 3) -> None:
@@ -240,9 +260,14 @@ def _check_io(session, meta: ModelMeta) -> None:
     inp = inputs[0]
     if inp.type != "tensor(float)":
         raise ModelContractError(f"input {INPUT_NAME!r} is {inp.type}, expected tensor(float)")
-    if len(inp.shape) != 3 or list(inp.shape[1:]) != [meta.T, meta.n_channels] or (isinstance(inp.shape[0], int) and inp.shape[0] < 1):
+    if len(inp.shape) != 3 or list(inp.shape[1:]) != [meta.T, meta.n_channels]:
         raise ModelContractError(
             f"input {INPUT_NAME!r} has shape {inp.shape}, metadata says [N, T={meta.T}, C={meta.n_channels}]"
+        )
+    if isinstance(inp.shape[0], int):
+        raise ModelContractError(
+            f"input {INPUT_NAME!r} has a fixed batch size of {inp.shape[0]}; the contract needs a dynamic (or "
+            "symbolic) batch dimension N, since the daemon runs single windows and tools run batches"
         )
     names = [o.name for o in outputs]
     if sorted(names) != sorted(OUTPUT_NAMES):
@@ -256,6 +281,36 @@ def _check_io(session, meta: ModelMeta) -> None:
             f"output 'scores' is {scores.type} {scores.shape}, expected tensor(float) [N, {meta.n_classes}] "
             f"(one score per class of {list(meta.classes)})"
         )
+
+
+CODEWORD_KERNEL = "codeword_kernel"
+"""Name prefix of a BoW graph's codeword convolution kernels ``[K, 1, W (+1 when the derivative is
+folded), 1]``, one per window length (trainer.onnx_export)."""
+
+
+def _check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ...]]) -> None:
+    """K and W of the metadata against the codeword kernels of a BoW graph (read from the wire).
+
+    Only for ``model_kind == "bow_svm"``: other kinds (flattened-series SVM) have no codebook and
+    K = W = 1 by convention.
+    """
+    if meta.extra.get("model_kind") != "bow_svm":
+        return
+    kernels = [dims for name, dims in initializer_dims.items() if name.startswith(CODEWORD_KERNEL)]
+    if not kernels:
+        raise ModelContractError(f"metadata says a BoW model but the graph has no {CODEWORD_KERNEL} initializer")
+    if any(len(d) != 4 for d in kernels):
+        raise ModelContractError(f"codeword kernels of shape {kernels}, expected [K, 1, W, 1]")
+    fold = bool((meta.extra.get("graph") or {}).get("fold_derivative", False))
+    words = sorted({d[0] for d in kernels})
+    windows = sorted(d[2] - int(fold) for d in kernels)
+    if words != [meta.K]:
+        raise ModelContractError(f"metadata K={meta.K}, but the graph's codebook has {', '.join(map(str, words))} words")
+    if max(windows) != meta.W:
+        raise ModelContractError(f"metadata W={meta.W}, but the graph's longest codeword window is {max(windows)}")
+    listed = (meta.extra.get("features") or {}).get("windows")
+    if isinstance(listed, list) and sorted(listed) != windows:
+        raise ModelContractError(f"metadata features.windows {listed}, but the graph's codeword windows are {windows}")
 
 
 def load_model(
@@ -307,6 +362,7 @@ def load_model(
     try:
         meta = ModelMeta.from_dict(meta_dict)
         _check_io(session, meta)
+        _check_bow_params(meta, wire.initializer_dims)
     except ModelContractError as exc:
         raise ModelContractError(f"{where}: {exc}") from exc
     model_id = hashlib.sha256(data).hexdigest()[:12]

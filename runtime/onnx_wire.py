@@ -5,11 +5,13 @@ does not expose the graph's operator domains. Reading the few fields needed stra
 protobuf wire format (varints and length-delimited fields; see onnx/onnx.proto) is ~80 lines,
 has no dependency and no version skew, and is checked against ``onnx`` in the tests.
 
-Fields used (onnx.proto3 numbers): ModelProto.graph = 7, .opset_import = 8, .functions = 25;
-GraphProto.node = 1, .initializer = 5, .sparse_initializer = 15; NodeProto.attribute = 5,
-.domain = 7; AttributeProto.t = 5, .g = 6, .tensors = 10, .graphs = 11;
-TensorProto.external_data = 13, .data_location = 14; OperatorSetIdProto.domain = 1;
-FunctionProto.node = 4, .opset_import = 9, .domain = 10.
+Fields used (onnx.proto3 numbers, onnx 1.23): ModelProto.graph = 7, .opset_import = 8,
+.functions = 25; GraphProto.node = 1, .initializer = 5, .sparse_initializer = 15;
+NodeProto.attribute = 5, .domain = 7; AttributeProto.t = 5, .g = 6, .tensors = 10,
+.graphs = 11, .sparse_tensor = 22, .sparse_tensors = 23; SparseTensorProto.values = 1,
+.indices = 2; TensorProto.dims = 1, .name = 8, .external_data = 13, .data_location = 14;
+OperatorSetIdProto.domain = 1; FunctionProto.input = 4 (strings, skipped), .node = 7,
+.opset_import = 9, .domain = 10.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ class WireSummary:
     node_domains: set[str] = field(default_factory=set)
     n_nodes: int = 0
     external_data: bool = False
+    initializer_dims: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    """Shape of every initializer of the main graph, by name (what the contract checks K and W on)."""
 
 
 def _varint(buf: bytes, pos: int) -> tuple[int, int]:
@@ -75,18 +79,40 @@ def _tensor_is_external(buf: bytes) -> bool:
     return any(number == 13 or (number == 14 and value == 1) for number, _, value in _fields(buf))
 
 
-def _walk_graph(buf: bytes, out: WireSummary) -> None:
+def _sparse_is_external(buf: bytes) -> bool:
+    """A SparseTensorProto whose values (1) or indices (2) tensor lives in external data."""
+    return any(t == 2 and number in (1, 2) and _tensor_is_external(v) for number, t, v in _fields(buf))
+
+
+def _tensor_name_and_dims(buf: bytes) -> tuple[str, tuple[int, ...]]:
+    name, dims = "", []
+    for number, wtype, value in _fields(buf):
+        if number == 8 and wtype == 2:
+            name = value.decode("utf-8", "replace")
+        elif number == 1 and wtype == 0:
+            dims.append(value)
+        elif number == 1 and wtype == 2:  # packed
+            pos = 0
+            while pos < len(value):
+                dim, pos = _varint(value, pos)
+                dims.append(dim)
+    return name, tuple(dims)
+
+
+def _walk_graph(buf: bytes, out: WireSummary, main: bool = False) -> None:
     for number, wtype, value in _fields(buf):
         if wtype != 2:
             continue
         if number == 1:
             _walk_node(value, out)
-        elif number == 5 and _tensor_is_external(value):
+        elif number == 5:
+            if _tensor_is_external(value):
+                out.external_data = True
+            if main:
+                name, dims = _tensor_name_and_dims(value)
+                out.initializer_dims[name] = dims
+        elif number == 15 and _sparse_is_external(value):
             out.external_data = True
-        elif number == 15:
-            for sub_number, sub_type, sub in _fields(value):
-                if sub_type == 2 and sub_number in (1, 2) and _tensor_is_external(sub):
-                    out.external_data = True
 
 
 def _walk_node(buf: bytes, out: WireSummary) -> None:
@@ -101,7 +127,9 @@ def _walk_node(buf: bytes, out: WireSummary) -> None:
                     continue
                 if a_number in (6, 11):
                     _walk_graph(a_value, out)
-                elif a_number in (5, 10) and _tensor_is_external(a_value):
+                elif (a_number in (5, 10) and _tensor_is_external(a_value)) or (
+                    a_number in (22, 23) and _sparse_is_external(a_value)
+                ):
                     out.external_data = True
     out.node_domains.add(domain)
 
@@ -123,14 +151,14 @@ def summarize(model_bytes: bytes) -> WireSummary:
             continue
         if number == 7:
             saw_graph = True
-            _walk_graph(value, out)
+            _walk_graph(value, out, main=True)
         elif number == 8:
             out.opset_domains.add(_opset_domain(value))
         elif number == 25:
             for f_number, f_type, f_value in _fields(value):
                 if f_type != 2:
                     continue
-                if f_number == 4:
+                if f_number == 7:
                     _walk_node(f_value, out)
                 elif f_number == 9:
                     out.opset_domains.add(_opset_domain(f_value))

@@ -100,6 +100,12 @@ def test_missing_or_broken_metadata(proto, tmp_path):
         (lambda m: m.update(sample_rate_hz=-1), "sample_rate_hz"),
         (lambda m: m["training"].pop("data_fingerprint"), "training lacks data_fingerprint"),
         (lambda m: m.update(T="15"), "T must be an integer"),
+        (lambda m: m.update(classes="push"), "classes must be a list"),
+        (lambda m: m.update(classes=[1, 2, 3, 4]), "classes must be names"),
+        (lambda m: m.update(pads="13"), "pads must be a list"),
+        (lambda m: m.update(K=3, W=2), "metadata K=3, but the graph's codebook has 6 words"),
+        (lambda m: m.update(W=4), "metadata W=4, but the graph's longest codeword window is 5"),
+        (lambda m: m["features"].update(windows=[3, 5]), r"features.windows \[3, 5\]"),
     ],
 )
 def test_inconsistent_metadata(proto, tmp_path, change, match):
@@ -149,6 +155,56 @@ def test_wire_reader_agrees_with_onnx(good_path, proto):
     assert wire.opset_domains == {o.domain for o in proto.opset_import}
     assert wire.node_domains == {n.domain for n in proto.graph.node}
     assert not wire.external_data
+    assert wire.initializer_dims == {i.name: tuple(i.dims) for i in proto.graph.initializer}
+    assert wire.initializer_dims[next(n for n in wire.initializer_dims if n.startswith("codeword_kernel"))] == (6, 1, 5, 1)
+
+
+def test_fixed_batch_size_is_refused_clearly(proto, tmp_path):
+    proto.graph.input[0].type.tensor_type.shape.dim[0].dim_value = 2
+    _refused(_save(proto, tmp_path), "fixed batch size of 2; the contract needs a dynamic")
+
+
+def _local_function(inner_domain: str = ""):
+    return helper.make_function("local.fns", "Twice", ["x"], ["y"],
+                                [helper.make_node("Add", ["x", "x"], ["y"], domain=inner_domain)],
+                                [helper.make_opsetid(inner_domain, 17 if inner_domain == "" else 1)])
+
+
+def test_local_functions_are_read_and_their_domains_checked(proto, tmp_path):
+    proto.functions.append(_local_function())
+    proto.graph.node.append(helper.make_node("Twice", ["scores"], ["twice"], domain="local.fns"))
+    proto.opset_import.append(helper.make_opsetid("local.fns", 1))
+    wire = summarize(proto.SerializeToString())
+    assert wire.n_nodes == len(proto.graph.node) + 1 and "local.fns" in wire.node_domains
+    # refused for what it is (a non-standard domain), not as a truncated file
+    _refused(_save(proto, tmp_path), "non-standard operator domain.*local.fns")
+    inner = onnx.ModelProto()
+    inner.CopyFrom(proto)
+    inner.functions[0].CopyFrom(_local_function("com.example"))
+    assert "com.example" in summarize(inner.SerializeToString()).node_domains
+
+
+def test_external_data_in_sparse_attributes(proto):
+    values = onnx.numpy_helper.from_array(np.array([1.0], dtype=np.float32), "v")
+    indices = onnx.numpy_helper.from_array(np.array([0], dtype=np.int64), "i")
+    values.ClearField("raw_data")
+    values.data_location = onnx.TensorProto.EXTERNAL
+    values.external_data.add(key="location", value="weights.bin")
+    sparse = helper.make_sparse_tensor(values, indices, [4])
+    proto.graph.node.append(helper.make_node("Constant", [], ["c"], sparse_value=sparse))
+    assert summarize(proto.SerializeToString()).external_data
+    proto.graph.node[-1].attribute[0].sparse_tensor.values.data_location = onnx.TensorProto.DEFAULT
+    del proto.graph.node[-1].attribute[0].sparse_tensor.values.external_data[:]
+    assert not summarize(proto.SerializeToString()).external_data
+
+
+def test_run_trusted_matches_run(good_path):
+    model = load_model(good_path)
+    x = np.random.default_rng(0).integers(0, 4096, (5, model.meta.T, model.meta.n_channels)).astype(np.float32)
+    labels, scores = model.run(x)
+    for trusted in (model.run_trusted(x), model.run(x, check=False)):
+        np.testing.assert_array_equal(trusted[0], labels)
+        np.testing.assert_array_equal(trusted[1], scores)
 
 
 def test_input_refused_at_the_boundary(good_path):
