@@ -54,6 +54,7 @@ def test_compare_cli_quick(tmp_path, capsys):
     md = (out / "compare.md").read_text()
     assert "synthetic" in md and "Reproduce: `handover compare --quick" in md and "Recommended default" in md
     assert "real recordings not evaluated" in md
+    assert res["load_before"] and res["load_after"] and "at the start [" in md
 
 
 def test_compare_cli_bad_options(capsys):
@@ -61,3 +62,21 @@ def test_compare_cli_bad_options(capsys):
     assert capsys.readouterr().err.startswith("handover compare: --n-jobs")
     assert handover(["compare", "--data", "/nonexistent/folder", "--no-minirocket"]) == 2
     assert "no such folder" in capsys.readouterr().err
+
+
+def test_recommendation_says_when_a_faster_model_is_within_the_subject_spread():
+    from pathlib import Path
+
+    from trainer.compare import close_alternatives, markdown
+
+    path = Path(__file__).resolve().parents[1] / "results" / "compare.json"
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    res = json.loads(path.read_text())
+    lines = close_alternatives(res)
+    assert len(lines) == 1 and lines[0].startswith("**per-pad** is within the subject spread of multiscale-K16")
+    assert "a quarter of the latency" in lines[0] and "synthetic" in lines[0]
+    assert lines[0] in markdown(res)
+    # a faster model outside the spread is not mentioned
+    res["simulated"]["per-pad"]["loso_accuracy"] = 0.80
+    assert close_alternatives(res) == []
