@@ -42,7 +42,13 @@ def fit_option(name: str, seed: int = 0) -> BowSVC:
     return BowSVC(**kw).fit(X, y)
 
 
-@pytest.fixture(scope="module", params=list(OPTIONS))
+FAST_OPTIONS = ("multiscale", "all", "all_linear")
+"""Default run: these cover every option (multi-scale, soft, levels, scaling, both kernels); the
+single-option models run with ``-m slow``."""
+
+
+@pytest.fixture(scope="module", params=[n if n in FAST_OPTIONS else pytest.param(n, marks=pytest.mark.slow)
+                                        for n in OPTIONS])
 def exported(request, tmp_path_factory):
     model = fit_option(request.param)
     return request.param, model, GraphRunner(export(model, tmp_path_factory.mktemp(request.param)))
@@ -160,16 +166,32 @@ def soft_all(tmp_path_factory):
     return model, GraphRunner(export(model, tmp_path_factory.mktemp("soft_all")))
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(arrays(np.float32, (2, T, C), elements=window_values))
 def test_random_windows_soft_levels_scaled(soft_all, frames):
     model, runner = soft_all
     _check(compare(model, runner, frames, ["hypothesis"] * 2))
 
 
+@pytest.mark.slow
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(arrays(np.float32, (2, T, C), elements=window_values))
+def test_random_windows_soft_levels_scaled_thorough(soft_all, frames):
+    model, runner = soft_all
+    _check(compare(model, runner, frames, ["hypothesis"] * 2))
+
+
 # -- flattened-series SVM -------------------------------------------------------------------------
-@parametrize_with_checks([FlatSVC()])
+# With a given C the checks skip the grid search, whose hardest margins (C up to 1e6) take libsvm
+# seconds per fit on the checks' random data; the searching instance runs with -m slow.
+@parametrize_with_checks([FlatSVC(C=10.0)])
 def test_flat_estimator_checks(estimator, check):
+    check(estimator)
+
+
+@pytest.mark.slow
+@parametrize_with_checks([FlatSVC()])
+def test_flat_estimator_checks_with_search(estimator, check):
     check(estimator)
 
 

@@ -104,7 +104,8 @@ def test_duplicate_codewords(tmp_path):
     assert np.all(hist[:, 1] == 0) and np.all(hist[:, 7] == 0)  # word 1 never wins, in both pad groups
 
 
-@pytest.mark.parametrize(("C_svm", "gamma"), [(1e6, 1e3), (1e6, 1e-4), (1e-3, 1.0), (1e4, 50.0)])
+@pytest.mark.parametrize(("C_svm", "gamma"), [(1e6, 1e3), pytest.param(1e6, 1e-4, marks=pytest.mark.slow),
+                                              (1e-3, 1.0), pytest.param(1e4, 50.0, marks=pytest.mark.slow)])
 def test_extreme_C_and_gamma(C_svm, gamma, tmp_path):
     model = fit_model("rbf", C=C_svm, gamma=gamma)
     runner = GraphRunner(export(model, tmp_path))
@@ -133,15 +134,27 @@ window_values = st.one_of(
 )
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# Default run: a few hypothesis examples (fast, still random each run); `-m slow` adds a thorough pass.
+FAST_EXAMPLES, THOROUGH_EXAMPLES = 12, 200
+_fixture_ok = [HealthCheck.function_scoped_fixture]
+
+
+@settings(max_examples=FAST_EXAMPLES, deadline=None, suppress_health_check=_fixture_ok)
 @given(arrays(np.float32, (2, T, C), elements=window_values))
 def test_random_windows_never_nan_and_only_near_ties_differ(rbf, frames):
     model, runner = rbf
-    report = compare(model, runner, frames, ["hypothesis"] * 2)
-    _check(report)
+    _check(compare(model, runner, frames, ["hypothesis"] * 2))
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@pytest.mark.slow
+@settings(max_examples=THOROUGH_EXAMPLES, deadline=None, suppress_health_check=_fixture_ok)
+@given(arrays(np.float32, (2, T, C), elements=window_values))
+def test_random_windows_thorough(rbf, frames):
+    model, runner = rbf
+    _check(compare(model, runner, frames, ["hypothesis"] * 2))
+
+
+@settings(max_examples=FAST_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.integers(0, T - 1), st.integers(0, C - 1), st.sampled_from([np.nan, np.inf, -np.inf]))
 def test_non_finite_input_refused(rbf_loaded, t, c, bad):
     x = np.zeros((1, T, C), dtype=np.float32)
