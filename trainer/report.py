@@ -123,8 +123,9 @@ def _margin_lines(margin: dict | None) -> list[str]:
     """The plain statement whether the fitted SVM is the paper's hard margin."""
     if not margin:
         return []
-    return ["", f"SVM margin of the final model: {margin['statement']}. Support vectors at the bound: "
-                f"{margin['n_at_bound']} of {margin['n_support_vectors']} ({100 * margin['share_at_bound']:.0f} %)."]
+    counts = (f" ({margin['n_at_bound']} of {margin['n_support_vectors']} support vectors at the bound)"
+              if margin["hard_margin"] else "")
+    return ["", f"SVM margin of the final model (C = {margin['C']:g}): {margin['statement']}{counts}."]
 
 
 def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, str]) -> Path:
