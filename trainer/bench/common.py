@@ -185,6 +185,20 @@ def train_default_model(folder: str | Path, seed: int = 0, quick: bool = False, 
     return export_onnx(model, Path(folder) / name, export_metadata(ds, model, seed=seed))
 
 
+def tap_gap(T: int = 15) -> int:
+    """Untouched frames after each window of the tap stream: enough for the daemon's default
+    trigger to re-arm (quiet time below the off level, when the runtime has one) and for its
+    refractory time to pass, so that every window is classified once."""
+    import math
+
+    from runtime.config import TriggerConfig
+
+    cfg = TriggerConfig()
+    quiet = math.ceil(float(getattr(cfg, "rearm_quiet_s", 0.0) or 0.0) * 32.0) + 2
+    refractory = math.ceil(float(cfg.refractory_s) * 32.0) + 1 - T
+    return max(5, quiet, refractory)
+
+
 def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None, T: int = 15, gap: int = 5):
     """A dense synthetic stream: the T frames from each simulated trial's trigger, back to back,
     each followed by ``gap`` untouched frames (so the trigger re-arms). One window every T + gap

@@ -8,7 +8,8 @@ and paced at 32 Hz (the daemon's rhythm: caches and CPU clocks cool between fram
 End to end: ``handover run`` in its own process reads an emulated DSACON32m (another process)
 over loopback TCP and sends each event to a UDP listener in this process. Latency = from the
 emulator's socket write of the last byte of the frame that completes a window to the datagram's
-arrival. The stream holds simulated trial windows back to back (one window every 20 frames).
+arrival. The stream holds simulated trial windows back to back, each followed by just enough
+untouched frames for the daemon's trigger to re-arm (``common.tap_gap``).
 The deadline is one sample period (31.25 ms); every figure is also given as the ratio
 deadline / figure (how many times it fits).
 """
@@ -31,6 +32,7 @@ from trainer.bench.common import (
     load_note,
     machine_info,
     percentiles,
+    tap_gap,
     tap_stream,
     time_calls,
     train_default_model,
@@ -39,7 +41,6 @@ from trainer.bench.common import (
 
 NAME = "latency"
 PERIOD_S = 1.0 / 32.0
-GAP = 5
 
 
 def stage_fns(model, recording):
@@ -149,14 +150,14 @@ def run(args) -> dict:
     load_before = load_average()
     t_start = time.perf_counter()
     duration = args.duration if args.duration is not None else (3.0 if args.quick else 300.0)
-    n_windows = max(4, int(duration * 32 / (15 + GAP)))
+    n_windows = max(4, int(duration * 32 / (15 + tap_gap())))
     result: dict = {"synthetic": True, "deadline_us": DEADLINE_US}
     with tempfile.TemporaryDirectory(prefix="handover-latency-") as tmp:
         work = Path(tmp)
         say("latency: training the default model on the simulated protocol (synthetic) ...")
         model_path = train_default_model(work, seed=args.seed, quick=args.quick)
         model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
-        stream = tap_stream(args.seed, args.quick, n_windows=n_windows, gap=GAP)
+        stream = tap_stream(args.seed, args.quick, n_windows=n_windows, gap=tap_gap())
         fns, packet_bytes = stage_fns(model, stream)
         repeats = 400 if args.quick else 20000
         paced_s = 1.0 if args.quick else 60.0
@@ -165,12 +166,12 @@ def run(args) -> dict:
         result["frame_packet_bytes"] = packet_bytes
         say(f"latency: end to end at 32 Hz for {stream.n_frames / 32:.0f} s ({n_windows} windows) ...")
         result["e2e_32hz"] = end_to_end(model_path, stream, 1.0, work, timeout=stream.n_frames / 32 + 60)
-        fast_stream = tap_stream(args.seed, args.quick, n_windows=max(4, n_windows // 2), gap=GAP)
+        fast_stream = tap_stream(args.seed, args.quick, n_windows=max(4, n_windows // 2), gap=tap_gap())
         say("latency: end to end as fast as possible ...")
         result["e2e_max"] = end_to_end(model_path, fast_stream, None, work, timeout=120)
         if args.load:
             load_s = max(2.0, duration / 5)
-            load_stream = tap_stream(args.seed, args.quick, n_windows=max(4, int(load_s * 32 / (15 + GAP))), gap=GAP)
+            load_stream = tap_stream(args.seed, args.quick, n_windows=max(4, int(load_s * 32 / (15 + tap_gap()))), gap=tap_gap())
             say(f"latency: under load (two busy-loop processes) for {load_s:.0f} s ...")
             with harness.CpuLoad(2):
                 result["stages_load"] = measure_stages(fns, repeats // 4, paced_s / 4)
@@ -184,6 +185,7 @@ def run(args) -> dict:
         onnx_p99_us=result["stages"]["inference"]["fast"]["p99"],
         e2e_p50_us=e2e["p50"], e2e_p99_us=e2e["p99"], e2e_p999_us=e2e["p999"], e2e_max_us=e2e["max"],
         duration_s=duration,
+        window_period_frames=15 + tap_gap(),
         seconds=round(time.perf_counter() - t_start, 1),
         machine=machine_info(),
         load_before=load_before,
@@ -234,7 +236,7 @@ def markdown(res: dict) -> list[str]:
     for key in ("e2e_32hz", "e2e_32hz_load", "e2e_max"):
         if key in res:
             e = res[key]
-            lines.append(f"- {key}: {e['windows_sent']} windows sent, {e['events']} events received "
+            lines.append(f"- {key}: {e['windows_sent']} windows sent (one every {res['window_period_frames']} frames), {e['events']} events received "
                          f"({e['unmatched']} not matched to a frame), {e['missed_deadline']} over the deadline.")
     lines += ["", "Under load = two busy-loop processes, one per core, during the run." if "e2e_32hz_load" in res
               else "No run under load (add --load).", "", res["note"]]

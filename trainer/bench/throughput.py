@@ -1,8 +1,8 @@
 """Throughput and footprint: replay rate, the daemon's memory and CPU share at 32 Hz, start-up
 time to READY, and the time to swap a model.
 
-- replay: a dense synthetic stream (simulated trial windows back to back, one inference every 20
-  frames), pre-encoded as RLE packets, through StreamParser + decode + ring + trigger + model
+- replay: a dense synthetic stream (simulated trial windows back to back, each followed by just
+  enough untouched frames for the daemon's trigger to re-arm), pre-encoded as RLE packets, through StreamParser + decode + ring + trigger + model
   (the daemon's hot path without the socket) as fast as possible; and the real Daemon reading
   ``replay://FILE?speed=max`` (its emulator encodes the frames in the same thread, so this
   figure is a lower bound).
@@ -31,13 +31,13 @@ from trainer.bench.common import (
     load_average,
     load_note,
     machine_info,
+    tap_gap,
     tap_stream,
     train_default_model,
     write_results,
 )
 
 NAME = "throughput"
-GAP = 5
 
 
 def replay_hot_path(model, recording, repeats: int = 1) -> dict:
@@ -162,7 +162,7 @@ class _NotifySocket:
 
 def startup(model_path: Path, work: Path, runs: int) -> dict:
     """Spawn -> READY=1 of ``handover run`` (model loaded and warmed up; device connects after)."""
-    emulator = harness.EmulatorProcess(tap_stream(quick=True, n_windows=4, gap=GAP), 1.0)
+    emulator = harness.EmulatorProcess(tap_stream(quick=True, n_windows=4, gap=tap_gap()), 1.0)
     models = work / "models-start"
     harness.install_model(model_path, models)
     config = harness.write_config(work, emulator.url, models, None)
@@ -186,8 +186,8 @@ def startup(model_path: Path, work: Path, runs: int) -> dict:
 def footprint_and_swap(model_path: Path, second_model: Path, work: Path, duration: float, seed: int = 0,
                         quick: bool = False) -> dict:
     """``handover run`` at 32 Hz: RSS, CPU share, and a model swap in the middle."""
-    n_windows = max(6, int(duration * 32 / (15 + GAP)))
-    stream = tap_stream(seed, quick, n_windows=n_windows, gap=GAP)
+    n_windows = max(6, int(duration * 32 / (15 + tap_gap())))
+    stream = tap_stream(seed, quick, n_windows=n_windows, gap=tap_gap())
     listener = harness.UdpListener()
     emulator = harness.EmulatorProcess(stream, 1.0)
     models = work / "models-run"
@@ -225,7 +225,7 @@ def footprint_and_swap(model_path: Path, second_model: Path, work: Path, duratio
             "cpu_seconds": cpu1 - cpu0, "wall_seconds": t1 - t0, "events": len(listener.events),
             "swap_to_log_s": (swap_log[0] - t_rename) if swap_log else None,
             "swap_to_first_event_s": (new_events[0] - t_rename) if new_events else None,
-            "poll_interval_s": 0.5, "window_every_s": (15 + GAP) / 32}
+            "poll_interval_s": 0.5, "window_every_s": (15 + tap_gap()) / 32}
 
 
 def variant_model(model_path: Path, folder: Path) -> Path:
@@ -256,7 +256,7 @@ def run(args) -> dict:
         say("throughput: training the default model on the simulated protocol (synthetic) ...")
         model_path = train_default_model(work, seed=args.seed, quick=args.quick)
         model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
-        stream = tap_stream(args.seed, args.quick, n_windows=40 if args.quick else 1000, gap=GAP)
+        stream = tap_stream(args.seed, args.quick, n_windows=40 if args.quick else 1000, gap=tap_gap())
         say(f"throughput: replay of {stream.n_frames} frames through the hot path ...")
         hot = replay_hot_path(model, stream, repeats=1 if args.quick else 3)
         say("throughput: replay through the daemon (replay://, speed=max) ...")
@@ -272,6 +272,7 @@ def run(args) -> dict:
         "replay_daemon": daemon,
         "startup": start,
         "footprint": foot,
+        "window_period_frames": 15 + tap_gap(),
         "replay_frames_per_s": hot["frames_per_s"],
         "replay_daemon_frames_per_s": daemon["frames_per_s"],
         "rss_mb": foot["rss_mb"],
@@ -297,7 +298,8 @@ def markdown(res: dict) -> list[str]:
     h, d, st, f = res["replay_hot_path"], res["replay_daemon"], res["startup"], res["footprint"]
     return [
         "# Throughput and footprint (synthetic data)", "",
-        "Stream: simulated trial windows back to back (one inference every 20 frames: the most a "
+        f"Stream: simulated trial windows back to back (one inference every {res['window_period_frames']} frames: "
+        "about the most a "
         "threshold-triggered daemon does at 32 Hz). Default model (K=10, W=7, T=15, rbf, all pads).", "",
         "| figure | value |", "|---|---|",
         f"| replay, hot path (parser + decode + ring + trigger + inference, no socket) | "
