@@ -26,7 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kernel", choices=("rbf", "linear"), default="rbf")
     parser.add_argument("--C", type=float, default=None, help="SVM C (default: cross-validated search)")
     parser.add_argument("--gamma", type=float, default=None, help="RBF gamma (default: cross-validated search)")
-    parser.add_argument("--per-pad", action="store_true", help="one histogram per pad instead of one per case")
+    parser.add_argument("--per-pad", action=argparse.BooleanOptionalAction, default=True,
+                        help="one histogram per pad (default: on, the product's default model, on the Pareto front "
+                        "of results/pareto.md); --no-per-pad gives the paper's single histogram per case")
     parser.add_argument("--windows", help="several window lengths at once, e.g. 5,7,9 (one codebook each; "
                         "replaces --W)")
     parser.add_argument("--assignment", choices=("hard", "soft"), default="hard",
@@ -62,7 +64,8 @@ def command_line(args: argparse.Namespace) -> str:
         parts += ["--windows", args.windows]
     if args.assignment != "hard":
         parts += ["--assignment", args.assignment, "--temperature", str(args.temperature)]
-    for flag, on in (("--per-pad", args.per_pad), ("--level-features", args.level_features),
+    parts.append("--per-pad" if args.per_pad else "--no-per-pad")
+    for flag, on in (("--level-features", args.level_features),
                      ("--scale-features", args.scale_features), ("--no-sweep", args.no_sweep),
                      ("--no-onnx", args.no_onnx)):
         if on:
