@@ -54,8 +54,12 @@ class TriggerConfig:
     """Threshold as a fraction of full scale; None takes the model's (paper: 0.15)."""
     hysteresis: float = 0.05
     """Re-arm only once the max drops below (fraction - hysteresis) of full scale."""
-    refractory_s: float = 0.5
-    """No new trigger for this long after one (counted from the trigger frame)."""
+    refractory_s: float = 1.5
+    """No new trigger for this long after one (counted from the trigger frame): a pull or push
+    goes on for up to about 1-1.5 s after its trigger, and one interaction is one event."""
+    rearm_quiet_s: float = 0.25
+    """Re-arm only after the level stayed below (fraction - hysteresis) this long: the pressure of
+    a push wobbles and dips below the off level for a few frames (up to ~0.2 s) mid-interaction."""
     baseline: bool = False
     """Measure against a slowly tracked per-taxel baseline (the grasp itself may press the pads)."""
     baseline_tau_s: float = 2.0
@@ -192,6 +196,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         fraction=fraction,
         hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis, lo=0.0, hi=0.99),
         refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s, lo=0.0),
+        rearm_quiet_s=_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s, lo=0.0, hi=60.0),
         baseline=_bool("trigger.baseline", tr, TriggerConfig.baseline),
         baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s, lo=0.01),
         pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0, lo=0, hi=1000),

@@ -219,10 +219,11 @@ class Daemon:
             self.trigger = ThresholdTrigger(
                 int(cols.size), fullscale, fraction=fraction, hysteresis=min(tcfg.hysteresis, fraction * 0.99),
                 refractory_frames=math.ceil(tcfg.refractory_s * rate), window=T, pre_frames=min(pre, T - 1),
+                rearm_frames=max(1, math.ceil(tcfg.rearm_quiet_s * rate - 1e-9)),
                 baseline=tcfg.baseline, baseline_alpha=min(1.0, 1.0 / max(1.0, tcfg.baseline_tau_s * rate)),
             )
             if isinstance(old, ThresholdTrigger) and keep_history:
-                self.trigger.armed, self.trigger.last_trigger = old.armed, old.last_trigger
+                self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
         self._pending.clear()
 
     # -- device ---------------------------------------------------------------------------------

@@ -4,6 +4,11 @@ The paper starts a trial when any taxel of the used pads exceeds about 15 % of f
 classifies the T frames from there. Per frame the trigger costs one max over the scene's
 columns (plus one subtraction in baseline mode); while nothing touches, nothing else runs.
 
+One interaction is one trigger: a pull or push makes the pressure wobble for a second or two
+(it dips below the off level for a few frames and rises again), so the trigger re-arms only
+after the level has stayed below the off level for ``rearm_frames`` frames in a row, and never
+within ``refractory_frames`` of the last trigger.
+
 ``update(row, number)`` returns the frame number at which a window is due (the trigger frame
 + T - 1 - pre_frames), or -1. The caller runs the model when that frame has arrived.
 """
@@ -14,7 +19,8 @@ import numpy as np
 
 
 class ThresholdTrigger:
-    """Fires when max(scene taxels) crosses ``on`` and re-arms below ``off``, not within refractory."""
+    """Fires when max(scene taxels) crosses ``on``; re-arms once it stayed below ``off`` for
+    ``rearm_frames`` frames; never fires within ``refractory_frames`` of the last trigger."""
 
     def __init__(
         self,
@@ -27,6 +33,7 @@ class ThresholdTrigger:
         pre_frames: int = 0,
         baseline: bool = False,
         baseline_alpha: float = 0.0156,
+        rearm_frames: int = 1,
     ) -> None:
         if not 0.0 < fraction < 1.0:
             raise ValueError("fraction must be in (0, 1)")
@@ -34,11 +41,14 @@ class ThresholdTrigger:
             raise ValueError("hysteresis must be in [0, fraction)")
         if pre_frames >= window:
             raise ValueError("pre_frames must be smaller than the window")
+        if rearm_frames < 1:
+            raise ValueError("rearm_frames must be at least 1")
         self.on_level = float(fraction * fullscale)
         self.off_level = float((fraction - hysteresis) * fullscale)
         self.refractory_frames = int(refractory_frames)
         self.window = int(window)
         self.pre_frames = int(pre_frames)
+        self.rearm_frames = int(rearm_frames)
         self.baseline_mode = bool(baseline)
         self.baseline_alpha = float(baseline_alpha)
         self._baseline = np.zeros(n_channels, dtype=np.float32)
@@ -49,6 +59,8 @@ class ThresholdTrigger:
     def reset(self) -> None:
         """Back to armed, with no history (after a reconnect or a model change)."""
         self.armed = True
+        self.quiet = 0
+        """Frames in a row below the off level while disarmed."""
         self.last_trigger = -(1 << 62)
         self.level = 0.0
         self._baseline_ready = False
@@ -69,11 +81,16 @@ class ThresholdTrigger:
         if self.armed:
             if level >= self.on_level and number - self.last_trigger >= self.refractory_frames:
                 self.armed = False
+                self.quiet = 0
                 self.last_trigger = number
                 self.fired += 1
                 due = number + self.window - 1 - self.pre_frames
         elif level < self.off_level:
-            self.armed = True
+            self.quiet += 1
+            if self.quiet >= self.rearm_frames:
+                self.armed, self.quiet = True, 0
+        else:
+            self.quiet = 0
         if self.baseline_mode and self.armed and due < 0:
             # Track the grasp's own pressure only while nothing is happening.
             self._diff *= self.baseline_alpha

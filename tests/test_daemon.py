@@ -17,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from firmware_io.frame_source import load_source
@@ -252,3 +253,159 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
     print(f"\nSIGTERM -> exit in {stop_s * 1000:.0f} ms")
     assert stop_s < 1.0
     sock.close()
+
+
+# -- review fixes (issue 6) ---------------------------------------------------------------------
+
+
+def test_end_to_end_over_a_pseudo_terminal(models):
+    """serial://<pty> to the emulator, as a USB-serial adapter would be reached."""
+    from firmware_io.emulator import DeviceEmulator
+    from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer
+
+    rec = load_source("sim", seed=0, events=N_EVENTS)
+    try:
+        server = PtyEmulatorServer(DeviceEmulator(rec, speed=None, loop=False)).start()
+    except EmulatorServerError as exc:
+        pytest.skip(f"no pseudo-terminal here: {exc}")
+    events: list[Event] = []
+    try:
+        daemon = Daemon(_config(models, server.url, device={"stall_timeout_s": 0.5}), on_event=events.append)
+        daemon.frames_seen = []
+        _serve(daemon, lambda d: d.health.frames_received >= rec.n_frames)
+    finally:
+        server.stop()
+    trials = rec.trials
+    assert len(events) == len(trials)
+    for event, trial in zip(events, trials, strict=True):
+        assert trial.first <= event.frame_first and event.frame_last <= trial.last and event.cls == "pull"
+    assert daemon.frames_seen == list(range(len(daemon.frames_seen)))  # no frame lost
+    assert daemon.health.crc_errors == 0 and daemon.health.frames_dropped == 0
+
+
+def _level_frames(levels: list[int], column: int, n_taxels: int, period_ms: float = 31.25):
+    from firmware_io.client import Frame
+
+    for i, level in enumerate(levels):
+        values = np.zeros(n_taxels, dtype=np.uint16)
+        values[column] = level
+        yield Frame(i, round(i * period_ms), time.perf_counter(), values)
+
+
+def test_default_trigger_reports_a_wobbling_interaction_once(models):
+    """Synthetic levels: a push crosses the trigger level, its pressure dips below the re-arm level
+    for 4 frames 0.6 s later and crosses again; a second push follows 4 s later. Two events."""
+    from firmware_io.layout import SensorLayout
+    from runtime.model import load_model
+
+    layout = SensorLayout.sdh2()
+    on, dip = 800, 300  # trigger at 0.15 x 4095 = 614, re-arm below 0.10 x 4095 = 410
+    push = [on] * 20 + [dip] * 4 + [on] * 20 + [0] * 10
+    levels = [0] * 20 + push + [0] * 70 + push + [0] * 40
+    decisions: list[Event] = []
+    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}}), on_event=decisions.append)
+    daemon.serve(load_model(models / "first.onnx"), layout)
+    for frame in _level_frames(levels, int(layout.columns("distal")[40]), layout.n_taxels):
+        daemon.handle_frame(frame)
+    assert daemon.trigger.fired == 2 and daemon.health.decisions == 2
+    assert [e.frame_first for e in decisions] == [20, 20 + len(push) + 70]
+
+
+def _silent_tcp_peer():
+    """A TCP listener that accepts and never answers (a hung controller, a wrong host:port)."""
+    server = socket.create_server(("127.0.0.1", 0))
+    accepted: list[socket.socket] = []
+
+    def accept():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            accepted.append(conn)
+
+    threading.Thread(target=accept, daemon=True).start()
+    return server, accepted
+
+
+def test_sigterm_while_connecting_to_a_silent_device(models, tmp_path):
+    """Opening a silent device takes seconds of bounded retries; SIGTERM must still end the
+    process within a second, and the watchdog keeps being fed meanwhile."""
+    server, accepted = _silent_tcp_peer()
+    sock, path = _notify_socket(tmp_path)
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "tcp://127.0.0.1:{server.getsockname()[1]}"\n[model]\nfolder = "{models}"\n')
+    env = {**os.environ, "NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen: list[str] = []
+    try:
+        assert _wait_for(sock, "READY=1", 30, seen), seen
+        deadline = time.monotonic() + 10
+        while not accepted and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert accepted, "the daemon never connected"
+        during: list[str] = []
+        assert _wait_for(sock, "WATCHDOG=1", 1.0, during), during  # fed while the open waits
+        time.sleep(0.5)  # well inside the open's stop retries (1 s gap timeout each)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+        stop_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        _out, err = proc.communicate()
+        server.close()
+        sock.close()
+    print(f"\nSIGTERM while opening a silent device -> exit in {stop_s * 1000:.0f} ms")
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    assert stop_s < 1.5  # correctness bound (the issue asks < 1 s; slack for a busy machine)
+
+
+def _run_bounded(daemon: Daemon, timeout: float = 10.0) -> int:
+    """daemon.run(), stopped after ``timeout`` s if it does not end by itself (a regression)."""
+    timer = threading.Timer(timeout, daemon.request_stop)
+    timer.start()
+    try:
+        return daemon.run()
+    finally:
+        timer.cancel()
+
+
+def test_a_url_that_can_never_open_is_fatal_not_retried(models):
+    from dataclasses import replace
+
+    from runtime.config import DeviceConfig
+
+    cfg = _config(models, "sim://")
+    daemon = Daemon(replace(cfg, device=DeviceConfig(url="foo://x")))  # past the config check
+    assert _run_bounded(daemon) == 2
+    assert daemon.fatal.startswith("device.url: foo://x: unknown scheme") and "\n" not in daemon.fatal
+    assert daemon.health.device_state == "failed"
+
+
+def test_a_missing_transport_package_is_fatal(models):
+    from firmware_io.transports import MissingDependency
+
+    def factory(url: str):
+        raise MissingDependency(f"{url}: needs the Python package hidapi (pip install 'tactile-handover[usb]')")
+
+    daemon = Daemon(_config(models, "hid://10c4:ea80"), client_factory=factory)
+    assert _run_bounded(daemon) == 2
+    assert "hidapi" in daemon.fatal
+
+
+def test_an_absent_device_is_retried_not_fatal(models):
+    from firmware_io.transports import DeviceUnavailable
+
+    tries: list[str] = []
+
+    def factory(url: str):
+        tries.append(url)
+        raise DeviceUnavailable(f"{url}: cannot open serial port: no such file")
+
+    daemon = Daemon(_config(models, "serial:///dev/ttyNOPE"), client_factory=factory)
+    _serve(daemon, lambda d: len(tries) >= 3, timeout=10)
+    assert daemon.fatal is None and daemon.health.device_state != "failed"

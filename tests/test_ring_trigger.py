@@ -107,3 +107,24 @@ def test_baseline_mode_ignores_the_grasp_pressure():
 def test_continuous_trigger_ends_a_window_every_frame():
     trig = ContinuousTrigger(15)
     assert [trig.update(np.zeros(2, np.float32), i) for i in range(3)] == [0, 1, 2]
+
+
+# A push as the simulated hand makes it (synthetic): over the level, its pressure wobbles and
+# dips below the re-arm level for 4 frames mid-interaction, rises again, then the person lets go.
+WOBBLING_PUSH = [0, 0, 200, 220, 180, 90, 80, 85, 95, 170, 210, 190, 160, 120, 60, 0] + [0] * 12 + [200, 0]
+
+
+def test_a_wobbling_push_is_one_trigger_once_rearming_needs_quiet_frames():
+    def fired(rearm_frames: int) -> list[int]:
+        trig = ThresholdTrigger(4, fullscale=1000, fraction=0.15, hysteresis=0.05, refractory_frames=0, window=15,
+                                rearm_frames=rearm_frames)
+        return [i for i, _ in _run(trig, WOBBLING_PUSH)]
+
+    assert fired(1) == [2, 9, 28]  # the old rule: the dip re-arms, one push is reported twice
+    assert fired(8) == [2, 28]  # quiet for 8 frames (0.25 s at 32 Hz) before re-arming: one per push
+    assert fired(20) == [2]  # a re-arm time longer than the pause between touches merges them
+
+
+def test_rearm_frames_must_be_positive():
+    with pytest.raises(ValueError, match="rearm_frames"):
+        ThresholdTrigger(4, fullscale=1000, rearm_frames=0)
