@@ -53,9 +53,8 @@ def _check(cfg, require_model: bool = False) -> int:
     from runtime.daemon import Daemon, events_problem, scene_problem
     from runtime.model_watch import ModelWatcher
 
-    for warning in cfg.warnings:
-        print(f"{PROG}: warning: {warning}", file=sys.stderr)
     daemon = Daemon(cfg)
+    logging.getLogger("handover.models").setLevel(logging.CRITICAL)  # --check reports in one line itself
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
@@ -63,15 +62,18 @@ def _check(cfg, require_model: bool = False) -> int:
         return watcher.poll(require_stable=False), watcher.rejections
 
     model, rejections = newest(check_events=True)
+    if model is None and rejections:
+        # A model that fits everything but an event name means a typo in scene.events (a
+        # config problem), not a reason to wait for another model.
+        fits_otherwise, _ = newest(check_events=False)
+        if fits_otherwise is not None:
+            print(f"{PROG}: {events_problem(fits_otherwise, cfg.scene.events)}", file=sys.stderr)
+            return 2
+    for warning in cfg.warnings:
+        print(f"{PROG}: warning: {warning}", file=sys.stderr)
     if model is not None:
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
-    # A model that fits everything but an event name means a typo in scene.events (a config
-    # problem), not a reason to wait for another model.
-    fits_otherwise, _ = newest(check_events=False) if rejections else (None, [])
-    if fits_otherwise is not None:
-        print(f"{PROG}: {events_problem(fits_otherwise, cfg.scene.events)}", file=sys.stderr)
-        return 2
     reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or "no .onnx file"
     what = f"no model in {cfg.model.folder} would serve yet ({reasons})"
     if require_model:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from firmware_io import protocol as P
-from firmware_io.client import DSAClient, DSATimeout, Frame
+from firmware_io.client import Cancelled, DSAClient, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
 from firmware_io.transports import DeviceUnavailable, Transport, TransportError
 
@@ -337,3 +337,42 @@ def test_close_then_open_again_on_the_same_client() -> None:
     client.start()
     assert client.read_frame(2.0) is not None
     client.close()
+
+
+def test_open_of_a_silent_device_is_cancelled_by_the_callers_predicate() -> None:
+    """The default timeouts (1 s gap, 3 stop tries) make a silent open last ~5 s; a service
+    stopping meanwhile must not wait for that."""
+    dev = ScriptedDevice(lambda p: b"")
+    client = DSAClient(dev)  # the real timeouts
+    asked: list[float] = []
+    t0 = time.monotonic()
+
+    def should_stop() -> bool:
+        asked.append(time.monotonic() - t0)
+        return asked[-1] > 0.3
+
+    with pytest.raises(Cancelled):
+        client.open(should_stop=should_stop)
+    took = time.monotonic() - t0
+    assert took < 0.3 + 0.2, took
+    assert max(np.diff([0.0, *asked])) < 0.1  # asked between reads, at least every 50 ms (+ slack)
+    t1 = time.monotonic()
+    client.close()  # the transport was dropped: no stop handshake with a device that never answers
+    assert time.monotonic() - t1 < 0.05
+    with pytest.raises(P.DSAError, match="open"):
+        client.read_frame(0.01)
+
+
+def test_start_is_cancellable_and_close_bounds_the_stop_handshake() -> None:
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev)
+    client.open(should_stop=lambda: False)  # a predicate that never fires changes nothing
+    dev.respond = lambda p: b""  # the controller hangs
+    with pytest.raises(Cancelled):
+        client.start(should_stop=lambda: True)
+    client2 = DSAClient(ScriptedDevice(good_device))
+    client2.open()
+    client2._transport.respond = lambda p: b""
+    t0 = time.monotonic()
+    client2.close(stop_timeout=0.1)
+    assert time.monotonic() - t0 < 0.3

@@ -187,3 +187,47 @@ def test_unknown_event_names_are_a_warning_not_an_error():
     cfg = config_from_dict({"scene": {"events": ["pull", "pul"]}})
     assert len(cfg.warnings) == 1 and "'pul'" in cfg.warnings[0] and cfg.warnings[0].startswith("scene.events:")
     assert config_from_dict({"scene": {"events": ["pull", "dormant"]}}).warnings == ()
+
+
+def _config_file(tmp_path: Path, models: Path, extra: str = "") -> Path:
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n{extra}')
+    return cfg
+
+
+def test_check_passes_with_an_empty_model_folder_unless_a_model_is_required(tmp_path):
+    """The service's ExecStartPre runs --check; the daemon is built to wait for a model."""
+    empty = tmp_path / "models"
+    empty.mkdir()
+    cfg = _config_file(tmp_path, empty)
+    proc = _run_cli("--config", str(cfg), "--check")
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("handover run: warning: no model in"), proc.stderr
+    strict = _run_cli("--config", str(cfg), "--check", "--require-model")
+    assert strict.returncode == 1
+    assert strict.stderr.startswith("handover run: ") and len(strict.stderr.strip().splitlines()) == 1
+
+
+def test_check_names_an_event_the_model_lacks(tmp_path):
+    from tests.tiny_models import tiny_model_bytes, write_model
+
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    proc = _run_cli("--config", str(_config_file(tmp_path, models, '[scene]\nevents = ["pull", "pul"]\n')), "--check")
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("handover run: scene.events: 'pul' is not a class of model ")
+    assert "(classes: pull, push, hold, bump)" in lines[0]
+
+
+def test_run_with_a_url_that_can_never_open_is_one_line_and_exit_2(tmp_path):
+    cfg = tmp_path / "h.toml"
+    cfg.write_text('[device]\nurl = "tcp://127.0.0.1:"\n')
+    for args in (("--check",), ()):
+        proc = _run_cli("--config", str(cfg), *args)
+        assert proc.returncode == 2
+        assert proc.stderr.strip().splitlines() == [
+            "handover run: device.url: tcp://127.0.0.1:: expected tcp://HOST:PORT with a port 1..65535"]

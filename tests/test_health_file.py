@@ -1,0 +1,32 @@
+"""The status file: atomic JSON, and an unwritable file that never floods the journal."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+from runtime.health import Health, StatusFile
+
+
+def test_status_file_is_written_atomically(tmp_path):
+    path = tmp_path / "status.json"
+    assert StatusFile(path).write(Health().snapshot())
+    assert json.loads(path.read_text())["device_state"] == "starting"
+    assert [p.name for p in tmp_path.iterdir()] == ["status.json"]  # no temp file left behind
+
+
+def test_an_unwritable_status_file_is_logged_rarely_with_a_count(tmp_path, caplog):
+    folder = tmp_path / "gone"
+    status = StatusFile(folder / "status.json", log_every_s=300.0)
+    data = Health().snapshot()
+    with caplog.at_level(logging.INFO, logger="handover.health"):
+        for second in range(600):  # ten minutes of the daemon's once-a-second writes
+            assert not status.write(data, now=float(second))
+        warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+        assert len(warnings) == 2, warnings  # the first failure, then one after 5 minutes
+        assert "gone/status.json" in warnings[0] and "since the last message" not in warnings[0]
+        assert "(300 failed writes since the last message)" in warnings[1]
+        assert status.failures == 600
+        folder.mkdir()
+        assert status.write(data, now=600.0)
+    assert "written again (600 failed writes in total)" in caplog.records[-1].getMessage()
