@@ -22,7 +22,8 @@ import numpy as np
 DEADLINE_US = 1e6 / 32.0
 """One sample period at 32 Hz: the hard deadline of a decision."""
 
-DEFAULT_PARAMS = {"K": 10, "W": 7, "T": 15, "kernel": "rbf", "pads": "all", "per_pad": False}
+DEFAULT_PARAMS = {"K": 10, "W": 7, "T": 15, "kernel": "rbf", "pads": "all", "per_pad": True}
+"""The product's default model, what `handover train` and `handover demo` build (per-pad histograms)."""
 """The shipped default model (``handover train`` without options)."""
 
 
@@ -174,13 +175,14 @@ def export_metadata(ds, model, evaluation: dict | None = None, seed: int = 0) ->
 
 
 def train_default_model(folder: str | Path, seed: int = 0, quick: bool = False, name: str = "bench.onnx") -> Path:
-    """Train the default model (K=10, W=7, T=15, rbf, all pads) on the simulated protocol and export it."""
+    """Train the default model (K=10, W=7, T=15, rbf, all pads, per-pad) on the simulated protocol and export it."""
     from trainer.classifier import BowSVC
     from trainer.dataset import build_dataset
     from trainer.onnx_export import export_onnx
 
     ds = build_dataset(list(simulated_protocol(seed, quick)), T=DEFAULT_PARAMS["T"], pads=DEFAULT_PARAMS["pads"])
     model = BowSVC(n_words=DEFAULT_PARAMS["K"], window=DEFAULT_PARAMS["W"], kernel=DEFAULT_PARAMS["kernel"],
+                   per_pad=DEFAULT_PARAMS["per_pad"], pad_sizes=ds.pad_sizes if DEFAULT_PARAMS["per_pad"] else None,
                    random_state=seed).fit(ds.X, ds.y)
     return export_onnx(model, Path(folder) / name, export_metadata(ds, model, seed=seed))
 

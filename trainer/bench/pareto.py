@@ -275,7 +275,7 @@ def plot(rows: list[dict], path: Path) -> Path:
         if r.get("default"):
             ax.scatter([r["time_p50_us"]], [100 * r["loso_error"]], marker="*", s=260, color="gold",
                        edgecolors="black", zorder=5,
-                       label=f"default K=10 W=7 T=15 rbf all ({'on' if r['on_front'] else 'not on'} the front)")
+                       label=f"default {label(DEFAULT_PARAMS)} ({'on' if r['on_front'] else 'not on'} the front)")
     ax.set_xscale("log")
     ax.set_xlabel("single-case inference time, median (us, log scale)")
     ax.set_ylabel("leave-one-subject-out error (%)")
@@ -301,7 +301,7 @@ def markdown(res: dict) -> list[str]:
     ]
     if d:
         lines += [
-            f"Default model (K=10, W=7, T=15, rbf, all pads, no per-pad): LOSO error {d['loso_error']:.1%}, "
+            f"Default model ({label(DEFAULT_PARAMS)}, what `handover train` builds): LOSO error {d['loso_error']:.1%}, "
             f"ONNX median {fmt_us(d['time_p50_us'])} us, p99 {fmt_us(d['time_p99_us'])} us; "
             f"**{'on' if d['on_front'] else 'not on'} the Pareto front**."
             + (f" scikit-learn pipeline on one case: median {fmt_us(res['sklearn_p50_us'])} us "
