@@ -30,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="latency: seconds of the 32 Hz end-to-end run (default 300, --quick 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    parser.add_argument("--rerender", action="store_true",
+                        help="pareto: re-mark the default and rewrite .md/.png from OUT/pareto.json (no measuring)")
 
 
 def _fail(message: str) -> int:
@@ -48,7 +50,7 @@ def main(args: argparse.Namespace) -> int:
     for name in which:
         module = __import__(f"trainer.bench.{name}", fromlist=["run"])
         try:
-            result = module.run(args)
+            result = module.rerender(args.out) if args.rerender and name == "pareto" else module.run(args)
         except (OSError, ValueError, RuntimeError) as exc:
             return _fail(f"{name}: {exc}")
         figures[name] = {k: result[k] for k in HEADLINE if k in result}

@@ -23,7 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--K", type=int, default=10, help="number of words (k-means centres)")
     parser.add_argument("--W", type=int, default=7, help="sliding window length (frames)")
     parser.add_argument("--T", type=int, default=15, help="frames per case from the trigger")
-    parser.add_argument("--kernel", choices=("rbf", "linear"), default="rbf")
+    parser.add_argument("--kernel", choices=("rbf", "linear"), default="linear",
+                        help="SVM kernel (default linear: with per-pad histograms it matches RBF's error on the "
+                        "simulated protocol and is faster, on the Pareto front of results/pareto.md; the paper "
+                        "plots RBF and notes that linear does as well)")
     parser.add_argument("--C", type=float, default=None, help="SVM C (default: cross-validated search)")
     parser.add_argument("--gamma", type=float, default=None, help="RBF gamma (default: cross-validated search)")
     parser.add_argument("--per-pad", action=argparse.BooleanOptionalAction, default=True,

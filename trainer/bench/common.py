@@ -22,7 +22,7 @@ import numpy as np
 DEADLINE_US = 1e6 / 32.0
 """One sample period at 32 Hz: the hard deadline of a decision."""
 
-DEFAULT_PARAMS = {"K": 10, "W": 7, "T": 15, "kernel": "rbf", "pads": "all", "per_pad": True}
+DEFAULT_PARAMS = {"K": 10, "W": 7, "T": 15, "kernel": "linear", "pads": "all", "per_pad": True}
 """The product's default model, what `handover train` and `handover demo` build (per-pad histograms)."""
 """The shipped default model (``handover train`` without options)."""
 
@@ -175,7 +175,7 @@ def export_metadata(ds, model, evaluation: dict | None = None, seed: int = 0) ->
 
 
 def train_default_model(folder: str | Path, seed: int = 0, quick: bool = False, name: str = "bench.onnx") -> Path:
-    """Train the default model (K=10, W=7, T=15, rbf, all pads, per-pad) on the simulated protocol and export it."""
+    """Train the default model (K=10, W=7, T=15, linear, all pads, per-pad) on the simulated protocol and export it."""
     from trainer.classifier import BowSVC
     from trainer.dataset import build_dataset
     from trainer.onnx_export import export_onnx

@@ -300,7 +300,7 @@ def markdown(res: dict) -> list[str]:
         "# Throughput and footprint (synthetic data)", "",
         f"Stream: simulated trial windows back to back (one inference every {res['window_period_frames']} frames: "
         "about the most a "
-        "threshold-triggered daemon does at 32 Hz). Default model (K=10, W=7, T=15, rbf, all pads, per-pad).", "",
+        "threshold-triggered daemon does at 32 Hz). Default model (K=10, W=7, T=15, linear, all pads, per-pad).", "",
         "| figure | value |", "|---|---|",
         f"| replay, hot path (parser + decode + ring + trigger + inference, no socket) | "
         f"{h['frames_per_s']:,.0f} frames/s ({h['frames']} frames, {h['decisions']} inferences, {h['seconds']:.2f} s; "
