@@ -41,6 +41,23 @@ DEFAULT_C = 100.0
 CV_FOLDS = 3
 
 
+def check_training_data(estimator, X, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The checks every classifier here makes in ``fit``: cases, labels, kernel; returns X, y, classes."""
+    if estimator.kernel not in ("rbf", "linear"):
+        raise ValueError(f"kernel must be 'rbf' or 'linear', got {estimator.kernel!r}")
+    if y is None:
+        raise ValueError(f"{type(estimator).__name__} requires y to be passed, but the target y is None")
+    X = as_cases(X)
+    y = column_or_1d(y, warn=True)
+    if len(y) != len(X):
+        raise ValueError(f"y has {len(y)} labels for {len(X)} cases")
+    check_classification_targets(y)
+    classes = np.unique(y)
+    if len(classes) < 2:
+        raise ValueError(f"need samples of at least 2 classes, got 1 class ({classes[0]!r})")
+    return X, y, classes
+
+
 def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, gamma=None) -> dict:
     """C (and gamma for rbf) by a stratified 3-fold grid search on these training features only.
 
@@ -140,18 +157,7 @@ class BowSVC(ClassifierMixin, BaseEstimator):
         self.fullscale = fullscale
 
     def fit(self, X, y):
-        if self.kernel not in ("rbf", "linear"):
-            raise ValueError(f"kernel must be 'rbf' or 'linear', got {self.kernel!r}")
-        if y is None:
-            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is None")
-        X = as_cases(X)
-        y = column_or_1d(y, warn=True)
-        if len(y) != len(X):
-            raise ValueError(f"y has {len(y)} labels for {len(X)} cases")
-        check_classification_targets(y)
-        self.classes_ = np.unique(y)
-        if len(self.classes_) < 2:
-            raise ValueError(f"need samples of at least 2 classes, got 1 class ({self.classes_[0]!r})")
+        X, y, self.classes_ = check_training_data(self, X, y)
         self.bow_ = BagOfWords(
             n_words=self.n_words,
             window=self.window,

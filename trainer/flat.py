@@ -14,11 +14,10 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
-from sklearn.utils.multiclass import check_classification_targets
-from sklearn.utils.validation import check_is_fitted, column_or_1d
+from sklearn.utils.validation import check_is_fitted
 
 from trainer.bow import as_cases
-from trainer.classifier import choose_svm_params
+from trainer.classifier import check_training_data, choose_svm_params
 
 
 class FlatSVC(ClassifierMixin, BaseEstimator):
@@ -34,18 +33,7 @@ class FlatSVC(ClassifierMixin, BaseEstimator):
         self.gamma = gamma
 
     def fit(self, X, y):
-        if self.kernel not in ("rbf", "linear"):
-            raise ValueError(f"kernel must be 'rbf' or 'linear', got {self.kernel!r}")
-        if y is None:
-            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is None")
-        X = as_cases(X)
-        y = column_or_1d(y, warn=True)
-        if len(y) != len(X):
-            raise ValueError(f"y has {len(y)} labels for {len(X)} cases")
-        check_classification_targets(y)
-        self.classes_ = np.unique(y)
-        if len(self.classes_) < 2:
-            raise ValueError(f"need samples of at least 2 classes, got 1 class ({self.classes_[0]!r})")
+        X, y, self.classes_ = check_training_data(self, X, y)
         _, self.n_channels_, self.n_timepoints_ = X.shape
         self.n_features_in_ = self.n_channels_ * self.n_timepoints_
         flat = X.reshape(len(X), -1)
