@@ -132,18 +132,9 @@ def _check_serial(p: ParsedURL) -> None:
 
 
 def _check_tcp(p: ParsedURL) -> None:
-    from firmware_io.transports.tcp import _split_host_port
+    from firmware_io.transports.tcp import parse_tcp_url
 
-    p.check_options({"connect_timeout"})
-    if not p.netloc:
-        raise TransportError(f"{p.url}: no host; use tcp://192.168.1.42:13000")
-    try:
-        host, _ = _split_host_port(p.netloc)
-    except ValueError:
-        raise TransportError(f"{p.url}: expected tcp://HOST:PORT with a port 1..65535") from None
-    if not host:
-        raise TransportError(f"{p.url}: no host; use tcp://192.168.1.42:13000")
-    parse_number(p.url, "connect_timeout", p.options.get("connect_timeout", 3.0), float, 0.001)
+    parse_tcp_url(p, p.options.get("connect_timeout", 3.0))
 
 
 def _check_usb(p: ParsedURL) -> None:
