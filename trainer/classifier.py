@@ -112,7 +112,29 @@ def margin_report(svm) -> dict:
             "share_at_bound": n_bound / n_sv if n_sv else 0.0, "hard_margin": hard, "statement": statement}
 
 
-class BowSVC(ClassifierMixin, BaseEstimator):
+class SVMHead:
+    """The output side every classifier here shares: features -> ``svm_input`` -> one-vs-one SVC.
+
+    Subclasses provide ``transform_histograms(X)`` (the graph's feature tensor) and ``svm_input``.
+    """
+
+    def decision_function(self, X) -> np.ndarray:
+        """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""
+        features = self.svm_input(self.transform_histograms(X))  # first: it raises NotFittedError
+        return self.svm_.decision_function(features)
+
+    def predict(self, X) -> np.ndarray:
+        """Class labels, decided by one-vs-one votes (ties -> the class listed first)."""
+        features = self.svm_input(self.transform_histograms(X))
+        return self.svm_.predict(features)
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.three_d_array = True
+        return tags
+
+
+class BowSVC(SVMHead, ClassifierMixin, BaseEstimator):
     """BagOfWords (K words, window W, derivative, active series) + SVC (one-vs-one).
 
     The options beyond the paper (``window`` as a sequence, ``assignment``, ``temperature``,
@@ -189,17 +211,3 @@ class BowSVC(ClassifierMixin, BaseEstimator):
         check_is_fitted(self, "svm_")
         return self.bow_.transform(X)
 
-    def decision_function(self, X) -> np.ndarray:
-        """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""
-        features = self.svm_input(self.transform_histograms(X))
-        return self.svm_.decision_function(features)
-
-    def predict(self, X) -> np.ndarray:
-        """Class labels, decided by one-vs-one votes (ties -> the class listed first)."""
-        features = self.svm_input(self.transform_histograms(X))
-        return self.svm_.predict(features)
-
-    def __sklearn_tags__(self):
-        tags = super().__sklearn_tags__()
-        tags.input_tags.three_d_array = True
-        return tags

@@ -17,10 +17,10 @@ from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
 from trainer.bow import as_cases
-from trainer.classifier import check_training_data, choose_svm_params
+from trainer.classifier import SVMHead, check_training_data, choose_svm_params
 
 
-class FlatSVC(ClassifierMixin, BaseEstimator):
+class FlatSVC(SVMHead, ClassifierMixin, BaseEstimator):
     """StandardScaler + SVC on the flattened ``(n_channels, n_timepoints)`` window.
 
     Fitted: ``scaler_``, ``svm_``, ``classes_``, ``best_params_``, ``n_channels_``,
@@ -57,15 +57,3 @@ class FlatSVC(ClassifierMixin, BaseEstimator):
     def svm_input(self, hist: np.ndarray) -> np.ndarray:
         return self.scaler_.transform(hist)
 
-    def decision_function(self, X) -> np.ndarray:
-        features = self.svm_input(self.transform_histograms(X))
-        return self.svm_.decision_function(features)
-
-    def predict(self, X) -> np.ndarray:
-        features = self.svm_input(self.transform_histograms(X))
-        return self.svm_.predict(features)
-
-    def __sklearn_tags__(self):
-        tags = super().__sklearn_tags__()
-        tags.input_tags.three_d_array = True
-        return tags
