@@ -40,7 +40,9 @@ class Event:
         del d["cls"]
         d["scores"] = {k: round(float(v), 6) for k, v in self.scores.items()}
         d["latency_us"] = round(float(self.latency_us), 1)
-        return json.dumps(d, separators=(",", ":"))
+        # allow_nan=False: NaN/Infinity are not JSON; such an event raises ValueError here, the
+        # one place events are serialised, and never reaches a listener.
+        return json.dumps(d, separators=(",", ":"), allow_nan=False)
 
 
 class Sink:
@@ -133,6 +135,9 @@ class SinkSet:
 
     def __init__(self, sinks: Iterable[Sink]) -> None:
         self.sinks = list(sinks)
+        self.invalid = 0
+        """Events refused because they could not be serialised as JSON (NaN or infinite numbers)."""
+        self._last_invalid_log = 0.0
 
     @classmethod
     def from_config(cls, cfg, stream: IO[str] | None = None) -> SinkSet:
@@ -152,11 +157,22 @@ class SinkSet:
             sinks.append(UnixDatagramSink(path))
         return cls(sinks)
 
-    def emit(self, event: Event) -> None:
-        line = event.to_json()
+    def emit(self, event: Event) -> bool:
+        """Serialise once and send to every sink; False (counted, logged rate-limited) when the
+        event is not valid JSON and nothing was sent."""
+        try:
+            line = event.to_json()
+        except (TypeError, ValueError) as exc:
+            self.invalid += 1
+            now = time.monotonic()
+            if now - self._last_invalid_log > 10.0:
+                self._last_invalid_log = now
+                log.error("event of model %s not sent: %s (%d refused so far)", event.model_id, exc, self.invalid)
+            return False
         data = line.encode()
         for sink in self.sinks:
             sink.send(line, data)
+        return True
 
     @property
     def errors(self) -> int:
