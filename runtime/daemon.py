@@ -30,6 +30,8 @@ from runtime.config import Config, ConfigError, load_config
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
+from runtime.output_check import output_problem
+from runtime.quarantine import QuarantineStore, file_key
 from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, SinkSet
@@ -43,6 +45,19 @@ HEALTH_PERIOD_S = 1.0
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 DEFAULT_RATE_HZ = 32.0
+FRAME_ERROR_LOG_S = 10.0
+"""At most one log line this often for exceptions while handling frames (they are all counted)."""
+QUARANTINE_NAME = "quarantined-models.json"
+
+
+def quarantine_path(cfg: Config) -> Path | None:
+    """Where models taken out of service are remembered: ``model.quarantine_file``, else beside the
+    health file (the service's state folder), else nowhere (in memory only)."""
+    if cfg.model.quarantine_file:
+        return Path(cfg.model.quarantine_file)
+    if cfg.health_file:
+        return Path(cfg.health_file).expanduser().parent / QUARANTINE_NAME
+    return None
 
 
 def events_problem(model: Any, events: tuple[str, ...]) -> str | None:
@@ -96,6 +111,10 @@ class Daemon:
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
         self.sinks = SinkSet.from_config(cfg.sinks, stream)
         self.model: Any = None
+        self._fallback: Any = None
+        """The model the last swap replaced: it serves again if the new one is taken out of service."""
+        self.quarantine = QuarantineStore(quarantine_path(cfg))
+        self._last_frame_error_log = -math.inf
         self.layout: SensorLayout | None = None
         self.client: Any = None
         self.connected = False
@@ -165,6 +184,8 @@ class Daemon:
             check=lambda m: scene_problem(m, self.cfg, self.layout),
             poll_interval=self.cfg.model.poll_interval_s,
             on_reject=self._rejected,
+            decision_budget=self.cfg.model.decision_budget,
+            quarantine=self.quarantine,
         )
         model = self.watcher.poll(require_stable=False)
         self.watcher.take()
@@ -178,6 +199,8 @@ class Daemon:
     def _use_model(self, model: Any) -> None:
         """Swap the serving model (one reference assignment) and fit the hot path to it."""
         old = self.model
+        if old is not None and old is not model:
+            self._fallback = old
         self.model = model
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
@@ -315,6 +338,7 @@ class Daemon:
             return
         self.health.crc_errors = int(stats.get("crc_errors", 0))
         self.health.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
+        self.health.frames_implausible = int(stats.get("frames_implausible", 0))
         self.health.frames_stale = int(stats.get("frames_stale", 0))
 
     # -- the hot path -----------------------------------------------------------------------------
@@ -347,8 +371,17 @@ class Daemon:
     def _classify(self, frame: Any) -> None:
         model = self.model
         meta = model.meta
-        labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+        try:
+            labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+        except Exception as exc:  # a graph that fails on real frames only
+            self._take_out_of_service(model, f"inference failed on frames {frame.number - meta.T + 1}.."
+                                             f"{frame.number}: {_one_line(exc)}")
+            return
         decided = time.perf_counter()
+        problem = output_problem(labels, scores, meta.n_classes)
+        if problem:
+            self._take_out_of_service(model, f"{problem} (frames {frame.number - meta.T + 1}..{frame.number})")
+            return
         latency_us = (decided - frame.received) * 1e6
         h = self.health
         h.decisions += 1
@@ -380,6 +413,45 @@ class Daemon:
         if self.on_event is not None:
             self.on_event(event)
 
+    def _take_out_of_service(self, model: Any, reason: str) -> None:
+        """A model broke the output contract at run time: one line, never load this file version
+        again (also after a restart), and serve the model it replaced, or none."""
+        h = self.health
+        h.models_quarantined += 1
+        if self.watcher is not None:
+            self.watcher.quarantine(Path(model.path), reason)
+        else:
+            with contextlib.suppress(OSError):
+                st = Path(model.path).stat()
+                self.quarantine.add(file_key(model.path, st.st_size, st.st_mtime_ns, st.st_ino), reason)
+        fallback, self._fallback = self._fallback, None
+        if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
+            fallback = None
+        self.model = None
+        h.model_id = None
+        what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again" if fallback is not None else \
+            "no model serves until a new file is dropped"
+        h.last_error = f"model {Path(model.path).name} taken out of service: {reason}"
+        log.error("model %s (%s) taken out of service: %s; it is not loaded again until the file changes; %s",
+                  model.model_id, Path(model.path).name, reason, what)
+        if fallback is not None:
+            self.model = fallback
+            h.model_id = fallback.model_id
+            self._build_hot_path(keep_history=True)
+        else:
+            self._pending.clear()
+
+    def _frame_failed(self, exc: BaseException) -> None:
+        """An exception while handling one frame: counted, logged at most every 10 s, never fatal."""
+        h = self.health
+        h.frame_errors += 1
+        h.last_error = f"frame handling failed: {_one_line(exc)}"
+        now = time.monotonic()
+        if now - self._last_frame_error_log >= FRAME_ERROR_LOG_S:
+            self._last_frame_error_log = now
+            log.error("frame handling failed (%d so far; the loop goes on): %s: %s", h.frame_errors,
+                      type(exc).__name__, _one_line(exc))
+
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
@@ -396,6 +468,7 @@ class Daemon:
         h.update_rate(now)
         self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
+        h.events_invalid = self.sinks.invalid
         self.notifier.status(h.status_line())
         if self.status_file is not None:
             self.status_file.write(h.snapshot())
@@ -472,7 +545,10 @@ class Daemon:
                     continue
                 self._last_frame_t = time.monotonic()
                 self._backoff = self.cfg.device.reconnect_min_s
-                self.handle_frame(frame)
+                try:
+                    self.handle_frame(frame)
+                except Exception as exc:  # never let one frame end the service
+                    self._frame_failed(exc)
         finally:
             self.shutdown()
         return 2 if self.fatal else 0

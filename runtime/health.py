@@ -38,6 +38,15 @@ class Health:
         self.sink_errors = 0
         self.models_loaded = 0
         self.models_rejected = 0
+        self.models_quarantined = 0
+        """Models taken out of service at run time (a label out of range, NaN scores, a failed run)."""
+        self.frames_implausible = 0
+        """Frames the sensor cannot have sent (above 12 bits, pressure on a cell that does not exist):
+        dropped by the client, never classified."""
+        self.frame_errors = 0
+        """Exceptions while handling a frame (the loop went on)."""
+        self.events_invalid = 0
+        """Events not sent because they were not valid JSON (NaN/inf)."""
         self.model_id: str | None = None
         self.device_state = "starting"
         self.last_error = ""
@@ -91,6 +100,10 @@ class Health:
             "sink_errors": self.sink_errors,
             "models_loaded": self.models_loaded,
             "models_rejected": self.models_rejected,
+            "models_quarantined": self.models_quarantined,
+            "frames_implausible": self.frames_implausible,
+            "frame_errors": self.frame_errors,
+            "events_invalid": self.events_invalid,
             "model_id": self.model_id,
             "last_error": self.last_error,
         }

@@ -25,6 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from runtime.model import ModelContractError
+from runtime.output_check import DEFAULT_BUDGET_FRACTION
+from runtime.quarantine import QuarantineStore, file_key
+
 log = logging.getLogger("handover.models")
 
 IGNORED_SUFFIXES = (".tmp", ".part", ".partial", ".swp")
@@ -77,16 +81,23 @@ class ModelWatcher:
         check: Callable[[Any], str | None] | None = None,
         poll_interval: float = 1.0,
         warmup_runs: int = 3,
+        decision_budget: float | None = DEFAULT_BUDGET_FRACTION,
         on_reject: Callable[[Rejection], None] | None = None,
         service_uid: int | None = None,
+        quarantine: QuarantineStore | None = None,
     ) -> None:
         self.folder = Path(folder)
         self.loader = loader
         self.check = check
         self.poll_interval = float(poll_interval)
         self.warmup_runs = int(warmup_runs)
+        self.decision_budget = decision_budget
+        """Fraction of the sample period one warm-up decision may take (None: not timed)."""
         self.on_reject = on_reject
         self.service_uid = service_uid
+        self.quarantined = quarantine if quarantine is not None else QuarantineStore()
+        """File versions taken out of service at run time: never loaded again until they change."""
+        self._accepted_states: dict[Path, FileState] = {}
         self.pending: Any = None
         """A validated, warmed-up model waiting for the main loop (set by the watcher thread)."""
         self.current_mtime_ns = -1
@@ -148,6 +159,7 @@ class ModelWatcher:
             return None
         st, model = accepted
         self.current_mtime_ns = st.mtime_ns
+        self._accepted_states[st.path] = st
         self.accepted.append(st.path)
         with self._lock:
             self.pending = model
@@ -157,6 +169,9 @@ class ModelWatcher:
         problem = permission_problem(st, self.service_uid)
         if problem is not None:
             return self._reject(st.path, problem)
+        earlier = self.quarantined.reason(file_key(st.path, st.size, st.mtime_ns, st.inode))
+        if earlier is not None:
+            return self._reject(st.path, f"taken out of service earlier ({earlier}); replace the file to try again")
         try:
             model = self.loader(st.path)
         except Exception as exc:  # the contract's own errors and anything a broken file can raise
@@ -167,6 +182,8 @@ class ModelWatcher:
                 return self._reject(st.path, problem)
         try:
             self._warm_up(model)
+        except ModelContractError as exc:  # wrong answers on realistic windows, or too slow
+            return self._reject(st.path, str(exc).removeprefix(f"model {st.path}: "))
         except Exception as exc:
             return self._reject(st.path, f"warm-up inference failed: {exc}")
         log.info("model %s accepted (id %s)", st.path.name, getattr(model, "model_id", "?"))
@@ -174,7 +191,7 @@ class ModelWatcher:
 
     def _warm_up(self, model: Any) -> None:
         if hasattr(model, "warm_up"):
-            model.warm_up(self.warmup_runs)
+            model.warm_up(budget_fraction=self.decision_budget)
             return
         meta = model.meta
         T = int(meta["T"]) if isinstance(meta, dict) else int(meta.T)
@@ -190,6 +207,18 @@ class ModelWatcher:
         if self.on_reject is not None:
             self.on_reject(rejection)
         return None
+
+    def quarantine(self, path: Path, reason: str) -> None:
+        """Never load this version of ``path`` again (also after a restart, when the store has a file)."""
+        st = self._accepted_states.get(Path(path))
+        if st is None:  # not loaded by this watcher (e.g. served by the caller): the file as it is now
+            try:
+                now = os.stat(path, follow_symlinks=False)
+            except OSError:
+                return
+            st = FileState(Path(path), now.st_size, now.st_mtime_ns, now.st_ino, now.st_mode, now.st_uid)
+        self._tried.add(st)
+        self.quarantined.add(file_key(st.path, st.size, st.mtime_ns, st.inode), reason)
 
     def take(self) -> Any:
         """The pending model (once), or None. Called by the main loop between two windows."""
