@@ -429,8 +429,12 @@ class Daemon:
             fallback = None
         self.model = None
         h.model_id = None
-        what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again" if fallback is not None else \
-            "no model serves until a new file is dropped"
+        if fallback is not None:
+            what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"
+        else:
+            what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
+            if self.watcher is not None:
+                self.watcher.reconsider_older()
         h.last_error = f"model {Path(model.path).name} taken out of service: {reason}"
         log.error("model %s (%s) taken out of service: %s; it is not loaded again until the file changes; %s",
                   model.model_id, Path(model.path).name, reason, what)

@@ -72,7 +72,7 @@ def main(args: argparse.Namespace) -> int:
     from runtime.model import ModelContractError, load_model
 
     try:
-        model = load_model(args.model, warm_up=False)
+        model = load_model(args.model)  # warm-up included: realistic windows, output contract, time budget
     except ModelContractError as exc:
         print(f"handover inspect: {exc}", file=sys.stderr)
         return 1

@@ -98,6 +98,9 @@ class ModelWatcher:
         self.quarantined = quarantine if quarantine is not None else QuarantineStore()
         """File versions taken out of service at run time: never loaded again until they change."""
         self._accepted_states: dict[Path, FileState] = {}
+        self._skipped: set[FileState] = set()
+        """Files passed over only because a newer one was chosen (candidates again after a quarantine)."""
+        self._reconsider = False
         self.pending: Any = None
         """A validated, warmed-up model waiting for the main loop (set by the watcher thread)."""
         self.current_mtime_ns = -1
@@ -138,6 +141,11 @@ class ModelWatcher:
         With ``require_stable=False`` (startup: nobody should be copying while the service
         starts, and waiting a poll would delay READY) files are taken as they are.
         """
+        if self._reconsider:  # set by the main loop; applied here, in the polling thread
+            self._reconsider = False
+            self._tried -= self._skipped
+            self._skipped.clear()
+            self.current_mtime_ns = -1
         now = self._list()
         stable = [s for p, s in now.items() if not require_stable or self._previous.get(p) == s]
         self._previous = now
@@ -148,9 +156,11 @@ class ModelWatcher:
             self._tried.add(st)
             if accepted is not None:
                 log.info("model %s: superseded by the newer %s; not loaded", st.path.name, accepted[0].path.name)
+                self._skipped.add(st)
                 continue
             if st.mtime_ns < self.current_mtime_ns:
                 log.info("model %s: older than the model in use; not loaded", st.path.name)
+                self._skipped.add(st)
                 continue
             model = self._validate(st)
             if model is not None:
@@ -219,6 +229,11 @@ class ModelWatcher:
             st = FileState(Path(path), now.st_size, now.st_mtime_ns, now.st_ino, now.st_mode, now.st_uid)
         self._tried.add(st)
         self.quarantined.add(file_key(st.path, st.size, st.mtime_ns, st.inode), reason)
+
+    def reconsider_older(self) -> None:
+        """The model in use was taken out of service and none is left in memory: on the next poll,
+        files passed over for a newer one are candidates again (the newest valid one serves)."""
+        self._reconsider = True
 
     def take(self) -> Any:
         """The pending model (once), or None. Called by the main loop between two windows."""
