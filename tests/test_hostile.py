@@ -240,3 +240,45 @@ def test_the_model_a_sleeper_replaced_serves_again_at_once(folders, caplog):
     _press(daemon, level=int(H.SLEEPER_PEAK), first=200)
     assert [e.cls for e in events] == ["push"]
     assert daemon.watcher.poll(require_stable=False) is None  # never reloaded while unchanged
+
+
+# -- recordings -------------------------------------------------------------------------------------
+R = pytest.importorskip("trainer.bench.hostile_recordings")
+
+
+@pytest.fixture(scope="module")
+def hostile_recordings(tmp_path_factory):
+    return R.write_all(tmp_path_factory.mktemp("hostile-recordings"), bomb_bytes=32 << 20)
+
+
+def test_every_hostile_recording_is_one_line_naming_the_file(hostile_recordings):
+    import resource
+
+    from firmware_io.recording import Recording, RecordingError
+
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    for name, path in hostile_recordings.items():
+        with pytest.raises(RecordingError) as info:
+            Recording.load(path)
+        message = str(info.value)
+        assert message.startswith(str(path)) and "\n" not in message and len(message) < 400, (name, message)
+    grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+    assert grown_mb < 30, f"reading hostile recordings grew the process by {grown_mb:.0f} MB"
+
+
+@pytest.mark.parametrize("command", ["plot", "train"])
+@pytest.mark.parametrize("name", ["deflate_bomb", "huge_shape", "deep_nesting", "bogus_layout"])
+def test_plot_and_train_end_with_one_line_and_exit_2(hostile_recordings, tmp_path, command, name):
+    path = hostile_recordings[name]
+    if command == "plot":
+        argv = ["plot", str(path), "--out", str(tmp_path / "x.png")]
+    else:
+        data = tmp_path / "data"
+        data.mkdir()
+        (data / path.name).write_bytes(path.read_bytes())
+        argv = ["train", "--data", str(data), "--out", str(tmp_path / "report")]
+    done = subprocess.run([sys.executable, "-m", "runtime.cli", *argv], capture_output=True, text=True, cwd=ROOT,
+                          timeout=120)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr[-2000:]
+    assert lines[0].startswith(f"handover {command}: ") and path.name in lines[0]
