@@ -83,8 +83,8 @@ def main(args: argparse.Namespace) -> int:
             if parsed.scheme != "tcp" or not parsed.netloc:
                 return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
             host, _, port = parsed.netloc.rpartition(":")
-            if not host or not port.isdigit():
-                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+            if not host or not port.isdigit() or int(port) > 65535:
+                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
             server = TcpEmulatorServer(emulator, host=host, port=int(port))
     except EmulatorServerError as exc:
         return _fail(str(exc))

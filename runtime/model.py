@@ -61,6 +61,11 @@ class ModelContractError(ValueError):
     """A model file that breaks the contract; the message names the file and the problem."""
 
 
+class ModelUnreadableError(ModelContractError):
+    """Bytes that are not (yet) a whole model: empty, truncated, no graph onnxruntime can load, no
+    metadata. What a file still being copied looks like, so the watcher retries it for a while."""
+
+
 class ModelInputError(ValueError):
     """Input frames the model refuses (wrong shape, non-finite values)."""
 
@@ -340,11 +345,11 @@ def load_model(
     if len(data) > max_bytes:
         raise ModelContractError(f"{where}: {len(data)} bytes exceeds the limit of {max_bytes}")
     if not data:
-        raise ModelContractError(f"{where}: empty file")
+        raise ModelUnreadableError(f"{where}: empty file")
     try:
         wire = summarize(data)
     except WireError as exc:
-        raise ModelContractError(f"{where}: not an ONNX model or truncated ({exc})") from exc
+        raise ModelUnreadableError(f"{where}: not an ONNX model or truncated ({exc})") from exc
     if wire.external_data:
         raise ModelContractError(f"{where}: references external data; a model must be one self-contained file")
     foreign = sorted((wire.opset_domains | wire.node_domains) - ALLOWED_DOMAINS)
@@ -359,13 +364,13 @@ def load_model(
         )
     except Exception as exc:  # onnxruntime raises several unrelated types for a bad graph
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ModelContractError(f"{where}: onnxruntime cannot load it: {first}") from exc
+        raise ModelUnreadableError(f"{where}: onnxruntime cannot load it: {first}") from exc
     try:
         raw = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
     except UnicodeDecodeError as exc:  # onnxruntime decodes metadata strings as UTF-8 for Python
         raise ModelContractError(f"{where}: metadata is not valid UTF-8 (byte {exc.start}); damaged file?") from None
     if raw is None:
-        raise ModelContractError(f"{where}: no {METADATA_KEY!r} metadata (not a handover model)")
+        raise ModelUnreadableError(f"{where}: no {METADATA_KEY!r} metadata (not a handover model)")
     try:
         meta_dict = json.loads(raw)
     except json.JSONDecodeError as exc:

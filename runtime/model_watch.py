@@ -18,6 +18,7 @@ import logging
 import os
 import stat
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,13 +26,18 @@ from typing import Any
 
 import numpy as np
 
-from runtime.model import ModelContractError
+from runtime.model import ModelContractError, ModelUnreadableError
 from runtime.output_check import DEFAULT_BUDGET_FRACTION
 from runtime.quarantine import QuarantineStore, file_key
 
 log = logging.getLogger("handover.models")
 
 IGNORED_SUFFIXES = (".tmp", ".part", ".partial", ".swp")
+SETTLE_S = 10.0
+"""A file that is not (yet) a whole model and was modified less than this long ago is taken as
+still being copied in place (a copy may pause for seconds, so two equal polls do not prove it
+complete): one info line, retried on every poll, rejected only once it has stayed unreadable and
+unchanged this long. A file renamed into place complete is never in this state."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +107,7 @@ class ModelWatcher:
         self._skipped: set[FileState] = set()
         """Files passed over only because a newer one was chosen (candidates again after a quarantine)."""
         self._reconsider = False
+        self._settling: set[FileState] = set()
         self.pending: Any = None
         """A validated, warmed-up model waiting for the main loop (set by the watcher thread)."""
         self.current_mtime_ns = -1
@@ -184,6 +191,10 @@ class ModelWatcher:
             return self._reject(st.path, f"taken out of service earlier ({earlier}); replace the file to try again")
         try:
             model = self.loader(st.path)
+        except ModelUnreadableError as exc:
+            if time.time() - st.mtime_ns / 1e9 < SETTLE_S:
+                return self._settle(st, exc)
+            return self._reject(st.path, str(exc))
         except Exception as exc:  # the contract's own errors and anything a broken file can raise
             return self._reject(st.path, str(exc) or type(exc).__name__)
         if self.check is not None:
@@ -198,6 +209,15 @@ class ModelWatcher:
             return self._reject(st.path, f"warm-up inference failed: {exc}")
         log.info("model %s accepted (id %s)", st.path.name, getattr(model, "model_id", "?"))
         return model
+
+    def _settle(self, st: FileState, exc: Exception) -> None:
+        """A young file that is not a whole model yet: one info line, tried again on the next poll."""
+        self._tried.discard(st)
+        if st not in self._settling:
+            self._settling.add(st)
+            log.info("model %s: not a whole model yet (%s); taken as still being copied, retried until it has "
+                     "been unchanged %.0f s", st.path.name, str(exc).removeprefix(f"model {st.path}: "), SETTLE_S)
+        return None
 
     def _warm_up(self, model: Any) -> None:
         if hasattr(model, "warm_up"):

@@ -282,3 +282,29 @@ def test_plot_and_train_end_with_one_line_and_exit_2(hostile_recordings, tmp_pat
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr[-2000:]
     assert lines[0].startswith(f"handover {command}: ") and path.name in lines[0]
+
+
+def test_a_copy_that_pauses_is_not_picked_up_half_written(tmp_path, caplog):
+    """An in-place copy that stops for longer than two polls looks complete to the size/mtime rule;
+    a file that is not a whole model yet and was modified seconds ago is retried, not rejected."""
+    data = H.valid()
+    path = tmp_path / "copying.onnx"
+    path.write_bytes(data[: len(data) // 2])
+    path.chmod(0o644)
+    watcher = ModelWatcher(tmp_path, loader=lambda p: load_model(p, warm_up=False), poll_interval=0.05)
+    for _ in range(4):  # the copy pauses: the same half file on every poll
+        assert watcher.poll() is None
+    assert watcher.rejections == []
+    assert len([r for r in caplog.records if "still being copied" in r.getMessage()]) == 1
+    with path.open("ab") as fh:
+        fh.write(data[len(data) // 2 :])
+    watcher.poll()
+    assert watcher.poll() is not None and watcher.rejections == []
+
+
+def test_emulate_listen_port_out_of_range_is_one_line(capsys):
+    from runtime.cli import main
+
+    assert main(["emulate", "--listen", "tcp://127.0.0.1:99999"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("handover emulate: ") and "99999" in err and "\n" not in err
