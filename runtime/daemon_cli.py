@@ -39,8 +39,9 @@ def main(args: argparse.Namespace) -> int:
     if args.check:
         return _check(cfg, require_model=args.require_model)
     from runtime.daemon import Daemon
+    from runtime.sinks import claim_stdout_for_events
 
-    daemon = Daemon(cfg)
+    daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
     daemon.install_signal_handlers()
     code = daemon.run()
     if daemon.fatal:

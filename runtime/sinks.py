@@ -7,8 +7,10 @@ buffer, closed pipe) is logged (rate-limited) and counted, and never stops the d
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import logging
+import os
 import socket
 import sys
 import time
@@ -74,6 +76,20 @@ class Sink:
 
     def close(self) -> None:
         pass
+
+
+def claim_stdout_for_events() -> IO[str]:
+    """Reserve the process's stdout for event lines: a stream on the original stdout, while file
+    descriptor 1 and ``sys.stdout`` now lead to stderr.
+
+    Why: stdout is a JSON-lines stream that journald or a pipe parses. Anything else written there
+    (a library's ``print``, onnxruntime's C++ logger, a warning banner) would corrupt it; after this
+    call it lands in the log instead."""
+    sys.stdout.flush()
+    events = io.TextIOWrapper(io.FileIO(os.dup(1), "w"), encoding="utf-8", line_buffering=True)
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+    return events
 
 
 class StdoutSink(Sink):

@@ -308,3 +308,58 @@ def test_emulate_listen_port_out_of_range_is_one_line(capsys):
     assert main(["emulate", "--listen", "tcp://127.0.0.1:99999"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("handover emulate: ") and "99999" in err and "\n" not in err
+
+
+def test_only_event_lines_reach_stdout_even_from_c_code_or_a_library_print():
+    code = ("import os, sys; from runtime.sinks import claim_stdout_for_events as c; s = c(); "
+            "print('a library print'); os.write(1, b'a C++ log line\\n'); s.write('{\"class\":\"pull\"}\\n')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert done.stdout == '{"class":"pull"}\n'
+    assert "a library print" in done.stderr and "a C++ log line" in done.stderr
+
+
+@pytest.mark.slow
+def test_the_daemon_serves_on_while_hostile_models_are_dropped(folders):
+    """A real process over the simulated hand: models that ORT refuses, that break the output
+    contract, that are too slow or damaged are dropped one after another; it keeps serving, exits 0
+    on SIGTERM, stdout holds only JSON events, and no traceback is logged."""
+    import onnx
+    import signal
+
+    models, state = folders
+    write_model(models, "good.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
+    config = state / "h.toml"
+    config.write_text(f'health_file = "{state / "status.json"}"\n[device]\nurl = "sim://?events=4&speed=8"\n'
+                      f'[model]\nfolder = "{models}"\npoll_interval_s = 0.05\n'
+                      '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n')
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    unknown_op = onnx.load_from_string(H.valid())
+    unknown_op.graph.node[0].op_type = "NoSuchOperator"
+    hostile = {"ort-refuses.onnx": unknown_op.SerializeToString(), "nan.onnx": H.nan_scores(),
+               "label.onnx": H.label_out_of_range(), "slow.onnx": H.slow(40_000),
+               "mutant.onnx": next(H.mutations(H.valid(), 1, seed=3, max_flips=40))}
+    try:
+        time.sleep(1.0)
+        for i, (name, data) in enumerate(hostile.items()):
+            write_model(models, name, data, mtime=time.time() - 50 + i)
+            time.sleep(0.4)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            status = json.loads((state / "status.json").read_text()) if (state / "status.json").exists() else {}
+            if status.get("models_rejected", 0) >= len(hostile):
+                break
+            time.sleep(0.2)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out, err = proc.communicate()
+    assert proc.returncode == 0 and "Traceback" not in err and "EP Error" not in out, err[-3000:]
+    status = json.loads((state / "status.json").read_text())
+    assert status["models_rejected"] == len(hostile), err[-3000:]
+    assert status["model_id"] and status["frame_errors"] == 0
+    lines = out.splitlines()
+    assert lines and all(json.loads(line)["class"] == "push" for line in lines)
