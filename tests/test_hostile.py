@@ -323,8 +323,9 @@ def test_the_daemon_serves_on_while_hostile_models_are_dropped(folders):
     """A real process over the simulated hand: models that ORT refuses, that break the output
     contract, that are too slow or damaged are dropped one after another; it keeps serving, exits 0
     on SIGTERM, stdout holds only JSON events, and no traceback is logged."""
-    import onnx
     import signal
+
+    import onnx
 
     models, state = folders
     write_model(models, "good.onnx", H.valid(bias_class=1), mtime=time.time() - 100)

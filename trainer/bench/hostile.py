@@ -279,7 +279,7 @@ def markdown(res: dict) -> list[str]:
         f"into its folder: {d['models_rejected']} rejected, still serving: {d['still_serving']}, {d['events']} events "
         f"on stdout, {d['non_json_stdout_lines']} non-JSON lines, {d['tracebacks']} tracebacks, exit code "
         f"{d['exit_code']} after SIGTERM.", "",
-        f"Took {res['seconds']} s. Reproduce: `{res['command']}`.",
+        f"Took {res['seconds']} s.",
     ]
     return lines
 
