@@ -364,3 +364,19 @@ def test_the_daemon_serves_on_while_hostile_models_are_dropped(folders):
     assert status["model_id"] and status["frame_errors"] == 0
     lines = out.splitlines()
     assert lines and all(json.loads(line)["class"] == "push" for line in lines)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_the_full_hostile_set_has_no_failures(tmp_path, capsys):
+    """``handover bench hostile``: every attack above at full size (3,000 mutated models, 100,000
+    frames with 2-bit errors, a 2 GiB deflate bomb, ...), counted; results/hostile.md has a run."""
+    from runtime.cli import main
+
+    assert main(["bench", "hostile", "--out", str(tmp_path), "--quiet"]) == 0
+    result = json.loads((tmp_path / "hostile.json").read_text())
+    from trainer.bench.hostile import summary
+
+    print(json.dumps(summary(result)))
+    assert result["hostile_failures"] == 0
+    assert result["frames"]["delivered_over_12bit"] == 0 and result["daemon"]["non_json_stdout_lines"] == 0
