@@ -100,7 +100,7 @@ def attack_daemon(work: Path) -> dict:
                       '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n')
     unknown_op = onnx.load_from_string(H.valid())
     unknown_op.graph.node[0].op_type = "NoSuchOperator"
-    hostile = {"ort-refuses.onnx": unknown_op.SerializeToString(), "nan.onnx": H.nan_scores(),
+    hostile = {"ort-refuses.onnx": unknown_op.SerializeToString(), "ort-banner.onnx": H.ort_banner(), "nan.onnx": H.nan_scores(),
                "inf.onnx": H.inf_scores(), "label.onnx": H.label_out_of_range(), "slow.onnx": H.slow(40_000),
                **{f"mutant{i}.onnx": m for i, m in enumerate(H.mutations(H.valid(), 5, seed=5, max_flips=40))}}
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,

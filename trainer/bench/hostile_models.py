@@ -125,6 +125,14 @@ RUNTIME_ATTACKS = {"label_out_of_range": label_out_of_range, "nan_scores": nan_s
 """Models that pass the static contract and break the output contract on pressed pads."""
 
 
+def ort_banner() -> bytes:
+    """A valid model with one operator name made invalid UTF-8: onnxruntime's Python wrapper used to
+    print its "EP Error" banner to stdout for it before retrying."""
+    base = valid()
+    at = base.find(b"ReduceMean")
+    return base[:at] + b"\xff" + base[at + 1 :]
+
+
 def mutations(base: bytes, n: int, seed: int = 0, max_flips: int = 8) -> Iterator[bytes]:
     """``n`` copies of ``base`` with 1..max_flips random bytes replaced (deterministic by seed)."""
     rng = random.Random(seed)
