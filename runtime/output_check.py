@@ -31,6 +31,8 @@ def output_problem(labels: Any, scores: Any, n_classes: int) -> str | None:
     The contract: ``labels`` int ``[N]`` with every value in ``0..n_classes-1``; ``scores``
     float ``[N, n_classes]``, all finite.
     """
+    if _one_good_decision(labels, scores, n_classes):  # the daemon's case, in about a microsecond
+        return None
     labels, scores = np.asarray(labels), np.asarray(scores)
     n = labels.shape[0] if labels.ndim == 1 else -1
     if labels.ndim != 1 or labels.dtype.kind not in "iu":
@@ -43,6 +45,13 @@ def output_problem(labels: Any, scores: Any, n_classes: int) -> str | None:
     if not np.isfinite(scores).all():
         return f"scores contain {'NaN' if np.isnan(scores).any() else 'infinity'}"
     return None
+
+
+def _one_good_decision(labels: Any, scores: Any, n_classes: int) -> bool:
+    """True for one in-range label with finite float32 scores (False: let the full check decide)."""
+    return (type(labels) is np.ndarray and type(scores) is np.ndarray and labels.shape == (1,)
+            and scores.shape == (1, n_classes) and labels.dtype == np.int64 and scores.dtype == np.float32
+            and 0 <= int(labels[0]) < n_classes and bool(np.isfinite(scores).all()))
 
 
 def probe_windows(T: int, n_channels: int, fullscale: float, seed: int = 0) -> np.ndarray:
