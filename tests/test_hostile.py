@@ -142,10 +142,17 @@ def test_an_exception_in_handle_frame_never_ends_the_loop(folders, caplog):
         real(frame)
 
     daemon.handle_frame = flaky
-    threading.Timer(1.5, daemon.request_stop).start()
+
+    def stop_after_errors():
+        deadline = time.monotonic() + 30
+        while daemon.health.frame_errors < 20 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        daemon.request_stop()
+
+    threading.Thread(target=stop_after_errors, daemon=True).start()
     assert daemon.run() == 0
     h = daemon.health
-    assert h.frame_errors > 5 and h.frames_received > 2 * h.frame_errors * 0.9
+    assert h.frame_errors >= 20 and h.frames_received >= 2 * (h.frame_errors - 1)
     assert len([r for r in caplog.records if "frame handling failed" in r.getMessage()]) == 1
     status = json.loads((state / "status.json").read_text())
     assert status["frame_errors"] == h.frame_errors
@@ -316,54 +323,12 @@ def test_only_event_lines_reach_stdout_even_from_c_code_or_a_library_print():
 
 
 @pytest.mark.slow
-def test_the_daemon_serves_on_while_hostile_models_are_dropped(folders):
-    """A real process over the simulated hand: models that ORT refuses, that break the output
-    contract, that are too slow or damaged are dropped one after another; it keeps serving, exits 0
-    on SIGTERM, stdout holds only JSON events, and no traceback is logged."""
-    import signal
-
-    models, state = folders
-    write_model(models, "good.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
-    config = state / "h.toml"
-    config.write_text(f'health_file = "{state / "status.json"}"\n[device]\nurl = "sim://?events=4&speed=8"\n'
-                      f'[model]\nfolder = "{models}"\npoll_interval_s = 0.05\n'
-                      '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n')
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    hostile = {"ort-banner.onnx": H.ort_banner(), "nan.onnx": H.nan_scores(),
-               "label.onnx": H.label_out_of_range(), "slow.onnx": H.slow(40_000),
-               "mutant.onnx": next(H.mutations(H.valid(), 1, seed=3, max_flips=40))}
-    try:
-        time.sleep(1.0)
-        for i, (name, data) in enumerate(hostile.items()):
-            write_model(models, name, data, mtime=time.time() - 50 + i)
-            time.sleep(0.4)
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            status = json.loads((state / "status.json").read_text()) if (state / "status.json").exists() else {}
-            if status.get("models_rejected", 0) >= len(hostile):
-                break
-            time.sleep(0.2)
-        assert proc.poll() is None
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        out, err = proc.communicate()
-    assert proc.returncode == 0 and "Traceback" not in err and "EP Error" not in out, err[-3000:]
-    status = json.loads((state / "status.json").read_text())
-    assert status["models_rejected"] == len(hostile), err[-3000:]
-    assert status["model_id"] and status["frame_errors"] == 0
-    lines = out.splitlines()
-    assert lines and all(json.loads(line)["class"] == "push" for line in lines)
-
-
-@pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_the_full_hostile_set_has_no_failures(tmp_path, capsys):
     """``handover bench hostile``: every attack above at full size (3,000 mutated models, 100,000
-    frames with 2-bit errors, a 2 GiB deflate bomb, ...), counted; results/hostile.md has a run."""
+    frames with 2-bit errors, a 2 GiB deflate bomb, ...) and the daemon as a real process while
+    hostile models are dropped into its folder (stdout only JSON events, no traceback, exit 0);
+    counted, results/hostile.md has a run."""
     from runtime.cli import main
 
     assert main(["bench", "hostile", "--out", str(tmp_path), "--quiet"]) == 0

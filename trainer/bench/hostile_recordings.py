@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from firmware_io.recording import _npy_bytes as _npy
 
 N_FRAMES = 20
 
@@ -26,12 +27,6 @@ def _header(**changes) -> dict:
               "layout": layout.to_dict(), "trials": [], "meta": {}}
     header.update(changes)
     return header
-
-
-def _npy(arr: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, arr, allow_pickle=False)
-    return buf.getvalue()
 
 
 def _npy_header(dtype: str, shape: tuple[int, ...]) -> bytes:
