@@ -59,7 +59,8 @@ def _check(cfg, require_model: bool = False) -> int:
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
-                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events))
+                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events),
+                               decision_budget=cfg.model.decision_budget, quarantine=daemon.quarantine)
         return watcher.poll(require_stable=False), watcher.rejections
 
     model, rejections = newest(check_events=True)

@@ -329,8 +329,13 @@ def load_model(
     intra_op_threads: int = 1,
     allow_spinning: bool = False,
     warm_up: bool = True,
+    decision_budget: float | None = None,
 ) -> LoadedModel:
-    """Read, validate and open a model file; any breach raises ModelContractError naming it."""
+    """Read, validate and open a model file; any breach raises ModelContractError naming it.
+
+    ``warm_up`` checks the output contract on realistic windows; ``decision_budget`` (a fraction
+    of the sample period, e.g. 0.1) also refuses a model whose decision is slower (the daemon's
+    rule; offline tools that measure speed themselves leave it None)."""
     import onnxruntime as ort
 
     path = Path(path)
@@ -388,5 +393,5 @@ def load_model(
     model_id = hashlib.sha256(data).hexdigest()[:12]
     model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data))
     if warm_up:
-        model.warm_up()
+        model.warm_up(budget_fraction=decision_budget)
     return model

@@ -113,6 +113,11 @@ def test_a_sleeper_is_taken_out_of_service_once_and_stays_out_across_a_restart(f
     _start(restarted)
     assert Path(restarted.model.path).name == "old.onnx"
     assert any("taken out of service earlier" in r.reason for r in restarted.watcher.rejections)
+    config = state / "handover.toml"
+    config.write_text(f'health_file = "{state / "status.json"}"\n[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n')
+    check = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(config), "--check"],
+                           capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert check.returncode == 0 and "(old.onnx)" in check.stdout, check.stdout + check.stderr
     write_model(models, "new.onnx", H.valid(bias_class=2, tag="fixed"))  # a new file is tried again
     assert restarted.watcher.poll(require_stable=False) is not None
 
@@ -167,6 +172,12 @@ def test_a_model_over_the_decision_budget_is_refused_with_time_and_budget(tmp_pa
     assert "ms at warm-up" in reason and "over the budget of 0.06 ms" in reason, reason
     ok = ModelWatcher(tmp_path, loader=lambda p: load_model(p, warm_up=False), decision_budget=None)
     assert ok.poll(require_stable=False) is not None  # the same file is fine without a budget
+    load_model(path)  # offline tools (export, compare, bench) measure speed themselves: no budget
+    config = tmp_path / "h.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{tmp_path}"\ndecision_budget = 0.002\n')
+    check = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(config), "--check",
+                            "--require-model"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert check.returncode == 1 and "over the budget of 0.06 ms" in check.stderr, check.stderr
 
 
 def test_onnxruntime_failure_banner_never_reaches_stdout(tmp_path, capsys):
