@@ -266,11 +266,11 @@ def markdown(res: dict) -> list[str]:
         f"plausible taxels. Delivered above 12 bits: {f['delivered_over_12bit']}; on missing cells: "
         f"{f['delivered_on_missing_cells']}.", "",
         "## Recordings", "",
-        "| file | bytes | load | plot | train |", "|---|---|---|---|---|",
+        "| file | bytes | read | plot | train | emulate |", "|---|---|---|---|---|---|",
         *[f"| {k} | {v['bytes']} | {'refused, one line' if v['load_refused_one_line'] else 'FAILED'} "
-          f"({v['load_ms']} ms) | {_ok(v.get('plot_exit2_one_line'))} | {_ok(v.get('train_exit2_one_line'))} |"
-          for k, v in r["files"].items()],
-        "", f"The deflate bomb inflates to {r['deflate_bomb_inflates_to_bytes']} bytes; peak memory of the reading "
+          f"({v['load_ms']} ms) | {_ok(v.get('plot_exit2_one_line'))} | {_ok(v.get('train_exit2_one_line'))} | "
+          f"{_ok(v.get('emulate_exit2_one_line'))} |" for k, v in r["files"].items()],
+        "", f"Each bomb inflates to {r['deflate_bomb_inflates_to_bytes']} bytes; peak memory of the reading "
         f"process grew by {r['peak_rss_growth_mb']} MB.", "",
         "## Config numbers", "",
         f"{c['keys']} numeric keys x {len(c['values'])} values ({', '.join(c['values'])}) = {c['tried']}: "

@@ -25,8 +25,9 @@ def _ends_in_one_line(done: subprocess.CompletedProcess, command: str, name: str
 
 
 def attack_recordings(work: Path, quick: bool) -> dict:
-    """Each hostile recording through Recording.load, ``handover plot`` and ``handover train``."""
-    from firmware_io.recording import Recording, RecordingError
+    """Each hostile recording through the reader, ``plot``, ``train`` and ``emulate`` (a .dsa: emulate)."""
+    from firmware_io.importers import import_any
+    from firmware_io.recording import RecordingError
     from trainer.bench.hostile_recordings import write_all
 
     bomb = (64 << 20) if quick else (2 << 30)
@@ -36,15 +37,19 @@ def attack_recordings(work: Path, quick: bool) -> dict:
     for name, path in files.items():
         t0 = time.perf_counter()
         try:
-            Recording.load(path)
+            import_any(path)
             refused = False
         except RecordingError as exc:
             refused = str(exc).startswith(str(path)) and "\n" not in str(exc)
         row = {"bytes": path.stat().st_size, "load_refused_one_line": refused,
                "load_ms": round((time.perf_counter() - t0) * 1e3, 1)}
-        commands = ("plot", "train") if not quick or name in ("deflate_bomb", "huge_shape", "deep_nesting") else ()
+        commands = ("plot", "train", "emulate") if path.suffix == ".hrec" else ("emulate",)
+        if quick and name not in ("deflate_bomb", "dsa_bzip2_bomb", "huge_shape", "deep_nesting"):
+            commands = ()
         for command in commands:
-            if command == "plot":
+            if command == "emulate":
+                done = _cli(["emulate", "--pty", "--source", str(path), "--duration", "0.1"])
+            elif command == "plot":
                 done = _cli(["plot", str(path), "--out", str(work / "x.png")])
             else:
                 data = work / f"train-{name}"

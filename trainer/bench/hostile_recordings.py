@@ -66,6 +66,19 @@ def deflate_bomb(path: Path, inflated: int = 2 << 30) -> Path:
     return path
 
 
+def dsa_bomb(path: Path, inflated: int = 2 << 30) -> Path:
+    """A DSA-Konqueror file: bzip2 streams of 1 MiB of spaces each, ``inflated`` bytes in all, after
+    a valid XML prologue (a few kB on disk; ``bz2.decompress`` would fill the memory)."""
+    import bz2
+
+    block = bz2.compress(b" " * (1 << 20))
+    with path.open("wb") as fh:
+        fh.write(bz2.compress(b'<?xml version="1.0"?>\n<root>\n'))
+        for _ in range(inflated >> 20):
+            fh.write(block)
+    return path
+
+
 def huge_shape(path: Path) -> Path:
     """frames.npy declares 10**13 frames (88 TiB); the header agrees."""
     n = 10**13
@@ -118,11 +131,12 @@ BUILDERS: dict[str, Callable[[Path], Path]] = {
     "header_not_json": header_not_json,
     "pickled_frames": pickled_frames,
 }
-"""The cheap ones (milliseconds each); ``deflate_bomb`` is separate (its size is a parameter)."""
+"""The cheap ones (milliseconds each); the two bombs are separate (their size is a parameter)."""
 
 
 def write_all(folder: Path, bomb_bytes: int = 64 << 20) -> dict[str, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     out = {name: build(folder / f"{name}.hrec") for name, build in BUILDERS.items()}
     out["deflate_bomb"] = deflate_bomb(folder / "deflate_bomb.hrec", bomb_bytes)
+    out["dsa_bzip2_bomb"] = dsa_bomb(folder / "bzip2_bomb.dsa", bomb_bytes)
     return out
