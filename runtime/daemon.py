@@ -31,7 +31,7 @@ from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.output_check import output_problem
-from runtime.quarantine import QuarantineStore, file_key
+from runtime.quarantine import QuarantineStore, store_path
 from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, SinkSet
@@ -45,21 +45,6 @@ HEALTH_PERIOD_S = 1.0
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 DEFAULT_RATE_HZ = 32.0
-FRAME_ERROR_LOG_S = 10.0
-"""At most one log line this often for exceptions while handling frames (they are all counted)."""
-QUARANTINE_NAME = "quarantined-models.json"
-
-
-def quarantine_path(cfg: Config) -> Path | None:
-    """Where models taken out of service are remembered: ``model.quarantine_file``, else beside the
-    health file (the service's state folder), else nowhere (in memory only)."""
-    if cfg.model.quarantine_file:
-        return Path(cfg.model.quarantine_file)
-    if cfg.health_file:
-        return Path(cfg.health_file).expanduser().parent / QUARANTINE_NAME
-    return None
-
-
 def events_problem(model: Any, events: tuple[str, ...]) -> str | None:
     """``scene.events: 'pul' is not a class of model X (classes: ...)``, or None."""
     classes = list(model.meta.classes)
@@ -113,8 +98,7 @@ class Daemon:
         self.model: Any = None
         self._fallback: Any = None
         """The model the last swap replaced: it serves again if the new one is taken out of service."""
-        self.quarantine = QuarantineStore(quarantine_path(cfg))
-        self._last_frame_error_log = -math.inf
+        self.quarantine = QuarantineStore(store_path(cfg.model.quarantine_file, cfg.health_file))
         self.layout: SensorLayout | None = None
         self.client: Any = None
         self.connected = False
@@ -418,42 +402,28 @@ class Daemon:
         again (also after a restart), and serve the model it replaced, or none."""
         h = self.health
         h.models_quarantined += 1
-        if self.watcher is not None:
-            self.watcher.quarantine(Path(model.path), reason)
-        else:
-            with contextlib.suppress(OSError):
-                st = Path(model.path).stat()
-                self.quarantine.add(file_key(model.path, st.st_size, st.st_mtime_ns, st.st_ino), reason)
+        (self.watcher or self.quarantine).quarantine_file(Path(model.path), reason)
         fallback, self._fallback = self._fallback, None
         if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
             fallback = None
-        self.model = None
-        h.model_id = None
+        h.last_error = f"model {Path(model.path).name} taken out of service: {reason}"
+        what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
         if fallback is not None:
             what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"
-        else:
-            what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
-            if self.watcher is not None:
-                self.watcher.reconsider_older()
-        h.last_error = f"model {Path(model.path).name} taken out of service: {reason}"
         log.error("model %s (%s) taken out of service: %s; it is not loaded again until the file changes; %s",
                   model.model_id, Path(model.path).name, reason, what)
+        self.model, h.model_id = fallback, getattr(fallback, "model_id", None)
         if fallback is not None:
-            self.model = fallback
-            h.model_id = fallback.model_id
             self._build_hot_path(keep_history=True)
         else:
             self._pending.clear()
+            if self.watcher is not None:
+                self.watcher.reconsider_older()
 
     def _frame_failed(self, exc: BaseException) -> None:
         """An exception while handling one frame: counted, logged at most every 10 s, never fatal."""
-        h = self.health
-        h.frame_errors += 1
-        h.last_error = f"frame handling failed: {_one_line(exc)}"
-        now = time.monotonic()
-        if now - self._last_frame_error_log >= FRAME_ERROR_LOG_S:
-            self._last_frame_error_log = now
-            log.error("frame handling failed (%d so far; the loop goes on): %s: %s", h.frame_errors,
+        if self.health.frame_failed(_one_line(exc)):
+            log.error("frame handling failed (%d so far; the loop goes on): %s: %s", self.health.frame_errors,
                       type(exc).__name__, _one_line(exc))
 
     # -- housekeeping ---------------------------------------------------------------------------

@@ -238,15 +238,12 @@ class ModelWatcher:
             self.on_reject(rejection)
         return None
 
-    def quarantine(self, path: Path, reason: str) -> None:
+    def quarantine_file(self, path: Path, reason: str) -> None:
         """Never load this version of ``path`` again (also after a restart, when the store has a file)."""
         st = self._accepted_states.get(Path(path))
         if st is None:  # not loaded by this watcher (e.g. served by the caller): the file as it is now
-            try:
-                now = os.stat(path, follow_symlinks=False)
-            except OSError:
-                return
-            st = FileState(Path(path), now.st_size, now.st_mtime_ns, now.st_ino, now.st_mode, now.st_uid)
+            self.quarantined.quarantine_file(path, reason)
+            return
         self._tried.add(st)
         self.quarantined.add(file_key(st.path, st.size, st.mtime_ns, st.inode), reason)
 

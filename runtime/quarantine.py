@@ -19,6 +19,7 @@ from pathlib import Path
 
 log = logging.getLogger("handover.models")
 
+FILE_NAME = "quarantined-models.json"
 MAX_ENTRIES = 256
 """Oldest entries are forgotten beyond this (a folder churned by a script must not grow it forever)."""
 
@@ -26,6 +27,16 @@ MAX_ENTRIES = 256
 def file_key(path: str | Path, size: int, mtime_ns: int, inode: int) -> str:
     """The identity of one version of a file."""
     return f"{Path(path)}|{int(size)}|{int(mtime_ns)}|{int(inode)}"
+
+
+def store_path(quarantine_file: str | None, health_file: str | None) -> Path | None:
+    """``model.quarantine_file``, else beside the health file (the service's state folder), else
+    None (kept in memory only)."""
+    if quarantine_file:
+        return Path(quarantine_file)
+    if health_file:
+        return Path(health_file).expanduser().parent / FILE_NAME
+    return None
 
 
 class QuarantineStore:
@@ -60,6 +71,14 @@ class QuarantineStore:
         while len(self._entries) > MAX_ENTRIES:
             del self._entries[next(iter(self._entries))]
         self._write()
+
+    def quarantine_file(self, path: str | Path, reason: str) -> None:
+        """Quarantine the file at ``path`` as it is now (a vanished file is nothing to remember)."""
+        try:
+            st = os.stat(path, follow_symlinks=False)
+        except OSError:
+            return
+        self.add(file_key(path, st.st_size, st.st_mtime_ns, st.st_ino), reason)
 
     def __len__(self) -> int:
         return len(self._entries)
