@@ -326,12 +326,25 @@ def test_a_copy_that_pauses_is_not_picked_up_half_written(tmp_path, caplog):
     assert watcher.poll() is not None and watcher.rejections == []
 
 
-def test_emulate_listen_port_out_of_range_is_one_line(capsys):
+@pytest.mark.parametrize("argv", [["--listen", "tcp://127.0.0.1:99999"], ["--pty", "--events", "99999999999"]])
+def test_emulate_numbers_out_of_range_are_one_line(capsys, argv):
     from runtime.cli import main
 
-    assert main(["emulate", "--listen", "tcp://127.0.0.1:99999"]) == 2
+    assert main(["emulate", *argv]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("handover emulate: ") and "99999" in err and "\n" not in err
+
+
+@pytest.mark.parametrize("url", ["tcp://10.0.0.2:13000?connect_timeout=nan", "tcp://10.0.0.2:13000?connect_timeout=inf",
+                                 "sim://?speed=nan", "serial:///dev/ttyUSB0?baud=99999999999999999999",
+                                 "sim://?events=99999999999999", "sim://?seed=-1"])
+def test_numbers_in_the_device_url_are_finite_and_bounded(url):
+    """The URL's options are numbers of the config too: NaN would turn a timeout off."""
+    from runtime.config import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        config_from_dict({"device": {"url": url}})
+    assert str(info.value).startswith("device.url: ") and "\n" not in str(info.value)
 
 
 def test_only_event_lines_reach_stdout_even_from_c_code_or_a_library_print():
