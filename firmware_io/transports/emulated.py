@@ -88,7 +88,7 @@ def _emulator_options(parsed: ParsedURL, opts: dict) -> dict:
 def _parse_speed(url: str, text: object) -> float | None:
     if text is None or str(text).strip().lower() in ("max", "inf", "0"):
         return None
-    return parse_number(url, "speed", text, float, 1e-6)
+    return parse_number(url, "speed", text, float, 1e-6, 1e6)  # beyond: say "max"
 
 
 def _build(parsed: ParsedURL, recording, speed: float | None, loop: bool, opts: dict) -> EmulatedTransport:

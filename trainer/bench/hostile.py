@@ -274,7 +274,9 @@ def markdown(res: dict) -> list[str]:
         f"process grew by {r['peak_rss_growth_mb']} MB.", "",
         "## Config numbers", "",
         f"{c['keys']} numeric keys x {len(c['values'])} values ({', '.join(c['values'])}) = {c['tried']}: "
-        f"{c['refused_naming_the_key']} refused naming the key, {c['accepted']} accepted.", "",
+        f"{c['refused_naming_the_key']} refused naming the key, {c['accepted']} accepted. The same values as "
+        f"options of the device URL ({', '.join(c['url_options'])}; X replaced, `speed=inf` is `max`): "
+        f"{c['url_tried']} tried, {c['url_refused']} refused naming device.url, {c['url_accepted']} accepted.", "",
         "## The daemon as a process", "",
         f"`handover run` over the simulated hand (synthetic) while {d['models_dropped']} hostile models were dropped "
         f"into its folder: {d['models_rejected']} rejected, still serving: {d['still_serving']}, {d['events']} events "

@@ -83,9 +83,29 @@ def attack_config(work: Path) -> dict:
             except ConfigError as exc:
                 good = str(exc).startswith(f"{key}:") and "\n" not in str(exc)
                 count["refused_naming_the_key" if good else "refused_badly"] += 1
+    for option in URL_OPTIONS:
+        for value in BAD_NUMBERS:
+            url = option.replace("X", value)
+            if url == "sim://?speed=inf":  # documented: as fast as possible, like speed=max
+                continue
+            path.write_text(f'[device]\nurl = "{url}"\n')
+            try:
+                load_config(path)
+                count["url_accepted"] += 1
+            except ConfigError as exc:
+                good = str(exc).startswith("device.url:") and "\n" not in str(exc)
+                count["url_refused" if good else "refused_badly"] += 1
     return {"keys": len(RANGES), "values": list(BAD_NUMBERS), "tried": len(RANGES) * len(BAD_NUMBERS),
             "refused_naming_the_key": count["refused_naming_the_key"], "accepted": count["accepted"],
-            "failures": count["accepted"] + count["refused_badly"]}
+            "url_options": list(URL_OPTIONS), "url_tried": count["url_refused"] + count["url_accepted"],
+            "url_refused": count["url_refused"], "url_accepted": count["url_accepted"],
+            "failures": count["accepted"] + count["url_accepted"] + count["refused_badly"]}
+
+
+URL_OPTIONS = ("tcp://10.0.0.2:13000?connect_timeout=X", "sim://?speed=X", "sim://?events=X", "sim://?seed=X",
+               "serial:///dev/ttyUSB0?baud=X", "usb://0403:6001?baud=X")
+"""Numbers inside the device URL (X is replaced); ``speed=inf`` means "as fast as possible" (like
+``speed=max``) and is left out."""
 
 
 def attack_daemon(work: Path) -> dict:
