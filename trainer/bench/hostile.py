@@ -47,6 +47,7 @@ def _write_model(folder: Path, name: str, data: bytes, mtime: float | None = Non
 # -- models -------------------------------------------------------------------------------------
 def attack_models(work: Path, quick: bool) -> dict:
     from runtime.model import ModelContractError, load_model
+    from runtime.output_check import DEFAULT_BUDGET_FRACTION
     from trainer.bench import hostile_models as H
 
     out: dict = {"warm_up": {}, "sleepers": {}}
@@ -62,7 +63,7 @@ def attack_models(work: Path, quick: bool) -> dict:
         out["sleepers"][name] = sleeper_in_daemon(work / f"sleeper-{name}", name)
     path = _write_model(work, "slow.onnx", H.slow(40_000))
     try:
-        load_model(path)
+        load_model(path, decision_budget=DEFAULT_BUDGET_FRACTION)  # the daemon's rule
         out["slow_40000_nodes"] = "accepted"
     except ModelContractError as exc:
         out["slow_40000_nodes"] = str(exc).removeprefix(f"model {path}: ")
