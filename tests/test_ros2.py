@@ -1,0 +1,259 @@
+"""The ROS 2 sink with a real rclpy node: the daemon reads the simulated hand (sim://) and a
+subscriber node in this test receives its events, model announcements, diagnostics and pad
+images, and checks them against what the UDP sink sent. A ROS failure is one line and the
+other sinks keep delivering.
+
+Each test process uses its own ROS_DOMAIN_ID and keeps discovery on this machine
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), so parallel runs never hear each other.
+The models are toy graphs (tests/tiny_models.py) and the data is synthetic.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.config import Ros2Config, config_from_dict
+from runtime.daemon import Daemon
+from tests.tiny_models import tiny_model_bytes, write_model
+
+pytest.importorskip("onnx")
+rclpy = pytest.importorskip("rclpy", reason="rclpy is not installed: the ros extra (./dev test installs it)")
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.signals import SignalHandlerOptions  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+pytestmark = pytest.mark.ros2
+SCHEMA = json.loads((Path(__file__).resolve().parents[1] / "docs" / "events.schema.json").read_text())
+PAD_TOPICS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal",
+              "finger_2_proximal", "finger_2_distal")
+TRIGGER = {"fraction": 0.02, "hysteresis": 0.01, "refractory_s": 1.0}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def ros_isolation():
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+        mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        mp.delenv("RMW_IMPLEMENTATION", raising=False)
+        yield
+
+
+class Listener:
+    """A separate rclpy node (own context) that records what the daemon publishes."""
+
+    def __init__(self, ns: str = "/handover") -> None:
+        self.context = Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("test_listener", context=self.context)
+        self.events: list[str] = []
+        self.models: list[str] = []
+        self.diagnostics: list[DiagnosticArray] = []
+        self.images: dict[str, list[Image]] = {t: [] for t in PAD_TOPICS}
+        n = self.node
+        n.create_subscription(String, f"{ns}/events", lambda m: self.events.append(m.data), 1000)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        n.create_subscription(String, f"{ns}/model", lambda m: self.models.append(m.data), latched)
+        n.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, 100)
+        for topic in PAD_TOPICS:
+            n.create_subscription(Image, f"{ns}/pads/{topic}", self.images[topic].append, 100)
+        self.grasp = n.create_publisher(String, f"{ns}/grasp", 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(n)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # shut down from the test
+            pass
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.context.try_shutdown()
+        self.thread.join(timeout=2.0)
+
+
+def _wait(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return bool(condition())
+
+
+def _ros_sink(daemon: Daemon):
+    sinks = [s for s in daemon.sinks.sinks if s.name.startswith("ros2:")]
+    return sinks[0] if sinks else None
+
+
+def _config(tmp_path: Path, url: str, ros2: dict, udp_port: int | None = None):
+    models = tmp_path / "models"
+    models.mkdir(exist_ok=True)
+    write_model(models, "m.onnx", tiny_model_bytes(), mtime=time.time() - 10)
+    sinks = {"stdout": False, "ros2": True, "udp": [f"127.0.0.1:{udp_port}"] if udp_port else []}
+    return config_from_dict({
+        "device": {"url": url, "reconnect_min_s": 0.05, "reconnect_max_s": 0.2},
+        "model": {"folder": str(models), "poll_interval_s": 0.05}, "trigger": TRIGGER,
+        "sinks": sinks, "ros2": ros2})
+
+
+def _udp_socket() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.setblocking(False)
+    return sock
+
+
+def _drain(sock: socket.socket) -> list[str]:
+    lines = []
+    while True:
+        try:
+            lines.append(sock.recv(65536).decode())
+        except BlockingIOError:
+            return lines
+
+
+def _run_until(daemon: Daemon, condition, timeout: float = 15.0) -> None:
+    def watch():
+        _wait(lambda: condition(daemon), timeout)
+        daemon.request_stop()
+
+    threading.Thread(target=watch, daemon=True).start()
+    daemon.run()
+
+
+def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
+    jsonschema = pytest.importorskip("jsonschema")
+    from firmware_io.frame_source import load_source
+
+    udp = _udp_socket()
+    url = "sim://?seed=0&events=4&realtime=1&speed=8"
+    cfg = _config(tmp_path, url, {"pads": True, "pad_rate_hz": 50.0}, udp.getsockname()[1])
+    listener = Listener()
+    daemon = Daemon(cfg)
+    ros = _ros_sink(daemon)
+    try:
+        assert ros is not None, "the ROS 2 sink did not start"
+        assert _wait(lambda: ros._events.get_subscription_count() >= 1), "the test's subscriber was never matched"
+        _run_until(daemon, lambda d: d.health.events >= 3 and len(listener.diagnostics) >= 1
+                   and all(len(v) >= 2 for v in listener.images.values()))
+        udp_lines = _drain(udp)
+        assert _wait(lambda: len(listener.events) >= len(udp_lines), 5.0)
+    finally:
+        listener.close()
+        udp.close()
+    # events: exactly the UDP lines, in order, each valid against the documented schema
+    assert listener.events == udp_lines and len(udp_lines) >= 4
+    for line in udp_lines:
+        jsonschema.validate(json.loads(line), SCHEMA)
+    decisions = [json.loads(x) for x in udp_lines if json.loads(x)["type"] == "decision"]
+    assert len(decisions) == daemon.health.events >= 3
+    first = json.loads(udp_lines[0])
+    assert first["type"] == "model" and first["model_version"] == 1 and first["previous_model_id"] is None
+    assert listener.models and listener.models[-1] == udp_lines[0]
+    # health on /diagnostics
+    status = listener.diagnostics[-1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.hardware_id == url and "tactile handover" in status.name
+    for key in ("device_state", "frame_rate_hz", "crc_errors", "stalls", "reconnects", "model_id", "model_swaps"):
+        assert key in values, key
+    assert values["model_id"] == first["model_id"] and values["model_swaps"] == "0"
+    # pads: mono16, rows x columns as on the pad, the values of a frame the simulated hand sent
+    frames = load_source("sim", seed=0, events=4).frames
+    layout = daemon.layout
+    for index, topic in enumerate(PAD_TOPICS):
+        sent = {row.tobytes() for row in frames[:, layout.matrix_slice(index)]}
+        for img in listener.images[topic]:
+            m = layout.matrices[index]
+            assert (img.encoding, img.height, img.width, img.step) == ("mono16", m.cells_y, m.cells_x, 2 * m.cells_x)
+            assert img.header.frame_id == topic and bytes(img.data) in sent
+    assert (layout.matrices[0].cells_y, layout.matrices[1].cells_y) == (14, 13)
+    assert ros.pad_images >= sum(len(v) for v in listener.images.values())
+
+
+def test_the_grasp_topic_reaches_the_daemon(tmp_path, caplog):
+    cfg = _config(tmp_path, "sim://?realtime=0", {"grasp": True, "namespace": "/lab/hand"})
+    daemon = Daemon(cfg)
+    listener = Listener("/lab/hand")
+    try:
+        assert _wait(lambda: listener.grasp.get_subscription_count() >= 1), "grasp subscription never matched"
+        listener.grasp.publish(String(data="closed"))
+        assert _wait(lambda: daemon.grasp_request == (True, "ros2"))
+        listener.grasp.publish(String(data=" Open\n"))
+        assert _wait(lambda: daemon.grasp_request == (False, "ros2"))
+        with caplog.at_level(logging.WARNING, logger="handover.ros2"):
+            listener.grasp.publish(String(data="halfway"))
+            assert _wait(lambda: "expected 'closed' or 'open'" in caplog.text, 5.0)
+        assert daemon.grasp_request == (False, "ros2")
+    finally:
+        daemon.sinks.close()
+        listener.close()
+
+
+def _run_with_udp(tmp_path: Path, ros2: dict, caplog) -> list[str]:
+    udp = _udp_socket()
+    cfg = _config(tmp_path, "sim://?seed=0&events=3&realtime=0&loop=0", ros2, udp.getsockname()[1])
+    with caplog.at_level(logging.INFO, logger="handover"):
+        daemon = Daemon(cfg)
+        _run_until(daemon, lambda d: d.health.events >= 2)
+    lines = _drain(udp)
+    udp.close()
+    assert _ros_sink(daemon) is None
+    assert [json.loads(x)["type"] for x in lines].count("decision") >= 2, "UDP kept delivering"
+    return [r.getMessage() for r in caplog.records if r.name == "handover.ros2"]
+
+
+def test_rclpy_missing_is_one_line_and_udp_keeps_delivering(tmp_path, caplog, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # what an install without the ros extra sees
+    monkeypatch.delitem(sys.modules, "runtime.ros2_node", raising=False)
+    messages = _run_with_udp(tmp_path, {}, caplog)
+    assert len(messages) == 1 and "rclpy" in messages[0] and "tactile-handover[ros]" in messages[0], messages
+
+
+@pytest.mark.parametrize("env, says", [
+    ({"RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}, "librmw_nowhere_cpp.so is not installed"),
+    ({"ROS_DOMAIN_ID": "500"}, "ROS_DOMAIN_ID='500'"),
+])
+def test_a_middleware_that_cannot_load_is_one_line(tmp_path, caplog, monkeypatch, env, says):
+    """Checked before rclpy loads it: ROS 2's C library would end the process (exit 102)."""
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    messages = _run_with_udp(tmp_path, {}, caplog)
+    assert len(messages) == 1 and says in messages[0], messages
+
+
+def test_a_node_rclpy_refuses_is_one_line(caplog):
+    from runtime.ros2 import open_ros2_sink
+
+    with caplog.at_level(logging.ERROR, logger="handover.ros2"):
+        assert open_ros2_sink(Ros2Config(namespace="/bad-name"), daemon=None) is None
+    assert len(caplog.records) == 1 and "cannot start the ROS 2 node" in caplog.text
+
+
+def test_pad_image_rows_and_columns_follow_the_layout():
+    from builtin_interfaces.msg import Time
+
+    from firmware_io.layout import SensorLayout
+    from runtime.ros2_node import pad_image, pad_topic
+
+    layout = SensorLayout.sdh2()
+    values = np.arange(layout.n_taxels, dtype=np.uint16)
+    img = pad_image(layout, 3, values, Time())
+    pixels = np.frombuffer(bytes(img.data), dtype=np.uint16).reshape(img.height, img.width)
+    sl = layout.matrix_slice(3)
+    assert pixels[0, 1] == sl.start + 1 and pixels[1, 0] == sl.start + 6  # x (column) fastest, as on the wire
+    assert [pad_topic(layout, i) for i in range(6)] == [f"pads/{t}" for t in PAD_TOPICS]
