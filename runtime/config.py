@@ -253,8 +253,6 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
                         ros2=_bool("sinks.ros2", si, SinksConfig.ros2))
     ros2 = _ros2_config(data.get("ros2", {}))
-    if "ros2" in data and not sinks.ros2:
-        warnings.append("[ros2] is set but sinks.ros2 = false: nothing is published to ROS 2")
 
     ox = data.get("onnxruntime", {})
     _no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})

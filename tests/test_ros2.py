@@ -10,21 +10,19 @@ The models are toy graphs (tests/tiny_models.py) and the data is synthetic.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
-import socket
-import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from runtime.config import Ros2Config, config_from_dict
+from runtime.config import Ros2Config
 from runtime.daemon import Daemon
-from tests.tiny_models import tiny_model_bytes, write_model
+from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket, wait_for
 
 pytest.importorskip("onnx")
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not installed: the ros extra (./dev test installs it)")
@@ -40,7 +38,6 @@ pytestmark = pytest.mark.ros2
 SCHEMA = json.loads((Path(__file__).resolve().parents[1] / "docs" / "events.schema.json").read_text())
 PAD_TOPICS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal",
               "finger_2_proximal", "finger_2_distal")
-TRIGGER = {"fraction": 0.02, "hysteresis": 0.01, "refractory_s": 1.0}
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -77,10 +74,8 @@ class Listener:
         self.thread.start()
 
     def _spin(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # shut down from the test
             self.executor.spin()
-        except Exception:  # shut down from the test
-            pass
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
@@ -88,71 +83,23 @@ class Listener:
         self.thread.join(timeout=2.0)
 
 
-def _wait(condition, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    return bool(condition())
-
-
-def _ros_sink(daemon: Daemon):
-    sinks = [s for s in daemon.sinks.sinks if s.name.startswith("ros2:")]
-    return sinks[0] if sinks else None
-
-
-def _config(tmp_path: Path, url: str, ros2: dict, udp_port: int | None = None):
-    models = tmp_path / "models"
-    models.mkdir(exist_ok=True)
-    write_model(models, "m.onnx", tiny_model_bytes(), mtime=time.time() - 10)
-    sinks = {"stdout": False, "ros2": True, "udp": [f"127.0.0.1:{udp_port}"] if udp_port else []}
-    return config_from_dict({
-        "device": {"url": url, "reconnect_min_s": 0.05, "reconnect_max_s": 0.2},
-        "model": {"folder": str(models), "poll_interval_s": 0.05}, "trigger": TRIGGER,
-        "sinks": sinks, "ros2": ros2})
-
-
-def _udp_socket() -> socket.socket:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.setblocking(False)
-    return sock
-
-
-def _drain(sock: socket.socket) -> list[str]:
-    lines = []
-    while True:
-        try:
-            lines.append(sock.recv(65536).decode())
-        except BlockingIOError:
-            return lines
-
-
-def _run_until(daemon: Daemon, condition, timeout: float = 15.0) -> None:
-    def watch():
-        _wait(lambda: condition(daemon), timeout)
-        daemon.request_stop()
-
-    threading.Thread(target=watch, daemon=True).start()
-    daemon.run()
-
-
 def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     jsonschema = pytest.importorskip("jsonschema")
     from firmware_io.frame_source import load_source
 
-    udp = _udp_socket()
+    udp = udp_socket()
     url = "sim://?seed=0&events=4&realtime=1&speed=8"
-    cfg = _config(tmp_path, url, {"pads": True, "pad_rate_hz": 50.0}, udp.getsockname()[1])
+    cfg = daemon_config(tmp_path, url, {"pads": True, "pad_rate_hz": 50.0}, udp.getsockname()[1])
     listener = Listener()
     daemon = Daemon(cfg)
-    ros = _ros_sink(daemon)
+    ros = ros_sink(daemon)
     try:
         assert ros is not None, "the ROS 2 sink did not start"
-        assert _wait(lambda: ros._events.get_subscription_count() >= 1), "the test's subscriber was never matched"
-        _run_until(daemon, lambda d: d.health.events >= 3 and len(listener.diagnostics) >= 1
+        assert wait_for(lambda: ros._events.get_subscription_count() >= 1), "the test's subscriber was never matched"
+        run_until(daemon, lambda d: d.health.events >= 3 and len(listener.diagnostics) >= 1
                    and all(len(v) >= 2 for v in listener.images.values()))
-        udp_lines = _drain(udp)
-        assert _wait(lambda: len(listener.events) >= len(udp_lines), 5.0)
+        udp_lines = drain(udp)
+        assert wait_for(lambda: len(listener.events) >= len(udp_lines), 5.0)
     finally:
         listener.close()
         udp.close()
@@ -186,54 +133,22 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
 
 
 def test_the_grasp_topic_reaches_the_daemon(tmp_path, caplog):
-    cfg = _config(tmp_path, "sim://?realtime=0", {"grasp": True, "namespace": "/lab/hand"})
+    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"grasp": True, "namespace": "/lab/hand"})
     daemon = Daemon(cfg)
     listener = Listener("/lab/hand")
     try:
-        assert _wait(lambda: listener.grasp.get_subscription_count() >= 1), "grasp subscription never matched"
+        assert wait_for(lambda: listener.grasp.get_subscription_count() >= 1), "grasp subscription never matched"
         listener.grasp.publish(String(data="closed"))
-        assert _wait(lambda: daemon.grasp_request == (True, "ros2"))
+        assert wait_for(lambda: daemon.grasp_request == (True, "ros2"))
         listener.grasp.publish(String(data=" Open\n"))
-        assert _wait(lambda: daemon.grasp_request == (False, "ros2"))
+        assert wait_for(lambda: daemon.grasp_request == (False, "ros2"))
         with caplog.at_level(logging.WARNING, logger="handover.ros2"):
             listener.grasp.publish(String(data="halfway"))
-            assert _wait(lambda: "expected 'closed' or 'open'" in caplog.text, 5.0)
+            assert wait_for(lambda: "expected 'closed' or 'open'" in caplog.text, 5.0)
         assert daemon.grasp_request == (False, "ros2")
     finally:
         daemon.sinks.close()
         listener.close()
-
-
-def _run_with_udp(tmp_path: Path, ros2: dict, caplog) -> list[str]:
-    udp = _udp_socket()
-    cfg = _config(tmp_path, "sim://?seed=0&events=3&realtime=0&loop=0", ros2, udp.getsockname()[1])
-    with caplog.at_level(logging.INFO, logger="handover"):
-        daemon = Daemon(cfg)
-        _run_until(daemon, lambda d: d.health.events >= 2)
-    lines = _drain(udp)
-    udp.close()
-    assert _ros_sink(daemon) is None
-    assert [json.loads(x)["type"] for x in lines].count("decision") >= 2, "UDP kept delivering"
-    return [r.getMessage() for r in caplog.records if r.name == "handover.ros2"]
-
-
-def test_rclpy_missing_is_one_line_and_udp_keeps_delivering(tmp_path, caplog, monkeypatch):
-    monkeypatch.setitem(sys.modules, "rclpy", None)  # what an install without the ros extra sees
-    monkeypatch.delitem(sys.modules, "runtime.ros2_node", raising=False)
-    messages = _run_with_udp(tmp_path, {}, caplog)
-    assert len(messages) == 1 and "rclpy" in messages[0] and "tactile-handover[ros]" in messages[0], messages
-
-
-@pytest.mark.parametrize("env, says", [
-    ({"RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}, "librmw_nowhere_cpp.so is not installed"),
-    ({"ROS_DOMAIN_ID": "500"}, "ROS_DOMAIN_ID='500'"),
-])
-def test_a_middleware_that_cannot_load_is_one_line(tmp_path, caplog, monkeypatch, env, says):
-    """Checked before rclpy loads it: ROS 2's C library would end the process (exit 102)."""
-    for key, value in env.items():
-        monkeypatch.setenv(key, value)
-    messages = _run_with_udp(tmp_path, {}, caplog)
-    assert len(messages) == 1 and says in messages[0], messages
 
 
 def test_a_node_rclpy_refuses_is_one_line(caplog):
