@@ -91,7 +91,7 @@ class Ros2Sink(Sink):
         self.cfg = cfg
         self.daemon = daemon
         self.pad_images = 0
-        """Images published on the pad topics so far."""
+        """Images published on the pad topics so far (to at least one subscriber)."""
         self._snapshot: dict | None = None
         self._pad_frame: Any = None
         self._pad_layout: Any = None
@@ -187,8 +187,9 @@ class Ros2Sink(Sink):
         try:
             stamp = self.node.get_clock().now().to_msg()
             for index, pub in self._pad_publishers:
-                pub.publish(pad_image(layout, index, frame.values, stamp))
-                self.pad_images += 1
+                if pub.get_subscription_count():  # nobody looking: no image built
+                    pub.publish(pad_image(layout, index, frame.values, stamp))
+                    self.pad_images += 1
         except Exception as exc:
             self._warn(f"ros2: pad images not published ({exc})")
 
