@@ -114,6 +114,9 @@ class Ros2Config:
     """Publish each pad as a mono16 image on ``<namespace>/pads/<pad>``."""
     pad_rate_hz: float = 10.0
     """Images per second per pad at most (the newest frame; none when no new frame arrived)."""
+    pad_gain: int = 1
+    """Taxel values are multiplied by this in the images: 1 = raw 12-bit values; 16 spreads the
+    12-bit full scale over mono16's range, so an image viewer shows the pads bright."""
     grasp: bool = False
     """Subscribe ``<namespace>/grasp`` (std_msgs/String ``closed`` / ``open``) from the robot's controller."""
 
@@ -299,6 +302,7 @@ def _ros2_config(table: dict) -> Ros2Config:
         depth=_int("ros2.depth", table, Ros2Config.depth, lo=1, hi=10000),
         pads=_bool("ros2.pads", table, Ros2Config.pads),
         pad_rate_hz=_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz, lo=0.1, hi=1000.0),
+        pad_gain=_int("ros2.pad_gain", table, Ros2Config.pad_gain, lo=1, hi=16),
         grasp=_bool("ros2.grasp", table, Ros2Config.grasp),
     )
 

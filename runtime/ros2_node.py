@@ -22,6 +22,7 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.context import Context
@@ -51,8 +52,8 @@ def pad_topic(layout: Any, index: int) -> str:
     return f"pads/{'pad_' + name if name[0].isdigit() else name}"
 
 
-def pad_image(layout: Any, index: int, values: Any, stamp: Any) -> Image:
-    """One pad of a frame as a mono16 image: rows x columns as on the pad, raw taxel units."""
+def pad_image(layout: Any, index: int, values: Any, stamp: Any, gain: int = 1) -> Image:
+    """One pad of a frame as a mono16 image: rows x columns as on the pad, taxel values x gain."""
     m = layout.matrices[index]
     img = Image()
     img.header.stamp = stamp
@@ -61,7 +62,8 @@ def pad_image(layout: Any, index: int, values: Any, stamp: Any) -> Image:
     img.encoding = "mono16"
     img.is_bigendian = int(sys.byteorder == "big")
     img.step = 2 * m.cells_x
-    img.data = values[layout.matrix_slice(index)].tobytes()
+    pad = values[layout.matrix_slice(index)]
+    img.data = (pad if gain == 1 else pad * np.uint16(gain)).tobytes()  # gain <= 16: 4095 x 16 fits
     return img
 
 
@@ -188,7 +190,7 @@ class Ros2Sink(Sink):
             stamp = self.node.get_clock().now().to_msg()
             for index, pub in self._pad_publishers:
                 if pub.get_subscription_count():  # nobody looking: no image built
-                    pub.publish(pad_image(layout, index, frame.values, stamp))
+                    pub.publish(pad_image(layout, index, frame.values, stamp, self.cfg.pad_gain))
                     self.pad_images += 1
         except Exception as exc:
             self._warn(f"ros2: pad images not published ({exc})")

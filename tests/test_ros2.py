@@ -171,4 +171,7 @@ def test_pad_image_rows_and_columns_follow_the_layout():
     pixels = np.frombuffer(bytes(img.data), dtype=np.uint16).reshape(img.height, img.width)
     sl = layout.matrix_slice(3)
     assert pixels[0, 1] == sl.start + 1 and pixels[1, 0] == sl.start + 6  # x (column) fastest, as on the wire
+    full = np.full(layout.n_taxels, 4095, dtype=np.uint16)
+    bright = np.frombuffer(bytes(pad_image(layout, 0, full, Time(), gain=16).data), dtype=np.uint16)
+    assert bright.max() == 4095 * 16 and full.max() == 4095  # a scaled copy; the frame is untouched
     assert [pad_topic(layout, i) for i in range(6)] == [f"pads/{t}" for t in PAD_TOPICS]

@@ -42,6 +42,7 @@ def test_ros2_is_off_by_default_and_the_section_has_defaults():
     ({"depth": 0}, "ros2.depth: must be >= 1"),
     ({"pad_rate_hz": 0}, "ros2.pad_rate_hz: must be >= 0.1"),
     ({"pads": "yes"}, "ros2.pads: must be true or false"),
+    ({"pad_gain": 17}, "ros2.pad_gain: must be <= 16"),
     ({"qos": "reliable"}, "ros2.qos: unknown key"),
 ])
 def test_bad_ros2_keys_name_the_key(section, says):
