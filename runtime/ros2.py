@@ -48,6 +48,15 @@ def middleware_problem(env: dict[str, str] | None = None) -> str | None:
     return f"RMW_IMPLEMENTATION={name}: lib{name}.so is not installed; unset RMW_IMPLEMENTATION or install that middleware"
 
 
+def availability_problem() -> str | None:
+    """Why the ROS 2 sink would not start here, found without importing rclpy (for ``--check``)."""
+    from importlib.util import find_spec
+
+    if find_spec("rclpy") is None:
+        return f"rclpy is not installed; {EXTRA_HINT}"
+    return middleware_problem()
+
+
 def open_ros2_sink(cfg: Ros2Config, daemon: Any) -> Sink | None:
     """The ROS 2 sink, or None after one error line saying why and what to do."""
     problem = middleware_problem()

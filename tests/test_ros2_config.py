@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -17,6 +19,7 @@ from runtime.config import ConfigError, Ros2Config, config_from_dict
 from runtime.daemon import Daemon
 from runtime.ros2 import middleware_problem
 from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket
+from tests.tiny_models import tiny_model_bytes, write_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -95,3 +98,20 @@ def test_a_middleware_that_cannot_load_is_one_line(tmp_path, caplog, monkeypatch
         monkeypatch.setenv(key, value)
     messages = _run_with_udp(tmp_path, caplog)
     assert len(messages) == 1 and says in messages[0], messages
+
+
+def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
+    pytest.importorskip("onnx")
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\nros2 = true\n')
+    code = ("import sys; from runtime.cli import main; rc = main(['run', '--config', sys.argv[1], '--check']);"
+            "print('RCLPY', 'rclpy' in sys.modules); sys.exit(rc)")
+    env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}
+    proc = subprocess.run([sys.executable, "-c", code, str(cfg)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60, env=env)
+    assert proc.returncode == 0 and "RCLPY False" in proc.stdout, proc.stdout + proc.stderr
+    warnings = [line for line in proc.stderr.splitlines() if "sinks.ros2" in line]
+    assert len(warnings) == 1 and "librmw_nowhere_cpp.so is not installed" in warnings[0], proc.stderr
