@@ -26,7 +26,7 @@ from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_so
 
 pytest.importorskip("onnx")
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not installed: the ros extra (./dev test installs it)")
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -83,6 +83,10 @@ class Listener:
         self.thread.join(timeout=2.0)
 
 
+def _state(diagnostics: DiagnosticArray) -> str:
+    return next(kv.value for kv in diagnostics.status[0].values if kv.key == "device_state")
+
+
 def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     jsonschema = pytest.importorskip("jsonschema")
     from firmware_io.frame_source import load_source
@@ -100,6 +104,7 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
                    and all(len(v) >= 2 for v in listener.images.values()))
         udp_lines = drain(udp)
         assert wait_for(lambda: len(listener.events) >= len(udp_lines), 5.0)
+        assert wait_for(lambda: _state(listener.diagnostics[-1]) == "stopped", 5.0), "no last health at shutdown"
     finally:
         listener.close()
         udp.close()
@@ -113,12 +118,13 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     assert first["type"] == "model" and first["model_version"] == 1 and first["previous_model_id"] is None
     assert listener.models and listener.models[-1] == udp_lines[0]
     # health on /diagnostics
-    status = listener.diagnostics[-1].status[0]
+    status = listener.diagnostics[-2].status[0]  # the last one while streaming
     values = {kv.key: kv.value for kv in status.values}
     assert status.hardware_id == url and "tactile handover" in status.name
     for key in ("device_state", "frame_rate_hz", "crc_errors", "stalls", "reconnects", "model_id", "model_swaps"):
         assert key in values, key
     assert values["model_id"] == first["model_id"] and values["model_swaps"] == "0"
+    assert values["device_state"] == "streaming" and status.level == DiagnosticStatus.OK
     # pads: mono16, rows x columns as on the pad, the values of a frame the simulated hand sent
     frames = load_source("sim", seed=0, events=4).frames
     layout = daemon.layout
@@ -175,3 +181,31 @@ def test_pad_image_rows_and_columns_follow_the_layout():
     bright = np.frombuffer(bytes(pad_image(layout, 0, full, Time(), gain=16).data), dtype=np.uint16)
     assert bright.max() == 4095 * 16 and full.max() == 4095  # a scaled copy; the frame is untouched
     assert [pad_topic(layout, i) for i in range(6)] == [f"pads/{t}" for t in PAD_TOPICS]
+
+
+def test_a_reload_replaces_the_node_and_events_keep_flowing(tmp_path):
+    from runtime.config import load_config
+    from runtime.model import load_model
+    from runtime.sinks import ModelAnnouncement
+
+    models = tmp_path / "models"
+    config = tmp_path / "h.toml"
+    daemon_config(tmp_path, "sim://", {})  # writes the model
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n'
+                      '[sinks]\nstdout = false\nros2 = true\n[ros2]\nnamespace = "/one"\n')
+    daemon = Daemon(load_config(config))
+    first = ros_sink(daemon)
+    config.write_text(config.read_text().replace('"/one"', '"/two"'))
+    daemon._do_reload()  # what SIGHUP does between two frames
+    listener = Listener("/two")
+    try:
+        second = ros_sink(daemon)
+        assert second is not first and not first._context.ok() and second.name == "ros2:/two"
+        assert wait_for(lambda: second._events.get_subscription_count() >= 1)
+        model = load_model(models / "m.onnx")
+        daemon.sinks.emit(ModelAnnouncement.of(model, 1, None))
+        assert wait_for(lambda: len(listener.events) == 1, 5.0)
+        assert json.loads(listener.events[0])["model_id"] == model.model_id
+    finally:
+        daemon.sinks.close()
+        listener.close()
