@@ -15,17 +15,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
-
-
-def describe(event: dict) -> str | None:
-    """The line to print, or None for a line type this listener does not know."""
-    if event.get("type") == "decision":
-        return (f"decision {event['class']} latency_us={event['latency_us']} model={event['model_id']} "
-                f"frame_last={event['frame_last']}")
-    if event.get("type") == "model":
-        previous = event["previous_model_id"] or "null"
-        return f"model {event['model_id']} version={event['model_version']} previous={previous}"
-    return None
+from udp_listener import describe  # the same line per event as the UDP listener (this folder)
 
 
 def main(namespace: str = "/handover", count: int = -1) -> None:
