@@ -32,7 +32,10 @@ PADS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal"
 
 
 def subscriber(namespace: str) -> None:
-    """Child process: record events and pad images until stdin closes, then print JSON."""
+    """Child process: record events (ROS 2 and, for comparison, UDP) and pad images until stdin
+    closes, then print JSON."""
+    import socket
+
     import rclpy
     from sensor_msgs.msg import Image
     from std_msgs.msg import String
@@ -48,13 +51,27 @@ def subscriber(namespace: str) -> None:
         node.create_subscription(Image, f"{namespace}/pads/{pad}", count, 100)
     done = threading.Event()
     threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
-    print("ready", flush=True)
+    udp_events: list[tuple[float, str]] = []
+    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    udp.bind(("127.0.0.1", 0))
+    udp.settimeout(0.05)
+
+    def listen_udp() -> None:
+        while not done.is_set():
+            try:
+                data = udp.recv(65536)
+            except TimeoutError:
+                continue
+            udp_events.append((time.time(), data.decode()))
+
+    threading.Thread(target=listen_udp, daemon=True).start()
+    print("ready", udp.getsockname()[1], flush=True)
     while not done.is_set():
         rclpy.spin_once(node, timeout_sec=0.05)
     end = time.monotonic() + 1.0  # what is still in flight
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
-    print(json.dumps({"events": events, "images": images}), flush=True)
+    print(json.dumps({"events": events, "udp_events": udp_events, "images": images}), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
 
@@ -68,7 +85,8 @@ def run(seconds: float, speed: float, pad_rate: float) -> dict:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     child = subprocess.Popen([sys.executable, __file__, "--subscriber"], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, text=True)
-    assert child.stdout.readline().strip() == "ready"
+    ready, udp_port = child.stdout.readline().split()
+    assert ready == "ready"
     models = Path(tempfile.mkdtemp()) / "models"
     models.mkdir()
     write_model(models, "toy.onnx", tiny_model_bytes(), mtime=time.time() - 10)
@@ -76,7 +94,7 @@ def run(seconds: float, speed: float, pad_rate: float) -> dict:
     cfg = config_from_dict({
         "device": {"url": url}, "model": {"folder": str(models)},
         "trigger": {"fraction": 0.02, "hysteresis": 0.01, "refractory_s": 1.0},
-        "sinks": {"stdout": False, "ros2": True}, "ros2": {"pads": True, "pad_rate_hz": pad_rate, "depth": 1000},
+        "sinks": {"stdout": False, "ros2": True, "udp": [f"127.0.0.1:{udp_port}"]}, "ros2": {"pads": True, "pad_rate_hz": pad_rate, "depth": 1000},
         "log_level": "warning"})
     daemon = Daemon(cfg)
     sink = next(s for s in daemon.sinks.sinks if s.name.startswith("ros2:"))
@@ -98,10 +116,20 @@ def run(seconds: float, speed: float, pad_rate: float) -> dict:
     return summarise(got, daemon, sink, wall, dict(seconds=seconds, speed=speed, pad_rate_hz=pad_rate, url=url))
 
 
+def percentiles(us: np.ndarray) -> dict | None:
+    if not us.size:
+        return None
+    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
+    return {"n": int(us.size), "median": round(float(p50), 1), "p99": round(float(p99), 1),
+            "p99_9": round(float(p999), 1), "max": round(float(us.max()), 1)}
+
+
 def summarise(got: dict, daemon, sink, wall: float, settings: dict) -> dict:
     received = [(t, json.loads(line)) for t, line in got["events"]]
     decisions = [(t, e) for t, e in received if e["type"] == "decision"]
     lat = np.array([(t - e["time"]) * 1e6 for t, e in decisions])
+    udp = [(t, json.loads(line)) for t, line in got["udp_events"]]
+    udp_lat = np.array([(t - e["time"]) * 1e6 for t, e in udp if e["type"] == "decision"])
     hot = daemon.health.snapshot()
     images = sum(got["images"].values())
     return {
@@ -111,13 +139,9 @@ def summarise(got: dict, daemon, sink, wall: float, settings: dict) -> dict:
         "events_received": len(decisions),
         "lines_sent": sink.sent,
         "lines_received": len(received),
-        "event_latency_us": {
-            "n": int(lat.size),
-            "median": round(float(np.median(lat)), 1),
-            "p99": round(float(np.percentile(lat, 99)), 1),
-            "p99_9": round(float(np.percentile(lat, 99.9)), 1),
-            "max": round(float(lat.max()), 1),
-        } if lat.size else None,
+        "event_latency_us": percentiles(lat),
+        "udp_event_latency_us": percentiles(udp_lat),
+        "same_lines_on_udp": [line for _, line in got["udp_events"]] == [line for _, line in got["events"]],
         "pad_images_published": sink.pad_images,
         "pad_images_received": images,
         "pad_images_lost": sink.pad_images - images,
@@ -134,20 +158,22 @@ def summarise(got: dict, daemon, sink, wall: float, settings: dict) -> dict:
 def write(result: dict) -> None:
     out = ROOT / "results"
     (out / "ros2.json").write_text(json.dumps(result, indent=1) + "\n")
-    s, lat, m = result["settings"], result["event_latency_us"], result["machine"]
+    s, lat, udp, m = result["settings"], result["event_latency_us"], result["udp_event_latency_us"], result["machine"]
     hot = result["decision_latency_us_hot_path"]
     md = f"""# ROS 2 sink benchmark
 
 Synthetic stream: the simulated hand (`{s['url']}`, {s['speed']:g}x real time, {result['frames']} frames in
 {result['wall_s']} s) with a toy model; the daemon publishes events on `/handover/events` and all six pads
 (mono16) at up to {s['pad_rate_hz']:g} images/s each; an rclpy subscriber in another process receives them
-(Fast DDS, reliable QoS, discovery on localhost).
+(Fast DDS, reliable QoS, discovery on localhost). The same process also receives the events over
+UDP, for a comparison under the same load.
 
 | figure | value |
 |---|---|
 | events: sent / received | {result['events_sent']} / {result['events_received']} (all lines: {result['lines_sent']} / {result['lines_received']}) |
 | event latency, decision -> subscriber: median | {lat['median']:.0f} us |
 | p99 / p99.9 / max | {lat['p99']:.0f} / {lat['p99_9']:.0f} / {lat['max']:.0f} us (n = {lat['n']}) |
+| the same events over UDP to the same process: median / p99 / max | {udp['median']:.0f} / {udp['p99']:.0f} / {udp['max']:.0f} us (same lines: {result['same_lines_on_udp']}) |
 | pad images: published / received / lost | {result['pad_images_published']} / {result['pad_images_received']} / {result['pad_images_lost']} |
 | pad images delivered per second | {result['pad_images_per_s']} (6 pads) |
 | decision latency in the daemon (frame arrival -> decision) p50 / p99 / max | {hot['p50']} / {hot['p99']} / {hot['max']} us |
@@ -174,10 +200,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from benchmarks.bench_decode import machine
 
-    before = machine()
+    before, date = machine(), time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     result = run(args.seconds, args.speed, args.pad_rate)
-    result.update(machine=before, command=" ".join(["python", *sys.argv]),
-                  date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
+    result.update(machine=before, command=" ".join(["python", *sys.argv]), date=date)
     print(json.dumps({k: v for k, v in result.items() if k != "pad_images_per_topic"}))
     if not args.no_write:
         write(result)
