@@ -14,7 +14,11 @@ import contextlib
 import json
 import logging
 import os
+import signal
+import subprocess
+import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +39,8 @@ from sensor_msgs.msg import Image  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 pytestmark = pytest.mark.ros2
-SCHEMA = json.loads((Path(__file__).resolve().parents[1] / "docs" / "events.schema.json").read_text())
+ROOT = Path(__file__).resolve().parents[1]
+SCHEMA = json.loads((ROOT / "docs" / "events.schema.json").read_text())
 PAD_TOPICS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal",
               "finger_2_proximal", "finger_2_distal")
 
@@ -209,3 +214,32 @@ def test_a_reload_replaces_the_node_and_events_keep_flowing(tmp_path):
     finally:
         daemon.sinks.close()
         listener.close()
+
+
+def test_the_service_with_ros2_stops_on_sigterm_within_a_second(tmp_path):
+    """rclpy installs no signal handlers of its own here: SIGHUP reloads, SIGTERM ends the daemon."""
+    daemon_config(tmp_path, "sim://", {})  # writes the model
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "sim://?events=4&speed=4"\n[model]\nfolder = "{tmp_path / "models"}"\n'
+                   '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n[sinks]\nros2 = true\n[ros2]\npads = true\n')
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        err_lines: list[str] = []
+        while not any("ros2: node" in line for line in err_lines) and proc.poll() is None:
+            err_lines.append(proc.stderr.readline())
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGHUP)
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+        stop_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out, err = proc.communicate()
+    err = "".join(err_lines) + err
+    assert proc.returncode == 0 and stop_s < 1.0, (stop_s, err)
+    assert "configuration reloaded" in err and err.count("ros2: node") == 2 and "Traceback" not in err, err
+    assert json.loads(out.splitlines()[0])["type"] == "model"
