@@ -99,7 +99,7 @@ DURABILITIES = ("volatile", "transient_local")
 
 @dataclass(frozen=True)
 class Ros2Config:
-    """The ROS 2 sink (runtime/ros2_sink.py); used only when ``sinks.ros2 = true``."""
+    """The ROS 2 sink (runtime/ros2_node.py); used only when ``sinks.ros2 = true``."""
 
     namespace: str = "/handover"
     """Topics: ``<namespace>/events``, ``<namespace>/model``, ``<namespace>/pads/<pad>``, ``<namespace>/grasp``."""

@@ -16,7 +16,10 @@ import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from runtime.config import Ros2Config, SinksConfig
 
 log = logging.getLogger("handover.sinks")
 
@@ -65,7 +68,7 @@ class ModelAnnouncement:
     """The training date from the model's metadata, if it has one."""
 
     @classmethod
-    def of(cls, model, version: int, previous) -> ModelAnnouncement:
+    def of(cls, model: Any, version: int, previous: Any) -> ModelAnnouncement:
         """For a loaded model (runtime/model.py LoadedModel) that replaces ``previous`` (or None)."""
         date = (getattr(model.meta, "training", None) or {}).get("date")
         return cls(time=time.time(), model_id=model.model_id, model_version=version,
@@ -175,7 +178,8 @@ class SinkSet:
         self.sinks = list(sinks)
 
     @classmethod
-    def from_config(cls, cfg, stream: IO[str] | None = None, ros2=None, daemon=None) -> SinkSet:
+    def from_config(cls, cfg: SinksConfig, stream: IO[str] | None = None, ros2: Ros2Config | None = None,
+                    daemon: Any = None) -> SinkSet:
         """Build from a SinksConfig; a UDP host that does not resolve is logged and skipped.
 
         ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and the daemon it reads
