@@ -141,7 +141,10 @@ class Ros2Sink(Sink):
 
     def health(self, snapshot: dict) -> None:
         self._snapshot = snapshot
-        self._health_signal.trigger()
+        try:
+            self._health_signal.trigger()  # the executor's thread publishes it
+        except Exception as exc:  # a node that is gone must not reach the hot path
+            self._warn(f"ros2: diagnostics not published ({exc})")
 
     def close(self) -> None:
         """Publish the last health view, then stop the executor and the node."""

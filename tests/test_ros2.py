@@ -26,6 +26,7 @@ import pytest
 
 from runtime.config import Ros2Config
 from runtime.daemon import Daemon
+from runtime.sinks import ModelAnnouncement
 from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket, wait_for
 
 pytest.importorskip("onnx")
@@ -191,7 +192,6 @@ def test_pad_image_rows_and_columns_follow_the_layout():
 def test_a_reload_replaces_the_node_and_events_keep_flowing(tmp_path):
     from runtime.config import load_config
     from runtime.model import load_model
-    from runtime.sinks import ModelAnnouncement
 
     models = tmp_path / "models"
     config = tmp_path / "h.toml"
@@ -243,3 +243,14 @@ def test_the_service_with_ros2_stops_on_sigterm_within_a_second(tmp_path):
     assert proc.returncode == 0 and stop_s < 1.0, (stop_s, err)
     assert "configuration reloaded" in err and err.count("ros2: node") == 2 and "Traceback" not in err, err
     assert json.loads(out.splitlines()[0])["type"] == "model"
+
+
+def test_a_closed_node_never_raises_into_the_daemon(tmp_path):
+    daemon = Daemon(daemon_config(tmp_path, "sim://", {"pads": True}))
+    sink = ros_sink(daemon)
+    sink.close()
+    daemon.sinks.health(daemon.health.snapshot())  # what write_health does, after the node is gone
+    daemon.sinks.emit(ModelAnnouncement(time=0.0, model_id="0123456789ab", model_version=1, previous_model_id=None,
+                                        model_file="m.onnx", classes=["pull"]))
+    assert sink.errors == 1 and sink.sent == 0
+    sink.close()  # twice is harmless
