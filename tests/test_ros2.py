@@ -27,7 +27,7 @@ import pytest
 from runtime.config import Ros2Config
 from runtime.daemon import Daemon
 from runtime.sinks import ModelAnnouncement
-from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket, wait_for
+from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, sigterm_seconds, udp_socket, wait_for
 
 pytest.importorskip("onnx")
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not installed: the ros extra (./dev test installs it)")
@@ -224,20 +224,13 @@ def test_the_service_with_ros2_stops_on_sigterm_within_a_second(tmp_path):
                    '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n[sinks]\nros2 = true\n[ros2]\npads = true\n')
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        err_lines: list[str] = []
-        while not any("ros2: node" in line for line in err_lines) and proc.poll() is None:
-            err_lines.append(proc.stderr.readline())
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGHUP)
-        time.sleep(0.5)
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
-        stop_s = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    err_lines: list[str] = []
+    while not any("ros2: node" in line for line in err_lines) and proc.poll() is None:
+        err_lines.append(proc.stderr.readline())
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGHUP)
+    time.sleep(0.5)
+    stop_s = sigterm_seconds(proc)
     out, err = proc.communicate()
     err = "".join(err_lines) + err
     assert proc.returncode == 0 and stop_s < 1.0, (stop_s, err)
