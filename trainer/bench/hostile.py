@@ -280,8 +280,8 @@ def markdown(res: dict) -> list[str]:
         f"{c['url_tried']} tried, {c['url_refused']} refused naming device.url, {c['url_accepted']} accepted.", "",
         "## The daemon as a process", "",
         f"`handover run` over the simulated hand (synthetic) while {d['models_dropped']} hostile models were dropped "
-        f"into its folder: {d['models_rejected']} rejected, still serving: {d['still_serving']}, {d['events']} events "
-        f"on stdout, {d['non_json_stdout_lines']} non-JSON lines, {d['tracebacks']} tracebacks, exit code "
+        f"into its folder: {d['models_rejected']} rejected, still serving: {d['still_serving']}, {d['events']} decisions "
+        f"on stdout, {d['non_json_stdout_lines']} lines that are not events or model announcements, {d['tracebacks']} tracebacks, exit code "
         f"{d['exit_code']} after SIGTERM.", "",
         f"Took {res['seconds']} s. {res['note']} Timings here (the 40,000-node decision) include that load.",
     ]

@@ -142,9 +142,11 @@ def attack_daemon(work: Path) -> dict:
         if proc.poll() is None:
             proc.kill()
         out, err = proc.communicate()
-    non_json = sum(not _is_event(line) for line in out.splitlines())
+    lines = out.splitlines()
+    non_json = sum(not _is_event(line) for line in lines)
     result = {"models_dropped": len(hostile), "models_rejected": status.get("models_rejected"),
-              "events": len(out.splitlines()), "non_json_stdout_lines": non_json, "exit_code": proc.returncode,
+              "events": sum('"type":"decision"' in line for line in lines), "non_json_stdout_lines": non_json,
+              "exit_code": proc.returncode,
               "tracebacks": err.count("Traceback"), "frame_errors": status.get("frame_errors"),
               "still_serving": bool(status.get("model_id"))}
     result["failures"] = (non_json + result["tracebacks"] + int(proc.returncode != 0) + int(not result["still_serving"])
@@ -167,7 +169,8 @@ def _wait_for_rejections(path: Path, n: int, proc: subprocess.Popen, timeout: fl
 
 
 def _is_event(line: str) -> bool:
+    """A line of the event protocol (docs/EVENTS.md): a decision or a model announcement."""
     try:
-        return isinstance(json.loads(line).get("class"), str)
+        return json.loads(line).get("type") in ("decision", "model")
     except (ValueError, AttributeError):
         return False
