@@ -37,6 +37,7 @@ from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+from runtime.listeners import DecisionTimings, FrameListener
 
 log = logging.getLogger("handover.daemon")
 
@@ -124,8 +125,9 @@ class Daemon:
         self._last_ts: int | None = None
         self._next_health = 0.0
         self.period_s = 1.0 / DEFAULT_RATE_HZ
-        self.frames_seen: list[int] | None = None
-        """When a list, every frame number handled is appended (tests check that none is lost)."""
+        self.listeners: list[FrameListener] = []
+        """Called with every frame handled and every decision's stage timings (runtime.listeners);
+        benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
 
     # -- control --------------------------------------------------------------------------------
     def request_stop(self, *_: Any) -> None:
@@ -352,8 +354,9 @@ class Daemon:
             if gap > 1.9 * period_ms:  # device stamps jitter by up to ~0.8 period; a lost frame adds one
                 h.frames_dropped += round(gap / period_ms) - 1
         self._last_ts = ts
-        if self.frames_seen is not None:
-            self.frames_seen.append(frame.number)
+        if self.listeners:
+            for listener in self.listeners:
+                listener.on_frame(frame)
         self.latest_frame = frame
         ring = self.ring
         ring.push(frame.values, frame.number)
@@ -369,19 +372,24 @@ class Daemon:
                 self._classify(frame)
 
     def _classify(self, frame: Any) -> None:
+        """Run the model on the window ending at ``frame``, check, report; each stage stamped."""
+        clock = time.perf_counter
         model = self.model
         meta = model.meta
+        started = clock()
+        window = self.ring.window(meta.T)  # a float32 [1, T, C] view of the ring: no copy
         try:
-            labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+            labels, scores = model.run_trusted(window)
         except Exception as exc:  # a graph that fails on real frames only
             self._take_out_of_service(model, f"inference failed on frames {frame.number - meta.T + 1}.."
                                              f"{frame.number}: {_one_line(exc)}")
             return
-        decided = time.perf_counter()
+        decided = clock()
         problem = output_problem(labels, scores, meta.n_classes)
         if problem:
             self._take_out_of_service(model, f"{problem} (frames {frame.number - meta.T + 1}..{frame.number})")
             return
+        stamps = DecisionTimings(frame.received, started, decided, clock())
         latency_us = (decided - frame.received) * 1e6
         h = self.health
         h.decisions += 1
@@ -392,26 +400,22 @@ class Daemon:
         index = int(labels[0])
         if self.decision is not None:  # continuous mode: one report per confirmed interaction
             index = self.decision.update(index, scores[0])
-            if index < 0:
-                return
-        cls = meta.classes[index]
-        if cls not in self.cfg.scene.events:
-            return
-        event = Event(
-            time=time.time(),
-            cls=cls,
-            scores={c: float(s) for c, s in zip(meta.classes, scores[0], strict=True)},
-            latency_us=latency_us,
-            model_id=model.model_id,
-            frame_first=frame.number - meta.T + 1,
-            frame_last=frame.number,
-            device_time_ms=int(frame.timestamp_ms),
-            missed_deadline=missed,
-        )
-        h.events += 1
-        self.sinks.emit(event)
-        if self.on_event is not None:
-            self.on_event(event)
+        cls = meta.classes[index] if index >= 0 else None
+        if cls is not None and cls in self.cfg.scene.events:
+            event = Event(time.time(), cls, dict(zip(meta.classes, scores[0].tolist(), strict=True)), latency_us,
+                          model.model_id, frame.number - meta.T + 1, frame.number, int(frame.timestamp_ms), missed)
+            stamps.built = clock()
+            encoded = self.sinks.encode(event)
+            stamps.serialised = clock()
+            h.events += 1
+            if encoded is not None:
+                self.sinks.send(*encoded)
+            stamps.sent = clock()
+            if self.on_event is not None:
+                self.on_event(event)
+        if self.listeners:
+            for listener in self.listeners:
+                listener.on_decision(frame, stamps)
 
     def _take_out_of_service(self, model: Any, reason: str) -> None:
         """A model broke the output contract at run time: one line, never load this file version

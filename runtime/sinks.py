@@ -25,6 +25,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("handover.sinks")
 
+_compact = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+"""One encoder built once (``json.dumps`` with options builds a new one per call)."""
+
 PROTOCOL_VERSION = 1
 """The event protocol's version (docs/EVENTS.md): raised only when a field changes meaning or
 goes away; new fields and new line types keep it (listeners ignore what they do not know)."""
@@ -47,13 +50,15 @@ class Event:
     missed_deadline: bool = False
 
     def to_json(self) -> str:
-        d = {"type": "decision", "protocol": PROTOCOL_VERSION, "class": self.cls, **asdict(self)}
-        del d["cls"]
-        d["scores"] = {k: round(float(v), 6) for k, v in self.scores.items()}
-        d["latency_us"] = round(float(self.latency_us), 1)
+        # The fields spelled out (not dataclasses.asdict, which deep-copies): this runs on the hot path.
+        d = {"type": "decision", "protocol": PROTOCOL_VERSION, "class": self.cls, "time": self.time,
+             "scores": {k: round(float(v), 6) for k, v in self.scores.items()},
+             "latency_us": round(float(self.latency_us), 1), "model_id": self.model_id,
+             "frame_first": self.frame_first, "frame_last": self.frame_last,
+             "device_time_ms": self.device_time_ms, "missed_deadline": self.missed_deadline}
         # allow_nan=False: NaN/Infinity are not JSON; such an event raises ValueError here, the
         # one place events are serialised, and never reaches a listener.
-        return json.dumps(d, separators=(",", ":"), allow_nan=False)
+        return _compact(d)
 
 
 @dataclass
@@ -230,6 +235,14 @@ class SinkSet:
     def emit(self, message: Event | ModelAnnouncement) -> bool:
         """Serialise once and send to every sink; False (counted, logged rate-limited) when the
         message is not valid JSON (NaN or infinite numbers) and nothing was sent."""
+        encoded = self.encode(message)
+        if encoded is None:
+            return False
+        self.send(*encoded)
+        return True
+
+    def encode(self, message: Event | ModelAnnouncement) -> tuple[str, bytes] | None:
+        """The line and its bytes, or None (counted, logged rate-limited) when it is not valid JSON."""
         try:
             line = message.to_json()
         except (TypeError, ValueError) as exc:
@@ -238,11 +251,13 @@ class SinkSet:
             if now - self._last_invalid_log > 10.0:
                 self._last_invalid_log = now
                 log.error("event of model %s not sent: %s (%d refused so far)", message.model_id, exc, self.invalid)
-            return False
-        data = line.encode()
+            return None
+        return line, line.encode()
+
+    def send(self, line: str, data: bytes) -> None:
+        """An encoded line to every sink (``emit`` = ``encode`` + ``send``; the daemon times them apart)."""
         for sink in self.sinks:
             sink.send(line, data)
-        return True
 
     def health(self, snapshot: dict) -> None:
         for sink in self.sinks:

@@ -23,6 +23,7 @@ import pytest
 from firmware_io.frame_source import load_source
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
+from runtime.listeners import FrameRecorder
 from runtime.sinks import Event
 from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
 
@@ -77,7 +78,8 @@ def test_one_decision_per_scripted_event_over_sim(models):
     events: list[Event] = []
     cfg = _config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0")
     daemon = Daemon(cfg, on_event=events.append)
-    daemon.frames_seen = []
+    seen = FrameRecorder()
+    daemon.listeners.append(seen)
     _serve(daemon, lambda d: d.health.device_faults >= 1)  # the end of the session
     trials = _trials()
     assert len(events) == len(trials)
@@ -85,8 +87,8 @@ def test_one_decision_per_scripted_event_over_sim(models):
         assert trial.first <= event.frame_first and event.frame_last <= trial.last
         assert event.frame_last - event.frame_first + 1 == 15
         assert event.cls == "pull" and event.latency_us > 0
-    n = len(daemon.frames_seen)
-    assert daemon.frames_seen == list(range(n))  # no frame lost
+    n = len(seen.frames)
+    assert seen.frames == list(range(n))  # no frame lost
     assert daemon.health.frames_dropped == 0 and daemon.health.decisions == len(trials)
     p50, p99 = daemon.health.latency_percentiles()
     print(f"\nsim:// synthetic session: {len(events)} events, latency p50 {p50:.0f} us p99 {p99:.0f} us")
@@ -121,11 +123,12 @@ def test_model_dropped_mid_stream_is_swapped_without_losing_a_frame(models):
                 time.sleep(0.01)
 
     daemon = Daemon(_config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0"), on_event=on_event)
-    daemon.frames_seen = []
+    seen = FrameRecorder()
+    daemon.listeners.append(seen)
     _serve(daemon, lambda d: d.health.device_faults >= 1)
     assert [e.cls for e in events] == ["pull", "pull"] + ["push"] * (N_EVENTS - 2)
     assert len({e.model_id for e in events[:2]}) == 1 and events[2].model_id != events[0].model_id
-    assert daemon.frames_seen == list(range(len(daemon.frames_seen)))
+    assert seen.frames == list(range(len(seen.frames)))
     assert daemon.health.models_loaded == 2
 
 
@@ -272,7 +275,8 @@ def test_end_to_end_over_a_pseudo_terminal(models):
     events: list[Event] = []
     try:
         daemon = Daemon(_config(models, server.url, device={"stall_timeout_s": 0.5}), on_event=events.append)
-        daemon.frames_seen = []
+        seen = FrameRecorder()
+        daemon.listeners.append(seen)
         _serve(daemon, lambda d: d.health.frames_received >= rec.n_frames)
     finally:
         server.stop()
@@ -280,7 +284,7 @@ def test_end_to_end_over_a_pseudo_terminal(models):
     assert len(events) == len(trials)
     for event, trial in zip(events, trials, strict=True):
         assert trial.first <= event.frame_first and event.frame_last <= trial.last and event.cls == "pull"
-    assert daemon.frames_seen == list(range(len(daemon.frames_seen)))  # no frame lost
+    assert seen.frames == list(range(len(seen.frames)))  # no frame lost
     assert daemon.health.crc_errors == 0 and daemon.health.frames_dropped == 0
 
 

@@ -2,8 +2,9 @@
 time to READY, and the time to swap a model.
 
 - replay: a dense synthetic stream (simulated trial windows back to back, each followed by just
-  enough untouched frames for the daemon's trigger to re-arm), pre-encoded as RLE packets, through StreamParser + decode + ring + trigger + model
-  (the daemon's hot path without the socket) as fast as possible; and the real Daemon reading
+  enough untouched frames for the daemon's trigger to re-arm), pre-encoded as RLE packets, through
+  StreamParser + decode + plausibility and the real ``Daemon.handle_frame`` (ring, trigger, model,
+  output check; no socket) as fast as possible; and the real Daemon reading
   ``replay://FILE?speed=max`` (its emulator encodes the frames in the same thread, so this
   figure is a lower bound).
 - footprint: ``handover run`` as a child process against the TCP emulator (another process) at
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.listeners import FrameListener
 from trainer.bench import harness
 from trainer.bench.common import (
     command_line,
@@ -40,47 +42,70 @@ from trainer.bench.common import (
 NAME = "throughput"
 
 
+def serving_daemon(model, layout, udp_port: int | None = None):
+    """The real ``Daemon`` serving ``model`` for ``layout`` (all pads, default trigger), fed by the
+    caller through ``handle_frame``; events go to a UDP port when given, else nowhere."""
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from runtime.sdnotify import Notifier
+
+    pads = ",".join(str(p) for p in model.meta.pads)
+    udp = [f"127.0.0.1:{udp_port}"] if udp_port else []
+    cfg = config_from_dict({"scene": {"pads": pads}, "sinks": {"stdout": False, "udp": udp}, "log_level": "error"})
+    daemon = Daemon(cfg, notifier=Notifier({}))
+    daemon.serve(model, layout)
+    return daemon
+
+
 def replay_hot_path(model, recording, repeats: int = 1) -> dict:
-    """Frames per second through parser + decode + ring + trigger + inference (no socket)."""
+    """Frames per second through the client's steps (parser + CRC + decode + plausibility) and the
+    real ``Daemon.handle_frame`` (ring, trigger, inference, output check), no socket."""
+    from firmware_io.client import Frame
     from firmware_io.parser import StreamParser
+    from firmware_io.plausibility import FrameCheck
     from firmware_io.protocol import PacketId, decode_frame_payload, encode_frame
-    from runtime.ring import RingBuffer
-    from runtime.trigger import ThresholdTrigger
 
     layout = recording.layout
     n = layout.n_taxels
     stream = b"".join(encode_frame(f, int(i * 31), rle=True) for i, f in enumerate(recording.frames))
     chunks = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
-    T = model.meta.T
-    cols = layout.columns(list(model.meta.pads))
     frame_id = int(PacketId.FULL_FRAME)
+    check = FrameCheck(layout)
     best = None
     for _ in range(repeats):
         parser = StreamParser(n)
-        ring = RingBuffer(cols, 64)
-        trigger = ThresholdTrigger(cols.size, model.meta.fullscale, window=T, refractory_frames=16)
-        number, decisions, pending = 0, 0, []
+        daemon = serving_daemon(model, layout)
+        handle = daemon.handle_frame
+        number = 0
         t0 = time.perf_counter()
         for chunk in chunks:
             for pkt in parser.feed(chunk):
                 if pkt.packet_id != frame_id:
                     continue
-                _, values = decode_frame_payload(pkt.payload, n)
-                ring.push(values, number)
-                due = trigger.update(ring.latest(), number)
-                if due >= 0:
-                    pending.append(due)
-                if pending and number == pending[0]:
-                    pending.pop(0)
-                    model.run(ring.window(T))
-                    decisions += 1
-                number += 1
+                stamp, values = decode_frame_payload(pkt.payload, n)
+                if check.problem(values) is None:
+                    handle(Frame(number, stamp, pkt.received, values))
+                    number += 1
         seconds = time.perf_counter() - t0
         if best is None or seconds < best[0]:
-            best = (seconds, number, decisions)
+            best = (seconds, number, int(daemon.health.decisions))
     seconds, frames, decisions = best
     return {"frames": frames, "decisions": decisions, "seconds": seconds, "frames_per_s": frames / seconds,
             "bytes": len(stream)}
+
+
+class _Span(FrameListener):
+    """When the daemon handled its first and its last frame; stops it after the last."""
+
+    def __init__(self, daemon, last: int) -> None:
+        self.daemon, self.last, self.marks = daemon, last, {}
+
+    def on_frame(self, frame) -> None:
+        if frame.number == 0:
+            self.marks["first"] = time.perf_counter()
+        if frame.number >= self.last:
+            self.marks["last"] = time.perf_counter()
+            self.daemon.request_stop()
 
 
 def replay_daemon(model_path: Path, recording, work: Path) -> dict:
@@ -96,24 +121,15 @@ def replay_daemon(model_path: Path, recording, work: Path) -> dict:
                  model=ModelConfig(folder=str(models)), sinks=SinksConfig(stdout=False), log_level="error")
     daemon = Daemon(cfg, notifier=Notifier({}))
     last = recording.n_frames - 1
-    marks: dict[str, float] = {}
-    handle = daemon.handle_frame
-
-    def timed(frame) -> None:
-        if frame.number == 0:
-            marks["first"] = time.perf_counter()
-        handle(frame)
-        if frame.number >= last:
-            marks["last"] = time.perf_counter()
-            daemon.request_stop()
-
-    daemon.handle_frame = timed
+    span = _Span(daemon, last)
+    daemon.listeners.append(span)
     stopper = threading.Timer(120, daemon.request_stop)
     stopper.start()
     try:
         daemon.run()
     finally:
         stopper.cancel()
+    marks = span.marks
     if "last" not in marks:
         raise RuntimeError("the daemon did not get through the replay within 120 s")
     seconds = marks["last"] - marks["first"]

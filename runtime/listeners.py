@@ -1,0 +1,72 @@
+"""Observing the daemon's hot path: listeners called with each frame and each decision.
+
+In the style of python-can's Notifier/Listener: ``Daemon.listeners`` is a plain list; every
+frame ``handle_frame`` takes is passed to ``on_frame`` of each listener, and every decision to
+``on_decision`` with the stage stamps of that decision. Why: benchmarks and tests drive the real
+``Daemon.handle_frame`` (no copy of the hot path, no methods swapped on the instance), and a
+daemon without listeners pays one empty-list check per frame.
+
+Listeners run on the hot path, in the daemon's thread: they must be quick and must not raise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(slots=True)
+class DecisionTimings:
+    """``time.perf_counter()`` stamps of one decision, in the order the stages run.
+
+    ``received``: the frame's last byte parsed (``Frame.received``; parse, CRC, decode, plausibility
+    and ring push + trigger of this frame lie between it and ``started``); ``started``: inference
+    begins (window view taken); ``decided``: the model answered (the decision's latency ends here);
+    ``checked``: output contract checked; ``built``: the event object built; ``serialised``: its
+    JSON line encoded; ``sent``: handed to every sink. The last three stay None when no event is
+    reported (continuous mode between reports, a class outside ``scene.events``).
+    """
+
+    received: float
+    started: float
+    decided: float
+    checked: float
+    built: float | None = None
+    serialised: float | None = None
+    sent: float | None = None
+
+    def stages_us(self) -> dict[str, float]:
+        """Microseconds per stage (only the stages this decision went through)."""
+        marks = [("to_inference", self.started), ("inference", self.decided), ("output_check", self.checked),
+                 ("event_build", self.built), ("serialise", self.serialised), ("sink_send", self.sent)]
+        out, last = {}, self.received
+        for name, t in marks:
+            if t is None:
+                break
+            out[name] = (t - last) * 1e6
+            last = t
+        return out
+
+
+class FrameListener:
+    """Base listener: override what you need (both do nothing here)."""
+
+    def on_frame(self, frame: Any) -> None:
+        """A frame ``Daemon.handle_frame`` is about to handle (before ring, trigger and model)."""
+
+    def on_decision(self, frame: Any, timings: DecisionTimings) -> None:
+        """The model decided on the window ending at ``frame`` (after the event, if any, was sent)."""
+
+
+class FrameRecorder(FrameListener):
+    """Keeps the numbers of the frames handled and the timings of the decisions (tests, benchmarks)."""
+
+    def __init__(self) -> None:
+        self.frames: list[int] = []
+        self.decisions: list[tuple[int, DecisionTimings]] = []
+
+    def on_frame(self, frame: Any) -> None:
+        self.frames.append(frame.number)
+
+    def on_decision(self, frame: Any, timings: DecisionTimings) -> None:
+        self.decisions.append((frame.number, timings))
