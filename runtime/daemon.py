@@ -30,6 +30,7 @@ from firmware_io.layout import LayoutError, SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
+from runtime.listeners import DecisionTimings, FrameListener
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore, store_path
@@ -37,7 +38,6 @@ from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
-from runtime.listeners import DecisionTimings, FrameListener
 
 log = logging.getLogger("handover.daemon")
 
@@ -378,6 +378,7 @@ class Daemon:
         meta = model.meta
         started = clock()
         window = self.ring.window(meta.T)  # a float32 [1, T, C] view of the ring: no copy
+        windowed = clock()
         try:
             labels, scores = model.run_trusted(window)
         except Exception as exc:  # a graph that fails on real frames only
@@ -389,7 +390,7 @@ class Daemon:
         if problem:
             self._take_out_of_service(model, f"{problem} (frames {frame.number - meta.T + 1}..{frame.number})")
             return
-        stamps = DecisionTimings(frame.received, started, decided, clock())
+        stamps = DecisionTimings(frame.received, started, windowed, decided, clock())
         latency_us = (decided - frame.received) * 1e6
         h = self.health
         h.decisions += 1

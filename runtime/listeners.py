@@ -20,8 +20,8 @@ class DecisionTimings:
     """``time.perf_counter()`` stamps of one decision, in the order the stages run.
 
     ``received``: the frame's last byte parsed (``Frame.received``; parse, CRC, decode, plausibility
-    and ring push + trigger of this frame lie between it and ``started``); ``started``: inference
-    begins (window view taken); ``decided``: the model answered (the decision's latency ends here);
+    and ring push + trigger of this frame lie between it and ``started``); ``started``: this
+    decision begins; ``windowed``: the model's input window taken from the ring; ``decided``: the model answered (the decision's latency ends here);
     ``checked``: output contract checked; ``built``: the event object built; ``serialised``: its
     JSON line encoded; ``sent``: handed to every sink. The last three stay None when no event is
     reported (continuous mode between reports, a class outside ``scene.events``).
@@ -29,6 +29,7 @@ class DecisionTimings:
 
     received: float
     started: float
+    windowed: float
     decided: float
     checked: float
     built: float | None = None
@@ -37,7 +38,7 @@ class DecisionTimings:
 
     def stages_us(self) -> dict[str, float]:
         """Microseconds per stage (only the stages this decision went through)."""
-        marks = [("to_inference", self.started), ("inference", self.decided), ("output_check", self.checked),
+        marks = [("to_inference", self.started), ("window", self.windowed), ("inference", self.decided), ("output_check", self.checked),
                  ("event_build", self.built), ("serialise", self.serialised), ("sink_send", self.sent)]
         out, last = {}, self.received
         for name, t in marks:

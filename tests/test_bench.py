@@ -11,6 +11,7 @@ import pytest
 
 from trainer import bench_cli
 from trainer.bench.common import deadline_ratio, percentiles, tap_stream
+from trainer.bench.latency_stages import STAGES
 from trainer.bench.pareto import grid, is_default, pareto_front
 
 
@@ -79,10 +80,16 @@ def test_pareto_quick(tmp_path, capsys):
 def test_latency_quick(tmp_path, capsys):
     printed, result = _run("latency", tmp_path, capsys, "--duration", "2")
     assert (tmp_path / "latency.png").stat().st_size > 0
-    for key in ("onnx_p50_us", "onnx_p99_us", "e2e_p99_us"):
+    for key in ("onnx_p50_us", "onnx_p50_us_all_pads", "daemon_p999_us", "e2e_p999_us", "paced_over_back_to_back",
+                "rss_mb"):
         assert printed[key] > 0
-    for stage in ("decode", "ring_push", "trigger", "inference"):
-        assert result["stages"][stage]["fast"]["n"] > 0 and result["stages"][stage]["32hz"]["n"] > 0
+    for rhythm in ("back_to_back", "paced_32hz"):
+        table = result["stages"][rhythm]
+        assert all(table[stage]["n"] > 0 for stage in STAGES)  # every stage of every decision stamped
+        assert table["total"]["p50"] > table["inference"]["p50"] > 0
+    imps = result["implementations"]
+    assert set(imps["back_to_back"]) == {"onnxruntime", "numpy", "scikit-learn"}
+    assert imps["agreement_with_graph"] == {"numpy": 1.0, "scikit-learn": 1.0}
     e2e = result["e2e_32hz"]
     assert e2e["events"] == e2e["windows_sent"] and e2e["unmatched"] == 0  # one event per window: the trigger re-arms
     assert e2e["e2e_us"]["p50"] > e2e["daemon_internal_us"]["p50"] > 0  # the wire and the sink add time

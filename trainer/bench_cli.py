@@ -16,8 +16,9 @@ import sys
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile")
 HEADLINE = ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
-            "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_load_p99_us", "replay_frames_per_s",
-            "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures")
+            "onnx_p50_us_all_pads", "daemon_p999_us", "paced_over_back_to_back",
+            "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_p999_us_load", "e2e_load_p99_us",
+            "replay_frames_per_s", "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
     parser.add_argument("--load", action="store_true", help="latency: also measure with two busy-loop processes")
     parser.add_argument("--duration", type=float, default=None,
-                        help="latency: seconds of the 32 Hz end-to-end run (default 300, --quick 3)")
+                        help="latency: seconds of the 32 Hz end-to-end run (default 120, --quick 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     parser.add_argument("--rerender", action="store_true",

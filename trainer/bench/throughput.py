@@ -142,7 +142,7 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _proc_mem_mb(pid: int) -> dict:
+def proc_mem_mb(pid: int) -> dict:
     out = {}
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         key, _, value = line.partition(":")
@@ -229,7 +229,7 @@ def footprint_and_swap(model_path: Path, second_model: Path, work: Path, duratio
         harness.install_model(second_model, models, "b.onnx")
         time.sleep(duration / 2)
         t1, cpu1 = time.perf_counter(), _proc_cpu_s(proc.pid)
-        mem = _proc_mem_mb(proc.pid)
+        mem = proc_mem_mb(proc.pid)
     finally:
         harness.stop_daemon(proc)
         emulator.close()

@@ -1,0 +1,188 @@
+"""Where each microsecond of a decision goes: a stage table from frame bytes to the sink's send.
+
+The real parts in this process: each frame of a dense synthetic stream is fed as its RLE packet
+to ``StreamParser`` (CRC), decoded, checked for plausibility (``FrameCheck``) and handed to the
+real ``Daemon.handle_frame`` serving the model, whose events go to a UDP socket; a
+``runtime.listeners`` listener collects the daemon's own stamps of each decision (window,
+inference, output check, event build, serialisation, sink send). Nothing is copied or swapped.
+
+Two rhythms:
+
+- back to back: frames fed as fast as the hot path takes them (warm caches);
+- paced at 32 Hz: the frame that completes a window arrives one sample period (31.25 ms) after
+  the frame before it, with the process idle in between, as in service. The frames between
+  windows (which only push and test the trigger) are fed back to back, so a run of a minute
+  yields enough decisions for a p99.9.
+
+Beside the graph, the same windows are decided in the same run by a numpy-only implementation
+of the same model (``numpy_decision``) and by the fitted scikit-learn estimator, interleaved
+window by window, so their ratios hold on a noisy machine.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+
+from runtime.listeners import DecisionTimings, FrameListener
+from trainer.bench.common import percentiles
+
+PERIOD_S = 1.0 / 32.0
+STAGES = ("parse_crc_decode", "plausibility", "ring_trigger", "window", "inference", "output_check", "event_build",
+          "serialise", "sink_send")
+"""The stage table's rows, in the order a frame goes through them."""
+
+
+class _Decisions(FrameListener):
+    def __init__(self) -> None:
+        self.timings: list[tuple[int, DecisionTimings]] = []
+
+    def on_decision(self, frame, timings: DecisionTimings) -> None:
+        self.timings.append((frame.number, timings))
+
+
+def _encoded(recording) -> list[bytes]:
+    from firmware_io.protocol import encode_frame
+
+    stamps = np.rint(recording.timestamps * 1000).astype(np.int64)
+    return [encode_frame(f, int(t) & 0xFFFFFFFF, rle=True) for f, t in zip(recording.frames, stamps, strict=True)]
+
+
+def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset()) -> dict:
+    """Feed every packet through parser, decode, plausibility and a fresh serving daemon; sleep one
+    sample period before each frame in ``pace_frames``. Per-stage microseconds of each decision."""
+    from firmware_io.client import Frame
+    from firmware_io.parser import StreamParser
+    from firmware_io.plausibility import FrameCheck
+    from firmware_io.protocol import decode_frame_payload
+    from trainer.bench.throughput import serving_daemon
+
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    sink.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    sink.setblocking(False)
+    daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1])
+    recorder = _Decisions()
+    daemon.listeners.append(recorder)
+    layout = recording.layout
+    parser, check, n = StreamParser(layout.n_taxels), FrameCheck(layout), layout.n_taxels
+    handle, clock = daemon.handle_frame, time.perf_counter
+    marks = np.zeros((len(packets), 4))
+    for number, packet in enumerate(packets):
+        if number in pace_frames:
+            time.sleep(PERIOD_S)
+        t0 = clock()
+        (pkt,) = parser.feed(packet)
+        stamp, values = decode_frame_payload(pkt.payload, n)
+        t1 = clock()
+        check.problem(values)
+        frame = Frame(number, stamp, pkt.received, values)
+        t2 = clock()
+        handle(frame)
+        marks[number] = t0, t1, t2, clock()
+        if number % 64 == 0:
+            _drain(sink)
+    _drain(sink)
+    sink.close()
+    return _stage_table(marks, recorder.timings)
+
+
+def _drain(sock: socket.socket) -> None:
+    try:
+        while sock.recv(65536):
+            pass
+    except BlockingIOError:
+        pass
+
+
+def _stage_table(marks: np.ndarray, timings: list[tuple[int, DecisionTimings]]) -> dict:
+    rows: dict[str, list[float]] = {s: [] for s in (*STAGES, "total", "daemon_internal")}
+    for number, t in timings:
+        t0, t1, t2, _ = marks[number]
+        cuts = (t0, t1, t2, t.started, t.windowed, t.decided, t.checked, t.built, t.serialised, t.sent)
+        if t.sent is None:
+            continue
+        for name, a, b in zip(STAGES, cuts[:-1], cuts[1:], strict=True):
+            rows[name].append((b - a) * 1e6)
+        rows["total"].append((t.sent - t0) * 1e6)
+        rows["daemon_internal"].append((t.decided - t.received) * 1e6)
+    decided = {n for n, _ in timings}
+    quiet = [(m[3] - m[2]) * 1e6 for i, m in enumerate(marks) if i not in decided]
+    out = {name: percentiles(v) for name, v in rows.items()}
+    out["handle_frame_no_decision"] = percentiles(quiet)
+    return out
+
+
+def decision_frames(model, recording) -> frozenset[int]:
+    """The frames whose arrival completes a window (a back-to-back pass of the same daemon)."""
+    from firmware_io.client import Frame
+    from trainer.bench.throughput import serving_daemon
+
+    daemon = serving_daemon(model, recording.layout)
+    recorder = _Decisions()
+    daemon.listeners.append(recorder)
+    for number, values in enumerate(recording.frames):
+        daemon.handle_frame(Frame(number, number * 31, time.perf_counter(), values))
+    return frozenset(n for n, _ in recorder.timings)
+
+
+def stage_tables(model, recording, paced_decisions: int) -> dict:
+    """Back to back over the whole stream, and paced at 32 Hz for ``paced_decisions`` windows."""
+    packets = _encoded(recording)
+    due = decision_frames(model, recording)
+    feed(model, recording, packets[: min(len(packets), 500)])  # warm-up pass, discarded
+    fast = feed(model, recording, packets)
+    last = sorted(due)[min(len(due), paced_decisions) - 1] if due else 0
+    paced = feed(model, recording, packets[: last + 1], frozenset(due))
+    return {"back_to_back": fast, "paced_32hz": paced, "decisions": len(due)}
+
+
+# -- the graph against numpy and scikit-learn, one window at a time --------------------------------------
+def comparators(model, model_path: Path) -> dict:
+    """name -> callable(window [T, C] float32): the graph as the daemon runs it, numpy, scikit-learn."""
+    from trainer.bench.numpy_decision import NumpyDecision
+
+    out = {"onnxruntime": lambda w: model.run_trusted(w[None])}
+    numpy_decision = NumpyDecision.of(model_path)
+    if numpy_decision is not None:
+        out["numpy"] = numpy_decision
+    estimator = model_path.with_suffix(".joblib")
+    if estimator.exists():
+        import joblib
+
+        fitted = joblib.load(estimator)
+        out["scikit-learn"] = lambda w: fitted.predict(w.T[None].astype(np.float64))
+    return out
+
+
+def compare(fns: dict, windows: np.ndarray, rounds: int, paced: bool) -> dict:
+    """Each implementation on the same windows, interleaved (noise hits all alike); us per decision."""
+    times = {name: np.empty(rounds) for name in fns}
+    clock = time.perf_counter_ns
+    for fn in fns.values():  # warm-up
+        for w in windows[:20]:
+            fn(w)
+    for i in range(rounds):
+        w = windows[i % len(windows)]
+        for name, fn in fns.items():
+            if paced:
+                time.sleep(PERIOD_S / len(fns))
+            t0 = clock()
+            fn(w)
+            times[name][i] = (clock() - t0) / 1000.0
+    return {name: percentiles(v) for name, v in times.items()}
+
+
+def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
+    """Share of windows on which each implementation's class equals the graph's."""
+
+    def name_of(answer) -> str:
+        first = np.asarray(answer[0] if isinstance(answer, tuple) else answer).ravel()[0]
+        return str(first) if isinstance(first, str | np.str_) else classes[int(first)]
+
+    graph = [name_of(fns["onnxruntime"](w)) for w in windows]
+    return {name: float(np.mean([name_of(fn(w)) == g for w, g in zip(windows, graph, strict=True)]))
+            for name, fn in fns.items() if name != "onnxruntime"}
