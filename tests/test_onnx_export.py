@@ -113,3 +113,38 @@ def test_export_cli(rbf_model, tmp_path, capsys):
     assert handover(["export", str(tmp_path / "junk.joblib")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("handover export: ") and "Traceback" not in err
+
+
+def _onehot_chain(path, tmp_path):
+    """The graph as exported before issue #16 (ArgMin -> OneHot -> ReduceSum over windows): the
+    word counts of the plane-wise Equal chain must be the same numbers, ties included."""
+    from onnx import helper, numpy_helper
+
+    proto = onnx.load(str(path))
+    nodes = list(proto.graph.node)
+    start = next(i for i, n in enumerate(nodes) if n.op_type == "ArgMin")
+    stop = next(i for i, n in enumerate(nodes) if n.op_type == "Transpose" and n.output[0].startswith("per_channel"))
+    words, per_channel = nodes[start].output[0], nodes[stop].output[0]
+    proto.graph.initializer.extend([numpy_helper.from_array(np.array(6, np.int64), "old_depth"),
+                                    numpy_helper.from_array(np.array([0.0, 1.0], np.float32), "old_onoff"),
+                                    numpy_helper.from_array(np.array([1], np.int64), "old_axis1")])
+    old = [helper.make_node("OneHot", [words, "old_depth", "old_onoff"], ["old_onehot"], axis=-1),
+           helper.make_node("ReduceSum", ["old_onehot", "old_axis1"], [per_channel], keepdims=0)]
+    del proto.graph.node[:]
+    proto.graph.node.extend(nodes[: start + 1] + old + nodes[stop + 1 :])
+    out = tmp_path / "onehot.onnx"
+    onnx.save(proto, str(out))
+    return out
+
+
+def test_word_counts_same_as_the_onehot_graph_with_ties(tmp_path):
+    model = fit_model("rbf", per_pad=True)
+    model.bow_.codebook_[1] = model.bow_.codebook_[0]  # every window ties words 0 and 1: ArgMin takes 0
+    path = export(model, tmp_path)
+    assert "OneHot" not in {n.op_type for n in onnx.load(str(path)).graph.node}
+    X, _ = synthetic_cases(n=64, seed=3)
+    new = GraphRunner(path).run(frames_of(X))
+    old = GraphRunner(_onehot_chain(path, tmp_path)).run(frames_of(X))
+    for a, b in zip(new, old, strict=True):
+        np.testing.assert_array_equal(a, b)  # labels, scores and histograms: the same numbers
+    np.testing.assert_allclose(new[2], model.bow_.transform(X), atol=1e-6)

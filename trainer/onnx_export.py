@@ -14,9 +14,10 @@ Graph (standard ``ai.onnx`` domain only, opset 17, IR 8):
 3. one 2-D convolution over (time, taxel) with kernel ``-2 * codebook`` (``[K, 1, W, 1]``) and
    bias ``||c_k||^2`` gives ``f_k = ||c_k||^2 - 2 w.c_k`` for every window and codeword at once
    (``||w - c_k||^2 = ||w||^2 + f_k``; ``||w||^2`` does not change the argmin);
-4. ``ArgMin`` over codewords (first index on ties, like the reference), ``OneHot``, sum over
-   windows, mask, per-pad-group sums (one MatMul with a group indicator), divide by the number
-   of active windows (at least 1, so no NaN for an all-zero case);
+4. ``ArgMin`` over codewords (first index on ties, like the reference), one ``Equal`` per word
+   plane (a one-hot without OneHot), sum over windows, mask, per-pad-group sums (one MatMul with
+   a group indicator), divide by the number of active windows (at least 1, so no NaN for an
+   all-zero case);
 5. SVM: RBF kernel values from direct squared differences to the support vectors (no
    ``||h||^2 - 2h.s + ||s||^2`` cancellation), one Gemm for all one-vs-one decisions, one Gemm
    for the votes, one MatMul for the summed confidences, scikit-learn's ovr transform.
@@ -143,9 +144,13 @@ def _scale_nodes(g: _Graph, x4: str, deriv: str | None, active: str, codebook: n
     scores = g.op("Conv", [signal, weights, g.const("codeword_sqnorm", bias)], "word_scores")  # [N, K, S, C]
     if soft_tau is None:
         words = g.op("ArgMin", [scores], "words", axis=1, keepdims=0)  # [N, S, C]
-        onehot = g.op("OneHot", [words, g.const("depth", n_words, np.int64), g.const("onoff", [0.0, 1.0])], "onehot",
-                      axis=-1)
-        per_channel = g.op("ReduceSum", [onehot, g.const("axis1", [1], np.int64)], "per_channel", keepdims=0)  # [N, C, K]
+        # word k's count per channel: (words == k) as K planes of S x C, summed over S. Comparing whole
+        # planes with one scalar each is what onnxruntime does fast (OneHot's innermost K costs 3x more)
+        planes = g.op("Unsqueeze", [words, g.const("axis1", [1], np.int64)], "words4")  # [N, 1, S, C]
+        hits = g.op("Equal", [planes, g.const("word_index", np.arange(n_words).reshape(n_words, 1, 1), np.int64)])
+        hit_counts = g.op("ReduceSum", [g.op("Cast", [hits], "hits", to=1), g.const("axis2", [2], np.int64)],
+                          "word_counts", keepdims=0)  # [N, K, C]
+        per_channel = g.op("Transpose", [hit_counts], "per_channel", perm=[0, 2, 1])  # [N, C, K]
     else:
         # softmax(-(f - min f) / tau): every exponent <= 0, so exp never overflows; f differs from
         # the squared distance by ||w||^2, which the softmax does not see

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 _SUPPORTED_OPS = frozenset({"Abs", "ReduceMax", "Greater", "Cast", "Unsqueeze", "Conv", "ArgMin", "OneHot", "ReduceSum",
-                            "Mul", "MatMul", "Max", "Div", "Reshape", "Gemm", "Add", "ArgMax"})
+                            "Equal", "Transpose", "Mul", "MatMul", "Max", "Div", "Reshape", "Gemm", "Add", "ArgMax"})
 
 
 class NumpyDecision:
