@@ -1,7 +1,7 @@
 """The end-to-end rig: an emulated DSACON32m in its own process, ``handover run`` in another,
 a UDP listener in this one.
 
-The emulator process stamps ``time.perf_counter()`` right after the socket ``send`` that
+The emulator process stamps ``time.perf_counter()`` right before the socket ``send`` that
 carries the last byte of each frame (CLOCK_MONOTONIC: the same clock in every process on
 Linux), keyed by the frame's device timestamp; the listener stamps each event datagram on
 receipt and finds its frame by the event's ``device_time_ms``. Nothing in the emulator or
@@ -60,8 +60,10 @@ class _TimedSocket:
         self.sent_total = 0
 
     def send(self, data) -> int:
-        n = self._sock.send(data)
+        # Stamped as the bytes are handed to the kernel: on loopback the daemon can be woken and
+        # preempt this process inside send(), so a stamp after it can come after the event's arrival.
         t = time.perf_counter()
+        n = self._sock.send(data)
         self.sent_total += n
         self._on_sent(self.sent_total, t)
         return n
