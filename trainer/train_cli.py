@@ -131,8 +131,9 @@ def main(args: argparse.Namespace) -> int:
 def _progress(args, desc: str, total: int):
     from tqdm import tqdm
 
-    def wrap(iterable):
-        return tqdm(iterable, desc=desc, total=total, file=sys.stderr, disable=args.quiet, leave=False)
+    def wrap(iterable):  # bars only on a terminal: a redirected log gets no carriage-return clutter
+        return tqdm(iterable, desc=desc, total=total, file=sys.stderr, disable=args.quiet or not sys.stderr.isatty(),
+                    leave=False)
 
     return wrap
 
@@ -268,11 +269,33 @@ def run(args) -> int:
     metrics["command"] = command_line(args)
     report.write_metrics(out, metrics)
     report.write_markdown(out, metrics, metrics["command"], figures)
-    _say(args, f"report written to {out / 'report.md'} ({metrics['seconds']:.0f} s)")
+    if not args.quiet:
+        print(headline(metrics, out, onnx_written=onnx_ok and not args.no_onnx), flush=True,
+              file=sys.stderr if args.json else sys.stdout)
     if args.json:
         print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (
             "loso_per_subject", "best_params", "svm_margin")}, default=report._json_default))
     return 0 if onnx_ok else 1
+
+
+def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
+    """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
+    tag = "synthetic data, " if metrics["synthetic"] else ""
+    n_seeds = len(metrics["config1"]["accuracies"])
+    model = out / "model.onnx"
+    lines = [
+        f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
+        f"never triggered), pads {metrics['pads']}, K={metrics['K']} W={metrics['W']} T={metrics['T']} "
+        f"{metrics['kernel']} SVM",
+        f"  leave one subject out: {metrics['loso_accuracy']:.1%} (hand-designed baseline "
+        f"{metrics['baseline_loso_accuracy']:.1%})",
+        f"  pooled 80/20 over {n_seeds} seeds: {metrics['config1_accuracy_mean']:.1%} +/- "
+        f"{metrics['config1_accuracy_std']:.1%} (baseline {metrics['baseline_config1_accuracy_mean']:.1%})",
+        f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
+        f"  model:  {model} (handover inspect {model}; drop it into the daemon's model folder, deploy/INSTALL.md)"
+        if onnx_written else "  model:  no model.onnx written (model.joblib only)",
+    ]
+    return "\n".join(lines)
 
 
 def _sweeps(args, recordings, out: Path) -> dict | None:
