@@ -129,14 +129,26 @@ def _zoomed_limits(series: list) -> tuple[float, float]:
     return max(0.0, lo - 0.3 * span), min(100.0 + 0.02 * span, hi + 0.1 * span)
 
 
-def _pct(v: float) -> str:
+def pct(v: float) -> str:
+    """A fraction as people read it: 0.9663 -> 96.6 %."""
     return f"{100 * v:.1f} %"
+
+
+def pooled_text(c1: dict) -> str:
+    """Configuration 1 for people: mean +/- std and the range, or, when every split scored the same,
+    that plain fact (a "+/- 0.0 %" reads like one split repeated; the splits do differ)."""
+    accs = list(c1["accuracies"].values())
+    n = len(accs)
+    n_test = round(sum(map(sum, c1["confusion"])) / max(n, 1))
+    if max(accs) - min(accs) < 1e-12:
+        return f"{pct(accs[0])} on each of {n} different splits ({n_test} test cases each)"
+    return f"{pct(c1['mean'])} +/- {pct(c1['std'])} over {n} splits (range {pct(min(accs))} .. {pct(max(accs))})"
 
 
 def _class_table(per_class: dict) -> list[str]:
     lines = ["| class | precision | recall | support |", "|---|---|---|---|"]
     for c, v in per_class.items():
-        lines.append(f"| {c} | {_pct(v['precision'])} | {_pct(v['recall'])} | {v['support']} |")
+        lines.append(f"| {c} | {pct(v['precision'])} | {pct(v['recall'])} | {v['support']} |")
     return lines
 
 
@@ -213,11 +225,11 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "| | BoW + SVM | hand features + SVM (baseline) |",
         "|---|---|---|",
         f"| configuration 1: pooled, stratified random 80/20, {len(c1['accuracies'])} seeds (mean +/- std) | "
-        f"{_pct(c1['mean'])} +/- {_pct(c1['std'])} | {_pct(b1['mean'])} +/- {_pct(b1['std'])} |",
-        f"| configuration 2: leave one subject out (all held-out predictions) | {_pct(c2['accuracy'])} | "
-        f"{_pct(b2['accuracy'])} |",
-        f"| configuration 2: mean +/- std over subjects | {_pct(c2['subject_mean'])} +/- {_pct(c2['subject_std'])} | "
-        f"{_pct(b2['subject_mean'])} +/- {_pct(b2['subject_std'])} |",
+        f"{pct(c1['mean'])} +/- {pct(c1['std'])} | {pct(b1['mean'])} +/- {pct(b1['std'])} |",
+        f"| configuration 2: leave one subject out (all held-out predictions) | {pct(c2['accuracy'])} | "
+        f"{pct(b2['accuracy'])} |",
+        f"| configuration 2: mean +/- std over subjects | {pct(c2['subject_mean'])} +/- {pct(c2['subject_std'])} | "
+        f"{pct(b2['subject_mean'])} +/- {pct(b2['subject_std'])} |",
         "",
         f"Splits: configuration 1 = {c1['split']}. Configuration 2 = {c2['split']}.",
         "",
@@ -227,7 +239,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "|---|---|---|",
     ]
     for s, acc in c2["per_subject"].items():
-        lines.append(f"| {s} | {_pct(acc)} | {_pct(b2['per_subject'][s])} |")
+        lines.append(f"| {s} | {pct(acc)} | {pct(b2['per_subject'][s])} |")
     lines += ["", "Per class, configuration 1 (summed over seeds):", "", *_class_table(c1["per_class"]),
               "", "Per class, configuration 2:", "", *_class_table(c2["per_class"]), ""]
     sw = metrics.get("sweep")
@@ -241,8 +253,8 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
             "|---|---|---|---|---|",
         ]
         for r in sw["rows"]:
-            lines.append(f"| {r['param']} | {r[r['param']]} | {r.get('kernel', 'rbf')} | {_pct(r['accuracy'])} | "
-                         f"{_pct(r.get('std', 0.0))} |")
+            lines.append(f"| {r['param']} | {r[r['param']]} | {r.get('kernel', 'rbf')} | {pct(r['accuracy'])} | "
+                         f"{pct(r.get('std', 0.0))} |")
         lines.append("")
     lines += ["## Figures", ""]
     for title, name in figures.items():

@@ -280,17 +280,18 @@ def run(args) -> int:
 
 def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
+    from trainer.report import pct, pooled_text
+
     tag = "synthetic data, " if metrics["synthetic"] else ""
-    n_seeds = len(metrics["config1"]["accuracies"])
     model = out / "model.onnx"
     lines = [
         f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
         f"never triggered), pads {metrics['pads']}, K={metrics['K']} W={metrics['W']} T={metrics['T']} "
         f"{metrics['kernel']} SVM",
-        f"  leave one subject out: {metrics['loso_accuracy']:.1%} (hand-designed baseline "
-        f"{metrics['baseline_loso_accuracy']:.1%})",
-        f"  pooled 80/20 over {n_seeds} seeds: {metrics['config1_accuracy_mean']:.1%} +/- "
-        f"{metrics['config1_accuracy_std']:.1%} (baseline {metrics['baseline_config1_accuracy_mean']:.1%})",
+        f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
+        f"{pct(metrics['baseline_loso_accuracy'])})",
+        f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
+        f"{pct(metrics['baseline_config1_accuracy_mean'])})",
         f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
         f"  model:  {model} (handover inspect {model}; drop it into the daemon's model folder, deploy/INSTALL.md)"
         if onnx_written else "  model:  no model.onnx written (model.joblib only)",
@@ -329,6 +330,8 @@ def model_metadata(args, ds, metrics: dict) -> dict:
     from runtime import __version__
 
     rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
+    # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
+    folder = {"data_folder": str(Path(args.data).resolve())} if getattr(args, "data", None) else {}
     return {
         "pads": list(ds.pads),
         "pad_sizes": list(ds.pad_sizes),
@@ -338,6 +341,7 @@ def model_metadata(args, ds, metrics: dict) -> dict:
         "training": {
             "data_fingerprint": ds.fingerprint,
             "data": metrics["data"],
+            **folder,
             "synthetic": metrics["synthetic"],
             "n_trials": ds.n_trials,
             "n_cases": len(ds.y),
