@@ -54,18 +54,34 @@ def missing_packages(extra: str | None) -> list[str]:
     return [pkg for pkg in EXTRA_PACKAGES[extra] if importlib.util.find_spec(pkg) is None]
 
 
+def shows_default(action: argparse.Action) -> bool:
+    """An option whose default is worth showing (not None, not an off flag; 0 is a default)."""
+    default = action.default
+    return bool(action.option_strings) and not (
+        default is None or default is False or default == argparse.SUPPRESS
+        or isinstance(action, argparse.BooleanOptionalAction))  # that one says its default itself
+
+
 class HelpFormatter(argparse.HelpFormatter):
     """Every command's ``--help`` shows each option's default (unless the text already says it,
     or there is none to show): one place for all commands."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
-        default = action.default
-        no_default = default is None or default is False or default == argparse.SUPPRESS  # (0 is a default)
-        if ("default" in text.lower() or no_default or not action.option_strings
-                or isinstance(action, argparse.BooleanOptionalAction)):
+        if "default" in text.lower() or not shows_default(action):
             return text
         return f"{text} (default: %(default)s)"
+
+
+def build_parser(name: str, module) -> argparse.ArgumentParser:
+    """The parser of one command, its --help showing every default (also of options without a help text)."""
+    parser = argparse.ArgumentParser(prog=f"handover {name}", description=COMMANDS[name][1],
+                                     formatter_class=HelpFormatter)
+    module.add_arguments(parser)
+    for action in parser._actions:
+        if not action.help and shows_default(action):
+            action.help = "(default: %(default)s)"
+    return parser
 
 
 def _usage() -> str:
@@ -101,16 +117,14 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"handover: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    module_name, help_text, extra = COMMANDS[name]
+    module_name, _help, extra = COMMANDS[name]
     if missing := missing_packages(extra):
         print(f"handover {name}: needs the extra [{extra}] (missing: {', '.join(missing)}); {install_hint(extra)}",
               file=sys.stderr)
         return 2
     try:
         module = importlib.import_module(module_name)
-        parser = argparse.ArgumentParser(prog=f"handover {name}", description=help_text, formatter_class=HelpFormatter)
-        module.add_arguments(parser)
-        args = parser.parse_args(rest)
+        args = build_parser(name, module).parse_args(rest)
         return int(module.main(args) or 0)
     except ModuleNotFoundError as exc:  # a package imported only when the command needs it
         if (exc.name or "").split(".")[0] in OWN_PACKAGES:

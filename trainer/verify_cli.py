@@ -17,7 +17,10 @@ import sys
 import time
 from pathlib import Path
 
-STRIDE = 4
+STRIDE = 8
+SUBJECTS = 2
+"""Defaults sized for a check after each training (a few thousand held-out windows, about a minute on
+a 2-core machine); results/verify_simulated.md ran the thorough ``--subjects 5 --stride 4``."""
 PROGRESS_STEPS = 10
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", help="folder of .hrec recordings (default: the folder the model was trained on, "
                         "if recorded and present; else a held-out simulated protocol)")
     parser.add_argument("--seed", type=int, default=1000, help="simulator seed of the held-out trials (default 1000)")
-    parser.add_argument("--subjects", type=int, default=5, help="simulated subjects (default 5)")
+    parser.add_argument("--subjects", type=int, default=SUBJECTS, help="simulated held-out subjects")
     parser.add_argument("--stride", type=int, default=STRIDE, help="frames between verified window starts")
     parser.add_argument("--stress", action="store_true", help="add the stress cases")
     parser.add_argument("--no-trials", action="store_true", help="stress cases only (implies --stress)")
