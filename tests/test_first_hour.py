@@ -225,3 +225,15 @@ def test_demo_says_the_real_playback_time_and_a_truthful_spread():
     assert pooled_text(same) == "97.3 % on each of 3 different splits (149 test cases each)"
     spread = {**same, "accuracies": {"a": 0.96, "b": 0.99}, "mean": 0.975, "std": 0.021}
     assert "+/- 2.1 %" in pooled_text(spread) and "range 96.0 % .. 99.0 %" in pooled_text(spread)
+
+
+def test_install_notes_install_what_the_unit_names_from_any_folder():
+    unit = (ROOT / "deploy" / "handover.service").read_text()
+    notes = (ROOT / "deploy" / "INSTALL.md").read_text()
+    doc = re.search(r"^Documentation=file://(\S+)$", unit, re.M).group(1)
+    assert re.search(rf'install -D -m 0644 "\$SRC/deploy/INSTALL.md" {re.escape(doc)}', notes)
+    commands = [line for line in notes.splitlines() if line.startswith("sudo ")]
+    assert not [c for c in commands if re.search(r"(?<![/$\w])deploy/", c)], "a command assumes the checkout as cwd"
+    for section in ("without internet", "--no-index --find-links", "## 5. Upgrading", "## 6. Uninstalling",
+                    'scene.pads = "model"'):
+        assert section in notes, section
