@@ -16,14 +16,15 @@ from pathlib import Path
 from tests.tiny_models import tiny_model_bytes, write_model
 
 ROOT = Path(__file__).resolve().parents[1]
-HEAVY = ("sklearn", "scipy", "matplotlib", "onnx", "skl2onnx", "trainer", "tqdm", "joblib", "rosbags")
+HEAVY = ("sklearn", "scipy", "matplotlib", "onnx", "skl2onnx", "trainer", "tqdm", "joblib", "rosbags",
+         "rclpy", "std_msgs", "sensor_msgs", "diagnostic_msgs", "runtime.ros2", "runtime.ros2_node")
 
 _DRIVER = """
 import os, signal, sys, threading, time
 from runtime.cli import main
 threading.Timer(float(sys.argv[2]), lambda: os.kill(os.getpid(), signal.SIGTERM)).start()
 rc = main(["run", "--config", sys.argv[1]])
-heavy = sorted({m.split(".")[0] for m in sys.modules} & set(sys.argv[3].split(",")))
+heavy = sorted(({m.split(".")[0] for m in sys.modules} | set(sys.modules)) & set(sys.argv[3].split(",")))
 print("HEAVY", ",".join(heavy), file=sys.stderr)
 sys.exit(rc)
 """
@@ -51,3 +52,15 @@ def test_streaming_daemon_never_imports_training_packages(tmp_path):
     health = json.loads(status.read_text())
     assert health["frames_received"] > 0 and health["decisions"] > 0, health  # it really streamed and classified, not just started
     assert proc.stdout.strip(), "the tiny model reports events on stdout"
+
+
+def test_the_daemon_install_is_numpy_onnxruntime_pyserial_only():
+    """ROS 2, training and benchmarks live in extras; the robot PC's install stays these three."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    names = sorted(d.split(">")[0].split("=")[0].split("[")[0].strip() for d in project["dependencies"])
+    assert names == ["numpy", "onnxruntime", "pyserial"]
+    extras = project["optional-dependencies"]
+    assert extras["ros"] and all(d.startswith("ros-") for d in extras["ros"])
+    assert not [d for name, deps in extras.items() if name != "ros" for d in deps if d.startswith("ros-")]
