@@ -62,7 +62,7 @@ def events_from_daemon(cmd: list[str], n_events: int, cwd: Path, timeout: float 
             line = proc.stdout.readline()
             if not line:
                 break
-            if line.startswith("{"):
+            if line.startswith("{") and json.loads(line).get("type") == "decision":  # not model announcements
                 events.append(json.loads(line))
     finally:
         proc.send_signal(signal.SIGTERM)

@@ -22,17 +22,21 @@ ALL = {"pads": (0, 1, 2, 3, 4, 5), "pad_sizes": (84, 78, 84, 78, 84, 78)}
 
 
 def _shipped_config(folder: Path, **lines: str) -> Path:
-    """deploy/handover.toml changed only in device URL and folders, and in the given ``key = value`` lines."""
+    """deploy/handover.toml changed only in device URL and folders, and in the given lines
+    (``scene__pads='"distal"'`` sets ``pads`` of ``[scene]``)."""
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "models").mkdir(exist_ok=True)
     text = (ROOT / "deploy" / "handover.toml").read_text()
     text = text.replace('url = "serial:///dev/dsacon32m"', 'url = "sim://?events=4&realtime=0&loop=0"')
     text = text.replace("/var/lib/handover/models", str(folder / "models"))
     text = text.replace("/var/lib/handover/status.json", str(folder / "status.json"))
-    out = []
+    lines = {k.replace("__", "."): v for k, v in lines.items()}
+    out, section = [], ""
     for line in text.splitlines():
-        key = line.split("=")[0].strip().lstrip("# ")
-        out.append(f"{key} = {lines[key]}" if key in lines and "=" in line else line)
+        if line.startswith("["):
+            section = line.strip("[] ")
+        key = f"{section}.{line.split('=')[0].strip().lstrip('# ')}"
+        out.append(f"{key.split('.')[-1]} = {lines[key]}" if key in lines and "=" in line else line)
     path = folder / "handover.toml"
     path.write_text("\n".join(out) + "\n")
     return path
@@ -53,7 +57,7 @@ def test_shipped_config_follows_the_models_pads(tmp_path):
 
 
 def test_pinned_scene_refuses_other_pads_and_says_what_to_do(tmp_path):
-    path = _shipped_config(tmp_path, pads='"distal"')
+    path = _shipped_config(tmp_path, scene__pads='"distal"')
     cfg = load_config(path)
     problem = scene_problem(_model(tmp_path, "all.onnx", **ALL), cfg, SDH2)
     assert "model expects pads [0, 1, 2, 3, 4, 5], the scene uses [1, 3, 5]" in problem
@@ -63,7 +67,7 @@ def test_pinned_scene_refuses_other_pads_and_says_what_to_do(tmp_path):
 
 def test_every_refusal_names_a_fix(tmp_path):
     cfg = load_config(_shipped_config(tmp_path))
-    cont = load_config(_shipped_config(tmp_path / "continuous", mode='"continuous"'))
+    cont = load_config(_shipped_config(tmp_path / "continuous", scene__mode='"continuous"'))
     cases = [
         (cfg, {"pads": (1, 3, 7), "pad_sizes": (78, 78, 78)}, "train a model on recordings of this hand"),
         (cfg, {"pad_sizes": (78, 78, 70)}, "train on recordings of this hand"),
@@ -81,7 +85,8 @@ def test_daemon_with_the_shipped_config_serves_an_all_pads_model(tmp_path):
     from runtime.sdnotify import Notifier
 
     # the simulated hand presses lightly (synthetic): a low trigger level makes every event trigger
-    cfg = load_config(_shipped_config(tmp_path, stdout="false", fraction="0.02", hysteresis="0.01"))
+    cfg = load_config(_shipped_config(tmp_path, sinks__stdout="false", trigger__fraction="0.02",
+                                      trigger__hysteresis="0.01"))
     write_model(tmp_path / "models", "all.onnx", tiny_model_bytes(**ALL))
     events = []
     daemon = Daemon(cfg, notifier=Notifier({}), on_event=events.append)
