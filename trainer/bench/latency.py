@@ -279,7 +279,7 @@ def markdown(res: dict) -> list[str]:
             e = res[key]
             lines.append(f"- {key}: {e['windows_sent']} windows sent (one every {res['window_period_frames']} frames), "
                          f"{e['events']} events received ({e['unmatched']} not matched to a frame), "
-                         f"{e['missed_deadline']} over the deadline; daemon VmRSS {e['rss_mb']} MB.")
+                         f"{e['missed_deadline']} over the deadline; daemon VmRSS {e['rss_mb'] or 0:.1f} MB.")
     lines += ["", "Under load = two busy-loop processes, one per core, during the run." if "e2e_32hz_load" in res
               else "No run under load (add --load)."]
     return lines
