@@ -91,3 +91,17 @@ def test_nan_or_infinite_numbers_never_reach_a_sink(caplog):
     assert json.loads(out.getvalue())["class"] == "pull"
     sinks.close()
     udp.close()
+
+
+def test_decision_line_carries_every_event_field():
+    """to_json spells the fields out (no asdict on the hot path): a new Event field must reach the line."""
+    import dataclasses
+    import json as _json
+
+    from runtime.sinks import Event
+
+    event = Event(1.5, "pull", {"pull": 0.25, "push": -1.0}, 12.34, "abc", 3, 17, 99, True)
+    line = _json.loads(event.to_json())
+    fields = {f.name for f in dataclasses.fields(Event)} - {"cls"} | {"class", "type", "protocol"}
+    assert set(line) == fields
+    assert line["class"] == "pull" and line["latency_us"] == 12.3 and line["missed_deadline"] is True
