@@ -318,7 +318,7 @@ def markdown(res: dict) -> list[str]:
         "about the most a "
         "threshold-triggered daemon does at 32 Hz). Default model (K=10, W=7, T=15, linear, all pads, per-pad).", "",
         "| figure | value |", "|---|---|",
-        f"| replay, hot path (parser + decode + ring + trigger + inference, no socket) | "
+        f"| replay, hot path (parser + decode + plausibility, then the real Daemon.handle_frame; no socket) | "
         f"{h['frames_per_s']:,.0f} frames/s ({h['frames']} frames, {h['decisions']} inferences, {h['seconds']:.2f} s; "
         f"{h['frames_per_s'] / 32:,.0f}x real time) |",
         f"| replay, daemon reading replay://?speed=max (emulator encoding in the same thread) | "
