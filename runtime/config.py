@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 MODES = ("trigger", "continuous")
+TRIGGER_KINDS = ("onset", "threshold")
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
 """The paper's four actions and the trainer's dormant class; a custom model may have others."""
 LOG_LEVELS = ("debug", "info", "warning", "error")
@@ -50,8 +51,19 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class TriggerConfig:
+    """Unset (None) keys take the model's recorded trigger settings, else the default
+    (runtime/trigger_settings.py, ``resolve_trigger``)."""
+
+    kind: str | None = None
+    """``onset`` (the person acts on a settled grasp) or ``threshold`` (the paper's fixed level)."""
+    change: float | None = None
+    """onset: a pad's change against the settled grasp that fires, as a share of it (default 0.08)."""
+    track_tau_s: float | None = None
+    """onset: time constant of the baseline following creep and drift (default 1 s)."""
+    settle_s: float | None = None
+    """onset: how long the grasp must be still before the trigger arms (default 0.2 s)."""
     fraction: float | None = None
-    """Threshold as a fraction of full scale; None takes the model's (paper: 0.15)."""
+    """threshold: level as a fraction of full scale; None takes the model's (paper: 0.15)."""
     hysteresis: float = 0.05
     """Re-arm only once the max drops below (fraction - hysteresis) of full scale."""
     refractory_s: float = 1.5
@@ -82,6 +94,12 @@ class ContinuousConfig:
 
 
 @dataclass(frozen=True)
+class ControlConfig:
+    socket: str | None = None
+    """Unix datagram socket the daemon reads robot messages from (``grasp closed`` / ``grasp open``)."""
+
+
+@dataclass(frozen=True)
 class SinksConfig:
     stdout: bool = True
     udp: tuple[str, ...] = ()
@@ -105,6 +123,7 @@ class Config:
     continuous: ContinuousConfig = field(default_factory=ContinuousConfig)
     sinks: SinksConfig = field(default_factory=SinksConfig)
     onnxruntime: OnnxConfig = field(default_factory=OnnxConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
     log_level: str = "info"
     health_file: str | None = None
     source: str = ""
@@ -137,7 +156,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
-    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime"}
+    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "control"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
     for name in sections:
@@ -192,7 +211,14 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         fraction = _num("trigger.fraction", tr, 0.15)
         if not 0.0 < fraction < 1.0:
             raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
+    kind = tr.get("kind")
+    if kind is not None and kind not in TRIGGER_KINDS:
+        raise ConfigError(f"trigger.kind: must be one of {', '.join(TRIGGER_KINDS)}, got {kind!r}")
     trigger = TriggerConfig(
+        kind=kind,
+        change=_optional_num("trigger.change", tr, lo=0.001, hi=0.99),
+        track_tau_s=_optional_num("trigger.track_tau_s", tr, lo=0.05, hi=600.0),
+        settle_s=_optional_num("trigger.settle_s", tr, lo=0.0, hi=60.0),
         fraction=fraction,
         hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis, lo=0.0, hi=0.99),
         refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s, lo=0.0),
@@ -230,6 +256,13 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         allow_spinning=_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
     )
 
+    ct = data.get("control", {})
+    _no_unknown("control", ct, {f.name for f in fields(ControlConfig)})
+    sock = ct.get("socket")
+    if sock is not None and (not isinstance(sock, str) or not (sock.startswith("/") or sock.startswith("@"))):
+        raise ConfigError(f"control.socket: must be an absolute path or @abstract name, got {sock!r}")
+    control = ControlConfig(socket=sock)
+
     log_level = _str("log_level", data, "info").lower()
     if log_level not in LOG_LEVELS:
         raise ConfigError(f"log_level: must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
@@ -240,7 +273,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         folder = Path(health).expanduser().parent
         if not folder.is_dir():
             raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
-    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, log_level, health,
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, control, log_level, health,
                   warnings=tuple(warnings))
 
 
@@ -292,6 +325,12 @@ def _num(key: str, table: dict, default: float, lo: float | None = None, hi: flo
     if hi is not None and value > hi:
         raise ConfigError(f"{key}: must be <= {hi}, got {value}")
     return float(value)
+
+
+def _optional_num(key: str, table: dict, lo: float, hi: float) -> float | None:
+    """A number in [lo, hi], or None when the key is absent (the model's or the default value applies)."""
+    name = key.rpartition(".")[2]
+    return None if name not in table else _num(key, table, 0.0, lo=lo, hi=hi)
 
 
 def _int(key: str, table: dict, default: int, lo: int | None = None, hi: int | None = None) -> int:

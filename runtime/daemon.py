@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import signal
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
@@ -34,6 +34,7 @@ from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+from runtime.trigger_settings import TriggerSettings, build_trigger, resolve_trigger
 
 log = logging.getLogger("handover.daemon")
 
@@ -100,7 +101,13 @@ class Daemon:
         self.client: Any = None
         self.connected = False
         self.ring: RingBuffer | None = None
-        self.trigger: ThresholdTrigger | ContinuousTrigger | None = None
+        self.trigger: Any = None
+        """ThresholdTrigger, OnsetTrigger (runtime/onset.py) or ContinuousTrigger."""
+        self.trigger_settings: TriggerSettings | None = None
+        self._grasp_requests: deque[tuple[bool, str]] = deque(maxlen=64)
+        self.grasp_closed: bool | None = None
+        """The robot's last word on its grasp (``set_grasp``), None before any."""
+        self.control: Any = None
         self.decision: ContinuousDecision | None = None
         """Continuous mode's report rule (confirm, margin, one report per interaction)."""
         self.watcher: ModelWatcher | None = None
@@ -124,6 +131,40 @@ class Daemon:
 
     def request_reload(self, *_: Any) -> None:
         self._reload = True
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The robot says its grasp has settled (``closed``) or is released; thread-safe.
+
+        Only records the request; the hot path applies it at the next frame (the onset trigger
+        arms on the settled grasp at once, or disarms). Called by the control socket and sinks
+        such as the ROS 2 bridge (``source`` names the caller in the log)."""
+        self._grasp_requests.append((bool(closed), str(source)))
+
+    def _apply_grasp(self) -> None:
+        while self._grasp_requests:
+            closed, source = self._grasp_requests.popleft()
+            self.grasp_closed = closed
+            set_grasp = getattr(self.trigger, "set_grasp", None)
+            if set_grasp is not None:
+                set_grasp(closed)
+            log.info("grasp %s (from %s)", "closed" if closed else "open", source or "a caller")
+
+    def start_control(self) -> None:
+        """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""
+        from runtime.control import ControlSocket
+
+        if self.control is not None or not self.cfg.control.socket:
+            return
+        try:
+            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp).start()
+        except OSError as exc:
+            log.error("%s; running without robot messages", exc)
+            self.health.last_error = str(exc)
+
+    def stop_control(self) -> None:
+        if self.control is not None:
+            self.control.stop()
+            self.control = None
 
     def install_signal_handlers(self) -> None:
         signal.signal(signal.SIGTERM, self.request_stop)
@@ -194,16 +235,15 @@ class Daemon:
         cols = self.layout.columns(self.cfg.scene.pads)
         meta = self.model.meta if self.model is not None else None
         T = int(meta.T) if meta else 15
-        tcfg = self.cfg.trigger
-        pre = tcfg.pre_frames if tcfg.pre_frames is not None else int((meta.trigger if meta else {}).get("pre_frames", 0))
-        capacity = max(64, 2 * (T + pre))
+        settings = resolve_trigger(self.cfg.trigger, meta.trigger if meta else None)
+        self.trigger_settings = settings
+        capacity = max(64, 2 * (T + settings.pre_frames))
         if self.ring is None or not keep_history or self.ring.columns.size != cols.size or not np.array_equal(
             self.ring.columns, cols
         ):
             self.ring = RingBuffer(cols, capacity)
         elif self.ring.capacity < capacity:
             self.ring = self.ring.resized(capacity)
-        rate = 1.0 / self.period_s
         old = self.trigger
         self.decision = None
         if self.cfg.scene.mode == "continuous":
@@ -214,16 +254,13 @@ class Daemon:
                     len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
                     min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
         else:
-            fraction = tcfg.fraction if tcfg.fraction is not None else float(meta.trigger["fraction"]) if meta else 0.15
             fullscale = float(meta.fullscale) if meta else self.layout.fullscale
-            self.trigger = ThresholdTrigger(
-                int(cols.size), fullscale, fraction=fraction, hysteresis=min(tcfg.hysteresis, fraction * 0.99),
-                refractory_frames=math.ceil(tcfg.refractory_s * rate), window=T, pre_frames=min(pre, T - 1),
-                rearm_frames=max(1, math.ceil(tcfg.rearm_quiet_s * rate - 1e-9)),
-                baseline=tcfg.baseline, baseline_alpha=min(1.0, 1.0 / max(1.0, tcfg.baseline_tau_s * rate)),
-            )
-            if isinstance(old, ThresholdTrigger) and keep_history:
+            pad_sizes = self.layout.pad_sizes(self.cfg.scene.pads)
+            self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s)
+            if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
                 self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
+            elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
+                self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
         self._pending.clear()
 
     # -- device ---------------------------------------------------------------------------------
@@ -333,6 +370,8 @@ class Daemon:
             self.frames_seen.append(frame.number)
         ring = self.ring
         ring.push(frame.values, frame.number)
+        if self._grasp_requests:
+            self._apply_grasp()
         due = self.trigger.update(ring.latest(), frame.number)
         if self.model is None:
             return
@@ -420,6 +459,9 @@ class Daemon:
             log.warning("%s", warning)
         self.sinks.close()
         self.sinks = SinkSet.from_config(new.sinks, self.stream)
+        if new.control != old.control:
+            self.stop_control()
+            self.start_control()
         if new.health_file != old.health_file:
             self.status_file = StatusFile(new.health_file) if new.health_file else None
         if new.device.url != old.device.url:
@@ -446,6 +488,7 @@ class Daemon:
         for warning in self.cfg.warnings:
             log.warning("%s", warning)
         self._start_watcher()
+        self.start_control()
         self.notifier.ready(self.health.status_line())
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
                  self.cfg.scene.pads, self.cfg.scene.mode)
@@ -482,6 +525,7 @@ class Daemon:
         self.notifier.stopping()
         if self.watcher is not None:
             self.watcher.stop(timeout=0.5)
+        self.stop_control()
         self._close_client(stop_timeout=SHUTDOWN_STOP_S)
         self.health.device_state = "stopped" if not self.fatal else "failed"
         if self.fatal:
