@@ -39,9 +39,10 @@ ONSET_TRACK_TAU_S = 1.0
 ONSET_SETTLE_S = 0.2
 ONSET_SETTLE_CHANGE = 0.02
 """A grasp is settled when no pad changed by 2 % of its level from one frame to the next for 0.2 s."""
-ONSET_PRE_FRAMES = 2
-"""The onset trigger fires a frame or two after the person's onset: the window starts 2 frames
-before the trigger, so it holds the onset."""
+ONSET_PRE_FRAMES = 0
+"""The window starts at the trigger frame (a frame or two after the person's onset). Chosen by
+leave-one-subject-out on the training protocol (simulated, seed 0, default model): the window
+from 0 / 1 / 2 frames before the trigger scores 97.0 / 96.1 / 93.2 % (all 900 trials cut)."""
 
 
 @dataclass(frozen=True)
@@ -91,8 +92,6 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
     if model_trigger is not None and "kind" not in recorded:
         recorded["kind"] = "threshold"  # cut before the onset trigger existed
     default = TriggerSettings(kind=str(cfg.kind or recorded.get("kind") or DEFAULT_KIND))
-    if default.kind == "threshold":
-        default = TriggerSettings(kind="threshold", pre_frames=0)
     chosen: dict[str, Any] = {}
     for name in _FROM_MODEL:
         value = getattr(cfg, name, None)
