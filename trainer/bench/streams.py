@@ -21,8 +21,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from trainer import streams_eval as se
 from trainer.bench.common import command_line, load_average, load_note, machine_info, write_results
 

@@ -47,11 +47,11 @@ def markdown(r: dict, load_text: str) -> list[str]:
         f"- the demo's scripted session ({d['expected']} events, unseen simulated subjects, synthetic): "
         f"**{d['correct']}/{d['expected']} right ({_pct(d['correct_fraction'])})**, {d['missed']} missed, "
         f"{d['outside']} outside any scripted event, {d['repeats']} repeats",
-        f"- test streams (synthetic, unseen subjects and hand): event F1 (macro over classes) "
+        "- test streams (synthetic, unseen subjects and hand): event F1 (macro over classes) "
         + ", ".join(f"{m} {_f(v)}" for m, v in r["sim_event_f1"].items()),
         f"- continuous mode: {_pct(r['continuous_events_correct_fraction'])} of events right, hold recall "
         f"{_pct(r['continuous_hold_recall'])}",
-        f"- median onset-to-report (frames; T = 15): "
+        "- median onset-to-report (frames; T = 15): "
         + ", ".join(f"{m} {_f(v, '.0f')}" for m, v in r["onset_to_report_median_frames"].items()),
         "",
     ]
@@ -85,7 +85,7 @@ def _test_table(r: dict) -> list[str]:
         src = t[m]["idle"]["false_by_source"]
         lines.append(f"| {m} | " + " | ".join(str(src.get(k, 0)) for k in
                                                ("quiet", "arm_move", "regrasp", "grasp", "release", "open")) + " |")
-    return lines + [""]
+    return [*lines, ""]
 
 
 def _per_class(r: dict) -> list[str]:
@@ -99,7 +99,7 @@ def _per_class(r: dict) -> list[str]:
         pc = t[m]["mixed"]["per_class"]
         lines.append(f"| {m} | " + " | ".join(
             f"{_f(pc[c]['precision'])} / {_f(pc[c]['recall'])}" if c in pc else "-" for c in classes) + " |")
-    return lines + [""]
+    return [*lines, ""]
 
 
 def _choice(r: dict) -> list[str]:
@@ -118,7 +118,7 @@ def _choice(r: dict) -> list[str]:
         d = x["delay_frames"] or {}
         lines.append(f"| {m}{' (chosen)' if m == r['default_setting'] else ''} | {x['correct']} | {x['wrong_class']} | "
                      f"{x['missed']} | {x['duplicates']} | {false} | {v[m]['utility']} | {_f(d.get('median'), '.0f')} |")
-    return lines + [""]
+    return [*lines, ""]
 
 
 def _demo(r: dict) -> list[str]:
@@ -140,7 +140,7 @@ def _demo(r: dict) -> list[str]:
                   + (", ".join(f"#{e['event']} {e['action']}" for e in d["missed_events"]) or "none")
                   + "; wrong " + (", ".join(f"#{e['event']} {e['action']} read as {e['reported']}"
                                             for e in d["wrong_events"]) or "none") + "."]
-    return lines + [""]
+    return [*lines, ""]
 
 
 def _real(r: dict) -> list[str]:
@@ -169,4 +169,4 @@ def _real(r: dict) -> list[str]:
     skipped = [row for row in real["rows"] if "skipped" in row]
     for row in skipped:
         lines.append(f"- skipped `{row['file']}`: {row['skipped']}")
-    return lines + [""]
+    return [*lines, ""]
