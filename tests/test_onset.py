@@ -206,3 +206,43 @@ def test_a_control_socket_that_cannot_bind_is_one_error_not_fatal(tmp_path, capl
     with caplog.at_level(logging.ERROR, logger="handover.daemon"):
         daemon.start_control()
     assert daemon.control is None and "cannot bind" in caplog.text
+
+
+# -- continuous mode: a hold is a change of level, which the level features see -----------------------
+def _windows(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    X = np.zeros((n, sum(PADS), 15), dtype=np.float32)
+    t = np.arange(15) / 14.0
+    for i in range(n):
+        level = rng.uniform(800, 1500)
+        shape = {"dormant": np.ones(15), "hold": 1.0 + rng.uniform(0.1, 0.25) * t,
+                 "bump": 1.0 + 0.5 * np.exp(-0.5 * ((np.arange(15) - rng.uniform(4, 10)) / 1.0) ** 2)}[kind]
+        for p in range(3):
+            X[i, CONTACT[p], :] = level * shape * (1 + 0.01 * rng.standard_normal((20, 15)))
+    return X
+
+
+def test_continuous_mode_reports_a_hold_once(tmp_path):
+    from runtime.model import load_model
+    from trainer import dormant
+    from trainer.classifier import BowSVC
+
+    rng = np.random.default_rng(0)
+    kinds = ("dormant", "hold", "bump")
+    X = np.concatenate([_windows(k, 40, rng) for k in kinds])
+    y = np.repeat(kinds, 40)
+    model = BowSVC(n_words=4, window=3, kernel="rbf", C=10.0, gamma=0.05, per_pad=True, pad_sizes=PADS,
+                   level_features=True, scale_features=True).fit(X, y)
+    path = dormant.export(model, tmp_path / "five.onnx", pads=(1, 3, 5), pad_sizes=PADS, fullscale=4095.0,
+                          fraction=PAPER_FRACTION, sample_rate_hz=RATE, dormant_class="dormant",
+                          training={"data_fingerprint": "test", "n_trials": 0})
+    cfg = config_from_dict({"scene": {"mode": "continuous", "events": ["hold", "bump"]}, "continuous": {"confirm_frames": 4},
+                            "sinks": {"stdout": False}, "log_level": "warning"})
+    events: list = []
+    daemon = Daemon(cfg, on_event=events.append)
+    daemon.serve(load_model(path), LAYOUT)
+    levels = np.full((260, 3), 1200.0)
+    levels[100:125] *= (1.0 + 0.2 * np.arange(25) / 24.0)[:, None]  # a person grips: +20 % over 0.8 s
+    levels[125:] *= 1.2  # ... and holds
+    for frame in _frames(levels):
+        daemon.handle_frame(frame)
+    assert [e.cls for e in events] == ["hold"] and 100 <= events[0].frame_last <= 125
