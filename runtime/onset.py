@@ -10,10 +10,14 @@ against a baseline that follows the *settled* grasp:
   action still going on, a regrasp). The baseline is the current pressure; once every pad has
   changed by less than ``settle_change`` of its level from frame to frame for ``settle_frames``
   frames in a row (and ``refractory_frames`` have passed since the last trigger), it arms.
-- ``armed``: the baseline tracks slow changes (creep of the rubber, drift of the force control)
-  with time constant ``tau_frames``; the trigger fires when any pad's pressure departs from its
-  baseline by ``change`` of that baseline (at least ``change x floor``, so an unloaded pad needs
-  a real contact). A departure in which no pad rose (every pad lost pressure) is the hand
+- ``armed``: the baseline follows slow changes (creep of the rubber, drift of the force control):
+  a level and a trend per pad (Holt's linear tracker: the prediction is level + trend, the level
+  takes ``1 / tau_frames`` of each frame's error and the trend ``1 / (4 tau_frames)``), the trend
+  started from the last frames of settling. Real pads creep far more than the simulator's: a
+  static weight keeps rising by about 1 % of its level per frame for seconds, which a plain
+  tracked level lags behind by tens of per cent. The trigger fires when any pad's pressure
+  departs from the prediction by ``change`` of the level (at least ``change x floor``, so an
+  unloaded pad needs a real contact). A departure in which no pad rose (every pad lost pressure) is the hand
   letting go or re-seating its grasp, not a person: it goes back to ``settling`` without firing.
 
 The robot may say when its grasp has settled or is released (``set_grasp``): ``closed`` arms
@@ -31,6 +35,8 @@ from __future__ import annotations
 import numpy as np
 
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
+TREND_SETTLE = 0.25
+"""While settling, the trend is an average of the last few frames' change (weight of the newest)."""
 RELEASE_RISE = 0.25
 """A departure whose largest rise is below this share of ``change`` counts as a release (noise on
 an unloaded pad must not turn the hand letting go into an event)."""
@@ -76,6 +82,8 @@ class OnsetTrigger:
         self._p = np.zeros(n, dtype=np.float64)
         self._prev = np.zeros(n, dtype=np.float64)
         self._base = np.zeros(n, dtype=np.float64)
+        self._trend = np.zeros(n, dtype=np.float64)
+        """Per-frame change of the settled grasp (creep), started while settling, tracked while armed."""
         self._dev = np.zeros(n, dtype=np.float64)
         self._scale = np.zeros(n, dtype=np.float64)
         self._request: bool | None = None
@@ -122,6 +130,7 @@ class OnsetTrigger:
             self.robot_open = False
             self.state = ARMED
             self._base[:] = p
+            self._trend[:] = 0.0
         else:
             self.robot_open = True
             self.state = OPEN
@@ -130,10 +139,12 @@ class OnsetTrigger:
         self.state = SETTLING
         self.quiet = 0
         self._prev[:] = p
+        self._trend[:] = 0.0
 
     def _settle(self, p: np.ndarray, number: int) -> None:
         np.maximum(self._prev, self.floor, out=self._scale)
         np.subtract(p, self._prev, out=self._dev)
+        self._trend += TREND_SETTLE * (self._dev - self._trend)
         np.abs(self._dev, out=self._dev)
         self.level = float((self._dev / self._scale).max())
         self.quiet = self.quiet + 1 if self.level < self.settle_change else 0
@@ -143,14 +154,17 @@ class OnsetTrigger:
             self._base[:] = p
 
     def _watch(self, p: np.ndarray, number: int) -> int:
-        base = self._base
+        base, trend = self._base, self._trend
+        base += trend  # the prediction for this frame
         np.maximum(base, self.floor, out=self._scale)
         np.subtract(p, base, out=self._dev)
+        error = self._dev.copy()
         self._dev /= self._scale
         rise = float(self._dev.max())
         self.level = max(rise, -float(self._dev.min()))
         if self.level < self.change:
-            base += self.alpha * (p - base)  # creep and drift: follow slow changes of the settled grasp
+            base += self.alpha * error  # creep and drift: follow slow changes of the settled grasp
+            trend += 0.25 * self.alpha * error
             return -1
         self._start_settling(p)
         if rise < RELEASE_RISE * self.change:  # no pad rose: the hand lets go or re-seats, nobody pulled

@@ -70,7 +70,7 @@ def test_one_trigger_per_interaction_while_the_pressure_wobbles():
     wobble = np.where((t >= 150) & (t < 190), 0.25 * np.abs(np.sin((t - 150) / 3.0)), 0.0)  # 1.2 s of push and dips
     levels[:, 1] *= 1.0 + wobble
     trig = _trigger()
-    assert fires(trig, rows_of(levels)) == [150 + 1]
+    assert len(out := fires(trig, rows_of(levels))) == 1 and 150 <= out[0] <= 153
     assert trig.state == ARMED  # settled again after the interaction: ready for the next one
 
 

@@ -11,6 +11,8 @@ do. The modes, the same streams for all:
 - ``onset``: the onset trigger (runtime/onset.py: per-pad change against the settled grasp) + a 4-class model;
 - ``onset_robot``: the same, and the robot says when its grasp has settled and when it lets go
   (``Daemon.set_grasp``, as the control socket or the ROS 2 topic would; ``robot_messages``);
+- ``onset_dormant``: the onset trigger + the 5-class model with a dormant class (a window it reads
+  as dormant is not reported);
 - ``continuous``: every frame classified by the 5-class model with a dormant class.
 """
 
@@ -24,9 +26,10 @@ import numpy as np
 
 from firmware_io.recording import Recording
 
-MODES = ("threshold", "baseline", "onset", "onset_robot", "continuous")
+MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous")
 TRIGGER_TABLE = {"threshold": {"kind": "threshold"}, "baseline": {"kind": "threshold", "baseline": True},
-                 "onset": {"kind": "onset"}, "onset_robot": {"kind": "onset"}, "continuous": {}}
+                 "onset": {"kind": "onset"}, "onset_robot": {"kind": "onset"}, "onset_dormant": {"kind": "onset"},
+                 "continuous": {}}
 """The ``[trigger]`` config table of each mode (unset keys: the model's recorded settings, else the defaults)."""
 ROBOT_SETTLE_S = 0.3
 """The simulated robot says ``grasp closed`` this long after its 0.3 s closing ramp has ended."""

@@ -9,6 +9,7 @@ MODE_TEXT = {
     "baseline": "threshold above a tracked per-taxel baseline + 4-class model",
     "onset": "onset trigger (per-pad change against the settled grasp) + 4-class model",
     "onset_robot": "onset trigger + the robot's `grasp closed` / `grasp open` + 4-class model",
+    "onset_dormant": "onset trigger + 5-class model (a window read as dormant is not reported)",
     "continuous": "continuous, 5-class model with dormant class and level features + report rule",
 }
 
@@ -39,7 +40,9 @@ def markdown(r: dict, load_text: str) -> list[str]:
         lines.append(f"- real SDH-2 recordings without a handover: {real['files']} files, {real['hours']:.2f} h: "
                      f"**{_f(r['real_idle_false_events_per_hour'])} false events per hour** with the default setting "
                      f"({real['events'][chosen]} events); by mode: "
-                     + ", ".join(f"{m} {_f(v)}/h" for m, v in real["false_per_hour"].items()))
+                     + ", ".join(f"{m} {_f(v)}/h" for m, v in real["false_per_hour"].items())
+                     + f"; without the ~70 Hz frequency-analysis files ({real['hours_at_model_rate']:.2f} h): "
+                     + ", ".join(f"{m} {_f(v)}/h" for m, v in real["false_per_hour_at_model_rate"].items()))
     else:
         lines.append("- real recordings: not found (set HANDOVER_SHARED_DATA), no real figure")
     d = r["demo"][chosen]
