@@ -20,10 +20,13 @@ import os
 import socket
 import stat
 import threading
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger("handover.control")
+daemon_log = logging.getLogger("handover.daemon")
 
 MAX_DATAGRAM = 512
 POLL_S = 0.2
@@ -116,3 +119,51 @@ class ControlSocket:
             with contextlib.suppress(OSError):
                 if stat.S_ISSOCK(os.lstat(self.address).st_mode):
                     os.unlink(self.address)
+
+
+class GraspControl:
+    """The daemon's side of the robot's grasp messages (mixed into ``runtime.daemon.Daemon``).
+
+    Expects ``cfg``, ``health``, ``trigger``, ``control``, ``grasp_closed`` and ``_grasp_requests``
+    (a deque) on the instance; the hot path calls ``_apply_grasp`` when requests are queued.
+    """
+
+    cfg: Any
+    health: Any
+    trigger: Any
+    control: ControlSocket | None
+    grasp_closed: bool | None
+    _grasp_requests: deque
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The robot says its grasp has settled (``closed``) or is released; thread-safe.
+
+        Only records the request; the hot path applies it at the next frame (the onset trigger
+        arms on the settled grasp at once, or disarms). Called by the control socket and sinks
+        such as the ROS 2 bridge (``source`` names the caller in the log)."""
+        self._grasp_requests.append((bool(closed), str(source)))
+
+    def _apply_grasp(self) -> None:
+        while self._grasp_requests:
+            closed, source = self._grasp_requests.popleft()
+            self.grasp_closed = closed
+            set_grasp = getattr(self.trigger, "set_grasp", None)
+            if set_grasp is not None:
+                set_grasp(closed)
+            daemon_log.info("grasp %s (from %s)", "closed" if closed else "open", source or "a caller")
+
+    def start_control(self) -> None:
+        """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""
+        if self.control is not None or not self.cfg.control.socket:
+            return
+        try:
+            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp).start()
+        except OSError as exc:
+            daemon_log.error("%s; running without robot messages", exc)
+            self.health.last_error = str(exc)
+
+    def stop_control(self) -> None:
+        if self.control is not None:
+            self.control.stop()
+            self.control = None
+

@@ -27,6 +27,7 @@ import numpy as np
 
 from firmware_io.layout import LayoutError, SensorLayout
 from runtime.config import Config, ConfigError, load_config
+from runtime.control import ControlSocket, GraspControl
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
@@ -77,7 +78,7 @@ def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None, check_ev
     return None
 
 
-class Daemon:
+class Daemon(GraspControl):
     """The long-running service. ``run()`` returns the exit code."""
 
     def __init__(
@@ -107,7 +108,7 @@ class Daemon:
         self._grasp_requests: deque[tuple[bool, str]] = deque(maxlen=64)
         self.grasp_closed: bool | None = None
         """The robot's last word on its grasp (``set_grasp``), None before any."""
-        self.control: Any = None
+        self.control: ControlSocket | None = None
         self.decision: ContinuousDecision | None = None
         """Continuous mode's report rule (confirm, margin, one report per interaction)."""
         self.watcher: ModelWatcher | None = None
@@ -131,40 +132,6 @@ class Daemon:
 
     def request_reload(self, *_: Any) -> None:
         self._reload = True
-
-    def set_grasp(self, closed: bool, source: str = "") -> None:
-        """The robot says its grasp has settled (``closed``) or is released; thread-safe.
-
-        Only records the request; the hot path applies it at the next frame (the onset trigger
-        arms on the settled grasp at once, or disarms). Called by the control socket and sinks
-        such as the ROS 2 bridge (``source`` names the caller in the log)."""
-        self._grasp_requests.append((bool(closed), str(source)))
-
-    def _apply_grasp(self) -> None:
-        while self._grasp_requests:
-            closed, source = self._grasp_requests.popleft()
-            self.grasp_closed = closed
-            set_grasp = getattr(self.trigger, "set_grasp", None)
-            if set_grasp is not None:
-                set_grasp(closed)
-            log.info("grasp %s (from %s)", "closed" if closed else "open", source or "a caller")
-
-    def start_control(self) -> None:
-        """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""
-        from runtime.control import ControlSocket
-
-        if self.control is not None or not self.cfg.control.socket:
-            return
-        try:
-            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp).start()
-        except OSError as exc:
-            log.error("%s; running without robot messages", exc)
-            self.health.last_error = str(exc)
-
-    def stop_control(self) -> None:
-        if self.control is not None:
-            self.control.stop()
-            self.control = None
 
     def install_signal_handlers(self) -> None:
         signal.signal(signal.SIGTERM, self.request_stop)
