@@ -291,7 +291,7 @@ def build_dataset(
     if hysteresis < 0:
         raise DatasetError(f"trigger hysteresis must be >= 0, got {hysteresis}")
     cols = layout.columns(pad_idx)
-    cutter = _Cutter(settings, layout.pad_sizes(pad_idx), fullscale, hysteresis, T)
+    pad_sizes = layout.pad_sizes(pad_idx)
 
     cases, labels, skipped = [], [], []
     intervals = []
@@ -300,7 +300,7 @@ def build_dataset(
             intervals.append(rec.sample_interval())
         rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
         for trial in rec.trials:
-            window = cutter.cut(rec, trial, cols, rate)
+            window = _cut(rec, trial, cols, rate, settings, pad_sizes, fullscale, hysteresis, T)
             if isinstance(window, str):
                 skipped.append(SkippedTrial(trial.subject, trial.object, trial.pose, trial.action, trial.run, window))
                 continue
@@ -337,32 +337,23 @@ def build_dataset(
     )
 
 
-@dataclass(frozen=True)
-class _Cutter:
+def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, settings: TriggerSettings,
+         pad_sizes: tuple[int, ...], fullscale: float, hysteresis: float, T: int) -> tuple[int, np.ndarray] | str:
     """One trial -> (window start, T frames) or the reason there is none, with the daemon's trigger."""
-
-    settings: TriggerSettings
-    pad_sizes: tuple[int, ...]
-    fullscale: float
-    hysteresis: float
-    T: int
-
-    def cut(self, rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float) -> tuple[int, np.ndarray] | str:
-        frames, _ = rec.trial_frames(trial)
-        selected = frames[:, cols]
-        s, T = self.settings, self.T
-        if s.kind == "onset":
-            trig, why = onset_start(selected, self.pad_sizes, self.fullscale, s, T, rate_hz)
-        else:
-            trig, why = rising_trigger(selected, self.fullscale, s.fraction, self.hysteresis)
-        if trig < 0:
-            return str(why)
-        start = trig - min(int(s.pre_frames), T - 1)
-        if start < 0:
-            return f"triggered too early: frame {trig}, {trig - start} frames before it needed"
-        if start + T > len(selected):
-            return f"triggered too late: frame {trig} of {len(selected)}, {T} frames needed"
-        return start, selected[start : start + T]
+    frames, _ = rec.trial_frames(trial)
+    selected = frames[:, cols]
+    if settings.kind == "onset":
+        trig, why = onset_start(selected, pad_sizes, fullscale, settings, T, rate_hz)
+    else:
+        trig, why = rising_trigger(selected, fullscale, settings.fraction, hysteresis)
+    if trig < 0:
+        return str(why)
+    start = trig - min(int(settings.pre_frames), T - 1)
+    if start < 0:
+        return f"triggered too early: frame {trig}, {trig - start} frames before it needed"
+    if start + T > len(selected):
+        return f"triggered too late: frame {trig} of {len(selected)}, {T} frames needed"
+    return start, selected[start : start + T]
 
 
 def _relative_onset(onset, trial: Trial) -> int:

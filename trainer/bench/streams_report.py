@@ -65,13 +65,17 @@ def markdown(r: dict, load_text: str) -> list[str]:
     return lines
 
 
+def _sizes(info: dict) -> str:
+    return (f"{info['seed']}: {info['events']} scripted events in {info['mixed_hours']:.2f} h of mixed stream (idle "
+            f"holds between them) + {info['idle_hours']:.2f} h of idle stream, synthetic")
+
+
 def _test_table(r: dict) -> list[str]:
     t = r["test"]
     info = t["_info"]
     lines = ["## Test streams (synthetic, run once)", "",
-             f"Mixed stream: {info['events']} scripted events (unseen subjects, another hand) with idle holds between "
-             f"them ({info['mixed_hours']:.2f} h); idle stream {info['idle_hours']:.2f} h (creep, drift, arm moves, "
-             "regrasps, grasp and release, open hand). A scripted event owns the frames from 2 before its onset to "
+             f"Seed {_sizes(info)}; unseen subjects and another hand; the idle stream holds creep, drift, arm moves, "
+             "regrasps, grasp and release, open hand. A scripted event owns the frames from 2 before its onset to "
              "its end; its first report there is its answer, later ones are duplicates; reports outside are false.", "",
              "| mode | right / n | F1 (macro) | missed | wrong | duplicates | onset-to-report median / p90 (frames) | "
              "false / h (idle stream) | false / h (mixed, idle part) |", "|---|---|---|---|---|---|---|---|---|"]
@@ -109,10 +113,9 @@ def _choice(r: dict) -> list[str]:
     v = r["validation"]
     info = v["_info"]
     lines = ["## How the default was chosen", "",
-             f"On validation streams of their own seed ({info['seed']}: {info['events']} events, "
-             f"{info['mixed_hours']:.2f} h mixed + {info['idle_hours']:.2f} h idle, synthetic), before the test streams "
-             f"were generated, among the settings the daemon runs without the robot ({', '.join(r['candidates'])}); "
-             f"criterion: {r['criterion']}. `onset_robot` is listed for comparison (the robot's messages are optional).",
+             f"On validation streams of their own seed ({_sizes(info)}), before the test streams were generated, among "
+             f"the settings the daemon runs without the robot ({', '.join(r['candidates'])}); criterion: "
+             f"{r['criterion']}. `onset_robot` is listed for comparison (the robot's messages are optional).",
              "", "| mode | right | wrong | missed | duplicates | false events | utility | median onset-to-report |",
              "|---|---|---|---|---|---|---|---|"]
     for m in se.MODES:
