@@ -13,7 +13,7 @@ against a baseline that follows the *settled* grasp:
 - ``armed``: the baseline follows slow changes (creep of the rubber, drift of the force control):
   a level and a trend per pad (Holt's linear tracker: the prediction is level + trend, the level
   takes ``1 / tau_frames`` of each frame's error and the trend ``1 / (4 tau_frames)``), the trend
-  started from the last frames of settling. Real pads creep far more than the simulator's: a
+  starting from zero when the trigger arms. Real pads creep far more than the simulator's: a
   static weight keeps rising by about 1 % of its level per frame for seconds, which a plain
   tracked level lags behind by tens of per cent. The trigger fires when any pad's pressure
   departs from the prediction by ``change`` of the level (at least ``change x floor``, so an
@@ -35,8 +35,8 @@ from __future__ import annotations
 import numpy as np
 
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
-TREND_SETTLE = 0.25
-"""While settling, the trend is an average of the last few frames' change (weight of the newest)."""
+TREND_GAIN = 0.25
+"""The trend takes this share of the level's correction (Holt's beta)."""
 RELEASE_RISE = 0.25
 """A departure whose largest rise is below this share of ``change`` counts as a release (noise on
 an unloaded pad must not turn the hand letting go into an event)."""
@@ -144,7 +144,6 @@ class OnsetTrigger:
     def _settle(self, p: np.ndarray, number: int) -> None:
         np.maximum(self._prev, self.floor, out=self._scale)
         np.subtract(p, self._prev, out=self._dev)
-        self._trend += TREND_SETTLE * (self._dev - self._trend)
         np.abs(self._dev, out=self._dev)
         self.level = float((self._dev / self._scale).max())
         self.quiet = self.quiet + 1 if self.level < self.settle_change else 0
@@ -164,7 +163,7 @@ class OnsetTrigger:
         self.level = max(rise, -float(self._dev.min()))
         if self.level < self.change:
             base += self.alpha * error  # creep and drift: follow slow changes of the settled grasp
-            trend += 0.25 * self.alpha * error
+            trend += TREND_GAIN * self.alpha * error
             return -1
         self._start_settling(p)
         if rise < RELEASE_RISE * self.change:  # no pad rose: the hand lets go or re-seats, nobody pulled

@@ -26,10 +26,15 @@ from typing import Any
 DEFAULT_KIND = "onset"
 PAPER_FRACTION = 0.15
 """The paper's trigger level: any taxel at 15 % of full scale."""
-ONSET_CHANGE = 0.08
-"""A pad's pressure departing from the settled grasp by 8 % fires. Above the slow effects the
-baseline lags behind (creep of the rubber: about 2.5 %/s just after a close, x a 1 s tracking
-time constant) plus pad-sum noise (about 0.5 % per frame on a loaded pad) with margin."""
+ONSET_CHANGE = 0.12
+"""A pad's pressure departing from the settled grasp's prediction by 12 % fires. Chosen on the
+validation seed (2; a 60-event session and 15 min of idle stream, synthetic) by the rule "most
+onsets caught within [-2, +8] frames minus extra fires minus fires in the idle stream" over
+change 0.08 / 0.12 x trend gain 0 / 1/16 / 1/4 x trend started while settling or not: 0.12 with
+the trend (56 of 60 onsets, 26 idle fires, mostly arm moves) against 0.08 (57, 42). The trend
+itself (runtime/onset.py) was added on physical grounds, after seeing a real pad creep ~1 % per
+frame under a static calibration weight (the simulator's creep is 0.08 %/frame); the same script
+printed the fires on the real recordings too, which are the test set of results/streams.md."""
 ONSET_FLOOR = 0.25
 """Changes of a pad are measured against at least this x full scale of summed pressure (an
 unloaded pad must gain a real contact, 0.08 x 0.25 x 4095 = 82 counts, before it fires)."""

@@ -54,7 +54,7 @@ def test_onset_fires_when_the_person_acts_not_at_the_close_nor_on_creep():
     push = np.clip((np.arange(400) - 200) / 5.0, 0, 1) * np.exp(-np.clip(np.arange(400) - 230, 0, None) / 10.0)
     levels[:, 0] *= 1.0 + 0.3 * push  # a push on pad 0 from frame 200
     trig = _trigger()
-    assert fires(trig, rows_of(levels)) == [201]  # one frame after the onset; nothing at the close (20) or on creep
+    assert len(out := fires(trig, rows_of(levels))) == 1 and 200 <= out[0] <= 203  # not at the close (20), not on creep
 
 
 def test_the_hand_letting_go_is_not_an_event():
