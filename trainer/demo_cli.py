@@ -26,6 +26,9 @@ from pathlib import Path
 import numpy as np
 
 COMMAND = "demo"
+SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
+STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
+"""Training data of the 5-class stream model (as ``handover bench streams`` trains it)."""
 SESSION_SEED_OFFSET = 1000
 """The scripted session's seed = training seed + this: its subjects are not the trained ones."""
 
@@ -38,9 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
                         "as possible (latency figures then include queueing)")
     parser.add_argument("--fault", default="", help="faults the emulator injects, e.g. crc=0.01,garbage=0.01")
-    parser.add_argument("--trigger", choices=("onset", "threshold"), default=None,
-                        help="what starts a window (default: the daemon's default, the onset trigger, chosen in "
-                        "results/streams.md; threshold = the paper's 15 %% level)")
+    parser.add_argument("--setting", choices=SETTINGS, default=None,
+                        help="stream setting (default: the one results/streams.md chose by its rule, "
+                        "trainer.streams_eval.DEFAULT_SETTING): onset = onset trigger + 4-class model, onset_dormant "
+                        "= onset trigger + 5-class model with a dormant class, continuous = every frame classified, "
+                        "threshold = the paper's 15 %% level")
     parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/model.onnx exists")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="only the summary")
@@ -56,21 +61,29 @@ def _say(args: argparse.Namespace, text: str) -> None:
         print(text, file=sys.stderr if args.json else sys.stdout, flush=True)
 
 
+def setting_of(args: argparse.Namespace) -> str:
+    from trainer.streams_eval import DEFAULT_SETTING
+
+    return args.setting or DEFAULT_SETTING
+
+
 def train_model(args: argparse.Namespace, out: Path) -> Path:
-    """Simulate, train, evaluate and export via ``handover train``; reuse an earlier model unless --retrain."""
+    """Simulate, train, evaluate and export (``handover train``, or the 5-class stream model for the
+    settings that need one); reuse an earlier model unless --retrain."""
     from trainer import train_cli
 
+    setting = setting_of(args)
     report = out / "report"
-    model = report / "model.onnx"
+    model = report / ("stream-model.onnx" if setting in ("onset_dormant", "continuous") else "model.onnx")
     stamp = report / "demo-args.json"
-    from runtime.config import TriggerConfig
-    from runtime.trigger_settings import resolve_trigger
-
-    trigger = resolve_trigger(TriggerConfig(kind=args.trigger)).kind
-    wanted = {"seed": args.seed, "pads": args.pads, "trigger": trigger}
+    wanted = {"seed": args.seed, "pads": args.pads, "model": model.name,
+              "trigger": "threshold" if setting == "threshold" else "onset"}
     if model.is_file() and not args.retrain and stamp.is_file() and json.loads(stamp.read_text()) == wanted:
         _say(args, f"[1-2/4] reusing the trained model {model} (--retrain to train again)")
         return model
+    if model.name == "stream-model.onnx":
+        return _train_stream_model(args, model, stamp, wanted)
+    trigger = wanted["trigger"]
     _say(args, f"[1/4] simulating the paper's protocol (synthetic, seed {args.seed}) and [2/4] training ...")
     parser = argparse.ArgumentParser()
     train_cli.add_arguments(parser)
@@ -85,6 +98,21 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
                f"triggered); leave-one-subject-out accuracy {metrics['loso_accuracy']:.1%}, pooled 80/20 "
                f"{metrics['config1_accuracy_mean']:.1%} +/- {metrics['config1_accuracy_std']:.1%}; "
                f"report {report / 'report.md'}")
+    return model
+
+
+def _train_stream_model(args: argparse.Namespace, model: Path, stamp: Path, wanted: dict) -> Path:
+    """The 5-class model with a dormant class and level features (trainer.dormant.fit_stream_model)."""
+    from firmware_io.simulate import simulate_protocol
+    from trainer.dormant import fit_stream_model
+
+    _say(args, f"[1/4] simulating the paper's protocol, {STREAM_MODEL_IDLE_MIN:g} min of idle stream and "
+               f"{STREAM_MODEL_SESSIONS} handovers (synthetic, seed {args.seed}) and [2/4] training the 5-class "
+               "stream model (actions + dormant, level features) ...")
+    model.parent.mkdir(parents=True, exist_ok=True)
+    fit_stream_model(simulate_protocol(seed=args.seed), args.seed, STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS,
+                     model, pads=args.pads)
+    stamp.write_text(json.dumps(wanted))
     return model
 
 
@@ -146,7 +174,7 @@ def main(args: argparse.Namespace) -> int:
 
     cfg = Config(
         device=DeviceConfig(url=server.url, stall_timeout_s=2.0, reconnect_min_s=0.2, reconnect_max_s=1.0),
-        scene=SceneConfig(pads=args.pads),
+        scene=SceneConfig(pads=args.pads, mode="continuous" if setting_of(args) == "continuous" else "trigger"),
         model=ModelConfig(folder=str(model_dir), poll_interval_s=0.5),
         sinks=SinksConfig(stdout=False),
         log_level="warning",
@@ -189,6 +217,7 @@ def main(args: argparse.Namespace) -> int:
     o = session_outcomes(decisions, trials)
     summary = {
         "synthetic": True,
+        "setting": setting_of(args),
         "trigger": daemon.trigger_settings.name if daemon.trigger_settings else None,
         "events_expected": o["expected"],
         "events_detected": o["detected"],
@@ -239,7 +268,7 @@ def _print_summary(s: dict) -> None:
                                    f"(onset {e['onset']})" for e in s["wrong_events"]) or "none"))
     if s["report_minus_onset_frames"]:
         print(f"  onset to report: median {s['report_minus_onset_frames']['median']:.0f} frames "
-              f"(trigger: {s['trigger']})")
+              f"(stream setting: {s['setting']})")
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
           f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
           f"missed deadlines {s['missed_deadlines']}")

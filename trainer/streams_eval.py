@@ -31,6 +31,9 @@ TRIGGER_TABLE = {"threshold": {"kind": "threshold"}, "baseline": {"kind": "thres
                  "onset": {"kind": "onset"}, "onset_robot": {"kind": "onset"}, "onset_dormant": {"kind": "onset"},
                  "continuous": {}}
 """The ``[trigger]`` config table of each mode (unset keys: the model's recorded settings, else the defaults)."""
+DEFAULT_SETTING = "onset_dormant"
+"""The stream setting ``handover demo`` runs by default: the one ``handover bench streams`` chose
+by its rule on validation streams (results/streams.md, "How the default was chosen")."""
 ROBOT_SETTLE_S = 0.3
 """The simulated robot says ``grasp closed`` this long after its 0.3 s closing ramp has ended."""
 EARLY_FRAMES = 2

@@ -31,13 +31,10 @@ DEMO_EVENTS = 40
 CANDIDATES = ("threshold", "baseline", "onset", "onset_dormant", "continuous")
 """Stream settings the daemon runs without any input but the pads (the default must not need the robot)."""
 CRITERION = ("utility = right first reports - wrong first reports - duplicates - false events, on the validation "
-             "mixed stream plus the validation idle stream (every bad report costs what a good one gains); "
-             "ties: the shorter median onset-to-report time")
+             "mixed stream plus the validation idle stream (synthetic) plus the real validation recordings (every "
+             "other real file in sorted order, none holds a handover: every event there is false); every bad report "
+             "costs what a good one gains; ties: the shorter median onset-to-report time")
 PART_S = 900.0
-DORMANT_KERNEL, DORMANT_C = "rbf", 1000.0
-"""The 5-class model's SVM: RBF with C = 1000, what ``handover dormant``'s grid chose for it
-(results/dormant.md); gamma by the usual inner cross-validation. With standardised level features
-the grid's large C (1e4, 1e6) did not converge within many minutes."""
 SIZES = {
     "full": {"runs": 5, "train_idle_min": 10.0, "train_sessions": 60, "val_events": 60, "val_idle_h": 0.25,
              "test_events": 100, "test_idle_h": 1.0},
@@ -48,8 +45,7 @@ SIZES = {
 
 def train_models(work: Path, seed: int, s: dict, say) -> dict:
     """Export and load the three models every mode needs (synthetic training data, ``seed``)."""
-    from firmware_io.sim.idle import simulate_idle
-    from firmware_io.simulate import demo_script, simulate_protocol, simulate_session
+    from firmware_io.simulate import simulate_protocol
     from runtime.model import load_model
     from runtime.trigger_settings import PAPER_FRACTION
     from trainer import dormant
@@ -67,19 +63,8 @@ def train_models(work: Path, seed: int, s: dict, say) -> dict:
         paths[name] = export_onnx(model, work / f"{name}.onnx", export_metadata(ds, model, seed=seed))
     say(f"streams: training the 5-class model (dormant, level features) on {s['train_idle_min']:g} min of idle "
         f"stream and {s['train_sessions']} handovers ...")
-    n_parts = max(1, round(s["train_idle_min"] / 10))
-    idle = [simulate_idle(60.0 * s["train_idle_min"] / n_parts, seed=seed, part=p) for p in range(n_parts)]
-    sessions = [simulate_session(demo_script(s["train_sessions"], seed=seed, gap=(4.0, 6.0)), seed=seed)]
-    dds = dormant.build_dormant_dataset(protocol, idle, T=DEFAULT_PARAMS["T"], pads=DEFAULT_PARAMS["pads"], seed=seed,
-                                        sessions=sessions)
-    five = BowSVC(n_words=DEFAULT_PARAMS["K"], window=DEFAULT_PARAMS["W"], kernel=DORMANT_KERNEL, C=DORMANT_C, per_pad=True,
-                  pad_sizes=dds.pad_sizes, random_state=seed, level_features=True, scale_features=True,
-                  fullscale=dds.fullscale).fit(dds.X, dds.y)
-    paths["continuous"] = dormant.export(
-        five, work / "dormant.onnx", pads=dds.pads, pad_sizes=dds.pad_sizes, fullscale=dds.fullscale,
-        fraction=PAPER_FRACTION, sample_rate_hz=1.0 / protocol[0].sample_interval(), dormant_class=dormant.DORMANT,
-        training={"data_fingerprint": dds.fingerprint, "n_trials": len(dds.y), "n_cases": len(dds.y), "synthetic": True,
-                  "windows": dds.summary(), "seed": seed, "level_features": True})
+    paths["continuous"] = dormant.fit_stream_model(protocol, seed, s["train_idle_min"], s["train_sessions"],
+                                                   work / "dormant.onnx")
     loaded = {k: load_model(p) for k, p in paths.items()}
     return {"threshold": loaded["threshold"], "baseline": loaded["threshold"], "onset": loaded["onset"],
             "onset_robot": loaded["onset"], "onset_dormant": loaded["continuous"], "continuous": loaded["continuous"]}
@@ -128,11 +113,16 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
     return out
 
 
-def choose(val: dict) -> str:
-    """CRITERION over CANDIDATES on the validation streams."""
+def choose(val: dict, real: dict | None) -> str:
+    """CRITERION over CANDIDATES on the validation streams and the real validation recordings."""
+    for mode in CANDIDATES:
+        real_false = real["split"]["validation"]["events"].get(mode, 0) if real else 0
+        val[mode]["real_validation_false_events"] = real_false
+        val[mode]["utility_with_real"] = val[mode]["utility"] - real_false
+
     def key(mode: str) -> tuple:
         d = val[mode]["mixed"]["delay_frames"]
-        return (val[mode]["utility"], -(d["median"] if d else 1e9))
+        return (val[mode]["utility_with_real"], -(d["median"] if d else 1e9))
 
     return max(CANDIDATES, key=key)
 
@@ -164,7 +154,7 @@ def real_files(root: Path) -> list[tuple[Path, str, str]]:
                 "then span 0.2 s instead of the 0.47 s the models were trained on",
     }
     out = []
-    for path in find_sources(root):
+    for path in sorted(find_sources(root)):
         text = str(path).lower()
         cat = ("fast" if "frequency_analysis" in text else "calibration" if "calibration" in text
                else "grasps" if "grasps" in text or "/bin/" in text else "slip" if "slip" in text else
@@ -179,7 +169,7 @@ def evaluate_real(models: dict, root: Path, say) -> dict:
 
     modes = [m for m in se.MODES if m != "onset_robot"]  # no robot messages were recorded
     rows = []
-    for path, cat, why in real_files(root):
+    for k, (path, cat, why) in enumerate(real_files(root)):
         try:
             rec = import_any(path)
         except Exception as exc:  # a file the importers refuse is listed, not counted
@@ -187,7 +177,7 @@ def evaluate_real(models: dict, root: Path, say) -> dict:
             continue
         hours = float(rec.timestamps[-1] - rec.timestamps[0]) / 3600.0 if rec.n_frames > 1 else 0.0
         row = {"file": str(path.relative_to(root)), "category": cat, "why_idle": why, "frames": rec.n_frames,
-               "hours": hours, "events": {}}
+               "hours": hours, "split": "validation" if k % 2 == 0 else "test", "events": {}}
         for mode in modes:
             try:
                 row["events"][mode] = [d.cls for d in se.replay(rec, models[mode], mode)]
@@ -205,6 +195,13 @@ def evaluate_real(models: dict, root: Path, say) -> dict:
         c["hours"] += r["hours"]
         for m in modes:
             c[m] += len(r["events"].get(m, ()))
+    split = {}
+    for name in ("validation", "test"):
+        part = [r for r in used if r["split"] == name]
+        h = sum(r["hours"] for r in part)
+        n = {m: sum(len(r["events"].get(m, ())) for r in part) for m in modes}
+        split[name] = {"files": len(part), "hours": h, "events": n,
+                       "false_per_hour": {m: n[m] / h if h else None for m in modes}}
     at_rate = [r for r in used if r["category"] != "fast"]
     hours_at_rate = sum(r["hours"] for r in at_rate)
     per_mode_at_rate = {m: sum(len(r["events"].get(m, ())) for r in at_rate) for m in modes}
@@ -213,7 +210,7 @@ def evaluate_real(models: dict, root: Path, say) -> dict:
             "hours_at_model_rate": hours_at_rate,
             "false_per_hour_at_model_rate": {m: per_mode_at_rate[m] / hours_at_rate if hours_at_rate else None
                                              for m in modes},
-            "by_category": by_cat, "rows": rows}
+            "by_category": by_cat, "split": split, "rows": rows}
 
 
 def run(args) -> dict:
@@ -226,12 +223,12 @@ def run(args) -> dict:
     with tempfile.TemporaryDirectory(prefix="handover-streams-") as tmp:
         models = train_models(Path(tmp), args.seed, s, say)
         val = evaluate_sim(models, args.seed + VAL_OFFSET, s["val_events"], s["val_idle_h"], say, "validation")
-        chosen = choose(val)
+        root = default_data_dir()
+        real = evaluate_real(models, root, say) if root.is_dir() else None
+        chosen = choose(val, real)
         say(f"streams: chosen stream setting on validation: {chosen}")
         test = evaluate_sim(models, args.seed + TEST_OFFSET, s["test_events"], s["test_idle_h"], say, "test")
         demo = demo_session(models, chosen, args.seed)
-        root = default_data_dir()
-        real = evaluate_real(models, root, say) if root.is_dir() else None
     result = summary(test, val, chosen, demo, real)
     result.update(synthetic_streams=True, sizes=s, seed=args.seed, machine=machine_info(),
                   command=command_line(NAME, args), load_before=load_before, load_after=load_average(),
@@ -249,8 +246,11 @@ def summary(test: dict, val: dict, chosen: str, demo: dict, real: dict | None) -
     cont = test["continuous"]["mixed"]
     hold = cont["per_action"].get("hold", {"n": 0, "correct": 0})
     d = demo[chosen]
+    from trainer.streams_eval import DEFAULT_SETTING
+
     return {
         "default_setting": chosen,
+        "default_setting_in_code": DEFAULT_SETTING,
         "demo_events_correct_fraction": d["correct_fraction"],
         "demo_events_outside": d["outside"],
         "demo_repeats": d["repeats"],
@@ -266,4 +266,6 @@ def summary(test: dict, val: dict, chosen: str, demo: dict, real: dict | None) -
         "real_idle_false_events_per_hour": real["false_per_hour"].get(chosen) if real else None,
         "real_idle_false_events_per_hour_by_mode": real["false_per_hour"] if real else None,
         "real_idle_false_events_per_hour_at_model_rate": real["false_per_hour_at_model_rate"] if real else None,
+        "real_test_half_hours": real["split"]["test"]["hours"] if real else None,
+        "real_test_half_false_events_per_hour": real["split"]["test"]["false_per_hour"].get(chosen) if real else None,
     }

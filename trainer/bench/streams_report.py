@@ -42,7 +42,9 @@ def markdown(r: dict, load_text: str) -> list[str]:
                      f"({real['events'][chosen]} events); by mode: "
                      + ", ".join(f"{m} {_f(v)}/h" for m, v in real["false_per_hour"].items())
                      + f"; without the ~70 Hz frequency-analysis files ({real['hours_at_model_rate']:.2f} h): "
-                     + ", ".join(f"{m} {_f(v)}/h" for m, v in real["false_per_hour_at_model_rate"].items()))
+                     + ", ".join(f"{m} {_f(v)}/h" for m, v in real["false_per_hour_at_model_rate"].items())
+                     + f"; on the real test half alone (files not used to choose, {real['split']['test']['hours']:.2f} h): "
+                     f"{_f(r['real_test_half_false_events_per_hour'])}/h with the default setting")
     else:
         lines.append("- real recordings: not found (set HANDOVER_SHARED_DATA), no real figure")
     d = r["demo"][chosen]
@@ -116,14 +118,20 @@ def _choice(r: dict) -> list[str]:
              f"On validation streams of their own seed ({_sizes(info)}), before the test streams were generated, among "
              f"the settings the daemon runs without the robot ({', '.join(r['candidates'])}); criterion: "
              f"{r['criterion']}. `onset_robot` is listed for comparison (the robot's messages are optional).",
-             "", "| mode | right | wrong | missed | duplicates | false events | utility | median onset-to-report |",
-             "|---|---|---|---|---|---|---|---|"]
+             "", "| mode | right | wrong | missed | duplicates | false events (synthetic) | false events (real "
+             "validation files) | utility | median onset-to-report |", "|---|---|---|---|---|---|---|---|---|"]
     for m in se.MODES:
         x = v[m]["mixed"]
         false = x["false_events"] + v[m]["idle"]["false_events"]
         d = x["delay_frames"] or {}
         lines.append(f"| {m}{' (chosen)' if m == r['default_setting'] else ''} | {x['correct']} | {x['wrong_class']} | "
-                     f"{x['missed']} | {x['duplicates']} | {false} | {v[m]['utility']} | {_f(d.get('median'), '.0f')} |")
+                     f"{x['missed']} | {x['duplicates']} | {false} | {v[m].get('real_validation_false_events', '-')} | "
+                     f"{v[m].get('utility_with_real', v[m]['utility'])} | {_f(d.get('median'), '.0f')} |")
+    if r.get("real"):
+        sp = r["real"]["split"]
+        lines += ["", f"Real validation recordings: {sp['validation']['files']} files, {sp['validation']['hours']:.2f} h; "
+                  f"real test recordings: {sp['test']['files']} files, {sp['test']['hours']:.2f} h, false events per "
+                  "hour there: " + ", ".join(f"{m} {_f(x)}" for m, x in sp["test"]["false_per_hour"].items()) + "."]
     return [*lines, ""]
 
 
