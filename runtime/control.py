@@ -133,6 +133,7 @@ class GraspControl:
     trigger: Any
     control: ControlSocket | None
     grasp_closed: bool | None
+    grasp_request: tuple[bool, str] | None
     _grasp_requests: deque
 
     def set_grasp(self, closed: bool, source: str = "") -> None:
@@ -141,16 +142,18 @@ class GraspControl:
         Only records the request; the hot path applies it at the next frame (the onset trigger
         arms on the settled grasp at once, or disarms). Called by the control socket and sinks
         such as the ROS 2 bridge (``source`` names the caller in the log)."""
-        self._grasp_requests.append((bool(closed), str(source)))
+        request = (bool(closed), str(source))
+        self.grasp_request = request  # the latest call, for status and tests
+        self._grasp_requests.append(request)
+        daemon_log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
 
     def _apply_grasp(self) -> None:
         while self._grasp_requests:
-            closed, source = self._grasp_requests.popleft()
+            closed, _source = self._grasp_requests.popleft()
             self.grasp_closed = closed
             set_grasp = getattr(self.trigger, "set_grasp", None)
             if set_grasp is not None:
                 set_grasp(closed)
-            daemon_log.info("grasp %s (from %s)", "closed" if closed else "open", source or "a caller")
 
     def start_control(self) -> None:
         """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""

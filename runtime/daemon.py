@@ -33,7 +33,7 @@ from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
-from runtime.sinks import Event, SinkSet
+from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
 from runtime.trigger_settings import TriggerSettings, build_trigger, resolve_trigger
 
@@ -96,7 +96,11 @@ class Daemon(GraspControl):
         self.on_event = on_event
         self.health = Health()
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
-        self.sinks = SinkSet.from_config(cfg.sinks, stream)
+        self.latest_frame: Any = None
+        """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
+        self.grasp_request: tuple[bool, str] | None = None
+        """The latest ``set_grasp`` call: (closed, source)."""
+        self.sinks = SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self)
         self.model: Any = None
         self.layout: SensorLayout | None = None
         self.client: Any = None
@@ -184,11 +188,12 @@ class Daemon(GraspControl):
         self.watcher.start()
 
     def _use_model(self, model: Any) -> None:
-        """Swap the serving model (one reference assignment) and fit the hot path to it."""
+        """Swap the serving model (one reference assignment), fit the hot path to it, announce it."""
         old = self.model
         self.model = model
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
+        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
         self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
         self._build_hot_path(keep_history=True)
         what = "swapped in" if old is not None else "serving"
@@ -335,6 +340,7 @@ class Daemon(GraspControl):
         self._last_ts = ts
         if self.frames_seen is not None:
             self.frames_seen.append(frame.number)
+        self.latest_frame = frame
         ring = self.ring
         ring.push(frame.values, frame.number)
         if self._grasp_requests:
@@ -403,8 +409,10 @@ class Daemon(GraspControl):
         self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
         self.notifier.status(h.status_line())
+        snapshot = h.snapshot()
         if self.status_file is not None:
-            self.status_file.write(h.snapshot())
+            self.status_file.write(snapshot)
+        self.sinks.health(snapshot)
 
     def _do_reload(self) -> None:
         self._reload = False
@@ -425,7 +433,7 @@ class Daemon(GraspControl):
         for warning in new.warnings:
             log.warning("%s", warning)
         self.sinks.close()
-        self.sinks = SinkSet.from_config(new.sinks, self.stream)
+        self.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self)
         if new.control != old.control:
             self.stop_control()
             self.start_control()
@@ -478,6 +486,7 @@ class Daemon(GraspControl):
                     continue
                 if frame is None:
                     if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
+                        self.health.stalls += 1
                         self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)")
                     continue
                 self._last_frame_t = time.monotonic()
