@@ -58,7 +58,7 @@ class TriggerConfig:
     kind: str | None = None
     """``onset`` (the person acts on a settled grasp) or ``threshold`` (the paper's fixed level)."""
     change: float | None = None
-    """onset: a pad's change against the settled grasp that fires, as a share of it (default 0.08)."""
+    """onset: a pad's change against the settled grasp that fires, as a share of it (default 0.12)."""
     track_tau_s: float | None = None
     """onset: time constant of the baseline following creep and drift (default 1 s)."""
     settle_s: float | None = None

@@ -37,7 +37,7 @@ frame under a static calibration weight (the simulator's creep is 0.08 %/frame);
 printed the fires on the real recordings too, which are the test set of results/streams.md."""
 ONSET_FLOOR = 0.25
 """Changes of a pad are measured against at least this x full scale of summed pressure (an
-unloaded pad must gain a real contact, 0.08 x 0.25 x 4095 = 82 counts, before it fires)."""
+unloaded pad must gain a real contact, 0.12 x 0.25 x 4095 = 123 counts, before it fires)."""
 ONSET_CONTACT = 0.02
 """Summed scene pressure below this x full scale is an empty hand."""
 ONSET_TRACK_TAU_S = 1.0

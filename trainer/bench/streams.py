@@ -230,7 +230,10 @@ def run(args) -> dict:
         test = evaluate_sim(models, args.seed + TEST_OFFSET, s["test_events"], s["test_idle_h"], say, "test")
         demo = demo_session(models, chosen, args.seed)
     result = summary(test, val, chosen, demo, real)
+    from runtime.trigger_settings import resolve_trigger
+
     result.update(synthetic_streams=True, sizes=s, seed=args.seed, machine=machine_info(),
+                  onset_trigger=resolve_trigger().to_meta(),
                   command=command_line(NAME, args), load_before=load_before, load_after=load_average(),
                   seconds=round(time.perf_counter() - t0, 1), criterion=CRITERION, candidates=list(CANDIDATES),
                   validation=val, test=test, demo=demo, real=real)

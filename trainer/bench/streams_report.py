@@ -61,7 +61,11 @@ def markdown(r: dict, load_text: str) -> list[str]:
         "",
     ]
     lines += _test_table(r) + _per_class(r) + _choice(r) + _demo(r) + _real(r)
+    trig = r.get("onset_trigger") or {}
     lines += ["", "## Notes", "", load_text,
+              f"Onset trigger settings (runtime/trigger_settings.py, where their choice is written down): change "
+              f"{trig.get('change')}, floor {trig.get('floor')} x full scale, baseline tau {trig.get('track_tau_s')} s, "
+              f"settle {trig.get('settle_s')} s, window from {trig.get('pre_frames')} frames before the trigger.",
               f"Sizes: {r['sizes']}; training seed {r['seed']}, validation seed {r['seed'] + 2}, test seed "
               f"{r['seed'] + 1}. The simulator was not changed for this benchmark. {r['seconds']:.0f} s."]
     return lines
