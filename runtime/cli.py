@@ -26,7 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("runtime.daemon_cli", "the detection daemon (systemd service)"),
     "record": ("firmware_io.record_cli", "record a subject session following the paper's protocol"),
     "plot": ("trainer.plot_cli", "plot a trial of a recording"),
-    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput, streams (events in live streams)"),
+    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput, hostile, streams (events in live streams)"),
     "compare": ("trainer.compare_cli", "side by side: paper BoW, richer options, baseline, flattened SVM, MiniRocket (accuracy + latency)"),
     "dormant": ("trainer.dormant_cli", "dormant class + continuous mode vs the threshold trigger on long simulated streams"),
 }
