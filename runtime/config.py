@@ -33,6 +33,9 @@ RANGES: dict[str, tuple[float, float]] = {
     "trigger.rearm_quiet_s": (0.0, 60.0),
     "trigger.baseline_tau_s": (0.01, 86400.0),
     "trigger.pre_frames": (0, 1000),
+    "trigger.change": (0.001, 0.99),
+    "trigger.track_tau_s": (0.05, 600.0),
+    "trigger.settle_s": (0.0, 60.0),
     "continuous.confirm_frames": (1, 1000),
     "continuous.min_margin": (0.0, 1000.0),
     "continuous.rearm_frames": (0, 100000),
@@ -283,9 +286,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         raise ConfigError(f"trigger.kind: must be one of {', '.join(TRIGGER_KINDS)}, got {kind!r}")
     trigger = TriggerConfig(
         kind=kind,
-        change=_optional_num("trigger.change", tr, lo=0.001, hi=0.99),
-        track_tau_s=_optional_num("trigger.track_tau_s", tr, lo=0.05, hi=600.0),
-        settle_s=_optional_num("trigger.settle_s", tr, lo=0.0, hi=60.0),
+        change=_optional_num("trigger.change", tr),
+        track_tau_s=_optional_num("trigger.track_tau_s", tr),
+        settle_s=_optional_num("trigger.settle_s", tr),
         fraction=fraction,
         hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
         refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
@@ -421,17 +424,13 @@ def _num(key: str, table: dict, default: float) -> float:
     return float(_in_range(key, value))
 
 
-<<<<<<< HEAD
-def _optional_num(key: str, table: dict, lo: float, hi: float) -> float | None:
-    """A number in [lo, hi], or None when the key is absent (the model's or the default value applies)."""
+def _optional_num(key: str, table: dict) -> float | None:
+    """A number in ``RANGES[key]``, or None when the key is absent (the model's or the default value applies)."""
     name = key.rpartition(".")[2]
-    return None if name not in table else _num(key, table, 0.0, lo=lo, hi=hi)
+    return None if name not in table else _num(key, table, 0.0)
 
 
-def _int(key: str, table: dict, default: int, lo: int | None = None, hi: int | None = None) -> int:
-=======
 def _int(key: str, table: dict, default: int) -> int:
->>>>>>> main
     value = table.get(key.rpartition(".")[2], default)
     if isinstance(value, bool) or not isinstance(value, int):
         raise ConfigError(f"{key}: must be an integer, got {value!r}")
