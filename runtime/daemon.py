@@ -25,7 +25,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from firmware_io.layout import LayoutError, SensorLayout
+from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.control import ControlSocket, GraspControl
 from runtime.decision import ContinuousDecision
@@ -34,10 +34,13 @@ from runtime.model_watch import ModelWatcher, Rejection
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore, store_path
 from runtime.ring import RingBuffer
+from runtime.scene import events_problem, scene_pads, scene_problem
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
 from runtime.trigger_settings import TriggerSettings, build_trigger, resolve_trigger
+
+__all__ = ["Daemon", "events_problem", "scene_problem"]  # the last two are re-exported for run --check
 
 log = logging.getLogger("handover.daemon")
 
@@ -47,35 +50,6 @@ HEALTH_PERIOD_S = 1.0
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 DEFAULT_RATE_HZ = 32.0
-def events_problem(model: Any, events: tuple[str, ...]) -> str | None:
-    """``scene.events: 'pul' is not a class of model X (classes: ...)``, or None."""
-    classes = list(model.meta.classes)
-    missing = [e for e in events if e not in classes]
-    if not missing:
-        return None
-    names = ", ".join(repr(e) for e in missing)
-    verb = "is not a class" if len(missing) == 1 else "are not classes"
-    return f"scene.events: {names} {verb} of model {model.model_id} (classes: {', '.join(classes)})"
-
-
-def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None, check_events: bool = True) -> str | None:
-    """Why a model cannot serve this scene (pads, channels, classes, mode), or None."""
-    meta = model.meta
-    lay = layout or SensorLayout.sdh2()
-    try:
-        pads = lay.pads(cfg.scene.pads)
-    except LayoutError as exc:
-        return f"scene.pads: {exc}"
-    if tuple(meta.pads) != tuple(pads):
-        return f"model expects pads {list(meta.pads)}, the scene uses {list(pads)} (scene.pads = {cfg.scene.pads!r})"
-    n = sum(lay.pad_sizes(pads))
-    if meta.n_channels != n:
-        return f"model expects {meta.n_channels} taxel columns, the device's pads {list(pads)} have {n}"
-    if check_events and (problem := events_problem(model, cfg.scene.events)):
-        return problem
-    if cfg.scene.mode == "continuous" and meta.dormant_class is None:
-        return "scene.mode = 'continuous' needs a model with a dormant class; this one has none"
-    return None
 
 
 class Daemon(GraspControl):
@@ -211,7 +185,8 @@ class Daemon(GraspControl):
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""
         if self.layout is None:
             return
-        cols = self.layout.columns(self.cfg.scene.pads)
+        pads = scene_pads(self.cfg, self.model, self.layout)
+        cols = self.layout.columns(pads)
         meta = self.model.meta if self.model is not None else None
         T = int(meta.T) if meta else 15
         settings = resolve_trigger(self.cfg.trigger, meta.trigger if meta else None)
@@ -234,7 +209,7 @@ class Daemon(GraspControl):
                     min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
         else:
             fullscale = float(meta.fullscale) if meta else self.layout.fullscale
-            pad_sizes = self.layout.pad_sizes(self.cfg.scene.pads)
+            pad_sizes = self.layout.pad_sizes(pads)
             self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s)
             if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
                 self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
