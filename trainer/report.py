@@ -178,6 +178,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "",
         "## Model",
         "",
+        f"Feature families: {', '.join(metrics.get('families', ['bow']))} (trainer/feature_svc.py). "
         f"BoW: K = {metrics['K']} words, "
         + (f"W = {metrics['W']}" if len(metrics.get("windows", [0])) < 2 else
            f"windows W = {', '.join(str(w) for w in metrics['windows'])} (one codebook each)")
