@@ -17,7 +17,7 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
-from trainer.bow import BagOfWords
+from trainer.bow import BagOfWords, as_cases
 from trainer.classifier import SVMHead, check_training_data, choose_svm_params
 
 FAMILIES = ("bow", "stats", "rocket", "hand")
@@ -92,6 +92,12 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     def transform_histograms(self, X) -> np.ndarray:
         """The concatenated features before scaling (the graph's ``histogram`` tensor)."""
         check_is_fitted(self, "blocks_")
+        X = as_cases(X)
+        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
+            raise ValueError(
+                f"X has {X.shape[1] * X.shape[2]} features, but {type(self).__name__} is expecting "
+                f"{self.n_features_in_} features as input ({self.n_channels_} channels x {self.n_timepoints_} "
+                f"timepoints, got {X.shape[1]} x {X.shape[2]})")
         return np.concatenate([block.transform(X) for _, block in self.blocks_], axis=1)
 
     def svm_input(self, hist: np.ndarray) -> np.ndarray:
