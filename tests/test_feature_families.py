@@ -13,7 +13,7 @@ from tests.conftest import real_data_dir
 from tests.onnx_fixtures import PAD_SIZES, T, export, frames_of, synthetic_cases
 from trainer.feature_svc import FeatureSVC
 from trainer.features import HandGraphFeatures, PadStats, RandomConvPPV
-from trainer.features.signals import pad_signals, pad_shapes_for
+from trainer.features.signals import pad_shapes_for, pad_signals
 from trainer.numerics import SAFETY
 from trainer.stress import stress_cases
 from trainer.verify import GraphRunner, compare
@@ -78,7 +78,7 @@ def test_rocket_kernels_and_biases():
 
     k = minirocket_kernels()
     assert k.shape == (84, 9) and np.all(k.sum(axis=1) == 0) and len({tuple(r) for r in k}) == 84
-    X, y = synthetic_cases(n=40, seed=1)
+    X, _ = synthetic_cases(n=40, seed=1)
     fam = RandomConvPPV(dilations=(1, 2), n_biases=2, pad_sizes=PAD_SIZES).fit(X)
     F = fam.transform(X)
     assert F.shape == (40, 2 * 84 * 2 * 4 * 2) and F.min() >= 0 and F.max() <= 1
@@ -116,14 +116,13 @@ def test_default_classifier_fits_and_predicts(n_frames):
 
 
 def test_select_chooses_within_the_budget_and_reports_runners_up():
+    import tempfile
     from argparse import Namespace
     from pathlib import Path
 
     from tests.protocol_standin import write_standin
     from trainer.dataset import build_dataset
     from trainer.select import markdown_lines, select_model
-
-    import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         write_standin(Path(tmp), n_subjects=3, runs=2, silent=0)
@@ -132,7 +131,7 @@ def test_select_chooses_within_the_budget_and_reports_runners_up():
         ds = build_dataset(load_all(find_recordings(tmp)), T=12, pads="distal")
     args = Namespace(K=5, W=4, C=None, gamma=None, seed=0, per_pad=True, level_features=False, windows=None,
                      assignment="hard", temperature=1.0, scale_features=False, latency_budget_us=None)
-    candidates = (("stats rbf", ("stats",), "rbf"), ("stats+bow rbf", ("stats", "bow"), "rbf"))
+    candidates = (("stats rbf", ("stats",), "rbf", {}), ("stats+bow rbf", ("stats", "bow"), "rbf", {}))
     sel = select_model(ds, args, candidates=candidates)
     assert sel.split == "leave one subject out" and {r.name for r in sel.rows} == {"stats rbf", "stats+bow rbf"}
     assert all(len(r.fold_accuracies) == 3 and r.p99_us > 0 for r in sel.rows)

@@ -33,12 +33,12 @@ def candidate_estimator(name: str, pad_sizes, pad_shapes, seed: int = 0):
     from trainer.feature_svc import FeatureSVC
     from trainer.select import CANDIDATES
 
-    _, families, kernel = next(c for c in CANDIDATES if c[0] == name)
+    _, families, kernel, settings = next(c for c in CANDIDATES if c[0] == name)
     if families == ("bow",):
         return BowSVC(n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], kernel=kernel, per_pad=True,
-                      pad_sizes=tuple(pad_sizes), random_state=seed)
+                      pad_sizes=tuple(pad_sizes), random_state=seed, **settings)
     return FeatureSVC(families=families, pad_sizes=tuple(pad_sizes), pad_shapes=pad_shapes, kernel=kernel,
-                      n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], random_state=seed)
+                      n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], random_state=seed, **settings)
 
 
 def _inner_accuracy(est, X, y, splits, n_jobs: int) -> float:

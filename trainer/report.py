@@ -231,7 +231,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "## Files",
         "",
         "- `metrics.json`: every number above, the untriggered trials, the confusion matrices",
-        "- `model.joblib`: the fitted BowSVC (scikit-learn) and the model file's metadata "
+        "- `model.joblib`: the fitted estimator (scikit-learn) and the model file's metadata "
         "(`{\"model\": ..., \"metadata\": ...}`; `handover export model.joblib` rebuilds the same model.onnx)",
         f"- `model.onnx`: {metrics.get('onnx') or 'not written'}",
         "",

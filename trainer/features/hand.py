@@ -55,7 +55,7 @@ class HandGraphFeatures(FeatureFamily):
         parts = []
         for (a, b), (rows, cols) in zip(pad_bounds(self.shapes_), self.shapes_, strict=True):
             P = X[:, a:b]
-            n, size, n_t = P.shape
+            _, size, n_t = P.shape
             g = gamma(size * n_t + 32)
             mag = np.abs(P).max(axis=(1, 2)) + 1.0
             f = pad_features(P, rows, cols)

@@ -71,7 +71,7 @@ class RandomConvPPV(FeatureFamily):
     Fitted: ``biases_`` ``(D, 84, n_biases, S)``.
     """
 
-    def __init__(self, dilations=(1, 2), n_biases: int = 2, random_state=0, pad_sizes=None, pad_shapes=None,
+    def __init__(self, dilations=(1, 2), n_biases: int = 1, random_state=0, pad_sizes=None, pad_shapes=None,
                  fullscale: float = 4095.0):
         self.dilations = dilations
         self.n_biases = n_biases

@@ -63,7 +63,7 @@ def pad_signals(X: np.ndarray, pad_shapes: Sequence[tuple[int, int]], fullscale:
     mag = np.abs(X)
     total = np.einsum("nct,cg->ngt", mag, ones)
     den = total + fullscale
-    contact = (X >= contact_fraction * fullscale).astype(np.float64)
+    contact = (contact_fraction * fullscale <= X).astype(np.float64)
     return np.concatenate([
         total / (sizes[None, :, None] * fullscale),
         np.einsum("nct,cg->ngt", contact, ones) / sizes[None, :, None],
