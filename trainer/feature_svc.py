@@ -17,8 +17,9 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
-from trainer.bow import BagOfWords, as_cases
+from trainer.bow import BagOfWords, check_case_shape
 from trainer.classifier import SVMHead, check_training_data, choose_svm_params
+from trainer.defaults import DEFAULT_MODEL
 
 FAMILIES = ("bow", "stats", "rocket", "hand")
 
@@ -35,8 +36,8 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     ``n_channels_``, ``n_timepoints_``, ``n_features_in_``.
     """
 
-    def __init__(self, families: Sequence[str] = ("stats", "bow"), pad_sizes: Sequence[int] | None = None,
-                 pad_shapes=None, kernel: str = "rbf", C: float | None = None, gamma: float | str | None = None,
+    def __init__(self, families: Sequence[str] = DEFAULT_MODEL["families"], pad_sizes: Sequence[int] | None = None,
+                 pad_shapes=None, kernel: str = DEFAULT_MODEL["kernel"], C: float | None = None, gamma: float | str | None = None,
                  n_words: int = 10, window: int = 7, dilations=(1, 2), n_biases: int = 1, random_state=0,
                  fullscale: float = 4095.0):
         self.families = families
@@ -92,12 +93,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     def transform_histograms(self, X) -> np.ndarray:
         """The concatenated features before scaling (the graph's ``histogram`` tensor)."""
         check_is_fitted(self, "blocks_")
-        X = as_cases(X)
-        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
-            raise ValueError(
-                f"X has {X.shape[1] * X.shape[2]} features, but {type(self).__name__} is expecting "
-                f"{self.n_features_in_} features as input ({self.n_channels_} channels x {self.n_timepoints_} "
-                f"timepoints, got {X.shape[1]} x {X.shape[2]})")
+        X = check_case_shape(self, X)
         return np.concatenate([block.transform(X) for _, block in self.blocks_], axis=1)
 
     def svm_input(self, hist: np.ndarray) -> np.ndarray:
