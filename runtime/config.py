@@ -7,6 +7,8 @@ a problem raises :class:`ConfigError` whose message names the key, e.g.
 
 from __future__ import annotations
 
+import math
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -16,6 +18,32 @@ MODES = ("trigger", "continuous")
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
 """The paper's four actions and the trainer's dormant class; a custom model may have others."""
 LOG_LEVELS = ("debug", "info", "warning", "error")
+
+RANGES: dict[str, tuple[float, float]] = {
+    "device.stall_timeout_s": (0.05, 3600.0),
+    "device.reconnect_min_s": (0.0, 3600.0),
+    "device.reconnect_max_s": (0.0, 3600.0),
+    "model.poll_interval_s": (0.01, 3600.0),
+    "model.max_bytes": (1024, 1 << 30),
+    "model.decision_budget": (0.001, 1.0),
+    "trigger.fraction": (0.0, 1.0),
+    "trigger.hysteresis": (0.0, 0.99),
+    "trigger.refractory_s": (0.0, 3600.0),
+    "trigger.rearm_quiet_s": (0.0, 60.0),
+    "trigger.baseline_tau_s": (0.01, 86400.0),
+    "trigger.pre_frames": (0, 1000),
+    "continuous.confirm_frames": (1, 1000),
+    "continuous.min_margin": (0.0, 1000.0),
+    "continuous.rearm_frames": (0, 100000),
+    "onnxruntime.intra_op_threads": (1, 64),
+    "ros2.depth": (1, 10000),
+    "ros2.pad_rate_hz": (0.1, 1000.0),
+    "ros2.pad_gain": (1, 16),
+}
+"""Every number of the config and its closed range [lo, hi] (the one owner of these limits).
+Why bounded above too: an infinite or absurd value (``stall_timeout_s = inf``, a 20-digit
+``max_bytes``) turns a safety mechanism off without an error; NaN compares false with
+everything, so finiteness is checked first. ``trigger.fraction`` is open at both ends."""
 
 
 class ConfigError(ValueError):
@@ -31,10 +59,16 @@ class DeviceConfig:
     reconnect_max_s: float = 10.0
 
 
+FOLLOW_MODEL = "model"
+"""``scene.pads`` value meaning: the pads the serving model was trained on."""
+
+
 @dataclass(frozen=True)
 class SceneConfig:
-    pads: str = "distal"
-    """Pads in contact, as a layout selection (``distal``, ``all``, ``1,3,5``, ...)."""
+    pads: str = "model"
+    """Pads in contact: ``model`` (the serving model's own pads, so a model trained with any
+    ``--pads`` serves) or a layout selection (``distal``, ``all``, ``1,3,5``, ...) that pins the
+    scene: a model trained for other pads is then refused."""
     events: tuple[str, ...] = ("pull", "push", "hold", "bump")
     """Classes that are reported; other decisions are counted but not sent."""
     mode: str = "trigger"
@@ -46,6 +80,12 @@ class ModelConfig:
     folder: str = "/var/lib/handover/models"
     poll_interval_s: float = 1.0
     max_bytes: int = 64 * 1024 * 1024
+    decision_budget: float = 0.1
+    """Longest a decision may take at warm-up, as a fraction of the model's sample period
+    (0.1: 3.1 ms at 32 Hz); a slower model is refused."""
+    quarantine_file: str | None = None
+    """Where models taken out of service at run time are remembered across restarts; None: beside
+    the health file (``quarantined-models.json``), or in memory only without one."""
 
 
 @dataclass(frozen=True)
@@ -88,6 +128,36 @@ class SinksConfig:
     """``host:port`` targets for one JSON datagram per event."""
     unix: tuple[str, ...] = ()
     """Paths of Unix datagram sockets to send each event to."""
+    ros2: bool = False
+    """Publish events, health and (optionally) live pads on ROS 2 topics (``[ros2]``; the ``ros`` extra)."""
+
+
+RELIABILITIES = ("reliable", "best_effort")
+DURABILITIES = ("volatile", "transient_local")
+
+
+@dataclass(frozen=True)
+class Ros2Config:
+    """The ROS 2 sink (runtime/ros2_node.py); used only when ``sinks.ros2 = true``."""
+
+    namespace: str = "/handover"
+    """Topics: ``<namespace>/events``, ``<namespace>/model``, ``<namespace>/pads/<pad>``, ``<namespace>/grasp``."""
+    node_name: str = "handover"
+    reliability: str = "reliable"
+    """QoS of the events and pads publishers (a reliable publisher also serves best-effort subscribers)."""
+    durability: str = "volatile"
+    """QoS of the events publisher; ``transient_local`` hands a late subscriber the last ``depth`` lines."""
+    depth: int = 10
+    """History depth of the events publisher (pads always keep only the newest image: drop, never queue)."""
+    pads: bool = False
+    """Publish each pad as a mono16 image on ``<namespace>/pads/<pad>``."""
+    pad_rate_hz: float = 10.0
+    """Images per second per pad at most (the newest frame; none when no new frame arrived)."""
+    pad_gain: int = 1
+    """Taxel values are multiplied by this in the images: 1 = raw 12-bit values; 16 spreads the
+    12-bit full scale over mono16's range, so an image viewer shows the pads bright."""
+    grasp: bool = False
+    """Subscribe ``<namespace>/grasp`` (std_msgs/String ``closed`` / ``open``) from the robot's controller."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +175,7 @@ class Config:
     continuous: ContinuousConfig = field(default_factory=ContinuousConfig)
     sinks: SinksConfig = field(default_factory=SinksConfig)
     onnxruntime: OnnxConfig = field(default_factory=OnnxConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
     log_level: str = "info"
     health_file: str | None = None
     source: str = ""
@@ -137,7 +208,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
-    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime"}
+    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
     for name in sections:
@@ -148,9 +219,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     _no_unknown("device", dev, {f.name for f in fields(DeviceConfig)})
     device = DeviceConfig(
         url=_str("device.url", dev, DeviceConfig.url),
-        stall_timeout_s=_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s, lo=0.05),
-        reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s, lo=0.0),
-        reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s, lo=0.0),
+        stall_timeout_s=_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s),
+        reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s),
+        reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s),
     )
     _check_url(device.url)
     if device.reconnect_max_s < device.reconnect_min_s:
@@ -162,7 +233,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if isinstance(pads, list) and pads and all(isinstance(p, int) and not isinstance(p, bool) for p in pads):
         pads = ",".join(str(p) for p in pads)
     if not isinstance(pads, str) or not pads.strip():
-        raise ConfigError(f"scene.pads: must be a pad selection like 'distal' or [1, 3, 5], got {pads!r}")
+        raise ConfigError(f"scene.pads: must be 'model' or a pad selection like 'distal' or [1, 3, 5], got {pads!r}")
     _check_pads(pads)
     events = _str_list("scene.events", sc, SceneConfig.events)
     if not events:
@@ -170,7 +241,8 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     mode = _str("scene.mode", sc, SceneConfig.mode)
     if mode not in MODES:
         raise ConfigError(f"scene.mode: must be one of {', '.join(MODES)}, got {mode!r}")
-    scene = SceneConfig(pads=pads.strip(), events=events, mode=mode)
+    pads = FOLLOW_MODEL if pads.strip().lower() == FOLLOW_MODEL else pads.strip()
+    scene = SceneConfig(pads=pads, events=events, mode=mode)
     warnings = [
         f"scene.events: {e!r} is not a known event ({', '.join(KNOWN_EVENTS)}); "
         "it is reported only if the model has such a class"
@@ -181,8 +253,10 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     _no_unknown("model", mo, {f.name for f in fields(ModelConfig)})
     model = ModelConfig(
         folder=_str("model.folder", mo, ModelConfig.folder),
-        poll_interval_s=_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s, lo=0.01),
-        max_bytes=_int("model.max_bytes", mo, ModelConfig.max_bytes, lo=1024),
+        poll_interval_s=_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s),
+        max_bytes=_int("model.max_bytes", mo, ModelConfig.max_bytes),
+        decision_budget=_num("model.decision_budget", mo, ModelConfig.decision_budget),
+        quarantine_file=None if "quarantine_file" not in mo else _str("model.quarantine_file", mo, ""),
     )
 
     tr = data.get("trigger", {})
@@ -190,16 +264,16 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     fraction = tr.get("fraction")
     if fraction is not None:
         fraction = _num("trigger.fraction", tr, 0.15)
-        if not 0.0 < fraction < 1.0:
+        if not 0.0 < fraction < 1.0:  # open range: 0 or 1 would never or always trigger
             raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
     trigger = TriggerConfig(
         fraction=fraction,
-        hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis, lo=0.0, hi=0.99),
-        refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s, lo=0.0),
-        rearm_quiet_s=_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s, lo=0.0, hi=60.0),
+        hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
+        refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
+        rearm_quiet_s=_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s),
         baseline=_bool("trigger.baseline", tr, TriggerConfig.baseline),
-        baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s, lo=0.01),
-        pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0, lo=0, hi=1000),
+        baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s),
+        pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0),
     )
     if fraction is not None and trigger.hysteresis >= fraction:
         raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")
@@ -207,9 +281,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     co = data.get("continuous", {})
     _no_unknown("continuous", co, {f.name for f in fields(ContinuousConfig)})
     continuous = ContinuousConfig(
-        confirm_frames=_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames, lo=1, hi=1000),
-        min_margin=_num("continuous.min_margin", co, ContinuousConfig.min_margin, lo=0.0, hi=1000.0),
-        rearm_frames=_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames, lo=0, hi=100000),
+        confirm_frames=_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames),
+        min_margin=_num("continuous.min_margin", co, ContinuousConfig.min_margin),
+        rearm_frames=_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames),
     )
 
     si = data.get("sinks", {})
@@ -221,12 +295,14 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     for path in unix:
         if not path.startswith("/") and not path.startswith("@"):
             raise ConfigError(f"sinks.unix: socket path must be absolute, got {path!r}")
-    sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix)
+    sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
+                        ros2=_bool("sinks.ros2", si, SinksConfig.ros2))
+    ros2 = _ros2_config(data.get("ros2", {}))
 
     ox = data.get("onnxruntime", {})
     _no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})
     onnx_cfg = OnnxConfig(
-        intra_op_threads=_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads, lo=1, hi=64),
+        intra_op_threads=_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads),
         allow_spinning=_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
     )
 
@@ -240,8 +316,37 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         folder = Path(health).expanduser().parent
         if not folder.is_dir():
             raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
-    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, log_level, health,
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, log_level, health,
                   warnings=tuple(warnings))
+
+
+_ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _ros2_config(table: dict) -> Ros2Config:
+    """``[ros2]``: names as ROS 2 allows them, QoS names, rates; ConfigError naming the key."""
+    _no_unknown("ros2", table, {f.name for f in fields(Ros2Config)})
+    namespace = _str("ros2.namespace", table, Ros2Config.namespace)
+    tokens = namespace.split("/")
+    if not namespace.startswith("/") or not all(_ROS_TOKEN.fullmatch(t) for t in tokens[1:]):
+        raise ConfigError(f"ros2.namespace: must look like /handover or /robot/hand (letters, digits, _), got {namespace!r}")
+    node_name = _str("ros2.node_name", table, Ros2Config.node_name)
+    if not _ROS_TOKEN.fullmatch(node_name):
+        raise ConfigError(f"ros2.node_name: letters, digits and _ (not starting with a digit), got {node_name!r}")
+    reliability = _str("ros2.reliability", table, Ros2Config.reliability)
+    if reliability not in RELIABILITIES:
+        raise ConfigError(f"ros2.reliability: must be one of {', '.join(RELIABILITIES)}, got {reliability!r}")
+    durability = _str("ros2.durability", table, Ros2Config.durability)
+    if durability not in DURABILITIES:
+        raise ConfigError(f"ros2.durability: must be one of {', '.join(DURABILITIES)}, got {durability!r}")
+    return Ros2Config(
+        namespace=namespace, node_name=node_name, reliability=reliability, durability=durability,
+        depth=_int("ros2.depth", table, Ros2Config.depth),
+        pads=_bool("ros2.pads", table, Ros2Config.pads),
+        pad_rate_hz=_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz),
+        pad_gain=_int("ros2.pad_gain", table, Ros2Config.pad_gain),
+        grasp=_bool("ros2.grasp", table, Ros2Config.grasp),
+    )
 
 
 def parse_host_port(target: str, key: str = "sinks.udp") -> tuple[str, int]:
@@ -283,26 +388,31 @@ def _bool(key: str, table: dict, default: bool) -> bool:
     return value
 
 
-def _num(key: str, table: dict, default: float, lo: float | None = None, hi: float | None = None) -> float:
+def _num(key: str, table: dict, default: float) -> float:
     value = table.get(key.rpartition(".")[2], default)
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{key}: must be a number, got {value!r}")
-    if lo is not None and value < lo:
-        raise ConfigError(f"{key}: must be >= {lo}, got {value}")
-    if hi is not None and value > hi:
-        raise ConfigError(f"{key}: must be <= {hi}, got {value}")
-    return float(value)
+    return float(_in_range(key, value))
 
 
-def _int(key: str, table: dict, default: int, lo: int | None = None, hi: int | None = None) -> int:
+def _int(key: str, table: dict, default: int) -> int:
     value = table.get(key.rpartition(".")[2], default)
     if isinstance(value, bool) or not isinstance(value, int):
         raise ConfigError(f"{key}: must be an integer, got {value!r}")
-    if lo is not None and value < lo:
-        raise ConfigError(f"{key}: must be >= {lo}, got {value}")
-    if hi is not None and value > hi:
-        raise ConfigError(f"{key}: must be <= {hi}, got {value}")
+    return int(_in_range(key, value))
+
+
+def _in_range(key: str, value: float) -> float:
+    """``value`` if finite and inside ``RANGES[key]``; else ConfigError with key, value and range."""
+    lo, hi = RANGES[key]
+    if (isinstance(value, float) and not math.isfinite(value)) or not lo <= value <= hi:
+        shown = repr(value) if len(repr(value)) <= 24 else repr(value)[:20] + "..."
+        raise ConfigError(f"{key}: must be a finite number in [{_plain(lo)}, {_plain(hi)}], got {shown}")
     return value
+
+
+def _plain(bound: float) -> str:
+    return str(int(bound)) if float(bound).is_integer() else f"{bound:g}"
 
 
 def _str_list(key: str, table: dict, default: tuple[str, ...]) -> tuple[str, ...]:
@@ -329,6 +439,8 @@ def _check_pads(pads: str) -> None:
     """Reject selections no layout could satisfy (the real check runs when the device reports its layout)."""
     from firmware_io.layout import LayoutError, SensorLayout
 
+    if pads.strip().lower() == FOLLOW_MODEL:
+        return
     try:
         SensorLayout.sdh2().pads(pads)
     except LayoutError as exc:

@@ -18,6 +18,7 @@ import contextlib
 import logging
 import math
 import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,15 +26,20 @@ from typing import IO, Any
 
 import numpy as np
 
-from firmware_io.layout import LayoutError, SensorLayout
+from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
+from runtime.output_check import output_problem
+from runtime.quarantine import QuarantineStore, store_path
 from runtime.ring import RingBuffer
+from runtime.scene import events_problem, scene_pads, scene_problem
 from runtime.sdnotify import Notifier
-from runtime.sinks import Event, SinkSet
+from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+
+__all__ = ["Daemon", "events_problem", "scene_problem"]  # the last two are re-exported for run --check
 
 log = logging.getLogger("handover.daemon")
 
@@ -43,37 +49,6 @@ HEALTH_PERIOD_S = 1.0
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 DEFAULT_RATE_HZ = 32.0
-
-
-def events_problem(model: Any, events: tuple[str, ...]) -> str | None:
-    """``scene.events: 'pul' is not a class of model X (classes: ...)``, or None."""
-    classes = list(model.meta.classes)
-    missing = [e for e in events if e not in classes]
-    if not missing:
-        return None
-    names = ", ".join(repr(e) for e in missing)
-    verb = "is not a class" if len(missing) == 1 else "are not classes"
-    return f"scene.events: {names} {verb} of model {model.model_id} (classes: {', '.join(classes)})"
-
-
-def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None, check_events: bool = True) -> str | None:
-    """Why a model cannot serve this scene (pads, channels, classes, mode), or None."""
-    meta = model.meta
-    lay = layout or SensorLayout.sdh2()
-    try:
-        pads = lay.pads(cfg.scene.pads)
-    except LayoutError as exc:
-        return f"scene.pads: {exc}"
-    if tuple(meta.pads) != tuple(pads):
-        return f"model expects pads {list(meta.pads)}, the scene uses {list(pads)} (scene.pads = {cfg.scene.pads!r})"
-    n = sum(lay.pad_sizes(pads))
-    if meta.n_channels != n:
-        return f"model expects {meta.n_channels} taxel columns, the device's pads {list(pads)} have {n}"
-    if check_events and (problem := events_problem(model, cfg.scene.events)):
-        return problem
-    if cfg.scene.mode == "continuous" and meta.dormant_class is None:
-        return "scene.mode = 'continuous' needs a model with a dormant class; this one has none"
-    return None
 
 
 class Daemon:
@@ -94,8 +69,16 @@ class Daemon:
         self.on_event = on_event
         self.health = Health()
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
-        self.sinks = SinkSet.from_config(cfg.sinks, stream)
+        self.latest_frame: Any = None
+        """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
+        self._grasp_lock = threading.Lock()
+        self.grasp_request: tuple[bool, str] | None = None
+        """The latest ``set_grasp`` call: (closed, source)."""
+        self.sinks = SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self)
         self.model: Any = None
+        self._fallback: Any = None
+        """The model the last swap replaced: it serves again if the new one is taken out of service."""
+        self.quarantine = QuarantineStore(store_path(cfg.model.quarantine_file, cfg.health_file))
         self.layout: SensorLayout | None = None
         self.client: Any = None
         self.connected = False
@@ -124,6 +107,14 @@ class Daemon:
 
     def request_reload(self, *_: Any) -> None:
         self._reload = True
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The robot's controller says its grasp has settled (closed) or been released (open).
+
+        Thread-safe (called from the ROS 2 executor, for instance); records the request for the hot path."""
+        with self._grasp_lock:
+            self.grasp_request = (bool(closed), source)
+        log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
 
     def install_signal_handlers(self) -> None:
         signal.signal(signal.SIGTERM, self.request_stop)
@@ -165,6 +156,8 @@ class Daemon:
             check=lambda m: scene_problem(m, self.cfg, self.layout),
             poll_interval=self.cfg.model.poll_interval_s,
             on_reject=self._rejected,
+            decision_budget=self.cfg.model.decision_budget,
+            quarantine=self.quarantine,
         )
         model = self.watcher.poll(require_stable=False)
         self.watcher.take()
@@ -176,11 +169,14 @@ class Daemon:
         self.watcher.start()
 
     def _use_model(self, model: Any) -> None:
-        """Swap the serving model (one reference assignment) and fit the hot path to it."""
+        """Swap the serving model (one reference assignment), fit the hot path to it, announce it."""
         old = self.model
+        if old is not None and old is not model:
+            self._fallback = old
         self.model = model
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
+        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
         self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
         self._build_hot_path(keep_history=True)
         what = "swapped in" if old is not None else "serving"
@@ -191,7 +187,7 @@ class Daemon:
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""
         if self.layout is None:
             return
-        cols = self.layout.columns(self.cfg.scene.pads)
+        cols = self.layout.columns(scene_pads(self.cfg, self.model, self.layout))
         meta = self.model.meta if self.model is not None else None
         T = int(meta.T) if meta else 15
         tcfg = self.cfg.trigger
@@ -315,6 +311,7 @@ class Daemon:
             return
         self.health.crc_errors = int(stats.get("crc_errors", 0))
         self.health.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
+        self.health.frames_implausible = int(stats.get("frames_implausible", 0))
         self.health.frames_stale = int(stats.get("frames_stale", 0))
 
     # -- the hot path -----------------------------------------------------------------------------
@@ -331,6 +328,7 @@ class Daemon:
         self._last_ts = ts
         if self.frames_seen is not None:
             self.frames_seen.append(frame.number)
+        self.latest_frame = frame
         ring = self.ring
         ring.push(frame.values, frame.number)
         due = self.trigger.update(ring.latest(), frame.number)
@@ -347,8 +345,17 @@ class Daemon:
     def _classify(self, frame: Any) -> None:
         model = self.model
         meta = model.meta
-        labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+        try:
+            labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+        except Exception as exc:  # a graph that fails on real frames only
+            self._take_out_of_service(model, f"inference failed on frames {frame.number - meta.T + 1}.."
+                                             f"{frame.number}: {_one_line(exc)}")
+            return
         decided = time.perf_counter()
+        problem = output_problem(labels, scores, meta.n_classes)
+        if problem:
+            self._take_out_of_service(model, f"{problem} (frames {frame.number - meta.T + 1}..{frame.number})")
+            return
         latency_us = (decided - frame.received) * 1e6
         h = self.health
         h.decisions += 1
@@ -380,6 +387,35 @@ class Daemon:
         if self.on_event is not None:
             self.on_event(event)
 
+    def _take_out_of_service(self, model: Any, reason: str) -> None:
+        """A model broke the output contract at run time: one line, never load this file version
+        again (also after a restart), and serve the model it replaced, or none."""
+        h = self.health
+        h.models_quarantined += 1
+        (self.watcher or self.quarantine).quarantine_file(Path(model.path), reason)
+        fallback, self._fallback = self._fallback, None
+        if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
+            fallback = None
+        h.last_error = f"model {Path(model.path).name} taken out of service: {reason}"
+        what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
+        if fallback is not None:
+            what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"
+        log.error("model %s (%s) taken out of service: %s; it is not loaded again until the file changes; %s",
+                  model.model_id, Path(model.path).name, reason, what)
+        self.model, h.model_id = None, None
+        if fallback is not None:
+            self._use_model(fallback)  # announced to the sinks like any model that starts serving
+        else:
+            self._pending.clear()
+            if self.watcher is not None:
+                self.watcher.reconsider_older()
+
+    def _frame_failed(self, exc: BaseException) -> None:
+        """An exception while handling one frame: counted, logged at most every 10 s, never fatal."""
+        if self.health.frame_failed(_one_line(exc)):
+            log.error("frame handling failed (%d so far; the loop goes on): %s: %s", self.health.frame_errors,
+                      type(exc).__name__, _one_line(exc))
+
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
@@ -396,9 +432,12 @@ class Daemon:
         h.update_rate(now)
         self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
+        h.events_invalid = self.sinks.invalid
         self.notifier.status(h.status_line())
+        snapshot = h.snapshot()
         if self.status_file is not None:
-            self.status_file.write(h.snapshot())
+            self.status_file.write(snapshot)
+        self.sinks.health(snapshot)
 
     def _do_reload(self) -> None:
         self._reload = False
@@ -419,7 +458,7 @@ class Daemon:
         for warning in new.warnings:
             log.warning("%s", warning)
         self.sinks.close()
-        self.sinks = SinkSet.from_config(new.sinks, self.stream)
+        self.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self)
         if new.health_file != old.health_file:
             self.status_file = StatusFile(new.health_file) if new.health_file else None
         if new.device.url != old.device.url:
@@ -468,11 +507,15 @@ class Daemon:
                     continue
                 if frame is None:
                     if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
+                        self.health.stalls += 1
                         self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)")
                     continue
                 self._last_frame_t = time.monotonic()
                 self._backoff = self.cfg.device.reconnect_min_s
-                self.handle_frame(frame)
+                try:
+                    self.handle_frame(frame)
+                except Exception as exc:  # never let one frame end the service
+                    self._frame_failed(exc)
         finally:
             self.shutdown()
         return 2 if self.fatal else 0

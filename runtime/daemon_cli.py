@@ -39,8 +39,9 @@ def main(args: argparse.Namespace) -> int:
     if args.check:
         return _check(cfg, require_model=args.require_model)
     from runtime.daemon import Daemon
+    from runtime.sinks import claim_stdout_for_events
 
-    daemon = Daemon(cfg)
+    daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
     daemon.install_signal_handlers()
     code = daemon.run()
     if daemon.fatal:
@@ -50,15 +51,23 @@ def main(args: argparse.Namespace) -> int:
 
 def _check(cfg, require_model: bool = False) -> int:
     """Report what the daemon would serve, without opening the device."""
+    from dataclasses import replace
+
     from runtime.daemon import Daemon, events_problem, scene_problem
     from runtime.model_watch import ModelWatcher
 
-    daemon = Daemon(cfg)
+    if cfg.sinks.ros2:
+        from runtime.ros2 import availability_problem
+
+        if problem := availability_problem():
+            print(f"{PROG}: warning: sinks.ros2: {problem}; events will go to the other sinks only", file=sys.stderr)
+    daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
     logging.getLogger("handover.models").setLevel(logging.CRITICAL)  # --check reports in one line itself
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
-                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events))
+                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events),
+                               decision_budget=cfg.model.decision_budget, quarantine=daemon.quarantine)
         return watcher.poll(require_stable=False), watcher.rejections
 
     model, rejections = newest(check_events=True)

@@ -17,6 +17,9 @@ import numpy as np
 
 log = logging.getLogger("handover.health")
 
+FRAME_ERROR_LOG_S = 10.0
+"""At most one log line this often for exceptions while handling frames (all are counted)."""
+
 
 class Health:
     """All counters the daemon reports."""
@@ -32,21 +35,43 @@ class Health:
         self.protocol_errors = 0
         self.reconnects = 0
         self.device_faults = 0
+        self.stalls = 0
+        """Device faults that were a stall (no frame for ``device.stall_timeout_s``)."""
         self.decisions = 0
         self.events = 0
         self.missed_deadlines = 0
         self.sink_errors = 0
         self.models_loaded = 0
         self.models_rejected = 0
+        self.models_quarantined = 0
+        """Models taken out of service at run time (a label out of range, NaN scores, a failed run)."""
+        self.frames_implausible = 0
+        """Frames the sensor cannot have sent (above 12 bits, pressure on a cell that does not exist):
+        dropped by the client, never classified."""
+        self.frame_errors = 0
+        """Exceptions while handling a frame (the loop went on)."""
+        self.events_invalid = 0
+        """Events not sent because they were not valid JSON (NaN/inf)."""
         self.model_id: str | None = None
         self.device_state = "starting"
         self.last_error = ""
+        self._last_frame_error_log = -FRAME_ERROR_LOG_S
         self._lat = np.zeros(latency_window, dtype=np.float64)
         self._lat_n = 0
         self.latency_max_us = 0.0
         self._rate_t = time.monotonic()
         self._rate_frames = 0
         self.frame_rate = 0.0
+
+    def frame_failed(self, message: str, now: float | None = None) -> bool:
+        """Count an exception while handling a frame; True when a log line is due (rate limit)."""
+        self.frame_errors += 1
+        self.last_error = f"frame handling failed: {message}"
+        now = time.monotonic() if now is None else now
+        if now - self._last_frame_error_log < FRAME_ERROR_LOG_S:
+            return False
+        self._last_frame_error_log = now
+        return True
 
     def record_latency(self, latency_us: float) -> None:
         self._lat[self._lat_n % self._lat.size] = latency_us
@@ -82,6 +107,7 @@ class Health:
             "protocol_errors": self.protocol_errors,
             "reconnects": self.reconnects,
             "device_faults": self.device_faults,
+            "stalls": self.stalls,
             "decisions": self.decisions,
             "events": self.events,
             "missed_deadlines": self.missed_deadlines,
@@ -91,6 +117,10 @@ class Health:
             "sink_errors": self.sink_errors,
             "models_loaded": self.models_loaded,
             "models_rejected": self.models_rejected,
+            "models_quarantined": self.models_quarantined,
+            "frames_implausible": self.frames_implausible,
+            "frame_errors": self.frame_errors,
+            "events_invalid": self.events_invalid,
             "model_id": self.model_id,
             "last_error": self.last_error,
         }

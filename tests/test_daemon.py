@@ -65,7 +65,7 @@ def _bias(cls: str) -> tuple[float, ...]:
 def models(tmp_path) -> Path:
     folder = tmp_path / "models"
     folder.mkdir()
-    write_model(folder, "first.onnx", tiny_model_bytes(bias=_bias("pull")), mtime=time.time() - 10)
+    write_model(folder, "first.onnx", tiny_model_bytes(bias=_bias("pull")), mtime=time.time() - 100)
     return folder
 
 
@@ -136,7 +136,7 @@ def test_broken_model_dropped_mid_stream_is_refused_and_the_old_keeps_serving(mo
         events.append(event)
         if len(events) == 2:
             data = tiny_model_bytes(bias=_bias("push"))
-            write_model(models, "broken.onnx", data[: len(data) // 2])
+            write_model(models, "broken.onnx", data[: len(data) // 2], mtime=time.time() - 20)  # not being copied
             deadline = time.monotonic() + 10
             while not daemon.watcher.rejections and time.monotonic() < deadline:
                 time.sleep(0.01)
@@ -248,8 +248,9 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
     assert "Traceback" not in err
     status = json.loads(health.read_text())
     assert status["device_state"] == "stopped" and status["model_id"]
-    for line in out.splitlines():  # stdout carries only JSON events
-        assert json.loads(line)["class"] in CLASSES
+    lines = [json.loads(line) for line in out.splitlines()]  # stdout carries only JSON events
+    assert lines[0]["type"] == "model" and {d["type"] for d in lines} <= {"decision", "model"}
+    assert all(d["class"] in CLASSES for d in lines if d["type"] == "decision")
     print(f"\nSIGTERM -> exit in {stop_s * 1000:.0f} ms")
     assert stop_s < 1.0
     sock.close()

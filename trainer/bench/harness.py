@@ -136,7 +136,8 @@ class EmulatorProcess:
 
 
 class UdpListener:
-    """Receives event datagrams in a thread; each with its arrival time."""
+    """Receives decision datagrams in a thread, each with its arrival time (model announcements
+    and other line types of docs/EVENTS.md are skipped)."""
 
     def __init__(self) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -158,7 +159,9 @@ class UdpListener:
                 return
             t = time.perf_counter()
             with contextlib.suppress(ValueError):
-                self.events.append((t, json.loads(data)))
+                event = json.loads(data)
+                if event.get("type") == "decision":
+                    self.events.append((t, event))
 
     def close(self) -> None:
         self._stop.set()
