@@ -309,14 +309,7 @@ class BagOfWords(TransformerMixin, BaseEstimator):
     # -- transforming -------------------------------------------------------------------------
     def _check_X(self, X) -> np.ndarray:
         check_is_fitted(self, "codebook_")
-        X = as_cases(X)
-        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
-            raise ValueError(
-                f"X has {X.shape[1] * X.shape[2]} features, but {type(self).__name__} is expecting "
-                f"{self.n_features_in_} features as input ({self.n_channels_} channels x {self.n_timepoints_} "
-                f"timepoints, got {X.shape[1]} x {X.shape[2]})"
-            )
-        return X
+        return check_case_shape(self, X)
 
     def scales(self) -> list[tuple[int, np.ndarray, float]]:
         """(window length, codebook, absolute temperature) of every scale, in feature order."""
