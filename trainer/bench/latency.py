@@ -151,8 +151,8 @@ def run(args) -> dict:
                                                      timeout=load_stream.n_frames / 32 + 60)
     result.update(headline(result))
     result.update(
-        model={"K": model.meta.K, "W": model.meta.W, "T": model.meta.T, "n_channels": model.meta.n_channels,
-               "n_nodes": model.n_nodes, "pads": list(model.meta.pads)},
+        model={"kind": model.meta.extra.get("model_kind"), "K": model.meta.K, "W": model.meta.W, "T": model.meta.T,
+               "n_channels": model.meta.n_channels, "n_nodes": model.n_nodes, "pads": list(model.meta.pads)},
         duration_s=duration, window_period_frames=15 + tap_gap(), seconds=round(time.perf_counter() - t_start, 1),
         machine=machine_info(), load_before=load_before, load_after=load_average(), command=command_line(NAME, args),
     )
@@ -244,11 +244,17 @@ def _implementation_lines(res: dict) -> list[str]:
     return lines
 
 
+def _kind(m: dict) -> str:
+    """``bow_svm, K=10, W=7, `` for a BoW graph, else the model kind (K and W mean nothing there)."""
+    kind = m.get("kind") or "bow_svm"
+    return f"{kind}, K={m['K']}, W={m['W']}, " if kind == "bow_svm" else f"{kind}, "
+
+
 def markdown(res: dict) -> list[str]:
     m = res["model"]
     lines = ["# Latency by stage and end to end (synthetic data)", "",
-             f"Deadline: one sample period, {DEADLINE_US:.0f} us at 32 Hz. Model: the default (K={m['K']}, "
-             f"W={m['W']}, T={m['T']}, {m['n_channels']} taxels of pads {m['pads']}, {m['n_nodes']} nodes) trained "
+             f"Deadline: one sample period, {DEADLINE_US:.0f} us at 32 Hz. Model: the default ({_kind(m)}T={m['T']}, "
+             f"{m['n_channels']} taxels of pads {m['pads']}, {m['n_nodes']} nodes) trained "
              "on the simulated protocol (synthetic). The last column says how many times each figure fits into "
              "the deadline.", "", res["note"], "", "## Targets of issue #16", "", *_targets_lines(res), "",
              "`daemon_p999_us` and `paced_over_back_to_back` (medians) come from the stage table below, paced at "
