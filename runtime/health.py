@@ -11,11 +11,13 @@ import json
 import logging
 import os
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
 
 log = logging.getLogger("handover.health")
+ERROR_HISTORY = 8
 
 
 class Health:
@@ -41,12 +43,28 @@ class Health:
         self.model_id: str | None = None
         self.device_state = "starting"
         self.last_error = ""
+        """The problem that holds now ("" once it is resolved: streaming again, a model serving)."""
+        self.last_error_at: float | None = None
+        self.errors: deque[dict] = deque(maxlen=ERROR_HISTORY)
+        """The last few problems with their time, including resolved ones."""
+        self._error_source = ""
         self._lat = np.zeros(latency_window, dtype=np.float64)
         self._lat_n = 0
         self.latency_max_us = 0.0
         self._rate_t = time.monotonic()
         self._rate_frames = 0
         self.frame_rate = 0.0
+
+    def report_error(self, text: str, source: str) -> None:
+        """A problem from ``source`` (``device``, ``model``, ``config``) that holds until resolved."""
+        now = time.time()
+        self.last_error, self.last_error_at, self._error_source = text, now, source
+        self.errors.append({"at": round(now, 3), "source": source, "error": text})
+
+    def resolve(self, source: str) -> None:
+        """``source`` works again: its error stops being the current one (it stays in ``errors``)."""
+        if self._error_source == source:
+            self.last_error, self._error_source = "", ""
 
     def record_latency(self, latency_us: float) -> None:
         self._lat[self._lat_n % self._lat.size] = latency_us
@@ -93,6 +111,8 @@ class Health:
             "models_rejected": self.models_rejected,
             "model_id": self.model_id,
             "last_error": self.last_error,
+            "last_error_at": None if self.last_error_at is None else round(self.last_error_at, 3),
+            "recent_errors": list(self.errors),
         }
 
     def status_line(self) -> str:
