@@ -250,6 +250,7 @@ class Daemon:
                                      f"{self.connect_bound_s:g} s", "device")
             log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
                       "(systemd restarts the service)", self.cfg.device.url, self.connect_bound_s)
+        self._take_pending_model()  # a model dropped while a slow connect runs serves at once
         if now >= self._next_health:
             self._next_health = now + HEALTH_PERIOD_S
             self.write_health(now)
@@ -412,13 +413,17 @@ class Daemon:
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
+        self._take_pending_model()
+        if now >= self._next_health:
+            self._next_health = now + HEALTH_PERIOD_S
+            self.write_health(now)
+
+    def _take_pending_model(self) -> None:
+        """Swap in the watcher's validated model, never between a trigger and its window's end."""
         if self.watcher is not None and self.watcher.pending is not None and not self._pending:
             model = self.watcher.take()
             if model is not None:
                 self._use_model(model)
-        if now >= self._next_health:
-            self._next_health = now + HEALTH_PERIOD_S
-            self.write_health(now)
 
     def write_health(self, now: float | None = None) -> None:
         h = self.health

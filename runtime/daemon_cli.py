@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+import time
 
 PROG = "handover run"
 
@@ -34,7 +36,11 @@ def main(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
-    logging.basicConfig(stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    formatter = logging.Formatter(log_format(), datefmt="%Y-%m-%dT%H:%M:%S")
+    formatter.converter = time.gmtime
+    handler.setFormatter(formatter)
+    logging.basicConfig(handlers=[handler])
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
     if args.check:
         return _check(cfg, require_model=args.require_model)
@@ -46,6 +52,15 @@ def main(args: argparse.Namespace) -> int:
     if daemon.fatal:
         print(f"{PROG}: {daemon.fatal}", file=sys.stderr)
     return code
+
+
+def log_format(environ: dict | None = None) -> str:
+    """journald stamps each line itself (it sets JOURNAL_STREAM for the service's stderr);
+    anywhere else a line carries its own UTC time."""
+    env = os.environ if environ is None else environ
+    if env.get("JOURNAL_STREAM"):
+        return "%(levelname)s %(name)s: %(message)s"
+    return "%(asctime)s.%(msecs)03dZ %(levelname)s %(name)s: %(message)s"
 
 
 def _check(cfg, require_model: bool = False) -> int:

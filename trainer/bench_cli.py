@@ -15,13 +15,16 @@ import sys
 
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput")
-HEADLINE = ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
+HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
+            "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
+            "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
             "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_load_p99_us", "replay_frames_per_s",
             "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("which", choices=(*BENCHMARKS, "all"), help="which benchmark to run")
+    parser.add_argument("which", choices=(*BENCHMARKS, "all", "soak"),
+                        help="which benchmark to run ('all' = the three speed benchmarks; soak runs alone)")
     parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
@@ -29,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None,
                         help="latency: seconds of the 32 Hz end-to-end run (default 300, --quick 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
+    parser.add_argument("--hours", type=float, default=None,
+                        help="soak: hours against the emulator with faults injected (default 1, --quick 0.01)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     parser.add_argument("--rerender", action="store_true",
                         help="pareto: re-mark the default and rewrite .md/.png from OUT/pareto.json (no measuring)")
@@ -44,6 +49,8 @@ def main(args: argparse.Namespace) -> int:
 
     if args.duration is not None and args.duration <= 0:
         return _fail(f"--duration must be positive, got {args.duration}")
+    if args.hours is not None and not 0 < args.hours <= 168:
+        return _fail(f"--hours must be in (0, 168], got {args.hours}")
     args.say = progress(args.quiet)
     which = BENCHMARKS if args.which == "all" else (args.which,)
     figures: dict = {}
