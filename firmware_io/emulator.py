@@ -201,7 +201,7 @@ class DeviceEmulator:
         self.controller = ControllerInfo(
             serial_no=serial_no, hw_version=1, sw_version=OLD_FIRMWARE if old_firmware else NEW_FIRMWARE
         )
-        self.sensor = recorded_sensor(recording.meta, self.layout.n_matrices, default_serial=serial_no)
+        self.sensor = recorded_sensor(getattr(recording, "meta", None) or {}, self.layout.n_matrices, serial_no)
         rel = recording.timestamps - recording.timestamps[0]
         self._rel_ms = np.round(rel * 1000.0).astype(np.int64)
         self._rel_s = rel

@@ -5,6 +5,7 @@ replayed file's sensor serial number is what the client reads. Data: the simulat
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 
 import pytest
@@ -35,7 +36,7 @@ def test_single_frames_come_at_the_sensors_rate():
         server.stop()
     period = rec.sample_interval()
     assert took >= 16 * period * 0.8, f"16 single frames in {took * 1000:.0f} ms (sensor: {period * 1000:.0f} ms each)"
-    assert all(b > a for a, b in zip(stamps, stamps[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(stamps))
 
 
 def test_disconnect_over_the_pty_ends_push_mode_and_loses_data():
