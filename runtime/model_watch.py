@@ -69,6 +69,22 @@ def is_candidate_name(name: str) -> bool:
     return not any(name.endswith(s) for s in IGNORED_SUFFIXES)
 
 
+def folder_problem(folder: str | Path) -> str | None:
+    """Why a model folder can never be read (a file, no permission), or None. A folder that does
+    not exist yet is not a problem here: the daemon waits for it to appear."""
+    path = Path(folder)
+    if not path.exists():
+        return None
+    if not path.is_dir():
+        return f"model.folder: {path} is not a folder (point model.folder at the folder the models are dropped in)"
+    try:
+        with os.scandir(path):
+            pass
+    except OSError as exc:
+        return f"model.folder: cannot read {path} ({exc.strerror or exc}); give the service user read access"
+    return None
+
+
 def permission_problem(st: FileState, service_uid: int | None = None) -> str | None:
     """Why a file must not be trusted, or None."""
     uid = os.geteuid() if service_uid is None else service_uid
