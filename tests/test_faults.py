@@ -44,12 +44,14 @@ def _run_until(daemon: Daemon, until, timeout: float) -> bool:
 
     def watch():
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if until(daemon):
-                held.set()
-                break
-            time.sleep(0.01)
-        daemon.request_stop()
+        try:
+            while time.monotonic() < deadline:
+                if until(daemon):
+                    held.set()
+                    break
+                time.sleep(0.01)
+        finally:  # a failing condition must still end the run
+            daemon.request_stop()
 
     thread = threading.Thread(target=watch, daemon=True)
     thread.start()
@@ -216,7 +218,8 @@ def test_daemon_against_garbage_logs_reports_and_retries(models, garbage_device,
     def until(d: Daemon) -> bool:
         if health.exists():
             seen.append(json.loads(health.read_text()))
-        return len(d.health.errors) >= 2 and d.health.device_state == "disconnected"
+        attempts = sum(1 for r in caplog.records if "retrying" in r.getMessage())
+        return attempts >= 2 and d.health.device_state == "disconnected"
 
     held = _run_until(daemon, until, timeout=12)
     assert held, daemon.health.snapshot()
