@@ -23,7 +23,7 @@ import pytest
 from firmware_io.client import DSAClient
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
-from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
+from tests.tiny_models import tiny_model_bytes, write_model
 
 pytest.importorskip("onnx")
 GARBAGE = b"\xaa" * 512
@@ -153,16 +153,11 @@ def _quick_client(url: str) -> DSAClient:
     return client
 
 
-def _bias(cls: str) -> tuple[float, ...]:
-    return tuple(1.0 if c == cls else 0.0 for c in CLASSES)
-
-
 @pytest.fixture
 def models(tmp_path) -> Path:
-    folder = tmp_path / "models"
-    folder.mkdir()
-    write_model(folder, "first.onnx", tiny_model_bytes(bias=_bias("pull")), mtime=time.time() - 10)
-    return folder
+    """A folder with one toy model for the distal pads (it decides the first class)."""
+    (tmp_path / "models").mkdir()
+    return write_model(tmp_path / "models", "toy.onnx", tiny_model_bytes()).parent
 
 
 @pytest.fixture(params=["tcp", "pty"])

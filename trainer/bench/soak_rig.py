@@ -14,11 +14,11 @@ import contextlib
 import itertools
 import os
 import socket
-import threading
 import time
 
 from firmware_io.emulator import DeviceEmulator, FaultPlan
 from firmware_io.emulator_server import TcpEmulatorServer
+from trainer.bench.harness import DatagramListener
 
 GARBAGE_BYTES_PER_S = 11520  # 115200 baud, 8N1
 
@@ -108,41 +108,30 @@ def serve(emulator: ScheduledEmulator) -> TcpEmulatorServer:
     return TcpEmulatorServer(emulator, host="127.0.0.1", port=0).start()
 
 
-class NotifyListener:
-    """An sd_notify socket: the times of WATCHDOG=1 pings and how many READY/RELOADING came."""
+class NotifyListener(DatagramListener):
+    """An sd_notify socket: the times (CLOCK_MONOTONIC) of WATCHDOG=1 pings and how many
+    READY/RELOADING/STOPPING came."""
 
     def __init__(self, path: str) -> None:
         self.path = path
         with contextlib.suppress(FileNotFoundError):
             os.unlink(path)
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(path)
-        self.sock.settimeout(0.2)
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        sock.bind(path)
         self.pings: list[float] = []
         self.counts = {"READY=1": 0, "RELOADING=1": 0, "STOPPING=1": 0}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="soak-notify", daemon=True)
-        self._thread.start()
+        super().__init__(sock, "soak-notify")
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65536).decode(errors="replace")
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            now = time.monotonic()
-            for line in data.splitlines():
-                if line == "WATCHDOG=1":
-                    self.pings.append(now)
-                elif line in self.counts:
-                    self.counts[line] += 1
+    def on_datagram(self, data: bytes, t: float) -> None:
+        now = time.monotonic()
+        for line in data.decode(errors="replace").splitlines():
+            if line == "WATCHDOG=1":
+                self.pings.append(now)
+            elif line in self.counts:
+                self.counts[line] += 1
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(1)
-        self.sock.close()
+        super().close()
         with contextlib.suppress(OSError):
             os.unlink(self.path)
 
