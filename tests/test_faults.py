@@ -346,3 +346,40 @@ def test_a_rollback_with_an_old_mtime_serves(tmp_path):
     # and a restart (or run --check) agrees: the last dropped serves
     fresh = ModelWatcher(folder, loader=lambda p: load_model(p, warm_up=False))
     assert fresh.poll(require_stable=False).path.name == "v1.onnx"
+
+
+def test_sighup_between_a_trigger_and_its_window_loses_no_event(tmp_path, models):
+    """A reload asked for while a window is pending waits for the decision (it rebuilt the hot
+    path and dropped the pending window before)."""
+    from runtime.config import load_config
+
+    n_events = 4
+    cfg_path = tmp_path / "h.toml"
+    cfg_path.write_text(f'[device]\nurl = "sim://?events={n_events}&realtime=0&loop=0"\n[model]\nfolder = "{models}"\n'
+                        'poll_interval_s = 0.05\n[sinks]\nstdout = false\n'
+                        '[trigger]\nfraction = 0.02\nhysteresis = 0.01\nrefractory_s = 1.0\n')
+    events: list = []
+    reloads: list[int] = []
+
+    class ReloadMidWindow(Daemon):
+        def handle_frame(self, frame) -> None:
+            had = len(self._pending)
+            super().handle_frame(frame)
+            if len(self._pending) > had:  # a trigger just fired: its window is still to come
+                reloads.append(frame.number)
+                self.request_reload()
+
+    daemon = ReloadMidWindow(load_config(cfg_path), on_event=events.append)
+    assert _run_until(daemon, lambda d: d.health.device_faults >= 1, timeout=30)  # the end of the session
+    from firmware_io.frame_source import load_source
+
+    trials = load_source("sim", seed=0, events=n_events).trials
+    assert len(reloads) == len(trials)
+    assert len(events) == len(trials), f"{len(events)} events for {len(trials)} triggers with a reload each"
+
+
+def test_log_lines_carry_a_time_outside_journald():
+    from runtime.daemon_cli import log_format
+
+    assert "%(asctime)s" in log_format({})
+    assert "%(asctime)s" not in log_format({"JOURNAL_STREAM": "8:12345"})
