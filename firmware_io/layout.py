@@ -205,6 +205,18 @@ class SensorLayout:
             raise LayoutError(f"pad selection {selection!r} names a pad twice")
         return tuple(sorted(idx))
 
+    def pad_name(self, index: int) -> str:
+        """The selection name of one pad: ``finger-0-proximal``, ``thumb-distal`` ... (the SDH thumb
+        is finger 1); the index as text when the matrices do not pair up into fingers.
+        ``pads(pad_name(i)) == (i,)``."""
+        if not 0 <= index < self.n_matrices:
+            raise LayoutError(f"no matrix {index} (sensor has {self.n_matrices})")
+        if self.n_matrices % 2:
+            return str(index)
+        finger, part = divmod(index, 2)
+        who = "thumb" if finger == 1 else f"finger-{finger}"
+        return f"{who}-{'distal' if part else 'proximal'}"
+
     def _finger_pads(self, name: str) -> list[int]:
         parts = name.split("-")
         if parts[0] == "thumb":

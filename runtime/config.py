@@ -7,6 +7,7 @@ a problem raises :class:`ConfigError` whose message names the key, e.g.
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -88,6 +89,36 @@ class SinksConfig:
     """``host:port`` targets for one JSON datagram per event."""
     unix: tuple[str, ...] = ()
     """Paths of Unix datagram sockets to send each event to."""
+    ros2: bool = False
+    """Publish events, health and (optionally) live pads on ROS 2 topics (``[ros2]``; the ``ros`` extra)."""
+
+
+RELIABILITIES = ("reliable", "best_effort")
+DURABILITIES = ("volatile", "transient_local")
+
+
+@dataclass(frozen=True)
+class Ros2Config:
+    """The ROS 2 sink (runtime/ros2_node.py); used only when ``sinks.ros2 = true``."""
+
+    namespace: str = "/handover"
+    """Topics: ``<namespace>/events``, ``<namespace>/model``, ``<namespace>/pads/<pad>``, ``<namespace>/grasp``."""
+    node_name: str = "handover"
+    reliability: str = "reliable"
+    """QoS of the events and pads publishers (a reliable publisher also serves best-effort subscribers)."""
+    durability: str = "volatile"
+    """QoS of the events publisher; ``transient_local`` hands a late subscriber the last ``depth`` lines."""
+    depth: int = 10
+    """History depth of the events publisher (pads always keep only the newest image: drop, never queue)."""
+    pads: bool = False
+    """Publish each pad as a mono16 image on ``<namespace>/pads/<pad>``."""
+    pad_rate_hz: float = 10.0
+    """Images per second per pad at most (the newest frame; none when no new frame arrived)."""
+    pad_gain: int = 1
+    """Taxel values are multiplied by this in the images: 1 = raw 12-bit values; 16 spreads the
+    12-bit full scale over mono16's range, so an image viewer shows the pads bright."""
+    grasp: bool = False
+    """Subscribe ``<namespace>/grasp`` (std_msgs/String ``closed`` / ``open``) from the robot's controller."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +136,7 @@ class Config:
     continuous: ContinuousConfig = field(default_factory=ContinuousConfig)
     sinks: SinksConfig = field(default_factory=SinksConfig)
     onnxruntime: OnnxConfig = field(default_factory=OnnxConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
     log_level: str = "info"
     health_file: str | None = None
     source: str = ""
@@ -137,7 +169,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
-    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime"}
+    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
     for name in sections:
@@ -221,7 +253,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     for path in unix:
         if not path.startswith("/") and not path.startswith("@"):
             raise ConfigError(f"sinks.unix: socket path must be absolute, got {path!r}")
-    sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix)
+    sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
+                        ros2=_bool("sinks.ros2", si, SinksConfig.ros2))
+    ros2 = _ros2_config(data.get("ros2", {}))
 
     ox = data.get("onnxruntime", {})
     _no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})
@@ -240,8 +274,37 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         folder = Path(health).expanduser().parent
         if not folder.is_dir():
             raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
-    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, log_level, health,
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, log_level, health,
                   warnings=tuple(warnings))
+
+
+_ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _ros2_config(table: dict) -> Ros2Config:
+    """``[ros2]``: names as ROS 2 allows them, QoS names, rates; ConfigError naming the key."""
+    _no_unknown("ros2", table, {f.name for f in fields(Ros2Config)})
+    namespace = _str("ros2.namespace", table, Ros2Config.namespace)
+    tokens = namespace.split("/")
+    if not namespace.startswith("/") or not all(_ROS_TOKEN.fullmatch(t) for t in tokens[1:]):
+        raise ConfigError(f"ros2.namespace: must look like /handover or /robot/hand (letters, digits, _), got {namespace!r}")
+    node_name = _str("ros2.node_name", table, Ros2Config.node_name)
+    if not _ROS_TOKEN.fullmatch(node_name):
+        raise ConfigError(f"ros2.node_name: letters, digits and _ (not starting with a digit), got {node_name!r}")
+    reliability = _str("ros2.reliability", table, Ros2Config.reliability)
+    if reliability not in RELIABILITIES:
+        raise ConfigError(f"ros2.reliability: must be one of {', '.join(RELIABILITIES)}, got {reliability!r}")
+    durability = _str("ros2.durability", table, Ros2Config.durability)
+    if durability not in DURABILITIES:
+        raise ConfigError(f"ros2.durability: must be one of {', '.join(DURABILITIES)}, got {durability!r}")
+    return Ros2Config(
+        namespace=namespace, node_name=node_name, reliability=reliability, durability=durability,
+        depth=_int("ros2.depth", table, Ros2Config.depth, lo=1, hi=10000),
+        pads=_bool("ros2.pads", table, Ros2Config.pads),
+        pad_rate_hz=_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz, lo=0.1, hi=1000.0),
+        pad_gain=_int("ros2.pad_gain", table, Ros2Config.pad_gain, lo=1, hi=16),
+        grasp=_bool("ros2.grasp", table, Ros2Config.grasp),
+    )
 
 
 def parse_host_port(target: str, key: str = "sinks.udp") -> tuple[str, int]:

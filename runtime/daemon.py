@@ -18,6 +18,7 @@ import contextlib
 import logging
 import math
 import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -32,7 +33,7 @@ from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
-from runtime.sinks import Event, SinkSet
+from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
 
 log = logging.getLogger("handover.daemon")
@@ -98,7 +99,12 @@ class Daemon:
         self.on_event = on_event
         self.health = Health()
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
-        self.sinks = SinkSet.from_config(cfg.sinks, stream)
+        self.latest_frame: Any = None
+        """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
+        self._grasp_lock = threading.Lock()
+        self.grasp_request: tuple[bool, str] | None = None
+        """The latest ``set_grasp`` call: (closed, source)."""
+        self.sinks = SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self)
         self.model: Any = None
         self.layout: SensorLayout | None = None
         self.client: Any = None
@@ -131,6 +137,14 @@ class Daemon:
 
     def request_reload(self, *_: Any) -> None:
         self._reload = True
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The robot's controller says its grasp has settled (closed) or been released (open).
+
+        Thread-safe (called from the ROS 2 executor, for instance); records the request for the hot path."""
+        with self._grasp_lock:
+            self.grasp_request = (bool(closed), source)
+        log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
 
     def install_signal_handlers(self) -> None:
         signal.signal(signal.SIGTERM, self.request_stop)
@@ -183,12 +197,13 @@ class Daemon:
         self.watcher.start()
 
     def _use_model(self, model: Any) -> None:
-        """Swap the serving model (one reference assignment) and fit the hot path to it."""
+        """Swap the serving model (one reference assignment), fit the hot path to it, announce it."""
         old = self.model
         self.model = model
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
         self.health.resolve("model")
+        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
         self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
         self._build_hot_path(keep_history=True)
         what = "swapped in" if old is not None else "serving"
@@ -361,6 +376,7 @@ class Daemon:
         self._last_ts = ts
         if self.frames_seen is not None:
             self.frames_seen.append(frame.number)
+        self.latest_frame = frame
         ring = self.ring
         ring.push(frame.values, frame.number)
         due = self.trigger.update(ring.latest(), frame.number)
@@ -431,8 +447,10 @@ class Daemon:
         self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
         self.notifier.status(h.status_line())
+        snapshot = h.snapshot()
         if self.status_file is not None:
-            self.status_file.write(h.snapshot())
+            self.status_file.write(snapshot)
+        self.sinks.health(snapshot)
 
     def _do_reload(self) -> None:
         self._reload = False
@@ -453,7 +471,7 @@ class Daemon:
         for warning in new.warnings:
             log.warning("%s", warning)
         self.sinks.close()
-        self.sinks = SinkSet.from_config(new.sinks, self.stream)
+        self.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self)
         if new.health_file != old.health_file:
             self.status_file = StatusFile(new.health_file) if new.health_file else None
         if new.device.url != old.device.url:
@@ -505,6 +523,7 @@ class Daemon:
                     continue
                 if frame is None:
                     if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
+                        self.health.stalls += 1
                         self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)")
                     continue
                 self._last_frame_t = time.monotonic()

@@ -67,6 +67,8 @@ def log_format(environ: dict | None = None) -> str:
 
 def _check(cfg, require_model: bool = False) -> int:
     """Report what the daemon would serve, without opening the device."""
+    from dataclasses import replace
+
     from runtime.daemon import Daemon, events_problem, scene_problem
     from runtime.model_watch import ModelWatcher, folder_problem
 
@@ -74,7 +76,12 @@ def _check(cfg, require_model: bool = False) -> int:
     if problem:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
-    daemon = Daemon(cfg)
+    if cfg.sinks.ros2:
+        from runtime.ros2 import availability_problem
+
+        if problem := availability_problem():
+            print(f"{PROG}: warning: sinks.ros2: {problem}; events will go to the other sinks only", file=sys.stderr)
+    daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
     logging.getLogger("handover.models").setLevel(logging.CRITICAL)  # --check reports in one line itself
 
     def newest(check_events: bool):

@@ -34,6 +34,8 @@ class Health:
         self.protocol_errors = 0
         self.reconnects = 0
         self.device_faults = 0
+        self.stalls = 0
+        """Device faults that were a stall (no frame for ``device.stall_timeout_s``)."""
         self.decisions = 0
         self.events = 0
         self.missed_deadlines = 0
@@ -100,6 +102,7 @@ class Health:
             "protocol_errors": self.protocol_errors,
             "reconnects": self.reconnects,
             "device_faults": self.device_faults,
+            "stalls": self.stalls,
             "decisions": self.decisions,
             "events": self.events,
             "missed_deadlines": self.missed_deadlines,

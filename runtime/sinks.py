@@ -1,7 +1,8 @@
-"""Where events go: JSON lines on stdout (journald), UDP datagrams, Unix datagram sockets.
+"""Where events go: JSON lines on stdout (journald), UDP datagrams, Unix datagram sockets, ROS 2.
 
 An event is serialised once and handed to every sink. A sink that fails (no listener, full
 buffer, closed pipe) is logged (rate-limited) and counted, and never stops the daemon.
+The line format is the event protocol (docs/EVENTS.md, docs/events.schema.json).
 """
 
 from __future__ import annotations
@@ -14,14 +15,22 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
-from typing import IO
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from runtime.config import Ros2Config, SinksConfig
 
 log = logging.getLogger("handover.sinks")
+
+PROTOCOL_VERSION = 1
+"""The event protocol's version (docs/EVENTS.md): raised only when a field changes meaning or
+goes away; new fields and new line types keep it (listeners ignore what they do not know)."""
 
 
 @dataclass
 class Event:
-    """One decision reported to the outside world."""
+    """One decision reported to the outside world (a ``"type": "decision"`` line)."""
 
     time: float
     """Wall-clock time (Unix seconds) when the decision was made."""
@@ -36,10 +45,39 @@ class Event:
     missed_deadline: bool = False
 
     def to_json(self) -> str:
-        d = {"class": self.cls, **asdict(self)}
+        d = {"type": "decision", "protocol": PROTOCOL_VERSION, "class": self.cls, **asdict(self)}
         del d["cls"]
         d["scores"] = {k: round(float(v), 6) for k, v in self.scores.items()}
         d["latency_us"] = round(float(self.latency_us), 1)
+        return json.dumps(d, separators=(",", ":"))
+
+
+@dataclass
+class ModelAnnouncement:
+    """A model starts serving (a ``"type": "model"`` line): at start-up and at every swap."""
+
+    time: float
+    """Wall-clock time (Unix seconds) when the model started serving."""
+    model_id: str
+    model_version: int
+    """1 for the first model this daemon serves, +1 at each swap (like a serving system's versions)."""
+    previous_model_id: str | None
+    model_file: str
+    classes: list[str]
+    trained: str | None = None
+    """The training date from the model's metadata, if it has one."""
+
+    @classmethod
+    def of(cls, model: Any, version: int, previous: Any) -> ModelAnnouncement:
+        """For a loaded model (runtime/model.py LoadedModel) that replaces ``previous`` (or None)."""
+        date = (getattr(model.meta, "training", None) or {}).get("date")
+        return cls(time=time.time(), model_id=model.model_id, model_version=version,
+                   previous_model_id=None if previous is None else previous.model_id,
+                   model_file=Path(model.path).name, classes=list(model.meta.classes),
+                   trained=None if date is None else str(date))
+
+    def to_json(self) -> str:
+        d = {"type": "model", "protocol": PROTOCOL_VERSION, **asdict(self)}
         return json.dumps(d, separators=(",", ":"))
 
 
@@ -47,6 +85,8 @@ class Sink:
     """Base: ``send(line)``; failures are counted in ``errors``."""
 
     name = "sink"
+    failures: tuple[type[BaseException], ...] = (OSError, ValueError)
+    """What a failed send raises (counted and logged, never passed on)."""
 
     def __init__(self) -> None:
         self.sent = 0
@@ -57,7 +97,7 @@ class Sink:
         try:
             self._send(line, data)
             self.sent += 1
-        except (OSError, ValueError) as exc:
+        except self.failures as exc:
             self.errors += 1
             now = time.monotonic()
             if now - self._last_log > 10.0:  # a dead listener must not flood the journal
@@ -66,6 +106,9 @@ class Sink:
 
     def _send(self, line: str, data: bytes) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def health(self, snapshot: dict) -> None:
+        """The daemon's health view, about once a second (only the ROS 2 sink uses it)."""
 
     def flush(self) -> None:
         pass
@@ -135,8 +178,12 @@ class SinkSet:
         self.sinks = list(sinks)
 
     @classmethod
-    def from_config(cls, cfg, stream: IO[str] | None = None) -> SinkSet:
-        """Build from a SinksConfig; a UDP host that does not resolve is logged and skipped."""
+    def from_config(cls, cfg: SinksConfig, stream: IO[str] | None = None, ros2: Ros2Config | None = None,
+                    daemon: Any = None) -> SinkSet:
+        """Build from a SinksConfig; a UDP host that does not resolve is logged and skipped.
+
+        ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and the daemon it reads
+        frames and health from are then needed); rclpy is imported only then."""
         from runtime.config import parse_host_port
 
         sinks: list[Sink] = []
@@ -150,13 +197,24 @@ class SinkSet:
                 log.error("sink udp://%s: %s; events will not go there", target, exc)
         for path in cfg.unix:
             sinks.append(UnixDatagramSink(path))
+        if cfg.ros2:
+            from runtime.config import Ros2Config
+            from runtime.ros2 import open_ros2_sink
+
+            ros = open_ros2_sink(ros2 or Ros2Config(), daemon)
+            if ros is not None:
+                sinks.append(ros)
         return cls(sinks)
 
-    def emit(self, event: Event) -> None:
-        line = event.to_json()
+    def emit(self, message: Event | ModelAnnouncement) -> None:
+        line = message.to_json()
         data = line.encode()
         for sink in self.sinks:
             sink.send(line, data)
+
+    def health(self, snapshot: dict) -> None:
+        for sink in self.sinks:
+            sink.health(snapshot)
 
     @property
     def errors(self) -> int:

@@ -248,8 +248,9 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
     assert "Traceback" not in err
     status = json.loads(health.read_text())
     assert status["device_state"] == "stopped" and status["model_id"]
-    for line in out.splitlines():  # stdout carries only JSON events
-        assert json.loads(line)["class"] in CLASSES
+    lines = [json.loads(line) for line in out.splitlines()]  # stdout carries only JSON events
+    assert lines[0]["type"] == "model" and {d["type"] for d in lines} <= {"decision", "model"}
+    assert all(d["class"] in CLASSES for d in lines if d["type"] == "decision")
     print(f"\nSIGTERM -> exit in {stop_s * 1000:.0f} ms")
     assert stop_s < 1.0
     sock.close()

@@ -154,6 +154,7 @@ def test_deploy_config_shows_the_defaults(tmp_path):
     deployed, defaults = _deployed(tmp_path), config_from_dict({})
     assert deployed.continuous == defaults.continuous, "deploy/handover.toml shows the defaults"
     assert deployed.trigger == defaults.trigger, "deploy/handover.toml shows the defaults"
+    assert deployed.ros2 == defaults.ros2 and deployed.sinks == defaults.sinks, "deploy/handover.toml shows the defaults"
 
 
 @pytest.mark.parametrize("url", ["serial:///dev/ttyUSB0", "/dev/dsacon32m", "tcp://192.168.1.42:13000",

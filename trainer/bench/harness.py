@@ -165,7 +165,8 @@ class DatagramListener:
 
 
 class UdpListener(DatagramListener):
-    """Receives event datagrams in a thread; each with its arrival time."""
+    """Receives decision datagrams in a thread, each with its arrival time (model announcements
+    and other line types of docs/EVENTS.md are skipped)."""
 
     def __init__(self) -> None:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -176,7 +177,9 @@ class UdpListener(DatagramListener):
 
     def on_datagram(self, data: bytes, t: float) -> None:
         with contextlib.suppress(ValueError):
-            self.events.append((t, json.loads(data)))
+            event = json.loads(data)
+            if event.get("type") == "decision":
+                self.events.append((t, event))
 
 
 def write_config(folder: Path, device_url: str, model_dir: Path, udp_port: int | None,

@@ -1,0 +1,75 @@
+"""Whether the ROS 2 sink can run here, and opening it without ever taking the daemon down.
+
+The daemon imports this module only when ``sinks.ros2 = true``; rclpy itself is imported by
+runtime/ros2_node.py, only after the checks here passed. A ROS problem (rclpy missing, an
+unknown middleware, a domain id out of range) is one log line; events keep going to the
+other sinks.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+from runtime.config import Ros2Config
+from runtime.sinks import Sink
+
+log = logging.getLogger("handover.ros2")
+
+EXTRA_HINT = "pip install 'tactile-handover[ros]' (deploy/INSTALL.md, section ROS 2)"
+
+
+def middleware_problem(env: dict[str, str] | None = None) -> str | None:
+    """Why the ROS 2 middleware cannot load, or None.
+
+    Checked before rclpy is imported because ROS 2's C library ends the whole process (exit
+    102) when ``RMW_IMPLEMENTATION`` names a middleware that is not installed.
+    """
+    env = os.environ if env is None else env
+    name = env.get("RMW_IMPLEMENTATION", "").strip()
+    domain = env.get("ROS_DOMAIN_ID", "").strip()
+    if domain and not (domain.isdigit() and int(domain) <= 232):
+        return f"ROS_DOMAIN_ID={domain!r} must be a number from 0 to 232 (0-101 is safe everywhere)"
+    if not name:
+        return None  # the default middleware (rmw_fastrtps_cpp with the ros extra)
+    if not re.fullmatch(r"rmw_[a-z0-9_]+", name):
+        return f"RMW_IMPLEMENTATION={name!r} is not a middleware name (e.g. rmw_fastrtps_cpp)"
+    folders = [Path(sys.prefix) / "lib", *(Path(p) for p in env.get("LD_LIBRARY_PATH", "").split(os.pathsep) if p)]
+    if any((folder / f"lib{name}.so").exists() for folder in folders):
+        return None
+    from ctypes.util import find_library
+
+    if find_library(name):
+        return None
+    return f"RMW_IMPLEMENTATION={name}: lib{name}.so is not installed; unset RMW_IMPLEMENTATION or install that middleware"
+
+
+def availability_problem() -> str | None:
+    """Why the ROS 2 sink would not start here, found without importing rclpy (for ``--check``)."""
+    from importlib.util import find_spec
+
+    if find_spec("rclpy") is None:
+        return f"rclpy is not installed; {EXTRA_HINT}"
+    return middleware_problem()
+
+
+def open_ros2_sink(cfg: Ros2Config, daemon: Any) -> Sink | None:
+    """The ROS 2 sink, or None after one error line saying why and what to do."""
+    problem = middleware_problem()
+    if problem is None:
+        try:
+            from runtime.ros2_node import Ros2Sink
+        except ImportError as exc:
+            problem = f"rclpy or a ROS 2 message package is missing ({exc}); {EXTRA_HINT}"
+    if problem is None:
+        try:
+            return Ros2Sink(cfg, daemon)
+        except Exception as exc:  # rclpy raises its own types (RCLError, InvalidHandle, ...)
+            text = str(exc).strip().splitlines()
+            problem = f"cannot start the ROS 2 node: {text[0] if text else type(exc).__name__}"
+    log.error("sink ros2: %s; events still go to the other sinks", problem)
+    return None

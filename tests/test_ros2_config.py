@@ -1,0 +1,117 @@
+"""The ROS 2 sink's configuration and its failures: none of these needs rclpy.
+
+A ROS problem (rclpy missing, a middleware that cannot load, a domain id out of range) is
+one log line; the daemon keeps sending events to its other sinks (here a real UDP socket).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from runtime.config import ConfigError, Ros2Config, config_from_dict
+from runtime.daemon import Daemon
+from runtime.ros2 import middleware_problem
+from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket
+from tests.tiny_models import tiny_model_bytes, write_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ros2_is_off_by_default_and_the_section_has_defaults():
+    cfg = config_from_dict({})
+    assert cfg.sinks.ros2 is False and cfg.ros2 == Ros2Config()
+    assert (cfg.ros2.namespace, cfg.ros2.pads, cfg.ros2.grasp) == ("/handover", False, False)
+    cfg = config_from_dict({"sinks": {"ros2": True}, "ros2": {"namespace": "/lab/hand_1", "pads": True,
+                                                             "pad_rate_hz": 32, "reliability": "best_effort",
+                                                             "durability": "transient_local", "depth": 50}})
+    assert cfg.sinks.ros2 and cfg.ros2.namespace == "/lab/hand_1" and cfg.ros2.pad_rate_hz == 32.0
+
+
+@pytest.mark.parametrize("section, says", [
+    ({"namespace": "handover"}, "ros2.namespace"),
+    ({"namespace": "/hand-over"}, "ros2.namespace"),
+    ({"namespace": "/a//b"}, "ros2.namespace"),
+    ({"namespace": "/"}, "ros2.namespace"),
+    ({"node_name": "1st"}, "ros2.node_name"),
+    ({"reliability": "sometimes"}, "ros2.reliability: must be one of reliable, best_effort"),
+    ({"durability": "forever"}, "ros2.durability: must be one of volatile, transient_local"),
+    ({"depth": 0}, "ros2.depth: must be >= 1"),
+    ({"pad_rate_hz": 0}, "ros2.pad_rate_hz: must be >= 0.1"),
+    ({"pads": "yes"}, "ros2.pads: must be true or false"),
+    ({"pad_gain": 17}, "ros2.pad_gain: must be <= 16"),
+    ({"qos": "reliable"}, "ros2.qos: unknown key"),
+])
+def test_bad_ros2_keys_name_the_key(section, says):
+    with pytest.raises(ConfigError, match="^" + says.replace(".", r"\.")):
+        config_from_dict({"sinks": {"ros2": True}, "ros2": section})
+
+
+@pytest.mark.parametrize("env, says", [
+    ({}, None),
+    ({"ROS_DOMAIN_ID": "42"}, None),
+    ({"ROS_DOMAIN_ID": "233"}, "ROS_DOMAIN_ID='233' must be a number from 0 to 232"),
+    ({"ROS_DOMAIN_ID": "one"}, "ROS_DOMAIN_ID='one'"),
+    ({"RMW_IMPLEMENTATION": "fastdds"}, "is not a middleware name"),
+    ({"RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}, "librmw_nowhere_cpp.so is not installed"),
+])
+def test_middleware_problem(env, says):
+    problem = middleware_problem(env)
+    assert problem is None if says is None else says in problem
+
+
+def _run_with_udp(tmp_path: Path, caplog) -> list[str]:
+    udp = udp_socket()
+    cfg = daemon_config(tmp_path, "sim://?seed=0&events=3&realtime=0&loop=0", {}, udp.getsockname()[1])
+    with caplog.at_level(logging.INFO, logger="handover"):
+        daemon = Daemon(cfg)
+        run_until(daemon, lambda d: d.health.events >= 2)
+    lines = drain(udp)
+    udp.close()
+    assert ros_sink(daemon) is None
+    assert [json.loads(x)["type"] for x in lines].count("decision") >= 2, "UDP kept delivering"
+    return [r.getMessage() for r in caplog.records if r.name == "handover.ros2"]
+
+
+def test_rclpy_missing_is_one_line_and_udp_keeps_delivering(tmp_path, caplog, monkeypatch):
+    pytest.importorskip("onnx")
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # what an install without the ros extra sees
+    monkeypatch.delitem(sys.modules, "runtime.ros2_node", raising=False)
+    messages = _run_with_udp(tmp_path, caplog)
+    assert len(messages) == 1 and "rclpy" in messages[0] and "tactile-handover[ros]" in messages[0], messages
+
+
+@pytest.mark.parametrize("env, says", [
+    ({"RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}, "librmw_nowhere_cpp.so is not installed"),
+    ({"ROS_DOMAIN_ID": "500"}, "ROS_DOMAIN_ID='500'"),
+])
+def test_a_middleware_that_cannot_load_is_one_line(tmp_path, caplog, monkeypatch, env, says):
+    """Checked before rclpy loads it: ROS 2's C library would end the process (exit 102)."""
+    pytest.importorskip("onnx")
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    messages = _run_with_udp(tmp_path, caplog)
+    assert len(messages) == 1 and says in messages[0], messages
+
+
+def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
+    pytest.importorskip("onnx")
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\nros2 = true\n')
+    code = ("import sys; from runtime.cli import main; rc = main(['run', '--config', sys.argv[1], '--check']);"
+            "print('RCLPY', 'rclpy' in sys.modules); sys.exit(rc)")
+    env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}
+    proc = subprocess.run([sys.executable, "-c", code, str(cfg)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60, env=env)
+    assert proc.returncode == 0 and "RCLPY False" in proc.stdout, proc.stdout + proc.stderr
+    warnings = [line for line in proc.stderr.splitlines() if "sinks.ros2" in line]
+    assert len(warnings) == 1 and "librmw_nowhere_cpp.so is not installed" in warnings[0], proc.stderr
