@@ -12,11 +12,9 @@ import contextlib
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
-
-import numpy as np
 
 from firmware_io import protocol as P
+from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
 from firmware_io.parser import StreamParser
 from firmware_io.transports.base import Transport, TransportError
@@ -26,28 +24,6 @@ __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 READ_SIZE = 4096
 CANCEL_POLL_S = 0.05
 """While a cancel predicate is set, no single read waits longer than this."""
-
-
-class DSATimeout(P.DSAError):
-    """The controller did not answer in time."""
-
-
-class Cancelled(Exception):
-    """The caller's ``should_stop`` predicate asked to give up (e.g. SIGTERM while opening).
-
-    Deliberately not a DSAError or TransportError, so no retry loop swallows it."""
-
-
-@dataclass(frozen=True, slots=True)
-class Frame:
-    """One full frame. ``number`` counts frames decoded since open (gaps = dropped frames);
-    ``timestamp_ms`` is device time unwrapped across the u32 wrap; ``received`` is
-    ``time.perf_counter()`` when the packet's last byte was parsed; ``values`` uint16 in wire order."""
-
-    number: int
-    timestamp_ms: int
-    received: float
-    values: np.ndarray
 
 
 TransportSource = str | Transport | Callable[[], Transport]
