@@ -17,6 +17,7 @@ from firmware_io import protocol as P
 from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
 from firmware_io.parser import StreamParser
+from firmware_io.plausibility import FrameCheck
 from firmware_io.transports.base import Transport, TransportError
 
 __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
@@ -75,6 +76,7 @@ class DSAClient:
         self.sensor: P.SensorInfo | None = None
         self.matrices: list[P.MatrixInfoReply] = []
         self.layout: SensorLayout | None = None
+        self._plausible: FrameCheck | None = None
         self.streaming = False
         self._frames: deque[Frame] = deque()
         self._replies: deque[P.Packet] = deque()
@@ -90,6 +92,7 @@ class DSAClient:
             "frames_stale": 0,
             "frames_ignored": 0,
             "decode_errors": 0,
+            "frames_implausible": 0,
             "unexpected_replies": 0,
             "reconnects": 0,
             "timeouts": 0,
@@ -134,6 +137,7 @@ class DSAClient:
             for m in range(self.sensor.nb_matrices)
         ]
         self.layout = SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices))
+        self._plausible = FrameCheck(self.layout)
         self.parser.set_cells(self.layout.n_taxels)
         return self.layout
 
@@ -373,6 +377,9 @@ class DSAClient:
         except P.FrameDecodeError:
             self._counts["decode_errors"] += 1
             return
+        if self._plausible is not None and self._plausible.problem(values) is not None:
+            self._counts["frames_implausible"] += 1  # corrupt bits the CRC let through: never classified
+            return
         frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
         self._number += 1
         self._counts["frames"] += 1
@@ -468,7 +475,8 @@ class DSAClient:
         return text
 
     def _frames_seen(self) -> int:
-        return self._counts["frames"] + self._counts["frames_ignored"] + self._counts["decode_errors"]
+        c = self._counts
+        return c["frames"] + c["frames_ignored"] + c["decode_errors"] + c["frames_implausible"]
 
     def _ack(self, packet: bytes, frames_limit: int | None = -1, timeout: float | None = None) -> None:
         payload = self._request(packet, packet[3], frames_limit, timeout)

@@ -53,7 +53,7 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
     from firmware_io.frame_source import load_source
     from firmware_io.recording import RecordingError
-    from firmware_io.transports.base import ParsedURL, TransportError
+    from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError
 
     try:
         speed = _speed(args.speed)
@@ -63,8 +63,8 @@ def main(args: argparse.Namespace) -> int:
         faults = FaultPlan.parse(args.fault)
     except FaultSpecError as exc:
         return _fail(f"--fault: {exc}")
-    if args.events < 1:
-        return _fail("--events must be at least 1")
+    if not 1 <= args.events <= MAX_EVENTS:
+        return _fail(f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
     try:
         recording = load_source(args.source, seed=args.seed, events=args.events)
     except RecordingError as exc:
@@ -83,8 +83,8 @@ def main(args: argparse.Namespace) -> int:
             if parsed.scheme != "tcp" or not parsed.netloc:
                 return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
             host, _, port = parsed.netloc.rpartition(":")
-            if not host or not port.isdigit():
-                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+            if not host or not port.isdigit() or int(port) > 65535:
+                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
             server = TcpEmulatorServer(emulator, host=host, port=int(port))
     except EmulatorServerError as exc:
         return _fail(str(exc))

@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.layout import LayoutError, SensorLayout
+from firmware_io.bounded_zip import LimitError, read_json, read_npy
+from firmware_io.layout import SensorLayout
 
 FORMAT_NAME = "handover-recording"
 FORMAT_VERSION = 1
@@ -189,48 +190,88 @@ class Recording:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Recording:
-        """Read and check a recording; any problem raises one RecordingError naming the file."""
+        """Read and check a recording; any problem raises one RecordingError naming the file.
+
+        Members are read with limits (``MAX_HEADER_BYTES``, ``MAX_FRAME_BYTES``, shapes the header
+        declares, JSON nesting): a hostile or damaged file is refused, never read into memory whole."""
         path = Path(path)
         try:
             with zipfile.ZipFile(path, "r") as zf:
-                names = set(zf.namelist())
-                if "header.json" not in names:
-                    raise RecordingError(f"{path}: not a handover recording (no header.json)")
-                header = json.loads(zf.read("header.json"))
-                if not isinstance(header, dict):
-                    raise RecordingError(f"{path}: not a handover recording (header is a {type(header).__name__})")
-                if header.get("format") != FORMAT_NAME:
-                    raise RecordingError(f"{path}: not a handover recording (format {header.get('format')!r})")
-                if header.get("version") != FORMAT_VERSION:
-                    raise RecordingError(
-                        f"{path}: recording format version {header.get('version')!r} is not supported "
-                        f"(this software reads version {FORMAT_VERSION})"
-                    )
-                missing = {"frames.npy", "timestamps.npy"} - names
-                if missing:
-                    raise RecordingError(f"{path}: damaged recording, missing {', '.join(sorted(missing))}")
-                frames = np.load(io.BytesIO(zf.read("frames.npy")), allow_pickle=False)
-                stamps = np.load(io.BytesIO(zf.read("timestamps.npy")), allow_pickle=False)
+                header = _read_header(zf, path)
+                n_frames, n_taxels = _declared_size(header, path)
+                frames = read_npy(zf, "frames.npy", np.uint16, (n_frames, n_taxels))
+                stamps = read_npy(zf, "timestamps.npy", np.float64, (n_frames,))
         except RecordingError:
             raise
+        except LimitError as exc:
+            raise RecordingError(f"{path}: refused: {exc}") from None
         except FileNotFoundError:
             raise RecordingError(f"{path}: no such file") from None
         except IsADirectoryError:
             raise RecordingError(f"{path}: is a folder, not a recording") from None
         except zipfile.BadZipFile as exc:
             raise RecordingError(f"{path}: not a handover recording or truncated ({exc})") from None
-        except (OSError, EOFError, ValueError, KeyError, json.JSONDecodeError) as exc:
-            raise RecordingError(f"{path}: damaged recording ({type(exc).__name__}: {exc})") from None
-        if frames.dtype != np.uint16:
-            raise RecordingError(f"{path}: frames are {frames.dtype}, expected uint16")
-        if header.get("n_frames") != len(frames) or header.get("n_taxels") != (frames.shape[1] if frames.ndim == 2 else None):
-            raise RecordingError(f"{path}: header says {header.get('n_frames')} frames x {header.get('n_taxels')} taxels, data is {frames.shape}")
+        except (OSError, EOFError, ValueError, KeyError, NotImplementedError, RuntimeError) as exc:
+            raise RecordingError(f"{path}: damaged recording ({type(exc).__name__}: {_first_line(exc)})") from None
         try:
             layout = SensorLayout.from_dict(header["layout"])
+            if layout.n_taxels != n_taxels:
+                raise RecordingError(f"layout has {layout.n_taxels} taxels, the header says {n_taxels}")
             trials = [Trial.from_dict(t) for t in header.get("trials", [])]
             return cls(layout, frames, stamps, trials, dict(header.get("meta", {})))
-        except (RecordingError, LayoutError, KeyError, TypeError, ValueError) as exc:
-            raise RecordingError(f"{path}: inconsistent recording: {exc}") from None
+        except Exception as exc:  # any shape of nonsense in a header: one line naming the file
+            raise RecordingError(f"{path}: inconsistent recording: {_first_line(exc)}") from None
+
+
+MAX_HEADER_BYTES = 16 << 20
+"""header.json: layout, trials and meta; a 900-trial recording's is about 300 kB."""
+MAX_FRAME_BYTES = 1 << 30
+"""frames.npy: 1 GiB is about 9 hours of 486 taxels at 32 Hz."""
+MAX_TAXELS = 1 << 16
+
+
+def _read_header(zf: zipfile.ZipFile, path: Path) -> dict:
+    names = set(zf.namelist())
+    if "header.json" not in names:
+        raise RecordingError(f"{path}: not a handover recording (no header.json)")
+    header = read_json(zf, "header.json", MAX_HEADER_BYTES)
+    if not isinstance(header, dict):
+        raise RecordingError(f"{path}: not a handover recording (header is a {type(header).__name__})")
+    if header.get("format") != FORMAT_NAME:
+        raise RecordingError(f"{path}: not a handover recording (format {_short(header.get('format'))})")
+    if header.get("version") != FORMAT_VERSION:
+        raise RecordingError(
+            f"{path}: recording format version {_short(header.get('version'))} is not supported "
+            f"(this software reads version {FORMAT_VERSION})"
+        )
+    missing = {"frames.npy", "timestamps.npy"} - names
+    if missing:
+        raise RecordingError(f"{path}: damaged recording, missing {', '.join(sorted(missing))}")
+    return header
+
+
+def _declared_size(header: dict, path: Path) -> tuple[int, int]:
+    """``(n_frames, n_taxels)`` from the header, within the limits, before any array is read."""
+    n_frames, n_taxels = header.get("n_frames"), header.get("n_taxels")
+    for key, value in (("n_frames", n_frames), ("n_taxels", n_taxels)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise RecordingError(f"{path}: header {key} is {str(value)[:20]!r}, expected a count")
+    if not 1 <= n_taxels <= MAX_TAXELS:
+        raise RecordingError(f"{path}: header says {n_taxels} taxels a frame, outside 1..{MAX_TAXELS}")
+    if n_frames * n_taxels * 2 > MAX_FRAME_BYTES:
+        raise RecordingError(f"{path}: header says {n_frames} frames x {n_taxels} taxels, over the limit of "
+                             f"{MAX_FRAME_BYTES >> 20} MiB of frames")
+    return n_frames, n_taxels
+
+
+def _short(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:36] + "..."
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:200] if text else type(exc).__name__
 
 
 def _umask() -> int:

@@ -7,6 +7,7 @@ a problem raises :class:`ConfigError` whose message names the key, e.g.
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field, fields
@@ -17,6 +18,32 @@ MODES = ("trigger", "continuous")
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
 """The paper's four actions and the trainer's dormant class; a custom model may have others."""
 LOG_LEVELS = ("debug", "info", "warning", "error")
+
+RANGES: dict[str, tuple[float, float]] = {
+    "device.stall_timeout_s": (0.05, 3600.0),
+    "device.reconnect_min_s": (0.0, 3600.0),
+    "device.reconnect_max_s": (0.0, 3600.0),
+    "model.poll_interval_s": (0.01, 3600.0),
+    "model.max_bytes": (1024, 1 << 30),
+    "model.decision_budget": (0.001, 1.0),
+    "trigger.fraction": (0.0, 1.0),
+    "trigger.hysteresis": (0.0, 0.99),
+    "trigger.refractory_s": (0.0, 3600.0),
+    "trigger.rearm_quiet_s": (0.0, 60.0),
+    "trigger.baseline_tau_s": (0.01, 86400.0),
+    "trigger.pre_frames": (0, 1000),
+    "continuous.confirm_frames": (1, 1000),
+    "continuous.min_margin": (0.0, 1000.0),
+    "continuous.rearm_frames": (0, 100000),
+    "onnxruntime.intra_op_threads": (1, 64),
+    "ros2.depth": (1, 10000),
+    "ros2.pad_rate_hz": (0.1, 1000.0),
+    "ros2.pad_gain": (1, 16),
+}
+"""Every number of the config and its closed range [lo, hi] (the one owner of these limits).
+Why bounded above too: an infinite or absurd value (``stall_timeout_s = inf``, a 20-digit
+``max_bytes``) turns a safety mechanism off without an error; NaN compares false with
+everything, so finiteness is checked first. ``trigger.fraction`` is open at both ends."""
 
 
 class ConfigError(ValueError):
@@ -47,6 +74,12 @@ class ModelConfig:
     folder: str = "/var/lib/handover/models"
     poll_interval_s: float = 1.0
     max_bytes: int = 64 * 1024 * 1024
+    decision_budget: float = 0.1
+    """Longest a decision may take at warm-up, as a fraction of the model's sample period
+    (0.1: 3.1 ms at 32 Hz); a slower model is refused."""
+    quarantine_file: str | None = None
+    """Where models taken out of service at run time are remembered across restarts; None: beside
+    the health file (``quarantined-models.json``), or in memory only without one."""
 
 
 @dataclass(frozen=True)
@@ -180,9 +213,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     _no_unknown("device", dev, {f.name for f in fields(DeviceConfig)})
     device = DeviceConfig(
         url=_str("device.url", dev, DeviceConfig.url),
-        stall_timeout_s=_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s, lo=0.05),
-        reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s, lo=0.0),
-        reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s, lo=0.0),
+        stall_timeout_s=_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s),
+        reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s),
+        reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s),
     )
     _check_url(device.url)
     if device.reconnect_max_s < device.reconnect_min_s:
@@ -213,8 +246,10 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     _no_unknown("model", mo, {f.name for f in fields(ModelConfig)})
     model = ModelConfig(
         folder=_str("model.folder", mo, ModelConfig.folder),
-        poll_interval_s=_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s, lo=0.01),
-        max_bytes=_int("model.max_bytes", mo, ModelConfig.max_bytes, lo=1024),
+        poll_interval_s=_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s),
+        max_bytes=_int("model.max_bytes", mo, ModelConfig.max_bytes),
+        decision_budget=_num("model.decision_budget", mo, ModelConfig.decision_budget),
+        quarantine_file=None if "quarantine_file" not in mo else _str("model.quarantine_file", mo, ""),
     )
 
     tr = data.get("trigger", {})
@@ -222,16 +257,16 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     fraction = tr.get("fraction")
     if fraction is not None:
         fraction = _num("trigger.fraction", tr, 0.15)
-        if not 0.0 < fraction < 1.0:
+        if not 0.0 < fraction < 1.0:  # open range: 0 or 1 would never or always trigger
             raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
     trigger = TriggerConfig(
         fraction=fraction,
-        hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis, lo=0.0, hi=0.99),
-        refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s, lo=0.0),
-        rearm_quiet_s=_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s, lo=0.0, hi=60.0),
+        hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
+        refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
+        rearm_quiet_s=_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s),
         baseline=_bool("trigger.baseline", tr, TriggerConfig.baseline),
-        baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s, lo=0.01),
-        pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0, lo=0, hi=1000),
+        baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s),
+        pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0),
     )
     if fraction is not None and trigger.hysteresis >= fraction:
         raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")
@@ -239,9 +274,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     co = data.get("continuous", {})
     _no_unknown("continuous", co, {f.name for f in fields(ContinuousConfig)})
     continuous = ContinuousConfig(
-        confirm_frames=_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames, lo=1, hi=1000),
-        min_margin=_num("continuous.min_margin", co, ContinuousConfig.min_margin, lo=0.0, hi=1000.0),
-        rearm_frames=_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames, lo=0, hi=100000),
+        confirm_frames=_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames),
+        min_margin=_num("continuous.min_margin", co, ContinuousConfig.min_margin),
+        rearm_frames=_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames),
     )
 
     si = data.get("sinks", {})
@@ -260,7 +295,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     ox = data.get("onnxruntime", {})
     _no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})
     onnx_cfg = OnnxConfig(
-        intra_op_threads=_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads, lo=1, hi=64),
+        intra_op_threads=_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads),
         allow_spinning=_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
     )
 
@@ -299,10 +334,10 @@ def _ros2_config(table: dict) -> Ros2Config:
         raise ConfigError(f"ros2.durability: must be one of {', '.join(DURABILITIES)}, got {durability!r}")
     return Ros2Config(
         namespace=namespace, node_name=node_name, reliability=reliability, durability=durability,
-        depth=_int("ros2.depth", table, Ros2Config.depth, lo=1, hi=10000),
+        depth=_int("ros2.depth", table, Ros2Config.depth),
         pads=_bool("ros2.pads", table, Ros2Config.pads),
-        pad_rate_hz=_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz, lo=0.1, hi=1000.0),
-        pad_gain=_int("ros2.pad_gain", table, Ros2Config.pad_gain, lo=1, hi=16),
+        pad_rate_hz=_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz),
+        pad_gain=_int("ros2.pad_gain", table, Ros2Config.pad_gain),
         grasp=_bool("ros2.grasp", table, Ros2Config.grasp),
     )
 
@@ -346,26 +381,31 @@ def _bool(key: str, table: dict, default: bool) -> bool:
     return value
 
 
-def _num(key: str, table: dict, default: float, lo: float | None = None, hi: float | None = None) -> float:
+def _num(key: str, table: dict, default: float) -> float:
     value = table.get(key.rpartition(".")[2], default)
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{key}: must be a number, got {value!r}")
-    if lo is not None and value < lo:
-        raise ConfigError(f"{key}: must be >= {lo}, got {value}")
-    if hi is not None and value > hi:
-        raise ConfigError(f"{key}: must be <= {hi}, got {value}")
-    return float(value)
+    return float(_in_range(key, value))
 
 
-def _int(key: str, table: dict, default: int, lo: int | None = None, hi: int | None = None) -> int:
+def _int(key: str, table: dict, default: int) -> int:
     value = table.get(key.rpartition(".")[2], default)
     if isinstance(value, bool) or not isinstance(value, int):
         raise ConfigError(f"{key}: must be an integer, got {value!r}")
-    if lo is not None and value < lo:
-        raise ConfigError(f"{key}: must be >= {lo}, got {value}")
-    if hi is not None and value > hi:
-        raise ConfigError(f"{key}: must be <= {hi}, got {value}")
+    return int(_in_range(key, value))
+
+
+def _in_range(key: str, value: float) -> float:
+    """``value`` if finite and inside ``RANGES[key]``; else ConfigError with key, value and range."""
+    lo, hi = RANGES[key]
+    if (isinstance(value, float) and not math.isfinite(value)) or not lo <= value <= hi:
+        shown = repr(value) if len(repr(value)) <= 24 else repr(value)[:20] + "..."
+        raise ConfigError(f"{key}: must be a finite number in [{_plain(lo)}, {_plain(hi)}], got {shown}")
     return value
+
+
+def _plain(bound: float) -> str:
+    return str(int(bound)) if float(bound).is_integer() else f"{bound:g}"
 
 
 def _str_list(key: str, table: dict, default: tuple[str, ...]) -> tuple[str, ...]:

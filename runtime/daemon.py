@@ -31,6 +31,8 @@ from runtime.config import Config, ConfigError, load_config
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
+from runtime.output_check import output_problem
+from runtime.quarantine import QuarantineStore, store_path
 from runtime.ring import RingBuffer
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, ModelAnnouncement, SinkSet
@@ -106,6 +108,9 @@ class Daemon:
         """The latest ``set_grasp`` call: (closed, source)."""
         self.sinks = SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self)
         self.model: Any = None
+        self._fallback: Any = None
+        """The model the last swap replaced: it serves again if the new one is taken out of service."""
+        self.quarantine = QuarantineStore(store_path(cfg.model.quarantine_file, cfg.health_file))
         self.layout: SensorLayout | None = None
         self.client: Any = None
         self.connected = False
@@ -186,6 +191,8 @@ class Daemon:
             check=lambda m: scene_problem(m, self.cfg, self.layout),
             poll_interval=self.cfg.model.poll_interval_s,
             on_reject=self._rejected,
+            decision_budget=self.cfg.model.decision_budget,
+            quarantine=self.quarantine,
         )
         model = self.watcher.poll(require_stable=False)
         self.watcher.take()
@@ -199,6 +206,8 @@ class Daemon:
     def _use_model(self, model: Any) -> None:
         """Swap the serving model (one reference assignment), fit the hot path to it, announce it."""
         old = self.model
+        if old is not None and old is not model:
+            self._fallback = old
         self.model = model
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
@@ -360,6 +369,7 @@ class Daemon:
             return
         self.health.crc_errors = int(stats.get("crc_errors", 0))
         self.health.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
+        self.health.frames_implausible = int(stats.get("frames_implausible", 0))
         self.health.frames_stale = int(stats.get("frames_stale", 0))
 
     # -- the hot path -----------------------------------------------------------------------------
@@ -393,8 +403,17 @@ class Daemon:
     def _classify(self, frame: Any) -> None:
         model = self.model
         meta = model.meta
-        labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+        try:
+            labels, scores = model.run_trusted(self.ring.window(meta.T))  # float32 copies of uint16 frames
+        except Exception as exc:  # a graph that fails on real frames only
+            self._take_out_of_service(model, f"inference failed on frames {frame.number - meta.T + 1}.."
+                                             f"{frame.number}: {_one_line(exc)}")
+            return
         decided = time.perf_counter()
+        problem = output_problem(labels, scores, meta.n_classes)
+        if problem:
+            self._take_out_of_service(model, f"{problem} (frames {frame.number - meta.T + 1}..{frame.number})")
+            return
         latency_us = (decided - frame.received) * 1e6
         h = self.health
         h.decisions += 1
@@ -426,6 +445,35 @@ class Daemon:
         if self.on_event is not None:
             self.on_event(event)
 
+    def _take_out_of_service(self, model: Any, reason: str) -> None:
+        """A model broke the output contract at run time: one line, never load this file version
+        again (also after a restart), and serve the model it replaced, or none."""
+        h = self.health
+        h.models_quarantined += 1
+        (self.watcher or self.quarantine).quarantine_file(Path(model.path), reason)
+        fallback, self._fallback = self._fallback, None
+        if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
+            fallback = None
+        h.report_error(f"model {Path(model.path).name} taken out of service: {reason}", "model")
+        what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
+        if fallback is not None:
+            what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"
+        log.error("model %s (%s) taken out of service: %s; it is not loaded again until the file changes; %s",
+                  model.model_id, Path(model.path).name, reason, what)
+        self.model, h.model_id = None, None
+        if fallback is not None:
+            self._use_model(fallback)  # announced to the sinks like any model that starts serving
+        else:
+            self._pending.clear()
+            if self.watcher is not None:
+                self.watcher.reconsider_older()
+
+    def _frame_failed(self, exc: BaseException) -> None:
+        """An exception while handling one frame: counted, logged at most every 10 s, never fatal."""
+        if self.health.frame_failed(_one_line(exc)):
+            log.error("frame handling failed (%d so far; the loop goes on): %s: %s", self.health.frame_errors,
+                      type(exc).__name__, _one_line(exc))
+
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
@@ -446,6 +494,7 @@ class Daemon:
         h.update_rate(now)
         self._absorb_client_stats()
         h.sink_errors = self.sinks.errors
+        h.events_invalid = self.sinks.invalid
         self.notifier.status(h.status_line())
         snapshot = h.snapshot()
         if self.status_file is not None:
@@ -528,7 +577,10 @@ class Daemon:
                     continue
                 self._last_frame_t = time.monotonic()
                 self._backoff = self.cfg.device.reconnect_min_s
-                self.handle_frame(frame)
+                try:
+                    self.handle_frame(frame)
+                except Exception as exc:  # never let one frame end the service
+                    self._frame_failed(exc)
         finally:
             self.shutdown()
         return 2 if self.fatal else 0

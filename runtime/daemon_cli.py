@@ -47,8 +47,9 @@ def main(args: argparse.Namespace) -> int:
     if args.check:
         return _check(cfg, require_model=args.require_model)
     from runtime.daemon import Daemon
+    from runtime.sinks import claim_stdout_for_events
 
-    daemon = Daemon(cfg)
+    daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
     daemon.install_signal_handlers()
     code = daemon.run()
     if daemon.fatal:
@@ -86,7 +87,8 @@ def _check(cfg, require_model: bool = False) -> int:
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
-                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events))
+                               check=lambda m: scene_problem(m, cfg, None, check_events=check_events),
+                               decision_budget=cfg.model.decision_budget, quarantine=daemon.quarantine)
         return watcher.poll(require_stable=False), watcher.rejections
 
     model, rejections = newest(check_events=True)

@@ -19,6 +19,9 @@ import numpy as np
 log = logging.getLogger("handover.health")
 ERROR_HISTORY = 8
 
+FRAME_ERROR_LOG_S = 10.0
+"""At most one log line this often for exceptions while handling frames (all are counted)."""
+
 
 class Health:
     """All counters the daemon reports."""
@@ -42,6 +45,15 @@ class Health:
         self.sink_errors = 0
         self.models_loaded = 0
         self.models_rejected = 0
+        self.models_quarantined = 0
+        """Models taken out of service at run time (a label out of range, NaN scores, a failed run)."""
+        self.frames_implausible = 0
+        """Frames the sensor cannot have sent (above 12 bits, pressure on a cell that does not exist):
+        dropped by the client, never classified."""
+        self.frame_errors = 0
+        """Exceptions while handling a frame (the loop went on)."""
+        self.events_invalid = 0
+        """Events not sent because they were not valid JSON (NaN/inf)."""
         self.model_id: str | None = None
         self.device_state = "starting"
         self.last_error = ""
@@ -50,6 +62,7 @@ class Health:
         self.errors: deque[dict] = deque(maxlen=ERROR_HISTORY)
         """The last few problems with their time, including resolved ones."""
         self._error_source = ""
+        self._last_frame_error_log = -FRAME_ERROR_LOG_S
         self._lat = np.zeros(latency_window, dtype=np.float64)
         self._lat_n = 0
         self.latency_max_us = 0.0
@@ -67,6 +80,17 @@ class Health:
         """``source`` works again: its error stops being the current one (it stays in ``errors``)."""
         if self._error_source == source:
             self.last_error, self._error_source = "", ""
+
+    def frame_failed(self, message: str, now: float | None = None) -> bool:
+        """Count an exception while handling a frame; True when a log line is due (rate limit)."""
+        self.frame_errors += 1
+        now = time.monotonic() if now is None else now
+        if now - self._last_frame_error_log < FRAME_ERROR_LOG_S:
+            self.last_error = f"frame handling failed: {message}"
+            return False
+        self._last_frame_error_log = now
+        self.report_error(f"frame handling failed: {message}", "frame")  # in the history once per log line
+        return True
 
     def record_latency(self, latency_us: float) -> None:
         self._lat[self._lat_n % self._lat.size] = latency_us
@@ -112,6 +136,10 @@ class Health:
             "sink_errors": self.sink_errors,
             "models_loaded": self.models_loaded,
             "models_rejected": self.models_rejected,
+            "models_quarantined": self.models_quarantined,
+            "frames_implausible": self.frames_implausible,
+            "frame_errors": self.frame_errors,
+            "events_invalid": self.events_invalid,
             "model_id": self.model_id,
             "last_error": self.last_error,
             "last_error_at": None if self.last_error_at is None else round(self.last_error_at, 3),

@@ -70,9 +70,11 @@ def _text(c: dict) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from runtime.model import ModelContractError, load_model
+    from runtime.output_check import DEFAULT_BUDGET_FRACTION
 
     try:
-        model = load_model(args.model, warm_up=False)
+        # the daemon's warm-up: realistic windows, the output contract, the default time budget
+        model = load_model(args.model, decision_budget=DEFAULT_BUDGET_FRACTION)
     except ModelContractError as exc:
         print(f"handover inspect: {exc}", file=sys.stderr)
         return 1

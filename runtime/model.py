@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.onnx_wire import WireError, summarize
+from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
 
 SCHEMA_VERSION = 1
 METADATA_KEY = "handover"
@@ -58,6 +59,11 @@ TRAINING_KEYS = ("data_fingerprint", "n_trials", "project_version", "date")
 
 class ModelContractError(ValueError):
     """A model file that breaks the contract; the message names the file and the problem."""
+
+
+class ModelUnreadableError(ModelContractError):
+    """Bytes that are not (yet) a whole model: empty, truncated, no graph onnxruntime can load, no
+    metadata. What a file still being copied looks like, so the watcher retries it for a while."""
 
 
 class ModelInputError(ValueError):
@@ -246,11 +252,15 @@ class LoadedModel:
         labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x})
         return labels, scores
 
-    def warm_up(self, repeats: int = 3) -> None:
-        """Run a few zero windows so the first real inference does not pay for allocations."""
-        zeros = np.zeros((1, *self._shape), dtype=np.float32)
-        for _ in range(repeats):
-            self._session.run(OUTPUT_NAMES, {INPUT_NAME: zeros})
+    def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION) -> None:
+        """Run realistic windows (so the first real inference does not pay for allocations), check
+        every answer against the output contract and one decision against the time budget
+        (``budget_fraction`` of the sample period; None: not timed). ModelContractError if not."""
+        meta = self.meta
+        problem = probe(self.run_trusted, meta.T, meta.n_channels, meta.n_classes, meta.fullscale,
+                        1.0 / meta.sample_rate_hz, budget_fraction)
+        if problem:
+            raise ModelContractError(f"model {self.path}: {problem}")
 
 
 def _check_io(session, meta: ModelMeta) -> None:
@@ -319,8 +329,13 @@ def load_model(
     intra_op_threads: int = 1,
     allow_spinning: bool = False,
     warm_up: bool = True,
+    decision_budget: float | None = None,
 ) -> LoadedModel:
-    """Read, validate and open a model file; any breach raises ModelContractError naming it."""
+    """Read, validate and open a model file; any breach raises ModelContractError naming it.
+
+    ``warm_up`` checks the output contract on realistic windows; ``decision_budget`` (a fraction
+    of the sample period, e.g. 0.1) also refuses a model whose decision is slower (the daemon's
+    rule; offline tools that measure speed themselves leave it None)."""
     import onnxruntime as ort
 
     path = Path(path)
@@ -335,41 +350,48 @@ def load_model(
     if len(data) > max_bytes:
         raise ModelContractError(f"{where}: {len(data)} bytes exceeds the limit of {max_bytes}")
     if not data:
-        raise ModelContractError(f"{where}: empty file")
+        raise ModelUnreadableError(f"{where}: empty file")
     try:
         wire = summarize(data)
     except WireError as exc:
-        raise ModelContractError(f"{where}: not an ONNX model or truncated ({exc})") from exc
+        raise ModelUnreadableError(f"{where}: not an ONNX model or truncated ({exc})") from exc
     if wire.external_data:
         raise ModelContractError(f"{where}: references external data; a model must be one self-contained file")
     foreign = sorted((wire.opset_domains | wire.node_domains) - ALLOWED_DOMAINS)
     if foreign:
         raise ModelContractError(f"{where}: uses non-standard operator domain(s) {foreign}; allowed: ai.onnx, ai.onnx.ml")
     try:
+        # enable_fallback=0: on a failure onnxruntime's Python wrapper would otherwise print an
+        # "EP Error" banner with print(), i.e. into the daemon's stdout event stream.
         session = ort.InferenceSession(
-            data, sess_options=session_options(intra_op_threads, allow_spinning), providers=["CPUExecutionProvider"]
+            data, sess_options=session_options(intra_op_threads, allow_spinning), providers=["CPUExecutionProvider"],
+            enable_fallback=0,
         )
     except Exception as exc:  # onnxruntime raises several unrelated types for a bad graph
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ModelContractError(f"{where}: onnxruntime cannot load it: {first}") from exc
-    raw = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
+        raise ModelUnreadableError(f"{where}: onnxruntime cannot load it: {first}") from exc
+    try:
+        raw = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
+    except UnicodeDecodeError as exc:  # onnxruntime decodes metadata strings as UTF-8 for Python
+        raise ModelContractError(f"{where}: metadata is not valid UTF-8 (byte {exc.start}); damaged file?") from None
     if raw is None:
-        raise ModelContractError(f"{where}: no {METADATA_KEY!r} metadata (not a handover model)")
+        raise ModelUnreadableError(f"{where}: no {METADATA_KEY!r} metadata (not a handover model)")
     try:
         meta_dict = json.loads(raw)
     except json.JSONDecodeError as exc:
         raise ModelContractError(f"{where}: metadata is not valid JSON ({exc.msg} at {exc.pos})") from exc
+    except RecursionError:
+        raise ModelContractError(f"{where}: metadata is nested too deeply") from None
     try:
         meta = ModelMeta.from_dict(meta_dict)
         _check_io(session, meta)
         _check_bow_params(meta, wire.initializer_dims)
     except ModelContractError as exc:
         raise ModelContractError(f"{where}: {exc}") from exc
+    except UnicodeDecodeError as exc:  # input/output names of a damaged file
+        raise ModelContractError(f"{where}: a name in the graph is not valid UTF-8 (byte {exc.start}); damaged file?") from None
     model_id = hashlib.sha256(data).hexdigest()[:12]
     model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data))
     if warm_up:
-        try:
-            model.warm_up()
-        except Exception as exc:
-            raise ModelContractError(f"{where}: fails on a zero window: {str(exc).splitlines()[0]}") from exc
+        model.warm_up(budget_fraction=decision_budget)
     return model

@@ -22,6 +22,7 @@ import logging
 import os
 import stat
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,9 +30,18 @@ from typing import Any
 
 import numpy as np
 
+from runtime.model import ModelContractError, ModelUnreadableError
+from runtime.output_check import DEFAULT_BUDGET_FRACTION
+from runtime.quarantine import QuarantineStore, file_key
+
 log = logging.getLogger("handover.models")
 
 IGNORED_SUFFIXES = (".tmp", ".part", ".partial", ".swp")
+SETTLE_S = 10.0
+"""A file that is not (yet) a whole model and was modified less than this long ago is taken as
+still being copied in place (a copy may pause for seconds, so two equal polls do not prove it
+complete): one info line, retried on every poll, rejected only once it has stayed unreadable and
+unchanged this long. A file renamed into place complete is never in this state."""
 
 
 @dataclass(frozen=True)
@@ -107,16 +117,27 @@ class ModelWatcher:
         check: Callable[[Any], str | None] | None = None,
         poll_interval: float = 1.0,
         warmup_runs: int = 3,
+        decision_budget: float | None = DEFAULT_BUDGET_FRACTION,
         on_reject: Callable[[Rejection], None] | None = None,
         service_uid: int | None = None,
+        quarantine: QuarantineStore | None = None,
     ) -> None:
         self.folder = Path(folder)
         self.loader = loader
         self.check = check
         self.poll_interval = float(poll_interval)
         self.warmup_runs = int(warmup_runs)
+        self.decision_budget = decision_budget
+        """Fraction of the sample period one warm-up decision may take (None: not timed)."""
         self.on_reject = on_reject
         self.service_uid = service_uid
+        self.quarantined = quarantine if quarantine is not None else QuarantineStore()
+        """File versions taken out of service at run time: never loaded again until they change."""
+        self._accepted_states: dict[Path, FileState] = {}
+        self._skipped: set[FileState] = set()
+        """Files passed over only because a newer one was chosen (candidates again after a quarantine)."""
+        self._reconsider = False
+        self._settling: set[FileState] = set()
         self.pending: Any = None
         """A validated, warmed-up model waiting for the main loop (set by the watcher thread)."""
         self.current: FileState | None = None
@@ -165,6 +186,11 @@ class ModelWatcher:
         starts, and waiting a poll would delay READY) files are taken as they are.
         """
         self._apply_rescan()
+        if self._reconsider:  # set by the main loop; applied here, in the polling thread
+            self._reconsider = False
+            self._tried -= self._skipped
+            self._skipped.clear()
+            self.current = None
         now = self._list()
         stable = [s for p, s in now.items() if not require_stable or self._previous.get(p) == s]
         self._previous = now
@@ -176,9 +202,11 @@ class ModelWatcher:
             self._tried.add(st)
             if accepted is not None:
                 log.info("model %s: superseded by %s, dropped after it; not loaded", st.path.name, accepted[0].path.name)
+                self._skipped.add(st)
                 continue
             if st.arrival < current:
                 log.info("model %s: dropped before the model in use; not loaded", st.path.name)
+                self._skipped.add(st)
                 continue
             model = self._validate(st)
             if model is not None:
@@ -187,6 +215,7 @@ class ModelWatcher:
             return None
         st, model = accepted
         self.current = st
+        self._accepted_states[st.path] = st
         self.accepted.append(st.path)
         with self._lock:
             self.pending = model
@@ -197,6 +226,7 @@ class ModelWatcher:
         if keep is None:
             return
         self._tried = {self.current} if keep and self.current is not None else set()
+        self._skipped.clear()
         if not keep:
             self.current = None
 
@@ -204,8 +234,15 @@ class ModelWatcher:
         problem = permission_problem(st, self.service_uid)
         if problem is not None:
             return self._reject(st.path, problem)
+        earlier = self.quarantined.reason(file_key(st.path, st.size, st.mtime_ns, st.inode))
+        if earlier is not None:
+            return self._reject(st.path, f"taken out of service earlier ({earlier}); replace the file to try again")
         try:
             model = self.loader(st.path)
+        except ModelUnreadableError as exc:
+            if time.time() - st.mtime_ns / 1e9 < SETTLE_S:
+                return self._settle(st, exc)
+            return self._reject(st.path, str(exc))
         except Exception as exc:  # the contract's own errors and anything a broken file can raise
             return self._reject(st.path, str(exc) or type(exc).__name__)
         if self.check is not None:
@@ -214,14 +251,25 @@ class ModelWatcher:
                 return self._reject(st.path, problem)
         try:
             self._warm_up(model)
+        except ModelContractError as exc:  # wrong answers on realistic windows, or too slow
+            return self._reject(st.path, str(exc).removeprefix(f"model {st.path}: "))
         except Exception as exc:
             return self._reject(st.path, f"warm-up inference failed: {exc}")
         log.info("model %s accepted (id %s)", st.path.name, getattr(model, "model_id", "?"))
         return model
 
+    def _settle(self, st: FileState, exc: Exception) -> None:
+        """A young file that is not a whole model yet: one info line, tried again on the next poll."""
+        self._tried.discard(st)
+        if st not in self._settling:
+            self._settling.add(st)
+            log.info("model %s: not a whole model yet (%s); taken as still being copied, retried until it has "
+                     "been unchanged %.0f s", st.path.name, str(exc).removeprefix(f"model {st.path}: "), SETTLE_S)
+        return None
+
     def _warm_up(self, model: Any) -> None:
         if hasattr(model, "warm_up"):
-            model.warm_up(self.warmup_runs)
+            model.warm_up(budget_fraction=self.decision_budget)
             return
         meta = model.meta
         T = int(meta["T"]) if isinstance(meta, dict) else int(meta.T)
@@ -237,6 +285,20 @@ class ModelWatcher:
         if self.on_reject is not None:
             self.on_reject(rejection)
         return None
+
+    def quarantine_file(self, path: Path, reason: str) -> None:
+        """Never load this version of ``path`` again (also after a restart, when the store has a file)."""
+        st = self._accepted_states.get(Path(path))
+        if st is None:  # not loaded by this watcher (e.g. served by the caller): the file as it is now
+            self.quarantined.quarantine_file(path, reason)
+            return
+        self._tried.add(st)
+        self.quarantined.add(file_key(st.path, st.size, st.mtime_ns, st.inode), reason)
+
+    def reconsider_older(self) -> None:
+        """The model in use was taken out of service and none is left in memory: on the next poll,
+        files passed over for a newer one are candidates again (the newest valid one serves)."""
+        self._reconsider = True
 
     def take(self) -> Any:
         """The pending model (once), or None. Called by the main loop between two windows."""

@@ -8,8 +8,10 @@ The line format is the event protocol (docs/EVENTS.md, docs/events.schema.json).
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import logging
+import os
 import socket
 import sys
 import time
@@ -49,7 +51,9 @@ class Event:
         del d["cls"]
         d["scores"] = {k: round(float(v), 6) for k, v in self.scores.items()}
         d["latency_us"] = round(float(self.latency_us), 1)
-        return json.dumps(d, separators=(",", ":"))
+        # allow_nan=False: NaN/Infinity are not JSON; such an event raises ValueError here, the
+        # one place events are serialised, and never reaches a listener.
+        return json.dumps(d, separators=(",", ":"), allow_nan=False)
 
 
 @dataclass
@@ -78,7 +82,7 @@ class ModelAnnouncement:
 
     def to_json(self) -> str:
         d = {"type": "model", "protocol": PROTOCOL_VERSION, **asdict(self)}
-        return json.dumps(d, separators=(",", ":"))
+        return json.dumps(d, separators=(",", ":"), allow_nan=False)
 
 
 class Sink:
@@ -115,6 +119,20 @@ class Sink:
 
     def close(self) -> None:
         pass
+
+
+def claim_stdout_for_events() -> IO[str]:
+    """Reserve the process's stdout for event lines: a stream on the original stdout, while file
+    descriptor 1 and ``sys.stdout`` now lead to stderr.
+
+    Why: stdout is a JSON-lines stream that journald or a pipe parses. Anything else written there
+    (a library's ``print``, onnxruntime's C++ logger, a warning banner) would corrupt it; after this
+    call it lands in the log instead."""
+    sys.stdout.flush()
+    events = io.TextIOWrapper(io.FileIO(os.dup(1), "w"), encoding="utf-8", line_buffering=True)
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+    return events
 
 
 class StdoutSink(Sink):
@@ -176,6 +194,9 @@ class SinkSet:
 
     def __init__(self, sinks: Iterable[Sink]) -> None:
         self.sinks = list(sinks)
+        self.invalid = 0
+        """Events refused because they could not be serialised as JSON (NaN or infinite numbers)."""
+        self._last_invalid_log = 0.0
 
     @classmethod
     def from_config(cls, cfg: SinksConfig, stream: IO[str] | None = None, ros2: Ros2Config | None = None,
@@ -206,11 +227,22 @@ class SinkSet:
                 sinks.append(ros)
         return cls(sinks)
 
-    def emit(self, message: Event | ModelAnnouncement) -> None:
-        line = message.to_json()
+    def emit(self, message: Event | ModelAnnouncement) -> bool:
+        """Serialise once and send to every sink; False (counted, logged rate-limited) when the
+        message is not valid JSON (NaN or infinite numbers) and nothing was sent."""
+        try:
+            line = message.to_json()
+        except (TypeError, ValueError) as exc:
+            self.invalid += 1
+            now = time.monotonic()
+            if now - self._last_invalid_log > 10.0:
+                self._last_invalid_log = now
+                log.error("event of model %s not sent: %s (%d refused so far)", message.model_id, exc, self.invalid)
+            return False
         data = line.encode()
         for sink in self.sinks:
             sink.send(line, data)
+        return True
 
     def health(self, snapshot: dict) -> None:
         for sink in self.sinks:

@@ -65,7 +65,7 @@ def _bias(cls: str) -> tuple[float, ...]:
 def models(tmp_path) -> Path:
     folder = tmp_path / "models"
     folder.mkdir()
-    write_model(folder, "first.onnx", tiny_model_bytes(bias=_bias("pull")), mtime=time.time() - 10)
+    write_model(folder, "first.onnx", tiny_model_bytes(bias=_bias("pull")), mtime=time.time() - 100)
     return folder
 
 
@@ -136,7 +136,7 @@ def test_broken_model_dropped_mid_stream_is_refused_and_the_old_keeps_serving(mo
         events.append(event)
         if len(events) == 2:
             data = tiny_model_bytes(bias=_bias("push"))
-            write_model(models, "broken.onnx", data[: len(data) // 2])
+            write_model(models, "broken.onnx", data[: len(data) // 2], mtime=time.time() - 20)  # not being copied
             deadline = time.monotonic() + 10
             while not daemon.watcher.rejections and time.monotonic() < deadline:
                 time.sleep(0.01)

@@ -34,7 +34,7 @@ def test_startup_serves_the_newest_valid(tmp_path):
     write_model(tmp_path, "old.onnx", tiny_model_bytes(tag="old"), mtime=now - 100)
     write_model(tmp_path, "new.onnx", tiny_model_bytes(tag="new"), mtime=now - 50)
     (tmp_path / "newest-broken.onnx").write_bytes(b"not a model")
-    os.utime(tmp_path / "newest-broken.onnx", (now, now))
+    os.utime(tmp_path / "newest-broken.onnx", (now - 20, now - 20))  # settled: not a copy in progress
     w = _watcher(tmp_path)
     model = w.poll(require_stable=False)
     assert model is not None and model.path.name == "new.onnx"
@@ -101,12 +101,12 @@ def test_symlink_and_foreign_owner_are_refused(tmp_path):
 
 
 def test_broken_model_is_rejected_and_the_old_keeps_serving(tmp_path):
-    write_model(tmp_path, "good.onnx", tiny_model_bytes())
+    write_model(tmp_path, "good.onnx", tiny_model_bytes(), mtime=time.time() - 100)
     w = _watcher(tmp_path)
     good = w.poll(require_stable=False)
     assert good is not None
     data = tiny_model_bytes(tag="next")
-    write_model(tmp_path, "truncated.onnx", data[: len(data) - 40])
+    write_model(tmp_path, "truncated.onnx", data[: len(data) - 40], mtime=time.time() - 20)  # settled
     w.poll()
     assert w.poll() is None
     assert w.rejections and w.rejections[0].path.name == "truncated.onnx"

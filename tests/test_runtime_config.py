@@ -232,3 +232,46 @@ def test_run_with_a_url_that_can_never_open_is_one_line_and_exit_2(tmp_path):
         assert proc.returncode == 2
         assert proc.stderr.strip().splitlines() == [
             "handover run: device.url: tcp://127.0.0.1:: expected tcp://HOST:PORT with a port 1..65535"]
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value"),
+    [
+        ("device", "stall_timeout_s", "nan"),
+        ("device", "stall_timeout_s", "inf"),
+        ("device", "reconnect_max_s", "+inf"),
+        ("model", "max_bytes", "99999999999999999999"),
+        ("model", "poll_interval_s", "-inf"),
+        ("model", "decision_budget", "2.0"),
+        ("trigger", "fraction", "nan"),
+        ("trigger", "refractory_s", "inf"),
+        ("trigger", "baseline_tau_s", "nan"),
+        ("continuous", "min_margin", "nan"),
+        ("continuous", "rearm_frames", "99999999999999999999"),
+    ],
+)
+def test_every_number_is_finite_and_in_its_stated_range(tmp_path, section, key, value):
+    """TOML spells nan and inf; each must be refused with the key, the value and the range."""
+    from runtime.config import RANGES
+
+    path = tmp_path / "bad.toml"
+    path.write_text(f"[{section}]\n{key} = {value}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{section}.{key}:"), message
+    assert value.lstrip("+")[:8] in message and "\n" not in message
+    if section != "trigger" or key != "fraction":
+        lo, hi = RANGES[f"{section}.{key}"]
+        assert f"[{lo:g}, {hi:g}]" in message or f"[{int(lo)}, {int(hi)}]" in message
+
+
+def test_every_numeric_default_is_inside_its_range():
+    from runtime.config import RANGES
+
+    cfg = config_from_dict({})
+    for key, (lo, hi) in RANGES.items():
+        section, name = key.split(".")
+        value = getattr(getattr(cfg, section), name)
+        if value is not None:
+            assert lo <= value <= hi, key

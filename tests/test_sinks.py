@@ -67,3 +67,27 @@ def test_a_missing_listener_is_counted_not_fatal(tmp_path, caplog):
     assert sinks.errors >= 6
     assert "nobody.sock" in caplog.text
     sinks.close()
+
+
+def test_nan_or_infinite_numbers_never_reach_a_sink(caplog):
+    """NaN is not JSON: the event is refused where it is serialised, counted, logged once."""
+    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    udp.bind(("127.0.0.1", 0))
+    udp.settimeout(0.3)
+    out = io.StringIO()
+    sinks = SinkSet.from_config(SinksConfig(stdout=True, udp=(f"127.0.0.1:{udp.getsockname()[1]}",)), stream=out)
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        event = _event()
+        event.scores = {"pull": bad, "push": 0.1}
+        assert sinks.emit(event) is False
+    assert out.getvalue() == "" and sinks.invalid == 3
+    try:
+        data = udp.recv(65536)
+    except TimeoutError:
+        data = b""
+    assert data == b""
+    assert len([r for r in caplog.records if "not sent" in r.getMessage()]) == 1
+    assert sinks.emit(_event()) is True
+    assert json.loads(out.getvalue())["class"] == "pull"
+    sinks.close()
+    udp.close()

@@ -1,4 +1,4 @@
-"""``handover bench pareto|latency|throughput|all``: the benchmarks, results in results/.
+"""``handover bench pareto|latency|throughput|hostile|all``: the benchmarks, results in results/.
 
 Each benchmark writes ``<out>/<name>.json`` and ``.md`` (+ ``.png`` where a plot fits) with
 the machine it ran on and the command that reproduces it. ``--json`` prints the headline
@@ -14,17 +14,17 @@ import json
 import sys
 
 COMMAND = "bench"
-BENCHMARKS = ("pareto", "latency", "throughput")
+BENCHMARKS = ("pareto", "latency", "throughput", "hostile")
 HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
             "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
             "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
             "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_load_p99_us", "replay_frames_per_s",
-            "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s")
+            "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("which", choices=(*BENCHMARKS, "all", "soak"),
-                        help="which benchmark to run ('all' = the three speed benchmarks; soak runs alone)")
+                        help="which benchmark to run ('all' = every one but soak, which runs for hours)")
     parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")

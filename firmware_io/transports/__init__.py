@@ -22,6 +22,8 @@ import re
 from collections.abc import Callable
 
 from firmware_io.transports.base import (
+    MAX_BAUD,
+    MAX_EVENTS,
     DeviceUnavailable,
     EndOfStream,
     MissingDependency,
@@ -126,7 +128,7 @@ def _check_serial(p: ParsedURL) -> None:
     p.check_options({"baud", "exclusive"})
     if not p.location:
         raise TransportError(f"{p.url}: no port; use serial:///dev/ttyUSB0")
-    parse_number(p.url, "baud", p.options.get("baud", 115200), int, 1)
+    parse_number(p.url, "baud", p.options.get("baud", 115200), int, 1, MAX_BAUD)
     parse_bool(p.url, "exclusive", p.options.get("exclusive", True))
     _need(p.url, "serial", "needs pyserial (pip install pyserial)")
 
@@ -143,11 +145,11 @@ def _check_usb(p: ParsedURL) -> None:
     p.check_options({"serial", "interface", "chip", "baud"})
     parse_vid_pid(p.url, p.location)
     if p.options.get("interface", "") != "":
-        parse_number(p.url, "interface", p.options["interface"], int, 0)
+        parse_number(p.url, "interface", p.options["interface"], int, 0, 255)
     chip = p.options.get("chip", "auto").lower()
     if chip not in CHIPS:
         raise TransportError(f"{p.url}: unknown chip {chip!r} (use {', '.join(CHIPS)})")
-    parse_number(p.url, "baud", p.options.get("baud", 115200), int, 1)
+    parse_number(p.url, "baud", p.options.get("baud", 115200), int, 1, MAX_BAUD)
     _need(p.url, "usb", f"needs the Python package pyusb ({EXTRA_HINT})")
 
 
@@ -156,7 +158,7 @@ def _check_hid(p: ParsedURL) -> None:
 
     p.check_options({"serial", "baud"})
     parse_vid_pid(p.url, p.location)
-    parse_number(p.url, "baud", p.options.get("baud", 115200), int, 1)
+    parse_number(p.url, "baud", p.options.get("baud", 115200), int, 1, MAX_BAUD)
     _need(p.url, "hid", f"needs the Python package hidapi ({EXTRA_HINT})")
 
 
@@ -171,7 +173,7 @@ def _check_emulated(p: ParsedURL, allowed: set[str]) -> None:
 
 def _check_sim(p: ParsedURL) -> None:
     _check_emulated(p, {"seed", "events", "realtime", "speed"})
-    parse_number(p.url, "events", p.options.get("events", 40), int, 1)
+    parse_number(p.url, "events", p.options.get("events", 40), int, 1, MAX_EVENTS)
     parse_bool(p.url, "realtime", p.options.get("realtime", True))
 
 

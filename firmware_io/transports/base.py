@@ -7,6 +7,7 @@ can keep its own deadlines (the protocol uses a gap timeout, not a whole-packet 
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from types import TracebackType
 from urllib.parse import parse_qs, urlsplit
@@ -98,15 +99,27 @@ class ParsedURL:
             raise TransportError(f"{self.url}: unknown option {unknown[0]!r} (this transport takes: {hint})")
 
 
-def parse_number(url: str, name: str, text: object, kind: type = float, minimum: float | None = None) -> float:
-    """One option value as a number, or a TransportError naming the option."""
+def parse_number(url: str, name: str, text: object, kind: type = float, minimum: float | None = None,
+                 maximum: float | None = None) -> float:
+    """One option value as a finite number in [minimum, maximum], or a TransportError naming the option
+    (NaN and infinity would silently turn a timeout or a rate off)."""
     try:
         value = kind(text)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise TransportError(f"{url}: option {name}={text!r} is not a{'n integer' if kind is int else ' number'}") from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise TransportError(f"{url}: option {name}={text!r} must be a finite number")
     if minimum is not None and value < minimum:
         raise TransportError(f"{url}: option {name}={value} must be at least {minimum}")
+    if maximum is not None and value > maximum:
+        raise TransportError(f"{url}: option {name}={str(value)[:24]} must be at most {maximum}")
     return value
+
+
+MAX_BAUD = 12_000_000
+"""The fastest USB-serial bridges (FTDI high-speed); the DSACON32m itself runs at 115200."""
+MAX_EVENTS = 100_000
+"""Scripted events of a simulated session (``sim://?events=``): about 28 hours at 1 s each."""
 
 
 def parse_bool(url: str, name: str, text: object) -> bool:

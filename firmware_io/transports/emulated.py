@@ -16,6 +16,7 @@ import time
 
 from firmware_io.transports.base import (
     DEFAULT_READ_SIZE,
+    MAX_EVENTS,
     DeviceUnavailable,
     EndOfStream,
     ParsedURL,
@@ -79,15 +80,15 @@ def _emulator_options(parsed: ParsedURL, opts: dict) -> dict:
     return {
         "faults": faults,
         "old_firmware": parse_bool(url, "old_firmware", parsed.option(opts, "old_firmware", False)),
-        "start_ms": int(parse_number(url, "start_ms", parsed.option(opts, "start_ms", 0), int, 0)),
-        "seed": int(parse_number(url, "seed", parsed.option(opts, "seed", 0), int)),
+        "start_ms": int(parse_number(url, "start_ms", parsed.option(opts, "start_ms", 0), int, 0, 2**32 - 1)),
+        "seed": int(parse_number(url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1)),
     }
 
 
 def _parse_speed(url: str, text: object) -> float | None:
     if text is None or str(text).strip().lower() in ("max", "inf", "0"):
         return None
-    return parse_number(url, "speed", text, float, 1e-6)
+    return parse_number(url, "speed", text, float, 1e-6, 1e6)  # beyond: say "max"
 
 
 def _build(parsed: ParsedURL, recording, speed: float | None, loop: bool, opts: dict) -> EmulatedTransport:
@@ -107,8 +108,8 @@ class SimTransport(EmulatedTransport):
 
         parsed.check_options(_COMMON | {"seed", "events", "realtime", "speed"})
         url = parsed.url
-        seed = int(parse_number(url, "seed", parsed.option(opts, "seed", 0), int))
-        events = int(parse_number(url, "events", parsed.option(opts, "events", 40), int, 1))
+        seed = int(parse_number(url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1))
+        events = int(parse_number(url, "events", parsed.option(opts, "events", 40), int, 1, MAX_EVENTS))
         realtime = parse_bool(url, "realtime", parsed.option(opts, "realtime", True))
         speed = _parse_speed(url, parsed.option(opts, "speed", 1.0)) if realtime else None
         loop = parse_bool(url, "loop", parsed.option(opts, "loop", True))

@@ -22,6 +22,7 @@ import time
 
 from firmware_io.transports.base import (
     DEFAULT_READ_SIZE,
+    MAX_BAUD,
     DeviceUnavailable,
     MissingDependency,
     ParsedURL,
@@ -102,7 +103,7 @@ class HidTransport(Transport):
             vid,
             pid,
             serial=parsed.option(opts, "serial") or None,
-            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1)),
+            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
             device=opts.get("device"),
             url=url,
         )

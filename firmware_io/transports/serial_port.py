@@ -13,6 +13,7 @@ import time
 
 from firmware_io.transports.base import (
     DEFAULT_READ_SIZE,
+    MAX_BAUD,
     DeviceUnavailable,
     MissingDependency,
     ParsedURL,
@@ -64,7 +65,7 @@ class SerialTransport(Transport):
         port = parsed.location
         if not port:
             raise TransportError(f"{parsed.url}: no port; use serial:///dev/ttyUSB0")
-        baud = int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1))
+        baud = int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD))
         exclusive = parse_bool(parsed.url, "exclusive", parsed.option(opts, "exclusive", True))
         return cls(port, baud=baud, exclusive=exclusive, url=parsed.url)
 

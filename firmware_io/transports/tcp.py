@@ -91,7 +91,7 @@ def parse_tcp_url(parsed: ParsedURL, connect_timeout: object = 3.0) -> tuple[str
         raise TransportError(f"{parsed.url}: expected tcp://HOST:PORT with a port 1..65535") from None
     if not host:
         raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
-    return host, port, parse_number(parsed.url, "connect_timeout", connect_timeout, float, 0.001)
+    return host, port, parse_number(parsed.url, "connect_timeout", connect_timeout, float, 0.001, 3600.0)
 
 
 def _split_host_port(netloc: str) -> tuple[str, int]:

@@ -27,6 +27,7 @@ import time
 
 from firmware_io.transports.base import (
     DEFAULT_READ_SIZE,
+    MAX_BAUD,
     DeviceUnavailable,
     MissingDependency,
     ParsedURL,
@@ -101,9 +102,9 @@ class UsbTransport(Transport):
             vid,
             pid,
             serial=parsed.option(opts, "serial") or None,
-            interface=None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0)),
+            interface=None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0, 255)),
             chip=str(parsed.option(opts, "chip", "auto")).lower(),
-            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1)),
+            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
             backend=opts.get("backend"),
             url=url,
         )

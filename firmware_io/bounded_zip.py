@@ -1,0 +1,115 @@
+"""Reading ZIP members (JSON and ``.npy``) with limits: sizes, shapes, nesting depth.
+
+Why: a recording is a file from elsewhere. Read naively, a 4 MB deflate bomb inflates to
+gigabytes (``MemoryError``), an ``.npy`` header declaring a huge shape allocates terabytes, and
+a deeply nested JSON header ends in ``RecursionError``. Here every member is stream-read with
+a byte cap, an array's shape and dtype are checked against what the caller expects before a
+single data byte is read, and JSON deeper than ``MAX_JSON_DEPTH`` is refused. Every refusal is
+a ``LimitError`` with one line; the caller adds the file name.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from collections.abc import Sequence
+
+import numpy as np
+
+CHUNK = 1 << 20
+MAX_JSON_DEPTH = 32
+"""A recording header nests four levels (header, layout, matrices, mask rows)."""
+
+
+class LimitError(ValueError):
+    """A member over its size, shape or nesting limit, or not what it says it is."""
+
+
+def _info(zf: zipfile.ZipFile, name: str, cap: int) -> zipfile.ZipInfo:
+    info = zf.getinfo(name)
+    if info.file_size > cap:
+        raise LimitError(f"member {name} declares {info.file_size} bytes, over the limit of {cap}")
+    return info
+
+
+def read_member(zf: zipfile.ZipFile, name: str, cap: int) -> bytes:
+    """All bytes of a member, never more than ``cap`` (checked while inflating, not only declared)."""
+    info = _info(zf, name, cap)
+    out = bytearray()
+    with zf.open(info) as fh:
+        while chunk := fh.read(min(CHUNK, cap + 1 - len(out))):
+            out += chunk
+            if len(out) > cap:
+                raise LimitError(f"member {name} inflates to more than {cap} bytes")
+    return bytes(out)
+
+
+def read_json(zf: zipfile.ZipFile, name: str, cap: int) -> object:
+    """A JSON member of at most ``cap`` bytes and ``MAX_JSON_DEPTH`` levels of nesting."""
+    text = read_member(zf, name, cap)
+    if _nesting(text) > MAX_JSON_DEPTH:
+        raise LimitError(f"member {name} nests deeper than {MAX_JSON_DEPTH} levels")
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise LimitError(f"member {name} is not valid JSON ({_first_line(exc)})") from None
+
+
+def _nesting(text: bytes) -> int:
+    """Deepest bracket nesting outside strings (a linear scan: no recursion, no allocation)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for byte in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif byte == 0x5C:  # backslash
+                escaped = True
+            elif byte == 0x22:
+                in_string = False
+        elif byte == 0x22:
+            in_string = True
+        elif byte in (0x5B, 0x7B):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif byte in (0x5D, 0x7D):
+            depth -= 1
+    return deepest
+
+
+def read_npy(zf: zipfile.ZipFile, name: str, dtype: np.dtype | str, shape: Sequence[int]) -> np.ndarray:
+    """An ``.npy`` member that must hold exactly ``dtype`` and ``shape`` (C order): its header is
+    checked before any data is read, and the data is read into one preallocated array."""
+    want_dtype, want_shape = np.dtype(dtype), tuple(int(n) for n in shape)
+    nbytes = int(np.prod(want_shape, dtype=np.int64)) * want_dtype.itemsize
+    info = _info(zf, name, nbytes + 65536 + 128)
+    with zf.open(info) as fh:
+        try:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                got_shape, fortran, got_dtype = np.lib.format.read_array_header_1_0(fh)
+            elif version in ((2, 0), (3, 0)):
+                got_shape, fortran, got_dtype = np.lib.format.read_array_header_2_0(fh)
+            else:
+                raise LimitError(f"member {name}: .npy format version {version} is not supported")
+        except (ValueError, SyntaxError, EOFError, OSError) as exc:
+            raise LimitError(f"member {name} is not an .npy array ({_first_line(exc)})") from None
+        if got_dtype != want_dtype or tuple(got_shape) != want_shape or fortran:
+            raise LimitError(f"member {name} holds {got_dtype} {list(got_shape)}{' (Fortran order)' if fortran else ''}, "
+                             f"expected {want_dtype} {list(want_shape)}")
+        out = np.empty(want_shape, dtype=want_dtype)
+        view = memoryview(out.reshape(-1).view(np.uint8))
+        done = 0
+        while done < nbytes:
+            n = fh.readinto(view[done : done + CHUNK])
+            if not n:
+                raise LimitError(f"member {name} ends after {done} of {nbytes} data bytes")
+            done += n
+        if fh.read(1):
+            raise LimitError(f"member {name} has data beyond its {list(want_shape)} array")
+    return out
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

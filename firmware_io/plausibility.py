@@ -1,0 +1,53 @@
+"""Frames a DSA 9205 sensor cannot have sent: dropped where frames are decoded, never classified.
+
+Why: the DSACON32m's CRC16 lets a small share of multi-bit errors through (about 1.7 % of 2-bit
+errors), and such a frame decodes into wrong taxels, in raw mode up to 65535 from a 12-bit
+sensor, far above any trigger level. Two rules the sensor and its layout guarantee:
+
+- every value fits the 12-bit converter (0..4095; RLE cannot carry more, raw frames can);
+- cells outside a pad's static mask do not exist and read 0. Checked on the real SDH-2
+  recordings in ``../shared/data`` (120 files, 183,149 frames: none has a non-zero masked cell).
+  The controller does not report masks in its matrix info, so a 6 x 13 pad without a mask of
+  its own gets the DSA 9205 distal pad's (rows 0..4 lack columns 0 and 5: its rounded tip).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_io.layout import FULL_SCALE_12BIT, SensorLayout
+
+DISTAL_SHAPE = (13, 6)
+"""(cells_y, cells_x) of the DSA 9205 distal pad."""
+
+
+def dead_cells(layout: SensorLayout) -> np.ndarray:
+    """Frame columns (wire order) of cells that do not exist and must read 0."""
+    distal = SensorLayout.sdh2().matrices[1].mask
+    masks = []
+    for m in layout.matrices:
+        if m.static_mask is not None:
+            masks.append(m.static_mask.ravel())
+        elif (m.cells_y, m.cells_x) == DISTAL_SHAPE:
+            masks.append(distal.ravel())
+        else:
+            masks.append(np.ones(m.n_cells, dtype=bool))
+    return np.flatnonzero(~np.concatenate(masks))
+
+
+class FrameCheck:
+    """``problem(values)``: why a decoded frame cannot come from the sensor, or None (~2 us)."""
+
+    def __init__(self, layout: SensorLayout) -> None:
+        self.n_taxels = layout.n_taxels
+        self.dead = dead_cells(layout)
+        self.limit = FULL_SCALE_12BIT
+
+    def problem(self, values: np.ndarray) -> str | None:
+        top = int(values.max()) if values.size else 0
+        if top > self.limit:
+            return f"value {top} above the 12-bit full scale ({self.limit})"
+        if self.dead.size and values[self.dead].any():
+            cell = int(self.dead[np.flatnonzero(values[self.dead])[0]])
+            return f"value {int(values[cell])} on taxel {cell}, a cell the pad does not have"
+        return None

@@ -1,0 +1,292 @@
+"""``handover bench hostile``: the daemon and the tools under attack, with counts (issue #19).
+
+Four kinds of hostile input, each counted by outcome; a *failure* is any outcome the house
+rules forbid (a crash, a traceback, more than one line, a non-JSON line on stdout, a frame the
+sensor cannot send reaching the classifier, an out-of-range number accepted):
+
+- models: attacks that pass the static contract and break the output contract on pressed pads,
+  the same as sleepers that pass any warm-up, a 40,000-node graph over the time budget, and
+  thousands of byte-mutated files;
+- frames: real SDH-2 frames (../shared/data, else the simulated hand) with 2-bit errors, through
+  the stream parser, the decoder and the plausibility check;
+- recordings: a deflate bomb, huge declared shapes, deep nesting, bogus layouts, through
+  ``Recording.load`` and the ``plot``/``train`` commands;
+- config: NaN, infinities and huge values for every number of the config;
+- the daemon as a process, with hostile models dropped into its folder while it serves.
+
+Writes results/hostile.json and .md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from trainer.bench.common import command_line, load_average, load_note, machine_info, write_results
+
+NAME = "hostile"
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _write_model(folder: Path, name: str, data: bytes, mtime: float | None = None) -> Path:
+    tmp = folder / f".{name}.tmp"
+    tmp.write_bytes(data)
+    os.chmod(tmp, 0o644)
+    if mtime is not None:
+        os.utime(tmp, (mtime, mtime))
+    os.replace(tmp, folder / name)
+    return folder / name
+
+
+# -- models -------------------------------------------------------------------------------------
+def attack_models(work: Path, quick: bool) -> dict:
+    from runtime.model import ModelContractError, load_model
+    from runtime.output_check import DEFAULT_BUDGET_FRACTION
+    from trainer.bench import hostile_models as H
+
+    out: dict = {"warm_up": {}, "sleepers": {}}
+    for name, build in H.RUNTIME_ATTACKS.items():
+        path = _write_model(work, f"{name}.onnx", build())
+        load_model(path, warm_up=False)  # passes the static contract
+        try:
+            load_model(path)
+            out["warm_up"][name] = "accepted"
+        except ModelContractError:
+            out["warm_up"][name] = "refused"
+    for name in H.RUNTIME_ATTACKS:
+        out["sleepers"][name] = sleeper_in_daemon(work / f"sleeper-{name}", name)
+    path = _write_model(work, "slow.onnx", H.slow(40_000))
+    try:
+        load_model(path, decision_budget=DEFAULT_BUDGET_FRACTION)  # the daemon's rule
+        out["slow_40000_nodes"] = "accepted"
+    except ModelContractError as exc:
+        out["slow_40000_nodes"] = str(exc).removeprefix(f"model {path}: ")
+    out["mutations"] = mutated_models(work, H.valid(), 300 if quick else 3000)
+    out["failures"] = (sum(v != "refused" for v in out["warm_up"].values())
+                       + sum(not s["handled"] for s in out["sleepers"].values())
+                       + int(out["slow_40000_nodes"] == "accepted") + out["mutations"]["unnamed_errors"])
+    return out
+
+
+def sleeper_in_daemon(folder: Path, kind: str) -> dict:
+    """A sleeper dropped over a serving model: taken out of service at its first real press?"""
+    from firmware_io.client import Frame
+    from firmware_io.layout import SensorLayout
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from trainer.bench import hostile_models as H
+
+    (folder / "models").mkdir(parents=True)
+    _write_model(folder / "models", "old.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
+    events: list = []
+    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
+                            "model": {"folder": str(folder / "models")}, "health_file": str(folder / "status.json")})
+    daemon = Daemon(cfg, on_event=events.append)
+    daemon.layout = SensorLayout.sdh2()
+    daemon._start_watcher()
+    daemon.watcher.stop()
+    _write_model(folder / "models", "new.onnx", H.sleeper(kind))
+    daemon.watcher.poll(require_stable=False)
+    daemon._housekeeping(time.monotonic())
+    column = int(daemon.layout.columns("distal")[40])
+    for i in range(120):
+        values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
+        values[column] = int(H.SLEEPER_PEAK) if i % 60 < 20 else 0
+        daemon.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
+    restarted = Daemon(cfg)
+    restarted.layout = SensorLayout.sdh2()
+    restarted._start_watcher()
+    restarted.watcher.stop()
+    h = daemon.health
+    serving = Path(daemon.model.path).name if daemon.model is not None else None
+    after_restart = Path(restarted.model.path).name if restarted.model is not None else None
+    invalid = sum(not all(np.isfinite(list(e.scores.values()))) for e in events)
+    return {"taken_out_of_service": h.models_quarantined, "serving_after": serving,
+            "serving_after_restart": after_restart, "events": len(events), "invalid_events": invalid,
+            "handled": h.models_quarantined == 1 and serving == "old.onnx" and after_restart == "old.onnx"
+            and invalid == 0}
+
+
+def mutated_models(work: Path, base: bytes, n: int) -> dict:
+    """Byte-mutated copies of a valid model through the loader: refused with one line naming the
+    file, or accepted (a mutation in a harmless byte); anything else is a failure."""
+    from runtime.model import ModelContractError, load_model
+    from trainer.bench.hostile_models import mutations
+
+    path = work / "mutant.onnx"
+    outcome: Counter = Counter()
+    for data in mutations(base, n, seed=19):
+        path.write_bytes(data)
+        try:
+            load_model(path)
+            outcome["accepted"] += 1
+        except ModelContractError as exc:
+            one_line = str(path) in str(exc) and "\n" not in str(exc)
+            outcome["refused_one_line" if one_line else "unnamed_errors"] += 1
+        except Exception:  # exactly what is being counted
+            outcome["unnamed_errors"] += 1
+    return {"n": n, "refused_one_line": outcome["refused_one_line"], "accepted": outcome["accepted"],
+            "unnamed_errors": outcome["unnamed_errors"]}
+
+
+# -- frames -------------------------------------------------------------------------------------
+def source_frames(limit: int = 4000) -> tuple[np.ndarray, str]:
+    """Real SDH-2 frames with contact where ../shared/data exists, else the simulated hand's."""
+    from firmware_io.importers import find_sources, import_any
+
+    shared = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data"))
+    if shared.is_dir():
+        frames = []
+        for path in find_sources(shared):
+            if path.suffix != ".dsa":
+                continue
+            rec = import_any(path)
+            frames.append(rec.frames[rec.frames.max(axis=1) > 0][:500])
+            if sum(len(f) for f in frames) >= limit:
+                return np.concatenate(frames)[:limit], f"real SDH-2 recordings ({shared})"
+    from firmware_io.frame_source import load_source
+
+    rec = load_source("sim", seed=0, events=8)
+    return rec.frames[:limit], "simulated hand (synthetic)"
+
+
+def attack_frames(n: int, seed: int = 0) -> dict:
+    """``n`` frames (raw and RLE, alternating) each with two flipped bits, through parser, decoder
+    and plausibility check, followed by an intact frame (so the parser resynchronises)."""
+    from firmware_io import protocol as P
+    from firmware_io.layout import SensorLayout
+    from firmware_io.parser import StreamParser
+    from firmware_io.plausibility import FrameCheck
+
+    frames, source = source_frames()
+    layout = SensorLayout.sdh2()
+    check = FrameCheck(layout)
+    rng = np.random.default_rng(seed)
+    count: Counter = Counter()
+    for i in range(n):
+        values = frames[i % len(frames)]
+        rle = bool(i % 2)
+        good = P.encode_frame(values, i, rle=rle)
+        bad = bytearray(good)
+        for bit in rng.choice((len(bad) - 3) * 8, size=2, replace=False):
+            bad[3 + bit // 8] ^= 1 << (bit % 8)
+        parser = StreamParser(layout.n_taxels)
+        packets = parser.feed(bytes(bad) + good)  # the intact frame after it resynchronises the parser
+        count["crc_rejected"] += parser.stats.crc_errors
+        count["header_rejected"] += parser.stats.bad_headers
+        for packet in (p for p in packets if p.payload != good[6:-2]):
+            try:
+                _, got = P.decode_frame_payload(packet.payload, layout.n_taxels)
+            except P.FrameDecodeError:
+                count["decode_rejected"] += 1
+                continue
+            if check.problem(got) is not None:
+                count["implausible_dropped"] += 1
+            elif np.array_equal(got, values):
+                count["delivered_intact_taxels"] += 1  # the flips hit the time stamp or flags
+            else:
+                count["delivered_wrong_taxels"] += 1
+                count["delivered_over_12bit"] += int(got.max() > 4095)
+                count["delivered_on_missing_cells"] += int(got[check.dead].any())
+    keys = ("crc_rejected", "header_rejected", "decode_rejected", "implausible_dropped", "delivered_intact_taxels",
+            "delivered_wrong_taxels", "delivered_over_12bit", "delivered_on_missing_cells")
+    out = {"n": n, "source": source, **{k: int(count[k]) for k in keys}}
+    out["passed_crc"] = n - out["crc_rejected"] - out["header_rejected"]
+    out["failures"] = out["delivered_over_12bit"] + out["delivered_on_missing_cells"]
+    return out
+
+
+# -- the run --------------------------------------------------------------------------------------
+def run(args) -> dict:
+    from trainer.bench.hostile_io import attack_config, attack_daemon, attack_recordings
+
+    say = args.say
+    load_before = load_average()
+    t0 = time.perf_counter()
+    n_frames = 5_000 if args.quick else 100_000
+    with tempfile.TemporaryDirectory(prefix="handover-hostile-") as tmp:
+        work = Path(tmp)
+        say("hostile: models (warm-up, sleepers in the daemon, 40,000 nodes, mutations) ...")
+        models = attack_models(work, args.quick)
+        say(f"hostile: {n_frames} frames with 2-bit errors ...")
+        frames = attack_frames(n_frames, seed=args.seed)
+        say("hostile: recordings (deflate bomb, huge shapes, nesting, bogus layouts) through load, plot, train ...")
+        recordings = attack_recordings(work, args.quick)
+        say("hostile: config numbers ...")
+        config = attack_config(work)
+        say("hostile: the daemon process while hostile models are dropped ...")
+        daemon = attack_daemon(work)
+    result = {"models": models, "frames": frames, "recordings": recordings, "config": config, "daemon": daemon}
+    result["hostile_failures"] = sum(part["failures"] for part in result.values())
+    result.update(seconds=round(time.perf_counter() - t0, 1), machine=machine_info(), load_before=load_before,
+                  load_after=load_average(), command=command_line(NAME, args))
+    result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
+    write_results(args.out, NAME, result, markdown(result))
+    say(f"hostile: {result['hostile_failures']} failures; " + json.dumps(summary(result)))
+    return result
+
+
+def summary(res: dict) -> dict:
+    """The counts a soak or a README cites."""
+    m, f, r, c, d = (res[k] for k in ("models", "frames", "recordings", "config", "daemon"))
+    return {"mutated_models": m["mutations"]["n"], "mutated_refused_one_line": m["mutations"]["refused_one_line"],
+            "frames_2bit": f["n"], "frames_passed_crc": f["passed_crc"], "frames_implausible_dropped":
+            f["implausible_dropped"], "frames_over_12bit_delivered": f["delivered_over_12bit"],
+            "recordings": len(r["files"]), "config_values": c["tried"], "daemon_events": d["events"],
+            "daemon_non_json_lines": d["non_json_stdout_lines"], "failures": res["hostile_failures"]}
+
+
+def markdown(res: dict) -> list[str]:
+    m, f, r, c, d = (res[k] for k in ("models", "frames", "recordings", "config", "daemon"))
+    mu = m["mutations"]
+    lines = [
+        "# Hostile input (issue #19)", "",
+        f"**{res['hostile_failures']} failures** (a crash, a traceback, more than one line, a non-JSON line on "
+        "stdout, a frame the sensor cannot send reaching the classifier, an out-of-range number accepted).", "",
+        "## Models", "",
+        "| attack | outcome |", "|---|---|",
+        *[f"| {k} (fires on pressed pads) | warm-up: {v} |" for k, v in m["warm_up"].items()],
+        *[f"| sleeper {k} (fires on one exact value, passes warm-up) | taken out of service "
+          f"{s['taken_out_of_service']}x, then {s['serving_after']} serves; after a restart {s['serving_after_restart']}"
+          f"; {s['events']} events, {s['invalid_events']} invalid |" for k, s in m["sleepers"].items()],
+        f"| 40,000 nodes | {m['slow_40000_nodes']} |",
+        f"| {mu['n']} byte-mutated files | {mu['refused_one_line']} refused with one line naming the file, "
+        f"{mu['accepted']} accepted (harmless bytes), {mu['unnamed_errors']} other errors |", "",
+        f"## Frames with 2-bit errors ({f['source']})", "",
+        f"{f['n']} frames (half raw, half RLE), two random bits flipped after the preamble: {f['crc_rejected']} "
+        f"rejected by the CRC, {f['header_rejected']} by the header check, {f['passed_crc']} passed the CRC; of "
+        f"those {f['decode_rejected']} failed to decode, **{f['implausible_dropped']} were dropped as implausible** "
+        f"(above 12 bits or pressure on a missing cell), {f['delivered_intact_taxels']} reached the classifier with "
+        f"intact taxels (the flips hit the time stamp or flags) and {f['delivered_wrong_taxels']} with wrong but "
+        f"plausible taxels. Delivered above 12 bits: {f['delivered_over_12bit']}; on missing cells: "
+        f"{f['delivered_on_missing_cells']}.", "",
+        "## Recordings", "",
+        "| file | bytes | read | plot | train | emulate |", "|---|---|---|---|---|---|",
+        *[f"| {k} | {v['bytes']} | {'refused, one line' if v['load_refused_one_line'] else 'FAILED'} "
+          f"({v['load_ms']} ms) | {_ok(v.get('plot_exit2_one_line'))} | {_ok(v.get('train_exit2_one_line'))} | "
+          f"{_ok(v.get('emulate_exit2_one_line'))} |" for k, v in r["files"].items()],
+        "", f"Each bomb inflates to {r['deflate_bomb_inflates_to_bytes']} bytes; peak memory of the reading "
+        f"process grew by {r['peak_rss_growth_mb']} MB.", "",
+        "## Config numbers", "",
+        f"{c['keys']} numeric keys x {len(c['values'])} values ({', '.join(c['values'])}) = {c['tried']}: "
+        f"{c['refused_naming_the_key']} refused naming the key, {c['accepted']} accepted. The same values as "
+        f"options of the device URL ({', '.join(c['url_options'])}; X replaced, `speed=inf` is `max`): "
+        f"{c['url_tried']} tried, {c['url_refused']} refused naming device.url, {c['url_accepted']} accepted.", "",
+        "## The daemon as a process", "",
+        f"`handover run` over the simulated hand (synthetic) while {d['models_dropped']} hostile models were dropped "
+        f"into its folder: {d['models_rejected']} rejected, still serving: {d['still_serving']}, {d['events']} decisions "
+        f"on stdout, {d['non_json_stdout_lines']} lines that are not events or model announcements, {d['tracebacks']} tracebacks, exit code "
+        f"{d['exit_code']} after SIGTERM.", "",
+        f"Took {res['seconds']} s. {res['note']} Timings here (the 40,000-node decision) include that load.",
+    ]
+    return lines
+
+
+def _ok(value: bool | None) -> str:
+    return "-" if value is None else ("exit 2, one line" if value else "FAILED")
