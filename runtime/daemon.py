@@ -454,7 +454,7 @@ class Daemon:
         fallback, self._fallback = self._fallback, None
         if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
             fallback = None
-        h.report_error(f"model {Path(model.path).name} taken out of service: {reason}", "model")
+        h.report_error(f"model {Path(model.path).name} taken out of service: {reason}", "quarantine")
         what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
         if fallback is not None:
             what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"

@@ -71,7 +71,8 @@ class Health:
         self.frame_rate = 0.0
 
     def report_error(self, text: str, source: str) -> None:
-        """A problem from ``source`` (``device``, ``model``, ``config``) that holds until resolved."""
+        """A problem from ``source`` (``device``, ``model``, ``config``, ``quarantine``, ``frame``) that
+        holds until ``resolve(source)`` (a quarantine stays: another model serving does not undo it)."""
         now = time.time()
         self.last_error, self.last_error_at, self._error_source = text, now, source
         self.errors.append({"at": round(now, 3), "source": source, "error": text})
