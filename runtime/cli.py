@@ -9,38 +9,98 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
+import os
 import sys
 
-# name -> (module, one-line help)
-COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("trainer.demo_cli", "end-to-end demo on the simulated hand: simulate, train, export, emulate, detect"),
-    "simulate": ("firmware_io.simulate_cli", "write the paper's protocol (or a scripted session) from the simulated hand"),
-    "import": ("firmware_io.import_cli", "convert DSA-Konqueror .dsa files or ROS bags to recordings"),
-    "train": ("trainer.train_cli", "train BoW + SVM, evaluate as in the paper, write a report and the ONNX model"),
-    "sweep": ("trainer.sweep_cli", "accuracy against K, W, T and kernel (the paper's sweeps)"),
-    "export": ("trainer.export_cli", "export a trained model to one ONNX graph"),
-    "verify": ("trainer.verify_cli", "compare an ONNX model with the float64 reference, with stress cases"),
-    "inspect": ("runtime.inspect_cli", "print a model card from an ONNX model's metadata"),
-    "emulate": ("firmware_io.emulate_cli", "serve an emulated DSACON32m over TCP or a pseudo-terminal"),
-    "dump": ("firmware_io.dump_cli", "print frames from any device URL (rate, per-pad sums, errors)"),
-    "run": ("runtime.daemon_cli", "the detection daemon (systemd service)"),
-    "record": ("firmware_io.record_cli", "record a subject session following the paper's protocol"),
-    "plot": ("trainer.plot_cli", "plot a trial of a recording"),
-    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput"),
-    "compare": ("trainer.compare_cli", "side by side: paper BoW, richer options, baseline, flattened SVM, MiniRocket (accuracy + latency)"),
-    "dormant": ("trainer.dormant_cli", "dormant class + continuous mode vs the threshold trigger on long simulated streams"),
+# name -> (module, one-line help, extra it needs beyond the daemon's install or None)
+COMMANDS: dict[str, tuple[str, str, str | None]] = {
+    "demo": ("trainer.demo_cli", "end-to-end demo on the simulated hand: simulate, train, export, emulate, detect", "train"),
+    "simulate": ("firmware_io.simulate_cli", "write the paper's protocol (or a scripted session) from the simulated hand", None),
+    "import": ("firmware_io.import_cli", "convert DSA-Konqueror .dsa files or ROS bags (bags need [train]) to recordings", None),
+    "train": ("trainer.train_cli", "train BoW + SVM, evaluate as in the paper, write a report and the ONNX model", "train"),
+    "sweep": ("trainer.sweep_cli", "accuracy against K, W, T and kernel (the paper's sweeps)", "train"),
+    "export": ("trainer.export_cli", "export a trained model to one ONNX graph", "train"),
+    "verify": ("trainer.verify_cli", "compare an ONNX model with the float64 reference, with stress cases", "train"),
+    "inspect": ("runtime.inspect_cli", "print a model card from an ONNX model's metadata", None),
+    "emulate": ("firmware_io.emulate_cli", "serve an emulated DSACON32m over TCP or a pseudo-terminal", None),
+    "dump": ("firmware_io.dump_cli", "print frames from any device URL (rate, per-pad sums, errors)", None),
+    "run": ("runtime.daemon_cli", "the detection daemon (systemd service)", None),
+    "record": ("firmware_io.record_cli", "record a subject session following the paper's protocol", None),
+    "plot": ("trainer.plot_cli", "plot a trial of a recording", "train"),
+    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput (MiniRocket needs [bench])", "train"),
+    "compare": ("trainer.compare_cli", "side by side: paper BoW, richer options, baseline, flattened SVM, MiniRocket (accuracy + latency)", "train"),
+    "dormant": ("trainer.dormant_cli", "dormant class + continuous mode vs the threshold trigger on long simulated streams", "train"),
 }
+
+EXTRA_PACKAGES: dict[str, tuple[str, ...]] = {
+    "train": ("sklearn", "skl2onnx", "onnx", "matplotlib", "tqdm", "joblib"),
+    "usb": ("usb", "hid"),
+    "bench": ("aeon",),
+}
+"""The import names each extra of pyproject.toml brings (rosbags, also in [train], only for bags)."""
+OWN_PACKAGES = ("firmware_io", "runtime", "trainer")
+_PACKAGE_EXTRA = {pkg: extra for extra, pkgs in EXTRA_PACKAGES.items() for pkg in pkgs} | {"rosbags": "train"}
+
+
+def install_hint(extra: str) -> str:
+    """The one way to get an extra, said the same way everywhere."""
+    return f"install it with: pip install 'tactile-handover[{extra}]'"
+
+
+def missing_packages(extra: str | None) -> list[str]:
+    if extra is None:
+        return []
+    return [pkg for pkg in EXTRA_PACKAGES[extra] if importlib.util.find_spec(pkg) is None]
+
+
+def shows_default(action: argparse.Action) -> bool:
+    """An option whose default is worth showing (not None, not an off flag; 0 is a default)."""
+    default = action.default
+    return bool(action.option_strings) and not (
+        default is None or default is False or default == argparse.SUPPRESS
+        or isinstance(action, argparse.BooleanOptionalAction))  # that one says its default itself
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Every command's ``--help`` shows each option's default (unless the text already says it,
+    or there is none to show): one place for all commands."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text.lower() or not shows_default(action):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def build_parser(name: str, module) -> argparse.ArgumentParser:
+    """The parser of one command, its --help showing every default (also of options without a help text)."""
+    parser = argparse.ArgumentParser(prog=f"handover {name}", description=COMMANDS[name][1],
+                                     formatter_class=HelpFormatter)
+    module.add_arguments(parser)
+    for action in parser._actions:
+        if not action.help and shows_default(action):
+            action.help = "(default: %(default)s)"
+    return parser
 
 
 def _usage() -> str:
     width = max(len(n) for n in COMMANDS)
     lines = ["usage: handover COMMAND [options]", "", "commands:"]
-    for name, (module, help_text) in COMMANDS.items():
-        if importlib.util.find_spec(module) is not None:
-            lines.append(f"  {name:<{width}}  {help_text}")
-    lines.append("")
-    lines.append("handover COMMAND --help shows the options of one command.")
+    for name, (_module, help_text, extra) in COMMANDS.items():
+        need = f"  [needs tactile-handover[{extra}]]" if extra else ""
+        lines.append(f"  {name:<{width}}  {help_text}{need}")
+    lean = ", ".join(n for n, (_m, _h, extra) in COMMANDS.items() if extra is None)
+    lines += ["", "Commands marked [needs ...] run only with that extra installed; the daemon's own install",
+              f"(pip install tactile-handover) runs {lean}.", "", "handover COMMAND --help shows the options of one command."]
     return "\n".join(lines)
+
+
+def _missing_module_line(name: str, exc: ModuleNotFoundError) -> str:
+    missing = (exc.name or "?").split(".")[0]
+    extra = _PACKAGE_EXTRA.get(missing)
+    hint = f"; {install_hint(extra)}" if extra else ""
+    return f"handover {name}: needs the Python package {missing!r}, which is not installed{hint}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,26 +117,26 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"handover: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    module_name, help_text = COMMANDS[name]
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        missing = exc.name or "?"
-        hint = "pip install 'tactile-handover[train]'" if missing.split(".")[0] in _TRAIN_PACKAGES else ""
-        print(f"handover {name}: needs the Python package {missing!r} which is not installed. {hint}".rstrip(),
+    module_name, _help, extra = COMMANDS[name]
+    if missing := missing_packages(extra):
+        print(f"handover {name}: needs the extra [{extra}] (missing: {', '.join(missing)}); {install_hint(extra)}",
               file=sys.stderr)
         return 2
-    parser = argparse.ArgumentParser(prog=f"handover {name}", description=help_text)
-    module.add_arguments(parser)
-    args = parser.parse_args(rest)
     try:
+        module = importlib.import_module(module_name)
+        args = build_parser(name, module).parse_args(rest)
         return int(module.main(args) or 0)
+    except ModuleNotFoundError as exc:  # a package imported only when the command needs it
+        if (exc.name or "").split(".")[0] in OWN_PACKAGES:
+            raise  # a broken checkout, not a missing extra
+        print(_missing_module_line(name, exc), file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"handover {name}: interrupted", file=sys.stderr)
         return 130
-
-
-_TRAIN_PACKAGES = {"sklearn", "skl2onnx", "onnx", "matplotlib", "tqdm", "joblib", "rosbags"}
+    except BrokenPipeError:  # `handover dump sim:// | head`: the reader has seen enough
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":

@@ -59,10 +59,16 @@ class DeviceConfig:
     reconnect_max_s: float = 10.0
 
 
+FOLLOW_MODEL = "model"
+"""``scene.pads`` value meaning: the pads the serving model was trained on."""
+
+
 @dataclass(frozen=True)
 class SceneConfig:
-    pads: str = "distal"
-    """Pads in contact, as a layout selection (``distal``, ``all``, ``1,3,5``, ...)."""
+    pads: str = "model"
+    """Pads in contact: ``model`` (the serving model's own pads, so a model trained with any
+    ``--pads`` serves) or a layout selection (``distal``, ``all``, ``1,3,5``, ...) that pins the
+    scene: a model trained for other pads is then refused."""
     events: tuple[str, ...] = ("pull", "push", "hold", "bump")
     """Classes that are reported; other decisions are counted but not sent."""
     mode: str = "trigger"
@@ -227,7 +233,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if isinstance(pads, list) and pads and all(isinstance(p, int) and not isinstance(p, bool) for p in pads):
         pads = ",".join(str(p) for p in pads)
     if not isinstance(pads, str) or not pads.strip():
-        raise ConfigError(f"scene.pads: must be a pad selection like 'distal' or [1, 3, 5], got {pads!r}")
+        raise ConfigError(f"scene.pads: must be 'model' or a pad selection like 'distal' or [1, 3, 5], got {pads!r}")
     _check_pads(pads)
     events = _str_list("scene.events", sc, SceneConfig.events)
     if not events:
@@ -235,7 +241,8 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     mode = _str("scene.mode", sc, SceneConfig.mode)
     if mode not in MODES:
         raise ConfigError(f"scene.mode: must be one of {', '.join(MODES)}, got {mode!r}")
-    scene = SceneConfig(pads=pads.strip(), events=events, mode=mode)
+    pads = FOLLOW_MODEL if pads.strip().lower() == FOLLOW_MODEL else pads.strip()
+    scene = SceneConfig(pads=pads, events=events, mode=mode)
     warnings = [
         f"scene.events: {e!r} is not a known event ({', '.join(KNOWN_EVENTS)}); "
         "it is reported only if the model has such a class"
@@ -432,6 +439,8 @@ def _check_pads(pads: str) -> None:
     """Reject selections no layout could satisfy (the real check runs when the device reports its layout)."""
     from firmware_io.layout import LayoutError, SensorLayout
 
+    if pads.strip().lower() == FOLLOW_MODEL:
+        return
     try:
         SensorLayout.sdh2().pads(pads)
     except LayoutError as exc:

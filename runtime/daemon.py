@@ -26,7 +26,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from firmware_io.layout import LayoutError, SensorLayout
+from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
@@ -34,9 +34,12 @@ from runtime.model_watch import ModelWatcher, Rejection
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore, store_path
 from runtime.ring import RingBuffer
+from runtime.scene import events_problem, scene_pads, scene_problem
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+
+__all__ = ["Daemon", "events_problem", "scene_problem"]  # the last two are re-exported for run --check
 
 log = logging.getLogger("handover.daemon")
 
@@ -50,37 +53,6 @@ CONNECT_BOUND_S = 30.0
 """Longest one connection attempt may take while the watchdog is still fed: the client's own
 deadlines end an open within ~15 s (open 10 s, start 3 s), so an attempt still running after this
 is a hang, and systemd's watchdog is left to catch it."""
-
-
-def events_problem(model: Any, events: tuple[str, ...]) -> str | None:
-    """``scene.events: 'pul' is not a class of model X (classes: ...)``, or None."""
-    classes = list(model.meta.classes)
-    missing = [e for e in events if e not in classes]
-    if not missing:
-        return None
-    names = ", ".join(repr(e) for e in missing)
-    verb = "is not a class" if len(missing) == 1 else "are not classes"
-    return f"scene.events: {names} {verb} of model {model.model_id} (classes: {', '.join(classes)})"
-
-
-def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None, check_events: bool = True) -> str | None:
-    """Why a model cannot serve this scene (pads, channels, classes, mode), or None."""
-    meta = model.meta
-    lay = layout or SensorLayout.sdh2()
-    try:
-        pads = lay.pads(cfg.scene.pads)
-    except LayoutError as exc:
-        return f"scene.pads: {exc}"
-    if tuple(meta.pads) != tuple(pads):
-        return f"model expects pads {list(meta.pads)}, the scene uses {list(pads)} (scene.pads = {cfg.scene.pads!r})"
-    n = sum(lay.pad_sizes(pads))
-    if meta.n_channels != n:
-        return f"model expects {meta.n_channels} taxel columns, the device's pads {list(pads)} have {n}"
-    if check_events and (problem := events_problem(model, cfg.scene.events)):
-        return problem
-    if cfg.scene.mode == "continuous" and meta.dormant_class is None:
-        return "scene.mode = 'continuous' needs a model with a dormant class; this one has none"
-    return None
 
 
 class Daemon:
@@ -223,7 +195,7 @@ class Daemon:
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""
         if self.layout is None:
             return
-        cols = self.layout.columns(self.cfg.scene.pads)
+        cols = self.layout.columns(scene_pads(self.cfg, self.model, self.layout))
         meta = self.model.meta if self.model is not None else None
         T = int(meta.T) if meta else 15
         tcfg = self.cfg.trigger

@@ -119,7 +119,10 @@ def _pads_problem(pads: str) -> str | None:
     """A pad selection the SDH-2 cannot satisfy (``1,3,9``: it has matrices 0-5): the daemon would
     reject every model and classify nothing, so --check calls it an error."""
     from firmware_io.layout import LayoutError, SensorLayout
+    from runtime.config import FOLLOW_MODEL
 
+    if pads == FOLLOW_MODEL:  # the model's own pads: nothing to check before a model is there
+        return None
     layout = SensorLayout.sdh2()
     try:
         layout.pads(pads)

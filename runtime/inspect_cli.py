@@ -19,6 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def card(model) -> dict:
     meta = model.meta
+    kernel = meta.extra.get("kernel")
+    svm = dict(meta.extra.get("svm") or {})
+    if kernel != "rbf":
+        svm.pop("gamma", None)  # only the RBF kernel has one
+    groups = meta.extra.get("feature_groups")
     return {
         "path": str(model.path),
         "model_id": model.model_id,
@@ -30,6 +35,7 @@ def card(model) -> dict:
         "T": meta.T,
         "W": meta.W,
         "K": meta.K,
+        "per_pad": None if groups is None else len(groups) > 1,
         "window_seconds": round(meta.T / meta.sample_rate_hz, 4),
         "sample_rate_hz": meta.sample_rate_hz,
         "trigger": meta.trigger,
@@ -37,8 +43,8 @@ def card(model) -> dict:
         "score": meta.score,
         "training": meta.training,
         "evaluation": meta.evaluation,
-        "kernel": meta.extra.get("kernel"),
-        "svm": meta.extra.get("svm"),
+        "kernel": kernel,
+        "svm": svm or None,
         "graph": {**meta.extra.get("graph", {}), "n_nodes": model.n_nodes, "n_bytes": model.n_bytes},
         "reference": meta.extra.get("reference"),
     }
@@ -49,19 +55,66 @@ def _trials(n) -> str:
     return "an unknown number of trials (not recorded)" if n is None else f"{n} trials"
 
 
+def _value(key: str, v) -> str:
+    """Rounded for people: accuracies as percentages, other floats to 4 significant digits."""
+    if isinstance(v, bool) or v is None:
+        return str(v)
+    if isinstance(v, float):
+        if any(w in key for w in ("accuracy", "per_subject", "at_bound")) or key.endswith("_std"):
+            return f"{100 * v:.1f} %"
+        return str(int(v)) if v.is_integer() and abs(v) < 1e9 else f"{v:.4g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_value(key, x)}" for k, x in v.items())
+    return str(v)
+
+
+def _pad_name(pads: list[int]) -> str:
+    from firmware_io.layout import LayoutError, SensorLayout
+
+    sdh2 = SensorLayout.sdh2()
+    for name in ("all", "distal", "proximal", "thumb"):
+        try:
+            if list(sdh2.pads(name)) == list(pads):
+                return f" = {name}"
+        except LayoutError:
+            pass
+    return ""
+
+
+def _features(c: dict) -> str:
+    hist = {None: "", True: f", one histogram per pad ({len(c['pads'])})", False: ", one histogram over all pads"}
+    return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}"
+
+
+def _svm(c: dict) -> str:
+    svm = c["svm"] or {}
+    parts = [f"{k} {_value(k, v)}" for k, v in svm.items() if k != "n_support_vectors"]
+    if "n_support_vectors" in svm:
+        parts.append(f"{svm['n_support_vectors']} support vectors")
+    return f"  SVM: {c['kernel']} kernel" + (f", {', '.join(parts)}" if parts else "")
+
+
+SHOWN_TRAINING = ("n_trials", "data_fingerprint", "date", "project_version", "C", "gamma")
+"""Training keys the card shows in its own words (C and gamma are on the SVM line)."""
+
+
 def _text(c: dict) -> str:
     tr, ev = c["training"], c["evaluation"]
+    trig = c["trigger"]
     lines = [
         f"model {c['path']} (id {c['model_id']})",
         f"  detects: {', '.join(c['detects'])}" + (f" (dormant class: {c['dormant_class']})" if c["dormant_class"] else ""),
-        f"  pads: {c['pads']} ({c['n_channels']} taxels: {c['pad_sizes']})",
-        f"  window: T={c['T']} frames ({c['window_seconds']} s at {c['sample_rate_hz']:g} Hz), "
-        f"trigger at {100 * float(c['trigger'].get('fraction', 0)):.0f} % of {c['fullscale']:g}",
-        f"  features: {c['K']} words of W={c['W']} derivative steps; SVM kernel {c['kernel']} {c['svm'] or ''}",
+        f"  pads: {','.join(str(p) for p in c['pads'])}{_pad_name(c['pads'])} ({c['n_channels']} taxels: "
+        f"{', '.join(str(s) for s in c['pad_sizes'])}); serves with scene.pads = \"model\" or this selection",
+        f"  window: T={c['T']} frames ({c['window_seconds']:.2f} s at {c['sample_rate_hz']:.2f} Hz), "
+        f"trigger at {100 * float(trig.get('fraction', 0)):.0f} % of {c['fullscale']:g}"
+        + (f", hysteresis {100 * float(trig['hysteresis']):.0f} %" if "hysteresis" in trig else ""),
+        _features(c),
+        _svm(c),
         f"  trained on: {_trials(tr.get('n_trials'))}, data {str(tr.get('data_fingerprint'))[:16]}, "
         f"{tr.get('date')}, project {tr.get('project_version')}"
-        + "".join(f", {k}: {v}" for k, v in tr.items() if k not in ("n_trials", "data_fingerprint", "date", "project_version")),
-        "  accuracy: " + (", ".join(f"{k}: {v}" for k, v in ev.items()) if ev else "not recorded"),
+        + "".join(f", {k}: {_value(k, v)}" for k, v in tr.items() if k not in SHOWN_TRAINING),
+        "  accuracy: " + ("; ".join(f"{k}: {_value(k, v)}" for k, v in ev.items()) if ev else "not recorded"),
         f"  graph: {c['graph']['n_nodes']} nodes, {c['graph']['n_bytes']} bytes, opset {c['graph'].get('opset')}",
         f"  scores: {c['score']}",
     ]

@@ -23,7 +23,7 @@ def test_unknown_command_is_one_clear_error(capsys):
 def test_every_command_module_has_the_two_functions():
     import importlib.util
 
-    for name, (module, _help) in cli.COMMANDS.items():
+    for name, (module, _help, _extra) in cli.COMMANDS.items():
         if importlib.util.find_spec(module) is None:
             continue  # not built yet: it is simply not listed
         mod = importlib.import_module(module)

@@ -31,3 +31,17 @@ def test_as_fast_as_possible_says_so_instead_of_a_bare_null(capsys):
     assert main(["dump", "sim://?realtime=0", "--frames", "30"]) == 0
     last = capsys.readouterr().out.splitlines()[-1]
     assert "received at" in last and "received at n/a (device" not in last and "timeouts 0" in last
+
+
+def test_the_preview_starts_at_the_first_contact_and_says_so(capsys):
+    """issue 15: the simulated hand's session starts idle; fifty rows of zeros showed nothing."""
+    assert main(["dump", "sim://?realtime=0", "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    notes = [x["text"] for x in lines if x["type"] == "note"]
+    frames = [x for x in lines if x["type"] == "frame"]
+    summary = lines[-1]
+    assert len(frames) == 50 and frames[0]["max"] > 0
+    assert summary["idle_frames_skipped"] > 0 and f"skipped {summary['idle_frames_skipped']} frames" in notes[-1]
+    assert frames[0]["number"] == summary["idle_frames_skipped"]  # nothing lost, only not shown
+    every = _summary(capsys, "sim://?realtime=0", "--all-frames")
+    assert every["idle_frames_skipped"] == 0 and every["frames"] == 50

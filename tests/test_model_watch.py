@@ -117,7 +117,7 @@ def test_scene_mismatch_is_rejected_with_its_reason(tmp_path):
     write_model(tmp_path, "all-pads.onnx", tiny_model_bytes(pads=(0, 1, 2, 3, 4, 5),
                                                             pad_sizes=(84, 78, 84, 78, 84, 78)))
     write_model(tmp_path, "three-classes.onnx", tiny_model_bytes(classes=("pull", "push", "hold")))
-    w = _watcher(tmp_path)
+    w = _watcher(tmp_path, scene={"pads": "distal"})
     assert w.poll(require_stable=False) is None
     reasons = {r.path.name: r.reason for r in w.rejections}
     assert "pads" in reasons["all-pads.onnx"]

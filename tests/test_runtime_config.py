@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_defaults_are_the_papers():
     cfg = config_from_dict({})
     assert isinstance(cfg, Config)
-    assert cfg.scene.pads == "distal" and cfg.scene.mode == "trigger"
+    assert cfg.scene.pads == "model" and cfg.scene.mode == "trigger"  # the pads follow the model
     assert cfg.scene.events == ("pull", "push", "hold", "bump")
     assert cfg.trigger.fraction is None  # taken from the model (0.15 in the paper)
     assert cfg.onnxruntime.intra_op_threads == 1 and cfg.onnxruntime.allow_spinning is False

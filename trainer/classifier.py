@@ -21,7 +21,7 @@ from sklearn.model_selection import GridSearchCV, StratifiedKFold
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 from sklearn.utils.multiclass import check_classification_targets
-from sklearn.utils.validation import check_is_fitted, column_or_1d
+from sklearn.utils.validation import assert_all_finite, check_is_fitted, column_or_1d
 
 from trainer.bow import BagOfWords, as_cases
 
@@ -49,6 +49,8 @@ def check_training_data(estimator, X, y) -> tuple[np.ndarray, np.ndarray, np.nda
         raise ValueError(f"{type(estimator).__name__} requires y to be passed, but the target y is None")
     X = as_cases(X)
     y = column_or_1d(y, warn=True)
+    if y.dtype.kind in "fc":  # NaN/inf labels: refuse before type_of_target casts them (RuntimeWarning)
+        assert_all_finite(y, input_name="y")
     if len(y) != len(X):
         raise ValueError(f"y has {len(y)} labels for {len(X)} cases")
     check_classification_targets(y)

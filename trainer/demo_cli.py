@@ -70,12 +70,22 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
     if code != 0 or not model.is_file():
         raise RuntimeError("training did not produce model.onnx (see the messages above)")
     stamp.write_text(json.dumps(wanted))
+    from trainer.report import pooled_text
+
     metrics = json.loads((report / "metrics.json").read_text())
     _say(args, f"      synthetic data: {metrics['n_cases']} cases ({metrics['n_untriggered']} trials never "
                f"triggered); leave-one-subject-out accuracy {metrics['loso_accuracy']:.1%}, pooled 80/20 "
-               f"{metrics['config1_accuracy_mean']:.1%} +/- {metrics['config1_accuracy_std']:.1%}; "
-               f"report {report / 'report.md'}")
+               f"{pooled_text(metrics['config1'])}; report {report / 'report.md'}")
     return model
+
+
+def playback_text(duration_s: float, speed: float | None) -> str:
+    """What the session will take on the wall clock, not its length in device time."""
+    if speed is None:
+        return f"{duration_s:.0f} s of device time replayed as fast as possible (a few seconds)"
+    if speed == 1.0:
+        return f"{duration_s:.0f} s in real time"
+    return f"{duration_s:.0f} s of device time at speed {speed:g}: about {duration_s / speed:.0f} s"
 
 
 def drop_model(model: Path, folder: Path) -> Path:
@@ -141,7 +151,7 @@ def main(args: argparse.Namespace) -> int:
     server = TcpEmulatorServer(emulator, host="127.0.0.1", port=0).start()
     duration = session.timestamps[-1] - session.timestamps[0]
     _say(args, f"[3/4] emulated DSACON32m on {server.url}: scripted session of {len(script)} events by unseen "
-               f"simulated subjects (synthetic, seed {session_seed}), {duration:.0f} s at speed {args.speed}")
+               f"simulated subjects (synthetic, seed {session_seed}), {playback_text(duration, speed)}")
 
     cfg = Config(
         device=DeviceConfig(url=server.url, stall_timeout_s=2.0, reconnect_min_s=0.2, reconnect_max_s=1.0),

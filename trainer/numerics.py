@@ -53,9 +53,24 @@ def codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool 
     in units of its float32 error bound (< SAFETY: near tie; inf with a single codeword), and the
     absolute gap between the two smallest squared distances.
 
-    ``X`` is ``(n, c, T)`` of the float32 values the graph sees (cast to float64).
+    ``X`` is ``(n, c, T)`` of the float32 values the graph sees (cast to float64). An all-zero
+    series (most taxels of a window) has the margins of the zero series: computed once and copied,
+    which keeps ``handover verify`` fast and its memory small.
     """
     X = np.asarray(X, dtype=np.float64)
+    active = np.any(X != 0, axis=2)
+    if active.all():
+        return _codeword_margins(X, codebook, fold_derivative)
+    zero_rel, zero_gap = _codeword_margins(np.zeros((1, 1, X.shape[2])), codebook, fold_derivative)
+    rel = np.broadcast_to(zero_rel, (*X.shape[:2], zero_rel.shape[2])).copy()
+    gap = np.broadcast_to(zero_gap, rel.shape).copy()
+    if active.any():
+        r, g = _codeword_margins(X[active][None], codebook, fold_derivative)
+        rel[active], gap[active] = r[0], g[0]
+    return rel, gap
+
+
+def _codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool) -> tuple[np.ndarray, np.ndarray]:
     codebook = np.asarray(codebook, dtype=np.float64)
     n_words, window = codebook.shape
     deriv = X[:, :, 1:] - X[:, :, :-1]

@@ -1,4 +1,4 @@
-"""The report folder: figures (small PNGs), ``metrics.json`` and a Markdown page people read.
+"""The report folder: figures (readable PNGs, 1200 px wide), ``metrics.json`` and a Markdown page people read.
 
 Every figure and table says whether its numbers come from synthetic (simulated) data and
 which split produced them.
@@ -12,7 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-DPI = 80
+DPI = 150
+WIDE = (8.0, 5.0)
+"""Figure size in inches: at DPI 150, 1200 x 750 px, text at 11 pt readable on a screen."""
+SQUARE = (8.0, 7.0)
 
 
 def _plt():
@@ -21,6 +24,7 @@ def _plt():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    plt.rcParams.update({"font.size": 11, "axes.titlesize": 12, "legend.fontsize": 10})
     return plt
 
 
@@ -32,17 +36,17 @@ def plot_confusion(cm: Sequence[Sequence[int]], labels: Sequence[str], title: st
     plt = _plt()
     cm = np.asarray(cm, dtype=float)
     rows = cm / np.maximum(cm.sum(axis=1, keepdims=True), 1)
-    fig, ax = plt.subplots(figsize=(3.8, 3.4), dpi=DPI)
+    fig, ax = plt.subplots(figsize=SQUARE, dpi=DPI)
     ax.imshow(rows, cmap="Blues", vmin=0, vmax=1)
     for i in range(len(labels)):
         for j in range(len(labels)):
-            ax.text(j, i, f"{int(cm[i, j])}", ha="center", va="center",
-                    color="white" if rows[i, j] > 0.6 else "black", fontsize=8)
-    ax.set_xticks(range(len(labels)), labels, fontsize=8)
-    ax.set_yticks(range(len(labels)), labels, fontsize=8)
-    ax.set_xlabel("predicted", fontsize=8)
-    ax.set_ylabel("true", fontsize=8)
-    ax.set_title(title, fontsize=8)
+            ax.text(j, i, f"{int(cm[i, j])}\n{100 * rows[i, j]:.0f} %", ha="center", va="center",
+                    color="white" if rows[i, j] > 0.6 else "black", fontsize=13)
+    ax.set_xticks(range(len(labels)), labels)
+    ax.set_yticks(range(len(labels)), labels)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    ax.set_title(title)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -52,17 +56,16 @@ def plot_confusion(cm: Sequence[Sequence[int]], labels: Sequence[str], title: st
 def plot_sweep(rows: list[dict], param: str, fixed: str, path: Path, synthetic: bool) -> Path:
     """Accuracy against one parameter (one line per kernel)."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(3.8, 2.8), dpi=DPI)
+    fig, ax = plt.subplots(figsize=WIDE, dpi=DPI)
     for kernel in sorted({r.get("kernel", "rbf") for r in rows}):
         pts = sorted((r[param], r["accuracy"], r.get("std", 0.0)) for r in rows if r.get("kernel", "rbf") == kernel)
         x, acc, std = (np.array(v) for v in zip(*pts, strict=True))
-        ax.errorbar(x, acc * 100, yerr=std * 100, marker="o", ms=3, capsize=2, label=kernel)
-    ax.set_xlabel(param, fontsize=8)
-    ax.set_ylabel("accuracy %", fontsize=8)
-    ax.set_title(f"accuracy vs {param} ({fixed}){_tag(synthetic)}", fontsize=7)
-    ax.tick_params(labelsize=7)
+        ax.errorbar(x, acc * 100, yerr=std * 100, marker="o", ms=5, capsize=3, label=kernel)
+    ax.set_xlabel(param)
+    ax.set_ylabel("accuracy %")
+    ax.set_title(f"accuracy vs {param} ({fixed}){_tag(synthetic)}")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(title="kernel")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -71,14 +74,14 @@ def plot_sweep(rows: list[dict], param: str, fixed: str, path: Path, synthetic: 
 
 def plot_tsne(embedding: np.ndarray, y: np.ndarray, path: Path, synthetic: bool) -> Path:
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(3.8, 3.4), dpi=DPI)
+    fig, ax = plt.subplots(figsize=SQUARE, dpi=DPI)
     for label in sorted(set(y.tolist())):
         pick = y == label
-        ax.scatter(embedding[pick, 0], embedding[pick, 1], s=4, label=label, alpha=0.7)
+        ax.scatter(embedding[pick, 0], embedding[pick, 1], s=12, label=label, alpha=0.7)
     ax.set_xticks([])
     ax.set_yticks([])
-    ax.set_title(f"t-SNE of the BoW histograms{_tag(synthetic)}", fontsize=8)
-    ax.legend(fontsize=7, markerscale=2)
+    ax.set_title(f"t-SNE of the BoW histograms{_tag(synthetic)}")
+    ax.legend(markerscale=2)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -86,36 +89,66 @@ def plot_tsne(embedding: np.ndarray, y: np.ndarray, path: Path, synthetic: bool)
 
 
 def plot_baseline_vs_bow(metrics: dict, path: Path, synthetic: bool) -> Path:
+    """Grouped bars on an axis zoomed to the values (differences of 1 % must show), each bar labelled,
+    the legend below the axes where it covers nothing."""
     plt = _plt()
-    names = ["config 1 (pooled 80/20)", "config 2 (LOSO)"]
-    bow = [metrics["config1_accuracy_mean"], metrics["loso_accuracy"]]
-    base = [metrics["baseline_config1_accuracy_mean"], metrics["baseline_loso_accuracy"]]
-    err_bow = [metrics["config1_accuracy_std"], metrics["loso_subject_std"]]
-    err_base = [metrics["baseline_config1_accuracy_std"], metrics["baseline_loso_subject_std"]]
-    x = np.arange(2)
-    fig, ax = plt.subplots(figsize=(3.8, 2.8), dpi=DPI)
-    ax.bar(x - 0.2, np.array(bow) * 100, 0.4, yerr=np.array(err_bow) * 100, capsize=2, label="BoW + SVM")
-    ax.bar(x + 0.2, np.array(base) * 100, 0.4, yerr=np.array(err_base) * 100, capsize=2, label="hand features + SVM")
-    ax.set_xticks(x, names, fontsize=7)
-    ax.set_ylabel("accuracy %", fontsize=8)
-    ax.set_ylim(0, 105)
-    ax.tick_params(labelsize=7)
-    ax.set_title(f"BoW vs hand-designed features{_tag(synthetic)}", fontsize=8)
-    ax.legend(fontsize=7, loc="lower right")
+    names = ["config 1 (pooled 80/20)", "config 2 (leave one subject out)"]
+    series = [
+        ("BoW + SVM", [metrics["config1_accuracy_mean"], metrics["loso_accuracy"]],
+         [metrics["config1_accuracy_std"], metrics["loso_subject_std"]]),
+        ("hand-designed features + SVM", [metrics["baseline_config1_accuracy_mean"], metrics["baseline_loso_accuracy"]],
+         [metrics["baseline_config1_accuracy_std"], metrics["baseline_loso_subject_std"]]),
+    ]
+    x = np.arange(len(names))
+    low, high = _zoomed_limits(series)
+    fig, ax = plt.subplots(figsize=WIDE, dpi=DPI)
+    for k, (label, values, errors) in enumerate(series):
+        vals, errs = np.array(values) * 100, np.array(errors) * 100
+        xs = x + (k - 0.5) * 0.38
+        ax.bar(xs, vals, 0.36, yerr=errs, capsize=4, label=label)
+        for xi, v in zip(xs, vals, strict=True):  # inside the bar, clear of the error bar
+            ax.text(xi, low + 0.04 * (high - low), f"{v:.1f} %", ha="center", va="bottom", color="white",
+                    fontweight="bold")
+    ax.set_ylim(low, high)
+    ax.set_xticks(x, names)
+    ax.set_ylabel("accuracy % (axis does not start at 0)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_title(f"BoW vs hand-designed features{_tag(synthetic)}")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
     return path
 
 
-def _pct(v: float) -> str:
+def _zoomed_limits(series: list) -> tuple[float, float]:
+    """A y range (in %) around the bars and their error bars (not from 0: differences of 1 % must show)."""
+    lo = min(100 * (v - e) for _, values, errors in series for v, e in zip(values, errors, strict=True))
+    hi = max(100 * (v + e) for _, values, errors in series for v, e in zip(values, errors, strict=True))
+    span = max(hi - lo, 2.0)
+    return max(0.0, lo - 0.3 * span), min(100.0 + 0.02 * span, hi + 0.1 * span)
+
+
+def pct(v: float) -> str:
+    """A fraction as people read it: 0.9663 -> 96.6 %."""
     return f"{100 * v:.1f} %"
+
+
+def pooled_text(c1: dict) -> str:
+    """Configuration 1 for people: mean +/- std and the range, or, when every split scored the same,
+    that plain fact (a "+/- 0.0 %" reads like one split repeated; the splits do differ)."""
+    accs = list(c1["accuracies"].values())
+    n = len(accs)
+    n_test = round(sum(map(sum, c1["confusion"])) / max(n, 1))
+    if max(accs) - min(accs) < 1e-12:
+        return f"{pct(accs[0])} on each of {n} different splits ({n_test} test cases each)"
+    return f"{pct(c1['mean'])} +/- {pct(c1['std'])} over {n} splits (range {pct(min(accs))} .. {pct(max(accs))})"
 
 
 def _class_table(per_class: dict) -> list[str]:
     lines = ["| class | precision | recall | support |", "|---|---|---|---|"]
     for c, v in per_class.items():
-        lines.append(f"| {c} | {_pct(v['precision'])} | {_pct(v['recall'])} | {v['support']} |")
+        lines.append(f"| {c} | {pct(v['precision'])} | {pct(v['recall'])} | {v['support']} |")
     return lines
 
 
@@ -192,11 +225,11 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "| | BoW + SVM | hand features + SVM (baseline) |",
         "|---|---|---|",
         f"| configuration 1: pooled, stratified random 80/20, {len(c1['accuracies'])} seeds (mean +/- std) | "
-        f"{_pct(c1['mean'])} +/- {_pct(c1['std'])} | {_pct(b1['mean'])} +/- {_pct(b1['std'])} |",
-        f"| configuration 2: leave one subject out (all held-out predictions) | {_pct(c2['accuracy'])} | "
-        f"{_pct(b2['accuracy'])} |",
-        f"| configuration 2: mean +/- std over subjects | {_pct(c2['subject_mean'])} +/- {_pct(c2['subject_std'])} | "
-        f"{_pct(b2['subject_mean'])} +/- {_pct(b2['subject_std'])} |",
+        f"{pct(c1['mean'])} +/- {pct(c1['std'])} | {pct(b1['mean'])} +/- {pct(b1['std'])} |",
+        f"| configuration 2: leave one subject out (all held-out predictions) | {pct(c2['accuracy'])} | "
+        f"{pct(b2['accuracy'])} |",
+        f"| configuration 2: mean +/- std over subjects | {pct(c2['subject_mean'])} +/- {pct(c2['subject_std'])} | "
+        f"{pct(b2['subject_mean'])} +/- {pct(b2['subject_std'])} |",
         "",
         f"Splits: configuration 1 = {c1['split']}. Configuration 2 = {c2['split']}.",
         "",
@@ -206,7 +239,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "|---|---|---|",
     ]
     for s, acc in c2["per_subject"].items():
-        lines.append(f"| {s} | {_pct(acc)} | {_pct(b2['per_subject'][s])} |")
+        lines.append(f"| {s} | {pct(acc)} | {pct(b2['per_subject'][s])} |")
     lines += ["", "Per class, configuration 1 (summed over seeds):", "", *_class_table(c1["per_class"]),
               "", "Per class, configuration 2:", "", *_class_table(c2["per_class"]), ""]
     sw = metrics.get("sweep")
@@ -220,8 +253,8 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
             "|---|---|---|---|---|",
         ]
         for r in sw["rows"]:
-            lines.append(f"| {r['param']} | {r[r['param']]} | {r.get('kernel', 'rbf')} | {_pct(r['accuracy'])} | "
-                         f"{_pct(r.get('std', 0.0))} |")
+            lines.append(f"| {r['param']} | {r[r['param']]} | {r.get('kernel', 'rbf')} | {pct(r['accuracy'])} | "
+                         f"{pct(r.get('std', 0.0))} |")
         lines.append("")
     lines += ["## Figures", ""]
     for title, name in figures.items():

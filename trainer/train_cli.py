@@ -131,8 +131,9 @@ def main(args: argparse.Namespace) -> int:
 def _progress(args, desc: str, total: int):
     from tqdm import tqdm
 
-    def wrap(iterable):
-        return tqdm(iterable, desc=desc, total=total, file=sys.stderr, disable=args.quiet, leave=False)
+    def wrap(iterable):  # bars only on a terminal: a redirected log gets no carriage-return clutter
+        return tqdm(iterable, desc=desc, total=total, file=sys.stderr, disable=args.quiet or not sys.stderr.isatty(),
+                    leave=False)
 
     return wrap
 
@@ -268,11 +269,34 @@ def run(args) -> int:
     metrics["command"] = command_line(args)
     report.write_metrics(out, metrics)
     report.write_markdown(out, metrics, metrics["command"], figures)
-    _say(args, f"report written to {out / 'report.md'} ({metrics['seconds']:.0f} s)")
+    if not args.quiet:
+        print(headline(metrics, out, onnx_written=onnx_ok and not args.no_onnx), flush=True,
+              file=sys.stderr if args.json else sys.stdout)
     if args.json:
         print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (
             "loso_per_subject", "best_params", "svm_margin")}, default=report._json_default))
     return 0 if onnx_ok else 1
+
+
+def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
+    """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
+    from trainer.report import pct, pooled_text
+
+    tag = "synthetic data, " if metrics["synthetic"] else ""
+    model = out / "model.onnx"
+    lines = [
+        f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
+        f"never triggered), pads {metrics['pads']}, K={metrics['K']} W={metrics['W']} T={metrics['T']} "
+        f"{metrics['kernel']} SVM",
+        f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
+        f"{pct(metrics['baseline_loso_accuracy'])})",
+        f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
+        f"{pct(metrics['baseline_config1_accuracy_mean'])})",
+        f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
+        f"  model:  {model} (handover inspect {model}; drop it into the daemon's model folder, deploy/INSTALL.md)"
+        if onnx_written else "  model:  no model.onnx written (model.joblib only)",
+    ]
+    return "\n".join(lines)
 
 
 def _sweeps(args, recordings, out: Path) -> dict | None:
@@ -306,6 +330,8 @@ def model_metadata(args, ds, metrics: dict) -> dict:
     from runtime import __version__
 
     rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
+    # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
+    folder = {"data_folder": str(Path(args.data).resolve())} if getattr(args, "data", None) else {}
     return {
         "pads": list(ds.pads),
         "pad_sizes": list(ds.pad_sizes),
@@ -315,6 +341,7 @@ def model_metadata(args, ds, metrics: dict) -> dict:
         "training": {
             "data_fingerprint": ds.fingerprint,
             "data": metrics["data"],
+            **folder,
             "synthetic": metrics["synthetic"],
             "n_trials": ds.n_trials,
             "n_cases": len(ds.y),

@@ -25,7 +25,8 @@ import numpy as np
 
 from trainer.numerics import SAFETY, reference
 
-BATCH = 256
+BATCH = 64
+"""Windows per run of graph and reference: the float64 reference holds ~20 MB per batch of 64."""
 HIST_TOLERANCE = 1e-6
 """Histogram entries are counts / windows in [0, 1]; float32 division is within 6e-8 of float64."""
 
@@ -287,52 +288,3 @@ def check_nonfinite_refused(onnx_path: Path) -> bool:
         except ModelInputError:
             refused += 1
     return refused == 3
-
-
-# -- windows to verify on ---------------------------------------------------------------------------
-def trial_windows(recordings, meta, stride: int = 4, source: str = "simulated") -> tuple[np.ndarray, list[str]]:
-    """Every T-frame window (every ``stride``-th start) inside each labelled trial, model pads only."""
-    out, names = [], []
-    for rec in recordings:
-        cols = rec.layout.columns(list(meta.pads))
-        for trial in rec.trials:
-            frames, _ = rec.trial_frames(trial)
-            sel = frames[:, cols]
-            for s in range(0, len(sel) - meta.T + 1, stride):
-                out.append(sel[s : s + meta.T])
-                names.append(source)
-    if not out:
-        raise VerifyError(f"the {source} recordings have no trial of at least T={meta.T} frames")
-    return np.asarray(out, dtype=np.float32), names
-
-
-def simulated_windows(meta, seed: int, n_subjects: int, stride: int) -> tuple[np.ndarray, list[str]]:
-    """Held-out trials of the simulated protocol (a seed the training did not use)."""
-    from firmware_io.simulate import simulate_protocol
-
-    recs = simulate_protocol(seed=seed, n_subjects=n_subjects)
-    return trial_windows(recs, meta, stride, source="simulated (synthetic)")
-
-
-def recording_windows(folder: str | Path, meta, stride: int) -> tuple[np.ndarray, list[str]]:
-    from firmware_io.recording import RecordingError, find_recordings, load_all
-
-    try:
-        recs = load_all(find_recordings(folder))
-    except (OSError, RecordingError) as exc:
-        raise VerifyError(str(exc)) from exc
-    if not recs:
-        raise VerifyError(f"no recordings in {folder}")
-    return trial_windows(recs, meta, stride, source=f"recordings in {Path(folder).name}")
-
-
-def stress_windows(model, meta, seed: int = 0) -> tuple[np.ndarray, list[str]]:
-    from trainer.stress import stress_cases
-
-    bow = getattr(model, "bow_", None)
-    # a flattened-series SVM has no codebook: windows between two arbitrary "codewords" still stress it
-    codebook = bow.codebook_ if bow is not None else np.eye(2, max(1, min(5, meta.T - 1))) * 100.0
-    families = stress_cases(meta.T, meta.n_channels, codebook, seed)
-    frames = np.concatenate(list(families.values()))
-    names = [f"stress:{name}" for name, arr in families.items() for _ in range(len(arr))]
-    return frames, names

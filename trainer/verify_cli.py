@@ -1,8 +1,10 @@
 """``handover verify MODEL.onnx [--data DIR] [--stress] [--json]``: the graph against float64.
 
 Runs the exported graph and the float64 scikit-learn reference (the ``.joblib`` next to the
-``.onnx``) on the same windows: held-out simulated trials (or the recordings in ``--data``)
-and, with ``--stress``, the stress families of ``trainer.stress``. Exit status 0 when every
+``.onnx``) on the same windows: the recordings in ``--data``, else the folder the model was
+trained on (``handover train --data`` records it in the model), else held-out simulated
+trials; and, with ``--stress``, the stress families of ``trainer.stress``. Windows stream in
+batches (bounded memory) with a progress line on stderr about every 10 %. Exit status 0 when every
 disagreement is a near tie, every window whose word differs from the float64 word is a near
 tie, and no output is NaN/inf; 1 otherwise; 2 when it cannot run.
 """
@@ -12,19 +14,27 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
+STRIDE = 8
+SUBJECTS = 2
+"""Defaults sized for a check after each training (a few thousand held-out windows, about a minute on
+a 2-core machine); results/verify_simulated.md ran the thorough ``--subjects 5 --stride 4``."""
+PROGRESS_STEPS = 10
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", help="exported model (.onnx)")
     parser.add_argument("--reference", help="the trained .joblib (default: as named in the model's metadata)")
-    parser.add_argument("--data", help="folder of .hrec recordings (default: held-out simulated protocol)")
+    parser.add_argument("--data", help="folder of .hrec recordings (default: the folder the model was trained on, "
+                        "if recorded and present; else a held-out simulated protocol)")
     parser.add_argument("--seed", type=int, default=1000, help="simulator seed of the held-out trials (default 1000)")
-    parser.add_argument("--subjects", type=int, default=5, help="simulated subjects (default 5)")
-    parser.add_argument("--stride", type=int, default=4, help="frames between verified window starts (default 4)")
+    parser.add_argument("--subjects", type=int, default=SUBJECTS, help="simulated held-out subjects")
+    parser.add_argument("--stride", type=int, default=STRIDE, help="frames between verified window starts")
     parser.add_argument("--stress", action="store_true", help="add the stress cases")
     parser.add_argument("--no-trials", action="store_true", help="stress cases only (implies --stress)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def _print_report(report, path: Path) -> None:
@@ -48,21 +58,48 @@ def _print_report(report, path: Path) -> None:
     print(f"  near tie: margin < {report.safety:g} x the float32 error bound (see trainer/numerics.py)")
 
 
+def _trial_stream(args, meta):
+    """The user's --data, else the training folder the model names, else held-out simulated trials."""
+    from trainer.verify_windows import recording_stream, simulated_stream, trained_data_folder
+
+    if args.data:
+        return recording_stream(args.data, meta, args.stride)
+    folder = trained_data_folder(meta)
+    if folder is not None and folder.is_dir():
+        _note(args, f"verifying on the recordings the model was trained on ({folder}; --data to choose others)")
+        return recording_stream(folder, meta, args.stride)
+    if folder is not None:
+        _note(args, f"the model was trained on {folder}, which is not here: verifying on held-out simulated "
+                    "trials instead (--data DIR for your recordings)")
+    return simulated_stream(meta, args.seed, args.subjects, args.stride)
+
+
+def _note(args, text: str) -> None:
+    if not args.quiet:
+        print(f"handover verify: {text}", file=sys.stderr, flush=True)
+
+
+def _run_stream(args, stream, compare_batch) -> None:
+    """Compare batch by batch; a progress line about every 10 % (plain lines: fine in a log)."""
+    total, done, next_step, t0 = stream.total, 0, 1, time.monotonic()
+    for frames, sources in stream.batches():
+        compare_batch(frames, sources)
+        done += len(frames)
+        if done * PROGRESS_STEPS >= next_step * total:
+            next_step = done * PROGRESS_STEPS // total + 1
+            _note(args, f"{done}/{total} windows of the {stream.source} ({100 * done / total:.0f} %, "
+                        f"{time.monotonic() - t0:.0f} s)")
+
+
 def main(args: argparse.Namespace) -> int:
     from runtime.model import ModelContractError, load_model
     from trainer.export_cli import ExportError
-    from trainer.verify import (
-        GraphRunner,
-        VerifyError,
-        VerifyReport,
-        check_nonfinite_refused,
-        compare,
-        load_reference,
-        recording_windows,
-        simulated_windows,
-        stress_windows,
-    )
+    from trainer.verify import GraphRunner, VerifyError, VerifyReport, check_nonfinite_refused, compare, load_reference
+    from trainer.verify_windows import stress_windows
 
+    if args.stride < 1 or args.subjects < 1:
+        print("handover verify: --stride and --subjects must be at least 1", file=sys.stderr)
+        return 2
     path = Path(args.model)
     try:
         loaded = load_model(path)
@@ -71,15 +108,14 @@ def main(args: argparse.Namespace) -> int:
         fold = bool(meta.extra.get("graph", {}).get("fold_derivative", False))
         runner = GraphRunner(path)
         report = VerifyReport()
+
+        def compare_batch(frames, sources) -> None:
+            compare(model, runner, frames, sources, fold, report)
+
         if not args.no_trials:
-            if args.data:
-                frames, sources = recording_windows(args.data, meta, args.stride)
-            else:
-                frames, sources = simulated_windows(meta, args.seed, args.subjects, args.stride)
-            compare(model, runner, frames, sources, fold, report)
+            _run_stream(args, _trial_stream(args, meta), compare_batch)
         if args.stress or args.no_trials:
-            frames, sources = stress_windows(model, meta)
-            compare(model, runner, frames, sources, fold, report)
+            compare_batch(*stress_windows(model, meta))
         report.nonfinite_input_refused = check_nonfinite_refused(path)
     except (ModelContractError, VerifyError, ExportError, OSError, ValueError) as exc:
         print(f"handover verify: {exc}", file=sys.stderr)
