@@ -84,3 +84,11 @@ def test_check_names_the_model_the_daemon_serves_after_a_rollback(tmp_path):
         assert Path(daemon.model.path).name == "v1.onnx"
     finally:
         daemon.watcher.stop()
+
+
+def test_pads_that_follow_the_model_are_not_an_error(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    proc = _check(_config(tmp_path, models, '[scene]\npads = "model"\n'))
+    assert proc.returncode == 0 and "would serve model" in proc.stdout, proc.stdout + proc.stderr
