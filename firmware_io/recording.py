@@ -175,9 +175,9 @@ class Recording:
             os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; a recording is shared like any file
             with os.fdopen(fd, "wb") as fh:
                 with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_STORED) as zf:
-                    zf.writestr("header.json", json.dumps(header, indent=1))
-                    zf.writestr("frames.npy", _npy_bytes(self.frames))
-                    zf.writestr("timestamps.npy", _npy_bytes(self.timestamps))
+                    zf.writestr(_member("header.json"), json.dumps(header, indent=1))
+                    zf.writestr(_member("frames.npy"), _npy_bytes(self.frames))
+                    zf.writestr(_member("timestamps.npy"), _npy_bytes(self.timestamps))
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, path)
@@ -228,6 +228,14 @@ MAX_HEADER_BYTES = 16 << 20
 MAX_FRAME_BYTES = 1 << 30
 """frames.npy: 1 GiB is about 9 hours of 486 taxels at 32 Hz."""
 MAX_TAXELS = 1 << 16
+
+
+def _member(name: str) -> zipfile.ZipInfo:
+    """A member with a fixed date: the same recording gives the same bytes whenever it is saved
+    (zip stamps have 2 s resolution, so two saves straddling a tick would differ)."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.external_attr = 0o644 << 16
+    return info
 
 
 def _read_header(zf: zipfile.ZipFile, path: Path) -> dict:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 MODES = ("trigger", "continuous")
+TRIGGER_KINDS = ("onset", "threshold")
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
 """The paper's four actions and the trainer's dormant class; a custom model may have others."""
 LOG_LEVELS = ("debug", "info", "warning", "error")
@@ -32,6 +33,9 @@ RANGES: dict[str, tuple[float, float]] = {
     "trigger.rearm_quiet_s": (0.0, 60.0),
     "trigger.baseline_tau_s": (0.01, 86400.0),
     "trigger.pre_frames": (0, 1000),
+    "trigger.change": (0.001, 0.99),
+    "trigger.track_tau_s": (0.05, 600.0),
+    "trigger.settle_s": (0.0, 60.0),
     "continuous.confirm_frames": (1, 1000),
     "continuous.min_margin": (0.0, 1000.0),
     "continuous.rearm_frames": (0, 100000),
@@ -90,8 +94,19 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class TriggerConfig:
+    """Unset (None) keys take the model's recorded trigger settings, else the default
+    (runtime/trigger_settings.py, ``resolve_trigger``)."""
+
+    kind: str | None = None
+    """``onset`` (the person acts on a settled grasp) or ``threshold`` (the paper's fixed level)."""
+    change: float | None = None
+    """onset: a pad's change against the settled grasp that fires, as a share of it (default 0.12)."""
+    track_tau_s: float | None = None
+    """onset: time constant of the baseline following creep and drift (default 1 s)."""
+    settle_s: float | None = None
+    """onset: how long the grasp must be still before the trigger arms (default 0.2 s)."""
     fraction: float | None = None
-    """Threshold as a fraction of full scale; None takes the model's (paper: 0.15)."""
+    """threshold: level as a fraction of full scale; None takes the model's (paper: 0.15)."""
     hysteresis: float = 0.05
     """Re-arm only once the max drops below (fraction - hysteresis) of full scale."""
     refractory_s: float = 1.5
@@ -119,6 +134,12 @@ class ContinuousConfig:
     rearm_frames: int = 4
     """After a report, the next one needs dormant to have won this many frames in a row
     (one report per interaction); 0 = report every change of the confirmed class."""
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    socket: str | None = None
+    """Unix datagram socket the daemon reads robot messages from (``grasp closed`` / ``grasp open``)."""
 
 
 @dataclass(frozen=True)
@@ -176,6 +197,7 @@ class Config:
     sinks: SinksConfig = field(default_factory=SinksConfig)
     onnxruntime: OnnxConfig = field(default_factory=OnnxConfig)
     ros2: Ros2Config = field(default_factory=Ros2Config)
+    control: ControlConfig = field(default_factory=ControlConfig)
     log_level: str = "info"
     health_file: str | None = None
     source: str = ""
@@ -208,7 +230,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
-    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2"}
+    sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2", "control"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
     for name in sections:
@@ -266,7 +288,14 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         fraction = _num("trigger.fraction", tr, 0.15)
         if not 0.0 < fraction < 1.0:  # open range: 0 or 1 would never or always trigger
             raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
+    kind = tr.get("kind")
+    if kind is not None and kind not in TRIGGER_KINDS:
+        raise ConfigError(f"trigger.kind: must be one of {', '.join(TRIGGER_KINDS)}, got {kind!r}")
     trigger = TriggerConfig(
+        kind=kind,
+        change=_optional_num("trigger.change", tr),
+        track_tau_s=_optional_num("trigger.track_tau_s", tr),
+        settle_s=_optional_num("trigger.settle_s", tr),
         fraction=fraction,
         hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
         refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
@@ -306,6 +335,13 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         allow_spinning=_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
     )
 
+    ct = data.get("control", {})
+    _no_unknown("control", ct, {f.name for f in fields(ControlConfig)})
+    sock = ct.get("socket")
+    if sock is not None and (not isinstance(sock, str) or not (sock.startswith("/") or sock.startswith("@"))):
+        raise ConfigError(f"control.socket: must be an absolute path or @abstract name, got {sock!r}")
+    control = ControlConfig(socket=sock)
+
     log_level = _str("log_level", data, "info").lower()
     if log_level not in LOG_LEVELS:
         raise ConfigError(f"log_level: must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
@@ -316,7 +352,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         folder = Path(health).expanduser().parent
         if not folder.is_dir():
             raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
-    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, log_level, health,
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, control, log_level, health,
                   warnings=tuple(warnings))
 
 
@@ -393,6 +429,12 @@ def _num(key: str, table: dict, default: float) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{key}: must be a number, got {value!r}")
     return float(_in_range(key, value))
+
+
+def _optional_num(key: str, table: dict) -> float | None:
+    """A number in ``RANGES[key]``, or None when the key is absent (the model's or the default value applies)."""
+    name = key.rpartition(".")[2]
+    return None if name not in table else _num(key, table, 0.0)
 
 
 def _int(key: str, table: dict, default: int) -> int:

@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import signal
-import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
@@ -28,6 +27,7 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
+from runtime.control import ControlSocket, GraspControl
 from runtime.decision import ContinuousDecision
 from runtime.health import Health, StatusFile
 from runtime.model_watch import ModelWatcher, Rejection
@@ -38,6 +38,7 @@ from runtime.scene import events_problem, scene_pads, scene_problem
 from runtime.sdnotify import Notifier
 from runtime.sinks import Event, ModelAnnouncement, SinkSet
 from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+from runtime.trigger_settings import TriggerSettings, build_trigger, resolve_trigger
 
 __all__ = ["Daemon", "events_problem", "scene_problem"]  # the last two are re-exported for run --check
 
@@ -55,7 +56,7 @@ deadlines end an open within ~15 s (open 10 s, start 3 s), so an attempt still r
 is a hang, and systemd's watchdog is left to catch it."""
 
 
-class Daemon:
+class Daemon(GraspControl):
     """The long-running service. ``run()`` returns the exit code."""
 
     def __init__(
@@ -75,7 +76,6 @@ class Daemon:
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
         self.latest_frame: Any = None
         """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
-        self._grasp_lock = threading.Lock()
         self.grasp_request: tuple[bool, str] | None = None
         """The latest ``set_grasp`` call: (closed, source)."""
         self.sinks = SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self)
@@ -87,7 +87,13 @@ class Daemon:
         self.client: Any = None
         self.connected = False
         self.ring: RingBuffer | None = None
-        self.trigger: ThresholdTrigger | ContinuousTrigger | None = None
+        self.trigger: Any = None
+        """ThresholdTrigger, OnsetTrigger (runtime/onset.py) or ContinuousTrigger."""
+        self.trigger_settings: TriggerSettings | None = None
+        self._grasp_requests: deque[tuple[bool, str]] = deque(maxlen=64)
+        self.grasp_closed: bool | None = None
+        """The robot's last word on its grasp (``set_grasp``), None before any."""
+        self.control: ControlSocket | None = None
         self.decision: ContinuousDecision | None = None
         """Continuous mode's report rule (confirm, margin, one report per interaction)."""
         self.watcher: ModelWatcher | None = None
@@ -114,14 +120,6 @@ class Daemon:
 
     def request_reload(self, *_: Any) -> None:
         self._reload = True
-
-    def set_grasp(self, closed: bool, source: str = "") -> None:
-        """The robot's controller says its grasp has settled (closed) or been released (open).
-
-        Thread-safe (called from the ROS 2 executor, for instance); records the request for the hot path."""
-        with self._grasp_lock:
-            self.grasp_request = (bool(closed), source)
-        log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
 
     def install_signal_handlers(self) -> None:
         signal.signal(signal.SIGTERM, self.request_stop)
@@ -195,19 +193,19 @@ class Daemon:
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""
         if self.layout is None:
             return
-        cols = self.layout.columns(scene_pads(self.cfg, self.model, self.layout))
+        pads = scene_pads(self.cfg, self.model, self.layout)
+        cols = self.layout.columns(pads)
         meta = self.model.meta if self.model is not None else None
         T = int(meta.T) if meta else 15
-        tcfg = self.cfg.trigger
-        pre = tcfg.pre_frames if tcfg.pre_frames is not None else int((meta.trigger if meta else {}).get("pre_frames", 0))
-        capacity = max(64, 2 * (T + pre))
+        settings = resolve_trigger(self.cfg.trigger, meta.trigger if meta else None)
+        self.trigger_settings = settings
+        capacity = max(64, 2 * (T + settings.pre_frames))
         if self.ring is None or not keep_history or self.ring.columns.size != cols.size or not np.array_equal(
             self.ring.columns, cols
         ):
             self.ring = RingBuffer(cols, capacity)
         elif self.ring.capacity < capacity:
             self.ring = self.ring.resized(capacity)
-        rate = 1.0 / self.period_s
         old = self.trigger
         self.decision = None
         if self.cfg.scene.mode == "continuous":
@@ -218,16 +216,13 @@ class Daemon:
                     len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
                     min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
         else:
-            fraction = tcfg.fraction if tcfg.fraction is not None else float(meta.trigger["fraction"]) if meta else 0.15
             fullscale = float(meta.fullscale) if meta else self.layout.fullscale
-            self.trigger = ThresholdTrigger(
-                int(cols.size), fullscale, fraction=fraction, hysteresis=min(tcfg.hysteresis, fraction * 0.99),
-                refractory_frames=math.ceil(tcfg.refractory_s * rate), window=T, pre_frames=min(pre, T - 1),
-                rearm_frames=max(1, math.ceil(tcfg.rearm_quiet_s * rate - 1e-9)),
-                baseline=tcfg.baseline, baseline_alpha=min(1.0, 1.0 / max(1.0, tcfg.baseline_tau_s * rate)),
-            )
-            if isinstance(old, ThresholdTrigger) and keep_history:
+            pad_sizes = self.layout.pad_sizes(pads)
+            self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s)
+            if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
                 self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
+            elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
+                self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
         self._pending.clear()
 
     # -- device ---------------------------------------------------------------------------------
@@ -361,6 +356,8 @@ class Daemon:
         self.latest_frame = frame
         ring = self.ring
         ring.push(frame.values, frame.number)
+        if self._grasp_requests:
+            self._apply_grasp()
         due = self.trigger.update(ring.latest(), frame.number)
         if self.model is None:
             return
@@ -493,6 +490,9 @@ class Daemon:
             log.warning("%s", warning)
         self.sinks.close()
         self.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self)
+        if new.control != old.control:
+            self.stop_control()
+            self.start_control()
         if new.health_file != old.health_file:
             self.status_file = StatusFile(new.health_file) if new.health_file else None
         if new.device.url != old.device.url:
@@ -522,6 +522,7 @@ class Daemon:
         for warning in self.cfg.warnings:
             log.warning("%s", warning)
         self._start_watcher()
+        self.start_control()
         self.notifier.ready(self.health.status_line())
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
                  self.cfg.scene.pads, self.cfg.scene.mode)
@@ -562,6 +563,7 @@ class Daemon:
         self.notifier.stopping()
         if self.watcher is not None:
             self.watcher.stop(timeout=0.5)
+        self.stop_control()
         self._close_client(stop_timeout=SHUTDOWN_STOP_S)
         self.health.device_state = "stopped" if not self.fatal else "failed"
         if self.fatal:

@@ -39,12 +39,12 @@ def test_trigger_frame_is_the_first_reaching_the_level():
 
 def test_window_starts_at_the_trigger_of_the_chosen_pads_only():
     rec = _one_trial_recording(peak_at=12)
-    ds = build_dataset([rec], T=15, pads="distal")
+    ds = build_dataset([rec], T=15, pads="distal", fraction=0.15)
     assert ds.X.shape == (1, 3 * 78, 15) and ds.X.dtype == np.float32
     assert ds.trigger_offsets[0] == 12 and ds.onsets[0] == 12
     assert ds.X[0].max() == 1000 and ds.X[0, :, 0].max() == 1000
     # all pads: the proximal taxel at 4000 is above the level from the first frame: no rising edge
-    ds_all = build_dataset([rec], T=15, pads="all")
+    ds_all = build_dataset([rec], T=15, pads="all", fraction=0.15)
     assert len(ds_all.y) == 0 and ds_all.untriggered[0].reason.startswith(ABOVE_FROM_START)
 
 
@@ -59,14 +59,14 @@ def test_fraction_is_configurable_and_untriggered_trials_are_reported():
 
 def test_too_late_trigger_is_not_padded():
     rec = _one_trial_recording(peak_at=30, n=40)
-    ds = build_dataset([rec], T=15, pads="distal")
+    ds = build_dataset([rec], T=15, pads="distal", fraction=0.15)
     assert ds.n_untriggered == 1 and ds.untriggered[0].reason.startswith("triggered too late")
-    assert len(build_dataset([rec], T=10, pads="distal").y) == 1
+    assert len(build_dataset([rec], T=10, pads="distal", fraction=0.15).y) == 1
 
 
 def test_standin_protocol_counts_every_trial():
     recs = standin_recordings(n_subjects=3, runs=2, silent=2, late=1)
-    ds = build_dataset(recs, T=15, pads="distal")
+    ds = build_dataset(recs, T=15, pads="distal", fraction=0.15)
     assert ds.n_trials == 3 * 2 * 4
     assert len(ds.y) + ds.n_untriggered == ds.n_trials and ds.n_untriggered == 3
     summary = ds.summary()
@@ -89,7 +89,7 @@ def test_fingerprint_follows_frames_and_labels():
 def test_bad_settings_are_clear_errors(tmp_path):
     recs = standin_recordings(n_subjects=1, runs=1)
     with pytest.raises(DatasetError, match="pad"):
-        build_dataset(recs, pads="finger-7")
+        build_dataset(recs, pads="finger-7", fraction=0.15)
     with pytest.raises(DatasetError, match="fraction"):
         build_dataset(recs, fraction=1.5)
     with pytest.raises(ValueError, match=r"no \.hrec"):
@@ -100,7 +100,7 @@ def test_load_dataset_reads_a_folder(tmp_path):
     from protocol_standin import write_standin
 
     write_standin(tmp_path, n_subjects=2, runs=1)
-    ds, recs = load_dataset(tmp_path, T=12, pads="distal")
+    ds, recs = load_dataset(tmp_path, T=12, pads="distal", fraction=0.15)
     assert len(recs) == 2 and ds.X.shape[2] == 12 and ds.sources == ["subject_s1.hrec", "subject_s2.hrec"]
 
 
@@ -115,17 +115,17 @@ def _level_recording(levels: list[int], onset: int = 0) -> Recording:
 
 def test_trial_above_the_level_from_its_first_frame_is_not_a_trigger():
     on = 0.15 * 4095  # 614
-    ds = build_dataset([_level_recording([700] * 40)], T=15, pads="distal")
+    ds = build_dataset([_level_recording([700] * 40)], T=15, pads="distal", fraction=0.15)
     assert len(ds.y) == 0 and ds.untriggered[0].reason.startswith(ABOVE_FROM_START)
     assert ds.summary()["untriggered_reasons"] == {ABOVE_FROM_START: 1}
     # dropping below the level but not below the re-arm level (10 % = 409) does not re-arm
-    ds = build_dataset([_level_recording([700] * 5 + [500] * 5 + [700] * 30)], T=15, pads="distal")
+    ds = build_dataset([_level_recording([700] * 5 + [500] * 5 + [700] * 30)], T=15, pads="distal", fraction=0.15)
     assert len(ds.y) == 0 and "never below the re-arm level" in ds.untriggered[0].reason
     # below the re-arm level, then up again: a rising edge, the trigger is there
-    ds = build_dataset([_level_recording([700] * 5 + [300] * 5 + [700] * 30)], T=15, pads="distal")
+    ds = build_dataset([_level_recording([700] * 5 + [300] * 5 + [700] * 30)], T=15, pads="distal", fraction=0.15)
     assert list(ds.trigger_offsets) == [10] and ds.untriggered == []
     # between the re-arm level and the level at the start: armed, fires when it reaches the level
-    ds = build_dataset([_level_recording([500] * 3 + [int(on) + 1] * 37)], T=15, pads="distal")
+    ds = build_dataset([_level_recording([500] * 3 + [int(on) + 1] * 37)], T=15, pads="distal", fraction=0.15)
     assert list(ds.trigger_offsets) == [3]
 
 
@@ -146,7 +146,7 @@ def test_dataset_trigger_is_the_runtime_trigger():
 def test_simulated_protocol_never_triggers_on_the_first_frame():
     from firmware_io.simulate import simulate_protocol
 
-    ds = build_dataset(simulate_protocol(seed=0, n_subjects=1, runs=2), T=15, pads="all")
+    ds = build_dataset(simulate_protocol(seed=0, n_subjects=1, runs=2), T=15, pads="all", fraction=0.15)
     assert not np.any(ds.trigger_offsets == 0)
     assert ds.n_trials == 2 * 3 * 3 * 4
 
@@ -155,6 +155,6 @@ def test_windows_that_end_before_the_onset_are_counted():
     # trigger at frame 2, onset at frame 20: the 15 frames (2..16) end before the action starts
     early = _level_recording([0, 0] + [700] * 38, onset=20)
     ontime = _level_recording([0, 0] + [700] * 38, onset=10)
-    ds = build_dataset([early, ontime], T=15, pads="distal")
+    ds = build_dataset([early, ontime], T=15, pads="distal", fraction=0.15)
     assert ds.windows_before_onset == 1
     assert ds.summary()["windows_before_onset"] == 1 and ds.summary()["n_cases_with_onset"] == 2

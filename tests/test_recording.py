@@ -113,8 +113,8 @@ _KILL_CHILD = textwrap.dedent(
     real_writestr = zipfile.ZipFile.writestr
 
     def writestr(self, name, data, *a, **kw):
-        if name == "frames.npy":  # write half of the frames, flush them to disk, then die
-            real_writestr(self, "frames.npy", data[: len(data) // 2])
+        if getattr(name, "filename", name) == "frames.npy":  # write half of the frames, flush, then die
+            real_writestr(self, name, data[: len(data) // 2])
             self.fp.flush()
             os.kill(os.getpid(), signal.SIGKILL)
         return real_writestr(self, name, data, *a, **kw)

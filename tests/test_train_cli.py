@@ -19,6 +19,7 @@ def tiny_data(tmp_path_factory):
 
 
 def test_train_writes_the_report_and_json(tiny_data, tmp_path, capsys):
+    # --fraction 0.15: the stand-in (noise on every taxel) is a fixture of the paper's threshold trigger
     out = tmp_path / "report"
     sweep = {"description": "given", "mode": "config1", "seeds": [0],
              "rows": [{"param": p, p: v, "kernel": "rbf", "accuracy": 0.5, "std": 0.1}
@@ -26,7 +27,7 @@ def test_train_writes_the_report_and_json(tiny_data, tmp_path, capsys):
     out.mkdir()
     (out / "sweep.json").write_text(json.dumps(sweep))
     rc = handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "distal", "--K", "6", "--W", "5",
-                   "--T", "12", "--repeats", "2", "--json", "--quiet"])
+                   "--T", "12", "--repeats", "2", "--fraction", "0.15", "--json", "--quiet"])
     captured = capsys.readouterr()
     assert rc == 0, captured.err
     metrics = json.loads(captured.out)
@@ -67,7 +68,7 @@ def test_trained_model_is_deterministic_for_a_seed(tiny_data, tmp_path):
     for name in ("a", "b"):
         out = tmp_path / name
         assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "5",
-                         "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--quiet"]) == 0
+                         "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--fraction", "0.15", "--quiet"]) == 0
         saved = joblib.load(out / "model.joblib")
         assert set(saved) == {"model", "metadata"} and saved["metadata"]["pads"] == [0, 1, 2, 3, 4, 5]
         models.append(saved["model"])
@@ -82,7 +83,7 @@ def test_export_of_a_trained_file_needs_no_pads_and_keeps_the_card(tiny_data, tm
     provenance come from the file, not from the distal default."""
     out = tmp_path / "prox"
     assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "4",
-                     "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--quiet"]) == 0
+                     "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--fraction", "0.15", "--quiet"]) == 0
     rc = handover(["export", str(out / "model.joblib"), "--out", str(out / "exported.onnx")])
     assert rc == 0, capsys.readouterr().err
     from runtime.model import load_model
@@ -101,7 +102,7 @@ def test_failed_onnx_export_fails_the_command(tiny_data, tmp_path, capsys):
     out = tmp_path / "fail"
     (out / "model.onnx").mkdir(parents=True)  # the export cannot replace a directory
     rc = handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "distal", "--K", "4",
-                   "--windows", "3,5", "--T", "10", "--repeats", "2", "--no-sweep", "--quiet"])
+                   "--windows", "3,5", "--T", "10", "--repeats", "2", "--no-sweep", "--fraction", "0.15", "--quiet"])
     err = capsys.readouterr().err
     assert rc == 1 and "model.onnx not written" in err
     metrics = json.loads((out / "metrics.json").read_text())  # the report is still written

@@ -26,6 +26,7 @@ def tiny_model_bytes(
     dormant_class: str | None = None,
     trigger_fraction: float = 0.15,
     tag: str = "",
+    trigger: dict | None = None,
 ) -> bytes:
     import onnx
     from onnx import TensorProto, helper
@@ -68,7 +69,7 @@ def tiny_model_bytes(
         "n_channels": C,
         "pad_sizes": list(pad_sizes),
         "fullscale": 4095.0,
-        "trigger": {"fraction": trigger_fraction},
+        "trigger": {"fraction": trigger_fraction, **(trigger or {})},
         "sample_rate_hz": 32.0,
         "score": "ovr",
         "dormant_class": dormant_class,

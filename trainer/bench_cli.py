@@ -1,4 +1,4 @@
-"""``handover bench pareto|latency|throughput|hostile|all``: the benchmarks, results in results/.
+"""``handover bench pareto|latency|throughput|hostile|streams|all|soak``: the benchmarks, results in results/.
 
 Each benchmark writes ``<out>/<name>.json`` and ``.md`` (+ ``.png`` where a plot fits) with
 the machine it ran on and the command that reproduces it. ``--json`` prints the headline
@@ -14,12 +14,15 @@ import json
 import sys
 
 COMMAND = "bench"
-BENCHMARKS = ("pareto", "latency", "throughput", "hostile")
+BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
 HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
             "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
             "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
             "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_load_p99_us", "replay_frames_per_s",
-            "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures")
+            "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures", "default_setting",
+            "demo_events_correct_fraction", "demo_events_outside", "sim_event_f1", "real_idle_hours",
+            "real_idle_false_events_per_hour", "continuous_hold_recall", "continuous_events_correct_fraction",
+            "onset_to_report_median_frames")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,7 +1,14 @@
 """From recordings to classifier input: the daemon's trigger finds each trial's start, T frames follow.
 
-Train and serve must cut the same windows, so each labelled trial is fed frame by frame to the
-runtime's own ``runtime.trigger.ThresholdTrigger`` (fires when the max of the chosen pads
+Train and serve must cut the same windows, so the trigger's settings come from the runtime's
+``resolve_trigger`` (the daemon's default unless told otherwise) and each labelled trial is fed
+frame by frame to the runtime's own trigger object. The window is the T frames from
+``pre_frames`` before the trigger frame, as in the daemon.
+
+The default is the onset trigger (runtime/onset.py): a protocol trial starts on a settled grasp
+(the robot holds the object out, as in the paper), so the trigger is told so at the trial's
+first frame and fires when a pad departs from it. With ``fraction`` (or ``kind = "threshold"``)
+the paper's trigger is used: ``runtime.trigger.ThresholdTrigger`` (fires when the max of the chosen pads
 reaches ``fraction`` x full scale, paper: about 15 %; re-arms only below ``fraction -
 hysteresis``, the runtime's default hysteresis). It fires on a rising edge: a trial whose first
 frame is already at or above the level (the resting grip presses that hard) starts disarmed and
@@ -26,8 +33,9 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.recording import Recording, RecordingError, Trial, find_recordings, load_all
 from runtime.trigger import ThresholdTrigger
+from runtime.trigger_settings import PAPER_FRACTION, TriggerSettings, build_trigger, resolve_trigger
 
-DEFAULT_FRACTION = 0.15
+DEFAULT_FRACTION = PAPER_FRACTION
 DEFAULT_HYSTERESIS = float(inspect.signature(ThresholdTrigger).parameters["hysteresis"].default)
 """The runtime trigger's own default, so that training cuts the windows the daemon will cut."""
 ABOVE_FROM_START = "above the level from the first frame"
@@ -79,6 +87,8 @@ class Dataset:
     sources: list[str] = field(default_factory=list)
     hysteresis: float = DEFAULT_HYSTERESIS
     """Re-arm below ``(fraction - hysteresis)`` x full scale (the runtime trigger's rule)."""
+    trigger: TriggerSettings = field(default_factory=lambda: dataset_trigger(fraction=DEFAULT_FRACTION))
+    """What cut the windows (recorded in the model's metadata, so the daemon cuts the same)."""
 
     @property
     def n_trials(self) -> int:
@@ -112,6 +122,7 @@ class Dataset:
             fingerprint=self.fingerprint,
             sources=self.sources,
             hysteresis=self.hysteresis,
+            trigger=self.trigger,
         )
 
     @property
@@ -151,12 +162,47 @@ class Dataset:
             "T": self.T,
             "trigger_fraction": self.fraction,
             "trigger_hysteresis": self.hysteresis,
-            "trigger_rule": "runtime.trigger.ThresholdTrigger: rising edge; a trial above the level from its first "
-                            "frame triggers only after dropping below the re-arm level",
+            "trigger": self.trigger.to_meta(),
+            "trigger_rule": ONSET_RULE if self.trigger.kind == "onset" else THRESHOLD_RULE,
             "fullscale": self.fullscale,
             "sample_rate_hz": self.sample_rate_hz,
             "fingerprint": self.fingerprint,
         }
+
+
+ONSET_RULE = ("runtime.onset.OnsetTrigger: armed on the trial's first frame (a settled grasp), fires when a pad's "
+              "summed pressure departs from the tracked grasp; the window starts pre_frames before the trigger")
+THRESHOLD_RULE = ("runtime.trigger.ThresholdTrigger: rising edge; a trial above the level from its first frame "
+                  "triggers only after dropping below the re-arm level")
+
+
+def dataset_trigger(kind: str | None = None, fraction: float | None = None,
+                    hysteresis: float = DEFAULT_HYSTERESIS) -> TriggerSettings:
+    """The trigger that cuts training windows: ``kind`` if given; an explicit ``fraction`` alone
+    means the paper's threshold at that level; else the daemon's default (``resolve_trigger``)."""
+    from runtime.config import TriggerConfig
+
+    if kind is None and fraction is not None:
+        kind = "threshold"
+    if fraction is not None and not 0.0 < fraction < 1.0:
+        raise DatasetError(f"trigger fraction must be in (0, 1), got {fraction}")
+    return resolve_trigger(TriggerConfig(kind=kind, fraction=fraction, hysteresis=max(0.0, float(hysteresis))))
+
+
+def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, settings: TriggerSettings,
+                T: int, rate_hz: float) -> tuple[int, str | None]:
+    """(frame where the daemon's onset trigger fires within this trial, or -1; why not, or None).
+
+    The trigger is told the grasp is settled at the first frame (a protocol trial starts on the
+    held object); a trial that starts with an empty hand is settled by the trigger itself.
+    """
+    trig = build_trigger(settings, tuple(pad_sizes), fullscale, T, rate_hz)
+    trig.set_grasp(True)
+    rows = frames.astype(np.float32)
+    for i in range(len(rows)):
+        if trig.update(rows[i], i) >= 0:
+            return i, None
+    return -1, f"never triggered: no pad departed by {settings.change:.0%} from the settled grasp"
 
 
 def trigger_frame(frames: np.ndarray, level: float) -> int:
@@ -213,15 +259,19 @@ def build_dataset(
     recordings: Sequence[Recording],
     T: int = 15,
     pads: str | Sequence[int] = "all",
-    fraction: float = DEFAULT_FRACTION,
+    fraction: float | None = None,
     sources: Sequence[str] = (),
     hysteresis: float = DEFAULT_HYSTERESIS,
+    trigger: TriggerSettings | None = None,
 ) -> Dataset:
-    """Cut one case per labelled trial: the runtime's trigger within the trial, then T frames of the chosen pads."""
+    """Cut one case per labelled trial: the runtime's trigger within the trial, then T frames of the chosen pads.
+
+    ``trigger``: the settings to cut with; None takes ``dataset_trigger(fraction=fraction)``
+    (an explicit fraction = the paper's threshold, else the daemon's default)."""
     if T < 2:
         raise DatasetError(f"T must be at least 2 frames, got {T}")
-    if not 0.0 < fraction < 1.0:
-        raise DatasetError(f"trigger fraction must be in (0, 1), got {fraction}")
+    settings = trigger if trigger is not None else dataset_trigger(fraction=fraction, hysteresis=hysteresis)
+    fraction = settings.fraction
     if not recordings:
         raise DatasetError("no recordings")
     layout = recordings[0].layout
@@ -241,14 +291,16 @@ def build_dataset(
     if hysteresis < 0:
         raise DatasetError(f"trigger hysteresis must be >= 0, got {hysteresis}")
     cols = layout.columns(pad_idx)
+    pad_sizes = layout.pad_sizes(pad_idx)
 
     cases, labels, skipped = [], [], []
     intervals = []
     for rec in recordings:
         if rec.n_frames > 1:
             intervals.append(rec.sample_interval())
+        rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
         for trial in rec.trials:
-            window = _cut(rec, trial, cols, fullscale, fraction, hysteresis, T)
+            window = _cut(rec, trial, cols, rate, settings, pad_sizes, fullscale, hysteresis, T)
             if isinstance(window, str):
                 skipped.append(SkippedTrial(trial.subject, trial.object, trial.pose, trial.action, trial.run, window))
                 continue
@@ -281,18 +333,26 @@ def build_dataset(
         fingerprint=fingerprint(recordings),
         sources=list(sources),
         hysteresis=hysteresis,
+        trigger=settings,
     )
 
 
-def _cut(rec: Recording, trial: Trial, cols: np.ndarray, fullscale: float, fraction: float, hysteresis: float,
-         T: int) -> tuple[int, np.ndarray] | str:
+def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, settings: TriggerSettings,
+         pad_sizes: tuple[int, ...], fullscale: float, hysteresis: float, T: int) -> tuple[int, np.ndarray] | str:
+    """One trial -> (window start, T frames) or the reason there is none, with the daemon's trigger."""
     frames, _ = rec.trial_frames(trial)
     selected = frames[:, cols]
-    start, why = rising_trigger(selected, fullscale, fraction, hysteresis)
-    if start < 0:
+    if settings.kind == "onset":
+        trig, why = onset_start(selected, pad_sizes, fullscale, settings, T, rate_hz)
+    else:
+        trig, why = rising_trigger(selected, fullscale, settings.fraction, hysteresis)
+    if trig < 0:
         return str(why)
+    start = trig - min(int(settings.pre_frames), T - 1)
+    if start < 0:
+        return f"triggered too early: frame {trig}, {trig - start} frames before it needed"
     if start + T > len(selected):
-        return f"triggered too late: frame {start} of {len(selected)}, {T} frames needed"
+        return f"triggered too late: frame {trig} of {len(selected)}, {T} frames needed"
     return start, selected[start : start + T]
 
 
@@ -315,7 +375,7 @@ def load_dataset(
     folder: str | os.PathLike,
     T: int = 15,
     pads: str | Sequence[int] = "all",
-    fraction: float = DEFAULT_FRACTION,
+    fraction: float | None = None,
 ) -> tuple[Dataset, list[Recording]]:
     """Read every ``.hrec`` file of a folder and build the data set (RecordingError/DatasetError on trouble)."""
     paths = find_recordings(folder)

@@ -5,7 +5,11 @@
 3. serve an emulated DSACON32m on loopback TCP that plays a scripted session of new,
    unseen simulated subjects (a different seed: other strengths, speeds and styles),
 4. run the real daemon against it with the exported model, print every event as it
-   happens and compare the events with the script.
+   happens and compare the events with the script (``trainer.streams_eval.session_outcomes``:
+   missed and wrong events listed, per-class precision and recall).
+
+The model is trained with the daemon's default stream setting (``--trigger``; the onset trigger,
+chosen by the rule in results/streams.md), which the model records and the daemon then uses.
 """
 
 from __future__ import annotations
@@ -17,12 +21,14 @@ import shutil
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 COMMAND = "demo"
+SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
+STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
+"""Training data of the 5-class stream model (as ``handover bench streams`` trains it)."""
 SESSION_SEED_OFFSET = 1000
 """The scripted session's seed = training seed + this: its subjects are not the trained ones."""
 
@@ -35,6 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
                         "as possible (latency figures then include queueing)")
     parser.add_argument("--fault", default="", help="faults the emulator injects, e.g. crc=0.01,garbage=0.01")
+    parser.add_argument("--setting", choices=SETTINGS, default=None,
+                        help="stream setting (default: the one results/streams.md chose by its rule, "
+                        "trainer.streams_eval.DEFAULT_SETTING): onset = onset trigger + 4-class model, onset_dormant "
+                        "= onset trigger + 5-class model with a dormant class, continuous = every frame classified, "
+                        "threshold = the paper's 15 %% level")
     parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/model.onnx exists")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="only the summary")
@@ -50,21 +61,33 @@ def _say(args: argparse.Namespace, text: str) -> None:
         print(text, file=sys.stderr if args.json else sys.stdout, flush=True)
 
 
+def setting_of(args: argparse.Namespace) -> str:
+    from trainer.streams_eval import DEFAULT_SETTING
+
+    return args.setting or DEFAULT_SETTING
+
+
 def train_model(args: argparse.Namespace, out: Path) -> Path:
-    """Simulate, train, evaluate and export via ``handover train``; reuse an earlier model unless --retrain."""
+    """Simulate, train, evaluate and export (``handover train``, or the 5-class stream model for the
+    settings that need one); reuse an earlier model unless --retrain."""
     from trainer import train_cli
 
+    setting = setting_of(args)
     report = out / "report"
-    model = report / "model.onnx"
+    model = report / ("stream-model.onnx" if setting in ("onset_dormant", "continuous") else "model.onnx")
     stamp = report / "demo-args.json"
-    wanted = {"seed": args.seed, "pads": args.pads}
+    wanted = {"seed": args.seed, "pads": args.pads, "model": model.name,
+              "trigger": "threshold" if setting == "threshold" else "onset"}
     if model.is_file() and not args.retrain and stamp.is_file() and json.loads(stamp.read_text()) == wanted:
         _say(args, f"[1-2/4] reusing the trained model {model} (--retrain to train again)")
         return model
+    if model.name == "stream-model.onnx":
+        return _train_stream_model(args, model, stamp, wanted)
+    trigger = wanted["trigger"]
     _say(args, f"[1/4] simulating the paper's protocol (synthetic, seed {args.seed}) and [2/4] training ...")
     parser = argparse.ArgumentParser()
     train_cli.add_arguments(parser)
-    targs = parser.parse_args(["--out", str(report), "--pads", args.pads, "--seed", str(args.seed),
+    targs = parser.parse_args(["--out", str(report), "--pads", args.pads, "--seed", str(args.seed), "--trigger", trigger,
                                "--repeats", "3", "--no-sweep"] + (["--quiet"] if args.quiet or args.json else []))
     code = train_cli.run(targs)
     if code != 0 or not model.is_file():
@@ -76,6 +99,21 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
     _say(args, f"      synthetic data: {metrics['n_cases']} cases ({metrics['n_untriggered']} trials never "
                f"triggered); leave-one-subject-out accuracy {metrics['loso_accuracy']:.1%}, pooled 80/20 "
                f"{pooled_text(metrics['config1'])}; report {report / 'report.md'}")
+    return model
+
+
+def _train_stream_model(args: argparse.Namespace, model: Path, stamp: Path, wanted: dict) -> Path:
+    """The 5-class model with a dormant class and level features (trainer.dormant.fit_stream_model)."""
+    from firmware_io.simulate import simulate_protocol
+    from trainer.dormant import fit_stream_model
+
+    _say(args, f"[1/4] simulating the paper's protocol, {STREAM_MODEL_IDLE_MIN:g} min of idle stream and "
+               f"{STREAM_MODEL_SESSIONS} handovers (synthetic, seed {args.seed}) and [2/4] training the 5-class "
+               "stream model (actions + dormant, level features) ...")
+    model.parent.mkdir(parents=True, exist_ok=True)
+    fit_stream_model(simulate_protocol(seed=args.seed), args.seed, STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS,
+                     model, pads=args.pads)
+    stamp.write_text(json.dumps(wanted))
     return model
 
 
@@ -101,16 +139,6 @@ def drop_model(model: Path, folder: Path) -> Path:
     return final
 
 
-@dataclass
-class Outcome:
-    """What the daemon said about one scripted event."""
-
-    expected: str
-    detected: str | None = None
-    latency_us: float | None = None
-    extra: int = 0
-
-
 def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
     return int(np.searchsorted(rel_ms, device_ms - start_ms, side="left"))
 
@@ -122,6 +150,7 @@ def main(args: argparse.Namespace) -> int:
     from runtime.config import Config, DeviceConfig, ModelConfig, SceneConfig, SinksConfig
     from runtime.daemon import Daemon
     from runtime.sdnotify import Notifier
+    from trainer.streams_eval import Decision, session_outcomes
 
     if args.events < 4:
         return _fail("--events must be at least 4 (one of each class)")
@@ -155,34 +184,29 @@ def main(args: argparse.Namespace) -> int:
 
     cfg = Config(
         device=DeviceConfig(url=server.url, stall_timeout_s=2.0, reconnect_min_s=0.2, reconnect_max_s=1.0),
-        scene=SceneConfig(pads=args.pads),
+        scene=SceneConfig(pads=args.pads, mode="continuous" if setting_of(args) == "continuous" else "trigger"),
         model=ModelConfig(folder=str(model_dir), poll_interval_s=0.5),
         sinks=SinksConfig(stdout=False),
         log_level="warning",
     )
     trials = session.trials
     firsts = np.array([t.first for t in trials])
-    outcomes = [Outcome(t.action) for t in trials]
-    false_events: list[str] = []
+    decisions: list[Decision] = []
+    answered: set[int] = set()
     rel_ms = np.round((session.timestamps - session.timestamps[0]) * 1000.0).astype(np.int64)
 
     def on_event(event) -> None:
         idx = _frame_index(rel_ms, event.device_time_ms, emulator.start_ms)
+        decisions.append(Decision(idx, event.cls, event.latency_us))
         k = int(np.searchsorted(firsts, idx, side="right")) - 1
-        hit = k >= 0 and trials[k].first <= idx <= trials[k].last
-        if not hit:
-            false_events.append(event.cls)
+        if k < 0 or idx > trials[k].last:
             _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  (no scripted event here)")
-            return
-        o = outcomes[k]
-        if o.detected is None:
-            o.detected, o.latency_us = event.cls, event.latency_us
-            mark = "ok " if event.cls == o.expected else "WRONG"
+        elif k not in answered:
+            answered.add(k)
+            mark = "ok " if event.cls == trials[k].action else "WRONG"
             ev = script[k]
             _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  {mark} scripted "
-                       f"{o.expected} ({ev.subject}, {ev.object}, pose {ev.pose})")
-        else:
-            o.extra += 1
+                       f"{ev.action} ({ev.subject}, {ev.object}, pose {ev.pose}; onset frame {trials[k].extra['onset']})")
 
     daemon = Daemon(cfg, notifier=Notifier({}), on_event=on_event)
     _say(args, "[4/4] daemon running with the exported model; events as they happen:")
@@ -200,15 +224,23 @@ def main(args: argparse.Namespace) -> int:
         server.stop()
     h = daemon.health
     lat = h._lat[: min(h._lat_n, h._lat.size)]
-    detected = [o for o in outcomes if o.detected is not None]
+    o = session_outcomes(decisions, trials)
     summary = {
         "synthetic": True,
-        "events_expected": len(outcomes),
-        "events_detected": len(detected),
-        "events_correct": sum(o.detected == o.expected for o in detected),
-        "events_missed": len(outcomes) - len(detected),
-        "false_events": len(false_events),
-        "repeat_events": sum(o.extra for o in outcomes),
+        "setting": setting_of(args),
+        "trigger": daemon.trigger_settings.name if daemon.trigger_settings else None,
+        "events_expected": o["expected"],
+        "events_detected": o["detected"],
+        "events_correct": o["correct"],
+        "events_missed": o["missed"],
+        "false_events": o["outside"],
+        "repeat_events": o["repeats"],
+        "missed_events": o["missed_events"],
+        "wrong_events": o["wrong_events"],
+        "per_class_precision": {c: v["precision"] for c, v in o["per_class"].items()},
+        "per_class_recall": {c: v["recall"] for c, v in o["per_class"].items()},
+        "per_class_correct": {c: f"{v['correct']}/{v['n']}" for c, v in o["per_class"].items() if v["n"]},
+        "report_minus_onset_frames": o["report_minus_onset_frames"],
         "decisions": int(h.decisions),
         "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None,
         "latency_p99_us": float(np.percentile(lat, 99)) if lat.size else None,
@@ -221,12 +253,6 @@ def main(args: argparse.Namespace) -> int:
         "model": str(model_path),
         "seconds": round(time.perf_counter() - t_start, 1),
     }
-    per_class: dict[str, list[int]] = {}
-    for o in outcomes:
-        c = per_class.setdefault(o.expected, [0, 0])
-        c[0] += 1
-        c[1] += o.detected == o.expected
-    summary["per_class_correct"] = {k: f"{v[1]}/{v[0]}" for k, v in sorted(per_class.items())}
     if args.json:
         print(json.dumps(summary))
     else:
@@ -244,8 +270,21 @@ def _print_summary(s: dict) -> None:
           f"{s['events_correct']} correct ({s['events_correct'] / max(1, s['events_expected']):.0%}), "
           f"{s['events_missed']} missed, {s['false_events']} outside any scripted event")
     print(f"  per class correct: {s['per_class_correct']}")
+    pr = [f"{c} {_share(p)} / {_share(s['per_class_recall'][c])}" for c, p in s["per_class_precision"].items()]
+    print(f"  per class precision / recall: {', '.join(pr)}")
+    print("  missed: " + (", ".join(f"#{e['event']} {e['action']} (onset frame {e['onset']})"
+                                    for e in s["missed_events"]) or "none"))
+    print("  wrong: " + (", ".join(f"#{e['event']} {e['action']} reported as {e['reported']} at frame {e['frame']} "
+                                   f"(onset {e['onset']})" for e in s["wrong_events"]) or "none"))
+    if s["report_minus_onset_frames"]:
+        print(f"  onset to report: median {s['report_minus_onset_frames']['median']:.0f} frames "
+              f"(stream setting: {s['setting']})")
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
           f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
           f"missed deadlines {s['missed_deadlines']}")
     print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
     print(f"  total {s['seconds']:.0f} s")
+
+
+def _share(x: float | None) -> str:
+    return "-" if x is None else f"{x:.0%}"

@@ -273,10 +273,48 @@ def train(X: np.ndarray, y: np.ndarray, K: int = 10, W: int = 7, kernel: str = "
     return BowSVC(n_words=K, window=W, kernel=kernel, random_state=seed).fit(X, y)
 
 
+STREAM_KERNEL, STREAM_C = "rbf", 1000.0
+"""The stream model's SVM: RBF with C = 1000, what ``handover dormant``'s grid chose for the 5-class
+model (results/dormant.md); gamma by the usual inner cross-validation. With standardised level
+features the grid's large C (1e4, 1e6) did not converge within many minutes."""
+
+
+def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, n_sessions: int,
+                     path: str | Path, K: int = 10, W: int = 7, T: int = 15, pads: str = "all") -> Path:
+    """The 5-class model for live streams (synthetic training data, ``seed``), exported to ``path``.
+
+    Per-pad histograms plus per-pad level and slope (a hold is a change of level the derivative
+    barely shows), standardised; ``idle_min`` minutes of idle stream and a session of
+    ``n_sessions`` handovers for the dormant windows. The metadata records the onset trigger, so
+    the daemon in trigger mode starts its windows at the person's onset and reports nothing for a
+    window it reads as dormant; in continuous mode it classifies every frame.
+    """
+    from firmware_io.sim.idle import simulate_idle
+    from firmware_io.simulate import demo_script, simulate_session
+    from runtime.trigger_settings import resolve_trigger
+    from trainer.classifier import BowSVC
+
+    n_parts = max(1, round(idle_min / 10))
+    idle = [simulate_idle(60.0 * idle_min / n_parts, seed=seed, part=p) for p in range(n_parts)]
+    sessions = [simulate_session(demo_script(n_sessions, seed=seed, gap=(4.0, 6.0)), seed=seed)]
+    dds = build_dormant_dataset(protocol, idle, T=T, pads=pads, seed=seed, sessions=sessions)
+    model = BowSVC(n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C, per_pad=True, pad_sizes=dds.pad_sizes,
+                   random_state=seed, level_features=True, scale_features=True, fullscale=dds.fullscale).fit(dds.X, dds.y)
+    trigger = resolve_trigger().to_meta()
+    return export(model, path, pads=dds.pads, pad_sizes=dds.pad_sizes, fullscale=dds.fullscale,
+                  fraction=trigger["fraction"], trigger=trigger, sample_rate_hz=1.0 / protocol[0].sample_interval(),
+                  dormant_class=DORMANT, training={
+                      "data_fingerprint": dds.fingerprint, "n_trials": len(dds.y), "n_cases": len(dds.y),
+                      "synthetic": True, "seed": seed, "windows": dds.summary(), "level_features": True,
+                      "data": f"protocol + {idle_min:g} min simulate_idle(seed={seed}) + "
+                              f"simulate_session(demo_script({n_sessions}, seed={seed}))"})
+
+
 def export(model, path: str | Path, *, pads: Sequence[int], pad_sizes: Sequence[int], fullscale: float,
            fraction: float, sample_rate_hz: float, dormant_class: str | None, training: dict,
-           evaluation: dict | None = None) -> Path:
-    """One ONNX file via trainer.onnx_export, with the metadata the daemon needs."""
+           evaluation: dict | None = None, trigger: dict | None = None) -> Path:
+    """One ONNX file via trainer.onnx_export, with the metadata the daemon needs (``trigger``: the
+    settings to record; default the paper's threshold at ``fraction``)."""
     from runtime import __version__
     from trainer.onnx_export import export_onnx
 
@@ -284,7 +322,7 @@ def export(model, path: str | Path, *, pads: Sequence[int], pad_sizes: Sequence[
         "pads": [int(p) for p in pads],
         "pad_sizes": [int(s) for s in pad_sizes],
         "fullscale": float(fullscale),
-        "trigger": {"fraction": float(fraction)},
+        "trigger": dict(trigger) if trigger else {"fraction": float(fraction)},
         "sample_rate_hz": float(sample_rate_hz),
         "dormant_class": dormant_class,
         "training": {"project_version": __version__, "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **training},

@@ -119,6 +119,7 @@ def train_models(args, s: dict, model_dir: Path) -> dict:
     from firmware_io.sim import constants as K
     from firmware_io.sim.idle import simulate_idle
     from firmware_io.simulate import demo_script, simulate_protocol, simulate_session
+    from runtime.trigger_settings import PAPER_FRACTION
     from trainer import dormant
     from trainer.dataset import build_dataset
 
@@ -131,9 +132,9 @@ def train_models(args, s: dict, model_dir: Path) -> dict:
     rate = 1.0 / K.FRAME_PERIOD_S
 
     _say(args, "training the paper's 4-class model (threshold-cut windows) ...")
-    ds = build_dataset(protocol, T=args.T, pads=args.pads, fraction=0.15)
+    ds = build_dataset(protocol, T=args.T, pads=args.pads, fraction=PAPER_FRACTION)
     paper = dormant.train(ds.X, ds.y, args.K, args.W, seed=args.seed)
-    common = {"pads": ds.pads, "pad_sizes": ds.pad_sizes, "fullscale": ds.fullscale, "fraction": 0.15,
+    common = {"pads": ds.pads, "pad_sizes": ds.pad_sizes, "fullscale": ds.fullscale, "fraction": PAPER_FRACTION,
               "sample_rate_hz": rate}
     paper_path = dormant.export(paper, model_dir / "paper.onnx", dormant_class=None, **common, training={
         "data_fingerprint": ds.fingerprint, "n_trials": ds.n_trials, "n_cases": len(ds.y), "synthetic": True,
@@ -230,8 +231,8 @@ def evaluate(args, s: dict, models: dict, rule: dict) -> dict:
     period = K.FRAME_PERIOD_S
     five = models["continuous"]
     plain_idle: list[dict] = []
-    idle_scores: dict[str, list[dict]] = {m: [] for m in se.MODES}
-    seconds: dict[str, float] = {m: 0.0 for m in se.MODES}
+    idle_scores: dict[str, list[dict]] = {m: [] for m in models}
+    seconds: dict[str, float] = {m: 0.0 for m in models}
     frames_total = 0
     hours_by_source: dict[str, float] = {}
     total_s = 3600.0 * s["idle_hours"]
@@ -244,7 +245,7 @@ def evaluate(args, s: dict, models: dict, rule: dict) -> dict:
         for k, v in se.source_hours([rec], period).items():
             hours_by_source[k] = hours_by_source.get(k, 0.0) + v
         names = se.source_names(rec, rec.n_frames)
-        for mode in se.MODES:
+        for mode in models:
             t0 = time.perf_counter()
             dec = se.replay(rec, models[mode], mode, rule=rule)
             seconds[mode] += time.perf_counter() - t0
@@ -258,7 +259,7 @@ def evaluate(args, s: dict, models: dict, rule: dict) -> dict:
     truths = se.truths_of(mixed)
     names = se.source_names(mixed, mixed.n_frames)
     mixed_scores, mixed_decisions = {}, {}
-    for mode in se.MODES:
+    for mode in models:
         t0 = time.perf_counter()
         dec = se.replay(mixed, models[mode], mode, rule=rule)
         seconds[mode] += time.perf_counter() - t0
@@ -270,9 +271,9 @@ def evaluate(args, s: dict, models: dict, rule: dict) -> dict:
     plain = se.apply_rule(*fd, five.meta, PLAIN_RULE)
     mixed_decisions = {"continuous_plain": plain, **mixed_decisions}
     mixed_scores["continuous_plain"] = {**se.score(plain, truths, mixed.n_frames, period, names), "latency": None}
-    idle_all = {m: se.merge_idle(idle_scores[m]) for m in se.MODES}
+    idle_all = {m: se.merge_idle(idle_scores[m]) for m in models}
     idle_all["continuous_plain"] = se.merge_idle(plain_idle)
-    per_frame_us = {m: 1e6 * seconds[m] / (frames_total + mixed.n_frames) for m in se.MODES}
+    per_frame_us = {m: 1e6 * seconds[m] / (frames_total + mixed.n_frames) for m in models}
     return {
         "offline_rule_matches_daemon": agrees,
         "idle": idle_all,

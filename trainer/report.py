@@ -192,9 +192,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         f"- fingerprint (sha256 of frames, time stamps, labels): `{metrics['fingerprint'][:16]}...`",
         f"- pads {ds['pads']} ({metrics['pads']}), {sum(ds['pad_sizes'])} taxel series per case, "
         f"T = {metrics['T']} frames at {ds['sample_rate_hz']:.1f} Hz",
-        f"- trigger: any taxel of these pads >= {ds['trigger_fraction']:.2f} x full scale ({ds['fullscale']:.0f}), "
-        "the runtime's rule (rising edge; a trial already above the level at its first frame triggers only after "
-        f"dropping below {ds['trigger_fraction'] - ds.get('trigger_hysteresis', 0.0):.2f} x full scale)",
+        trigger_line(ds),
         f"- labelled trials: {metrics['n_trials']}; cases: {ds['n_cases']}; "
         f"**untriggered: {metrics['n_untriggered']}** {ds['untriggered_reasons'] or ''} (listed in metrics.json, "
         "not padded, not in any split)",
@@ -289,3 +287,14 @@ def _json_default(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def trigger_line(ds: dict) -> str:
+    """How the windows were cut (the runtime's trigger, as the model records it)."""
+    trig = ds.get("trigger") or {}
+    if trig.get("kind") == "onset":
+        return (f"- trigger: onset (runtime/onset.py): a pad's summed pressure departs by {trig['change']:.0%} from the "
+                f"settled grasp (the trial's first frame), window from {trig['pre_frames']} frames before the trigger")
+    return (f"- trigger: any taxel of these pads >= {ds['trigger_fraction']:.2f} x full scale ({ds['fullscale']:.0f}), "
+            "the runtime's rule (rising edge; a trial already above the level at its first frame triggers only after "
+            f"dropping below {ds['trigger_fraction'] - ds.get('trigger_hysteresis', 0.0):.2f} x full scale)")

@@ -2,12 +2,17 @@
 detection delay from the person's onset, events missed, wrong class.
 
 The stream is replayed frame by frame through the daemon's own hot path
-(``runtime.daemon.Daemon.handle_frame``: ring buffer, threshold or continuous trigger, ONNX
-model, "report only changes" rule), fed in-process with the recorded frames, so what is
-measured is what the service would do. Three modes, the same streams for all:
+(``runtime.daemon.Daemon.handle_frame``: ring buffer, trigger, ONNX model, continuous report
+rule), fed in-process with the recorded frames, so what is measured is what the service would
+do. The modes, the same streams for all:
 
-- ``threshold``: the paper's trigger (15 % of full scale, hysteresis, refractory) + the 4-class model;
-- ``baseline``: the same trigger measured against a slowly tracked per-taxel baseline + the 4-class model;
+- ``threshold``: the paper's trigger (15 % of full scale, hysteresis, refractory) + a 4-class model;
+- ``baseline``: the same trigger measured against a slowly tracked per-taxel baseline + a 4-class model;
+- ``onset``: the onset trigger (runtime/onset.py: per-pad change against the settled grasp) + a 4-class model;
+- ``onset_robot``: the same, and the robot says when its grasp has settled and when it lets go
+  (``Daemon.set_grasp``, as the control socket or the ROS 2 topic would; ``robot_messages``);
+- ``onset_dormant``: the onset trigger + the 5-class model with a dormant class (a window it reads
+  as dormant is not reported);
 - ``continuous``: every frame classified by the 5-class model with a dormant class.
 """
 
@@ -21,7 +26,16 @@ import numpy as np
 
 from firmware_io.recording import Recording
 
-MODES = ("threshold", "baseline", "continuous")
+MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous")
+TRIGGER_TABLE = {"threshold": {"kind": "threshold"}, "baseline": {"kind": "threshold", "baseline": True},
+                 "onset": {"kind": "onset"}, "onset_robot": {"kind": "onset"}, "onset_dormant": {"kind": "onset"},
+                 "continuous": {}}
+"""The ``[trigger]`` config table of each mode (unset keys: the model's recorded settings, else the defaults)."""
+DEFAULT_SETTING = "onset_dormant"
+"""The stream setting ``handover demo`` runs by default: the one ``handover bench streams`` chose
+by its rule on validation streams (results/streams.md, "How the default was chosen")."""
+ROBOT_SETTLE_S = 0.3
+"""The simulated robot says ``grasp closed`` this long after its 0.3 s closing ramp has ended."""
 EARLY_FRAMES = 2
 """A decision up to this many frames before the annotated onset still counts for the event
 (the onset is the start of a smooth movement, the frame grid is coarse)."""
@@ -45,11 +59,14 @@ class Truth:
     action: str
 
 
-def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None) -> list[Decision]:
+def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None,
+           robot: dict[int, bool] | None = None) -> list[Decision]:
     """Feed every frame of ``rec`` to a fresh daemon in ``mode``; the events it reports.
 
     ``rule``: the ``[continuous]`` config table (confirm_frames, min_margin, rearm_frames) for
-    continuous mode; None takes the config defaults.
+    continuous mode; None takes the config defaults. ``robot``: frame index -> grasp closed
+    (True) / open (False), passed to ``Daemon.set_grasp`` before that frame (``onset_robot``
+    computes them with ``robot_messages`` when not given).
     """
     from firmware_io.client import Frame
     from runtime.config import config_from_dict
@@ -61,7 +78,7 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     events = [c for c in model.meta.classes if c != model.meta.dormant_class]
     cfg = config_from_dict({
         "scene": {"pads": pads, "events": events, "mode": "continuous" if mode == "continuous" else "trigger"},
-        "trigger": {"baseline": mode == "baseline"},
+        "trigger": dict(TRIGGER_TABLE[mode]),
         "continuous": dict(rule or {}),
         "sinks": {"stdout": False},
         "log_level": "warning",
@@ -76,9 +93,48 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     frames = rec.frames
     clock = time.perf_counter
     handle = daemon.handle_frame
+    if robot is None and mode == "onset_robot":
+        robot = robot_messages(rec)
+    robot = robot or {}
     for i in range(rec.n_frames):
+        if i in robot:
+            daemon.set_grasp(robot[i], source="replay")
         handle(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
     return out
+
+
+def robot_messages(rec: Recording) -> dict[int, bool]:
+    """When a robot would say ``grasp closed`` / ``grasp open`` in a simulated stream (frame -> closed).
+
+    Idle holds (``meta["source_codes"]``): closed at the first ``quiet`` frame after a ``grasp``
+    (0.3 s after the closing ramp), open at the first ``release`` frame. Scripted events: closed
+    ``ROBOT_SETTLE_S`` after the closing ramp that precedes the onset, open when the hand starts
+    to open to give the object away (``RELEASE_AFTER_S`` after the onset).
+    """
+    from firmware_io.sim import constants as K
+    from firmware_io.sim.session import RELEASE_AFTER_S
+
+    out: dict[int, bool] = {}
+    codes = rec.meta.get("source_codes")
+    names = list(rec.meta.get("sources", ()))
+    if codes is not None and "grasp" in names:
+        code = np.asarray(codes, dtype=np.int64)
+        grasp, quiet, release = (names.index(n) for n in ("grasp", "quiet", "release"))
+        prev = np.concatenate([[-2], code[:-1]])
+        for i in np.flatnonzero((code == quiet) & (prev == grasp)):
+            out[int(i)] = True
+        for i in np.flatnonzero((code == release) & (prev != release)):
+            out[int(i)] = False
+    settle = int(np.ceil((0.3 + ROBOT_SETTLE_S) / K.FRAME_PERIOD_S))
+    level = rec.frames.max(axis=1)
+    for tr in rec.trials:
+        onset = int(tr.extra["onset"])
+        loaded = np.flatnonzero(level[tr.first:onset] > 0)
+        if len(loaded):
+            out[min(tr.first + int(loaded[0]) + settle, onset - 1)] = True
+        onset_s = float(tr.extra.get("onset_s", onset * K.FRAME_PERIOD_S))
+        out[round((onset_s + RELEASE_AFTER_S) / K.FRAME_PERIOD_S)] = False
+    return dict(sorted(out.items()))
 
 
 def frame_decisions(rec: Recording, model, batch: int = 2048) -> tuple[np.ndarray, np.ndarray]:
@@ -180,7 +236,13 @@ def score(decisions: Sequence[Decision], truths: Sequence[Truth], n_frames: int,
             name = "pre_onset" if name == "event" else name
             by_source[name] = by_source.get(name, 0) + 1
     n = len(truths)
+    delay_frames = np.array([first[i].frame - truths[i].onset for i in sorted(first)], dtype=np.float64)
     return {
+        "per_class": per_class_scores(decisions, truths, first),
+        "delay_frames": _stats(delay_frames),
+        "misses": [{"onset": truths[i].onset, "action": truths[i].action} for i in range(n) if i not in first],
+        "wrong": [{"onset": truths[i].onset, "action": truths[i].action, "reported": first[i].cls}
+                  for i in sorted(first) if first[i].cls != truths[i].action],
         "n_events": n,
         "detected": len(first),
         "missed": n - len(first),
@@ -198,6 +260,28 @@ def score(decisions: Sequence[Decision], truths: Sequence[Truth], n_frames: int,
         "false_by_class": _count(d.cls for d in false),
         "decisions": len(decisions),
     }
+
+
+def per_class_scores(decisions: Sequence[Decision], truths: Sequence[Truth], first: dict[int, Decision]) -> dict:
+    """Per class: precision (first reports of the right class / all reports of that class,
+    duplicates and false events included), recall (of the scripted events), F1."""
+    classes = sorted({t.action for t in truths} | {d.cls for d in decisions})
+    out = {}
+    for c in classes:
+        tp = sum(1 for i, d in first.items() if d.cls == c and truths[i].action == c)
+        reported = sum(1 for d in decisions if d.cls == c)
+        n = sum(1 for t in truths if t.action == c)
+        p = tp / reported if reported else None
+        r = tp / n if n else None
+        f1 = 2 * p * r / (p + r) if p and r else (0.0 if p is not None and r is not None else None)
+        out[c] = {"n": n, "reported": reported, "correct": tp, "precision": p, "recall": r, "f1": f1}
+    return out
+
+
+def macro_f1(per_class: dict) -> float | None:
+    """Mean F1 over the scripted classes (a class never reported and never scripted does not count)."""
+    values = [v["f1"] if v["f1"] is not None else 0.0 for v in per_class.values() if v["n"]]
+    return float(np.mean(values)) if values else None
 
 
 def _count(items) -> dict[str, int]:
@@ -247,3 +331,41 @@ def latency_stats(decisions: Sequence[Decision]) -> dict | None:
         return None
     p50, p99 = np.percentile(lat, [50, 99])
     return {"n": len(lat), "median_us": float(p50), "p99_us": float(p99)}
+
+
+def session_outcomes(decisions: Sequence[Decision], trials: Sequence) -> dict:
+    """The demo's matching of reported events to a scripted session.
+
+    A report inside an event's trial span (the object placed .. taken away) belongs to that
+    event: the first is its answer, later ones are repeats; a report outside every span is an
+    event outside any scripted event. Per class: precision = right first answers / all reports
+    of that class, recall = right first answers / scripted events of that class.
+    """
+    firsts = np.array([t.first for t in trials], dtype=np.int64)
+    answer: dict[int, Decision] = {}
+    repeats, outside = 0, []
+    for d in decisions:
+        k = int(np.searchsorted(firsts, d.frame, side="right")) - 1
+        if k < 0 or d.frame > trials[k].last:
+            outside.append({"frame": d.frame, "reported": d.cls})
+        elif k in answer:
+            repeats += 1
+        else:
+            answer[k] = d
+    truths = [Truth(int(t.extra.get("onset", t.first)), t.last, t.action) for t in trials]
+    per_class = per_class_scores(decisions, truths, answer)
+    correct = sum(answer[k].cls == trials[k].action for k in answer)
+    return {
+        "expected": len(trials), "detected": len(answer), "correct": correct, "missed": len(trials) - len(answer),
+        "outside": len(outside), "repeats": repeats,
+        "correct_fraction": correct / len(trials) if len(trials) else None,
+        "per_class": per_class,
+        "missed_events": [{"event": k + 1, "action": trials[k].action, "onset": truths[k].onset}
+                          for k in range(len(trials)) if k not in answer],
+        "wrong_events": [{"event": k + 1, "action": trials[k].action, "reported": answer[k].cls,
+                          "frame": answer[k].frame, "onset": truths[k].onset}
+                         for k in sorted(answer) if answer[k].cls != trials[k].action],
+        "outside_events": outside,
+        "report_minus_onset_frames": _stats(np.array([answer[k].frame - truths[k].onset for k in sorted(answer)],
+                                                     dtype=np.float64)),
+    }

@@ -41,7 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--level-features", action="store_true",
                         help="add per-pad mean level and slope (keeps static pressure)")
     parser.add_argument("--scale-features", action="store_true", help="standardise the features before the SVM")
-    parser.add_argument("--fraction", type=float, default=0.15, help="trigger level as a fraction of full scale")
+    parser.add_argument("--trigger", choices=("onset", "threshold"), default=None,
+                        help="what cuts the training windows (default: the daemon's default, the onset trigger; "
+                        "threshold = the paper's fixed level, see --fraction); recorded in the model")
+    parser.add_argument("--fraction", type=float, default=None,
+                        help="threshold trigger level as a fraction of full scale (the paper: 0.15; implies "
+                        "--trigger threshold)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulation, k-means and the splits")
     parser.add_argument("--repeats", type=int, default=5, help="seeds of configuration 1 (80/20 splits)")
     parser.add_argument("--sweep", dest="sweep_file", help="sweep.json from `handover sweep` (default: OUT/sweep.json "
@@ -58,8 +63,11 @@ def command_line(args: argparse.Namespace) -> str:
     if args.data:
         parts += ["--data", str(args.data)]
     parts += ["--out", str(args.out), "--pads", args.pads, "--K", str(args.K), "--W", str(args.W),
-              "--T", str(args.T), "--kernel", args.kernel, "--fraction", str(args.fraction),
-              "--seed", str(args.seed), "--repeats", str(args.repeats)]
+              "--T", str(args.T), "--kernel", args.kernel, "--seed", str(args.seed), "--repeats", str(args.repeats)]
+    if args.trigger:
+        parts += ["--trigger", args.trigger]
+    if args.fraction is not None:
+        parts += ["--fraction", str(args.fraction)]
     for flag, value in (("--C", args.C), ("--gamma", args.gamma), ("--sweep", args.sweep_file)):
         if value is not None:
             parts += [flag, str(value)]
@@ -174,14 +182,14 @@ def run(args) -> int:
     from trainer import report
     from trainer.baseline import BaselineSVC
     from trainer.classifier import BowSVC, margin_report
-    from trainer.dataset import build_dataset
+    from trainer.dataset import build_dataset, dataset_trigger
     from trainer.evaluation import config1, config2, tsne_embedding
 
     t0 = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     recordings, source, synthetic = load_or_simulate(args)
-    ds = build_dataset(recordings, T=args.T, pads=args.pads, fraction=args.fraction)
+    ds = build_dataset(recordings, T=args.T, pads=args.pads, trigger=dataset_trigger(args.trigger, args.fraction))
     summary = ds.summary()
     _say(args, f"{ds.n_trials} trials, {len(ds.y)} cases, {ds.n_untriggered} untriggered "
                f"{summary['untriggered_reasons'] or ''}")
@@ -226,7 +234,7 @@ def run(args) -> int:
         "baseline_loso_accuracy": b2["accuracy"],
         "baseline_loso_subject_std": b2["subject_std"],
         "K": args.K, "W": max(windows), "windows": windows, "T": args.T, "kernel": args.kernel,
-        "per_pad": args.per_pad, "pads": args.pads, "trigger_fraction": args.fraction,
+        "per_pad": args.per_pad, "pads": args.pads, "trigger_fraction": ds.fraction, "trigger": ds.trigger.to_meta(),
         "trigger_hysteresis": ds.hysteresis, "seed": args.seed,
         "best_params": model.best_params_,
         "svm_margin": margin_report(model.svm_),
@@ -336,7 +344,7 @@ def model_metadata(args, ds, metrics: dict) -> dict:
         "pads": list(ds.pads),
         "pad_sizes": list(ds.pad_sizes),
         "fullscale": ds.fullscale,
-        "trigger": {"fraction": ds.fraction, "hysteresis": ds.hysteresis},
+        "trigger": ds.trigger.to_meta(),
         "sample_rate_hz": rate,
         "training": {
             "data_fingerprint": ds.fingerprint,

@@ -118,7 +118,7 @@ class _DatasetMeta:
     """The few Dataset fields export_metadata reads (picklable, without the cases)."""
 
     def __init__(self, ds) -> None:
-        for name in ("pads", "pad_sizes", "fullscale", "fraction", "sample_rate_hz", "fingerprint", "n_trials", "y"):
+        for name in ("pads", "pad_sizes", "fullscale", "fraction", "trigger", "sample_rate_hz", "fingerprint", "n_trials", "y"):
             setattr(self, name, getattr(ds, name))
 
 

@@ -1,0 +1,172 @@
+"""The daemon's control socket: short text datagrams from the robot, e.g. ``grasp closed``.
+
+A Unix datagram socket (``[control] socket``, a path or ``@abstract`` name) read by its own
+thread, so the hot path never blocks on it. Known messages call back into the daemon
+(``Daemon.set_grasp``, which only records the request; the hot path applies it at the next
+frame). Anything else is counted and logged once (the first one, with what arrived); it never
+stops the thread or the daemon. A stale socket file left by an earlier run is replaced.
+
+Messages (ASCII, case and surrounding white space ignored):
+
+- ``grasp closed``: the robot's grasp has settled on the object (arm the onset trigger now);
+- ``grasp open``: the robot releases the object (no event until the hand is empty or closed again).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import socket
+import stat
+import threading
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("handover.control")
+daemon_log = logging.getLogger("handover.daemon")
+
+MAX_DATAGRAM = 512
+POLL_S = 0.2
+"""Longest the reader blocks: bounds how long ``stop`` takes."""
+MESSAGES = {"grasp closed": True, "grasp open": False}
+
+
+def parse_message(data: bytes) -> bool | None:
+    """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else."""
+    try:
+        text = data.decode("ascii").strip().lower()
+    except UnicodeDecodeError:
+        return None
+    return MESSAGES.get(" ".join(text.split()))
+
+
+class ControlSocket:
+    """Reads control datagrams on ``address`` and calls ``on_grasp(closed, "control")``."""
+
+    def __init__(self, address: str, on_grasp: Callable[[bool, str], None]) -> None:
+        self.address = address
+        self.on_grasp = on_grasp
+        self.received = 0
+        self.garbage = 0
+        """Datagrams that were not a known message (the first is logged, all are counted)."""
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    def start(self) -> ControlSocket:
+        """Bind and start reading; OSError (one line naming the socket) when it cannot bind."""
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            sock.bind(self._bind_address())
+        except OSError as exc:
+            sock.close()
+            raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
+        sock.settimeout(POLL_S)
+        self._sock = sock
+        self._thread = threading.Thread(target=self._loop, name="handover-control", daemon=True)
+        self._thread.start()
+        log.info("control socket %s: listening (grasp closed / grasp open)", self.address)
+        return self
+
+    def _bind_address(self) -> str | bytes:
+        if self.address.startswith("@"):
+            return b"\0" + self.address[1:].encode()
+        path = Path(self.address)
+        with contextlib.suppress(FileNotFoundError):
+            if stat.S_ISSOCK(path.lstat().st_mode):
+                path.unlink()  # left by an earlier run
+        return self.address
+
+    def _loop(self) -> None:
+        sock = self._sock
+        while not self._stop.is_set() and sock is not None:
+            try:
+                data = sock.recv(MAX_DATAGRAM)
+            except TimeoutError:
+                continue
+            except OSError:
+                if self._stop.is_set():
+                    return
+                continue
+            self._handle(data)
+
+    def _handle(self, data: bytes) -> None:
+        closed = parse_message(data)
+        if closed is None:
+            self.garbage += 1
+            if self.garbage == 1:
+                log.warning("control socket %s: ignored a datagram that is not 'grasp closed' or 'grasp open' "
+                            "(%r); further ones are only counted", self.address, data[:64])
+            return
+        self.received += 1
+        try:
+            self.on_grasp(closed, "control")
+        except Exception as exc:  # the callback must never end the reader
+            log.error("control socket %s: %s", self.address, exc)
+
+    def stop(self, timeout: float = 1.0) -> None:
+        """End the reader, close and remove the socket file."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        if not self.address.startswith("@"):
+            with contextlib.suppress(OSError):
+                if stat.S_ISSOCK(os.lstat(self.address).st_mode):
+                    os.unlink(self.address)
+
+
+class GraspControl:
+    """The daemon's side of the robot's grasp messages (mixed into ``runtime.daemon.Daemon``).
+
+    Expects ``cfg``, ``health``, ``trigger``, ``control``, ``grasp_closed`` and ``_grasp_requests``
+    (a deque) on the instance; the hot path calls ``_apply_grasp`` when requests are queued.
+    """
+
+    cfg: Any
+    health: Any
+    trigger: Any
+    control: ControlSocket | None
+    grasp_closed: bool | None
+    grasp_request: tuple[bool, str] | None
+    _grasp_requests: deque
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The robot says its grasp has settled (``closed``) or is released; thread-safe.
+
+        Only records the request; the hot path applies it at the next frame (the onset trigger
+        arms on the settled grasp at once, or disarms). Called by the control socket and sinks
+        such as the ROS 2 bridge (``source`` names the caller in the log)."""
+        request = (bool(closed), str(source))
+        self.grasp_request = request  # the latest call, for status and tests
+        self._grasp_requests.append(request)
+        daemon_log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
+
+    def _apply_grasp(self) -> None:
+        while self._grasp_requests:
+            closed, _source = self._grasp_requests.popleft()
+            self.grasp_closed = closed
+            set_grasp = getattr(self.trigger, "set_grasp", None)
+            if set_grasp is not None:
+                set_grasp(closed)
+
+    def start_control(self) -> None:
+        """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""
+        if self.control is not None or not self.cfg.control.socket:
+            return
+        try:
+            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp).start()
+        except OSError as exc:
+            daemon_log.error("%s; running without robot messages", exc)
+            self.health.last_error = str(exc)
+
+    def stop_control(self) -> None:
+        if self.control is not None:
+            self.control.stop()
+            self.control = None
+

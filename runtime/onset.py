@@ -1,0 +1,174 @@
+"""The onset trigger: start the window when the *person* acts on a settled grasp, not when the hand closes.
+
+The paper's trigger fires when any taxel crosses 15 % of full scale; on a live robot the hand's
+own grasp crosses it first (the object is placed, the fingers close), so the window shows the
+grasp, not the person. This trigger watches each pad's summed pressure instead and measures it
+against a baseline that follows the *settled* grasp:
+
+- ``open``: the scene reads (almost) nothing; nothing can happen.
+- ``settling``: there is contact but the grasp is still moving (the hand closing, a person's
+  action still going on, a regrasp). The baseline is the current pressure; once every pad has
+  changed by less than ``settle_change`` of its level from frame to frame for ``settle_frames``
+  frames in a row (and ``refractory_frames`` have passed since the last trigger), it arms.
+- ``armed``: the baseline follows slow changes (creep of the rubber, drift of the force control):
+  a level and a trend per pad (Holt's linear tracker: the prediction is level + trend, the level
+  takes ``1 / tau_frames`` of each frame's error and the trend ``1 / (4 tau_frames)``), the trend
+  starting from zero when the trigger arms. Real pads creep far more than the simulator's: a
+  static weight keeps rising by about 1 % of its level per frame for seconds, which a plain
+  tracked level lags behind by tens of per cent. The trigger fires when any pad's pressure
+  departs from the prediction by ``change`` of the level (at least ``change x floor``, so an
+  unloaded pad needs a real contact). A departure in which no pad rose (every pad lost pressure) is the hand
+  letting go or re-seating its grasp, not a person: it goes back to ``settling`` without firing.
+
+The robot may say when its grasp has settled or is released (``set_grasp``): ``closed`` arms
+at once with the current pressure as the baseline; ``open`` disarms until the hand is seen
+empty (then self-arming resumes, so a lost message never deafens the trigger). Without these
+messages the trigger finds the settled grasp by itself.
+
+Per frame: one ``reduceat`` over the scene's columns and a few operations on a vector of one
+number per pad. ``update(row, number)`` returns the frame number at which a window is due
+(trigger frame + T - 1 - pre_frames), or -1, like ``ThresholdTrigger``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+OPEN, SETTLING, ARMED = "open", "settling", "armed"
+TREND_GAIN = 0.25
+"""The trend takes this share of the level's correction (Holt's beta)."""
+RELEASE_RISE = 0.25
+"""A departure whose largest rise is below this share of ``change`` counts as a release (noise on
+an unloaded pad must not turn the hand letting go into an event)."""
+
+
+class OnsetTrigger:
+    """Fires when a pad's pressure leaves the settled grasp's baseline by ``change`` of it."""
+
+    def __init__(
+        self,
+        pad_sizes: tuple[int, ...] | list[int],
+        fullscale: float,
+        change: float,
+        floor: float,
+        contact: float,
+        tau_frames: float,
+        settle_frames: int,
+        settle_change: float,
+        refractory_frames: int = 16,
+        window: int = 15,
+        pre_frames: int = 0,
+    ) -> None:
+        if not 0.0 < change < 1.0:
+            raise ValueError("change must be in (0, 1)")
+        if pre_frames >= window:
+            raise ValueError("pre_frames must be smaller than the window")
+        if settle_frames < 1 or tau_frames < 1.0:
+            raise ValueError("settle_frames and tau_frames must be at least 1")
+        sizes = np.asarray(pad_sizes, dtype=np.int64)
+        self._starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.intp)
+        n = len(sizes)
+        self.change = float(change)
+        self.floor = float(floor * fullscale)
+        """Pad pressure (summed counts) below which a pad's change is measured against this instead."""
+        self.contact = float(contact * fullscale)
+        """Summed scene pressure below which the hand counts as empty."""
+        self.alpha = 1.0 / float(tau_frames)
+        self.settle_frames = int(settle_frames)
+        self.settle_change = float(settle_change)
+        self.refractory_frames = int(refractory_frames)
+        self.window = int(window)
+        self.pre_frames = int(pre_frames)
+        self._p = np.zeros(n, dtype=np.float64)
+        self._prev = np.zeros(n, dtype=np.float64)
+        self._base = np.zeros(n, dtype=np.float64)
+        self._trend = np.zeros(n, dtype=np.float64)
+        """Per-frame change of the settled grasp (creep), started while settling, tracked while armed."""
+        self._dev = np.zeros(n, dtype=np.float64)
+        self._scale = np.zeros(n, dtype=np.float64)
+        self._request: bool | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to ``open`` with no history (after a reconnect or a model change)."""
+        self.state = OPEN
+        self.robot_open = False
+        """The robot said its grasp is released: no self-arming until the hand is seen empty."""
+        self.quiet = 0
+        self.last_trigger = -(1 << 62)
+        self.level = 0.0
+        self.fired = 0
+        self.releases = 0
+        """Departures in which every pad lost pressure (the hand letting go): not fired."""
+
+    def set_grasp(self, closed: bool) -> None:
+        """The robot's word on its grasp; applied at the next ``update`` (call from the hot path's thread)."""
+        self._request = bool(closed)
+
+    def update(self, row: np.ndarray, number: int) -> int:
+        """Feed one frame's scene columns; return the frame number a window ends at, or -1."""
+        p = self._p
+        np.add.reduceat(row, self._starts, out=p, dtype=np.float64)
+        if self._request is not None:
+            self._apply_request(p)
+        if p.sum() < self.contact:
+            self.state, self.robot_open, self.quiet, self.level = OPEN, False, 0, 0.0
+            return -1
+        if self.state == OPEN:
+            if self.robot_open:
+                return -1
+            self._start_settling(p)
+            return -1
+        if self.state == SETTLING:
+            self._settle(p, number)
+            return -1
+        return self._watch(p, number)
+
+    def _apply_request(self, p: np.ndarray) -> None:
+        closed, self._request = self._request, None
+        if closed:
+            self.robot_open = False
+            self.state = ARMED
+            self._base[:] = p
+            self._trend[:] = 0.0
+        else:
+            self.robot_open = True
+            self.state = OPEN
+
+    def _start_settling(self, p: np.ndarray) -> None:
+        self.state = SETTLING
+        self.quiet = 0
+        self._prev[:] = p
+        self._trend[:] = 0.0
+
+    def _settle(self, p: np.ndarray, number: int) -> None:
+        np.maximum(self._prev, self.floor, out=self._scale)
+        np.subtract(p, self._prev, out=self._dev)
+        np.abs(self._dev, out=self._dev)
+        self.level = float((self._dev / self._scale).max())
+        self.quiet = self.quiet + 1 if self.level < self.settle_change else 0
+        self._prev[:] = p
+        if self.quiet >= self.settle_frames and number - self.last_trigger >= self.refractory_frames:
+            self.state = ARMED
+            self._base[:] = p
+
+    def _watch(self, p: np.ndarray, number: int) -> int:
+        base, trend = self._base, self._trend
+        base += trend  # the prediction for this frame
+        np.maximum(base, self.floor, out=self._scale)
+        np.subtract(p, base, out=self._dev)
+        error = self._dev.copy()
+        self._dev /= self._scale
+        rise = float(self._dev.max())
+        self.level = max(rise, -float(self._dev.min()))
+        if self.level < self.change:
+            base += self.alpha * error  # creep and drift: follow slow changes of the settled grasp
+            trend += TREND_GAIN * self.alpha * error
+            return -1
+        self._start_settling(p)
+        if rise < RELEASE_RISE * self.change:  # no pad rose: the hand lets go or re-seats, nobody pulled
+            self.releases += 1
+            return -1
+        self.last_trigger = number
+        self.fired += 1
+        return number + self.window - 1 - self.pre_frames

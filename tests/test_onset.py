@@ -1,0 +1,248 @@
+"""The onset trigger, its settings, the robot's grasp messages and the control socket (small synthetic streams)."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from firmware_io.client import Frame
+from firmware_io.layout import SensorLayout
+from runtime.config import ConfigError, TriggerConfig, config_from_dict
+from runtime.control import parse_message
+from runtime.daemon import Daemon
+from runtime.onset import ARMED, OPEN, OnsetTrigger
+from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, resolve_trigger
+
+LAYOUT = SensorLayout.sdh2()
+PADS = (78, 78, 78)
+RATE = 32.0
+CONTACT = [np.arange(p * 78 + 20, p * 78 + 40) for p in range(3)]  # 20 loaded taxels per distal pad
+
+
+def _trigger() -> OnsetTrigger:
+    return build_trigger(resolve_trigger(TriggerConfig(kind="onset")), PADS, 4095.0, 15, RATE)
+
+
+def grasp_levels(n: int, close: int = 20, level: float = 1500.0, creep: float = 0.10, seed: int = 0) -> np.ndarray:
+    """Per frame and pad the loaded taxels' value: a 0.3 s close, the rubber creeping +10 % (tau 4 s), 1 % noise."""
+    t = np.arange(n, dtype=float)
+    ramp = np.clip((t - close) / 10.0, 0.0, 1.0)
+    ramp = ramp * ramp * (3 - 2 * ramp)
+    age = np.clip(t - close, 0.0, None) / RATE
+    v = level * ramp * (1.0 + creep * (1.0 - np.exp(-age / 4.0)))
+    noise = 1.0 + 0.01 * np.random.default_rng(seed).standard_normal((n, 3))
+    return v[:, None] * noise
+
+
+def rows_of(levels: np.ndarray) -> np.ndarray:
+    rows = np.zeros((len(levels), sum(PADS)), dtype=np.float32)
+    for p in range(3):
+        rows[:, CONTACT[p]] = levels[:, p:p + 1]
+    return rows
+
+
+def fires(trig, rows: np.ndarray) -> list[int]:
+    return [i for i in range(len(rows)) if trig.update(rows[i], i) >= 0]
+
+
+def test_onset_fires_when_the_person_acts_not_at_the_close_nor_on_creep():
+    levels = grasp_levels(400)
+    push = np.clip((np.arange(400) - 200) / 5.0, 0, 1) * np.exp(-np.clip(np.arange(400) - 230, 0, None) / 10.0)
+    levels[:, 0] *= 1.0 + 0.3 * push  # a push on pad 0 from frame 200
+    trig = _trigger()
+    assert len(out := fires(trig, rows_of(levels))) == 1 and 200 <= out[0] <= 203  # not at the close (20), not on creep
+
+
+def test_the_hand_letting_go_is_not_an_event():
+    levels = grasp_levels(300)
+    levels[200:] *= np.clip(1.0 - (np.arange(100) / 10.0), 0, 1)[:, None]  # the hand opens at 200
+    trig = _trigger()
+    assert fires(trig, rows_of(levels)) == [] and trig.releases == 1 and trig.state == OPEN
+
+
+def test_one_trigger_per_interaction_while_the_pressure_wobbles():
+    levels = grasp_levels(500)
+    t = np.arange(500)
+    wobble = np.where((t >= 150) & (t < 190), 0.25 * np.abs(np.sin((t - 150) / 3.0)), 0.0)  # 1.2 s of push and dips
+    levels[:, 1] *= 1.0 + wobble
+    trig = _trigger()
+    assert len(out := fires(trig, rows_of(levels))) == 1 and 150 <= out[0] <= 153
+    assert trig.state == ARMED  # settled again after the interaction: ready for the next one
+
+
+def test_robot_grasp_closed_arms_at_once_and_open_disarms():
+    levels = grasp_levels(200, close=20)
+    levels[40:, 2] *= 1.0 + 0.3 * np.clip((np.arange(160)) / 5.0, 0, 1)[:, None].ravel()  # acts as the close ends
+    rows = rows_of(levels)
+    alone = _trigger()
+    assert fires(alone, rows) == []  # never saw a settled grasp before the person acted
+    told = _trigger()
+    out = []
+    for i in range(len(rows)):
+        if i == 32:
+            told.set_grasp(True)  # the robot: my grasp has settled
+        if told.update(rows[i], i) >= 0:
+            out.append(i)
+    assert len(out) == 1 and 40 <= out[0] <= 43
+    opened = _trigger()
+    still = rows_of(grasp_levels(200, creep=0.0))
+    for i in range(100):
+        opened.update(still[i], i)
+    assert opened.state == ARMED
+    opened.set_grasp(False)
+    bump = still[100:].copy()
+    bump[10:15, CONTACT[0]] *= 1.5
+    assert [i for i in range(100) if opened.update(bump[i], 100 + i) >= 0] == []  # no events after "grasp open"
+    assert opened.robot_open and opened.state == OPEN
+
+
+def test_settings_come_from_config_then_model_then_default():
+    assert resolve_trigger().kind == DEFAULT_KIND
+    old_model = resolve_trigger(None, {"fraction": 0.2})  # cut before the onset trigger existed
+    assert old_model.kind == "threshold" and old_model.fraction == 0.2
+    onset_model = resolve_trigger(None, {"kind": "onset", "fraction": PAPER_FRACTION, "change": 0.05})
+    assert onset_model.kind == "onset" and onset_model.change == 0.05
+    cfg = TriggerConfig(kind="threshold", fraction=0.3)
+    assert resolve_trigger(cfg, {"kind": "onset", "fraction": 0.1}).fraction == 0.3
+    assert resolve_trigger(TriggerConfig(change=0.12), {"kind": "onset", "change": 0.05}).change == 0.12
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ({"trigger": {"kind": "level"}}, "trigger.kind"),
+    ({"trigger": {"change": 1.5}}, "trigger.change"),
+    ({"control": {"socket": "relative.sock"}}, "control.socket"),
+    ({"control": {"port": 1}}, "control.port"),
+])
+def test_bad_trigger_and_control_keys_are_one_line(table, message):
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(table)
+
+
+def test_control_messages():
+    assert parse_message(b"grasp closed\n") is True and parse_message(b"  GRASP   open ") is False
+    assert parse_message(b"grasp") is None and parse_message(b"\xff\xfe") is None
+
+
+# -- the daemon --------------------------------------------------------------------------------------
+def _onset_model(tmp_path):
+    from runtime.model import load_model
+    from tests.tiny_models import tiny_model_bytes, write_model
+
+    data = tiny_model_bytes(weights=(1.0, 0.0, 0.0, 0.0), bias=(0.0, 0.1, 0.0, 0.0), trigger={"kind": "onset"})
+    return load_model(write_model(tmp_path, "onset.onnx", data))
+
+
+def _frames(levels: np.ndarray) -> list[Frame]:
+    rows = rows_of(levels)
+    full = np.zeros((len(rows), LAYOUT.n_taxels), dtype=np.uint16)
+    full[:, LAYOUT.columns("distal")] = rows.astype(np.uint16)
+    return [Frame(i, int(i * 1000 / RATE), time.perf_counter(), full[i]) for i in range(len(full))]
+
+
+def _daemon(tmp_path, **tables) -> tuple[Daemon, list]:
+    cfg = config_from_dict({"sinks": {"stdout": False}, "log_level": "warning", **tables})
+    events: list = []
+    daemon = Daemon(cfg, on_event=events.append)
+    daemon.serve(_onset_model(tmp_path), LAYOUT)
+    return daemon, events
+
+
+def test_daemon_serves_a_model_cut_by_the_onset_trigger_with_it(tmp_path):
+    daemon, events = _daemon(tmp_path)
+    assert isinstance(daemon.trigger, OnsetTrigger) and daemon.trigger_settings.kind == "onset"
+    levels = grasp_levels(400)
+    levels[200:240, 0] *= 1.3
+    for frame in _frames(levels):
+        daemon.handle_frame(frame)
+    assert len(events) == 1 and 200 <= events[0].frame_first <= 202  # from the person's onset (200), not the close (20)
+
+
+def _send(path: str, data: bytes) -> None:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
+        s.sendto(data, path)
+
+
+def _wait(predicate, timeout: float = 3.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < end:
+        time.sleep(0.01)
+    assert predicate()
+
+
+def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_once(tmp_path, caplog):
+    path = str(tmp_path / "control.sock")
+    daemon, _ = _daemon(tmp_path, control={"socket": path})
+    daemon.start_control()
+    try:
+        frames = _frames(grasp_levels(60, close=0))
+        daemon.handle_frame(frames[0])
+        _send(path, b"grasp closed\n")
+        _wait(lambda: daemon.control.received == 1)
+        daemon.handle_frame(frames[1])
+        assert daemon.grasp_closed is True and daemon.trigger.state == ARMED
+        with caplog.at_level(logging.WARNING, logger="handover.control"):
+            _send(path, b"\xff\xfe\x00")
+            _send(path, b"grasp sideways")
+            _wait(lambda: daemon.control.garbage == 2)
+        assert sum("ignored a datagram" in r.getMessage() for r in caplog.records) == 1
+        _send(path, b"GRASP OPEN")
+        _wait(lambda: daemon.control.received == 2)
+        daemon.handle_frame(frames[2])
+        assert daemon.grasp_closed is False and daemon.trigger.state == OPEN and daemon.trigger.robot_open
+        daemon.set_grasp(True, source="ros2")  # what the ROS 2 sink calls
+        daemon.handle_frame(frames[3])
+        assert daemon.trigger.state == ARMED
+    finally:
+        daemon.stop_control()
+    assert not (tmp_path / "control.sock").exists()
+
+
+def test_a_control_socket_that_cannot_bind_is_one_error_not_fatal(tmp_path, caplog):
+    daemon, _ = _daemon(tmp_path, control={"socket": str(tmp_path / "missing" / "c.sock")})
+    with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+        daemon.start_control()
+    assert daemon.control is None and "cannot bind" in caplog.text
+
+
+# -- continuous mode: a hold is a change of level, which the level features see -----------------------
+def _windows(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    X = np.zeros((n, sum(PADS), 15), dtype=np.float32)
+    t = np.arange(15) / 14.0
+    for i in range(n):
+        level = rng.uniform(800, 1500)
+        shape = {"dormant": np.ones(15), "hold": 1.0 + rng.uniform(0.1, 0.25) * t,
+                 "bump": 1.0 + 0.5 * np.exp(-0.5 * ((np.arange(15) - rng.uniform(4, 10)) / 1.0) ** 2)}[kind]
+        for p in range(3):
+            X[i, CONTACT[p], :] = level * shape * (1 + 0.01 * rng.standard_normal((20, 15)))
+    return X
+
+
+def test_continuous_mode_reports_a_hold_once(tmp_path):
+    from runtime.model import load_model
+    from trainer import dormant
+    from trainer.classifier import BowSVC
+
+    rng = np.random.default_rng(0)
+    kinds = ("dormant", "hold", "bump")
+    X = np.concatenate([_windows(k, 40, rng) for k in kinds])
+    y = np.repeat(kinds, 40)
+    model = BowSVC(n_words=4, window=3, kernel="rbf", C=10.0, gamma=0.05, per_pad=True, pad_sizes=PADS,
+                   level_features=True, scale_features=True).fit(X, y)
+    path = dormant.export(model, tmp_path / "five.onnx", pads=(1, 3, 5), pad_sizes=PADS, fullscale=4095.0,
+                          fraction=PAPER_FRACTION, sample_rate_hz=RATE, dormant_class="dormant",
+                          training={"data_fingerprint": "test", "n_trials": 0})
+    cfg = config_from_dict({"scene": {"mode": "continuous", "events": ["hold", "bump"]}, "continuous": {"confirm_frames": 4},
+                            "sinks": {"stdout": False}, "log_level": "warning"})
+    events: list = []
+    daemon = Daemon(cfg, on_event=events.append)
+    daemon.serve(load_model(path), LAYOUT)
+    levels = np.full((260, 3), 1200.0)
+    levels[100:125] *= (1.0 + 0.2 * np.arange(25) / 24.0)[:, None]  # a person grips: +20 % over 0.8 s
+    levels[125:] *= 1.2  # ... and holds
+    for frame in _frames(levels):
+        daemon.handle_frame(frame)
+    assert [e.cls for e in events] == ["hold"] and 100 <= events[0].frame_last <= 125
