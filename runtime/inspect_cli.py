@@ -36,6 +36,7 @@ def card(model) -> dict:
         "W": meta.W,
         "K": meta.K,
         "per_pad": None if groups is None else len(groups) > 1,
+        "families": (meta.extra.get("features") or {}).get("families"),
         "window_seconds": round(meta.T / meta.sample_rate_hz, 4),
         "sample_rate_hz": meta.sample_rate_hz,
         "trigger": meta.trigger,
@@ -82,6 +83,8 @@ def _pad_name(pads: list[int]) -> str:
 
 
 def _features(c: dict) -> str:
+    if c.get("families"):  # trainer.feature_svc: feature families per pad, not one codebook
+        return f"  features: {' + '.join(c['families'])}, per pad ({len(c['pads'])} pads), standardised"
     hist = {None: "", True: f", one histogram per pad ({len(c['pads'])})", False: ", one histogram over all pads"}
     return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}"
 

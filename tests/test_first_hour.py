@@ -114,9 +114,14 @@ def test_train_prints_its_headline_without_carriage_returns(trained, tmp_path, c
 def test_inspect_card_is_rounded_and_names_the_per_pad_setting(trained, capsys):
     assert handover(["inspect", str(trained / "model.onnx")]) == 0
     card = capsys.readouterr().out
-    assert "one histogram per pad (6)" in card and "= all" in card and "SVM: linear kernel" in card
-    assert "gamma" not in card  # a linear SVM has none
-    assert not re.search(r"\d\.\d{5,}", card), card  # no raw floats
+    from trainer.defaults import DEFAULT_MODEL
+
+    # the product default: its feature families per pad, its kernel
+    assert f"{' + '.join(DEFAULT_MODEL['families'])}, per pad (6 pads)" in card and "= all" in card
+    assert f"SVM: {DEFAULT_MODEL['kernel']} kernel" in card
+    assert ("gamma" in card) == (DEFAULT_MODEL["kernel"] == "rbf")  # a linear SVM has none
+    # no raw floats: at most 4 significant digits after the point (gamma 0.000641 is rounded)
+    assert not re.search(r"\d\.0*[1-9]\d{4,}", card), card
 
 
 def png_size(path: Path) -> tuple[int, int]:

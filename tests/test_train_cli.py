@@ -72,7 +72,12 @@ def test_trained_model_is_deterministic_for_a_seed(tiny_data, tmp_path):
         saved = joblib.load(out / "model.joblib")
         assert set(saved) == {"model", "metadata"} and saved["metadata"]["pads"] == [0, 1, 2, 3, 4, 5]
         models.append(saved["model"])
-    np.testing.assert_array_equal(models[0].bow_.codebook_, models[1].bow_.codebook_)
+    from trainer.defaults import DEFAULT_MODEL
+
+    # without options: the product default of trainer/defaults.py
+    assert tuple(models[0].families) == DEFAULT_MODEL["families"] and models[0].kernel == DEFAULT_MODEL["kernel"]
+    np.testing.assert_array_equal(models[0].svm_.dual_coef_, models[1].svm_.dual_coef_)
+    np.testing.assert_array_equal(models[0].scaler_.mean_, models[1].scaler_.mean_)
     a, b = (json.loads((tmp_path / n / "metrics.json").read_text()) for n in ("a", "b"))
     assert a["config1"]["accuracies"] == b["config1"]["accuracies"]
     assert a["fingerprint"] == b["fingerprint"]

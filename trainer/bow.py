@@ -60,6 +60,19 @@ def as_cases(X, *, reset_dtype: bool = True) -> np.ndarray:
     return arr
 
 
+def check_case_shape(estimator, X) -> np.ndarray:
+    """X as float64 cases of the fitted ``(n_channels_, n_timepoints_)``, or scikit-learn's
+    "X has N features, but ... is expecting M features" ValueError."""
+    X = as_cases(X)
+    if X.shape[1:] != (estimator.n_channels_, estimator.n_timepoints_):
+        raise ValueError(
+            f"X has {X.shape[1] * X.shape[2]} features, but {type(estimator).__name__} is expecting "
+            f"{estimator.n_features_in_} features as input ({estimator.n_channels_} channels x "
+            f"{estimator.n_timepoints_} timepoints, got {X.shape[1]} x {X.shape[2]})"
+        )
+    return X
+
+
 def active_series(X: np.ndarray) -> np.ndarray:
     """Boolean ``(n_cases, n_channels)``: True where the raw series is not all zero."""
     return np.any(X != 0, axis=2)
@@ -296,14 +309,7 @@ class BagOfWords(TransformerMixin, BaseEstimator):
     # -- transforming -------------------------------------------------------------------------
     def _check_X(self, X) -> np.ndarray:
         check_is_fitted(self, "codebook_")
-        X = as_cases(X)
-        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
-            raise ValueError(
-                f"X has {X.shape[1] * X.shape[2]} features, but {type(self).__name__} is expecting "
-                f"{self.n_features_in_} features as input ({self.n_channels_} channels x {self.n_timepoints_} "
-                f"timepoints, got {X.shape[1]} x {X.shape[2]})"
-            )
-        return X
+        return check_case_shape(self, X)
 
     def scales(self) -> list[tuple[int, np.ndarray, float]]:
         """(window length, codebook, absolute temperature) of every scale, in feature order."""

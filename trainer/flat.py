@@ -16,7 +16,7 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
-from trainer.bow import as_cases
+from trainer.bow import check_case_shape
 from trainer.classifier import SVMHead, check_training_data, choose_svm_params
 
 
@@ -46,12 +46,7 @@ class FlatSVC(SVMHead, ClassifierMixin, BaseEstimator):
     def transform_histograms(self, X) -> np.ndarray:
         """The flattened raw window (the graph's ``histogram`` tensor; no codebook here)."""
         check_is_fitted(self, "svm_")
-        X = as_cases(X)
-        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
-            raise ValueError(
-                f"X has {X.shape[1] * X.shape[2]} features, but {type(self).__name__} is expecting "
-                f"{self.n_features_in_} features as input ({self.n_channels_} channels x {self.n_timepoints_} timepoints)"
-            )
+        X = check_case_shape(self, X)
         return X.reshape(len(X), -1)
 
     def svm_input(self, hist: np.ndarray) -> np.ndarray:

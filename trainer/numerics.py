@@ -225,6 +225,8 @@ def histogram_error_bounds(model, X: np.ndarray, hist: np.ndarray, fold_derivati
     Hard words are exact counts away from a codeword near tie (those are judged by the codeword
     margin), so only the final division's rounding counts there.
     """
+    if hasattr(model, "feature_error_bounds"):  # FeatureSVC: each family bounds its own error
+        return model.feature_error_bounds(X) + 2.0 * U32 * np.abs(hist)
     bow = getattr(model, "bow_", None)
     if bow is None:
         return np.zeros_like(hist)  # flattened series: float32 input values, exact in float64

@@ -195,9 +195,10 @@ def _derivative_nodes(g: _Graph, x4: str) -> str:
     return g.op("Conv", [x4, g.const("deriv_kernel", deriv_kernel)], "deriv")  # [N, 1, T-1, C]
 
 
-def features_nodes(g: _Graph, frames: str, bow, fold_derivative: bool = False) -> str:
+def features_nodes(g: _Graph, frames: str, bow, fold_derivative: bool = False, output: str | None = None) -> str:
     """Append every feature of a fitted BagOfWords (all scales, hard or soft, level features) of
-    ``frames`` [N, T, C] in the reference's order; return the ``histogram`` name ``[N, F]``."""
+    ``frames`` [N, T, C] in the reference's order; return the ``histogram`` name ``[N, F]`` (or
+    ``output`` when the histogram is one part of a larger feature vector)."""
     n_timepoints = int(bow.n_timepoints_)
     pad_sizes = tuple(bow.pad_sizes_)
     active = _active_nodes(g, frames)
@@ -212,7 +213,7 @@ def features_nodes(g: _Graph, frames: str, bow, fold_derivative: bool = False) -
         parts.append(_level_nodes(g, frames, tuple(bow.level_groups_), float(bow.fullscale), n_timepoints))
     joined = g.op("Concat", parts, "features", axis=1) if len(parts) > 1 else parts[0]
     shape = g.const("hist_shape", [0, int(bow.n_features_out_)], np.int64)
-    return g.op("Reshape", [joined, shape], outputs=[g.prefix + HISTOGRAM])
+    return g.op("Reshape", [joined, shape], outputs=[output or g.prefix + HISTOGRAM])
 
 
 def scaler_nodes(g: _Graph, features: str, scaler) -> str:
@@ -249,8 +250,8 @@ def svm_nodes(g: _Graph, hist: str, svm, label_out: str = "label", scores_out: s
 
 
 def model_shape(model) -> tuple[int, int]:
-    """(T, C) of a fitted BowSVC or FlatSVC."""
-    inner = model.bow_ if hasattr(model, "bow_") else model
+    """(T, C) of a fitted BowSVC, FlatSVC or FeatureSVC."""
+    inner = model if hasattr(model, "n_timepoints_") else model.bow_
     return int(inner.n_timepoints_), int(inner.n_channels_)
 
 
@@ -260,7 +261,13 @@ def build_graph(model, fold_derivative: bool = False):
 
     n_timepoints, n_channels = model_shape(model)
     g = _Graph()
-    if hasattr(model, "bow_"):
+    if hasattr(model, "onnx_features"):  # FeatureSVC: any mix of feature families
+        if fold_derivative:
+            raise ValueError("fold_derivative applies to BowSVC graphs only")
+        shape = g.const("hist_shape", [0, int(model.scaler_.n_features_in_)], np.int64)
+        hist = g.op("Reshape", [model.onnx_features(g, "frames"), shape], outputs=[HISTOGRAM])
+        name = "handover_feature_svm"
+    elif hasattr(model, "bow_"):
         hist = features_nodes(g, "frames", model.bow_, fold_derivative)
         name = "handover_bow_svm"
     else:  # flattened-series SVM: channel-major flattening, like X.reshape(n, C * T)
@@ -294,6 +301,7 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
     svm = model.svm_
     bow = getattr(model, "bow_", None)
     n_timepoints, n_channels = model_shape(model)
+    feature_svc = hasattr(model, "onnx_features")
     windows = [int(w) for w, _, _ in bow.scales()] if bow is not None else []
     derived = {
         "schema_version": SCHEMA_VERSION,
@@ -318,11 +326,17 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
         **derived,
     }
     if "pad_sizes" not in meta:
-        meta["pad_sizes"] = list(bow.pad_sizes_) if bow is not None and bow.per_pad else [n_channels]
+        if feature_svc:
+            meta["pad_sizes"] = [int(s) for s in (model.pad_sizes or [n_channels])]
+        else:
+            meta["pad_sizes"] = list(bow.pad_sizes_) if bow is not None and bow.per_pad else [n_channels]
     training = {"project_version": __version__, "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}
     meta["training"] = {**training, **meta.get("training", {})}
-    meta["model_kind"] = "bow_svm" if bow is not None else "flat_svm"
-    if bow is not None:
+    meta["model_kind"] = "feature_svm" if feature_svc else "bow_svm" if bow is not None else "flat_svm"
+    if feature_svc:
+        meta["features"] = model.describe()
+        meta["feature_groups"] = list(meta["pad_sizes"])
+    elif bow is not None:
         meta["feature_groups"] = [int(s) for s in bow.pad_sizes_]
         meta["features"] = {
             "windows": windows,

@@ -209,6 +209,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "",
         "## Model",
         "",
+        f"Feature families: {', '.join(metrics.get('families', ['bow']))} (trainer/feature_svc.py). "
         f"BoW: K = {metrics['K']} words, "
         + (f"W = {metrics['W']}" if len(metrics.get("windows", [0])) < 2 else
            f"windows W = {', '.join(str(w) for w in metrics['windows'])} (one codebook each)")
@@ -261,7 +262,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         "## Files",
         "",
         "- `metrics.json`: every number above, the untriggered trials, the confusion matrices",
-        "- `model.joblib`: the fitted BowSVC (scikit-learn) and the model file's metadata "
+        "- `model.joblib`: the fitted estimator (scikit-learn) and the model file's metadata "
         "(`{\"model\": ..., \"metadata\": ...}`; `handover export model.joblib` rebuilds the same model.onnx)",
         f"- `model.onnx`: {metrics.get('onnx') or 'not written'}",
         "",

@@ -23,15 +23,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--K", type=int, default=10, help="number of words (k-means centres)")
     parser.add_argument("--W", type=int, default=7, help="sliding window length (frames)")
     parser.add_argument("--T", type=int, default=15, help="frames per case from the trigger")
-    parser.add_argument("--kernel", choices=("rbf", "linear"), default="linear",
-                        help="SVM kernel (default linear: with per-pad histograms it matches RBF's error on the "
-                        "simulated protocol and is faster, on the Pareto front of results/pareto.md; the paper "
-                        "plots RBF and notes that linear does as well)")
+    parser.add_argument("--features", help="feature families, comma-separated, from bow, stats, rocket, hand "
+                        "(default: the product default of trainer/defaults.py, chosen in results/compare.md; "
+                        "--no-per-pad and the BoW-only options below select bow alone, the paper's family)")
+    parser.add_argument("--kernel", choices=("rbf", "linear"), default=None,
+                        help="SVM kernel (default: the product default's; linear for bow alone, which matches "
+                        "RBF's error on the simulated protocol with per-pad histograms and is faster)")
     parser.add_argument("--C", type=float, default=None, help="SVM C (default: cross-validated search)")
     parser.add_argument("--gamma", type=float, default=None, help="RBF gamma (default: cross-validated search)")
     parser.add_argument("--per-pad", action=argparse.BooleanOptionalAction, default=True,
-                        help="one histogram per pad (default: on, the product's default model, on the Pareto front "
-                        "of results/pareto.md); --no-per-pad gives the paper's single histogram per case")
+                        help="one histogram per pad (default: on); --no-per-pad gives the paper's single histogram "
+                        "per case (and bow alone: the paper's configuration)")
+    parser.add_argument("--select", action="store_true",
+                        help="choose family and settings by grouped cross-validation on the training data "
+                        "(leave one subject out, else grouped by run) within --latency-budget-us, report the "
+                        "runners-up, export the winner")
+    parser.add_argument("--latency-budget-us", type=float, default=None,
+                        help="--select: single-case p99 of the exported graph allowed (default 1000 us)")
     parser.add_argument("--windows", help="several window lengths at once, e.g. 5,7,9 (one codebook each; "
                         "replaces --W)")
     parser.add_argument("--assignment", choices=("hard", "soft"), default="hard",
@@ -63,7 +71,8 @@ def command_line(args: argparse.Namespace) -> str:
     if args.data:
         parts += ["--data", str(args.data)]
     parts += ["--out", str(args.out), "--pads", args.pads, "--K", str(args.K), "--W", str(args.W),
-              "--T", str(args.T), "--kernel", args.kernel, "--seed", str(args.seed), "--repeats", str(args.repeats)]
+              "--T", str(args.T), "--features", ",".join(families_of(args)), "--kernel", kernel_of(args),
+              "--seed", str(args.seed), "--repeats", str(args.repeats)]
     if args.trigger:
         parts += ["--trigger", args.trigger]
     if args.fraction is not None:
@@ -76,6 +85,10 @@ def command_line(args: argparse.Namespace) -> str:
     if args.assignment != "hard":
         parts += ["--assignment", args.assignment, "--temperature", str(args.temperature)]
     parts.append("--per-pad" if args.per_pad else "--no-per-pad")
+    if getattr(args, "select", False):
+        parts.append("--select")
+        if args.latency_budget_us is not None:
+            parts += ["--latency-budget-us", str(args.latency_budget_us)]
     for flag, on in (("--level-features", args.level_features),
                      ("--scale-features", args.scale_features), ("--no-sweep", args.no_sweep),
                      ("--no-onnx", args.no_onnx)):
@@ -103,6 +116,50 @@ def estimator_options(args) -> dict:
             "scale_features": getattr(args, "scale_features", False)}
 
 
+def families_of(args) -> tuple[str, ...]:
+    """The feature families asked for: ``--features``, else bow alone when a BoW-only option (or
+    ``--no-per-pad``, the paper's configuration) is given, else the product default."""
+    from trainer.defaults import DEFAULT_MODEL
+    from trainer.feature_svc import FAMILIES
+
+    text = getattr(args, "features", None)
+    if text:
+        names = tuple(p.strip() for p in text.split(",") if p.strip())
+        bad = [n for n in names if n not in FAMILIES]
+        if not names or bad or len(set(names)) != len(names):
+            raise ValueError(f"--features {text!r}: give distinct names from {', '.join(FAMILIES)}, e.g. stats,bow")
+        return names
+    bow_only = (not getattr(args, "per_pad", True) or getattr(args, "windows", None)
+                or getattr(args, "assignment", "hard") != "hard" or getattr(args, "level_features", False)
+                or getattr(args, "scale_features", False))
+    return ("bow",) if bow_only else tuple(DEFAULT_MODEL["families"])
+
+
+def kernel_of(args) -> str:
+    """``--kernel``, else linear for bow alone (BowSVC's product setting), else the default's kernel."""
+    from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
+
+    if getattr(args, "kernel", None):
+        return args.kernel
+    return BOW_ALONE_KERNEL if families_of(args) == ("bow",) else str(DEFAULT_MODEL["kernel"])
+
+
+def build_estimator(args, ds):
+    """BowSVC for bow alone (every paper option), else FeatureSVC over the chosen families."""
+    from trainer.classifier import BowSVC
+    from trainer.feature_svc import FeatureSVC
+
+    families = families_of(args)
+    if families == ("bow",):
+        return BowSVC(n_words=args.K, kernel=kernel_of(args), C=args.C, gamma=args.gamma, per_pad=args.per_pad,
+                      pad_sizes=ds.pad_sizes if (args.per_pad or args.level_features) else None,
+                      random_state=args.seed, fullscale=ds.fullscale, **estimator_options(args))
+    shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
+    return FeatureSVC(families=families, pad_sizes=tuple(ds.pad_sizes), pad_shapes=shapes, kernel=kernel_of(args),
+                      C=args.C, gamma=args.gamma, n_words=args.K, window=args.W, random_state=args.seed,
+                      fullscale=ds.fullscale)
+
+
 def _fail(message: str) -> int:
     print(f"handover {COMMAND}: {message}", file=sys.stderr)
     return 2
@@ -128,6 +185,12 @@ def main(args: argparse.Namespace) -> int:
         return _fail(f"--windows {args.windows} needs T >= {longest + 1} (got T={args.T})")
     if not args.temperature > 0:
         return _fail(f"--temperature must be positive (got {args.temperature})")
+    try:
+        families_of(args)
+    except ValueError as exc:
+        return _fail(str(exc))
+    if args.latency_budget_us is not None and not args.latency_budget_us > 0:
+        return _fail(f"--latency-budget-us must be positive (got {args.latency_budget_us})")
     try:
         return run(args)
     except (RecordingError, DatasetError, LayoutError, OSError) as exc:
@@ -181,7 +244,7 @@ def run(args) -> int:
 
     from trainer import report
     from trainer.baseline import BaselineSVC
-    from trainer.classifier import BowSVC, margin_report
+    from trainer.classifier import margin_report
     from trainer.dataset import build_dataset, dataset_trigger
     from trainer.evaluation import config1, config2, tsne_embedding
 
@@ -196,9 +259,14 @@ def run(args) -> int:
     if len(set(ds.y.tolist())) < 2 or len(ds.y) < 10:
         raise ValueError(f"only {len(ds.y)} triggered cases of {len(set(ds.y.tolist()))} classes: too few to train")
 
-    bow = BowSVC(n_words=args.K, kernel=args.kernel, C=args.C, gamma=args.gamma, per_pad=args.per_pad,
-                 pad_sizes=ds.pad_sizes if (args.per_pad or args.level_features) else None, random_state=args.seed,
-                 fullscale=ds.fullscale, **estimator_options(args))
+    selection = None
+    if args.select:
+        from trainer.select import select_model
+
+        selection = select_model(ds, args, say=lambda text: _say(args, text))
+        bow = selection.estimator
+    else:
+        bow = build_estimator(args, ds)
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     base = BaselineSVC(pad_shapes=shapes, kernel="rbf")
     seeds = list(range(args.seed, args.seed + args.repeats))
@@ -233,7 +301,8 @@ def run(args) -> int:
         "baseline_config1_accuracy_std": b1["std"],
         "baseline_loso_accuracy": b2["accuracy"],
         "baseline_loso_subject_std": b2["subject_std"],
-        "K": args.K, "W": max(windows), "windows": windows, "T": args.T, "kernel": args.kernel,
+        "K": args.K, "W": max(windows), "windows": windows, "T": args.T, "kernel": model.kernel,
+        "families": list(getattr(model, "families", ("bow",))), "selection": selection and selection.to_dict(),
         "per_pad": args.per_pad, "pads": args.pads, "trigger_fraction": ds.fraction, "trigger": ds.trigger.to_meta(),
         "trigger_hysteresis": ds.hysteresis, "seed": args.seed,
         "best_params": model.best_params_,
@@ -276,7 +345,11 @@ def run(args) -> int:
     metrics["seconds"] = round(time.perf_counter() - t0, 1)
     metrics["command"] = command_line(args)
     report.write_metrics(out, metrics)
-    report.write_markdown(out, metrics, metrics["command"], figures)
+    md_path = report.write_markdown(out, metrics, metrics["command"], figures)
+    if selection is not None:
+        from trainer.select import markdown_lines
+
+        md_path.write_text(md_path.read_text() + "\n".join(markdown_lines(selection)) + "\n")
     if not args.quiet:
         print(headline(metrics, out, onnx_written=onnx_ok and not args.no_onnx), flush=True,
               file=sys.stderr if args.json else sys.stdout)
@@ -294,8 +367,9 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     model = out / "model.onnx"
     lines = [
         f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
-        f"never triggered), pads {metrics['pads']}, K={metrics['K']} W={metrics['W']} T={metrics['T']} "
-        f"{metrics['kernel']} SVM",
+        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}, K={metrics['K']} "
+        f"W={metrics['W']} T={metrics['T']} {metrics['kernel']} SVM"
+        + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
         f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
         f"{pct(metrics['baseline_loso_accuracy'])})",
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
@@ -323,7 +397,7 @@ def _sweeps(args, recordings, out: Path) -> dict | None:
     seeds = (args.seed, args.seed + 1)
     n = len(QUICK_K) + len(QUICK_W) + len(QUICK_T)
     _say(args, "small built-in sweep of K, W, T (`handover sweep` runs the full one) ...")
-    result = run_sweeps(recordings, base, QUICK_K, QUICK_W, QUICK_T, [args.kernel], args.pads, args.fraction,
+    result = run_sweeps(recordings, base, QUICK_K, QUICK_W, QUICK_T, [kernel_of(args)], args.pads, args.fraction,
                         mode="config1", seeds=seeds, progress=_progress(args, "sweep", n))
     result["description"] = "Small built-in sweep. " + result["description"]
     return result

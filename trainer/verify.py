@@ -174,7 +174,13 @@ def check_windows(model, frames: np.ndarray, graph_words: list[np.ndarray], fold
         parts.append(np.repeat(allow, len(codebook), axis=1))  # group-major, like the histogram
     if getattr(bow, "level_features", False):
         parts.append(np.zeros((n, 2 * len(bow.level_groups_))))
-    return WindowCheck(mismatched, unexplained, np.concatenate(parts, axis=1))
+    allowance = np.concatenate(parts, axis=1)
+    where = getattr(model, "bow_slice_", None)
+    if where is not None:  # FeatureSVC: the histogram is one block of a longer feature vector
+        full = np.zeros((n, int(model.scaler_.n_features_in_)))
+        full[:, where] = allowance
+        allowance = full
+    return WindowCheck(mismatched, unexplained, allowance)
 
 
 def reference_path_for(onnx_path: Path, meta_extra: dict, explicit: str | Path | None) -> Path:

@@ -336,7 +336,7 @@ def markdown(res: dict) -> list[str]:
     ]
     if d:
         lines += [
-            f"Default model ({label(DEFAULT_PARAMS)}, what `handover train` builds): LOSO error {d['loso_error']:.1%}, "
+            f"Default model ({label(DEFAULT_PARAMS)}, the BoW family alone, what `handover train --features bow` builds): LOSO error {d['loso_error']:.1%}, "
             f"ONNX median {fmt_us(d['time_p50_us'])} us, p99 {fmt_us(d['time_p99_us'])} us; "
             f"**{'on' if d['on_front'] else 'not on'} the Pareto front**."
             + (f" scikit-learn pipeline on one case{' (' + res['sklearn_model'] + ')' if res.get('sklearn_model') else ''}: "

@@ -1,0 +1,121 @@
+"""How the shipped default is chosen, never on a test fold: nested grouped cross-validation.
+
+The candidates are ``trainer.select.CANDIDATES`` (what ``handover train --select`` chooses from).
+For every real task and every outer split of the compare, each candidate is scored by a grouped
+3-fold cross-validation *inside the outer training part only* (StratifiedGroupKFold over contact
+chunks: related windows never straddle inner folds either). A candidate's real score is the mean
+over tasks of its mean inner accuracy. The simulated protocol (synthetic) is a gate, scored the same
+way: inside each outer leave-one-subject-out training part, leave one of the remaining subjects
+out. The rule, fixed here:
+
+1. only candidates whose exported graph answers one case with p99 <= ``LATENCY_BUDGET_US``;
+2. rank by real score (3 decimals; ties to the faster median);
+3. the first in that order whose simulated inner score is >= ``SIM_GATE`` is the default (a
+   simulation of fewer than 3 subjects, ``--quick``, cannot be nested and does not gate).
+
+The outer test folds only report how the chosen default does; they never enter the choice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+SIM_GATE = 0.95
+LATENCY_BUDGET_US = 1000.0
+INNER_FOLDS = 3
+
+
+def candidate_estimator(name: str, pad_sizes, pad_shapes, seed: int = 0):
+    from trainer.classifier import BowSVC
+    from trainer.defaults import DEFAULT_MODEL
+    from trainer.feature_svc import FeatureSVC
+    from trainer.select import CANDIDATES
+
+    _, families, kernel, settings = next(c for c in CANDIDATES if c[0] == name)
+    if families == ("bow",):
+        return BowSVC(n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], kernel=kernel, per_pad=True,
+                      pad_sizes=tuple(pad_sizes), random_state=seed, **settings)
+    return FeatureSVC(families=families, pad_sizes=tuple(pad_sizes), pad_shapes=pad_shapes, kernel=kernel,
+                      n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], random_state=seed, **settings)
+
+
+def _inner_accuracy(est, X, y, splits, n_jobs: int) -> float:
+    from trainer.evaluation import run_splits
+
+    results = run_splits(est, X, y, splits, n_jobs=n_jobs)
+    return float(np.mean([np.mean(y[r["test"]] == r["y_pred"]) for r in results]))
+
+
+def inner_real_score(name: str, task, n_jobs: int, seed: int = 0) -> float:
+    """Mean over the task's outer splits of the grouped inner-CV accuracy on the outer training part."""
+    from sklearn.model_selection import StratifiedGroupKFold
+
+    from trainer.evaluation import Split
+
+    scores = []
+    for outer in task.splits:
+        tr = np.asarray(outer.train)
+        X, y, groups = task.X[tr], task.y[tr], task.chunks[tr]
+        n_folds = min(INNER_FOLDS, len(set(groups.tolist())))
+        cv = StratifiedGroupKFold(n_splits=n_folds, shuffle=True, random_state=seed)
+        inner = [Split(f"inner {i}", a, b) for i, (a, b) in enumerate(cv.split(X, y, groups))]
+        est = candidate_estimator(name, task.pad_sizes, task.pad_shapes, seed)
+        scores.append(_inner_accuracy(est, X, y, inner, n_jobs))
+    return float(np.mean(scores))
+
+
+def inner_sim_score(name: str, ds, n_jobs: int, seed: int = 0) -> float:
+    """Nested leave-one-subject-out on the simulated protocol (synthetic): mean inner accuracy."""
+    from trainer.evaluation import Split
+
+    shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
+    subjects = sorted(set(ds.groups.tolist()))
+    if len(subjects) < 3:
+        return float("nan")  # nested leave-one-subject-out needs two subjects inside each training part
+    scores = []
+    for held_out in subjects:
+        tr = np.flatnonzero(ds.groups != held_out)
+        X, y, groups = ds.X[tr], ds.y[tr], ds.groups[tr]
+        inner = [Split(s, np.flatnonzero(groups != s), np.flatnonzero(groups == s)) for s in sorted(set(groups))]
+        scores.append(_inner_accuracy(candidate_estimator(name, ds.pad_sizes, shapes, seed), X, y, inner, n_jobs))
+    return float(np.mean(scores))
+
+
+def choose_default(tasks, ds, latency: dict, n_jobs: int, say: Callable[[str], None], seed: int = 0) -> dict:
+    """Apply the rule; ``latency``: {candidate name: {"p50_us", "p99_us"}} of the exported graphs."""
+    from trainer.select import CANDIDATES
+
+    rows = {}
+    for name in [c[0] for c in CANDIDATES if c[0] in latency]:
+        per_task = {t.name: inner_real_score(name, t, n_jobs, seed) for t in tasks}
+        rows[name] = {"real_inner": per_task, "real_score": float(np.mean(list(per_task.values()))) if per_task else 0.0,
+                      **latency[name]}
+        say(f"  default choice {name}: real inner score {rows[name]['real_score']:.3f} "
+            + " ".join(f"{k}={v:.3f}" for k, v in per_task.items()))
+    chosen, order = apply_rule(rows, lambda name: inner_sim_score(name, ds, n_jobs, seed), say)
+    return {"chosen": chosen, "order": order, "rows": rows, "rule": rule_text()}
+
+
+def apply_rule(rows: dict, sim_score: Callable[[str], float], say: Callable[[str], None] = lambda t: None
+               ) -> tuple[str | None, list[str]]:
+    """The rule on scored rows ({name: {"real_score", "p50_us", "p99_us"}}); ``sim_score`` is asked
+    lazily, in rank order, and its answer stored as ``sim_inner``."""
+    eligible = [n for n in rows if (rows[n]["p99_us"] or np.inf) <= LATENCY_BUDGET_US]
+    order = sorted(eligible, key=lambda n: (-round(rows[n]["real_score"], 3), rows[n]["p50_us"]))
+    for name in order:
+        rows[name]["sim_inner"] = sim_score(name)
+        say(f"  default choice {name}: simulated inner LOSO {rows[name]['sim_inner']:.3f} (synthetic)")
+        if rows[name]["sim_inner"] >= SIM_GATE or np.isnan(rows[name]["sim_inner"]):
+            return name, order
+    return None, order
+
+
+def rule_text() -> str:
+    return (f"candidates of `handover train --select`; only those whose exported graph answers one case with p99 "
+            f"<= {LATENCY_BUDGET_US:.0f} us; ranked by the mean over real tasks of grouped {INNER_FOLDS}-fold "
+            "cross-validated accuracy inside each outer training part (contact chunks as groups; the outer test "
+            "folds never enter), 3 decimals, ties to the faster; the first in that order whose nested "
+            f"leave-one-subject-out accuracy on the simulated protocol (synthetic, inside each outer training "
+            f"part) is >= {100 * SIM_GATE:.0f} % is the default")

@@ -1,0 +1,131 @@
+"""One classifier over any mix of feature families, standardised, with an SVM head; one ONNX graph.
+
+Families (``trainer.features``): ``bow`` (the paper's derivative-window histogram, one per pad),
+``stats`` (per-pad level statistics), ``rocket`` (MiniRocket-style PPV of per-pad signals), ``hand``
+(the paper's hand-designed baseline features). Their features are concatenated in the order given,
+standardised (StandardScaler on the training cases: families differ in scale) and fed to an SVC
+whose C (and gamma) come from the same cross-validated search as BowSVC.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVC
+from sklearn.utils.validation import check_is_fitted
+
+from trainer.bow import BagOfWords, check_case_shape
+from trainer.classifier import SVMHead, check_training_data, choose_svm_params
+from trainer.defaults import DEFAULT_MODEL
+
+FAMILIES = ("bow", "stats", "rocket", "hand")
+
+
+class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
+    """Feature families + StandardScaler + SVC (one-vs-one), on ``(n_cases, n_channels, n_timepoints)``.
+
+    ``pad_sizes``: channels per pad in channel order (None: one pad); ``pad_shapes``: their
+    ``(rows, cols)`` (default: SDH-2 pads, 6 taxels wide). ``n_words``/``window``: the BoW family;
+    ``dilations``/``n_biases``: the rocket family.
+
+    Fitted: ``blocks_`` (fitted families, in order), ``bow_`` (the BagOfWords when ``bow`` is a
+    family, else absent), ``bow_slice_``, ``scaler_``, ``svm_``, ``classes_``, ``best_params_``,
+    ``n_channels_``, ``n_timepoints_``, ``n_features_in_``.
+    """
+
+    def __init__(self, families: Sequence[str] = DEFAULT_MODEL["families"], pad_sizes: Sequence[int] | None = None,
+                 pad_shapes=None, kernel: str = DEFAULT_MODEL["kernel"], C: float | None = None, gamma: float | str | None = None,
+                 n_words: int = 10, window: int = 7, dilations=(1, 2), n_biases: int = 1, random_state=0,
+                 fullscale: float = 4095.0):
+        self.families = families
+        self.pad_sizes = pad_sizes
+        self.pad_shapes = pad_shapes
+        self.kernel = kernel
+        self.C = C
+        self.gamma = gamma
+        self.n_words = n_words
+        self.window = window
+        self.dilations = dilations
+        self.n_biases = n_biases
+        self.random_state = random_state
+        self.fullscale = fullscale
+
+    def _family(self, name: str):
+        from trainer.features import HandGraphFeatures, PadStats, RandomConvPPV
+
+        sizes = None if self.pad_sizes is None else tuple(int(s) for s in self.pad_sizes)
+        if name == "bow":
+            return BagOfWords(n_words=self.n_words, window=self.window, per_pad=sizes is not None, pad_sizes=sizes,
+                              random_state=self.random_state, fullscale=self.fullscale)
+        if name == "stats":
+            return PadStats(pad_sizes=sizes, pad_shapes=self.pad_shapes, fullscale=self.fullscale)
+        if name == "rocket":
+            return RandomConvPPV(dilations=self.dilations, n_biases=self.n_biases, random_state=self.random_state,
+                                 pad_sizes=sizes, pad_shapes=self.pad_shapes, fullscale=self.fullscale)
+        if name == "hand":
+            return HandGraphFeatures(pad_sizes=sizes, pad_shapes=self.pad_shapes)
+        raise ValueError(f"unknown feature family {name!r}; choose from {', '.join(FAMILIES)}")
+
+    def fit(self, X, y):
+        X, y, self.classes_ = check_training_data(self, X, y)
+        names = tuple(self.families)
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"families must be distinct names from {FAMILIES}, got {self.families!r}")
+        _, self.n_channels_, self.n_timepoints_ = X.shape
+        self.n_features_in_ = self.n_channels_ * self.n_timepoints_
+        self.blocks_ = [(name, self._family(name).fit(X, y)) for name in names]
+        start = 0
+        for name, block in self.blocks_:
+            if name == "bow":
+                self.bow_ = block
+                self.bow_slice_ = slice(start, start + block.n_features_out_)
+            start += block.n_features_out_
+        features = self.transform_histograms(X)
+        self.scaler_ = StandardScaler().fit(features)
+        scaled = self.scaler_.transform(features)
+        self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma)
+        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(scaled, y)
+        return self
+
+    def transform_histograms(self, X) -> np.ndarray:
+        """The concatenated features before scaling (the graph's ``histogram`` tensor)."""
+        check_is_fitted(self, "blocks_")
+        X = check_case_shape(self, X)
+        return np.concatenate([block.transform(X) for _, block in self.blocks_], axis=1)
+
+    def svm_input(self, hist: np.ndarray) -> np.ndarray:
+        return self.scaler_.transform(hist)
+
+    def feature_error_bounds(self, X) -> np.ndarray:
+        """Bound on |float32 graph - float64| per feature; the BoW block's words are judged window by
+        window instead (``handover verify``), so its bound here is zero."""
+        parts = [np.zeros((len(X), block.n_features_out_)) if name == "bow" else block.error_bounds(X)
+                 for name, block in self.blocks_]
+        return np.concatenate(parts, axis=1)
+
+    def onnx_features(self, g, frames: str) -> str:
+        """ONNX nodes of every family on ``frames`` ``[N, T, C]``, concatenated ``[N, F]``."""
+        from trainer.onnx_export import features_nodes
+
+        parts = []
+        for name, block in self.blocks_:
+            if name == "bow":
+                parts.append(features_nodes(g, frames, block, output=g.name("bow_histogram")))
+            else:
+                parts.append(block.onnx_nodes(g, frames))
+        return g.op("Concat", parts, "features", axis=1) if len(parts) > 1 else parts[0]
+
+    def describe(self) -> dict:
+        """What the model file's metadata says about the features."""
+        check_is_fitted(self, "blocks_")
+        out = {"families": [name for name, _ in self.blocks_],
+               "n_features": int(sum(b.n_features_out_ for _, b in self.blocks_)), "scale_features": True}
+        if hasattr(self, "bow_"):
+            out.update(windows=[int(w) for w, _, _ in self.bow_.scales()], n_words=int(self.bow_.n_words),
+                       feature_groups=[int(s) for s in self.bow_.pad_sizes_])
+        if any(name == "rocket" for name, _ in self.blocks_):
+            out.update(dilations=[int(d) for d in np.atleast_1d(self.dilations)], n_biases=int(self.n_biases))
+        return out

@@ -1,0 +1,70 @@
+"""What every feature family here shares: a scikit-learn transformer on ``(n_cases, n_channels,
+n_timepoints)`` that also writes its own ONNX nodes and bounds its float32 error.
+
+A family implements ``_fit(X, y)``, ``_transform(X)`` (the float64 reference), ``error_bounds(X)``
+(``(n, F)`` bound on |float32 graph - float64 reference|, for ``handover verify``) and
+``onnx_nodes(g, frames)`` (``frames`` ``[N, T, C]`` -> ``[N, F]`` in the reference's order).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, TransformerMixin
+from sklearn.utils.validation import check_is_fitted
+
+from trainer.bow import as_cases
+from trainer.features.signals import pad_shapes_for
+
+
+class FeatureFamily(TransformerMixin, BaseEstimator):
+    """Base of the feature families: input checks, pad layout, fitted shape."""
+
+    def _layout(self, n_channels: int) -> list[tuple[int, int]]:
+        sizes = self.pad_sizes if self.pad_sizes is not None else (n_channels,)
+        if sum(int(s) for s in sizes) != n_channels:
+            raise ValueError(f"pad_sizes {tuple(sizes)} must sum to n_channels={n_channels}")
+        return pad_shapes_for(sizes, getattr(self, "pad_shapes", None))
+
+    def fit(self, X, y=None):
+        X = as_cases(X)
+        self.shapes_ = self._layout(X.shape[1])
+        self.n_channels_, self.n_timepoints_ = X.shape[1], X.shape[2]
+        self.n_features_in_ = X.shape[1] * X.shape[2]
+        self._fit(X, y)
+        return self
+
+    def _fit(self, X: np.ndarray, y) -> None:
+        """Learn what the family needs beyond the layout (nothing by default)."""
+
+    def _check(self, X) -> np.ndarray:
+        check_is_fitted(self, "shapes_")
+        X = as_cases(X)
+        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
+            raise ValueError(f"X has {X.shape[1]} x {X.shape[2]} (channels x timepoints), {type(self).__name__} "
+                             f"was fitted on {self.n_channels_} x {self.n_timepoints_}")
+        return X
+
+    def transform(self, X) -> np.ndarray:
+        return self._transform(self._check(X))
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.three_d_array = True
+        return tags
+
+
+def slice_nodes(g, tensor: str, start: int, stop: int, axis: int, hint: str) -> str:
+    """``tensor[..., start:stop, ...]`` along ``axis`` (a Slice, not a Gather)."""
+    return g.op("Slice", [tensor, g.const("start", [start], np.int64), g.const("stop", [stop], np.int64),
+                          g.const("axis", [axis], np.int64)], hint)
+
+
+def pad_bounds(shapes: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
+    """``(start, stop)`` channel range of each pad."""
+    out, start = [], 0
+    for rows, cols in shapes:
+        out.append((start, start + rows * cols))
+        start += rows * cols
+    return out

@@ -1,0 +1,78 @@
+"""Static/level features per pad: what pressure, contact area and centre of pressure are over the
+window and how they change across it (the information the derivative histogram removes).
+
+From the per-pad signals of ``trainer.features.signals`` (pressure, area, cx, cy per pad, ``S = 4G``)
+over the window: their mean, their standard deviation over time and their change (last frame minus
+first), then each pad's peak taxel / fullscale. Order: ``[mean (S), std (S), change (S), peak (G)]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trainer.features.base import FeatureFamily, pad_bounds, slice_nodes
+from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
+from trainer.numerics import U32, gamma
+
+
+class PadStats(FeatureFamily):
+    """Per-pad level statistics; ``pad_sizes`` (and optionally ``pad_shapes``) in channel order."""
+
+    def __init__(self, pad_sizes=None, pad_shapes=None, fullscale: float = 4095.0):
+        self.pad_sizes = pad_sizes
+        self.pad_shapes = pad_shapes
+        self.fullscale = fullscale
+
+    def _fit(self, X, y) -> None:
+        n_pads = len(self.shapes_)
+        self.n_features_out_ = 3 * len(SIGNALS) * n_pads + n_pads
+
+    def _transform(self, X: np.ndarray) -> np.ndarray:
+        s = pad_signals(X, self.shapes_, float(self.fullscale))
+        mean = s.mean(axis=2)
+        std = np.sqrt(((s - mean[:, :, None]) ** 2).mean(axis=2))
+        peak = np.stack([X[:, a:b].max(axis=(1, 2)) for a, b in pad_bounds(self.shapes_)], axis=1)
+        return np.concatenate([mean, std, s[:, :, -1] - s[:, :, 0], peak / float(self.fullscale)], axis=1)
+
+    def error_bounds(self, X) -> np.ndarray:
+        """Bound on |float32 - float64| per feature: the signals' bound carried through mean, the
+        two-pass variance and its square root, and the difference of two frames."""
+        X = self._check(X)
+        s = pad_signals(X, self.shapes_, float(self.fullscale))
+        e = signal_error_bounds(X, self.shapes_, float(self.fullscale))
+        n_t = s.shape[2]
+        mean = s.mean(axis=2)
+        e_mean = e.mean(axis=2) + gamma(n_t + 1) * np.abs(s).mean(axis=2)
+        c = s - mean[:, :, None]
+        e_c = e + e_mean[:, :, None] + U32 * (np.abs(s) + np.abs(mean)[:, :, None])
+        var = (c**2).mean(axis=2)
+        e_var = (2 * np.abs(c) * e_c + e_c**2).mean(axis=2) + gamma(n_t + 2) * var
+        std = np.sqrt(var)
+        e_std = np.minimum(np.sqrt(e_var), e_var / np.maximum(std, 1e-300)) + U32 * std
+        e_change = e[:, :, -1] + e[:, :, 0] + U32 * (np.abs(s[:, :, -1]) + np.abs(s[:, :, 0]))
+        peak = np.stack([np.abs(X[:, a:b]).max(axis=(1, 2)) for a, b in pad_bounds(self.shapes_)], axis=1)
+        return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
+
+    def onnx_nodes(self, g, frames: str) -> str:
+        n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
+        sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
+        mean3 = g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)
+        centred = g.op("Sub", [sig, mean3], "signal_centred")
+        var = g.op("ReduceMean", [g.op("Mul", [centred, centred], "signal_sq")], "signal_var", axes=[1], keepdims=0)
+        flat = g.const("flat_shape", [0, n_sig], np.int64)
+        mean = g.op("Reshape", [mean3, flat], "signal_mean")
+        rise = g.op("Sub", [slice_nodes(g, sig, n_t - 1, n_t, 1, "last"), slice_nodes(g, sig, 0, 1, 1, "first")],
+                    "signal_rise3")
+        change = g.op("Reshape", [rise, flat], "signal_change")
+        over_time = g.op("ReduceMax", [frames], "taxel_peak", axes=[1], keepdims=0)  # [N, C]
+        peaks = [g.op("ReduceMax", [slice_nodes(g, over_time, a, b, 1, "pad_taxels")], "pad_peak", axes=[1],
+                      keepdims=1) for a, b in pad_bounds(self.shapes_)]
+        peak = g.op("Mul", [g.op("Concat", peaks, "peaks", axis=1), g.const("inv_fs", 1.0 / float(self.fullscale))],
+                    "peak")
+        return g.op("Concat", [mean, g.op("Sqrt", [var], "signal_std"), change, peak], "pad_stats", axis=1)
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        pads = range(len(self.shapes_))
+        sig = [f"pad{p}_{s}" for s in SIGNALS for p in pads]
+        return np.asarray([f"{n}_{stat}" for stat in ("mean", "std", "change") for n in sig]
+                          + [f"pad{p}_peak" for p in pads], dtype=object)

@@ -1,0 +1,178 @@
+"""Labelled tasks built from the real SDH-2 recordings in ``../shared/data`` (other projects',
+GPL-3.0; labels by file), each with its split written down.
+
+Window rule (documented, not tuned): frames of the task's pads; a frame is *in contact* when some
+taxel reaches ``CONTACT_FRACTION`` (5 %) of full scale; the contact frames of a file form runs,
+each cut into chunks of at most ``CHUNK_FRAMES``; a case is T = 15 consecutive frames inside one
+chunk, starting every ``STRIDE`` frames. Windows never cross a chunk, and a chunk is all train or
+all test (grouped splits), so overlapping windows never straddle train and test. Where one file
+holds one class, keeping files apart would leave a class out of training: those splits keep
+*chunks* apart (nearer in time than a new recording); ``real_objects_across_folders`` is the task
+that keeps files apart.
+
+Tasks: ``real_objects`` (7 objects, distal pads), ``real_objects_all_pads`` (the same files, all six
+pads), ``real_grasps`` (grasps/ by object, all pads), ``real_slip_scenes`` (kiechle slip-detection/
+by recording, distal pads), ``real_objects_across_folders``, ``real_slip`` (mas-group bags).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+T = 15
+STRIDE = 8
+CHUNK_FRAMES = 96
+CONTACT_FRACTION = 0.05
+FULLSCALE = 4095.0
+DISTAL = (1, 3, 5)
+ALL_PADS = (0, 1, 2, 3, 4, 5)
+GROUPED_3FOLD = "3-fold StratifiedGroupKFold over contact chunks (a chunk is all train or all test)"
+
+
+@dataclass
+class RealTask:
+    name: str
+    description: str
+    X: np.ndarray
+    y: np.ndarray
+    chunks: np.ndarray
+    files: np.ndarray
+    pad_sizes: tuple[int, ...]
+    pad_shapes: list[tuple[int, int]]
+    splits: list  # of trainer.evaluation.Split
+    split_rule: str
+
+
+def cut_windows(rec, pads, chunk_prefix: str) -> tuple[np.ndarray, np.ndarray]:
+    """Cases ``(n, C, T)`` float32 from one recording by the documented rule, and their chunk ids."""
+    cols = rec.layout.columns(list(pads))
+    frames = rec.frames[:, cols].astype(np.float32)
+    contact = frames.max(axis=1) >= CONTACT_FRACTION * FULLSCALE
+    cases, chunk_ids = [], []
+    n_chunk = 0
+    i = 0
+    while i < len(frames):
+        if not contact[i]:
+            i += 1
+            continue
+        j = i
+        while j < len(frames) and contact[j]:
+            j += 1
+        for start in range(i, j, CHUNK_FRAMES):
+            stop = min(j, start + CHUNK_FRAMES)
+            for s in range(start, stop - T + 1, STRIDE):
+                cases.append(frames[s : s + T].T)
+                chunk_ids.append(f"{chunk_prefix}#{n_chunk}")
+            n_chunk += 1
+        i = j
+    if not cases:
+        return np.zeros((0, len(cols), T), np.float32), np.zeros(0, dtype=object)
+    return np.stack(cases), np.asarray(chunk_ids, dtype=object)
+
+
+def load_windows(paths: dict[str, Path], pads) -> tuple:
+    """Windows of every file (label = key): X, y, chunk ids, file names, pad sizes, pad shapes."""
+    from firmware_io.importers import import_any
+
+    Xs, ys, chunks, files = [], [], [], []
+    layout = None
+    for label, path in paths.items():
+        rec = import_any(path)
+        layout = rec.layout
+        X, ch = cut_windows(rec, pads, path.name)
+        Xs.append(X)
+        ys += [label] * len(X)
+        chunks.append(ch)
+        files += [path.name] * len(X)
+    sizes = tuple(layout.pad_sizes(list(pads)))
+    shapes = [(layout.matrices[p].cells_y, layout.matrices[p].cells_x) for p in pads]
+    return np.concatenate(Xs), np.asarray(ys), np.concatenate(chunks), np.asarray(files), sizes, shapes
+
+
+def grouped_task(name: str, description: str, paths: dict[str, Path], pads, seed: int) -> RealTask:
+    """A task split by 3-fold StratifiedGroupKFold over contact chunks."""
+    from sklearn.model_selection import StratifiedGroupKFold
+
+    from trainer.evaluation import Split
+
+    X, y, ch, files, sizes, shapes = load_windows(paths, pads)
+    cv = StratifiedGroupKFold(n_splits=3, shuffle=True, random_state=seed)
+    splits = [Split(f"fold {i}", tr, te) for i, (tr, te) in enumerate(cv.split(X, y, ch))]
+    return RealTask(name, description, X, y, ch, files, sizes, shapes, splits, GROUPED_3FOLD)
+
+
+def _across_folders(video: Path, grasps: Path) -> RealTask:
+    from trainer.evaluation import Split
+
+    pairs = {"foam": ("foam.dsa", "foam_ball.dsa"), "hockey": ("hockey.dsa", "hockey_ball.dsa"),
+             "teapot": ("utah_teapot.dsa", "teapot_handle.dsa")}
+    Xa, ya, cha, fa, sizes, shapes = load_windows({k: video / a for k, (a, _) in pairs.items()}, DISTAL)
+    Xb, yb, chb, fb, _, _ = load_windows({k: grasps / b for k, (_, b) in pairs.items()}, DISTAL)
+    ia, ib = np.arange(len(Xa)), len(Xa) + np.arange(len(Xb))
+    splits = [Split("train classification_video, test grasps", ia, ib),
+              Split("train grasps, test classification_video", ib, ia)]
+    return RealTask("real_objects_across_folders",
+                    "foam / hockey ball / teapot: classification_video/ files against grasps/ files",
+                    np.concatenate([Xa, Xb]), np.concatenate([ya, yb]), np.concatenate([cha, chb]),
+                    np.concatenate([fa, fb]), sizes, shapes, splits,
+                    "files apart: train on one folder, test on the other, both ways")
+
+
+def _slip_bags(bags: Path) -> RealTask:
+    from trainer.evaluation import Split
+
+    paths = {n: bags / f"{n}.bag" for n in ("no_slippage", "slip_down", "slip_up")}
+    X, y, ch, files, sizes, shapes = load_windows(paths, ALL_PADS)
+    train, test = [], []
+    for label in paths:
+        idx = np.flatnonzero(y == label)
+        order = list(dict.fromkeys(ch[idx].tolist()))
+        first = set(order[: max(1, round(0.6 * len(order)))])
+        train += [i for i in idx if ch[i] in first]
+        test += [i for i in idx if ch[i] not in first]
+    splits = [Split("first 60 % of each file's chunks / rest", np.asarray(train), np.asarray(test))]
+    return RealTask("real_slip", "mas-group bags no_slippage / slip_down / slip_up (one file each, all pads)",
+                    X, y, ch, files, sizes, shapes, splits,
+                    "temporal: first 60 % of each file's contact chunks train, the rest test")
+
+
+SLIP_SCENES = ("slip_examples_pen_and_wooden_block", "slip_hockey_ball", "slip_test", "slip_test2")
+"""kiechle slip-detection/ recordings with enough contact chunks for a grouped 3-fold split;
+slip_and_rotation_teapot_handle has a single chunk and is left out."""
+
+
+def real_tasks(data_dir: Path, seed: int = 0) -> tuple[list[RealTask], list[str]]:
+    """The labelled tasks found under ``data_dir`` (``.../shared/data``) and notes on what is absent."""
+    root = Path(data_dir) / "sdh2-dsa"
+    profiles = root / "kiechle" / "pressure_profiles"
+    video, grasps, slips = profiles / "classification_video", profiles / "grasps", profiles / "slip-detection"
+    bags = root / "mas-group" / "slip_detection" / "bag"
+    by_stem = {p.stem: p for p in sorted(video.glob("*.dsa"))} if video.is_dir() else {}
+    builders: list[tuple[str, bool, Callable[[], RealTask]]] = [
+        ("real_objects", bool(by_stem), lambda: grouped_task(
+            "real_objects", f"{len(by_stem)} objects of kiechle classification_video/ (one file each, distal pads)",
+            by_stem, DISTAL, seed)),
+        ("real_objects_all_pads", bool(by_stem), lambda: grouped_task(
+            "real_objects_all_pads", f"the same {len(by_stem)} objects, all six pads", by_stem, ALL_PADS, seed)),
+        ("real_grasps", grasps.is_dir(), lambda: grouped_task(
+            "real_grasps", "kiechle grasps/ by object (5 files, one object each, all pads)",
+            {p.stem: p for p in sorted(grasps.glob("*.dsa"))}, ALL_PADS, seed)),
+        ("real_slip_scenes", all((slips / f"{n}.dsa").is_file() for n in SLIP_SCENES), lambda: grouped_task(
+            "real_slip_scenes", "kiechle slip-detection/ by recording (4 slip scenes: pen and wooden block, hockey "
+            "ball, slip_test, slip_test2; one file each, distal pads)",
+            {n: slips / f"{n}.dsa" for n in SLIP_SCENES}, DISTAL, seed)),
+        ("real_objects_across_folders", bool(by_stem) and grasps.is_dir(), lambda: _across_folders(video, grasps)),
+        ("real_slip", all((bags / f"{n}.bag").is_file() for n in ("no_slippage", "slip_down", "slip_up")),
+         lambda: _slip_bags(bags)),
+    ]
+    tasks, notes = [], []
+    for name, present, build in builders:
+        if present:
+            tasks.append(build())
+        else:
+            notes.append(f"{name} skipped: its recordings are not under {root}")
+    return tasks, notes
