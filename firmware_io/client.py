@@ -12,11 +12,9 @@ import contextlib
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
-
-import numpy as np
 
 from firmware_io import protocol as P
+from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
 from firmware_io.parser import StreamParser
 from firmware_io.plausibility import FrameCheck
@@ -27,28 +25,6 @@ __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 READ_SIZE = 4096
 CANCEL_POLL_S = 0.05
 """While a cancel predicate is set, no single read waits longer than this."""
-
-
-class DSATimeout(P.DSAError):
-    """The controller did not answer in time."""
-
-
-class Cancelled(Exception):
-    """The caller's ``should_stop`` predicate asked to give up (e.g. SIGTERM while opening).
-
-    Deliberately not a DSAError or TransportError, so no retry loop swallows it."""
-
-
-@dataclass(frozen=True, slots=True)
-class Frame:
-    """One full frame. ``number`` counts frames decoded since open (gaps = dropped frames);
-    ``timestamp_ms`` is device time unwrapped across the u32 wrap; ``received`` is
-    ``time.perf_counter()`` when the packet's last byte was parsed; ``values`` uint16 in wire order."""
-
-    number: int
-    timestamp_ms: int
-    received: float
-    values: np.ndarray
 
 
 TransportSource = str | Transport | Callable[[], Transport]
@@ -64,6 +40,8 @@ class DSAClient:
         *,
         rle: bool = True,
         gap_timeout: float = 1.0,
+        reply_timeout: float = 2.0,
+        open_timeout: float = 10.0,
         stop_timeout: float = 3.0,
         stop_tries: int = 3,
         flush_quiet: float = 0.1,
@@ -80,6 +58,8 @@ class DSAClient:
         self._transport: Transport | None = source if isinstance(source, Transport) else None
         self.rle = rle
         self.gap_timeout = gap_timeout
+        self.reply_timeout = reply_timeout
+        self.open_timeout = open_timeout
         self.stop_timeout = stop_timeout
         self.stop_tries = max(1, int(stop_tries))
         self.flush_quiet = flush_quiet
@@ -105,6 +85,8 @@ class DSAClient:
         self._unwrap = P.TimestampUnwrapper()
         self._number = 0
         self._should_stop: Callable[[], bool] | None = None
+        self._open_deadline: float | None = None
+        self._open_bytes = 0
         self._counts = {
             "frames": 0,
             "frames_stale": 0,
@@ -126,12 +108,19 @@ class DSAClient:
     def open(self, should_stop: Callable[[], bool] | None = None) -> SensorLayout:
         """Stop any running acquisition, flush, query controller/sensor/matrix info -> the layout.
 
-        Against a silent device this takes several seconds (bounded retries). ``should_stop`` is
-        called at least every 50 ms meanwhile; once it returns True the transport is dropped and
-        :class:`Cancelled` is raised.
+        Against a silent device this takes several seconds (bounded retries). Every query has a
+        total deadline (``reply_timeout``) and the whole open one too (``open_timeout``): bytes
+        that keep arriving without forming a reply (a wrong baud rate, another device on the line)
+        do not extend them. ``should_stop`` is called at least every 50 ms meanwhile; once it
+        returns True the transport is dropped and :class:`Cancelled` is raised.
         """
         with self._cancellable(should_stop):
-            return self._open()
+            self._open_deadline = time.monotonic() + self.open_timeout
+            self._open_bytes = self.parser.stats.bytes_in
+            try:
+                return self._open()
+            finally:
+                self._open_deadline = None
 
     def _open(self) -> SensorLayout:
         self._ensure_transport()
@@ -431,15 +420,21 @@ class DSAClient:
         Frames arriving meanwhile are queued. At most ``max_skipped_frames`` may arrive before
         the reply (``frames_limit=None``: any number, bounded by ``timeout``); replies with another
         id (late answers to earlier commands) are counted and skipped. The wait ends after
-        ``gap_timeout`` without a byte, or at ``timeout``.
+        ``gap_timeout`` without a byte, or at a total deadline (``timeout``, default
+        ``reply_timeout``, and never past the open's own deadline) that arriving bytes do not extend.
         """
         if frames_limit == -1:
             frames_limit = self.max_skipped_frames
         self._replies.clear()
         self._write(packet)
         sent = time.monotonic()
+        bytes_before = self.parser.stats.bytes_in
         frames_before = self._frames_seen()
-        deadline = None if timeout is None else sent + timeout
+        limit = self.reply_timeout if timeout is None else timeout
+        deadline = sent + limit
+        whole_open = self._open_deadline is not None and self._open_deadline < deadline
+        if whole_open:
+            deadline = self._open_deadline
         while True:
             while self._replies:
                 reply = self._replies.popleft()
@@ -451,9 +446,9 @@ class DSAClient:
                 self._counts["timeouts"] += 1
                 raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {frames_limit} frames")
             now = time.monotonic()
-            if deadline is not None and now >= deadline:
+            if now >= deadline:
                 self._counts["timeouts"] += 1
-                raise DSATimeout(f"{self.url}: no reply to command 0x{reply_id:02X} within {timeout:g} s")
+                raise DSATimeout(self._no_reply(reply_id, limit, bytes_before, whole_open))
             quiet = now - max(sent, self._last_rx)
             if quiet >= self.gap_timeout:
                 if self.parser.pending:
@@ -464,10 +459,20 @@ class DSAClient:
                 raise DSATimeout(
                     f"{self.url}: no reply to command 0x{reply_id:02X} (silent for {self.gap_timeout:g} s)"
                 )
-            wait = self.gap_timeout - quiet
-            if deadline is not None:
-                wait = min(wait, deadline - now)
-            self._pump(wait)
+            self._pump(min(self.gap_timeout - quiet, deadline - now))
+
+    def _no_reply(self, reply_id: int, limit: float, bytes_before: int, whole_open: bool) -> str:
+        """The timeout message; bytes that came but made no reply point at the line, not the device."""
+        if whole_open:
+            text = f"{self.url}: open did not complete within {self.open_timeout:g} s (no reply to command 0x{reply_id:02X})"
+            bytes_before = self._open_bytes
+        else:
+            text = f"{self.url}: no reply to command 0x{reply_id:02X} within {limit:.3g} s"
+        n_bytes = max(0, self.parser.stats.bytes_in - bytes_before)
+        if n_bytes > 0:
+            text += (f" although {n_bytes} bytes arrived that were not a valid reply "
+                     "(check the baud rate, and that this port or address is the DSACON32m and no other device)")
+        return text
 
     def _frames_seen(self) -> int:
         c = self._counts

@@ -201,6 +201,7 @@ class DeviceEmulator:
         self.controller = ControllerInfo(
             serial_no=serial_no, hw_version=1, sw_version=OLD_FIRMWARE if old_firmware else NEW_FIRMWARE
         )
+        self.sensor = recorded_sensor(getattr(recording, "meta", None) or {}, self.layout.n_matrices, serial_no)
         rel = recording.timestamps - recording.timestamps[0]
         self._rel_ms = np.round(rel * 1000.0).astype(np.int64)
         self._rel_s = rel
@@ -213,6 +214,8 @@ class DeviceEmulator:
         self._stall_until = 0.0
         self._frames_this_connection = 0
         self.disconnected = False
+        self._single_at: float | None = None  # when the requested single frame is due
+        self._last_single = -1e9
 
     # -- the link's view ----------------------------------------------------------------------
     def connect(self, now: float | None = None) -> None:
@@ -226,6 +229,13 @@ class DeviceEmulator:
         if self.faults.boot_query:
             self._out += BOOT_TERMINAL_QUERY * 3
             self.stats.boot_queries += 1
+
+    def power_cycle(self) -> None:
+        """What an unplugged and replugged controller does: the bytes in flight are lost, push
+        mode ends (the host must start it again), the boot query comes back if enabled."""
+        self.connect()
+        self._pushing = False
+        self._single_at = None
 
     def feed(self, data: bytes, now: float | None = None) -> None:
         """Bytes the host wrote: every complete command is answered into the output queue."""
@@ -254,6 +264,8 @@ class DeviceEmulator:
             return self._stall_until - now
         if self._out:
             return 0.0
+        if self._single_at is not None:
+            return max(0.0, self._single_at - now)
         if not self._pushing or self.finished:
             return None
         return max(0.0, self._due(self._next) - now)
@@ -281,6 +293,10 @@ class DeviceEmulator:
         return not self.loop and self._next >= self.recording.n_frames
 
     def _produce(self, now: float, budget: int) -> None:
+        if self._single_at is not None and now >= self._single_at and now >= self._stall_until:
+            self._single_at, self._last_single = None, now
+            if not self._exhausted():
+                self._emit_frame(now)
         while self._pushing and len(self._out) < budget and not self._exhausted():
             if now < self._stall_until or self.disconnected or self._due(self._next) > now:
                 return
@@ -353,7 +369,7 @@ class DeviceEmulator:
         return self.controller.to_packet()
 
     def _on_sensor(self, payload: bytes, now: float) -> bytes:
-        return SensorInfo(nb_matrices=self.layout.n_matrices, serial_no=self.controller.serial_no).to_packet()
+        return self.sensor.to_packet()
 
     def _on_matrix_info(self, payload: bytes, now: float) -> bytes:
         m = self._matrix(PacketId.QUERY_MATRIX_CONFIGURATION, payload)
@@ -383,10 +399,17 @@ class DeviceEmulator:
             if not self._pushing:
                 self._pushing = True
                 self._origin = now if self.speed is None else now - self._seq_time(self._next) / self.speed
-        elif not self._exhausted():
+        elif not self._exhausted():  # single frame: the next one the sensor acquires, not at once
             self._pushing = False
-            self._emit_frame(now)
+            self._single_at = max(now, self._last_single + self._frame_period())
         return b""
+
+    def _frame_period(self) -> float:
+        """Seconds between two acquisitions (0 when serving as fast as possible)."""
+        if self.speed is None:
+            return 0.0
+        step = self.recording.sample_interval()
+        return (step if np.isfinite(step) and step > 0 else 1 / 32) / self.speed
 
     def _on_set_sensitivity(self, payload: bytes, now: float) -> bytes:
         req = SetSensitivityRequest.decode(payload)
@@ -446,3 +469,24 @@ _MIN_SIZE = {
     PacketId.SET_MATRIX_THRESHOLD: 4,
     PacketId.GET_MATRIX_THRESHOLD: 1,
 }
+
+
+def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> SensorInfo:
+    """The sensor a recording was made with (serial number, generator, hardware revision), as
+    DSA-Konqueror files and ``handover record`` sessions store them; defaults where absent."""
+    fields = {"serial_no": default_serial, "generated_by": SensorInfo.generated_by, "hw_revision": SensorInfo.hw_revision}
+    sessions = meta.get("sessions") or []
+    controller = (sessions[-1].get("controller") or {}) if sessions and isinstance(sessions[-1], dict) else {}
+    candidates = {"serial_no": (meta.get("dsa_serial_nr"), meta.get("sensor_serial_no"), controller.get("sensor_serial_no")),
+                  "generated_by": (meta.get("dsa_generated_by"),), "hw_revision": (meta.get("dsa_hw_revision"),)}
+    limits = {"serial_no": 0xFFFFFFFF, "generated_by": 0xFFFF, "hw_revision": 0xFF}
+    for key, values in candidates.items():
+        for value in values:
+            try:
+                number = int(str(value).strip(), 0)
+            except (TypeError, ValueError):
+                continue
+            if 0 <= number <= limits[key]:
+                fields[key] = number
+                break
+    return SensorInfo(nb_matrices=n_matrices, **fields)

@@ -173,8 +173,10 @@ class TcpEmulatorServer(_ServerBase):
 class PtyEmulatorServer(_ServerBase):
     """The emulator behind a pseudo-terminal; ``path`` is what a client opens (``/dev/pts/N``).
 
-    A pty cannot be unplugged, so the ``disconnect`` fault acts as a controller reset: the
-    bytes in flight are lost and the boot query (when enabled) is sent again.
+    A pty cannot be unplugged, so the ``disconnect`` fault acts as a controller power cycle, as
+    pulling a USB-serial adapter's cable would: the bytes in flight are lost, push mode ends (no
+    frame comes until the host starts it again: the host sees a stall) and the boot query (when
+    enabled) is sent again.
     """
 
     def __init__(self, emulator: DeviceEmulator) -> None:
@@ -217,9 +219,9 @@ class PtyEmulatorServer(_ServerBase):
                     self._pending = self._pending[sent:]
                 except BlockingIOError:
                     pass
-            if self.emulator.disconnected:
+            if self.emulator.disconnected:  # unplugged and replugged: in-flight bytes lost, push mode off
                 self._pending = b""
-                self.emulator.connect()
+                self.emulator.power_cycle()
 
     def _close(self) -> None:
         for fd in (self._master, self._slave):

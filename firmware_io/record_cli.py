@@ -193,4 +193,6 @@ def _controller_info(client) -> dict:
     c = getattr(client, "controller", None)
     if c is None:
         return {}
-    return {"serial_no": getattr(c, "serial_no", None), "sw_version": getattr(c, "sw_version", None)}
+    sensor = getattr(client, "sensor", None)
+    return {"serial_no": getattr(c, "serial_no", None), "sw_version": getattr(c, "sw_version", None),
+            "sensor_serial_no": getattr(sensor, "serial_no", None)}

@@ -51,6 +51,10 @@ HEALTH_PERIOD_S = 1.0
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 DEFAULT_RATE_HZ = 32.0
+CONNECT_BOUND_S = 30.0
+"""Longest one connection attempt may take while the watchdog is still fed: the client's own
+deadlines end an open within ~15 s (open 10 s, start 3 s), so an attempt still running after this
+is a hang, and systemd's watchdog is left to catch it."""
 
 
 class Daemon(GraspControl):
@@ -104,6 +108,9 @@ class Daemon(GraspControl):
         self._last_frame_t = 0.0
         self._last_ts: int | None = None
         self._next_health = 0.0
+        self._connect_started: float | None = None
+        self.connect_bound_s = CONNECT_BOUND_S
+        self._hang_logged = False
         self.period_s = 1.0 / DEFAULT_RATE_HZ
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
@@ -145,7 +152,7 @@ class Daemon(GraspControl):
 
     def _rejected(self, rejection: Rejection) -> None:
         self.health.models_rejected += 1
-        self.health.last_error = f"model {rejection.path.name} rejected: {rejection.reason}"
+        self.health.report_error(f"model {rejection.path.name} rejected: {rejection.reason}", "model")
 
     def _start_watcher(self) -> None:
         if self.watcher is not None:
@@ -176,6 +183,7 @@ class Daemon(GraspControl):
         self.model = model
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
+        self.health.resolve("model")
         self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
         self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
         self._build_hot_path(keep_history=True)
@@ -222,8 +230,23 @@ class Daemon(GraspControl):
     # -- device ---------------------------------------------------------------------------------
     def _still_connecting(self) -> bool:
         """The client's cancel predicate while it opens a device (seconds when the device is
-        silent): keeps the watchdog fed and answers SIGTERM within a read slice."""
-        self.notifier.watchdog()
+        silent): answers SIGTERM within a read slice, keeps the health file current, and feeds
+        the watchdog only while the attempt is within ``connect_bound_s`` (a hang past it is
+        left to systemd's watchdog)."""
+        now = time.monotonic()
+        started = self._connect_started
+        if started is None or now - started < self.connect_bound_s:
+            self.notifier.watchdog(now)
+        elif not self._hang_logged:
+            self._hang_logged = True
+            self.health.report_error(f"{self.cfg.device.url}: connecting has not completed in "
+                                     f"{self.connect_bound_s:g} s", "device")
+            log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
+                      "(systemd restarts the service)", self.cfg.device.url, self.connect_bound_s)
+        self._take_pending_model()  # a model dropped while a slow connect runs serves at once
+        if now >= self._next_health:
+            self._next_health = now + HEALTH_PERIOD_S
+            self.write_health(now)
         return self._stop
 
     def _connect(self) -> None:
@@ -231,12 +254,16 @@ class Daemon(GraspControl):
 
         h = self.health
         url = self.cfg.device.url
+        self._connect_started, self._hang_logged = time.monotonic(), False
+        if h.device_state in ("starting", "stopped"):
+            h.device_state = "connecting"
         try:
             if self.client is None:
                 self.client = self.client_factory(url)
             layout = self.client.open(should_stop=self._still_connecting)
             self.client.start(should_stop=self._still_connecting)
         except Cancelled:
+            self._connect_started = None
             self._close_client()
             return
         except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
@@ -246,13 +273,15 @@ class Daemon(GraspControl):
                 self._stop = True  # run() returns 2; the caller prints self.fatal (one line)
                 self._close_client()
                 return
+            self._connect_started = None
             h.device_state = "disconnected"
             reason = _one_line(exc).removeprefix(f"{url}: ")
-            h.last_error = f"{url}: {reason}"
+            h.report_error(f"{url}: {reason}", "device")
             log.warning("device %s: %s; retrying in %.1f s", url, reason, self._backoff)
             self._schedule_reconnect()
             self._close_client()
             return
+        self._connect_started = None
         self.connected = True
         first = self.layout is None
         if self.layout != layout:
@@ -274,6 +303,7 @@ class Daemon(GraspControl):
         self._last_ts = None
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
+        h.resolve("device")
         log.info("device %s %s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
                  layout.n_taxels, self.cfg.scene.pads)
 
@@ -287,7 +317,7 @@ class Daemon(GraspControl):
         h.device_faults += 1
         h.reconnects += 1
         h.device_state = "reconnecting"
-        h.last_error = f"{self.cfg.device.url}: {reason}"
+        h.report_error(f"{self.cfg.device.url}: {reason}", "device")
         log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
         self._close_client()
         self._schedule_reconnect()
@@ -398,7 +428,7 @@ class Daemon(GraspControl):
         fallback, self._fallback = self._fallback, None
         if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
             fallback = None
-        h.last_error = f"model {Path(model.path).name} taken out of service: {reason}"
+        h.report_error(f"model {Path(model.path).name} taken out of service: {reason}", "quarantine")
         what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
         if fallback is not None:
             what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"
@@ -421,13 +451,17 @@ class Daemon(GraspControl):
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
+        self._take_pending_model()
+        if now >= self._next_health:
+            self._next_health = now + HEALTH_PERIOD_S
+            self.write_health(now)
+
+    def _take_pending_model(self) -> None:
+        """Swap in the watcher's validated model, never between a trigger and its window's end."""
         if self.watcher is not None and self.watcher.pending is not None and not self._pending:
             model = self.watcher.take()
             if model is not None:
                 self._use_model(model)
-        if now >= self._next_health:
-            self._next_health = now + HEALTH_PERIOD_S
-            self.write_health(now)
 
     def write_health(self, now: float | None = None) -> None:
         h = self.health
@@ -452,7 +486,7 @@ class Daemon(GraspControl):
             new = load_config(source)
         except ConfigError as exc:
             log.error("SIGHUP: %s; keeping the running configuration", exc)
-            self.health.last_error = f"reload refused: {exc}"
+            self.health.report_error(f"reload refused: {exc}", "config")
             self.notifier.ready(self.health.status_line())
             return
         old, self.cfg = self.cfg, new
@@ -478,7 +512,10 @@ class Daemon(GraspControl):
                 self.health.model_id = None
             if new.model != old.model or new.onnxruntime != old.onnxruntime:
                 self._start_watcher()
+            elif self.watcher is not None:  # a file rejected under the old scene may fit the new one
+                self.watcher.rescan(keep_current=self.model is not None)
         self._build_hot_path(keep_history=new.scene == old.scene)
+        self.health.resolve("config")
         log.info("configuration reloaded from %s", source)
         self.notifier.ready(self.health.status_line())
 
@@ -496,7 +533,7 @@ class Daemon(GraspControl):
                  self.cfg.scene.pads, self.cfg.scene.mode)
         try:
             while not self._stop:
-                if self._reload:
+                if self._reload and not self._pending:  # never between a trigger and its window's end
                     self._do_reload()
                 now = time.monotonic()
                 self._housekeeping(now)
@@ -535,7 +572,7 @@ class Daemon(GraspControl):
         self._close_client(stop_timeout=SHUTDOWN_STOP_S)
         self.health.device_state = "stopped" if not self.fatal else "failed"
         if self.fatal:
-            self.health.last_error = self.fatal
+            self.health.report_error(self.fatal, "device")
         self.write_health()
         self.sinks.close()
         log.info("stopped: %d frames, %d events, %d missed deadlines", self.health.frames_received,

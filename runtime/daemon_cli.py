@@ -1,8 +1,9 @@
 """``handover run --config FILE [--check [--require-model]]``: the detection daemon (systemd service).
 
-``--check`` validates the config and the model folder (newest valid model against the scene)
-without opening the device, and exits 2 for a config error (a bad key, a device URL that can
-never open, an event the serving model lacks) and 0 otherwise. An empty model folder is only
+``--check`` validates the config and the model folder (the model the daemon would serve: the
+valid one dropped last, by the watcher's own rule) without opening the device, and exits 2 for
+a config error (a bad key, a device URL that can never open, pads the SDH-2 does not have, an
+event the serving model lacks, a model folder that is a file or unreadable) and 0 otherwise. An empty model folder is only
 a warning, because the daemon is built to start without a model and wait for one; with
 ``--require-model`` it exits 1 instead (for scripts that need a model in place).
 
@@ -14,7 +15,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+import time
+from pathlib import Path
 
 PROG = "handover run"
 
@@ -34,7 +38,11 @@ def main(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
-    logging.basicConfig(stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    formatter = logging.Formatter(log_format(), datefmt="%Y-%m-%dT%H:%M:%S")
+    formatter.converter = time.gmtime
+    handler.setFormatter(formatter)
+    logging.basicConfig(handlers=[handler])
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
     if args.check:
         return _check(cfg, require_model=args.require_model)
@@ -49,13 +57,26 @@ def main(args: argparse.Namespace) -> int:
     return code
 
 
+def log_format(environ: dict | None = None) -> str:
+    """journald stamps each line itself (it sets JOURNAL_STREAM for the service's stderr);
+    anywhere else a line carries its own UTC time."""
+    env = os.environ if environ is None else environ
+    if env.get("JOURNAL_STREAM"):
+        return "%(levelname)s %(name)s: %(message)s"
+    return "%(asctime)s.%(msecs)03dZ %(levelname)s %(name)s: %(message)s"
+
+
 def _check(cfg, require_model: bool = False) -> int:
     """Report what the daemon would serve, without opening the device."""
     from dataclasses import replace
 
     from runtime.daemon import Daemon, events_problem, scene_problem
-    from runtime.model_watch import ModelWatcher
+    from runtime.model_watch import ModelWatcher, folder_problem
 
+    problem = folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
+    if problem:
+        print(f"{PROG}: {problem}", file=sys.stderr)
+        return 2
     if cfg.sinks.ros2:
         from runtime.ros2 import availability_problem
 
@@ -83,7 +104,8 @@ def _check(cfg, require_model: bool = False) -> int:
     if model is not None:
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
-    reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or "no .onnx file"
+    missing = "" if Path(cfg.model.folder).exists() else "the folder does not exist yet"
+    reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or missing or "no .onnx file"
     what = f"no model in {cfg.model.folder} would serve yet ({reasons})"
     if require_model:
         print(f"{PROG}: config {cfg.source} is valid, but {what}", file=sys.stderr)
@@ -91,3 +113,19 @@ def _check(cfg, require_model: bool = False) -> int:
     print(f"{PROG}: warning: {what}; the daemon will wait for one", file=sys.stderr)
     print(f"config {cfg.source} is valid")
     return 0
+
+
+def _pads_problem(pads: str) -> str | None:
+    """A pad selection the SDH-2 cannot satisfy (``1,3,9``: it has matrices 0-5): the daemon would
+    reject every model and classify nothing, so --check calls it an error."""
+    from firmware_io.layout import LayoutError, SensorLayout
+    from runtime.config import FOLLOW_MODEL
+
+    if pads == FOLLOW_MODEL:  # the model's own pads: nothing to check before a model is there
+        return None
+    layout = SensorLayout.sdh2()
+    try:
+        layout.pads(pads)
+    except LayoutError as exc:
+        return f"scene.pads: {exc} (the SDH-2 has matrices 0-{layout.n_matrices - 1})"
+    return None

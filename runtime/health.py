@@ -11,11 +11,13 @@ import json
 import logging
 import os
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
 
 log = logging.getLogger("handover.health")
+ERROR_HISTORY = 8
 
 FRAME_ERROR_LOG_S = 10.0
 """At most one log line this often for exceptions while handling frames (all are counted)."""
@@ -55,6 +57,11 @@ class Health:
         self.model_id: str | None = None
         self.device_state = "starting"
         self.last_error = ""
+        """The problem that holds now ("" once it is resolved: streaming again, a model serving)."""
+        self.last_error_at: float | None = None
+        self.errors: deque[dict] = deque(maxlen=ERROR_HISTORY)
+        """The last few problems with their time, including resolved ones."""
+        self._error_source = ""
         self._last_frame_error_log = -FRAME_ERROR_LOG_S
         self._lat = np.zeros(latency_window, dtype=np.float64)
         self._lat_n = 0
@@ -63,14 +70,27 @@ class Health:
         self._rate_frames = 0
         self.frame_rate = 0.0
 
+    def report_error(self, text: str, source: str) -> None:
+        """A problem from ``source`` (``device``, ``model``, ``config``, ``quarantine``, ``frame``) that
+        holds until ``resolve(source)`` (a quarantine stays: another model serving does not undo it)."""
+        now = time.time()
+        self.last_error, self.last_error_at, self._error_source = text, now, source
+        self.errors.append({"at": round(now, 3), "source": source, "error": text})
+
+    def resolve(self, source: str) -> None:
+        """``source`` works again: its error stops being the current one (it stays in ``errors``)."""
+        if self._error_source == source:
+            self.last_error, self._error_source = "", ""
+
     def frame_failed(self, message: str, now: float | None = None) -> bool:
         """Count an exception while handling a frame; True when a log line is due (rate limit)."""
         self.frame_errors += 1
-        self.last_error = f"frame handling failed: {message}"
         now = time.monotonic() if now is None else now
         if now - self._last_frame_error_log < FRAME_ERROR_LOG_S:
+            self.last_error = f"frame handling failed: {message}"
             return False
         self._last_frame_error_log = now
+        self.report_error(f"frame handling failed: {message}", "frame")  # in the history once per log line
         return True
 
     def record_latency(self, latency_us: float) -> None:
@@ -123,6 +143,8 @@ class Health:
             "events_invalid": self.events_invalid,
             "model_id": self.model_id,
             "last_error": self.last_error,
+            "last_error_at": None if self.last_error_at is None else round(self.last_error_at, 3),
+            "recent_errors": list(self.errors),
         }
 
     def status_line(self) -> str:

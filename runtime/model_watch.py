@@ -1,15 +1,19 @@
 """Model hot-swap: watch the model folder, validate new ``.onnx`` files off the hot path.
 
 A file is considered only when it is complete: dotfiles and ``*.tmp`` / ``*.part`` are
-ignored and its size, mtime and inode must be the same on two consecutive polls (the safe
+ignored and its size, times and inode must be the same on two consecutive polls (the safe
 way to drop a model is to copy it to a temporary name in the folder and rename it). Files
 that are symlinks, writable by group or others, or owned by anyone but the service user or
 root are refused. A candidate is loaded with the model contract, checked against the scene,
 warmed up in this background thread and only then offered to the main loop, which swaps it
 in between two windows (one reference assignment). A rejected file is logged with its reason
-and never retried unless it changes; the old model keeps serving.
+and never retried unless it changes (or ``rescan()`` is asked for: the scene it was checked
+against changed); the old model keeps serving.
 
-Which model serves when several exist: the newest (by mtime) valid one.
+Which model serves when several exist: the valid one that arrived last. Arrival is the file's
+status change time (ctime): copying, renaming into the folder, ``cp -p`` and ``rsync -a`` all set
+it to the moment of the drop, while they keep an old modification time, so a rollback to an
+older file serves.
 """
 
 from __future__ import annotations
@@ -47,9 +51,19 @@ class FileState:
     path: Path
     size: int
     mtime_ns: int
+    ctime_ns: int
     inode: int
     mode: int
     uid: int
+
+
+    @property
+    def arrival(self) -> tuple[int, int, str]:
+        """Order of arrival in the folder (the last dropped sorts last), whatever the mtime."""
+        return (self.ctime_ns, self.mtime_ns, self.path.name)
+
+
+NEVER: tuple[int, int, str] = (-1, -1, "")
 
 
 @dataclass(frozen=True)
@@ -63,6 +77,22 @@ def is_candidate_name(name: str) -> bool:
     if name.startswith(".") or not name.endswith(".onnx"):
         return False
     return not any(name.endswith(s) for s in IGNORED_SUFFIXES)
+
+
+def folder_problem(folder: str | Path) -> str | None:
+    """Why a model folder can never be read (a file, no permission), or None. A folder that does
+    not exist yet is not a problem here: the daemon waits for it to appear."""
+    path = Path(folder)
+    if not path.exists():
+        return None
+    if not path.is_dir():
+        return f"model.folder: {path} is not a folder (point model.folder at the folder the models are dropped in)"
+    try:
+        with os.scandir(path):
+            pass
+    except OSError as exc:
+        return f"model.folder: cannot read {path} ({exc.strerror or exc}); give the service user read access"
+    return None
 
 
 def permission_problem(st: FileState, service_uid: int | None = None) -> str | None:
@@ -110,7 +140,8 @@ class ModelWatcher:
         self._settling: set[FileState] = set()
         self.pending: Any = None
         """A validated, warmed-up model waiting for the main loop (set by the watcher thread)."""
-        self.current_mtime_ns = -1
+        self.current: FileState | None = None
+        """The file of the model last accepted (the one serving, once taken)."""
         self.rejections: list[Rejection] = []
         self.accepted: list[Path] = []
         self._previous: dict[Path, FileState] = {}
@@ -119,6 +150,12 @@ class ModelWatcher:
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._folder_error_logged = False
+        self._rescan: bool | None = None
+
+    def rescan(self, keep_current: bool) -> None:
+        """Try every file again at the next poll (the scene changed, so a rejection may no longer
+        hold). ``keep_current=False``: the model in use no longer serves, so an earlier file may."""
+        self._rescan = keep_current
 
     # -- scanning -------------------------------------------------------------------------------
     def _list(self) -> dict[Path, FileState]:
@@ -139,7 +176,7 @@ class ModelWatcher:
             except OSError:
                 continue
             path = Path(entry.path)
-            out[path] = FileState(path, st.st_size, st.st_mtime_ns, st.st_ino, st.st_mode, st.st_uid)
+            out[path] = FileState(path, st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino, st.st_mode, st.st_uid)
         return out
 
     def poll(self, require_stable: bool = True) -> Any:
@@ -148,25 +185,27 @@ class ModelWatcher:
         With ``require_stable=False`` (startup: nobody should be copying while the service
         starts, and waiting a poll would delay READY) files are taken as they are.
         """
+        self._apply_rescan()
         if self._reconsider:  # set by the main loop; applied here, in the polling thread
             self._reconsider = False
             self._tried -= self._skipped
             self._skipped.clear()
-            self.current_mtime_ns = -1
+            self.current = None
         now = self._list()
         stable = [s for p, s in now.items() if not require_stable or self._previous.get(p) == s]
         self._previous = now
         fresh = [s for s in stable if s not in self._tried]
-        fresh.sort(key=lambda s: (s.mtime_ns, s.path.name), reverse=True)
+        fresh.sort(key=lambda s: s.arrival, reverse=True)
+        current = self.current.arrival if self.current is not None else NEVER
         accepted = None
         for st in fresh:
             self._tried.add(st)
             if accepted is not None:
-                log.info("model %s: superseded by the newer %s; not loaded", st.path.name, accepted[0].path.name)
+                log.info("model %s: superseded by %s, dropped after it; not loaded", st.path.name, accepted[0].path.name)
                 self._skipped.add(st)
                 continue
-            if st.mtime_ns < self.current_mtime_ns:
-                log.info("model %s: older than the model in use; not loaded", st.path.name)
+            if st.arrival < current:
+                log.info("model %s: dropped before the model in use; not loaded", st.path.name)
                 self._skipped.add(st)
                 continue
             model = self._validate(st)
@@ -175,12 +214,21 @@ class ModelWatcher:
         if accepted is None:
             return None
         st, model = accepted
-        self.current_mtime_ns = st.mtime_ns
+        self.current = st
         self._accepted_states[st.path] = st
         self.accepted.append(st.path)
         with self._lock:
             self.pending = model
         return model
+
+    def _apply_rescan(self) -> None:
+        keep, self._rescan = self._rescan, None
+        if keep is None:
+            return
+        self._tried = {self.current} if keep and self.current is not None else set()
+        self._skipped.clear()
+        if not keep:
+            self.current = None
 
     def _validate(self, st: FileState) -> Any:
         problem = permission_problem(st, self.service_uid)

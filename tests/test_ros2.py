@@ -106,7 +106,7 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     try:
         assert ros is not None, "the ROS 2 sink did not start"
         assert wait_for(lambda: ros._events.get_subscription_count() >= 1), "the test's subscriber was never matched"
-        run_until(daemon, lambda d: d.health.events >= 3 and len(listener.diagnostics) >= 1
+        run_until(daemon, lambda d: d.health.events >= 3 and any(_state(x) == "streaming" for x in listener.diagnostics)
                    and all(len(v) >= 2 for v in listener.images.values()))
         udp_lines = drain(udp)
         assert wait_for(lambda: len(listener.events) >= len(udp_lines), 5.0)
@@ -124,7 +124,9 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     assert first["type"] == "model" and first["model_version"] == 1 and first["previous_model_id"] is None
     assert listener.models and listener.models[-1] == udp_lines[0]
     # health on /diagnostics
-    status = listener.diagnostics[-2].status[0]  # the last one while streaming
+    streaming = [d for d in listener.diagnostics if _state(d) == "streaming"]
+    assert streaming, [_state(d) for d in listener.diagnostics]
+    status = streaming[-1].status[0]  # the last one while streaming (shutdown may send more than one after it)
     values = {kv.key: kv.value for kv in status.values}
     assert status.hardware_id == url and "tactile handover" in status.name
     for key in ("device_state", "frame_rate_hz", "crc_errors", "stalls", "reconnects", "model_id", "model_swaps"):

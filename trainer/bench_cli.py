@@ -1,4 +1,4 @@
-"""``handover bench pareto|latency|throughput|hostile|streams|all``: the benchmarks, results in results/.
+"""``handover bench pareto|latency|throughput|hostile|streams|all|soak``: the benchmarks, results in results/.
 
 Each benchmark writes ``<out>/<name>.json`` and ``.md`` (+ ``.png`` where a plot fits) with
 the machine it ran on and the command that reproduces it. ``--json`` prints the headline
@@ -15,8 +15,10 @@ import sys
 
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
-HEADLINE = ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front",
-            "onnx_p50_us_all_pads", "daemon_p999_us", "paced_over_back_to_back",
+HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
+            "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
+            "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn",
+            "default_on_front", "onnx_p50_us_all_pads", "daemon_p999_us", "paced_over_back_to_back",
             "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_p999_us_load", "e2e_load_p99_us",
             "replay_frames_per_s", "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures",
             "default_setting", "demo_events_correct_fraction", "demo_events_outside", "sim_event_f1", "real_idle_hours",
@@ -25,7 +27,8 @@ HEADLINE = ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("which", choices=(*BENCHMARKS, "all"), help="which benchmark to run")
+    parser.add_argument("which", choices=(*BENCHMARKS, "all", "soak"),
+                        help="which benchmark to run ('all' = every one but soak, which runs for hours)")
     parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
@@ -33,6 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None,
                         help="latency: seconds of the 32 Hz end-to-end run (default 120, --quick 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
+    parser.add_argument("--hours", type=float, default=None,
+                        help="soak: hours against the emulator with faults injected (default 1, --quick 0.01)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     parser.add_argument("--rerender", action="store_true",
                         help="pareto: re-mark the default and rewrite .md/.png from OUT/pareto.json (no measuring)")
@@ -48,6 +53,8 @@ def main(args: argparse.Namespace) -> int:
 
     if args.duration is not None and args.duration <= 0:
         return _fail(f"--duration must be positive, got {args.duration}")
+    if args.hours is not None and not 0 < args.hours <= 168:
+        return _fail(f"--hours must be in (0, 168], got {args.hours}")
     args.say = progress(args.quiet)
     which = BENCHMARKS if args.which == "all" else (args.which,)
     figures: dict = {}

@@ -151,9 +151,15 @@ def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = 
     d_err = d_err + (2.0 * np.abs(diff) * delta[:, None, :] + delta[:, None, :] ** 2).sum(-1)
     g = float(svm._gamma)
     kern = np.exp(-g * dist)
-    k_err = kern * np.expm1(g * d_err + 2.0 * U32 * g * dist + 6.0 * U32)
+    growth = g * d_err + 2.0 * U32 * g * dist + 6.0 * U32
+    # kern * expm1(growth), in log space where the factor would overflow (far-away stress cases:
+    # kern underflows to 0 while expm1 is inf); capped below float64's largest, so a bound can be
+    # huge but is never NaN.
+    small = growth < 20.0
+    k_err = np.where(small, kern * np.expm1(np.where(small, growth, 0.0)), np.exp(np.minimum(growth - g * dist, 709.0)))
     n_sv = sv.shape[0]
-    return np.abs(kern) @ np.abs(coef) * gamma(n_sv + 3) + k_err @ np.abs(coef) + gamma(n_sv + 3) * np.abs(intercept)
+    with np.errstate(over="ignore"):  # a sum past float64's range is an infinite (always safe) bound
+        return np.abs(kern) @ np.abs(coef) * gamma(n_sv + 3) + k_err @ np.abs(coef) + gamma(n_sv + 3) * np.abs(intercept)
 
 
 def ovr_scores(dec: np.ndarray, n_classes: int) -> tuple[np.ndarray, np.ndarray]:

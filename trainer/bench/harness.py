@@ -137,19 +137,18 @@ class EmulatorProcess:
             self.process.join(2)
 
 
-class UdpListener:
-    """Receives decision datagrams in a thread, each with its arrival time (model announcements
-    and other line types of docs/EVENTS.md are skipped)."""
+class DatagramListener:
+    """Receives datagrams on a bound socket in a thread and hands each to ``on_datagram``."""
 
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
+    def __init__(self, sock: socket.socket, name: str) -> None:
+        self.sock = sock
         self.sock.settimeout(0.1)
-        self.port = self.sock.getsockname()[1]
-        self.events: list[tuple[float, dict]] = []
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="bench-udp", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
+
+    def on_datagram(self, data: bytes, t: float) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -159,16 +158,30 @@ class UdpListener:
                 continue
             except OSError:
                 return
-            t = time.perf_counter()
-            with contextlib.suppress(ValueError):
-                event = json.loads(data)
-                if event.get("type") == "decision":
-                    self.events.append((t, event))
+            self.on_datagram(data, time.perf_counter())
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(1)
         self.sock.close()
+
+
+class UdpListener(DatagramListener):
+    """Receives decision datagrams in a thread, each with its arrival time (model announcements
+    and other line types of docs/EVENTS.md are skipped)."""
+
+    def __init__(self) -> None:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", 0))
+        self.port = sock.getsockname()[1]
+        self.events: list[tuple[float, dict]] = []
+        super().__init__(sock, "bench-udp")
+
+    def on_datagram(self, data: bytes, t: float) -> None:
+        with contextlib.suppress(ValueError):
+            event = json.loads(data)
+            if event.get("type") == "decision":
+                self.events.append((t, event))
 
 
 def write_config(folder: Path, device_url: str, model_dir: Path, udp_port: int | None,

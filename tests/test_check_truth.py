@@ -1,0 +1,94 @@
+"""``handover run --check`` tells the truth (issue 18 item 4, issue 15 item 1): a model folder
+that is a file or unreadable, and pads the SDH-2 does not have, are errors (exit 2), and the model
+it names is the one the daemon serves (the last dropped, whatever its mtime)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.tiny_models import tiny_model_bytes, write_model
+
+pytest.importorskip("onnx")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _check(cfg: Path, user: int | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60, user=user, group=user)
+
+
+def _config(folder: Path, models: Path, extra: str = "") -> Path:
+    cfg = folder / "h.toml"
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n{extra}')
+    os.chmod(cfg, 0o644)
+    return cfg
+
+
+def _one_error(proc: subprocess.CompletedProcess, needle: str) -> None:
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("handover run: ") and needle in lines[0], proc.stderr
+
+
+def test_a_model_folder_that_is_a_file_is_an_error(tmp_path):
+    not_a_folder = tmp_path / "models"
+    not_a_folder.write_text("oops")
+    _one_error(_check(_config(tmp_path, not_a_folder)), "is not a folder")
+
+
+def test_an_unreadable_model_folder_is_an_error():
+    if os.geteuid() != 0:
+        pytest.skip("needs root to run the check as another user (nobody) who cannot read the folder")
+    base = Path(tempfile.mkdtemp(prefix="handover-check-"))
+    try:
+        os.chmod(base, 0o755)
+        models = base / "models"
+        models.mkdir(mode=0o700)
+        write_model(models, "m.onnx", tiny_model_bytes())
+        _one_error(_check(_config(base, models), user=65534), "cannot read")
+    finally:
+        shutil.rmtree(base)
+
+
+def test_pads_the_sdh2_does_not_have_are_an_error(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    _one_error(_check(_config(tmp_path, models, '[scene]\npads = "1,3,9"\n')), "scene.pads")
+
+
+def test_check_names_the_model_the_daemon_serves_after_a_rollback(tmp_path):
+    """v2 dropped, then v1 rolled back with cp -p (an old mtime): both name v1."""
+    from runtime.config import load_config
+    from runtime.daemon import Daemon
+
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "v2.onnx", tiny_model_bytes(tag="v2"))
+    time.sleep(0.02)
+    write_model(models, "v1.onnx", tiny_model_bytes(tag="v1"), mtime=time.time() - 86400)
+    cfg = _config(tmp_path, models, '[sinks]\nstdout = false\n')
+    proc = _check(cfg)
+    assert proc.returncode == 0 and "(v1.onnx)" in proc.stdout, proc.stdout + proc.stderr
+    daemon = Daemon(load_config(cfg))
+    daemon._start_watcher()
+    try:
+        assert Path(daemon.model.path).name == "v1.onnx"
+    finally:
+        daemon.watcher.stop()
+
+
+def test_pads_that_follow_the_model_are_not_an_error(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    proc = _check(_config(tmp_path, models, '[scene]\npads = "model"\n'))
+    assert proc.returncode == 0 and "would serve model" in proc.stdout, proc.stdout + proc.stderr

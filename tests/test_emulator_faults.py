@@ -1,0 +1,81 @@
+"""The emulator's faults are real (issue 18 item 6): single frames come at the sensor's rate, a
+disconnect over the pseudo-terminal loses data and ends push mode as an unplug does, and a
+replayed file's sensor serial number is what the client reads. Data: the simulated hand (synthetic)."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+
+import pytest
+
+from firmware_io.client import DSAClient
+from firmware_io.emulator import DeviceEmulator, FaultPlan
+from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+from firmware_io.frame_source import load_source
+
+QUICK = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet": 0.05}
+
+
+def _recording(**meta):
+    rec = load_source("sim", seed=0, events=2)
+    return dataclasses.replace(rec, meta={**rec.meta, **meta}) if meta else rec
+
+
+def test_single_frames_come_at_the_sensors_rate():
+    rec = _recording()
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0)).start()
+    try:
+        with DSAClient(server.url, **QUICK) as client:
+            client.poll_frame()
+            t0 = time.monotonic()
+            stamps = [client.poll_frame(timeout=1.0).timestamp_ms for _ in range(16)]
+            took = time.monotonic() - t0
+    finally:
+        server.stop()
+    period = rec.sample_interval()
+    assert took >= 16 * period * 0.8, f"16 single frames in {took * 1000:.0f} ms (sensor: {period * 1000:.0f} ms each)"
+    assert all(b > a for a, b in itertools.pairwise(stamps))
+
+
+def test_disconnect_over_the_pty_ends_push_mode_and_loses_data():
+    rec = _recording()
+    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=40))
+    try:
+        server = PtyEmulatorServer(emulator).start()
+    except EmulatorServerError as exc:
+        pytest.skip(f"no pseudo-terminal here: {exc}")
+    try:
+        client = DSAClient(server.url, auto_reconnect=False, **QUICK)
+        client.open()
+        client.start()
+        frames = 0
+        while client.read_frame(timeout=1.0) is not None:
+            frames += 1
+            assert frames < 500, "frames keep coming after the unplug"
+        assert frames <= 40 and not emulator.pushing
+        # the host notices (a stall) and starts again: frames come back
+        client.open()
+        client.start()
+        assert client.read_frame(timeout=1.0) is not None
+        client.close()
+    finally:
+        server.stop()
+    assert emulator.stats.disconnects >= 1
+
+
+def test_the_replayed_files_sensor_serial_number_is_served():
+    rec = _recording(dsa_serial_nr="4711", dsa_hw_revision="2")
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=None, serial_no=99)).start()
+    try:
+        with DSAClient(server.url, **QUICK) as client:
+            assert client.sensor.serial_no == 4711 and client.sensor.hw_revision == 2
+            assert client.controller.serial_no == 99
+    finally:
+        server.stop()
+
+
+def test_a_recorded_sessions_sensor_serial_number_is_served():
+    rec = _recording(sessions=[{"controller": {"serial_no": 5, "sensor_serial_no": 31337}}])
+    assert DeviceEmulator(rec).sensor.serial_no == 31337
