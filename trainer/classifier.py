@@ -120,6 +120,14 @@ class SVMHead:
     Subclasses provide ``transform_histograms(X)`` (the graph's feature tensor) and ``svm_input``.
     """
 
+    def _fit_scaled_svm(self, features: np.ndarray, y: np.ndarray) -> None:
+        """Standardise the features, choose C/gamma, fit the SVC: ``scaler_``, ``best_params_``, ``svm_``."""
+
+        self.scaler_ = StandardScaler().fit(features)
+        scaled = self.scaler_.transform(features)
+        self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma)
+        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(scaled, y)
+
     def decision_function(self, X) -> np.ndarray:
         """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""
         features = self.svm_input(self.transform_histograms(X))  # first: it raises NotFittedError

@@ -13,12 +13,10 @@ from collections.abc import Sequence
 
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
-from sklearn.preprocessing import StandardScaler
-from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
 from trainer.bow import BagOfWords, check_case_shape
-from trainer.classifier import SVMHead, check_training_data, choose_svm_params
+from trainer.classifier import SVMHead, check_training_data
 from trainer.defaults import DEFAULT_MODEL
 
 FAMILIES = ("bow", "stats", "rocket", "hand")
@@ -83,11 +81,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
                 self.bow_ = block
                 self.bow_slice_ = slice(start, start + block.n_features_out_)
             start += block.n_features_out_
-        features = self.transform_histograms(X)
-        self.scaler_ = StandardScaler().fit(features)
-        scaled = self.scaler_.transform(features)
-        self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma)
-        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(scaled, y)
+        self._fit_scaled_svm(self.transform_histograms(X), y)
         return self
 
     def transform_histograms(self, X) -> np.ndarray:

@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
-from sklearn.preprocessing import StandardScaler
-from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
 from trainer.bow import check_case_shape
-from trainer.classifier import SVMHead, check_training_data, choose_svm_params
+from trainer.classifier import SVMHead, check_training_data
 
 
 class FlatSVC(SVMHead, ClassifierMixin, BaseEstimator):
@@ -36,11 +34,7 @@ class FlatSVC(SVMHead, ClassifierMixin, BaseEstimator):
         X, y, self.classes_ = check_training_data(self, X, y)
         _, self.n_channels_, self.n_timepoints_ = X.shape
         self.n_features_in_ = self.n_channels_ * self.n_timepoints_
-        flat = X.reshape(len(X), -1)
-        self.scaler_ = StandardScaler().fit(flat)
-        features = self.scaler_.transform(flat)
-        self.best_params_ = choose_svm_params(features, y, self.kernel, self.C, self.gamma)
-        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(features, y)
+        self._fit_scaled_svm(X.reshape(len(X), -1), y)
         return self
 
     def transform_histograms(self, X) -> np.ndarray:
