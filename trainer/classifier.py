@@ -122,7 +122,6 @@ class SVMHead:
 
     def _fit_scaled_svm(self, features: np.ndarray, y: np.ndarray) -> None:
         """Standardise the features, choose C/gamma, fit the SVC: ``scaler_``, ``best_params_``, ``svm_``."""
-
         self.scaler_ = StandardScaler().fit(features)
         scaled = self.scaler_.transform(features)
         self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma)
