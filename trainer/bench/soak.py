@@ -341,8 +341,7 @@ def run(args) -> dict:
         figures = account(soak)
     result = {"synthetic": True, "hours": hours, "seconds": round(soak.t_end - soak.t0, 1), **figures,
               "plan": soak.plan.__dict__, "watchdog_sec": WATCHDOG_S, "stall_timeout_s": STALL_TIMEOUT_S,
-              "hostile_inputs": {"note": "fuzz counts of the hostile-input benchmark (#19) go here",
-                                 "fuzz": None},
+              "hostile_inputs": hostile_counts(args.out),
               "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
               "commit": _commit(), "machine": machine_info(), "load_before": load_before,
               "load_after": load_average(), "command": f"handover bench soak --hours {hours:g} --seed {args.seed}"
@@ -350,6 +349,17 @@ def run(args) -> dict:
     result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
     write_results(args.out, NAME, result, markdown(result))
     return result
+
+
+def hostile_counts(out: str | Path) -> dict:
+    """The hostile-input benchmark's counts (``handover bench hostile``, results/hostile.json) that a
+    soak cites beside its own figures; None where that benchmark has not been run into ``out``."""
+    path = Path(out) / "hostile.json"
+    if not path.is_file():
+        return {"source": None, "counts": None}
+    from trainer.bench.hostile import summary
+
+    return {"source": str(path), "counts": summary(json.loads(path.read_text()))}
 
 
 def _commit() -> str | None:
@@ -395,5 +405,9 @@ def markdown(r: dict) -> list[str]:
     md += [f"| {a} | {b} | {c} |" for a, b, c in rows]
     md += ["", f"Commit {r['commit']}, started {r['started_utc']}. {r['note']}",
            "Rules: see the docstring of trainer/bench/soak.py (what counts as inside a fault, which events are "
-           "expected). `hostile_inputs` in soak.json is kept for the fuzz counts of #19."]
+           "expected)."]
+    hostile = (r.get("hostile_inputs") or {}).get("counts")
+    if hostile:
+        md += ["", "Hostile inputs (`handover bench hostile`, results/hostile.md): "
+               + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in hostile.items()) + "."]
     return md
