@@ -120,6 +120,8 @@ def test_inspect_card_is_rounded_and_names_the_per_pad_setting(trained, capsys):
     assert f"{' + '.join(DEFAULT_MODEL['families'])}, per pad (6 pads)" in card and "= all" in card
     assert f"SVM: {DEFAULT_MODEL['kernel']} kernel" in card
     assert ("gamma" in card) == (DEFAULT_MODEL["kernel"] == "rbf")  # a linear SVM has none
+    # the trigger that cut its windows: train's default is the onset trigger, not the paper's 15 %
+    assert "onset trigger (a pad departing by 12 %" in card and "% of 4095" not in card, card
     # no raw floats: at most 4 significant digits after the point (gamma 0.000641 is rounded)
     assert not re.search(r"\d\.0*[1-9]\d{4,}", card), card
 
