@@ -174,6 +174,27 @@ def test_dev_handover_runs_in_the_callers_folder(tmp_path):
     assert not (ROOT / "rec").exists()
 
 
+@pytest.mark.skipif(not (VENV_BIN / "handover").exists(), reason="no .venv in the checkout (./dev creates it)")
+@pytest.mark.skipif(os.name == "nt", reason="POSIX signals")
+def test_dev_handover_is_the_command_so_signals_reach_it(tmp_path):
+    """`./dev handover run ... &` then `kill -HUP $!`: the pid the shell knows must be the daemon's."""
+    proc = subprocess.Popen([sys.executable, str(ROOT / "dev"), "handover", "emulate", "--listen",
+                             "tcp://127.0.0.1:0", "--duration", "60"], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        cmdline = b""
+        while time.monotonic() < deadline and b".venv/bin/handover" not in cmdline:
+            cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes() if Path(f"/proc/{proc.pid}").exists() else b""
+            time.sleep(0.1)
+        assert b".venv/bin/handover" in cmdline, cmdline
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) is not None
+    finally:
+        proc.kill()
+        proc.wait()
+
+
 BLOCK_EXTRAS = """
 import sys
 for name in ("sklearn", "skl2onnx", "onnx", "matplotlib", "tqdm", "joblib", "rosbags", "aeon"):
