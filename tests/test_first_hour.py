@@ -107,6 +107,13 @@ def test_train_prints_its_headline_without_carriage_returns(trained, tmp_path, c
     assert handover(["train", "--data", str(rec), "--out", str(tmp_path / "r"), *SMALL_TRAIN]) == 0
     out, err = capsys.readouterr()
     assert "leave one subject out:" in out and "pooled 80/20:" in out
+    # K (words) and W (derivative window) are named only when the model has the BoW family
+    from trainer.defaults import DEFAULT_MODEL
+
+    assert ("K=6 W=" in out) == ("bow" in DEFAULT_MODEL["families"]), out
+    assert handover(["train", "--data", str(rec), "--out", str(tmp_path / "b"), "--features", "bow",
+                     *SMALL_TRAIN, "--no-onnx"]) == 0
+    assert "features bow, K=6 W=7 T=15" in capsys.readouterr().out
     assert f"model:  {tmp_path / 'r' / 'model.onnx'}" in out and f"report: {tmp_path / 'r' / 'report.md'}" in out
     assert "\r" not in err  # stderr is not a terminal here: no progress bars
 
