@@ -151,7 +151,11 @@ def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = 
     d_err = d_err + (2.0 * np.abs(diff) * delta[:, None, :] + delta[:, None, :] ** 2).sum(-1)
     g = float(svm._gamma)
     kern = np.exp(-g * dist)
-    k_err = kern * np.expm1(g * d_err + 2.0 * U32 * g * dist + 6.0 * U32)
+    grow = g * d_err + 2.0 * U32 * g * dist + 6.0 * U32
+    # kern * expm1(grow); far from a support vector kern is 0 and expm1 overflows (0 * inf = NaN, with
+    # a RuntimeWarning on the user's terminal): there exp(grow - g * dist) is the same bound, finite
+    big = grow > 30.0
+    k_err = np.where(big, np.exp(np.minimum(grow - g * dist, 700.0)), kern * np.expm1(np.minimum(grow, 30.0)))
     n_sv = sv.shape[0]
     return np.abs(kern) @ np.abs(coef) * gamma(n_sv + 3) + k_err @ np.abs(coef) + gamma(n_sv + 3) * np.abs(intercept)
 
