@@ -18,7 +18,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "demo": ("trainer.demo_cli", "end-to-end demo on the simulated hand: simulate, train, export, emulate, detect", "train"),
     "simulate": ("firmware_io.simulate_cli", "write the paper's protocol (or a scripted session) from the simulated hand", None),
     "import": ("firmware_io.import_cli", "convert DSA-Konqueror .dsa files or ROS bags (bags need [train]) to recordings", None),
-    "train": ("trainer.train_cli", "train BoW + SVM, evaluate as in the paper, write a report and the ONNX model", "train"),
+    "train": ("trainer.train_cli", "train the default features (or BoW, the paper's) + SVM, evaluate as in the paper, write a report and the ONNX model", "train"),
     "sweep": ("trainer.sweep_cli", "accuracy against K, W, T and kernel (the paper's sweeps)", "train"),
     "export": ("trainer.export_cli", "export a trained model to one ONNX graph", "train"),
     "verify": ("trainer.verify_cli", "compare an ONNX model with the float64 reference, with stress cases", "train"),
@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "run": ("runtime.daemon_cli", "the detection daemon (systemd service)", None),
     "record": ("firmware_io.record_cli", "record a subject session following the paper's protocol", None),
     "plot": ("trainer.plot_cli", "plot a trial of a recording", "train"),
-    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput, hostile, streams (MiniRocket needs [bench])", "train"),
+    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput, hostile, streams, soak (MiniRocket needs [bench])", "train"),
     "compare": ("trainer.compare_cli", "side by side: paper BoW, richer options, baseline, flattened SVM, MiniRocket (accuracy + latency)", "train"),
     "dormant": ("trainer.dormant_cli", "dormant class + continuous mode vs the threshold trigger on long simulated streams", "train"),
 }

@@ -101,6 +101,15 @@ SHOWN_TRAINING = ("n_trials", "data_fingerprint", "date", "project_version", "C"
 """Training keys the card shows in its own words (C and gamma are on the SVM line)."""
 
 
+def _trigger(trig: dict, fullscale: float) -> str:
+    """The trigger that cut the training windows, as the daemon will serve it (no kind = threshold)."""
+    if trig.get("kind", "threshold") == "onset":
+        return (f"onset trigger (a pad departing by {100 * float(trig.get('change', 0)):.0f} % from the settled "
+                f"grasp, settled for {float(trig.get('settle_s', 0)):g} s)")
+    return (f"threshold trigger at {100 * float(trig.get('fraction', 0)):.0f} % of {fullscale:g}"
+            + (f", hysteresis {100 * float(trig['hysteresis']):.0f} %" if "hysteresis" in trig else ""))
+
+
 def _text(c: dict) -> str:
     tr, ev = c["training"], c["evaluation"]
     trig = c["trigger"]
@@ -110,8 +119,7 @@ def _text(c: dict) -> str:
         f"  pads: {','.join(str(p) for p in c['pads'])}{_pad_name(c['pads'])} ({c['n_channels']} taxels: "
         f"{', '.join(str(s) for s in c['pad_sizes'])}); serves with scene.pads = \"model\" or this selection",
         f"  window: T={c['T']} frames ({c['window_seconds']:.2f} s at {c['sample_rate_hz']:.2f} Hz), "
-        f"trigger at {100 * float(trig.get('fraction', 0)):.0f} % of {c['fullscale']:g}"
-        + (f", hysteresis {100 * float(trig['hysteresis']):.0f} %" if "hysteresis" in trig else ""),
+        + _trigger(trig, c["fullscale"]),
         _features(c),
         _svm(c),
         f"  trained on: {_trials(tr.get('n_trials'))}, data {str(tr.get('data_fingerprint'))[:16]}, "

@@ -35,3 +35,11 @@ def test_cli_import_is_light():
     code = "import sys, runtime.cli; print(sorted(m for m in ('sklearn', 'matplotlib', 'onnx', 'skl2onnx') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
+
+
+def test_bench_summary_names_every_benchmark():
+    """`handover --help` is where a user first looks for what `handover bench` can run."""
+    from trainer.bench_cli import BENCHMARKS
+
+    summary = cli.COMMANDS["bench"][1]
+    assert all(name in summary for name in (*BENCHMARKS, "soak")), summary

@@ -107,6 +107,13 @@ def test_train_prints_its_headline_without_carriage_returns(trained, tmp_path, c
     assert handover(["train", "--data", str(rec), "--out", str(tmp_path / "r"), *SMALL_TRAIN]) == 0
     out, err = capsys.readouterr()
     assert "leave one subject out:" in out and "pooled 80/20:" in out
+    # K (words) and W (derivative window) are named only when the model has the BoW family
+    from trainer.defaults import DEFAULT_MODEL
+
+    assert ("K=6 W=" in out) == ("bow" in DEFAULT_MODEL["families"]), out
+    assert handover(["train", "--data", str(rec), "--out", str(tmp_path / "b"), "--features", "bow",
+                     *SMALL_TRAIN, "--no-onnx"]) == 0
+    assert "features bow, K=6 W=7 T=15" in capsys.readouterr().out
     assert f"model:  {tmp_path / 'r' / 'model.onnx'}" in out and f"report: {tmp_path / 'r' / 'report.md'}" in out
     assert "\r" not in err  # stderr is not a terminal here: no progress bars
 
@@ -120,6 +127,8 @@ def test_inspect_card_is_rounded_and_names_the_per_pad_setting(trained, capsys):
     assert f"{' + '.join(DEFAULT_MODEL['families'])}, per pad (6 pads)" in card and "= all" in card
     assert f"SVM: {DEFAULT_MODEL['kernel']} kernel" in card
     assert ("gamma" in card) == (DEFAULT_MODEL["kernel"] == "rbf")  # a linear SVM has none
+    # the trigger that cut its windows: train's default is the onset trigger, not the paper's 15 %
+    assert "onset trigger (a pad departing by 12 %" in card and "% of 4095" not in card, card
     # no raw floats: at most 4 significant digits after the point (gamma 0.000641 is rounded)
     assert not re.search(r"\d\.0*[1-9]\d{4,}", card), card
 
@@ -170,6 +179,27 @@ def test_dev_handover_runs_in_the_callers_folder(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "rec" / "subject_s1.hrec").is_file()
     assert not (ROOT / "rec").exists()
+
+
+@pytest.mark.skipif(not (VENV_BIN / "handover").exists(), reason="no .venv in the checkout (./dev creates it)")
+@pytest.mark.skipif(os.name == "nt", reason="POSIX signals")
+def test_dev_handover_is_the_command_so_signals_reach_it(tmp_path):
+    """`./dev handover run ... &` then `kill -HUP $!`: the pid the shell knows must be the daemon's."""
+    proc = subprocess.Popen([sys.executable, str(ROOT / "dev"), "handover", "emulate", "--listen",
+                             "tcp://127.0.0.1:0", "--duration", "60"], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        cmdline = b""
+        while time.monotonic() < deadline and b".venv/bin/handover" not in cmdline:
+            cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes() if Path(f"/proc/{proc.pid}").exists() else b""
+            time.sleep(0.1)
+        assert b".venv/bin/handover" in cmdline, cmdline
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) is not None
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 BLOCK_EXTRAS = """

@@ -237,6 +237,7 @@ def test_inspect_card(good_path, tmp_path, capsys):
     assert handover(["inspect", str(good_path)]) == 0
     out = capsys.readouterr().out
     assert "detects: bump, hold, pull, push" in out and "nodes" in out and "synthetic-test" in out
+    assert "threshold trigger at " in out  # no recorded kind: cut by the threshold, served with it
     assert handover(["inspect", str(good_path), "--json"]) == 0
     card = json.loads(capsys.readouterr().out)
     assert card["T"] == 12 and card["graph"]["n_nodes"] > 10 and card["pads"] == [1, 3]

@@ -57,14 +57,16 @@ def test_bad_urls_give_one_clear_error(url, words):
 
 
 def test_missing_devices_are_device_unavailable(tmp_path):
-    with pytest.raises(DeviceUnavailable, match="cannot open serial port"):
+    with pytest.raises(DeviceUnavailable, match="cannot open serial port") as info:
         open_transport("/dev/tty-does-not-exist")
+    assert "does not exist (hand's USB cable plugged in?" in str(info.value)  # says what to check
+    assert "\n" not in str(info.value)
     with pytest.raises(DeviceUnavailable, match="no such file"):
         open_transport(f"replay://{tmp_path}/none.hrec")
     with socket.socket() as s:  # a free port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    with pytest.raises(DeviceUnavailable, match="cannot connect"):
+    with pytest.raises(DeviceUnavailable, match=r"cannot connect: .*\(hand powered, host and port right\?"):
         open_transport(f"tcp://127.0.0.1:{port}?connect_timeout=1")
 
 

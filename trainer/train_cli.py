@@ -365,10 +365,12 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
 
     tag = "synthetic data, " if metrics["synthetic"] else ""
     model = out / "model.onnx"
+    # K (words) and W (derivative window) mean something only to the BoW family
+    bow = f"K={metrics['K']} W={metrics['W']} " if "bow" in metrics["families"] else ""
     lines = [
         f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
-        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}, K={metrics['K']} "
-        f"W={metrics['W']} T={metrics['T']} {metrics['kernel']} SVM"
+        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}, {bow}"
+        f"T={metrics['T']} {metrics['kernel']} SVM"
         + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
         f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
         f"{pct(metrics['baseline_loso_accuracy'])})",

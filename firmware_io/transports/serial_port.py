@@ -52,7 +52,7 @@ class SerialTransport(Transport):
                 exclusive=exclusive or None,
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceUnavailable(f"{self.url}: cannot open serial port: {exc}") from None
+            raise DeviceUnavailable(f"{self.url}: cannot open serial port: {_reason(exc, port)}") from None
         try:
             self._fd: int | None = self._ser.fileno()
         except (AttributeError, serial.SerialException, OSError):
@@ -108,3 +108,14 @@ class SerialTransport(Transport):
     def _check_open(self) -> None:
         if self._closed:
             raise TransportError(f"{self.url}: transport is closed")
+
+
+def _reason(exc: Exception, port: str) -> str:
+    """pyserial's message, with what to check for the two common causes (no such device, no access)."""
+    errno = getattr(exc, "errno", None)
+    if errno == 2:
+        return (f"{port} does not exist (hand's USB cable plugged in? `ls /dev/ttyUSB* /dev/ttyACM*`; "
+                "the /dev/dsacon32m symlink needs the udev rules of deploy/INSTALL.md section 2)")
+    if errno == 13:
+        return f"no permission on {port} (the user needs group handover: udev rules, deploy/INSTALL.md section 2)"
+    return str(exc)

@@ -36,7 +36,8 @@ class TcpTransport(Transport):
         except TimeoutError:
             raise DeviceUnavailable(f"{self.url}: no answer within {connect_timeout:g} s (hand powered? cable?)") from None
         except OSError as exc:
-            raise DeviceUnavailable(f"{self.url}: cannot connect: {exc.strerror or exc}") from None
+            raise DeviceUnavailable(f"{self.url}: cannot connect: {exc.strerror or exc} (hand powered, "
+                                    "host and port right? the SDH-2 listens on 13000)") from None
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._sock.settimeout(None)
         self._sock.setblocking(True)
