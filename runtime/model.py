@@ -28,6 +28,7 @@ import numpy as np
 
 from runtime.onnx_wire import WireError, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
+from runtime.trigger_settings import recorded_problems
 
 SCHEMA_VERSION = 1
 METADATA_KEY = "handover"
@@ -165,6 +166,7 @@ class ModelMeta:
         fraction = self.trigger.get("fraction")
         if not isinstance(fraction, int | float) or not 0.0 < float(fraction) < 1.0:
             problems.append(f"trigger.fraction {fraction!r} must be a number in (0, 1)")
+        problems += recorded_problems(self.trigger)
         missing = [k for k in TRAINING_KEYS if k not in self.training]
         if missing:
             problems.append(f"training lacks {', '.join(missing)}")
