@@ -35,7 +35,10 @@ MESSAGES = {"grasp closed": True, "grasp open": False}
 
 
 def parse_message(data: bytes) -> bool | None:
-    """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else."""
+    """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else
+    (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
+    if len(data) > MAX_DATAGRAM:
+        return None
     try:
         text = data.decode("ascii").strip().lower()
     except UnicodeDecodeError:
@@ -84,7 +87,7 @@ class ControlSocket:
         sock = self._sock
         while not self._stop.is_set() and sock is not None:
             try:
-                data = sock.recv(MAX_DATAGRAM)
+                data = sock.recv(MAX_DATAGRAM + 1)  # one byte more: a longer datagram is seen, not cut
             except TimeoutError:
                 continue
             except OSError:
