@@ -1,0 +1,73 @@
+"""Hostile input on the daemon's control socket: oversized datagrams, a second daemon on the
+same path, the socket file removed while the daemon runs."""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+from runtime.control import MAX_DATAGRAM, POLL_S, ControlSocket
+
+
+def _wait(predicate, timeout: float = 3.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+@pytest.fixture
+def sender():
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    yield sock
+    sock.close()
+
+
+def test_a_datagram_longer_than_the_limit_is_garbage_even_if_it_starts_with_a_message(tmp_path, sender):
+    got: list[bool] = []
+    path = str(tmp_path / "c.sock")
+    control = ControlSocket(path, lambda closed, source: got.append(closed)).start()
+    try:
+        sender.sendto(b"grasp closed" + b" " * MAX_DATAGRAM + b"and then something else", path)
+        sender.sendto(b"grasp open", path)
+        assert _wait(lambda: control.garbage + control.received == 2)
+        assert got == [False] and control.garbage == 1
+    finally:
+        control.stop()
+
+
+def test_a_live_socket_of_another_daemon_is_not_taken_over(tmp_path, sender):
+    path = str(tmp_path / "c.sock")
+    first: list[bool] = []
+    running = ControlSocket(path, lambda closed, source: first.append(closed)).start()
+    try:
+        with pytest.raises(OSError, match="in use by another process"):
+            ControlSocket(path, lambda closed, source: None).start()
+        sender.sendto(b"grasp closed", path)
+        assert _wait(lambda: first == [True])
+    finally:
+        running.stop()
+
+
+def test_a_socket_removed_while_running_is_bound_again_with_one_line(tmp_path, sender, caplog):
+    got: list[bool] = []
+    path = str(tmp_path / "c.sock")
+    control = ControlSocket(path, lambda closed, source: got.append(closed)).start()
+    try:
+        with caplog.at_level(logging.WARNING, logger="handover.control"):
+            os.unlink(path)
+            assert _wait(lambda: Path(path).is_socket(), timeout=10 * POLL_S)
+        sender.sendto(b"grasp closed", path)
+        assert _wait(lambda: got == [True])
+        lines = [r.getMessage() for r in caplog.records if "removed" in r.getMessage()]
+        assert len(lines) == 1 and path in lines[0]
+    finally:
+        control.stop()
+    assert not Path(path).exists()
