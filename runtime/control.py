@@ -34,6 +34,18 @@ POLL_S = 0.2
 MESSAGES = {"grasp closed": True, "grasp open": False}
 
 
+def _is_live(path: str) -> bool:
+    """Whether a process still reads the socket file at ``path`` (a stale one refuses a connect)."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        probe.connect(path)
+    except OSError:
+        return False
+    finally:
+        probe.close()
+    return True
+
+
 def parse_message(data: bytes) -> bool | None:
     """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else
     (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
@@ -61,9 +73,10 @@ class ControlSocket:
 
     def start(self) -> ControlSocket:
         """Bind and start reading; OSError (one line naming the socket) when it cannot bind."""
+        address = self._bind_address()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            sock.bind(self._bind_address())
+            sock.bind(address)
         except OSError as exc:
             sock.close()
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
@@ -78,9 +91,16 @@ class ControlSocket:
         if self.address.startswith("@"):
             return b"\0" + self.address[1:].encode()
         path = Path(self.address)
-        with contextlib.suppress(FileNotFoundError):
-            if stat.S_ISSOCK(path.lstat().st_mode):
-                path.unlink()  # left by an earlier run
+        try:
+            mode = path.lstat().st_mode
+        except FileNotFoundError:
+            return self.address
+        if not stat.S_ISSOCK(mode):
+            raise OSError(f"control.socket {self.address}: exists and is not a socket; remove it or choose another path")
+        if _is_live(self.address):
+            raise OSError(f"control.socket {self.address}: in use by another process (another daemon?); "
+                          "stop it or choose another path")
+        path.unlink()  # left by an earlier run
         return self.address
 
     def _loop(self) -> None:
