@@ -70,6 +70,7 @@ class ControlSocket:
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._rebind_failed = False
 
     def start(self) -> ControlSocket:
         """Bind and start reading; OSError (one line naming the socket) when it cannot bind."""
@@ -104,17 +105,38 @@ class ControlSocket:
         return self.address
 
     def _loop(self) -> None:
-        sock = self._sock
-        while not self._stop.is_set() and sock is not None:
+        while not self._stop.is_set() and (sock := self._sock) is not None:
             try:
                 data = sock.recv(MAX_DATAGRAM + 1)  # one byte more: a longer datagram is seen, not cut
             except TimeoutError:
+                self._rebind_if_removed()
                 continue
             except OSError:
                 if self._stop.is_set():
                     return
                 continue
             self._handle(data)
+
+    def _rebind_if_removed(self) -> None:
+        """A socket file deleted while running (tmp cleaner, a careless ``rm``) is bound again:
+        otherwise every later robot message would be lost without a word."""
+        if self.address.startswith("@") or os.path.lexists(self.address):
+            return
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            sock.bind(self.address)
+        except OSError as exc:
+            sock.close()
+            if not self._rebind_failed:
+                self._rebind_failed = True
+                log.error("control socket %s was removed and cannot be bound again (%s); robot messages are "
+                          "lost until it can", self.address, exc.strerror or exc)
+            return
+        sock.settimeout(POLL_S)
+        old, self._sock, self._rebind_failed = self._sock, sock, False
+        if old is not None:
+            old.close()
+        log.warning("control socket %s was removed while running; bound it again", self.address)
 
     def _handle(self, data: bytes) -> None:
         closed = parse_message(data)
