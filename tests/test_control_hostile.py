@@ -80,3 +80,24 @@ def test_a_path_that_is_a_file_or_folder_is_left_alone_with_one_line_saying_so(t
     with pytest.raises(OSError, match="exists and is not a socket; remove it or choose another path"):
         ControlSocket(str(path), lambda closed, source: None).start()
     assert path.is_dir() if kind == "folder" else path.read_text() == "keep me"
+
+
+def test_sighup_retries_a_control_socket_that_could_not_bind(tmp_path, caplog):
+    from runtime.config import load_config
+    from runtime.daemon import Daemon
+
+    folder = tmp_path / "run"
+    config = tmp_path / "handover.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{tmp_path}"\n'
+                      f'[control]\nsocket = "{folder / "c.sock"}"\n')
+    daemon = Daemon(load_config(config))
+    try:
+        with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+            daemon.start_control()
+        assert daemon.control is None and "cannot bind" in caplog.text
+        folder.mkdir()  # the operator fixes it and sends SIGHUP
+        daemon._do_reload()
+        assert daemon.control is not None and (folder / "c.sock").is_socket()
+    finally:
+        daemon.stop_control()
+        daemon.sinks.close()
