@@ -110,7 +110,7 @@ class OnsetTrigger:
         p = self._p
         np.add.reduceat(row, self._starts, out=p, dtype=np.float64)
         if self._request is not None:
-            self._apply_request(p)
+            self._apply_request(p, number)
         if p.sum() < self.contact:
             self.state, self.robot_open, self.quiet, self.level = OPEN, False, 0, 0.0
             return -1
@@ -124,9 +124,13 @@ class OnsetTrigger:
             return -1
         return self._watch(p, number)
 
-    def _apply_request(self, p: np.ndarray) -> None:
+    def _apply_request(self, p: np.ndarray, number: int) -> None:
         closed, self._request = self._request, None
-        if closed:
+        if closed and number - self.last_trigger < self.refractory_frames:
+            self.robot_open = False  # the interaction that fired goes on: arm once it settled, as without the message
+            if self.state != SETTLING:
+                self._start_settling(p)
+        elif closed:
             self.robot_open = False
             self.state = ARMED
             self._base[:] = p
