@@ -21,7 +21,8 @@ against a baseline that follows the *settled* grasp:
   letting go or re-seating its grasp, not a person: it goes back to ``settling`` without firing.
 
 The robot may say when its grasp has settled or is released (``set_grasp``): ``closed`` arms
-at once with the current pressure as the baseline; ``open`` disarms until the hand is seen
+at once with the current pressure as the baseline (an armed trigger keeps its baseline, and
+within the refractory time after a fire it settles first: one interaction, one event); ``open`` disarms until the hand is seen
 empty (then self-arming resumes, so a lost message never deafens the trigger). Without these
 messages the trigger finds the settled grasp by itself.
 
@@ -132,9 +133,10 @@ class OnsetTrigger:
                 self._start_settling(p)
         elif closed:
             self.robot_open = False
-            self.state = ARMED
-            self._base[:] = p
-            self._trend[:] = 0.0
+            if self.state != ARMED:  # armed already: keep the baseline (a repeated message must not deafen it)
+                self.state = ARMED
+                self._base[:] = p
+                self._trend[:] = 0.0
         else:
             self.robot_open = True
             self.state = OPEN

@@ -3,6 +3,8 @@ one interaction into two events, nor make the trigger deaf."""
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 from runtime.trigger_settings import build_trigger, resolve_trigger
@@ -45,4 +47,10 @@ def test_random_walks_with_random_grasp_messages_never_fire_twice_within_the_ref
             if rng.random() < 0.05:
                 grasp[i] = bool(rng.random() < 0.7)
         fires = _fires(rows, grasp)
-        assert all(b - a >= refractory for a, b in zip(fires, fires[1:], strict=False)), (seed, fires)
+        assert all(b - a >= refractory for a, b in pairwise(fires)), (seed, fires)
+
+
+def test_grasp_closed_repeated_every_frame_does_not_make_the_trigger_deaf():
+    """A robot that repeats its state (``grasp closed`` at its control rate) must not re-baseline
+    the armed trigger on every frame: the person's pull would never depart from the baseline."""
+    assert len(_fires(PULL, {i: True for i in range(30, len(PULL))})) == 1
