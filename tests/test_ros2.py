@@ -247,3 +247,17 @@ def test_a_closed_node_never_raises_into_the_daemon(tmp_path):
                                         model_file="m.onnx", classes=["pull"]))
     assert sink.errors == 1 and sink.sent == 0
     sink.close()  # twice is harmless
+
+
+def test_a_namespace_too_long_for_ros_is_one_line_and_no_runtime_warning(caplog):
+    """The config's rule passes any length; rclpy refuses names over its limits and also
+    warns (a multi-line RuntimeWarning on stderr) while it tears the half-made node down."""
+    import warnings
+
+    from runtime.ros2 import open_ros2_sink
+
+    with caplog.at_level(logging.ERROR, logger="handover.ros2"), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert open_ros2_sink(Ros2Config(namespace="/" + "a" * 300), daemon=None) is None
+    assert [str(w.message) for w in caught] == []
+    assert len(caplog.records) == 1 and "cannot start the ROS 2 node" in caplog.text
