@@ -124,7 +124,9 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     assert first["type"] == "model" and first["model_version"] == 1 and first["previous_model_id"] is None
     assert listener.models and listener.models[-1] == udp_lines[0]
     # health on /diagnostics
-    status = listener.diagnostics[-2].status[0]  # the last one while streaming
+    streaming = [d for d in listener.diagnostics if _state(d) == "streaming"]
+    assert streaming, "no health view while streaming"
+    status = streaming[-1].status[0]  # the last one while streaming (shutdown may publish more than one)
     values = {kv.key: kv.value for kv in status.values}
     assert status.hardware_id == url and "tactile handover" in status.name
     for key in ("device_state", "frame_rate_hz", "crc_errors", "stalls", "reconnects", "model_id", "model_swaps"):
