@@ -263,3 +263,20 @@ def test_a_namespace_too_long_for_ros_is_one_line_and_no_runtime_warning(caplog)
         assert open_ros2_sink(Ros2Config(namespace="/" + "a" * 300), daemon=None) is None
     assert [str(w.message) for w in caught] == []
     assert len(caplog.records) == 1 and "cannot start the ROS 2 node" in caplog.text
+
+
+def test_a_pad_timer_that_fires_before_the_daemon_has_a_layout_does_not_stop_the_node(tmp_path):
+    """At 1000 Hz the pad timer ran before ``Daemon.__init__`` had set ``layout`` (the sinks
+    are made first): the AttributeError ended the executor, so health, pads and the grasp
+    topic were silently gone for the whole run."""
+    from types import SimpleNamespace
+
+    from runtime.ros2_node import Ros2Sink
+
+    half_made = SimpleNamespace(cfg=SimpleNamespace(device=SimpleNamespace(url="sim://")), latest_frame=None)
+    sink = Ros2Sink(Ros2Config(pads=True, pad_rate_hz=1000.0), half_made)
+    try:
+        time.sleep(0.3)
+        assert sink._thread.is_alive(), "the executor thread ended"
+    finally:
+        sink.close()
