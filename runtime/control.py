@@ -20,6 +20,7 @@ import os
 import socket
 import stat
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -32,6 +33,8 @@ MAX_DATAGRAM = 512
 POLL_S = 0.2
 """Longest the reader blocks: bounds how long ``stop`` takes."""
 MESSAGES = {"grasp closed": True, "grasp open": False}
+GRASP_LOG_INTERVAL_S = 1.0
+"""At most one log line per this many seconds for grasp messages (the rest are counted in the next)."""
 
 
 def _is_live(path: str) -> bool:
@@ -180,6 +183,8 @@ class GraspControl:
     grasp_closed: bool | None
     grasp_request: tuple[bool, str] | None
     _grasp_requests: deque
+    _grasp_logged: float = float("-inf")
+    _grasp_unlogged: int = 0
 
     def set_grasp(self, closed: bool, source: str = "") -> None:
         """The robot says its grasp has settled (``closed``) or is released; thread-safe.
@@ -190,7 +195,13 @@ class GraspControl:
         request = (bool(closed), str(source))
         self.grasp_request = request  # the latest call, for status and tests
         self._grasp_requests.append(request)
-        daemon_log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
+        now = time.monotonic()
+        if now - self._grasp_logged < GRASP_LOG_INTERVAL_S:  # a chatty robot must not flood the journal
+            self._grasp_unlogged += 1
+            return
+        more = f"; {self._grasp_unlogged} more grasp messages since the last line" if self._grasp_unlogged else ""
+        self._grasp_logged, self._grasp_unlogged = now, 0
+        daemon_log.info("grasp %s%s%s", "closed" if closed else "open", f" (from {source})" if source else "", more)
 
     def _apply_grasp(self) -> None:
         while self._grasp_requests:

@@ -101,3 +101,17 @@ def test_sighup_retries_a_control_socket_that_could_not_bind(tmp_path, caplog):
     finally:
         daemon.stop_control()
         daemon.sinks.close()
+
+
+def test_a_flood_of_grasp_messages_is_a_few_log_lines_not_one_per_message(tmp_path, caplog):
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+
+    daemon = Daemon(config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
+                                      "model": {"folder": str(tmp_path)}}))
+    with caplog.at_level(logging.INFO, logger="handover.daemon"):
+        for i in range(5000):
+            daemon.set_grasp(i % 3 != 0, source="control")
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("grasp ")]
+    assert 1 <= len(lines) <= 3, len(lines)
+    assert daemon.grasp_request == (True, "control") and len(daemon._grasp_requests) > 0
