@@ -117,3 +117,17 @@ def test_tsne_of_cases_without_spread_is_points_not_a_segfault(rows):
             f"e = tsne_embedding({fill})\nassert e.shape == (40, 2) and np.isfinite(e).all(), e\nprint('ok')")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "ok", (done.returncode, done.stderr[-500:])
+
+
+def test_rbf_decision_bound_far_from_every_support_vector_is_inf_not_nan():
+    """A case far from every support vector with a large input error (a model trained on cases
+    without spread: the scaler blows the error up) gave kernel 0 x expm1 overflow = NaN, so
+    ``handover verify`` printed 'SVM margin nan' and called an exact tie 'NOT a near tie'."""
+    from sklearn.svm import SVC
+
+    from trainer.numerics import svm_decision_bounds
+
+    svm = SVC(kernel="rbf", gamma=1.0).fit(np.array([[0.0], [1.0], [2.0]]), np.array([0, 1, 2]))  # zero coefs too
+    with np.errstate(all="ignore"):
+        bound = svm_decision_bounds(svm, np.array([[100.0]]), np.array([[100.0]]))
+    assert not np.isnan(bound).any() and (bound > 0).all(), bound

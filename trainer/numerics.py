@@ -151,9 +151,16 @@ def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = 
     d_err = d_err + (2.0 * np.abs(diff) * delta[:, None, :] + delta[:, None, :] ** 2).sum(-1)
     g = float(svm._gamma)
     kern = np.exp(-g * dist)
-    k_err = kern * np.expm1(g * d_err + 2.0 * U32 * g * dist + 6.0 * U32)
+    growth = g * d_err + 2.0 * U32 * g * dist + 6.0 * U32
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow: an infinite bound, which is honest
+        k_err = kern * np.expm1(growth)
+        # kernel 0 (far from a support vector) x expm1 overflow is NaN: the product is exp(growth - g dist)
+        k_err = np.where(np.isnan(k_err), np.exp(growth - g * dist), k_err)
     n_sv = sv.shape[0]
-    return np.abs(kern) @ np.abs(coef) * gamma(n_sv + 3) + k_err @ np.abs(coef) + gamma(n_sv + 3) * np.abs(intercept)
+    abs_coef = np.abs(coef)
+    infinite = np.isinf(k_err)  # inf x a zero coefficient must add nothing, not NaN
+    k_term = np.where(infinite.astype(np.float64) @ (abs_coef > 0) > 0, np.inf, np.where(infinite, 0.0, k_err) @ abs_coef)
+    return np.abs(kern) @ abs_coef * gamma(n_sv + 3) + k_term + gamma(n_sv + 3) * np.abs(intercept)
 
 
 def ovr_scores(dec: np.ndarray, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
