@@ -4,7 +4,8 @@ A Unix datagram socket (``[control] socket``, a path or ``@abstract`` name) read
 thread, so the hot path never blocks on it. Known messages call back into the daemon
 (``Daemon.set_grasp``, which only records the request; the hot path applies it at the next
 frame). Anything else is counted and logged once (the first one, with what arrived); it never
-stops the thread or the daemon. A stale socket file left by an earlier run is replaced.
+stops the thread or the daemon. A stale socket file left by an earlier run is replaced; a live
+one (another daemon) is not; a socket file deleted while running is bound again.
 
 Messages (ASCII, case and surrounding white space ignored):
 
