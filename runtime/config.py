@@ -324,6 +324,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     for path in unix:
         if not path.startswith("/") and not path.startswith("@"):
             raise ConfigError(f"sinks.unix: socket path must be absolute, got {path!r}")
+        _no_nul("sinks.unix", path)
     sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
                         ros2=_bool("sinks.ros2", si, SinksConfig.ros2))
     ros2 = _ros2_config(data.get("ros2", {}))
@@ -340,6 +341,8 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     sock = ct.get("socket")
     if sock is not None and (not isinstance(sock, str) or not (sock.startswith("/") or sock.startswith("@"))):
         raise ConfigError(f"control.socket: must be an absolute path or @abstract name, got {sock!r}")
+    if sock is not None:
+        _no_nul("control.socket", sock)
     control = ControlConfig(socket=sock)
 
     log_level = _str("log_level", data, "info").lower()
@@ -422,6 +425,12 @@ def _bool(key: str, table: dict, default: bool) -> bool:
     if not isinstance(value, bool):
         raise ConfigError(f"{key}: must be true or false, got {value!r}")
     return value
+
+
+def _no_nul(key: str, address: str) -> None:
+    """A socket path with a NUL character cannot be bound (Python raises ValueError, not OSError)."""
+    if not address.startswith("@") and "\0" in address:
+        raise ConfigError(f"{key}: a socket path must not contain a NUL character, got {address!r}")
 
 
 def _num(key: str, table: dict, default: float) -> float:
