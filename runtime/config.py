@@ -233,6 +233,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2", "control"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
+    _no_nul(data)
     for name in sections:
         if name in data and not isinstance(data[name], dict):
             raise ConfigError(f"{name}: must be a table ([{name}])")
@@ -324,7 +325,6 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     for path in unix:
         if not path.startswith("/") and not path.startswith("@"):
             raise ConfigError(f"sinks.unix: socket path must be absolute, got {path!r}")
-        _no_nul("sinks.unix", path)
     sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
                         ros2=_bool("sinks.ros2", si, SinksConfig.ros2))
     ros2 = _ros2_config(data.get("ros2", {}))
@@ -341,8 +341,6 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     sock = ct.get("socket")
     if sock is not None and (not isinstance(sock, str) or not (sock.startswith("/") or sock.startswith("@"))):
         raise ConfigError(f"control.socket: must be an absolute path or @abstract name, got {sock!r}")
-    if sock is not None:
-        _no_nul("control.socket", sock)
     control = ControlConfig(socket=sock)
 
     log_level = _str("log_level", data, "info").lower()
@@ -427,10 +425,13 @@ def _bool(key: str, table: dict, default: bool) -> bool:
     return value
 
 
-def _no_nul(key: str, address: str) -> None:
-    """A socket path with a NUL character cannot be bound (Python raises ValueError, not OSError)."""
-    if not address.startswith("@") and "\0" in address:
-        raise ConfigError(f"{key}: a socket path must not contain a NUL character, got {address!r}")
+def _no_nul(value: Any, key: str = "") -> None:
+    """No string may hold a NUL character (TOML's "\u0000"): paths with one raise ValueError deep in the daemon."""
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for k, v in items:
+        _no_nul(v, (f"{key}.{k}" if key else str(k)) if isinstance(value, dict) else key)
+    if isinstance(value, str) and "\0" in value:
+        raise ConfigError(f"{key}: must not contain a NUL character, got {value!r}")
 
 
 def _num(key: str, table: dict, default: float) -> float:

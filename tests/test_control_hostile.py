@@ -117,11 +117,13 @@ def test_a_flood_of_grasp_messages_is_a_few_log_lines_not_one_per_message(tmp_pa
     assert daemon.grasp_request == (True, "control") and len(daemon._grasp_requests) > 0
 
 
-@pytest.mark.parametrize("table", [{"control": {"socket": "/tmp/a\x00b.sock"}}, {"sinks": {"unix": ["/tmp/a\x00b.sock"]}}])
-def test_a_socket_path_with_a_nul_character_is_a_config_error(table):
+@pytest.mark.parametrize("key", ["control.socket", "sinks.unix", "health_file", "model.folder", "model.quarantine_file"])
+def test_a_path_with_a_nul_character_is_a_config_error(key):
     """TOML's "\\u0000" passed --check, then ``handover run`` died of 'ValueError: embedded null byte'."""
     from runtime.config import ConfigError, config_from_dict
 
-    key = "control.socket" if "control" in table else "sinks.unix"
-    with pytest.raises(ConfigError, match=f"{key}: .*NUL"):
+    section, _, name = key.rpartition(".")
+    value = ["/tmp/a\x00b"] if key == "sinks.unix" else "/tmp/a\x00b"
+    table = {section: {name: value}} if section else {name: value}
+    with pytest.raises(ConfigError, match=f"{key}: must not contain a NUL"):
         config_from_dict({"device": {"url": "sim://"}, **table})
