@@ -300,6 +300,12 @@ CODEWORD_KERNEL = "codeword_kernel"
 folded), 1]``, one per window length (trainer.onnx_export)."""
 
 
+def optional_table(value) -> dict:
+    """An optional metadata object (``graph``, ``features``, ``svm``), or {} when a hand-edited or
+    hostile file holds something else there (the loader and ``inspect`` must not trip on it)."""
+    return value if isinstance(value, dict) else {}
+
+
 def _check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ...]]) -> None:
     """K and W of the metadata against the codeword kernels of a BoW graph (read from the wire).
 
@@ -313,14 +319,14 @@ def _check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ..
         raise ModelContractError(f"metadata says a BoW model but the graph has no {CODEWORD_KERNEL} initializer")
     if any(len(d) != 4 for d in kernels):
         raise ModelContractError(f"codeword kernels of shape {kernels}, expected [K, 1, W, 1]")
-    fold = bool((meta.extra.get("graph") or {}).get("fold_derivative", False))
+    fold = bool(optional_table(meta.extra.get("graph")).get("fold_derivative", False))
     words = sorted({d[0] for d in kernels})
     windows = sorted(d[2] - int(fold) for d in kernels)
     if words != [meta.K]:
         raise ModelContractError(f"metadata K={meta.K}, but the graph's codebook has {', '.join(map(str, words))} words")
     if max(windows) != meta.W:
         raise ModelContractError(f"metadata W={meta.W}, but the graph's longest codeword window is {max(windows)}")
-    listed = (meta.extra.get("features") or {}).get("windows")
+    listed = optional_table(meta.extra.get("features")).get("windows")
     if isinstance(listed, list) and sorted(listed) != windows:
         raise ModelContractError(f"metadata features.windows {listed}, but the graph's codeword windows are {windows}")
 

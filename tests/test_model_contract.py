@@ -252,3 +252,18 @@ def test_inspect_card(good_path, tmp_path, capsys):
     (tmp_path / "bad.onnx").write_bytes(b"\x00" * 10)
     assert handover(["inspect", str(tmp_path / "bad.onnx")]) == 1
     assert capsys.readouterr().err.startswith("handover inspect: model ")
+
+
+@pytest.mark.parametrize("extra", [{"features": [1, 2]}, {"features": {"families": 5}},
+                                   {"features": {"families": [{"x": 1}]}}, {"graph": [1]}, {"svm": "rbf"},
+                                   {"features": {"families": "hand"}}])
+def test_inspect_card_of_odd_optional_metadata_is_a_card_not_a_traceback(proto, tmp_path, capsys, extra):
+    """The loader accepts any optional key; ``inspect`` died of TypeError/AttributeError on
+    ``features`` or ``graph`` of the wrong type (a hand-edited or hostile model file)."""
+    from runtime.cli import main as handover
+
+    meta = _meta(proto)
+    meta.update(extra)
+    path = _save(_with_meta(proto, meta), tmp_path)
+    assert handover(["inspect", str(path)]) == 0
+    assert "detects:" in capsys.readouterr().out
