@@ -233,6 +233,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2", "control"}
     top = {"log_level", "health_file"}
     _no_unknown("", data, sections | top)
+    _no_nul(data)
     for name in sections:
         if name in data and not isinstance(data[name], dict):
             raise ConfigError(f"{name}: must be a table ([{name}])")
@@ -422,6 +423,15 @@ def _bool(key: str, table: dict, default: bool) -> bool:
     if not isinstance(value, bool):
         raise ConfigError(f"{key}: must be true or false, got {value!r}")
     return value
+
+
+def _no_nul(value: Any, key: str = "") -> None:
+    """No string may hold a NUL character (TOML's "\u0000"): paths with one raise ValueError deep in the daemon."""
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for k, v in items:
+        _no_nul(v, (f"{key}.{k}" if key else str(k)) if isinstance(value, dict) else key)
+    if isinstance(value, str) and "\0" in value:
+        raise ConfigError(f"{key}: must not contain a NUL character, got {value!r}")
 
 
 def _num(key: str, table: dict, default: float) -> float:

@@ -4,7 +4,8 @@ A Unix datagram socket (``[control] socket``, a path or ``@abstract`` name) read
 thread, so the hot path never blocks on it. Known messages call back into the daemon
 (``Daemon.set_grasp``, which only records the request; the hot path applies it at the next
 frame). Anything else is counted and logged once (the first one, with what arrived); it never
-stops the thread or the daemon. A stale socket file left by an earlier run is replaced.
+stops the thread or the daemon. A stale socket file left by an earlier run is replaced; a live
+one (another daemon) is not; a socket file deleted while running is bound again.
 
 Messages (ASCII, case and surrounding white space ignored):
 
@@ -20,6 +21,7 @@ import os
 import socket
 import stat
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -32,10 +34,27 @@ MAX_DATAGRAM = 512
 POLL_S = 0.2
 """Longest the reader blocks: bounds how long ``stop`` takes."""
 MESSAGES = {"grasp closed": True, "grasp open": False}
+GRASP_LOG_INTERVAL_S = 1.0
+"""At most one log line per this many seconds for grasp messages (the rest are counted in the next)."""
+
+
+def _is_live(path: str) -> bool:
+    """Whether a process still reads the socket file at ``path`` (a stale one refuses a connect)."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        probe.connect(path)
+    except OSError:
+        return False
+    finally:
+        probe.close()
+    return True
 
 
 def parse_message(data: bytes) -> bool | None:
-    """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else."""
+    """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else
+    (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
+    if len(data) > MAX_DATAGRAM:
+        return None
     try:
         text = data.decode("ascii").strip().lower()
     except UnicodeDecodeError:
@@ -55,12 +74,14 @@ class ControlSocket:
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._rebind_failed = False
 
     def start(self) -> ControlSocket:
         """Bind and start reading; OSError (one line naming the socket) when it cannot bind."""
+        address = self._bind_address()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            sock.bind(self._bind_address())
+            sock.bind(address)
         except OSError as exc:
             sock.close()
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
@@ -75,23 +96,51 @@ class ControlSocket:
         if self.address.startswith("@"):
             return b"\0" + self.address[1:].encode()
         path = Path(self.address)
-        with contextlib.suppress(FileNotFoundError):
-            if stat.S_ISSOCK(path.lstat().st_mode):
-                path.unlink()  # left by an earlier run
+        try:
+            mode = path.lstat().st_mode
+        except FileNotFoundError:
+            return self.address
+        if not stat.S_ISSOCK(mode):
+            raise OSError(f"control.socket {self.address}: exists and is not a socket; remove it or choose another path")
+        if _is_live(self.address):
+            raise OSError(f"control.socket {self.address}: in use by another process (another daemon?); "
+                          "stop it or choose another path")
+        path.unlink()  # left by an earlier run
         return self.address
 
     def _loop(self) -> None:
-        sock = self._sock
-        while not self._stop.is_set() and sock is not None:
+        while not self._stop.is_set() and (sock := self._sock) is not None:
             try:
-                data = sock.recv(MAX_DATAGRAM)
+                data = sock.recv(MAX_DATAGRAM + 1)  # one byte more: a longer datagram is seen, not cut
             except TimeoutError:
+                self._rebind_if_removed()
                 continue
             except OSError:
                 if self._stop.is_set():
                     return
                 continue
             self._handle(data)
+
+    def _rebind_if_removed(self) -> None:
+        """A socket file deleted while running (tmp cleaner, a careless ``rm``) is bound again:
+        otherwise every later robot message would be lost without a word."""
+        if self.address.startswith("@") or os.path.lexists(self.address):
+            return
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            sock.bind(self.address)
+        except OSError as exc:
+            sock.close()
+            if not self._rebind_failed:
+                self._rebind_failed = True
+                log.error("control socket %s was removed and cannot be bound again (%s); robot messages are "
+                          "lost until it can", self.address, exc.strerror or exc)
+            return
+        sock.settimeout(POLL_S)
+        old, self._sock, self._rebind_failed = self._sock, sock, False
+        if old is not None:
+            old.close()
+        log.warning("control socket %s was removed while running; bound it again", self.address)
 
     def _handle(self, data: bytes) -> None:
         closed = parse_message(data)
@@ -135,6 +184,8 @@ class GraspControl:
     grasp_closed: bool | None
     grasp_request: tuple[bool, str] | None
     _grasp_requests: deque
+    _grasp_logged: float = float("-inf")
+    _grasp_unlogged: int = 0
 
     def set_grasp(self, closed: bool, source: str = "") -> None:
         """The robot says its grasp has settled (``closed``) or is released; thread-safe.
@@ -145,7 +196,13 @@ class GraspControl:
         request = (bool(closed), str(source))
         self.grasp_request = request  # the latest call, for status and tests
         self._grasp_requests.append(request)
-        daemon_log.info("grasp %s%s", "closed" if closed else "open", f" (from {source})" if source else "")
+        now = time.monotonic()
+        if now - self._grasp_logged < GRASP_LOG_INTERVAL_S:  # a chatty robot must not flood the journal
+            self._grasp_unlogged += 1
+            return
+        more = f"; {self._grasp_unlogged} more grasp messages since the last line" if self._grasp_unlogged else ""
+        self._grasp_logged, self._grasp_unlogged = now, 0
+        daemon_log.info("grasp %s%s%s", "closed" if closed else "open", f" (from {source})" if source else "", more)
 
     def _apply_grasp(self) -> None:
         while self._grasp_requests:

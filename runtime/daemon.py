@@ -495,7 +495,7 @@ class Daemon(GraspControl):
             log.warning("%s", warning)
         self.sinks.close()
         self.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self)
-        if new.control != old.control:
+        if new.control != old.control or self.control is None:  # also retries one that could not bind
             self.stop_control()
             self.start_control()
         if new.health_file != old.health_file:

@@ -18,9 +18,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def card(model) -> dict:
+    from runtime.model import optional_table
+
     meta = model.meta
     kernel = meta.extra.get("kernel")
-    svm = dict(meta.extra.get("svm") or {})
+    svm = dict(optional_table(meta.extra.get("svm")))
+    families = optional_table(meta.extra.get("features")).get("families")
     if kernel != "rbf":
         svm.pop("gamma", None)  # only the RBF kernel has one
     groups = meta.extra.get("feature_groups")
@@ -36,7 +39,7 @@ def card(model) -> dict:
         "W": meta.W,
         "K": meta.K,
         "per_pad": None if groups is None else len(groups) > 1,
-        "families": (meta.extra.get("features") or {}).get("families"),
+        "families": [str(f) for f in families] if isinstance(families, list) else None,
         "window_seconds": round(meta.T / meta.sample_rate_hz, 4),
         "sample_rate_hz": meta.sample_rate_hz,
         "trigger": meta.trigger,
@@ -46,7 +49,7 @@ def card(model) -> dict:
         "evaluation": meta.evaluation,
         "kernel": kernel,
         "svm": svm or None,
-        "graph": {**meta.extra.get("graph", {}), "n_nodes": model.n_nodes, "n_bytes": model.n_bytes},
+        "graph": {**optional_table(meta.extra.get("graph")), "n_nodes": model.n_nodes, "n_bytes": model.n_bytes},
         "reference": meta.extra.get("reference"),
     }
 

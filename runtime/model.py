@@ -28,6 +28,7 @@ import numpy as np
 
 from runtime.onnx_wire import WireError, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
+from runtime.trigger_settings import recorded_problems
 
 SCHEMA_VERSION = 1
 METADATA_KEY = "handover"
@@ -165,6 +166,7 @@ class ModelMeta:
         fraction = self.trigger.get("fraction")
         if not isinstance(fraction, int | float) or not 0.0 < float(fraction) < 1.0:
             problems.append(f"trigger.fraction {fraction!r} must be a number in (0, 1)")
+        problems += recorded_problems(self.trigger)
         missing = [k for k in TRAINING_KEYS if k not in self.training]
         if missing:
             problems.append(f"training lacks {', '.join(missing)}")
@@ -303,6 +305,12 @@ CODEWORD_KERNEL = "codeword_kernel"
 folded), 1]``, one per window length (trainer.onnx_export)."""
 
 
+def optional_table(value) -> dict:
+    """An optional metadata object (``graph``, ``features``, ``svm``), or {} when a hand-edited or
+    hostile file holds something else there (the loader and ``inspect`` must not trip on it)."""
+    return value if isinstance(value, dict) else {}
+
+
 def _check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ...]]) -> None:
     """K and W of the metadata against the codeword kernels of a BoW graph (read from the wire).
 
@@ -316,14 +324,14 @@ def _check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ..
         raise ModelContractError(f"metadata says a BoW model but the graph has no {CODEWORD_KERNEL} initializer")
     if any(len(d) != 4 for d in kernels):
         raise ModelContractError(f"codeword kernels of shape {kernels}, expected [K, 1, W, 1]")
-    fold = bool((meta.extra.get("graph") or {}).get("fold_derivative", False))
+    fold = bool(optional_table(meta.extra.get("graph")).get("fold_derivative", False))
     words = sorted({d[0] for d in kernels})
     windows = sorted(d[2] - int(fold) for d in kernels)
     if words != [meta.K]:
         raise ModelContractError(f"metadata K={meta.K}, but the graph's codebook has {', '.join(map(str, words))} words")
     if max(windows) != meta.W:
         raise ModelContractError(f"metadata W={meta.W}, but the graph's longest codeword window is {max(windows)}")
-    listed = (meta.extra.get("features") or {}).get("windows")
+    listed = optional_table(meta.extra.get("features")).get("windows")
     if isinstance(listed, list) and sorted(listed) != windows:
         raise ModelContractError(f"metadata features.windows {listed}, but the graph's codeword windows are {windows}")
 

@@ -21,7 +21,8 @@ against a baseline that follows the *settled* grasp:
   letting go or re-seating its grasp, not a person: it goes back to ``settling`` without firing.
 
 The robot may say when its grasp has settled or is released (``set_grasp``): ``closed`` arms
-at once with the current pressure as the baseline; ``open`` disarms until the hand is seen
+at once with the current pressure as the baseline (an armed trigger keeps its baseline, and
+within the refractory time after a fire it settles first: one interaction, one event); ``open`` disarms until the hand is seen
 empty (then self-arming resumes, so a lost message never deafens the trigger). Without these
 messages the trigger finds the settled grasp by itself.
 
@@ -110,7 +111,7 @@ class OnsetTrigger:
         p = self._p
         np.add.reduceat(row, self._starts, out=p, dtype=np.float64)
         if self._request is not None:
-            self._apply_request(p)
+            self._apply_request(p, number)
         if p.sum() < self.contact:
             self.state, self.robot_open, self.quiet, self.level = OPEN, False, 0, 0.0
             return -1
@@ -124,13 +125,18 @@ class OnsetTrigger:
             return -1
         return self._watch(p, number)
 
-    def _apply_request(self, p: np.ndarray) -> None:
+    def _apply_request(self, p: np.ndarray, number: int) -> None:
         closed, self._request = self._request, None
-        if closed:
+        if closed and number - self.last_trigger < self.refractory_frames:
+            self.robot_open = False  # the interaction that fired goes on: arm once it settled, as without the message
+            if self.state != SETTLING:
+                self._start_settling(p)
+        elif closed:
             self.robot_open = False
-            self.state = ARMED
-            self._base[:] = p
-            self._trend[:] = 0.0
+            if self.state != ARMED:  # armed already: keep the baseline (a repeated message must not deafen it)
+                self.state = ARMED
+                self._base[:] = p
+                self._trend[:] = 0.0
         else:
             self.robot_open = True
             self.state = OPEN

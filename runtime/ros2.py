@@ -12,6 +12,7 @@ import logging
 import os
 import re
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +68,9 @@ def open_ros2_sink(cfg: Ros2Config, daemon: Any) -> Sink | None:
             problem = f"rclpy or a ROS 2 message package is missing ({exc}); {EXTRA_HINT}"
     if problem is None:
         try:
-            return Ros2Sink(cfg, daemon)
+            with warnings.catch_warnings():  # rclpy warns (several lines) while it drops a node it refused
+                warnings.simplefilter("ignore", RuntimeWarning)
+                return Ros2Sink(cfg, daemon)
         except Exception as exc:  # rclpy raises its own types (RCLError, InvalidHandle, ...)
             text = str(exc).strip().splitlines()
             problem = f"cannot start the ROS 2 node: {text[0] if text else type(exc).__name__}"

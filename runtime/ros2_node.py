@@ -179,17 +179,18 @@ class Ros2Sink(Sink):
             self._warn(f"ros2: diagnostics not published ({exc})")
 
     def _publish_pads(self) -> None:
-        frame, layout = self.daemon.latest_frame, self.daemon.layout
+        # read with getattr: the timer may fire before the daemon has finished making itself
+        frame, layout = getattr(self.daemon, "latest_frame", None), getattr(self.daemon, "layout", None)
         if frame is None or layout is None or frame is self._pad_frame:
             return  # nothing new: publish nothing rather than the same image again
         self._pad_frame = frame
-        if layout is not self._pad_layout:
-            for _, pub in self._pad_publishers:
-                self.node.destroy_publisher(pub)
-            self._pad_layout = layout
-            self._pad_publishers = [(i, self.node.create_publisher(Image, pad_topic(layout, i), self._pad_qos))
-                                    for i in range(layout.n_matrices)]
-        try:
+        try:  # an exception here would end the executor: health, pads and the grasp topic with it
+            if layout is not self._pad_layout:
+                for _, pub in self._pad_publishers:
+                    self.node.destroy_publisher(pub)
+                self._pad_layout = layout
+                self._pad_publishers = [(i, self.node.create_publisher(Image, pad_topic(layout, i), self._pad_qos))
+                                        for i in range(layout.n_matrices)]
             stamp = self.node.get_clock().now().to_msg()
             for index, pub in self._pad_publishers:
                 if pub.get_subscription_count():  # nobody looking: no image built

@@ -84,6 +84,31 @@ _FROM_MODEL = ("kind", "fraction", "pre_frames", "change", "floor", "contact", "
 """Settings a model's metadata may carry (what its training windows were cut with)."""
 
 
+RECORDED_RANGES: dict[str, tuple[float, float]] = {"floor": (0.001, 1.0), "contact": (0.0, 1.0),
+                                                   "settle_change": (0.0, 1.0)}
+"""Ranges of the recorded settings that are not config keys (the rest use the config's RANGES)."""
+
+
+def recorded_problems(recorded: dict) -> list[str]:
+    """What is wrong with a model's recorded trigger settings (a hostile or broken file must
+    be refused when loaded, not crash the daemon when it builds the trigger)."""
+    from runtime.config import RANGES, TRIGGER_KINDS
+
+    problems = []
+    kind = recorded.get("kind")
+    if kind is not None and kind not in TRIGGER_KINDS:
+        problems.append(f"trigger.kind {kind!r} must be one of {', '.join(TRIGGER_KINDS)}")
+    for name in _FROM_MODEL[2:]:
+        value = recorded.get(name)
+        if value is None:
+            continue
+        lo, hi = RANGES.get(f"trigger.{name}") or RECORDED_RANGES[name]
+        number = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        if not number or not lo <= value <= hi or (name == "pre_frames" and not isinstance(value, int)):
+            problems.append(f"trigger.{name} {value!r} must be a number in [{lo:g}, {hi:g}]")
+    return problems
+
+
 def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> TriggerSettings:
     """The trigger settings in force: config value, else the model's recorded one, else the default.
 

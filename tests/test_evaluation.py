@@ -103,3 +103,31 @@ def test_tsne_gives_two_columns():
     H = BowSVC(n_words=5, window=4).fit(X, y).transform_histograms(X)
     emb = tsne_embedding(H, seed=0)
     assert emb.shape == (len(X), 2)
+
+
+@pytest.mark.parametrize("rows", ["identical", "zeros"])
+def test_tsne_of_cases_without_spread_is_points_not_a_segfault(rows):
+    """Identical training cases (a recording whose trials are one and the same step) made
+    sklearn's t-SNE divide by a zero spread and the whole ``handover train`` die of SIGSEGV."""
+    import subprocess
+    import sys
+
+    fill = "np.ones((40, 20)) * 0.3" if rows == "identical" else "np.zeros((40, 20))"
+    code = ("import numpy as np\nfrom trainer.evaluation import tsne_embedding\n"
+            f"e = tsne_embedding({fill})\nassert e.shape == (40, 2) and np.isfinite(e).all(), e\nprint('ok')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", (done.returncode, done.stderr[-500:])
+
+
+def test_rbf_decision_bound_far_from_every_support_vector_is_inf_not_nan():
+    """A case far from every support vector with a large input error (a model trained on cases
+    without spread: the scaler blows the error up) gave kernel 0 x expm1 overflow = NaN, so
+    ``handover verify`` printed 'SVM margin nan' and called an exact tie 'NOT a near tie'."""
+    from sklearn.svm import SVC
+
+    from trainer.numerics import svm_decision_bounds
+
+    svm = SVC(kernel="rbf", gamma=1.0).fit(np.array([[0.0], [1.0], [2.0]]), np.array([0, 1, 2]))  # zero coefs too
+    with np.errstate(all="ignore"):
+        bound = svm_decision_bounds(svm, np.array([[100.0]]), np.array([[100.0]]))
+    assert not np.isnan(bound).any() and (bound > 0).all(), bound

@@ -98,6 +98,15 @@ def test_missing_or_broken_metadata(proto, tmp_path):
         (lambda m: m.update(dormant_class="idle"), "dormant_class"),
         (lambda m: m.update(trigger={"fraction": 1.5}), "trigger.fraction"),
         (lambda m: m.update(sample_rate_hz=-1), "sample_rate_hz"),
+        (lambda m: m["trigger"].update(kind="onset", change=5), "trigger.change"),
+        (lambda m: m["trigger"].update(kind="onset", change=float("nan")), "trigger.change"),
+        (lambda m: m["trigger"].update(kind="onset", change="abc"), "trigger.change"),
+        (lambda m: m["trigger"].update(kind="bogus"), "trigger.kind"),
+        (lambda m: m["trigger"].update(kind="onset", pre_frames=10**9), "trigger.pre_frames"),
+        (lambda m: m["trigger"].update(kind="onset", floor=-1), "trigger.floor"),
+        (lambda m: m["trigger"].update(kind="onset", floor=0), "trigger.floor"),
+        (lambda m: m["trigger"].update(kind="onset", settle_change=float("nan")), "trigger.settle_change"),
+        (lambda m: m["trigger"].update(kind="onset", contact=float("inf")), "trigger.contact"),
         (lambda m: m["training"].pop("data_fingerprint"), "training lacks data_fingerprint"),
         (lambda m: m.update(T="15"), "T must be an integer"),
         (lambda m: m.update(classes="push"), "classes must be a list"),
@@ -244,3 +253,18 @@ def test_inspect_card(good_path, tmp_path, capsys):
     (tmp_path / "bad.onnx").write_bytes(b"\x00" * 10)
     assert handover(["inspect", str(tmp_path / "bad.onnx")]) == 1
     assert capsys.readouterr().err.startswith("handover inspect: model ")
+
+
+@pytest.mark.parametrize("extra", [{"features": [1, 2]}, {"features": {"families": 5}},
+                                   {"features": {"families": [{"x": 1}]}}, {"graph": [1]}, {"svm": "rbf"},
+                                   {"features": {"families": "hand"}}])
+def test_inspect_card_of_odd_optional_metadata_is_a_card_not_a_traceback(proto, tmp_path, capsys, extra):
+    """The loader accepts any optional key; ``inspect`` died of TypeError/AttributeError on
+    ``features`` or ``graph`` of the wrong type (a hand-edited or hostile model file)."""
+    from runtime.cli import main as handover
+
+    meta = _meta(proto)
+    meta.update(extra)
+    path = _save(_with_meta(proto, meta), tmp_path)
+    assert handover(["inspect", str(path)]) == 0
+    assert "detects:" in capsys.readouterr().out

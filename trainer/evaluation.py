@@ -153,6 +153,10 @@ def tsne_embedding(features: np.ndarray, seed: int = 0) -> np.ndarray:
     """2-D t-SNE of the histograms (the paper's separability picture)."""
     from sklearn.manifold import TSNE
 
+    features = np.asarray(features, dtype=np.float64)
+    if len(features) < 2 or not np.ptp(features, axis=0).any():
+        # no spread at all: sklearn divides by it and crashes the process (SIGSEGV); all cases are one point
+        return np.zeros((len(features), 2))
     perplexity = float(min(30, max(2, (len(features) - 1) // 3)))
     with threadpool_limits(N_JOBS):
         return TSNE(n_components=2, perplexity=perplexity, init="pca", random_state=seed).fit_transform(features)

@@ -1,0 +1,129 @@
+"""Hostile input on the daemon's control socket: oversized datagrams, a second daemon on the
+same path, the socket file removed while the daemon runs."""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+from runtime.control import MAX_DATAGRAM, POLL_S, ControlSocket
+
+
+def _wait(predicate, timeout: float = 3.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+@pytest.fixture
+def sender():
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    yield sock
+    sock.close()
+
+
+def test_a_datagram_longer_than_the_limit_is_garbage_even_if_it_starts_with_a_message(tmp_path, sender):
+    got: list[bool] = []
+    path = str(tmp_path / "c.sock")
+    control = ControlSocket(path, lambda closed, source: got.append(closed)).start()
+    try:
+        sender.sendto(b"grasp closed" + b" " * MAX_DATAGRAM + b"and then something else", path)
+        sender.sendto(b"grasp open", path)
+        assert _wait(lambda: control.garbage + control.received == 2)
+        assert got == [False] and control.garbage == 1
+    finally:
+        control.stop()
+
+
+def test_a_live_socket_of_another_daemon_is_not_taken_over(tmp_path, sender):
+    path = str(tmp_path / "c.sock")
+    first: list[bool] = []
+    running = ControlSocket(path, lambda closed, source: first.append(closed)).start()
+    try:
+        with pytest.raises(OSError, match="in use by another process"):
+            ControlSocket(path, lambda closed, source: None).start()
+        sender.sendto(b"grasp closed", path)
+        assert _wait(lambda: first == [True])
+    finally:
+        running.stop()
+
+
+def test_a_socket_removed_while_running_is_bound_again_with_one_line(tmp_path, sender, caplog):
+    got: list[bool] = []
+    path = str(tmp_path / "c.sock")
+    control = ControlSocket(path, lambda closed, source: got.append(closed)).start()
+    try:
+        with caplog.at_level(logging.WARNING, logger="handover.control"):
+            os.unlink(path)
+            assert _wait(lambda: Path(path).is_socket(), timeout=10 * POLL_S)
+        sender.sendto(b"grasp closed", path)
+        assert _wait(lambda: got == [True])
+        lines = [r.getMessage() for r in caplog.records if "removed" in r.getMessage()]
+        assert len(lines) == 1 and path in lines[0]
+    finally:
+        control.stop()
+    assert not Path(path).exists()
+
+
+@pytest.mark.parametrize("kind", ["file", "folder"])
+def test_a_path_that_is_a_file_or_folder_is_left_alone_with_one_line_saying_so(tmp_path, kind):
+    path = tmp_path / "c.sock"
+    path.mkdir() if kind == "folder" else path.write_text("keep me")
+    with pytest.raises(OSError, match="exists and is not a socket; remove it or choose another path"):
+        ControlSocket(str(path), lambda closed, source: None).start()
+    assert path.is_dir() if kind == "folder" else path.read_text() == "keep me"
+
+
+def test_sighup_retries_a_control_socket_that_could_not_bind(tmp_path, caplog):
+    from runtime.config import load_config
+    from runtime.daemon import Daemon
+
+    folder = tmp_path / "run"
+    config = tmp_path / "handover.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{tmp_path}"\n'
+                      f'[control]\nsocket = "{folder / "c.sock"}"\n')
+    daemon = Daemon(load_config(config))
+    try:
+        with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+            daemon.start_control()
+        assert daemon.control is None and "cannot bind" in caplog.text
+        folder.mkdir()  # the operator fixes it and sends SIGHUP
+        daemon._do_reload()
+        assert daemon.control is not None and (folder / "c.sock").is_socket()
+    finally:
+        daemon.stop_control()
+        daemon.sinks.close()
+
+
+def test_a_flood_of_grasp_messages_is_a_few_log_lines_not_one_per_message(tmp_path, caplog):
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+
+    daemon = Daemon(config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
+                                      "model": {"folder": str(tmp_path)}}))
+    with caplog.at_level(logging.INFO, logger="handover.daemon"):
+        for i in range(5000):
+            daemon.set_grasp(i % 3 != 0, source="control")
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("grasp ")]
+    assert 1 <= len(lines) <= 3, len(lines)
+    assert daemon.grasp_request == (True, "control") and len(daemon._grasp_requests) > 0
+
+
+@pytest.mark.parametrize("key", ["control.socket", "sinks.unix", "health_file", "model.folder", "model.quarantine_file"])
+def test_a_path_with_a_nul_character_is_a_config_error(key):
+    """TOML's "\\u0000" passed --check, then ``handover run`` died of 'ValueError: embedded null byte'."""
+    from runtime.config import ConfigError, config_from_dict
+
+    section, _, name = key.rpartition(".")
+    value = ["/tmp/a\x00b"] if key == "sinks.unix" else "/tmp/a\x00b"
+    table = {section: {name: value}} if section else {name: value}
+    with pytest.raises(ConfigError, match=f"{key}: must not contain a NUL"):
+        config_from_dict({"device": {"url": "sim://"}, **table})
