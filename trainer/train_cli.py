@@ -172,7 +172,11 @@ def main(args: argparse.Namespace) -> int:
 
     if args.K < 1 or args.W < 1 or args.T < 2:
         return _fail(f"K, W must be >= 1 and T >= 2 (got K={args.K}, W={args.W}, T={args.T})")
-    if args.T - 1 < args.W:
+    try:
+        uses_bow = "bow" in families_of(args)
+    except ValueError as exc:
+        return _fail(str(exc))
+    if uses_bow and args.T - 1 < args.W:  # W is the BoW window: other families do not read it
         return _fail(f"W={args.W} needs T >= {args.W + 1} (got T={args.T})")
     if args.repeats < 2:
         return _fail("--repeats must be at least 2 (mean +/- std)")
@@ -181,14 +185,10 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as exc:
         return _fail(str(exc))
     longest = max(window_arg) if isinstance(window_arg, tuple) else window_arg
-    if longest > args.T - 1:
+    if uses_bow and longest > args.T - 1:
         return _fail(f"--windows {args.windows} needs T >= {longest + 1} (got T={args.T})")
     if not args.temperature > 0:
         return _fail(f"--temperature must be positive (got {args.temperature})")
-    try:
-        families_of(args)
-    except ValueError as exc:
-        return _fail(str(exc))
     if args.latency_budget_us is not None and not args.latency_budget_us > 0:
         return _fail(f"--latency-budget-us must be positive (got {args.latency_budget_us})")
     try:
