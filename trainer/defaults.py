@@ -25,6 +25,12 @@ DEFAULT_MODEL = {
 """Feature families, SVM kernel, BoW words/window, frames per case, pads. ``per_pad``: the BoW
 family keeps one histogram per pad (the paper's single histogram is ``per_pad=False``)."""
 
+def describe_default() -> str:
+    """One phrase for results files, e.g. ``hand + stats features, rbf SVM, T=15, all pads``."""
+    m = DEFAULT_MODEL
+    return f"{' + '.join(m['families'])} features, {m['kernel']} SVM, T={m['T']}, {m['pads']} pads"
+
+
 BOW_ALONE_KERNEL = "linear"
 """Kernel of the BoW family alone (``handover train --features bow``): with per-pad histograms it
 matches RBF's error on the simulated protocol and is faster (results/pareto.md)."""

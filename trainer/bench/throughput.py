@@ -38,6 +38,7 @@ from trainer.bench.common import (
     train_default_model,
     write_results,
 )
+from trainer.defaults import describe_default
 
 NAME = "throughput"
 
@@ -316,7 +317,7 @@ def markdown(res: dict) -> list[str]:
         "# Throughput and footprint (synthetic data)", "",
         f"Stream: simulated trial windows back to back (one inference every {res['window_period_frames']} frames: "
         "about the most a "
-        "threshold-triggered daemon does at 32 Hz). Default model (K=10, W=7, T=15, linear, all pads, per-pad).", "",
+        f"threshold-triggered daemon does at 32 Hz). Default model ({describe_default()}).", "",
         "| figure | value |", "|---|---|",
         f"| replay, hot path (parser + decode + plausibility, then the real Daemon.handle_frame; no socket) | "
         f"{h['frames_per_s']:,.0f} frames/s ({h['frames']} frames, {h['decisions']} inferences, {h['seconds']:.2f} s; "
