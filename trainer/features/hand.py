@@ -16,8 +16,6 @@ from trainer.baseline import FEATURES_PER_PAD, pad_features
 from trainer.features.base import FeatureFamily, pad_bounds, slice_nodes
 from trainer.numerics import SAFETY, U32, gamma
 
-FULLSCALE = 4095.0
-
 
 def dft_matrices(n_t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cosine and sine ``[T, B]`` of rfft bins 1 .. T//2 and the band indicator ``[B, 3]`` of
