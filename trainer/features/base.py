@@ -14,7 +14,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.utils.validation import check_is_fitted
 
-from trainer.bow import as_cases
+from trainer.bow import as_cases, check_case_shape
 from trainer.features.signals import pad_shapes_for
 
 
@@ -40,11 +40,7 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
 
     def _check(self, X) -> np.ndarray:
         check_is_fitted(self, "shapes_")
-        X = as_cases(X)
-        if X.shape[1:] != (self.n_channels_, self.n_timepoints_):
-            raise ValueError(f"X has {X.shape[1]} x {X.shape[2]} (channels x timepoints), {type(self).__name__} "
-                             f"was fitted on {self.n_channels_} x {self.n_timepoints_}")
-        return X
+        return check_case_shape(self, X)
 
     def transform(self, X) -> np.ndarray:
         return self._transform(self._check(X))
