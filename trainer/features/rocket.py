@@ -95,10 +95,11 @@ class RandomConvPPV(FeatureFamily):
         s = pad_signals(X, self.shapes_, float(self.fullscale))
         kernels = minirocket_kernels()
         n_sig = s.shape[1]
-        levels = (np.arange(1, len(self._dilations()) * 84 * int(self.n_biases) * n_sig + 1) * 0.6180339887498949) % 1
-        levels = levels.reshape(len(self._dilations()), 84, int(self.n_biases), n_sig)
+        dilations = self._dilations()
+        levels = (np.arange(1, len(dilations) * 84 * int(self.n_biases) * n_sig + 1) * 0.6180339887498949) % 1
+        levels = levels.reshape(len(dilations), 84, int(self.n_biases), n_sig)
         biases = np.empty_like(levels)
-        for i, d in enumerate(self._dilations()):
+        for i, d in enumerate(dilations):
             out = convolve_same(s, kernels, d)  # (n, K, T, S)
             pooled = out.transpose(1, 3, 0, 2).reshape(84, n_sig, -1)  # (K, S, n*T)
             ordered = np.sort(pooled, axis=2)
