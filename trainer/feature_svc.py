@@ -36,7 +36,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
 
     def __init__(self, families: Sequence[str] = DEFAULT_MODEL["families"], pad_sizes: Sequence[int] | None = None,
                  pad_shapes=None, kernel: str = DEFAULT_MODEL["kernel"], C: float | None = None, gamma: float | str | None = None,
-                 n_words: int = 10, window: int = 7, dilations=(1, 2), n_biases: int = 1, random_state=0,
+                 n_words: int = DEFAULT_MODEL["K"], window: int = DEFAULT_MODEL["W"], dilations=(1, 2), n_biases: int = 1, random_state=0,
                  fullscale: float = 4095.0):
         self.families = families
         self.pad_sizes = pad_sizes
