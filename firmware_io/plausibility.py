@@ -24,15 +24,11 @@ DISTAL_SHAPE = (13, 6)
 def dead_cells(layout: SensorLayout) -> np.ndarray:
     """Frame columns (wire order) of cells that do not exist and must read 0."""
     distal = SensorLayout.sdh2().matrices[1].mask
-    masks = []
-    for m in layout.matrices:
-        if m.static_mask is not None:
-            masks.append(m.static_mask.ravel())
-        elif (m.cells_y, m.cells_x) == DISTAL_SHAPE:
-            masks.append(distal.ravel())
-        else:
-            masks.append(np.ones(m.n_cells, dtype=bool))
-    return np.flatnonzero(~np.concatenate(masks))
+    exists = [
+        distal if m.static_mask is None and (m.cells_y, m.cells_x) == DISTAL_SHAPE else m.mask
+        for m in layout.matrices
+    ]
+    return np.flatnonzero(~np.concatenate([e.ravel() for e in exists]))
 
 
 class FrameCheck:

@@ -19,6 +19,7 @@ import time
 from firmware_io.emulator import DeviceEmulator, FaultPlan
 from firmware_io.emulator_server import TcpEmulatorServer
 from trainer.bench.harness import DatagramListener
+from trainer.bench.throughput import proc_mem_mb
 
 GARBAGE_BYTES_PER_S = 11520  # 115200 baud, 8N1
 
@@ -139,13 +140,9 @@ class NotifyListener(DatagramListener):
 def rss_mb(pid: int) -> float | None:
     """Resident memory of a process in MB (None once it is gone)."""
     try:
-        with open(f"/proc/{pid}/status") as fh:
-            for line in fh:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
+        return proc_mem_mb(pid).get("VmRSS")
     except OSError:
         return None
-    return None
 
 
 def watchdog_gaps(pings: list[float], start: float, end: float, limit_s: float) -> list[tuple[float, float]]:
