@@ -243,10 +243,7 @@ class Daemon(GraspControl):
                                      f"{self.connect_bound_s:g} s", "device")
             log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
                       "(systemd restarts the service)", self.cfg.device.url, self.connect_bound_s)
-        self._take_pending_model()  # a model dropped while a slow connect runs serves at once
-        if now >= self._next_health:
-            self._next_health = now + HEALTH_PERIOD_S
-            self.write_health(now)
+        self._swap_and_report(now)  # a model dropped while a slow connect runs serves at once
         return self._stop
 
     def _connect(self) -> None:
@@ -451,6 +448,10 @@ class Daemon(GraspControl):
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
+        self._swap_and_report(now)
+
+    def _swap_and_report(self, now: float) -> None:
+        """Take a pending model and write the health file when due (the loop and a slow connect)."""
         self._take_pending_model()
         if now >= self._next_health:
             self._next_health = now + HEALTH_PERIOD_S

@@ -177,7 +177,7 @@ class StatusFile:
     def write(self, data: dict, now: float | None = None) -> bool:
         """True when written; False (and maybe one log line) when not."""
         try:
-            _write_atomically(self.path, data)
+            write_json_atomically(self.path, data)
         except OSError as exc:
             self.failures += 1
             self._unlogged += 1
@@ -197,13 +197,14 @@ class StatusFile:
 def write_status_file(path: str | Path, data: dict) -> bool:
     """Write JSON atomically (temp file in the same folder, then rename). False on failure."""
     try:
-        _write_atomically(Path(path), data)
+        write_json_atomically(Path(path), data)
     except OSError:
         return False
     return True
 
 
-def _write_atomically(p: Path, data: dict) -> None:
+def write_json_atomically(p: Path, data: dict) -> None:
+    """JSON to a temp file in the same folder, then renamed over ``p``; OSError passes on (temp removed)."""
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
     try:
         tmp.write_text(json.dumps(data, indent=1) + "\n")

@@ -86,6 +86,7 @@ class OnsetTrigger:
         self._trend = np.zeros(n, dtype=np.float64)
         """Per-frame change of the settled grasp (creep), started while settling, tracked while armed."""
         self._dev = np.zeros(n, dtype=np.float64)
+        self._error = np.zeros(n, dtype=np.float64)
         self._scale = np.zeros(n, dtype=np.float64)
         self._request: bool | None = None
         self.reset()
@@ -162,9 +163,9 @@ class OnsetTrigger:
         base, trend = self._base, self._trend
         base += trend  # the prediction for this frame
         np.maximum(base, self.floor, out=self._scale)
-        np.subtract(p, base, out=self._dev)
-        error = self._dev.copy()
-        self._dev /= self._scale
+        error = self._error
+        np.subtract(p, base, out=error)
+        np.divide(error, self._scale, out=self._dev)
         rise = float(self._dev.max())
         self.level = max(rise, -float(self._dev.min()))
         if self.level < self.change:

@@ -11,11 +11,12 @@ read-only to the service), written atomically; without a file it is kept in memo
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
 from pathlib import Path
+
+from runtime.health import write_json_atomically
 
 log = logging.getLogger("handover.models")
 
@@ -86,14 +87,10 @@ class QuarantineStore:
     def _write(self) -> None:
         if self.path is None:
             return
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         try:
-            tmp.write_text(json.dumps({"quarantined": self._entries}, indent=1) + "\n", encoding="utf-8")
-            os.replace(tmp, self.path)
+            write_json_atomically(self.path, {"quarantined": self._entries})
             self._write_failed = False
         except OSError as exc:
-            with contextlib.suppress(OSError):
-                tmp.unlink(missing_ok=True)
             if not self._write_failed:  # one line, not one per quarantined model
                 log.error("quarantine list %s: cannot write (%s); it is kept in memory until a restart",
                           self.path, exc.strerror or exc)
