@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from trainer.baseline import FEATURES_PER_PAD, pad_features
-from trainer.features.base import FeatureFamily, pad_bounds, slice_nodes
+from trainer.features.base import FeatureFamily, pad_bounds
+from trainer.features.pad_batch import PadBatch, median_nodes
 from trainer.numerics import SAFETY, U32, gamma
 
 
@@ -74,55 +75,94 @@ class HandGraphFeatures(FeatureFamily):
         return np.concatenate(parts, axis=1)
 
     def onnx_nodes(self, g, frames: str) -> str:
-        n_t = int(self.n_timepoints_)
-        parts = [self._pad_nodes(g, slice_nodes(g, frames, a, b, 2, "pad"), rows, cols, n_t)
-                 for (a, b), (rows, cols) in zip(pad_bounds(self.shapes_), self.shapes_, strict=True)]
-        return g.op("Concat", parts, "hand_features", axis=1) if len(parts) > 1 else parts[0]
+        """All pads at once (``trainer.features.pad_batch``): the features come out feature-major and one
+        Gather puts them in the reference's pad-major order."""
+        n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
+        batch = PadBatch.of(self.shapes_)
+        padded = batch.nodes(g, frames)  # [N, G, S, T]
+        peak = g.op("ReduceMax", [padded], "max", axes=[2, 3], keepdims=0)  # [N, G]
+        median = median_nodes(g, batch, padded, n_t)  # [N, G]
+        time_parts = _time_nodes(g, frames, self.shapes_, n_t)
+        mean = time_parts["mean"]  # [N, G]
+        std = _std_nodes(g, batch, padded, mean, n_t)
+        # feature-major blocks, each [N, rows * G]; ``order`` reads them back pad by pad
+        blocks = [peak, mean, median, std, time_parts["shares"], time_parts["log_energy"], time_parts["deriv"],
+                  time_parts["cop_mean"], time_parts["cop_net"], time_parts["speed"]]
+        rows = [1, 1, 1, 1, 3, 1, 1, 2, 2, 1]
+        flat = [g.op("Reshape", [b, g.const("flat", [0, -1], np.int64)], "block") for b in blocks]
+        joined = g.op("Concat", flat, "hand_blocks", axis=1)
+        starts = np.concatenate([[0], np.cumsum(rows)[:-1]]) * n_pads
+        order = [int(st) + r * n_pads + p for p in range(n_pads) for st, n in zip(starts, rows, strict=True)
+                 for r in range(n)]
+        return g.op("Gather", [joined, g.const("pad_major", order, np.int64)], "hand_features", axis=1)
 
-    @staticmethod
-    def _pad_nodes(g, P: str, rows: int, cols: int, n_t: int) -> str:
-        """One pad ``[N, T, rows*cols]`` -> ``[N, 14]``."""
-        size = rows * cols
-        total_n = size * n_t
-        flat = g.op("Reshape", [P, g.const("flat", [0, total_n], np.int64)], "pad_flat")
-        peak = g.op("ReduceMax", [flat], "max", axes=[1], keepdims=1)
-        mean = g.op("ReduceMean", [flat], "mean", axes=[1], keepdims=1)
-        dev = g.op("Sub", [flat, mean], "dev")
-        std = g.op("Sqrt", [g.op("ReduceMean", [g.op("Mul", [dev, dev])], "var", axes=[1], keepdims=1)], "std")
-        k = total_n // 2 + 1
-        top = g.name("top")
-        g.op("TopK", [flat, g.const("k", [k], np.int64)], outputs=[top, g.name("top_idx")], axis=1, largest=1)
-        middle = slice_nodes(g, top, k - 2 if total_n % 2 == 0 else k - 1, k, 1, "middle")
-        median = g.op("ReduceMean", [middle], "median", axes=[1], keepdims=1)
-        signal = g.op("ReduceMean", [P], "signal", axes=[2], keepdims=0)  # [N, T]
-        centred = g.op("Sub", [signal, g.op("ReduceMean", [signal], "signal_mean", axes=[1], keepdims=1)], "sig_c")
-        cos, sin, bands = dft_matrices(n_t)
-        re = g.op("MatMul", [centred, g.const("dft_cos", cos)], "re")
-        im = g.op("MatMul", [centred, g.const("dft_sin", sin)], "im")
-        power = g.op("Add", [g.op("Mul", [re, re]), g.op("Mul", [im, im])], "power")
-        energy = g.op("MatMul", [power, g.const("ones", np.ones((cos.shape[1], 1)))], "energy")  # [N, 1]
-        shares = g.op("Div", [g.op("MatMul", [power, g.const("bands", bands)], "band_energy"),
-                              g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
-        log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
-        first, last = slice_nodes(g, signal, 0, 1, 1, "sig_first"), slice_nodes(g, signal, n_t - 1, n_t, 1, "sig_last")
-        deriv = g.op("Mul", [g.op("Sub", [last, first]), g.const("inv_steps", 1.0 / max(n_t - 1, 1))], "mean_deriv")
-        cop = HandGraphFeatures._cop_nodes(g, P, rows, cols, n_t)
-        return g.op("Concat", [peak, mean, median, std, shares, log_energy, deriv, cop], "pad_hand", axis=1)
 
-    @staticmethod
-    def _cop_nodes(g, P: str, rows: int, cols: int, n_t: int) -> str:
-        """Centre of pressure mean (x, y), net displacement (dx, dy), mean speed: ``[N, 5]``."""
-        ys, xs = np.divmod(np.arange(rows * cols), cols)
-        weight = g.op("ReduceSum", [P, g.const("axis2", [2], np.int64)], "weight", keepdims=1)  # [N, T, 1]
-        pressed = g.op("Greater", [weight, g.const("zero", 0.0)], "pressed")
-        safe = g.op("Where", [pressed, weight, g.const("one", 1.0)], "safe_weight")
-        moments = g.op("Div", [g.op("MatMul", [P, g.const("xy", np.stack([xs, ys], axis=1))], "moments"), safe],
-                       "cop_raw")  # [N, T, 2]
-        cop = g.op("Where", [pressed, moments, g.const("centre", [(cols - 1) / 2, (rows - 1) / 2])], "cop")
-        mean = g.op("ReduceMean", [cop], "cop_mean", axes=[1], keepdims=0)
-        shift = g.op("Sub", [slice_nodes(g, cop, n_t - 1, n_t, 1, "cop_last"), slice_nodes(g, cop, 0, 1, 1, "cop_0")])
-        net = g.op("Reshape", [shift, g.const("two", [0, 2], np.int64)], "cop_net")
-        step = g.op("Sub", [slice_nodes(g, cop, 1, n_t, 1, "cop_next"), slice_nodes(g, cop, 0, n_t - 1, 1, "cop_prev")])
-        sq = g.op("ReduceSum", [g.op("Mul", [step, step]), g.const("axis2", [2], np.int64)], "step_sq", keepdims=0)
-        speed = g.op("ReduceMean", [g.op("Sqrt", [sq], "step_len")], "speed", axes=[1], keepdims=1)
-        return g.op("Concat", [mean, net, speed], "cop_features", axis=1)
+def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
+    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G]`` (two passes)."""
+    mean4 = g.op("Unsqueeze", [mean, g.const("axes23", [2, 3], np.int64)], "mean4")
+    dev = g.op("Sub", [padded, mean4], "dev")
+    if batch.padded:
+        dev = g.op("Mul", [dev, g.const("pad_mask", batch.mask[:, :, None])], "dev_masked")
+    sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
+    return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
+
+
+def _time_nodes(g, frames: str, shapes, n_t: int) -> dict[str, str]:
+    """Everything from the per-frame pad sums and centres of pressure, for all pads at once: the
+    mean, FFT band shares and log energy, mean derivative of the pad's mean signal, and the centre
+    of pressure's mean, net displacement and mean speed. Each ``[N, rows, G]`` (``mean``: ``[N, G]``)."""
+    n_pads = len(shapes)
+    ones, xs, ys = np.zeros((3, sum(r * c for r, c in shapes), n_pads))
+    centre, start = np.zeros((2, n_pads)), 0
+    for p, (rows, cols) in enumerate(shapes):
+        y, x = np.divmod(np.arange(rows * cols), cols)
+        ones[start : start + rows * cols, p], xs[start : start + rows * cols, p] = 1.0, x
+        ys[start : start + rows * cols, p] = y
+        centre[:, p] = (cols - 1) / 2, (rows - 1) / 2
+        start += rows * cols
+    sizes = ones.sum(axis=0)
+    moments = g.op("MatMul", [frames, g.const("pad_moments", np.concatenate([ones, xs, ys], axis=1))], "moments")
+    moments4 = g.op("Reshape", [moments, g.const("by_kind", [0, n_t, 3, n_pads], np.int64)], "moments4")
+    weight, mxy = g.name("weight"), g.name("mxy")
+    g.op("Split", [moments4, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
+    signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes)], "signal")  # [N, T, 1, G]
+    pressed = g.op("Greater", [weight, g.const("zero", 0.0)], "pressed")
+    safe = g.op("Where", [pressed, weight, g.const("one", 1.0)], "safe_weight")
+    cop = g.op("Where", [pressed, g.op("Div", [mxy, safe], "cop_raw"), g.const("centre", centre)], "cop")
+    series = g.op("Reshape", [g.op("Concat", [signal, cop], "series4", axis=2),
+                              g.const("series_shape", [0, n_t, 3 * n_pads], np.int64)], "series")  # [N, T, 3G]
+    mean = g.op("ReduceMean", [series], "series_mean", axes=[1], keepdims=1)  # [N, 1, 3G]
+    centred = g.op("Sub", [series, mean], "centred")
+    cos, sin, bands = dft_matrices(n_t)
+    n_bins = cos.shape[1]
+    rise_row = np.zeros((1, n_t))
+    rise_row[0, 0], rise_row[0, -1] = -1.0, 1.0
+    steps = np.eye(n_t - 1, n_t, 1) - np.eye(n_t - 1, n_t)
+    over_time = g.op("MatMul", [g.const("time_rows", np.concatenate([cos.T, sin.T, rise_row, steps])), centred],
+                     "over_time")  # [N, 2B + 1 + T-1, 3G]
+    dft, rise, step = g.name("dft"), g.name("rise"), g.name("step")
+    g.op("Split", [over_time, g.const("split_time", [2 * n_bins, 1, n_t - 1], np.int64)], outputs=[dft, rise, step],
+         axis=1)
+    power = g.op("Mul", [dft, dft], "power")  # re^2 and im^2 of each bin
+    energy_rows = np.concatenate([np.concatenate([bands, bands]).T, np.ones((1, 2 * n_bins))])  # [4, 2B]
+    energy4 = g.op("MatMul", [g.const("band_rows", energy_rows), power], "energy4")  # [N, 4, 3G]
+    band_energy, energy = g.name("band_energy"), g.name("energy")
+    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=1)
+    shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
+    log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
+    deriv = g.op("Mul", [rise, g.const("inv_steps", 1.0 / max(n_t - 1, 1))], "mean_deriv")
+    sq = g.op("Mul", [step, step], "step_sq")  # [N, T-1, 3G]
+    pair = np.zeros((3 * n_pads, n_pads))
+    pair[n_pads : 2 * n_pads] = pair[2 * n_pads :] = np.eye(n_pads)
+    step_len = g.op("Sqrt", [g.op("MatMul", [sq, g.const("dx2_dy2", pair)], "step_len2")], "step_len")
+    speed = g.op("ReduceMean", [step_len], "speed", axes=[1], keepdims=1)  # [N, 1, G]
+    signal_part = g.const("signal_cols", np.arange(n_pads), np.int64)
+    cop_part = g.const("cop_cols", np.arange(n_pads, 3 * n_pads), np.int64)
+    return {"mean": g.op("Gather", [g.op("Reshape", [mean, g.const("flat", [0, -1], np.int64)]), signal_part],
+                         "mean", axis=1),
+            "shares": g.op("Gather", [shares, signal_part], "band_shares", axis=2),
+            "log_energy": g.op("Gather", [log_energy, signal_part], "log_energy_pads", axis=2),
+            "deriv": g.op("Gather", [deriv, signal_part], "deriv_pads", axis=2),
+            "cop_mean": g.op("Gather", [mean, cop_part], "cop_mean", axis=2),
+            "cop_net": g.op("Gather", [rise, cop_part], "cop_net", axis=2),
+            "speed": speed}

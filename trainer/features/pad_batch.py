@@ -1,0 +1,90 @@
+"""All pads of a window as one ``[N, G, S, T]`` tensor, so a feature is a handful of ONNX nodes for
+every pad instead of a chain per pad (onnxruntime pays per node, and a per-pad chain multiplies it).
+
+Pads differ in size (SDH-2: 84 taxels proximal, 78 distal): each pad is padded to the largest
+size ``S`` by repeating one of its own taxels (so a maximum is unchanged), with a 0/1 mask for
+sums and an offset for order statistics: the padding slots get ``+inf`` and ``-inf`` in equal
+numbers, so the median of the padded values is the pad's median (exact, no arithmetic on real
+values: adding 0 leaves them bit for bit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PadBatch:
+    """Layout of the padded pads: taxel index ``[G, S]``, mask ``[G, S]``, median offset ``[G, S]``."""
+
+    index: np.ndarray
+    mask: np.ndarray
+    offset: np.ndarray
+    sizes: np.ndarray
+
+    @classmethod
+    def of(cls, shapes: Sequence[tuple[int, int]]) -> PadBatch:
+        sizes = np.array([r * c for r, c in shapes])
+        width = int(sizes.max())
+        index = np.zeros((len(sizes), width), dtype=np.int64)
+        mask = np.zeros((len(sizes), width))
+        offset = np.zeros((len(sizes), width))
+        start = 0
+        for g, size in enumerate(sizes):
+            index[g] = start  # padding slots repeat the pad's first taxel
+            index[g, :size] = np.arange(start, start + size)
+            mask[g, :size] = 1.0
+            extra = width - size
+            offset[g, size : size + extra // 2] = np.inf
+            offset[g, size + extra // 2 :] = -np.inf
+            start += size
+        return cls(index, mask, offset, sizes)
+
+    @property
+    def padded(self) -> bool:
+        return bool((self.mask == 0).any())
+
+    @property
+    def median_in_one(self) -> bool:
+        """Whether one TopK over the padded rows gives every pad's median: each pad's missing slots
+        must split evenly into ``+inf`` and ``-inf`` ones (true for SDH-2 pads, 84 and 78 taxels)."""
+        return bool(((self.sizes.max() - self.sizes) % 2 == 0).all())
+
+    def nodes(self, g, frames: str) -> str:
+        """``frames`` ``[N, T, C]`` -> ``[N, G, S, T]`` (one Transpose, one Gather of whole time series)."""
+        series = g.op("Transpose", [frames], "series", perm=[0, 2, 1])  # [N, C, T]
+        return g.op("Gather", [series, g.const("pad_slots", self.index, np.int64)], "pad_batch", axis=1)
+
+
+def median_nodes(g, batch: PadBatch, padded: str, n_t: int) -> str:
+    """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]``: TopK of the largest
+    half (unordered), then its smallest one or two (the middle of the whole). One TopK for all pads
+    where the padding allows (``median_in_one``), else one per pad."""
+    width = int(batch.sizes.max())
+    if not batch.median_in_one:
+        parts = []
+        for p, size in enumerate(batch.sizes):
+            pad = g.op("Slice", [padded, g.const("start", [p, 0], np.int64), g.const("stop", [p + 1, size], np.int64),
+                                 g.const("axes", [1, 2], np.int64)], "one_pad")
+            parts.append(_middle_nodes(g, pad, int(size) * n_t, 1))
+        return g.op("Concat", parts, "median", axis=1)
+    values = padded
+    if batch.padded:
+        values = g.op("Add", [padded, g.const("median_offset", batch.offset[:, :, None])], "median_values")
+    return _middle_nodes(g, values, width * n_t, len(batch.sizes))
+
+
+def _middle_nodes(g, values: str, total: int, n_rows: int) -> str:
+    """``values`` ``[N, n_rows, ...]`` holding ``total`` values per row -> the rows' medians ``[N, n_rows]``."""
+    rows = g.op("Reshape", [values, g.const("rows", [0, n_rows, total], np.int64)], "median_rows")
+    k = total // 2 + 1
+    top = g.name("top")
+    g.op("TopK", [rows, g.const("k", [k], np.int64)], outputs=[top, g.name("top_idx")], axis=2, largest=1, sorted=0)
+    n_mid = 2 if total % 2 == 0 else 1
+    middle = g.name("middle")
+    g.op("TopK", [top, g.const("k_mid", [n_mid], np.int64)], outputs=[middle, g.name("middle_idx")], axis=2,
+         largest=0, sorted=1)
+    return g.op("ReduceMean", [middle], "median", axes=[2], keepdims=0)
