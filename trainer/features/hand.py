@@ -82,24 +82,37 @@ class HandGraphFeatures(FeatureFamily):
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = g.op("ReduceMax", [padded], "max", axes=[2, 3], keepdims=0)  # [N, G]
         median = median_nodes(g, batch, padded, n_t)  # [N, G]
-        time_parts = _time_nodes(g, frames, self.shapes_, n_t)
-        mean = time_parts["mean"]  # [N, G]
-        std = _std_nodes(g, batch, padded, mean, n_t)
-        # feature-major blocks, each [N, rows * G]; ``order`` reads them back pad by pad
-        blocks = [peak, mean, median, std, time_parts["shares"], time_parts["log_energy"], time_parts["deriv"],
-                  time_parts["cop_mean"], time_parts["cop_net"], time_parts["speed"]]
-        rows = [1, 1, 1, 1, 3, 1, 1, 2, 2, 1]
-        flat = [g.op("Reshape", [b, g.const("flat", [0, -1], np.int64)], "block") for b in blocks]
-        joined = g.op("Concat", flat, "hand_blocks", axis=1)
-        starts = np.concatenate([[0], np.cumsum(rows)[:-1]]) * n_pads
-        order = [int(st) + r * n_pads + p for p in range(n_pads) for st, n in zip(starts, rows, strict=True)
-                 for r in range(n)]
-        return g.op("Gather", [joined, g.const("pad_major", order, np.int64)], "hand_features", axis=1)
+        rows, signal_mean = _time_nodes(g, frames, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
+        std = _std_nodes(g, batch, padded, signal_mean, n_t)
+        by_pad = g.op("Concat", [peak, median, std], "by_pad", axis=1)  # [N, 3G]
+        flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
+        joined = g.op("Concat", [flat, by_pad], "hand_blocks", axis=1)
+        return g.op("Gather", [joined, g.const("pad_major", _pad_major_order(n_pads), np.int64)], "hand_features",
+                    axis=1)
+
+
+def _pad_major_order(n_pads: int) -> list[int]:
+    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in ``hand_blocks``: ``_time_nodes``'
+    rows (each ``3G`` wide: the pad signal, then the centre of pressure's x and y) flattened, then
+    ``[peak, median, std]`` of the pads."""
+    width = 3 * n_pads
+    by_pad = _TIME_ROWS * width
+    order = []
+    for p in range(n_pads):
+        cop_x, cop_y = n_pads + p, 2 * n_pads + p
+        order += [by_pad + p, p, by_pad + n_pads + p, by_pad + 2 * n_pads + p,
+                  width + p, 2 * width + p, 3 * width + p, 4 * width + p, 5 * width + p,
+                  cop_x, cop_y, 6 * width + cop_x, 6 * width + cop_y, 7 * width + p]
+    return order
+
+
+_TIME_ROWS = 8
+"""Rows of ``_time_nodes``: mean, 3 band shares, log energy, mean derivative, last - first, mean speed."""
 
 
 def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
-    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G]`` (two passes)."""
-    mean4 = g.op("Unsqueeze", [mean, g.const("axes23", [2, 3], np.int64)], "mean4")
+    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, 1, G]`` (two passes)."""
+    mean4 = g.op("Reshape", [mean, g.const("mean4", [0, len(batch.sizes), 1, 1], np.int64)], "mean4")
     dev = g.op("Sub", [padded, mean4], "dev")
     if batch.padded:
         dev = g.op("Mul", [dev, g.const("pad_mask", batch.mask[:, :, None])], "dev_masked")
@@ -107,10 +120,12 @@ def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
     return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
 
 
-def _time_nodes(g, frames: str, shapes, n_t: int) -> dict[str, str]:
-    """Everything from the per-frame pad sums and centres of pressure, for all pads at once: the
-    mean, FFT band shares and log energy, mean derivative of the pad's mean signal, and the centre
-    of pressure's mean, net displacement and mean speed. Each ``[N, rows, G]`` (``mean``: ``[N, G]``)."""
+def _time_nodes(g, frames: str, shapes, n_t: int) -> tuple[str, str]:
+    """Everything from the per-frame pad sums and centres of pressure, for all pads at once, as
+    ``_TIME_ROWS`` rows ``[N, 8, 3G]`` over the columns (pad signal, centre x, centre y): mean, FFT band
+    shares and log energy, mean derivative, last - first (the centre's net displacement), mean speed
+    (first G columns). Also the pads' mean value ``[N, 1, G]``. Rows a column does not use are
+    computed and ignored (cheaper than slicing them away)."""
     n_pads = len(shapes)
     ones, xs, ys = np.zeros((3, sum(r * c for r, c in shapes), n_pads))
     centre, start = np.zeros((2, n_pads)), 0
@@ -152,17 +167,11 @@ def _time_nodes(g, frames: str, shapes, n_t: int) -> dict[str, str]:
     log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
     deriv = g.op("Mul", [rise, g.const("inv_steps", 1.0 / max(n_t - 1, 1))], "mean_deriv")
     sq = g.op("Mul", [step, step], "step_sq")  # [N, T-1, 3G]
-    pair = np.zeros((3 * n_pads, n_pads))
-    pair[n_pads : 2 * n_pads] = pair[2 * n_pads :] = np.eye(n_pads)
+    pair = np.zeros((3 * n_pads, 3 * n_pads))  # dx^2 + dy^2 into the first G columns
+    pair[n_pads : 2 * n_pads, :n_pads] = pair[2 * n_pads :, :n_pads] = np.eye(n_pads)
     step_len = g.op("Sqrt", [g.op("MatMul", [sq, g.const("dx2_dy2", pair)], "step_len2")], "step_len")
-    speed = g.op("ReduceMean", [step_len], "speed", axes=[1], keepdims=1)  # [N, 1, G]
-    signal_part = g.const("signal_cols", np.arange(n_pads), np.int64)
-    cop_part = g.const("cop_cols", np.arange(n_pads, 3 * n_pads), np.int64)
-    return {"mean": g.op("Gather", [g.op("Reshape", [mean, g.const("flat", [0, -1], np.int64)]), signal_part],
-                         "mean", axis=1),
-            "shares": g.op("Gather", [shares, signal_part], "band_shares", axis=2),
-            "log_energy": g.op("Gather", [log_energy, signal_part], "log_energy_pads", axis=2),
-            "deriv": g.op("Gather", [deriv, signal_part], "deriv_pads", axis=2),
-            "cop_mean": g.op("Gather", [mean, cop_part], "cop_mean", axis=2),
-            "cop_net": g.op("Gather", [rise, cop_part], "cop_net", axis=2),
-            "speed": speed}
+    speed = g.op("ReduceMean", [step_len], "speed", axes=[1], keepdims=1)  # [N, 1, 3G]
+    rows = g.op("Concat", [mean, shares, log_energy, deriv, rise, speed], "time_rows", axis=1)
+    signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [n_pads], np.int64),
+                                 g.const("axis", [2], np.int64)], "signal_mean")
+    return rows, signal_mean

@@ -60,9 +60,12 @@ class PadBatch:
 
 
 def median_nodes(g, batch: PadBatch, padded: str, n_t: int) -> str:
-    """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]``: TopK of the largest
-    half (unordered), then its smallest one or two (the middle of the whole). One TopK for all pads
-    where the padding allows (``median_in_one``), else one per pad."""
+    """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]``.
+
+    Exact both ways, cheap where it can be: when every pad of every window has fewer than half its
+    values above zero and fewer than half below (the middle values are 0: every window of the real
+    SDH-2 recordings, whose contact covers less than half a pad), an If returns 0 and skips the
+    sort; otherwise TopK of the largest half (unordered), then its smallest one or two."""
     width = int(batch.sizes.max())
     if not batch.median_in_one:
         parts = []
@@ -74,11 +77,32 @@ def median_nodes(g, batch: PadBatch, padded: str, n_t: int) -> str:
     values = padded
     if batch.padded:
         values = g.op("Add", [padded, g.const("median_offset", batch.offset[:, :, None])], "median_values")
-    return _middle_nodes(g, values, width * n_t, len(batch.sizes))
+    total = width * n_t
+    sign = g.op("Sign", [values], "sign")
+    surplus = g.op("Abs", [g.op("ReduceSum", [sign, g.const("axes23", [2, 3], np.int64)], "pos_minus_neg",
+                                keepdims=0)], "surplus")
+    nonzero = g.op("ReduceL1", [sign], "nonzero", axes=[2, 3], keepdims=0)
+    # max(#above 0, #below 0) = (nonzero + |#above - #below|) / 2, at most (total - 1) // 2 for a 0 median
+    twice_most = g.op("ReduceMax", [g.op("Add", [nonzero, surplus], "twice_side")], "twice_most", keepdims=0)
+    zero_median = g.op("LessOrEqual", [twice_most, g.const("limit", 2.0 * ((total - 1) // 2))], "zero_median")
+    zeros = g.op("Mul", [nonzero, g.const("zero", 0.0)], "zeros")  # [N, G]
+    then_g, else_g = type(g)(prefix=g.name("then") + "_"), type(g)(prefix=g.name("else") + "_")
+    then_out = then_g.op("Identity", [zeros], "median")
+    else_out = _middle_nodes(else_g, values, total, len(batch.sizes))
+    return g.op("If", [zero_median], "median", then_branch=_subgraph(then_g, then_out),
+                else_branch=_subgraph(else_g, else_out))
+
+
+def _subgraph(sub, output: str):
+    from onnx import TensorProto, helper
+
+    return helper.make_graph(sub.nodes, sub.prefix + "branch", [],
+                             [helper.make_tensor_value_info(output, TensorProto.FLOAT, None)], sub.initializers)
 
 
 def _middle_nodes(g, values: str, total: int, n_rows: int) -> str:
-    """``values`` ``[N, n_rows, ...]`` holding ``total`` values per row -> the rows' medians ``[N, n_rows]``."""
+    """``values`` ``[N, n_rows, ...]`` holding ``total`` values per row -> the rows' medians ``[N, n_rows]``:
+    TopK of the largest half (unordered), then its smallest one or two."""
     rows = g.op("Reshape", [values, g.const("rows", [0, n_rows, total], np.int64)], "median_rows")
     k = total // 2 + 1
     top = g.name("top")

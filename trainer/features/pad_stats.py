@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from trainer.features.base import FeatureFamily, pad_bounds, slice_nodes
+from trainer.features.pad_batch import PadBatch
 from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
 from trainer.numerics import U32, gamma
 
@@ -65,10 +66,10 @@ class PadStats(FeatureFamily):
                     "signal_rise3")
         change = g.op("Reshape", [rise, flat], "signal_change")
         over_time = g.op("ReduceMax", [frames], "taxel_peak", axes=[1], keepdims=0)  # [N, C]
-        peaks = [g.op("ReduceMax", [slice_nodes(g, over_time, a, b, 1, "pad_taxels")], "pad_peak", axes=[1],
-                      keepdims=1) for a, b in pad_bounds(self.shapes_)]
-        peak = g.op("Mul", [g.op("Concat", peaks, "peaks", axis=1), g.const("inv_fs", 1.0 / float(self.fullscale))],
-                    "peak")
+        by_pad = g.op("Gather", [over_time, g.const("pad_slots", PadBatch.of(self.shapes_).index, np.int64)],
+                      "pad_taxels", axis=1)  # [N, G, S], padding repeats a taxel of the same pad
+        peak = g.op("Mul", [g.op("ReduceMax", [by_pad], "pad_peak", axes=[2], keepdims=0),
+                            g.const("inv_fs", 1.0 / float(self.fullscale))], "peak")
         return g.op("Concat", [mean, g.op("Sqrt", [var], "signal_std"), change, peak], "pad_stats", axis=1)
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
