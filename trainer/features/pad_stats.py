@@ -65,12 +65,16 @@ class PadStats(FeatureFamily):
         rise = g.op("Sub", [slice_nodes(g, sig, n_t - 1, n_t, 1, "last"), slice_nodes(g, sig, 0, 1, 1, "first")],
                     "signal_rise3")
         change = g.op("Reshape", [rise, flat], "signal_change")
+        peak = self._peak_nodes(g, frames)
+        return g.op("Concat", [mean, g.op("Sqrt", [var], "signal_std"), change, peak], "pad_stats", axis=1)
+
+    def _peak_nodes(self, g, frames: str) -> str:
+        """Each pad's peak taxel / fullscale ``[N, G]``: one Gather of the taxels' peaks for all pads."""
         over_time = g.op("ReduceMax", [frames], "taxel_peak", axes=[1], keepdims=0)  # [N, C]
         by_pad = g.op("Gather", [over_time, g.const("pad_slots", PadBatch.of(self.shapes_).index, np.int64)],
                       "pad_taxels", axis=1)  # [N, G, S], padding repeats a taxel of the same pad
-        peak = g.op("Mul", [g.op("ReduceMax", [by_pad], "pad_peak", axes=[2], keepdims=0),
+        return g.op("Mul", [g.op("ReduceMax", [by_pad], "pad_peak", axes=[2], keepdims=0),
                             g.const("inv_fs", 1.0 / float(self.fullscale))], "peak")
-        return g.op("Concat", [mean, g.op("Sqrt", [var], "signal_std"), change, peak], "pad_stats", axis=1)
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         pads = range(len(self.shapes_))
