@@ -78,8 +78,7 @@ def test_median_by_pad_against_numpy(pad_sizes):
     family = HandGraphFeatures(pad_sizes=pad_sizes).fit(X)
     model = FeatureSVC(families=("hand",), pad_sizes=pad_sizes, C=10.0, gamma="scale").fit(X, y)
     session = _session(build_graph(model))
-    zero_mostly = X.copy()
-    zero_mostly[:, :, : T // 2 + 1] = 0.0
+    zero_mostly = X * (np.arange(X.shape[1]) % 3 == 0)[None, :, None]  # a third of each pad touched: no TopK
     stress = np.concatenate(list(stress_cases(T, sum(pad_sizes), np.eye(2, 4) * 100.0, seed=1).values()))
     for frames in (frames_of(X), frames_of(zero_mostly), frames_of(-X), stress):
         (hist,) = session.run(["histogram"], {"frames": frames})

@@ -81,7 +81,7 @@ class HandGraphFeatures(FeatureFamily):
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = g.op("ReduceMax", [padded], "max", axes=[2, 3], keepdims=0)  # [N, G]
-        median = median_nodes(g, batch, padded, n_t)  # [N, G]
+        median = median_nodes(g, batch, frames, padded, n_t)  # [N, G]
         rows, signal_mean = _time_nodes(g, frames, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
         std = _std_nodes(g, batch, padded, signal_mean, n_t)
         by_pad = g.op("Concat", [peak, median, std], "by_pad", axis=1)  # [N, 3G]
