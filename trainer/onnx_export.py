@@ -86,6 +86,14 @@ class _Graph:
         self.initializers: list = []
         self.prefix = prefix
         self._n = 0
+        self._shared: dict = {}
+
+    def shared(self, key, build) -> str:
+        """The tensor ``build()`` makes, built once per ``key`` in this graph: feature families that
+        need the same intermediate (all pads as one tensor, their peaks) share its nodes."""
+        if key not in self._shared:
+            self._shared[key] = build()
+        return self._shared[key]
 
     def name(self, hint: str) -> str:
         self._n += 1

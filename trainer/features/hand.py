@@ -14,7 +14,7 @@ import numpy as np
 
 from trainer.baseline import FEATURES_PER_PAD, pad_features
 from trainer.features.base import FeatureFamily, pad_bounds
-from trainer.features.pad_batch import PadBatch, median_nodes
+from trainer.features.pad_batch import PadBatch, median_nodes, peak_nodes
 from trainer.numerics import SAFETY, U32, gamma
 
 
@@ -80,7 +80,7 @@ class HandGraphFeatures(FeatureFamily):
         n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
-        peak = g.op("ReduceMax", [padded], "max", axes=[2, 3], keepdims=0)  # [N, G]
+        peak = peak_nodes(g, padded)  # [N, G]
         median = median_nodes(g, batch, frames, padded, n_t)  # [N, G]
         rows, signal_mean = _time_nodes(g, frames, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
         std = _std_nodes(g, batch, padded, signal_mean, n_t)

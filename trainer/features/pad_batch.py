@@ -54,9 +54,18 @@ class PadBatch:
         return bool(((self.sizes.max() - self.sizes) % 2 == 0).all())
 
     def nodes(self, g, frames: str) -> str:
-        """``frames`` ``[N, T, C]`` -> ``[N, G, S, T]`` (one Transpose, one Gather of whole time series)."""
-        series = g.op("Transpose", [frames], "series", perm=[0, 2, 1])  # [N, C, T]
-        return g.op("Gather", [series, g.const("pad_slots", self.index, np.int64)], "pad_batch", axis=1)
+        """``frames`` ``[N, T, C]`` -> ``[N, G, S, T]`` (one Transpose, one Gather of whole time series),
+        built once per graph."""
+        def build() -> str:
+            series = g.op("Transpose", [frames], "series", perm=[0, 2, 1])  # [N, C, T]
+            return g.op("Gather", [series, g.const("pad_slots", self.index, np.int64)], "pad_batch", axis=1)
+
+        return g.shared(("pad_batch", frames, self.index.tobytes()), build)
+
+
+def peak_nodes(g, padded: str) -> str:
+    """Each pad's largest value ``[N, G]`` (padding repeats a taxel of the pad), built once per graph."""
+    return g.shared(("pad_peak", padded), lambda: g.op("ReduceMax", [padded], "pad_peak", axes=[2, 3], keepdims=0))
 
 
 def median_nodes(g, batch: PadBatch, frames: str, padded: str, n_t: int) -> str:

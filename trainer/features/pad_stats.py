@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from trainer.features.base import FeatureFamily, pad_bounds, slice_nodes
-from trainer.features.pad_batch import PadBatch
+from trainer.features.pad_batch import PadBatch, peak_nodes
 from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
 from trainer.numerics import U32, gamma
 
@@ -69,12 +69,9 @@ class PadStats(FeatureFamily):
         return g.op("Concat", [mean, g.op("Sqrt", [var], "signal_std"), change, peak], "pad_stats", axis=1)
 
     def _peak_nodes(self, g, frames: str) -> str:
-        """Each pad's peak taxel / fullscale ``[N, G]``: one Gather of the taxels' peaks for all pads."""
-        over_time = g.op("ReduceMax", [frames], "taxel_peak", axes=[1], keepdims=0)  # [N, C]
-        by_pad = g.op("Gather", [over_time, g.const("pad_slots", PadBatch.of(self.shapes_).index, np.int64)],
-                      "pad_taxels", axis=1)  # [N, G, S], padding repeats a taxel of the same pad
-        return g.op("Mul", [g.op("ReduceMax", [by_pad], "pad_peak", axes=[2], keepdims=0),
-                            g.const("inv_fs", 1.0 / float(self.fullscale))], "peak")
+        """Each pad's peak taxel / fullscale ``[N, G]`` (shares the hand family's nodes when both are in)."""
+        peak = peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))
+        return g.op("Mul", [peak, g.const("inv_fs", 1.0 / float(self.fullscale))], "peak")
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         pads = range(len(self.shapes_))
