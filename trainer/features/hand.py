@@ -82,7 +82,7 @@ class HandGraphFeatures(FeatureFamily):
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = peak_nodes(g, padded)  # [N, G]
         median = median_nodes(g, batch, frames, padded, n_t)  # [N, G]
-        rows, signal_mean = _time_nodes(g, frames, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
+        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
         std = _std_nodes(g, batch, padded, signal_mean, n_t)
         by_pad = g.op("Concat", [peak, median, std], "by_pad", axis=1)  # [N, 3G]
         flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
@@ -114,30 +114,35 @@ def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
     """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, 1, G]`` (two passes)."""
     mean4 = g.op("Reshape", [mean, g.const("mean4", [0, len(batch.sizes), 1, 1], np.int64)], "mean4")
     dev = g.op("Sub", [padded, mean4], "dev")
-    if batch.padded:
-        dev = g.op("Mul", [dev, g.const("pad_mask", batch.mask[:, :, None])], "dev_masked")
     sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
+    if batch.padded:
+        # each padding slot repeats the pad's first taxel: take its squares out again (no mask pass
+        # over the whole tensor). They are at most (S - size) times a part of the sum, so this
+        # subtraction loses no more than a few roundings of the result
+        first = g.op("Slice", [dev, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
+                               g.const("axis", [2], np.int64)], "first_taxel")
+        first_sq = g.op("ReduceSumSquare", [first], "first_sq", axes=[2, 3], keepdims=0)
+        extra = g.const("padding_slots", batch.sizes.max() - batch.sizes)
+        sq = g.op("Relu", [g.op("Sub", [sq, g.op("Mul", [first_sq, extra])], "dev_sq_real")], "dev_sq_pad")
     return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
 
 
-def _time_nodes(g, frames: str, shapes, n_t: int) -> tuple[str, str]:
+def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str, str]:
     """Everything from the per-frame pad sums and centres of pressure, for all pads at once, as
     ``_TIME_ROWS`` rows ``[N, 8, 3G]`` over the columns (pad signal, centre x, centre y): mean, FFT band
     shares and log energy, mean derivative, last - first (the centre's net displacement), mean speed
     (first G columns). Also the pads' mean value ``[N, 1, G]``. Rows a column does not use are
     computed and ignored (cheaper than slicing them away)."""
-    n_pads = len(shapes)
-    ones, xs, ys = np.zeros((3, sum(r * c for r, c in shapes), n_pads))
-    centre, start = np.zeros((2, n_pads)), 0
+    n_pads, width = len(shapes), int(batch.sizes.max())
+    kinds = np.zeros((n_pads, 3, width))  # per pad: ones, x, y of each taxel slot (0 on padding)
+    centre = np.zeros((2, n_pads))
     for p, (rows, cols) in enumerate(shapes):
         y, x = np.divmod(np.arange(rows * cols), cols)
-        ones[start : start + rows * cols, p], xs[start : start + rows * cols, p] = 1.0, x
-        ys[start : start + rows * cols, p] = y
+        kinds[p, 0, : rows * cols], kinds[p, 1, : rows * cols], kinds[p, 2, : rows * cols] = 1.0, x, y
         centre[:, p] = (cols - 1) / 2, (rows - 1) / 2
-        start += rows * cols
-    sizes = ones.sum(axis=0)
-    moments = g.op("MatMul", [frames, g.const("pad_moments", np.concatenate([ones, xs, ys], axis=1))], "moments")
-    moments4 = g.op("Reshape", [moments, g.const("by_kind", [0, n_t, 3, n_pads], np.int64)], "moments4")
+    sizes = batch.sizes.astype(np.float64)
+    moments = g.op("MatMul", [g.const("pad_moments", kinds), padded], "moments")  # [N, G, 3, T]
+    moments4 = g.op("Transpose", [moments], "moments4", perm=[0, 3, 2, 1])  # [N, T, 3, G]
     weight, mxy = g.name("weight"), g.name("mxy")
     g.op("Split", [moments4, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
     signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes)], "signal")  # [N, T, 1, G]
