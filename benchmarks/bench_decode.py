@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from firmware_io import protocol as P  # noqa: E402
-from firmware_io.parser import StreamParser  # noqa: E402
+from firmware_io.wire.parser import StreamParser  # noqa: E402
 
 DATA = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data")) / "sdh2-dsa"
 
@@ -36,7 +36,7 @@ DATA = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "dat
 def real_frames(limit: int) -> tuple[np.ndarray, str] | None:
     """Up to ``limit`` real frames (uint16 [N, C]) from the .dsa recordings, or None."""
     try:
-        from firmware_io.importers.dsa import read_dsa
+        from firmware_io.recordings.importers.dsa import read_dsa
     except ImportError:
         return None
     files = sorted(DATA.rglob("*.dsa")) if DATA.is_dir() else []

@@ -16,9 +16,9 @@ from collections.abc import Callable
 from firmware_io import protocol as P
 from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
-from firmware_io.parser import StreamParser
 from firmware_io.plausibility import FrameCheck
 from firmware_io.transports.base import Transport, TransportError
+from firmware_io.wire.parser import StreamParser
 
 __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 

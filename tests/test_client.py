@@ -20,7 +20,7 @@ QUICK = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet
 
 
 def sim_recording():
-    from firmware_io.frame_source import load_source
+    from firmware_io.emulator.frame_source import load_source
 
     return load_source("sim", seed=3, events=2)
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from firmware_io import protocol as P
-from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
-from firmware_io.frame_source import placeholder_session
-from firmware_io.parser import StreamParser
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
+from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.wire.parser import StreamParser
 
 
 class FakeClock:

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from firmware_io import protocol as P
-from firmware_io.parser import StreamParser
+from firmware_io.wire.parser import StreamParser
 
 N_CELLS = 486
 

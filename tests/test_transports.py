@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from firmware_io.client import DSAClient
-from firmware_io.emulator import DeviceEmulator
-from firmware_io.emulator_links import EmulatedCp2110, EmulatedUsbBackend
-from firmware_io.frame_source import placeholder_session
+from firmware_io.emulator.device import DeviceEmulator
+from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.emulator.links import EmulatedCp2110, EmulatedUsbBackend
 from firmware_io.layout import SensorLayout
 from firmware_io.transports import (
     DeviceUnavailable,

@@ -104,7 +104,7 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
 
 def _train_stream_model(args: argparse.Namespace, model: Path, stamp: Path, wanted: dict) -> Path:
     """The 5-class model with a dormant class and level features (trainer.dormant.fit_stream_model)."""
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
     from trainer.dormant import fit_stream_model
 
     _say(args, f"[1/4] simulating the paper's protocol, {STREAM_MODEL_IDLE_MIN:g} min of idle stream and "
@@ -144,9 +144,9 @@ def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
-    from firmware_io.emulator_server import TcpEmulatorServer
-    from firmware_io.simulate import demo_script, simulate_session
+    from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
+    from firmware_io.emulator.server import TcpEmulatorServer
+    from firmware_io.sim import demo_script, simulate_session
     from runtime.config import Config, DeviceConfig, ModelConfig, SceneConfig, SinksConfig
     from runtime.daemon import Daemon
     from runtime.sdnotify import Notifier

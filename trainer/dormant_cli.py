@@ -117,8 +117,8 @@ def main(args: argparse.Namespace) -> int:
 def train_models(args, s: dict, model_dir: Path) -> dict:
     """Simulate the training data, fit and export the 4-class and the 5-class models."""
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script, simulate_protocol, simulate_session
     from firmware_io.sim.idle import simulate_idle
-    from firmware_io.simulate import demo_script, simulate_protocol, simulate_session
     from runtime.trigger_settings import PAPER_FRACTION
     from trainer import dormant
     from trainer.dataset import build_dataset
@@ -183,8 +183,8 @@ def choose_rule(args, s: dict, five) -> dict:
     import itertools
 
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
-    from firmware_io.simulate import demo_script
     from trainer import streams_eval as se
 
     period = K.FRAME_PERIOD_S
@@ -224,8 +224,8 @@ def evaluate(args, s: dict, models: dict, rule: dict) -> dict:
     per-frame decisions, for comparison.
     """
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
-    from firmware_io.simulate import demo_script
     from trainer import streams_eval as se
 
     period = K.FRAME_PERIOD_S
@@ -370,7 +370,7 @@ def markdown(r: dict) -> str:
     lines = [
         "# Dormant class and continuous detection vs the threshold trigger (synthetic)",
         "",
-        "All data here are **synthetic** (the simulated hand, `firmware_io.simulate` and `firmware_io.sim.idle`; "
+        "All data here are **synthetic** (the simulated hand, `firmware_io.sim` and `firmware_io.sim.idle`; "
         "docs/DORMANT.md). Reproduce with:",
         "",
         f"    {r['command']}",

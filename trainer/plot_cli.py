@@ -27,7 +27,7 @@ def _fail(message: str) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.recording import Recording, RecordingError
+    from firmware_io.recordings.recording import Recording, RecordingError
 
     try:
         rec = Recording.load(args.recording)
@@ -59,7 +59,7 @@ def plot_trial(rec, index: int, out: Path, fraction: float = 0.15) -> Path:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from firmware_io.terminal_view import pad_name, pad_sums
+    from firmware_io.recordings.terminal_view import pad_name, pad_sums
 
     layout = rec.layout
     trial = rec.trials[index]

@@ -167,7 +167,7 @@ def _fail(message: str) -> int:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.layout import LayoutError
-    from firmware_io.recording import RecordingError
+    from firmware_io.recordings.recording import RecordingError
     from trainer.dataset import DatasetError
 
     if args.K < 1 or args.W < 1 or args.T < 2:
@@ -216,7 +216,7 @@ def _say(args, text: str) -> None:
 
 def load_or_simulate(args) -> tuple[list, str, bool]:
     """Recordings, a description of where they came from, and whether they are synthetic."""
-    from firmware_io.recording import find_recordings, load_all
+    from firmware_io.recordings.recording import find_recordings, load_all
 
     if args.data:
         paths = find_recordings(args.data)
@@ -226,12 +226,12 @@ def load_or_simulate(args) -> tuple[list, str, bool]:
         synthetic = any(_looks_simulated(r.meta) for r in recs)
         return recs, f"{len(paths)} recordings in {args.data}", synthetic
     try:
-        from firmware_io.simulate import simulate_protocol
+        from firmware_io.sim import simulate_protocol
     except ImportError as exc:
         raise FileNotFoundError(f"no --data given and the simulator is not available ({exc})") from None
     _say(args, f"simulating the paper's protocol (seed {args.seed}) ...")
     recs = simulate_protocol(seed=args.seed)
-    return recs, f"simulated protocol, firmware_io.simulate.simulate_protocol(seed={args.seed})", True
+    return recs, f"simulated protocol, firmware_io.sim.simulate_protocol(seed={args.seed})", True
 
 
 def _looks_simulated(meta: dict) -> bool:

@@ -70,7 +70,7 @@ class EmulatedTransport(Transport):
 
 
 def _emulator_options(parsed: ParsedURL, opts: dict) -> dict:
-    from firmware_io.emulator import FaultPlan, FaultSpecError
+    from firmware_io.emulator.device import FaultPlan, FaultSpecError
 
     url = parsed.url
     try:
@@ -92,7 +92,7 @@ def _parse_speed(url: str, text: object) -> float | None:
 
 
 def _build(parsed: ParsedURL, recording, speed: float | None, loop: bool, opts: dict) -> EmulatedTransport:
-    from firmware_io.emulator import DeviceEmulator
+    from firmware_io.emulator.device import DeviceEmulator
 
     emulator = DeviceEmulator(recording, speed=speed, loop=loop, **_emulator_options(parsed, opts))
     return EmulatedTransport(emulator, parsed.url)
@@ -103,8 +103,8 @@ class SimTransport(EmulatedTransport):
 
     @classmethod
     def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
-        from firmware_io.frame_source import load_source
-        from firmware_io.recording import RecordingError
+        from firmware_io.emulator.frame_source import load_source
+        from firmware_io.recordings.recording import RecordingError
 
         parsed.check_options(_COMMON | {"seed", "events", "realtime", "speed"})
         url = parsed.url
@@ -125,8 +125,8 @@ class ReplayTransport(EmulatedTransport):
 
     @classmethod
     def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
-        from firmware_io.frame_source import load_source
-        from firmware_io.recording import RecordingError
+        from firmware_io.emulator.frame_source import load_source
+        from firmware_io.recordings.recording import RecordingError
 
         parsed.check_options(_COMMON | {"speed", "seed"})
         url = parsed.url

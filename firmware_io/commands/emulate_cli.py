@@ -49,10 +49,10 @@ def _speed(text: str) -> float | None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
-    from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
-    from firmware_io.frame_source import load_source
-    from firmware_io.recording import RecordingError
+    from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+    from firmware_io.recordings.recording import RecordingError
     from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError
 
     try:

@@ -1,7 +1,7 @@
 """A scripted simulated subject behind an emulated controller: it does whatever the recorder prompts.
 
 The recorder cues ``go`` with a trial slot (pose, object, action, run); the subject then plays a
-trial of the simulated hand (``firmware_io.simulate``, synthetic data) for that slot through a
+trial of the simulated hand (``firmware_io.sim``, synthetic data) for that slot through a
 DeviceEmulator, frame by frame, and idles (all zeros: empty hand) otherwise. Its frame clock is
 the emulator's, so sessions run in real time or as fast as they are read (``speed=None``).
 
@@ -21,7 +21,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
 from firmware_io.layout import SensorLayout
 from firmware_io.transports.base import DeviceUnavailable, Transport, TransportError
 from firmware_io.transports.emulated import EmulatedTransport
@@ -163,7 +163,7 @@ class ScriptedSubject:
 
     def _render(self, slot, attempt: int) -> tuple[np.ndarray, int]:
         """One simulated trial of this slot; every attempt is a new draw (a person never repeats exactly)."""
-        from firmware_io.simulate import ACTIONS, OBJECTS, POSES, simulate_protocol
+        from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
 
         pose = slot.pose if slot.pose in POSES else POSES[0]
         obj = slot.object if slot.object in OBJECTS else OBJECTS[0]

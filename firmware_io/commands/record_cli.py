@@ -12,8 +12,8 @@ import shutil
 import subprocess
 import sys
 
-from firmware_io.record_session import DEFAULT_FRACTION, DEFAULT_RUNS, OBJECTS, POSES
-from firmware_io.recording import ACTIONS
+from firmware_io.recordings.record_session import DEFAULT_FRACTION, DEFAULT_RUNS, OBJECTS, POSES
+from firmware_io.recordings.recording import ACTIONS
 
 PROG = "handover record"
 
@@ -92,7 +92,7 @@ def _ask(question: str, choices) -> str:
 def main(args: argparse.Namespace) -> int:
     from firmware_io.client import DSAClient
     from firmware_io.protocol import DSAError
-    from firmware_io.record_session import (
+    from firmware_io.recordings.record_session import (
         DeviceLost,
         ProtocolPlan,
         SessionError,
@@ -102,8 +102,8 @@ def main(args: argparse.Namespace) -> int:
         recording_path,
         run_session,
     )
-    from firmware_io.recording import RecordingError
-    from firmware_io.terminal_view import trial_view
+    from firmware_io.recordings.recording import RecordingError
+    from firmware_io.recordings.terminal_view import trial_view
     from firmware_io.transports.base import TransportError
 
     try:
@@ -119,7 +119,7 @@ def main(args: argparse.Namespace) -> int:
     synthetic = args.device.startswith("subject:")
     try:
         if synthetic:
-            from firmware_io.scripted_subject import ScriptedSubject
+            from firmware_io.sim.scripted_subject import ScriptedSubject
 
             subject = ScriptedSubject.from_url(args.device)
             subject.trial_seconds = max(args.trial_seconds, 1.5)
