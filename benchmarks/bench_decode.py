@@ -27,7 +27,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from firmware_io import protocol as P  # noqa: E402
+from firmware_io.wire.frames import decode_frame_payload, encode_frame_payload  # noqa: E402
+from firmware_io.wire.packets import encode_packet  # noqa: E402
 from firmware_io.wire.parser import StreamParser  # noqa: E402
 
 DATA = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data")) / "sdh2-dsa"
@@ -81,9 +82,9 @@ def time_it(fn, repeats: int) -> list[float]:
 
 def bench(frames: np.ndarray, rle: bool, repeats: int) -> dict:
     n, cells = frames.shape
-    payloads = [P.encode_frame_payload(f, i, rle=rle) for i, f in enumerate(frames)]
-    stream = b"".join(P.encode_packet(0, p) for p in payloads)
-    decode = P.decode_frame_payload
+    payloads = [encode_frame_payload(f, i, rle=rle) for i, f in enumerate(frames)]
+    stream = b"".join(encode_packet(0, p) for p in payloads)
+    decode = decode_frame_payload
 
     def payload_only() -> None:
         for p in payloads:

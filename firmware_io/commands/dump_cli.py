@@ -45,8 +45,8 @@ def main(args: argparse.Namespace) -> int:
     import numpy as np
 
     from firmware_io.client import DSAClient
-    from firmware_io.protocol import DSAError
     from firmware_io.transports import TransportError
+    from firmware_io.wire.errors import DSAError
 
     if args.frames is not None and args.frames < 1:
         return _fail("--frames must be at least 1")

@@ -91,7 +91,6 @@ def _ask(question: str, choices) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.client import DSAClient
-    from firmware_io.protocol import DSAError
     from firmware_io.recordings.record_session import (
         DeviceLost,
         ProtocolPlan,
@@ -105,6 +104,7 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.recordings.recording import RecordingError
     from firmware_io.recordings.terminal_view import trial_view
     from firmware_io.transports.base import TransportError
+    from firmware_io.wire.errors import DSAError
 
     try:
         plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)

@@ -159,9 +159,10 @@ def source_frames(limit: int = 4000) -> tuple[np.ndarray, str]:
 def attack_frames(n: int, seed: int = 0) -> dict:
     """``n`` frames (raw and RLE, alternating) each with two flipped bits, through parser, decoder
     and plausibility check, followed by an intact frame (so the parser resynchronises)."""
-    from firmware_io import protocol as P
     from firmware_io.layout import SensorLayout
     from firmware_io.plausibility import FrameCheck
+    from firmware_io.wire.errors import FrameDecodeError
+    from firmware_io.wire.frames import decode_frame_payload, encode_frame
     from firmware_io.wire.parser import StreamParser
 
     frames, source = source_frames()
@@ -172,7 +173,7 @@ def attack_frames(n: int, seed: int = 0) -> dict:
     for i in range(n):
         values = frames[i % len(frames)]
         rle = bool(i % 2)
-        good = P.encode_frame(values, i, rle=rle)
+        good = encode_frame(values, i, rle=rle)
         bad = bytearray(good)
         for bit in rng.choice((len(bad) - 3) * 8, size=2, replace=False):
             bad[3 + bit // 8] ^= 1 << (bit % 8)
@@ -182,8 +183,8 @@ def attack_frames(n: int, seed: int = 0) -> dict:
         count["header_rejected"] += parser.stats.bad_headers
         for packet in (p for p in packets if p.payload != good[6:-2]):
             try:
-                _, got = P.decode_frame_payload(packet.payload, layout.n_taxels)
-            except P.FrameDecodeError:
+                _, got = decode_frame_payload(packet.payload, layout.n_taxels)
+            except FrameDecodeError:
                 count["decode_rejected"] += 1
                 continue
             if check.problem(got) is not None:

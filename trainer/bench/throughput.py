@@ -63,7 +63,8 @@ def replay_hot_path(model, recording, repeats: int = 1) -> dict:
     real ``Daemon.handle_frame`` (ring, trigger, inference, output check), no socket."""
     from firmware_io.client import Frame
     from firmware_io.plausibility import FrameCheck
-    from firmware_io.protocol import PacketId, decode_frame_payload, encode_frame
+    from firmware_io.wire.frames import decode_frame_payload, encode_frame
+    from firmware_io.wire.packets import PacketId
     from firmware_io.wire.parser import StreamParser
 
     layout = recording.layout
