@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.commands.errors import fail
+
 COMMAND = "demo"
 SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
 STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
@@ -49,11 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/model.onnx exists")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="only the summary")
-
-
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
 
 
 def _say(args: argparse.Namespace, text: str) -> None:
@@ -153,24 +150,24 @@ def main(args: argparse.Namespace) -> int:
     from trainer.streams_eval import Decision, session_outcomes
 
     if args.events < 4:
-        return _fail("--events must be at least 4 (one of each class)")
+        return fail(COMMAND, "--events must be at least 4 (one of each class)")
     speed_text = args.speed.strip().lower()
     try:
         speed = None if speed_text in ("max", "inf") else float(speed_text)
         if speed is not None and speed <= 0:
             raise ValueError
     except ValueError:
-        return _fail(f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
+        return fail(COMMAND, f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
     try:
         faults = FaultPlan.parse(args.fault)
     except FaultSpecError as exc:
-        return _fail(f"--fault: {exc}")
+        return fail(COMMAND, f"--fault: {exc}")
     out = Path(args.out)
     t_start = time.perf_counter()
     try:
         model_path = train_model(args, out)
     except (OSError, ValueError, RuntimeError) as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     model_dir = drop_model(model_path, out / "models").parent
 
     session_seed = args.seed + SESSION_SEED_OFFSET

@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+from firmware_io.commands.errors import fail
+
 COMMAND = "dormant"
 PART_S = 900.0
 """Idle evaluation streams are generated and replayed in parts of 15 min (bounded memory)."""
@@ -51,11 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument("--quiet", action="store_true")
-
-
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
 
 
 def _say(args, text: str) -> None:
@@ -91,24 +88,24 @@ def command_line(args) -> str:
 
 def main(args: argparse.Namespace) -> int:
     if args.K < 1 or args.W < 1 or args.T - 1 < args.W:
-        return _fail(f"need K >= 1, W >= 1 and T >= W + 1 (got K={args.K}, W={args.W}, T={args.T})")
+        return fail(COMMAND, f"need K >= 1, W >= 1 and T >= W + 1 (got K={args.K}, W={args.W}, T={args.T})")
     s = settings(args)
     if min(s["idle_hours"], s["events"], s["train_idle_min"], s["val_events"], s["val_idle_hours"]) <= 0:
-        return _fail("--idle-hours, --events, --train-idle-min, --val-events and --val-idle-hours must be positive")
+        return fail(COMMAND, "--idle-hours, --events, --train-idle-min, --val-events and --val-idle-hours must be positive")
     if args.seed == args.eval_seed:
-        return _fail("--eval-seed must differ from --seed (the evaluation streams must be unseen)")
+        return fail(COMMAND, "--eval-seed must differ from --seed (the evaluation streams must be unseen)")
     if args.val_seed in (args.seed, args.eval_seed):
-        return _fail("--val-seed must differ from --seed and --eval-seed (the rule is chosen on streams of its own)")
+        return fail(COMMAND, "--val-seed must differ from --seed and --eval-seed (the rule is chosen on streams of its own)")
     try:
         from firmware_io.layout import SensorLayout
 
         SensorLayout.sdh2().pads(args.pads)
     except ValueError as exc:
-        return _fail(f"--pads: {exc}")
+        return fail(COMMAND, f"--pads: {exc}")
     try:
         result = run(args, s)
     except OSError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     if args.json:
         print(json.dumps(result["summary"], indent=1))
     return 0

@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from firmware_io.commands.errors import fail
+
 COMMAND = "train"
 
 
@@ -160,43 +162,38 @@ def build_estimator(args, ds):
                       fullscale=ds.fullscale)
 
 
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
-
-
 def main(args: argparse.Namespace) -> int:
     from firmware_io.layout import LayoutError
     from firmware_io.recordings.recording import RecordingError
     from trainer.dataset import DatasetError
 
     if args.K < 1 or args.W < 1 or args.T < 2:
-        return _fail(f"K, W must be >= 1 and T >= 2 (got K={args.K}, W={args.W}, T={args.T})")
+        return fail(COMMAND, f"K, W must be >= 1 and T >= 2 (got K={args.K}, W={args.W}, T={args.T})")
     try:
         uses_bow = "bow" in families_of(args)
     except ValueError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     if uses_bow and args.T - 1 < args.W:  # W is the BoW window: other families do not read it
-        return _fail(f"W={args.W} needs T >= {args.W + 1} (got T={args.T})")
+        return fail(COMMAND, f"W={args.W} needs T >= {args.W + 1} (got T={args.T})")
     if args.repeats < 2:
-        return _fail("--repeats must be at least 2 (mean +/- std)")
+        return fail(COMMAND, "--repeats must be at least 2 (mean +/- std)")
     try:
         window_arg = parse_windows(args.windows) if args.windows else args.W
     except ValueError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     longest = max(window_arg) if isinstance(window_arg, tuple) else window_arg
     if uses_bow and longest > args.T - 1:
-        return _fail(f"--windows {args.windows} needs T >= {longest + 1} (got T={args.T})")
+        return fail(COMMAND, f"--windows {args.windows} needs T >= {longest + 1} (got T={args.T})")
     if not args.temperature > 0:
-        return _fail(f"--temperature must be positive (got {args.temperature})")
+        return fail(COMMAND, f"--temperature must be positive (got {args.temperature})")
     if args.latency_budget_us is not None and not args.latency_budget_us > 0:
-        return _fail(f"--latency-budget-us must be positive (got {args.latency_budget_us})")
+        return fail(COMMAND, f"--latency-budget-us must be positive (got {args.latency_budget_us})")
     try:
         return run(args)
     except (RecordingError, DatasetError, LayoutError, OSError) as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     except ValueError as exc:
-        return _fail(f"cannot train: {exc}")
+        return fail(COMMAND, f"cannot train: {exc}")
 
 
 def _progress(args, desc: str, total: int):

@@ -14,8 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
+from dataclasses import dataclass
+
+from firmware_io.commands.errors import DEVICE_ERROR, fail
+
+COMMAND = "dump"
 
 BURST_NOTE = "n/a (as fast as possible: the frames arrived together)"
 PREVIEW_FRAMES = 50
@@ -36,98 +40,128 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--raw", action="store_true", help="ask for raw frames instead of RLE")
 
 
-def _fail(message: str) -> int:
-    print(f"handover dump: {message}", file=sys.stderr)
-    return 1
-
-
 def main(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from firmware_io.client import DSAClient
     from firmware_io.transports import TransportError
     from firmware_io.wire.errors import DSAError
 
     if args.frames is not None and args.frames < 1:
-        return _fail("--frames must be at least 1")
+        return fail(COMMAND, "--frames must be at least 1")
     if args.seconds is not None and args.seconds <= 0:
-        return _fail("--seconds must be positive")
+        return fail(COMMAND, "--seconds must be positive")
     preview = args.frames is None and args.seconds is None
-    max_frames = args.frames if args.frames is not None else (None if args.seconds else PREVIEW_FRAMES)
     emit = _json_line if args.json else None
     idle = IdleSkip(enabled=preview and not args.all_frames, emit=emit)
-
+    tally = Tally()
     client = DSAClient(args.url, rle=not args.raw, auto_reconnect=False)
-    count, first_rx, last_rx, first_ts, last_ts = 0, None, None, None, None
-    cut_by_end = 0  # reads that ended empty because --seconds ran out: the end, not a timeout
     try:
         layout = client.open()
-        ctrl = client.controller
-        header = {
-            "type": "layout",
-            "url": args.url,
-            "firmware": ctrl.firmware if ctrl else None,
-            "controller_serial": ctrl.serial_no if ctrl else None,
-            "n_taxels": layout.n_taxels,
-            "matrices": [{"index": m.index, "cells_x": m.cells_x, "cells_y": m.cells_y} for m in layout.matrices],
-        }
-        if emit:
-            emit(header)
-        else:
-            print(f"{args.url}: controller firmware {header['firmware']}, serial {header['controller_serial']}")
-            sizes = ", ".join(f"{m.index}: {m.cells_x}x{m.cells_y}" for m in layout.matrices)
-            print(f"{layout.n_matrices} pads, {layout.n_taxels} taxels ({sizes})")
-            print("frame   device_ms   dt_ms  " + "  ".join(f"pad{m.index:>4}" for m in layout.matrices) + "    max")
-        slices = [layout.matrix_slice(m.index) for m in layout.matrices]
+        _show_layout(args.url, client, layout, emit)
         client.start()
-        end = None if args.seconds is None else time.monotonic() + args.seconds  # streaming time, not open time
-        while (max_frames is None or count < max_frames) and (end is None or time.monotonic() < end):
-            wait = 1.0 if end is None else max(0.0, min(1.0, end - time.monotonic()))
-            frame = client.read_frame(timeout=wait)
-            if frame is None:
-                if end is None:
-                    return _fail(f"no frame for 1 s (errors so far: {_errors(client.stats)})")
-                if time.monotonic() >= end:
-                    cut_by_end += 1
-                continue
-            if idle.skip(frame):
-                continue
-            sums = [int(np.sum(frame.values[s], dtype=np.int64)) for s in slices]
-            dt = None if last_ts is None else frame.timestamp_ms - last_ts
-            first_rx = frame.received if first_rx is None else first_rx
-            first_ts = frame.timestamp_ms if first_ts is None else first_ts
-            last_rx, last_ts = frame.received, frame.timestamp_ms
-            count += 1
-            if emit:
-                emit({"type": "frame", "number": frame.number, "timestamp_ms": frame.timestamp_ms,
-                      "pad_sums": sums, "max": int(frame.values.max(initial=0))})
-            else:
-                dt_text = "" if dt is None else str(dt)
-                print(f"{frame.number:>5} {frame.timestamp_ms:>11} {dt_text:>7}  "
-                      + "  ".join(f"{v:>7}" for v in sums) + f" {int(frame.values.max(initial=0)):>6}")
+        problem = _stream(args, client, layout, idle, tally, emit)
+        if problem:
+            return fail(COMMAND, problem, DEVICE_ERROR)
     except (TransportError, DSAError) as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc), DEVICE_ERROR)
     except KeyboardInterrupt:
         pass
     finally:
         stats = client.stats
-        stats["timeouts"] = max(0, stats.get("timeouts", 0) - cut_by_end)
+        stats["timeouts"] = max(0, stats.get("timeouts", 0) - tally.cut_by_end)
         client.close()
-    rate = (count - 1) / (last_rx - first_rx) if count > 1 and last_rx > first_rx else None
+    _show_summary(tally, idle.skipped, stats, emit)
+    return 0
+
+
+@dataclass
+class Tally:
+    """Frames shown so far, the receive and device times of the first and last, and the reads that ended
+    empty because --seconds ran out (the end, not a timeout)."""
+
+    count: int = 0
+    first_rx: float | None = None
+    last_rx: float | None = None
+    first_ts: int | None = None
+    last_ts: int | None = None
+    cut_by_end: int = 0
+
+    def add(self, frame) -> int | None:
+        """Count a frame; the device milliseconds since the previous one (None for the first)."""
+        dt = None if self.last_ts is None else frame.timestamp_ms - self.last_ts
+        self.first_rx = frame.received if self.first_rx is None else self.first_rx
+        self.first_ts = frame.timestamp_ms if self.first_ts is None else self.first_ts
+        self.last_rx, self.last_ts = frame.received, frame.timestamp_ms
+        self.count += 1
+        return dt
+
+
+def _show_layout(url: str, client, layout, emit) -> None:
+    ctrl = client.controller
+    header = {
+        "type": "layout",
+        "url": url,
+        "firmware": ctrl.firmware if ctrl else None,
+        "controller_serial": ctrl.serial_no if ctrl else None,
+        "n_taxels": layout.n_taxels,
+        "matrices": [{"index": m.index, "cells_x": m.cells_x, "cells_y": m.cells_y} for m in layout.matrices],
+    }
+    if emit:
+        emit(header)
+        return
+    print(f"{url}: controller firmware {header['firmware']}, serial {header['controller_serial']}")
+    sizes = ", ".join(f"{m.index}: {m.cells_x}x{m.cells_y}" for m in layout.matrices)
+    print(f"{layout.n_matrices} pads, {layout.n_taxels} taxels ({sizes})")
+    print("frame   device_ms   dt_ms  " + "  ".join(f"pad{m.index:>4}" for m in layout.matrices) + "    max")
+
+
+def _stream(args: argparse.Namespace, client, layout, idle: IdleSkip, tally: Tally, emit) -> str | None:
+    """Show frames until --frames or --seconds (or the preview's count); what went wrong, or None."""
+    import numpy as np
+
+    preview = args.frames is None and args.seconds is None
+    max_frames = args.frames if args.frames is not None else (PREVIEW_FRAMES if preview else None)
+    slices = [layout.matrix_slice(m.index) for m in layout.matrices]
+    end = None if args.seconds is None else time.monotonic() + args.seconds  # streaming time, not open time
+    while (max_frames is None or tally.count < max_frames) and (end is None or time.monotonic() < end):
+        wait = 1.0 if end is None else max(0.0, min(1.0, end - time.monotonic()))
+        frame = client.read_frame(timeout=wait)
+        if frame is None:
+            if end is None:
+                return f"no frame for 1 s (errors so far: {_errors(client.stats)})"
+            if time.monotonic() >= end:
+                tally.cut_by_end += 1
+            continue
+        if idle.skip(frame):
+            continue
+        sums = [int(np.sum(frame.values[s], dtype=np.int64)) for s in slices]
+        dt = tally.add(frame)
+        peak = int(frame.values.max(initial=0))
+        if emit:
+            emit({"type": "frame", "number": frame.number, "timestamp_ms": frame.timestamp_ms,
+                  "pad_sums": sums, "max": peak})
+        else:
+            dt_text = "" if dt is None else str(dt)
+            print(f"{frame.number:>5} {frame.timestamp_ms:>11} {dt_text:>7}  "
+                  + "  ".join(f"{v:>7}" for v in sums) + f" {peak:>6}")
+    return None
+
+
+def _show_summary(t: Tally, skipped: int, stats: dict, emit) -> None:
+    rate = (t.count - 1) / (t.last_rx - t.first_rx) if t.count > 1 and t.last_rx > t.first_rx else None
     # Frames parsed from one read share one receive time: a source sending as fast as possible.
-    burst = count > 1 and rate is None
-    device_rate = (count - 1) * 1000.0 / (last_ts - first_ts) if count > 1 and last_ts > first_ts else None
-    summary = {"type": "summary", "frames": count, "idle_frames_skipped": idle.skipped, "rate_hz": rate, "device_rate_hz": device_rate, "stats": stats}
+    burst = t.count > 1 and rate is None
+    device_rate = (t.count - 1) * 1000.0 / (t.last_ts - t.first_ts) if t.count > 1 and t.last_ts > t.first_ts else None
+    summary = {"type": "summary", "frames": t.count, "idle_frames_skipped": skipped, "rate_hz": rate,
+               "device_rate_hz": device_rate, "stats": stats}
     if burst:
         summary["rate_note"] = BURST_NOTE
     if emit:
         emit(summary)
-    else:
-        r = BURST_NOTE if burst else "n/a" if rate is None else f"{rate:.1f} Hz"
-        d = "n/a" if device_rate is None else f"{device_rate:.1f} Hz"
-        skipped = f" (after {idle.skipped} frames without contact)" if idle.skipped else ""
-        print(f"{count} frames{skipped}, received at {r} (device clock {d}); errors: {_errors(stats)}")
-    return 0
+        return
+    r = BURST_NOTE if burst else "n/a" if rate is None else f"{rate:.1f} Hz"
+    d = "n/a" if device_rate is None else f"{device_rate:.1f} Hz"
+    skipped_text = f" (after {skipped} frames without contact)" if skipped else ""
+    print(f"{t.count} frames{skipped_text}, received at {r} (device clock {d}); errors: {_errors(stats)}")
 
 
 class IdleSkip:
