@@ -137,19 +137,14 @@ def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator.device import FaultPlan, FaultSpecError
-    from firmware_io.transports.base import TransportError, parse_speed
+    from firmware_io.commands.playback import playback_options
 
     if args.events < 4:
         return fail(COMMAND, "--events must be at least 4 (one of each class)")
     try:
-        speed = parse_speed("--speed", args.speed)
-    except TransportError:
-        return fail(COMMAND, f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
-    try:
-        faults = FaultPlan.parse(args.fault)
-    except FaultSpecError as exc:
-        return fail(COMMAND, f"--fault: {exc}")
+        speed, faults = playback_options(args.speed, args.fault)
+    except ValueError as exc:
+        return fail(COMMAND, str(exc))
     out = Path(args.out)
     t_start = time.perf_counter()
     try:

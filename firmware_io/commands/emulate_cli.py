@@ -38,20 +38,17 @@ def _interrupt(*_: object) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
+    from firmware_io.commands.playback import playback_options
+    from firmware_io.emulator.device import DeviceEmulator
     from firmware_io.emulator.frame_source import load_source
     from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
     from firmware_io.recordings.recording import RecordingError
-    from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError, parse_speed
+    from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError
 
     try:
-        speed = parse_speed("--speed", args.speed)
-    except TransportError:
-        return fail(COMMAND, f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
-    try:
-        faults = FaultPlan.parse(args.fault)
-    except FaultSpecError as exc:
-        return fail(COMMAND, f"--fault: {exc}")
+        speed, faults = playback_options(args.speed, args.fault)
+    except ValueError as exc:
+        return fail(COMMAND, str(exc))
     if not 1 <= args.events <= MAX_EVENTS:
         return fail(COMMAND, f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
     try:
