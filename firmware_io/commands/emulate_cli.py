@@ -1,0 +1,110 @@
+"""``handover emulate``: serve an emulated DSACON32m on loopback TCP or a pseudo-terminal.
+
+Frames come from the simulated hand's scripted session (synthetic data) or any recording
+(.hrec, .dsa, .bag). Point any client at the printed URL, e.g. ``handover dump tcp://127.0.0.1:13000``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import time
+
+from firmware_io.commands.errors import fail
+
+COMMAND = "emulate"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--listen", metavar="URL", help="tcp://127.0.0.1:PORT (loopback only; port 0 picks one)")
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal and print its path")
+    parser.add_argument("--source", default="sim", help="'sim' (simulated hand, default) or a recording file")
+    parser.add_argument("--events", type=int, default=40, help="scripted events of the simulated session (default 40)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated session and of fault injection")
+    parser.add_argument("--speed", default="1.0", help="playback speed: a factor (1.0 = recorded timing) or 'max'")
+    parser.add_argument(
+        "--fault",
+        default="",
+        help="faults to inject, e.g. crc=0.01,garbage=0.01,drop=0.01,stall=0.005:0.5,disconnect=300,boot",
+    )
+    parser.add_argument("--old-firmware", action="store_true", help="behave like firmware <= R288 (single frame pushes)")
+    parser.add_argument("--no-loop", action="store_true", help="stop sending at the end of the recording")
+    parser.add_argument("--duration", type=float, default=None, help="exit after this many seconds (default: Ctrl-C)")
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.commands.playback import playback_options
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+    from firmware_io.recordings.recording import RecordingError
+    from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError
+
+    try:
+        speed, faults = playback_options(args.speed, args.fault)
+    except ValueError as exc:
+        return fail(COMMAND, str(exc))
+    if not 1 <= args.events <= MAX_EVENTS:
+        return fail(COMMAND, f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
+    try:
+        recording = load_source(args.source, seed=args.seed, events=args.events)
+    except RecordingError as exc:
+        return fail(COMMAND, str(exc))
+    emulator = DeviceEmulator(
+        recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed
+    )
+    try:
+        if args.pty:
+            server = PtyEmulatorServer(emulator)
+        else:
+            try:
+                parsed = ParsedURL(args.listen)
+            except TransportError as exc:
+                return fail(COMMAND, str(exc))
+            if parsed.scheme != "tcp" or not parsed.netloc:
+                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+            host, _, port = parsed.netloc.rpartition(":")
+            if not host or not port.isdigit() or int(port) > 65535:
+                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
+            server = TcpEmulatorServer(emulator, host=host, port=int(port))
+    except EmulatorServerError as exc:
+        return fail(COMMAND, str(exc))
+
+    signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop ends like Ctrl-C: summary, clean close
+    synthetic = " (synthetic)" if recording.meta.get("synthetic", args.source == "sim") else ""
+    what = "simulated hand" if args.source == "sim" else str(args.source)
+    rate = 1.0 / recording.sample_interval() if recording.n_frames > 1 else float("nan")
+    print(
+        f"emulated DSACON32m: {what}{synthetic}, {recording.n_frames} frames, {recording.layout.n_matrices} pads, "
+        f"{recording.layout.n_taxels} taxels, {rate:.1f} Hz, speed {args.speed}"
+        + (f", faults {args.fault}" if faults.any else ""),
+        flush=True,
+    )
+    server.start()
+    try:
+        if args.pty:
+            print(f"pty: {server.path}  (open serial://{server.path})", flush=True)
+        else:
+            print(f"listening: {server.url}", flush=True)
+        end = None if args.duration is None else time.monotonic() + args.duration
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
+            if server.error is not None:
+                return fail(COMMAND, f"server stopped: {server.error}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    s = emulator.stats
+    print(
+        f"served {s.connections} connection(s), {s.commands} commands, {s.frames_sent} frames; "
+        f"faults: crc {s.crc_corrupted}, garbage {s.garbage_inserted}, truncated {s.packets_truncated}, "
+        f"stalls {s.stalls}, disconnects {s.disconnects}",
+        flush=True,
+    )
+    return 0

@@ -1,0 +1,208 @@
+"""``handover record``: walk a subject through the paper's protocol and record every trial.
+
+Instructions go to the terminal and, when espeak-ng is installed, to the loudspeaker (the
+subject should not have to read a screen while acting). Each trial is saved the moment it
+ends; running the same command again continues where the session stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+
+from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
+from firmware_io.recordings.record_session import DEFAULT_FRACTION, DEFAULT_RUNS, OBJECTS, POSES
+from firmware_io.recordings.recording import ACTIONS
+
+COMMAND = "record"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", required=True,
+                        help="device URL: serial:///dev/ttyUSB0, tcp://HOST:13000, ... or subject://?seed=0 "
+                             "(emulated controller with a scripted simulated subject; synthetic data)")
+    parser.add_argument("--subject", required=True, help="subject id (the file is OUT/subject_ID.hrec)")
+    parser.add_argument("--out", default="recordings", help="folder of the recordings (default ./recordings)")
+    parser.add_argument("--poses", default=",".join(POSES), help="comma-separated hand poses")
+    parser.add_argument("--objects", default=",".join(OBJECTS), help="comma-separated objects")
+    parser.add_argument("--actions", default=",".join(ACTIONS), help="comma-separated actions")
+    parser.add_argument("--runs", type=int, default=DEFAULT_RUNS, help="runs of each pose/object/action")
+    parser.add_argument("--trial-seconds", type=float, default=3.0, help="length of a trial (paper: 3 s)")
+    parser.add_argument("--gap", type=float, default=2.0, help="--auto: pause before each trial (seconds)")
+    parser.add_argument("--countdown", type=int, default=3, help="seconds counted down before go")
+    parser.add_argument("--fraction", type=float, default=DEFAULT_FRACTION,
+                        help="trigger level as a fraction of full scale (paper: 0.15)")
+    parser.add_argument("--pads", default="all", help="pads watched by the trigger check (all, distal, 1,3,5 ...)")
+    parser.add_argument("--auto", action="store_true",
+                        help="no prompts, fixed timing (scripted sessions, tests); a never-triggered trial is "
+                             "recorded again --retries times, then kept flagged")
+    parser.add_argument("--retries", type=int, default=1, help="--auto: repeats of a never-triggered trial")
+    parser.add_argument("--max-trials", type=int, default=None, help="stop after this many trials")
+    parser.add_argument("--quiet", action="store_true", help="no voice (espeak-ng)")
+    parser.add_argument("--no-look", action="store_true", help="no per-pad sparklines after each trial")
+
+
+class Voice:
+    """espeak-ng in the background: never blocks the session, silently absent when not installed."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.exe = shutil.which("espeak-ng") if enabled else None
+        self._proc: subprocess.Popen | None = None
+
+    def say(self, text: str) -> None:
+        if not self.exe:
+            return
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.terminate()  # the newest instruction matters more than the rest of the old one
+        try:
+            self._proc = subprocess.Popen([self.exe, text], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.DEVNULL)
+        except OSError:
+            self.exe = None
+
+    def close(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            try:
+                self._proc.wait(timeout=3)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+
+
+def _ask(question: str, choices) -> str:
+    """One answer from stdin; end of input means quit (a script that ran out of answers)."""
+    for _ in range(5):
+        print(f"{question} > ", end="", flush=True)
+        line = sys.stdin.readline()
+        if not line:
+            print()
+            return "q"
+        answer = line.strip().lower()
+        if answer in choices:
+            return answer
+        print(f"  please answer one of: {', '.join(c or 'Enter' for c in choices)}")
+    return "q"
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.recordings.record_session import SessionError
+    from firmware_io.transports.base import TransportError
+
+    try:
+        plan, opts = _plan_and_options(args)
+    except SessionError as exc:
+        return fail(COMMAND, str(exc))
+    if args.trial_seconds <= 0.3 or args.gap < 0 or args.countdown < 0 or args.retries < 0:
+        return fail(COMMAND, "--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
+    if not 0.0 < args.fraction < 1.0:
+        return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
+    try:
+        client, subject = _connect(args.device, args.trial_seconds)
+    except TransportError as exc:
+        return fail(COMMAND, str(exc))
+    voice = Voice(enabled=not args.quiet)
+    try:
+        return _record(args, client, subject, plan, opts, voice)
+    finally:
+        client.close()
+        voice.close()
+
+
+def _plan_and_options(args: argparse.Namespace):
+    """The protocol to walk and how; raises SessionError for a bad pose, object or action list."""
+    from firmware_io.recordings.record_session import ProtocolPlan, SessionOptions
+    from firmware_io.recordings.terminal_view import trial_view
+
+    plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)
+    quick_look = None if args.no_look else lambda f, lay, c: trial_view(f, lay, c.first_frame)
+    opts = SessionOptions(trial_seconds=args.trial_seconds, gap_seconds=args.gap, countdown=args.countdown,
+                          fraction=args.fraction, pads=args.pads, auto=args.auto, retries=args.retries,
+                          max_trials=args.max_trials, quick_look=quick_look)
+    return plan, opts
+
+
+def _connect(device: str, trial_seconds: float):
+    """A client for the device (reconnecting by URL) and, for ``subject://``, the simulated subject it
+    reaches, whom the session prompts. Each scheme's URL is checked by its transport, in the one registry."""
+    from firmware_io.client import DSAClient
+    from firmware_io.transports import validate_url
+    from firmware_io.transports.emulated import SUBJECT_SCHEME
+
+    parsed = validate_url(device)
+    if parsed.scheme != SUBJECT_SCHEME:
+        return DSAClient(device), None
+    from firmware_io.sim.scripted_subject import ScriptedSubject
+
+    subject = ScriptedSubject.from_url(parsed)
+    subject.trial_seconds = max(trial_seconds, 1.5)
+    return DSAClient(subject.connect), subject
+
+
+def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice) -> int:
+    """Open the device and the session file, walk the protocol; the exit code."""
+    from firmware_io.recordings.record_session import (
+        DeviceLost,
+        SessionError,
+        SessionIO,
+        SessionStore,
+        recording_path,
+        run_session,
+    )
+    from firmware_io.recordings.recording import RecordingError
+    from firmware_io.transports.base import TransportError
+    from firmware_io.wire.errors import DSAError
+
+    try:
+        layout = client.open()
+        client.start()
+    except (TransportError, DSAError, OSError) as exc:
+        return fail(COMMAND, f"cannot open the device: {exc}", DEVICE_ERROR)
+    try:
+        store = SessionStore.open(recording_path(args.out, args.subject), args.subject, layout)
+    except (RecordingError, SessionError) as exc:
+        return fail(COMMAND, str(exc))
+    if subject is not None:
+        store.meta["synthetic"] = True
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        voice.say(text)
+
+    io = SessionIO(say=say, show=lambda text: print(text, flush=True), ask=_ask,
+                   cue=subject.cue if subject is not None else (lambda kind, slot: None))
+    info = {"device": client.url, "controller": _controller_info(client)}
+    resume = "run the same command again to resume"
+    try:
+        result = run_session(client, store, plan, opts, io, session_info=info)
+    except (SessionError, ValueError) as exc:
+        return fail(COMMAND, str(exc))
+    except (DeviceLost, TransportError, DSAError) as exc:
+        return fail(COMMAND, f"device lost ({_first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
+    except KeyboardInterrupt:
+        return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
+    flagged = f", {len(result.flagged)} flagged as never triggered" if result.flagged else ""
+    if result.complete:
+        print(f"session complete: {_saved(store)}{flagged}")
+    else:
+        print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
+              f"{_saved(store)}{flagged}; run the same command again to continue")
+    return 0
+
+
+def _saved(store) -> str:
+    return f"{store.n_trials} trials saved in {store.path}"
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def _controller_info(client) -> dict:
+    c = getattr(client, "controller", None)
+    if c is None:
+        return {}
+    sensor = getattr(client, "sensor", None)
+    return {"serial_no": getattr(c, "serial_no", None), "sw_version": getattr(c, "sw_version", None),
+            "sensor_serial_no": getattr(sensor, "serial_no", None)}

@@ -1,0 +1,485 @@
+"""An emulated DSACON32m: host bytes in, device bytes out, with optional faults.
+
+The core (``DeviceEmulator``) has no threads and no sockets. A link feeds it what the host
+wrote and asks it for the bytes due now; frames are scheduled by the source recording's own
+timing (divided by ``speed``) or produced as fast as they are read (``speed=None``). The same
+core sits behind the in-process ``sim://``/``replay://`` transports, the TCP and pseudo-terminal
+servers (``firmware_io.emulator.server``) and the pyusb/hidapi test doubles, so a client sees
+the same device whichever way it connects.
+
+Behaviour (see ``../shared/reference/dsacon32m-protocol.md``):
+
+- 0x01 controller info (18 bytes; sw_version 2.9.0.0, or R288 in old-firmware mode),
+  0x02 sensor info, 0x0B matrix info (E_INDEX_OUT_OF_BOUNDS for a matrix it lacks),
+  0x03 stop / single frame / push (ack first, then frames; raw or RLE as the flags ask),
+  0x0F / 0x12 sensitivity, 0x13 / 0x14 threshold (no reply when the persistent flag is set),
+  0x04 static mask. Anything else: a 2-byte E_CMD_UNKNOWN reply under the command's ID.
+  A payload of the wrong size gets E_CMD_NOT_ENOUGH_PARAMS or E_CMD_FORMAT_ERROR.
+- Old-firmware mode: a single-frame request starts push mode (firmware <= R288).
+- Frames carry the recording's values unchanged (thresholds and sensitivity are stored and
+  reported, not applied), so a client's frames can be compared bit for bit with the source.
+  Device time is the recording's time in ms from its first frame plus ``start_ms``, wrapping
+  at 2**32; the recording repeats when ``loop`` is set.
+- Host packets with a bad CRC are dropped silently (what the real firmware does is not known).
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from firmware_io.recordings.recording import Recording
+from firmware_io.wire.errors import DSAErrorCode, ProtocolError
+from firmware_io.wire.frames import MAX_TEXEL_VALUE, encode_frame
+from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, PacketId, encode_ack
+from firmware_io.wire.parser import StreamParser
+from firmware_io.wire.replies import (
+    ControllerInfo,
+    MatrixInfoReply,
+    MatrixMaskReply,
+    SensitivityReply,
+    SensorInfo,
+    ThresholdReply,
+)
+from firmware_io.wire.requests import FLAG_PERSISTENT, AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
+
+NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
+OLD_FIRMWARE = 288  # R288: a single-frame request starts push mode
+FACTORY_SENSITIVITY = 0.5
+MAX_COMMAND_PAYLOAD = 64
+
+
+class HostCommandParser(StreamParser):
+    """The stream parser with the host's view: any command id is plausible, so an unknown one
+    reaches the emulator and gets E_CMD_UNKNOWN instead of being dropped as line noise."""
+
+    def plausible(self, packet_id: int, length: int) -> bool:
+        return length <= MAX_COMMAND_PAYLOAD
+
+
+class FaultSpecError(ValueError):
+    """A fault description that cannot be read."""
+
+
+@dataclass
+class FaultPlan:
+    """Which faults to inject and how often. Probabilities are per frame packet sent.
+
+    Text form (``--fault``): ``crc=0.01,garbage=0.01,drop=0.01,stall=0.005:0.5,disconnect=300,boot``
+    (``stall=P:SECONDS``; ``disconnect=N`` drops the link after N frames of each connection;
+    ``boot`` sends the power-up terminal query ESC[5n three times when a host connects).
+    """
+
+    crc: float = 0.0
+    garbage: float = 0.0
+    drop: float = 0.0
+    stall: float = 0.0
+    stall_seconds: float = 0.5
+    disconnect_after: int | None = None
+    boot_query: bool = False
+
+    @classmethod
+    def parse(cls, text: str | None) -> FaultPlan:
+        plan = cls()
+        if not text:
+            return plan
+        for item in text.split(","):
+            item = item.strip()
+            if not item:
+                continue
+            key, _, value = item.partition("=")
+            key = key.strip().lower()
+            try:
+                if key == "boot":
+                    plan.boot_query = value.strip() in ("", "1", "true", "yes", "on")
+                elif key == "disconnect":
+                    plan.disconnect_after = int(value)
+                    if plan.disconnect_after < 1:
+                        raise ValueError
+                elif key == "stall":
+                    p, _, secs = value.partition(":")
+                    plan.stall = _probability(p)
+                    if secs:
+                        plan.stall_seconds = float(secs)
+                        if not 0 < plan.stall_seconds <= 60:
+                            raise ValueError
+                elif key in ("crc", "garbage", "drop"):
+                    setattr(plan, key, _probability(value))
+                else:
+                    raise FaultSpecError(
+                        f"unknown fault {key!r} (known: crc, garbage, drop, stall=P:SECONDS, disconnect=N, boot)"
+                    )
+            except ValueError as exc:
+                if isinstance(exc, FaultSpecError):
+                    raise
+                raise FaultSpecError(f"fault {item!r}: bad value") from None
+        return plan
+
+    @property
+    def any(self) -> bool:
+        return bool(self.crc or self.garbage or self.drop or self.stall or self.disconnect_after or self.boot_query)
+
+
+def _probability(text: str) -> float:
+    p = float(text)
+    if not 0.0 <= p <= 1.0:
+        raise ValueError(text)
+    return p
+
+
+@dataclass
+class EmulatorStats:
+    """What the emulator did; tests compare these with what the client counted."""
+
+    commands: int = 0
+    unknown_commands: int = 0
+    frames_sent: int = 0
+    crc_corrupted: int = 0
+    garbage_inserted: int = 0
+    garbage_bytes: int = 0
+    packets_truncated: int = 0
+    bytes_dropped: int = 0
+    stalls: int = 0
+    disconnects: int = 0
+    boot_queries: int = 0
+    connections: int = 0
+    by_command: dict[int, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        d = dict(self.__dict__)
+        d["by_command"] = {f"0x{k:02X}": v for k, v in sorted(self.by_command.items())}
+        return d
+
+
+class DeviceEmulator:
+    """The controller's behaviour as a pure byte machine driven by ``feed`` and ``read``."""
+
+    def __init__(
+        self,
+        recording: Recording,
+        *,
+        speed: float | None = 1.0,
+        loop: bool = True,
+        old_firmware: bool = False,
+        faults: FaultPlan | None = None,
+        seed: int = 0,
+        start_ms: int = 0,
+        serial_no: int = 12345,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if recording.n_frames == 0:
+            raise ValueError("the emulator needs a recording with at least one frame")
+        if speed is not None and speed <= 0:
+            raise ValueError(f"speed must be positive or None (as fast as possible), got {speed}")
+        self.recording = recording
+        self.layout = recording.layout
+        self.speed = speed
+        self.loop = loop
+        self.old_firmware = old_firmware
+        self.faults = faults or FaultPlan()
+        self.start_ms = int(start_ms)
+        self.clock = clock
+        self.stats = EmulatorStats()
+        self._rng = np.random.default_rng(seed)
+        self._parser = HostCommandParser()
+        self._out = bytearray()
+        n = self.layout.n_matrices
+        self._thresholds = [0] * n
+        self._sensitivity = [FACTORY_SENSITIVITY] * n
+        self.controller = ControllerInfo(
+            serial_no=serial_no, hw_version=1, sw_version=OLD_FIRMWARE if old_firmware else NEW_FIRMWARE
+        )
+        self.sensor = recorded_sensor(getattr(recording, "meta", None) or {}, self.layout.n_matrices, serial_no)
+        rel = recording.timestamps - recording.timestamps[0]
+        self._rel_ms = np.round(rel * 1000.0).astype(np.int64)
+        self._rel_s = rel
+        step = recording.sample_interval()
+        self._loop_period = float(rel[-1] + (step if np.isfinite(step) else 1 / 32))
+        self._next = 0  # frame sequence number across loops
+        self._pushing = False
+        self._rle = True
+        self._origin = 0.0  # wall time at which frame sequence 0 would be due
+        self._stall_until = 0.0
+        self._frames_this_connection = 0
+        self.disconnected = False
+        self._single_at: float | None = None  # when the requested single frame is due
+        self._last_single = -1e9
+
+    # -- the link's view ----------------------------------------------------------------------
+    def connect(self, now: float | None = None) -> None:
+        """A host attached (TCP accept, pty opened, transport created): maybe send the boot query."""
+        self.stats.connections += 1
+        self.disconnected = False
+        self._frames_this_connection = 0
+        self._parser = HostCommandParser()
+        self._out.clear()  # bytes in flight on a dropped link are lost
+        self._stall_until = 0.0
+        if self.faults.boot_query:
+            self._out += BOOT_TERMINAL_QUERY * 3
+            self.stats.boot_queries += 1
+
+    def power_cycle(self) -> None:
+        """What an unplugged and replugged controller does: the bytes in flight are lost, push
+        mode ends (the host must start it again), the boot query comes back if enabled."""
+        self.connect()
+        self._pushing = False
+        self._single_at = None
+
+    def feed(self, data: bytes, now: float | None = None) -> None:
+        """Bytes the host wrote: every complete command is answered into the output queue."""
+        now = self.clock() if now is None else now
+        for packet in self._parser.feed(bytes(data)):
+            self._handle(packet.packet_id, bytes(packet.payload), now)
+
+    def read(self, max_bytes: int = 4096, now: float | None = None) -> bytes:
+        """The device bytes due by ``now`` (at most ``max_bytes``)."""
+        now = self.clock() if now is None else now
+        if self.disconnected or now < self._stall_until:
+            return b""
+        self._produce(now, max_bytes)
+        if now < self._stall_until and not self._out:
+            return b""
+        out = bytes(self._out[:max_bytes])
+        del self._out[:max_bytes]
+        return out
+
+    def seconds_until_output(self, now: float | None = None) -> float | None:
+        """How long until ``read`` would return something; None if nothing is scheduled."""
+        now = self.clock() if now is None else now
+        if self.disconnected:
+            return None
+        if now < self._stall_until:
+            return self._stall_until - now
+        if self._out:
+            return 0.0
+        if self._single_at is not None:
+            return max(0.0, self._single_at - now)
+        if not self._pushing or self.finished:
+            return None
+        return max(0.0, self._due(self._next) - now)
+
+    @property
+    def finished(self) -> bool:
+        """A recording without ``loop`` has sent its last frame and the output is drained."""
+        return not self.loop and self._next >= self.recording.n_frames and not self._out
+
+    @property
+    def pushing(self) -> bool:
+        return self._pushing
+
+    # -- frames -------------------------------------------------------------------------------
+    def _due(self, seq: int) -> float:
+        if self.speed is None:
+            return self._origin
+        return self._origin + self._seq_time(seq) / self.speed
+
+    def _seq_time(self, seq: int) -> float:
+        loops, i = divmod(seq, self.recording.n_frames)
+        return loops * self._loop_period + float(self._rel_s[i])
+
+    def _exhausted(self) -> bool:
+        return not self.loop and self._next >= self.recording.n_frames
+
+    def _produce(self, now: float, budget: int) -> None:
+        if self._single_at is not None and now >= self._single_at and now >= self._stall_until:
+            self._single_at, self._last_single = None, now
+            if not self._exhausted():
+                self._emit_frame(now)
+        while self._pushing and len(self._out) < budget and not self._exhausted():
+            if now < self._stall_until or self.disconnected or self._due(self._next) > now:
+                return
+            self._emit_frame(now)
+
+    def _emit_frame(self, now: float) -> None:
+        seq = self._next
+        self._next += 1
+        loops, i = divmod(seq, self.recording.n_frames)
+        stamp = self.start_ms + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
+        values = self.recording.frames[i]
+        rle = self._rle and int(values.max(initial=0)) <= MAX_TEXEL_VALUE
+        packet = bytearray(encode_frame(values, stamp, rle=rle))
+        self._inject(packet, now)
+        self.stats.frames_sent += 1
+        self._frames_this_connection += 1
+        if self.faults.disconnect_after and self._frames_this_connection >= self.faults.disconnect_after:
+            self.disconnected = True
+            self.stats.disconnects += 1
+
+    def _inject(self, packet: bytearray, now: float) -> None:
+        f, rng = self.faults, self._rng
+        if f.garbage and rng.random() < f.garbage:
+            junk = rng.integers(0, 256, size=int(rng.integers(1, 33)), dtype=np.uint8).tobytes()
+            self._out += junk
+            self.stats.garbage_inserted += 1
+            self.stats.garbage_bytes += len(junk)
+        if f.crc and rng.random() < f.crc:
+            packet[-1] ^= 1 << int(rng.integers(0, 8))
+            self.stats.crc_corrupted += 1
+        if f.drop and rng.random() < f.drop:
+            k = int(rng.integers(1, 9))
+            at = int(rng.integers(0, max(1, len(packet) - k)))
+            del packet[at : at + k]
+            self.stats.packets_truncated += 1
+            self.stats.bytes_dropped += k
+        self._out += packet
+        if f.stall and rng.random() < f.stall:
+            self._stall_until = now + f.stall_seconds
+            self._origin += f.stall_seconds
+            self.stats.stalls += 1
+
+    # -- commands -----------------------------------------------------------------------------
+    def _handle(self, pid: int, payload: bytes, now: float) -> None:
+        self.stats.commands += 1
+        self.stats.by_command[pid] = self.stats.by_command.get(pid, 0) + 1
+        handler = self._HANDLERS.get(pid)
+        if handler is None:
+            self.stats.unknown_commands += 1
+            self._out += encode_ack(pid, DSAErrorCode.CMD_UNKNOWN)
+            return
+        try:
+            reply = handler(self, payload, now)
+        except ProtocolError:
+            code = DSAErrorCode.CMD_NOT_ENOUGH_PARAMS if len(payload) < _MIN_SIZE.get(pid, 0) else DSAErrorCode.CMD_FORMAT_ERROR
+            reply = encode_ack(pid, code)
+        if reply:
+            self._out += reply
+
+    def _matrix(self, pid: int, payload: bytes) -> int | bytes:
+        """Matrix index of a 1-byte request, or the error reply to send."""
+        if len(payload) != 1:
+            raise ProtocolError("matrix request needs one byte")
+        m = payload[0]
+        if m >= self.layout.n_matrices:
+            return encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
+        return m
+
+    def _on_controller(self, payload: bytes, now: float) -> bytes:
+        return self.controller.to_packet()
+
+    def _on_sensor(self, payload: bytes, now: float) -> bytes:
+        return self.sensor.to_packet()
+
+    def _on_matrix_info(self, payload: bytes, now: float) -> bytes:
+        m = self._matrix(PacketId.QUERY_MATRIX_CONFIGURATION, payload)
+        if isinstance(m, bytes):
+            return m
+        info = self.layout.matrices[m]
+        uid = struct.pack("<IH", self.controller.serial_no, m)
+        return MatrixInfoReply.from_matrix_info(info, uid=uid, feature_flags=0x02).to_packet()
+
+    def _on_mask(self, payload: bytes, now: float) -> bytes:
+        if len(payload) != 2:
+            raise ProtocolError("mask request needs two bytes")
+        if payload[1] >= self.layout.n_matrices:
+            return encode_ack(PacketId.READ_MATRIX_MASK, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
+        return MatrixMaskReply.from_mask(self.layout.matrices[payload[1]].mask).to_packet()
+
+    def _on_acquisition(self, payload: bytes, now: float) -> bytes:
+        cfg = AcquisitionConfig.decode(payload)
+        self._out += encode_ack(PacketId.CONFIGURE_DATA_ACQUISITION)
+        self._rle = cfg.rle
+        mode = cfg.mode
+        if mode == "single" and self.old_firmware:
+            mode = "push"
+        if mode == "stop":
+            self._pushing = False
+        elif mode == "push":
+            if not self._pushing:
+                self._pushing = True
+                self._origin = now if self.speed is None else now - self._seq_time(self._next) / self.speed
+        elif not self._exhausted():  # single frame: the next one the sensor acquires, not at once
+            self._pushing = False
+            self._single_at = max(now, self._last_single + self._frame_period())
+        return b""
+
+    def _frame_period(self) -> float:
+        """Seconds between two acquisitions (0 when serving as fast as possible)."""
+        if self.speed is None:
+            return 0.0
+        step = self.recording.sample_interval()
+        return (step if np.isfinite(step) and step > 0 else 1 / 32) / self.speed
+
+    def _on_set_sensitivity(self, payload: bytes, now: float) -> bytes:
+        req = SetSensitivityRequest.decode(payload)
+        pid = PacketId.ADJUST_MATRIX_SENSITIVITY
+        targets = range(self.layout.n_matrices) if req.all_matrices else [req.matrix]
+        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
+        if not req.factory_reset and not 0.0 <= req.sensitivity <= 1.0:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
+        for m in targets:
+            self._sensitivity[m] = FACTORY_SENSITIVITY if req.factory_reset else float(req.sensitivity)
+        return b"" if payload[0] & FLAG_PERSISTENT else encode_ack(pid)
+
+    def _on_get_sensitivity(self, payload: bytes, now: float) -> bytes:
+        m = self._matrix(PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO, payload)
+        if isinstance(m, bytes):
+            return m
+        return SensitivityReply(0x02, self._sensitivity[m], FACTORY_SENSITIVITY).to_packet()
+
+    def _on_set_threshold(self, payload: bytes, now: float) -> bytes:
+        req = SetThresholdRequest.decode(payload)
+        pid = PacketId.SET_MATRIX_THRESHOLD
+        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
+        if req.threshold > MAX_TEXEL_VALUE:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
+        targets = range(self.layout.n_matrices) if req.all_matrices else [req.matrix]
+        for m in targets:
+            self._thresholds[m] = 0 if req.factory_reset else int(req.threshold)
+        return b"" if req.persistent else encode_ack(pid)
+
+    def _on_get_threshold(self, payload: bytes, now: float) -> bytes:
+        m = self._matrix(PacketId.GET_MATRIX_THRESHOLD, payload)
+        if isinstance(m, bytes):
+            return m
+        return ThresholdReply(self._thresholds[m]).to_packet()
+
+    _HANDLERS: ClassVar[dict[int, Callable[[DeviceEmulator, bytes, float], bytes]]] = {
+        PacketId.QUERY_CONTROLLER_CONFIGURATION: _on_controller,
+        PacketId.QUERY_SENSOR_CONFIGURATION: _on_sensor,
+        PacketId.QUERY_MATRIX_CONFIGURATION: _on_matrix_info,
+        PacketId.READ_MATRIX_MASK: _on_mask,
+        PacketId.CONFIGURE_DATA_ACQUISITION: _on_acquisition,
+        PacketId.ADJUST_MATRIX_SENSITIVITY: _on_set_sensitivity,
+        PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO: _on_get_sensitivity,
+        PacketId.SET_MATRIX_THRESHOLD: _on_set_threshold,
+        PacketId.GET_MATRIX_THRESHOLD: _on_get_threshold,
+    }
+
+
+_MIN_SIZE = {
+    PacketId.QUERY_MATRIX_CONFIGURATION: 1,
+    PacketId.READ_MATRIX_MASK: 2,
+    PacketId.CONFIGURE_DATA_ACQUISITION: 3,
+    PacketId.ADJUST_MATRIX_SENSITIVITY: 6,
+    PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO: 1,
+    PacketId.SET_MATRIX_THRESHOLD: 4,
+    PacketId.GET_MATRIX_THRESHOLD: 1,
+}
+
+
+def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> SensorInfo:
+    """The sensor a recording was made with (serial number, generator, hardware revision), as
+    DSA-Konqueror files and ``handover record`` sessions store them; defaults where absent."""
+    fields = {"serial_no": default_serial, "generated_by": SensorInfo.generated_by, "hw_revision": SensorInfo.hw_revision}
+    sessions = meta.get("sessions") or []
+    controller = (sessions[-1].get("controller") or {}) if sessions and isinstance(sessions[-1], dict) else {}
+    candidates = {"serial_no": (meta.get("dsa_serial_nr"), meta.get("sensor_serial_no"), controller.get("sensor_serial_no")),
+                  "generated_by": (meta.get("dsa_generated_by"),), "hw_revision": (meta.get("dsa_hw_revision"),)}
+    limits = {"serial_no": 0xFFFFFFFF, "generated_by": 0xFFFF, "hw_revision": 0xFF}
+    for key, values in candidates.items():
+        for value in values:
+            try:
+                number = int(str(value).strip(), 0)
+            except (TypeError, ValueError):
+                continue
+            if 0 <= number <= limits[key]:
+                fields[key] = number
+                break
+    return SensorInfo(nb_matrices=n_matrices, **fields)

@@ -1,0 +1,336 @@
+"""Emulated USB bridges: the DeviceEmulator behind a pyusb backend or a hidapi-like device object.
+
+They let the ``usb://`` and ``hid://`` transports run their real code (device search, kernel
+driver handling, interface claim, bridge set-up requests, bulk or report framing) on a machine
+without the hardware or even libusb: pass ``backend=EmulatedUsbBackend(emulator)`` or
+``device=EmulatedCp2110(emulator)`` to ``open_transport``. The bridges record the set-up
+requests they received so a test can check the UART was configured 115200 8N1.
+
+pyusb is imported lazily (only for its exception classes); nothing here needs libusb.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+
+from firmware_io.emulator.device import DeviceEmulator
+
+FTDI_STATUS = b"\x01\x60"  # modem status, line status: what an idle FT232R reports
+
+
+@dataclass
+class _Desc:
+    """A descriptor: pyusb only reads attributes."""
+
+    fields: dict = field(default_factory=dict)
+
+    def __getattr__(self, name: str):
+        try:
+            return self.__dict__["fields"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+
+def _device_desc(vid: int, pid: int, n_configs: int = 1) -> _Desc:
+    return _Desc(
+        dict(
+            bLength=18, bDescriptorType=1, bcdUSB=0x0200, bDeviceClass=0, bDeviceSubClass=0, bDeviceProtocol=0,
+            bMaxPacketSize0=64, idVendor=vid, idProduct=pid, bcdDevice=0x0600, iManufacturer=1, iProduct=2,
+            iSerialNumber=3, bNumConfigurations=n_configs, address=7, bus=1, port_number=1, port_numbers=(1,),
+            speed=2,
+        )
+    )
+
+
+def _interface_desc(number: int, cls: int, n_eps: int) -> _Desc:
+    return _Desc(
+        dict(
+            bLength=9, bDescriptorType=4, bInterfaceNumber=number, bAlternateSetting=0, bNumEndpoints=n_eps,
+            bInterfaceClass=cls, bInterfaceSubClass=0, bInterfaceProtocol=0, iInterface=0, extra_descriptors=[],
+        )
+    )
+
+
+def _endpoint_desc(address: int, attributes: int, size: int) -> _Desc:
+    return _Desc(
+        dict(
+            bLength=7, bDescriptorType=5, bEndpointAddress=address, bmAttributes=attributes, wMaxPacketSize=size,
+            bInterval=0, bRefresh=0, bSynchAddress=0, extra_descriptors=[],
+        )
+    )
+
+
+class EmulatedUsbBackend:
+    """A pyusb backend (duck-typed ``usb.backend.IBackend``) with one USB-serial bridge on it.
+
+    ``chip``: ``cdc`` (interface 0 communication class with an interrupt endpoint, interface 1
+    data class with bulk 0x81 IN / 0x02 OUT), ``ftdi`` (one vendor interface, bulk 0x81 / 0x02,
+    two status bytes in front of every 64-byte IN packet) or ``cp210x`` (like ftdi without
+    status bytes). ``kernel_driver`` pretends a kernel driver is bound until it is detached.
+    """
+
+    PACKET = 64
+
+    def __init__(
+        self,
+        emulator: DeviceEmulator,
+        *,
+        vid: int = 0x0403,
+        pid: int = 0x6001,
+        chip: str = "ftdi",
+        serial: str = "DSA00001",
+        kernel_driver: bool = True,
+    ) -> None:
+        self.emulator = emulator
+        self.chip = chip
+        self.serial = serial
+        self.device = _device_desc(vid, pid)
+        self.kernel_driver = kernel_driver
+        self.detached: list[int] = []
+        self.claimed: set[int] = set()
+        self.control_requests: list[tuple[int, int, int, int, bytes]] = []
+        self.configuration: int | None = None
+        self.unplugged = False
+        self._lock = threading.Lock()
+        if chip == "cdc":
+            self._interfaces = [
+                (_interface_desc(0, 0x02, 1), [_endpoint_desc(0x83, 0x03, 16)]),
+                (_interface_desc(1, 0x0A, 2), [_endpoint_desc(0x81, 0x02, self.PACKET), _endpoint_desc(0x02, 0x02, self.PACKET)]),
+            ]
+        else:
+            self._interfaces = [
+                (_interface_desc(0, 0xFF, 2), [_endpoint_desc(0x81, 0x02, self.PACKET), _endpoint_desc(0x02, 0x02, self.PACKET)])
+            ]
+        emulator.connect()
+
+    # -- enumeration --------------------------------------------------------------------------
+    def enumerate_devices(self):
+        return [] if self.unplugged else ["bridge"]
+
+    def get_parent(self, dev):
+        return None
+
+    def get_device_descriptor(self, dev):
+        return self.device
+
+    def get_configuration_descriptor(self, dev, config):
+        return _Desc(
+            dict(
+                bLength=9, bDescriptorType=2, wTotalLength=32, bNumInterfaces=len(self._interfaces),
+                bConfigurationValue=1, iConfiguration=0, bmAttributes=0x80, bMaxPower=50, extra_descriptors=[],
+            )
+        )
+
+    def get_interface_descriptor(self, dev, intf, alt, config):
+        if alt != 0:
+            raise IndexError("no alternate setting")  # pyusb iterates alternates until IndexError
+        return self._interfaces[intf][0]
+
+    def get_endpoint_descriptor(self, dev, ep, intf, alt, config):
+        return self._interfaces[intf][1][ep]
+
+    # -- handles ------------------------------------------------------------------------------
+    def open_device(self, dev):
+        self._check_plugged()
+        return "handle"
+
+    def close_device(self, dev_handle):
+        pass
+
+    def set_configuration(self, dev_handle, config_value):
+        self.configuration = config_value
+
+    def get_configuration(self, dev_handle):
+        if self.configuration is None:
+            from usb.core import USBError
+
+            raise USBError("Configuration not set", errno=None)
+        return self.configuration
+
+    def set_interface_altsetting(self, dev_handle, intf, altsetting):
+        pass
+
+    def is_kernel_driver_active(self, dev_handle, intf):
+        return self.kernel_driver and intf not in self.detached
+
+    def detach_kernel_driver(self, dev_handle, intf):
+        self.detached.append(intf)
+
+    def attach_kernel_driver(self, dev_handle, intf):
+        if intf in self.detached:
+            self.detached.remove(intf)
+
+    def claim_interface(self, dev_handle, intf):
+        if self.is_kernel_driver_active(dev_handle, intf):
+            import errno
+
+            from usb.core import USBError
+
+            raise USBError("Resource busy", errno=errno.EBUSY)
+        self.claimed.add(intf)
+
+    def release_interface(self, dev_handle, intf):
+        self.claimed.discard(intf)
+
+    def clear_halt(self, dev_handle, ep):
+        pass
+
+    def reset_device(self, dev_handle):
+        pass
+
+    # -- transfers ----------------------------------------------------------------------------
+    def ctrl_transfer(self, dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout):
+        self._check_plugged()
+        if bmRequestType & 0x80:  # IN: only string descriptors are asked for
+            if bRequest == 6 and wValue >> 8 == 3:
+                index = wValue & 0xFF
+                text = {1: "Emulated", 2: "DSACON32m bridge", 3: self.serial}.get(index, "")
+                raw = b"\x04\x03\x09\x04" if index == 0 else bytes([2 + 2 * len(text), 3]) + text.encode("utf-16-le")
+                n = min(len(data), len(raw))
+                data[:n] = type(data)(data.typecode, raw[:n])
+                return n
+            return 0
+        payload = bytes(data) if data is not None else b""
+        self.control_requests.append((bmRequestType, bRequest, wValue, wIndex, payload))
+        return len(payload)
+
+    def bulk_write(self, dev_handle, ep, intf, data, timeout):
+        self._check_plugged()
+        with self._lock:
+            self.emulator.feed(bytes(data))
+        return len(data)
+
+    def bulk_read(self, dev_handle, ep, intf, buff, timeout):
+        from usb.core import USBTimeoutError
+
+        self._check_plugged()
+        status = FTDI_STATUS if self.chip == "ftdi" else b""
+        room = len(buff) // self.PACKET * (self.PACKET - len(status)) or (len(buff) - len(status))
+        deadline = time.monotonic() + (timeout or 1000) / 1000.0
+        while True:
+            with self._lock:
+                data = self.emulator.read(room)
+                wait = self.emulator.seconds_until_output()
+            if data:
+                break
+            if self.emulator.disconnected:
+                self.unplugged = True
+                self._check_plugged()
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                if status:  # an FTDI chip answers with status bytes alone when it has no data
+                    data = b""
+                    break
+                raise USBTimeoutError("Operation timed out", -7, 110)
+            time.sleep(remaining if wait is None else min(max(wait, 0.0005), remaining))
+        if status:
+            step = self.PACKET - len(status)
+            data = b"".join(status + data[i : i + step] for i in range(0, len(data), step)) or status
+        buff[: len(data)] = type(buff)(buff.typecode, data)
+        return len(data)
+
+    def intr_write(self, dev_handle, ep, intf, data, timeout):
+        raise NotImplementedError("the emulated bridge has no interrupt OUT endpoint")
+
+    def intr_read(self, dev_handle, ep, intf, buff, timeout):
+        raise NotImplementedError("the emulated bridge's interrupt endpoint carries no data")
+
+    def iso_write(self, dev_handle, ep, intf, data, timeout):
+        raise NotImplementedError
+
+    def iso_read(self, dev_handle, ep, intf, buff, timeout):
+        raise NotImplementedError
+
+    def _check_plugged(self) -> None:
+        if self.unplugged:
+            import errno
+
+            from usb.core import USBError
+
+            raise USBError("No such device (it may have been disconnected)", errno=errno.ENODEV)
+
+
+class EmulatedCp2110:
+    """A stand-in for ``hid.device()`` speaking the CP2110's report format to a DeviceEmulator."""
+
+    def __init__(self, emulator: DeviceEmulator, vid: int = 0x10C4, pid: int = 0xEA80) -> None:
+        self.emulator = emulator
+        self.vid, self.pid = vid, pid
+        self.feature_reports: list[bytes] = []
+        self.uart_enabled = False
+        self.uart_config: tuple[int, int, int, int, int] | None = None
+        self.is_open = False
+        self.unplugged = False
+        self._pending = bytearray()
+
+    def open(self, vendor_id: int = 0, product_id: int = 0, serial_number: str | None = None) -> None:
+        if self.unplugged or (vendor_id, product_id) != (self.vid, self.pid):
+            raise OSError("open failed")
+        self.is_open = True
+        self.emulator.connect()
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def set_nonblocking(self, v: int) -> int:
+        return 0
+
+    def send_feature_report(self, data) -> int:
+        self._check()
+        report = bytes(data)
+        self.feature_reports.append(report)
+        if report[0] == 0x41:
+            self.uart_enabled = bool(report[1])
+        elif report[0] == 0x50:
+            self.uart_config = struct.unpack(">IBBBB", report[1:9])
+        elif report[0] == 0x43:
+            self._pending.clear()
+        return len(report)
+
+    def get_feature_report(self, report_id: int, max_length: int) -> list[int]:
+        self._check()
+        if report_id == 0x41:
+            return [0x41, int(self.uart_enabled)]
+        if report_id == 0x50 and self.uart_config:
+            return list(struct.pack(">BIBBBB", 0x50, *self.uart_config))
+        return [report_id]
+
+    def write(self, data) -> int:
+        self._check()
+        report = bytes(data)
+        n = report[0]
+        if not 1 <= n <= 63 or len(report) < 1 + n:
+            return -1
+        if self.uart_enabled:
+            self.emulator.feed(report[1 : 1 + n])
+        return len(report)
+
+    def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+        self._check()
+        deadline = time.monotonic() + timeout_ms / 1000.0
+        while not self._pending:
+            if self.uart_enabled:
+                self._pending += self.emulator.read(4096)
+            if self._pending:
+                break
+            if self.emulator.disconnected:
+                self.unplugged = True
+                self._check()
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return []
+            wait = self.emulator.seconds_until_output()
+            time.sleep(remaining if wait is None else min(max(wait, 0.0005), remaining))
+        n = min(63, max_length - 1, len(self._pending))
+        chunk = bytes(self._pending[:n])
+        del self._pending[:n]
+        return [n, *chunk]
+
+    def _check(self) -> None:
+        if self.unplugged:
+            raise OSError("read error (device disconnected)")
+        if not self.is_open:
+            raise ValueError("not open")

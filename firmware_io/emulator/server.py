@@ -1,0 +1,230 @@
+"""Serve a DeviceEmulator over a loopback TCP socket or a pseudo-terminal, in a background thread.
+
+The TCP server listens on loopback only: the emulator is a test and demo device and must
+never be reachable from the robot's network. The pseudo-terminal server opens a pty in raw
+mode and keeps its own handle on the slave side, so pyserial can open and close the printed
+path like a real port as often as it likes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import ipaddress
+import os
+import select
+import socket
+import threading
+import tty
+
+from firmware_io.emulator.device import DeviceEmulator
+
+POLL_S = 0.05  # longest wait before the loop looks at the stop flag again
+CHUNK = 65536
+
+
+class EmulatorServerError(OSError):
+    """The server cannot start (address in use, not loopback, no pty support)."""
+
+
+class _ServerBase:
+    """Start/stop plumbing shared by both servers."""
+
+    def __init__(self, emulator: DeviceEmulator) -> None:
+        self.emulator = emulator
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+
+    def start(self) -> _ServerBase:
+        self._thread = threading.Thread(target=self._run_guarded, name=type(self).__name__, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self._close()
+
+    def serve_forever(self) -> None:
+        """Run in the calling thread until ``stop`` is called from elsewhere (or Ctrl-C)."""
+        self._run_guarded()
+
+    def _run_guarded(self) -> None:
+        try:
+            self._run()
+        except BaseException as exc:  # recorded for the owner; a server thread must not vanish silently
+            self.error = exc
+            if not isinstance(exc, Exception):
+                raise
+
+    def __enter__(self) -> _ServerBase:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _close(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _wait_time(self) -> float:
+        wait = self.emulator.seconds_until_output()
+        return POLL_S if wait is None else min(max(wait, 0.0), POLL_S)
+
+
+class TcpEmulatorServer(_ServerBase):
+    """One host at a time on ``tcp://127.0.0.1:PORT`` (a new connection replaces the old one)."""
+
+    def __init__(self, emulator: DeviceEmulator, host: str = "127.0.0.1", port: int = 0) -> None:
+        super().__init__(emulator)
+        bare = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+        try:
+            addr = ipaddress.ip_address(bare if ":" in bare else socket.gethostbyname(bare))
+        except (OSError, ValueError):
+            raise EmulatorServerError(f"cannot resolve listen address {host!r}") from None
+        if not addr.is_loopback:
+            raise EmulatorServerError(f"the emulator listens on loopback only (127.0.0.1 or ::1), not {host!r}")
+        self.host = str(addr)
+        family = socket.AF_INET6 if addr.version == 6 else socket.AF_INET
+        self._listener = socket.socket(family, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self._listener.bind((self.host, port))
+        except OSError as exc:
+            self._listener.close()
+            raise EmulatorServerError(f"cannot listen on {self.host}:{port}: {exc.strerror or exc}") from None
+        self._listener.listen(2)
+        self._listener.setblocking(False)
+        self.port = self._listener.getsockname()[1]
+        self._conn: socket.socket | None = None
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"tcp://{host}:{self.port}"
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._listener], [], [], POLL_S)
+            if ready:
+                self._accept()
+            while self._conn is not None and not self._stop.is_set():
+                self._session_step()
+
+    def _accept(self) -> None:
+        try:
+            conn, _ = self._listener.accept()
+        except (BlockingIOError, OSError):
+            return
+        self._drop_conn()
+        conn.setblocking(False)
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._conn = conn
+        self._pending = b""
+        self.emulator.connect()
+
+    def _drop_conn(self) -> None:
+        if self._conn is not None:
+            with contextlib.suppress(OSError):
+                self._conn.close()
+            self._conn = None
+
+    def _session_step(self) -> None:
+        conn = self._conn
+        assert conn is not None
+        wlist = [conn] if self._pending else []
+        readable, _writable, _ = select.select([conn, self._listener], wlist, [], self._wait_time())
+        if self._listener in readable:
+            self._accept()
+            return
+        if conn in readable:
+            try:
+                data = conn.recv(CHUNK)
+            except OSError:
+                data = b""
+            if not data:  # host closed the connection
+                self._drop_conn()
+                return
+            self.emulator.feed(data)
+        if not self._pending:
+            self._pending = self.emulator.read(CHUNK)
+        if self._pending:
+            try:
+                sent = conn.send(self._pending)
+                self._pending = self._pending[sent:]
+            except BlockingIOError:
+                pass
+            except OSError:
+                self._drop_conn()
+                return
+        if self.emulator.disconnected and not self._pending:
+            self._drop_conn()  # the fault plan pulled the plug
+
+    def _close(self) -> None:
+        self._drop_conn()
+        with contextlib.suppress(OSError):
+            self._listener.close()
+
+
+class PtyEmulatorServer(_ServerBase):
+    """The emulator behind a pseudo-terminal; ``path`` is what a client opens (``/dev/pts/N``).
+
+    A pty cannot be unplugged, so the ``disconnect`` fault acts as a controller power cycle, as
+    pulling a USB-serial adapter's cable would: the bytes in flight are lost, push mode ends (no
+    frame comes until the host starts it again: the host sees a stall) and the boot query (when
+    enabled) is sent again.
+    """
+
+    def __init__(self, emulator: DeviceEmulator) -> None:
+        super().__init__(emulator)
+        try:
+            self._master, self._slave = os.openpty()
+        except OSError as exc:
+            raise EmulatorServerError(f"cannot open a pseudo-terminal: {exc.strerror}") from None
+        tty.setraw(self._slave)  # no echo, no line editing: bytes pass unchanged
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._pending = b""
+        self.emulator.connect()
+
+    @property
+    def url(self) -> str:
+        return f"serial://{self.path}"
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            wlist = [self._master] if self._pending else []
+            readable, _writable, _ = select.select([self._master], wlist, [], self._wait_time())
+            if readable:
+                try:
+                    data = os.read(self._master, CHUNK)
+                except BlockingIOError:
+                    data = b""
+                except OSError as exc:
+                    if exc.errno == errno.EIO:
+                        data = b""
+                    else:
+                        raise
+                if data:
+                    self.emulator.feed(data)
+            if not self._pending:
+                self._pending = self.emulator.read(CHUNK)
+            if self._pending:
+                try:
+                    sent = os.write(self._master, self._pending)
+                    self._pending = self._pending[sent:]
+                except BlockingIOError:
+                    pass
+            if self.emulator.disconnected:  # unplugged and replugged: in-flight bytes lost, push mode off
+                self._pending = b""
+                self.emulator.power_cycle()
+
+    def _close(self) -> None:
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._master = self._slave = -1

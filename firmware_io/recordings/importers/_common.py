@@ -1,0 +1,58 @@
+"""Helpers shared by the importers: time ordering and value checks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_io.recordings.recording import RecordingError
+
+MAX_12BIT = 4095
+
+
+def keep_increasing(frames: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Drop frames whose time stamp does not advance, so a Recording can hold the rest.
+
+    Why: a recording needs strictly increasing time. A frame stamped at or before the last
+    kept frame is either an exact duplicate (same time, same values: logged twice) or out of
+    order (PC clock stepped back, or two frames stamped within one clock tick). Both are
+    dropped rather than re-timed, since inventing a time stamp would hide the fault; the counts
+    go into the recording's meta so that nobody mistakes a cleaned file for a clean one.
+    """
+    n = len(stamps)
+    info = {"duplicate_frames_dropped": 0, "out_of_order_frames_dropped": 0}
+    if n < 2 or bool(np.all(np.diff(stamps) > 0)):
+        return frames, stamps, info
+    keep = np.zeros(n, dtype=bool)
+    keep[0] = True
+    last = 0
+    for i in range(1, n):
+        if stamps[i] > stamps[last]:
+            keep[i] = True
+            last = i
+        elif stamps[i] == stamps[last] and np.array_equal(frames[i], frames[last]):
+            info["duplicate_frames_dropped"] += 1
+        else:
+            info["out_of_order_frames_dropped"] += 1
+    return frames[keep], stamps[keep], info
+
+
+def check_range(values: np.ndarray, fullscale: float, unit: str = "frame") -> None:
+    """Refuse values that cannot be raw 12-bit taxel readings; names the first bad frame and taxel."""
+    if values.size == 0:
+        return
+    top = min(float(fullscale), MAX_12BIT)
+    bad = (values < 0) | (values > top)
+    if bad.any():
+        f, c = np.argwhere(bad)[0]
+        raise RecordingError(f"{unit} {f}, taxel {c}: value {values[f, c]:g} outside 0..{top:g}")
+
+
+def describe_timing(stamps: np.ndarray) -> dict:
+    """Rate figures for the meta block and the import summary line."""
+    if len(stamps) < 2:
+        return {"frame_interval_median_s": None, "gaps_over_1s": 0}
+    d = np.diff(stamps)
+    return {
+        "frame_interval_median_s": float(np.median(d)),
+        "gaps_over_1s": int(np.sum(d > 1.0)),
+    }

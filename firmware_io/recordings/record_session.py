@@ -1,0 +1,452 @@
+"""Recording a subject session the paper's way: the plan, the file as the session state, capture, trigger check.
+
+The protocol is poses x objects x actions x runs (paper: 3 x 3 x 4 x 5 = 180 trials a
+subject, 3 s each). The subject's recording file is the only state: a trial is written
+(atomically) the moment it ends, so a session stopped by Ctrl-C, a crash or an unplugged
+device resumes by reading the file and recording the (pose, object, action, run) slots it
+lacks. Prompting is left to the caller through small callbacks (``SessionIO``), so the same
+loop runs from a terminal, from a script (``--auto``) and from tests. numpy only.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import re
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from firmware_io.layout import SensorLayout
+from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
+
+POSES = ("down", "up", "horizontal")
+OBJECTS = ("ball", "cylinder", "plank")
+DEFAULT_RUNS = 5
+DEFAULT_FRACTION = 0.15
+DEFAULT_TRIAL_SECONDS = 3.0
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+class SessionError(ValueError):
+    """A session that cannot start or continue (bad plan, foreign file, other sensor)."""
+
+
+class DeviceLost(RuntimeError):
+    """The device went away and did not come back; everything recorded so far is saved."""
+
+
+# -- the plan ---------------------------------------------------------------------------------
+@dataclass(frozen=True, order=True)
+class TrialSlot:
+    """One cell of the protocol: what the subject does in one trial."""
+
+    pose: str
+    object: str
+    action: str
+    run: int
+
+    @property
+    def key(self) -> tuple[str, str, str, int]:
+        return (self.pose, self.object, self.action, self.run)
+
+    def describe(self) -> str:
+        return f"pose {self.pose}, object {self.object}, action {self.action.upper()}, run {self.run}"
+
+
+@dataclass(frozen=True)
+class ProtocolPlan:
+    """Which trials a session holds, in the order they are recorded (pose, object, action, run)."""
+
+    poses: tuple[str, ...] = POSES
+    objects: tuple[str, ...] = OBJECTS
+    actions: tuple[str, ...] = ACTIONS
+    runs: int = DEFAULT_RUNS
+
+    def __post_init__(self) -> None:
+        for kind, names in (("pose", self.poses), ("object", self.objects), ("action", self.actions)):
+            if not names:
+                raise SessionError(f"the protocol needs at least one {kind}")
+            bad = [n for n in names if not _NAME.match(n)]
+            if bad:
+                raise SessionError(f"{kind} name {bad[0]!r}: use letters, digits, '_', '-' or '.'")
+            if len(set(names)) != len(names):
+                raise SessionError(f"a {kind} is listed twice: {', '.join(names)}")
+        if self.runs < 1:
+            raise SessionError(f"runs must be at least 1, got {self.runs}")
+
+    @classmethod
+    def from_text(cls, poses: str, objects: str, actions: str, runs: int) -> ProtocolPlan:
+        """Comma-separated names as given on a command line."""
+        def split(text: str) -> tuple[str, ...]:
+            return tuple(p.strip() for p in text.split(",") if p.strip())
+        return cls(split(poses), split(objects), split(actions), int(runs))
+
+    def slots(self) -> list[TrialSlot]:
+        return [
+            TrialSlot(p, o, a, r)
+            for p in self.poses
+            for o in self.objects
+            for a in self.actions
+            for r in range(1, self.runs + 1)
+        ]
+
+    def to_dict(self) -> dict:
+        return {"poses": list(self.poses), "objects": list(self.objects), "actions": list(self.actions),
+                "runs": self.runs}
+
+
+# -- trigger check ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TriggerCheck:
+    """Did any taxel of the watched pads reach the trigger level (the paper's 15 % of full scale)?"""
+
+    triggered: bool
+    first_frame: int
+    peak: int
+    level: float
+    fullscale: float
+
+    @property
+    def peak_fraction(self) -> float:
+        return self.peak / self.fullscale if self.fullscale else 0.0
+
+
+def check_trigger(frames: np.ndarray, layout: SensorLayout, pads: str | Sequence[int] = "all",
+                  fraction: float = DEFAULT_FRACTION) -> TriggerCheck:
+    """The same rule as the trainer's data set assembly: first frame whose max reaches the level."""
+    if not 0.0 < fraction < 1.0:
+        raise SessionError(f"trigger fraction must be in (0, 1), got {fraction}")
+    idx = layout.pads(pads)
+    fullscale = max(layout.matrices[p].fullscale for p in idx)
+    level = fraction * fullscale
+    sel = np.asarray(frames)[:, layout.columns(idx)]
+    if sel.size == 0:
+        return TriggerCheck(False, -1, 0, level, fullscale)
+    row_max = sel.max(axis=1)
+    hits = np.flatnonzero(row_max >= level)
+    return TriggerCheck(bool(len(hits)), int(hits[0]) if len(hits) else -1, int(row_max.max()), level, fullscale)
+
+
+# -- the file as the session state -------------------------------------------------------------
+def recording_path(out_dir: str | Path, subject: str) -> Path:
+    return Path(out_dir) / f"subject_{subject}.hrec"
+
+
+@dataclass
+class _Segment:
+    frames: np.ndarray
+    stamps: np.ndarray
+    fields: dict
+
+
+class SessionStore:
+    """A subject's recording held as one segment per trial; every change is saved at once."""
+
+    def __init__(self, path: Path, layout: SensorLayout, subject: str, meta: dict,
+                 segments: list[_Segment] | None = None) -> None:
+        self.path = Path(path)
+        self.layout = layout
+        self.subject = subject
+        self.meta = meta
+        self.segments: list[_Segment] = segments or []
+
+    @classmethod
+    def open(cls, path: str | Path, subject: str, layout: SensorLayout) -> SessionStore:
+        """Continue the subject's file if it exists (checking subject and sensor), else start one."""
+        path = Path(path)
+        if not _NAME.match(subject):
+            raise SessionError(f"subject id {subject!r}: use letters, digits, '_', '-' or '.'")
+        if not path.exists():
+            return cls(path, layout, subject, {"subject": subject, "sessions": []})
+        rec = Recording.load(path)  # RecordingError names the file
+        if str(rec.meta.get("subject", subject)) != subject:
+            raise SessionError(f"{path}: belongs to subject {rec.meta.get('subject')!r}, not {subject!r}")
+        if rec.layout.to_dict() != layout.to_dict():
+            raise SessionError(
+                f"{path}: recorded with another sensor layout ({rec.layout.n_taxels} taxels in "
+                f"{rec.layout.n_matrices} pads; the device has {layout.n_taxels} in {layout.n_matrices})"
+            )
+        segments = []
+        for t in rec.trials:
+            frames, stamps = rec.trial_frames(t)
+            fields = {k: v for k, v in t.to_dict().items() if k not in ("first", "last")}
+            segments.append(_Segment(frames.copy(), stamps.copy(), fields))
+        meta = dict(rec.meta)
+        meta.setdefault("subject", subject)
+        meta.setdefault("sessions", [])
+        return cls(path, layout, subject, meta, segments)
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.segments)
+
+    def done_keys(self) -> set[tuple[str, str, str, int]]:
+        return {(s.fields["pose"], s.fields["object"], s.fields["action"], int(s.fields["run"]))
+                for s in self.segments}
+
+    def remaining(self, plan: ProtocolPlan) -> list[TrialSlot]:
+        done = self.done_keys()
+        return [s for s in plan.slots() if s.key not in done]
+
+    def add(self, slot: TrialSlot, frames: np.ndarray, stamps: np.ndarray, extra: dict) -> int:
+        """Append a trial and save; returns its index. Timestamps stay strictly increasing."""
+        stamps = np.asarray(stamps, dtype=np.float64)
+        if self.segments:
+            last = float(self.segments[-1].stamps[-1])
+            if stamps[0] <= last:  # the PC clock went back (or a foreign file): keep the order
+                stamps = stamps + (last - stamps[0] + 1e-3)
+        fields = {"subject": self.subject, "object": slot.object, "pose": slot.pose, "action": slot.action,
+                  "run": slot.run, "extra": dict(extra)}
+        self.segments.append(_Segment(np.asarray(frames, dtype=np.uint16), stamps, fields))
+        self.save()
+        return len(self.segments) - 1
+
+    def remove_last(self) -> None:
+        """Drop the newest trial (redo or discard) and save."""
+        if self.segments:
+            self.segments.pop()
+            self.save()
+
+    def to_recording(self) -> Recording:
+        return Recording.concatenate(self.layout, ((s.frames, s.stamps, s.fields) for s in self.segments), self.meta)
+
+    def save(self) -> Path:
+        return self.to_recording().save(self.path)
+
+
+# -- capture ----------------------------------------------------------------------------------
+@dataclass
+class Capture:
+    """Frames of one trial; ``reconnected`` means the link dropped during it (the trial is void)."""
+
+    frames: np.ndarray
+    stamps: np.ndarray
+    device_ms: np.ndarray
+    reconnected: bool = False
+    gaps: int = 0
+
+
+def drain(client, max_seconds: float = 0.25, fresh_wait: float = 0.005) -> int:
+    """Throw away frames that arrived before the trial starts; returns how many.
+
+    Queued and buffered frames come back at once; a frame we had to wait for is fresh, so the
+    backlog is gone. A source that never makes us wait (an emulator at full speed) is drained
+    for at most ``max_seconds``.
+    """
+    end = time.perf_counter() + max_seconds
+    n = 0
+    while time.perf_counter() < end:
+        t = time.perf_counter()
+        if client.read_frame(timeout=0.2) is None:
+            break
+        n += 1
+        if time.perf_counter() - t >= fresh_wait:
+            break
+    return n
+
+
+def capture_trial(client, seconds: float, frame_timeout: float = 2.0) -> Capture:
+    """Read frames for ``seconds`` of device time (the controller's clock, so any link speed works).
+
+    Timestamps are PC wall-clock seconds of the first frame plus device time since it: comparable
+    across sessions and free of the host's scheduling jitter. Raises DeviceLost when no frame comes.
+    """
+    reconnects = client.stats.get("reconnects", 0)
+    span_ms = seconds * 1000.0
+    frames, device_ms = [], []
+    wall0 = None
+    while True:
+        frame = client.read_frame(timeout=frame_timeout)
+        if frame is None:
+            raise DeviceLost(f"{client.url}: no frame for {frame_timeout:g} s")
+        if client.stats.get("reconnects", 0) != reconnects:
+            return Capture(_stack(frames, client), np.zeros(0), np.asarray(device_ms, np.int64), reconnected=True)
+        if wall0 is None:
+            wall0 = time.time() - (time.perf_counter() - frame.received)
+        elif frame.timestamp_ms - device_ms[0] >= span_ms:
+            break
+        frames.append(frame.values)
+        device_ms.append(frame.timestamp_ms)
+    dev = np.asarray(device_ms, dtype=np.int64)
+    rel = (dev - dev[0]) / 1000.0
+    if len(rel) > 1 and not np.all(np.diff(rel) > 0):  # device clock unusable: fall back to spacing
+        rel = np.arange(len(rel)) * (seconds / len(rel))
+    steps = np.diff(dev)
+    typical = float(np.median(steps)) if len(steps) else 0.0
+    gaps = int(np.sum(steps > 2.5 * typical)) if typical > 0 else 0
+    return Capture(_stack(frames, client), wall0 + rel, dev, gaps=gaps)
+
+
+def _stack(frames: list, client) -> np.ndarray:
+    n = client.layout.n_taxels if client.layout is not None else 0
+    return np.asarray(frames, dtype=np.uint16) if frames else np.zeros((0, n), np.uint16)
+
+
+# -- the session loop -------------------------------------------------------------------------
+@dataclass
+class SessionIO:
+    """How the loop talks to people and to scripted subjects.
+
+    ``say``: an instruction for the subject/investigator (screen, maybe voice);
+    ``show``: information for the investigator only (quick look, file status);
+    ``ask(question, choices)``: one of ``choices`` (first = default), or None (no prompts, auto);
+    ``cue(kind, slot)``: "prepare", "go", "stop" for listeners such as a scripted subject;
+    it may return a dict of annotations stored with the trial (e.g. a simulator's onset).
+    """
+
+    say: Callable[[str], None] = lambda text: None
+    show: Callable[[str], None] = lambda text: None
+    ask: Callable[[str, Sequence[str]], str | None] = lambda q, c: None
+    cue: Callable[[str, TrialSlot], dict | None] = lambda kind, slot: None
+    sleep: Callable[[float], None] = time.sleep
+
+
+@dataclass
+class SessionOptions:
+    trial_seconds: float = DEFAULT_TRIAL_SECONDS
+    gap_seconds: float = 2.0
+    """auto mode: pause before each go (the investigator re-places the object)."""
+    countdown: int = 3
+    """interactive mode: seconds counted down aloud before go."""
+    fraction: float = DEFAULT_FRACTION
+    pads: str = "all"
+    auto: bool = False
+    retries: int = 1
+    """auto mode: how often a trial that never triggered is recorded again before it is kept flagged."""
+    max_trials: int | None = None
+    """stop after this many trials (scripted partial sessions)."""
+    quick_look: Callable[[np.ndarray, SensorLayout, TriggerCheck], str] | None = None
+
+
+@dataclass
+class SessionResult:
+    planned: int
+    done: int
+    recorded: int = 0
+    redone: int = 0
+    discarded: int = 0
+    flagged: list[int] = field(default_factory=list)
+    stopped: str = "complete"
+
+    @property
+    def complete(self) -> bool:
+        return self.done >= self.planned
+
+
+def run_session(client, store: SessionStore, plan: ProtocolPlan, opts: SessionOptions, io: SessionIO,
+                session_info: dict | None = None) -> SessionResult:
+    """Record every slot of ``plan`` the store lacks. The client must be open and streaming."""
+    check_trigger(np.zeros((1, store.layout.n_taxels), np.uint16), store.layout, opts.pads, opts.fraction)
+    store.meta.setdefault("sessions", []).append(
+        {"started": _now(), "protocol": plan.to_dict(), "trial_seconds": opts.trial_seconds,
+         "trigger_fraction": opts.fraction, "pads": opts.pads, "auto": opts.auto, **(session_info or {})})
+    session_no = len(store.meta["sessions"])
+    todo = store.remaining(plan)
+    planned = len(plan.slots())
+    result = SessionResult(planned=planned, done=planned - len(todo))
+    if not todo:
+        result.stopped = "complete"
+        return result
+    io.show(f"{result.done} of {planned} trials already in {store.path}; {len(todo)} to record")
+    for slot in todo:
+        if opts.max_trials is not None and result.recorded >= opts.max_trials:
+            result.stopped = "max_trials"
+            return result
+        outcome = _record_slot(client, store, slot, opts, io, result, session_no)
+        if outcome in ("kept", "kept_quit"):
+            result.done += 1
+        if outcome in ("quit", "kept_quit"):
+            result.stopped = "quit"
+            return result
+    result.stopped = "complete" if result.done >= planned else "skipped"
+    return result
+
+
+def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOptions, io: SessionIO,
+                 result: SessionResult, session_no: int) -> str:
+    """One slot until it is kept, discarded or the investigator quits.
+
+    Returns 'kept', 'discarded', 'quit' (before recording) or 'kept_quit' (kept, then quit)."""
+    attempt = 0
+    while True:
+        attempt += 1
+        n = store.n_trials + 1
+        io.say(f"Trial {result.done + 1} of {result.planned}: {slot.describe()}. Place the {slot.object}, hand {slot.pose}.")
+        io.cue("prepare", slot)
+        if opts.auto:
+            io.sleep(opts.gap_seconds)
+        else:
+            answer = io.ask("Enter = start, s = skip, q = quit", ("", "s", "q"))
+            if answer == "q":
+                return "quit"
+            if answer == "s":
+                return "discarded"
+            for k in range(opts.countdown, 0, -1):
+                io.say(str(k))
+                io.sleep(1.0)
+        drain(client)
+        io.say(f"Go: {slot.action}!")
+        annotations = io.cue("go", slot) or {}
+        capture = capture_trial(client, opts.trial_seconds)
+        io.cue("stop", slot)
+        io.say("Stop.")
+        if capture.reconnected:
+            io.show("the device reconnected during this trial; recording it again")
+            continue
+        check = check_trigger(capture.frames, store.layout, opts.pads, opts.fraction)
+        extra = {
+            "triggered": check.triggered, "trigger_frame": check.first_frame, "peak": check.peak,
+            "peak_fraction": round(check.peak_fraction, 4), "trigger_fraction": opts.fraction,
+            "device_ms": int(capture.device_ms[0]), "frame_gaps": capture.gaps, "attempt": attempt,
+            "session": session_no, "recorded_at": _now(), **annotations,
+        }
+        index = store.add(slot, capture.frames, capture.stamps, extra)
+        result.recorded += 1
+        if opts.quick_look is not None:
+            io.show(opts.quick_look(capture.frames, store.layout, check))
+        status = (f"trial {n} saved ({len(capture.frames)} frames, peak {check.peak_fraction:.0%} of full scale)")
+        io.show(status)
+        if not check.triggered:
+            io.show(f"!! the pads never reached the trigger level ({opts.fraction:.0%} of full scale): "
+                    "this trial gives no training case; redo it")
+        if opts.auto:
+            if not check.triggered and attempt <= opts.retries:
+                store.remove_last()
+                result.redone += 1
+                continue
+            if not check.triggered:
+                result.flagged.append(index)
+            return "kept"
+        answer = io.ask("Enter = keep, r = redo, d = discard, q = quit" if check.triggered
+                        else "r = redo (suggested), Enter = keep anyway, d = discard, q = quit", ("", "r", "d", "q"))
+        if answer == "r":
+            store.remove_last()
+            result.redone += 1
+            continue
+        if answer == "d":
+            store.remove_last()
+            result.discarded += 1
+            return "discarded"
+        if not check.triggered:
+            result.flagged.append(index)
+        return "kept_quit" if answer == "q" else "kept"
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+
+
+def flagged_trials(rec: Recording) -> list[int]:
+    """Indices of trials the recorder flagged as never triggered."""
+    return [i for i, t in enumerate(rec.trials) if t.extra.get("triggered") is False]
+
+
+__all__ = [
+    "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO", "SessionOptions",
+    "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial", "check_trigger",
+    "drain", "flagged_trials", "recording_path", "run_session",
+]

@@ -1,0 +1,160 @@
+"""A scripted simulated subject behind an emulated controller: it does whatever the recorder prompts.
+
+The recorder cues ``go`` with a trial slot (pose, object, action, run); the subject then plays a
+trial of the simulated hand (``firmware_io.sim``, synthetic data) for that slot through a
+DeviceEmulator, frame by frame, and idles (all zeros: empty hand) otherwise. Its frame clock is
+the emulator's, so sessions run in real time or as fast as they are read (``speed=None``).
+
+It also plays the faults a lab meets: a link that drops once at a given frame and comes back
+(``drop_at``), a device unplugged for good (``unplug_at``), a subject who does nothing on some
+go cues (``lazy``, to exercise the never-triggered flag).
+
+URL form for ``handover record --device``:
+``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&lazy=2&fault=crc=0.01``
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterable
+
+import numpy as np
+
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+from firmware_io.layout import SensorLayout
+from firmware_io.transports.base import DeviceUnavailable, ParsedURL, Transport, TransportError
+from firmware_io.transports.emulated import SUBJECT_SCHEME, EmulatedTransport, SubjectTransport
+
+FRAME_PERIOD_S = 1 / 32
+
+
+class _LiveFrames:
+    """``frames[i]`` as the emulator reads it: asks the subject for the next frame."""
+
+    def __init__(self, subject: ScriptedSubject) -> None:
+        self._subject = subject
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        return self._subject.next_frame()
+
+
+class _LiveSource:
+    """The part of a Recording a DeviceEmulator reads, for a one-frame loop whose frame is live."""
+
+    n_frames = 1
+
+    def __init__(self, subject: ScriptedSubject, layout: SensorLayout, period: float) -> None:
+        self.layout = layout
+        self.timestamps = np.zeros(1)
+        self.frames = _LiveFrames(subject)
+        self._period = period
+
+    def sample_interval(self) -> float:
+        return self._period
+
+
+class ScriptedSubject:
+    """A simulated person and an emulated controller; ``connect`` opens a link (a DSAClient source)."""
+
+    def __init__(
+        self,
+        seed: int = 0,
+        *,
+        speed: float | None = 1.0,
+        faults: FaultPlan | None = None,
+        drop_at: Iterable[int] = (),
+        unplug_at: int | None = None,
+        lazy: Iterable[int] = (),
+        trial_seconds: float = 3.0,
+        layout: SensorLayout | None = None,
+    ) -> None:
+        self.seed = int(seed)
+        self.layout = layout or SensorLayout.sdh2()
+        self.trial_seconds = max(float(trial_seconds), 1.5)
+        self.drop_at = set(int(k) for k in drop_at)
+        self.unplug_at = unplug_at
+        self.lazy = set(int(k) for k in lazy)
+        self.emitted = 0
+        self.connections = 0
+        self.unplugged = False
+        self.performed: list[dict] = []
+        self._gos = 0
+        self._attempts: dict[tuple, int] = {}
+        self._segment: np.ndarray | None = None
+        self._pos = 0
+        self._idle = np.zeros(self.layout.n_taxels, dtype=np.uint16)
+        self._lock = threading.Lock()
+        self.emulator = DeviceEmulator(_LiveSource(self, self.layout, FRAME_PERIOD_S), speed=speed, loop=True,
+                                       faults=faults, seed=self.seed)
+
+    @classmethod
+    def from_url(cls, url: str | ParsedURL) -> ScriptedSubject:
+        """The subject a ``subject://`` URL describes, its options read and checked by its transport
+        (``SubjectTransport``, in the one registry of schemes)."""
+        parsed = url if isinstance(url, ParsedURL) else ParsedURL(url)
+        if parsed.scheme != SUBJECT_SCHEME:
+            raise TransportError(f"{parsed.url}: not a {SUBJECT_SCHEME}:// URL")
+        return cls(**SubjectTransport.url_settings(parsed, {}))
+
+    # -- the device side ---------------------------------------------------------------------------
+    def connect(self) -> Transport:
+        """A fresh link to the emulated controller (what a reconnect gets); refused once unplugged."""
+        if self.unplugged:
+            raise DeviceUnavailable(f"{SUBJECT_SCHEME}://: the device is unplugged")
+        self.connections += 1
+        return EmulatedTransport(self.emulator, f"{SUBJECT_SCHEME}://?seed={self.seed}")
+
+    def next_frame(self) -> np.ndarray:
+        """The frame the controller sends now (called by the emulator once per frame)."""
+        with self._lock:
+            self.emitted += 1
+            if self.emitted in self.drop_at:
+                self.emulator.disconnected = True
+            if self.unplug_at is not None and self.emitted >= self.unplug_at:
+                self.unplugged = True
+                self.emulator.disconnected = True
+            if self._segment is not None and self._pos < len(self._segment):
+                values = self._segment[self._pos]
+                self._pos += 1
+                return values
+            return self._idle
+
+    # -- the person side -----------------------------------------------------------------------------
+    def cue(self, kind: str, slot) -> dict | None:
+        """The recorder's prompt. On ``go`` the subject acts; returns annotations for the trial."""
+        if kind == "stop":
+            with self._lock:
+                self._segment = None
+            return None
+        if kind != "go":
+            return None
+        self._gos += 1
+        key = (slot.pose, slot.object, slot.action, slot.run)
+        attempt = self._attempts.get(key, 0) + 1
+        self._attempts[key] = attempt
+        if self._gos in self.lazy:
+            self.performed.append({"slot": key, "attempt": attempt, "acted": False})
+            with self._lock:
+                self._segment, self._pos = None, 0
+            return {"synthetic": True, "scripted_subject": {"seed": self.seed, "acted": False}}
+        frames, onset = self._render(slot, attempt)
+        with self._lock:
+            self._segment, self._pos = frames, 0
+        self.performed.append({"slot": key, "attempt": attempt, "acted": True, "onset": onset})
+        return {"synthetic": True, "onset": onset, "scripted_subject": {"seed": self.seed, "acted": True}}
+
+    def _render(self, slot, attempt: int) -> tuple[np.ndarray, int]:
+        """One simulated trial of this slot; every attempt is a new draw (a person never repeats exactly)."""
+        from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
+
+        pose = slot.pose if slot.pose in POSES else POSES[0]
+        obj = slot.object if slot.object in OBJECTS else OBJECTS[0]
+        action = slot.action if slot.action in ACTIONS else "hold"
+        rec = simulate_protocol(seed=self.seed + 1000 * (attempt - 1), n_subjects=1, runs=int(slot.run),
+                                poses=[pose], objects=[obj], actions=[action],
+                                duration=self.trial_seconds + 0.5)[0]
+        trial = rec.trials[-1]
+        frames, _ = rec.trial_frames(trial)
+        if rec.layout.n_taxels != self.layout.n_taxels:
+            raise ValueError("the simulated hand's layout differs from the subject's")
+        return frames.copy(), int(trial.extra.get("onset", -1))
