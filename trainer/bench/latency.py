@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.rehearsal import REHEARSAL_LEAD_S
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
 from trainer.bench.common import (
@@ -238,9 +239,9 @@ def _implementation_lines(res: dict) -> list[str]:
     lines += ["", "Same class as the graph on the first 200 windows: "
               + ", ".join(f"{k} {100 * v:.1f} %" for k, v in agree.items()) + ".", "",
               f"Paced rehearsed: paced at 32 Hz, with the same run done {stages.REHEARSAL_LEAD_S * 1e3:g} ms before "
-              "the timed one (the process busy in between). Not what the daemon does: it shows how much of the "
-              "paced cliff is caches other processes filled during the 31 ms idle, i.e. what waking just before a "
-              "due frame would gain."]
+              "the timed one (the process busy in between): how much of the paced cliff is caches other processes "
+              "filled during the 31 ms idle. The daemon does the like for real (`runtime.rehearsal`: one run in a "
+              f"thread {REHEARSAL_LEAD_S * 1e3:g} ms before a due frame), which the stage tables above include."]
     return lines
 
 
