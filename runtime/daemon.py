@@ -29,6 +29,7 @@ from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.control import ControlSocket, GraspControl
 from runtime.decision import ContinuousDecision
+from runtime.frame_rate import FrameClock
 from runtime.health import Health, StatusFile
 from runtime.listeners import DecisionTimings, FrameListener
 from runtime.model_watch import ModelWatcher, Rejection
@@ -106,12 +107,13 @@ class Daemon(GraspControl):
         self._backoff = cfg.device.reconnect_min_s
         self._next_connect = 0.0
         self._last_frame_t = 0.0
-        self._last_ts: int | None = None
         self._next_health = 0.0
         self._connect_started: float | None = None
         self.connect_bound_s = CONNECT_BOUND_S
         self._hang_logged = False
         self.period_s = 1.0 / DEFAULT_RATE_HZ
+        self.frame_clock = FrameClock(1000.0 * self.period_s, self.health)
+        """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
@@ -186,6 +188,7 @@ class Daemon(GraspControl):
         self.health.resolve("model")
         self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
         self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        self.frame_clock.set_model_period(1000.0 * self.period_s)
         self._build_hot_path(keep_history=True)
         what = "swapped in" if old is not None else "serving"
         log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
@@ -297,7 +300,7 @@ class Daemon(GraspControl):
             if self.decision is not None:
                 self.decision.reset()
             self._pending.clear()
-        self._last_ts = None
+        self.frame_clock.reset()
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
@@ -341,32 +344,27 @@ class Daemon(GraspControl):
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
         """One frame: ring, trigger, and inference if this frame ends a window."""
-        h = self.health
-        h.frames_received += 1
-        ts = frame.timestamp_ms
-        if self._last_ts is not None:
-            gap = ts - self._last_ts
-            period_ms = self.period_s * 1000.0
-            if gap > 1.9 * period_ms:  # device stamps jitter by up to ~0.8 period; a lost frame adds one
-                h.frames_dropped += round(gap / period_ms) - 1
-        self._last_ts = ts
+        self.health.frames_received += 1
+        number = self.frame_clock.admit(frame.number, frame.timestamp_ms)  # the model's frame count, -1: between
+        if number < 0:
+            return
         if self.listeners:
             for listener in self.listeners:
                 listener.on_frame(frame)
         self.latest_frame = frame
         ring = self.ring
-        ring.push(frame.values, frame.number)
+        ring.push(frame.values, number)
         if self._grasp_requests:
             self._apply_grasp()
-        due = self.trigger.update(ring.latest(), frame.number)
+        due = self.trigger.update(ring.latest(), number)
         if self.model is None:
             return
         pending = self._pending
         if due >= 0:
             pending.append(due)
-        if pending and frame.number >= pending[0]:
+        if pending and number >= pending[0]:
             due = pending.pop(0)
-            if frame.number == due and ring.count >= self.model.meta.T:
+            if number == due and ring.count >= self.model.meta.T:
                 self._classify(frame)
 
     def _classify(self, frame: Any) -> None:
@@ -402,7 +400,8 @@ class Daemon(GraspControl):
         cls = meta.classes[index] if index >= 0 else None
         if cls is not None and cls in self.cfg.scene.events:
             event = Event(time.time(), cls, dict(zip(meta.classes, scores[0].tolist(), strict=True)), latency_us,
-                          model.model_id, frame.number - meta.T + 1, frame.number, int(frame.timestamp_ms), missed)
+                          model.model_id, self.frame_clock.window_first(frame.number, meta.T), frame.number,
+                          int(frame.timestamp_ms), missed)
             stamps.built = clock()
             encoded = self.sinks.encode(event)
             stamps.serialised = clock()
