@@ -112,7 +112,7 @@ class Daemon(GraspControl):
         self.connect_bound_s = CONNECT_BOUND_S
         self._hang_logged = False
         self.period_s = 1.0 / DEFAULT_RATE_HZ
-        self.frame_clock = FrameClock(1000.0 * self.period_s, self.health)
+        self.frame_clock = FrameClock(1000.0 * self.period_s, self.health, on_restart=self._restart_stream)
         """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
@@ -294,18 +294,23 @@ class Daemon(GraspControl):
                     self.model = None
                     self.health.model_id = None
             self._build_hot_path(keep_history=False)
-        else:  # the stream is not continuous across a reconnect: forget the history
-            self.ring.reset()
-            self.trigger.reset()
-            if self.decision is not None:
-                self.decision.reset()
-            self._pending.clear()
+        else:
+            self._restart_stream()
         self.frame_clock.reset()
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
         log.info("device %s %s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
                  layout.n_taxels, self.cfg.scene.pads)
+
+    def _restart_stream(self) -> None:
+        """The stream is not continuous (a reconnect, a long gap in device time): forget its history."""
+        if self.ring is not None:
+            self.ring.reset()
+            self.trigger.reset()
+        if self.decision is not None:
+            self.decision.reset()
+        self._pending.clear()
 
     def _schedule_reconnect(self) -> None:
         self._next_connect = time.monotonic() + self._backoff

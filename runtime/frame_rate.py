@@ -13,7 +13,11 @@ period from the frames' device time stamps and:
   (the trigger and the window's end count model frames), the events still name device frames;
 - a stream slower than the model's rate (period above ``SLOWER`` x the model's) cannot be made
   faster: it is fed as it comes and a one-line health problem says so (windows span too long);
-- within those bounds the stream is fed untouched (frame numbers as the device sent them).
+- within those bounds the stream is fed untouched (frame numbers as the device sent them);
+- a gap in device time of more than ``RESTART_PERIODS`` stream periods (the recording paused,
+  the device stalled and resumed) breaks the stream: ``on_restart`` is called before the frame
+  after it, and the daemon forgets the history as after a reconnect (a window across the gap
+  would join two unrelated moments, and the trigger would take the jump for a person's action).
 
 The period is the median of the last ``BLOCK`` gaps, re-estimated once per block (one store per
 frame; the median once a block). Frames lost on the way (gaps of about twice the stream's period
@@ -23,6 +27,7 @@ or more) are counted here too, once per block, against the stream's period, not 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import numpy as np
 
@@ -36,6 +41,8 @@ BLOCK = 32
 """Gaps per estimate of the stream's period (about a second at the SDH-2's 32 Hz)."""
 HISTORY = 256
 """Device frame numbers of the last admitted frames kept (to name a window's first device frame)."""
+RESTART_PERIODS = 10
+"""A gap of more than this many stream periods (about 0.3 s at 32 Hz) breaks the stream."""
 SOURCE = "rate"
 """The health problem's source (resolved when the stream is back at the model's rate)."""
 
@@ -43,8 +50,11 @@ SOURCE = "rate"
 class FrameClock:
     """Admits a device's frames at the model's period; counts lost frames; warns on slow streams."""
 
-    def __init__(self, model_period_ms: float, health=None) -> None:
+    def __init__(self, model_period_ms: float, health=None, on_restart: Callable[[], None] | None = None) -> None:
         self.health = health
+        self.on_restart = on_restart
+        """Called when a gap breaks the stream (before the frame after the gap is fed)."""
+        self.restarts = 0
         self.model_period_ms = float(model_period_ms)
         self._gaps = np.zeros(BLOCK, dtype=np.float64)
         self._numbers = np.zeros(HISTORY, dtype=np.int64)
@@ -76,6 +86,8 @@ class FrameClock:
         last, self._last_ts = self._last_ts, ts_ms
         if last is not None:
             self._gap(ts_ms - last)
+            if ts_ms - last > RESTART_PERIODS * (self.stream_period_ms or self.model_period_ms):
+                self._restart()
         if self.step < 1.0:
             self._phase += self.step
             if self._phase < 1.0:
@@ -103,6 +115,12 @@ class FrameClock:
             return last_number - length + 1
         first = self.device_number(length - 1)
         return first if first >= 0 else last_number - length + 1
+
+    def _restart(self) -> None:
+        self.restarts += 1
+        self._phase = 0.0
+        if self.on_restart is not None:
+            self.on_restart()
 
     def _gap(self, gap: float) -> None:
         self._gaps[self._n_gaps] = gap
