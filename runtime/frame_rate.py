@@ -37,6 +37,10 @@ FASTER = 0.8
 """A stream whose period is below this x the model's is decimated (jitter alone never gets there)."""
 SLOWER = 1.25
 """A stream whose period is above this x the model's gets a health warning."""
+FASTEST = 0.125
+"""Stamps that say the stream is more than 8x faster than the model's rate are not believed (a
+broken device clock would otherwise leave out nearly every frame): a health warning, frames fed
+as they come."""
 BLOCK = 32
 """Gaps per estimate of the stream's period (about a second at the SDH-2's 32 Hz)."""
 HISTORY = 256
@@ -74,6 +78,7 @@ class FrameClock:
         self.number = -1
         self.admitted = 0
         self.slow = False
+        """The stream's rate is a health problem (slower than the model's, or stamps not believed)."""
 
     def set_model_period(self, model_period_ms: float) -> None:
         """A model with another sample rate serves: re-decide from the measured period."""
@@ -141,25 +146,30 @@ class FrameClock:
         self._decide(period)
 
     def _decide(self, period_ms: float) -> None:
-        was_step, was_slow = self.step, self.slow
+        was_step, was_off = self.step, self.slow
         self.stream_period_ms = period_ms
         ratio = period_ms / self.model_period_ms
-        self.step = ratio if ratio < FASTER else 1.0
-        self.slow = ratio > SLOWER
+        self.step = ratio if FASTEST <= ratio < FASTER else 1.0
         if self.step < 1.0:
             self.renumber = True  # from now on the trigger counts model frames
         stream_hz, model_hz = _hz(1000.0 / period_ms), _hz(1000.0 / self.model_period_ms)
         if self.step < 1.0 and was_step == 1.0:
             log.warning("device streams at %s Hz, the model was trained at %s Hz: frames are decimated to the "
                         "model's period (about 1 in %.1f classified)", stream_hz, model_hz, 1.0 / self.step)
-        if self.slow and not was_slow:
-            text = (f"device streams at {stream_hz} Hz, slower than the {model_hz} Hz the model was trained "
-                    f"at: its windows span {ratio:.1f}x their trained time and decisions may be wrong; set the "
-                    f"device's rate to {model_hz} Hz or train a model at {stream_hz} Hz")
-            log.warning("%s", text)
+        problem = None
+        if ratio > SLOWER:
+            problem = (f"device streams at {stream_hz} Hz, slower than the {model_hz} Hz the model was trained "
+                       f"at: its windows span {ratio:.1f}x their trained time and decisions may be wrong; set the "
+                       f"device's rate to {model_hz} Hz or train a model at {stream_hz} Hz")
+        elif ratio < FASTEST:
+            problem = (f"device time stamps say {stream_hz} Hz, more than {1 / FASTEST:.0f}x the model's {model_hz} "
+                       "Hz: not believed (a broken device clock?), frames are fed as they come")
+        self.slow = problem is not None
+        if problem and not was_off:
+            log.warning("%s", problem)
             if self.health is not None:
-                self.health.report_error(text, SOURCE)
-        elif was_slow and not self.slow and self.health is not None:
+                self.health.report_error(problem, SOURCE)
+        elif was_off and not problem and self.health is not None:
             self.health.resolve(SOURCE)
 
 

@@ -121,3 +121,10 @@ def test_a_jump_across_a_pause_in_the_recording_is_not_an_event(tmp_path):
     assert len(_events(tmp_path, levels, ts)) == 1  # ... which, without a pause, is a person pressing
     ts[200:] += 3000  # the recording paused for 3 s before frame 200
     assert _events(tmp_path, levels, ts) == []
+
+
+def test_stamps_of_a_broken_device_clock_are_not_believed():
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    numbers = admit_all(clock, np.arange(200))  # 1 ms per frame: 1000 Hz
+    assert numbers == list(range(200)) and "not believed" in health.last_error
