@@ -185,6 +185,12 @@ def _real(r: dict) -> list[str]:
     for cat, c in sorted(real["by_category"].items()):
         lines.append(f"| {cat} | {c['files']} | {c['hours']:.2f} | {why.get(cat, '')} | "
                      + " | ".join(str(c[m]) for m in modes) + " |")
+    chosen = r["default_setting"]
+    left = [row for row in real["rows"] if row.get("events", {}).get(chosen)]
+    lines += ["", f"False events left with the default setting ({chosen}), per file (split: which half of the "
+              "sorted files it is in; validation files take part in choosing settings):", ""]
+    lines += [f"- `{row['file']}` ({row['category']}, {row['split']}): {len(row['events'][chosen])} "
+              f"{row['events'][chosen]}" for row in left] or ["- none"]
     lines += ["", "Files with events (events per mode):", ""]
     for row in real["rows"]:
         if "events" in row and any(row["events"].values()):
