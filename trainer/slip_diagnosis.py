@@ -45,6 +45,20 @@ def chunk_map(task) -> list[dict]:
     return rows
 
 
+def contact_runs(bags: Path) -> dict[str, list[int]]:
+    """Frames of each contact run of each bag (the window rule's 5 % level on all pads), in order."""
+    from firmware_io.importers import import_any
+    from trainer.real_tasks import ALL_PADS, CONTACT_FRACTION, FULLSCALE
+
+    out = {}
+    for name in ("no_slippage", "slip_down", "slip_up"):
+        rec = import_any(bags / f"{name}.bag")
+        contact = rec.frames[:, rec.layout.columns(list(ALL_PADS))].max(axis=1) >= CONTACT_FRACTION * FULLSCALE
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], contact.astype(np.int8), [0]])))
+        out[name] = [int(b - a) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    return out
+
+
 def leave_one_chunk_out(task, make, train_idx: np.ndarray) -> dict:
     """Inside the training part: hold out each chunk whose class keeps another training chunk."""
     X, y, ch = task.X[train_idx], task.y[train_idx], task.chunks[train_idx]
@@ -80,6 +94,7 @@ def grid_ties(task, train_idx: np.ndarray) -> dict:
 
 
 def _search(Z, y, groups, folds: str, factors, kernel: str):
+    from sklearn.exceptions import FitFailedWarning
     from sklearn.model_selection import GridSearchCV, StratifiedGroupKFold, StratifiedKFold
     from sklearn.svm import SVC
 
@@ -90,7 +105,10 @@ def _search(Z, y, groups, folds: str, factors, kernel: str):
         grid["gamma"] = [f / (Z.shape[1] * Z.var()) for f in factors]
     cv = (StratifiedKFold(3, shuffle=True, random_state=0) if folds == "shuffled"
           else StratifiedGroupKFold(3, shuffle=True, random_state=0))
-    return GridSearchCV(SVC(kernel=kernel), grid, cv=cv).fit(Z, y, groups=None if folds == "shuffled" else groups)
+    with warnings.catch_warnings():  # a grouped fold without some class scores NaN for that cell, by design
+        warnings.simplefilter("ignore", FitFailedWarning)
+        warnings.simplefilter("ignore", UserWarning)
+        return GridSearchCV(SVC(kernel=kernel), grid, cv=cv).fit(Z, y, groups=None if folds == "shuffled" else groups)
 
 
 def variant_accuracy(Za, ya, ga, Zb, yb, n_first: int, spec) -> float:
@@ -155,6 +173,7 @@ def run(data_dir: Path, say) -> dict:
               "flat-svm": FlatSVC}
     result = {
         "chunks": chunk_map(slip),
+        "contact_runs": contact_runs(Path(data_dir) / "sdh2-dsa" / "mas-group" / "slip_detection" / "bag"),
         "split": slip.split_rule,
         "inner_grouped": {name: inner_real_score(name, slip, n_jobs=2) for name, *_ in CANDIDATES},
         "leave_one_chunk_out": {name: leave_one_chunk_out(slip, make, train) for name, make in makers.items()},
@@ -174,6 +193,9 @@ def markdown(res: dict) -> list[str]:
              "| chunk | class | part | windows | median peak taxel (% of full scale) |", "|---|---|---|---|---|"]
     lines += [f"| {c['chunk']} | {c['class']} | {c['part']} | {c['windows']} | {c['median_peak_pct']} |"
               for c in res["chunks"]]
+    lines += ["", "Contact runs per bag (frames at or above the 5 % level, in order; chunks cut them at 96 frames, "
+              "runs shorter than T = 15 give no window): "
+              + "; ".join(f"{k}: {', '.join(map(str, v))}" for k, v in res["contact_runs"].items()) + "."]
     lines += ["", "Grouped 3-fold inside the training part (the rule's real_slip score), per candidate: "
               + ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["inner_grouped"].items()) + ".", "",
               "Leave one chunk out inside the training part (chunks whose class keeps another training chunk):", "",
@@ -193,7 +215,34 @@ def markdown(res: dict) -> list[str]:
     for variant, r in res["variants"].items():
         lines.append(f"| {variant} | {100 * r['mean']:.1f} | "
                      + " | ".join(f"{100 * r['per_task'][n]:.1f}" for n in names) + " |")
-    return [*lines, "", f"Ran in {res['seconds']:.0f} s."]
+    return [*lines, "", *FINDINGS, "", f"Ran in {res['seconds']:.0f} s."]
+
+
+FINDINGS = [
+    "## Findings",
+    "",
+    "- Each bag is one recording with one slip event, and every window is labelled with the bag's kind: the "
+    "windows are holds before and after that event, at levels that differ by bag (table above). The outer "
+    "split gives slip_down one training chunk and slip_up one (its 1-window chunk aside), so the training part "
+    "holds one example grasp per slip kind.",
+    "- On that training part no grouped evaluation separates the methods: the rule's grouped 3-fold scores "
+    "every candidate the same (a fold that holds the only slip_down chunk has no slip_down to train on); "
+    "leaving out a chunk whose class keeps another, the default, stats alone, hand alone and the flattened SVM "
+    "make the same predictions; every C x gamma cell of the default's search ties. The test verdict "
+    "(default 70.8 %, stats and flat-svm 100 % in results/compare.md) is decided by one test chunk "
+    "(slip_up.bag#7, 9 of 24 windows) and cannot be foreseen from the training data.",
+    "- Suspects: 84 hand features diluting the RBF distance, gamma 'scale' on concatenated groups: neither "
+    "shows on the training part (hand alone, stats alone and both behave alike there; weighting the stats "
+    "block by a grouped search does not help on the other tasks either). The pad layout is SDH-2's (6 pads, "
+    "13 x 6 and 14 x 6); pads 1 and 2 read zero in all three bags (constant features, no effect after "
+    "scaling). The contact-chunk rule matters: after slip_up's "
+    "slip the grip hovers at the 5 % level, so contact flickers and the run breaks into short chunks.",
+    "- Not a flaw of the rule: real_slip adds the same inner score to every candidate, so it does not move "
+    "the ranking; the done criterion on real_slip rests on a single split whose outcome is one chunk.",
+    "- SVM searches a careful engineer might ship (grouped by contact chunk, a wider gamma grid, a linear "
+    "kernel, a searched block weight) all score at or below the shipped search by the rule's own nested "
+    "measure (table above), so the default estimator is left as it is.",
+]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -204,11 +253,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results")
     parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default ../shared/data)")
     args = parser.parse_args(argv)
-    from sklearn.exceptions import FitFailedWarning
-
-    # grouped search folds that leave a class out of training score NaN for that cell, by design
-    warnings.filterwarnings("ignore", category=FitFailedWarning)
-    warnings.filterwarnings("ignore", category=UserWarning)
     try:
         res = run(Path(args.data) if args.data else default_data_dir(), lambda t: print(t, file=sys.stderr, flush=True))
     except (OSError, ValueError) as exc:
