@@ -7,51 +7,30 @@ a problem raises :class:`ConfigError` whose message names the key, e.g.
 
 from __future__ import annotations
 
-import math
 import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from runtime.config_keys import (  # noqa: F401 - RANGES and ConfigError are part of this module's interface
+    RANGES,
+    ConfigError,
+    no_nul,
+    no_unknown,
+    read_bool,
+    read_int,
+    read_num,
+    read_optional_num,
+    read_str,
+    read_str_list,
+)
+
 MODES = ("trigger", "continuous")
 TRIGGER_KINDS = ("onset", "threshold")
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
 """The paper's four actions and the trainer's dormant class; a custom model may have others."""
 LOG_LEVELS = ("debug", "info", "warning", "error")
-
-RANGES: dict[str, tuple[float, float]] = {
-    "device.stall_timeout_s": (0.05, 3600.0),
-    "device.reconnect_min_s": (0.0, 3600.0),
-    "device.reconnect_max_s": (0.0, 3600.0),
-    "model.poll_interval_s": (0.01, 3600.0),
-    "model.max_bytes": (1024, 1 << 30),
-    "model.decision_budget": (0.001, 1.0),
-    "trigger.fraction": (0.0, 1.0),
-    "trigger.hysteresis": (0.0, 0.99),
-    "trigger.refractory_s": (0.0, 3600.0),
-    "trigger.rearm_quiet_s": (0.0, 60.0),
-    "trigger.baseline_tau_s": (0.01, 86400.0),
-    "trigger.pre_frames": (0, 1000),
-    "trigger.change": (0.001, 0.99),
-    "trigger.track_tau_s": (0.05, 600.0),
-    "trigger.settle_s": (0.0, 60.0),
-    "continuous.confirm_frames": (1, 1000),
-    "continuous.min_margin": (0.0, 1000.0),
-    "continuous.rearm_frames": (0, 100000),
-    "onnxruntime.intra_op_threads": (1, 64),
-    "ros2.depth": (1, 10000),
-    "ros2.pad_rate_hz": (0.1, 1000.0),
-    "ros2.pad_gain": (1, 16),
-}
-"""Every number of the config and its closed range [lo, hi] (the one owner of these limits).
-Why bounded above too: an infinite or absurd value (``stall_timeout_s = inf``, a 20-digit
-``max_bytes``) turns a safety mechanism off without an error; NaN compares false with
-everything, so finiteness is checked first. ``trigger.fraction`` is open at both ends."""
-
-
-class ConfigError(ValueError):
-    """A configuration that cannot be used; the message names the key."""
 
 
 @dataclass(frozen=True)
@@ -227,66 +206,87 @@ def load_config(path: str | Path) -> Config:
 
 
 def config_from_dict(data: dict[str, Any]) -> Config:
-    """Build a Config from parsed TOML; raises ConfigError naming the first bad key."""
+    """Build a Config from parsed TOML; raises ConfigError naming the first bad key.
+
+    One reader a section, called in the file's order of sections, so the first bad key is the
+    one reported."""
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
     sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2", "control"}
     top = {"log_level", "health_file"}
-    _no_unknown("", data, sections | top)
-    _no_nul(data)
+    no_unknown("", data, sections | top)
+    no_nul(data)
     for name in sections:
         if name in data and not isinstance(data[name], dict):
             raise ConfigError(f"{name}: must be a table ([{name}])")
+    device = _device_config(data.get("device", {}))
+    scene, warnings = _scene_config(data.get("scene", {}))
+    model = _model_config(data.get("model", {}))
+    trigger = _trigger_config(data.get("trigger", {}))
+    continuous = _continuous_config(data.get("continuous", {}))
+    sinks = _sinks_config(data.get("sinks", {}))
+    ros2 = _ros2_config(data.get("ros2", {}))
+    onnx_cfg = _onnx_config(data.get("onnxruntime", {}))
+    control = _control_config(data.get("control", {}))
+    log_level, health = _top_level(data)
+    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, control, log_level, health,
+                  warnings=tuple(warnings))
 
-    dev = data.get("device", {})
-    _no_unknown("device", dev, {f.name for f in fields(DeviceConfig)})
+
+def _device_config(dev: dict) -> DeviceConfig:
+    no_unknown("device", dev, {f.name for f in fields(DeviceConfig)})
     device = DeviceConfig(
-        url=_str("device.url", dev, DeviceConfig.url),
-        stall_timeout_s=_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s),
-        reconnect_min_s=_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s),
-        reconnect_max_s=_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s),
+        url=read_str("device.url", dev, DeviceConfig.url),
+        stall_timeout_s=read_num("device.stall_timeout_s", dev, DeviceConfig.stall_timeout_s),
+        reconnect_min_s=read_num("device.reconnect_min_s", dev, DeviceConfig.reconnect_min_s),
+        reconnect_max_s=read_num("device.reconnect_max_s", dev, DeviceConfig.reconnect_max_s),
     )
     _check_url(device.url)
     if device.reconnect_max_s < device.reconnect_min_s:
         raise ConfigError("device.reconnect_max_s: must be >= device.reconnect_min_s")
+    return device
 
-    sc = data.get("scene", {})
-    _no_unknown("scene", sc, {f.name for f in fields(SceneConfig)})
+
+def _scene_config(sc: dict) -> tuple[SceneConfig, list[str]]:
+    """``[scene]`` and the warnings for event names no known model has."""
+    no_unknown("scene", sc, {f.name for f in fields(SceneConfig)})
     pads = sc.get("pads", SceneConfig.pads)
     if isinstance(pads, list) and pads and all(isinstance(p, int) and not isinstance(p, bool) for p in pads):
         pads = ",".join(str(p) for p in pads)
     if not isinstance(pads, str) or not pads.strip():
         raise ConfigError(f"scene.pads: must be 'model' or a pad selection like 'distal' or [1, 3, 5], got {pads!r}")
     _check_pads(pads)
-    events = _str_list("scene.events", sc, SceneConfig.events)
+    events = read_str_list("scene.events", sc, SceneConfig.events)
     if not events:
         raise ConfigError("scene.events: must name at least one event")
-    mode = _str("scene.mode", sc, SceneConfig.mode)
+    mode = read_str("scene.mode", sc, SceneConfig.mode)
     if mode not in MODES:
         raise ConfigError(f"scene.mode: must be one of {', '.join(MODES)}, got {mode!r}")
     pads = FOLLOW_MODEL if pads.strip().lower() == FOLLOW_MODEL else pads.strip()
-    scene = SceneConfig(pads=pads, events=events, mode=mode)
     warnings = [
         f"scene.events: {e!r} is not a known event ({', '.join(KNOWN_EVENTS)}); "
         "it is reported only if the model has such a class"
         for e in events if e not in KNOWN_EVENTS
     ]
+    return SceneConfig(pads=pads, events=events, mode=mode), warnings
 
-    mo = data.get("model", {})
-    _no_unknown("model", mo, {f.name for f in fields(ModelConfig)})
-    model = ModelConfig(
-        folder=_str("model.folder", mo, ModelConfig.folder),
-        poll_interval_s=_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s),
-        max_bytes=_int("model.max_bytes", mo, ModelConfig.max_bytes),
-        decision_budget=_num("model.decision_budget", mo, ModelConfig.decision_budget),
-        quarantine_file=None if "quarantine_file" not in mo else _str("model.quarantine_file", mo, ""),
+
+def _model_config(mo: dict) -> ModelConfig:
+    no_unknown("model", mo, {f.name for f in fields(ModelConfig)})
+    return ModelConfig(
+        folder=read_str("model.folder", mo, ModelConfig.folder),
+        poll_interval_s=read_num("model.poll_interval_s", mo, ModelConfig.poll_interval_s),
+        max_bytes=read_int("model.max_bytes", mo, ModelConfig.max_bytes),
+        decision_budget=read_num("model.decision_budget", mo, ModelConfig.decision_budget),
+        quarantine_file=None if "quarantine_file" not in mo else read_str("model.quarantine_file", mo, ""),
     )
 
-    tr = data.get("trigger", {})
-    _no_unknown("trigger", tr, {f.name for f in fields(TriggerConfig)})
+
+def _trigger_config(tr: dict) -> TriggerConfig:
+    no_unknown("trigger", tr, {f.name for f in fields(TriggerConfig)})
     fraction = tr.get("fraction")
     if fraction is not None:
-        fraction = _num("trigger.fraction", tr, 0.15)
+        fraction = read_num("trigger.fraction", tr, 0.15)
         if not 0.0 < fraction < 1.0:  # open range: 0 or 1 would never or always trigger
             raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
     kind = tr.get("kind")
@@ -294,56 +294,63 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         raise ConfigError(f"trigger.kind: must be one of {', '.join(TRIGGER_KINDS)}, got {kind!r}")
     trigger = TriggerConfig(
         kind=kind,
-        change=_optional_num("trigger.change", tr),
-        track_tau_s=_optional_num("trigger.track_tau_s", tr),
-        settle_s=_optional_num("trigger.settle_s", tr),
+        change=read_optional_num("trigger.change", tr),
+        track_tau_s=read_optional_num("trigger.track_tau_s", tr),
+        settle_s=read_optional_num("trigger.settle_s", tr),
         fraction=fraction,
-        hysteresis=_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
-        refractory_s=_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
-        rearm_quiet_s=_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s),
-        baseline=_bool("trigger.baseline", tr, TriggerConfig.baseline),
-        baseline_tau_s=_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s),
-        pre_frames=None if "pre_frames" not in tr else _int("trigger.pre_frames", tr, 0),
+        hysteresis=read_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
+        refractory_s=read_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
+        rearm_quiet_s=read_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s),
+        baseline=read_bool("trigger.baseline", tr, TriggerConfig.baseline),
+        baseline_tau_s=read_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s),
+        pre_frames=None if "pre_frames" not in tr else read_int("trigger.pre_frames", tr, 0),
     )
     if fraction is not None and trigger.hysteresis >= fraction:
         raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")
+    return trigger
 
-    co = data.get("continuous", {})
-    _no_unknown("continuous", co, {f.name for f in fields(ContinuousConfig)})
-    continuous = ContinuousConfig(
-        confirm_frames=_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames),
-        min_margin=_num("continuous.min_margin", co, ContinuousConfig.min_margin),
-        rearm_frames=_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames),
+
+def _continuous_config(co: dict) -> ContinuousConfig:
+    no_unknown("continuous", co, {f.name for f in fields(ContinuousConfig)})
+    return ContinuousConfig(
+        confirm_frames=read_int("continuous.confirm_frames", co, ContinuousConfig.confirm_frames),
+        min_margin=read_num("continuous.min_margin", co, ContinuousConfig.min_margin),
+        rearm_frames=read_int("continuous.rearm_frames", co, ContinuousConfig.rearm_frames),
     )
 
-    si = data.get("sinks", {})
-    _no_unknown("sinks", si, {f.name for f in fields(SinksConfig)})
-    udp = _str_list("sinks.udp", si, ())
+
+def _sinks_config(si: dict) -> SinksConfig:
+    no_unknown("sinks", si, {f.name for f in fields(SinksConfig)})
+    udp = read_str_list("sinks.udp", si, ())
     for target in udp:
         parse_host_port(target, key="sinks.udp")
-    unix = _str_list("sinks.unix", si, ())
+    unix = read_str_list("sinks.unix", si, ())
     for path in unix:
         if not path.startswith("/") and not path.startswith("@"):
             raise ConfigError(f"sinks.unix: socket path must be absolute, got {path!r}")
-    sinks = SinksConfig(stdout=_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
-                        ros2=_bool("sinks.ros2", si, SinksConfig.ros2))
-    ros2 = _ros2_config(data.get("ros2", {}))
+    return SinksConfig(stdout=read_bool("sinks.stdout", si, SinksConfig.stdout), udp=udp, unix=unix,
+                       ros2=read_bool("sinks.ros2", si, SinksConfig.ros2))
 
-    ox = data.get("onnxruntime", {})
-    _no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})
-    onnx_cfg = OnnxConfig(
-        intra_op_threads=_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads),
-        allow_spinning=_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
+
+def _onnx_config(ox: dict) -> OnnxConfig:
+    no_unknown("onnxruntime", ox, {f.name for f in fields(OnnxConfig)})
+    return OnnxConfig(
+        intra_op_threads=read_int("onnxruntime.intra_op_threads", ox, OnnxConfig.intra_op_threads),
+        allow_spinning=read_bool("onnxruntime.allow_spinning", ox, OnnxConfig.allow_spinning),
     )
 
-    ct = data.get("control", {})
-    _no_unknown("control", ct, {f.name for f in fields(ControlConfig)})
+
+def _control_config(ct: dict) -> ControlConfig:
+    no_unknown("control", ct, {f.name for f in fields(ControlConfig)})
     sock = ct.get("socket")
     if sock is not None and (not isinstance(sock, str) or not (sock.startswith("/") or sock.startswith("@"))):
         raise ConfigError(f"control.socket: must be an absolute path or @abstract name, got {sock!r}")
-    control = ControlConfig(socket=sock)
+    return ControlConfig(socket=sock)
 
-    log_level = _str("log_level", data, "info").lower()
+
+def _top_level(data: dict) -> tuple[str, str | None]:
+    """``log_level`` and ``health_file`` (its folder must exist)."""
+    log_level = read_str("log_level", data, "info").lower()
     if log_level not in LOG_LEVELS:
         raise ConfigError(f"log_level: must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
     health = data.get("health_file")
@@ -353,8 +360,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         folder = Path(health).expanduser().parent
         if not folder.is_dir():
             raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
-    return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, control, log_level, health,
-                  warnings=tuple(warnings))
+    return log_level, health
 
 
 _ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -362,27 +368,27 @@ _ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 def _ros2_config(table: dict) -> Ros2Config:
     """``[ros2]``: names as ROS 2 allows them, QoS names, rates; ConfigError naming the key."""
-    _no_unknown("ros2", table, {f.name for f in fields(Ros2Config)})
-    namespace = _str("ros2.namespace", table, Ros2Config.namespace)
+    no_unknown("ros2", table, {f.name for f in fields(Ros2Config)})
+    namespace = read_str("ros2.namespace", table, Ros2Config.namespace)
     tokens = namespace.split("/")
     if not namespace.startswith("/") or not all(_ROS_TOKEN.fullmatch(t) for t in tokens[1:]):
         raise ConfigError(f"ros2.namespace: must look like /handover or /robot/hand (letters, digits, _), got {namespace!r}")
-    node_name = _str("ros2.node_name", table, Ros2Config.node_name)
+    node_name = read_str("ros2.node_name", table, Ros2Config.node_name)
     if not _ROS_TOKEN.fullmatch(node_name):
         raise ConfigError(f"ros2.node_name: letters, digits and _ (not starting with a digit), got {node_name!r}")
-    reliability = _str("ros2.reliability", table, Ros2Config.reliability)
+    reliability = read_str("ros2.reliability", table, Ros2Config.reliability)
     if reliability not in RELIABILITIES:
         raise ConfigError(f"ros2.reliability: must be one of {', '.join(RELIABILITIES)}, got {reliability!r}")
-    durability = _str("ros2.durability", table, Ros2Config.durability)
+    durability = read_str("ros2.durability", table, Ros2Config.durability)
     if durability not in DURABILITIES:
         raise ConfigError(f"ros2.durability: must be one of {', '.join(DURABILITIES)}, got {durability!r}")
     return Ros2Config(
         namespace=namespace, node_name=node_name, reliability=reliability, durability=durability,
-        depth=_int("ros2.depth", table, Ros2Config.depth),
-        pads=_bool("ros2.pads", table, Ros2Config.pads),
-        pad_rate_hz=_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz),
-        pad_gain=_int("ros2.pad_gain", table, Ros2Config.pad_gain),
-        grasp=_bool("ros2.grasp", table, Ros2Config.grasp),
+        depth=read_int("ros2.depth", table, Ros2Config.depth),
+        pads=read_bool("ros2.pads", table, Ros2Config.pads),
+        pad_rate_hz=read_num("ros2.pad_rate_hz", table, Ros2Config.pad_rate_hz),
+        pad_gain=read_int("ros2.pad_gain", table, Ros2Config.pad_gain),
+        grasp=read_bool("ros2.grasp", table, Ros2Config.grasp),
     )
 
 
@@ -403,77 +409,6 @@ def _replace(cfg: Config, **changes: Any) -> Config:
 
     return replace(cfg, **changes)
 
-
-def _no_unknown(section: str, table: dict, known: set[str]) -> None:
-    for key in table:
-        if key not in known:
-            name = f"{section}.{key}" if section else key
-            raise ConfigError(f"{name}: unknown key (known: {', '.join(sorted(known))})")
-
-
-def _str(key: str, table: dict, default: str) -> str:
-    value = table.get(key.rpartition(".")[2], default)
-    if not isinstance(value, str) or not value.strip():
-        raise ConfigError(f"{key}: must be a non-empty string, got {value!r}")
-    return value.strip()
-
-
-def _bool(key: str, table: dict, default: bool) -> bool:
-    value = table.get(key.rpartition(".")[2], default)
-    if not isinstance(value, bool):
-        raise ConfigError(f"{key}: must be true or false, got {value!r}")
-    return value
-
-
-def _no_nul(value: Any, key: str = "") -> None:
-    """No string may hold a NUL character (TOML's "\u0000"): paths with one raise ValueError deep in the daemon."""
-    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
-    for k, v in items:
-        _no_nul(v, (f"{key}.{k}" if key else str(k)) if isinstance(value, dict) else key)
-    if isinstance(value, str) and "\0" in value:
-        raise ConfigError(f"{key}: must not contain a NUL character, got {value!r}")
-
-
-def _num(key: str, table: dict, default: float) -> float:
-    value = table.get(key.rpartition(".")[2], default)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{key}: must be a number, got {value!r}")
-    return float(_in_range(key, value))
-
-
-def _optional_num(key: str, table: dict) -> float | None:
-    """A number in ``RANGES[key]``, or None when the key is absent (the model's or the default value applies)."""
-    name = key.rpartition(".")[2]
-    return None if name not in table else _num(key, table, 0.0)
-
-
-def _int(key: str, table: dict, default: int) -> int:
-    value = table.get(key.rpartition(".")[2], default)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f"{key}: must be an integer, got {value!r}")
-    return int(_in_range(key, value))
-
-
-def _in_range(key: str, value: float) -> float:
-    """``value`` if finite and inside ``RANGES[key]``; else ConfigError with key, value and range."""
-    lo, hi = RANGES[key]
-    if (isinstance(value, float) and not math.isfinite(value)) or not lo <= value <= hi:
-        shown = repr(value) if len(repr(value)) <= 24 else repr(value)[:20] + "..."
-        raise ConfigError(f"{key}: must be a finite number in [{_plain(lo)}, {_plain(hi)}], got {shown}")
-    return value
-
-
-def _plain(bound: float) -> str:
-    return str(int(bound)) if float(bound).is_integer() else f"{bound:g}"
-
-
-def _str_list(key: str, table: dict, default: tuple[str, ...]) -> tuple[str, ...]:
-    value = table.get(key.rpartition(".")[2], default)
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list | tuple) or not all(isinstance(v, str) and v.strip() for v in value):
-        raise ConfigError(f"{key}: must be a list of strings, got {value!r}")
-    return tuple(v.strip() for v in value)
 
 
 def _check_url(url: str) -> None:

@@ -213,3 +213,10 @@ def write_json_atomically(p: Path, data: dict) -> None:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         raise
+
+
+def one_line(exc: BaseException) -> str:
+    """The first line of an exception's text (its type name if empty): how errors reach the health
+    file and the log, one line each."""
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

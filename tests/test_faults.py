@@ -229,9 +229,9 @@ def test_daemon_against_garbage_logs_reports_and_retries(models, garbage_device,
 
 def test_default_client_has_a_bounded_open(garbage_device):
     """The daemon's own client (defaults) gives up on a garbage stream within its open bound."""
-    from runtime.daemon import CONNECT_BOUND_S, _default_client
+    from runtime.device_link import CONNECT_BOUND_S, default_client
 
-    client = _default_client(garbage_device.url)
+    client = default_client(garbage_device.url)
     assert client.open_timeout + client.stop_timeout < CONNECT_BOUND_S
 
 

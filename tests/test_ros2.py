@@ -237,7 +237,9 @@ def test_the_service_with_ros2_stops_on_sigterm_within_a_second(tmp_path):
     err = "".join(err_lines) + err
     assert proc.returncode == 0 and stop_s < 1.0, (stop_s, err)
     assert "configuration reloaded" in err and err.count("ros2: node") == 2 and "Traceback" not in err, err
-    assert json.loads(out.splitlines()[0])["type"] == "model"
+    lines = out.splitlines()
+    assert json.loads(lines[0])["type"] == "model"
+    assert all(isinstance(json.loads(line), dict) for line in lines), out  # stdout carries events only, never DDS logs
 
 
 def test_a_closed_node_never_raises_into_the_daemon(tmp_path):

@@ -23,13 +23,10 @@ from collections.abc import Sequence
 
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin, TransformerMixin
-from sklearn.preprocessing import StandardScaler
-from sklearn.svm import SVC
-from sklearn.utils.multiclass import check_classification_targets
-from sklearn.utils.validation import check_is_fitted, column_or_1d
+from sklearn.utils.validation import check_is_fitted
 
 from trainer.bow import as_cases
-from trainer.classifier import choose_svm_params
+from trainer.classifier import SVMHead, check_training_data
 
 FEATURES_PER_PAD = (
     "max", "mean", "median", "std",
@@ -111,8 +108,9 @@ class HandFeatures(TransformerMixin, BaseEstimator):
         return tags
 
 
-class BaselineSVC(ClassifierMixin, BaseEstimator):
-    """HandFeatures + StandardScaler + SVC (one-vs-one), C/gamma by the same search as BowSVC."""
+class BaselineSVC(SVMHead, ClassifierMixin, BaseEstimator):
+    """HandFeatures + StandardScaler + SVC (one-vs-one), C/gamma by the same search as BowSVC; the
+    checks, scaling, prediction and decision scores are ``SVMHead``'s, shared with BowSVC and FlatSVC."""
 
     def __init__(self, pad_shapes=None, kernel: str = "rbf", C: float | None = None, gamma=None):
         self.pad_shapes = pad_shapes
@@ -121,35 +119,16 @@ class BaselineSVC(ClassifierMixin, BaseEstimator):
         self.gamma = gamma
 
     def fit(self, X, y):
-        if y is None:
-            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is None")
-        X = as_cases(X)
-        y = column_or_1d(y, warn=True)
-        check_classification_targets(y)
-        self.classes_ = np.unique(y)
-        if len(self.classes_) < 2:
-            raise ValueError(f"need samples of at least 2 classes, got 1 class ({self.classes_[0]!r})")
+        X, y, self.classes_ = check_training_data(self, X, y)
         self.features_ = HandFeatures(self.pad_shapes).fit(X)
-        self.scaler_ = StandardScaler().fit(self.features_.transform(X))
-        F = self.scaler_.transform(self.features_.transform(X))
-        self.best_params_ = choose_svm_params(F, y, self.kernel, self.C, self.gamma)
-        self.svm_ = SVC(kernel=self.kernel, **self.best_params_).fit(F, y)
+        self._fit_scaled_svm(self.features_.transform(X), y)
         self.n_features_in_ = self.features_.n_features_in_
         return self
 
-    def _features(self, X) -> np.ndarray:
+    def transform_histograms(self, X) -> np.ndarray:
+        """The hand-designed features before scaling."""
         check_is_fitted(self, "svm_")
-        return self.scaler_.transform(self.features_.transform(X))
+        return self.features_.transform(X)
 
-    def decision_function(self, X) -> np.ndarray:
-        F = self._features(X)
-        return self.svm_.decision_function(F)
-
-    def predict(self, X) -> np.ndarray:
-        F = self._features(X)
-        return self.svm_.predict(F)
-
-    def __sklearn_tags__(self):
-        tags = super().__sklearn_tags__()
-        tags.input_tags.three_d_array = True
-        return tags
+    def svm_input(self, features: np.ndarray) -> np.ndarray:
+        return self.scaler_.transform(features)

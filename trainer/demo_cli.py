@@ -70,8 +70,6 @@ def setting_of(args: argparse.Namespace) -> str:
 def train_model(args: argparse.Namespace, out: Path) -> Path:
     """Simulate, train, evaluate and export (``handover train``, or the 5-class stream model for the
     settings that need one); reuse an earlier model unless --retrain."""
-    from trainer import train_cli
-
     setting = setting_of(args)
     report = out / "report"
     model = report / ("stream-model.onnx" if setting in ("onset_dormant", "continuous") else "model.onnx")
@@ -83,19 +81,17 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
         return model
     if model.name == "stream-model.onnx":
         return _train_stream_model(args, model, stamp, wanted)
-    trigger = wanted["trigger"]
+    from trainer.pipeline import train
+    from trainer.report import pooled_text
+    from trainer.train_options import TrainOptions
+
     _say(args, f"[1/4] simulating the paper's protocol (synthetic, seed {args.seed}) and [2/4] training ...")
-    parser = argparse.ArgumentParser()
-    train_cli.add_arguments(parser)
-    targs = parser.parse_args(["--out", str(report), "--pads", args.pads, "--seed", str(args.seed), "--trigger", trigger,
-                               "--repeats", "3", "--no-sweep"] + (["--quiet"] if args.quiet or args.json else []))
-    code = train_cli.run(targs)
-    if code != 0 or not model.is_file():
+    result = train(TrainOptions(out=str(report), pads=args.pads, seed=args.seed, trigger=wanted["trigger"], repeats=3,
+                                no_sweep=True, quiet=args.quiet or args.json))
+    if result.exit_code != 0 or not model.is_file():
         raise RuntimeError("training did not produce model.onnx (see the messages above)")
     stamp.write_text(json.dumps(wanted))
-    from trainer.report import pooled_text
-
-    metrics = json.loads((report / "metrics.json").read_text())
+    metrics = result.metrics
     _say(args, f"      synthetic data: {metrics['n_cases']} cases ({metrics['n_untriggered']} trials never "
                f"triggered); leave-one-subject-out accuracy {metrics['loso_accuracy']:.1%}, pooled 80/20 "
                f"{pooled_text(metrics['config1'])}; report {report / 'report.md'}")
@@ -144,21 +140,12 @@ def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
-    from firmware_io.emulator_server import TcpEmulatorServer
-    from firmware_io.simulate import demo_script, simulate_session
-    from runtime.config import Config, DeviceConfig, ModelConfig, SceneConfig, SinksConfig
-    from runtime.daemon import Daemon
-    from runtime.sdnotify import Notifier
-    from trainer.streams_eval import Decision, session_outcomes
+    from firmware_io.emulator import FaultPlan, FaultSpecError
 
     if args.events < 4:
         return _fail("--events must be at least 4 (one of each class)")
-    speed_text = args.speed.strip().lower()
     try:
-        speed = None if speed_text in ("max", "inf") else float(speed_text)
-        if speed is not None and speed <= 0:
-            raise ValueError
+        speed = parse_speed(args.speed)
     except ValueError:
         return _fail(f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
     try:
@@ -172,6 +159,32 @@ def main(args: argparse.Namespace) -> int:
     except (OSError, ValueError, RuntimeError) as exc:
         return _fail(str(exc))
     model_dir = drop_model(model_path, out / "models").parent
+    summary = run_session(args, model_dir, speed, faults)
+    summary.update(model=str(model_path), seconds=round(time.perf_counter() - t_start, 1))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        _print_summary(summary)
+    return 0
+
+
+def parse_speed(text: str) -> float | None:
+    """``--speed``: a positive factor, or None for 'max' / 'inf' (as fast as possible); ValueError otherwise."""
+    speed_text = text.strip().lower()
+    speed = None if speed_text in ("max", "inf") else float(speed_text)
+    if speed is not None and speed <= 0:
+        raise ValueError(text)
+    return speed
+
+
+def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, faults) -> dict:
+    """Steps 3 and 4: an emulated DSACON32m plays a scripted session of unseen simulated subjects to
+    the real daemon serving ``model_dir``; every event is printed as it happens. The summary."""
+    from firmware_io.emulator import DeviceEmulator
+    from firmware_io.emulator_server import TcpEmulatorServer
+    from firmware_io.simulate import demo_script, simulate_session
+    from runtime.daemon import Daemon
+    from runtime.sdnotify import Notifier
 
     session_seed = args.seed + SESSION_SEED_OFFSET
     script = demo_script(args.events, seed=session_seed)
@@ -181,34 +194,8 @@ def main(args: argparse.Namespace) -> int:
     duration = session.timestamps[-1] - session.timestamps[0]
     _say(args, f"[3/4] emulated DSACON32m on {server.url}: scripted session of {len(script)} events by unseen "
                f"simulated subjects (synthetic, seed {session_seed}), {playback_text(duration, speed)}")
-
-    cfg = Config(
-        device=DeviceConfig(url=server.url, stall_timeout_s=2.0, reconnect_min_s=0.2, reconnect_max_s=1.0),
-        scene=SceneConfig(pads=args.pads, mode="continuous" if setting_of(args) == "continuous" else "trigger"),
-        model=ModelConfig(folder=str(model_dir), poll_interval_s=0.5),
-        sinks=SinksConfig(stdout=False),
-        log_level="warning",
-    )
-    trials = session.trials
-    firsts = np.array([t.first for t in trials])
-    decisions: list[Decision] = []
-    answered: set[int] = set()
-    rel_ms = np.round((session.timestamps - session.timestamps[0]) * 1000.0).astype(np.int64)
-
-    def on_event(event) -> None:
-        idx = _frame_index(rel_ms, event.device_time_ms, emulator.start_ms)
-        decisions.append(Decision(idx, event.cls, event.latency_us))
-        k = int(np.searchsorted(firsts, idx, side="right")) - 1
-        if k < 0 or idx > trials[k].last:
-            _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  (no scripted event here)")
-        elif k not in answered:
-            answered.add(k)
-            mark = "ok " if event.cls == trials[k].action else "WRONG"
-            ev = script[k]
-            _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  {mark} scripted "
-                       f"{ev.action} ({ev.subject}, {ev.object}, pose {ev.pose}; onset frame {trials[k].extra['onset']})")
-
-    daemon = Daemon(cfg, notifier=Notifier({}), on_event=on_event)
+    events = EventLog(args, session, script, emulator)
+    daemon = Daemon(_daemon_config(args, server.url, model_dir), notifier=Notifier({}), on_event=events.on_event)
     _say(args, "[4/4] daemon running with the exported model; events as they happen:")
 
     def stop_when_done() -> None:
@@ -222,10 +209,57 @@ def main(args: argparse.Namespace) -> int:
         daemon.run()
     finally:
         server.stop()
+    return _summary(args, daemon, events.decisions, session.trials)
+
+
+def _daemon_config(args: argparse.Namespace, url: str, model_dir: Path):
+    from runtime.config import Config, DeviceConfig, ModelConfig, SceneConfig, SinksConfig
+
+    return Config(
+        device=DeviceConfig(url=url, stall_timeout_s=2.0, reconnect_min_s=0.2, reconnect_max_s=1.0),
+        scene=SceneConfig(pads=args.pads, mode="continuous" if setting_of(args) == "continuous" else "trigger"),
+        model=ModelConfig(folder=str(model_dir), poll_interval_s=0.5),
+        sinks=SinksConfig(stdout=False),
+        log_level="warning",
+    )
+
+
+class EventLog:
+    """The daemon's events as they happen: each matched to the scripted event it answers, printed."""
+
+    def __init__(self, args: argparse.Namespace, session, script, emulator) -> None:
+        from trainer.streams_eval import Decision
+
+        self.decision_of = Decision
+        self.args, self.script, self.emulator = args, script, emulator
+        self.trials = session.trials
+        self.firsts = np.array([t.first for t in self.trials])
+        self.rel_ms = np.round((session.timestamps - session.timestamps[0]) * 1000.0).astype(np.int64)
+        self.decisions: list = []
+        self.answered: set[int] = set()
+
+    def on_event(self, event) -> None:
+        args, trials = self.args, self.trials
+        idx = _frame_index(self.rel_ms, event.device_time_ms, self.emulator.start_ms)
+        self.decisions.append(self.decision_of(idx, event.cls, event.latency_us))
+        k = int(np.searchsorted(self.firsts, idx, side="right")) - 1
+        if k < 0 or idx > trials[k].last:
+            _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  (no scripted event here)")
+        elif k not in self.answered:
+            self.answered.add(k)
+            mark = "ok " if event.cls == trials[k].action else "WRONG"
+            ev = self.script[k]
+            _say(args, f"  event {event.cls:<5} at frame {idx:5d}  {event.latency_us:7.0f} us  {mark} scripted "
+                       f"{ev.action} ({ev.subject}, {ev.object}, pose {ev.pose}; onset frame {trials[k].extra['onset']})")
+
+
+def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
+    from trainer.streams_eval import session_outcomes
+
     h = daemon.health
     lat = h._lat[: min(h._lat_n, h._lat.size)]
     o = session_outcomes(decisions, trials)
-    summary = {
+    return {
         "synthetic": True,
         "setting": setting_of(args),
         "trigger": daemon.trigger_settings.name if daemon.trigger_settings else None,
@@ -250,14 +284,7 @@ def main(args: argparse.Namespace) -> int:
         "frames_received": int(h.frames_received),
         "frames_dropped": int(h.frames_dropped),
         "crc_errors": int(h.crc_errors),
-        "model": str(model_path),
-        "seconds": round(time.perf_counter() - t_start, 1),
     }
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        _print_summary(summary)
-    return 0
 
 
 def _print_summary(s: dict) -> None:

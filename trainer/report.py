@@ -176,11 +176,17 @@ def _margin_lines(margin: dict | None) -> list[str]:
 
 def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, str]) -> Path:
     """report.md: the command, the data, the two configurations, baseline, sweeps, figures."""
+    label = "**synthetic**" if metrics["synthetic"] else "measured"
+    lines = [*_header_lines(metrics, command), *_data_lines(metrics), *_model_lines(metrics),
+             *_results_lines(metrics, label), *_sweep_lines(metrics.get("sweep"), label),
+             *_closing_lines(metrics, figures)]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _header_lines(metrics: dict, command: str) -> list[str]:
     syn = metrics["synthetic"]
-    label = "**synthetic**" if syn else "measured"
-    c1, c2 = metrics["config1"], metrics["config2"]
-    b1, b2 = metrics["baseline_config1"], metrics["baseline_config2"]
-    ds = metrics["dataset"]
     lines = [
         "# Training report: Bag-of-Words + SVM (tactile handover events)",
         "",
@@ -198,7 +204,12 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
             "end to end; they say nothing about accuracy on a real SDH-2.",
             "",
         ]
-    lines += [
+    return lines
+
+
+def _data_lines(metrics: dict) -> list[str]:
+    ds = metrics["dataset"]
+    lines = [
         "## Data",
         "",
         f"- source: {metrics['data']}",
@@ -218,7 +229,11 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
     if "windows_before_onset" in ds:
         lines.append(f"- **windows that end before the annotated onset: {ds['windows_before_onset']}** of "
                      f"{ds['n_cases_with_onset']} cases with an onset (their T frames cannot see the action)")
-    lines += [
+    return lines
+
+
+def _model_lines(metrics: dict) -> list[str]:
+    return [
         "",
         "## Model",
         "",
@@ -228,6 +243,13 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         f"C/gamma of the final model {metrics['best_params']} (chosen by stratified 3-fold search on "
         "the training cases of each fit). The final model is trained on all cases.",
         *_margin_lines(metrics.get("svm_margin")),
+    ]
+
+
+def _results_lines(metrics: dict, label: str) -> list[str]:
+    c1, c2 = metrics["config1"], metrics["config2"]
+    b1, b2 = metrics["baseline_config1"], metrics["baseline_config2"]
+    lines = [
         "",
         f"## Results ({label})",
         "",
@@ -251,7 +273,11 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         lines.append(f"| {s} | {pct(acc)} | {pct(b2['per_subject'][s])} |")
     lines += ["", "Per class, configuration 1 (summed over seeds):", "", *_class_table(c1["per_class"]),
               "", "Per class, configuration 2:", "", *_class_table(c2["per_class"]), ""]
-    sw = metrics.get("sweep")
+    return lines
+
+
+def _sweep_lines(sw: dict | None, label: str) -> list[str]:
+    lines: list[str] = []
     if sw:
         lines += [
             f"## Sweeps ({label})",
@@ -265,7 +291,11 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
             lines.append(f"| {r['param']} | {r[r['param']]} | {r.get('kernel', 'rbf')} | {pct(r['accuracy'])} | "
                          f"{pct(r.get('std', 0.0))} |")
         lines.append("")
-    lines += ["## Figures", ""]
+    return lines
+
+
+def _closing_lines(metrics: dict, figures: dict[str, str]) -> list[str]:
+    lines = ["## Figures", ""]
     for title, name in figures.items():
         lines += [f"### {title}", "", f"![{title}]({name})", ""]
     lines += [
@@ -279,9 +309,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
         f"Took {metrics['seconds']:.0f} s.",
         "",
     ]
-    path = out / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    return lines
 
 
 def _bow_settings(metrics: dict) -> str:

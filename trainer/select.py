@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from trainer.train_options import TrainOptions, build_estimator
 
 LATENCY_BUDGET_US = 1000.0
 """Default budget: single-case p99 of the exported graph (a thirtieth of the 31.25 ms period)."""
@@ -88,13 +90,8 @@ def grouped_splits(ds) -> tuple[list, str]:
         "one subject, one run: stratified folds over trials (each case is one trial)"
 
 
-def _estimator(args, ds, families: tuple[str, ...], kernel: str, settings: dict):
-    from argparse import Namespace
-
-    from trainer.train_cli import build_estimator
-
-    est = build_estimator(Namespace(**{**vars(args), "features": ",".join(families), "kernel": kernel,
-                                       "per_pad": True}), ds)
+def _estimator(options: TrainOptions, ds, families: tuple[str, ...], kernel: str, settings: dict):
+    est = build_estimator(replace(options, features=families, kernel=kernel, per_pad=True), ds)
     return est.set_params(**settings)
 
 
@@ -118,7 +115,7 @@ def _latency(model, ds, folder: Path, name: str, seed: int) -> dict:
     return percentiles(time_calls(call, TIMING_REPEATS, cpu=True))
 
 
-def select_model(ds, args, say: Callable[[str], None] = lambda text: None,
+def select_model(ds, options: TrainOptions, say: Callable[[str], None] = lambda text: None,
                  candidates=CANDIDATES) -> Selection:
     """Evaluate every candidate by grouped CV and latency; return the selection with the winner's
     unfitted estimator."""
@@ -126,19 +123,19 @@ def select_model(ds, args, say: Callable[[str], None] = lambda text: None,
 
     from trainer.evaluation import run_splits
 
-    budget = float(getattr(args, "latency_budget_us", None) or LATENCY_BUDGET_US)
+    budget = float(options.latency_budget_us or LATENCY_BUDGET_US)
     splits, split_rule = grouped_splits(ds)
     rows = []
     with tempfile.TemporaryDirectory(prefix="handover-select-") as tmp:
         for name, families, kernel, settings in candidates:
-            est = _estimator(args, ds, families, kernel, settings)
+            est = _estimator(options, ds, families, kernel, settings)
             results = run_splits(est, ds.X, ds.y, splits, n_jobs=2)
             accs = {r["name"]: float(np.mean(ds.y[r["test"]] == r["y_pred"])) for r in results}
             values = np.asarray(list(accs.values()))
             row = Row(name, families, kernel, settings, accs, float(values.mean()),
                       float(values.std(ddof=1)) if len(values) > 1 else 0.0)
             with threadpool_limits(1):
-                stats = _latency(est.fit(ds.X, ds.y), ds, Path(tmp), name, int(args.seed))
+                stats = _latency(est.fit(ds.X, ds.y), ds, Path(tmp), name, int(options.seed))
             row.p50_us, row.p99_us = stats["p50"], stats["p99"]
             row.within_budget = row.p99_us <= budget
             rows.append(row)
@@ -149,7 +146,7 @@ def select_model(ds, args, say: Callable[[str], None] = lambda text: None,
     rows.sort(key=lambda r: (not r.within_budget, -round(r.mean, 3), r.p50_us or 0.0))
     rule = (f"highest mean accuracy over the folds ({split_rule}, training data only), 3 decimals, among "
             f"candidates whose exported graph answers one case with p99 <= {budget:.0f} us; ties go to the faster")
-    return Selection(rule, split_rule, budget, rows, best.name, _estimator(args, ds, best.families, best.kernel, best.settings))
+    return Selection(rule, split_rule, budget, rows, best.name, _estimator(options, ds, best.families, best.kernel, best.settings))
 
 
 def markdown_lines(selection: Selection) -> list[str]:

@@ -26,14 +26,15 @@ def _ints(text: str) -> tuple[int, ...]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trainer.defaults import PAPER_MODEL
     from trainer.sweeps import FULL_K, FULL_T, FULL_W
 
     parser.add_argument("--data", help="folder of .hrec recordings (default: simulate the paper's protocol)")
     parser.add_argument("--out", default="report", help="folder for sweep.json and the figures")
     parser.add_argument("--pads", default="all")
-    parser.add_argument("--K", type=int, default=10, help="K kept fixed while W and T vary")
-    parser.add_argument("--W", type=int, default=7, help="W kept fixed while K and T vary")
-    parser.add_argument("--T", type=int, default=15, help="T kept fixed while K and W vary")
+    parser.add_argument("--K", type=int, default=PAPER_MODEL["K"], help="K kept fixed while W and T vary")
+    parser.add_argument("--W", type=int, default=PAPER_MODEL["W"], help="W kept fixed while K and T vary")
+    parser.add_argument("--T", type=int, default=PAPER_MODEL["T"], help="T kept fixed while K and W vary")
     parser.add_argument("--K-values", type=_ints, default=FULL_K, help="e.g. 2,4,6,8,10,12,15,20,30")
     parser.add_argument("--W-values", type=_ints, default=FULL_W)
     parser.add_argument("--T-values", type=_ints, default=FULL_T)
@@ -71,18 +72,19 @@ def main(args: argparse.Namespace) -> int:
 
 def _run(args, kernels: list[str]) -> int:
     from trainer import report
+    from trainer.pipeline import load_or_simulate, progress_bar, say_to
     from trainer.sweeps import run_sweeps
-    from trainer.train_cli import _progress, _say, load_or_simulate
 
     t0 = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    recordings, source, synthetic = load_or_simulate(args)
+    say = say_to(args.quiet)
+    recordings, source, synthetic = load_or_simulate(args.data, args.seed, say)
     base = {"K": args.K, "W": args.W, "T": args.T, "seed": args.seed, "per_pad": args.per_pad}
     n = len(kernels) * (len(args.K_values) + len(args.W_values) + len(args.T_values))
     seeds = tuple(range(args.seed, args.seed + args.repeats))
     result = run_sweeps(recordings, base, args.K_values, args.W_values, args.T_values, kernels, args.pads,
-                        args.fraction, mode=args.mode, seeds=seeds, progress=_progress(args, "sweep", n))
+                        args.fraction, mode=args.mode, seeds=seeds, progress=progress_bar(args.quiet, "sweep", n))
     result.update(synthetic=synthetic, data=source, pads=args.pads, seconds=round(time.perf_counter() - t0, 1))
     (out / "sweep.json").write_text(json.dumps(result, indent=1, default=report._json_default))
     for param in ("K", "W", "T"):
@@ -90,7 +92,7 @@ def _run(args, kernels: list[str]) -> int:
         if rows:
             fixed = ", ".join(f"{p}={base[p]}" for p in ("K", "W", "T") if p != param)
             report.plot_sweep(rows, param, fixed, out / f"sweep_{param}.png", synthetic)
-    _say(args, f"sweep written to {out / 'sweep.json'} ({result['seconds']:.0f} s)")
+    say(f"sweep written to {out / 'sweep.json'} ({result['seconds']:.0f} s)")
     if args.json:
         print(json.dumps(result, default=report._json_default))
     return 0

@@ -1,0 +1,203 @@
+"""The daemon's link to the device: connect, report faults, reconnect with backoff (mixed into
+``runtime.daemon.Daemon``).
+
+An unplugged, refused or silent device is reported and retried with doubling backoff, never
+fatal; only a URL that can never work (or a missing package) ends the daemon, with one line.
+While a slow open runs, the client asks ``_still_connecting``, which answers SIGTERM, feeds the
+watchdog for a bounded time and keeps the health file and model swaps current.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from firmware_io.layout import SensorLayout
+from runtime.health import Health, one_line
+from runtime.scene import scene_problem
+from runtime.sdnotify import Notifier
+
+log = logging.getLogger("handover.daemon")
+
+CONNECT_BOUND_S = 30.0
+"""Longest one connection attempt may take while the watchdog is still fed: the client's own
+deadlines end an open within ~15 s (open 10 s, start 3 s), so an attempt still running after this
+is a hang, and systemd's watchdog is left to catch it."""
+
+
+class DeviceLink:
+    """Opening, watching and closing the device client.
+
+    Expects ``cfg``, ``health``, ``notifier``, ``client_factory``, ``model``, ``layout``, ``ring``,
+    ``trigger``, ``decision`` and ``_pending`` on the instance, and ``_build_hot_path`` and
+    ``_swap_and_report`` methods.
+    """
+
+    cfg: Any
+    health: Health
+    notifier: Notifier
+    client_factory: Any
+    client: Any
+    connected: bool
+    fatal: str | None
+    model: Any
+    layout: SensorLayout | None
+    ring: Any
+    trigger: Any
+    decision: Any
+    connect_bound_s: float
+    _stop: bool
+    _pending: list[int]
+    _backoff: float
+    _next_connect: float
+    _last_frame_t: float
+    _last_ts: int | None
+    _connect_started: float | None
+    _hang_logged: bool
+    _build_hot_path: Callable[..., None]  # runtime.model_serving
+    _swap_and_report: Callable[[float], None]  # runtime.daemon
+
+    def _still_connecting(self) -> bool:
+        """The client's cancel predicate while it opens a device (seconds when the device is
+        silent): answers SIGTERM within a read slice, keeps the health file current, and feeds
+        the watchdog only while the attempt is within ``connect_bound_s`` (a hang past it is
+        left to systemd's watchdog)."""
+        now = time.monotonic()
+        started = self._connect_started
+        if started is None or now - started < self.connect_bound_s:
+            self.notifier.watchdog(now)
+        elif not self._hang_logged:
+            self._hang_logged = True
+            self.health.report_error(f"{self.cfg.device.url}: connecting has not completed in "
+                                     f"{self.connect_bound_s:g} s", "device")
+            log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
+                      "(systemd restarts the service)", self.cfg.device.url, self.connect_bound_s)
+        self._swap_and_report(now)  # a model dropped while a slow connect runs serves at once
+        return self._stop
+
+    def _connect(self) -> None:
+        from firmware_io.client import Cancelled
+
+        h = self.health
+        url = self.cfg.device.url
+        self._connect_started, self._hang_logged = time.monotonic(), False
+        if h.device_state in ("starting", "stopped"):
+            h.device_state = "connecting"
+        try:
+            if self.client is None:
+                self.client = self.client_factory(url)
+            layout = self.client.open(should_stop=self._still_connecting)
+            self.client.start(should_stop=self._still_connecting)
+        except Cancelled:
+            self._connect_started = None
+            self._close_client()
+            return
+        except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
+            self._connect_failed(url, exc)
+            return
+        self._connect_started = None
+        self.connected = True
+        first = self.layout is None
+        self._fit_layout(layout)
+        self._last_ts = None
+        self._last_frame_t = time.monotonic()
+        h.device_state = "streaming"
+        h.resolve("device")
+        log.info("device %s %s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
+                 layout.n_taxels, self.cfg.scene.pads)
+
+    def _connect_failed(self, url: str, exc: Exception) -> None:
+        fatal = fatal_device_error(url, exc)
+        if fatal:
+            self.fatal = fatal
+            self._stop = True  # run() returns 2; the caller prints self.fatal (one line)
+            self._close_client()
+            return
+        self._connect_started = None
+        self.health.device_state = "disconnected"
+        reason = one_line(exc).removeprefix(f"{url}: ")
+        self.health.report_error(f"{url}: {reason}", "device")
+        log.warning("device %s: %s; retrying in %.1f s", url, reason, self._backoff)
+        self._schedule_reconnect()
+        self._close_client()
+
+    def _fit_layout(self, layout: SensorLayout) -> None:
+        """A new device layout rebuilds the hot path; the same one only forgets the history."""
+        if self.layout != layout:
+            self.layout = layout
+            if self.model is not None:
+                problem = scene_problem(self.model, self.cfg, layout)
+                if problem:
+                    log.error("model %s does not fit the device: %s; waiting for another model",
+                              self.model.model_id, problem)
+                    self.model = None
+                    self.health.model_id = None
+            self._build_hot_path(keep_history=False)
+        else:  # the stream is not continuous across a reconnect: forget the history
+            self.ring.reset()
+            self.trigger.reset()
+            if self.decision is not None:
+                self.decision.reset()
+            self._pending.clear()
+
+    def _schedule_reconnect(self) -> None:
+        self._next_connect = time.monotonic() + self._backoff
+        self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+
+    def _fault(self, reason: str) -> None:
+        reason = reason.removeprefix(f"{self.cfg.device.url}: ")
+        h = self.health
+        h.device_faults += 1
+        h.reconnects += 1
+        h.device_state = "reconnecting"
+        h.report_error(f"{self.cfg.device.url}: {reason}", "device")
+        log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
+        self._close_client()
+        self._schedule_reconnect()
+
+    def _close_client(self, stop_timeout: float | None = None) -> None:
+        self.connected = False
+        if self.client is not None:
+            with contextlib.suppress(Exception):
+                if stop_timeout is None:
+                    self.client.close()
+                else:
+                    self.client.close(stop_timeout=stop_timeout)
+
+    def _absorb_client_stats(self) -> None:
+        """The client's error counters (cumulative over reconnects of the same client)."""
+        stats = getattr(self.client, "stats", None)
+        if not isinstance(stats, dict):
+            return
+        self.health.crc_errors = int(stats.get("crc_errors", 0))
+        self.health.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
+        self.health.frames_implausible = int(stats.get("frames_implausible", 0))
+        self.health.frames_stale = int(stats.get("frames_stale", 0))
+
+
+
+def default_client(url: str) -> Any:
+    from firmware_io.client import DSAClient
+
+    # The daemon reconnects itself (with backoff, answering SIGTERM and the watchdog meanwhile).
+    return DSAClient(url, auto_reconnect=False)
+
+
+def fatal_device_error(url: str, exc: BaseException) -> str | None:
+    """A device error no retry can cure: the URL itself is wrong, or a package is missing.
+
+    Everything else (unplugged, refused, silent, wrong replies) is retried with backoff."""
+    from firmware_io.transports import DeviceUnavailable, MissingDependency, TransportError, validate_url
+
+    if not isinstance(exc, TransportError) or isinstance(exc, DeviceUnavailable):
+        return None
+    if isinstance(exc, MissingDependency):
+        return f"device.url: {one_line(exc)}"
+    try:
+        validate_url(url)
+    except TransportError as bad:
+        return f"device.url: {one_line(bad)}"
+    return None  # e.g. a write timeout: a device condition, retried

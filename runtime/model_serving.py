@@ -1,0 +1,182 @@
+"""Which model serves, and the ring and trigger fitted to it (mixed into ``runtime.daemon.Daemon``).
+
+A model reaches the hot path in one reference assignment between two windows: the watcher
+thread loads, validates and warms up model files; ``_use_model`` swaps one in and rebuilds the
+ring and trigger for it; a model that breaks the output contract at run time is taken out of
+service and the one it replaced serves again. Nothing here runs per frame.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from firmware_io.layout import SensorLayout
+from runtime.decision import ContinuousDecision
+from runtime.health import Health
+from runtime.model_watch import ModelWatcher, Rejection
+from runtime.quarantine import QuarantineStore
+from runtime.ring import RingBuffer
+from runtime.scene import scene_pads, scene_problem
+from runtime.sinks import ModelAnnouncement, SinkSet
+from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+from runtime.trigger_settings import TriggerSettings, build_trigger, resolve_trigger
+
+log = logging.getLogger("handover.daemon")
+
+DEFAULT_RATE_HZ = 32.0
+
+
+class ModelServing:
+    """Model swaps and the hot path's state fitted to the model, scene and layout.
+
+    Expects ``cfg``, ``health``, ``sinks``, ``quarantine``, ``layout``, ``grasp_closed`` and
+    ``_pending`` (the frames whose windows are due) on the instance.
+    """
+
+    cfg: Any
+    health: Health
+    sinks: SinkSet
+    quarantine: QuarantineStore
+    layout: SensorLayout | None
+    grasp_closed: bool | None
+    _pending: list[int]
+    model: Any
+    _fallback: Any
+    ring: RingBuffer | None
+    trigger: Any
+    trigger_settings: TriggerSettings | None
+    decision: ContinuousDecision | None
+    watcher: ModelWatcher | None
+    period_s: float
+
+    def serve(self, model: Any, layout: SensorLayout) -> None:
+        """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame``.
+
+        For replays, benchmarks and embedding: no device, no model watcher. Raises ValueError
+        when the model cannot serve the configured scene (the watcher's check, one line).
+        """
+        problem = scene_problem(model, self.cfg, layout)
+        if problem:
+            raise ValueError(f"model {model.model_id}: {problem}")
+        if layout != self.layout:
+            self.layout = layout
+            self.ring = None
+        self._use_model(model)
+
+    def _load(self, path: Path) -> Any:
+        from runtime.model import load_model
+
+        ox = self.cfg.onnxruntime
+        return load_model(path, max_bytes=self.cfg.model.max_bytes, intra_op_threads=ox.intra_op_threads,
+                          allow_spinning=ox.allow_spinning, warm_up=False)
+
+    def _rejected(self, rejection: Rejection) -> None:
+        self.health.models_rejected += 1
+        self.health.report_error(f"model {rejection.path.name} rejected: {rejection.reason}", "model")
+
+    def _start_watcher(self) -> None:
+        if self.watcher is not None:
+            self.watcher.stop()
+        self.watcher = ModelWatcher(
+            self.cfg.model.folder,
+            loader=self._load,
+            check=lambda m: scene_problem(m, self.cfg, self.layout),
+            poll_interval=self.cfg.model.poll_interval_s,
+            on_reject=self._rejected,
+            decision_budget=self.cfg.model.decision_budget,
+            quarantine=self.quarantine,
+        )
+        model = self.watcher.poll(require_stable=False)
+        self.watcher.take()
+        if model is not None:
+            self._use_model(model)
+        elif self.model is None:
+            log.warning("no valid model in %s yet; waiting for one (frames are read, nothing is classified)",
+                        self.cfg.model.folder)
+        self.watcher.start()
+
+    def _take_pending_model(self) -> None:
+        """Swap in the watcher's validated model, never between a trigger and its window's end."""
+        if self.watcher is not None and self.watcher.pending is not None and not self._pending:
+            model = self.watcher.take()
+            if model is not None:
+                self._use_model(model)
+
+    def _use_model(self, model: Any) -> None:
+        """Swap the serving model (one reference assignment), fit the hot path to it, announce it."""
+        old = self.model
+        if old is not None and old is not model:
+            self._fallback = old
+        self.model = model
+        self.health.model_id = model.model_id
+        self.health.models_loaded += 1
+        self.health.resolve("model")
+        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
+        self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        self._build_hot_path(keep_history=True)
+        what = "swapped in" if old is not None else "serving"
+        log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
+                 model.meta.T, ",".join(model.meta.classes))
+
+    def _build_hot_path(self, keep_history: bool) -> None:
+        """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""
+        if self.layout is None:
+            return
+        pads = scene_pads(self.cfg, self.model, self.layout)
+        cols = self.layout.columns(pads)
+        meta = self.model.meta if self.model is not None else None
+        T = int(meta.T) if meta else 15
+        settings = resolve_trigger(self.cfg.trigger, meta.trigger if meta else None)
+        self.trigger_settings = settings
+        capacity = max(64, 2 * (T + settings.pre_frames))
+        if self.ring is None or not keep_history or self.ring.columns.size != cols.size or not np.array_equal(
+            self.ring.columns, cols
+        ):
+            self.ring = RingBuffer(cols, capacity)
+        elif self.ring.capacity < capacity:
+            self.ring = self.ring.resized(capacity)
+        old = self.trigger
+        self.decision = None
+        if self.cfg.scene.mode == "continuous":
+            self.trigger = ContinuousTrigger(T)
+            if meta is not None and meta.dormant_class in meta.classes:
+                cc = self.cfg.continuous
+                self.decision = ContinuousDecision(
+                    len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
+                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
+        else:
+            fullscale = float(meta.fullscale) if meta else self.layout.fullscale
+            pad_sizes = self.layout.pad_sizes(pads)
+            self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s)
+            if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
+                self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
+            elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
+                self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
+        self._pending.clear()
+
+    def _take_out_of_service(self, model: Any, reason: str) -> None:
+        """A model broke the output contract at run time: one line, never load this file version
+        again (also after a restart), and serve the model it replaced, or none."""
+        h = self.health
+        h.models_quarantined += 1
+        (self.watcher or self.quarantine).quarantine_file(Path(model.path), reason)
+        fallback, self._fallback = self._fallback, None
+        if fallback is not None and scene_problem(fallback, self.cfg, self.layout):
+            fallback = None
+        h.report_error(f"model {Path(model.path).name} taken out of service: {reason}", "quarantine")
+        what = "no model serves until the watcher finds the next newest valid file or a new one is dropped"
+        if fallback is not None:
+            what = f"model {fallback.model_id} ({Path(fallback.path).name}) serves again"
+        log.error("model %s (%s) taken out of service: %s; it is not loaded again until the file changes; %s",
+                  model.model_id, Path(model.path).name, reason, what)
+        self.model, h.model_id = None, None
+        if fallback is not None:
+            self._use_model(fallback)  # announced to the sinks like any model that starts serving
+        else:
+            self._pending.clear()
+            if self.watcher is not None:
+                self.watcher.reconsider_older()

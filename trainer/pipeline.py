@@ -1,0 +1,174 @@
+"""Training as a library: ``train(TrainOptions(...)) -> TrainResult``.
+
+Load (or simulate) recordings, cut cases with the trigger the model will record, fit the
+estimator the options name (or the one ``--select`` chooses), evaluate it as in the paper against
+the hand-designed baseline, and write the report folder: report.md, metrics.json, figures,
+model.joblib and model.onnx. ``handover train`` and ``handover demo`` both call :func:`train`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from trainer.train_options import TrainOptions, build_estimator
+
+
+@dataclass
+class TrainResult:
+    """What one training run produced (the files are in ``out``)."""
+
+    out: Path
+    metrics: dict
+    onnx_written: bool
+    """False when the export was asked for and failed (the report is still written)."""
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.onnx_written else 1
+
+
+def say_to(quiet: bool) -> Callable[[str], None]:
+    """Progress messages on stderr, unless quiet."""
+
+    def say(text: str) -> None:
+        if not quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    return say
+
+
+def progress_bar(quiet: bool, desc: str, total: int):
+    from tqdm import tqdm
+
+    def wrap(iterable):  # bars only on a terminal: a redirected log gets no carriage-return clutter
+        return tqdm(iterable, desc=desc, total=total, file=sys.stderr, disable=quiet or not sys.stderr.isatty(),
+                    leave=False)
+
+    return wrap
+
+
+def load_or_simulate(data: str | None, seed: int, say: Callable[[str], None]) -> tuple[list, str, bool]:
+    """Recordings, a description of where they came from, and whether they are synthetic."""
+    from firmware_io.recording import find_recordings, load_all
+
+    if data:
+        paths = find_recordings(data)
+        if not paths:
+            raise FileNotFoundError(f"{data}: no .hrec recordings in this folder")
+        recs = load_all(paths)
+        synthetic = any(_looks_simulated(r.meta) for r in recs)
+        return recs, f"{len(paths)} recordings in {data}", synthetic
+    try:
+        from firmware_io.simulate import simulate_protocol
+    except ImportError as exc:
+        raise FileNotFoundError(f"no --data given and the simulator is not available ({exc})") from None
+    say(f"simulating the paper's protocol (seed {seed}) ...")
+    recs = simulate_protocol(seed=seed)
+    return recs, f"simulated protocol, firmware_io.simulate.simulate_protocol(seed={seed})", True
+
+
+def _looks_simulated(meta: dict) -> bool:
+    text = json.dumps(meta, default=str).lower()
+    return bool(meta.get("synthetic")) or "simulat" in text or "synthetic" in text
+
+
+def train(options: TrainOptions) -> TrainResult:
+    """Train, evaluate and export as ``options`` say; raises OptionsError for options that cannot
+    train, and RecordingError, DatasetError, LayoutError, OSError or ValueError for data that cannot."""
+    from trainer import report
+    from trainer.dataset import build_dataset, dataset_trigger
+    from trainer.evaluation import tsne_embedding
+    from trainer.train_outputs import figures, headline, metrics_of, write_model
+
+    options.check()
+    t0 = time.perf_counter()
+    say = say_to(options.quiet)
+    out = Path(options.out)
+    out.mkdir(parents=True, exist_ok=True)
+    recordings, source, synthetic = load_or_simulate(options.data, options.seed, say)
+    ds = build_dataset(recordings, T=options.T, pads=options.pads,
+                       trigger=dataset_trigger(options.trigger, options.fraction))
+    summary = ds.summary()
+    say(f"{ds.n_trials} trials, {len(ds.y)} cases, {ds.n_untriggered} untriggered "
+        f"{summary['untriggered_reasons'] or ''}")
+    if len(set(ds.y.tolist())) < 2 or len(ds.y) < 10:
+        raise ValueError(f"only {len(ds.y)} triggered cases of {len(set(ds.y.tolist()))} classes: too few to train")
+    selection = None
+    if options.select:
+        from trainer.select import select_model
+
+        selection = select_model(ds, options, say=say)
+        estimator = selection.estimator
+    else:
+        estimator = build_estimator(options, ds)
+    say("training the final model on all cases ...")
+    model = estimator.fit(ds.X, ds.y)
+    evaluation = evaluate(options, ds, estimator, say)
+    sweep = None if options.no_sweep else _sweeps(options, recordings, out, say)
+    say(f"t-SNE of the {report.features_label(getattr(model, 'families', ('bow',)))} ...")
+    embedding = tsne_embedding(model.transform_histograms(ds.X), seed=options.seed)
+    metrics = metrics_of(options, ds, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
+    onnx_ok = write_model(options, ds, model, metrics, out)
+    say("writing figures and the report ...")
+    shown = figures(options, ds, embedding, metrics, out)
+    metrics["seconds"] = round(time.perf_counter() - t0, 1)
+    metrics["command"] = options.command_line()
+    report.write_metrics(out, metrics)
+    md_path = report.write_markdown(out, metrics, metrics["command"], shown)
+    if selection is not None:
+        from trainer.select import markdown_lines
+
+        md_path.write_text(md_path.read_text() + "\n".join(markdown_lines(selection)) + "\n")
+    if not options.quiet:
+        print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
+              file=sys.stderr if options.json else sys.stdout)
+    return TrainResult(out, metrics, onnx_ok)
+
+
+def evaluate(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -> dict[str, Any]:
+    """The paper's two configurations for the estimator and the hand-designed baseline."""
+    from trainer.baseline import BaselineSVC
+    from trainer.evaluation import config1, config2
+
+    shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
+    base = BaselineSVC(pad_shapes=shapes, kernel="rbf")
+    seeds = list(range(options.seed, options.seed + options.repeats))
+    n_subjects = len(set(ds.groups.tolist()))
+    say("evaluating (configuration 1, leave one subject out, baseline) ...")
+    q = options.quiet
+    return {
+        "config1": config1(estimator, ds.X, ds.y, seeds=seeds, progress=progress_bar(q, "config 1 (BoW)", len(seeds))),
+        "config2": config2(estimator, ds.X, ds.y, ds.groups, progress=progress_bar(q, "LOSO (BoW)", n_subjects)),
+        "baseline_config1": config1(base, ds.X, ds.y, seeds=seeds,
+                                    progress=progress_bar(q, "config 1 (baseline)", len(seeds))),
+        "baseline_config2": config2(base, ds.X, ds.y, ds.groups,
+                                    progress=progress_bar(q, "LOSO (baseline)", n_subjects)),
+    }
+
+
+def _sweeps(options: TrainOptions, recordings, out: Path, say: Callable[[str], None]) -> dict | None:
+    from trainer.sweeps import QUICK_K, QUICK_T, QUICK_W, run_sweeps
+
+    path = Path(options.sweep_file) if options.sweep_file else out / "sweep.json"
+    if path.is_file():
+        say(f"sweep results from {path}")
+        try:
+            return json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise FileNotFoundError(f"{path}: not a sweep result ({exc})") from None
+    if options.sweep_file:
+        raise FileNotFoundError(f"{path}: no such sweep result")
+    base = {"K": options.K, "W": options.W, "T": options.T, "seed": options.seed, "per_pad": options.per_pad}
+    seeds = (options.seed, options.seed + 1)
+    n = len(QUICK_K) + len(QUICK_W) + len(QUICK_T)
+    say("small built-in sweep of K, W, T (`handover sweep` runs the full one) ...")
+    result = run_sweeps(recordings, base, QUICK_K, QUICK_W, QUICK_T, [options.svm_kernel], options.pads,
+                        options.fraction, mode="config1", seeds=seeds, progress=progress_bar(options.quiet, "sweep", n))
+    result["description"] = "Small built-in sweep. " + result["description"]
+    return result

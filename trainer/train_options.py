@@ -1,0 +1,195 @@
+"""What ``handover train`` can be asked for, as one frozen dataclass, and the estimator it names.
+
+Parameters apart from fitted state (as scikit-learn separates them): ``handover train`` turns its
+arguments into :class:`TrainOptions` once (``trainer.train_cli``); the demo and library users build
+one directly and call ``trainer.pipeline.train``. The model's defaults come from the product
+default (``trainer.defaults.DEFAULT_MODEL``); the argparse defaults come from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
+
+KERNELS = ("rbf", "linear")
+ASSIGNMENTS = ("hard", "soft")
+TRIGGERS = ("onset", "threshold")
+
+
+class OptionsError(ValueError):
+    """Options that cannot train; the message names the option as the command spells it."""
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """Every option of ``handover train`` (the field names are the command's, ``--no-per-pad`` is
+    ``per_pad=False``). ``quiet`` silences progress on stderr; ``json`` sends the headline to stderr
+    (the command prints the metrics as JSON on stdout)."""
+
+    data: str | None = None
+    out: str = "report"
+    pads: str = str(DEFAULT_MODEL["pads"])
+    K: int = int(DEFAULT_MODEL["K"])
+    W: int = int(DEFAULT_MODEL["W"])
+    T: int = int(DEFAULT_MODEL["T"])
+    features: tuple[str, ...] | None = None
+    """Feature families; None: bow alone when a BoW-only option is given, else the product default."""
+    kernel: str | None = None
+    """SVM kernel; None: linear for bow alone, else the product default's."""
+    C: float | None = None
+    gamma: float | None = None
+    per_pad: bool = bool(DEFAULT_MODEL["per_pad"])
+    select: bool = False
+    latency_budget_us: float | None = None
+    windows: tuple[int, ...] | None = None
+    """Several BoW window lengths at once (replaces W)."""
+    assignment: str = "hard"
+    temperature: float = 1.0
+    level_features: bool = False
+    scale_features: bool = False
+    trigger: str | None = None
+    fraction: float | None = None
+    seed: int = 0
+    repeats: int = 5
+    sweep_file: str | None = None
+    no_sweep: bool = False
+    no_onnx: bool = False
+    json: bool = False
+    quiet: bool = False
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    @property
+    def bow_only(self) -> bool:
+        """An option only the BoW family reads (or ``--no-per-pad``, the paper's configuration)."""
+        return bool(not self.per_pad or self.windows or self.assignment != "hard" or self.level_features
+                    or self.scale_features)
+
+    @property
+    def families(self) -> tuple[str, ...]:
+        """``features``, else bow alone when a BoW-only option is given, else the product default."""
+        if self.features:
+            return tuple(self.features)
+        return ("bow",) if self.bow_only else tuple(DEFAULT_MODEL["families"])
+
+    @property
+    def svm_kernel(self) -> str:
+        """``kernel``, else linear for bow alone (BowSVC's product setting), else the default's kernel."""
+        if self.kernel:
+            return self.kernel
+        return BOW_ALONE_KERNEL if self.families == ("bow",) else str(DEFAULT_MODEL["kernel"])
+
+    @property
+    def window(self) -> int | tuple[int, ...]:
+        """The BoW window option: ``windows`` (one length: an int, the paper's single codebook), else W."""
+        if not self.windows:
+            return self.W
+        return self.windows[0] if len(self.windows) == 1 else tuple(self.windows)
+
+    def estimator_options(self) -> dict:
+        """The BowSVC keyword arguments of the options beyond the paper (paper's values by default)."""
+        return {"window": self.window, "assignment": self.assignment, "temperature": self.temperature,
+                "level_features": self.level_features, "scale_features": self.scale_features}
+
+    def check(self) -> None:
+        """Raise OptionsError (one line naming the option) for values that cannot train."""
+        if self.K < 1 or self.W < 1 or self.T < 2:
+            raise OptionsError(f"K, W must be >= 1 and T >= 2 (got K={self.K}, W={self.W}, T={self.T})")
+        if self.features is not None:
+            check_families(self.features, ",".join(self.features))
+        uses_bow = "bow" in self.families
+        if uses_bow and self.T - 1 < self.W:  # W is the BoW window: other families do not read it
+            raise OptionsError(f"W={self.W} needs T >= {self.W + 1} (got T={self.T})")
+        if self.repeats < 2:
+            raise OptionsError("--repeats must be at least 2 (mean +/- std)")
+        if self.windows is not None:
+            check_windows(self.windows, ",".join(str(w) for w in self.windows))
+            if uses_bow and max(self.windows) > self.T - 1:
+                raise OptionsError(f"--windows {','.join(str(w) for w in self.windows)} needs T >= "
+                                   f"{max(self.windows) + 1} (got T={self.T})")
+        if not self.temperature > 0:
+            raise OptionsError(f"--temperature must be positive (got {self.temperature})")
+        if self.latency_budget_us is not None and not self.latency_budget_us > 0:
+            raise OptionsError(f"--latency-budget-us must be positive (got {self.latency_budget_us})")
+        for name, value, allowed in (("--kernel", self.kernel, KERNELS), ("--assignment", self.assignment, ASSIGNMENTS),
+                                     ("--trigger", self.trigger, TRIGGERS)):
+            if value is not None and value not in allowed:
+                raise OptionsError(f"{name} {value!r}: use one of {', '.join(allowed)}")
+
+    def command_line(self) -> str:
+        """The exact command that reproduces this run (written at the top of the report)."""
+        parts = ["handover", "train"]
+        if self.data:
+            parts += ["--data", str(self.data)]
+        parts += ["--out", str(self.out), "--pads", self.pads, "--K", str(self.K), "--W", str(self.W),
+                  "--T", str(self.T), "--features", ",".join(self.families), "--kernel", self.svm_kernel,
+                  "--seed", str(self.seed), "--repeats", str(self.repeats)]
+        if self.trigger:
+            parts += ["--trigger", self.trigger]
+        if self.fraction is not None:
+            parts += ["--fraction", str(self.fraction)]
+        for flag, value in (("--C", self.C), ("--gamma", self.gamma), ("--sweep", self.sweep_file)):
+            if value is not None:
+                parts += [flag, str(value)]
+        if self.windows:
+            parts += ["--windows", ",".join(str(w) for w in self.windows)]
+        if self.assignment != "hard":
+            parts += ["--assignment", self.assignment, "--temperature", str(self.temperature)]
+        parts.append("--per-pad" if self.per_pad else "--no-per-pad")
+        if self.select:
+            parts.append("--select")
+            if self.latency_budget_us is not None:
+                parts += ["--latency-budget-us", str(self.latency_budget_us)]
+        for flag, on in (("--level-features", self.level_features), ("--scale-features", self.scale_features),
+                         ("--no-sweep", self.no_sweep), ("--no-onnx", self.no_onnx)):
+            if on:
+                parts.append(flag)
+        return " ".join(parts)
+
+
+def parse_features(text: str) -> tuple[str, ...]:
+    """``"stats,bow"`` -> ("stats", "bow"); OptionsError for unknown or repeated names."""
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    check_families(names, text)
+    return names
+
+
+def check_families(names: tuple[str, ...], shown: str) -> None:
+    from trainer.feature_svc import FAMILIES
+
+    bad = [n for n in names if n not in FAMILIES]
+    if not names or bad or len(set(names)) != len(names):
+        raise OptionsError(f"--features {shown!r}: give distinct names from {', '.join(FAMILIES)}, e.g. stats,bow")
+
+
+def parse_windows(text: str) -> tuple[int, ...]:
+    """``"5,7,9"`` -> (5, 7, 9); OptionsError for anything else."""
+    try:
+        lengths = tuple(int(p) for p in text.split(",") if p.strip())
+    except ValueError:
+        raise OptionsError(f"--windows {text!r}: give window lengths separated by commas, e.g. 5,7,9") from None
+    check_windows(lengths, text)
+    return lengths
+
+
+def check_windows(lengths: tuple[int, ...], shown: str) -> None:
+    if not lengths or min(lengths) < 1 or len(set(lengths)) != len(lengths):
+        raise OptionsError(f"--windows {shown!r}: lengths must be distinct integers >= 1")
+
+
+def build_estimator(options: TrainOptions, ds):
+    """BowSVC for bow alone (every paper option), else FeatureSVC over the chosen families."""
+    from trainer.classifier import BowSVC
+    from trainer.feature_svc import FeatureSVC
+
+    o = options
+    if o.families == ("bow",):
+        return BowSVC(n_words=o.K, kernel=o.svm_kernel, C=o.C, gamma=o.gamma, per_pad=o.per_pad,
+                      pad_sizes=ds.pad_sizes if (o.per_pad or o.level_features) else None,
+                      random_state=o.seed, fullscale=ds.fullscale, **o.estimator_options())
+    shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
+    return FeatureSVC(families=o.families, pad_sizes=tuple(ds.pad_sizes), pad_shapes=shapes, kernel=o.svm_kernel,
+                      C=o.C, gamma=o.gamma, n_words=o.K, window=o.W, random_state=o.seed, fullscale=ds.fullscale)

@@ -1,0 +1,177 @@
+"""What a training run leaves behind: the metrics, the model files with their card, the figures
+and the headline on the terminal (``trainer.pipeline.train`` calls these in that order)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from trainer.train_options import TrainOptions
+
+
+def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict | None, selection, *, source: str,
+               synthetic: bool) -> dict:
+    """metrics.json: where the data came from, both configurations against the baseline, the settings."""
+    from trainer.classifier import margin_report
+
+    c1, c2 = evaluation["config1"], evaluation["config2"]
+    b1, b2 = evaluation["baseline_config1"], evaluation["baseline_config2"]
+    window = options.window
+    windows = [int(w) for w in window] if isinstance(window, tuple) else [int(window)]
+    return {
+        "synthetic": synthetic,
+        "data": source,
+        "fingerprint": ds.fingerprint,
+        "config1_accuracy_mean": c1["mean"],
+        "config1_accuracy_std": c1["std"],
+        "loso_accuracy": c2["accuracy"],
+        "loso_per_subject": c2["per_subject"],
+        "loso_subject_std": c2["subject_std"],
+        "baseline_config1_accuracy_mean": b1["mean"],
+        "baseline_config1_accuracy_std": b1["std"],
+        "baseline_loso_accuracy": b2["accuracy"],
+        "baseline_loso_subject_std": b2["subject_std"],
+        "K": options.K, "W": max(windows), "windows": windows, "T": options.T, "kernel": model.kernel,
+        "families": list(getattr(model, "families", ("bow",))), "selection": selection and selection.to_dict(),
+        "per_pad": options.per_pad, "pads": options.pads, "trigger_fraction": ds.fraction,
+        "trigger": ds.trigger.to_meta(), "trigger_hysteresis": ds.hysteresis, "seed": options.seed,
+        "best_params": model.best_params_,
+        "svm_margin": margin_report(model.svm_),
+        "n_trials": ds.n_trials, "n_cases": len(ds.y), "n_untriggered": ds.n_untriggered,
+        "n_windows_before_onset": ds.windows_before_onset,
+        "untriggered": [s.to_dict() for s in ds.untriggered],
+        "dataset": ds.summary(),
+        "config1": c1, "config2": c2, "baseline_config1": b1, "baseline_config2": b2,
+        "sweep": sweep,
+    }
+
+
+def write_model(options: TrainOptions, ds, model, metrics: dict, out: Path) -> bool:
+    """model.joblib and (unless ``no_onnx``) model.onnx; sets ``metrics["onnx"]``. False: the export failed."""
+    import joblib
+
+    model_meta = model_metadata(options, ds, metrics)
+    joblib_path = out / "model.joblib"
+    joblib.dump({"model": model, "metadata": model_meta}, joblib_path)
+    if options.no_onnx:
+        metrics["onnx"] = None
+        return True
+    onnx_ok, metrics["onnx"] = _export_onnx(model, model_meta, joblib_path, out)
+    return onnx_ok
+
+
+def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
+    """What the model file must carry besides the estimator: pads, trigger, provenance, evaluation.
+
+    Kept in model.joblib (``{"model": ..., "metadata": ...}``) so ``handover export`` of that
+    file writes the same model card as ``train``.
+    """
+    from runtime import __version__
+
+    rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
+    # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
+    folder = {"data_folder": str(Path(options.data).resolve())} if options.data else {}
+    return {
+        "pads": list(ds.pads),
+        "pad_sizes": list(ds.pad_sizes),
+        "fullscale": ds.fullscale,
+        "trigger": ds.trigger.to_meta(),
+        "sample_rate_hz": rate,
+        "training": {
+            "data_fingerprint": ds.fingerprint,
+            "data": metrics["data"],
+            **folder,
+            "synthetic": metrics["synthetic"],
+            "n_trials": ds.n_trials,
+            "n_cases": len(ds.y),
+            "n_untriggered": ds.n_untriggered,
+            "project_version": __version__,
+            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "seed": options.seed,
+            "C": metrics["best_params"].get("C"),
+            "gamma": metrics["best_params"].get("gamma"),
+            "hard_margin": metrics["svm_margin"]["hard_margin"],
+            "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
+        },
+        "evaluation": {
+            "synthetic": metrics["synthetic"],
+            "config1_accuracy_mean": metrics["config1_accuracy_mean"],
+            "config1_accuracy_std": metrics["config1_accuracy_std"],
+            "config1_split": metrics["config1"]["split"],
+            "loso_accuracy": metrics["loso_accuracy"],
+            "loso_per_subject": metrics["loso_per_subject"],
+            "baseline_loso_accuracy": metrics["baseline_loso_accuracy"],
+        },
+    }
+
+
+def _export_onnx(model, meta: dict, joblib_path: Path, out: Path) -> tuple[bool, str]:
+    """model.onnx beside model.joblib, whose sha256 it records as ``reference`` (so ``handover verify``
+    refuses a mismatching pair). A failure is reported on stderr and makes ``train`` exit 1."""
+    import hashlib
+
+    from trainer.onnx_export import export_onnx
+
+    digest = hashlib.sha256(joblib_path.read_bytes()).hexdigest()
+    meta = {**meta, "reference": {"file": joblib_path.name, "sha256": digest}}
+    try:
+        path = export_onnx(model, out / "model.onnx", meta)
+    except Exception as exc:  # the report is still worth having; say what failed, exit non-zero
+        print(f"handover train: model.onnx not written: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return False, f"export failed: {type(exc).__name__}: {exc}"
+    return True, f"written ({path.name}, {path.stat().st_size} bytes)"
+
+
+def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> dict[str, str]:
+    """The report's PNGs, by caption -> file name."""
+    from trainer import report
+
+    synthetic = metrics["synthetic"]
+    c1, c2 = metrics["config1"], metrics["config2"]
+    tag = " (synthetic)" if synthetic else ""
+    shown = {
+        "Confusion matrix, configuration 1": report.plot_confusion(
+            c1["confusion"], c1["labels"], f"config 1: pooled 80/20, {options.repeats} seeds{tag}",
+            out / "confusion_config1.png").name,
+        "Confusion matrix, configuration 2": report.plot_confusion(
+            c2["confusion"], c2["labels"], f"config 2: leave one subject out{tag}", out / "confusion_loso.png").name,
+        f"{report.model_label(metrics['families'])} vs the hand-designed baseline": report.plot_model_vs_baseline(
+            metrics, out / "model_vs_baseline.png", synthetic).name,
+        f"t-SNE of the {report.features_label(metrics['families'])}": report.plot_tsne(
+            embedding, ds.y, out / "tsne.png", synthetic, metrics["families"]).name,
+    }
+    sweep = metrics["sweep"]
+    if sweep:
+        values = {"K": options.K, "W": options.W, "T": options.T}
+        for param in ("K", "W", "T"):
+            rows = [r for r in sweep["rows"] if r["param"] == param]
+            if rows:
+                fixed = ", ".join(f"{p}={values[p]}" for p in ("K", "W", "T") if p != param)
+                shown[f"Accuracy vs {param}"] = report.plot_sweep(
+                    rows, param, fixed, out / f"sweep_{param}.png", synthetic).name
+    return shown
+
+
+def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
+    """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
+    from trainer.report import pct, pooled_text
+
+    tag = "synthetic data, " if metrics["synthetic"] else ""
+    model = out / "model.onnx"
+    # K (words) and W (derivative window) mean something only to the BoW family
+    bow = f"K={metrics['K']} W={metrics['W']} " if "bow" in metrics["families"] else ""
+    lines = [
+        f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
+        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}, {bow}"
+        f"T={metrics['T']} {metrics['kernel']} SVM"
+        + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
+        f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
+        f"{pct(metrics['baseline_loso_accuracy'])})",
+        f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
+        f"{pct(metrics['baseline_config1_accuracy_mean'])})",
+        f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
+        f"  model:  {model} (handover inspect {model}; drop it into the daemon's model folder, deploy/INSTALL.md)"
+        if onnx_written else "  model:  no model.onnx written (model.joblib only)",
+    ]
+    return "\n".join(lines)
