@@ -116,7 +116,7 @@ def test_default_classifier_fits_and_predicts(n_frames):
 
 def test_select_chooses_within_the_budget_and_reports_runners_up():
     import tempfile
-    from argparse import Namespace
+    from dataclasses import replace
     from pathlib import Path
 
     from tests.protocol_standin import write_standin
@@ -128,8 +128,9 @@ def test_select_chooses_within_the_budget_and_reports_runners_up():
         from firmware_io.recording import find_recordings, load_all
 
         ds = build_dataset(load_all(find_recordings(tmp)), T=12, pads="distal")
-    args = Namespace(K=5, W=4, C=None, gamma=None, seed=0, per_pad=True, level_features=False, windows=None,
-                     assignment="hard", temperature=1.0, scale_features=False, latency_budget_us=None)
+    from trainer.train_options import TrainOptions
+
+    args = TrainOptions(K=5, W=4, T=12, pads="distal")
     candidates = (("stats rbf", ("stats",), "rbf", {}), ("stats+bow rbf", ("stats", "bow"), "rbf", {}))
     sel = select_model(ds, args, candidates=candidates)
     assert sel.split == "leave one subject out" and {r.name for r in sel.rows} == {"stats rbf", "stats+bow rbf"}
@@ -138,7 +139,7 @@ def test_select_chooses_within_the_budget_and_reports_runners_up():
     assert sel.winner == best.name and sel.estimator.families == best.families
     assert any("(winner)" in line for line in markdown_lines(sel))
     # a budget nothing meets: the rule still names the most accurate, and says none is within it
-    sel = select_model(ds, Namespace(**{**vars(args), "latency_budget_us": 0.001}), candidates=candidates)
+    sel = select_model(ds, replace(args, latency_budget_us=0.001), candidates=candidates)
     assert not any(r.within_budget for r in sel.rows)
 
 
