@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "run": ("runtime.daemon_cli", "the detection daemon (systemd service)", None),
     "record": ("firmware_io.record_cli", "record a subject session following the paper's protocol", None),
     "plot": ("trainer.plot_cli", "plot a trial of a recording", "train"),
-    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput, hostile, streams, soak (MiniRocket needs [bench])", "train"),
+    "bench": ("trainer.bench_cli", "benchmarks: pareto, latency, throughput, hostile, streams, soak, decode, inference, ros2 (MiniRocket needs [bench])", "train"),
     "compare": ("trainer.compare_cli", "side by side: paper BoW, richer options, baseline, flattened SVM, MiniRocket (accuracy + latency)", "train"),
     "dormant": ("trainer.dormant_cli", "dormant class + continuous mode vs the threshold trigger on long simulated streams", "train"),
 }

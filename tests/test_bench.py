@@ -110,3 +110,25 @@ def test_bad_duration_is_one_line(tmp_path, capsys):
     assert bench_cli.main(_args("latency", tmp_path, "--duration", "-1")) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("handover bench: --duration")
+
+
+def test_decode_quick(tmp_path, capsys):
+    printed, result = _run("decode", tmp_path, capsys, "--synthetic")
+    assert result["synthetic"] is True and "--synthetic" in result["command"]
+    for enc in ("rle", "raw"):
+        assert result[enc]["frames"] == 400 and result[enc]["payload"]["frames_per_s_median"] > 0
+    assert printed["rle_frames_per_s"] == result["rle_frames_per_s"]
+
+
+@pytest.mark.slow
+def test_inference_quick(tmp_path, capsys):
+    printed, result = _run("inference", tmp_path, capsys)
+    assert result["onnx_us"]["n"] == 200 and result["sklearn_us"]["n"] == 200
+    assert printed["speedup_median"] == pytest.approx(result["speedup_median"])
+
+
+@pytest.mark.slow
+def test_ros2_quick(tmp_path, capsys):
+    pytest.importorskip("rclpy", reason="needs a sourced ROS 2 (rclpy)")
+    _printed, result = _run("ros2", tmp_path, capsys)
+    assert result["events_received"] == result["events_sent"] > 0 and result["pad_images_lost"] == 0

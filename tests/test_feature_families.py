@@ -122,24 +122,23 @@ def test_select_chooses_within_the_budget_and_reports_runners_up():
     from tests.protocol_standin import write_standin
     from trainer.dataset import build_dataset
     from trainer.select import markdown_lines, select_model
+    from trainer.train_options import TrainOptions
 
     with tempfile.TemporaryDirectory() as tmp:
         write_standin(Path(tmp), n_subjects=3, runs=2, silent=0)
         from firmware_io.recording import find_recordings, load_all
 
         ds = build_dataset(load_all(find_recordings(tmp)), T=12, pads="distal")
-    from trainer.train_options import TrainOptions
-
-    args = TrainOptions(K=5, W=4, T=12, pads="distal")
+    options = TrainOptions(K=5, W=4)
     candidates = (("stats rbf", ("stats",), "rbf", {}), ("stats+bow rbf", ("stats", "bow"), "rbf", {}))
-    sel = select_model(ds, args, candidates=candidates)
+    sel = select_model(ds, options, candidates=candidates)
     assert sel.split == "leave one subject out" and {r.name for r in sel.rows} == {"stats rbf", "stats+bow rbf"}
     assert all(len(r.fold_accuracies) == 3 and r.p99_us > 0 for r in sel.rows)
     best = max((r for r in sel.rows if r.within_budget), key=lambda r: round(r.mean, 3))
     assert sel.winner == best.name and sel.estimator.families == best.families
     assert any("(winner)" in line for line in markdown_lines(sel))
     # a budget nothing meets: the rule still names the most accurate, and says none is within it
-    sel = select_model(ds, replace(args, latency_budget_us=0.001), candidates=candidates)
+    sel = select_model(ds, replace(options, latency_budget_us=0.001), candidates=candidates)
     assert not any(r.within_budget for r in sel.rows)
 
 

@@ -1,4 +1,5 @@
-"""``handover bench pareto|latency|throughput|hostile|streams|all|soak``: the benchmarks, results in results/.
+"""``handover bench pareto|latency|throughput|hostile|streams|all|soak|decode|inference|ros2``: the
+benchmarks (trainer/bench/, their one home), results in results/.
 
 Each benchmark writes ``<out>/<name>.json`` and ``.md`` (+ ``.png`` where a plot fits) with
 the machine it ran on and the command that reproduces it. ``--json`` prints the headline
@@ -15,6 +16,10 @@ import sys
 
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
+"""What ``all`` runs (``./dev bench``)."""
+SINGLE = ("soak", "decode", "inference", "ros2")
+"""Run only by name: soak runs for hours; decode pins itself to one core; inference compares with
+scikit-learn on a small BoW model; ros2 needs a sourced ROS 2."""
 HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
             "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
             "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn",
@@ -23,12 +28,14 @@ HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "
             "replay_frames_per_s", "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "hostile_failures",
             "default_setting", "demo_events_correct_fraction", "demo_events_outside", "sim_event_f1", "real_idle_hours",
             "real_idle_false_events_per_hour", "continuous_hold_recall", "continuous_events_correct_fraction",
-            "onset_to_report_median_frames")
+            "onset_to_report_median_frames", "rle_frames_per_s", "raw_frames_per_s", "speedup_median",
+            "ros2_event_p99_us")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("which", choices=(*BENCHMARKS, "all", "soak"),
-                        help="which benchmark to run ('all' = every one but soak, which runs for hours)")
+    parser.add_argument("which", choices=(*BENCHMARKS, "all", *SINGLE),
+                        help=f"which benchmark to run ('all' = {', '.join(BENCHMARKS)}; {', '.join(SINGLE)} run only "
+                        "by name)")
     parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
@@ -39,6 +46,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hours", type=float, default=None,
                         help="soak: hours against the emulator with faults injected (default 1, --quick 0.01)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    parser.add_argument("--frames", type=int, default=None, help="decode: frames to encode and decode (default 4000)")
+    parser.add_argument("--repeats", type=int, default=None,
+                        help="decode: timed runs (default 7); inference: graph calls (default 5000)")
+    parser.add_argument("--synthetic", action="store_true", help="decode: skip the real recordings")
+    parser.add_argument("--model", help="inference: an exported .onnx with its .joblib beside it (default: train one)")
+    parser.add_argument("--seconds", type=float, default=None, help="ros2: seconds of streaming (default 60)")
+    parser.add_argument("--speed", type=float, default=None, help="ros2: sim:// speed-up (default 16)")
+    parser.add_argument("--pad-rate", type=float, default=None, help="ros2: [ros2] pad_rate_hz (default 32)")
     parser.add_argument("--rerender", action="store_true",
                         help="pareto: re-mark the default and rewrite .md/.png from OUT/pareto.json (no measuring)")
 
@@ -55,6 +70,10 @@ def main(args: argparse.Namespace) -> int:
         return _fail(f"--duration must be positive, got {args.duration}")
     if args.hours is not None and not 0 < args.hours <= 168:
         return _fail(f"--hours must be in (0, 168], got {args.hours}")
+    for flag, value in (("--frames", args.frames), ("--repeats", args.repeats), ("--seconds", args.seconds),
+                        ("--speed", args.speed), ("--pad-rate", args.pad_rate)):
+        if value is not None and not value > 0:
+            return _fail(f"{flag} must be positive, got {value}")
     args.say = progress(args.quiet)
     which = BENCHMARKS if args.which == "all" else (args.which,)
     figures: dict = {}

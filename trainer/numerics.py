@@ -70,23 +70,36 @@ def codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool 
     return rel, gap
 
 
-def _codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool) -> tuple[np.ndarray, np.ndarray]:
-    codebook = np.asarray(codebook, dtype=np.float64)
-    n_words, window = codebook.shape
+def squared_distances(X: np.ndarray, codebook: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The derivative windows ``(n, c, S, W)`` of float64 ``X`` ``(n, c, T)`` and their float64 squared
+    distances to every codeword ``(n, c, S, K)`` (expanded form, not clipped at 0: what every
+    reference here starts from)."""
     deriv = X[:, :, 1:] - X[:, :, :-1]
-    win = np.lib.stride_tricks.sliding_window_view(deriv, window, axis=2)  # (n, c, S, W)
-    sqnorm = (codebook**2).sum(axis=1)
+    win = np.lib.stride_tricks.sliding_window_view(deriv, codebook.shape[1], axis=2)  # (n, c, S, W)
     # expanded form is fine in float64: its rounding (~1e-16 * scale) is far below the float32 bound
-    dist = np.maximum((win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + sqnorm, 0.0)  # (n, c, S, K)
+    return win, (win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + (codebook**2).sum(axis=1)
+
+
+def distance_error_bounds(X: np.ndarray, win: np.ndarray, codebook: np.ndarray, fold_derivative: bool) -> np.ndarray:
+    """``E_k``, the float32 error bound of the graph's ``f_k`` for every window and codeword ``(n, c, S, K)``
+    (raw values and the folded kernel when the graph folds the derivative)."""
+    n_words, window = codebook.shape
+    sqnorm = (codebook**2).sum(axis=1)
     if fold_derivative:
         padded = np.zeros((n_words, window + 2))
         padded[:, 1:-1] = codebook
         kernel = np.abs(padded[:, :-1] - padded[:, 1:])  # (K, W+1)
         raw = np.lib.stride_tricks.sliding_window_view(X, window + 1, axis=2)
-        scale = sqnorm + 2.0 * np.abs(raw) @ kernel.T
-    else:
-        scale = sqnorm + 2.0 * np.abs(win) @ np.abs(codebook).T
-    err = gamma(window + 3) * scale  # (n, c, S, K)
+        return gamma(window + 3) * (sqnorm + 2.0 * np.abs(raw) @ kernel.T)
+    return gamma(window + 3) * (sqnorm + 2.0 * np.abs(win) @ np.abs(codebook).T)
+
+
+def _codeword_margins(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool) -> tuple[np.ndarray, np.ndarray]:
+    codebook = np.asarray(codebook, dtype=np.float64)
+    n_words = codebook.shape[0]
+    win, dist = squared_distances(X, codebook)
+    dist = np.maximum(dist, 0.0)  # (n, c, S, K)
+    err = distance_error_bounds(X, win, codebook, fold_derivative)
     best = np.argmin(dist, axis=-1)[..., None]
     d_best = np.take_along_axis(dist, best, axis=-1)
     e_best = np.take_along_axis(err, best, axis=-1)
@@ -104,9 +117,7 @@ def window_codewords(X: np.ndarray, codebook: np.ndarray, fold_derivative: bool 
     margin (as ``codeword_margins``): what the graph's ArgMin must reproduce window by window."""
     X64 = np.asarray(X, dtype=np.float64)
     codebook = np.asarray(codebook, dtype=np.float64)
-    deriv = X64[:, :, 1:] - X64[:, :, :-1]
-    win = np.lib.stride_tricks.sliding_window_view(deriv, codebook.shape[1], axis=2)
-    dist = (win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + (codebook**2).sum(axis=1)
+    _, dist = squared_distances(X64, codebook)
     rel, _ = codeword_margins(X64, codebook, fold_derivative)
     return np.argmin(dist, axis=-1), rel
 
@@ -179,19 +190,10 @@ def soft_histogram_bounds(X: np.ndarray, codebook: np.ndarray, tau: float, pad_s
 
     X = np.asarray(X, dtype=np.float64)
     codebook = np.asarray(codebook, dtype=np.float64)
-    n_words, window = codebook.shape
-    deriv = X[:, :, 1:] - X[:, :, :-1]
-    win = np.lib.stride_tricks.sliding_window_view(deriv, window, axis=2)  # (n, c, S, W)
-    sqnorm = (codebook**2).sum(axis=1)
-    dist = np.maximum((win**2).sum(axis=-1)[..., None] - 2.0 * win @ codebook.T + sqnorm, 0.0)
-    if fold_derivative:
-        padded = np.zeros((n_words, window + 2))
-        padded[:, 1:-1] = codebook
-        kernel = np.abs(padded[:, :-1] - padded[:, 1:])
-        raw = np.lib.stride_tricks.sliding_window_view(X, window + 1, axis=2)
-        err = gamma(window + 3) * (sqnorm + 2.0 * np.abs(raw) @ kernel.T)
-    else:
-        err = gamma(window + 3) * (sqnorm + 2.0 * np.abs(win) @ np.abs(codebook).T)
+    n_words = codebook.shape[0]
+    win, dist = squared_distances(X, codebook)
+    dist = np.maximum(dist, 0.0)
+    err = distance_error_bounds(X, win, codebook, fold_derivative)
     best = np.argmin(dist, axis=-1)[..., None]
     e_best = np.take_along_axis(err, best, axis=-1)
     z = -(dist - np.take_along_axis(dist, best, axis=-1)) / tau

@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.model import CODEWORD_KERNEL
+
 OPSET = 17
 IR_VERSION = 8
 HISTOGRAM = "histogram"
@@ -140,7 +142,7 @@ def _scale_nodes(g: _Graph, x4: str, deriv: str | None, active: str, codebook: n
         kernel, signal = -2.0 * (padded[:, :-1] - padded[:, 1:]), x4
     else:
         kernel, signal = -2.0 * codebook, deriv
-    weights = g.const("codeword_kernel", kernel.reshape(n_words, 1, -1, 1))
+    weights = g.const(CODEWORD_KERNEL, kernel.reshape(n_words, 1, -1, 1))
     scores = g.op("Conv", [signal, weights, g.const("codeword_sqnorm", bias)], "word_scores")  # [N, K, S, C]
     if soft_tau is None:
         words = g.op("ArgMin", [scores], "words", axis=1, keepdims=0)  # [N, S, C]

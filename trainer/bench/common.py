@@ -11,7 +11,6 @@ import json
 import os
 import platform
 import shlex
-import sys
 import time
 from collections.abc import Callable
 from functools import lru_cache
@@ -93,14 +92,20 @@ def time_calls(fn: Callable[[], object], repeats: int, warmup: int = 20, period_
 
 
 def command_line(name: str, args) -> str:
-    """The command that reproduces a result."""
+    """The command that reproduces a result (``args``: handover bench's own options; a benchmark
+    called from Python may pass a namespace with only some of them)."""
     parts = ["handover", "bench", name]
     if getattr(args, "quick", False):
         parts.append("--quick")
     if name == "latency" and getattr(args, "load", False):
         parts.append("--load")
-    if name == "latency" and getattr(args, "duration", None) is not None:
-        parts += ["--duration", str(args.duration)]
+    per_benchmark = {"latency": ("duration",), "decode": ("frames", "repeats"), "inference": ("repeats", "model"),
+                     "ros2": ("seconds", "speed", "pad_rate")}
+    for option in per_benchmark.get(name, ()):
+        if getattr(args, option, None) is not None:
+            parts += ["--" + option.replace("_", "-"), str(getattr(args, option))]
+    if name == "decode" and getattr(args, "synthetic", False):
+        parts.append("--synthetic")
     if getattr(args, "seed", None) is not None:
         parts += ["--seed", str(args.seed)]
     if getattr(args, "out", None) not in (None, "results"):
@@ -250,8 +255,7 @@ def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None,
 
 
 def progress(quiet: bool) -> Callable[[str], None]:
-    def say(text: str) -> None:
-        if not quiet:
-            print(text, file=sys.stderr, flush=True)
+    """Progress messages on stderr, unless quiet (training's own, ``trainer.pipeline.say_to``)."""
+    from trainer.pipeline import say_to
 
-    return say
+    return say_to(quiet)

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.model import CODEWORD_KERNEL
+
 _SUPPORTED_OPS = frozenset({"Abs", "ReduceMax", "Greater", "Cast", "Unsqueeze", "Conv", "ArgMin", "OneHot", "ReduceSum",
                             "Equal", "Transpose", "Mul", "MatMul", "Max", "Div", "Reshape", "Gemm", "Add", "ArgMax"})
 
@@ -22,7 +24,7 @@ class NumpyDecision:
     """``__call__(window [T, C] float32) -> (label, scores [n_classes])`` in float32 numpy."""
 
     def __init__(self, params: dict[str, np.ndarray]) -> None:
-        kernel = params["codeword_kernel"]  # [K, 1, W, 1], -2 * codebook
+        kernel = params[CODEWORD_KERNEL]  # [K, 1, W, 1], -2 * codebook
         self.K, self.W = int(kernel.shape[0]), int(kernel.shape[2])
         self.kernel_t = np.ascontiguousarray(kernel[:, 0, :, 0].T)  # [W, K]
         self.sqnorm = params["codeword_sqnorm"].astype(np.float32)
@@ -48,7 +50,7 @@ class NumpyDecision:
         params = {}
         for init in proto.graph.initializer:
             params.setdefault(init.name.rsplit("_", 1)[0], numpy_helper.to_array(init))
-        needed = ("codeword_kernel", "codeword_sqnorm", "group_of_channel", "windows_per_channel", "pair_weights",
+        needed = (CODEWORD_KERNEL, "codeword_sqnorm", "group_of_channel", "windows_per_channel", "pair_weights",
                   "pair_intercept", "vote_diff", "vote_base", "conf_sign")
         if any(k not in params for k in needed):
             return None

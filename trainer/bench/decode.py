@@ -1,4 +1,4 @@
-"""Benchmark: DSACON32m full-frame decoding, RLE and raw, in frames per second on one core.
+"""``handover bench decode``: DSACON32m full-frame decoding, RLE and raw, in frames per second on one core.
 
 Frames come from the real SDH-2 recordings in ../shared/data (via the .dsa importer) when
 present, else from simulated frames (then labelled synthetic). Each frame is encoded as the
@@ -7,16 +7,13 @@ controller would send it, then timed two ways:
 - ``payload``: ``decode_frame_payload`` alone (what the issue's 20,000 frames/s aim is about);
 - ``stream``: ``StreamParser.feed`` on the byte stream (preamble search, CRC) plus decoding.
 
-Usage: ``.venv/bin/python benchmarks/bench_decode.py [--frames 4000] [--repeats 7]``.
-Writes results/decode.json and results/decode.md.
+Options: ``--frames`` (default 4000), ``--repeats`` (default 7), ``--synthetic`` (skip the real
+recordings). Writes results/decode.json and results/decode.md.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -24,13 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from trainer.bench.common import command_line, load_average, machine_info, write_results
 
-from firmware_io import protocol as P  # noqa: E402
-from firmware_io.parser import StreamParser  # noqa: E402
-
+ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data")) / "sdh2-dsa"
+FRAMES, REPEATS = 4000, 7
+QUICK_FRAMES, QUICK_REPEATS = 400, 2
 
 
 def real_frames(limit: int) -> tuple[np.ndarray, str] | None:
@@ -80,6 +76,9 @@ def time_it(fn, repeats: int) -> list[float]:
 
 
 def bench(frames: np.ndarray, rle: bool, repeats: int) -> dict:
+    from firmware_io import protocol as P
+    from firmware_io.parser import StreamParser
+
     n, cells = frames.shape
     payloads = [P.encode_frame_payload(f, i, rle=rle) for i, f in enumerate(frames)]
     stream = b"".join(P.encode_packet(0, p) for p in payloads)
@@ -96,7 +95,8 @@ def bench(frames: np.ndarray, rle: bool, repeats: int) -> dict:
                 decode(packet.payload, cells)
 
     # check once that everything decodes to the source
-    assert all(np.array_equal(decode(p, cells)[1], f) for p, f in zip(payloads[:50], frames[:50], strict=True))
+    if not all(np.array_equal(decode(p, cells)[1], f) for p, f in zip(payloads[:50], frames[:50], strict=True)):
+        raise RuntimeError("decoded frames differ from the encoded ones")
     result = {"frames": n, "mean_payload_bytes": float(np.mean([len(p) for p in payloads]))}
     for name, fn in (("payload", payload_only), ("stream", whole_stream)):
         secs = time_it(fn, repeats)
@@ -110,75 +110,41 @@ def bench(frames: np.ndarray, rle: bool, repeats: int) -> dict:
     return result
 
 
-def machine() -> dict:
-    cpu = platform.processor() or ""
+def run(args) -> dict:
+    n = args.frames or (QUICK_FRAMES if args.quick else FRAMES)
+    repeats = args.repeats or (QUICK_REPEATS if args.quick else REPEATS)
+    found = None if args.synthetic else real_frames(n)
+    frames, source = found if found is not None else synthetic_frames(n)
+    args.say(f"decode: {len(frames)} frames, {repeats} runs each, one core ...")
+    result = {"source": source, "synthetic": found is None, "command": command_line("decode", args),
+              "machine": machine_info(), "load_before": load_average()}
+    cores = os.sched_getaffinity(0) if hasattr(os, "sched_setaffinity") else None
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores_visible": os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "platform": platform.platform(),
-        "load_avg_1m": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
-    }
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=4000)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--synthetic", action="store_true", help="skip the real recordings")
-    ap.add_argument("--out", type=Path, default=ROOT / "results")
-    args = ap.parse_args(argv)
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
-    found = None if args.synthetic else real_frames(args.frames)
-    frames, source = found if found is not None else synthetic_frames(args.frames)
-    results = {
-        "source": source,
-        "synthetic": found is None,
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "machine": machine(),
-        "rle": bench(frames, rle=True, repeats=args.repeats),
-        "raw": bench(frames, rle=False, repeats=args.repeats),
-    }
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "decode.json").write_text(json.dumps(results, indent=2) + "\n")
-    tag = " (synthetic)" if results["synthetic"] else ""
+        if cores:
+            os.sched_setaffinity(0, {sorted(cores)[0]})  # one core, for this benchmark only
+        result["rle"] = bench(frames, rle=True, repeats=repeats)
+        result["raw"] = bench(frames, rle=False, repeats=repeats)
+    finally:
+        if cores:
+            os.sched_setaffinity(0, cores)
+    result["load_after"] = load_average()
+    result["rle_frames_per_s"] = result["rle"]["payload"]["frames_per_s_median"]
+    result["raw_frames_per_s"] = result["raw"]["payload"]["frames_per_s_median"]
+    tag = " (synthetic)" if result["synthetic"] else ""
     lines = [
         f"# Frame decoding benchmark{tag}",
         "",
-        f"Source: {source}. {len(frames)} frames of {frames.shape[1]} taxels, one core, median of "
-        f"{args.repeats} runs.",
+        f"Source: {source}. {len(frames)} frames of {frames.shape[1]} taxels, one core, median of {repeats} runs.",
         "",
         "| encoding | mean payload B | decode only: frames/s | us/frame | parser + CRC + decode: frames/s | us/frame |",
         "|---|---|---|---|---|---|",
     ]
     for enc in ("rle", "raw"):
-        r = results[enc]
+        r = result[enc]
         lines.append(
             f"| {enc} | {r['mean_payload_bytes']:.0f} | {r['payload']['frames_per_s_median']:,.0f} | "
             f"{r['payload']['us_per_frame_median']:.1f} | {r['stream']['frames_per_s_median']:,.0f} | "
             f"{r['stream']['us_per_frame_median']:.1f} |"
         )
-    m = results["machine"]
-    lines += [
-        "",
-        f"Machine: {m['cpu']}, {m['cores_visible']} cores visible (shared), load {m['load_avg_1m']}, "
-        f"Python {m['python']}, NumPy {m['numpy']}, {m['platform']}.",
-        f"Command: `{results['command']}`",
-        "",
-    ]
-    (args.out / "decode.md").write_text("\n".join(lines))
-    print("\n".join(lines))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    write_results(args.out, "decode", result, lines)
+    return result

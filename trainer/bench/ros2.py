@@ -1,5 +1,5 @@
-"""Benchmark: the ROS 2 sink. Event latency from the decision to an rclpy subscriber in another
-process (median, p99, p99.9), and pad images delivered per second with none lost.
+"""``handover bench ros2``: the ROS 2 sink. Event latency from the decision to an rclpy subscriber in
+another process (median, p99, p99.9), and pad images delivered per second with none lost.
 
 The daemon reads the simulated hand (sim://, synthetic, sped up so that a minute holds enough
 events) with a toy model from tests/tiny_models.py (ROS delivery does not depend on what the
@@ -7,13 +7,13 @@ model computes), publishes events and all six pads; a subscriber process records
 arrives and counts the images. Latency = subscriber's wall clock at the callback minus the
 event's ``time`` (stamped right after the decision, before any sink), same machine and clock.
 
-Usage: ``.venv/bin/python benchmarks/bench_ros2.py [--seconds 60] [--speed 16] [--pad-rate 32]``
-(needs the ros and train extras). Writes results/ros2.json and results/ros2.md.
+Options: ``--seconds`` (default 60, --quick 5), ``--speed`` (sim:// speed-up, default 16),
+``--pad-rate`` ([ros2] pad_rate_hz, default 32). Needs the ros and train extras and a sourced ROS 2.
+Writes results/ros2.json and results/ros2.md.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -25,10 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from trainer.bench.common import command_line, load_average, machine_info, write_results
 
+ROOT = Path(__file__).resolve().parents[2]
 PADS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal", "finger_2_proximal", "finger_2_distal")
+SECONDS, QUICK_SECONDS, SPEED, PAD_RATE_HZ = 60.0, 5.0, 16.0, 32.0
 
 
 def subscriber(namespace: str) -> None:
@@ -76,17 +77,22 @@ def subscriber(namespace: str) -> None:
     rclpy.try_shutdown()
 
 
-def run(seconds: float, speed: float, pad_rate: float) -> dict:
+def measure(seconds: float, speed: float, pad_rate: float) -> dict:
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
+
+    if str(ROOT) not in sys.path:  # the toy model of the test suite (a checkout, as for every benchmark)
+        sys.path.insert(0, str(ROOT))
     from tests.tiny_models import tiny_model_bytes, write_model
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    child = subprocess.Popen([sys.executable, __file__, "--subscriber"], stdin=subprocess.PIPE,
-                             stdout=subprocess.PIPE, text=True)
-    ready, udp_port = child.stdout.readline().split()
-    assert ready == "ready"
+    child = subprocess.Popen([sys.executable, "-m", "trainer.bench.ros2", "--subscriber"], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    ready, udp_port = [*child.stdout.readline().split(), "", ""][:2]
+    if ready != "ready":
+        child.kill()
+        raise RuntimeError("the ROS 2 subscriber process did not start (is rclpy importable? source ROS 2 first)")
     models = Path(tempfile.mkdtemp()) / "models"
     models.mkdir()
     write_model(models, "toy.onnx", tiny_model_bytes(), mtime=time.time() - 10)
@@ -116,7 +122,7 @@ def run(seconds: float, speed: float, pad_rate: float) -> dict:
     return summarise(got, daemon, sink, wall, dict(seconds=seconds, speed=speed, pad_rate_hz=pad_rate, url=url))
 
 
-def percentiles(us: np.ndarray) -> dict | None:
+def latency_figures(us: np.ndarray) -> dict | None:
     if not us.size:
         return None
     p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
@@ -139,8 +145,8 @@ def summarise(got: dict, daemon, sink, wall: float, settings: dict) -> dict:
         "events_received": len(decisions),
         "lines_sent": sink.sent,
         "lines_received": len(received),
-        "event_latency_us": percentiles(lat),
-        "udp_event_latency_us": percentiles(udp_lat),
+        "event_latency_us": latency_figures(lat),
+        "udp_event_latency_us": latency_figures(udp_lat),
         "same_lines_on_udp": [line for _, line in got["udp_events"]] == [line for _, line in got["events"]],
         "pad_images_published": sink.pad_images,
         "pad_images_received": images,
@@ -155,12 +161,23 @@ def summarise(got: dict, daemon, sink, wall: float, settings: dict) -> dict:
     }
 
 
-def write(result: dict) -> None:
-    out = ROOT / "results"
-    (out / "ros2.json").write_text(json.dumps(result, indent=1) + "\n")
-    s, lat, udp, m = result["settings"], result["event_latency_us"], result["udp_event_latency_us"], result["machine"]
+def run(args) -> dict:
+    seconds = args.seconds or (QUICK_SECONDS if args.quick else SECONDS)
+    speed, pad_rate = args.speed or SPEED, args.pad_rate or PAD_RATE_HZ
+    load_before, date = load_average(), time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    args.say(f"ros2: {seconds:g} s of the simulated hand at {speed:g}x, events and pad images to a subscriber ...")
+    result = measure(seconds, speed, pad_rate)
+    result.update(machine=machine_info(), load_before=load_before, load_after=load_average(),
+                  command=command_line("ros2", args), date=date)
+    result["ros2_event_p99_us"] = result["event_latency_us"]["p99"] if result["event_latency_us"] else None
+    write_results(args.out, "ros2", result, markdown(result))
+    return result
+
+
+def markdown(result: dict) -> list[str]:
+    s, lat, udp = result["settings"], result["event_latency_us"], result["udp_event_latency_us"]
     hot = result["decision_latency_us_hot_path"]
-    md = f"""# ROS 2 sink benchmark
+    return f"""# ROS 2 sink benchmark
 
 Synthetic stream: the simulated hand (`{s['url']}`, {s['speed']:g}x real time, {result['frames']} frames in
 {result['wall_s']} s) with a toy model; the daemon publishes events on `/handover/events` and all six pads
@@ -180,34 +197,9 @@ UDP, for a comparison under the same load.
 | missed deadlines, sink errors | {result['missed_deadlines']}, {result['sink_errors']} |
 
 With n = {lat['n']} events the p99.9 is the largest few values, not a stable tail figure.
-Machine: {m['cpu']}, {m['cores_visible']} cores visible, **shared with other helpers' jobs while this ran**
-(load average {m['load_avg_1m']:.2f} before the run), Python {m['python']}, {m['platform']}.
-Command: `{result['command']}` ({result['date']}).
-"""
-    (out / "ros2.md").write_text(md)
+Run on {result['date']}.""".splitlines()
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--speed", type=float, default=16.0, help="sim:// speed-up (more events per minute)")
-    ap.add_argument("--pad-rate", type=float, default=32.0, help="[ros2] pad_rate_hz")
-    ap.add_argument("--subscriber", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--no-write", action="store_true", help="print only")
-    args = ap.parse_args(argv)
-    if args.subscriber:
+if __name__ == "__main__":  # the subscriber process (python -m trainer.bench.ros2 --subscriber)
+    if sys.argv[1:] == ["--subscriber"]:
         subscriber("/handover")
-        return 0
-    from benchmarks.bench_decode import machine
-
-    before, date = machine(), time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    result = run(args.seconds, args.speed, args.pad_rate)
-    result.update(machine=before, command=" ".join(["python", *sys.argv]), date=date)
-    print(json.dumps({k: v for k, v in result.items() if k != "pad_images_per_topic"}))
-    if not args.no_write:
-        write(result)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
