@@ -13,18 +13,26 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from firmware_io import protocol as P
 from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
-from firmware_io.parser import StreamParser
 from firmware_io.plausibility import FrameCheck
 from firmware_io.transports.base import Transport, TransportError
+from firmware_io.wire import requests as R
+from firmware_io.wire.device_time import TimestampUnwrapper
+from firmware_io.wire.errors import DeviceError, DSAError, DSAErrorCode, FrameDecodeError, ProtocolError
+from firmware_io.wire.frames import decode_frame_payload
+from firmware_io.wire.packets import Packet, PacketId, check_reply
+from firmware_io.wire.parser import StreamParser
+from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensitivityReply, SensorInfo, ThresholdReply
 
 __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 
 READ_SIZE = 4096
 CANCEL_POLL_S = 0.05
 """While a cancel predicate is set, no single read waits longer than this."""
+COUNTERS = ("frames", "frames_stale", "frames_ignored", "decode_errors", "frames_implausible", "unexpected_replies",
+            "reconnects", "timeouts")
+"""What ``stats`` counts beside the parser's byte and packet counters."""
 
 
 TransportSource = str | Transport | Callable[[], Transport]
@@ -72,31 +80,22 @@ class DSAClient:
         self.transport_opts = dict(transport_opts or {})
 
         self.parser = StreamParser()
-        self.controller: P.ControllerInfo | None = None
-        self.sensor: P.SensorInfo | None = None
-        self.matrices: list[P.MatrixInfoReply] = []
+        self.controller: ControllerInfo | None = None
+        self.sensor: SensorInfo | None = None
+        self.matrices: list[MatrixInfoReply] = []
         self.layout: SensorLayout | None = None
         self._plausible: FrameCheck | None = None
         self.streaming = False
         self._frames: deque[Frame] = deque()
-        self._replies: deque[P.Packet] = deque()
+        self._replies: deque[Packet] = deque()
         self._last_rx = 0.0
         self._max_queued = max_queued_frames
-        self._unwrap = P.TimestampUnwrapper()
+        self._unwrap = TimestampUnwrapper()
         self._number = 0
         self._should_stop: Callable[[], bool] | None = None
         self._open_deadline: float | None = None
         self._open_bytes = 0
-        self._counts = {
-            "frames": 0,
-            "frames_stale": 0,
-            "frames_ignored": 0,
-            "decode_errors": 0,
-            "frames_implausible": 0,
-            "unexpected_replies": 0,
-            "reconnects": 0,
-            "timeouts": 0,
-        }
+        self._counts = dict.fromkeys(COUNTERS, 0)
 
     # -- lifecycle -------------------------------------------------------------------------------
     @property
@@ -128,12 +127,12 @@ class DSAClient:
         acked = self._send_stop(self.stop_tries)
         self._flush(first_wait=self.flush_quiet if acked else self.flush_max)
         self._frames.clear()
-        self.controller = P.ControllerInfo.decode(self._request(P.query_controller_info_request(), 0x01))
-        self.sensor = P.SensorInfo.decode(self._request(P.query_sensor_info_request(), 0x02))
+        self.controller = ControllerInfo.decode(self._request(R.query_controller_info_request(), 0x01))
+        self.sensor = SensorInfo.decode(self._request(R.query_sensor_info_request(), 0x02))
         if self.sensor.nb_matrices == 0:
-            raise P.ProtocolError(f"{self.url}: controller reports no tactile matrices (is the sensor connected?)")
+            raise ProtocolError(f"{self.url}: controller reports no tactile matrices (is the sensor connected?)")
         self.matrices = [
-            P.MatrixInfoReply.decode(self._request(P.query_matrix_info_request(m), 0x0B))
+            MatrixInfoReply.decode(self._request(R.query_matrix_info_request(m), 0x0B))
             for m in range(self.sensor.nb_matrices)
         ]
         self.layout = SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices))
@@ -146,7 +145,7 @@ class DSAClient:
         ``should_stop``: as for :meth:`open`."""
         self._require_open()
         with self._cancellable(should_stop):
-            self._ack(P.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
+            self._ack(R.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
         self.streaming = True
 
     @contextlib.contextmanager
@@ -182,7 +181,7 @@ class DSAClient:
         try:
             if not transport.closed:
                 self._send_stop(1, timeout=stop_timeout)
-        except (P.DSAError, OSError, Cancelled):
+        except (DSAError, OSError, Cancelled):
             pass
         finally:
             self._transport = None
@@ -213,7 +212,7 @@ class DSAClient:
                     self.start()
                 self._counts["reconnects"] += 1
                 return layout
-            except (TransportError, P.DSAError) as exc:
+            except (TransportError, DSAError) as exc:
                 last = exc
         self.streaming = False
         raise TransportError(f"{self.url}: reconnect failed after {self.reconnect_tries} tries: {last}")
@@ -260,7 +259,7 @@ class DSAClient:
                 raise DSATimeout(f"{self.url}: no frame within {timeout:g} s")
             return frame
         self._discard_queued()
-        self._ack(P.single_frame_request(rle=self.rle), frames_limit=None, timeout=timeout)
+        self._ack(R.single_frame_request(rle=self.rle), frames_limit=None, timeout=timeout)
         frame = self.read_frame(timeout)
         if frame is None:
             raise DSATimeout(f"{self.url}: no frame within {timeout:g} s after a single-frame request")
@@ -272,21 +271,21 @@ class DSAClient:
         return frame
 
     # -- other commands --------------------------------------------------------------------------
-    def get_sensitivity(self, matrix: int) -> P.SensitivityReply:
-        return P.SensitivityReply.decode(self._request(P.get_sensitivity_request(matrix), 0x12))
+    def get_sensitivity(self, matrix: int) -> SensitivityReply:
+        return SensitivityReply.decode(self._request(R.get_sensitivity_request(matrix), 0x12))
 
     def set_sensitivity(self, matrix: int, value: float, persistent: bool = False) -> None:
         """Persistent writes get no reply from the firmware (and wear its memory: ~100,000 writes)."""
-        req = P.SetSensitivityRequest(matrix, value, persistent=persistent)
+        req = R.SetSensitivityRequest(matrix, value, persistent=persistent)
         self._command(req.to_packet(), 0x0F, expect_reply=not persistent)
 
     def get_threshold(self, matrix: int) -> int:
-        return P.ThresholdReply.decode(self._request(P.get_threshold_request(matrix), 0x14)).threshold
+        return ThresholdReply.decode(self._request(R.get_threshold_request(matrix), 0x14)).threshold
 
     def set_threshold(self, matrix: int, threshold: int, persistent: bool = False) -> None:
         if self.controller is not None and self.controller.sw_version < 268:
-            raise P.DeviceError(P.DSAErrorCode.FEATURE_NOT_SUPPORTED, 0x13)
-        req = P.SetThresholdRequest(matrix, threshold, persistent=persistent)
+            raise DeviceError(DSAErrorCode.FEATURE_NOT_SUPPORTED, 0x13)
+        req = R.SetThresholdRequest(matrix, threshold, persistent=persistent)
         self._command(req.to_packet(), 0x13, expect_reply=not persistent)
 
     @property
@@ -326,7 +325,7 @@ class DSAClient:
 
     def _require_open(self) -> None:
         if self.layout is None:
-            raise P.DSAError("call open() first")
+            raise DSAError("call open() first")
         if self._transport is None and isinstance(self._source, Transport):
             raise TransportError(f"{self.url}: the client is closed")
 
@@ -361,20 +360,20 @@ class DSAClient:
                 return
             self._dispatch(self.parser.feed(data))
 
-    def _dispatch(self, packets: list[P.Packet]) -> None:
+    def _dispatch(self, packets: list[Packet]) -> None:
         for packet in packets:
-            if packet.packet_id == P.PacketId.FULL_FRAME:
+            if packet.packet_id == PacketId.FULL_FRAME:
                 self._queue_frame(packet)
             else:
                 self._replies.append(packet)
 
-    def _queue_frame(self, packet: P.Packet) -> None:
+    def _queue_frame(self, packet: Packet) -> None:
         if self.layout is None:
             self._counts["frames_ignored"] += 1
             return
         try:
-            raw_ts, values = P.decode_frame_payload(packet.payload, self.layout.n_taxels)
-        except P.FrameDecodeError:
+            raw_ts, values = decode_frame_payload(packet.payload, self.layout.n_taxels)
+        except FrameDecodeError:
             self._counts["decode_errors"] += 1
             return
         if self._plausible is not None and self._plausible.problem(values) is not None:
@@ -480,7 +479,7 @@ class DSAClient:
 
     def _ack(self, packet: bytes, frames_limit: int | None = -1, timeout: float | None = None) -> None:
         payload = self._request(packet, packet[3], frames_limit, timeout)
-        P.check_reply(payload, packet[3])
+        check_reply(payload, packet[3])
 
     def _command(self, packet: bytes, reply_id: int, expect_reply: bool) -> None:
         if expect_reply:
@@ -492,8 +491,8 @@ class DSAClient:
         """Send stop up to ``tries`` times; True once acknowledged. Device errors count as not acked."""
         for _ in range(tries):
             try:
-                self._ack(P.stop_request(rle=self.rle), frames_limit=None, timeout=timeout or self.stop_timeout)
+                self._ack(R.stop_request(rle=self.rle), frames_limit=None, timeout=timeout or self.stop_timeout)
                 return True
-            except P.DSAError:
+            except DSAError:
                 continue
         return False

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io import protocol as P
+from firmware_io.wire.errors import DSAError
 
 
-class DSATimeout(P.DSAError):
+class DSATimeout(DSAError):
     """The controller did not answer in time."""
 
 

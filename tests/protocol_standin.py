@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import ACTIONS, Recording
+from firmware_io.recordings.recording import ACTIONS, Recording
 
 RATE = 32.0
 

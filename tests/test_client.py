@@ -10,17 +10,20 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from firmware_io import protocol as P
 from firmware_io.client import Cancelled, DSAClient, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
 from firmware_io.transports import DeviceUnavailable, Transport, TransportError
+from firmware_io.wire.errors import DeviceError, DSAError, DSAErrorCode, ProtocolError
+from firmware_io.wire.frames import encode_frame
+from firmware_io.wire.packets import Packet, decode_packet, encode_ack
+from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensorInfo, ThresholdReply
 
 FAST = "sim://?seed=3&events=2&realtime=0"
 QUICK = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet": 0.05}
 
 
 def sim_recording():
-    from firmware_io.frame_source import load_source
+    from firmware_io.emulator.frame_source import load_source
 
     return load_source("sim", seed=3, events=2)
 
@@ -141,7 +144,7 @@ def test_sensitivity_and_threshold_commands() -> None:
         assert client.get_threshold(1) == 321
         client.set_sensitivity(2, 0.25)
         assert client.get_sensitivity(2).cur_sens == pytest.approx(0.25)
-        with pytest.raises(P.DeviceError, match="INDEX_OUT_OF_BOUNDS"):
+        with pytest.raises(DeviceError, match="INDEX_OUT_OF_BOUNDS"):
             client.get_threshold(9)
 
 
@@ -154,19 +157,19 @@ def test_bad_url_is_a_transport_error() -> None:
 class ScriptedDevice(Transport):
     """Answers each request packet with whatever ``respond(packet)`` returns; can push frames."""
 
-    def __init__(self, respond: Callable[[P.Packet], bytes], push: Callable[[], bytes] | None = None) -> None:
+    def __init__(self, respond: Callable[[Packet], bytes], push: Callable[[], bytes] | None = None) -> None:
         self.url = "scripted://"
         self.respond = respond
         self.push = push
         self.out = bytearray()
-        self.written: list[P.Packet] = []
+        self.written: list[Packet] = []
         self._closed = False
         self.fail_reads = False
 
     def write(self, data: bytes) -> None:
         if self._closed:
             raise TransportError("closed")
-        packet = P.decode_packet(data)
+        packet = decode_packet(data)
         self.written.append(packet)
         self.out += self.respond(packet)
 
@@ -188,18 +191,18 @@ class ScriptedDevice(Transport):
         self._closed = True
 
 
-def good_device(packet: P.Packet, *, nb: int = 2, sensor_code: int = 0) -> bytes:
+def good_device(packet: Packet, *, nb: int = 2, sensor_code: int = 0) -> bytes:
     pid = packet.packet_id
     if pid == 0x01:
-        return P.ControllerInfo(sw_version=0x2900).to_packet()
+        return ControllerInfo(sw_version=0x2900).to_packet()
     if pid == 0x02:
         if sensor_code:
-            return P.encode_ack(0x02, sensor_code)
-        return P.SensorInfo(nb_matrices=nb).to_packet()
+            return encode_ack(0x02, sensor_code)
+        return SensorInfo(nb_matrices=nb).to_packet()
     if pid == 0x0B:
-        return P.MatrixInfoReply(cells_x=3, cells_y=4).to_packet()
+        return MatrixInfoReply(cells_x=3, cells_y=4).to_packet()
     if pid == 0x03:
-        return P.encode_ack(0x03)
+        return encode_ack(0x03)
     return b""
 
 
@@ -209,11 +212,11 @@ def test_scripted_open_and_error_code_checked_in_every_reply() -> None:
     assert client.open().n_taxels == 24
     assert [p.packet_id for p in dev.written] == [0x03, 0x01, 0x02, 0x0B, 0x0B]
     assert dev.written[0].payload == b"\x01\x00\x00"  # stop, RLE flag, rate 0
-    dev2 = ScriptedDevice(lambda p: good_device(p, sensor_code=P.DSAErrorCode.NO_SENSOR))
-    with pytest.raises(P.DeviceError, match="E_NO_SENSOR"):
+    dev2 = ScriptedDevice(lambda p: good_device(p, sensor_code=DSAErrorCode.NO_SENSOR))
+    with pytest.raises(DeviceError, match="E_NO_SENSOR"):
         DSAClient(dev2, **QUICK).open()
     dev3 = ScriptedDevice(lambda p: good_device(p, nb=0))
-    with pytest.raises(P.ProtocolError, match="no tactile matrices"):
+    with pytest.raises(ProtocolError, match="no tactile matrices"):
         DSAClient(dev3, **QUICK).open()
 
 
@@ -238,7 +241,7 @@ def test_at_most_four_frames_skipped_waiting_for_a_reply_and_they_are_queued() -
     counter = iter(range(10**6))
 
     def push() -> bytes:
-        return P.encode_frame(np.full(24, 7, np.uint16), next(counter), rle=True)
+        return encode_frame(np.full(24, 7, np.uint16), next(counter), rle=True)
 
     dev = ScriptedDevice(good_device)
     client = DSAClient(dev, **QUICK)
@@ -298,11 +301,11 @@ def test_reconnect_through_a_factory_recovers() -> None:
 def test_a_corrupt_length_before_a_reply_is_released_after_a_gap() -> None:
     """The reply hidden behind a header whose length asks for more bytes than ever come."""
 
-    def respond(packet: P.Packet) -> bytes:
+    def respond(packet: Packet) -> bytes:
         if packet.packet_id == 0x14:
-            bad = bytearray(P.ThresholdReply(5).to_packet())
+            bad = bytearray(ThresholdReply(5).to_packet())
             bad[4:6] = b"\x30\x00"  # plausible (48) but wrong
-            return bytes(bad) + P.ThresholdReply(77).to_packet()
+            return bytes(bad) + ThresholdReply(77).to_packet()
         return good_device(packet)
 
     client = DSAClient(ScriptedDevice(respond), **QUICK)
@@ -312,7 +315,7 @@ def test_a_corrupt_length_before_a_reply_is_released_after_a_gap() -> None:
 
 
 def test_partial_frame_survives_a_short_read_timeout() -> None:
-    frame = P.encode_frame(np.arange(24, dtype=np.uint16), 42, rle=False)
+    frame = encode_frame(np.arange(24, dtype=np.uint16), 42, rle=False)
     dev = ScriptedDevice(good_device)
     client = DSAClient(dev, **QUICK)
     client.open()
@@ -331,7 +334,7 @@ def test_close_then_open_again_on_the_same_client() -> None:
     client.start()
     assert client.read_frame(2.0) is not None
     client.close()
-    with pytest.raises(P.DSAError, match="open"):
+    with pytest.raises(DSAError, match="open"):
         client.read_frame(0.1)
     assert client.open().n_taxels == 486
     client.start()
@@ -359,7 +362,7 @@ def test_open_of_a_silent_device_is_cancelled_by_the_callers_predicate() -> None
     t1 = time.monotonic()
     client.close()  # the transport was dropped: no stop handshake with a device that never answers
     assert time.monotonic() - t1 < 0.05
-    with pytest.raises(P.DSAError, match="open"):
+    with pytest.raises(DSAError, match="open"):
         client.read_frame(0.01)
 
 

@@ -39,7 +39,7 @@ def test_default_rule_ranks_by_real_inner_score_gates_on_simulation_and_latency(
 
 
 def test_real_windows_stay_inside_contact_chunks():
-    from firmware_io.importers import import_any
+    from firmware_io.recordings.importers import import_any
 
     path = real_data_dir() / "kiechle" / "pressure_profiles" / "classification_video" / "pen_thin.dsa"
     if not path.is_file():

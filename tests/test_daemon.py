@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_io.frame_source import load_source
+from firmware_io.emulator.frame_source import load_source
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
 from runtime.listeners import FrameRecorder
@@ -95,8 +95,8 @@ def test_one_decision_per_scripted_event_over_sim(models):
 
 
 def test_over_the_tcp_emulator_with_corrupted_frames(models):
-    from firmware_io.emulator import DeviceEmulator, FaultPlan
-    from firmware_io.emulator_server import TcpEmulatorServer
+    from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+    from firmware_io.emulator.server import TcpEmulatorServer
 
     rec = load_source("sim", seed=0, events=N_EVENTS)
     server = TcpEmulatorServer(DeviceEmulator(rec, speed=None, loop=False, faults=FaultPlan(crc=0.02))).start()
@@ -264,8 +264,8 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
 
 def test_end_to_end_over_a_pseudo_terminal(models):
     """serial://<pty> to the emulator, as a USB-serial adapter would be reached."""
-    from firmware_io.emulator import DeviceEmulator
-    from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer
 
     rec = load_source("sim", seed=0, events=N_EVENTS)
     try:

@@ -7,7 +7,7 @@ import pytest
 from protocol_standin import standin_recordings
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
 from runtime.trigger import ThresholdTrigger
 from trainer.dataset import (
     ABOVE_FROM_START,
@@ -144,7 +144,7 @@ def test_dataset_trigger_is_the_runtime_trigger():
 
 
 def test_simulated_protocol_never_triggers_on_the_first_frame():
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
 
     ds = build_dataset(simulate_protocol(seed=0, n_subjects=1, runs=2), T=15, pads="all", fraction=0.15)
     assert not np.any(ds.trigger_offsets == 0)

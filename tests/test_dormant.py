@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
+from firmware_io.sim import ScriptedEvent, simulate_protocol
 from firmware_io.sim import constants as K
 from firmware_io.sim.idle import SOURCES, hold_motion, min_jerk, plan_hold, simulate_idle, simulate_mixed
-from firmware_io.simulate import ScriptedEvent, simulate_protocol
 from trainer import dormant
 from trainer import streams_eval as se
 
@@ -159,7 +159,7 @@ def test_windows_are_attributed_to_the_rarest_transition_in_view():
 
 
 def test_session_windows_show_the_hand_closing_and_opening():
-    from firmware_io.simulate import simulate_session
+    from firmware_io.sim import simulate_session
 
     events = [ScriptedEvent(3.0, "pull", "s1", "ball", "down"), ScriptedEvent(8.0, "hold", "s2", "plank", "up")]
     rec = simulate_session(events, seed=3)

@@ -5,10 +5,34 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_io import protocol as P
-from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
-from firmware_io.frame_source import placeholder_session
-from firmware_io.parser import StreamParser
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
+from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.wire.device_time import TimestampUnwrapper
+from firmware_io.wire.errors import DeviceError, DSAErrorCode
+from firmware_io.wire.frames import decode_frame_payload
+from firmware_io.wire.packets import Packet, encode_ack, encode_packet, error_code_of
+from firmware_io.wire.parser import StreamParser
+from firmware_io.wire.replies import (
+    ControllerInfo,
+    MatrixInfoReply,
+    MatrixMaskReply,
+    SensitivityReply,
+    SensorInfo,
+    ThresholdReply,
+)
+from firmware_io.wire.requests import (
+    SetSensitivityRequest,
+    SetThresholdRequest,
+    get_sensitivity_request,
+    get_threshold_request,
+    push_request,
+    query_controller_info_request,
+    query_matrix_info_request,
+    query_sensor_info_request,
+    read_matrix_mask_request,
+    single_frame_request,
+    stop_request,
+)
 
 
 class FakeClock:
@@ -31,68 +55,68 @@ def make(rec, **kw):
     return emu, clock
 
 
-def ask(emu, packet: bytes) -> list[P.Packet]:
+def ask(emu, packet: bytes) -> list[Packet]:
     emu.feed(packet)
     return StreamParser(emu.layout.n_taxels).feed(emu.read(1 << 20))
 
 
 def test_queries_answer_with_reference_sizes(rec):
     emu, _ = make(rec)
-    (ctrl,) = ask(emu, P.query_controller_info_request())
+    (ctrl,) = ask(emu, query_controller_info_request())
     assert ctrl.packet_id == 0x01 and len(ctrl.payload) == 18
-    assert P.ControllerInfo.decode(ctrl.payload).firmware == "2.9.0.0"
-    (sens,) = ask(emu, P.query_sensor_info_request())
-    assert P.SensorInfo.decode(sens.payload).nb_matrices == 6
+    assert ControllerInfo.decode(ctrl.payload).firmware == "2.9.0.0"
+    (sens,) = ask(emu, query_sensor_info_request())
+    assert SensorInfo.decode(sens.payload).nb_matrices == 6
     layout = rec.layout
     for m in range(6):
-        (mi,) = ask(emu, P.query_matrix_info_request(m))
+        (mi,) = ask(emu, query_matrix_info_request(m))
         assert len(mi.payload) == 52
-        info = P.MatrixInfoReply.decode(mi.payload).to_matrix_info(m)
+        info = MatrixInfoReply.decode(mi.payload).to_matrix_info(m)
         assert (info.cells_x, info.cells_y) == (layout.matrices[m].cells_x, layout.matrices[m].cells_y)
-    (mask,) = ask(emu, P.read_matrix_mask_request(1))
-    assert np.array_equal(P.MatrixMaskReply.decode(mask.payload).to_mask(6, 13), layout.matrices[1].mask)
+    (mask,) = ask(emu, read_matrix_mask_request(1))
+    assert np.array_equal(MatrixMaskReply.decode(mask.payload).to_mask(6, 13), layout.matrices[1].mask)
 
 
 def test_errors_unknown_command_bad_index_short_payload(rec):
     emu, _ = make(rec)
-    emu.feed(P.encode_packet(0x77, b"\x01"))
-    assert emu.read() == P.encode_ack(0x77, P.DSAErrorCode.CMD_UNKNOWN)
-    (r,) = ask(emu, P.query_matrix_info_request(6))
-    assert P.error_code_of(r.payload) == P.DSAErrorCode.INDEX_OUT_OF_BOUNDS
-    with pytest.raises(P.DeviceError):
-        P.MatrixInfoReply.decode(r.payload)
-    (r,) = ask(emu, P.encode_packet(0x0B, b""))
-    assert P.error_code_of(r.payload) == P.DSAErrorCode.CMD_NOT_ENOUGH_PARAMS
-    (r,) = ask(emu, P.encode_packet(0x03, b"\x80\x01\x00\x00"))
-    assert P.error_code_of(r.payload) == P.DSAErrorCode.CMD_FORMAT_ERROR
+    emu.feed(encode_packet(0x77, b"\x01"))
+    assert emu.read() == encode_ack(0x77, DSAErrorCode.CMD_UNKNOWN)
+    (r,) = ask(emu, query_matrix_info_request(6))
+    assert error_code_of(r.payload) == DSAErrorCode.INDEX_OUT_OF_BOUNDS
+    with pytest.raises(DeviceError):
+        MatrixInfoReply.decode(r.payload)
+    (r,) = ask(emu, encode_packet(0x0B, b""))
+    assert error_code_of(r.payload) == DSAErrorCode.CMD_NOT_ENOUGH_PARAMS
+    (r,) = ask(emu, encode_packet(0x03, b"\x80\x01\x00\x00"))
+    assert error_code_of(r.payload) == DSAErrorCode.CMD_FORMAT_ERROR
     assert emu.stats.unknown_commands == 1
 
 
 def test_sensitivity_and_threshold_round_trip_and_persistent_silence(rec):
     emu, _ = make(rec)
-    (r,) = ask(emu, P.SetThresholdRequest(2, 150).to_packet())
-    assert P.error_code_of(r.payload) == 0
-    (r,) = ask(emu, P.get_threshold_request(2))
-    assert P.ThresholdReply.decode(r.payload).threshold == 150
-    assert ask(emu, P.SetThresholdRequest(3, 99, persistent=True).to_packet()) == []
-    (r,) = ask(emu, P.get_threshold_request(3))
-    assert P.ThresholdReply.decode(r.payload).threshold == 99
-    (r,) = ask(emu, P.SetSensitivityRequest(1, 0.25).to_packet())
-    assert P.error_code_of(r.payload) == 0
-    (r,) = ask(emu, P.get_sensitivity_request(1))
-    reply = P.SensitivityReply.decode(r.payload)
+    (r,) = ask(emu, SetThresholdRequest(2, 150).to_packet())
+    assert error_code_of(r.payload) == 0
+    (r,) = ask(emu, get_threshold_request(2))
+    assert ThresholdReply.decode(r.payload).threshold == 150
+    assert ask(emu, SetThresholdRequest(3, 99, persistent=True).to_packet()) == []
+    (r,) = ask(emu, get_threshold_request(3))
+    assert ThresholdReply.decode(r.payload).threshold == 99
+    (r,) = ask(emu, SetSensitivityRequest(1, 0.25).to_packet())
+    assert error_code_of(r.payload) == 0
+    (r,) = ask(emu, get_sensitivity_request(1))
+    reply = SensitivityReply.decode(r.payload)
     assert reply.cur_sens == pytest.approx(0.25) and reply.fact_sens == pytest.approx(0.5)
-    assert ask(emu, P.SetSensitivityRequest(1, 0.75, persistent=True).to_packet()) == []
-    bad = P.encode_packet(0x13, bytes([0, 0]) + (5000).to_bytes(2, "little"))
+    assert ask(emu, SetSensitivityRequest(1, 0.75, persistent=True).to_packet()) == []
+    bad = encode_packet(0x13, bytes([0, 0]) + (5000).to_bytes(2, "little"))
     (r,) = ask(emu, bad)
-    assert P.error_code_of(r.payload) == P.DSAErrorCode.RANGE_ERROR
+    assert error_code_of(r.payload) == DSAErrorCode.RANGE_ERROR
 
 
 @pytest.mark.parametrize("rle", [True, False])
 def test_push_frames_equal_recording_and_follow_its_timing(rec, rle):
     emu, clock = make(rec, speed=1.0)
-    packets = ask(emu, P.push_request(rle=rle))
-    assert packets[0].packet_id == 0x03 and P.error_code_of(packets[0].payload) == 0
+    packets = ask(emu, push_request(rle=rle))
+    assert packets[0].packet_id == 0x03 and error_code_of(packets[0].payload) == 0
     parser = StreamParser(rec.layout.n_taxels)
     got = [p for p in packets[1:]]
     while len(got) < 20:
@@ -100,7 +124,7 @@ def test_push_frames_equal_recording_and_follow_its_timing(rec, rle):
         got += parser.feed(emu.read(1 << 16))
     assert all(p.packet_id == 0 for p in got)
     for i, p in enumerate(got[:20]):
-        ts, values = P.decode_frame_payload(p.payload, rec.layout.n_taxels)
+        ts, values = decode_frame_payload(p.payload, rec.layout.n_taxels)
         assert bool(p.payload[4] & 1) == rle
         assert np.array_equal(values, rec.frames[i])
         assert ts == round((rec.timestamps[i] - rec.timestamps[0]) * 1000)
@@ -111,24 +135,24 @@ def test_push_frames_equal_recording_and_follow_its_timing(rec, rle):
 
 def test_single_frame_and_old_firmware_push_bug(rec):
     emu, clock = make(rec, speed=1.0)
-    packets = ask(emu, P.single_frame_request())
+    packets = ask(emu, single_frame_request())
     assert [p.packet_id for p in packets] == [0x03, 0x00]
     clock.t += 1.0
     assert emu.read() == b"" and not emu.pushing
     old, clock = make(rec, speed=1.0, old_firmware=True)
-    (ctrl,) = ask(old, P.query_controller_info_request())
-    assert P.ControllerInfo.decode(ctrl.payload).single_frame_broken
-    ask(old, P.single_frame_request())
+    (ctrl,) = ask(old, query_controller_info_request())
+    assert ControllerInfo.decode(ctrl.payload).single_frame_broken
+    ask(old, single_frame_request())
     clock.t += 1.0
     assert old.pushing and len(StreamParser(486).feed(old.read(1 << 20))) > 10
-    ask(old, P.stop_request())
+    ask(old, stop_request())
     clock.t += 1.0
     assert old.read() == b""
 
 
 def test_max_speed_no_loop_finishes(rec):
     emu, _ = make(rec, speed=None, loop=False)
-    emu.feed(P.push_request())
+    emu.feed(push_request())
     parser = StreamParser(rec.layout.n_taxels)
     frames = []
     for _ in range(1000):
@@ -140,15 +164,15 @@ def test_max_speed_no_loop_finishes(rec):
 
 def test_loop_continues_device_time(rec):
     emu, _ = make(rec, speed=None, loop=True, start_ms=(1 << 32) - 500)
-    emu.feed(P.push_request())
+    emu.feed(push_request())
     parser = StreamParser(rec.layout.n_taxels)
     frames = []
     while len(frames) < rec.n_frames + 3:
         frames += [p for p in parser.feed(emu.read(1 << 16)) if p.packet_id == 0]
-    unwrap = P.TimestampUnwrapper()
-    stamps = [unwrap(P.decode_frame_payload(p.payload, 486)[0]) for p in frames]
+    unwrap = TimestampUnwrapper()
+    stamps = [unwrap(decode_frame_payload(p.payload, 486)[0]) for p in frames]
     assert np.all(np.diff(stamps) > 0)  # across the loop and across the u32 wrap
-    assert np.array_equal(P.decode_frame_payload(frames[rec.n_frames].payload, 486)[1], rec.frames[0])
+    assert np.array_equal(decode_frame_payload(frames[rec.n_frames].payload, 486)[1], rec.frames[0])
 
 
 def test_faults_are_counted_by_emulator_and_parser(rec):
@@ -156,12 +180,12 @@ def test_faults_are_counted_by_emulator_and_parser(rec):
     emu, _ = make(rec, speed=None, faults=plan, seed=3)
     parser = StreamParser(rec.layout.n_taxels)
     parser.feed(emu.read(1 << 16))  # boot query before anything
-    emu.feed(P.push_request())
+    emu.feed(push_request())
     good = 0
     while emu.stats.frames_sent < 300:
         for p in parser.feed(emu.read(1 << 16)):
             if p.packet_id == 0:
-                P.decode_frame_payload(p.payload, 486)
+                decode_frame_payload(p.payload, 486)
                 good += 1
     s = emu.stats
     assert s.crc_corrupted > 0 and s.garbage_inserted > 0 and s.packets_truncated > 0
@@ -173,7 +197,7 @@ def test_faults_are_counted_by_emulator_and_parser(rec):
 
 def test_stall_and_disconnect(rec):
     emu, clock = make(rec, speed=None, faults=FaultPlan(stall=1.0, stall_seconds=0.5, disconnect_after=3))
-    emu.feed(P.push_request())
+    emu.feed(push_request())
     assert emu.read(1 << 16)  # ack + first frame, then the stall starts
     assert emu.read(1 << 16) == b"" and emu.seconds_until_output() == pytest.approx(0.5)
     clock.t += 0.6

@@ -11,9 +11,9 @@ import time
 import pytest
 
 from firmware_io.client import DSAClient
-from firmware_io.emulator import DeviceEmulator, FaultPlan
-from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
-from firmware_io.frame_source import load_source
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+from firmware_io.emulator.frame_source import load_source
+from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
 
 QUICK = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet": 0.05}
 

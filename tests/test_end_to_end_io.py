@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from firmware_io.client import DSAClient
-from firmware_io.emulator import DeviceEmulator, FaultPlan
-from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
-from firmware_io.frame_source import placeholder_session
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
 from firmware_io.layout import SensorLayout
 from firmware_io.transports import DeviceUnavailable, EndOfStream
 from tests.conftest import ROOT, dsa_files
@@ -162,7 +162,7 @@ def test_replay_realtime_paces_frames(rec, tmp_path):
 
 @pytest.mark.realdata
 def test_replay_of_a_real_dsa_recording(sdh2_data):
-    from firmware_io.importers import import_any
+    from firmware_io.recordings.importers import import_any
 
     path = min(dsa_files(), key=lambda p: p.stat().st_size)
     real = import_any(path)
@@ -188,7 +188,7 @@ def _args(module, argv):
 
 
 def test_dump_cli_prints_layout_frames_and_summary(capsys):
-    from firmware_io import dump_cli
+    from firmware_io.commands import dump_cli
 
     assert dump_cli.main(_args(dump_cli, ["sim://?events=1&realtime=0", "--frames", "4"])) == 0
     out = capsys.readouterr().out
@@ -200,7 +200,7 @@ def test_dump_cli_prints_layout_frames_and_summary(capsys):
 
 
 def test_dump_cli_errors_are_one_line(capsys):
-    from firmware_io import dump_cli
+    from firmware_io.commands import dump_cli
 
     assert dump_cli.main(_args(dump_cli, ["bogus://x"])) == 1
     err = capsys.readouterr().err.strip()
@@ -261,7 +261,7 @@ def test_tcp_server_on_ipv6_loopback(rec):
 
 
 def test_emulate_cli_bad_options_are_one_line(capsys):
-    from firmware_io import emulate_cli
+    from firmware_io.commands import emulate_cli
 
     for argv, words in [
         (["--listen", "tcp://10.1.2.3:5000"], "loopback only"),

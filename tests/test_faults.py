@@ -371,7 +371,7 @@ def test_sighup_between_a_trigger_and_its_window_loses_no_event(tmp_path, models
 
     daemon = ReloadMidWindow(load_config(cfg_path), on_event=events.append)
     assert _run_until(daemon, lambda d: d.health.device_faults >= 1, timeout=30)  # the end of the session
-    from firmware_io.frame_source import load_source
+    from firmware_io.emulator.frame_source import load_source
 
     trials = load_source("sim", seed=0, events=n_events).trials
     assert len(reloads) == len(trials)

@@ -126,7 +126,7 @@ def test_select_chooses_within_the_budget_and_reports_runners_up():
 
     with tempfile.TemporaryDirectory() as tmp:
         write_standin(Path(tmp), n_subjects=3, runs=2, silent=0)
-        from firmware_io.recording import find_recordings, load_all
+        from firmware_io.recordings.recording import find_recordings, load_all
 
         ds = build_dataset(load_all(find_recordings(tmp)), T=12, pads="distal")
     options = TrainOptions(K=5, W=4)

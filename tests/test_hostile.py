@@ -206,9 +206,9 @@ def test_frames_the_sensor_cannot_send_are_counted_and_dropped():
     """CRC-valid frames with a value above 12 bits or pressure on a missing cell (what multi-bit
     errors the CRC lets through look like) never leave the client."""
     from firmware_io.client import DSAClient
-    from firmware_io.emulator import DeviceEmulator
-    from firmware_io.frame_source import load_source
-    from firmware_io.recording import Recording
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.recordings.recording import Recording
     from firmware_io.transports.emulated import EmulatedTransport
 
     rec = load_source("sim", seed=3, events=2)
@@ -268,12 +268,12 @@ def hostile_recordings(tmp_path_factory):
 def test_every_hostile_recording_is_one_line_naming_the_file(hostile_recordings, monkeypatch):
     import resource
 
-    from firmware_io.importers import dsa
+    from firmware_io.recordings.importers import dsa
 
     monkeypatch.setattr(dsa, "MAX_XML_BYTES", 8 << 20)  # below this test's small bzip2 bomb
 
-    from firmware_io.importers import import_any
-    from firmware_io.recording import RecordingError
+    from firmware_io.recordings.importers import import_any
+    from firmware_io.recordings.recording import RecordingError
 
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     for name, path in hostile_recordings.items():

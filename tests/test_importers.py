@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_io.importers import find_sources, import_any, iter_dsa_files, read_dsa, read_rosbag
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import Recording, RecordingError
+from firmware_io.recordings.importers import find_sources, import_any, iter_dsa_files, read_dsa, read_rosbag
+from firmware_io.recordings.recording import Recording, RecordingError
 from runtime.cli import main as handover
 from tests.conftest import SDH2_DATA, bag_files, dsa_files, real_data_dir
 
@@ -310,7 +310,7 @@ def write_ros2_bag(
 ) -> Path:
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from firmware_io.importers.rosbag import MATRIX_MSGTYPE, MSGTYPE, typestore
+    from firmware_io.recordings.importers.rosbag import MATRIX_MSGTYPE, MSGTYPE, typestore
 
     store = typestore()
     Sensor, Matrix = store.types[MSGTYPE], store.types[MATRIX_MSGTYPE]

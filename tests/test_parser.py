@@ -10,8 +10,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from firmware_io import protocol as P
-from firmware_io.parser import StreamParser
+from firmware_io.wire.frames import decode_frame_payload, encode_frame
+from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, encode_ack, encode_packet
+from firmware_io.wire.parser import StreamParser
+from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensorInfo, ThresholdReply
+from firmware_io.wire.requests import query_controller_info_request
 
 N_CELLS = 486
 
@@ -20,18 +23,18 @@ def frame_packet(rng: np.random.Generator, rle: bool, ts: int = 0) -> bytes:
     values = np.zeros(N_CELLS, np.uint16)
     k = int(rng.integers(0, 60))
     values[rng.integers(0, N_CELLS, k)] = rng.integers(0, 4096, k)
-    return P.encode_frame(values, ts, rle)
+    return encode_frame(values, ts, rle)
 
 
 def reply_packet(rng: np.random.Generator) -> bytes:
     choice = int(rng.integers(0, 6))
     return [
-        P.encode_ack(0x03),
-        P.ControllerInfo(serial_no=int(rng.integers(0, 2**31))).to_packet(),
-        P.SensorInfo().to_packet(),
-        P.MatrixInfoReply(cells_y=13).to_packet(),
-        P.ThresholdReply(int(rng.integers(0, 4096))).to_packet(),
-        P.query_controller_info_request(),  # a zero-length packet (no CRC)
+        encode_ack(0x03),
+        ControllerInfo(serial_no=int(rng.integers(0, 2**31))).to_packet(),
+        SensorInfo().to_packet(),
+        MatrixInfoReply(cells_y=13).to_packet(),
+        ThresholdReply(int(rng.integers(0, 4096))).to_packet(),
+        query_controller_info_request(),  # a zero-length packet (no CRC)
     ][choice]
 
 
@@ -52,7 +55,7 @@ def parse_all(data: bytes, cuts: list[int] | None = None, n_cells: int | None = 
         packets += parser.feed(data[a:b])
         assert parser.pending <= parser.max_packet_size  # bounded memory
     packets += parser.flush_pending()
-    return [P.encode_packet(p.packet_id, p.payload) for p in packets], parser
+    return [encode_packet(p.packet_id, p.payload) for p in packets], parser
 
 
 # -- behaviour --------------------------------------------------------------------------------------
@@ -109,7 +112,7 @@ def test_bad_length_too_long_is_rejected_at_once() -> None:
     data = b"".join(pkts[:2]) + bytes(bad) + b"".join(pkts[3:])
     parser = StreamParser(N_CELLS)
     out = parser.feed(data)
-    assert [P.encode_packet(p.packet_id, p.payload) for p in out] == pkts[:2] + pkts[3:]
+    assert [encode_packet(p.packet_id, p.payload) for p in out] == pkts[:2] + pkts[3:]
     assert parser.stats.bad_headers >= 1
 
 
@@ -124,8 +127,8 @@ def test_plausible_but_wrong_length_recovers_following_packets() -> None:
 
 def test_wrong_length_waiting_at_the_end_is_released_by_flush() -> None:
     """A corrupt length that asks for more than ever comes: the reply behind it is found on flush."""
-    ack = P.encode_ack(0x03)
-    bad = bytearray(P.ThresholdReply(7).to_packet())
+    ack = encode_ack(0x03)
+    bad = bytearray(ThresholdReply(7).to_packet())
     bad[4:6] = struct.pack("<H", 40)
     parser = StreamParser(N_CELLS)
     assert parser.feed(bytes(bad) + ack) == []
@@ -148,10 +151,10 @@ def test_aaaa_inside_payloads_and_a_damaged_frame_hiding_a_fake_header() -> None
     units = [0xAAAA, 0xAAAA, 0x5100] + [0xF000] * 30 + [0xB007]
     assert sum(u >> 12 for u in units) == N_CELLS
     payload = struct.pack("<IB", 9, 1) + struct.pack(f"<{len(units)}H", *units)
-    tricky = P.encode_packet(0, payload)
+    tricky = encode_packet(0, payload)
     assert b"\xaa\xaa\xaa\xaa\x00\x51\x00" in tricky[6:]
     assert StreamParser(N_CELLS).plausible(0x00, 0x51)
-    _, values = P.decode_frame_payload(payload, N_CELLS)
+    _, values = decode_frame_payload(payload, N_CELLS)
     assert values[:20].tolist() == [2730] * 20
     pkts = good_stream(8, 5)
     out, _ = parse_all(pkts[0] + tricky + pkts[1] + b"".join(pkts[2:]))
@@ -165,7 +168,7 @@ def test_aaaa_inside_payloads_and_a_damaged_frame_hiding_a_fake_header() -> None
 
 def test_boot_query_is_skipped_not_dropped() -> None:
     pkts = good_stream(9, 4)
-    boot = P.BOOT_TERMINAL_QUERY
+    boot = BOOT_TERMINAL_QUERY
     data = boot + boot + pkts[0] + boot + b"".join(pkts[1:])
     for cuts in ([], list(range(0, len(data), 3)), list(range(len(data)))):
         out, parser = parse_all(data, cuts)
@@ -180,9 +183,9 @@ def test_interleaved_replies_and_frames_keep_order() -> None:
     for i in range(20):
         pkts.append(frame_packet(rng, rle=True, ts=i))
         if i % 3 == 0:
-            pkts.append(P.MatrixInfoReply(cells_y=14).to_packet())
+            pkts.append(MatrixInfoReply(cells_y=14).to_packet())
         if i % 4 == 1:
-            pkts.append(P.encode_ack(0x03))
+            pkts.append(encode_ack(0x03))
     out, _ = parse_all(b"".join(pkts), list(range(0, 5000, 97)))
     assert out == pkts
 
@@ -205,7 +208,7 @@ def test_frame_lengths_checked_against_cells() -> None:
 
 def test_received_time_is_set() -> None:
     parser = StreamParser()
-    (packet,) = parser.feed(P.encode_ack(3))
+    (packet,) = parser.feed(encode_ack(3))
     assert packet.received > 0
 
 
@@ -280,7 +283,7 @@ def test_fuzz_mutated_streams_recover_the_next_good_packet(seed: int, damages: l
 @given(st.binary(max_size=6000), st.lists(st.integers(0, 6000), max_size=20))
 def test_fuzz_random_bytes_never_crash_and_stay_bounded(data: bytes, cuts: list[int]) -> None:
     parser = StreamParser(N_CELLS)
-    tail = P.encode_ack(0x03)
+    tail = encode_ack(0x03)
     _, parser = parse_all(data + tail, cuts)
     s = parser.stats
     assert s.packet_bytes + 4 * s.boot_queries + s.bytes_dropped == s.bytes_in
@@ -291,7 +294,7 @@ def test_fuzz_random_bytes_never_crash_and_stay_bounded(data: bytes, cuts: list[
 @given(st.binary(max_size=3000))
 def test_fuzz_random_bytes_then_a_good_packet_is_found(noise: bytes) -> None:
     """Whatever precedes it, a good packet after noise comes out (after a flush at most)."""
-    good = P.ThresholdReply(1234).to_packet()
+    good = ThresholdReply(1234).to_packet()
     parser = StreamParser(N_CELLS)
     out = parser.feed(noise + good) + parser.flush_pending()
     assert any(p.packet_id == 0x14 and p.payload == good[6:-2] for p in out)

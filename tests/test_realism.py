@@ -10,8 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_io import realism
-from firmware_io.simulate import simulate_protocol
+from firmware_io.sim import realism, simulate_protocol
 from tests.conftest import real_data_dir
 
 
@@ -21,7 +20,7 @@ def real() -> dict:
     files = realism.real_dsa_files(folder, ("grasps", "room temperature"))
     if not files:
         pytest.skip(f"no real .dsa files under {folder}")
-    from firmware_io.importers.dsa import read_dsa
+    from firmware_io.recordings.importers.dsa import read_dsa
 
     return realism.summarise([read_dsa(p) for p in files])
 

@@ -14,7 +14,7 @@ import pytest
 
 from firmware_io.client import DSAClient
 from firmware_io.layout import SensorLayout
-from firmware_io.record_session import (
+from firmware_io.recordings.record_session import (
     ProtocolPlan,
     SessionError,
     SessionIO,
@@ -25,9 +25,9 @@ from firmware_io.record_session import (
     recording_path,
     run_session,
 )
-from firmware_io.recording import ACTIONS, Recording
-from firmware_io.scripted_subject import ScriptedSubject
-from firmware_io.terminal_view import sparkline, trial_view
+from firmware_io.recordings.recording import ACTIONS, Recording
+from firmware_io.recordings.terminal_view import sparkline, trial_view
+from firmware_io.sim.scripted_subject import ScriptedSubject
 from runtime.cli import main as handover
 
 SPEED = 10.0
@@ -256,7 +256,7 @@ def test_unplugged_device_saves_exits_with_one_line_and_resumes(tmp_path, capsys
 
 
 def test_session_over_tcp(tmp_path):
-    from firmware_io.emulator_server import TcpEmulatorServer
+    from firmware_io.emulator.server import TcpEmulatorServer
 
     subject = ScriptedSubject(seed=5, speed=SPEED)
     with TcpEmulatorServer(subject.emulator) as server:

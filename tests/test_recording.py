@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import firmware_io.recording as recording_module
+import firmware_io.recordings.recording as recording_module
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import ACTIONS, Recording, RecordingError, Trial, find_recordings
+from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial, find_recordings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -108,7 +108,7 @@ _KILL_CHILD = textwrap.dedent(
     sys.path.insert(0, {root!r})
     import numpy as np
     from firmware_io.layout import SensorLayout
-    from firmware_io.recording import Recording
+    from firmware_io.recordings.recording import Recording
 
     real_writestr = zipfile.ZipFile.writestr
 

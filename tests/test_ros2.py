@@ -95,7 +95,7 @@ def _state(diagnostics: DiagnosticArray) -> str:
 
 def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     jsonschema = pytest.importorskip("jsonschema")
-    from firmware_io.frame_source import load_source
+    from firmware_io.emulator.frame_source import load_source
 
     udp = udp_socket()
     url = "sim://?seed=0&events=4&realtime=1&speed=8"

@@ -160,7 +160,7 @@ def test_deploy_config_shows_the_defaults(tmp_path):
 @pytest.mark.parametrize("url", ["serial:///dev/ttyUSB0", "/dev/dsacon32m", "tcp://192.168.1.42:13000",
                                  "tcp://[::1]:13000?connect_timeout=0.5", "tcp://robot", "sim://?seed=3&events=5&realtime=0",
                                  "replay:///data/x.hrec?speed=max&loop=1", "usb://0403:6001?chip=ftdi&interface=0",
-                                 "hid://10c4:ea80?baud=115200"])
+                                 "hid://10c4:ea80?baud=115200", "subject://?seed=2&speed=max&drop=3,9&seconds=2"])
 def test_good_urls_pass_without_opening_anything(url):
     scheme = url.partition(":")[0]
     if scheme in ("usb", "hid"):
@@ -169,7 +169,9 @@ def test_good_urls_pass_without_opening_anything(url):
 
 
 @pytest.mark.parametrize("url", ["foo://x", "tcp://127.0.0.1:", "tcp://h:1?x=1", "sim://?seed=abc", "sim://?fault=melt",
-                                 "serial://", "usb://0403:6001?chip=ch340", "hid://10c4", "replay://"])
+                                 "serial://", "usb://0403:6001?chip=ch340", "hid://10c4", "replay://",
+                                 "sim://?realtime=0&speed=fast", "subject://?sped=2", "subject://?drop=x",
+                                 "subject://?speed=-1"])
 def test_validate_url_agrees_with_open_transport(url):
     """Whatever validate_url refuses, open_transport refuses too, with a TransportError that is
     not DeviceUnavailable (so the check and the real thing cannot drift apart unnoticed)."""

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import ACTIONS, Recording
-from firmware_io.simulate import (
+from firmware_io.recordings.recording import ACTIONS, Recording
+from firmware_io.sim import (
     OBJECTS,
     POSES,
     ScriptedEvent,
@@ -164,7 +164,7 @@ def test_session_rejects_bad_scripts(bad, message):
 def test_cli_writes_protocol_and_session(tmp_path, capsys):
     import argparse
 
-    from firmware_io import simulate_cli
+    from firmware_io.commands import simulate_cli
 
     parser = argparse.ArgumentParser()
     simulate_cli.add_arguments(parser)

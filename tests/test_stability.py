@@ -204,7 +204,7 @@ def test_verify_cli_on_held_out_simulated_trials(tmp_path, capsys):
 
     import joblib
 
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
     from runtime.cli import main as handover
     from trainer.classifier import BowSVC
     from trainer.dataset import build_dataset

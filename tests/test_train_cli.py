@@ -152,7 +152,7 @@ def test_sweep_command_writes_results_train_can_use(tiny_data, tmp_path, capsys)
 @pytest.mark.slow
 def test_full_simulated_protocol(tmp_path, capsys):
     """The paper's 900-trial protocol from the simulator, evaluation included (a few minutes)."""
-    pytest.importorskip("firmware_io.simulate")
+    pytest.importorskip("firmware_io.sim")
     rc = handover(["train", "--out", str(tmp_path / "full"), "--json", "--quiet"])
     captured = capsys.readouterr()
     assert rc == 0, captured.err

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from firmware_io.client import DSAClient
-from firmware_io.emulator import DeviceEmulator
-from firmware_io.emulator_links import EmulatedCp2110, EmulatedUsbBackend
-from firmware_io.frame_source import placeholder_session
+from firmware_io.emulator.device import DeviceEmulator
+from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.emulator.links import EmulatedCp2110, EmulatedUsbBackend
 from firmware_io.layout import SensorLayout
 from firmware_io.transports import (
     DeviceUnavailable,
@@ -47,6 +47,10 @@ def rec():
         ("sim://?bogus=1", "unknown option 'bogus'"),
         ("sim://?fault=crc=5", "fault"),
         ("replay://", "no file"),
+        ("subject://?sped=2", "unknown option 'sped'"),
+        ("subject://?speed=nan", "speed='nan' must be a finite number"),
+        ("subject://?unplug=soon", "unplug='soon' is not an integer"),
+        ("sim://?speed=2e7", "speed=20000000.0 must be at most"),
     ],
 )
 def test_bad_urls_give_one_clear_error(url, words):
@@ -100,6 +104,34 @@ def test_register_transport_adds_a_scheme(rec):
     register_transport("loop-test", Loopback)
     with open_transport("loop-test://") as t:
         assert isinstance(t, Loopback)
+
+
+def test_subject_scheme_goes_through_the_registry():
+    """subject:// is a scheme like any other: checked by its transport, opened by URL (an idle subject)."""
+    from firmware_io.sim.scripted_subject import ScriptedSubject
+    from firmware_io.transports import TRANSPORTS, validate_url
+
+    assert "subject" in TRANSPORTS
+    assert validate_url("subject://?seed=4&speed=max&lazy=1,2").scheme == "subject"
+    subject = ScriptedSubject.from_url("subject://?seed=4&speed=0&drop=5,7&unplug=40&lazy=2&seconds=2")
+    assert (subject.seed, subject.emulator.speed, subject.drop_at, subject.unplug_at, subject.lazy) == (
+        4, None, {5, 7}, 40, {2})
+    client = DSAClient("subject://?seed=4&speed=max", auto_reconnect=False)
+    try:
+        assert client.open().n_taxels == SensorLayout.sdh2().n_taxels
+        client.start()
+        frame = client.read_frame(timeout=2.0)
+        assert frame is not None and int(frame.values.max()) == 0  # nobody prompts it: an empty hand
+    finally:
+        client.close()
+
+
+@pytest.mark.parametrize(("text", "speed"), [("max", None), ("INF", None), ("0", None), (None, None), ("2.5", 2.5),
+                                             (1, 1.0)])
+def test_speed_is_read_one_way(text, speed):
+    from firmware_io.transports.base import parse_speed
+
+    assert parse_speed("x://", text) == speed
 
 
 def test_tcp_eof_is_device_unavailable():

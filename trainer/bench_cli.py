@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
+
+from firmware_io.commands.errors import fail
 
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
@@ -58,22 +59,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pareto: re-mark the default and rewrite .md/.png from OUT/pareto.json (no measuring)")
 
 
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
-
-
 def main(args: argparse.Namespace) -> int:
     from trainer.bench.common import progress
 
     if args.duration is not None and args.duration <= 0:
-        return _fail(f"--duration must be positive, got {args.duration}")
+        return fail(COMMAND, f"--duration must be positive, got {args.duration}")
     if args.hours is not None and not 0 < args.hours <= 168:
-        return _fail(f"--hours must be in (0, 168], got {args.hours}")
+        return fail(COMMAND, f"--hours must be in (0, 168], got {args.hours}")
     for flag, value in (("--frames", args.frames), ("--repeats", args.repeats), ("--seconds", args.seconds),
                         ("--speed", args.speed), ("--pad-rate", args.pad_rate)):
         if value is not None and not value > 0:
-            return _fail(f"{flag} must be positive, got {value}")
+            return fail(COMMAND, f"{flag} must be positive, got {value}")
     args.say = progress(args.quiet)
     which = BENCHMARKS if args.which == "all" else (args.which,)
     figures: dict = {}
@@ -82,7 +78,7 @@ def main(args: argparse.Namespace) -> int:
         try:
             result = module.rerender(args.out) if args.rerender and name == "pareto" else module.run(args)
         except (OSError, ValueError, RuntimeError) as exc:
-            return _fail(f"{name}: {exc}")
+            return fail(COMMAND, f"{name}: {exc}")
         figures[name] = {k: result[k] for k in HEADLINE if k in result}
         args.say(f"{name}: wrote {args.out}/{name}.json and .md " + json.dumps(figures[name]))
     if args.json:

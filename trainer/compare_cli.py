@@ -11,6 +11,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from firmware_io.commands.errors import fail
+
 COMMAND = "compare"
 
 
@@ -44,20 +46,15 @@ def command_line(args: argparse.Namespace) -> str:
     return shlex.join(parts)
 
 
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
-
-
 def main(args: argparse.Namespace) -> int:
     if not 1 <= args.n_jobs <= 2:
-        return _fail(f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
+        return fail(COMMAND, f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
     minirocket = not args.no_minirocket
     if minirocket:
         import importlib.util
 
         if importlib.util.find_spec("aeon") is None:
-            return _fail("MiniRocket needs the Python package 'aeon' (pip install 'tactile-handover[bench]'), "
+            return fail(COMMAND, "MiniRocket needs the Python package 'aeon' (pip install 'tactile-handover[bench]'), "
                          "or pass --no-minirocket")
     from trainer import compare
     from trainer.bench.common import write_results
@@ -68,11 +65,11 @@ def main(args: argparse.Namespace) -> int:
 
     data_dir = None if args.no_real else Path(args.data) if args.data else default_data_dir()
     if args.data and not Path(args.data).is_dir():
-        return _fail(f"--data {args.data}: no such folder")
+        return fail(COMMAND, f"--data {args.data}: no such folder")
     try:
         res = compare.run(args.quick, args.seed, args.n_jobs, data_dir, minirocket, say)
     except (OSError, ValueError) as exc:
-        return _fail(f"{type(exc).__name__}: {exc}")
+        return fail(COMMAND, f"{type(exc).__name__}: {exc}")
     res["command"] = command_line(args)
     res["load_after"] = [round(v, 2) for v in os.getloadavg()]
     out = Path(args.out)

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import Recording, RecordingError, Trial, find_recordings, load_all
+from firmware_io.recordings.recording import Recording, RecordingError, Trial, find_recordings, load_all
 from runtime.trigger import ThresholdTrigger
 from runtime.trigger_settings import PAPER_FRACTION, TriggerSettings, build_trigger, resolve_trigger
 

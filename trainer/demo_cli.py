@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.commands.errors import fail
+
 COMMAND = "demo"
 SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
 STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
@@ -49,11 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/model.onnx exists")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="only the summary")
-
-
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
 
 
 def _say(args: argparse.Namespace, text: str) -> None:
@@ -100,7 +97,7 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
 
 def _train_stream_model(args: argparse.Namespace, model: Path, stamp: Path, wanted: dict) -> Path:
     """The 5-class model with a dormant class and level features (trainer.dormant.fit_stream_model)."""
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
     from trainer.dormant import fit_stream_model
 
     _say(args, f"[1/4] simulating the paper's protocol, {STREAM_MODEL_IDLE_MIN:g} min of idle stream and "
@@ -140,24 +137,20 @@ def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator import FaultPlan, FaultSpecError
+    from firmware_io.commands.playback import playback_options
 
     if args.events < 4:
-        return _fail("--events must be at least 4 (one of each class)")
+        return fail(COMMAND, "--events must be at least 4 (one of each class)")
     try:
-        speed = parse_speed(args.speed)
-    except ValueError:
-        return _fail(f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
-    try:
-        faults = FaultPlan.parse(args.fault)
-    except FaultSpecError as exc:
-        return _fail(f"--fault: {exc}")
+        speed, faults = playback_options(args.speed, args.fault)
+    except ValueError as exc:
+        return fail(COMMAND, str(exc))
     out = Path(args.out)
     t_start = time.perf_counter()
     try:
         model_path = train_model(args, out)
     except (OSError, ValueError, RuntimeError) as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     model_dir = drop_model(model_path, out / "models").parent
     summary = run_session(args, model_dir, speed, faults)
     summary.update(model=str(model_path), seconds=round(time.perf_counter() - t_start, 1))
@@ -168,21 +161,12 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def parse_speed(text: str) -> float | None:
-    """``--speed``: a positive factor, or None for 'max' / 'inf' (as fast as possible); ValueError otherwise."""
-    speed_text = text.strip().lower()
-    speed = None if speed_text in ("max", "inf") else float(speed_text)
-    if speed is not None and speed <= 0:
-        raise ValueError(text)
-    return speed
-
-
 def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, faults) -> dict:
     """Steps 3 and 4: an emulated DSACON32m plays a scripted session of unseen simulated subjects to
     the real daemon serving ``model_dir``; every event is printed as it happens. The summary."""
-    from firmware_io.emulator import DeviceEmulator
-    from firmware_io.emulator_server import TcpEmulatorServer
-    from firmware_io.simulate import demo_script, simulate_session
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.server import TcpEmulatorServer
+    from firmware_io.sim import demo_script, simulate_session
     from runtime.daemon import Daemon
     from runtime.sdnotify import Notifier
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
 from trainer.dataset import fingerprint
 
 DORMANT = "dormant"
@@ -289,8 +289,8 @@ def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, 
     the daemon in trigger mode starts its windows at the person's onset and reports nothing for a
     window it reads as dormant; in continuous mode it classifies every frame.
     """
+    from firmware_io.sim import demo_script, simulate_session
     from firmware_io.sim.idle import simulate_idle
-    from firmware_io.simulate import demo_script, simulate_session
     from runtime.trigger_settings import resolve_trigger
     from trainer.classifier import BowSVC
 

@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+from firmware_io.commands.errors import fail
+
 COMMAND = "dormant"
 PART_S = 900.0
 """Idle evaluation streams are generated and replayed in parts of 15 min (bounded memory)."""
@@ -51,11 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument("--quiet", action="store_true")
-
-
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
 
 
 def _say(args, text: str) -> None:
@@ -91,24 +88,24 @@ def command_line(args) -> str:
 
 def main(args: argparse.Namespace) -> int:
     if args.K < 1 or args.W < 1 or args.T - 1 < args.W:
-        return _fail(f"need K >= 1, W >= 1 and T >= W + 1 (got K={args.K}, W={args.W}, T={args.T})")
+        return fail(COMMAND, f"need K >= 1, W >= 1 and T >= W + 1 (got K={args.K}, W={args.W}, T={args.T})")
     s = settings(args)
     if min(s["idle_hours"], s["events"], s["train_idle_min"], s["val_events"], s["val_idle_hours"]) <= 0:
-        return _fail("--idle-hours, --events, --train-idle-min, --val-events and --val-idle-hours must be positive")
+        return fail(COMMAND, "--idle-hours, --events, --train-idle-min, --val-events and --val-idle-hours must be positive")
     if args.seed == args.eval_seed:
-        return _fail("--eval-seed must differ from --seed (the evaluation streams must be unseen)")
+        return fail(COMMAND, "--eval-seed must differ from --seed (the evaluation streams must be unseen)")
     if args.val_seed in (args.seed, args.eval_seed):
-        return _fail("--val-seed must differ from --seed and --eval-seed (the rule is chosen on streams of its own)")
+        return fail(COMMAND, "--val-seed must differ from --seed and --eval-seed (the rule is chosen on streams of its own)")
     try:
         from firmware_io.layout import SensorLayout
 
         SensorLayout.sdh2().pads(args.pads)
     except ValueError as exc:
-        return _fail(f"--pads: {exc}")
+        return fail(COMMAND, f"--pads: {exc}")
     try:
         result = run(args, s)
     except OSError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     if args.json:
         print(json.dumps(result["summary"], indent=1))
     return 0
@@ -117,8 +114,8 @@ def main(args: argparse.Namespace) -> int:
 def train_models(args, s: dict, model_dir: Path) -> dict:
     """Simulate the training data, fit and export the 4-class and the 5-class models."""
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script, simulate_protocol, simulate_session
     from firmware_io.sim.idle import simulate_idle
-    from firmware_io.simulate import demo_script, simulate_protocol, simulate_session
     from runtime.trigger_settings import PAPER_FRACTION
     from trainer import dormant
     from trainer.dataset import build_dataset
@@ -183,8 +180,8 @@ def choose_rule(args, s: dict, five) -> dict:
     import itertools
 
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
-    from firmware_io.simulate import demo_script
     from trainer import streams_eval as se
 
     period = K.FRAME_PERIOD_S
@@ -224,8 +221,8 @@ def evaluate(args, s: dict, models: dict, rule: dict) -> dict:
     per-frame decisions, for comparison.
     """
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
-    from firmware_io.simulate import demo_script
     from trainer import streams_eval as se
 
     period = K.FRAME_PERIOD_S
@@ -370,7 +367,7 @@ def markdown(r: dict) -> str:
     lines = [
         "# Dormant class and continuous detection vs the threshold trigger (synthetic)",
         "",
-        "All data here are **synthetic** (the simulated hand, `firmware_io.simulate` and `firmware_io.sim.idle`; "
+        "All data here are **synthetic** (the simulated hand, `firmware_io.sim` and `firmware_io.sim.idle`; "
         "docs/DORMANT.md). Reproduce with:",
         "",
         f"    {r['command']}",

@@ -55,7 +55,7 @@ def progress_bar(quiet: bool, desc: str, total: int):
 
 def load_or_simulate(data: str | None, seed: int, say: Callable[[str], None]) -> tuple[list, str, bool]:
     """Recordings, a description of where they came from, and whether they are synthetic."""
-    from firmware_io.recording import find_recordings, load_all
+    from firmware_io.recordings.recording import find_recordings, load_all
 
     if data:
         paths = find_recordings(data)
@@ -65,12 +65,12 @@ def load_or_simulate(data: str | None, seed: int, say: Callable[[str], None]) ->
         synthetic = any(_looks_simulated(r.meta) for r in recs)
         return recs, f"{len(paths)} recordings in {data}", synthetic
     try:
-        from firmware_io.simulate import simulate_protocol
+        from firmware_io.sim import simulate_protocol
     except ImportError as exc:
         raise FileNotFoundError(f"no --data given and the simulator is not available ({exc})") from None
     say(f"simulating the paper's protocol (seed {seed}) ...")
     recs = simulate_protocol(seed=seed)
-    return recs, f"simulated protocol, firmware_io.simulate.simulate_protocol(seed={seed})", True
+    return recs, f"simulated protocol, firmware_io.sim.simulate_protocol(seed={seed})", True
 
 
 def _looks_simulated(meta: dict) -> bool:

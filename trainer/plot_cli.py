@@ -7,10 +7,11 @@ matplotlib is imported inside ``main`` (Agg backend: works on a robot PC without
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-PROG = "handover plot"
+from firmware_io.commands.errors import fail
+
+COMMAND = "plot"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,32 +22,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fraction", type=float, default=0.15, help="trigger level drawn, fraction of full scale")
 
 
-def _fail(message: str) -> int:
-    print(f"{PROG}: {message}", file=sys.stderr)
-    return 2
-
-
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.recording import Recording, RecordingError
+    from firmware_io.recordings.recording import Recording, RecordingError
 
     try:
         rec = Recording.load(args.recording)
     except RecordingError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     if args.list:
         for i, t in enumerate(rec.trials, start=1):
             flag = "  never triggered" if t.extra.get("triggered") is False else ""
             print(f"{i:4d}  {t.subject} {t.pose} {t.object} {t.action} run {t.run}  ({t.n_frames} frames){flag}")
         return 0
     if not rec.trials:
-        return _fail(f"{args.recording}: the recording holds no trials")
+        return fail(COMMAND, f"{args.recording}: the recording holds no trials")
     if not 1 <= args.trial <= len(rec.trials):
-        return _fail(f"--trial {args.trial}: the recording has trials 1..{len(rec.trials)}")
+        return fail(COMMAND, f"--trial {args.trial}: the recording has trials 1..{len(rec.trials)}")
     out = Path(args.out) if args.out else Path(f"{Path(args.recording).stem}_trial{args.trial}.png")
     try:
         path = plot_trial(rec, args.trial - 1, out, fraction=args.fraction)
     except OSError as exc:
-        return _fail(f"{out}: cannot write ({exc.strerror or exc})")
+        return fail(COMMAND, f"{out}: cannot write ({exc.strerror or exc})")
     print(path)
     return 0
 
@@ -59,7 +55,7 @@ def plot_trial(rec, index: int, out: Path, fraction: float = 0.15) -> Path:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from firmware_io.terminal_view import pad_name, pad_sums
+    from firmware_io.recordings.terminal_view import pad_name, pad_sums
 
     layout = rec.layout
     trial = rec.trials[index]

@@ -76,7 +76,7 @@ def cut_windows(rec, pads, chunk_prefix: str) -> tuple[np.ndarray, np.ndarray]:
 
 def load_windows(paths: dict[str, Path], pads) -> tuple:
     """Windows of every file (label = key): X, y, chunk ids, file names, pad sizes, pad shapes."""
-    from firmware_io.importers import import_any
+    from firmware_io.recordings.importers import import_any
 
     Xs, ys, chunks, files = [], [], [], []
     layout = None

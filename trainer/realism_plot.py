@@ -72,8 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--real", type=Path, default=Path(__file__).resolve().parents[2] / "shared/data/sdh2-dsa")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    from firmware_io import realism
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import realism, simulate_protocol
 
     if not args.real.is_dir():
         print(f"realism_plot: real recordings folder {args.real} not found", file=sys.stderr)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
 
 MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous")
 TRIGGER_TABLE = {"threshold": {"kind": "threshold"}, "baseline": {"kind": "threshold", "baseline": True},

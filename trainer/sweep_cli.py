@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.layout import LayoutError
-    from firmware_io.recording import RecordingError
+    from firmware_io.recordings.recording import RecordingError
     from trainer.dataset import DatasetError
 
     kernels = [k.strip() for k in args.kernels.split(",") if k.strip()]

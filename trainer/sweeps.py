@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
 from trainer.classifier import BowSVC
 from trainer.dataset import build_dataset
 from trainer.evaluation import sweep

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
+from firmware_io.commands.errors import fail
 from trainer.train_options import (
     ASSIGNMENTS,
     KERNELS,
@@ -84,24 +84,19 @@ def options_from_args(args: argparse.Namespace) -> TrainOptions:
     return TrainOptions(**given)
 
 
-def _fail(message: str) -> int:
-    print(f"handover {COMMAND}: {message}", file=sys.stderr)
-    return 2
-
-
 def main(args: argparse.Namespace) -> int:
     try:
         options = options_from_args(args)
         options.check()
     except OptionsError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     return run(options)
 
 
 def run(options: TrainOptions) -> int:
     """Train; one line and exit 2 for data that cannot train, exit 1 when model.onnx was not written."""
     from firmware_io.layout import LayoutError
-    from firmware_io.recording import RecordingError
+    from firmware_io.recordings.recording import RecordingError
     from trainer import report
     from trainer.dataset import DatasetError
     from trainer.pipeline import train
@@ -109,11 +104,11 @@ def run(options: TrainOptions) -> int:
     try:
         result = train(options)
     except OptionsError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     except (RecordingError, DatasetError, LayoutError, OSError) as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     except ValueError as exc:
-        return _fail(f"cannot train: {exc}")
+        return fail(COMMAND, f"cannot train: {exc}")
     if options.json:
         metrics = result.metrics
         print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (

@@ -58,14 +58,14 @@ def _stream(recordings: list, meta, stride: int, source: str) -> WindowStream:
 
 def simulated_stream(meta, seed: int, n_subjects: int, stride: int) -> WindowStream:
     """Held-out trials of the simulated protocol (a seed the training did not use)."""
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
 
     recs = simulate_protocol(seed=seed, n_subjects=n_subjects)
     return _stream(recs, meta, stride, "simulated (synthetic) recordings")
 
 
 def recording_stream(folder: str | Path, meta, stride: int) -> WindowStream:
-    from firmware_io.recording import RecordingError, find_recordings, load_all
+    from firmware_io.recordings.recording import RecordingError, find_recordings, load_all
 
     try:
         recs = load_all(find_recordings(folder))

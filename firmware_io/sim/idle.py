@@ -22,12 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
 from firmware_io.sim import constants as K
 from firmware_io.sim.actions import Motion, baseline, smooth
 from firmware_io.sim.contact import blur_width, pad_pressure
 from firmware_io.sim.hand import CREEP_GAIN, CREEP_TAU_S, SCAN_PERIOD_S, shear_tilt
-from firmware_io.sim.protocol import hand_sensor
+from firmware_io.sim.paper_protocol import hand_sensor
 from firmware_io.sim.scenario import (
     FINGER_ANGLES,
     OBJECT_MODELS,

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io.recording import ACTIONS, Recording, Trial
+from firmware_io.recordings.recording import ACTIONS, Recording, Trial
 from firmware_io.sim import constants as K
 from firmware_io.sim.hand import Job, render
-from firmware_io.sim.protocol import check_names, hand_sensor, subject_names
+from firmware_io.sim.paper_protocol import check_names, hand_sensor, subject_names
 from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS, POSE_MODELS, POSES, make_subject, make_trial
 from firmware_io.sim.streams import stream
 from firmware_io.sim.timing import frame_stamps
@@ -103,7 +103,7 @@ def simulate_session(events: Sequence[ScriptedEvent], seed: int = 0, lead_in: fl
         frames[first:last + 1] = f
     stamps = frame_stamps(n_total, stream(seed, "timing", "session"))
     trials = [Trial(first=a, last=b, **fld) for (a, b), fld in zip(spans, fields, strict=True)]
-    meta = {"source": "synthetic session (firmware_io.simulate)", "synthetic": True, "seed": int(seed),
+    meta = {"source": "synthetic session (firmware_io.sim)", "synthetic": True, "seed": int(seed),
             "script": [e.to_dict() for e in events], "lead_in": lead_in, "tail": tail,
             "frame_period_s": period}
     return Recording(sensor.layout, frames, stamps, trials, meta)

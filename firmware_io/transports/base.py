@@ -7,9 +7,11 @@ can keep its own deadlines (the protocol uses a gap timeout, not a whole-packet 
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from abc import ABC, abstractmethod
 from types import TracebackType
+from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 DEFAULT_READ_SIZE = 4096
@@ -32,9 +34,33 @@ class MissingDependency(TransportError):
 
 
 class Transport(ABC):
-    """Bytes in, bytes out. Subclasses set ``url`` and implement the three methods."""
+    """Bytes in, bytes out. Subclasses set ``url`` and implement the three methods.
+
+    A transport opened by URL owns its URL: ``url_settings`` reads and checks every part of it
+    (one place per transport), ``check_url`` runs those checks without opening anything (a
+    config check), and ``from_url`` opens with the settings they found.
+    """
 
     url: str = ""
+    requires: ClassVar[tuple[str, str] | None] = None
+    """``(import name, what to install)`` of an optional package the transport needs, or None."""
+
+    @classmethod
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
+        """The constructor's keyword arguments from the URL and keyword options (which win), every value
+        checked; raises one TransportError naming the URL and what to write instead."""
+        return {}
+
+    @classmethod
+    def check_url(cls, parsed: ParsedURL) -> None:
+        """What opening would refuse about the URL, without opening: its settings and the package it needs."""
+        cls.url_settings(parsed, {})
+        if cls.requires is not None and importlib.util.find_spec(cls.requires[0]) is None:
+            raise MissingDependency(f"{parsed.url}: {cls.requires[1]}")
+
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> Transport:
+        return cls(**cls.url_settings(parsed, opts), url=parsed.url)
 
     @abstractmethod
     def write(self, data: bytes) -> None:
@@ -120,6 +146,19 @@ MAX_BAUD = 12_000_000
 """The fastest USB-serial bridges (FTDI high-speed); the DSACON32m itself runs at 115200."""
 MAX_EVENTS = 100_000
 """Scripted events of a simulated session (``sim://?events=``): about 28 hours at 1 s each."""
+
+
+MAX_SPEED = 1e6
+"""Playback faster than this is written ``max`` (as fast as the frames are read)."""
+AS_FAST_AS_READ = ("max", "inf", "0")
+
+
+def parse_speed(url: str, text: object, name: str = "speed") -> float | None:
+    """A playback speed (the factor on recorded timing, 1.0 = real time) or None for ``max`` (also ``inf``
+    or ``0``): the one reading of every speed option, in URLs and on command lines."""
+    if text is None or str(text).strip().lower() in AS_FAST_AS_READ:
+        return None
+    return parse_number(url, name, text, float, 1 / MAX_SPEED, MAX_SPEED)
 
 
 def parse_bool(url: str, name: str, text: object) -> bool:

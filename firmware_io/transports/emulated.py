@@ -1,4 +1,4 @@
-"""In-process transports wired to the emulator core: ``sim://`` and ``replay://``.
+"""In-process transports wired to the emulator core: ``sim://``, ``replay://`` and ``subject://``.
 
 The client talks to them exactly as to a serial port or a socket (bytes in, bytes out),
 so the code path it exercises is the one it uses with a real controller; only the
@@ -8,6 +8,8 @@ byte link is missing.
   scripted session (synthetic data). ``realtime=0`` sends frames as fast as they are read.
 - ``replay://PATH?speed=1.0|max&loop=0&fault=...``: any recording (.hrec, .dsa, .bag).
   Without ``loop`` the transport raises EndOfStream once the last frame has been read.
+- ``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&lazy=2&fault=...&seconds=3``: a scripted
+  simulated subject (``firmware_io.sim.scripted_subject``) who does what ``handover record`` prompts.
 """
 
 from __future__ import annotations
@@ -24,9 +26,11 @@ from firmware_io.transports.base import (
     TransportError,
     parse_bool,
     parse_number,
+    parse_speed,
 )
 
 _COMMON = {"fault", "old_firmware", "loop", "start_ms"}
+SUBJECT_SCHEME = "subject"
 
 
 class EmulatedTransport(Transport):
@@ -69,74 +73,117 @@ class EmulatedTransport(Transport):
             raise TransportError(f"{self.url}: transport is closed")
 
 
-def _emulator_options(parsed: ParsedURL, opts: dict) -> dict:
-    from firmware_io.emulator import FaultPlan, FaultSpecError
+def _fault_plan(parsed: ParsedURL, opts: dict):
+    from firmware_io.emulator.device import FaultPlan, FaultSpecError
 
-    url = parsed.url
     try:
-        faults = FaultPlan.parse(str(parsed.option(opts, "fault", "") or ""))
+        return FaultPlan.parse(str(parsed.option(opts, "fault", "") or ""))
     except FaultSpecError as exc:
-        raise TransportError(f"{url}: {exc}") from None
+        raise TransportError(f"{parsed.url}: {exc}") from None
+
+
+def _seed(parsed: ParsedURL, opts: dict) -> int:
+    return int(parse_number(parsed.url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1))
+
+
+def _emulator_settings(parsed: ParsedURL, opts: dict, allowed: set[str], loop: bool) -> dict:
+    """The options every emulated controller takes: the DeviceEmulator's keyword arguments."""
+    parsed.check_options(_COMMON | allowed)
+    url = parsed.url
     return {
-        "faults": faults,
+        "faults": _fault_plan(parsed, opts),
         "old_firmware": parse_bool(url, "old_firmware", parsed.option(opts, "old_firmware", False)),
         "start_ms": int(parse_number(url, "start_ms", parsed.option(opts, "start_ms", 0), int, 0, 2**32 - 1)),
-        "seed": int(parse_number(url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1)),
+        "seed": _seed(parsed, opts),
+        "loop": parse_bool(url, "loop", parsed.option(opts, "loop", loop)),
+        "speed": parse_speed(url, parsed.option(opts, "speed", 1.0)),
     }
 
 
-def _parse_speed(url: str, text: object) -> float | None:
-    if text is None or str(text).strip().lower() in ("max", "inf", "0"):
-        return None
-    return parse_number(url, "speed", text, float, 1e-6, 1e6)  # beyond: say "max"
+def _build(parsed: ParsedURL, recording, emulator_settings: dict) -> EmulatedTransport:
+    from firmware_io.emulator.device import DeviceEmulator
 
-
-def _build(parsed: ParsedURL, recording, speed: float | None, loop: bool, opts: dict) -> EmulatedTransport:
-    from firmware_io.emulator import DeviceEmulator
-
-    emulator = DeviceEmulator(recording, speed=speed, loop=loop, **_emulator_options(parsed, opts))
-    return EmulatedTransport(emulator, parsed.url)
+    return EmulatedTransport(DeviceEmulator(recording, **emulator_settings), parsed.url)
 
 
 class SimTransport(EmulatedTransport):
     """``sim://``: the simulated hand."""
 
     @classmethod
-    def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
-        from firmware_io.frame_source import load_source
-        from firmware_io.recording import RecordingError
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
+        emulator = _emulator_settings(parsed, opts, {"seed", "events", "realtime", "speed"}, loop=True)
+        events = int(parse_number(parsed.url, "events", parsed.option(opts, "events", 40), int, 1, MAX_EVENTS))
+        if not parse_bool(parsed.url, "realtime", parsed.option(opts, "realtime", True)):
+            emulator["speed"] = None
+        return {"events": events, "emulator": emulator}
 
-        parsed.check_options(_COMMON | {"seed", "events", "realtime", "speed"})
-        url = parsed.url
-        seed = int(parse_number(url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1))
-        events = int(parse_number(url, "events", parsed.option(opts, "events", 40), int, 1, MAX_EVENTS))
-        realtime = parse_bool(url, "realtime", parsed.option(opts, "realtime", True))
-        speed = _parse_speed(url, parsed.option(opts, "speed", 1.0)) if realtime else None
-        loop = parse_bool(url, "loop", parsed.option(opts, "loop", True))
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
+        from firmware_io.emulator.frame_source import load_source
+        from firmware_io.recordings.recording import RecordingError
+
+        settings = cls.url_settings(parsed, opts)
         try:
-            recording = load_source("sim", seed=seed, events=events)
+            recording = load_source("sim", seed=settings["emulator"]["seed"], events=settings["events"])
         except RecordingError as exc:
-            raise TransportError(f"{url}: {exc}") from None
-        return _build(parsed, recording, speed, loop, opts)
+            raise TransportError(f"{parsed.url}: {exc}") from None
+        return _build(parsed, recording, settings["emulator"])
 
 
 class ReplayTransport(EmulatedTransport):
     """``replay://PATH``: a recording file behind an emulated controller."""
 
     @classmethod
-    def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
-        from firmware_io.frame_source import load_source
-        from firmware_io.recording import RecordingError
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
+        emulator = _emulator_settings(parsed, opts, {"speed", "seed"}, loop=False)
+        if not parsed.location:
+            raise TransportError(f"{parsed.url}: no file; use replay:///path/to/file.hrec")
+        return {"path": parsed.location, "emulator": emulator}
 
-        parsed.check_options(_COMMON | {"speed", "seed"})
-        url = parsed.url
-        path = parsed.location
-        if not path:
-            raise TransportError(f"{url}: no file; use replay:///path/to/file.hrec")
-        speed = _parse_speed(url, parsed.option(opts, "speed", 1.0))
-        loop = parse_bool(url, "loop", parsed.option(opts, "loop", False))
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
+        from firmware_io.emulator.frame_source import load_source
+        from firmware_io.recordings.recording import RecordingError
+
+        settings = cls.url_settings(parsed, opts)
         try:
-            recording = load_source(path)
+            recording = load_source(settings["path"])
         except RecordingError as exc:
-            raise DeviceUnavailable(f"{url}: {exc}") from None
-        return _build(parsed, recording, speed, loop, opts)
+            raise DeviceUnavailable(f"{parsed.url}: {exc}") from None
+        return _build(parsed, recording, settings["emulator"])
+
+
+class SubjectTransport(EmulatedTransport):
+    """``subject://``: a scripted simulated subject behind an emulated controller (synthetic data).
+
+    Opened by URL it is a subject nobody prompts (an idle hand); ``handover record`` builds the
+    subject from the same settings and prompts it (``ScriptedSubject.from_url``).
+    """
+
+    @classmethod
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
+        """The ScriptedSubject's keyword arguments."""
+        parsed.check_options({"seed", "speed", "drop", "unplug", "lazy", "fault", "seconds"})
+        url = parsed.url
+        unplug = _frame_numbers(parsed, opts, "unplug")
+        return {
+            "seed": _seed(parsed, opts),
+            "speed": parse_speed(url, parsed.option(opts, "speed", 1.0)),
+            "faults": _fault_plan(parsed, opts),
+            "drop_at": _frame_numbers(parsed, opts, "drop"),
+            "unplug_at": unplug[0] if unplug else None,
+            "lazy": _frame_numbers(parsed, opts, "lazy"),
+            "trial_seconds": parse_number(url, "seconds", parsed.option(opts, "seconds", 3.0), float, 0.0, 3600.0),
+        }
+
+    @classmethod
+    def from_url(cls, parsed: ParsedURL, **opts: object) -> Transport:
+        from firmware_io.sim.scripted_subject import ScriptedSubject
+
+        return ScriptedSubject(**cls.url_settings(parsed, opts)).connect()
+
+
+def _frame_numbers(parsed: ParsedURL, opts: dict, name: str) -> list[int]:
+    """A comma-separated list of counts (``drop=300,900``)."""
+    text = str(parsed.option(opts, name, "") or "")
+    return [int(parse_number(parsed.url, name, v, int, 0, 2**31 - 1)) for v in text.split(",") if v.strip()]

@@ -94,19 +94,20 @@ class HidTransport(Transport):
             raise
         self._closed = False
 
+    requires = ("hid", f"needs the Python package hidapi ({EXTRA_HINT})")
+
     @classmethod
-    def from_url(cls, parsed: ParsedURL, **opts: object) -> HidTransport:
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"serial", "baud"})
         url = parsed.url
         vid, pid = parse_vid_pid(url, parsed.location)
-        return cls(
-            vid,
-            pid,
-            serial=parsed.option(opts, "serial") or None,
-            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
-            device=opts.get("device"),
-            url=url,
-        )
+        return {
+            "vid": vid,
+            "pid": pid,
+            "serial": parsed.option(opts, "serial") or None,
+            "baud": int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
+            "device": opts.get("device"),
+        }
 
     def _feature(self, report: bytes) -> None:
         try:

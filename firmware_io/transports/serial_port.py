@@ -59,15 +59,16 @@ class SerialTransport(Transport):
             self._fd = None
         self._closed = False
 
+    requires = ("serial", "needs pyserial (pip install pyserial)")
+
     @classmethod
-    def from_url(cls, parsed: ParsedURL, **opts: object) -> SerialTransport:
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"baud", "exclusive"})
-        port = parsed.location
-        if not port:
+        if not parsed.location:
             raise TransportError(f"{parsed.url}: no port; use serial:///dev/ttyUSB0")
-        baud = int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD))
-        exclusive = parse_bool(parsed.url, "exclusive", parsed.option(opts, "exclusive", True))
-        return cls(port, baud=baud, exclusive=exclusive, url=parsed.url)
+        return {"port": parsed.location,
+                "baud": int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
+                "exclusive": parse_bool(parsed.url, "exclusive", parsed.option(opts, "exclusive", True))}
 
     def write(self, data: bytes) -> None:
         self._check_open()

@@ -44,9 +44,19 @@ class TcpTransport(Transport):
         self._closed = False
 
     @classmethod
-    def from_url(cls, parsed: ParsedURL, **opts: object) -> TcpTransport:
-        host, port, timeout = parse_tcp_url(parsed, parsed.option(opts, "connect_timeout", 3.0))
-        return cls(host, port, connect_timeout=timeout, url=parsed.url)
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
+        parsed.check_options({"connect_timeout"})
+        if not parsed.netloc:
+            raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
+        try:
+            host, port = _split_host_port(parsed.netloc)
+        except ValueError:
+            raise TransportError(f"{parsed.url}: expected tcp://HOST:PORT with a port 1..65535") from None
+        if not host:
+            raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
+        timeout = parse_number(parsed.url, "connect_timeout", parsed.option(opts, "connect_timeout", 3.0), float,
+                               0.001, 3600.0)
+        return {"host": host, "port": port, "connect_timeout": timeout}
 
     def write(self, data: bytes) -> None:
         self._check_open()
@@ -79,20 +89,6 @@ class TcpTransport(Transport):
     def _check_open(self) -> None:
         if self._closed:
             raise TransportError(f"{self.url}: transport is closed")
-
-
-def parse_tcp_url(parsed: ParsedURL, connect_timeout: object = 3.0) -> tuple[str, int, float]:
-    """Host, port and connect timeout of a ``tcp://`` URL, or one TransportError (opening and validating share it)."""
-    parsed.check_options({"connect_timeout"})
-    if not parsed.netloc:
-        raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
-    try:
-        host, port = _split_host_port(parsed.netloc)
-    except ValueError:
-        raise TransportError(f"{parsed.url}: expected tcp://HOST:PORT with a port 1..65535") from None
-    if not host:
-        raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
-    return host, port, parse_number(parsed.url, "connect_timeout", connect_timeout, float, 0.001, 3600.0)
 
 
 def _split_host_port(netloc: str) -> tuple[str, int]:

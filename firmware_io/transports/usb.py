@@ -92,22 +92,26 @@ class UsbTransport(Transport):
             raise
         self._closed = False
 
+    requires = ("usb", f"needs the Python package pyusb ({EXTRA_HINT})")
+
     @classmethod
-    def from_url(cls, parsed: ParsedURL, **opts: object) -> UsbTransport:
+    def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"serial", "interface", "chip", "baud"})
         url = parsed.url
         vid, pid = parse_vid_pid(url, parsed.location)
         interface = parsed.option(opts, "interface")
-        return cls(
-            vid,
-            pid,
-            serial=parsed.option(opts, "serial") or None,
-            interface=None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0, 255)),
-            chip=str(parsed.option(opts, "chip", "auto")).lower(),
-            baud=int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
-            backend=opts.get("backend"),
-            url=url,
-        )
+        chip = str(parsed.option(opts, "chip", "auto")).lower()
+        if chip not in CHIPS:
+            raise TransportError(f"{url}: unknown chip {chip!r} (use {', '.join(CHIPS)})")
+        return {
+            "vid": vid,
+            "pid": pid,
+            "serial": parsed.option(opts, "serial") or None,
+            "interface": None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0, 255)),
+            "chip": chip,
+            "baud": int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
+            "backend": opts.get("backend"),
+        }
 
     # -- opening ------------------------------------------------------------------------------
     def _find(self, vid: int, pid: int, serial: str | None, backend: object | None):

@@ -165,7 +165,7 @@ def load_note(before: list[float], after: list[float], cores: int | None) -> str
 @lru_cache(maxsize=4)
 def simulated_protocol(seed: int = 0, quick: bool = False) -> tuple:
     """The paper's protocol from the simulated hand, simulated once per process (synthetic data)."""
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
 
     if quick:
         return tuple(simulate_protocol(seed=seed, n_subjects=2, runs=1))
@@ -233,7 +233,7 @@ def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None,
     each followed by ``gap`` untouched frames (so the trigger re-arms). One window every T + gap
     frames: the most inference work a threshold-triggered daemon can get at 32 Hz.
     """
-    from firmware_io.recording import Recording, Trial
+    from firmware_io.recordings.recording import Recording, Trial
     from runtime.trigger_settings import PAPER_FRACTION
     from trainer.dataset import build_dataset
 

@@ -32,7 +32,7 @@ QUICK_FRAMES, QUICK_REPEATS = 400, 2
 def real_frames(limit: int) -> tuple[np.ndarray, str] | None:
     """Up to ``limit`` real frames (uint16 [N, C]) from the .dsa recordings, or None."""
     try:
-        from firmware_io.importers.dsa import read_dsa
+        from firmware_io.recordings.importers.dsa import read_dsa
     except ImportError:
         return None
     files = sorted(DATA.rglob("*.dsa")) if DATA.is_dir() else []
@@ -76,13 +76,14 @@ def time_it(fn, repeats: int) -> list[float]:
 
 
 def bench(frames: np.ndarray, rle: bool, repeats: int) -> dict:
-    from firmware_io import protocol as P
-    from firmware_io.parser import StreamParser
+    from firmware_io.wire.frames import decode_frame_payload, encode_frame_payload
+    from firmware_io.wire.packets import encode_packet
+    from firmware_io.wire.parser import StreamParser
 
     n, cells = frames.shape
-    payloads = [P.encode_frame_payload(f, i, rle=rle) for i, f in enumerate(frames)]
-    stream = b"".join(P.encode_packet(0, p) for p in payloads)
-    decode = P.decode_frame_payload
+    payloads = [encode_frame_payload(f, i, rle=rle) for i, f in enumerate(frames)]
+    stream = b"".join(encode_packet(0, p) for p in payloads)
+    decode = decode_frame_payload
 
     def payload_only() -> None:
         for p in payloads:

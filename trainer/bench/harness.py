@@ -24,8 +24,8 @@ import time
 from collections import deque
 from pathlib import Path
 
-from firmware_io.emulator import DeviceEmulator
-from firmware_io.emulator_server import TcpEmulatorServer
+from firmware_io.emulator.device import DeviceEmulator
+from firmware_io.emulator.server import TcpEmulatorServer
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -138,7 +138,7 @@ def mutated_models(work: Path, base: bytes, n: int) -> dict:
 # -- frames -------------------------------------------------------------------------------------
 def source_frames(limit: int = 4000) -> tuple[np.ndarray, str]:
     """Real SDH-2 frames with contact where ../shared/data exists, else the simulated hand's."""
-    from firmware_io.importers import find_sources, import_any
+    from firmware_io.recordings.importers import find_sources, import_any
 
     shared = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data"))
     if shared.is_dir():
@@ -150,7 +150,7 @@ def source_frames(limit: int = 4000) -> tuple[np.ndarray, str]:
             frames.append(rec.frames[rec.frames.max(axis=1) > 0][:500])
             if sum(len(f) for f in frames) >= limit:
                 return np.concatenate(frames)[:limit], f"real SDH-2 recordings ({shared})"
-    from firmware_io.frame_source import load_source
+    from firmware_io.emulator.frame_source import load_source
 
     rec = load_source("sim", seed=0, events=8)
     return rec.frames[:limit], "simulated hand (synthetic)"
@@ -159,10 +159,11 @@ def source_frames(limit: int = 4000) -> tuple[np.ndarray, str]:
 def attack_frames(n: int, seed: int = 0) -> dict:
     """``n`` frames (raw and RLE, alternating) each with two flipped bits, through parser, decoder
     and plausibility check, followed by an intact frame (so the parser resynchronises)."""
-    from firmware_io import protocol as P
     from firmware_io.layout import SensorLayout
-    from firmware_io.parser import StreamParser
     from firmware_io.plausibility import FrameCheck
+    from firmware_io.wire.errors import FrameDecodeError
+    from firmware_io.wire.frames import decode_frame_payload, encode_frame
+    from firmware_io.wire.parser import StreamParser
 
     frames, source = source_frames()
     layout = SensorLayout.sdh2()
@@ -172,7 +173,7 @@ def attack_frames(n: int, seed: int = 0) -> dict:
     for i in range(n):
         values = frames[i % len(frames)]
         rle = bool(i % 2)
-        good = P.encode_frame(values, i, rle=rle)
+        good = encode_frame(values, i, rle=rle)
         bad = bytearray(good)
         for bit in rng.choice((len(bad) - 3) * 8, size=2, replace=False):
             bad[3 + bit // 8] ^= 1 << (bit % 8)
@@ -182,8 +183,8 @@ def attack_frames(n: int, seed: int = 0) -> dict:
         count["header_rejected"] += parser.stats.bad_headers
         for packet in (p for p in packets if p.payload != good[6:-2]):
             try:
-                _, got = P.decode_frame_payload(packet.payload, layout.n_taxels)
-            except P.FrameDecodeError:
+                _, got = decode_frame_payload(packet.payload, layout.n_taxels)
+            except FrameDecodeError:
                 count["decode_rejected"] += 1
                 continue
             if check.problem(got) is not None:

@@ -26,8 +26,8 @@ def _ends_in_one_line(done: subprocess.CompletedProcess, command: str, name: str
 
 def attack_recordings(work: Path, quick: bool) -> dict:
     """Each hostile recording through the reader, ``plot``, ``train`` and ``emulate`` (a .dsa: emulate)."""
-    from firmware_io.importers import import_any
-    from firmware_io.recording import RecordingError
+    from firmware_io.recordings.importers import import_any
+    from firmware_io.recordings.recording import RecordingError
     from trainer.bench.hostile_recordings import write_all
 
     bomb = (64 << 20) if quick else (2 << 30)

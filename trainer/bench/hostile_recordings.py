@@ -1,7 +1,7 @@
 """Hostile recording files: what a damaged disk or an attacker could hand ``plot``/``train``/``emulate``.
 
 Each builder writes one ``.hrec`` (a ZIP) that breaks exactly one limit of the reader
-(firmware_io.bounded_zip): a deflate bomb, an ``.npy`` header declaring a huge shape, a deeply
+(firmware_io.recordings.bounded_zip): a deflate bomb, an ``.npy`` header declaring a huge shape, a deeply
 nested JSON header, a layout of the wrong type, and a few more. ``write_all`` writes them all.
 """
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import _npy_bytes as _npy
+from firmware_io.recordings.recording import _npy_bytes as _npy
 
 N_FRAMES = 20
 

@@ -23,7 +23,7 @@ REPEATS, QUICK_REPEATS = 5000, 200
 def trained_model(tmp: Path) -> Path:
     import joblib
 
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
     from trainer.classifier import BowSVC
     from trainer.dataset import build_dataset
     from trainer.export_cli import export_trained

@@ -45,7 +45,7 @@ class _Decisions(FrameListener):
 
 
 def _encoded(recording) -> list[bytes]:
-    from firmware_io.protocol import encode_frame
+    from firmware_io.wire.frames import encode_frame
 
     stamps = np.rint(recording.timestamps * 1000).astype(np.int64)
     return [encode_frame(f, int(t) & 0xFFFFFFFF, rle=True) for f, t in zip(recording.frames, stamps, strict=True)]
@@ -55,9 +55,9 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     """Feed every packet through parser, decode, plausibility and a fresh serving daemon; sleep one
     sample period before each frame in ``pace_frames``. Per-stage microseconds of each decision."""
     from firmware_io.client import Frame
-    from firmware_io.parser import StreamParser
     from firmware_io.plausibility import FrameCheck
-    from firmware_io.protocol import decode_frame_payload
+    from firmware_io.wire.frames import decode_frame_payload
+    from firmware_io.wire.parser import StreamParser
     from trainer.bench.throughput import serving_daemon
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -108,7 +108,7 @@ class Soak:
     """One soak run: set up, drive the schedule, account."""
 
     def __init__(self, args, work: Path) -> None:
-        from firmware_io.frame_source import load_source
+        from firmware_io.emulator.frame_source import load_source
 
         self.args, self.work, self.say = args, work, args.say
         self.plan = Plan.for_hours(args.hours)

@@ -16,8 +16,8 @@ import os
 import socket
 import time
 
-from firmware_io.emulator import DeviceEmulator, FaultPlan
-from firmware_io.emulator_server import TcpEmulatorServer
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+from firmware_io.emulator.server import TcpEmulatorServer
 from trainer.bench.harness import DatagramListener
 from trainer.bench.throughput import proc_mem_mb
 

@@ -45,7 +45,7 @@ SIZES = {
 
 def train_models(work: Path, seed: int, s: dict, say) -> dict:
     """Export and load the three models every mode needs (synthetic training data, ``seed``)."""
-    from firmware_io.simulate import simulate_protocol
+    from firmware_io.sim import simulate_protocol
     from runtime.model import load_model
     from runtime.trigger_settings import PAPER_FRACTION
     from trainer import dormant
@@ -81,8 +81,8 @@ def _default_estimator(cls, pad_sizes, seed: int, **options):
 def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, label: str) -> dict:
     """Every mode on a mixed stream of ``n_events`` and ``idle_h`` hours of idle stream (seed ``seed``)."""
     from firmware_io.sim import constants as K
+    from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
-    from firmware_io.simulate import demo_script
 
     period = K.FRAME_PERIOD_S
     say(f"streams: {label} mixed stream, {n_events} events (synthetic, seed {seed}) ...")
@@ -129,7 +129,7 @@ def choose(val: dict, real: dict | None) -> str:
 
 def demo_session(models: dict, mode: str, seed: int) -> dict:
     """``handover demo``'s scripted session (its seed, 40 events), in-process through the daemon."""
-    from firmware_io.simulate import demo_script, simulate_session
+    from firmware_io.sim import demo_script, simulate_session
     from trainer.demo_cli import SESSION_SEED_OFFSET
 
     session_seed = seed + SESSION_SEED_OFFSET
@@ -142,7 +142,7 @@ def demo_session(models: dict, mode: str, seed: int) -> dict:
 
 def real_files(root: Path) -> list[tuple[Path, str, str]]:
     """(file, category, why it holds no human handover) for every recording under ``root``."""
-    from firmware_io.importers import find_sources
+    from firmware_io.recordings.importers import find_sources
 
     reasons = {
         "calibration": "calibration: noise, sensitivity, weights at three temperatures put on the pads; no hand-over",
@@ -165,7 +165,7 @@ def real_files(root: Path) -> list[tuple[Path, str, str]]:
 
 def evaluate_real(models: dict, root: Path, say) -> dict:
     """False events per hour of every real recording (none holds a handover), each mode but onset_robot."""
-    from firmware_io.importers import import_any
+    from firmware_io.recordings.importers import import_any
 
     modes = [m for m in se.MODES if m != "onset_robot"]  # no robot messages were recorded
     rows = []

@@ -62,9 +62,10 @@ def replay_hot_path(model, recording, repeats: int = 1) -> dict:
     """Frames per second through the client's steps (parser + CRC + decode + plausibility) and the
     real ``Daemon.handle_frame`` (ring, trigger, inference, output check), no socket."""
     from firmware_io.client import Frame
-    from firmware_io.parser import StreamParser
     from firmware_io.plausibility import FrameCheck
-    from firmware_io.protocol import PacketId, decode_frame_payload, encode_frame
+    from firmware_io.wire.frames import decode_frame_payload, encode_frame
+    from firmware_io.wire.packets import PacketId
+    from firmware_io.wire.parser import StreamParser
 
     layout = recording.layout
     n = layout.n_taxels

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.bounded_zip import LimitError, read_json, read_npy
 from firmware_io.layout import SensorLayout
+from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
 
 FORMAT_NAME = "handover-recording"
 FORMAT_VERSION = 1

@@ -17,7 +17,7 @@ import socket
 import threading
 import tty
 
-from firmware_io.emulator import DeviceEmulator
+from firmware_io.emulator.device import DeviceEmulator
 
 POLL_S = 0.05  # longest wait before the loop looks at the stop flag again
 CHUNK = 65536

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmware_io.recording import RecordingError
+from firmware_io.recordings.recording import RecordingError
 
 MAX_12BIT = 4095
 

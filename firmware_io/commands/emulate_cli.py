@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import argparse
 import signal
-import sys
 import time
+
+from firmware_io.commands.errors import fail
+
+COMMAND = "emulate"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,41 +37,24 @@ def _interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
 
-def _fail(message: str) -> int:
-    print(f"handover emulate: {message}", file=sys.stderr)
-    return 2
-
-
-def _speed(text: str) -> float | None:
-    if text.strip().lower() in ("max", "inf"):
-        return None
-    value = float(text)
-    if value <= 0:
-        raise ValueError
-    return value
-
-
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
-    from firmware_io.emulator_server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
-    from firmware_io.frame_source import load_source
-    from firmware_io.recording import RecordingError
+    from firmware_io.commands.playback import playback_options
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+    from firmware_io.recordings.recording import RecordingError
     from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError
 
     try:
-        speed = _speed(args.speed)
-    except ValueError:
-        return _fail(f"--speed {args.speed!r}: use a positive factor such as 1.0 or 'max'")
-    try:
-        faults = FaultPlan.parse(args.fault)
-    except FaultSpecError as exc:
-        return _fail(f"--fault: {exc}")
+        speed, faults = playback_options(args.speed, args.fault)
+    except ValueError as exc:
+        return fail(COMMAND, str(exc))
     if not 1 <= args.events <= MAX_EVENTS:
-        return _fail(f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
+        return fail(COMMAND, f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
     try:
         recording = load_source(args.source, seed=args.seed, events=args.events)
     except RecordingError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
     emulator = DeviceEmulator(
         recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed
     )
@@ -79,15 +65,15 @@ def main(args: argparse.Namespace) -> int:
             try:
                 parsed = ParsedURL(args.listen)
             except TransportError as exc:
-                return _fail(str(exc))
+                return fail(COMMAND, str(exc))
             if parsed.scheme != "tcp" or not parsed.netloc:
-                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
             host, _, port = parsed.netloc.rpartition(":")
             if not host or not port.isdigit() or int(port) > 65535:
-                return _fail(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
+                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
             server = TcpEmulatorServer(emulator, host=host, port=int(port))
     except EmulatorServerError as exc:
-        return _fail(str(exc))
+        return fail(COMMAND, str(exc))
 
     signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop ends like Ctrl-C: summary, clean close
     synthetic = " (synthetic)" if recording.meta.get("synthetic", args.source == "sim") else ""
@@ -109,7 +95,7 @@ def main(args: argparse.Namespace) -> int:
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
             if server.error is not None:
-                return _fail(f"server stopped: {server.error}")
+                return fail(COMMAND, f"server stopped: {server.error}")
     except KeyboardInterrupt:
         pass
     finally:

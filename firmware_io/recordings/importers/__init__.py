@@ -11,9 +11,9 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-from firmware_io.importers.dsa import iter_dsa_files, read_dsa
-from firmware_io.recording import SUFFIX as HREC_SUFFIX
-from firmware_io.recording import Recording, RecordingError
+from firmware_io.recordings.importers.dsa import iter_dsa_files, read_dsa
+from firmware_io.recordings.recording import SUFFIX as HREC_SUFFIX
+from firmware_io.recordings.recording import Recording, RecordingError
 
 __all__ = ["KNOWN_FORMATS", "find_sources", "import_any", "iter_dsa_files", "read_dsa", "read_rosbag"]
 
@@ -21,8 +21,8 @@ KNOWN_FORMATS = ".dsa (DSA-Konqueror), .bag (ROS 1), ROS 2 bag folder (metadata.
 
 
 def read_rosbag(path: str | os.PathLike, topic: str | None = None) -> Recording:
-    """See ``firmware_io.importers.rosbag.read_rosbag`` (imported here lazily)."""
-    from firmware_io.importers.rosbag import read_rosbag as _read
+    """See ``firmware_io.recordings.importers.rosbag.read_rosbag`` (imported here lazily)."""
+    from firmware_io.recordings.importers.rosbag import read_rosbag as _read
 
     return _read(path, topic)
 

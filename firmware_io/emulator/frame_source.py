@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import Recording, RecordingError
+from firmware_io.recordings.recording import Recording, RecordingError
 
 SIM = "sim"
 
@@ -37,7 +37,7 @@ def load_source(source: str | os.PathLike = SIM, *, seed: int = 0, events: int =
 
 @lru_cache(maxsize=4)
 def _from_file(path: str, mtime_ns: int) -> Recording:
-    from firmware_io.importers import import_any
+    from firmware_io.recordings.importers import import_any
 
     rec = import_any(path)
     if rec.n_frames == 0:
@@ -50,14 +50,14 @@ def _simulated(seed: int, events: int) -> Recording:
     if events < 1:
         raise RecordingError(f"the simulated session needs at least one event, got {events}")
     try:
-        from firmware_io.simulate import demo_script, simulate_session
+        from firmware_io.sim import demo_script, simulate_session
     except ImportError:
         return placeholder_session(seed, events)
     return simulate_session(demo_script(n_events=events, seed=seed), seed=seed)
 
 
 def placeholder_session(seed: int = 0, events: int = 4, rate_hz: float = 32.0) -> Recording:
-    """Synthetic stand-in used only while ``firmware_io.simulate`` is absent: a noisy blob per event.
+    """Synthetic stand-in used only while ``firmware_io.sim`` is absent: a noisy blob per event.
 
     Not a model of a hand; it exists so that the emulator has deterministic frames to send.
     """

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import Recording
+from firmware_io.recordings.recording import Recording
 
 MAX_INTERVAL_S = 0.1
 """Intervals longer than this are recording pauses, not jitter."""
@@ -135,6 +135,6 @@ def real_dsa_files(folder: str | Path, names: Sequence[str] = REAL_31HZ_FOLDERS)
 
 def load_real(folder: str | Path, names: Sequence[str] = REAL_31HZ_FOLDERS) -> list[Recording]:
     """Read the real reference recordings with the project's .dsa importer."""
-    from firmware_io.importers.dsa import read_dsa
+    from firmware_io.recordings.importers.dsa import read_dsa
 
     return [read_dsa(p) for p in real_dsa_files(folder, names)]

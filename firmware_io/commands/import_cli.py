@@ -63,7 +63,7 @@ def output_names(sources: list[tuple[Path, Path]]) -> list[str]:
 
 
 def _expand(sources: list[str]) -> tuple[list[tuple[Path, Path]], list[str]]:
-    from firmware_io.importers import find_sources
+    from firmware_io.recordings.importers import find_sources
 
     found, errors = [], []
     for s in sources:
@@ -79,7 +79,7 @@ def _expand(sources: list[str]) -> tuple[list[tuple[Path, Path]], list[str]]:
 
 
 def _subset(recording, pads: str):
-    from firmware_io.recording import Recording
+    from firmware_io.recordings.recording import Recording
 
     cols = recording.layout.columns(pads)
     meta = {**recording.meta, "pads": list(recording.layout.pads(pads))}
@@ -125,9 +125,9 @@ def _report(src: Path, text: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.importers import import_any
     from firmware_io.layout import LayoutError
-    from firmware_io.recording import SUFFIX, RecordingError
+    from firmware_io.recordings.importers import import_any
+    from firmware_io.recordings.recording import SUFFIX, RecordingError
 
     if args.pads:
         problem = _bad_pad_name(args.pads)

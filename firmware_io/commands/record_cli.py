@@ -12,10 +12,11 @@ import shutil
 import subprocess
 import sys
 
-from firmware_io.record_session import DEFAULT_FRACTION, DEFAULT_RUNS, OBJECTS, POSES
-from firmware_io.recording import ACTIONS
+from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
+from firmware_io.recordings.record_session import DEFAULT_FRACTION, DEFAULT_RUNS, OBJECTS, POSES
+from firmware_io.recordings.recording import ACTIONS
 
-PROG = "handover record"
+COMMAND = "record"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,11 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-trials", type=int, default=None, help="stop after this many trials")
     parser.add_argument("--quiet", action="store_true", help="no voice (espeak-ng)")
     parser.add_argument("--no-look", action="store_true", help="no per-pad sparklines after each trial")
-
-
-def _fail(message: str, code: int = 2) -> int:
-    print(f"{PROG}: {message}", file=sys.stderr)
-    return code
 
 
 class Voice:
@@ -90,94 +86,108 @@ def _ask(question: str, choices) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
+    from firmware_io.recordings.record_session import SessionError
+    from firmware_io.transports.base import TransportError
+
+    try:
+        plan, opts = _plan_and_options(args)
+    except SessionError as exc:
+        return fail(COMMAND, str(exc))
+    if args.trial_seconds <= 0.3 or args.gap < 0 or args.countdown < 0 or args.retries < 0:
+        return fail(COMMAND, "--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
+    if not 0.0 < args.fraction < 1.0:
+        return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
+    try:
+        client, subject = _connect(args.device, args.trial_seconds)
+    except TransportError as exc:
+        return fail(COMMAND, str(exc))
+    voice = Voice(enabled=not args.quiet)
+    try:
+        return _record(args, client, subject, plan, opts, voice)
+    finally:
+        client.close()
+        voice.close()
+
+
+def _plan_and_options(args: argparse.Namespace):
+    """The protocol to walk and how; raises SessionError for a bad pose, object or action list."""
+    from firmware_io.recordings.record_session import ProtocolPlan, SessionOptions
+    from firmware_io.recordings.terminal_view import trial_view
+
+    plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)
+    quick_look = None if args.no_look else lambda f, lay, c: trial_view(f, lay, c.first_frame)
+    opts = SessionOptions(trial_seconds=args.trial_seconds, gap_seconds=args.gap, countdown=args.countdown,
+                          fraction=args.fraction, pads=args.pads, auto=args.auto, retries=args.retries,
+                          max_trials=args.max_trials, quick_look=quick_look)
+    return plan, opts
+
+
+def _connect(device: str, trial_seconds: float):
+    """A client for the device (reconnecting by URL) and, for ``subject://``, the simulated subject it
+    reaches, whom the session prompts. Each scheme's URL is checked by its transport, in the one registry."""
     from firmware_io.client import DSAClient
-    from firmware_io.protocol import DSAError
-    from firmware_io.record_session import (
+    from firmware_io.transports import validate_url
+    from firmware_io.transports.emulated import SUBJECT_SCHEME
+
+    parsed = validate_url(device)
+    if parsed.scheme != SUBJECT_SCHEME:
+        return DSAClient(device), None
+    from firmware_io.sim.scripted_subject import ScriptedSubject
+
+    subject = ScriptedSubject.from_url(parsed)
+    subject.trial_seconds = max(trial_seconds, 1.5)
+    return DSAClient(subject.connect), subject
+
+
+def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice) -> int:
+    """Open the device and the session file, walk the protocol; the exit code."""
+    from firmware_io.recordings.record_session import (
         DeviceLost,
-        ProtocolPlan,
         SessionError,
         SessionIO,
-        SessionOptions,
         SessionStore,
         recording_path,
         run_session,
     )
-    from firmware_io.recording import RecordingError
-    from firmware_io.terminal_view import trial_view
+    from firmware_io.recordings.recording import RecordingError
     from firmware_io.transports.base import TransportError
+    from firmware_io.wire.errors import DSAError
 
     try:
-        plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)
-    except SessionError as exc:
-        return _fail(str(exc))
-    if args.trial_seconds <= 0.3 or args.gap < 0 or args.countdown < 0 or args.retries < 0:
-        return _fail("--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
-    if not 0.0 < args.fraction < 1.0:
-        return _fail(f"--fraction must be in (0, 1), got {args.fraction}")
-
-    cue = None
-    synthetic = args.device.startswith("subject:")
+        layout = client.open()
+        client.start()
+    except (TransportError, DSAError, OSError) as exc:
+        return fail(COMMAND, f"cannot open the device: {exc}", DEVICE_ERROR)
     try:
-        if synthetic:
-            from firmware_io.scripted_subject import ScriptedSubject
+        store = SessionStore.open(recording_path(args.out, args.subject), args.subject, layout)
+    except (RecordingError, SessionError) as exc:
+        return fail(COMMAND, str(exc))
+    if subject is not None:
+        store.meta["synthetic"] = True
 
-            subject = ScriptedSubject.from_url(args.device)
-            subject.trial_seconds = max(args.trial_seconds, 1.5)
-            client = DSAClient(subject.connect)
-            cue = subject.cue
-        else:
-            client = DSAClient(args.device)
-    except TransportError as exc:
-        return _fail(str(exc))
+    def say(text: str) -> None:
+        print(text, flush=True)
+        voice.say(text)
 
-    path = recording_path(args.out, args.subject)
-    voice = Voice(enabled=not args.quiet)
-    store = None
+    io = SessionIO(say=say, show=lambda text: print(text, flush=True), ask=_ask,
+                   cue=subject.cue if subject is not None else (lambda kind, slot: None))
+    info = {"device": client.url, "controller": _controller_info(client)}
+    resume = "run the same command again to resume"
     try:
-        try:
-            layout = client.open()
-            client.start()
-        except (TransportError, DSAError, OSError) as exc:
-            return _fail(f"cannot open the device: {exc}", 1)
-        try:
-            store = SessionStore.open(path, args.subject, layout)
-        except (RecordingError, SessionError) as exc:
-            return _fail(str(exc))
-        if synthetic:
-            store.meta["synthetic"] = True
-        try:
-            opts = SessionOptions(trial_seconds=args.trial_seconds, gap_seconds=args.gap, countdown=args.countdown,
-                                  fraction=args.fraction, pads=args.pads, auto=args.auto, retries=args.retries,
-                                  max_trials=args.max_trials,
-                                  quick_look=None if args.no_look else lambda f, lay, c: trial_view(f, lay, c.first_frame))
-        except SessionError as exc:
-            return _fail(str(exc))
-
-        def say(text: str) -> None:
-            print(text, flush=True)
-            voice.say(text)
-
-        io = SessionIO(say=say, show=lambda text: print(text, flush=True), ask=_ask,
-                       cue=cue or (lambda kind, slot: None))
-        info = {"device": client.url, "controller": _controller_info(client)}
-        try:
-            result = run_session(client, store, plan, opts, io, session_info=info)
-        except (SessionError, ValueError) as exc:
-            return _fail(str(exc))
-        except (DeviceLost, TransportError, DSAError) as exc:
-            return _fail(f"device lost ({_first_line(exc)}); {_saved(store)}; run the same command again to resume", 1)
-        except KeyboardInterrupt:
-            return _fail(f"interrupted; {_saved(store)}; run the same command again to resume", 130)
-        flagged = f", {len(result.flagged)} flagged as never triggered" if result.flagged else ""
-        if result.complete:
-            print(f"session complete: {_saved(store)}{flagged}")
-        else:
-            print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
-                  f"{_saved(store)}{flagged}; run the same command again to continue")
-        return 0
-    finally:
-        client.close()
-        voice.close()
+        result = run_session(client, store, plan, opts, io, session_info=info)
+    except (SessionError, ValueError) as exc:
+        return fail(COMMAND, str(exc))
+    except (DeviceLost, TransportError, DSAError) as exc:
+        return fail(COMMAND, f"device lost ({_first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
+    except KeyboardInterrupt:
+        return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
+    flagged = f", {len(result.flagged)} flagged as never triggered" if result.flagged else ""
+    if result.complete:
+        print(f"session complete: {_saved(store)}{flagged}")
+    else:
+        print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
+              f"{_saved(store)}{flagged}; run the same command again to continue")
+    return 0
 
 
 def _saved(store) -> str:

@@ -19,8 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.recording import RecordingError
-    from firmware_io.simulate import demo_script, simulate_session, trial_counts, write_protocol
+    from firmware_io.recordings.recording import RecordingError
+    from firmware_io.sim import demo_script, simulate_session, trial_counts, write_protocol
 
     start = time.perf_counter()
     try:
@@ -38,7 +38,7 @@ def main(args: argparse.Namespace) -> int:
     except (ValueError, OSError, RecordingError) as exc:
         print(f"handover simulate: {exc}", file=sys.stderr)
         return 1
-    from firmware_io.recording import Recording
+    from firmware_io.recordings.recording import Recording
 
     recs = [Recording.load(p) for p in paths]
     counts = trial_counts(recs)

@@ -16,7 +16,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from firmware_io.emulator import DeviceEmulator
+from firmware_io.emulator.device import DeviceEmulator
 
 FTDI_STATUS = b"\x01\x60"  # modem status, line status: what an idle FT232R reports
 

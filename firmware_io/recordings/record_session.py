@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import ACTIONS, Recording, RecordingError, Trial
+from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
 
 POSES = ("down", "up", "horizontal")
 OBJECTS = ("ball", "cylinder", "plank")

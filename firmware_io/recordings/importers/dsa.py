@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.importers._common import check_range, describe_timing, keep_increasing
 from firmware_io.layout import FULL_SCALE_12BIT, LayoutError, MatrixInfo, SensorLayout
-from firmware_io.recording import Recording, RecordingError
+from firmware_io.recordings.importers._common import check_range, describe_timing, keep_increasing
+from firmware_io.recordings.recording import Recording, RecordingError
 
 SUFFIX = ".dsa"
 

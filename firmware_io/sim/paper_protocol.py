@@ -8,7 +8,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recording import ACTIONS, Recording
+from firmware_io.recordings.recording import ACTIONS, Recording
 from firmware_io.sim import constants as K
 from firmware_io.sim.hand import Job, render
 from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS, POSE_MODELS, POSES, make_subject, make_trial
@@ -61,7 +61,7 @@ def simulate_subject(name: str, seed: int, runs: int, poses: Sequence[str], obje
         segments.append((f, stamps, fld))
         start = float(stamps[-1]) + float(t_rng.uniform(*PAUSE_BETWEEN_TRIALS_S))
     meta = {
-        "source": "synthetic (firmware_io.simulate)", "synthetic": True, "seed": int(seed), "subject": name,
+        "source": "synthetic (firmware_io.sim)", "synthetic": True, "seed": int(seed), "subject": name,
         "subject_profile": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(subject).items()},
         "frame_period_s": K.FRAME_PERIOD_S, "taped": True,
     }

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.importers._common import MAX_12BIT, check_range, describe_timing, keep_increasing
 from firmware_io.layout import LayoutError, MatrixInfo, SensorLayout
-from firmware_io.recording import Recording, RecordingError
+from firmware_io.recordings.importers._common import MAX_12BIT, check_range, describe_timing, keep_increasing
+from firmware_io.recordings.recording import Recording, RecordingError
 
 MSGTYPE = "schunk_sdh/msg/TactileSensor"
 MATRIX_MSGTYPE = "schunk_sdh/msg/TactileMatrix"

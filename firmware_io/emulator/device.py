@@ -4,7 +4,7 @@ The core (``DeviceEmulator``) has no threads and no sockets. A link feeds it wha
 wrote and asks it for the bytes due now; frames are scheduled by the source recording's own
 timing (divided by ``speed``) or produced as fast as they are read (``speed=None``). The same
 core sits behind the in-process ``sim://``/``replay://`` transports, the TCP and pseudo-terminal
-servers (``firmware_io.emulator_server``) and the pyusb/hidapi test doubles, so a client sees
+servers (``firmware_io.emulator.server``) and the pyusb/hidapi test doubles, so a client sees
 the same device whichever way it connects.
 
 Behaviour (see ``../shared/reference/dsacon32m-protocol.md``):
@@ -33,27 +33,20 @@ from typing import ClassVar
 
 import numpy as np
 
-from firmware_io.parser import StreamParser
-from firmware_io.protocol import (
-    BOOT_TERMINAL_QUERY,
-    FLAG_PERSISTENT,
-    MAX_TEXEL_VALUE,
-    AcquisitionConfig,
+from firmware_io.recordings.recording import Recording
+from firmware_io.wire.errors import DSAErrorCode, ProtocolError
+from firmware_io.wire.frames import MAX_TEXEL_VALUE, encode_frame
+from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, PacketId, encode_ack
+from firmware_io.wire.parser import StreamParser
+from firmware_io.wire.replies import (
     ControllerInfo,
-    DSAErrorCode,
     MatrixInfoReply,
     MatrixMaskReply,
-    PacketId,
-    ProtocolError,
     SensitivityReply,
     SensorInfo,
-    SetSensitivityRequest,
-    SetThresholdRequest,
     ThresholdReply,
-    encode_ack,
-    encode_frame,
 )
-from firmware_io.recording import Recording
+from firmware_io.wire.requests import FLAG_PERSISTENT, AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
 
 NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
 OLD_FIRMWARE = 288  # R288: a single-frame request starts push mode

@@ -18,17 +18,9 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass
 
-from firmware_io.protocol import (
-    BOOT_TERMINAL_QUERY,
-    CRC_SIZE,
-    FRAME_HEADER_SIZE,
-    HEADER_SIZE,
-    PREAMBLE,
-    Packet,
-    PacketId,
-    crc16,
-    max_frame_payload,
-)
+from firmware_io.wire.crc import crc16
+from firmware_io.wire.frames import FRAME_HEADER_SIZE, max_frame_payload
+from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, CRC_SIZE, HEADER_SIZE, PREAMBLE, Packet, PacketId
 
 __all__ = ["DEFAULT_MAX_CELLS", "Packet", "ParserStats", "StreamParser"]
 

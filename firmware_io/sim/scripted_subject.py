@@ -1,7 +1,7 @@
 """A scripted simulated subject behind an emulated controller: it does whatever the recorder prompts.
 
 The recorder cues ``go`` with a trial slot (pose, object, action, run); the subject then plays a
-trial of the simulated hand (``firmware_io.simulate``, synthetic data) for that slot through a
+trial of the simulated hand (``firmware_io.sim``, synthetic data) for that slot through a
 DeviceEmulator, frame by frame, and idles (all zeros: empty hand) otherwise. Its frame clock is
 the emulator's, so sessions run in real time or as fast as they are read (``speed=None``).
 
@@ -17,17 +17,15 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterable
-from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from firmware_io.emulator import DeviceEmulator, FaultPlan, FaultSpecError
+from firmware_io.emulator.device import DeviceEmulator, FaultPlan
 from firmware_io.layout import SensorLayout
-from firmware_io.transports.base import DeviceUnavailable, Transport, TransportError
-from firmware_io.transports.emulated import EmulatedTransport
+from firmware_io.transports.base import DeviceUnavailable, ParsedURL, Transport, TransportError
+from firmware_io.transports.emulated import SUBJECT_SCHEME, EmulatedTransport, SubjectTransport
 
 FRAME_PERIOD_S = 1 / 32
-SCHEME = "subject"
 
 
 class _LiveFrames:
@@ -90,37 +88,21 @@ class ScriptedSubject:
                                        faults=faults, seed=self.seed)
 
     @classmethod
-    def from_url(cls, url: str) -> ScriptedSubject:
-        parts = urlsplit(url)
-        if parts.scheme != SCHEME:
-            raise TransportError(f"{url}: not a {SCHEME}:// URL")
-        q = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
-        known = {"seed", "speed", "drop", "unplug", "lazy", "fault", "seconds"}
-        unknown = sorted(set(q) - known)
-        if unknown:
-            raise TransportError(f"{url}: unknown option {unknown[0]!r} (known: {', '.join(sorted(known))})")
-        try:
-            speed_text = q.get("speed", "1").strip().lower()
-            speed = None if speed_text in ("max", "inf", "0") else float(speed_text)
-            if speed is not None and speed <= 0:
-                raise ValueError
-            ints = lambda key: [int(v) for v in q.get(key, "").split(",") if v.strip()]  # noqa: E731
-            unplug = ints("unplug")
-            return cls(int(q.get("seed", 0)), speed=speed, faults=FaultPlan.parse(q.get("fault")),
-                       drop_at=ints("drop"), unplug_at=unplug[0] if unplug else None, lazy=ints("lazy"),
-                       trial_seconds=float(q.get("seconds", 3.0)))
-        except FaultSpecError as exc:
-            raise TransportError(f"{url}: {exc}") from None
-        except ValueError:
-            raise TransportError(f"{url}: bad option value") from None
+    def from_url(cls, url: str | ParsedURL) -> ScriptedSubject:
+        """The subject a ``subject://`` URL describes, its options read and checked by its transport
+        (``SubjectTransport``, in the one registry of schemes)."""
+        parsed = url if isinstance(url, ParsedURL) else ParsedURL(url)
+        if parsed.scheme != SUBJECT_SCHEME:
+            raise TransportError(f"{parsed.url}: not a {SUBJECT_SCHEME}:// URL")
+        return cls(**SubjectTransport.url_settings(parsed, {}))
 
     # -- the device side ---------------------------------------------------------------------------
     def connect(self) -> Transport:
         """A fresh link to the emulated controller (what a reconnect gets); refused once unplugged."""
         if self.unplugged:
-            raise DeviceUnavailable(f"{SCHEME}://: the device is unplugged")
+            raise DeviceUnavailable(f"{SUBJECT_SCHEME}://: the device is unplugged")
         self.connections += 1
-        return EmulatedTransport(self.emulator, f"{SCHEME}://?seed={self.seed}")
+        return EmulatedTransport(self.emulator, f"{SUBJECT_SCHEME}://?seed={self.seed}")
 
     def next_frame(self) -> np.ndarray:
         """The frame the controller sends now (called by the emulator once per frame)."""
@@ -163,7 +145,7 @@ class ScriptedSubject:
 
     def _render(self, slot, attempt: int) -> tuple[np.ndarray, int]:
         """One simulated trial of this slot; every attempt is a new draw (a person never repeats exactly)."""
-        from firmware_io.simulate import ACTIONS, OBJECTS, POSES, simulate_protocol
+        from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
 
         pose = slot.pose if slot.pose in POSES else POSES[0]
         obj = slot.object if slot.object in OBJECTS else OBJECTS[0]

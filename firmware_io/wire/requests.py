@@ -1,0 +1,163 @@
+"""Host -> controller: the request packets and the payloads of the commands that carry settings."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from firmware_io.wire.frames import MAX_TEXEL_VALUE, RLE_FLAG
+from firmware_io.wire.packets import PacketId, encode_packet, expect_size
+
+ACQ_ENABLE = 0x80
+FLAG_PERSISTENT = 0x80
+FLAG_ALL_MATRICES = 0x02
+FLAG_FACTORY_RESET = 0x01
+
+
+@dataclass(frozen=True)
+class AcquisitionConfig:
+    """Payload of 0x03: flags (bit7 acquire, bit0 RLE) and a frame rate (0 = stop/single)."""
+
+    flags: int
+    rate: int = 0
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.flags & ACQ_ENABLE)
+
+    @property
+    def rle(self) -> bool:
+        return bool(self.flags & RLE_FLAG)
+
+    @property
+    def mode(self) -> str:
+        """``stop``, ``single`` or ``push`` as the controller interprets the request."""
+        if not self.enabled:
+            return "stop"
+        return "push" if self.rate > 0 else "single"
+
+    def encode(self) -> bytes:
+        return struct.pack("<BH", self.flags, self.rate)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> AcquisitionConfig:
+        expect_size(payload, 3, "acquisition config (0x03)")
+        flags, rate = struct.unpack("<BH", payload)
+        return cls(flags, rate)
+
+
+def _acq_flags(enable: bool, rle: bool) -> int:
+    return (ACQ_ENABLE if enable else 0) | (RLE_FLAG if rle else 0)
+
+
+def stop_request(rle: bool = True) -> bytes:
+    return encode_packet(PacketId.CONFIGURE_DATA_ACQUISITION, AcquisitionConfig(_acq_flags(False, rle), 0).encode())
+
+
+def push_request(rle: bool = True, rate: int = 1) -> bytes:
+    """Start push mode. ``rate`` > 0 means "as fast as possible" (about 30 fps); it is not a rate."""
+    if rate <= 0:
+        raise ValueError("push mode needs rate > 0 (rate 0 asks for a single frame)")
+    return encode_packet(PacketId.CONFIGURE_DATA_ACQUISITION, AcquisitionConfig(_acq_flags(True, rle), rate).encode())
+
+
+def single_frame_request(rle: bool = True) -> bytes:
+    return encode_packet(PacketId.CONFIGURE_DATA_ACQUISITION, AcquisitionConfig(_acq_flags(True, rle), 0).encode())
+
+
+def query_controller_info_request() -> bytes:
+    return encode_packet(PacketId.QUERY_CONTROLLER_CONFIGURATION)
+
+
+def query_sensor_info_request() -> bytes:
+    return encode_packet(PacketId.QUERY_SENSOR_CONFIGURATION)
+
+
+def _matrix_byte(matrix: int) -> bytes:
+    if not 0 <= matrix <= 0xFF:
+        raise ValueError(f"matrix index {matrix} does not fit in a byte")
+    return bytes([matrix])
+
+
+def query_matrix_info_request(matrix: int) -> bytes:
+    return encode_packet(PacketId.QUERY_MATRIX_CONFIGURATION, _matrix_byte(matrix))
+
+
+def get_sensitivity_request(matrix: int) -> bytes:
+    return encode_packet(PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO, _matrix_byte(matrix))
+
+
+def get_threshold_request(matrix: int) -> bytes:
+    return encode_packet(PacketId.GET_MATRIX_THRESHOLD, _matrix_byte(matrix))
+
+
+def read_matrix_mask_request(matrix: int, dynamic: bool = False) -> bytes:
+    return encode_packet(PacketId.READ_MATRIX_MASK, bytes([1 if dynamic else 0]) + _matrix_byte(matrix))
+
+
+def matrix_index_of(payload: bytes, what: str) -> int:
+    """The matrix index of a 1-byte request payload (0x0B, 0x12, 0x14), for the emulator."""
+    expect_size(payload, 1, what)
+    return payload[0]
+
+
+@dataclass(frozen=True)
+class SetSensitivityRequest:
+    """Payload of 0x0F. With ``persistent`` the firmware sends no reply at all."""
+
+    matrix: int
+    sensitivity: float
+    persistent: bool = False
+    all_matrices: bool = False
+    factory_reset: bool = False
+
+    def encode(self) -> bytes:
+        if not 0.0 <= self.sensitivity <= 1.0:
+            raise ValueError(f"sensitivity {self.sensitivity} outside 0..1")
+        return struct.pack("<BBf", _set_flags(self), self.matrix, self.sensitivity)
+
+    def to_packet(self) -> bytes:
+        return encode_packet(PacketId.ADJUST_MATRIX_SENSITIVITY, self.encode())
+
+    @classmethod
+    def decode(cls, payload: bytes) -> SetSensitivityRequest:
+        expect_size(payload, 6, "set sensitivity (0x0F)")
+        flags, matrix, value = struct.unpack("<BBf", payload)
+        return cls(matrix, value, *_unpack_set_flags(flags))
+
+
+@dataclass(frozen=True)
+class SetThresholdRequest:
+    """Payload of 0x13 (threshold 0..4095). With ``persistent`` the firmware sends no reply."""
+
+    matrix: int
+    threshold: int
+    persistent: bool = False
+    all_matrices: bool = False
+    factory_reset: bool = False
+
+    def encode(self) -> bytes:
+        if not 0 <= self.threshold <= MAX_TEXEL_VALUE:
+            raise ValueError(f"threshold {self.threshold} outside 0..4095")
+        return struct.pack("<BBH", _set_flags(self), self.matrix, self.threshold)
+
+    def to_packet(self) -> bytes:
+        return encode_packet(PacketId.SET_MATRIX_THRESHOLD, self.encode())
+
+    @classmethod
+    def decode(cls, payload: bytes) -> SetThresholdRequest:
+        expect_size(payload, 4, "set threshold (0x13)")
+        flags, matrix, value = struct.unpack("<BBH", payload)
+        return cls(matrix, value, *_unpack_set_flags(flags))
+
+
+def _set_flags(req: SetSensitivityRequest | SetThresholdRequest) -> int:
+    return (
+        (FLAG_PERSISTENT if req.persistent else 0)
+        | (FLAG_ALL_MATRICES if req.all_matrices else 0)
+        | (FLAG_FACTORY_RESET if req.factory_reset else 0)
+    )
+
+
+def _unpack_set_flags(flags: int) -> tuple[bool, bool, bool]:
+    return bool(flags & FLAG_PERSISTENT), bool(flags & FLAG_ALL_MATRICES), bool(flags & FLAG_FACTORY_RESET)
