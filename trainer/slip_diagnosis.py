@@ -48,6 +48,7 @@ def chunk_map(task) -> list[dict]:
 def contact_runs(bags: Path) -> dict[str, list[int]]:
     """Frames of each contact run of each bag (the window rule's 5 % level on all pads), in order."""
     from firmware_io.importers import import_any
+
     from trainer.real_tasks import ALL_PADS, CONTACT_FRACTION, FULLSCALE
 
     out = {}
