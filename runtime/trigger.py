@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from runtime.trigger_settings import DEFAULT_HYSTERESIS, PAPER_FRACTION
+
 
 class ThresholdTrigger:
     """Fires when max(scene taxels) crosses ``on``; re-arms once it stayed below ``off`` for
@@ -26,8 +28,8 @@ class ThresholdTrigger:
         self,
         n_channels: int,
         fullscale: float,
-        fraction: float = 0.15,
-        hysteresis: float = 0.05,
+        fraction: float = PAPER_FRACTION,
+        hysteresis: float = DEFAULT_HYSTERESIS,
         refractory_frames: int = 16,
         window: int = 15,
         pre_frames: int = 0,

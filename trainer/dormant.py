@@ -22,7 +22,6 @@ names ``dormant_class`` so the daemon accepts it for ``scene.mode = "continuous"
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -315,17 +314,11 @@ def export(model, path: str | Path, *, pads: Sequence[int], pad_sizes: Sequence[
            evaluation: dict | None = None, trigger: dict | None = None) -> Path:
     """One ONNX file via trainer.onnx_export, with the metadata the daemon needs (``trigger``: the
     settings to record; default the paper's threshold at ``fraction``)."""
-    from runtime import __version__
+    from trainer.model_meta import file_metadata
     from trainer.onnx_export import export_onnx
 
-    meta = {
-        "pads": [int(p) for p in pads],
-        "pad_sizes": [int(s) for s in pad_sizes],
-        "fullscale": float(fullscale),
-        "trigger": dict(trigger) if trigger else {"fraction": float(fraction)},
-        "sample_rate_hz": float(sample_rate_hz),
-        "dormant_class": dormant_class,
-        "training": {"project_version": __version__, "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **training},
-        "evaluation": dict(evaluation or {}),
-    }
+    meta = file_metadata(pads=pads, pad_sizes=pad_sizes, fullscale=fullscale,
+                         trigger=dict(trigger) if trigger else {"fraction": float(fraction)},
+                         sample_rate_hz=sample_rate_hz, dormant_class=dormant_class, training=training,
+                         evaluation=evaluation)
     return export_onnx(model, path, meta)

@@ -33,7 +33,6 @@ offset; see ``trainer.numerics`` for the bounds.
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import os
 import tempfile
@@ -301,9 +300,10 @@ def build_graph(model, fold_derivative: bool = False):
 
 # -- metadata and file ----------------------------------------------------------------------------
 def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict:
-    """Complete the caller's metadata with what the model itself determines; refuse contradictions."""
-    from runtime import __version__
+    """Complete the caller's metadata (``trainer.model_meta``) with what the model itself
+    determines; refuse contradictions."""
     from runtime.model import SCHEMA_VERSION
+    from trainer.model_meta import defaults, provenance
 
     svm = model.svm_
     bow = getattr(model, "bow_", None)
@@ -322,23 +322,13 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
     for key, value in derived.items():
         if key in metadata and metadata[key] != value:
             raise ValueError(f"metadata {key}={metadata[key]!r} contradicts the model ({value!r})")
-    meta = {
-        "fullscale": 4095.0,
-        "trigger": {"fraction": 0.15},
-        "sample_rate_hz": 32.0,
-        "score": SCORE_MEANING,
-        "dormant_class": None,
-        "evaluation": {},
-        **metadata,
-        **derived,
-    }
+    meta = {**defaults(), "score": SCORE_MEANING, **metadata, **derived}
     if "pad_sizes" not in meta:
         if feature_svc:
             meta["pad_sizes"] = [int(s) for s in (model.pad_sizes or [n_channels])]
         else:
             meta["pad_sizes"] = list(bow.pad_sizes_) if bow is not None and bow.per_pad else [n_channels]
-    training = {"project_version": __version__, "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}
-    meta["training"] = {**training, **meta.get("training", {})}
+    meta["training"] = provenance(meta.get("training"))
     meta["model_kind"] = "feature_svm" if feature_svc else "bow_svm" if bow is not None else "flat_svm"
     if feature_svc:
         meta["features"] = model.describe()
