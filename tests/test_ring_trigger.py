@@ -164,5 +164,5 @@ def test_a_model_with_a_broken_hysteresis_is_refused(tmp_path):
     from tests.tiny_models import tiny_model_bytes, write_model
 
     path = write_model(tmp_path, "bad.onnx", tiny_model_bytes(trigger={"kind": "threshold", "hysteresis": 2.0}))
-    with pytest.raises(ModelContractError, match="trigger.hysteresis"):
+    with pytest.raises(ModelContractError, match=r"trigger\.hysteresis"):
         load_model(path)

@@ -117,6 +117,15 @@ def _group_matrix(pad_sizes: tuple[int, ...]) -> np.ndarray:
     return groups
 
 
+def folded_codebook(codebook: np.ndarray) -> np.ndarray:
+    """``[K, W+1]`` weights on raw values that equal the codewords' dot product with the derivative:
+    sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), with c[-1] = c[W] = 0."""
+    codebook = np.asarray(codebook, dtype=np.float64)
+    padded = np.zeros((codebook.shape[0], codebook.shape[1] + 2))
+    padded[:, 1:-1] = codebook
+    return padded[:, :-1] - padded[:, 1:]
+
+
 def _active_nodes(g: _Graph, frames: str) -> str:
     """``[N, C]`` float mask of the series that are not all zero."""
     peak = g.op("ReduceMax", [g.op("Abs", [frames])], "peak", axes=[1], keepdims=0)
@@ -135,10 +144,7 @@ def _scale_nodes(g: _Graph, x4: str, deriv: str | None, active: str, codebook: n
     n_groups = len(pad_sizes)
     bias = (codebook**2).sum(axis=1)
     if deriv is None:
-        # sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), c[-1] = c[W] = 0
-        padded = np.zeros((n_words, window + 2))
-        padded[:, 1:-1] = codebook
-        kernel, signal = -2.0 * (padded[:, :-1] - padded[:, 1:]), x4
+        kernel, signal = -2.0 * folded_codebook(codebook), x4
     else:
         kernel, signal = -2.0 * codebook, deriv
     weights = g.const(CODEWORD_KERNEL, kernel.reshape(n_words, 1, -1, 1))
