@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from firmware_io.trigger_level import is_trigger_level
 from runtime.config_keys import (  # noqa: F401 - RANGES and ConfigError are part of this module's interface
     RANGES,
     ConfigError,
@@ -287,7 +288,7 @@ def _model_config(mo: dict) -> ModelConfig:
 def _trigger_config(tr: dict) -> TriggerConfig:
     no_unknown("trigger", tr, {f.name for f in fields(TriggerConfig)})
     fraction = read_optional_num("trigger.fraction", tr)
-    if fraction is not None and not 0.0 < fraction < 1.0:  # open range: 0 or 1 would never or always trigger
+    if fraction is not None and not is_trigger_level(fraction):
         raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
     kind = tr.get("kind")
     if kind is not None and kind not in TRIGGER_KINDS:

@@ -31,6 +31,7 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording, RecordingError, Trial, find_recordings, load_all
+from firmware_io.trigger_level import is_trigger_level
 from runtime.trigger import ThresholdTrigger
 from runtime.trigger_settings import (
     DEFAULT_HYSTERESIS,
@@ -187,7 +188,7 @@ def dataset_trigger(kind: str | None = None, fraction: float | None = None,
 
     if kind is None and fraction is not None:
         kind = "threshold"
-    if fraction is not None and not 0.0 < fraction < 1.0:
+    if fraction is not None and not is_trigger_level(fraction):
         raise DatasetError(f"trigger fraction must be in (0, 1), got {fraction}")
     if hysteresis < 0:
         raise DatasetError(f"trigger hysteresis must be >= 0, got {hysteresis}")

@@ -15,7 +15,7 @@ import sys
 from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
-from firmware_io.trigger_level import PAPER_FRACTION
+from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 COMMAND = "record"
 
@@ -96,7 +96,7 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     if args.trial_seconds <= 0.3 or args.gap < 0 or args.countdown < 0 or args.retries < 0:
         return fail(COMMAND, "--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
-    if not 0.0 < args.fraction < 1.0:
+    if not is_trigger_level(args.fraction):
         return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
     try:
         client, subject = _connect(args.device, args.trial_seconds)

@@ -21,7 +21,7 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
-from firmware_io.trigger_level import PAPER_FRACTION
+from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 POSES = ("down", "up", "horizontal")
 OBJECTS = ("ball", "cylinder", "plank")
@@ -118,7 +118,7 @@ class TriggerCheck:
 def check_trigger(frames: np.ndarray, layout: SensorLayout, pads: str | Sequence[int] = "all",
                   fraction: float = PAPER_FRACTION) -> TriggerCheck:
     """The same rule as the trainer's data set assembly: first frame whose max reaches the level."""
-    if not 0.0 < fraction < 1.0:
+    if not is_trigger_level(fraction):
         raise SessionError(f"trigger fraction must be in (0, 1), got {fraction}")
     idx = layout.pads(pads)
     fullscale = max(layout.matrices[p].fullscale for p in idx)
