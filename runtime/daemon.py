@@ -27,6 +27,7 @@ from runtime.config_reload import ConfigReload, set_log_level
 from runtime.control import ControlSocket, GraspControl
 from runtime.decision import ContinuousDecision
 from runtime.device_link import CONNECT_BOUND_S, DeviceLink, default_client
+from runtime.frame_rate import FrameClock
 from runtime.health import Health, StatusFile, one_line
 from runtime.listeners import DecisionTimings, FrameListener
 from runtime.model_serving import DEFAULT_RATE_HZ, ModelServing
@@ -104,12 +105,13 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self._backoff = cfg.device.reconnect_min_s
         self._next_connect = 0.0
         self._last_frame_t = 0.0
-        self._last_ts: int | None = None
         self._next_health = 0.0
         self._connect_started: float | None = None
         self.connect_bound_s = CONNECT_BOUND_S
         self._hang_logged = False
         self.period_s = 1.0 / DEFAULT_RATE_HZ
+        self.frame_clock = FrameClock(1000.0 * self.period_s, self.health, on_restart=self._restart_stream)
+        """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
@@ -129,32 +131,27 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
         """One frame: ring, trigger, and inference if this frame ends a window."""
-        h = self.health
-        h.frames_received += 1
-        ts = frame.timestamp_ms
-        if self._last_ts is not None:
-            gap = ts - self._last_ts
-            period_ms = self.period_s * 1000.0
-            if gap > 1.9 * period_ms:  # device stamps jitter by up to ~0.8 period; a lost frame adds one
-                h.frames_dropped += round(gap / period_ms) - 1
-        self._last_ts = ts
+        self.health.frames_received += 1
+        number = self.frame_clock.admit(frame.number, frame.timestamp_ms)  # the model's frame count; -1: skip
+        if number < 0:
+            return
         if self.listeners:
             for listener in self.listeners:
                 listener.on_frame(frame)
         self.latest_frame = frame
         ring = self.ring
-        ring.push(frame.values, frame.number)
+        ring.push(frame.values, number)
         if self._grasp_requests:
             self._apply_grasp()
-        due = self.trigger.update(ring.latest(), frame.number)
+        due = self.trigger.update(ring.latest(), number)
         if self.model is None:
             return
         pending = self._pending
         if due >= 0:
             pending.append(due)
-        if pending and frame.number >= pending[0]:
+        if pending and number >= pending[0]:
             due = pending.pop(0)
-            if frame.number == due and ring.count >= self.model.meta.T:
+            if number == due and ring.count >= self.model.meta.T:
                 self._classify(frame)
 
     def _classify(self, frame: Any) -> None:
@@ -190,7 +187,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         cls = meta.classes[index] if index >= 0 else None
         if cls is not None and cls in self.cfg.scene.events:
             event = Event(time.time(), cls, dict(zip(meta.classes, scores[0].tolist(), strict=True)), latency_us,
-                          model.model_id, frame.number - meta.T + 1, frame.number, int(frame.timestamp_ms), missed)
+                          model.model_id, self.frame_clock.window_first(frame.number, meta.T), frame.number,
+                          int(frame.timestamp_ms), missed)
             stamps.built = clock()
             encoded = self.sinks.encode(event)
             stamps.serialised = clock()

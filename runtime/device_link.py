@@ -54,7 +54,7 @@ class DeviceLink:
     _backoff: float
     _next_connect: float
     _last_frame_t: float
-    _last_ts: int | None
+    frame_clock: Any  # runtime.frame_rate.FrameClock
     _connect_started: float | None
     _hang_logged: bool
     _build_hot_path: Callable[..., None]  # runtime.model_serving
@@ -102,7 +102,7 @@ class DeviceLink:
         self.connected = True
         first = self.layout is None
         self._fit_layout(layout)
-        self._last_ts = None
+        self.frame_clock.reset()
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
@@ -136,12 +136,17 @@ class DeviceLink:
                     self.model = None
                     self.health.model_id = None
             self._build_hot_path(keep_history=False)
-        else:  # the stream is not continuous across a reconnect: forget the history
+        else:
+            self._restart_stream()
+
+    def _restart_stream(self) -> None:
+        """The stream is not continuous (a reconnect, a long gap in device time): forget its history."""
+        if self.ring is not None:
             self.ring.reset()
             self.trigger.reset()
-            if self.decision is not None:
-                self.decision.reset()
-            self._pending.clear()
+        if self.decision is not None:
+            self.decision.reset()
+        self._pending.clear()
 
     def _schedule_reconnect(self) -> None:
         self._next_connect = time.monotonic() + self._backoff

@@ -33,6 +33,8 @@ class Health:
         """Frames the device sent but we never saw (gaps in device time)."""
         self.frames_stale = 0
         """Frames received but discarded because the loop fell behind (client queue overflow)."""
+        self.frames_decimated = 0
+        """Frames of a stream faster than the model's rate left out to feed it at its period (runtime/frame_rate.py)."""
         self.crc_errors = 0
         self.protocol_errors = 0
         self.reconnects = 0
@@ -123,6 +125,7 @@ class Health:
             "frames_received": self.frames_received,
             "frames_dropped": self.frames_dropped,
             "frames_stale": self.frames_stale,
+            "frames_decimated": self.frames_decimated,
             "crc_errors": self.crc_errors,
             "protocol_errors": self.protocol_errors,
             "reconnects": self.reconnects,

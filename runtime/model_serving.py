@@ -52,6 +52,7 @@ class ModelServing:
     decision: ContinuousDecision | None
     watcher: ModelWatcher | None
     period_s: float
+    frame_clock: Any  # runtime.frame_rate.FrameClock
 
     def serve(self, model: Any, layout: SensorLayout) -> None:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame``.
@@ -117,6 +118,7 @@ class ModelServing:
         self.health.resolve("model")
         self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
         self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        self.frame_clock.set_model_period(1000.0 * self.period_s)
         self._build_hot_path(keep_history=True)
         what = "swapped in" if old is not None else "serving"
         log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,

@@ -155,3 +155,38 @@ def test_default_beats_chance_clearly_on_real_objects():
     model = default_classifier(task.pad_sizes, pad_shapes=task.pad_shapes).fit(task.X[split.train], task.y[split.train])
     acc = np.mean(model.predict(task.X[split.test]) == task.y[split.test])
     assert acc > 3 / len(paths)  # 7 objects: chance is 14 %; the compare reports the full figure
+
+
+def _held_grasp_cases(n: int = 40, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Cases like real SDH-2 holds: integer taxels up to full scale, a pad that is all zero, pads that
+    hold still (a near-constant mean signal) and pads that press a single taxel lightly."""
+    rng = np.random.default_rng(seed)
+    X = np.zeros((n, C, T))
+    y = np.arange(n) % 2
+    for i in range(n):
+        level = rng.uniform(200, 4095)
+        X[i, :6] = np.round(level * rng.uniform(0.5, 1, (6, 1)) + rng.normal(0, 3 + 40 * y[i], (6, T)))
+        if i % 3 == 0:
+            X[i, 6 + rng.integers(10)] = rng.integers(1, 4)  # one light taxel on the second pad
+    return np.clip(X, 0, 4095), y
+
+
+def test_hand_bounds_are_at_each_features_own_scale(tmp_path):
+    """The centre of pressure is a ratio (scale-free) and the spread's bound follows the spread, not the
+    pad's largest taxel; an all-zero pad is exact. The graph stays inside the bound on these cases."""
+    from trainer.features.hand import pad_error_bounds
+
+    X, y = _held_grasp_cases()
+    err = pad_error_bounds(X[:, :6], 1, 6)
+    assert np.all(err[:, 9:14] < 1e-3)  # centre of pressure features, taxel units
+    std = X[:, :6].reshape(len(X), -1).std(axis=1)
+    assert np.all(err[:, 3] <= 1e-4 * std + 1e-3)
+    zero = pad_error_bounds(np.zeros((2, 10, T)), 2, 5)
+    assert np.all(zero[:, 4:7] == 0) and np.all(zero <= 1e-5)  # FFT shares of nothing: exactly 0 in both
+    model = FeatureSVC(families=("hand",), pad_sizes=PAD_SIZES, kernel="rbf", C=10.0, gamma="scale").fit(X, y)
+    runner = GraphRunner(export(model, tmp_path))
+    _, _, hist = runner.run(frames_of(X))
+    ref = model.transform_histograms(X)
+    assert np.all(np.abs(hist - ref) <= 1e-6 + SAFETY * model.feature_error_bounds(X) + 1e-6 * np.abs(ref))
+    report = compare(model, runner, frames_of(X), ["held"] * len(X))
+    assert report.ok and report.features == "feature vector"

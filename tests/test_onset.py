@@ -64,6 +64,25 @@ def test_the_hand_letting_go_is_not_an_event():
     assert fires(trig, rows_of(levels)) == [] and trig.releases == 1 and trig.state == OPEN
 
 
+def test_a_pad_letting_go_while_another_wobbles_up_a_little_is_not_an_event():
+    levels = grasp_levels(300)
+    levels[200:, 0] *= 0.8  # pad 0 loses 20 % (the hand starts to open) ...
+    levels[200:, 1] *= 1.05  # ... while pad 1 wobbles up 5 %: no pad rose by the change
+    trig = _trigger()
+    assert fires(trig, rows_of(levels)) == [] and trig.releases == 1
+
+
+@pytest.mark.parametrize("taxels, fired", [(2, False), (3, True), (20, True)])
+def test_a_point_contact_rolling_on_a_pad_is_not_an_event(taxels, fired):
+    levels = grasp_levels(300, level=1500.0 * 20 / taxels)  # the same pad force on fewer taxels
+    levels[200:, 0] *= 1.5  # the load on pad 0 jumps by half
+    rows = rows_of(levels)
+    for p in range(3):
+        rows[:, CONTACT[p][taxels:]] = 0.0  # only ``taxels`` of each pad's contact are loaded
+    trig = _trigger()
+    assert bool(fires(trig, rows)) == fired and trig.point_contacts == (not fired)
+
+
 def test_one_trigger_per_interaction_while_the_pressure_wobbles():
     levels = grasp_levels(500)
     t = np.arange(500)

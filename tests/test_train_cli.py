@@ -38,7 +38,7 @@ def test_train_writes_the_report_and_json(tiny_data, tmp_path, capsys):
     assert set(metrics["loso_per_subject"]) == {"s1", "s2", "s3"}
     assert metrics["synthetic"] is True  # the stand-in marks its recordings synthetic
     for name in ("report.md", "metrics.json", "model.joblib", "confusion_config1.png", "confusion_loso.png",
-                 "tsne.png", "baseline_vs_bow.png", "sweep_K.png", "sweep_W.png", "sweep_T.png"):
+                 "tsne.png", "model_vs_baseline.png", "sweep_K.png", "sweep_W.png", "sweep_T.png"):
         assert (out / name).is_file(), name
         if name.endswith(".png"):
             assert (out / name).stat().st_size < 150_000

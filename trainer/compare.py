@@ -48,6 +48,9 @@ class ModelSpec:
 
 
 ONNX_KINDS = ("bow", "flat", "features", "default")
+DIAGNOSES = {"real_slip": "why, judged on its training part only: results/slip_diagnosis.md (one grasp per slip kind "
+                          "in training; no grouped evaluation there separates the methods; one test chunk decides)"}
+"""Where a task's verdict is examined (``python -m trainer.slip_diagnosis``)."""
 
 
 def model_specs(quick: bool, minirocket: bool = True) -> list[ModelSpec]:
@@ -383,6 +386,7 @@ def markdown(res: dict) -> list[str]:
               f"{wr['chunk_frames']} frames, windows never cross a chunk, a chunk is all train or all test "
               "(trainer/real_tasks.py explains why files cannot be kept apart where one file holds one class).",
               "", "## The default against the references (real tasks)", "", *done_check(res),
+              *[f"- {t}: {why}" for t, why in DIAGNOSES.items() if t in res["real"]],
               "", "## Choosing the default", "", f"Rule (trainer/default_choice.py): {rec['rule']}.", ""]
     lines += choice_lines(rec)
     lines += ["", "Figure: compare.png (simulated LOSO accuracy against single-case latency).", "",

@@ -111,7 +111,7 @@ def train(options: TrainOptions) -> TrainResult:
     model = estimator.fit(ds.X, ds.y)
     evaluation = evaluate(options, ds, estimator, say)
     sweep = None if options.no_sweep else _sweeps(options, recordings, out, say)
-    say("t-SNE of the histograms ...")
+    say(f"t-SNE of the {report.features_label(getattr(model, 'families', ('bow',)))} ...")
     embedding = tsne_embedding(model.transform_histograms(ds.X), seed=options.seed)
     metrics = metrics_of(options, ds, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
     onnx_ok = write_model(options, ds, model, metrics, out)

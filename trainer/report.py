@@ -72,7 +72,20 @@ def plot_sweep(rows: list[dict], param: str, fixed: str, path: Path, synthetic: 
     return path
 
 
-def plot_tsne(embedding: np.ndarray, y: np.ndarray, path: Path, synthetic: bool) -> Path:
+def model_label(families) -> str:
+    """What the trained model is, for tables and figures: ``BoW + SVM`` or e.g. ``hand + stats features + SVM``."""
+    families = list(families or ["bow"])
+    return "BoW + SVM" if families == ["bow"] else f"{' + '.join(families)} features + SVM"
+
+
+def features_label(families) -> str:
+    """What the model's feature vector is: ``BoW histograms`` or e.g. ``hand + stats features``."""
+    families = list(families or ["bow"])
+    return "BoW histograms" if families == ["bow"] else f"{' + '.join(families)} features"
+
+
+def plot_tsne(embedding: np.ndarray, y: np.ndarray, path: Path, synthetic: bool, families=("bow",)) -> Path:
+    """t-SNE of the feature vectors the SVM sees (before scaling), one colour per class."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=SQUARE, dpi=DPI)
     for label in sorted(set(y.tolist())):
@@ -80,7 +93,7 @@ def plot_tsne(embedding: np.ndarray, y: np.ndarray, path: Path, synthetic: bool)
         ax.scatter(embedding[pick, 0], embedding[pick, 1], s=12, label=label, alpha=0.7)
     ax.set_xticks([])
     ax.set_yticks([])
-    ax.set_title(f"t-SNE of the BoW histograms{_tag(synthetic)}")
+    ax.set_title(f"t-SNE of the {features_label(families)}{_tag(synthetic)}")
     ax.legend(markerscale=2)
     fig.tight_layout()
     fig.savefig(path)
@@ -88,13 +101,13 @@ def plot_tsne(embedding: np.ndarray, y: np.ndarray, path: Path, synthetic: bool)
     return path
 
 
-def plot_baseline_vs_bow(metrics: dict, path: Path, synthetic: bool) -> Path:
+def plot_model_vs_baseline(metrics: dict, path: Path, synthetic: bool) -> Path:
     """Grouped bars on an axis zoomed to the values (differences of 1 % must show), each bar labelled,
     the legend below the axes where it covers nothing."""
     plt = _plt()
     names = ["config 1 (pooled 80/20)", "config 2 (leave one subject out)"]
     series = [
-        ("BoW + SVM", [metrics["config1_accuracy_mean"], metrics["loso_accuracy"]],
+        (model_label(metrics.get("families")), [metrics["config1_accuracy_mean"], metrics["loso_accuracy"]],
          [metrics["config1_accuracy_std"], metrics["loso_subject_std"]]),
         ("hand-designed features + SVM", [metrics["baseline_config1_accuracy_mean"], metrics["baseline_loso_accuracy"]],
          [metrics["baseline_config1_accuracy_std"], metrics["baseline_loso_subject_std"]]),
@@ -113,7 +126,7 @@ def plot_baseline_vs_bow(metrics: dict, path: Path, synthetic: bool) -> Path:
     ax.set_xticks(x, names)
     ax.set_ylabel("accuracy % (axis does not start at 0)")
     ax.grid(axis="y", alpha=0.3)
-    ax.set_title(f"BoW vs hand-designed features{_tag(synthetic)}")
+    ax.set_title(f"{model_label(metrics.get('families'))} vs hand-designed features{_tag(synthetic)}")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
     fig.tight_layout()
     fig.savefig(path)
@@ -225,11 +238,8 @@ def _model_lines(metrics: dict) -> list[str]:
         "## Model",
         "",
         f"Feature families: {', '.join(metrics.get('families', ['bow']))} (trainer/feature_svc.py). "
-        f"BoW: K = {metrics['K']} words, "
-        + (f"W = {metrics['W']}" if len(metrics.get("windows", [0])) < 2 else
-           f"windows W = {', '.join(str(w) for w in metrics['windows'])} (one codebook each)")
-        + f", T = {metrics['T']}, per-pad histograms: "
-        f"{metrics['per_pad']}; SVM kernel {metrics['kernel']}, one-vs-one, "
+        + _bow_settings(metrics)
+        + f"T = {metrics['T']}; SVM kernel {metrics['kernel']}, one-vs-one, "
         f"C/gamma of the final model {metrics['best_params']} (chosen by stratified 3-fold search on "
         "the training cases of each fit). The final model is trained on all cases.",
         *_margin_lines(metrics.get("svm_margin")),
@@ -243,7 +253,7 @@ def _results_lines(metrics: dict, label: str) -> list[str]:
         "",
         f"## Results ({label})",
         "",
-        "| | BoW + SVM | hand features + SVM (baseline) |",
+        f"| | {model_label(metrics.get('families'))} | hand features + SVM (baseline) |",
         "|---|---|---|",
         f"| configuration 1: pooled, stratified random 80/20, {len(c1['accuracies'])} seeds (mean +/- std) | "
         f"{pct(c1['mean'])} +/- {pct(c1['std'])} | {pct(b1['mean'])} +/- {pct(b1['std'])} |",
@@ -256,7 +266,7 @@ def _results_lines(metrics: dict, label: str) -> list[str]:
         "",
         "Leave-one-subject-out, per held-out subject:",
         "",
-        "| subject | BoW + SVM | baseline |",
+        f"| subject | {model_label(metrics.get('families'))} | baseline |",
         "|---|---|---|",
     ]
     for s, acc in c2["per_subject"].items():
@@ -300,6 +310,15 @@ def _closing_lines(metrics: dict, figures: dict[str, str]) -> list[str]:
         "",
     ]
     return lines
+
+
+def _bow_settings(metrics: dict) -> str:
+    """K, W and per-pad of the BoW family, only when the model has one (they mean nothing to the others)."""
+    if "bow" not in metrics.get("families", ["bow"]):
+        return ""
+    windows = (f"W = {metrics['W']}" if len(metrics.get("windows", [0])) < 2 else
+               f"windows W = {', '.join(str(w) for w in metrics['windows'])} (one codebook each)")
+    return f"BoW: K = {metrics['K']} words, {windows}, per-pad histograms: {metrics['per_pad']}; "
 
 
 def write_metrics(out: Path, metrics: dict) -> Path:

@@ -125,8 +125,10 @@ def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> d
             out / "confusion_config1.png").name,
         "Confusion matrix, configuration 2": report.plot_confusion(
             c2["confusion"], c2["labels"], f"config 2: leave one subject out{tag}", out / "confusion_loso.png").name,
-        "Baseline vs BoW": report.plot_baseline_vs_bow(metrics, out / "baseline_vs_bow.png", synthetic).name,
-        "t-SNE of the histograms": report.plot_tsne(embedding, ds.y, out / "tsne.png", synthetic).name,
+        f"{report.model_label(metrics['families'])} vs the hand-designed baseline": report.plot_model_vs_baseline(
+            metrics, out / "model_vs_baseline.png", synthetic).name,
+        f"t-SNE of the {report.features_label(metrics['families'])}": report.plot_tsne(
+            embedding, ds.y, out / "tsne.png", synthetic, metrics["families"]).name,
     }
     sweep = metrics["sweep"]
     if sweep:

@@ -66,7 +66,12 @@ class VerifyReport:
     hist_mismatch_cases: int = 0
     hist_mismatch_unexplained: int = 0
     near_tie_cases: int = 0
-    """Cases with a codeword or SVM near tie, whatever the outcome."""
+    """Cases with a codeword or SVM near tie, whatever the outcome: float32 cannot certify their
+    vote by the worst-case bound, they are not disagreements."""
+    svm_near_tie_cases: int = 0
+    """Of those, cases whose SVM decision is the near tie (large dual coefficients amplify rounding)."""
+    features: str = "histogram"
+    """What the graph's feature tensor is: ``histogram`` (BoW alone) or ``feature vector`` (families)."""
     window_word_mismatches: int = 0
     """Active windows whose graph word differs from the float64 word."""
     window_word_mismatches_near_tie: int = 0
@@ -208,6 +213,8 @@ def compare(model, runner: GraphRunner, frames: np.ndarray, sources: list[str], 
             report: VerifyReport | None = None) -> VerifyReport:
     """Run graph and reference on ``frames`` float32 ``[N, T, C]``; accumulate into ``report``."""
     report = report or VerifyReport()
+    families = [name for name, _ in getattr(model, "blocks_", [("bow", None)])]
+    report.features = "histogram" if families == ["bow"] else "feature vector"
     classes = [str(c) for c in model.classes_]
     n_done = report.n_cases
     n_agree = round(report.agreement * report.n_cases)
@@ -245,6 +252,7 @@ def compare(model, runner: GraphRunner, frames: np.ndarray, sources: list[str], 
         report.hist_mismatch_cases += int(hist_bad.sum())
         report.hist_mismatch_unexplained += int((hist_bad & ~hist_explained).sum())
         report.near_tie_cases += int((cw_tie | svm_tie).sum())
+        report.svm_near_tie_cases += int(svm_tie.sum())
         agree = labels == ref["labels"]
         n_agree += int(agree.sum())
         for i in np.flatnonzero(~agree):

@@ -48,12 +48,17 @@ def _print_report(report, path: Path) -> None:
               f"codeword margin {d.codeword_margin:.3g} x bound (gap {d.codeword_gap:.3g}), "
               f"SVM margin {d.svm_margin:.3g} x bound")
     print(f"  max |score - reference|: {report.max_score_abs_diff:.3g} "
-          f"({report.max_score_abs_diff_same_votes:.3g} where histogram and votes agree)")
-    print(f"  max |histogram - reference|: {report.max_hist_abs_diff:.3g}; "
-          f"{report.hist_mismatch_cases} histograms differ ({report.hist_mismatch_unexplained} not at a near tie)")
+          f"({report.max_score_abs_diff_same_votes:.3g} where {report.features} and votes agree)")
+    what = report.features
+    print(f"  max |{what} - reference|: {report.max_hist_abs_diff:.3g}; "
+          f"{report.hist_mismatch_cases} {what}s differ beyond their float32 bound "
+          f"({report.hist_mismatch_unexplained} not at a near tie)")
     print(f"  windows whose word differs from float64: {report.window_word_mismatches} "
           f"({report.window_word_mismatches_near_tie} near ties, {report.window_word_mismatches_unexplained} beyond the bound)")
-    print(f"  cases with a near tie (any outcome): {report.near_tie_cases}; NaN/inf outputs: {report.nan_or_inf_outputs}; "
+    share = 100 * report.near_tie_cases / max(report.n_cases, 1)
+    print(f"  cases float32 cannot certify by the worst-case bound (a near tie, whatever the outcome; not "
+          f"disagreements): {report.near_tie_cases} ({share:.1f} %; the SVM decision in {report.svm_near_tie_cases})")
+    print(f"  NaN/inf outputs: {report.nan_or_inf_outputs}; "
           f"non-finite input refused: {report.nonfinite_input_refused}")
     print(f"  near tie: margin < {report.safety:g} x the float32 error bound (see trainer/numerics.py)")
 

@@ -150,8 +150,8 @@ def real_files(root: Path) -> list[tuple[Path, str, str]]:
         "slip": "slip experiments: objects slipping in (or pulled through) the grasp; no hand-over",
         "objects": "the hand grasping test objects for classification; nobody takes them",
         "misc": "sensor tests (ghosting, masked matrices, reactive grasping, sensitivity)",
-        "fast": "recorded at ~70 Hz for frequency analysis (slip and roughness tests); windows of 15 frames "
-                "then span 0.2 s instead of the 0.47 s the models were trained on",
+        "fast": "recorded at ~70 Hz for frequency analysis (slip and roughness tests); the daemon decimates them to "
+                "the model's 32 Hz (runtime/frame_rate.py), so 15-frame windows span 0.47 s as in training",
     }
     out = []
     for path in sorted(find_sources(root)):

@@ -66,6 +66,12 @@ def markdown(r: dict, load_text: str) -> list[str]:
               f"Onset trigger settings (runtime/trigger_settings.py, where their choice is written down): change "
               f"{trig.get('change')}, floor {trig.get('floor')} x full scale, baseline tau {trig.get('track_tau_s')} s, "
               f"settle {trig.get('settle_s')} s, window from {trig.get('pre_frames')} frames before the trigger.",
+              "Product rules the false events on real files led to (issue 13): the daemon feeds a model at its "
+              "trained period (runtime/frame_rate.py: a faster stream is decimated, a slower one gets a health line; "
+              "a gap of more than 10 stream periods restarts the stream's history like a reconnect); the onset "
+              "trigger fires only on a pad rising by the change (a departure in which no pad rose that much is the "
+              "hand letting go; `RELEASE_RISE`, chosen by the rule above) on a contact of at least 3 loaded taxels "
+              "(`MIN_CONTACT_TAXELS`, physical grounds; the rule was indifferent; see runtime/onset.py).",
               f"Sizes: {r['sizes']}; training seed {r['seed']}, validation seed {r['seed'] + 2}, test seed "
               f"{r['seed'] + 1}. The simulator was not changed for this benchmark. {r['seconds']:.0f} s."]
     return lines
@@ -179,6 +185,12 @@ def _real(r: dict) -> list[str]:
     for cat, c in sorted(real["by_category"].items()):
         lines.append(f"| {cat} | {c['files']} | {c['hours']:.2f} | {why.get(cat, '')} | "
                      + " | ".join(str(c[m]) for m in modes) + " |")
+    chosen = r["default_setting"]
+    left = [row for row in real["rows"] if row.get("events", {}).get(chosen)]
+    lines += ["", f"False events left with the default setting ({chosen}), per file (split: which half of the "
+              "sorted files it is in; validation files take part in choosing settings):", ""]
+    lines += [f"- `{row['file']}` ({row['category']}, {row['split']}): {len(row['events'][chosen])} "
+              f"{row['events'][chosen]}" for row in left] or ["- none"]
     lines += ["", "Files with events (events per mode):", ""]
     for row in real["rows"]:
         if "events" in row and any(row["events"].values()):

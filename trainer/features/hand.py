@@ -46,32 +46,11 @@ class HandGraphFeatures(FeatureFamily):
                               axis=1)
 
     def error_bounds(self, X) -> np.ndarray:
-        """A float32 bound per feature: gamma(terms) times each feature's scale, and the whole range
-        where the feature is ill-conditioned (FFT shares of a near-constant signal, the centre of
-        pressure of a pad whose summed pressure is within rounding of zero)."""
+        """A float32 bound per feature (``pad_error_bounds``), pad by pad."""
         X = self._check(X)
-        parts = []
-        for (a, b), (rows, cols) in zip(pad_bounds(self.shapes_), self.shapes_, strict=True):
-            P = X[:, a:b]
-            _, size, n_t = P.shape
-            g = gamma(size * n_t + 32)
-            mag = np.abs(P).max(axis=(1, 2)) + 1.0
-            f = pad_features(P, rows, cols)
-            signal = P.mean(axis=1)
-            centred = signal - signal.mean(axis=1, keepdims=True)
-            total = (np.abs(np.fft.rfft(centred, axis=1)) ** 2)[:, 1:].sum(axis=1)
-            e_c = g * mag * n_t
-            e_total = 2 * np.sqrt(np.maximum(total, 0)) * e_c + e_c**2 * n_t + g * total
-            share_err = np.where(total <= SAFETY * e_total, 1.0, 2 * e_total / np.maximum(total, 1e-300))
-            weight = P.sum(axis=1)
-            cop_bad = np.any(np.abs(weight) <= SAFETY * gamma(size + 2) * np.abs(P).sum(axis=1), axis=1) & np.any(
-                np.abs(P).sum(axis=1) > 0, axis=1)
-            cop_err = np.where(cop_bad, float(rows + cols), g * (rows + cols) * (1 + mag))
-            err = np.stack([U32 * mag, g * mag, U32 * mag, np.sqrt(g) * mag,
-                            share_err, share_err, share_err, e_total / (1 + total) + U32 * np.abs(f[:, 7]),
-                            g * mag, cop_err, cop_err, 2 * cop_err, 2 * cop_err, 2 * cop_err], axis=1)
-            parts.append(err)
-        return np.concatenate(parts, axis=1)
+        return np.concatenate([pad_error_bounds(X[:, a:b], rows, cols)
+                               for (a, b), (rows, cols) in zip(pad_bounds(self.shapes_), self.shapes_, strict=True)],
+                              axis=1)
 
     def onnx_nodes(self, g, frames: str) -> str:
         n_t = int(self.n_timepoints_)
@@ -126,3 +105,77 @@ class HandGraphFeatures(FeatureFamily):
         sq = g.op("ReduceSum", [g.op("Mul", [step, step]), g.const("axis2", [2], np.int64)], "step_sq", keepdims=0)
         speed = g.op("ReduceMean", [g.op("Sqrt", [sq], "step_len")], "speed", axes=[1], keepdims=1)
         return g.op("Concat", [mean, net, speed], "cop_features", axis=1)
+
+
+def pad_error_bounds(P: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Bound ``(n, 14)`` on |float32 graph - float64| of one pad's features ``P`` ``(n, S, T)``.
+
+    Each feature's rounding follows the graph's own sums (``trainer.numerics``: a float32 sum of m
+    terms is within ``gamma(m) * sum |terms|``): the whole-pad mean and spread carry gamma(S T);
+    the mean-pressure signal only gamma(S) per frame, so the FFT features, the mean derivative and
+    the centre of pressure (a ratio of two pad sums: scale-free) are bounded at the size of their
+    own values, not of the pad's largest taxel. Only genuinely ill-conditioned features get their
+    whole range: FFT shares of a signal whose energy is within ``SAFETY`` x its error of zero, the
+    centre of pressure of a frame whose summed pressure is within ``SAFETY`` x its error of zero
+    (only possible with negative input).
+    """
+    P = np.asarray(P, dtype=np.float64)
+    n, size, n_t = P.shape
+    f = pad_features(P, rows, cols)
+    count = size * n_t
+    e_mean = gamma(count + 2) * np.abs(P).mean(axis=(1, 2))
+    std = f[:, 3]
+    e_var = gamma(count + 6) * (std + e_mean) ** 2 + e_mean**2
+    e_std = np.where(std > 0, np.minimum(np.sqrt(e_var), e_var / np.maximum(std, 1e-300)), np.sqrt(e_var)) + U32 * std
+
+    signal = P.mean(axis=1)  # (n, T)
+    e_sig = gamma(size + 2) * np.abs(P).mean(axis=1).max(axis=1)
+    centred = signal - signal.mean(axis=1, keepdims=True)
+    e_c = 2 * e_sig + gamma(n_t + 2) * np.abs(signal).mean(axis=1) + U32 * np.abs(centred).max(axis=1)
+    spectrum = np.fft.rfft(centred, axis=1)[:, 1:]
+    e_ri = n_t * e_c + gamma(n_t + 2) * np.abs(centred).sum(axis=1)  # one DFT bin, real or imaginary part
+    power = np.abs(spectrum) ** 2
+    e_power = (2 * (np.abs(spectrum.real) + np.abs(spectrum.imag)) * e_ri[:, None] + 2 * e_ri[:, None] ** 2
+               + gamma(3) * power)
+    energy = power.sum(axis=1)
+    e_energy = e_power.sum(axis=1) + gamma(power.shape[1] + 1) * energy
+    conditioned = energy > SAFETY * e_energy
+    shares = f[:, 4:7]
+    exact = e_energy == 0  # an all-zero pad: every sum is exact, the shares are 0 in both
+    share_err = np.where(exact[:, None], 0.0, np.where(conditioned[:, None],
+                         (1 + shares) * (e_energy / np.where(conditioned, energy - e_energy, 1.0))[:, None] + U32,
+                         1.0))
+    e_log = e_energy / (1 + np.maximum(energy - e_energy, 0)) + U32 * (1 + np.abs(f[:, 7]))
+    e_deriv = 2 * e_sig / max(n_t - 1, 1) + gamma(3) * np.abs(f[:, 8])
+
+    e_cop = _cop_frame_error(P, rows, cols)  # (n,) worst frame, taxel units
+    cop_mean_err = e_cop[:, None] + gamma(n_t + 1) * np.abs(f[:, 9:11])
+    net_err = 2 * e_cop[:, None] + U32 * np.abs(f[:, 11:13])
+    ys, xs = np.divmod(np.arange(size), cols)
+    weight = P.sum(axis=1)
+    safe = np.where(weight > 0, weight, 1.0)
+    cop = np.stack([np.where(weight > 0, np.einsum("nct,c->nt", P, v) / safe, (m - 1) / 2)
+                    for v, m in ((xs, cols), (ys, rows))], axis=-1)  # (n, T, 2)
+    step = np.linalg.norm(np.diff(cop, axis=1), axis=2).max(axis=1) if n_t > 1 else np.zeros(n)
+    speed_err = 2 * np.sqrt(2) * e_cop + gamma(n_t + 5) * (np.abs(f[:, 13]) + step)
+    return np.column_stack([U32 * np.abs(f[:, 0]), e_mean, U32 * np.abs(f[:, 2]), e_std, share_err, e_log,
+                            e_deriv, cop_mean_err, net_err, speed_err])
+
+
+def _cop_frame_error(P: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Worst frame's bound on the float32 centre of pressure (taxel units), ``(n,)``: the moment and
+    the weight are pad sums, the quotient's error is (e_moment + |cop| e_weight) / (|w| - e_weight).
+    An empty frame (all zero) is the centre in both; a weight within SAFETY x its error of zero
+    (negative input only) may switch the Where: the whole pad range."""
+    size = rows * cols
+    ys, xs = np.divmod(np.arange(size), cols)
+    absum = np.abs(P).sum(axis=1)  # (n, T)
+    weight = P.sum(axis=1)
+    e_w = gamma(size + 2) * absum
+    e_m = gamma(size + 3) * absum * float(max(rows, cols) - 1)
+    cop = np.maximum(np.abs(np.einsum("nct,c->nt", P, xs)), np.abs(np.einsum("nct,c->nt", P, ys))) / np.where(
+        weight != 0, np.abs(weight), 1.0)
+    ill = (np.abs(weight) <= SAFETY * e_w) & (absum > 0)
+    den = np.where(ill | (absum == 0), 1.0, np.abs(weight) - e_w)
+    err = np.where(absum == 0, 0.0, (e_m + cop * e_w) / den + U32 * cop)
+    return np.where(ill.any(axis=1), float(rows + cols), err.max(axis=1))

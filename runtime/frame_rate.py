@@ -1,0 +1,178 @@
+"""The device's frame rate against the model's: one owner for how a stream is fed to a model.
+
+A model is trained on windows of T frames at its ``sample_rate_hz`` (metadata); T frames at the
+wrong rate span another stretch of time (15 frames of a ~70 Hz stream are 0.2 s, not the 0.47 s
+the model learnt) and the same motion looks twice as slow. So the daemon measures the stream's
+period from the frames' device time stamps and:
+
+- a stream faster than the model's rate (period below ``FASTER`` x the model's) is decimated to
+  the model's period: frames are admitted by a phase accumulator stepping by the measured period
+  over the model's, so on average one frame per model period passes (a 70 Hz stream: about every
+  2.2nd frame). The accumulator works on the *measured* period, not on each frame's stamp,
+  because device stamps jitter by up to ~0.8 period; admitted frames are numbered consecutively
+  (the trigger and the window's end count model frames), the events still name device frames;
+- a stream slower than the model's rate (period above ``SLOWER`` x the model's) cannot be made
+  faster: it is fed as it comes and a one-line health problem says so (windows span too long);
+- within those bounds the stream is fed untouched (frame numbers as the device sent them);
+- a gap in device time of more than ``RESTART_PERIODS`` stream periods (the recording paused,
+  the device stalled and resumed) breaks the stream: ``on_restart`` is called before the frame
+  after it, and the daemon forgets the history as after a reconnect (a window across the gap
+  would join two unrelated moments, and the trigger would take the jump for a person's action).
+
+The period is the median of the last ``BLOCK`` gaps, re-estimated once per block (one store per
+frame; the median once a block). Frames lost on the way (gaps of about twice the stream's period
+or more) are counted here too, once per block, against the stream's period, not the model's.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+log = logging.getLogger("handover.daemon")
+
+FASTER = 0.8
+"""A stream whose period is below this x the model's is decimated (jitter alone never gets there)."""
+SLOWER = 1.25
+"""A stream whose period is above this x the model's gets a health warning."""
+FASTEST = 0.125
+"""Stamps that say the stream is more than 8x faster than the model's rate are not believed (a
+broken device clock would otherwise leave out nearly every frame): a health warning, frames fed
+as they come."""
+BLOCK = 32
+"""Gaps per estimate of the stream's period (about a second at the SDH-2's 32 Hz)."""
+HISTORY = 256
+"""Device frame numbers of the last admitted frames kept (to name a window's first device frame)."""
+RESTART_PERIODS = 10
+"""A gap of more than this many stream periods (about 0.3 s at 32 Hz) breaks the stream."""
+SOURCE = "rate"
+"""The health problem's source (resolved when the stream is back at the model's rate)."""
+
+
+class FrameClock:
+    """Admits a device's frames at the model's period; counts lost frames; warns on slow streams."""
+
+    def __init__(self, model_period_ms: float, health=None, on_restart: Callable[[], None] | None = None) -> None:
+        self.health = health
+        self.on_restart = on_restart
+        """Called when a gap breaks the stream (before the frame after the gap is fed)."""
+        self.restarts = 0
+        self.model_period_ms = float(model_period_ms)
+        self._gaps = np.zeros(BLOCK, dtype=np.float64)
+        self._numbers = np.zeros(HISTORY, dtype=np.int64)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream (a reconnect: time stamps and numbers start afresh)."""
+        self._last_ts: int | None = None
+        self._n_gaps = 0
+        self.stream_period_ms: float | None = None
+        """The measured period of the device's stream (median of the last block of gaps), or None."""
+        self.step = 1.0
+        """Model frames per device frame (1: every frame is admitted)."""
+        self._phase = 0.0
+        self.renumber = False
+        """True once frames were decimated: admitted frames carry consecutive numbers from then on."""
+        self.number = -1
+        self.admitted = 0
+        self.slow = False
+        """The stream's rate is a health problem (slower than the model's, or stamps not believed)."""
+
+    def set_model_period(self, model_period_ms: float) -> None:
+        """A model with another sample rate serves: re-decide from the measured period."""
+        self.model_period_ms = float(model_period_ms)
+        if self.stream_period_ms is not None:
+            self._decide(self.stream_period_ms)
+
+    def admit(self, number: int, ts_ms: int) -> int:
+        """The frame number to feed this frame under, or -1 when it falls between model periods."""
+        last, self._last_ts = self._last_ts, ts_ms
+        if last is not None:
+            self._gap(ts_ms - last)
+            if ts_ms - last > RESTART_PERIODS * (self.stream_period_ms or self.model_period_ms):
+                self._restart()
+        if self.step < 1.0:
+            self._phase += self.step
+            if self._phase < 1.0:
+                if self.health is not None:
+                    self.health.frames_decimated += 1
+                return -1
+            self._phase -= 1.0
+        if self.renumber:
+            self.number += 1
+        else:
+            self.number = number
+        self._numbers[self.admitted % HISTORY] = number
+        self.admitted += 1
+        return self.number
+
+    def device_number(self, back: int) -> int:
+        """The device number of the frame admitted ``back`` admitted frames before the newest."""
+        if not 0 <= back < min(self.admitted, HISTORY):
+            return -1
+        return int(self._numbers[(self.admitted - 1 - back) % HISTORY])
+
+    def window_first(self, last_number: int, length: int) -> int:
+        """The device number of the first frame of the ``length``-frame window ending at the newest."""
+        if not self.renumber:
+            return last_number - length + 1
+        first = self.device_number(length - 1)
+        return first if first >= 0 else last_number - length + 1
+
+    def _restart(self) -> None:
+        self.restarts += 1
+        self._phase = 0.0
+        if self.on_restart is not None:
+            self.on_restart()
+
+    def _gap(self, gap: float) -> None:
+        self._gaps[self._n_gaps] = gap
+        self._n_gaps += 1
+        if self._n_gaps == BLOCK:
+            self._n_gaps = 0
+            self._block()
+
+    def _block(self) -> None:
+        """A block of gaps is complete: the stream's period, and the frames lost in the block."""
+        gaps = self._gaps
+        period = float(np.median(gaps))
+        if period <= 0:
+            return  # repeated stamps: no rate to measure
+        lost = gaps[gaps > 1.9 * period]  # stamps jitter up to ~0.8 period; a lost frame adds one
+        if lost.size and self.health is not None:
+            self.health.frames_dropped += int(np.rint(lost / period).sum()) - lost.size
+        self._decide(period)
+
+    def _decide(self, period_ms: float) -> None:
+        was_step, was_off = self.step, self.slow
+        self.stream_period_ms = period_ms
+        ratio = period_ms / self.model_period_ms
+        self.step = ratio if FASTEST <= ratio < FASTER else 1.0
+        if self.step < 1.0:
+            self.renumber = True  # from now on the trigger counts model frames
+        stream_hz, model_hz = _hz(1000.0 / period_ms), _hz(1000.0 / self.model_period_ms)
+        if self.step < 1.0 and was_step == 1.0:
+            log.warning("device streams at %s Hz, the model was trained at %s Hz: frames are decimated to the "
+                        "model's period (about 1 in %.1f classified)", stream_hz, model_hz, 1.0 / self.step)
+        problem = None
+        if ratio > SLOWER:
+            problem = (f"device streams at {stream_hz} Hz, slower than the {model_hz} Hz the model was trained "
+                       f"at: its windows span {ratio:.1f}x their trained time and decisions may be wrong; set the "
+                       f"device's rate to {model_hz} Hz or train a model at {stream_hz} Hz")
+        elif ratio < FASTEST:
+            problem = (f"device time stamps say {stream_hz} Hz, more than {1 / FASTEST:.0f}x the model's {model_hz} "
+                       "Hz: not believed (a broken device clock?), frames are fed as they come")
+        self.slow = problem is not None
+        if problem and not was_off:
+            log.warning("%s", problem)
+            if self.health is not None:
+                self.health.report_error(problem, SOURCE)
+        elif was_off and not problem and self.health is not None:
+            self.health.resolve(SOURCE)
+
+
+def _hz(rate: float) -> str:
+    """A rate for a log line: 71, 31.2, 0.33."""
+    return f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"

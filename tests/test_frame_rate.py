@@ -1,0 +1,130 @@
+"""The daemon feeds a model at its trained period (runtime/frame_rate.py), on small synthetic streams."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+import pytest
+
+from firmware_io.client import Frame
+from runtime.frame_rate import BLOCK, FrameClock
+from runtime.health import Health
+from tests.test_onset import LAYOUT, RATE, _daemon, grasp_levels, rows_of
+
+MODEL_MS = 1000.0 / RATE
+
+
+def stamps(rate_hz: float, n: int, jitter_ms: float = 0.0, seed: int = 0) -> np.ndarray:
+    """Device time stamps (ms) of a stream at ``rate_hz``, each jittered by up to ``jitter_ms``."""
+    t = np.arange(n) * 1000.0 / rate_hz
+    t += np.random.default_rng(seed).uniform(-jitter_ms, jitter_ms, n)
+    return np.rint(t).astype(np.int64)
+
+
+def admit_all(clock: FrameClock, ts: np.ndarray) -> list[int]:
+    return [clock.admit(i, int(t)) for i, t in enumerate(ts)]
+
+
+def test_a_stream_at_the_model_rate_passes_untouched_despite_jitter():
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    numbers = admit_all(clock, stamps(RATE, 400, jitter_ms=0.4 * MODEL_MS))
+    assert numbers == list(range(400)) and not clock.renumber
+    assert health.frames_dropped == 0 and health.frames_decimated == 0 and health.last_error == ""
+
+
+def test_a_70hz_stream_is_decimated_to_the_model_period():
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    ts = stamps(70.0, 2000, jitter_ms=4.0)
+    numbers = admit_all(clock, ts)
+    admitted = [i for i, n in enumerate(numbers) if n >= 0]
+    later = [i for i in admitted if i > BLOCK]  # the rate is known after the first block
+    spacing_ms = np.diff(ts[later]).mean()
+    assert spacing_ms == pytest.approx(MODEL_MS, rel=0.03)
+    kept = [n for n in numbers if n >= 0]
+    assert kept == list(range(len(kept)))  # consecutive model frames for the trigger
+    assert health.frames_decimated == 2000 - len(kept) and health.frames_dropped == 0
+    first = clock.window_first(admitted[-1], 15)  # a window of 15 model frames spans 0.44 s of device time
+    assert (ts[admitted[-1]] - ts[first]) == pytest.approx(14 * MODEL_MS, rel=0.1)
+
+
+def test_lost_frames_count_against_the_stream_period():
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    ts = np.delete(stamps(70.0, 400), [100, 101, 102, 250])  # 4 frames lost in a 70 Hz stream
+    admit_all(clock, ts)
+    assert health.frames_dropped == 4
+
+
+def test_a_slower_stream_is_one_health_line_and_resolves(caplog):
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    with caplog.at_level(logging.WARNING, logger="handover.daemon"):
+        admit_all(clock, stamps(16.0, 200))
+    lines = [r.getMessage() for r in caplog.records if "slower" in r.getMessage()]
+    assert len(lines) == 1 and "16 Hz" in lines[0] and "than the 32 Hz" in lines[0]
+    assert health.last_error == lines[0] and health.frames_dropped == 0  # 16 Hz gaps are not lost frames
+    last = 200 * 1000 // 16
+    for i in range(200, 300):  # back at the model's rate
+        clock.admit(i, int(last + (i - 199) * MODEL_MS))
+    assert health.last_error == ""
+
+
+def test_a_long_gap_restarts_the_stream():
+    restarts: list[int] = []
+    clock = FrameClock(MODEL_MS, Health(), on_restart=lambda: restarts.append(1))
+    ts = stamps(RATE, 200)
+    ts[120:] += 3000  # the recording paused for 3 s
+    admit_all(clock, ts)
+    assert len(restarts) == 1
+
+
+def _resampled(levels: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The same motion (levels per pad at 32 Hz) sampled at ``rate_hz``: rows and stamps (ms)."""
+    t32 = np.arange(len(levels)) / RATE
+    t = np.arange(0.0, t32[-1], 1.0 / rate_hz)
+    out = np.stack([np.interp(t, t32, levels[:, p]) for p in range(levels.shape[1])], axis=1)
+    return out, np.rint(t * 1000.0).astype(np.int64)
+
+
+def _events(tmp_path, levels: np.ndarray, ts: np.ndarray) -> list:
+    daemon, events = _daemon(tmp_path)
+    rows = rows_of(levels)
+    full = np.zeros((len(rows), LAYOUT.n_taxels), dtype=np.uint16)
+    full[:, LAYOUT.columns("distal")] = rows.astype(np.uint16)
+    for i in range(len(full)):
+        daemon.handle_frame(Frame(i, int(ts[i]), time.perf_counter(), full[i]))
+    return events
+
+
+def test_a_70hz_stream_gives_the_decisions_of_the_same_motion_at_32hz(tmp_path):
+    levels = grasp_levels(400, seed=3)
+    levels[200:240, 0] *= 1.3  # a person presses on pad 0 at 6.25 s
+    slow = _events(tmp_path, levels, np.rint(np.arange(400) * MODEL_MS).astype(np.int64))
+    fast_levels, fast_ts = _resampled(levels, 70.0)
+    fast = _events(tmp_path, fast_levels, fast_ts)
+    assert [e.cls for e in fast] == [e.cls for e in slow] and len(slow) == 1
+    t_first = {name: ts[e.frame_first] for name, ts, e in
+               (("slow", np.arange(400) * MODEL_MS, slow[0]), ("fast", fast_ts, fast[0]))}
+    assert abs(t_first["fast"] - t_first["slow"]) <= 2 * MODEL_MS  # the same onset, within 2 model frames
+    span_ms = fast_ts[fast[0].frame_last] - fast_ts[fast[0].frame_first]
+    assert span_ms == pytest.approx(14 * MODEL_MS, rel=0.1)  # the trained 0.44 s, not 14 / 70 Hz = 0.2 s
+
+
+def test_a_jump_across_a_pause_in_the_recording_is_not_an_event(tmp_path):
+    levels = grasp_levels(400, seed=4)
+    levels[200:, :] *= 1.3  # the grasp is 30 % firmer after the pause ...
+    ts = np.rint(np.arange(400) * MODEL_MS).astype(np.int64)
+    assert len(_events(tmp_path, levels, ts)) == 1  # ... which, without a pause, is a person pressing
+    ts[200:] += 3000  # the recording paused for 3 s before frame 200
+    assert _events(tmp_path, levels, ts) == []
+
+
+def test_stamps_of_a_broken_device_clock_are_not_believed():
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    numbers = admit_all(clock, np.arange(200))  # 1 ms per frame: 1000 Hz
+    assert numbers == list(range(200)) and "not believed" in health.last_error
