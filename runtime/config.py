@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from firmware_io.trigger_level import is_trigger_level
 from runtime.config_keys import (  # noqa: F401 - RANGES and ConfigError are part of this module's interface
     RANGES,
     ConfigError,
@@ -85,9 +86,11 @@ class TriggerConfig:
     settle_s: float | None = None
     """onset: how long the grasp must be still before the trigger arms (default 0.2 s)."""
     fraction: float | None = None
-    """threshold: level as a fraction of full scale; None takes the model's (paper: 0.15)."""
-    hysteresis: float = 0.05
-    """Re-arm only once the max drops below (fraction - hysteresis) of full scale."""
+    """threshold: level as a fraction of full scale; None takes the model's (else the paper's,
+    ``trigger_settings.PAPER_FRACTION``)."""
+    hysteresis: float | None = None
+    """Re-arm only once the max drops below (fraction - hysteresis) of full scale; None takes the
+    model's (else ``trigger_settings.DEFAULT_HYSTERESIS``)."""
     refractory_s: float = 1.5
     """No new trigger for this long after one (counted from the trigger frame): a pull or push
     goes on for up to about 1-1.5 s after its trigger, and one interaction is one event."""
@@ -284,11 +287,9 @@ def _model_config(mo: dict) -> ModelConfig:
 
 def _trigger_config(tr: dict) -> TriggerConfig:
     no_unknown("trigger", tr, {f.name for f in fields(TriggerConfig)})
-    fraction = tr.get("fraction")
-    if fraction is not None:
-        fraction = read_num("trigger.fraction", tr, 0.15)
-        if not 0.0 < fraction < 1.0:  # open range: 0 or 1 would never or always trigger
-            raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
+    fraction = read_optional_num("trigger.fraction", tr)
+    if fraction is not None and not is_trigger_level(fraction):
+        raise ConfigError(f"trigger.fraction: must be a number in (0, 1), got {fraction}")
     kind = tr.get("kind")
     if kind is not None and kind not in TRIGGER_KINDS:
         raise ConfigError(f"trigger.kind: must be one of {', '.join(TRIGGER_KINDS)}, got {kind!r}")
@@ -298,14 +299,14 @@ def _trigger_config(tr: dict) -> TriggerConfig:
         track_tau_s=read_optional_num("trigger.track_tau_s", tr),
         settle_s=read_optional_num("trigger.settle_s", tr),
         fraction=fraction,
-        hysteresis=read_num("trigger.hysteresis", tr, TriggerConfig.hysteresis),
+        hysteresis=read_optional_num("trigger.hysteresis", tr),
         refractory_s=read_num("trigger.refractory_s", tr, TriggerConfig.refractory_s),
         rearm_quiet_s=read_num("trigger.rearm_quiet_s", tr, TriggerConfig.rearm_quiet_s),
         baseline=read_bool("trigger.baseline", tr, TriggerConfig.baseline),
         baseline_tau_s=read_num("trigger.baseline_tau_s", tr, TriggerConfig.baseline_tau_s),
         pre_frames=None if "pre_frames" not in tr else read_int("trigger.pre_frames", tr, 0),
     )
-    if fraction is not None and trigger.hysteresis >= fraction:
+    if fraction is not None and trigger.hysteresis is not None and trigger.hysteresis >= fraction:
         raise ConfigError(f"trigger.hysteresis: must be smaller than trigger.fraction ({fraction})")
     return trigger
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.trigger_level import is_trigger_level
 from runtime.onnx_wire import WireError, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
 from runtime.trigger_settings import recorded_problems
@@ -164,7 +165,7 @@ class ModelMeta:
         if sum(self.pad_sizes) != self.n_channels:
             problems.append(f"n_channels={self.n_channels} != sum(pad_sizes)={sum(self.pad_sizes)}")
         fraction = self.trigger.get("fraction")
-        if not isinstance(fraction, int | float) or not 0.0 < float(fraction) < 1.0:
+        if not is_trigger_level(fraction):
             problems.append(f"trigger.fraction {fraction!r} must be a number in (0, 1)")
         problems += recorded_problems(self.trigger)
         missing = [k for k in TRAINING_KEYS if k not in self.training]

@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from firmware_io.trigger_level import is_trigger_level
+from runtime.trigger_settings import DEFAULT_HYSTERESIS, PAPER_FRACTION
+
 
 class ThresholdTrigger:
     """Fires when max(scene taxels) crosses ``on``; re-arms once it stayed below ``off`` for
@@ -26,8 +29,8 @@ class ThresholdTrigger:
         self,
         n_channels: int,
         fullscale: float,
-        fraction: float = 0.15,
-        hysteresis: float = 0.05,
+        fraction: float = PAPER_FRACTION,
+        hysteresis: float = DEFAULT_HYSTERESIS,
         refractory_frames: int = 16,
         window: int = 15,
         pre_frames: int = 0,
@@ -35,7 +38,7 @@ class ThresholdTrigger:
         baseline_alpha: float = 0.0156,
         rearm_frames: int = 1,
     ) -> None:
-        if not 0.0 < fraction < 1.0:
+        if not is_trigger_level(fraction):
             raise ValueError("fraction must be in (0, 1)")
         if not 0.0 <= hysteresis < fraction:
             raise ValueError("hysteresis must be in [0, fraction)")

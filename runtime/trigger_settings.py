@@ -23,9 +23,13 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from firmware_io.trigger_level import PAPER_FRACTION
+
 DEFAULT_KIND = "onset"
-PAPER_FRACTION = 0.15
-"""The paper's trigger level: any taxel at 15 % of full scale."""
+DEFAULT_HYSTERESIS = 0.05
+"""The threshold re-arms below (fraction - 0.05) x full scale."""
+HYSTERESIS_CAP = 0.99
+"""A hysteresis is capped at 0.99 x the fraction, so the re-arm level stays above zero."""
 ONSET_CHANGE = 0.12
 """A pad's pressure departing from the settled grasp's prediction by 12 % fires. Chosen on the
 validation seed (2; a 60-event session and 15 min of idle stream, synthetic) by the rule "most
@@ -56,7 +60,7 @@ class TriggerSettings:
 
     kind: str = DEFAULT_KIND
     fraction: float = PAPER_FRACTION
-    hysteresis: float = 0.05
+    hysteresis: float = DEFAULT_HYSTERESIS
     baseline: bool = False
     baseline_tau_s: float = 2.0
     refractory_s: float = 1.5
@@ -79,7 +83,7 @@ class TriggerSettings:
         return "baseline" if self.kind == "threshold" and self.baseline else self.kind
 
 
-_FROM_MODEL = ("kind", "fraction", "pre_frames", "change", "floor", "contact", "track_tau_s", "settle_s",
+_FROM_MODEL = ("kind", "fraction", "hysteresis", "pre_frames", "change", "floor", "contact", "track_tau_s", "settle_s",
                "settle_change")
 """Settings a model's metadata may carry (what its training windows were cut with)."""
 
@@ -109,6 +113,12 @@ def recorded_problems(recorded: dict) -> list[str]:
     return problems
 
 
+def capped_hysteresis(fraction: float, hysteresis: float = DEFAULT_HYSTERESIS) -> float:
+    """The hysteresis used with this fraction: at most ``HYSTERESIS_CAP`` x the fraction (a
+    level of 0.02 with the default 0.05 would otherwise re-arm below zero, i.e. never)."""
+    return min(float(hysteresis), float(fraction) * HYSTERESIS_CAP)
+
+
 def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> TriggerSettings:
     """The trigger settings in force: config value, else the model's recorded one, else the default.
 
@@ -130,7 +140,7 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
         chosen[name] = getattr(default, name) if value is None else value
     fraction = float(chosen["fraction"])
     return TriggerSettings(
-        kind=str(chosen["kind"]), fraction=fraction, hysteresis=min(cfg.hysteresis, fraction * 0.99),
+        kind=str(chosen["kind"]), fraction=fraction, hysteresis=capped_hysteresis(fraction, chosen["hysteresis"]),
         baseline=cfg.baseline, baseline_tau_s=cfg.baseline_tau_s, refractory_s=cfg.refractory_s,
         rearm_quiet_s=cfg.rearm_quiet_s, pre_frames=int(chosen["pre_frames"]), change=float(chosen["change"]),
         floor=float(chosen["floor"]), contact=float(chosen["contact"]), track_tau_s=float(chosen["track_tau_s"]),

@@ -9,9 +9,9 @@ from protocol_standin import standin_recordings
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording
 from runtime.trigger import ThresholdTrigger
+from runtime.trigger_settings import DEFAULT_HYSTERESIS
 from trainer.dataset import (
     ABOVE_FROM_START,
-    DEFAULT_HYSTERESIS,
     DatasetError,
     build_dataset,
     fingerprint,

@@ -79,6 +79,22 @@ def test_metadata_complete_and_derived(rbf_path, rbf_model):
     assert meta.training["data_fingerprint"] == "synthetic-test"
 
 
+def test_metadata_defaults_come_from_model_meta(rbf_path, rbf_model, tmp_path):
+    """A key the maker left out (or an unknown, NaN frame rate) takes trainer.model_meta's default:
+    the paper's threshold and the pads' nominal rate; the caller's own keys win."""
+    from runtime.trigger_settings import PAPER_FRACTION, resolve_trigger
+    from trainer.model_meta import file_metadata
+
+    plain = load_model(rbf_path).meta  # exported with pads and training only
+    assert plain.trigger == {"fraction": PAPER_FRACTION} and plain.sample_rate_hz == 32.0
+    assert plain.training["project_version"] and plain.training["date"]
+    meta = file_metadata(pads=[1, 3], pad_sizes=[6, 10], sample_rate_hz=float("nan"), trigger={"fraction": 0.2},
+                         training={"data_fingerprint": "x", "n_trials": 1, "date": "2026-01-01"})
+    made = load_model(export_onnx(rbf_model, tmp_path / "m.onnx", meta)).meta
+    assert made.sample_rate_hz == 32.0 and made.training["date"] == "2026-01-01"
+    assert resolve_trigger(None, made.trigger).fraction == 0.2
+
+
 def test_metadata_contradicting_the_model_is_refused(rbf_model, tmp_path):
     with pytest.raises(ValueError, match="T=99 contradicts"):
         export_onnx(rbf_model, tmp_path / "m.onnx", {"T": 99, "pads": [1, 3], "pad_sizes": [6, 10],

@@ -128,3 +128,41 @@ def test_a_wobbling_push_is_one_trigger_once_rearming_needs_quiet_frames():
 def test_rearm_frames_must_be_positive():
     with pytest.raises(ValueError, match="rearm_frames"):
         ThresholdTrigger(4, fullscale=1000, rearm_frames=0)
+
+
+def test_the_model_hysteresis_is_served_unless_the_config_sets_one(tmp_path):
+    """Training records ``trigger.hysteresis`` in the model; the daemon re-arms at that level when
+    its config sets none (config value, else the model's, else the default, capped below the level)."""
+    pytest.importorskip("onnx")
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from runtime.model import load_model
+    from runtime.trigger_settings import DEFAULT_HYSTERESIS, HYSTERESIS_CAP, PAPER_FRACTION
+    from tests.tiny_models import tiny_model_bytes, write_model
+
+    layout = SensorLayout.sdh2()
+    fullscale = 4095.0
+
+    def off_level(model_trigger: dict, config_trigger: dict) -> float:
+        name = f"m{len(list(tmp_path.iterdir()))}.onnx"
+        path = write_model(tmp_path, name, tiny_model_bytes(trigger={"kind": "threshold", **model_trigger}))
+        daemon = Daemon(config_from_dict({"sinks": {"stdout": False}, "trigger": config_trigger}))
+        daemon.serve(load_model(path), layout)
+        assert isinstance(daemon.trigger, ThresholdTrigger)
+        return daemon.trigger.off_level
+
+    assert off_level({"hysteresis": 0.02}, {}) == pytest.approx((PAPER_FRACTION - 0.02) * fullscale)
+    assert off_level({"hysteresis": 0.02}, {"hysteresis": 0.1}) == pytest.approx((PAPER_FRACTION - 0.1) * fullscale)
+    assert off_level({}, {}) == pytest.approx((PAPER_FRACTION - DEFAULT_HYSTERESIS) * fullscale)
+    low = 0.03  # the default hysteresis would re-arm below zero: capped
+    assert off_level({"fraction": low}, {}) == pytest.approx(low * (1 - HYSTERESIS_CAP) * fullscale, rel=1e-4)
+
+
+def test_a_model_with_a_broken_hysteresis_is_refused(tmp_path):
+    pytest.importorskip("onnx")
+    from runtime.model import ModelContractError, load_model
+    from tests.tiny_models import tiny_model_bytes, write_model
+
+    path = write_model(tmp_path, "bad.onnx", tiny_model_bytes(trigger={"kind": "threshold", "hysteresis": 2.0}))
+    with pytest.raises(ModelContractError, match=r"trigger\.hysteresis"):
+        load_model(path)

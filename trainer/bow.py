@@ -39,6 +39,8 @@ from sklearn.cluster import KMeans
 from sklearn.utils import check_array, check_random_state
 from sklearn.utils.validation import check_is_fitted
 
+from trainer.defaults import PAPER_MODEL
+
 KMEANS_N_INIT = 3
 """k-means restarts: fixed so that a seed gives the same codebook everywhere."""
 
@@ -210,9 +212,9 @@ class BagOfWords(TransformerMixin, BaseEstimator):
 
     def __init__(
         self,
-        n_words: int = 10,
-        window: int = 7,
-        per_pad: bool = False,
+        n_words: int = PAPER_MODEL["K"],
+        window: int = PAPER_MODEL["W"],
+        per_pad: bool = PAPER_MODEL["per_pad"],
         pad_sizes: Sequence[int] | None = None,
         max_windows: int = 200000,
         random_state=None,

@@ -24,6 +24,7 @@ from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import assert_all_finite, check_is_fitted, column_or_1d
 
 from trainer.bow import BagOfWords, as_cases
+from trainer.defaults import PAPER_MODEL
 
 C_GRID = (1e6, 1e4, 1000.0, 100.0, 10.0, 1.0)
 """Candidate C, largest first, up to 1e6 (a hard margin in practice when the training cases are
@@ -157,12 +158,12 @@ class BowSVC(SVMHead, ClassifierMixin, BaseEstimator):
 
     def __init__(
         self,
-        n_words: int = 10,
-        window: int = 7,
-        kernel: str = "rbf",
+        n_words: int = PAPER_MODEL["K"],
+        window: int = PAPER_MODEL["W"],
+        kernel: str = PAPER_MODEL["kernel"],
         C: float | None = None,
         gamma: float | str | None = None,
-        per_pad: bool = False,
+        per_pad: bool = PAPER_MODEL["per_pad"],
         pad_sizes: Sequence[int] | None = None,
         random_state=0,
         assignment: str = "hard",

@@ -121,11 +121,9 @@ def make_estimator(spec: ModelSpec, pad_sizes: tuple[int, ...], pad_shapes: list
 
         return FeatureSVC(pad_sizes=pad_sizes, pad_shapes=pad_shapes, random_state=seed, **spec.params)
     if spec.kind == "bow":
-        from trainer.classifier import BowSVC
+        from trainer.defaults import paper_classifier
 
-        p = dict(spec.params)
-        needs_pads = p.get("per_pad") or p.get("level_features")
-        return BowSVC(random_state=seed, pad_sizes=pad_sizes if needs_pads else None, **p)
+        return paper_classifier(pad_sizes, seed, **spec.params)
     if spec.kind == "flat":
         from trainer.flat import FlatSVC
 

@@ -21,7 +21,6 @@ with the reason: never dropped silently, never padded.
 from __future__ import annotations
 
 import hashlib
-import inspect
 import json
 import os
 from collections.abc import Sequence
@@ -32,12 +31,17 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording, RecordingError, Trial, find_recordings, load_all
+from firmware_io.trigger_level import is_trigger_level
 from runtime.trigger import ThresholdTrigger
-from runtime.trigger_settings import PAPER_FRACTION, TriggerSettings, build_trigger, resolve_trigger
+from runtime.trigger_settings import (
+    DEFAULT_HYSTERESIS,
+    PAPER_FRACTION,
+    TriggerSettings,
+    build_trigger,
+    capped_hysteresis,
+    resolve_trigger,
+)
 
-DEFAULT_FRACTION = PAPER_FRACTION
-DEFAULT_HYSTERESIS = float(inspect.signature(ThresholdTrigger).parameters["hysteresis"].default)
-"""The runtime trigger's own default, so that training cuts the windows the daemon will cut."""
 ABOVE_FROM_START = "above the level from the first frame"
 
 
@@ -87,7 +91,7 @@ class Dataset:
     sources: list[str] = field(default_factory=list)
     hysteresis: float = DEFAULT_HYSTERESIS
     """Re-arm below ``(fraction - hysteresis)`` x full scale (the runtime trigger's rule)."""
-    trigger: TriggerSettings = field(default_factory=lambda: dataset_trigger(fraction=DEFAULT_FRACTION))
+    trigger: TriggerSettings = field(default_factory=lambda: dataset_trigger(fraction=PAPER_FRACTION))
     """What cut the windows (recorded in the model's metadata, so the daemon cuts the same)."""
 
     @property
@@ -184,9 +188,11 @@ def dataset_trigger(kind: str | None = None, fraction: float | None = None,
 
     if kind is None and fraction is not None:
         kind = "threshold"
-    if fraction is not None and not 0.0 < fraction < 1.0:
+    if fraction is not None and not is_trigger_level(fraction):
         raise DatasetError(f"trigger fraction must be in (0, 1), got {fraction}")
-    return resolve_trigger(TriggerConfig(kind=kind, fraction=fraction, hysteresis=max(0.0, float(hysteresis))))
+    if hysteresis < 0:
+        raise DatasetError(f"trigger hysteresis must be >= 0, got {hysteresis}")
+    return resolve_trigger(TriggerConfig(kind=kind, fraction=fraction, hysteresis=float(hysteresis)))
 
 
 def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, settings: TriggerSettings,
@@ -213,11 +219,6 @@ def trigger_frame(frames: np.ndarray, level: float) -> int:
     return int(hits[0]) if len(hits) else -1
 
 
-def trigger_hysteresis(fraction: float, hysteresis: float = DEFAULT_HYSTERESIS) -> float:
-    """The hysteresis the daemon uses with this fraction (capped below the fraction, as in runtime.daemon)."""
-    return min(float(hysteresis), float(fraction) * 0.99)
-
-
 def rising_trigger(frames: np.ndarray, fullscale: float, fraction: float, hysteresis: float = DEFAULT_HYSTERESIS
                    ) -> tuple[int, str | None]:
     """(frame where the runtime's trigger fires within this trial, or -1; why not, or None).
@@ -228,7 +229,7 @@ def rising_trigger(frames: np.ndarray, fullscale: float, fraction: float, hyster
     if frames.size == 0:
         return -1, "never triggered: no frames"
     levels = frames.max(axis=1).astype(np.float32)
-    trig = ThresholdTrigger(1, fullscale, fraction=fraction, hysteresis=trigger_hysteresis(fraction, hysteresis),
+    trig = ThresholdTrigger(1, fullscale, fraction=fraction, hysteresis=capped_hysteresis(fraction, hysteresis),
                             window=2)
     trig.armed = bool(levels[0] < trig.on_level)
     started_above = not trig.armed
@@ -266,8 +267,8 @@ def build_dataset(
 ) -> Dataset:
     """Cut one case per labelled trial: the runtime's trigger within the trial, then T frames of the chosen pads.
 
-    ``trigger``: the settings to cut with; None takes ``dataset_trigger(fraction=fraction)``
-    (an explicit fraction = the paper's threshold, else the daemon's default)."""
+    ``trigger``: the settings to cut with; None takes ``dataset_trigger(fraction=fraction,
+    hysteresis=hysteresis)`` (an explicit fraction = the paper's threshold, else the daemon's default)."""
     if T < 2:
         raise DatasetError(f"T must be at least 2 frames, got {T}")
     settings = trigger if trigger is not None else dataset_trigger(fraction=fraction, hysteresis=hysteresis)
@@ -287,9 +288,7 @@ def build_dataset(
             name = sources[i] if i < len(sources) else f"recording {i}"
             raise DatasetError(f"{name}: its pads {list(pad_idx)} differ from the first recording's")
     fullscale = max(layout.matrices[p].fullscale for p in pad_idx)
-    hysteresis = trigger_hysteresis(fraction, hysteresis)
-    if hysteresis < 0:
-        raise DatasetError(f"trigger hysteresis must be >= 0, got {hysteresis}")
+    hysteresis = settings.hysteresis  # capped by resolve_trigger, as the daemon's
     cols = layout.columns(pad_idx)
     pad_sizes = layout.pad_sizes(pad_idx)
 

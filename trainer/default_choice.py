@@ -28,15 +28,14 @@ INNER_FOLDS = 3
 
 
 def candidate_estimator(name: str, pad_sizes, pad_shapes, seed: int = 0):
-    from trainer.classifier import BowSVC
-    from trainer.defaults import DEFAULT_MODEL
+    from trainer.defaults import DEFAULT_MODEL, paper_classifier
     from trainer.feature_svc import FeatureSVC
     from trainer.select import CANDIDATES
 
     _, families, kernel, settings = next(c for c in CANDIDATES if c[0] == name)
     if families == ("bow",):
-        return BowSVC(n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], kernel=kernel, per_pad=True,
-                      pad_sizes=tuple(pad_sizes), random_state=seed, **settings)
+        return paper_classifier(tuple(pad_sizes), seed, n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"],
+                                kernel=kernel, per_pad=True, **settings)
     return FeatureSVC(families=families, pad_sizes=tuple(pad_sizes), pad_shapes=pad_shapes, kernel=kernel,
                       n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"], random_state=seed, **settings)
 

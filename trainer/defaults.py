@@ -36,7 +36,22 @@ BOW_ALONE_KERNEL = "linear"
 matches RBF's error on the simulated protocol and is faster (results/pareto.md)."""
 
 PAPER_MODEL = {"families": ("bow",), "kernel": "rbf", "K": 10, "W": 7, "T": 15, "pads": "all", "per_pad": False}
-"""Davari et al.'s configuration: one derivative-window histogram per case, RBF SVM."""
+"""Davari et al.'s configuration: one derivative-window histogram per case, RBF SVM (also
+``BowSVC``'s own defaults)."""
+
+
+def paper_classifier(pad_sizes: Sequence[int] | None = None, random_state: int = 0, **changes):
+    """The unfitted BoW + SVM estimator (``BowSVC``): the paper's configuration (``PAPER_MODEL``)
+    with ``changes`` (BowSVC settings that depart from it: per-pad histograms, level features,
+    another K, W, kernel or C). Every BowSVC of the trainer is built here. ``pad_sizes`` (channels
+    per pad, in channel order) is kept only where a setting uses it (per-pad histograms or level
+    features), so the paper's estimator reads all channels as one series set."""
+    from trainer.classifier import BowSVC
+
+    model = BowSVC(random_state=random_state, **changes)
+    if model.per_pad or model.level_features:
+        model.set_params(pad_sizes=pad_sizes)
+    return model
 
 
 def default_classifier(pad_sizes: Sequence[int], pad_shapes: Sequence[tuple[int, int]] | None = None,

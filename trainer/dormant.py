@@ -22,7 +22,6 @@ names ``dormant_class`` so the daemon accepts it for ``scene.mode = "continuous"
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +30,7 @@ import numpy as np
 
 from firmware_io.recordings.recording import Recording
 from trainer.dataset import fingerprint
+from trainer.defaults import PAPER_MODEL, paper_classifier
 
 DORMANT = "dormant"
 ACTION_VIEW_MIN = 7
@@ -221,7 +221,8 @@ def build_dormant_dataset(protocol: Sequence[Recording], idle: Sequence[Recordin
     )
 
 
-def leave_one_subject_out(ds: DormantDataset, K: int = 10, W: int = 7, kernel: str = "rbf", seed: int = 0,
+def leave_one_subject_out(ds: DormantDataset, K: int = PAPER_MODEL["K"], W: int = PAPER_MODEL["W"],
+                          kernel: str = PAPER_MODEL["kernel"], seed: int = 0,
                           log=None) -> dict:
     """Window-level leave-one-subject-out of the 5-class model: per-class recall, dormant included.
 
@@ -266,11 +267,10 @@ def _ratio(a, n) -> float | None:
     return float(a) / float(n) if n else None
 
 
-def train(X: np.ndarray, y: np.ndarray, K: int = 10, W: int = 7, kernel: str = "rbf", seed: int = 0):
+def train(X: np.ndarray, y: np.ndarray, K: int = PAPER_MODEL["K"], W: int = PAPER_MODEL["W"],
+          kernel: str = PAPER_MODEL["kernel"], seed: int = 0):
     """The paper's estimator, unchanged (any number of classes)."""
-    from trainer.classifier import BowSVC
-
-    return BowSVC(n_words=K, window=W, kernel=kernel, random_state=seed).fit(X, y)
+    return paper_classifier(random_state=seed, n_words=K, window=W, kernel=kernel).fit(X, y)
 
 
 STREAM_KERNEL, STREAM_C = "rbf", 1000.0
@@ -280,7 +280,8 @@ features the grid's large C (1e4, 1e6) did not converge within many minutes."""
 
 
 def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, n_sessions: int,
-                     path: str | Path, K: int = 10, W: int = 7, T: int = 15, pads: str = "all") -> Path:
+                     path: str | Path, K: int = PAPER_MODEL["K"], W: int = PAPER_MODEL["W"], T: int = 15,
+                     pads: str = "all") -> Path:
     """The 5-class model for live streams (synthetic training data, ``seed``), exported to ``path``.
 
     Per-pad histograms plus per-pad level and slope (a hold is a change of level the derivative
@@ -292,14 +293,13 @@ def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, 
     from firmware_io.sim import demo_script, simulate_session
     from firmware_io.sim.idle import simulate_idle
     from runtime.trigger_settings import resolve_trigger
-    from trainer.classifier import BowSVC
 
     n_parts = max(1, round(idle_min / 10))
     idle = [simulate_idle(60.0 * idle_min / n_parts, seed=seed, part=p) for p in range(n_parts)]
     sessions = [simulate_session(demo_script(n_sessions, seed=seed, gap=(4.0, 6.0)), seed=seed)]
     dds = build_dormant_dataset(protocol, idle, T=T, pads=pads, seed=seed, sessions=sessions)
-    model = BowSVC(n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C, per_pad=True, pad_sizes=dds.pad_sizes,
-                   random_state=seed, level_features=True, scale_features=True, fullscale=dds.fullscale).fit(dds.X, dds.y)
+    model = paper_classifier(dds.pad_sizes, seed, n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C, per_pad=True,
+                             level_features=True, scale_features=True, fullscale=dds.fullscale).fit(dds.X, dds.y)
     trigger = resolve_trigger().to_meta()
     return export(model, path, pads=dds.pads, pad_sizes=dds.pad_sizes, fullscale=dds.fullscale,
                   fraction=trigger["fraction"], trigger=trigger, sample_rate_hz=1.0 / protocol[0].sample_interval(),
@@ -315,17 +315,11 @@ def export(model, path: str | Path, *, pads: Sequence[int], pad_sizes: Sequence[
            evaluation: dict | None = None, trigger: dict | None = None) -> Path:
     """One ONNX file via trainer.onnx_export, with the metadata the daemon needs (``trigger``: the
     settings to record; default the paper's threshold at ``fraction``)."""
-    from runtime import __version__
+    from trainer.model_meta import file_metadata
     from trainer.onnx_export import export_onnx
 
-    meta = {
-        "pads": [int(p) for p in pads],
-        "pad_sizes": [int(s) for s in pad_sizes],
-        "fullscale": float(fullscale),
-        "trigger": dict(trigger) if trigger else {"fraction": float(fraction)},
-        "sample_rate_hz": float(sample_rate_hz),
-        "dormant_class": dormant_class,
-        "training": {"project_version": __version__, "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **training},
-        "evaluation": dict(evaluation or {}),
-    }
+    meta = file_metadata(pads=pads, pad_sizes=pad_sizes, fullscale=fullscale,
+                         trigger=dict(trigger) if trigger else {"fraction": float(fraction)},
+                         sample_rate_hz=sample_rate_hz, dormant_class=dormant_class, training=training,
+                         evaluation=evaluation)
     return export_onnx(model, path, meta)

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from firmware_io.commands.errors import fail
+from trainer.defaults import PAPER_MODEL
 
 COMMAND = "dormant"
 PART_S = 900.0
@@ -47,8 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--events", type=int, default=None, help="events in the mixed stream (default 100)")
     parser.add_argument("--train-idle-min", type=float, default=None, help="minutes of idle training stream (default 30)")
     parser.add_argument("--pads", default="all", help="pad selection of both models (default all)")
-    parser.add_argument("--K", type=int, default=10)
-    parser.add_argument("--W", type=int, default=7)
+    parser.add_argument("--K", type=int, default=PAPER_MODEL["K"])
+    parser.add_argument("--W", type=int, default=PAPER_MODEL["W"])
     parser.add_argument("--T", type=int, default=15)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.trigger_settings import PAPER_FRACTION
+
 MODE_COLORS = {"threshold": "tab:red", "baseline": "tab:orange", "continuous_plain": "tab:gray",
                "continuous": "tab:blue"}
 SOURCE_COLORS = {"arm_move": "#c6dbef", "regrasp": "#fdd0a2", "grasp": "#d9d9d9", "release": "#d9d9d9"}
@@ -45,7 +47,8 @@ def timeline(path: Path, rec, truths, decisions: dict, pads: Sequence[int]) -> s
             ax.fill_between(t, 0, 1, where=on, color=color, transform=ax.get_xaxis_transform(), step="mid",
                             label=f"idle: {src}" if on.any() else None)
     ax.plot(t, level, color="k", lw=0.8, label="max taxel of the model's pads")
-    ax.axhline(0.15 * 4095, color="tab:red", ls=":", lw=1, label="15 % threshold")
+    fullscale = max(rec.layout.matrices[p].fullscale for p in pads)
+    ax.axhline(PAPER_FRACTION * fullscale, color="tab:red", ls=":", lw=1, label=f"{100 * PAPER_FRACTION:.0f} % threshold")
     for tr in truths:
         if a <= tr.onset < b:
             x = (tr.onset - a) * period

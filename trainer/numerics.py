@@ -37,7 +37,7 @@ import copy
 
 import numpy as np
 
-from trainer.onnx_export import svm_pair_coefficients, vote_matrices
+from trainer.onnx_export import folded_codebook, svm_pair_coefficients, vote_matrices
 
 U32 = 2.0**-24
 SAFETY = 2.0
@@ -83,12 +83,10 @@ def squared_distances(X: np.ndarray, codebook: np.ndarray) -> tuple[np.ndarray, 
 def distance_error_bounds(X: np.ndarray, win: np.ndarray, codebook: np.ndarray, fold_derivative: bool) -> np.ndarray:
     """``E_k``, the float32 error bound of the graph's ``f_k`` for every window and codeword ``(n, c, S, K)``
     (raw values and the folded kernel when the graph folds the derivative)."""
-    n_words, window = codebook.shape
+    window = codebook.shape[1]
     sqnorm = (codebook**2).sum(axis=1)
     if fold_derivative:
-        padded = np.zeros((n_words, window + 2))
-        padded[:, 1:-1] = codebook
-        kernel = np.abs(padded[:, :-1] - padded[:, 1:])  # (K, W+1)
+        kernel = np.abs(folded_codebook(codebook))  # (K, W+1)
         raw = np.lib.stride_tricks.sliding_window_view(X, window + 1, axis=2)
         return gamma(window + 3) * (sqnorm + 2.0 * np.abs(raw) @ kernel.T)
     return gamma(window + 3) * (sqnorm + 2.0 * np.abs(win) @ np.abs(codebook).T)

@@ -33,7 +33,6 @@ offset; see ``trainer.numerics`` for the bounds.
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import os
 import tempfile
@@ -126,6 +125,15 @@ def _group_matrix(pad_sizes: tuple[int, ...]) -> np.ndarray:
     return groups
 
 
+def folded_codebook(codebook: np.ndarray) -> np.ndarray:
+    """``[K, W+1]`` weights on raw values that equal the codewords' dot product with the derivative:
+    sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), with c[-1] = c[W] = 0."""
+    codebook = np.asarray(codebook, dtype=np.float64)
+    padded = np.zeros((codebook.shape[0], codebook.shape[1] + 2))
+    padded[:, 1:-1] = codebook
+    return padded[:, :-1] - padded[:, 1:]
+
+
 def _active_nodes(g: _Graph, frames: str) -> str:
     """``[N, C]`` float mask of the series that are not all zero."""
     peak = g.op("ReduceMax", [g.op("Abs", [frames])], "peak", axes=[1], keepdims=0)
@@ -144,10 +152,7 @@ def _scale_nodes(g: _Graph, x4: str, deriv: str | None, active: str, codebook: n
     n_groups = len(pad_sizes)
     bias = (codebook**2).sum(axis=1)
     if deriv is None:
-        # sum_j (x[s+j+1] - x[s+j]) c[j] = sum_i x[s+i] (c[i-1] - c[i]), c[-1] = c[W] = 0
-        padded = np.zeros((n_words, window + 2))
-        padded[:, 1:-1] = codebook
-        kernel, signal = -2.0 * (padded[:, :-1] - padded[:, 1:]), x4
+        kernel, signal = -2.0 * folded_codebook(codebook), x4
     else:
         kernel, signal = -2.0 * codebook, deriv
     weights = g.const(CODEWORD_KERNEL, kernel.reshape(n_words, 1, -1, 1))
@@ -309,9 +314,10 @@ def build_graph(model, fold_derivative: bool = False):
 
 # -- metadata and file ----------------------------------------------------------------------------
 def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict:
-    """Complete the caller's metadata with what the model itself determines; refuse contradictions."""
-    from runtime import __version__
+    """Complete the caller's metadata (``trainer.model_meta``) with what the model itself
+    determines; refuse contradictions."""
     from runtime.model import SCHEMA_VERSION
+    from trainer.model_meta import defaults, provenance
 
     svm = model.svm_
     bow = getattr(model, "bow_", None)
@@ -330,23 +336,13 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
     for key, value in derived.items():
         if key in metadata and metadata[key] != value:
             raise ValueError(f"metadata {key}={metadata[key]!r} contradicts the model ({value!r})")
-    meta = {
-        "fullscale": 4095.0,
-        "trigger": {"fraction": 0.15},
-        "sample_rate_hz": 32.0,
-        "score": SCORE_MEANING,
-        "dormant_class": None,
-        "evaluation": {},
-        **metadata,
-        **derived,
-    }
+    meta = {**defaults(), "score": SCORE_MEANING, **metadata, **derived}
     if "pad_sizes" not in meta:
         if feature_svc:
             meta["pad_sizes"] = [int(s) for s in (model.pad_sizes or [n_channels])]
         else:
             meta["pad_sizes"] = list(bow.pad_sizes_) if bow is not None and bow.per_pad else [n_channels]
-    training = {"project_version": __version__, "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}
-    meta["training"] = {**training, **meta.get("training", {})}
+    meta["training"] = provenance(meta.get("training"))
     meta["model_kind"] = "feature_svm" if feature_svc else "bow_svm" if bow is not None else "flat_svm"
     if feature_svc:
         meta["features"] = model.describe()

@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from firmware_io.commands.errors import fail
+from runtime.trigger_settings import PAPER_FRACTION
 
 COMMAND = "plot"
 
@@ -19,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trial", type=int, default=1, help="trial number, 1-based as listed by --list (default 1)")
     parser.add_argument("--out", help="PNG to write (default: RECORDING-stem_trialN.png in the current folder)")
     parser.add_argument("--list", action="store_true", help="list the trials and exit")
-    parser.add_argument("--fraction", type=float, default=0.15, help="trigger level drawn, fraction of full scale")
+    parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
+                        help=f"trigger level drawn, fraction of full scale (default: the paper's {PAPER_FRACTION})")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -47,7 +49,7 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def plot_trial(rec, index: int, out: Path, fraction: float = 0.15) -> Path:
+def plot_trial(rec, index: int, out: Path, fraction: float = PAPER_FRACTION) -> Path:
     """Top: each pad's summed pressure over time. Bottom: every pad's taxels at the peak frame."""
     import matplotlib
 

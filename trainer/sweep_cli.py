@@ -26,6 +26,7 @@ def _ints(text: str) -> tuple[int, ...]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from runtime.trigger_settings import PAPER_FRACTION
     from trainer.defaults import PAPER_MODEL
     from trainer.sweeps import FULL_K, FULL_T, FULL_W
 
@@ -43,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="config1: pooled 80/20 over --repeats seeds; loso: leave one subject out")
     parser.add_argument("--repeats", type=int, default=3, help="seeds per point in config1 mode")
     parser.add_argument("--per-pad", action="store_true")
-    parser.add_argument("--fraction", type=float, default=0.15)
+    parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
+                        help=f"threshold trigger level, fraction of full scale (default: the paper's {PAPER_FRACTION})")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print the sweep rows as JSON on stdout")
     parser.add_argument("--quiet", action="store_true")

@@ -11,6 +11,7 @@ from collections.abc import Callable, Sequence
 from firmware_io.recordings.recording import Recording
 from trainer.classifier import BowSVC
 from trainer.dataset import build_dataset
+from trainer.defaults import paper_classifier
 from trainer.evaluation import sweep
 
 QUICK_K = (4, 7, 10, 15, 20)
@@ -23,9 +24,8 @@ FULL_T = (8, 10, 12, 15, 18, 20, 25, 30)
 
 def make_bow(params: dict) -> BowSVC:
     """Module-level (picklable for joblib workers)."""
-    return BowSVC(n_words=params["K"], window=params["W"], kernel=params["kernel"],
-                  per_pad=params.get("per_pad", False), pad_sizes=params.get("pad_sizes"),
-                  random_state=params.get("seed", 0))
+    return paper_classifier(params.get("pad_sizes"), params.get("seed", 0), n_words=params["K"], window=params["W"],
+                            kernel=params["kernel"], per_pad=params.get("per_pad", False))
 
 
 def run_sweeps(

@@ -13,6 +13,7 @@ import argparse
 import json
 
 from firmware_io.commands.errors import fail
+from runtime.trigger_settings import PAPER_FRACTION
 from trainer.train_options import (
     ASSIGNMENTS,
     KERNELS,
@@ -64,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="what cuts the training windows (default: the daemon's default, the onset trigger; "
                         "threshold = the paper's fixed level, see --fraction); recorded in the model")
     parser.add_argument("--fraction", type=float, default=None,
-                        help="threshold trigger level as a fraction of full scale (the paper: 0.15; implies "
+                        help=f"threshold trigger level as a fraction of full scale (the paper: {PAPER_FRACTION}; implies "
                         "--trigger threshold)")
     parser.add_argument("--seed", type=int, default=D.seed, help="seed of the simulation, k-means and the splits")
     parser.add_argument("--repeats", type=int, default=D.repeats, help="seeds of configuration 1 (80/20 splits)")

@@ -182,14 +182,13 @@ def check_windows(lengths: tuple[int, ...], shown: str) -> None:
 
 def build_estimator(options: TrainOptions, ds):
     """BowSVC for bow alone (every paper option), else FeatureSVC over the chosen families."""
-    from trainer.classifier import BowSVC
+    from trainer.defaults import paper_classifier
     from trainer.feature_svc import FeatureSVC
 
     o = options
     if o.families == ("bow",):
-        return BowSVC(n_words=o.K, kernel=o.svm_kernel, C=o.C, gamma=o.gamma, per_pad=o.per_pad,
-                      pad_sizes=ds.pad_sizes if (o.per_pad or o.level_features) else None,
-                      random_state=o.seed, fullscale=ds.fullscale, **o.estimator_options())
+        return paper_classifier(ds.pad_sizes, o.seed, n_words=o.K, kernel=o.svm_kernel, C=o.C, gamma=o.gamma,
+                                per_pad=o.per_pad, fullscale=ds.fullscale, **o.estimator_options())
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     return FeatureSVC(families=o.families, pad_sizes=tuple(ds.pad_sizes), pad_shapes=shapes, kernel=o.svm_kernel,
                       C=o.C, gamma=o.gamma, n_words=o.K, window=o.W, random_state=o.seed, fullscale=ds.fullscale)

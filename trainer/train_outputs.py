@@ -4,7 +4,6 @@ and the headline on the terminal (``trainer.pipeline.train`` calls these in that
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 from trainer.train_options import TrainOptions
@@ -67,34 +66,24 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
     Kept in model.joblib (``{"model": ..., "metadata": ...}``) so ``handover export`` of that
     file writes the same model card as ``train``.
     """
-    from runtime import __version__
+    from trainer.model_meta import dataset_metadata
 
-    rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
     # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
     folder = {"data_folder": str(Path(options.data).resolve())} if options.data else {}
-    return {
-        "pads": list(ds.pads),
-        "pad_sizes": list(ds.pad_sizes),
-        "fullscale": ds.fullscale,
-        "trigger": ds.trigger.to_meta(),
-        "sample_rate_hz": rate,
-        "training": {
-            "data_fingerprint": ds.fingerprint,
+    return dataset_metadata(
+        ds,
+        training={
             "data": metrics["data"],
             **folder,
             "synthetic": metrics["synthetic"],
-            "n_trials": ds.n_trials,
-            "n_cases": len(ds.y),
             "n_untriggered": ds.n_untriggered,
-            "project_version": __version__,
-            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "seed": options.seed,
             "C": metrics["best_params"].get("C"),
             "gamma": metrics["best_params"].get("gamma"),
             "hard_margin": metrics["svm_margin"]["hard_margin"],
             "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
         },
-        "evaluation": {
+        evaluation={
             "synthetic": metrics["synthetic"],
             "config1_accuracy_mean": metrics["config1_accuracy_mean"],
             "config1_accuracy_std": metrics["config1_accuracy_std"],
@@ -103,7 +92,7 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "loso_per_subject": metrics["loso_per_subject"],
             "baseline_loso_accuracy": metrics["baseline_loso_accuracy"],
         },
-    }
+    )
 
 
 def _export_onnx(model, meta: dict, joblib_path: Path, out: Path) -> tuple[bool, str]:

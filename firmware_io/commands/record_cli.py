@@ -13,8 +13,9 @@ import subprocess
 import sys
 
 from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
-from firmware_io.recordings.record_session import DEFAULT_FRACTION, DEFAULT_RUNS, OBJECTS, POSES
+from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
+from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 COMMAND = "record"
 
@@ -32,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trial-seconds", type=float, default=3.0, help="length of a trial (paper: 3 s)")
     parser.add_argument("--gap", type=float, default=2.0, help="--auto: pause before each trial (seconds)")
     parser.add_argument("--countdown", type=int, default=3, help="seconds counted down before go")
-    parser.add_argument("--fraction", type=float, default=DEFAULT_FRACTION,
-                        help="trigger level as a fraction of full scale (paper: 0.15)")
+    parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
+                        help=f"trigger level as a fraction of full scale (paper: {PAPER_FRACTION})")
     parser.add_argument("--pads", default="all", help="pads watched by the trigger check (all, distal, 1,3,5 ...)")
     parser.add_argument("--auto", action="store_true",
                         help="no prompts, fixed timing (scripted sessions, tests); a never-triggered trial is "
@@ -95,7 +96,7 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     if args.trial_seconds <= 0.3 or args.gap < 0 or args.countdown < 0 or args.retries < 0:
         return fail(COMMAND, "--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
-    if not 0.0 < args.fraction < 1.0:
+    if not is_trigger_level(args.fraction):
         return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
     try:
         client, subject = _connect(args.device, args.trial_seconds)

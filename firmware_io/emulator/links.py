@@ -63,6 +63,16 @@ def _endpoint_desc(address: int, attributes: int, size: int) -> _Desc:
     )
 
 
+def _nap(deadline: float, wait: float | None) -> bool:
+    """Sleep until the emulator's next output is due (``wait`` seconds, None: unknown), at most
+    until ``deadline`` (time.monotonic); False once the deadline has passed (the read times out)."""
+    remaining = deadline - time.monotonic()
+    if remaining <= 0:
+        return False
+    time.sleep(remaining if wait is None else min(max(wait, 0.0005), remaining))
+    return True
+
+
 class EmulatedUsbBackend:
     """A pyusb backend (duck-typed ``usb.backend.IBackend``) with one USB-serial bridge on it.
 
@@ -219,13 +229,11 @@ class EmulatedUsbBackend:
             if self.emulator.disconnected:
                 self.unplugged = True
                 self._check_plugged()
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if not _nap(deadline, wait):
                 if status:  # an FTDI chip answers with status bytes alone when it has no data
                     data = b""
                     break
                 raise USBTimeoutError("Operation timed out", -7, 110)
-            time.sleep(remaining if wait is None else min(max(wait, 0.0005), remaining))
         if status:
             step = self.PACKET - len(status)
             data = b"".join(status + data[i : i + step] for i in range(0, len(data), step)) or status
@@ -319,11 +327,8 @@ class EmulatedCp2110:
             if self.emulator.disconnected:
                 self.unplugged = True
                 self._check()
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if not _nap(deadline, self.emulator.seconds_until_output()):
                 return []
-            wait = self.emulator.seconds_until_output()
-            time.sleep(remaining if wait is None else min(max(wait, 0.0005), remaining))
         n = min(63, max_length - 1, len(self._pending))
         chunk = bytes(self._pending[:n])
         del self._pending[:n]

@@ -21,11 +21,11 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
+from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 POSES = ("down", "up", "horizontal")
 OBJECTS = ("ball", "cylinder", "plank")
 DEFAULT_RUNS = 5
-DEFAULT_FRACTION = 0.15
 DEFAULT_TRIAL_SECONDS = 3.0
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -116,9 +116,9 @@ class TriggerCheck:
 
 
 def check_trigger(frames: np.ndarray, layout: SensorLayout, pads: str | Sequence[int] = "all",
-                  fraction: float = DEFAULT_FRACTION) -> TriggerCheck:
+                  fraction: float = PAPER_FRACTION) -> TriggerCheck:
     """The same rule as the trainer's data set assembly: first frame whose max reaches the level."""
-    if not 0.0 < fraction < 1.0:
+    if not is_trigger_level(fraction):
         raise SessionError(f"trigger fraction must be in (0, 1), got {fraction}")
     idx = layout.pads(pads)
     fullscale = max(layout.matrices[p].fullscale for p in idx)
@@ -312,7 +312,7 @@ class SessionOptions:
     """auto mode: pause before each go (the investigator re-places the object)."""
     countdown: int = 3
     """interactive mode: seconds counted down aloud before go."""
-    fraction: float = DEFAULT_FRACTION
+    fraction: float = PAPER_FRACTION
     pads: str = "all"
     auto: bool = False
     retries: int = 1

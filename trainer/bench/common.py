@@ -173,19 +173,13 @@ def simulated_protocol(seed: int = 0, quick: bool = False) -> tuple:
 
 
 def export_metadata(ds, model, evaluation: dict | None = None, seed: int = 0) -> dict:
-    """The metadata ``handover train`` writes, for a model trained on the simulated protocol."""
-    from runtime import __version__
+    """The metadata ``handover train`` writes (``trainer.model_meta``), for a model trained on the
+    simulated protocol."""
+    from trainer.model_meta import dataset_metadata
 
-    rate = ds.sample_rate_hz if ds.sample_rate_hz == ds.sample_rate_hz else 32.0
-    return {
-        "pads": list(ds.pads), "pad_sizes": list(ds.pad_sizes), "fullscale": ds.fullscale,
-        "trigger": ds.trigger.to_meta(), "sample_rate_hz": rate,
-        "training": {"data_fingerprint": ds.fingerprint, "data": "simulated protocol (synthetic)", "synthetic": True,
-                     "n_trials": ds.n_trials, "n_cases": len(ds.y), "project_version": __version__,
-                     "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seed": seed,
-                     "C": model.best_params_.get("C"), "gamma": model.best_params_.get("gamma")},
-        "evaluation": {"synthetic": True, **(evaluation or {})},
-    }
+    return dataset_metadata(ds, training={"data": "simulated protocol (synthetic)", "synthetic": True, "seed": seed,
+                                          "C": model.best_params_.get("C"), "gamma": model.best_params_.get("gamma")},
+                            evaluation={"synthetic": True, **(evaluation or {})})
 
 
 def train_default_model(folder: str | Path, seed: int = 0, quick: bool = False, name: str = "bench.onnx",

@@ -24,13 +24,15 @@ T = 15
 
 
 def metadata(tag: str = "") -> dict:
-    """The ``handover`` metadata of a distal-pads model (matches the daemon's default scene)."""
+    """The ``handover`` metadata of a distal-pads model (matches the daemon's default scene):
+    ``trainer.model_meta``'s defaults plus the keys a graph built here determines."""
+    from trainer.model_meta import file_metadata
+
     return {
-        "schema_version": 1, "classes": list(CLASSES), "T": T, "W": 7, "K": 10, "pads": list(PADS),
-        "n_channels": int(sum(PAD_SIZES)), "pad_sizes": list(PAD_SIZES), "fullscale": 4095.0,
-        "trigger": {"fraction": 0.15}, "sample_rate_hz": 32.0, "score": "ovr", "dormant_class": None,
-        "training": {"data_fingerprint": "hostile" + tag, "n_trials": 0, "project_version": "test", "date": "2026-01-01"},
-        "evaluation": {},
+        "schema_version": 1, "classes": list(CLASSES), "T": T, "W": 7, "K": 10,
+        "n_channels": int(sum(PAD_SIZES)), "score": "ovr",
+        **file_metadata(pads=PADS, pad_sizes=PAD_SIZES, training={
+            "data_fingerprint": "hostile" + tag, "n_trials": 0, "project_version": "test", "date": "2026-01-01"}),
     }
 
 

@@ -24,12 +24,12 @@ def trained_model(tmp: Path) -> Path:
     import joblib
 
     from firmware_io.sim import simulate_protocol
-    from trainer.classifier import BowSVC
     from trainer.dataset import build_dataset
+    from trainer.defaults import paper_classifier
     from trainer.export_cli import export_trained
 
     ds = build_dataset(simulate_protocol(seed=0, n_subjects=2), T=15, pads="distal")
-    model = BowSVC(kernel="rbf", C=100.0, gamma="scale", per_pad=True, pad_sizes=ds.pad_sizes).fit(ds.X, ds.y)
+    model = paper_classifier(ds.pad_sizes, per_pad=True, C=100.0, gamma="scale").fit(ds.X, ds.y)
     src = tmp / "bench.joblib"
     joblib.dump({"model": model, "metadata": {"pads": list(ds.pads), "pad_sizes": list(ds.pad_sizes),
                  "training": {"data_fingerprint": ds.fingerprint, "n_trials": len(ds.y)}}}, src)

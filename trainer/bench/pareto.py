@@ -86,10 +86,10 @@ def _evaluate(kind: str, params: dict, X, y, groups, seeds: tuple[int, ...], fol
 
 def _estimator(kind: str, params: dict, extra: dict):
     if kind == "bow":
-        from trainer.classifier import BowSVC
+        from trainer.defaults import paper_classifier
 
-        return BowSVC(n_words=params["K"], window=params["W"], kernel=params["kernel"], per_pad=params["per_pad"],
-                      pad_sizes=extra["pad_sizes"] if params["per_pad"] else None, random_state=0)
+        return paper_classifier(extra["pad_sizes"], n_words=params["K"], window=params["W"], kernel=params["kernel"],
+                                per_pad=params["per_pad"])
     if kind == "baseline":
         from trainer.baseline import BaselineSVC
 
