@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import logging
 import time
 
@@ -183,3 +185,27 @@ def test_a_stream_flapping_between_rates_logs_each_kind_once(caplog):
         admit_all(clock, np.array(ts))
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 2 and "decimated" in lines[0] and "slower" in lines[1]
+
+
+def test_a_swap_to_a_model_at_another_rate_forgets_frames_admitted_at_the_old_one(tmp_path):
+    """A 70 Hz stream decimated for a 32 Hz model; a 70 Hz model swaps in: the ring's frames are
+    0.03 s apart, the new model's windows need 0.014 s, so they are not mixed into its windows."""
+    daemon, _ = _daemon(tmp_path)
+    fast_levels, fast_ts = _resampled(grasp_levels(200, seed=5), 70.0)
+    rows = rows_of(fast_levels)
+    full = np.zeros((len(rows), LAYOUT.n_taxels), dtype=np.uint16)
+    full[:, LAYOUT.columns("distal")] = rows.astype(np.uint16)
+    for i in range(200):
+        daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
+    assert daemon.ring.count > 15 and daemon.frame_clock.step < 1.0
+    model = daemon.model
+    same = copy.copy(model)
+    daemon._use_model(same)  # the same rate: the history stays
+    assert daemon.ring.count > 15
+    other = copy.copy(model)
+    other.meta = dataclasses.replace(model.meta, sample_rate_hz=70.0)
+    daemon._use_model(other)
+    assert daemon.ring.count == 0 and daemon.frame_clock.step == 1.0
+    for i in range(200, 230):
+        daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
+    assert daemon.ring.count == 30  # every frame of the 70 Hz stream, from the swap on
