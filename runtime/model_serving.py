@@ -53,6 +53,7 @@ class ModelServing:
     watcher: ModelWatcher | None
     period_s: float
     frame_clock: Any  # runtime.frame_rate.FrameClock
+    rehearsal: Any  # runtime.rehearsal.Rehearsal
 
     def serve(self, model: Any, layout: SensorLayout) -> None:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame``.
@@ -161,6 +162,7 @@ class ModelServing:
             elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
                 self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
         self._pending.clear()
+        self.rehearsal.cancel()  # a rehearsal of the old ring or model is not worth running
 
     def _take_out_of_service(self, model: Any, reason: str) -> None:
         """A model broke the output contract at run time: one line, never load this file version
