@@ -29,6 +29,10 @@ IDLE_S = 5.0
 daemon that is dropped without ``shutdown`` (replays, benchmarks, tests make thousands) leaves
 no thread behind; it is also the longest single wait."""
 
+CLOSE_WAIT_S = 0.2
+"""Longest a shutdown waits for a running rehearsal (a decision takes about a millisecond; SIGTERM
+must end the process within a second)."""
+
 
 class Rehearsal:
     """``schedule(run, at)``: call ``run()`` at ``time.perf_counter() == at`` in a background thread
@@ -54,12 +58,17 @@ class Rehearsal:
             with self._wake:
                 self._job = None
 
-    def close(self) -> None:
-        """Drop any schedule and let the thread end now (the daemon's shutdown)."""
+    def close(self, timeout: float = CLOSE_WAIT_S) -> None:
+        """Drop any schedule, let the thread end and wait up to ``timeout`` for a rehearsal still
+        running (the daemon's shutdown): a process that exits while onnxruntime runs a session in
+        another thread aborts ("terminate called without an active exception", SIGABRT)."""
         with self._wake:
             self._job = None
-            self._closing = self._thread is not None
+            thread = self._thread
+            self._closing = thread is not None
             self._wake.notify()
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout)
 
     def _loop(self) -> None:
         while True:

@@ -3,6 +3,9 @@ and never changes a decision."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 
@@ -16,6 +19,7 @@ from runtime.daemon import Daemon
 from runtime.model import load_model
 from runtime.rehearsal import REHEARSAL_LEAD_S, Rehearsal
 from runtime.sinks import Event
+from tests.conftest import ROOT
 from tests.tiny_models import tiny_model_bytes, write_model
 
 
@@ -104,3 +108,23 @@ def test_dropped_daemons_leave_no_rehearsal_thread_and_shutdown_ends_it(tmp_path
     while threading.active_count() > before and time.perf_counter() - started < 1.0:
         time.sleep(0.01)
     assert threading.active_count() == before and time.perf_counter() - started < 0.5
+
+
+EXIT_DURING_A_REHEARSAL = """
+import threading, time, onnxruntime as ort
+from trainer.bench import hostile_models as H
+from runtime.rehearsal import Rehearsal
+session, window, started = ort.InferenceSession(H.slow(20_000)), H.pressed_window(), threading.Event()
+rehearsal = Rehearsal()
+rehearsal.schedule(lambda: (started.set(), session.run(None, {"frames": window})), time.perf_counter())
+started.wait(10)
+rehearsal.close()  # what Daemon.shutdown does; then the process exits
+"""
+
+
+def test_the_process_exits_cleanly_when_stopped_during_a_rehearsal():
+    """onnxruntime aborts a process that exits while another thread runs a session (SIGABRT,
+    "terminate called without an active exception"): a SIGTERM during a rehearsal did that."""
+    done = subprocess.run([sys.executable, "-c", EXIT_DURING_A_REHEARSAL], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0 and "terminate called" not in done.stderr, (done.returncode, done.stderr[-300:])
