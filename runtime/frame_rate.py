@@ -73,6 +73,7 @@ class FrameClock:
         """The kinds of rate line already logged for this model period."""
         self.model_period_ms = float(model_period_ms)
         self._gaps = np.zeros(BLOCK, dtype=np.float64)
+        self._breaks = np.zeros(BLOCK, dtype=bool)
         self._numbers = np.zeros(HISTORY, dtype=np.int64)
         self.reset()
 
@@ -106,10 +107,11 @@ class FrameClock:
         last, self._last_ts = self._last_ts, ts_ms
         if last is not None:
             gap, period = ts_ms - last, self.stream_period_ms or self.model_period_ms
-            if gap > RESTART_PERIODS * period or gap < -period:
+            broken = gap > RESTART_PERIODS * period or gap < -period
+            if broken:
                 self._restart(gap)
-            else:
-                self._gap(gap)
+            if not broken or (gap > 0 and self.stream_period_ms is None):  # a stream far slower than
+                self._gap(gap, broken)  # the model's is all breaks by the model's period: measure it
         if self.step < 1.0:
             self._phase += self.step
             if self._phase < 1.0:
@@ -147,8 +149,9 @@ class FrameClock:
         if self.on_restart is not None:
             self.on_restart()
 
-    def _gap(self, gap: float) -> None:
+    def _gap(self, gap: float, broken: bool = False) -> None:
         self._gaps[self._n_gaps] = gap
+        self._breaks[self._n_gaps] = broken
         self._n_gaps += 1
         if self._n_gaps == BLOCK:
             self._n_gaps = 0
@@ -161,7 +164,7 @@ class FrameClock:
         period = float(np.median(ends[SPAN - 1:] - np.concatenate(([0.0], ends[:-SPAN])))) / SPAN
         if period <= 0:
             return  # repeated stamps: no rate to measure
-        lost = gaps[gaps > 1.9 * period]  # stamps jitter up to ~0.8 period; a lost frame adds one
+        lost = gaps[(gaps > 1.9 * period) & ~self._breaks]  # stamps jitter up to ~0.8 period; a lost frame adds one
         if lost.size and self.health is not None:
             room = max(0, int(np.rint(ends[-1] / period)) - BLOCK)
             self.health.frames_dropped += min(room, int(np.rint(lost / period).sum()) - lost.size)

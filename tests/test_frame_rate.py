@@ -209,3 +209,14 @@ def test_a_swap_to_a_model_at_another_rate_forgets_frames_admitted_at_the_old_on
     for i in range(200, 230):
         daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
     assert daemon.ring.count == 30  # every frame of the 70 Hz stream, from the swap on
+
+
+@pytest.mark.parametrize(("model_hz", "device_hz"), [(32.0, 2.0), (1000.0, 32.0)])
+def test_a_stream_far_slower_than_the_model_is_measured_and_warned_about(model_hz, device_hz):
+    """Every gap is a break by the model's period until the stream's own is known: measured
+    from the first block, then one health line, and no more breaks."""
+    health, restarts = Health(), []
+    clock = FrameClock(1000.0 / model_hz, health, on_restart=lambda: restarts.append(1))
+    admit_all(clock, stamps(device_hz, 200))
+    assert clock.stream_period_ms == pytest.approx(1000.0 / device_hz, rel=0.01)
+    assert len(restarts) <= BLOCK and "slower" in health.last_error and health.frames_dropped == 0
