@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from runtime.config import Config, ConfigError, load_config
-from runtime.health import Health, StatusFile
+from runtime.health import Health, StatusFile, one_line
 from runtime.scene import scene_problem
 from runtime.sdnotify import Notifier
 from runtime.sinks import SinkSet
@@ -52,9 +52,10 @@ class ConfigReload:
         self.notifier.reloading()
         try:
             new = load_config(source)
-        except ConfigError as exc:
-            log.error("SIGHUP: %s; keeping the running configuration", exc)
-            self.health.report_error(f"reload refused: {exc}", "config")
+        except Exception as exc:  # a ConfigError, or any bug in a check: never fatal to a running daemon
+            reason = one_line(exc) if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {one_line(exc)}"
+            log.error("SIGHUP: %s; keeping the running configuration", reason)
+            self.health.report_error(f"reload refused: {reason}", "config")
             self.notifier.ready(self.health.status_line())
             return
         old, self.cfg = self.cfg, new
