@@ -73,3 +73,15 @@ def test_a_refused_device_is_still_a_device_error(capsys):
 def test_emulate_refuses_a_duration_that_is_not_positive(capsys, duration):
     assert main(["emulate", "--pty", "--duration", duration]) == 2
     assert "--duration must be a positive number of seconds" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["simulate", "--subjects", "1", "--runs", "1"],
+                                  ["record", "--device", "subject://?speed=max", "--subject", "s", "--auto"]])
+def test_an_output_folder_that_cannot_be_written_is_one_line_before_any_work(capsys, tmp_path, argv):
+    (tmp_path / "file").write_text("")
+    for out, words in ((tmp_path / "file" / "x", "cannot create or write this folder"),
+                       (tmp_path / "file", "is a file, not a folder")):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"handover {argv[0]}: --out {out}: {words}"), err
+        assert "choose a folder" in err[0]

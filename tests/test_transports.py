@@ -69,6 +69,10 @@ def test_missing_devices_are_device_unavailable(tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(DeviceUnavailable, match="no such file"):
         open_transport(f"replay://{tmp_path}/none.hrec")
+    (tmp_path / "file").write_text("")
+    for not_a_tty in ("/dev/null", str(tmp_path), str(tmp_path / "file")):  # pyserial's bare "Inappropriate ioctl" said nothing useful
+        with pytest.raises(DeviceUnavailable, match=f"{not_a_tty} is not a serial port; use .* e.g. /dev/ttyUSB0"):
+            open_transport(f"serial://{not_a_tty}")
     with socket.socket() as s:  # a free port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
