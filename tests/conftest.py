@@ -6,8 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from trainer.shared_data import default_data_dir
+
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = Path(__import__("os").environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data"))
+SHARED_DATA = default_data_dir()
 SDH2_DATA = SHARED_DATA / "sdh2-dsa"
 
 

@@ -12,14 +12,9 @@ import sys
 from pathlib import Path
 
 from firmware_io.commands.errors import fail
+from trainer.shared_data import default_data_dir
 
 COMMAND = "compare"
-
-
-def default_data_dir() -> Path:
-    """``$HANDOVER_SHARED_DATA`` or ``../shared/data`` beside the project."""
-    env = os.environ.get("HANDOVER_SHARED_DATA")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

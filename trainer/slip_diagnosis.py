@@ -248,7 +248,7 @@ FINDINGS = [
 
 def main(argv: list[str] | None = None) -> int:
     from trainer.bench.common import write_results
-    from trainer.compare_cli import default_data_dir
+    from trainer.shared_data import default_data_dir
 
     parser = argparse.ArgumentParser(prog="python -m trainer.slip_diagnosis", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results")

@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from trainer.bench.common import command_line, load_average, machine_info, write_results
+from trainer.shared_data import default_data_dir
 
 ROOT = Path(__file__).resolve().parents[2]
-DATA = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data")) / "sdh2-dsa"
+DATA = default_data_dir() / "sdh2-dsa"
 FRAMES, REPEATS = 4000, 7
 QUICK_FRAMES, QUICK_REPEATS = 400, 2
 

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from trainer.bench.common import command_line, load_average, load_note, machine_info, write_results
+from trainer.shared_data import default_data_dir
 
 NAME = "hostile"
 ROOT = Path(__file__).resolve().parents[2]
@@ -140,7 +141,7 @@ def source_frames(limit: int = 4000) -> tuple[np.ndarray, str]:
     """Real SDH-2 frames with contact where ../shared/data exists, else the simulated hand's."""
     from firmware_io.recordings.importers import find_sources, import_any
 
-    shared = Path(os.environ.get("HANDOVER_SHARED_DATA", ROOT.parent / "shared" / "data"))
+    shared = default_data_dir()
     if shared.is_dir():
         frames = []
         for path in find_sources(shared):

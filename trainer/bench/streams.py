@@ -214,7 +214,7 @@ def evaluate_real(models: dict, root: Path, say) -> dict:
 
 
 def run(args) -> dict:
-    from trainer.compare_cli import default_data_dir
+    from trainer.shared_data import default_data_dir
 
     say = args.say
     s = SIZES["quick" if args.quick else "full"]
