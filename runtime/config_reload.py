@@ -13,7 +13,8 @@ from collections.abc import Callable
 from typing import Any
 
 from runtime.config import Config, ConfigError, load_config
-from runtime.health import Health, StatusFile
+from runtime.health import Health, StatusFile, one_line
+from runtime.retry_notes import RetryNotes
 from runtime.scene import scene_problem
 from runtime.sdnotify import Notifier
 from runtime.sinks import SinkSet
@@ -37,6 +38,7 @@ class ConfigReload:
     watcher: Any
     _reload: bool
     _next_connect: float
+    retry_notes: RetryNotes
     start_control: Callable[[], None]
     stop_control: Callable[[], None]
     _close_client: Callable[..., None]
@@ -52,9 +54,10 @@ class ConfigReload:
         self.notifier.reloading()
         try:
             new = load_config(source)
-        except ConfigError as exc:
-            log.error("SIGHUP: %s; keeping the running configuration", exc)
-            self.health.report_error(f"reload refused: {exc}", "config")
+        except Exception as exc:  # a ConfigError, or any bug in a check: never fatal to a running daemon
+            reason = one_line(exc) if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {one_line(exc)}"
+            log.error("SIGHUP: %s; keeping the running configuration", reason)
+            self.health.report_error(f"reload refused: {reason}", "config")
             self.notifier.ready(self.health.status_line())
             return
         old, self.cfg = self.cfg, new
@@ -73,6 +76,7 @@ class ConfigReload:
             self.client = None
             self.layout = None
             self._next_connect = 0.0
+            self.retry_notes.reset()
         if new.scene != old.scene or new.model != old.model or new.onnxruntime != old.onnxruntime:
             self._refit_model(old, new)
         self._build_hot_path(keep_history=new.scene == old.scene)

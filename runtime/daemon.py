@@ -36,6 +36,7 @@ from runtime.model_watch import ModelWatcher
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore, store_path
 from runtime.rehearsal import REHEARSAL_LEAD_S, Rehearsal
+from runtime.retry_notes import RetryNotes
 from runtime.ring import RingBuffer
 from runtime.scene import events_problem, scene_problem
 from runtime.sdnotify import Notifier
@@ -106,6 +107,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self._pending: list[int] = []
         self._backoff = cfg.device.reconnect_min_s
         self._next_connect = 0.0
+        self.retry_notes = RetryNotes()
+        """Which failed connection attempts get a log line (the first, then after 1, 10, 60 min)."""
         self._last_frame_t = 0.0
         self._next_health = 0.0
         self._connect_started: float | None = None

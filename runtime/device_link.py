@@ -2,7 +2,7 @@
 ``runtime.daemon.Daemon``).
 
 An unplugged, refused or silent device is reported and retried with doubling backoff, never
-fatal; only a URL that can never work (or a missing package) ends the daemon, with one line.
+fatal (the health file hears of every attempt, the log of the first and then rarely: runtime.retry_notes); only a URL that can never work (or a missing package) ends the daemon, with one line.
 While a slow open runs, the client asks ``_still_connecting``, which answers SIGTERM, feeds the
 watchdog for a bounded time and keeps the health file and model swaps current.
 """
@@ -17,6 +17,7 @@ from typing import Any
 
 from firmware_io.layout import SensorLayout
 from runtime.health import Health, one_line
+from runtime.retry_notes import RetryNotes
 from runtime.scene import scene_problem
 from runtime.sdnotify import Notifier
 
@@ -49,6 +50,7 @@ class DeviceLink:
     trigger: Any
     decision: Any
     connect_bound_s: float
+    retry_notes: RetryNotes
     _stop: bool
     _pending: list[int]
     _backoff: float
@@ -107,8 +109,8 @@ class DeviceLink:
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
-        log.info("device %s %s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
-                 layout.n_taxels, self.cfg.scene.pads)
+        log.info("device %s %s%s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
+                 self.retry_notes.connected(), layout.n_taxels, self.cfg.scene.pads)
 
     def _connect_failed(self, url: str, exc: Exception) -> None:
         fatal = fatal_device_error(url, exc)
@@ -120,8 +122,10 @@ class DeviceLink:
         self._connect_started = None
         self.health.device_state = "disconnected"
         reason = one_line(exc).removeprefix(f"{url}: ")
-        self.health.report_error(f"{url}: {reason}", "device")
-        log.warning("device %s: %s; retrying in %.1f s", url, reason, self._backoff)
+        self.health.report_error(f"{url}: {reason}", "device")  # every attempt: the health file stays current
+        note = self.retry_notes.failed(reason, self._backoff)  # the log only when something is new
+        if note:
+            log.warning("device %s: %s", url, note)
         self._schedule_reconnect()
         self._close_client()
 

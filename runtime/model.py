@@ -160,7 +160,10 @@ class ModelMeta:
             problems.append(f"dormant_class {self.dormant_class!r} is not one of the classes")
         if self.W < 1 or self.K < 1:
             problems.append(f"W={self.W} and K={self.K} must be >= 1")
-        if self.T - 1 < self.W:
+        if self.T < 2:
+            problems.append(f"T={self.T} must be a window of at least 2 frames (the trained window length; "
+                            "re-export the model)")
+        elif self.T - 1 < self.W:
             problems.append(f"T={self.T} leaves fewer than W={self.W} derivative steps")
         if not self.pads or len(set(self.pads)) != len(self.pads) or min(self.pads) < 0:
             problems.append(f"pads {list(self.pads)} must be distinct matrix indices")

@@ -18,6 +18,7 @@ older file serves.
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import stat
@@ -95,6 +96,14 @@ def folder_problem(folder: str | Path) -> str | None:
     return None
 
 
+def folder_error(folder: Path, exc: OSError) -> str:
+    """The line for a model folder the watcher cannot list: what is wrong and what to do."""
+    if exc.errno == errno.ENOENT:
+        return (f"model folder {folder} does not exist (deleted or renamed?): create it (mkdir -p, readable by "
+                "the service user) or fix model.folder and reload; models dropped there are then picked up")
+    return folder_problem(folder) or f"model folder {folder}: {exc.strerror or exc}; check model.folder"
+
+
 def permission_problem(st: FileState, service_uid: int | None = None) -> str | None:
     """Why a file must not be trusted, or None."""
     uid = os.geteuid() if service_uid is None else service_uid
@@ -164,7 +173,7 @@ class ModelWatcher:
             entries = list(os.scandir(self.folder))
         except OSError as exc:
             if not self._folder_error_logged:
-                log.error("model folder %s: %s", self.folder, exc.strerror or exc)
+                log.error("%s", folder_error(self.folder, exc))
                 self._folder_error_logged = True
             return out
         self._folder_error_logged = False

@@ -4,6 +4,9 @@ receive rate for a source that sends as fast as possible (simulated hand, synthe
 from __future__ import annotations
 
 import json
+import socket
+
+import pytest
 
 from runtime.cli import main
 
@@ -45,3 +48,40 @@ def test_the_preview_starts_at_the_first_contact_and_says_so(capsys):
     assert frames[0]["number"] == summary["idle_frames_skipped"]  # nothing lost, only not shown
     every = _summary(capsys, "sim://?realtime=0", "--all-frames")
     assert every["idle_frames_skipped"] == 0 and every["frames"] == 50
+
+
+@pytest.mark.parametrize("url", ["tcp://", "tcp://h:1?bogus=1", "sim://?speed=fast", "tcp://[::1", "tcp://h:1/path",
+                                 "sim://?speed=1&speed=2"])
+def test_a_url_that_can_never_open_is_a_user_error_in_every_command(capsys, tmp_path, url):
+    """docs/INTERFACES.md: exit 2 for what the user can fix; 1 is for a device that could not be reached."""
+    for argv in (["dump", url], ["emulate", "--listen", url, "--duration", "1"],
+                 ["record", "--device", url, "--subject", "s", "--out", str(tmp_path), "--auto"]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"handover {argv[0]}: "), err
+
+
+def test_a_refused_device_is_still_a_device_error(capsys):
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert main(["dump", f"tcp://127.0.0.1:{port}?connect_timeout=2"]) == 1
+    assert "cannot connect" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("duration", ["-5", "0", "nan"])
+def test_emulate_refuses_a_duration_that_is_not_positive(capsys, duration):
+    assert main(["emulate", "--pty", "--duration", duration]) == 2
+    assert "--duration must be a positive number of seconds" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["simulate", "--subjects", "1", "--runs", "1"],
+                                  ["record", "--device", "subject://?speed=max", "--subject", "s", "--auto"]])
+def test_an_output_folder_that_cannot_be_written_is_one_line_before_any_work(capsys, tmp_path, argv):
+    (tmp_path / "file").write_text("")
+    for out, words in ((tmp_path / "file" / "x", "cannot create or write this folder"),
+                       (tmp_path / "file", "is a file, not a folder")):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"handover {argv[0]}: --out {out}: {words}"), err
+        assert "choose a folder" in err[0]

@@ -383,3 +383,59 @@ def test_log_lines_carry_a_time_outside_journald():
 
     assert "%(asctime)s" in log_format({})
     assert "%(asctime)s" not in log_format({"JOURNAL_STREAM": "8:12345"})
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_attempt(models, caplog):
+    """Six identical warnings a minute forever buried the journal: now the first failure, the same one
+    again 1, 10 and 60 minutes later (then hourly), a new reason at once, and one line when it is back."""
+    from firmware_io.transports import DeviceUnavailable
+    from runtime.retry_notes import RetryNotes
+
+    state = {"reason": "cannot connect: Connection refused", "up": False}
+
+    def factory(url: str):
+        if state["up"]:
+            return DSAClient(url, auto_reconnect=False)
+        raise DeviceUnavailable(f"{url}: {state['reason']}")
+
+    clock = FakeClock()
+    daemon = Daemon(_config(models, "sim://?events=4&realtime=0"), client_factory=factory)
+    daemon.retry_notes = RetryNotes(clock=clock)
+    caplog.set_level(logging.INFO, logger="handover.daemon")
+
+    def attempts(n: int, every_s: float = 10.0) -> list[str]:
+        caplog.clear()
+        for _ in range(n):
+            daemon._connect()
+            assert state["up"] or daemon.health.last_error.endswith(state["reason"])  # current on every attempt
+            clock.now += every_s
+        return [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
+
+    first = attempts(6 * 125)  # two hours and five minutes at the 10 s backoff
+    assert len(first) == 5, first  # at once, after 1, 10, 60 and 120 minutes
+    assert first[0] == "device sim://?events=4&realtime=0: cannot connect: Connection refused; retrying in 0.1 s"
+    assert first[1].startswith("device sim://?events=4&realtime=0: still unreachable after 7 attempts in 60 s "
+                               "(last: cannot connect: Connection refused)")
+    assert "after 61 attempts in 10 min" in first[2] and "after 361 attempts in 60 min" in first[3]
+    assert "after 721 attempts in 2.0 h" in first[4]
+    state["reason"] = "no answer within 3 s (hand powered? cable?)"
+    changed = attempts(3)
+    assert len(changed) == 1 and changed[0].endswith("no answer within 3 s (hand powered? cable?); retrying in 0.2 s")
+    state["up"] = True
+    back = attempts(1)
+    daemon._close_client()
+    daemon.client = None  # the next attempt asks the factory again
+    assert len(back) == 1 and back[0].startswith("device sim://?events=4&realtime=0 connected after 753 failed "
+                                                 "attempts in 2.1 h"), back
+    assert daemon.health.last_error == ""
+    state["up"] = False
+    again = attempts(1)
+    assert len(again) == 1 and again[0].endswith("no answer within 3 s (hand powered? cable?); retrying in 0.2 s")

@@ -93,6 +93,8 @@ def test_missing_or_broken_metadata(proto, tmp_path):
         (lambda m: m.update(pad_sizes=[6, 10, 1], n_channels=17), "pad_sizes"),
         (lambda m: m.update(T=13), r"shape .* metadata says \[N, T=13"),
         (lambda m: m.update(W=12), "fewer than W=12"),
+        (lambda m: m.update(T=-3), r"T=-3 must be a window of at least 2 frames \(the trained window length"),
+        (lambda m: m.update(T=0), r"T=0 must be a window of at least 2 frames"),
         (lambda m: m.update(classes=["a", "b", "c"]), r"'scores' .* \[N, 3\]"),
         (lambda m: m.update(classes=["a", "a", "b", "c"]), "distinct"),
         (lambda m: m.update(dormant_class="idle"), "dormant_class"),

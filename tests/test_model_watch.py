@@ -145,3 +145,18 @@ def test_background_thread_offers_a_dropped_model(tmp_path):
         assert w.take() is not None
     finally:
         w.stop()
+
+
+def test_a_deleted_model_folder_says_what_to_do(tmp_path, caplog):
+    import logging
+
+    folder = tmp_path / "models"
+    folder.mkdir()
+    w = _watcher(folder)
+    folder.rmdir()
+    with caplog.at_level(logging.ERROR, logger="handover"):
+        assert w.poll() is None
+        assert w.poll() is None  # said once, not on every poll
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == [f"model folder {folder} does not exist (deleted or renamed?): create it (mkdir -p, readable "
+                     "by the service user) or fix model.folder and reload; models dropped there are then picked up"]

@@ -277,3 +277,45 @@ def test_every_numeric_default_is_inside_its_range():
         value = getattr(getattr(cfg, section), name)
         if value is not None:
             assert lo <= value <= hi, key
+
+
+@pytest.mark.parametrize("url", ["tcp://[::1", "tcp://]x:1", "serial://[x", "hid://[::", "tcp://[zz]:1"])
+def test_a_malformed_url_is_a_config_error(tmp_path, url):
+    path = tmp_path / "h.toml"
+    path.write_text(f'[device]\nurl = "{url}"\n')
+    with pytest.raises(ConfigError, match=r"^device\.url: .*(IPv6|\[|\])") as info:
+        load_config(path)
+    assert "\n" not in str(info.value)
+    done = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--check", "--config", str(path)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "Traceback" not in done.stderr and "device.url" in done.stderr
+
+
+@pytest.mark.parametrize("failure", ["malformed url", "unexpected exception"])
+def test_sighup_never_kills_the_daemon_it_keeps_the_running_configuration(tmp_path, caplog, monkeypatch, failure):
+    import logging
+
+    import runtime.config_reload
+    from runtime.daemon import Daemon
+
+    path = tmp_path / "h.toml"
+    good = f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{tmp_path}"\n'
+    path.write_text(good)
+    daemon = Daemon(load_config(path))
+    if failure == "malformed url":
+        path.write_text(good.replace("sim://", "tcp://[::1"))
+    else:
+        def broken(source):
+            raise RuntimeError("a bug in a check\nsecond line")
+        monkeypatch.setattr(runtime.config_reload, "load_config", broken)
+    try:
+        with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+            daemon._do_reload()
+    finally:
+        daemon.sinks.close()
+    assert daemon.cfg.device.url == "sim://"
+    lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
+    assert len(lines) == 1 and lines[0].startswith("SIGHUP: ") and "\n" not in lines[0]
+    assert lines[0].endswith("; keeping the running configuration")
+    assert ("tcp://[::1" if failure == "malformed url" else "RuntimeError: a bug in a check") in lines[0]
+    assert "reload refused" in (daemon.health.last_error or "")

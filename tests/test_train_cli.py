@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 
 import pytest
 from protocol_standin import write_standin
@@ -158,3 +159,44 @@ def test_full_simulated_protocol(tmp_path, capsys):
     assert rc == 0, captured.err
     metrics = json.loads(captured.out)
     assert metrics["n_trials"] == 900 and metrics["synthetic"] is True
+
+
+def test_train_options_take_a_plain_string_of_features_and_check_the_pads():
+    from trainer.train_options import OptionsError, TrainOptions
+
+    assert TrainOptions(features="stats").families == ("stats",)
+    assert TrainOptions(features="stats, bow").families == ("stats", "bow")
+    TrainOptions(features="stats").check()
+    with pytest.raises(OptionsError, match=r"^--features 's,t': give distinct names from"):
+        TrainOptions(features="s,t").check()
+    with pytest.raises(OptionsError, match=r"^--pads '9': pad selection '9': no matrix 9"):
+        TrainOptions(pads="9").check()  # the simulated protocol is an SDH-2: refused before simulating it
+    with pytest.raises(OptionsError, match=r"^--pads 'nine': unknown pad selection"):
+        TrainOptions(pads="nine", data="somewhere").check()
+    TrainOptions(pads="9", data="somewhere").check()  # recorded data: checked against its own layout once loaded
+
+
+def test_pads_no_hand_has_is_refused_before_simulating(tmp_path, capsys):
+    assert handover(["train", "--pads", "9", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["handover train: --pads '9': pad selection '9': no matrix 9 (sensor has 6)"]  # no "simulating"
+
+
+@pytest.mark.parametrize(("trigger", "cause"), [
+    (["--fraction", "0.9"], "the threshold trigger needs a rising edge to 0.9 x full scale, and pulls lower the "
+                            "pressure: try --trigger onset or a lower --fraction"),
+    ([], "trials must start from the settled grasp: the onset trigger takes each trial's first frame as the "
+         "baseline"),
+])
+def test_too_few_triggered_trials_say_which_classes_never_triggered_and_why(tmp_path, capsys, trigger, cause):
+    from protocol_standin import write_standin
+
+    data = tmp_path / "data"
+    write_standin(data, n_subjects=1, runs=3, late=10)  # 10 of 12 trials act too late to cut a window
+    assert handover(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--quiet", "--no-sweep",
+                     *trigger]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handover train: only "), err
+    assert "too few to train (at least 10 cases of 2 classes)" in err[0]
+    assert re.search(r"; \d+ trials gave no case \(((bump|hold|pull|push) \d+(, )?)+\): (never triggered|triggered too late) \d+", err[0]), err[0]
+    assert cause in err[0]

@@ -3,6 +3,8 @@ hidapi transports run against emulated bridges (pyusb backend object, hid.device
 
 from __future__ import annotations
 
+import contextlib
+import re
 import socket
 import sys
 import threading
@@ -67,6 +69,10 @@ def test_missing_devices_are_device_unavailable(tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(DeviceUnavailable, match="no such file"):
         open_transport(f"replay://{tmp_path}/none.hrec")
+    (tmp_path / "file").write_text("")
+    for not_a_tty in ("/dev/null", str(tmp_path), str(tmp_path / "file")):  # pyserial's bare "Inappropriate ioctl" said nothing useful
+        with pytest.raises(DeviceUnavailable, match=f"{not_a_tty} is not a serial port; use .* e.g. /dev/ttyUSB0"):
+            open_transport(f"serial://{not_a_tty}")
     with socket.socket() as s:  # a free port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -244,3 +250,69 @@ def test_hid_transport_errors(rec):
     device.unplugged = True
     with pytest.raises(DeviceUnavailable, match="unplugged"):
         t.read(10, 0.02)
+
+
+_VALID = {"serial": "serial:///dev/ttyUSB0?baud=115200", "tcp": "tcp://192.168.1.42:13000?connect_timeout=3",
+          "usb": "usb://0403:6001?serial=A1&baud=115200", "hid": "hid://10c4:ea80?baud=115200",
+          "sim": "sim://?seed=0&events=4", "replay": "replay:///tmp/x.hrec?speed=max",
+          "subject": "subject://?seed=1&speed=max"}
+_ALWAYS_REFUSED = ["[::1", "]x:1", "[x", "[::", "[zz]:1", "[]:1", "h\x00:1", "\x00", "a\nb?x=1", "x\u2028y",
+                   "?a=1&a=1", "?=&&", "x?%00=1", "?seed=1&seed=2", "0403:6001?baud=1&baud=1"]
+_HOSTILE = ["[", "]", "%", "%zz", "%00", "%ff", "\x00", "\n", "\u2028", "\u0661", "é", ":", "::", "@", "#", "?",
+            "&", "=", "/", "\\", " ", "9" * 30, "-1", "1e999", "nan", "", "ß" * 70]
+
+
+@pytest.mark.parametrize("scheme", sorted(_VALID))
+def test_malformed_urls_of_every_scheme_are_always_the_url_error(scheme):
+    """Whatever the URL, checking it gives a ParsedURL or one TransportError line, never another exception
+    (a ValueError from urlsplit once killed a running daemon on SIGHUP)."""
+    import random
+
+    from firmware_io.transports import validate_url
+
+    def one_line_error_or_ok(url: str) -> bool:
+        try:
+            validate_url(url)
+        except MissingDependency:
+            return True
+        except TransportError as exc:
+            assert len(str(exc).splitlines()) == 1, repr(str(exc))
+            return False
+        return True
+
+    for tail in _ALWAYS_REFUSED:
+        assert not one_line_error_or_ok(f"{scheme}://{tail}"), tail
+    rng = random.Random(scheme)
+    valid = _VALID[scheme]
+    for _ in range(400):
+        url = list(valid)
+        for _ in range(rng.randint(1, 3)):
+            at = rng.randrange(len("scheme://") - 2, len(url) + 1)
+            url[at:at + rng.randint(0, 3)] = rng.choice(_HOSTILE)
+        one_line_error_or_ok("".join(url))
+
+
+@pytest.mark.parametrize(("url", "words"), [
+    ("tcp://h:1/path", "a tcp URL has no path"),
+    ("tcp://[::1]:x", "port 1..65535, got 'x'"),
+    ("tcp://u@h:1", "is not a host name"),
+    ("tcp://a..b", "is not a valid host name"),
+    ("sim://?speed=1&speed=2", "option 'speed' given 2 times; give it once"),
+    ("sim://host?seed=1", "sim:// takes no location"),
+    ("tcp://[::1", "write an IPv6 host as tcp://[::1]:13000"),
+    ("tcp://[zz]:1", "cannot read the location"),
+])
+def test_url_mistakes_found_by_a_stranger_are_refused(url, words):
+    from firmware_io.transports import validate_url
+
+    with pytest.raises(TransportError, match=re.escape(words)):
+        validate_url(url)
+
+
+def test_well_formed_urls_still_pass():
+    from firmware_io.transports import validate_url
+
+    for url in [*_VALID.values(), "tcp://[::1]", "tcp://[fe80::1%eth0]:13000", "tcp://händ.local:1", "sim:///",
+                "/dev/ttyUSB0", "COM3"]:
+        with contextlib.suppress(MissingDependency):  # usb:// and hid:// without the extra
+            validate_url(url)

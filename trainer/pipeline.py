@@ -82,7 +82,7 @@ def train(options: TrainOptions) -> TrainResult:
     """Train, evaluate and export as ``options`` say; raises OptionsError for options that cannot
     train, and RecordingError, DatasetError, LayoutError, OSError or ValueError for data that cannot."""
     from trainer import report
-    from trainer.dataset import build_dataset, dataset_trigger
+    from trainer.dataset import DatasetError, build_dataset, dataset_trigger
     from trainer.evaluation import tsne_embedding
     from trainer.train_outputs import figures, headline, metrics_of, write_model
 
@@ -97,8 +97,9 @@ def train(options: TrainOptions) -> TrainResult:
     summary = ds.summary()
     say(f"{ds.n_trials} trials, {len(ds.y)} cases, {ds.n_untriggered} untriggered "
         f"{summary['untriggered_reasons'] or ''}")
-    if len(set(ds.y.tolist())) < 2 or len(ds.y) < 10:
-        raise ValueError(f"only {len(ds.y)} triggered cases of {len(set(ds.y.tolist()))} classes: too few to train")
+    problem = too_few_cases(ds)
+    if problem:
+        raise DatasetError(problem)
     selection = None
     if options.select:
         from trainer.select import select_model
@@ -129,6 +130,38 @@ def train(options: TrainOptions) -> TrainResult:
         print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
               file=sys.stderr if options.json else sys.stdout)
     return TrainResult(out, metrics, onnx_ok)
+
+
+MIN_CASES, MIN_CLASSES = 10, 2
+"""Fewer triggered cases or classes than this cannot train (nor be split for evaluation)."""
+
+
+def too_few_cases(ds) -> str | None:
+    """None, or one line: the triggered cases per class, the trials per class that never triggered and
+    why, and the likely cause for the trigger that cut them."""
+    from collections import Counter
+
+    cases = Counter(ds.y.tolist())
+    if len(cases) >= MIN_CLASSES and len(ds.y) >= MIN_CASES:
+        return None
+    missed = Counter(s.action for s in ds.untriggered)
+    why = Counter(s.reason.split(":")[0] for s in ds.untriggered)
+    text = (f"only {len(ds.y)} triggered cases of {len(cases)} class{'es' if len(cases) != 1 else ''} "
+            f"({_counts(cases) or 'none'}): too few to train (at least {MIN_CASES} cases of {MIN_CLASSES} classes)")
+    if missed:
+        first = ds.untriggered[0]
+        text += (f"; {sum(missed.values())} trials gave no case ({_counts(missed)}): {_counts(why)} "
+                 f"(e.g. {first.action}: {first.reason})")
+    if ds.trigger.kind == "onset":
+        return text + ("; trials must start from the settled grasp: the onset trigger takes each trial's first "
+                       "frame as the baseline and fires when a pad departs from it (pulls lower the pressure), "
+                       "so check where the trials start, or try --trigger threshold")
+    return text + (f"; the threshold trigger needs a rising edge to {ds.fraction:g} x full scale, and pulls lower "
+                   "the pressure: try --trigger onset or a lower --fraction")
+
+
+def _counts(counter) -> str:
+    return ", ".join(f"{name} {n}" for name, n in sorted(counter.items()))
 
 
 def evaluate(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -> dict[str, Any]:

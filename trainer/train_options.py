@@ -58,6 +58,13 @@ class TrainOptions:
     json: bool = False
     quiet: bool = False
 
+    def __post_init__(self) -> None:
+        """Library users may write lists as the command does: ``features="stats,bow"``, ``windows="5,7"``."""
+        if isinstance(self.features, str):
+            object.__setattr__(self, "features", tuple(p.strip() for p in self.features.split(",") if p.strip()))
+        if isinstance(self.windows, str):
+            object.__setattr__(self, "windows", parse_windows(self.windows))
+
     @classmethod
     def names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
@@ -100,6 +107,7 @@ class TrainOptions:
             raise OptionsError(f"K, W must be >= 1 and T >= 2 (got K={self.K}, W={self.W}, T={self.T})")
         if self.features is not None:
             check_families(self.features, ",".join(self.features))
+        check_pads(self.pads, simulated=not self.data)
         uses_bow = "bow" in self.families
         if uses_bow and self.T - 1 < self.W:  # W is the BoW window: other families do not read it
             raise OptionsError(f"W={self.W} needs T >= {self.W + 1} (got T={self.T})")
@@ -163,6 +171,18 @@ def check_families(names: tuple[str, ...], shown: str) -> None:
     bad = [n for n in names if n not in FAMILIES]
     if not names or bad or len(set(names)) != len(names):
         raise OptionsError(f"--features {shown!r}: give distinct names from {', '.join(FAMILIES)}, e.g. stats,bow")
+
+
+def check_pads(pads: str, simulated: bool) -> None:
+    """A pad selection no SDH-2 could satisfy, before hours of simulating or loading. The simulated protocol
+    is an SDH-2; recorded data is checked against its own layout once loaded (only the syntax here)."""
+    from firmware_io.layout import LayoutError, SensorLayout
+
+    try:
+        SensorLayout.sdh2().pads(pads)
+    except LayoutError as exc:
+        if simulated or "no matrix" not in str(exc):
+            raise OptionsError(f"--pads {pads!r}: {exc}") from None
 
 
 def parse_windows(text: str) -> tuple[int, ...]:

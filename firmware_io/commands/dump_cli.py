@@ -42,9 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.client import DSAClient
-    from firmware_io.transports import TransportError
+    from firmware_io.transports import TransportError, validate_url
     from firmware_io.wire.errors import DSAError
 
+    try:
+        validate_url(args.url)  # a URL that can never open is the user's to fix (exit 2), not the device's
+    except TransportError as exc:
+        return fail(COMMAND, str(exc))
     if args.frames is not None and args.frames < 1:
         return fail(COMMAND, "--frames must be at least 1")
     if args.seconds is not None and args.seconds <= 0:

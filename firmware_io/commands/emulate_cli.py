@@ -49,6 +49,9 @@ def main(args: argparse.Namespace) -> int:
         speed, faults = playback_options(args.speed, args.fault)
     except ValueError as exc:
         return fail(COMMAND, str(exc))
+    if args.duration is not None and not args.duration > 0:  # also NaN
+        return fail(COMMAND, f"--duration must be a positive number of seconds, got {args.duration}; "
+                    "leave it out to serve until Ctrl-C")
     if not 1 <= args.events <= MAX_EVENTS:
         return fail(COMMAND, f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
     try:
@@ -66,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
                 parsed = ParsedURL(args.listen)
             except TransportError as exc:
                 return fail(COMMAND, str(exc))
-            if parsed.scheme != "tcp" or not parsed.netloc:
+            if parsed.scheme != "tcp" or not parsed.netloc or parsed.path not in ("", "/") or parsed.options:
                 return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
             host, _, port = parsed.netloc.rpartition(":")
             if not host or not port.isdigit() or int(port) > 65535:

@@ -13,6 +13,7 @@ import subprocess
 import sys
 
 from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
+from firmware_io.commands.out_folder import out_folder_problem
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
@@ -98,6 +99,9 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, "--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
     if not is_trigger_level(args.fraction):
         return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
+    problem = out_folder_problem(args.out)
+    if problem:
+        return fail(COMMAND, problem)
     try:
         client, subject = _connect(args.device, args.trial_seconds)
     except TransportError as exc:

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
+
+from firmware_io.commands.errors import DEVICE_ERROR, fail
+from firmware_io.commands.out_folder import out_folder_problem
+
+COMMAND = "simulate"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,6 +26,9 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.recordings.recording import RecordingError
     from firmware_io.sim import demo_script, simulate_session, trial_counts, write_protocol
 
+    problem = out_folder_problem(args.out)
+    if problem:
+        return fail(COMMAND, problem)
     start = time.perf_counter()
     try:
         if args.session is not None:
@@ -36,8 +43,7 @@ def main(args: argparse.Namespace) -> int:
             return 0
         paths = write_protocol(args.out, seed=args.seed, n_subjects=args.subjects, runs=args.runs)
     except (ValueError, OSError, RecordingError) as exc:
-        print(f"handover simulate: {exc}", file=sys.stderr)
-        return 1
+        return fail(COMMAND, str(exc), DEVICE_ERROR)
     from firmware_io.recordings.recording import Recording
 
     recs = [Recording.load(p) for p in paths]

@@ -91,11 +91,23 @@ class Transport(ABC):
 
 
 class ParsedURL:
-    """A device URL split into scheme, location (host:port, VID:PID or path) and options."""
+    """A device URL split into scheme, location (host:port, VID:PID or path) and options.
+
+    The one place URLs are split: whatever ``urlsplit`` or the query parser refuses (an unclosed
+    ``[``, an invalid IPv6 literal, a control character, an option given twice) is a TransportError
+    naming the URL, never a ValueError."""
 
     def __init__(self, url: str) -> None:
         self.url = url
-        parts = urlsplit(url)
+        bad = next((i for i, c in enumerate(url) if not c.isprintable()), None)
+        if bad is not None:
+            raise TransportError(f"{url!r}: unprintable character {url[bad]!r} at position {bad}; "
+                                 "write the device URL on one line without control characters")
+        try:
+            parts = urlsplit(url)
+        except ValueError as exc:
+            raise TransportError(f"{url}: cannot read the location ({exc}); write an IPv6 host as "
+                                 "tcp://[::1]:13000, and no other '[' or ']'") from None
         self.scheme = parts.scheme.lower()
         self.netloc = parts.netloc
         self.path = parts.path
@@ -105,7 +117,9 @@ class ParsedURL:
         except ValueError:
             raise TransportError(f"{url}: cannot read the options after '?' (use key=value&key=value)") from None
         for key, values in query.items():
-            self.options[key] = values[-1]
+            if len(values) > 1:
+                raise TransportError(f"{url}: option {key!r} given {len(values)} times; give it once")
+            self.options[key] = values[0]
 
     @property
     def location(self) -> str:

@@ -82,6 +82,13 @@ def _fault_plan(parsed: ParsedURL, opts: dict):
         raise TransportError(f"{parsed.url}: {exc}") from None
 
 
+def _no_location(parsed: ParsedURL) -> None:
+    """``sim://`` and ``subject://`` run in process: a host or path would be silently ignored."""
+    if parsed.location not in ("", "/"):
+        raise TransportError(f"{parsed.url}: {parsed.scheme}:// takes no location ({parsed.location[:40]!r}); "
+                             f"use {parsed.scheme}://?option=value")
+
+
 def _seed(parsed: ParsedURL, opts: dict) -> int:
     return int(parse_number(parsed.url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1))
 
@@ -111,6 +118,7 @@ class SimTransport(EmulatedTransport):
 
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
+        _no_location(parsed)
         emulator = _emulator_settings(parsed, opts, {"seed", "events", "realtime", "speed"}, loop=True)
         events = int(parse_number(parsed.url, "events", parsed.option(opts, "events", 40), int, 1, MAX_EVENTS))
         if not parse_bool(parsed.url, "realtime", parsed.option(opts, "realtime", True)):
@@ -163,6 +171,7 @@ class SubjectTransport(EmulatedTransport):
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         """The ScriptedSubject's keyword arguments."""
+        _no_location(parsed)
         parsed.check_options({"seed", "speed", "drop", "unplug", "lazy", "fault", "seconds"})
         url = parsed.url
         unplug = _frame_numbers(parsed, opts, "unplug")

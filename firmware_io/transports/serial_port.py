@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import select
 import time
+from errno import EISDIR, ENOTTY
 
 from firmware_io.transports.base import (
     DEFAULT_READ_SIZE,
@@ -111,9 +112,19 @@ class SerialTransport(Transport):
             raise TransportError(f"{self.url}: transport is closed")
 
 
+def _context_errno(exc: Exception) -> int | None:
+    """pyserial wraps the termios error of a port it cannot configure in a SerialException without errno."""
+    inner = exc.__context__
+    args = getattr(inner, "args", ())
+    return args[0] if args and isinstance(args[0], int) else None
+
+
 def _reason(exc: Exception, port: str) -> str:
     """pyserial's message, with what to check for the two common causes (no such device, no access)."""
-    errno = getattr(exc, "errno", None)
+    errno = getattr(exc, "errno", None) or _context_errno(exc)
+    if errno in (ENOTTY, EISDIR):  # "Inappropriate ioctl for device": a file, /dev/null, a pipe: not a tty
+        return (f"{port} is not a serial port; use the hand's serial device, "
+                "e.g. /dev/ttyUSB0 or /dev/dsacon32m (`ls /dev/ttyUSB* /dev/ttyACM*`)")
     if errno == 2:
         return (f"{port} does not exist (hand's USB cable plugged in? `ls /dev/ttyUSB* /dev/ttyACM*`; "
                 "the /dev/dsacon32m symlink needs the udev rules of deploy/INSTALL.md section 2)")

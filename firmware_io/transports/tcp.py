@@ -8,6 +8,7 @@ an endless stream of empty reads.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import select
 import socket
 
@@ -46,14 +47,9 @@ class TcpTransport(Transport):
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"connect_timeout"})
-        if not parsed.netloc:
-            raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
-        try:
-            host, port = _split_host_port(parsed.netloc)
-        except ValueError:
-            raise TransportError(f"{parsed.url}: expected tcp://HOST:PORT with a port 1..65535") from None
-        if not host:
-            raise TransportError(f"{parsed.url}: no host; use tcp://192.168.1.42:13000")
+        if parsed.path not in ("", "/"):
+            raise TransportError(f"{parsed.url}: a tcp URL has no path ({parsed.path!r}); use tcp://HOST:PORT")
+        host, port = _split_host_port(parsed.url, parsed.netloc)
         timeout = parse_number(parsed.url, "connect_timeout", parsed.option(opts, "connect_timeout", 3.0), float,
                                0.001, 3600.0)
         return {"host": host, "port": port, "connect_timeout": timeout}
@@ -91,16 +87,38 @@ class TcpTransport(Transport):
             raise TransportError(f"{self.url}: transport is closed")
 
 
-def _split_host_port(netloc: str) -> tuple[str, int]:
-    """``host``, ``host:port`` or ``[v6]:port``."""
+def _split_host_port(url: str, netloc: str) -> tuple[str, int]:
+    """``host``, ``host:port`` or ``[v6]:port``, each part checked (a port of ASCII digits in 1..65535,
+    a host name IDNA can encode or an IP address), or one TransportError saying what to write."""
     if netloc.startswith("["):
         host, _, rest = netloc[1:].partition("]")
-        port = int(rest[1:]) if rest.startswith(":") else DEFAULT_PORT
-    elif ":" in netloc:
-        host, _, p = netloc.rpartition(":")
-        port = int(p)
+        port_text = rest[1:] if rest.startswith(":") else (rest or None)
+        _check_ip6(url, host)
     else:
-        host, port = netloc, DEFAULT_PORT
-    if not 0 < port < 65536:
-        raise ValueError(port)
-    return host, port
+        host, _, port_text = netloc.rpartition(":") if ":" in netloc else (netloc, "", None)
+        _check_host_name(url, host)
+    if port_text is None:
+        return host, DEFAULT_PORT
+    if not (port_text.isascii() and port_text.isdigit() and len(port_text) <= 5 and 0 < int(port_text) < 65536):
+        got = f", got {port_text[:12]!r}" if port_text else ""
+        raise TransportError(f"{url}: expected tcp://HOST:PORT with a port 1..65535{got}")
+    return host, int(port_text)
+
+
+def _check_host_name(url: str, host: str) -> None:
+    if not host:
+        raise TransportError(f"{url}: no host; use tcp://192.168.1.42:13000")
+    if any(c.isspace() or c in "@[]%/\\:" for c in host):
+        raise TransportError(f"{url}: {host[:40]!r} is not a host name; use tcp://HOST:PORT "
+                             "(an IPv6 address in brackets: tcp://[::1]:13000)")
+    try:
+        host.encode("idna")
+    except UnicodeError:
+        raise TransportError(f"{url}: {host[:40]!r} is not a valid host name (empty or over-long label?)") from None
+
+
+def _check_ip6(url: str, host: str) -> None:
+    try:
+        ipaddress.IPv6Address(host)
+    except ValueError:
+        raise TransportError(f"{url}: [{host[:40]}] is not an IPv6 address; use e.g. tcp://[::1]:13000") from None
