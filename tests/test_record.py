@@ -26,8 +26,8 @@ from firmware_io.recordings.record_session import (
     run_session,
 )
 from firmware_io.recordings.recording import ACTIONS, Recording
-from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.recordings.terminal_view import sparkline, trial_view
+from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.sim.scripted_subject import ScriptedSubject
 from runtime.cli import main as handover
 

@@ -15,8 +15,8 @@ import sys
 from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
 from firmware_io.commands.out_folder import out_folder_problem
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
-from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.recordings.recording import ACTIONS
+from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 COMMAND = "record"

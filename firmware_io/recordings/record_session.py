@@ -325,7 +325,7 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
         drain(client)
         annotations: dict = {}
 
-        def go(slot: TrialSlot = slot) -> None:
+        def go(slot: TrialSlot = slot, annotations: dict = annotations) -> None:
             io.say(f"Go: {slot.action}!")
             annotations.update(io.cue("go", slot) or {})
 
