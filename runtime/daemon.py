@@ -294,6 +294,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         if self.watcher is not None:
             self.watcher.stop(timeout=0.5)
         self.stop_control()
+        self.rehearsal.close()
         self._close_client(stop_timeout=SHUTDOWN_STOP_S)
         self.health.device_state = "stopped" if not self.fatal else "failed"
         if self.fatal:

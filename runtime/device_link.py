@@ -57,6 +57,7 @@ class DeviceLink:
     _next_connect: float
     _last_frame_t: float
     frame_clock: Any  # runtime.frame_rate.FrameClock
+    rehearsal: Any  # runtime.rehearsal.Rehearsal
     _connect_started: float | None
     _hang_logged: bool
     _build_hot_path: Callable[..., None]  # runtime.model_serving
@@ -151,6 +152,7 @@ class DeviceLink:
         if self.decision is not None:
             self.decision.reset()
         self._pending.clear()
+        self.rehearsal.cancel()  # its window was the history just forgotten
 
     def _schedule_reconnect(self) -> None:
         self._next_connect = time.monotonic() + self._backoff

@@ -15,13 +15,21 @@ period from the frames' device time stamps and:
   faster: it is fed as it comes and a one-line health problem says so (windows span too long);
 - within those bounds the stream is fed untouched (frame numbers as the device sent them);
 - a gap in device time of more than ``RESTART_PERIODS`` stream periods (the recording paused,
-  the device stalled and resumed) breaks the stream: ``on_restart`` is called before the frame
-  after it, and the daemon forgets the history as after a reconnect (a window across the gap
-  would join two unrelated moments, and the trigger would take the jump for a person's action).
+  the device stalled and resumed, a stamp hours ahead) or a step back by more than one period
+  (the controller rebooted and its counter restarted at 0; the client's unwrapper reads a small
+  backwards step of the u32 counter as going back) breaks the stream: ``on_restart`` is called
+  before the frame after it, and the daemon forgets the history as after a reconnect (a window
+  across the break would join two unrelated moments, and the trigger would take the jump for a
+  person's action). A break is neither a gap of the period estimate nor lost frames.
 
-The period is the median of the last ``BLOCK`` gaps, re-estimated once per block (one store per
-frame; the median once a block). Frames lost on the way (gaps of about twice the stream's period
-or more) are counted here too, once per block, against the stream's period, not the model's.
+The period is the median over the last ``BLOCK`` gaps of the time ``SPAN`` frames took, over
+``SPAN`` (re-estimated once per block: one store per frame; the median once a block): a median of
+single gaps is thrown by jitter that alternates (10, 50, 10, 50, 10 ms reads as 10 ms, a
+100 Hz stream). Frames lost on the way are counted here too, once per block, against the stream's
+period: gaps of about twice the period or more, but never more than the block's time span has
+room for (a device that repeats each stamp has gaps of 0 and two periods and loses nothing).
+Each kind of rate line is logged once per model period (a stream flapping between two rates
+would otherwise log each flap); the health problem follows every change.
 """
 
 from __future__ import annotations
@@ -43,6 +51,8 @@ broken device clock would otherwise leave out nearly every frame): a health warn
 as they come."""
 BLOCK = 32
 """Gaps per estimate of the stream's period (about a second at the SDH-2's 32 Hz)."""
+SPAN = 4
+"""Frames per span of the period estimate (smooths any jitter pattern shorter than this)."""
 HISTORY = 256
 """Device frame numbers of the last admitted frames kept (to name a window's first device frame)."""
 RESTART_PERIODS = 10
@@ -59,8 +69,11 @@ class FrameClock:
         self.on_restart = on_restart
         """Called when a gap breaks the stream (before the frame after the gap is fed)."""
         self.restarts = 0
+        self._told: set[str] = set()
+        """The kinds of rate line already logged for this model period."""
         self.model_period_ms = float(model_period_ms)
         self._gaps = np.zeros(BLOCK, dtype=np.float64)
+        self._breaks = np.zeros(BLOCK, dtype=bool)
         self._numbers = np.zeros(HISTORY, dtype=np.int64)
         self.reset()
 
@@ -82,6 +95,9 @@ class FrameClock:
 
     def set_model_period(self, model_period_ms: float) -> None:
         """A model with another sample rate serves: re-decide from the measured period."""
+        if float(model_period_ms) != self.model_period_ms:
+            self._told.clear()
+            self._phase = 0.0
         self.model_period_ms = float(model_period_ms)
         if self.stream_period_ms is not None:
             self._decide(self.stream_period_ms)
@@ -90,9 +106,12 @@ class FrameClock:
         """The frame number to feed this frame under, or -1 when it falls between model periods."""
         last, self._last_ts = self._last_ts, ts_ms
         if last is not None:
-            self._gap(ts_ms - last)
-            if ts_ms - last > RESTART_PERIODS * (self.stream_period_ms or self.model_period_ms):
-                self._restart()
+            gap, period = ts_ms - last, self.stream_period_ms or self.model_period_ms
+            broken = gap > RESTART_PERIODS * period or gap < -period
+            if broken:
+                self._restart(gap)
+            if not broken or (gap > 0 and self.stream_period_ms is None):  # a stream far slower than
+                self._gap(gap, broken)  # the model's is all breaks by the model's period: measure it
         if self.step < 1.0:
             self._phase += self.step
             if self._phase < 1.0:
@@ -121,14 +140,18 @@ class FrameClock:
         first = self.device_number(length - 1)
         return first if first >= 0 else last_number - length + 1
 
-    def _restart(self) -> None:
+    def _restart(self, gap: int) -> None:
         self.restarts += 1
         self._phase = 0.0
+        what = "back" if gap < 0 else "ahead"
+        self._tell("restart", f"device time jumped {abs(gap) / 1000.0:.1f} s {what} (a pause, a stall or a device "
+                              "reboot): the frame history restarts there (logged once; every break restarts it)")
         if self.on_restart is not None:
             self.on_restart()
 
-    def _gap(self, gap: float) -> None:
+    def _gap(self, gap: float, broken: bool = False) -> None:
         self._gaps[self._n_gaps] = gap
+        self._breaks[self._n_gaps] = broken
         self._n_gaps += 1
         if self._n_gaps == BLOCK:
             self._n_gaps = 0
@@ -137,12 +160,14 @@ class FrameClock:
     def _block(self) -> None:
         """A block of gaps is complete: the stream's period, and the frames lost in the block."""
         gaps = self._gaps
-        period = float(np.median(gaps))
+        ends = np.cumsum(gaps)
+        period = float(np.median(ends[SPAN - 1:] - np.concatenate(([0.0], ends[:-SPAN])))) / SPAN
         if period <= 0:
             return  # repeated stamps: no rate to measure
-        lost = gaps[gaps > 1.9 * period]  # stamps jitter up to ~0.8 period; a lost frame adds one
+        lost = gaps[(gaps > 1.9 * period) & ~self._breaks]  # stamps jitter up to ~0.8 period; a lost frame adds one
         if lost.size and self.health is not None:
-            self.health.frames_dropped += int(np.rint(lost / period).sum()) - lost.size
+            room = max(0, int(np.rint(ends[-1] / period)) - BLOCK)
+            self.health.frames_dropped += min(room, int(np.rint(lost / period).sum()) - lost.size)
         self._decide(period)
 
     def _decide(self, period_ms: float) -> None:
@@ -154,8 +179,9 @@ class FrameClock:
             self.renumber = True  # from now on the trigger counts model frames
         stream_hz, model_hz = _hz(1000.0 / period_ms), _hz(1000.0 / self.model_period_ms)
         if self.step < 1.0 and was_step == 1.0:
-            log.warning("device streams at %s Hz, the model was trained at %s Hz: frames are decimated to the "
-                        "model's period (about 1 in %.1f classified)", stream_hz, model_hz, 1.0 / self.step)
+            self._tell("decimate", f"device streams at {stream_hz} Hz, the model was trained at {model_hz} Hz: "
+                                   f"frames are decimated to the model's period (about 1 in {1.0 / self.step:.1f} "
+                                   "classified)")
         problem = None
         if ratio > SLOWER:
             problem = (f"device streams at {stream_hz} Hz, slower than the {model_hz} Hz the model was trained "
@@ -166,11 +192,17 @@ class FrameClock:
                        "Hz: not believed (a broken device clock?), frames are fed as they come")
         self.slow = problem is not None
         if problem and not was_off:
-            log.warning("%s", problem)
+            self._tell("slow" if ratio > SLOWER else "absurd", problem)
             if self.health is not None:
                 self.health.report_error(problem, SOURCE)
         elif was_off and not problem and self.health is not None:
             self.health.resolve(SOURCE)
+
+    def _tell(self, kind: str, line: str) -> None:
+        """Log ``line`` unless a line of this kind was logged already for this model period."""
+        if kind not in self._told:
+            self._told.add(kind)
+            log.warning("%s", line)
 
 
 def _hz(rate: float) -> str:

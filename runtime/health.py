@@ -77,6 +77,13 @@ class Health:
         holds until ``resolve(source)`` (a quarantine stays: another model serving does not undo it)."""
         now = time.time()
         self.last_error, self.last_error_at, self._error_source = text, now, source
+        newest = self.errors[-1] if self.errors else None
+        if newest is not None and newest["source"] == source and newest["error"] == text:
+            # a repeat (a device refusing every retry) is counted, not appended: the history keeps
+            # the problems before a long outage
+            newest["repeats"] = newest.get("repeats", 1) + 1
+            newest["last_at"] = round(now, 3)
+            return
         self.errors.append({"at": round(now, 3), "source": source, "error": text})
 
     def resolve(self, source: str) -> None:

@@ -37,6 +37,10 @@ INPUT_NAME = "frames"
 OUTPUT_NAMES = ("label", "scores")
 ALLOWED_DOMAINS = frozenset({"", "ai.onnx", "ai.onnx.ml"})
 DEFAULT_MAX_BYTES = 64 * 1024 * 1024
+SAMPLE_RATES_HZ = (1.0, 1000.0)
+"""The sample rates a model may be trained at (the SDH-2 streams ~32 Hz, fast controllers ~70 Hz):
+outside them the daemon's period arithmetic means nothing (at 1e300 Hz every frame is a break in
+the stream; at 0.001 Hz no trigger fires), so such a model is refused at load."""
 """A BoW + SVM graph is a few hundred kB; anything near this limit is not one of ours."""
 
 REQUIRED_KEYS = (
@@ -134,7 +138,7 @@ class ModelMeta:
                 pad_sizes=pad_sizes,
                 fullscale=_positive(d["fullscale"], "fullscale"),
                 trigger=_dict(d["trigger"], "trigger"),
-                sample_rate_hz=_positive(d["sample_rate_hz"], "sample_rate_hz"),
+                sample_rate_hz=_sample_rate(d["sample_rate_hz"]),
                 score=str(d["score"]),
                 dormant_class=None if d["dormant_class"] is None else str(d["dormant_class"]),
                 training=_dict(d["training"], "training"),
@@ -188,6 +192,14 @@ def _positive(value, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
         raise ModelContractError(f"metadata: {name} must be a positive number, got {value!r}")
     return float(value)
+
+
+def _sample_rate(value) -> float:
+    rate = _positive(value, "sample_rate_hz")
+    low, high = SAMPLE_RATES_HZ
+    if not low <= rate <= high:
+        raise ModelContractError(f"metadata: sample_rate_hz must be between {low:g} and {high:g} Hz, got {value!r}")
+    return rate
 
 
 def _dict(value, name: str) -> dict:

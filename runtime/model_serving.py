@@ -53,6 +53,7 @@ class ModelServing:
     watcher: ModelWatcher | None
     period_s: float
     frame_clock: Any  # runtime.frame_rate.FrameClock
+    rehearsal: Any  # runtime.rehearsal.Rehearsal
 
     def serve(self, model: Any, layout: SensorLayout) -> None:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame``.
@@ -117,9 +118,11 @@ class ModelServing:
         self.health.models_loaded += 1
         self.health.resolve("model")
         self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
-        self.period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
-        self.frame_clock.set_model_period(1000.0 * self.period_s)
-        self._build_hot_path(keep_history=True)
+        period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        same_rate = period_s == self.period_s  # frames kept at another rate would splice two time scales
+        self.period_s = period_s
+        self.frame_clock.set_model_period(1000.0 * period_s)
+        self._build_hot_path(keep_history=same_rate)
         what = "swapped in" if old is not None else "serving"
         log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
                  model.meta.T, ",".join(model.meta.classes))
@@ -159,6 +162,7 @@ class ModelServing:
             elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
                 self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
         self._pending.clear()
+        self.rehearsal.cancel()  # a rehearsal of the old ring or model is not worth running
 
     def _take_out_of_service(self, model: Any, reason: str) -> None:
         """A model broke the output contract at run time: one line, never load this file version

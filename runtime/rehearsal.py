@@ -24,6 +24,14 @@ from typing import Any
 REHEARSAL_LEAD_S = 0.002
 """How long before the due frame's expected arrival the rehearsal runs: more than the arrival
 jitter of a 32 Hz stream, short enough that the caches it fills are still warm."""
+IDLE_S = 5.0
+"""A thread with nothing scheduled for this long ends (the next schedule starts another): a
+daemon that is dropped without ``shutdown`` (replays, benchmarks, tests make thousands) leaves
+no thread behind; it is also the longest single wait."""
+
+CLOSE_WAIT_S = 0.2
+"""Longest a shutdown waits for a running rehearsal (a decision takes about a millisecond; SIGTERM
+must end the process within a second)."""
 
 
 class Rehearsal:
@@ -34,6 +42,7 @@ class Rehearsal:
         self._wake = threading.Condition()
         self._job: tuple[Callable[[], Any], float] | None = None
         self._thread: threading.Thread | None = None
+        self._closing = False
         self.runs = 0
 
     def schedule(self, run: Callable[[], Any], at: float) -> None:
@@ -49,15 +58,32 @@ class Rehearsal:
             with self._wake:
                 self._job = None
 
+    def close(self, timeout: float = CLOSE_WAIT_S) -> None:
+        """Drop any schedule, let the thread end and wait up to ``timeout`` for a rehearsal still
+        running (the daemon's shutdown): a process that exits while onnxruntime runs a session in
+        another thread aborts ("terminate called without an active exception", SIGABRT)."""
+        with self._wake:
+            self._job = None
+            thread = self._thread
+            self._closing = thread is not None
+            self._wake.notify()
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout)
+
     def _loop(self) -> None:
         while True:
             with self._wake:
+                idle_until = time.perf_counter() + IDLE_S
                 while self._job is None:
-                    self._wake.wait()
+                    left = idle_until - time.perf_counter()
+                    if self._closing or left <= 0:
+                        self._thread, self._closing = None, False
+                        return
+                    self._wake.wait(left)
                 run, at = self._job
                 delay = at - time.perf_counter()
                 if delay > 0:
-                    self._wake.wait(delay)  # woken early by a newer job or a cancel: look again
+                    self._wake.wait(min(delay, IDLE_S))  # woken early by a newer job or a cancel: look again
                     if self._job is None or self._job[1] != at or time.perf_counter() < at:
                         continue
                 self._job = None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import logging
 import time
 
@@ -9,6 +11,7 @@ import numpy as np
 import pytest
 
 from firmware_io.client import Frame
+from firmware_io.wire.device_time import TimestampUnwrapper
 from runtime.frame_rate import BLOCK, FrameClock
 from runtime.health import Health
 from tests.test_onset import LAYOUT, RATE, _daemon, grasp_levels, rows_of
@@ -128,3 +131,92 @@ def test_stamps_of_a_broken_device_clock_are_not_believed():
     clock = FrameClock(MODEL_MS, health)
     numbers = admit_all(clock, np.arange(200))  # 1 ms per frame: 1000 Hz
     assert numbers == list(range(200)) and "not believed" in health.last_error
+
+
+def test_a_device_reboot_mid_stream_restarts_the_history_and_is_not_an_event(tmp_path):
+    """The controller reboots: its counter restarts at 0, which the client's unwrapper reads as
+    device time going back. A window across it would join two unrelated moments."""
+    levels = grasp_levels(400, seed=4)
+    levels[200:, :] *= 1.3
+    ts = np.rint(np.arange(400) * MODEL_MS).astype(np.int64) + 600_000  # 10 min of uptime
+    unwrap = TimestampUnwrapper()
+    ts[200:] -= ts[200]  # the counter restarts at 0 before frame 200
+    assert _events(tmp_path, levels, np.array([unwrap(int(t)) for t in ts])) == []
+
+
+def test_breaks_in_device_time_are_neither_lost_frames_nor_rate_estimates(caplog):
+    """A stamp an hour ahead (and back), a step back by a second: restarts, one log line, no loss."""
+    health, restarts = Health(), []
+    clock = FrameClock(MODEL_MS, health, on_restart=lambda: restarts.append(1))
+    ts = stamps(RATE, 400)
+    ts[100] += 3_600_000
+    ts[300:] -= 1000
+    with caplog.at_level(logging.WARNING, logger="handover.daemon"):
+        assert admit_all(clock, ts) == list(range(400))
+    assert len(restarts) == 3 and health.frames_dropped == 0 and clock.stream_period_ms == pytest.approx(MODEL_MS)
+    assert len(caplog.records) == 1 and "device time jumped 3600.0 s ahead" in caplog.records[0].getMessage()
+
+
+@pytest.mark.parametrize("gaps", [[10, 50], [10, 50, 10, 50, 10]], ids=["even", "odd"])
+def test_alternating_jitter_is_read_as_its_mean_period(gaps):
+    """Gaps alternating 10 / 50 ms are a 33-38 Hz stream, not 100 Hz one to decimate with frames lost."""
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    ts = np.cumsum(np.tile(gaps, 400 // len(gaps)))
+    assert admit_all(clock, ts) == list(range(len(ts)))
+    assert health.frames_dropped == 0 and health.frames_decimated == 0 and health.last_error == ""
+
+
+def test_repeated_stamps_lose_no_frames():
+    health = Health()
+    admit_all(FrameClock(MODEL_MS, health), np.repeat(stamps(RATE, 200), 2))
+    assert health.frames_dropped == 0
+
+
+def test_a_stream_flapping_between_rates_logs_each_kind_once(caplog):
+    health = Health()
+    clock = FrameClock(MODEL_MS, health)
+    ts, t = [], 0.0
+    for k in range(20):  # 2 s at 70 Hz, 2 s at 32 Hz, 2 s at 16 Hz, ...
+        for _ in range(128):
+            t += 1000.0 / (70.0, RATE, 16.0)[k % 3]
+            ts.append(round(t))
+    with caplog.at_level(logging.WARNING, logger="handover.daemon"):
+        admit_all(clock, np.array(ts))
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and "decimated" in lines[0] and "slower" in lines[1]
+
+
+def test_a_swap_to_a_model_at_another_rate_forgets_frames_admitted_at_the_old_one(tmp_path):
+    """A 70 Hz stream decimated for a 32 Hz model; a 70 Hz model swaps in: the ring's frames are
+    0.03 s apart, the new model's windows need 0.014 s, so they are not mixed into its windows."""
+    daemon, _ = _daemon(tmp_path)
+    fast_levels, fast_ts = _resampled(grasp_levels(200, seed=5), 70.0)
+    rows = rows_of(fast_levels)
+    full = np.zeros((len(rows), LAYOUT.n_taxels), dtype=np.uint16)
+    full[:, LAYOUT.columns("distal")] = rows.astype(np.uint16)
+    for i in range(200):
+        daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
+    assert daemon.ring.count > 15 and daemon.frame_clock.step < 1.0
+    model = daemon.model
+    same = copy.copy(model)
+    daemon._use_model(same)  # the same rate: the history stays
+    assert daemon.ring.count > 15
+    other = copy.copy(model)
+    other.meta = dataclasses.replace(model.meta, sample_rate_hz=70.0)
+    daemon._use_model(other)
+    assert daemon.ring.count == 0 and daemon.frame_clock.step == 1.0
+    for i in range(200, 230):
+        daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
+    assert daemon.ring.count == 30  # every frame of the 70 Hz stream, from the swap on
+
+
+@pytest.mark.parametrize(("model_hz", "device_hz"), [(32.0, 2.0), (1000.0, 32.0)])
+def test_a_stream_far_slower_than_the_model_is_measured_and_warned_about(model_hz, device_hz):
+    """Every gap is a break by the model's period until the stream's own is known: measured
+    from the first block, then one health line, and no more breaks."""
+    health, restarts = Health(), []
+    clock = FrameClock(1000.0 / model_hz, health, on_restart=lambda: restarts.append(1))
+    admit_all(clock, stamps(device_hz, 200))
+    assert clock.stream_period_ms == pytest.approx(1000.0 / device_hz, rel=0.01)
+    assert len(restarts) <= BLOCK and "slower" in health.last_error and health.frames_dropped == 0

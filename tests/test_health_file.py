@@ -30,3 +30,16 @@ def test_an_unwritable_status_file_is_logged_rarely_with_a_count(tmp_path, caplo
         folder.mkdir()
         assert status.write(data, now=600.0)
     assert "written again (600 failed writes in total)" in caplog.records[-1].getMessage()
+
+
+def test_a_repeated_error_is_counted_so_the_history_keeps_what_came_before():
+    health = Health()
+    health.report_error("model folder /m: missing", "model")
+    for _ in range(500):  # a device refusing every retry of a long outage
+        health.report_error("tcp://h:1: cannot connect: Connection refused", "device")
+    health.report_error("tcp://h:1: no reply within 10 s", "device")
+    errors = health.snapshot()["recent_errors"]
+    assert [e["error"] for e in errors] == ["model folder /m: missing", "tcp://h:1: cannot connect: Connection refused",
+                                            "tcp://h:1: no reply within 10 s"]
+    assert errors[1]["repeats"] == 500 and errors[1]["last_at"] >= errors[1]["at"]
+    assert "repeats" not in errors[2] and health.last_error == "tcp://h:1: no reply within 10 s"

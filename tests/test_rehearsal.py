@@ -3,10 +3,15 @@ and never changes a decision."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import threading
 import time
 
 import numpy as np
 
+import runtime.rehearsal as rehearsal_module
 from firmware_io.client import Frame
 from firmware_io.layout import SensorLayout
 from runtime.config import config_from_dict
@@ -14,6 +19,7 @@ from runtime.daemon import Daemon
 from runtime.model import load_model
 from runtime.rehearsal import REHEARSAL_LEAD_S, Rehearsal
 from runtime.sinks import Event
+from tests.conftest import ROOT
 from tests.tiny_models import tiny_model_bytes, write_model
 
 
@@ -57,3 +63,68 @@ def test_daemon_rehearses_before_each_due_frame_with_the_same_decisions(tmp_path
     (rehearsals, with_rehearsal), (_, without) = runs
     assert len(with_rehearsal) == 2 and rehearsals == 2 and with_rehearsal == without
     assert 0 < REHEARSAL_LEAD_S < 0.25 / 32
+
+
+def _daemon_with_a_rehearsal_scheduled(folder) -> Daemon:
+    """A daemon fed a push until the frame before a due one: a rehearsal is scheduled a period ahead."""
+    folder.mkdir(exist_ok=True)
+    write_model(folder, "m.onnx", tiny_model_bytes())
+    layout = SensorLayout.sdh2()
+    column = int(layout.columns("distal")[40])
+    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}}))
+    daemon.serve(load_model(folder / "m.onnx"), layout)
+    for i, level in enumerate([0] * 5 + [900] * 40):
+        values = np.zeros(layout.n_taxels, dtype=np.uint16)
+        values[column] = level
+        daemon.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
+        if daemon._pending and daemon._pending[0] == i + 1:
+            return daemon
+    raise AssertionError("no window became due")
+
+
+def test_a_reconnect_or_a_model_swap_mid_window_drops_the_scheduled_rehearsal(tmp_path):
+    daemon = _daemon_with_a_rehearsal_scheduled(tmp_path)
+    daemon._fit_layout(daemon.layout)  # the device reconnected (same layout): the history is forgotten
+    other = _daemon_with_a_rehearsal_scheduled(tmp_path / "b")
+    other._use_model(load_model(tmp_path / "m.onnx"))  # SIGHUP or the watcher swapped a model in
+    time.sleep(2 * daemon.period_s)
+    assert daemon.rehearsal.runs == 0 and other.rehearsal.runs == 0
+
+
+def test_dropped_daemons_leave_no_rehearsal_thread_and_shutdown_ends_it(tmp_path, monkeypatch):
+    """Replays and benchmarks make a daemon per stream and never call shutdown; the service does."""
+    monkeypatch.setattr(rehearsal_module, "IDLE_S", 0.1, raising=False)
+    before = threading.active_count()
+    for k in range(20):
+        _daemon_with_a_rehearsal_scheduled(tmp_path / str(k))
+    assert threading.active_count() >= before + 10
+    time.sleep(0.5)
+    assert threading.active_count() == before
+    daemon = _daemon_with_a_rehearsal_scheduled(tmp_path / "last")
+    monkeypatch.setattr(rehearsal_module, "IDLE_S", 60.0, raising=False)
+    time.sleep(0.1)  # rehearsed; idle now
+    started = time.perf_counter()
+    daemon.shutdown()
+    while threading.active_count() > before and time.perf_counter() - started < 1.0:
+        time.sleep(0.01)
+    assert threading.active_count() == before and time.perf_counter() - started < 0.5
+
+
+EXIT_DURING_A_REHEARSAL = """
+import threading, time, onnxruntime as ort
+from trainer.bench import hostile_models as H
+from runtime.rehearsal import Rehearsal
+session, window, started = ort.InferenceSession(H.slow(20_000)), H.pressed_window(), threading.Event()
+rehearsal = Rehearsal()
+rehearsal.schedule(lambda: (started.set(), session.run(None, {"frames": window})), time.perf_counter())
+started.wait(10)
+rehearsal.close()  # what Daemon.shutdown does; then the process exits
+"""
+
+
+def test_the_process_exits_cleanly_when_stopped_during_a_rehearsal():
+    """onnxruntime aborts a process that exits while another thread runs a session (SIGABRT,
+    "terminate called without an active exception"): a SIGTERM during a rehearsal did that."""
+    done = subprocess.run([sys.executable, "-c", EXIT_DURING_A_REHEARSAL], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0 and "terminate called" not in done.stderr, (done.returncode, done.stderr[-300:])

@@ -128,7 +128,7 @@ def write_results(out: str | Path, name: str, result: dict, markdown: list[str])
         f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
         f"onnxruntime {m['onnxruntime']}" + (f", scikit-learn {m['scikit-learn']}" if "scikit-learn" in m else "")
         + f". Load average at the start {result.get('load_before', m['load_average'])}, "
-        f"at the end {result.get('load_after', '?')} (the machine is shared; see the note).",
+        f"at the end {result.get('load_after', '?')}. " + _load_sentence(result, m),
         "",
         f"Reproduce: `{result['command']}`",
         "",
@@ -149,6 +149,14 @@ def _json_default(obj):
 
 def fmt_us(v: float | None) -> str:
     return "-" if v is None else (f"{v:.1f}" if v < 100 else f"{v:.0f}")
+
+
+def _load_sentence(result: dict, machine: dict) -> str:
+    """``load_note`` for a results file that recorded its load averages, else what is known."""
+    before, after = result.get("load_before"), result.get("load_after")
+    if isinstance(before, list) and isinstance(after, list) and before and after:
+        return load_note(before, after, machine.get("cores"))
+    return "The machine is shared: tails (p99, p99.9, max) may include other work."
 
 
 def load_note(before: list[float], after: list[float], cores: int | None) -> str:
