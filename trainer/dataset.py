@@ -43,6 +43,9 @@ from runtime.trigger_settings import (
 )
 
 ABOVE_FROM_START = "above the level from the first frame"
+NEVER = "never triggered"
+TOO_LATE = "triggered too late"
+TOO_EARLY = "triggered too early"
 
 
 class DatasetError(ValueError):
@@ -180,6 +183,38 @@ THRESHOLD_RULE = ("runtime.trigger.ThresholdTrigger: rising edge; a trial above 
                   "triggers only after dropping below the re-arm level")
 
 
+def untriggered_lines(ds: Dataset) -> list[str]:
+    """One line per class whose trials gave no case: how many, why, and what a recording needs."""
+    lines = []
+    for action in sorted({s.action for s in ds.untriggered}):
+        skipped = [s for s in ds.untriggered if s.action == action]
+        why: dict[str, int] = {}
+        for s in skipped:
+            key = s.reason.split(":")[0]
+            why[key] = why.get(key, 0) + 1
+        total = len(skipped) + int(np.sum(ds.y == action))
+        causes = "; ".join(f"{n} {key} ({_cause(key, ds)})" for key, n in sorted(why.items()))
+        lines.append(f"{action}: {len(skipped)} of {total} trials gave no case: {causes}")
+    return lines
+
+
+def _cause(reason: str, ds: Dataset) -> str:
+    """What a trial skipped for ``reason`` lacks, for the trigger that cut the data set."""
+    onset = ds.trigger.kind == "onset"
+    if reason == TOO_LATE:
+        return (f"fewer than T={ds.T} frames after the trigger: the action came late in the trial or the trial "
+                "stops too soon after go (handover record --trial-seconds)")
+    if reason == TOO_EARLY:
+        return "the window starts before the trial: record the held grasp before go (handover record --lead-in)"
+    if reason == ABOVE_FROM_START:
+        return (f"the held grasp already presses above {ds.fraction:g} x full scale, so there is no rising edge: "
+                "use --trigger onset or a higher --fraction")
+    if onset:
+        return (f"no pad departed by {ds.trigger.change:.0%} from the held grasp: the person did not act, or the "
+                "object was not held still before go")
+    return f"the pads never reached {ds.fraction:g} x full scale: a light grasp or a pull; use --trigger onset"
+
+
 def dataset_trigger(kind: str | None = None, fraction: float | None = None,
                     hysteresis: float = DEFAULT_HYSTERESIS) -> TriggerSettings:
     """The trigger that cuts training windows: ``kind`` if given; an explicit ``fraction`` alone
@@ -208,7 +243,7 @@ def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, 
     for i in range(len(rows)):
         if trig.update(rows[i], i) >= 0:
             return i, None
-    return -1, f"never triggered: no pad departed by {settings.change:.0%} from the settled grasp"
+    return -1, f"{NEVER}: no pad departed by {settings.change:.0%} from the settled grasp"
 
 
 def trigger_frame(frames: np.ndarray, level: float) -> int:
@@ -227,7 +262,7 @@ def rising_trigger(frames: np.ndarray, fullscale: float, fraction: float, hyster
     unless the first frame is already at or above the level (a trial is not its own rising edge).
     """
     if frames.size == 0:
-        return -1, "never triggered: no frames"
+        return -1, f"{NEVER}: no frames"
     levels = frames.max(axis=1).astype(np.float32)
     trig = ThresholdTrigger(1, fullscale, fraction=fraction, hysteresis=capped_hysteresis(fraction, hysteresis),
                             window=2)
@@ -241,7 +276,7 @@ def rising_trigger(frames: np.ndarray, fullscale: float, fraction: float, hyster
         return -1, (f"{ABOVE_FROM_START}: {int(levels[0])} >= {trig.on_level:.0f}, "
                     + ("no rising edge after re-arming" if rearmed else
                        f"never below the re-arm level {trig.off_level:.0f}"))
-    return -1, f"never triggered: max {int(levels.max())} < {trig.on_level:.0f}"
+    return -1, f"{NEVER}: max {int(levels.max())} < {trig.on_level:.0f}"
 
 
 def fingerprint(recordings: Sequence[Recording]) -> str:
@@ -349,9 +384,9 @@ def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, setting
         return str(why)
     start = trig - min(int(settings.pre_frames), T - 1)
     if start < 0:
-        return f"triggered too early: frame {trig}, {trig - start} frames before it needed"
+        return f"{TOO_EARLY}: frame {trig}, {trig - start} frames before it needed"
     if start + T > len(selected):
-        return f"triggered too late: frame {trig} of {len(selected)}, {T} frames needed"
+        return f"{TOO_LATE}: frame {trig} of {len(selected)}, {T} frames needed"
     return start, selected[start : start + T]
 
 

@@ -82,7 +82,7 @@ def train(options: TrainOptions) -> TrainResult:
     """Train, evaluate and export as ``options`` say; raises OptionsError for options that cannot
     train, and RecordingError, DatasetError, LayoutError, OSError or ValueError for data that cannot."""
     from trainer import report
-    from trainer.dataset import DatasetError, build_dataset, dataset_trigger
+    from trainer.dataset import DatasetError, build_dataset, dataset_trigger, untriggered_lines
     from trainer.evaluation import tsne_embedding
     from trainer.train_outputs import figures, headline, metrics_of, write_model
 
@@ -97,6 +97,8 @@ def train(options: TrainOptions) -> TrainResult:
     summary = ds.summary()
     say(f"{ds.n_trials} trials, {len(ds.y)} cases, {ds.n_untriggered} untriggered "
         f"{summary['untriggered_reasons'] or ''}")
+    for line in untriggered_lines(ds):
+        say(f"  {line}")
     problem = too_few_cases(ds)
     if problem:
         raise DatasetError(problem)

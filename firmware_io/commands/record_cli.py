@@ -16,6 +16,7 @@ from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
 from firmware_io.commands.out_folder import out_folder_problem
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
+from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 COMMAND = "record"
@@ -31,7 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", default=",".join(OBJECTS), help="comma-separated objects")
     parser.add_argument("--actions", default=",".join(ACTIONS), help="comma-separated actions")
     parser.add_argument("--runs", type=int, default=DEFAULT_RUNS, help="runs of each pose/object/action")
-    parser.add_argument("--trial-seconds", type=float, default=3.0, help="length of a trial (paper: 3 s)")
+    parser.add_argument("--trial-seconds", type=float, default=3.0, help="recorded after the go cue (paper: 3 s)")
+    parser.add_argument("--lead-in", type=float, default=LEAD_IN_SECONDS,
+                        help=f"recorded before the go cue: the held grasp the triggers need (default {LEAD_IN_SECONDS:g} s)")
     parser.add_argument("--gap", type=float, default=2.0, help="--auto: pause before each trial (seconds)")
     parser.add_argument("--countdown", type=int, default=3, help="seconds counted down before go")
     parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
@@ -95,8 +98,8 @@ def main(args: argparse.Namespace) -> int:
         plan, opts = _plan_and_options(args)
     except SessionError as exc:
         return fail(COMMAND, str(exc))
-    if args.trial_seconds <= 0.3 or args.gap < 0 or args.countdown < 0 or args.retries < 0:
-        return fail(COMMAND, "--trial-seconds must be > 0.3 and --gap, --countdown, --retries >= 0")
+    if args.trial_seconds <= 0.3 or min(args.gap, args.countdown, args.retries, args.lead_in) < 0:
+        return fail(COMMAND, "--trial-seconds must be > 0.3 and --lead-in, --gap, --countdown, --retries >= 0")
     if not is_trigger_level(args.fraction):
         return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
     problem = out_folder_problem(args.out)
@@ -121,7 +124,7 @@ def _plan_and_options(args: argparse.Namespace):
 
     plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)
     quick_look = None if args.no_look else lambda f, lay, c: trial_view(f, lay, c.first_frame)
-    opts = SessionOptions(trial_seconds=args.trial_seconds, gap_seconds=args.gap, countdown=args.countdown,
+    opts = SessionOptions(trial_seconds=args.trial_seconds, lead_in_seconds=args.lead_in, gap_seconds=args.gap, countdown=args.countdown,
                           fraction=args.fraction, pads=args.pads, auto=args.auto, retries=args.retries,
                           max_trials=args.max_trials, quick_look=quick_look)
     return plan, opts

@@ -1,7 +1,8 @@
 """Recording a subject session the paper's way: the plan, the file as the session state, capture, trigger check.
 
 The protocol is poses x objects x actions x runs (paper: 3 x 3 x 4 x 5 = 180 trials a
-subject, 3 s each). The subject's recording file is the only state: a trial is written
+subject, 3 s each). A trial is the held grasp before the go cue (``LEAD_IN_SECONDS``) and the
+trial seconds after it (``trial_capture``), so every trigger the trainer may use finds it. The subject's recording file is the only state: a trial is written
 (atomically) the moment it ends, so a session stopped by Ctrl-C, a crash or an unplugged
 device resumes by reading the file and recording the (pose, object, action, run) slots it
 lacks. Prompting is left to the caller through small callbacks (``SessionIO``), so the same
@@ -21,6 +22,7 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
+from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS, Capture, DeviceLost, capture_trial, drain
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 POSES = ("down", "up", "horizontal")
@@ -33,10 +35,6 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 class SessionError(ValueError):
     """A session that cannot start or continue (bad plan, foreign file, other sensor)."""
-
-
-class DeviceLost(RuntimeError):
-    """The device went away and did not come back; everything recorded so far is saved."""
 
 
 # -- the plan ---------------------------------------------------------------------------------
@@ -218,74 +216,6 @@ class SessionStore:
         return self.to_recording().save(self.path)
 
 
-# -- capture ----------------------------------------------------------------------------------
-@dataclass
-class Capture:
-    """Frames of one trial; ``reconnected`` means the link dropped during it (the trial is void)."""
-
-    frames: np.ndarray
-    stamps: np.ndarray
-    device_ms: np.ndarray
-    reconnected: bool = False
-    gaps: int = 0
-
-
-def drain(client, max_seconds: float = 0.25, fresh_wait: float = 0.005) -> int:
-    """Throw away frames that arrived before the trial starts; returns how many.
-
-    Queued and buffered frames come back at once; a frame we had to wait for is fresh, so the
-    backlog is gone. A source that never makes us wait (an emulator at full speed) is drained
-    for at most ``max_seconds``.
-    """
-    end = time.perf_counter() + max_seconds
-    n = 0
-    while time.perf_counter() < end:
-        t = time.perf_counter()
-        if client.read_frame(timeout=0.2) is None:
-            break
-        n += 1
-        if time.perf_counter() - t >= fresh_wait:
-            break
-    return n
-
-
-def capture_trial(client, seconds: float, frame_timeout: float = 2.0) -> Capture:
-    """Read frames for ``seconds`` of device time (the controller's clock, so any link speed works).
-
-    Timestamps are PC wall-clock seconds of the first frame plus device time since it: comparable
-    across sessions and free of the host's scheduling jitter. Raises DeviceLost when no frame comes.
-    """
-    reconnects = client.stats.get("reconnects", 0)
-    span_ms = seconds * 1000.0
-    frames, device_ms = [], []
-    wall0 = None
-    while True:
-        frame = client.read_frame(timeout=frame_timeout)
-        if frame is None:
-            raise DeviceLost(f"{client.url}: no frame for {frame_timeout:g} s")
-        if client.stats.get("reconnects", 0) != reconnects:
-            return Capture(_stack(frames, client), np.zeros(0), np.asarray(device_ms, np.int64), reconnected=True)
-        if wall0 is None:
-            wall0 = time.time() - (time.perf_counter() - frame.received)
-        elif frame.timestamp_ms - device_ms[0] >= span_ms:
-            break
-        frames.append(frame.values)
-        device_ms.append(frame.timestamp_ms)
-    dev = np.asarray(device_ms, dtype=np.int64)
-    rel = (dev - dev[0]) / 1000.0
-    if len(rel) > 1 and not np.all(np.diff(rel) > 0):  # device clock unusable: fall back to spacing
-        rel = np.arange(len(rel)) * (seconds / len(rel))
-    steps = np.diff(dev)
-    typical = float(np.median(steps)) if len(steps) else 0.0
-    gaps = int(np.sum(steps > 2.5 * typical)) if typical > 0 else 0
-    return Capture(_stack(frames, client), wall0 + rel, dev, gaps=gaps)
-
-
-def _stack(frames: list, client) -> np.ndarray:
-    n = client.layout.n_taxels if client.layout is not None else 0
-    return np.asarray(frames, dtype=np.uint16) if frames else np.zeros((0, n), np.uint16)
-
-
 # -- the session loop -------------------------------------------------------------------------
 @dataclass
 class SessionIO:
@@ -308,6 +238,9 @@ class SessionIO:
 @dataclass
 class SessionOptions:
     trial_seconds: float = DEFAULT_TRIAL_SECONDS
+    """recorded after the go cue (the person's reaction and action)."""
+    lead_in_seconds: float = LEAD_IN_SECONDS
+    """recorded before the go cue (the held grasp every trigger needs before the action)."""
     gap_seconds: float = 2.0
     """auto mode: pause before each go (the investigator re-places the object)."""
     countdown: int = 3
@@ -343,6 +276,7 @@ def run_session(client, store: SessionStore, plan: ProtocolPlan, opts: SessionOp
     check_trigger(np.zeros((1, store.layout.n_taxels), np.uint16), store.layout, opts.pads, opts.fraction)
     store.meta.setdefault("sessions", []).append(
         {"started": _now(), "protocol": plan.to_dict(), "trial_seconds": opts.trial_seconds,
+         "lead_in_seconds": opts.lead_in_seconds,
          "trigger_fraction": opts.fraction, "pads": opts.pads, "auto": opts.auto, **(session_info or {})})
     session_no = len(store.meta["sessions"])
     todo = store.remaining(plan)
@@ -389,9 +323,13 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
                 io.say(str(k))
                 io.sleep(1.0)
         drain(client)
-        io.say(f"Go: {slot.action}!")
-        annotations = io.cue("go", slot) or {}
-        capture = capture_trial(client, opts.trial_seconds)
+        annotations: dict = {}
+
+        def go(slot: TrialSlot = slot, annotations: dict = annotations) -> None:
+            io.say(f"Go: {slot.action}!")
+            annotations.update(io.cue("go", slot) or {})
+
+        capture = capture_trial(client, opts.trial_seconds, lead_in=opts.lead_in_seconds, go=go)
         io.cue("stop", slot)
         io.say("Stop.")
         if capture.reconnected:
@@ -402,8 +340,11 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             "triggered": check.triggered, "trigger_frame": check.first_frame, "peak": check.peak,
             "peak_fraction": round(check.peak_fraction, 4), "trigger_fraction": opts.fraction,
             "device_ms": int(capture.device_ms[0]), "frame_gaps": capture.gaps, "attempt": attempt,
-            "session": session_no, "recorded_at": _now(), **annotations,
+            "session": session_no, "recorded_at": _now(), **annotations, "go_frame": capture.go_frame,
+            "lead_in_s": opts.lead_in_seconds,
         }
+        if isinstance(annotations.get("onset"), int) and annotations["onset"] >= 0:
+            extra["onset"] = annotations["onset"] + capture.go_frame  # the cue's onset counts from go
         index = store.add(slot, capture.frames, capture.stamps, extra)
         result.recorded += 1
         if opts.quick_look is not None:

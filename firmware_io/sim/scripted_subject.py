@@ -2,7 +2,8 @@
 
 The recorder cues ``go`` with a trial slot (pose, object, action, run); the subject then plays a
 trial of the simulated hand (``firmware_io.sim``, synthetic data) for that slot through a
-DeviceEmulator, frame by frame, and idles (all zeros: empty hand) otherwise. Its frame clock is
+DeviceEmulator, frame by frame. On ``prepare`` ("place the object") the hand holds that trial's
+grasp until go; after ``stop`` it is empty (all zeros). Its frame clock is
 the emulator's, so sessions run in real time or as fast as they are read (``speed=None``).
 
 It also plays the faults a lab meets: a link that drops once at a given frame and comes back
@@ -82,7 +83,12 @@ class ScriptedSubject:
         self._attempts: dict[tuple, int] = {}
         self._segment: np.ndarray | None = None
         self._pos = 0
-        self._idle = np.zeros(self.layout.n_taxels, dtype=np.uint16)
+        self._empty = np.zeros(self.layout.n_taxels, dtype=np.uint16)
+        self._idle = self._empty
+        """What the hand reads between actions: empty, or the placed object's grasp."""
+        self._pending: tuple[np.ndarray, int] | None = None
+        self._pending_key: tuple = ()
+        self._pending_attempt = 0
         self._lock = threading.Lock()
         self.emulator = DeviceEmulator(_LiveSource(self, self.layout, FRAME_PERIOD_S), speed=speed, loop=True,
                                        faults=faults, seed=self.seed)
@@ -121,27 +127,43 @@ class ScriptedSubject:
 
     # -- the person side -----------------------------------------------------------------------------
     def cue(self, kind: str, slot) -> dict | None:
-        """The recorder's prompt. On ``go`` the subject acts; returns annotations for the trial."""
+        """The recorder's prompt; returns annotations for the trial on ``go``.
+
+        ``prepare`` ("place the object"): the object is placed and the hand holds it (the trial's
+        grasp, as the simulated protocol's trials start); ``go``: the subject acts; ``stop``: the
+        hand is emptied for the next placement."""
+        if kind == "prepare":
+            self._prepare(slot)
+            return None
         if kind == "stop":
             with self._lock:
-                self._segment = None
+                self._segment, self._idle = None, self._empty
             return None
         if kind != "go":
             return None
         self._gos += 1
-        key = (slot.pose, slot.object, slot.action, slot.run)
-        attempt = self._attempts.get(key, 0) + 1
-        self._attempts[key] = attempt
-        if self._gos in self.lazy:
+        key, attempt = self._pending_key, self._pending_attempt
+        if self._pending is None or key != (slot.pose, slot.object, slot.action, slot.run):
+            self._prepare(slot)  # go without prepare: place and act at once
+            key, attempt = self._pending_key, self._pending_attempt
+        frames, onset = self._pending
+        if self._gos in self.lazy:  # holds the object, does nothing
             self.performed.append({"slot": key, "attempt": attempt, "acted": False})
-            with self._lock:
-                self._segment, self._pos = None, 0
             return {"synthetic": True, "scripted_subject": {"seed": self.seed, "acted": False}}
-        frames, onset = self._render(slot, attempt)
         with self._lock:
             self._segment, self._pos = frames, 0
         self.performed.append({"slot": key, "attempt": attempt, "acted": True, "onset": onset})
         return {"synthetic": True, "onset": onset, "scripted_subject": {"seed": self.seed, "acted": True}}
+
+    def _prepare(self, slot) -> None:
+        """Place the object: the next attempt of this slot is drawn and its grasp held until go."""
+        key = (slot.pose, slot.object, slot.action, slot.run)
+        attempt = self._attempts.get(key, 0) + 1
+        self._attempts[key] = attempt
+        frames, onset = self._render(slot, attempt)
+        self._pending, self._pending_key, self._pending_attempt = (frames, onset), key, attempt
+        with self._lock:
+            self._segment, self._idle = None, frames[0]
 
     def _render(self, slot, attempt: int) -> tuple[np.ndarray, int]:
         """One simulated trial of this slot; every attempt is a new draw (a person never repeats exactly)."""
