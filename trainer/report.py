@@ -112,6 +112,9 @@ def plot_model_vs_baseline(metrics: dict, path: Path, synthetic: bool) -> Path:
         ("hand-designed features + SVM", [metrics["baseline_config1_accuracy_mean"], metrics["baseline_loso_accuracy"]],
          [metrics["baseline_config1_accuracy_std"], metrics["baseline_loso_subject_std"]]),
     ]
+    if metrics["loso_accuracy"] is None:  # one subject: configuration 2 was not measured, show configuration 1
+        names = names[:1]
+        series = [(label, values[:1], errors[:1]) for label, values, errors in series]
     x = np.arange(len(names))
     low, high = _zoomed_limits(series)
     fig, ax = plt.subplots(figsize=WIDE, dpi=DPI)
@@ -247,8 +250,7 @@ def _model_lines(metrics: dict) -> list[str]:
 
 
 def _results_lines(metrics: dict, label: str) -> list[str]:
-    c1, c2 = metrics["config1"], metrics["config2"]
-    b1, b2 = metrics["baseline_config1"], metrics["baseline_config2"]
+    c1, b1 = metrics["config1"], metrics["baseline_config1"]
     lines = [
         "",
         f"## Results ({label})",
@@ -257,12 +259,39 @@ def _results_lines(metrics: dict, label: str) -> list[str]:
         "|---|---|---|",
         f"| configuration 1: pooled, stratified random 80/20, {len(c1['accuracies'])} seeds (mean +/- std) | "
         f"{pct(c1['mean'])} +/- {pct(c1['std'])} | {pct(b1['mean'])} +/- {pct(b1['std'])} |",
+        *_loso_rows(metrics),
+        "",
+    ]
+    lines += _loso_lines(metrics, c1["split"])
+    lines += ["", "Per class, configuration 1 (summed over seeds):", "", *_class_table(c1["per_class"]), ""]
+    if metrics["config2"] is not None:
+        lines += ["Per class, configuration 2:", "", *_class_table(metrics["config2"]["per_class"]), ""]
+    return lines
+
+
+def _loso_rows(metrics: dict) -> list[str]:
+    """Configuration 2's rows of the results table, or one row saying why it was not measured."""
+    c2, b2 = metrics["config2"], metrics["baseline_config2"]
+    if c2 is None:
+        return [f"| configuration 2: leave one subject out | not measured: {metrics['loso_unavailable']} | "
+                "not measured |"]
+    return [
         f"| configuration 2: leave one subject out (all held-out predictions) | {pct(c2['accuracy'])} | "
         f"{pct(b2['accuracy'])} |",
         f"| configuration 2: mean +/- std over subjects | {pct(c2['subject_mean'])} +/- {pct(c2['subject_std'])} | "
         f"{pct(b2['subject_mean'])} +/- {pct(b2['subject_std'])} |",
-        "",
-        f"Splits: configuration 1 = {c1['split']}. Configuration 2 = {c2['split']}.",
+    ]
+
+
+def _loso_lines(metrics: dict, split1: str) -> list[str]:
+    """The splits, and configuration 2 per held-out subject (or why there is none)."""
+    c2, b2 = metrics["config2"], metrics["baseline_config2"]
+    if c2 is None:
+        return [f"Splits: configuration 1 = {split1}. Configuration 2 (leave one subject out) was not measured: "
+                f"{metrics['loso_unavailable']}. The model was trained and exported as usual; the figure above "
+                "is for the people it was trained on, not for new people."]
+    lines = [
+        f"Splits: configuration 1 = {split1}. Configuration 2 = {c2['split']}.",
         "",
         "Leave-one-subject-out, per held-out subject:",
         "",
@@ -271,8 +300,6 @@ def _results_lines(metrics: dict, label: str) -> list[str]:
     ]
     for s, acc in c2["per_subject"].items():
         lines.append(f"| {s} | {pct(acc)} | {pct(b2['per_subject'][s])} |")
-    lines += ["", "Per class, configuration 1 (summed over seeds):", "", *_class_table(c1["per_class"]),
-              "", "Per class, configuration 2:", "", *_class_table(c2["per_class"]), ""]
     return lines
 
 

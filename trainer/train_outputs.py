@@ -11,11 +11,13 @@ from trainer.train_options import TrainOptions
 
 def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict | None, selection, *, source: str,
                synthetic: bool) -> dict:
-    """metrics.json: where the data came from, both configurations against the baseline, the settings."""
+    """metrics.json: where the data came from, both configurations against the baseline, the settings.
+    With one subject the configuration-2 fields are None and ``loso_unavailable`` says why."""
     from trainer.classifier import margin_report
 
-    c1, c2 = evaluation["config1"], evaluation["config2"]
-    b1, b2 = evaluation["baseline_config1"], evaluation["baseline_config2"]
+    c1, c2 = evaluation["config1"], evaluation["config2"] or {}
+    b1, b2 = evaluation["baseline_config1"], evaluation["baseline_config2"] or {}
+    missing = {"loso_unavailable": evaluation["loso_unavailable"]} if "loso_unavailable" in evaluation else {}
     window = options.window
     windows = [int(w) for w in window] if isinstance(window, tuple) else [int(window)]
     return {
@@ -24,13 +26,14 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
         "fingerprint": ds.fingerprint,
         "config1_accuracy_mean": c1["mean"],
         "config1_accuracy_std": c1["std"],
-        "loso_accuracy": c2["accuracy"],
-        "loso_per_subject": c2["per_subject"],
-        "loso_subject_std": c2["subject_std"],
+        "loso_accuracy": c2.get("accuracy"),
+        "loso_per_subject": c2.get("per_subject"),
+        "loso_subject_std": c2.get("subject_std"),
+        **missing,
         "baseline_config1_accuracy_mean": b1["mean"],
         "baseline_config1_accuracy_std": b1["std"],
-        "baseline_loso_accuracy": b2["accuracy"],
-        "baseline_loso_subject_std": b2["subject_std"],
+        "baseline_loso_accuracy": b2.get("accuracy"),
+        "baseline_loso_subject_std": b2.get("subject_std"),
         "K": options.K, "W": max(windows), "windows": windows, "T": options.T, "kernel": model.kernel,
         "families": list(getattr(model, "families", ("bow",))), "selection": selection and selection.to_dict(),
         "per_pad": options.per_pad, "pads": options.pads, "trigger_fraction": ds.fraction,
@@ -41,7 +44,8 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
         "n_windows_before_onset": ds.windows_before_onset,
         "untriggered": [s.to_dict() for s in ds.untriggered],
         "dataset": ds.summary(),
-        "config1": c1, "config2": c2, "baseline_config1": b1, "baseline_config2": b2,
+        "config1": c1, "config2": evaluation["config2"], "baseline_config1": b1,
+        "baseline_config2": evaluation["baseline_config2"],
         "sweep": sweep,
     }
 
@@ -91,6 +95,7 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "loso_accuracy": metrics["loso_accuracy"],
             "loso_per_subject": metrics["loso_per_subject"],
             "baseline_loso_accuracy": metrics["baseline_loso_accuracy"],
+            **({"loso_unavailable": metrics["loso_unavailable"]} if "loso_unavailable" in metrics else {}),
         },
     )
 
@@ -123,8 +128,11 @@ def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> d
         "Confusion matrix, configuration 1": report.plot_confusion(
             c1["confusion"], c1["labels"], f"config 1: pooled 80/20, {options.repeats} seeds{tag}",
             out / "confusion_config1.png").name,
-        "Confusion matrix, configuration 2": report.plot_confusion(
-            c2["confusion"], c2["labels"], f"config 2: leave one subject out{tag}", out / "confusion_loso.png").name,
+    }
+    if c2 is not None:
+        shown["Confusion matrix, configuration 2"] = report.plot_confusion(
+            c2["confusion"], c2["labels"], f"config 2: leave one subject out{tag}", out / "confusion_loso.png").name
+    shown |= {
         f"{report.model_label(metrics['families'])} vs the hand-designed baseline": report.plot_model_vs_baseline(
             metrics, out / "model_vs_baseline.png", synthetic).name,
         f"t-SNE of the {report.features_label(metrics['families'])}": report.plot_tsne(
@@ -156,7 +164,8 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
         f"T={metrics['T']} {metrics['kernel']} SVM"
         + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
         f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
-        f"{pct(metrics['baseline_loso_accuracy'])})",
+        f"{pct(metrics['baseline_loso_accuracy'])})" if metrics["loso_accuracy"] is not None
+        else f"  leave one subject out: not measured ({metrics['loso_unavailable']})",
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
         f"{pct(metrics['baseline_config1_accuracy_mean'])})",
         f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
