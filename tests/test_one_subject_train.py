@@ -41,3 +41,18 @@ def test_one_subject_trains_exports_and_says_loso_needs_a_second(tmp_path, capsy
     assert "Per class, configuration 1" in text and "Per class, configuration 2" not in text
     assert (out / "model_vs_baseline.png").is_file() and (out / "confusion_config1.png").is_file()
     assert not (out / "confusion_loso.png").exists()
+
+
+def test_one_subject_select_uses_folds_grouped_by_run(tmp_path, capsys):
+    """--select cannot leave a subject out either: it chooses on folds grouped by recording run."""
+    data, out = tmp_path / "data", tmp_path / "report"
+    write_standin(data, n_subjects=1, runs=4)
+    code = handover(["train", "--data", str(data), "--out", str(out), "--pads", "distal", "--T", "12",
+                     "--repeats", "2", "--fraction", "0.15", "--no-sweep", "--no-onnx", "--select", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert captured.err.strip() == f"handover train: {LOSO_NEEDS_A_SECOND_SUBJECT}"
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["selection"]["split"] == "one subject: folds grouped by recording run"
+    assert metrics["loso_accuracy"] is None and metrics["loso_unavailable"] == LOSO_NEEDS_A_SECOND_SUBJECT
+    assert "## Model selection (--select)" in (out / "report.md").read_text()
