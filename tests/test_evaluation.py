@@ -31,7 +31,7 @@ def test_loso_never_puts_a_subject_in_both_sides():
         assert set(groups[s.test]) == {s.name}
         assert s.name not in set(groups[s.train])
         assert len(s.train) + len(s.test) == len(y)
-    with pytest.raises(ValueError, match="at least 2 subjects"):
+    with pytest.raises(ValueError, match="needs a second subject"):
         loso_splits(np.array(["a", "a"]))
 
 
