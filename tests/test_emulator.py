@@ -7,8 +7,7 @@ import pytest
 
 from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
 from firmware_io.emulator.frame_source import placeholder_session
-from firmware_io.wire import replies
-from firmware_io.wire import requests
+from firmware_io.wire import replies, requests
 from firmware_io.wire.device_time import TimestampUnwrapper
 from firmware_io.wire.errors import DeviceError, DSAErrorCode
 from firmware_io.wire.frames import decode_frame_payload
