@@ -17,7 +17,6 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from runtime.decision import ContinuousDecision
 from runtime.health import Health
-from runtime.heap import settle_heap
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.quarantine import QuarantineStore
 from runtime.ring import RingBuffer
@@ -127,7 +126,6 @@ class ModelServing:
         what = "swapped in" if old is not None else "serving"
         log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
                  model.meta.T, ",".join(model.meta.classes))
-        settle_heap()  # between windows: the model's long-lived objects leave the collector's walk
 
     def _build_hot_path(self, keep_history: bool) -> None:
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""

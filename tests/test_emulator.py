@@ -7,32 +7,12 @@ import pytest
 
 from firmware_io.emulator.device import DeviceEmulator, FaultPlan, FaultSpecError
 from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.wire import replies, requests
 from firmware_io.wire.device_time import TimestampUnwrapper
 from firmware_io.wire.errors import DeviceError, DSAErrorCode
 from firmware_io.wire.frames import decode_frame_payload
 from firmware_io.wire.packets import Packet, encode_ack, encode_packet, error_code_of
 from firmware_io.wire.parser import StreamParser
-from firmware_io.wire.replies import (
-    ControllerInfo,
-    MatrixInfoReply,
-    MatrixMaskReply,
-    SensitivityReply,
-    SensorInfo,
-    ThresholdReply,
-)
-from firmware_io.wire.requests import (
-    SetSensitivityRequest,
-    SetThresholdRequest,
-    get_sensitivity_request,
-    get_threshold_request,
-    push_request,
-    query_controller_info_request,
-    query_matrix_info_request,
-    query_sensor_info_request,
-    read_matrix_mask_request,
-    single_frame_request,
-    stop_request,
-)
 
 
 class FakeClock:
@@ -62,29 +42,29 @@ def ask(emu, packet: bytes) -> list[Packet]:
 
 def test_queries_answer_with_reference_sizes(rec):
     emu, _ = make(rec)
-    (ctrl,) = ask(emu, query_controller_info_request())
+    (ctrl,) = ask(emu, requests.query_controller_info_request())
     assert ctrl.packet_id == 0x01 and len(ctrl.payload) == 18
-    assert ControllerInfo.decode(ctrl.payload).firmware == "2.9.0.0"
-    (sens,) = ask(emu, query_sensor_info_request())
-    assert SensorInfo.decode(sens.payload).nb_matrices == 6
+    assert replies.ControllerInfo.decode(ctrl.payload).firmware == "2.9.0.0"
+    (sens,) = ask(emu, requests.query_sensor_info_request())
+    assert replies.SensorInfo.decode(sens.payload).nb_matrices == 6
     layout = rec.layout
     for m in range(6):
-        (mi,) = ask(emu, query_matrix_info_request(m))
+        (mi,) = ask(emu, requests.query_matrix_info_request(m))
         assert len(mi.payload) == 52
-        info = MatrixInfoReply.decode(mi.payload).to_matrix_info(m)
+        info = replies.MatrixInfoReply.decode(mi.payload).to_matrix_info(m)
         assert (info.cells_x, info.cells_y) == (layout.matrices[m].cells_x, layout.matrices[m].cells_y)
-    (mask,) = ask(emu, read_matrix_mask_request(1))
-    assert np.array_equal(MatrixMaskReply.decode(mask.payload).to_mask(6, 13), layout.matrices[1].mask)
+    (mask,) = ask(emu, requests.read_matrix_mask_request(1))
+    assert np.array_equal(replies.MatrixMaskReply.decode(mask.payload).to_mask(6, 13), layout.matrices[1].mask)
 
 
 def test_errors_unknown_command_bad_index_short_payload(rec):
     emu, _ = make(rec)
     emu.feed(encode_packet(0x77, b"\x01"))
     assert emu.read() == encode_ack(0x77, DSAErrorCode.CMD_UNKNOWN)
-    (r,) = ask(emu, query_matrix_info_request(6))
+    (r,) = ask(emu, requests.query_matrix_info_request(6))
     assert error_code_of(r.payload) == DSAErrorCode.INDEX_OUT_OF_BOUNDS
     with pytest.raises(DeviceError):
-        MatrixInfoReply.decode(r.payload)
+        replies.MatrixInfoReply.decode(r.payload)
     (r,) = ask(emu, encode_packet(0x0B, b""))
     assert error_code_of(r.payload) == DSAErrorCode.CMD_NOT_ENOUGH_PARAMS
     (r,) = ask(emu, encode_packet(0x03, b"\x80\x01\x00\x00"))
@@ -94,19 +74,19 @@ def test_errors_unknown_command_bad_index_short_payload(rec):
 
 def test_sensitivity_and_threshold_round_trip_and_persistent_silence(rec):
     emu, _ = make(rec)
-    (r,) = ask(emu, SetThresholdRequest(2, 150).to_packet())
+    (r,) = ask(emu, requests.SetThresholdRequest(2, 150).to_packet())
     assert error_code_of(r.payload) == 0
-    (r,) = ask(emu, get_threshold_request(2))
-    assert ThresholdReply.decode(r.payload).threshold == 150
-    assert ask(emu, SetThresholdRequest(3, 99, persistent=True).to_packet()) == []
-    (r,) = ask(emu, get_threshold_request(3))
-    assert ThresholdReply.decode(r.payload).threshold == 99
-    (r,) = ask(emu, SetSensitivityRequest(1, 0.25).to_packet())
+    (r,) = ask(emu, requests.get_threshold_request(2))
+    assert replies.ThresholdReply.decode(r.payload).threshold == 150
+    assert ask(emu, requests.SetThresholdRequest(3, 99, persistent=True).to_packet()) == []
+    (r,) = ask(emu, requests.get_threshold_request(3))
+    assert replies.ThresholdReply.decode(r.payload).threshold == 99
+    (r,) = ask(emu, requests.SetSensitivityRequest(1, 0.25).to_packet())
     assert error_code_of(r.payload) == 0
-    (r,) = ask(emu, get_sensitivity_request(1))
-    reply = SensitivityReply.decode(r.payload)
+    (r,) = ask(emu, requests.get_sensitivity_request(1))
+    reply = replies.SensitivityReply.decode(r.payload)
     assert reply.cur_sens == pytest.approx(0.25) and reply.fact_sens == pytest.approx(0.5)
-    assert ask(emu, SetSensitivityRequest(1, 0.75, persistent=True).to_packet()) == []
+    assert ask(emu, requests.SetSensitivityRequest(1, 0.75, persistent=True).to_packet()) == []
     bad = encode_packet(0x13, bytes([0, 0]) + (5000).to_bytes(2, "little"))
     (r,) = ask(emu, bad)
     assert error_code_of(r.payload) == DSAErrorCode.RANGE_ERROR
@@ -115,7 +95,7 @@ def test_sensitivity_and_threshold_round_trip_and_persistent_silence(rec):
 @pytest.mark.parametrize("rle", [True, False])
 def test_push_frames_equal_recording_and_follow_its_timing(rec, rle):
     emu, clock = make(rec, speed=1.0)
-    packets = ask(emu, push_request(rle=rle))
+    packets = ask(emu, requests.push_request(rle=rle))
     assert packets[0].packet_id == 0x03 and error_code_of(packets[0].payload) == 0
     parser = StreamParser(rec.layout.n_taxels)
     got = [p for p in packets[1:]]
@@ -135,24 +115,24 @@ def test_push_frames_equal_recording_and_follow_its_timing(rec, rle):
 
 def test_single_frame_and_old_firmware_push_bug(rec):
     emu, clock = make(rec, speed=1.0)
-    packets = ask(emu, single_frame_request())
+    packets = ask(emu, requests.single_frame_request())
     assert [p.packet_id for p in packets] == [0x03, 0x00]
     clock.t += 1.0
     assert emu.read() == b"" and not emu.pushing
     old, clock = make(rec, speed=1.0, old_firmware=True)
-    (ctrl,) = ask(old, query_controller_info_request())
-    assert ControllerInfo.decode(ctrl.payload).single_frame_broken
-    ask(old, single_frame_request())
+    (ctrl,) = ask(old, requests.query_controller_info_request())
+    assert replies.ControllerInfo.decode(ctrl.payload).single_frame_broken
+    ask(old, requests.single_frame_request())
     clock.t += 1.0
     assert old.pushing and len(StreamParser(486).feed(old.read(1 << 20))) > 10
-    ask(old, stop_request())
+    ask(old, requests.stop_request())
     clock.t += 1.0
     assert old.read() == b""
 
 
 def test_max_speed_no_loop_finishes(rec):
     emu, _ = make(rec, speed=None, loop=False)
-    emu.feed(push_request())
+    emu.feed(requests.push_request())
     parser = StreamParser(rec.layout.n_taxels)
     frames = []
     for _ in range(1000):
@@ -164,7 +144,7 @@ def test_max_speed_no_loop_finishes(rec):
 
 def test_loop_continues_device_time(rec):
     emu, _ = make(rec, speed=None, loop=True, start_ms=(1 << 32) - 500)
-    emu.feed(push_request())
+    emu.feed(requests.push_request())
     parser = StreamParser(rec.layout.n_taxels)
     frames = []
     while len(frames) < rec.n_frames + 3:
@@ -180,7 +160,7 @@ def test_faults_are_counted_by_emulator_and_parser(rec):
     emu, _ = make(rec, speed=None, faults=plan, seed=3)
     parser = StreamParser(rec.layout.n_taxels)
     parser.feed(emu.read(1 << 16))  # boot query before anything
-    emu.feed(push_request())
+    emu.feed(requests.push_request())
     good = 0
     while emu.stats.frames_sent < 300:
         for p in parser.feed(emu.read(1 << 16)):
@@ -197,7 +177,7 @@ def test_faults_are_counted_by_emulator_and_parser(rec):
 
 def test_stall_and_disconnect(rec):
     emu, clock = make(rec, speed=None, faults=FaultPlan(stall=1.0, stall_seconds=0.5, disconnect_after=3))
-    emu.feed(push_request())
+    emu.feed(requests.push_request())
     assert emu.read(1 << 16)  # ack + first frame, then the stall starts
     assert emu.read(1 << 16) == b"" and emu.seconds_until_output() == pytest.approx(0.5)
     clock.t += 0.6

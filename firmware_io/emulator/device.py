@@ -34,18 +34,11 @@ from typing import ClassVar
 import numpy as np
 
 from firmware_io.recordings.recording import Recording
+from firmware_io.wire import replies
 from firmware_io.wire.errors import DSAErrorCode, ProtocolError
 from firmware_io.wire.frames import MAX_TEXEL_VALUE, encode_frame
 from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, PacketId, encode_ack
 from firmware_io.wire.parser import StreamParser
-from firmware_io.wire.replies import (
-    ControllerInfo,
-    MatrixInfoReply,
-    MatrixMaskReply,
-    SensitivityReply,
-    SensorInfo,
-    ThresholdReply,
-)
 from firmware_io.wire.requests import FLAG_PERSISTENT, AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
 
 NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
@@ -191,7 +184,7 @@ class DeviceEmulator:
         n = self.layout.n_matrices
         self._thresholds = [0] * n
         self._sensitivity = [FACTORY_SENSITIVITY] * n
-        self.controller = ControllerInfo(
+        self.controller = replies.ControllerInfo(
             serial_no=serial_no, hw_version=1, sw_version=OLD_FIRMWARE if old_firmware else NEW_FIRMWARE
         )
         self.sensor = recorded_sensor(getattr(recording, "meta", None) or {}, self.layout.n_matrices, serial_no)
@@ -370,14 +363,14 @@ class DeviceEmulator:
             return m
         info = self.layout.matrices[m]
         uid = struct.pack("<IH", self.controller.serial_no, m)
-        return MatrixInfoReply.from_matrix_info(info, uid=uid, feature_flags=0x02).to_packet()
+        return replies.MatrixInfoReply.from_matrix_info(info, uid=uid, feature_flags=0x02).to_packet()
 
     def _on_mask(self, payload: bytes, now: float) -> bytes:
         if len(payload) != 2:
             raise ProtocolError("mask request needs two bytes")
         if payload[1] >= self.layout.n_matrices:
             return encode_ack(PacketId.READ_MATRIX_MASK, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
-        return MatrixMaskReply.from_mask(self.layout.matrices[payload[1]].mask).to_packet()
+        return replies.MatrixMaskReply.from_mask(self.layout.matrices[payload[1]].mask).to_packet()
 
     def _on_acquisition(self, payload: bytes, now: float) -> bytes:
         cfg = AcquisitionConfig.decode(payload)
@@ -420,7 +413,7 @@ class DeviceEmulator:
         m = self._matrix(PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO, payload)
         if isinstance(m, bytes):
             return m
-        return SensitivityReply(0x02, self._sensitivity[m], FACTORY_SENSITIVITY).to_packet()
+        return replies.SensitivityReply(0x02, self._sensitivity[m], FACTORY_SENSITIVITY).to_packet()
 
     def _on_set_threshold(self, payload: bytes, now: float) -> bytes:
         req = SetThresholdRequest.decode(payload)
@@ -438,7 +431,7 @@ class DeviceEmulator:
         m = self._matrix(PacketId.GET_MATRIX_THRESHOLD, payload)
         if isinstance(m, bytes):
             return m
-        return ThresholdReply(self._thresholds[m]).to_packet()
+        return replies.ThresholdReply(self._thresholds[m]).to_packet()
 
     _HANDLERS: ClassVar[dict[int, Callable[[DeviceEmulator, bytes, float], bytes]]] = {
         PacketId.QUERY_CONTROLLER_CONFIGURATION: _on_controller,
@@ -464,10 +457,10 @@ _MIN_SIZE = {
 }
 
 
-def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> SensorInfo:
+def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> replies.SensorInfo:
     """The sensor a recording was made with (serial number, generator, hardware revision), as
     DSA-Konqueror files and ``handover record`` sessions store them; defaults where absent."""
-    fields = {"serial_no": default_serial, "generated_by": SensorInfo.generated_by, "hw_revision": SensorInfo.hw_revision}
+    fields = {"serial_no": default_serial, "generated_by": replies.SensorInfo.generated_by, "hw_revision": replies.SensorInfo.hw_revision}
     sessions = meta.get("sessions") or []
     controller = (sessions[-1].get("controller") or {}) if sessions and isinstance(sessions[-1], dict) else {}
     candidates = {"serial_no": (meta.get("dsa_serial_nr"), meta.get("sensor_serial_no"), controller.get("sensor_serial_no")),
@@ -482,4 +475,4 @@ def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> SensorI
             if 0 <= number <= limits[key]:
                 fields[key] = number
                 break
-    return SensorInfo(nb_matrices=n_matrices, **fields)
+    return replies.SensorInfo(nb_matrices=n_matrices, **fields)
