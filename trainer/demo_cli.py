@@ -264,6 +264,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
         "latency_p99_us": float(np.percentile(lat, 99)) if lat.size else None,
         "latency_max_us": float(lat.max()) if lat.size else None,
         "deadline_us": 1e6 / 32.0,
+        "replayed_at": args.speed,
         "missed_deadlines": int(h.missed_deadlines),
         "frames_received": int(h.frames_received),
         "frames_dropped": int(h.frames_dropped),
@@ -293,6 +294,9 @@ def _print_summary(s: dict) -> None:
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
           f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
           f"missed deadlines {s['missed_deadlines']}")
+    if str(s.get("replayed_at", "1.0")) not in ("1", "1.0"):
+        print(f"  (replayed at speed {s['replayed_at']}: frames arrive in bursts and a frame's arrival -> decision "
+              "includes the frames queued before it; at speed 1.0 it is the daemon's own time)")
     print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
     print(f"  total {s['seconds']:.0f} s")
 
