@@ -193,7 +193,7 @@ def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, 
         daemon.run()
     finally:
         server.stop()
-    return _summary(args, daemon, events.decisions, session.trials)
+    return {**_summary(args, daemon, events.decisions, session.trials), "real_time": speed == 1.0}
 
 
 def _daemon_config(args: argparse.Namespace, url: str, model_dir: Path):
@@ -294,7 +294,7 @@ def _print_summary(s: dict) -> None:
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
           f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
           f"missed deadlines {s['missed_deadlines']}")
-    if str(s.get("replayed_at", "1.0")) not in ("1", "1.0"):
+    if not s.get("real_time", True):
         print(f"  (replayed at speed {s['replayed_at']}: frames arrive in bursts and a frame's arrival -> decision "
               "includes the frames queued before it; at speed 1.0 it is the daemon's own time)")
     print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
