@@ -121,9 +121,12 @@ class SVMHead:
     Subclasses provide ``transform_histograms(X)`` (the graph's feature tensor) and ``svm_input``.
     """
 
-    def _fit_scaled_svm(self, features: np.ndarray, y: np.ndarray) -> None:
-        """Standardise the features, choose C/gamma, fit the SVC: ``scaler_``, ``best_params_``, ``svm_``."""
+    def _fit_scaled_svm(self, features: np.ndarray, y: np.ndarray, weigh=None) -> None:
+        """Standardise the features, choose C/gamma, fit the SVC: ``scaler_``, ``best_params_``, ``svm_``.
+        ``weigh`` (standardised features -> a weight per feature) is folded into the scaler's ``scale_``."""
         self.scaler_ = StandardScaler().fit(features)
+        if weigh is not None:
+            self.scaler_.scale_ = self.scaler_.scale_ / weigh(self.scaler_.transform(features))
         scaled = self.scaler_.transform(features)
         self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma)
         self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(scaled, y)
