@@ -4,8 +4,8 @@ Families (``trainer.features``): ``bow`` (the paper's derivative-window histogra
 ``stats`` (per-pad level statistics), ``rocket`` (MiniRocket-style PPV of per-pad signals), ``hand``
 (the paper's hand-designed baseline features). Their features are concatenated in the order given,
 standardised (StandardScaler on the training cases: families differ in scale) and fed to an SVC
-whose C (and gamma) come from the same cross-validated search as BowSVC. ``block_scaling``
-(``trainer.block_scaling``; off by default) weighs the standardised families equally in the distance.
+whose C (and gamma) come from the same cross-validated search as BowSVC. ``feature_weighting``
+(``trainer.feature_weighting``; off by default) reweighs the standardised features in the distance.
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.validation import check_is_fitted
 
-from trainer.block_scaling import block_weights, check_block_scaling
 from trainer.bow import BagOfWords, check_case_shape
 from trainer.classifier import SVMHead, check_training_data
 from trainer.defaults import DEFAULT_MODEL
+from trainer.feature_weighting import check_feature_weighting, feature_weights
 
 FAMILIES = ("bow", "stats", "rocket", "hand")
 
@@ -29,8 +29,8 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
 
     ``pad_sizes``: channels per pad in channel order (None: one pad); ``pad_shapes``: their
     ``(rows, cols)`` (default: SDH-2 pads, 6 taxels wide). ``n_words``/``window``: the BoW family;
-    ``dilations``/``n_biases``: the rocket family. ``block_scaling``: None (one StandardScaler over
-    all features), ``"count"`` or ``"mfa"`` (each family's block weighed equally, folded into the scaler).
+    ``dilations``/``n_biases``: the rocket family. ``feature_weighting``: None (one StandardScaler over
+    all features) or a rule of ``trainer.feature_weighting`` (weights folded into the scaler).
 
     Fitted: ``blocks_`` (fitted families, in order), ``bow_`` (the BagOfWords when ``bow`` is a
     family, else absent), ``bow_slice_``, ``scaler_``, ``svm_``, ``classes_``, ``best_params_``,
@@ -40,7 +40,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     def __init__(self, families: Sequence[str] = DEFAULT_MODEL["families"], pad_sizes: Sequence[int] | None = None,
                  pad_shapes=None, kernel: str = DEFAULT_MODEL["kernel"], C: float | None = None, gamma: float | str | None = None,
                  n_words: int = DEFAULT_MODEL["K"], window: int = DEFAULT_MODEL["W"], dilations=(1, 2), n_biases: int = 1, random_state=0,
-                 fullscale: float = 4095.0, block_scaling: str | None = None):
+                 fullscale: float = 4095.0, feature_weighting: str | None = None):
         self.families = families
         self.pad_sizes = pad_sizes
         self.pad_shapes = pad_shapes
@@ -53,7 +53,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         self.n_biases = n_biases
         self.random_state = random_state
         self.fullscale = fullscale
-        self.block_scaling = block_scaling
+        self.feature_weighting = feature_weighting
 
     def _family(self, name: str):
         from trainer.features import HandGraphFeatures, PadStats, RandomConvPPV
@@ -76,7 +76,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         names = tuple(self.families)
         if not names or len(set(names)) != len(names):
             raise ValueError(f"families must be distinct names from {FAMILIES}, got {self.families!r}")
-        check_block_scaling(self.block_scaling)
+        check_feature_weighting(self.feature_weighting)
         _, self.n_channels_, self.n_timepoints_ = X.shape
         self.n_features_in_ = self.n_channels_ * self.n_timepoints_
         self.blocks_ = [(name, self._family(name).fit(X, y)) for name in names]
@@ -88,7 +88,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
             start += block.n_features_out_
         sizes = [block.n_features_out_ for _, block in self.blocks_]
         self._fit_scaled_svm(self.transform_histograms(X), y,
-                             weigh=lambda scaled: block_weights(scaled, sizes, self.block_scaling))
+                             weigh=lambda scaled: feature_weights(scaled, sizes, self.feature_weighting))
         return self
 
     def transform_histograms(self, X) -> np.ndarray:
@@ -124,8 +124,8 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         check_is_fitted(self, "blocks_")
         out = {"families": [name for name, _ in self.blocks_],
                "n_features": int(sum(b.n_features_out_ for _, b in self.blocks_)), "scale_features": True}
-        if self.block_scaling is not None:
-            out["block_scaling"] = self.block_scaling
+        if self.feature_weighting is not None:
+            out["feature_weighting"] = self.feature_weighting
         if hasattr(self, "bow_"):
             out.update(windows=[int(w) for w, _, _ in self.bow_.scales()], n_words=int(self.bow_.n_words),
                        feature_groups=[int(s) for s in self.bow_.pad_sizes_])

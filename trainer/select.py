@@ -34,6 +34,7 @@ CANDIDATES: tuple[tuple[str, tuple[str, ...], str, dict], ...] = (
     ("stats+bow rbf", ("stats", "bow"), "rbf", {}),
     ("stats rbf", ("stats",), "rbf", {}),
     ("hand+stats rbf", ("hand", "stats"), "rbf", {}),
+    ("hand+stats rbf distinct", ("hand", "stats"), "rbf", {"feature_weighting": "distinct"}),
     ("rocket+stats linear", ("rocket", "stats"), "linear", ROCKET_SETTINGS),
     ("hand rbf", ("hand",), "rbf", {}),
     ("bow per-pad linear", ("bow",), "linear", {}),

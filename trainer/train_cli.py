@@ -16,6 +16,7 @@ from firmware_io.commands.errors import fail
 from runtime.trigger_settings import PAPER_FRACTION
 from trainer.train_options import (
     ASSIGNMENTS,
+    FEATURE_WEIGHTING_CHOICES,
     KERNELS,
     TRIGGERS,
     OptionsError,
@@ -43,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "RBF's error on the simulated protocol with per-pad histograms and is faster)")
     parser.add_argument("--C", type=float, default=None, help="SVM C (default: cross-validated search)")
     parser.add_argument("--gamma", type=float, default=None, help="RBF gamma (default: cross-validated search)")
+    parser.add_argument("--feature-weighting", choices=FEATURE_WEIGHTING_CHOICES, default=None,
+                        help="reweigh the standardised features in the SVM's distance (trainer/feature_weighting.py): "
+                        "distinct (a quantity two families both compute counts once), block_count or block_mfa "
+                        "(every family weighs the same); default: unweighted")
     parser.add_argument("--per-pad", action=argparse.BooleanOptionalAction, default=D.per_pad,
                         help="one histogram per pad (default: on); --no-per-pad gives the paper's single histogram "
                         "per case (and bow alone: the paper's configuration)")

@@ -11,10 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
+from trainer.feature_weighting import FEATURE_WEIGHTINGS
 
 KERNELS = ("rbf", "linear")
 ASSIGNMENTS = ("hard", "soft")
 TRIGGERS = ("onset", "threshold")
+FEATURE_WEIGHTING_CHOICES = tuple(w for w in FEATURE_WEIGHTINGS if w is not None)
 
 
 class OptionsError(ValueError):
@@ -39,6 +41,8 @@ class TrainOptions:
     """SVM kernel; None: linear for bow alone, else the product default's."""
     C: float | None = None
     gamma: float | None = None
+    feature_weighting: str | None = None
+    """A rule of ``trainer.feature_weighting`` for the standardised features (None: unweighted)."""
     per_pad: bool = bool(DEFAULT_MODEL["per_pad"])
     select: bool = False
     latency_budget_us: float | None = None
@@ -122,8 +126,11 @@ class TrainOptions:
             raise OptionsError(f"--temperature must be positive (got {self.temperature})")
         if self.latency_budget_us is not None and not self.latency_budget_us > 0:
             raise OptionsError(f"--latency-budget-us must be positive (got {self.latency_budget_us})")
+        if self.feature_weighting is not None and self.families == ("bow",):
+            raise OptionsError("--feature-weighting applies to the feature families, not to bow alone")
         for name, value, allowed in (("--kernel", self.kernel, KERNELS), ("--assignment", self.assignment, ASSIGNMENTS),
-                                     ("--trigger", self.trigger, TRIGGERS)):
+                                     ("--trigger", self.trigger, TRIGGERS),
+                                     ("--feature-weighting", self.feature_weighting, FEATURE_WEIGHTING_CHOICES)):
             if value is not None and value not in allowed:
                 raise OptionsError(f"{name} {value!r}: use one of {', '.join(allowed)}")
 
@@ -139,7 +146,8 @@ class TrainOptions:
             parts += ["--trigger", self.trigger]
         if self.fraction is not None:
             parts += ["--fraction", str(self.fraction)]
-        for flag, value in (("--C", self.C), ("--gamma", self.gamma), ("--sweep", self.sweep_file)):
+        for flag, value in (("--C", self.C), ("--gamma", self.gamma), ("--feature-weighting", self.feature_weighting),
+                            ("--sweep", self.sweep_file)):
             if value is not None:
                 parts += [flag, str(value)]
         if self.windows:
@@ -211,4 +219,5 @@ def build_estimator(options: TrainOptions, ds):
                                 per_pad=o.per_pad, fullscale=ds.fullscale, **o.estimator_options())
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     return FeatureSVC(families=o.families, pad_sizes=tuple(ds.pad_sizes), pad_shapes=shapes, kernel=o.svm_kernel,
-                      C=o.C, gamma=o.gamma, n_words=o.K, window=o.W, random_state=o.seed, fullscale=ds.fullscale)
+                      C=o.C, gamma=o.gamma, n_words=o.K, window=o.W, random_state=o.seed, fullscale=ds.fullscale,
+                      feature_weighting=o.feature_weighting)
