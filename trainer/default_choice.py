@@ -27,12 +27,13 @@ LATENCY_BUDGET_US = 1000.0
 INNER_FOLDS = 3
 
 
-def candidate_estimator(name: str, pad_sizes, pad_shapes, seed: int = 0):
+def candidate_estimator(name: str, pad_sizes, pad_shapes, seed: int = 0, candidates=None):
+    """The unfitted estimator of candidate ``name`` of ``candidates`` (default: ``trainer.select.CANDIDATES``)."""
     from trainer.defaults import DEFAULT_MODEL, paper_classifier
     from trainer.feature_svc import FeatureSVC
     from trainer.select import CANDIDATES
 
-    _, families, kernel, settings = next(c for c in CANDIDATES if c[0] == name)
+    _, families, kernel, settings = next(c for c in (candidates or CANDIDATES) if c[0] == name)
     if families == ("bow",):
         return paper_classifier(tuple(pad_sizes), seed, n_words=DEFAULT_MODEL["K"], window=DEFAULT_MODEL["W"],
                                 kernel=kernel, per_pad=True, **settings)
@@ -47,8 +48,9 @@ def _inner_accuracy(est, X, y, splits, n_jobs: int) -> float:
     return float(np.mean([np.mean(y[r["test"]] == r["y_pred"]) for r in results]))
 
 
-def inner_real_score(name: str, task, n_jobs: int, seed: int = 0) -> float:
-    """Mean over the task's outer splits of the grouped inner-CV accuracy on the outer training part."""
+def inner_real_score(name: str, task, n_jobs: int, seed: int = 0, candidates=None) -> float:
+    """Mean over the task's outer splits of the grouped inner-CV accuracy on the outer training part
+    (``candidates``: where ``name`` is defined, default ``trainer.select.CANDIDATES``)."""
     from sklearn.model_selection import StratifiedGroupKFold
 
     from trainer.evaluation import Split
@@ -60,12 +62,12 @@ def inner_real_score(name: str, task, n_jobs: int, seed: int = 0) -> float:
         n_folds = min(INNER_FOLDS, len(set(groups.tolist())))
         cv = StratifiedGroupKFold(n_splits=n_folds, shuffle=True, random_state=seed)
         inner = [Split(f"inner {i}", a, b) for i, (a, b) in enumerate(cv.split(X, y, groups))]
-        est = candidate_estimator(name, task.pad_sizes, task.pad_shapes, seed)
+        est = candidate_estimator(name, task.pad_sizes, task.pad_shapes, seed, candidates)
         scores.append(_inner_accuracy(est, X, y, inner, n_jobs))
     return float(np.mean(scores))
 
 
-def inner_sim_score(name: str, ds, n_jobs: int, seed: int = 0) -> float:
+def inner_sim_score(name: str, ds, n_jobs: int, seed: int = 0, candidates=None) -> float:
     """Nested leave-one-subject-out on the simulated protocol (synthetic): mean inner accuracy."""
     from trainer.evaluation import Split
 
@@ -78,7 +80,8 @@ def inner_sim_score(name: str, ds, n_jobs: int, seed: int = 0) -> float:
         tr = np.flatnonzero(ds.groups != held_out)
         X, y, groups = ds.X[tr], ds.y[tr], ds.groups[tr]
         inner = [Split(s, np.flatnonzero(groups != s), np.flatnonzero(groups == s)) for s in sorted(set(groups))]
-        scores.append(_inner_accuracy(candidate_estimator(name, ds.pad_sizes, shapes, seed), X, y, inner, n_jobs))
+        scores.append(_inner_accuracy(candidate_estimator(name, ds.pad_sizes, shapes, seed, candidates), X, y, inner,
+                                      n_jobs))
     return float(np.mean(scores))
 
 

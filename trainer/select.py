@@ -96,7 +96,7 @@ def _estimator(options: TrainOptions, ds, families: tuple[str, ...], kernel: str
     return est.set_params(**settings)
 
 
-def _latency(model, ds, folder: Path, name: str, seed: int) -> dict:
+def graph_latency(model, ds, folder: Path, name: str, seed: int) -> dict:
     """Single-case p50/p99 (us) of the exported graph through the runtime's loader (1 thread)."""
     from runtime.model import load_model
     from trainer.bench.common import export_metadata, percentiles, time_calls
@@ -136,7 +136,7 @@ def select_model(ds, options: TrainOptions, say: Callable[[str], None] = lambda 
             row = Row(name, families, kernel, settings, accs, float(values.mean()),
                       float(values.std(ddof=1)) if len(values) > 1 else 0.0)
             with threadpool_limits(1):
-                stats = _latency(est.fit(ds.X, ds.y), ds, Path(tmp), name, int(options.seed))
+                stats = graph_latency(est.fit(ds.X, ds.y), ds, Path(tmp), name, int(options.seed))
             row.p50_us, row.p99_us = stats["p50"], stats["p99"]
             row.within_budget = row.p99_us <= budget
             rows.append(row)

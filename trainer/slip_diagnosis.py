@@ -261,7 +261,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     res["command"] = shlex.join(["python", "-m", "trainer.slip_diagnosis", "--out", args.out]
                                 + (["--data", args.data] if args.data else []))
+    from trainer.weighting_check import kept_section, upsert_section
+
+    kept = kept_section(Path(args.out) / "slip_diagnosis.md")
     write_results(args.out, "slip_diagnosis", res, markdown(res))
+    if kept:  # the feature-weighting check's dated section outlives a rerun of this diagnosis
+        upsert_section(Path(args.out) / "slip_diagnosis.md", kept)
     return 0
 
 
