@@ -15,6 +15,7 @@ Writes results/weighting_check.{json,md} and a dated section of results/slip_dia
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shlex
 import sys
@@ -115,6 +116,13 @@ def markdown(res: dict) -> list[str]:
         s = res["family_sizes"][name]
         lines.append(f"| {name} | {s['pads']} | {s['hand']['features']} ({s['hand']['varying']}) | "
                      f"{s['stats']['features']} ({s['stats']['varying']}) | {s['duplicated']} |")
+    lines += ["", "Per pad the hand family has 14 features and the stats family 13: the blocks are about equal, so "
+              "scaling each block to equal weight (`block_count`: by its feature count; `block_mfa`: by its first "
+              "eigenvalue, as Multiple Factor Analysis does) hardly changes the distance. What does double-count is "
+              "three quantities per pad that both families compute (the hand family's pad maximum, pad mean and mean "
+              "derivative are constant multiples of the stats family's peak, mean pressure and pressure change): "
+              "`distinct` counts each such quantity once (other duplicates above are pads whose features coincide "
+              "on that training part)."]
     lines += ["", "Inner score (nested grouped 3-fold inside every outer training part, as trainer/default_choice.py; "
               "mean accuracy %), in the rule's order; rows not in `handover train --select` are marked:", "",
               "| candidate | rank | mean | " + " | ".join(tasks) + " | p99 us (CPU) | sim inner LOSO |",
@@ -131,8 +139,19 @@ def markdown(res: dict) -> list[str]:
                           for seed, by in res["noise_seeds"].items()) + ".", "",
               f"Verdict by the rule: **{res['chosen']}** is first"
               + (" (the shipped default's candidate)." if res["chosen"] == "hand+stats rbf" else
-                 " (not what trainer/defaults.py ships; a full `handover compare` would confirm).")]
+                 " (not what trainer/defaults.py ships; a full `handover compare` would confirm)."), *_margin(res)]
     return lines
+
+
+def _margin(res: dict) -> list[str]:
+    """How far the first is ahead of the second, at the rule's seed and at the noise seeds."""
+    first, second = (res["order"] + [None, None])[:2]
+    if second is None:
+        return []
+    gaps = [100 * (by[first] - by[second]) for by in res["noise_seeds"].values() if first in by and second in by]
+    return ["", f"Margin of {first} over {second}: {100 * (res['rows'][first]['real_score'] - res['rows'][second]['real_score']):+.2f} "
+            "points at the rule's seed" + (", " + ", ".join(f"{g:+.2f}" for g in gaps) + " at the noise seeds"
+                                          if gaps else "") + "."]
 
 
 def upsert_section(md_path: Path, lines: list[str]) -> None:
@@ -158,17 +177,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results")
     parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default ../shared/data)")
     parser.add_argument("--n-jobs", type=int, default=2)
+    parser.add_argument("--rewrite", action="store_true", help="only rewrite the markdown from OUT/weighting_check.json")
     args = parser.parse_args(argv)
     try:
-        res = run(Path(args.data) if args.data else default_data_dir(), args.n_jobs,
-                  lambda t: print(t, file=sys.stderr, flush=True))
+        if args.rewrite:
+            res = json.loads((Path(args.out) / "weighting_check.json").read_text())
+        else:
+            res = run(Path(args.data) if args.data else default_data_dir(), args.n_jobs,
+                      lambda t: print(t, file=sys.stderr, flush=True))
     except (OSError, ValueError) as exc:
         print(f"weighting_check: {exc}", file=sys.stderr)
         return 2
-    res["command"] = shlex.join(["python", "-m", "trainer.weighting_check", "--out", args.out]
-                                + (["--data", args.data] if args.data else []))
+    if not args.rewrite:
+        res["command"] = shlex.join(["python", "-m", "trainer.weighting_check", "--out", args.out]
+                                    + (["--data", args.data] if args.data else []))
     lines = markdown(res)
-    write_results(args.out, "weighting_check", res, ["# Feature weighting check (issue 12)", "", *lines[2:]])
+    write_results(args.out, "weighting_check", res, ["# Feature weighting check (issue 12)", "", *lines[2:], "",
+                                                      f"Ran in {res['seconds']:.0f} s."])
     upsert_section(Path(args.out) / "slip_diagnosis.md", [*lines, "", f"Reproduce: `{res['command']}` "
                    f"({res['seconds']:.0f} s; details in results/weighting_check.md)."])
     return 0
