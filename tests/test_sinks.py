@@ -134,8 +134,8 @@ def test_event_line_is_the_json_modules_character_for_character():
 
     rng = np.random.default_rng(0)
     names = ["pull", "k\u00e9y \"q\" \\ \n\t\x01", "\U0001f600", _Str("sub")]
-    odd = {"cls": names[1:] + [None], "time": [0.0, -0.0, 1e300, 5e-324, 1e16, 0.1 + 0.2, 7, True, _Int(3)],
-           "model_id": names[1:] + [3], "frame_first": [0, -1, 2**70, _Int(5), True, 1.5],
+    odd = {"cls": [*names[1:], None], "time": [0.0, -0.0, 1e300, 5e-324, 1e16, 0.1 + 0.2, 7, True, _Int(3)],
+           "model_id": [*names[1:], 3], "frame_first": [0, -1, 2**70, _Int(5), True, 1.5],
            "device_time_ms": [0, 2**33, False], "missed_deadline": [True, False, 0, 1],
            "scores": [{}, {"a": 1}, {"a": True}, {_Str("s"): 0.5}, {1: 0.5}, {"x": 1e-7, "y": -2.5e-7, "z": 1e17}],
            "latency_us": [0, 1e9, 0.05, 2.25]}
