@@ -58,6 +58,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     from firmware_io.plausibility import FrameCheck
     from firmware_io.wire.frames import decode_frame_payload
     from firmware_io.wire.parser import StreamParser
+    from runtime.daemon import settle_heap
     from trainer.bench.throughput import serving_daemon
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -67,6 +68,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1])
     recorder = _Decisions()
     daemon.listeners.append(recorder)
+    settle_heap()  # as Daemon.run does once started
     layout = recording.layout
     parser, check, n = StreamParser(layout.n_taxels), FrameCheck(layout), layout.n_taxels
     handle, clock = daemon.handle_frame, time.perf_counter
