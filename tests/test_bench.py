@@ -93,6 +93,7 @@ def test_latency_quick(tmp_path, capsys):
     assert imps["agreement_with_graph"] == {"numpy": 1.0, "scikit-learn": 1.0}
     assert 0.0 <= imps["numpy_max_score_difference"] < 1e-3
     assert all(imps[f"ratio_{s}"]["numpy"] > 0 for s in ("p50", "p99", "p999"))
+    assert printed["numpy_over_onnx_p50"] == imps["ratio_p50"]["numpy"] and printed["sklearn_over_onnx_p50"] > 1
     assert "numpy, distal pads" in (tmp_path / "latency.md").read_text()
     e2e = result["e2e_32hz"]
     assert e2e["events"] == e2e["windows_sent"] and e2e["unmatched"] == 0  # one event per window: the trigger re-arms

@@ -187,6 +187,9 @@ def headline(res: dict) -> dict:
         "e2e_p999_us_load": load["e2e_us"]["p999"] if load else None,
         "e2e_load_p99_us": load["e2e_us"]["p99"] if load else None,
         "rss_mb": res["e2e_32hz"]["rss_mb"],
+        # the same windows, interleaved: these ratios hold on a noisy machine (None: not measured)
+        "numpy_over_onnx_p50": res["implementations"]["ratio_p50"].get("numpy"),
+        "sklearn_over_onnx_p50": res["implementations"]["ratio_p50"].get("scikit-learn"),
     }
 
 
