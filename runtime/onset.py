@@ -66,9 +66,11 @@ putting weights on a pad, a probe pressing a masked matrix), not an object in th
 the settled grasp, not at the departure: a tap pushes the object into the fingers on one side and
 off the others in the very frame it fires (simulated bumps leave one finger loaded there).
 Limitation: an object hanging from one finger (a hook grasp on a handle) never fires. Seen on the
-real validation files (a calibration rig on one distal pad, a masked matrix pressed on one pad: 3
-of their 4 false events; every simulated grasp loads the three fingers); the rule of
-results/streams.md chose 2 over 1 (off): see results/streams.md's notes."""
+real validation files (a calibration rig loading one distal pad, a masked matrix pressed on one
+pad: 3 of their 4 false events); chosen by the rule of results/streams.md over 1 (off) / 2:
+utility 40 / 43 (the same synthetic reports: every simulated grasp loads the three fingers; real
+validation false events 4 / 1). 3 was not a candidate: the hand holds objects between two
+fingers (the xmas ball of the validation files is held so)."""
 
 
 class OnsetTrigger:
