@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from firmware_io.layout import SensorLayout
 from runtime.config import TriggerConfig
@@ -84,3 +85,16 @@ def test_contact_for_the_rule_is_a_patch_not_a_stray_taxel():
     rows[:, CONTACT[1][:2]] = 5.0  # two stray loaded taxels on finger 1 (noise) are no contact
     trig = _trigger()
     assert fires(trig, rows) == [] and trig.grasp_fingers == 1
+
+
+@pytest.mark.realdata
+def test_a_real_calibration_rig_on_one_pad_does_not_fire(sdh2_data):
+    """The rig loads weights onto one distal pad (a validation file of results/streams.md): a departure
+    happens (the load rises by more than the change), but no object is held between fingers."""
+    from firmware_io.recordings.importers import import_any
+
+    rec = import_any(sdh2_data / "kiechle/pressure_profiles/calibration_sensitivity/sensitivity_0.1-1.0.dsa")
+    pads = rec.layout.pads("all")
+    trig = _trigger(rec.layout.pad_sizes(pads), rec.layout.pad_fingers(pads))
+    rows = rec.frames[:, rec.layout.columns(pads)].astype(np.float32)
+    assert fires(trig, rows) == [] and trig.not_held >= 1 and trig.grasp_fingers == 1
