@@ -7,7 +7,9 @@ waits for a slice of the processes already running, several milliseconds; nicene
 SCHED_FIFO; results/latency.md has the benchmark's own figures). Under a real-time policy the hot
 thread runs first. Only the thread that calls :func:`enter_realtime` is raised (the model
 watcher, which loads models, and the control socket keep normal scheduling, so loading a model
-cannot hog a core); threads it starts afterwards inherit its policy.
+cannot hog a core); threads it starts afterwards inherit its policy (the rehearsal, which must
+run on time too; the ROS 2 sink and the control socket when a reload rebuilds them: they sleep
+on their sockets).
 
 Priority :data:`DEFAULT_PRIORITY` (1-99, 0 = normal scheduling): above every normal process and
 below the kernel's interrupt threads (50 on PREEMPT_RT kernels) and a robot's control loops, which
