@@ -36,11 +36,12 @@ def _windows(pad_sizes: tuple[int, ...], n: int, seed: int) -> tuple[np.ndarray,
     return X, np.array(["pull", "push", "hold", "bump"])[y]
 
 
-def _default_like(pad_shapes: list[tuple[int, int]], tmp_path, kernel: str = DEFAULT_MODEL["kernel"]):
+def _default_like(pad_shapes: list[tuple[int, int]], tmp_path, kernel: str = DEFAULT_MODEL["kernel"],
+                  feature_weighting: str | None = None):
     sizes = tuple(r * c for r, c in pad_shapes)
     X, y = _windows(sizes, 96, seed=1)
     model = FeatureSVC(families=DEFAULT_MODEL["families"], pad_sizes=sizes, pad_shapes=pad_shapes, kernel=kernel,
-                       C=10.0, gamma="scale" if kernel == "rbf" else None).fit(X, y)
+                       C=10.0, gamma="scale" if kernel == "rbf" else None, feature_weighting=feature_weighting).fit(X, y)
     meta = {**metadata(), "pads": list(range(len(sizes))), "pad_sizes": list(sizes)}
     return export_onnx(model, tmp_path / f"{kernel}-{len(sizes)}.onnx", meta), sizes
 
@@ -69,6 +70,12 @@ def test_feature_default_same_label_and_scores_as_the_graph(pad_shapes, tmp_path
 def test_feature_default_with_a_linear_svm(tmp_path):
     path, sizes = _default_like([(14, 6), (13, 6)], tmp_path, kernel="linear")
     _assert_same_as_graph(path, frames_of(_windows(sizes, 64, seed=8)[0]))
+
+
+def test_feature_weighting_is_read_from_the_graph(tmp_path):
+    """``feature_weighting`` folds into the scaler constants, so the yardstick needs nothing new."""
+    path, sizes = _default_like([(14, 6), (13, 6)], tmp_path, feature_weighting="distinct")
+    _assert_same_as_graph(path, frames_of(_windows(sizes, 64, seed=9)[0]))
 
 
 def test_bow_default_same_label_and_scores_as_the_graph(tmp_path):
