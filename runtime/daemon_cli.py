@@ -68,6 +68,16 @@ def log_format(environ: dict | None = None) -> str:
 
 def _check(cfg, require_model: bool = False) -> int:
     """Report what the daemon would serve, without opening the device."""
+    models_log = logging.getLogger("handover.models")
+    level = models_log.level
+    models_log.setLevel(logging.CRITICAL)  # --check reports in one line itself
+    try:
+        return _check_quietly(cfg, require_model)
+    finally:  # called in-process (tests, scripts): the watcher's log is the caller's again
+        models_log.setLevel(level)
+
+
+def _check_quietly(cfg, require_model: bool) -> int:
     from dataclasses import replace
 
     from runtime.daemon import Daemon, events_problem, scene_problem
@@ -83,7 +93,6 @@ def _check(cfg, require_model: bool = False) -> int:
         if problem := availability_problem():
             print(f"{PROG}: warning: sinks.ros2: {problem}; events will go to the other sinks only", file=sys.stderr)
     daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
-    logging.getLogger("handover.models").setLevel(logging.CRITICAL)  # --check reports in one line itself
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
