@@ -92,6 +92,12 @@ def _features(c: dict) -> str:
     return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}"
 
 
+def feature_summary(model) -> str:
+    """``features: ...`` as the card says it: the families a model has, or its codebook's K and W
+    (only the BoW family has them); ``handover export`` prints the same line."""
+    return _features(card(model)).strip()
+
+
 def _svm(c: dict) -> str:
     svm = c["svm"] or {}
     parts = [f"{k} {_value(k, v)}" for k, v in svm.items() if k != "n_support_vectors"]
