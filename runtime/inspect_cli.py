@@ -148,9 +148,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         # the daemon's warm-up: realistic windows, the output contract, the default time budget
         model = load_model(args.model, decision_budget=DEFAULT_BUDGET_FRACTION)
-    except ModelContractError as exc:
+    except ModelContractError as exc:  # a missing, unreadable or broken file: the user's to fix
         print(f"handover inspect: {exc}", file=sys.stderr)
-        return 1
+        return 2
     c = card(model)
     print(json.dumps(c, indent=2, default=str) if args.json else _text(c))
     return 0
