@@ -103,7 +103,9 @@ class TcpEmulatorServer(_ServerBase):
             self._listener.bind((self.host, port))
         except OSError as exc:
             self._listener.close()
-            raise EmulatorServerError(f"cannot listen on {self.host}:{port}: {exc.strerror or exc}") from None
+            hint = ("; another program (another emulator?) has it: give another port, or port 0 to pick a free one "
+                    "(the emulator prints the URL it listens on)" if exc.errno == errno.EADDRINUSE else "")
+            raise EmulatorServerError(f"cannot listen on {self.host}:{port}: {exc.strerror or exc}{hint}") from None
         self._listener.listen(2)
         self._listener.setblocking(False)
         self.port = self._listener.getsockname()[1]
