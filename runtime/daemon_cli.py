@@ -87,11 +87,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
     if problem:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
-    if cfg.sinks.ros2:
-        from runtime.ros2 import availability_problem
-
-        if problem := availability_problem():
-            print(f"{PROG}: warning: sinks.ros2: {problem}; events will go to the other sinks only", file=sys.stderr)
+    _warn_about_sinks(cfg)
     daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
 
     def newest(check_events: bool):
@@ -121,6 +117,21 @@ def _check_quietly(cfg, require_model: bool) -> int:
     print(f"{PROG}: warning: {what}; the daemon will wait for one", file=sys.stderr)
     print(f"config {cfg.source} is valid")
     return 0
+
+
+def _warn_about_sinks(cfg) -> None:
+    """One warning when ROS 2 cannot start (and events would then go nowhere) or no sink is set."""
+    from runtime.config import NO_SINK_LEFT
+
+    others = cfg.sinks.n_without_ros2
+    if cfg.sinks.ros2:
+        from runtime.ros2 import availability_problem
+
+        if problem := availability_problem():
+            then = "events will go to the other sinks only" if others else NO_SINK_LEFT
+            print(f"{PROG}: warning: sinks.ros2: {problem}; {then}", file=sys.stderr)
+    elif not others:
+        print(f"{PROG}: warning: sinks: {NO_SINK_LEFT.replace('other ', '')}", file=sys.stderr)
 
 
 def _missing_folder(cfg) -> str | None:
