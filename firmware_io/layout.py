@@ -217,6 +217,16 @@ class SensorLayout:
         who = "thumb" if finger == 1 else f"finger-{finger}"
         return f"{who}-{'distal' if part else 'proximal'}"
 
+    def selection_name(self, pads: Sequence[int]) -> str | None:
+        """The name that selects exactly these pads (``all``, ``distal``, ``proximal``, ``thumb``), or None."""
+        for name in ("all", "distal", "proximal", "thumb"):
+            try:
+                if list(self.pads(name)) == [int(p) for p in pads]:
+                    return name
+            except LayoutError:
+                pass
+        return None
+
     def _finger_pads(self, name: str) -> list[int]:
         parts = name.split("-")
         if parts[0] == "thumb":

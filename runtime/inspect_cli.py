@@ -73,16 +73,10 @@ def _value(key: str, v) -> str:
 
 
 def _pad_name(pads: list[int]) -> str:
-    from firmware_io.layout import LayoutError, SensorLayout
+    from firmware_io.layout import SensorLayout
 
-    sdh2 = SensorLayout.sdh2()
-    for name in ("all", "distal", "proximal", "thumb"):
-        try:
-            if list(sdh2.pads(name)) == list(pads):
-                return f" = {name}"
-        except LayoutError:
-            pass
-    return ""
+    name = SensorLayout.sdh2().selection_name(pads)
+    return f" = {name}" if name else ""
 
 
 def _features(c: dict) -> str:
