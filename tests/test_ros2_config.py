@@ -102,13 +102,19 @@ def test_a_middleware_that_cannot_load_is_one_line(tmp_path, caplog, monkeypatch
     assert len(messages) == 1 and says in messages[0], messages
 
 
-def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
+def _config_with_model(tmp_path: Path, sinks: str) -> Path:
+    """A config whose model folder holds one toy model, with these ``[sinks]`` lines."""
     pytest.importorskip("onnx")
     models = tmp_path / "models"
     models.mkdir()
     write_model(models, "m.onnx", tiny_model_bytes())
     cfg = tmp_path / "h.toml"
-    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\nros2 = true\n')
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\n{sinks}')
+    return cfg
+
+
+def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
+    cfg = _config_with_model(tmp_path, "ros2 = true\n")
     code = ("import sys; from runtime.cli import main; rc = main(['run', '--config', sys.argv[1], '--check']);"
             "print('RCLPY', 'rclpy' in sys.modules); sys.exit(rc)")
     env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}
@@ -142,12 +148,7 @@ def test_ros2_as_the_only_sink_says_events_go_nowhere(tmp_path, caplog, monkeypa
     ("stdout = false\n", "sinks: events go nowhere: no sink is configured"),
 ])
 def test_check_warns_when_no_sink_would_be_left(tmp_path, sinks, says):
-    pytest.importorskip("onnx")
-    models = tmp_path / "models"
-    models.mkdir()
-    write_model(models, "m.onnx", tiny_model_bytes())
-    cfg = tmp_path / "h.toml"
-    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\n{sinks}')
+    cfg = _config_with_model(tmp_path, sinks)
     env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}
     proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check"], cwd=ROOT,
                           capture_output=True, text=True, timeout=60, env=env)
