@@ -213,7 +213,7 @@ class SensorLayout:
             raise LayoutError(f"no matrix {index} (sensor has {self.n_matrices})")
         if self.n_matrices % 2:
             return str(index)
-        finger, part = divmod(index, 2)
+        finger, part = self.finger_of(index), index % 2
         who = "thumb" if finger == 1 else f"finger-{finger}"
         return f"{who}-{'distal' if part else 'proximal'}"
 
@@ -226,6 +226,15 @@ class SensorLayout:
             except LayoutError:
                 pass
         return None
+
+    def finger_of(self, index: int) -> int:
+        """The finger a pad sits on: matrices pair up as (proximal, distal) per finger (SDH-2);
+        when they do not pair up, every pad counts as a finger of its own."""
+        return index if self.n_matrices % 2 else index // 2
+
+    def pad_fingers(self, selection: str | Sequence[int] | int) -> tuple[int, ...]:
+        """The finger of each selected pad, in order (``finger_of``)."""
+        return tuple(self.finger_of(p) for p in self.pads(selection))
 
     def _finger_pads(self, name: str) -> list[int]:
         parts = name.split("-")

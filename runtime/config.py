@@ -26,6 +26,7 @@ from runtime.config_keys import (  # noqa: F401 - RANGES and ConfigError are par
     read_str,
     read_str_list,
 )
+from runtime.realtime import DEFAULT_PRIORITY
 
 MODES = ("trigger", "continuous")
 TRIGGER_KINDS = ("onset", "threshold")
@@ -192,6 +193,8 @@ class Config:
     control: ControlConfig = field(default_factory=ControlConfig)
     log_level: str = "info"
     health_file: str | None = None
+    realtime_priority: int = DEFAULT_PRIORITY
+    """SCHED_FIFO priority of the hot path, 0 = normal scheduling (runtime.realtime says why)."""
     source: str = ""
     """Where the configuration was read from (for messages)."""
     warnings: tuple[str, ...] = ()
@@ -226,7 +229,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
     sections = {"device", "scene", "model", "trigger", "continuous", "sinks", "onnxruntime", "ros2", "control"}
-    top = {"log_level", "health_file"}
+    top = {"log_level", "health_file", "realtime_priority"}
     no_unknown("", data, sections | top)
     no_nul(data)
     for name in sections:
@@ -242,8 +245,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     onnx_cfg = _onnx_config(data.get("onnxruntime", {}))
     control = _control_config(data.get("control", {}))
     log_level, health = _top_level(data)
+    realtime = read_int("realtime_priority", data, DEFAULT_PRIORITY)
     return Config(device, scene, model, trigger, continuous, sinks, onnx_cfg, ros2, control, log_level, health,
-                  warnings=tuple(warnings))
+                  realtime, warnings=tuple(warnings))
 
 
 def _device_config(dev: dict) -> DeviceConfig:

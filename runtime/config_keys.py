@@ -30,6 +30,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "ros2.depth": (1, 10000),
     "ros2.pad_rate_hz": (0.1, 1000.0),
     "ros2.pad_gain": (1, 16),
+    "realtime_priority": (0, 99),
 }
 """Every number of the config and its closed range [lo, hi] (the one owner of these limits).
 Why bounded above too: an infinite or absurd value (``stall_timeout_s = inf``, a 20-digit

@@ -69,6 +69,8 @@ class ConfigReload:
         if new.control != old.control or self.control is None:  # also retries one that could not bind
             self.stop_control()
             self.start_control()
+        if new.realtime_priority != old.realtime_priority:
+            self.apply_scheduling()
         if new.health_file != old.health_file:
             self.status_file = StatusFile(new.health_file) if new.health_file else None
         if new.device.url != old.device.url:

@@ -23,6 +23,7 @@ from functools import partial
 from typing import IO, Any
 
 from firmware_io.layout import SensorLayout
+from runtime import realtime
 from runtime.config import Config
 from runtime.config_reload import ConfigReload, set_log_level
 from runtime.control import ControlSocket, GraspControl
@@ -121,6 +122,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.period_s = 1.0 / DEFAULT_RATE_HZ
         self.frame_clock = FrameClock(1000.0 * self.period_s, self.health, on_restart=self._restart_stream)
         """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
+        self._scheduling_before: realtime.Scheduling | None = None
+        """The hot thread's scheduling before ``realtime_priority`` raised it (restored at exit)."""
         self.rehearsal = Rehearsal()
         """Runs the model once just before a decision is due, so it decides on warm caches."""
         self.listeners: list[FrameListener] = []
@@ -258,6 +261,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             log.warning("%s", warning)
         self._start_watcher()
         self.start_control()
+        self.apply_scheduling()  # after the helper threads start: they keep normal scheduling
         self.notifier.ready(self.health.status_line())
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
                  self.cfg.scene.pads, self.cfg.scene.mode)
@@ -292,7 +296,16 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                     self._frame_failed(exc)
         finally:
             self.shutdown()
+            realtime.restore(self._scheduling_before)
         return 2 if self.fatal else 0
+
+    def apply_scheduling(self) -> None:
+        """The config's ``realtime_priority`` for this (the hot) thread; one log line says what came of it."""
+        if self._scheduling_before is not None:
+            realtime.restore(self._scheduling_before)
+        before, line = realtime.enter_realtime(self.cfg.realtime_priority)
+        self._scheduling_before = before or self._scheduling_before
+        log.info("%s", line)  # normal scheduling works, only with longer tails under load: not a warning
 
     def shutdown(self) -> None:
         """STOPPING=1, stop the watcher, close the device, flush the sinks, final health."""

@@ -156,7 +156,8 @@ class ModelServing:
         else:
             fullscale = float(meta.fullscale) if meta else self.layout.fullscale
             pad_sizes = self.layout.pad_sizes(pads)
-            self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s)
+            self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s,
+                                         self.layout.pad_fingers(pads))
             if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
                 self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
             elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):

@@ -149,8 +149,10 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
 
 
 def build_trigger(s: TriggerSettings, pad_sizes: tuple[int, ...] | list[int], fullscale: float, window: int,
-                  rate_hz: float) -> Any:
-    """The trigger object for a scene (pads' column counts in row order) and a model's T."""
+                  rate_hz: float, pad_fingers: tuple[int, ...] | list[int] | None = None) -> Any:
+    """The trigger object for a scene (pads' column counts in row order) and a model's T.
+
+    ``pad_fingers``: the finger of each pad (``SensorLayout.pad_fingers``; None: every pad its own)."""
     from runtime.onset import OnsetTrigger
     from runtime.trigger import ThresholdTrigger
 
@@ -159,7 +161,8 @@ def build_trigger(s: TriggerSettings, pad_sizes: tuple[int, ...] | list[int], fu
     if s.kind == "onset":
         return OnsetTrigger(pad_sizes, fullscale, change=s.change, floor=s.floor, contact=s.contact,
                             tau_frames=max(1.0, s.track_tau_s * rate_hz), settle_frames=max(1, round(s.settle_s * rate_hz)),
-                            settle_change=s.settle_change, refractory_frames=refractory, window=window, pre_frames=pre)
+                            settle_change=s.settle_change, refractory_frames=refractory, window=window, pre_frames=pre,
+                            pad_fingers=pad_fingers)
     return ThresholdTrigger(
         int(sum(pad_sizes)), fullscale, fraction=s.fraction, hysteresis=s.hysteresis, refractory_frames=refractory,
         window=window, pre_frames=pre, rearm_frames=max(1, math.ceil(s.rearm_quiet_s * rate_hz - 1e-9)),

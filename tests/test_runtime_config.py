@@ -273,8 +273,8 @@ def test_every_numeric_default_is_inside_its_range():
 
     cfg = config_from_dict({})
     for key, (lo, hi) in RANGES.items():
-        section, name = key.split(".")
-        value = getattr(getattr(cfg, section), name)
+        section, _, name = key.rpartition(".")
+        value = getattr(getattr(cfg, section) if section else cfg, name)
         if value is not None:
             assert lo <= value <= hi, key
 

@@ -231,13 +231,13 @@ def dataset_trigger(kind: str | None = None, fraction: float | None = None,
 
 
 def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, settings: TriggerSettings,
-                T: int, rate_hz: float) -> tuple[int, str | None]:
+                T: int, rate_hz: float, pad_fingers: Sequence[int] | None = None) -> tuple[int, str | None]:
     """(frame where the daemon's onset trigger fires within this trial, or -1; why not, or None).
 
     The trigger is told the grasp is settled at the first frame (a protocol trial starts on the
     held object); a trial that starts with an empty hand is settled by the trigger itself.
     """
-    trig = build_trigger(settings, tuple(pad_sizes), fullscale, T, rate_hz)
+    trig = build_trigger(settings, tuple(pad_sizes), fullscale, T, rate_hz, pad_fingers)
     trig.set_grasp(True)
     rows = frames.astype(np.float32)
     for i in range(len(rows)):
@@ -334,7 +334,8 @@ def build_dataset(
             intervals.append(rec.sample_interval())
         rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
         for trial in rec.trials:
-            window = _cut(rec, trial, cols, rate, settings, pad_sizes, fullscale, hysteresis, T)
+            window = _cut(rec, trial, cols, rate, settings, (pad_sizes, layout.pad_fingers(pad_idx)), fullscale,
+                          hysteresis, T)
             if isinstance(window, str):
                 skipped.append(SkippedTrial(trial.subject, trial.object, trial.pose, trial.action, trial.run, window))
                 continue
@@ -372,12 +373,14 @@ def build_dataset(
 
 
 def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, settings: TriggerSettings,
-         pad_sizes: tuple[int, ...], fullscale: float, hysteresis: float, T: int) -> tuple[int, np.ndarray] | str:
-    """One trial -> (window start, T frames) or the reason there is none, with the daemon's trigger."""
+         pads: tuple[tuple[int, ...], tuple[int, ...]], fullscale: float, hysteresis: float, T: int
+         ) -> tuple[int, np.ndarray] | str:
+    """One trial -> (window start, T frames) or the reason there is none, with the daemon's trigger
+    (``pads``: the selected pads' column counts and fingers)."""
     frames, _ = rec.trial_frames(trial)
     selected = frames[:, cols]
     if settings.kind == "onset":
-        trig, why = onset_start(selected, pad_sizes, fullscale, settings, T, rate_hz)
+        trig, why = onset_start(selected, pads[0], fullscale, settings, T, rate_hz, pads[1])
     else:
         trig, why = rising_trigger(selected, fullscale, settings.fraction, hysteresis)
     if trig < 0:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from firmware_io.emulator.device import DeviceEmulator
 from firmware_io.emulator.server import TcpEmulatorServer
+from runtime import realtime
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -94,8 +95,11 @@ class StampingServer(TcpEmulatorServer):
             self.sent_at[ends.popleft()[1]] = t
 
 
-def _serve(recording, speed, pipe) -> None:
-    """Child process: serve the recording once, then hand the send stamps back."""
+def _serve(recording, speed, pipe, priority: int) -> None:
+    """Child process: serve the recording once, then hand the send stamps back. At the daemon's
+    real-time ``priority`` (runtime/realtime.py): a real device is hardware, not one more process
+    waiting for the CPU."""
+    realtime.enter_realtime(priority)
     emulator = StampingEmulator(recording, speed=speed, loop=False)
     server = StampingServer(emulator, host="127.0.0.1", port=0).start()
     pipe.send(server.port)
@@ -111,10 +115,10 @@ def _serve(recording, speed, pipe) -> None:
 class EmulatorProcess:
     """The emulator serving ``recording`` at ``speed`` (None = as fast as possible) in a child process."""
 
-    def __init__(self, recording, speed: float | None) -> None:
+    def __init__(self, recording, speed: float | None, priority: int = 0) -> None:
         ctx = mp.get_context("fork")
         self._pipe, child = ctx.Pipe()
-        self.process = ctx.Process(target=_serve, args=(recording, speed, child), daemon=True)
+        self.process = ctx.Process(target=_serve, args=(recording, speed, child, priority), daemon=True)
         self.process.start()
         if not self._pipe.poll(20):
             raise RuntimeError("the emulator process did not start")
@@ -140,8 +144,9 @@ class EmulatorProcess:
 class DatagramListener:
     """Receives datagrams on a bound socket in a thread and hands each to ``on_datagram``."""
 
-    def __init__(self, sock: socket.socket, name: str) -> None:
+    def __init__(self, sock: socket.socket, name: str, priority: int = 0) -> None:
         self.sock = sock
+        self.priority = priority
         self.sock.settimeout(0.1)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -151,6 +156,7 @@ class DatagramListener:
         raise NotImplementedError
 
     def _run(self) -> None:
+        realtime.enter_realtime(self.priority)  # the robot's receiver, at the daemon's priority
         while not self._stop.is_set():
             try:
                 data = self.sock.recv(65536)
@@ -170,12 +176,12 @@ class UdpListener(DatagramListener):
     """Receives decision datagrams in a thread, each with its arrival time (model announcements
     and other line types of docs/EVENTS.md are skipped)."""
 
-    def __init__(self) -> None:
+    def __init__(self, priority: int = 0) -> None:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", 0))
         self.port = sock.getsockname()[1]
         self.events: list[tuple[float, dict]] = []
-        super().__init__(sock, "bench-udp")
+        super().__init__(sock, "bench-udp", priority)
 
     def on_datagram(self, data: bytes, t: float) -> None:
         with contextlib.suppress(ValueError):
@@ -185,10 +191,12 @@ class UdpListener(DatagramListener):
 
 
 def write_config(folder: Path, device_url: str, model_dir: Path, udp_port: int | None,
-                 log_level: str = "warning", poll_s: float = 1.0) -> Path:
-    """A daemon config for the rig: all pads, the UDP listener as the only sink."""
+                 log_level: str = "warning", poll_s: float = 1.0, realtime_priority: int | None = None) -> Path:
+    """A daemon config for the rig: all pads, the UDP listener as the only sink; ``realtime_priority``
+    unset: the daemon's default."""
     udp = f'["127.0.0.1:{udp_port}"]' if udp_port else "[]"
-    text = (f'log_level = "{log_level}"\n\n[device]\nurl = "{device_url}"\nstall_timeout_s = 5.0\n'
+    rt = "" if realtime_priority is None else f"realtime_priority = {realtime_priority}\n"
+    text = (f'log_level = "{log_level}"\n{rt}\n[device]\nurl = "{device_url}"\nstall_timeout_s = 5.0\n'
             f'reconnect_min_s = 0.2\nreconnect_max_s = 1.0\n\n[scene]\npads = "all"\n\n'
             f'[model]\nfolder = "{model_dir}"\npoll_interval_s = {poll_s}\n\n[sinks]\nstdout = false\nudp = {udp}\n')
     path = folder / "handover.toml"

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime import realtime
+from runtime.realtime import DEFAULT_PRIORITY
 from runtime.rehearsal import REHEARSAL_LEAD_S
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
@@ -47,15 +49,18 @@ NAME = "latency"
 PERIOD_S = 1.0 / 32.0
 
 
-def end_to_end(model_path: Path, recording, speed: float | None, work: Path, timeout: float) -> dict:
-    """One run of the rig; latencies in us, counts, and the daemon's resident memory at the end."""
+def end_to_end(model_path: Path, recording, speed: float | None, work: Path, timeout: float,
+               priority: int = DEFAULT_PRIORITY) -> dict:
+    """One run of the rig; latencies in us, counts, and the daemon's resident memory at the end.
+    The daemon's ``realtime_priority``, the emulator's and the listener's are ``priority`` (the
+    daemon's default: as the shipped config runs it; 0: normal scheduling throughout)."""
     from trainer.bench.throughput import proc_mem_mb
 
-    listener = harness.UdpListener()
-    emulator = harness.EmulatorProcess(recording, speed)
+    listener = harness.UdpListener(priority)
+    emulator = harness.EmulatorProcess(recording, speed, priority)
     models = work / f"models-{speed}"
     harness.install_model(model_path, models)
-    config = harness.write_config(work, emulator.url, models, listener.port)
+    config = harness.write_config(work, emulator.url, models, listener.port, realtime_priority=priority)
     daemon = harness.spawn_daemon(config)
     mem: dict = {}
     try:
@@ -82,7 +87,7 @@ def end_to_end(model_path: Path, recording, speed: float | None, work: Path, tim
     return {"speed": "max" if speed is None else speed, "e2e_us": stats, "deadline_ratio": deadline_ratio(stats),
             "daemon_internal_us": percentiles(internal), "events": len(listener.events), "unmatched": unmatched,
             "windows_sent": len(recording.trials), "frames_sent": len(stamps),
-            "missed_deadline": int(sum(v > DEADLINE_US for v in lat)), "rss_mb": mem.get("VmRSS"),
+            "missed_deadline": int(sum(v > DEADLINE_US for v in lat)), "realtime_priority": priority, "rss_mb": mem.get("VmRSS"),
             "rss_peak_mb": mem.get("VmHWM")}
 
 
@@ -131,11 +136,15 @@ def run(args) -> dict:
         model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
         dense = tap_stream(args.seed, args.quick, n_windows=paced_decisions + 10, gap=tap_gap())
         say(f"latency: stage table, back to back and paced at 32 Hz ({paced_decisions} decisions) ...")
-        result["stages"] = stages.stage_tables(model, dense, paced_decisions)
-        if args.load:
-            say("latency: stage table under load (two busy-loop processes) ...")
-            with harness.CpuLoad(2):
-                result["stages_load"] = stages.stage_tables(model, dense, max(30, paced_decisions // 4))
+        before, result["scheduling"] = realtime.enter_realtime(DEFAULT_PRIORITY)  # as the daemon's hot thread
+        try:
+            result["stages"] = stages.stage_tables(model, dense, paced_decisions)
+            if args.load:
+                say("latency: stage table under load (two busy-loop processes) ...")
+                with harness.CpuLoad(2):
+                    result["stages_load"] = stages.stage_tables(model, dense, max(30, paced_decisions // 4))
+        finally:
+            realtime.restore(before)
         say("latency: the graph against numpy and scikit-learn, all pads and distal pads ...")
         result["implementations"] = implementations(model_path, dense, rounds, args.load)
         result["implementations_distal"] = implementations(distal_path, dense, rounds, False)
@@ -150,6 +159,10 @@ def run(args) -> dict:
             with harness.CpuLoad(2):
                 result["e2e_32hz_load"] = end_to_end(model_path, load_stream, 1.0, work,
                                                      timeout=load_stream.n_frames / 32 + 60)
+            say(f"latency: the same under load at normal scheduling (realtime_priority = 0) for {load_s:.0f} s ...")
+            with harness.CpuLoad(2):
+                result["e2e_32hz_load_normal"] = end_to_end(model_path, load_stream, 1.0, work,
+                                                            timeout=load_stream.n_frames / 32 + 60, priority=0)
     result.update(headline(result))
     result.update(
         model={"kind": model.meta.extra.get("model_kind"), "K": model.meta.K, "W": model.meta.W, "T": model.meta.T,
@@ -275,20 +288,27 @@ def markdown(res: dict) -> list[str]:
               "## The graph against numpy and scikit-learn (one window, same run, interleaved)", "",
               *_implementation_lines(res), "",
               "## End to end (emulator process -> loopback TCP -> `handover run` -> UDP -> listener)", "", *HEAD]
-    for key, title in (("e2e_32hz", "end to end at 32 Hz"), ("e2e_32hz_load", "end to end at 32 Hz, under load")):
+    for key, title in (("e2e_32hz", "end to end at 32 Hz"), ("e2e_32hz_load", "end to end at 32 Hz, under load"),
+                       ("e2e_32hz_load_normal", "end to end at 32 Hz, under load, normal scheduling")):
         if key in res:
             e = res[key]
             lines.append(_row(title, e["e2e_us"]))
             lines.append(_row(f"({title}: inside the daemon, frame parsed -> decision)", e["daemon_internal_us"]))
     lines += [""]
-    for key in ("e2e_32hz", "e2e_32hz_load"):
+    for key in ("e2e_32hz", "e2e_32hz_load", "e2e_32hz_load_normal"):
         if key in res:
             e = res[key]
-            lines.append(f"- {key}: {e['windows_sent']} windows sent (one every {res['window_period_frames']} frames), "
+            lines.append(f"- {key}: realtime_priority {e.get('realtime_priority', 0)}, {e['windows_sent']} windows sent (one every {res['window_period_frames']} frames), "
                          f"{e['events']} events received ({e['unmatched']} not matched to a frame), "
                          f"{e['missed_deadline']} over the deadline; daemon VmRSS {e['rss_mb'] or 0:.1f} MB.")
     lines += ["", "Under load = two busy-loop processes, one per core, during the run." if "e2e_32hz_load" in res
-              else "No run under load (add --load)."]
+              else "No run under load (add --load).", "",
+              "Scheduling: the daemon runs its hot thread at the config's `realtime_priority` (SCHED_FIFO "
+              f"{DEFAULT_PRIORITY} by default; runtime/realtime.py says why, deploy/handover.service permits it), the "
+              "emulator and the listener run at the same priority (a real controller is hardware, the robot's "
+              "receiver is not ours to measure), and so does this process's thread during the stage tables. "
+              f"This run: {res.get('scheduling', 'not recorded')}. The `normal scheduling` row runs all three "
+              "at `realtime_priority = 0` for comparison."]
     return lines
 
 

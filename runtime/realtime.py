@@ -1,0 +1,71 @@
+"""Real-time scheduling of the hot path: a frame is handled the moment it arrives, not at the
+scheduler's next slice.
+
+Why: the daemon sleeps on the device and wakes per frame. On a loaded 2-core PC a normal thread
+waits for a slice of the processes already running, several milliseconds; niceness hardly helps
+(measured end to end with both cores busy: p99.9 12 ms at nice 0, 6.3 ms at nice -5, 1.2 ms with
+SCHED_FIFO; results/latency.md has the benchmark's own figures). Under a real-time policy the hot
+thread runs first. Only the thread that calls :func:`enter_realtime` is raised (the model
+watcher, which loads models, and the control socket keep normal scheduling, so loading a model
+cannot hog a core); threads it starts afterwards inherit its policy (the rehearsal, which must
+run on time too; the ROS 2 sink and the control socket when a reload rebuilds them: they sleep
+on their sockets).
+
+Priority :data:`DEFAULT_PRIORITY` (1-99, 0 = normal scheduling): above every normal process and
+below the kernel's interrupt threads (50 on PREEMPT_RT kernels) and a robot's control loops, which
+are usually given more. The kernel's real-time throttling keeps 5 % of each second for the others
+even if the thread never slept. Not permitted (neither root, CAP_SYS_NICE nor an RLIMIT_RTPRIO
+that high: systemd's ``LimitRTPRIO=``, deploy/handover.service) or not available (not Linux): one
+line says so and the daemon runs at normal priority.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from dataclasses import dataclass
+
+DEFAULT_PRIORITY = 20
+"""The config's ``realtime_priority`` unless set (0 turns it off)."""
+
+
+@dataclass(frozen=True)
+class Scheduling:
+    """A thread's policy and priority, as ``os.sched_getscheduler`` / ``sched_getparam`` say."""
+
+    policy: int
+    priority: int
+
+
+def current() -> Scheduling | None:
+    """The calling thread's scheduling, or None where the platform cannot tell."""
+    try:
+        return Scheduling(os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+    except (AttributeError, OSError):
+        return None
+
+
+def enter_realtime(priority: int) -> tuple[Scheduling | None, str]:
+    """Put the calling thread under SCHED_FIFO at ``priority`` (0: leave it as it is).
+
+    Returns the scheduling to restore with :func:`restore` and one line for the log."""
+    before = current()
+    if priority <= 0:
+        return before, "normal scheduling (realtime_priority = 0)"
+    if before is None or not hasattr(os, "SCHED_FIFO"):
+        return None, "real-time scheduling is not available on this platform: normal scheduling"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        return None, (f"real-time scheduling (SCHED_FIFO {priority}) not permitted ({exc.strerror}): normal "
+                      "scheduling; allow it with LimitRTPRIO= in the service (deploy/handover.service) or set "
+                      "realtime_priority = 0 to silence this")
+    return before, f"hot path at real-time priority (SCHED_FIFO {priority})"
+
+
+def restore(previous: Scheduling | None) -> None:
+    """Give the calling thread back the scheduling :func:`enter_realtime` found (best effort)."""
+    if previous is None:
+        return
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(0, previous.policy, os.sched_param(previous.priority))
