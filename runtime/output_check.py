@@ -47,11 +47,15 @@ def output_problem(labels: Any, scores: Any, n_classes: int) -> str | None:
     return None
 
 
+_INT64, _FLOAT32 = np.dtype(np.int64), np.dtype(np.float32)
+"""Compared as dtypes: ``dtype == np.int64`` converts the type to a dtype on every call."""
+
+
 def _one_good_decision(labels: Any, scores: Any, n_classes: int) -> bool:
     """True for one in-range label with finite float32 scores (False: let the full check decide)."""
     return (type(labels) is np.ndarray and type(scores) is np.ndarray and labels.shape == (1,)
-            and scores.shape == (1, n_classes) and labels.dtype == np.int64 and scores.dtype == np.float32
-            and 0 <= int(labels[0]) < n_classes and bool(np.isfinite(scores).all()))
+            and scores.shape == (1, n_classes) and labels.dtype == _INT64 and scores.dtype == _FLOAT32
+            and 0 <= labels.item() < n_classes and bool(np.isfinite(scores).all()))
 
 
 def probe_windows(T: int, n_channels: int, fullscale: float, seed: int = 0) -> np.ndarray:

@@ -17,6 +17,8 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
+from json.encoder import encode_basestring_ascii
+from math import isfinite
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -27,6 +29,8 @@ log = logging.getLogger("handover.sinks")
 
 _compact = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 """One encoder built once (``json.dumps`` with options builds a new one per call)."""
+_ascii = encode_basestring_ascii
+"""The encoder's own string writer (its default, ``ensure_ascii``)."""
 
 PROTOCOL_VERSION = 1
 """The event protocol's version (docs/EVENTS.md): raised only when a field changes meaning or
@@ -51,14 +55,38 @@ class Event:
 
     def to_json(self) -> str:
         # The fields spelled out (not dataclasses.asdict, which deep-copies): this runs on the hot path.
+        scores = {k: round(float(v), 6) for k, v in self.scores.items()}
+        latency = round(float(self.latency_us), 1)
+        line = self._plain_line(scores, latency)
+        if line is not None:
+            return line
         d = {"type": "decision", "protocol": PROTOCOL_VERSION, "class": self.cls, "time": self.time,
-             "scores": {k: round(float(v), 6) for k, v in self.scores.items()},
-             "latency_us": round(float(self.latency_us), 1), "model_id": self.model_id,
+             "scores": scores, "latency_us": latency, "model_id": self.model_id,
              "frame_first": self.frame_first, "frame_last": self.frame_last,
              "device_time_ms": self.device_time_ms, "missed_deadline": self.missed_deadline}
         # allow_nan=False: NaN/Infinity are not JSON; such an event raises ValueError here, the
         # one place events are serialised, and never reaches a listener.
         return _compact(d)
+
+    def _plain_line(self, scores: dict, latency: float) -> str | None:
+        """The line ``_compact`` writes for the dict above, character for character, when every value
+        is a plain str, int, bool or finite float (a decision's case); else None (the encoder decides,
+        and refuses). Why: on the cold caches after a model run the encoder took twice as long
+        (results/latency.md, "JSON line encoded")."""
+        parts = []
+        for key, value in scores.items():
+            if type(key) is not str or not isfinite(value):
+                return None
+            parts.append(f"{_ascii(key)}:{value!r}")
+        if not (type(self.cls) is str and type(self.model_id) is str and type(self.time) is float
+                and isfinite(self.time) and isfinite(latency) and type(self.frame_first) is int
+                and type(self.frame_last) is int and type(self.device_time_ms) is int
+                and type(self.missed_deadline) is bool):
+            return None
+        return (f'{{"type":"decision","protocol":{PROTOCOL_VERSION},"class":{_ascii(self.cls)},"time":{self.time!r},'
+                f'"scores":{{{",".join(parts)}}},"latency_us":{latency!r},"model_id":{_ascii(self.model_id)},'
+                f'"frame_first":{self.frame_first!r},"frame_last":{self.frame_last!r},'
+                f'"device_time_ms":{self.device_time_ms!r},"missed_deadline":{"true" if self.missed_deadline else "false"}}}')
 
 
 @dataclass

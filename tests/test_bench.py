@@ -88,9 +88,13 @@ def test_latency_quick(tmp_path, capsys):
         assert all(table[stage]["n"] > 0 for stage in STAGES)  # every stage of every decision stamped
         assert table["total"]["p50"] > table["inference"]["p50"] > 0
     imps = result["implementations"]
-    # numpy only for graphs of the BoW default's kind (trainer.bench.numpy_decision)
-    assert {"onnxruntime", "scikit-learn"} <= set(imps["back_to_back"])
-    assert set(imps["agreement_with_graph"].values()) == {1.0}
+    # the graph, numpy and scikit-learn on the same windows, interleaved (trainer.bench.numpy_decision)
+    assert set(imps["back_to_back"]) == {"onnxruntime", "numpy", "scikit-learn"}
+    assert imps["agreement_with_graph"] == {"numpy": 1.0, "scikit-learn": 1.0}
+    assert 0.0 <= imps["numpy_max_score_difference"] < 1e-3
+    assert all(imps[f"ratio_{s}"]["numpy"] > 0 for s in ("p50", "p99", "p999"))
+    assert printed["numpy_over_onnx_p50"] == imps["ratio_p50"]["numpy"] and printed["sklearn_over_onnx_p50"] > 1
+    assert "numpy, distal pads" in (tmp_path / "latency.md").read_text()
     e2e = result["e2e_32hz"]
     assert e2e["events"] == e2e["windows_sent"] and e2e["unmatched"] == 0  # one event per window: the trigger re-arms
     assert e2e["e2e_us"]["p50"] > e2e["daemon_internal_us"]["p50"] > 0  # the wire and the sink add time

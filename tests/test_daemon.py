@@ -75,12 +75,19 @@ def _trials():
 
 
 def test_one_decision_per_scripted_event_over_sim(models):
+    import gc
+
     events: list[Event] = []
     cfg = _config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0")
     daemon = Daemon(cfg, on_event=events.append)
     seen = FrameRecorder()
     daemon.listeners.append(seen)
-    _serve(daemon, lambda d: d.health.device_faults >= 1)  # the end of the session
+    gc.unfreeze()
+    try:
+        _serve(daemon, lambda d: d.health.device_faults >= 1)  # the end of the session
+        assert gc.get_freeze_count() > 0  # start-up's objects hidden from the collector (settle_heap)
+    finally:
+        gc.unfreeze()
     trials = _trials()
     assert len(events) == len(trials)
     for event, trial in zip(events, trials, strict=True):

@@ -182,19 +182,3 @@ def test_word_counts_same_as_the_onehot_graph_with_ties(tmp_path):
     for a, b in zip(new, old, strict=True):
         np.testing.assert_array_equal(a, b)  # labels, scores and histograms: the same numbers
     np.testing.assert_allclose(new[2], model.bow_.transform(X), atol=1e-6)
-
-
-def test_numpy_decision_of_the_bench_is_the_graph(tmp_path):
-    """The latency benchmark's numpy-only yardstick decides like the graph it is read from."""
-    from trainer.bench.numpy_decision import NumpyDecision
-
-    model = fit_model("linear", per_pad=True)
-    path = export(model, tmp_path)
-    decide = NumpyDecision.of(path)
-    assert decide is not None and NumpyDecision.of(export(fit_model("rbf"), tmp_path, "rbf.onnx")) is None
-    frames = frames_of(synthetic_cases(n=32, seed=5)[0])
-    labels, scores, _ = GraphRunner(path).run(frames)
-    for window, label, score in zip(frames, labels, scores, strict=True):
-        got_label, got_scores = decide(window)
-        assert got_label == label
-        np.testing.assert_allclose(got_scores, score, atol=1e-4)

@@ -93,6 +93,15 @@ def test_vectorised_crc_equals_the_byte_loop(data: bytes) -> None:
     assert crc16(data) == _crc_loop(data)
 
 
+def test_crc_at_the_switch_between_loop_and_vector() -> None:
+    from firmware_io.wire.crc import _VECTOR_CRC_MAX, _VECTOR_CRC_MIN
+
+    rng = np.random.default_rng(4)
+    for n in (_VECTOR_CRC_MIN - 1, _VECTOR_CRC_MIN, 980, _VECTOR_CRC_MAX, _VECTOR_CRC_MAX + 1):
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert crc16(data) == _crc_loop(data)
+
+
 def test_empty_payload_has_no_crc_and_nonempty_has_one() -> None:
     assert len(encode_packet(0x01, b"")) == 6
     assert len(encode_packet(0x01, b"\x00")) == 9

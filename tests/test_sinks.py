@@ -7,6 +7,8 @@ import json
 import logging
 import socket
 
+import pytest
+
 from runtime.config import SinksConfig
 from runtime.sinks import Event, SinkSet, StdoutSink, UdpSink, UnixDatagramSink
 
@@ -107,3 +109,64 @@ def test_decision_line_carries_every_event_field():
     fields = {f.name for f in dataclasses.fields(Event)} - {"cls"} | {"class", "type", "protocol"}
     assert set(line) == fields
     assert line["class"] == "pull" and line["latency_us"] == 12.3 and line["missed_deadline"] is True
+
+
+class _Str(str):
+    pass
+
+
+class _Int(int):
+    pass
+
+
+def _reference_line(e: Event) -> str:
+    """The documented line as the json module writes it (what ``to_json`` must equal)."""
+    d = {"type": "decision", "protocol": 1, "class": e.cls, "time": e.time,
+         "scores": {k: round(float(v), 6) for k, v in e.scores.items()}, "latency_us": round(float(e.latency_us), 1),
+         "model_id": e.model_id, "frame_first": e.frame_first, "frame_last": e.frame_last,
+         "device_time_ms": e.device_time_ms, "missed_deadline": e.missed_deadline}
+    return json.dumps(d, separators=(",", ":"), allow_nan=False)
+
+
+def test_event_line_is_the_json_modules_character_for_character():
+    """The hot path writes plain events itself; any odd value goes to the encoder, errors included."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    names = ["pull", "k\u00e9y \"q\" \\ \n\t\x01", "\U0001f600", _Str("sub")]
+    odd = {"cls": [*names[1:], None], "time": [0.0, -0.0, 1e300, 5e-324, 1e16, 0.1 + 0.2, 7, True, _Int(3)],
+           "model_id": [*names[1:], 3], "frame_first": [0, -1, 2**70, _Int(5), True, 1.5],
+           "device_time_ms": [0, 2**33, False], "missed_deadline": [True, False, 0, 1],
+           "scores": [{}, {"a": 1}, {"a": True}, {_Str("s"): 0.5}, {1: 0.5}, {"x": 1e-7, "y": -2.5e-7, "z": 1e17}],
+           "latency_us": [0, 1e9, 0.05, 2.25]}
+    for field, values in odd.items():
+        for value in values:
+            event = _event()
+            setattr(event, field, value)
+            assert event.to_json() == _reference_line(event), (field, value)
+    for _ in range(200):
+        scores = dict(zip(names, rng.normal(0, 10.0 ** rng.integers(-8, 8), 4).tolist(), strict=True))
+        event = Event(float(rng.random() * 2e9), names[rng.integers(4)], scores, float(rng.random() * 1e5),
+                      "39f8d4c0dfa9", int(rng.integers(1e6)), int(rng.integers(1e6)), int(rng.integers(2**32)),
+                      bool(rng.integers(2)))
+        assert event.to_json() == _reference_line(event)
+    for field, bad in (("time", float("nan")), ("time", float("inf")), ("frame_first", np.int64(3)),
+                       ("scores", {"a": float("nan")}), ("scores", {"a": float("-inf")}), ("cls", object()),
+                       ("latency_us", float("inf")), ("time", np.float32(1.0))):
+        event = _event()
+        setattr(event, field, bad)
+        with pytest.raises((ValueError, TypeError)) as ours:
+            event.to_json()
+        with pytest.raises((ValueError, TypeError)) as reference:
+            _reference_line(event)
+        assert type(ours.value) is type(reference.value) and str(ours.value) == str(reference.value)
+
+
+def test_event_line_is_the_documented_dict_encoded():
+    event = Event(1795482290.0698714, "pull", {"pull": 1 / 3, "push": -2.5e-7, "h\u00f6ld": 7.0}, 1033.449, "39f8d4c0dfa9",
+                  179, 193, 6091, False)
+    expected = {"type": "decision", "protocol": 1, "class": "pull", "time": 1795482290.0698714,
+                "scores": {"pull": 0.333333, "push": -0.0, "h\u00f6ld": 7.0}, "latency_us": 1033.4,
+                "model_id": "39f8d4c0dfa9", "frame_first": 179, "frame_last": 193, "device_time_ms": 6091,
+                "missed_deadline": False}
+    assert event.to_json() == json.dumps(expected, separators=(",", ":"), allow_nan=False)

@@ -58,6 +58,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     from firmware_io.plausibility import FrameCheck
     from firmware_io.wire.frames import decode_frame_payload
     from firmware_io.wire.parser import StreamParser
+    from runtime.daemon import settle_heap
     from trainer.bench.throughput import serving_daemon
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -67,6 +68,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1])
     recorder = _Decisions()
     daemon.listeners.append(recorder)
+    settle_heap()  # as Daemon.run does once started
     layout = recording.layout
     parser, check, n = StreamParser(layout.n_taxels), FrameCheck(layout), layout.n_taxels
     handle, clock = daemon.handle_frame, time.perf_counter
@@ -143,12 +145,12 @@ def stage_tables(model, recording, paced_decisions: int) -> dict:
 # -- the graph against numpy and scikit-learn, one window at a time --------------------------------------
 def comparators(model, model_path: Path) -> dict:
     """name -> callable(window [T, C] float32): the graph as the daemon runs it, numpy, scikit-learn."""
-    from trainer.bench.numpy_decision import NumpyDecision
+    from trainer.bench.numpy_decision import numpy_decision
 
     out = {"onnxruntime": lambda w: model.run_trusted(w[None])}
-    numpy_decision = NumpyDecision.of(model_path)
-    if numpy_decision is not None:
-        out["numpy"] = numpy_decision
+    decide = numpy_decision(model_path)
+    if decide is not None:
+        out["numpy"] = decide
     estimator = model_path.with_suffix(".joblib")
     if estimator.exists():
         import joblib
@@ -200,7 +202,8 @@ def rehearsed(fn, windows: np.ndarray, rounds: int) -> dict:
 
 
 def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
-    """Share of windows on which each implementation's class equals the graph's."""
+    """Share of windows on which each implementation's class equals the graph's (the scores of the
+    numpy one are checked against the graph's by ``score_difference``)."""
 
     def name_of(answer) -> str:
         first = np.asarray(answer[0] if isinstance(answer, tuple) else answer).ravel()[0]
@@ -209,3 +212,10 @@ def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
     graph = [name_of(fns["onnxruntime"](w)) for w in windows]
     return {name: float(np.mean([name_of(fn(w)) == g for w, g in zip(windows, graph, strict=True)]))
             for name, fn in fns.items() if name != "onnxruntime"}
+
+
+def score_difference(fns: dict, windows: np.ndarray) -> float | None:
+    """Largest |numpy score - graph score| over ``windows`` (None without a numpy implementation)."""
+    if "numpy" not in fns:
+        return None
+    return max(float(np.abs(fns["numpy"](w)[1] - fns["onnxruntime"](w)[1][0]).max()) for w in windows)

@@ -1,0 +1,131 @@
+"""The feature default's decision in plain numpy, read from its ONNX graph: a yardstick for latency.
+
+The hand-designed features (``trainer.features.hand``) and the per-pad level statistics
+(``trainer.features.pad_stats``), in the order the metadata lists them, then the scaler and the
+RBF (or linear) SVM (``numpy_graph.SvmHead``). The arithmetic follows the graph's nodes step by
+step in float32 (all pads at once as one ``[G, S, T]`` tensor, the zero-median shortcut, the DFT as
+a MatMul), so the scores agree with the graph's within float32 rounding. Every constant is the
+graph's own initializer. ``NumpyFeatures.of(parts)`` returns None for any other graph.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trainer.bench.numpy_graph import GraphParts, SvmHead
+
+FAMILIES = ("hand", "stats")
+_PADS = ("pad_slots", "pad_moments")
+_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "pad_major",
+         "pad_of_taxel", "most_touched")
+_STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs")
+
+
+class NumpyFeatures:
+    """``__call__(window [T, C] float32) -> (label, scores [n_classes])`` in float32 numpy."""
+
+    def __init__(self, parts: GraphParts, families: tuple[str, ...]) -> None:
+        self.families = families
+        p = parts.first
+        self.slots = p("pad_slots")  # [G, S]
+        self.n_pads, self.n_channels = self.slots.shape[0], int(self.slots.max()) + 1
+        moments = {m.ndim: m for m in parts.params["pad_moments"]}
+        if "hand" in families:
+            self.kinds = moments[3]  # [G, 3, S]: ones, x, y of each slot
+            (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.inv_steps, self.pair,
+             self.inv_count, self.pad_major, self.pad_of_taxel, self.most_touched) = (p(k) for k in _HAND)
+            self.centre = self.centre.T[:, :, None]  # [G, 2, 1]
+            self.padding = p("padding_slots") if parts.has("padding_slots") else None
+            self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
+            self.n_bins = (self.time_rows.shape[0] - self.time_rows.shape[1]) // 2
+        if "stats" in families:
+            self.signal_weights = moments[2]  # [C, 3G]: ones, x, y over the taxels
+            self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs = (p(k) for k in _STATS)
+        self.head = SvmHead(parts)
+
+    @classmethod
+    def of(cls, parts: GraphParts) -> NumpyFeatures | None:
+        """From a graph of hand and/or stats features, or None (another kind: not implemented here)."""
+        families = tuple(parts.meta.get("features", {}).get("families", ()))
+        if parts.meta.get("model_kind") != "feature_svm" or not families or set(families) - set(FAMILIES):
+            return None
+        needed = _PADS + (_HAND if "hand" in families else ()) + (_STATS if "stats" in families else ())
+        if not parts.has(*needed) or not SvmHead.readable(parts):
+            return None
+        if "hand" in families and parts.has("padding_slots") and not parts.has("median_offset"):
+            return None  # pads whose padding does not split evenly: the graph takes medians pad by pad
+        return cls(parts, families)
+
+    def __call__(self, window: np.ndarray) -> tuple[int, np.ndarray]:
+        x = window.reshape(-1, self.n_channels)
+        padded = x.T[self.slots]  # [G, S, T]: padding slots repeat a taxel of their pad
+        peak = padded.max(axis=(1, 2))
+        blocks = {}
+        if "hand" in self.families:
+            blocks["hand"] = self._hand(x, padded, peak)
+        if "stats" in self.families:
+            blocks["stats"] = self._stats(x, peak)
+        return self.head(np.concatenate([blocks[f] for f in self.families]))
+
+    def _hand(self, x: np.ndarray, padded: np.ndarray, peak: np.ndarray) -> np.ndarray:
+        """``HandGraphFeatures.onnx_nodes``: 14 features per pad, pad-major."""
+        rows, signal_mean = self._time_rows(padded)
+        by_pad = np.concatenate([peak, self._median(x, padded), self._std(padded, signal_mean)])
+        return np.concatenate([rows.ravel(), by_pad])[self.pad_major]
+
+    def _time_rows(self, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``hand._time_nodes``: rows ``[8, 3G]`` over (pad signal, centre x, centre y), and the pads' mean."""
+        moments = self.kinds @ padded  # [G, 3, T]
+        weight, mxy = moments[:, 0], moments[:, 1:]
+        pressed = weight > 0
+        safe = np.where(pressed, weight, np.float32(1.0))
+        cop = np.where(pressed[:, None], mxy / safe[:, None], self.centre)  # [G, 2, T]
+        series = np.concatenate([weight * self.inv_size[:, None], cop[:, 0], cop[:, 1]])  # [3G, T]
+        mean = series.mean(axis=1)
+        over = (series - mean[:, None]) @ self.time_rows.T  # [3G, 2B + 1 + T-1]
+        b2 = 2 * self.n_bins
+        dft, rise, step = over[:, :b2], over[:, b2], over[:, b2 + 1 :]
+        energy4 = (dft * dft) @ self.band_rows.T  # [3G, 4]
+        shares = energy4[:, :3] / np.maximum(energy4[:, 3:], self.tiny)
+        log_energy = np.log(energy4[:, 3] + np.float32(1.0))
+        speed = np.sqrt(self.pair.T @ (step * step)).mean(axis=1)
+        rows = np.vstack([mean, shares.T, log_energy, rise * self.inv_steps, rise, speed])
+        return rows, mean[: self.n_pads]
+
+    def _median(self, x: np.ndarray, padded: np.ndarray) -> np.ndarray:
+        """``pad_batch.median_nodes``: 0 when fewer than half of every pad's values can be non-zero, else
+        the middle of the padded values (padding offset by +-inf in equal numbers)."""
+        touched = (np.abs(x).sum(axis=0) > 0).astype(np.float32)
+        if (touched @ self.pad_of_taxel - self.most_touched).max() <= 0:
+            return np.zeros(self.n_pads, dtype=np.float32)
+        values = padded if self.offset is None else padded + self.offset[:, :, None]
+        values = values.reshape(self.n_pads, -1)
+        total = values.shape[1]
+        k = total // 2
+        if total % 2:
+            return np.partition(values, k, axis=1)[:, k]
+        part = np.partition(values, (k - 1, k), axis=1)
+        return (part[:, k - 1] + part[:, k]) * np.float32(0.5)
+
+    def _std(self, padded: np.ndarray, mean: np.ndarray) -> np.ndarray:
+        """``hand._std_nodes``: two passes, the padding slots' squares taken out again."""
+        dev = padded - mean[:, None, None]
+        sq = np.einsum("gst,gst->g", dev, dev)
+        if self.padding is not None:
+            first = dev[:, 0]
+            sq = np.maximum(sq - np.einsum("gt,gt->g", first, first) * self.padding, np.float32(0.0))
+        return np.sqrt(sq * self.inv_count)
+
+    def _stats(self, x: np.ndarray, peak: np.ndarray) -> np.ndarray:
+        """``PadStats.onnx_nodes`` over ``signals.signal_nodes``: mean, std, change of the 4G signals, peaks."""
+        moments = np.abs(x) @ self.signal_weights  # [T, 3G]
+        g = self.n_pads
+        total = moments[:, :g]
+        den = total + self.fullscale
+        area = (x >= self.contact_level).astype(np.float32) @ self.area_weights
+        sig = np.concatenate([total * self.inv_size_fs, area, moments[:, g : 2 * g] / den, moments[:, 2 * g :] / den],
+                             axis=1)  # [T, 4G]
+        mean = sig.mean(axis=0)
+        centred = sig - mean
+        std = np.sqrt((centred * centred).mean(axis=0))
+        return np.concatenate([mean, std, sig[-1] - sig[0], peak * self.inv_fs])
