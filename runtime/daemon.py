@@ -299,7 +299,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                 if frame is None:
                     if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
                         self.health.stalls += 1
-                        self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)")
+                        self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)", link_lost=False)
                     continue
                 self._last_frame_t = time.monotonic()
                 if not self._flapping:  # a link that keeps dropping soon after connecting keeps backing off

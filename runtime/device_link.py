@@ -36,6 +36,7 @@ of every drop."""
 
 SHORT_LINK_HINT = (f"within {SHORT_LINK_S:g} s of connecting (the device may be serving another client, "
                    "e.g. a second daemon or handover dump: it serves one host at a time)")
+"""Said of a link the device ends soon after connecting; a stall that soon is only said to be that soon."""
 
 
 class DeviceLink:
@@ -184,7 +185,8 @@ class DeviceLink:
         self._next_connect = time.monotonic() + self._backoff
         self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
 
-    def _fault(self, reason: str) -> None:
+    def _fault(self, reason: str, link_lost: bool = True) -> None:
+        """The link failed while streaming (``link_lost``: closed or lost, else a stall): counted, reconnected."""
         reason = reason.removeprefix(f"{self.cfg.device.url}: ")
         h = self.health
         h.device_faults += 1
@@ -195,7 +197,8 @@ class DeviceLink:
         self._link_up_at = None
         if up is not None and self.retry_notes.clock() - up < SHORT_LINK_S:  # a flapping link: logged as a failed attempt
             self._flapping = True
-            note = self.retry_notes.failed(f"{reason} {SHORT_LINK_HINT}", self._backoff)
+            soon = SHORT_LINK_HINT if link_lost else f"within {SHORT_LINK_S:g} s of connecting"
+            note = self.retry_notes.failed(f"{reason} {soon}", self._backoff)
             if note:
                 log.warning("device %s: %s", self.cfg.device.url, note)
         else:

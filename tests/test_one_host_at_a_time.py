@@ -114,4 +114,13 @@ def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, ca
     daemon._fault("the device closed the connection")  # a drop after a long link: one line as before
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert lines == ["device sim://?events=4&realtime=0: the device closed the connection; reconnecting"]
+    caplog.clear()
+    daemon.client = None
+    daemon._connect()
+    clock.now += 2.0
+    daemon._fault("no frame for 2 s (stall)", link_lost=False)  # soon, but a stall: no word of another client
+    lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
+    assert lines == ["device sim://?events=4&realtime=0 reconnected (486 taxels, scene model)",
+                     "device sim://?events=4&realtime=0: no frame for 2 s (stall) within 5 s of connecting; "
+                     "retrying in 0.2 s"], lines
     daemon._close_client()
