@@ -217,6 +217,16 @@ class SensorLayout:
         who = "thumb" if finger == 1 else f"finger-{finger}"
         return f"{who}-{'distal' if part else 'proximal'}"
 
+    def selection_name(self, pads: Sequence[int]) -> str | None:
+        """The name that selects exactly these pads (``all``, ``distal``, ``proximal``, ``thumb``), or None."""
+        for name in ("all", "distal", "proximal", "thumb"):
+            try:
+                if list(self.pads(name)) == [int(p) for p in pads]:
+                    return name
+            except LayoutError:
+                pass
+        return None
+
     def finger_of(self, index: int) -> int:
         """The finger a pad sits on: matrices pair up as (proximal, distal) per finger (SDH-2);
         when they do not pair up, every pad counts as a finger of its own."""

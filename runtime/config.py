@@ -135,6 +135,16 @@ class SinksConfig:
     ros2: bool = False
     """Publish events, health and (optionally) live pads on ROS 2 topics (``[ros2]``; the ``ros`` extra)."""
 
+    @property
+    def n_without_ros2(self) -> int:
+        """How many sinks events reach when ROS 2 cannot start."""
+        return int(self.stdout) + len(self.udp) + len(self.unix)
+
+
+NO_SINK_LEFT = ("events go nowhere: no other sink is configured (set sinks.stdout = true, or add sinks.udp or "
+                "sinks.unix targets)")
+"""What to say when the only event sink is ROS 2 and it cannot start."""
+
 
 RELIABILITIES = ("reliable", "best_effort")
 DURABILITIES = ("volatile", "transient_local")

@@ -126,6 +126,10 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self._last_frame_t = 0.0
         self._next_health = 0.0
         self._connect_started: float | None = None
+        self._link_up_at: float | None = None
+        """When the device connection now up was made (a drop soon after counts as a failed attempt)."""
+        self._back_note_due = False
+        self._flapping = False
         self.connect_bound_s = CONNECT_BOUND_S
         self._hang_logged = False
         self.period_s = 1.0 / DEFAULT_RATE_HZ
@@ -240,6 +244,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
     def _housekeeping(self, now: float) -> None:
         self.notifier.watchdog(now)
         self._swap_and_report(now)
+        self._link_held()
 
     def _swap_and_report(self, now: float) -> None:
         """Take a pending model and write the health file when due (the loop and a slow connect)."""
@@ -294,10 +299,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                 if frame is None:
                     if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
                         self.health.stalls += 1
-                        self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)")
+                        self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)", link_lost=False)
                     continue
                 self._last_frame_t = time.monotonic()
-                self._backoff = self.cfg.device.reconnect_min_s
+                if not self._flapping:  # a link that keeps dropping soon after connecting keeps backing off
+                    self._backoff = self.cfg.device.reconnect_min_s
                 try:
                     self.handle_frame(frame)
                 except Exception as exc:  # never let one frame end the service

@@ -3,8 +3,8 @@
 ``--check`` validates the config and the model folder (the model the daemon would serve: the
 valid one dropped last, by the watcher's own rule) without opening the device, and exits 2 for
 a config error (a bad key, a device URL that can never open, pads the SDH-2 does not have, an
-event the serving model lacks, a model folder that is a file or unreadable) and 0 otherwise. An empty model folder is only
-a warning, because the daemon is built to start without a model and wait for one; with
+event the serving model lacks, a model folder that is missing, a file or unreadable) and 0 otherwise. An empty
+model folder is only a warning, because the daemon is built to start without a model and wait for one; with
 ``--require-model`` it exits 1 instead (for scripts that need a model in place).
 
 The daemon itself exits 0 after SIGTERM and 2 when the device URL turns out to be unusable
@@ -68,22 +68,27 @@ def log_format(environ: dict | None = None) -> str:
 
 def _check(cfg, require_model: bool = False) -> int:
     """Report what the daemon would serve, without opening the device."""
+    models_log = logging.getLogger("handover.models")
+    level = models_log.level
+    models_log.setLevel(logging.CRITICAL)  # --check reports in one line itself
+    try:
+        return _check_quietly(cfg, require_model)
+    finally:  # called in-process (tests, scripts): the watcher's log is the caller's again
+        models_log.setLevel(level)
+
+
+def _check_quietly(cfg, require_model: bool) -> int:
     from dataclasses import replace
 
     from runtime.daemon import Daemon, events_problem, scene_problem
     from runtime.model_watch import ModelWatcher, folder_problem
 
-    problem = folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
+    problem = _missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
     if problem:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
-    if cfg.sinks.ros2:
-        from runtime.ros2 import availability_problem
-
-        if problem := availability_problem():
-            print(f"{PROG}: warning: sinks.ros2: {problem}; events will go to the other sinks only", file=sys.stderr)
+    _warn_about_sinks(cfg)
     daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
-    logging.getLogger("handover.models").setLevel(logging.CRITICAL)  # --check reports in one line itself
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
@@ -104,8 +109,7 @@ def _check(cfg, require_model: bool = False) -> int:
     if model is not None:
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
-    missing = "" if Path(cfg.model.folder).exists() else "the folder does not exist yet"
-    reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or missing or "no .onnx file"
+    reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or "no .onnx file"
     what = f"no model in {cfg.model.folder} would serve yet ({reasons})"
     if require_model:
         print(f"{PROG}: config {cfg.source} is valid, but {what}", file=sys.stderr)
@@ -113,6 +117,30 @@ def _check(cfg, require_model: bool = False) -> int:
     print(f"{PROG}: warning: {what}; the daemon will wait for one", file=sys.stderr)
     print(f"config {cfg.source} is valid")
     return 0
+
+
+def _warn_about_sinks(cfg) -> None:
+    """One warning when ROS 2 cannot start (and events would then go nowhere) or no sink is set."""
+    from runtime.config import NO_SINK_LEFT
+
+    others = cfg.sinks.n_without_ros2
+    if cfg.sinks.ros2:
+        from runtime.ros2 import availability_problem
+
+        if problem := availability_problem():
+            then = "events will go to the other sinks only" if others else NO_SINK_LEFT
+            print(f"{PROG}: warning: sinks.ros2: {problem}; {then}", file=sys.stderr)
+    elif not others:
+        print(f"{PROG}: warning: sinks: {NO_SINK_LEFT.replace('other ', '')}", file=sys.stderr)
+
+
+def _missing_folder(cfg) -> str | None:
+    """A model folder that does not exist is a typo or a missed install step, so --check calls it an
+    error (an existing empty folder is only a warning; the running daemon waits for either)."""
+    folder = Path(cfg.model.folder)
+    if folder.exists() or folder.is_symlink():
+        return None
+    return f"model.folder {folder} does not exist: create it (mkdir -p {folder}) or fix the path in {cfg.source}"
 
 
 def _pads_problem(pads: str) -> str | None:

@@ -28,6 +28,16 @@ CONNECT_BOUND_S = 30.0
 deadlines end an open within ~15 s (open 10 s, start 3 s), so an attempt still running after this
 is a hang, and systemd's watchdog is left to catch it."""
 
+SHORT_LINK_S = 5.0
+"""A connection the device ends within this long of connecting counts as a failed attempt for the
+log (runtime.retry_notes: a link that flaps every second is logged at the 1/10/60 min rate), and
+the line that says it is back waits until the link has held this long. The health file still hears
+of every drop."""
+
+SHORT_LINK_HINT = (f"within {SHORT_LINK_S:g} s of connecting (the device may be serving another client, "
+                   "e.g. a second daemon or handover dump: it serves one host at a time)")
+"""Said of a link the device ends soon after connecting; a stall that soon is only said to be that soon."""
+
 
 class DeviceLink:
     """Opening, watching and closing the device client.
@@ -60,6 +70,9 @@ class DeviceLink:
     rehearsal: Any  # runtime.rehearsal.Rehearsal
     _connect_started: float | None
     _hang_logged: bool
+    _link_up_at: float | None
+    _back_note_due: bool
+    _flapping: bool
     _build_hot_path: Callable[..., None]  # runtime.model_serving
     _swap_and_report: Callable[[float], None]  # runtime.daemon
 
@@ -109,8 +122,22 @@ class DeviceLink:
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
-        log.info("device %s %s%s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
-                 self.retry_notes.connected(), layout.n_taxels, self.cfg.scene.pads)
+        self._link_up_at = self.retry_notes.clock()
+        self._back_note_due = self.retry_notes.attempts > 0 and self._flapping
+        if not self._back_note_due:  # after short links, said once this link holds (_link_held)
+            log.info("device %s %s%s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
+                     self.retry_notes.connected(), layout.n_taxels, self.cfg.scene.pads)
+            self._flapping = False
+
+    def _link_held(self) -> None:
+        """After an outage of short links: the line that says the device is back, once the link has
+        held ``SHORT_LINK_S`` (called from the loop's housekeeping)."""
+        if self._back_note_due and self.connected and self._link_up_at is not None \
+                and self.retry_notes.clock() - self._link_up_at >= SHORT_LINK_S:
+            self._back_note_due = self._flapping = False
+            n_taxels = self.layout.n_taxels if self.layout is not None else 0
+            log.info("device %s reconnected%s; the link has held %g s (%d taxels, scene %s)", self.cfg.device.url,
+                     self.retry_notes.connected(), SHORT_LINK_S, n_taxels, self.cfg.scene.pads)
 
     def _connect_failed(self, url: str, exc: Exception) -> None:
         fatal = fatal_device_error(url, exc)
@@ -158,14 +185,24 @@ class DeviceLink:
         self._next_connect = time.monotonic() + self._backoff
         self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
 
-    def _fault(self, reason: str) -> None:
+    def _fault(self, reason: str, link_lost: bool = True) -> None:
+        """The link failed while streaming (``link_lost``: closed or lost, else a stall): counted, reconnected."""
         reason = reason.removeprefix(f"{self.cfg.device.url}: ")
         h = self.health
         h.device_faults += 1
         h.reconnects += 1
         h.device_state = "reconnecting"
-        h.report_error(f"{self.cfg.device.url}: {reason}", "device")
-        log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
+        h.report_error(f"{self.cfg.device.url}: {reason}", "device")  # every drop: the health file stays current
+        up = self._link_up_at
+        self._link_up_at = None
+        if up is not None and self.retry_notes.clock() - up < SHORT_LINK_S:  # a flapping link: logged as a failed attempt
+            self._flapping = True
+            soon = SHORT_LINK_HINT if link_lost else f"within {SHORT_LINK_S:g} s of connecting"
+            note = self.retry_notes.failed(f"{reason} {soon}", self._backoff)
+            if note:
+                log.warning("device %s: %s", self.cfg.device.url, note)
+        else:
+            log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
         self._close_client()
         self._schedule_reconnect()
 

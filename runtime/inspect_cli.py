@@ -73,16 +73,10 @@ def _value(key: str, v) -> str:
 
 
 def _pad_name(pads: list[int]) -> str:
-    from firmware_io.layout import LayoutError, SensorLayout
+    from firmware_io.layout import SensorLayout
 
-    sdh2 = SensorLayout.sdh2()
-    for name in ("all", "distal", "proximal", "thumb"):
-        try:
-            if list(sdh2.pads(name)) == list(pads):
-                return f" = {name}"
-        except LayoutError:
-            pass
-    return ""
+    name = SensorLayout.sdh2().selection_name(pads)
+    return f" = {name}" if name else ""
 
 
 def _features(c: dict) -> str:
@@ -90,6 +84,12 @@ def _features(c: dict) -> str:
         return f"  features: {' + '.join(c['families'])}, per pad ({len(c['pads'])} pads), standardised"
     hist = {None: "", True: f", one histogram per pad ({len(c['pads'])})", False: ", one histogram over all pads"}
     return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}"
+
+
+def feature_summary(model) -> str:
+    """``features: ...`` as the card says it: the families a model has, or its codebook's K and W
+    (only the BoW family has them); ``handover export`` prints the same line."""
+    return _features(card(model)).strip()
 
 
 def _svm(c: dict) -> str:
@@ -142,9 +142,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         # the daemon's warm-up: realistic windows, the output contract, the default time budget
         model = load_model(args.model, decision_budget=DEFAULT_BUDGET_FRACTION)
-    except ModelContractError as exc:
+    except ModelContractError as exc:  # a missing, unreadable or broken file: the user's to fix
         print(f"handover inspect: {exc}", file=sys.stderr)
-        return 1
+        return 2
     c = card(model)
     print(json.dumps(c, indent=2, default=str) if args.json else _text(c))
     return 0

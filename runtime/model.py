@@ -354,6 +354,15 @@ def _check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ..
         raise ModelContractError(f"metadata features.windows {listed}, but the graph's codeword windows are {windows}")
 
 
+def _other_file_kind(data: bytes) -> str | None:
+    """What a file that is no ONNX model is, when it is one of this project's other files."""
+    if data.startswith(b"PK\x03\x04"):  # .hrec recordings are zip archives of arrays
+        return "a recording (a zip archive such as .hrec), not a model"
+    if data[:1] == b"\x80":  # a pickle: model.joblib, the float64 reference train writes beside the .onnx
+        return "a pickle such as the model.joblib train writes beside the .onnx, not the model"
+    return None
+
+
 def load_model(
     path: str | Path,
     max_bytes: int = DEFAULT_MAX_BYTES,
@@ -385,6 +394,9 @@ def load_model(
     try:
         wire = summarize(data)
     except WireError as exc:
+        other = _other_file_kind(data)
+        if other:
+            raise ModelUnreadableError(f"{where}: this is {other}; give a .onnx model") from exc
         raise ModelUnreadableError(f"{where}: not an ONNX model or truncated ({exc})") from exc
     if wire.external_data:
         raise ModelContractError(f"{where}: references external data; a model must be one self-contained file")

@@ -110,7 +110,8 @@ def permission_problem(st: FileState, service_uid: int | None = None) -> str | N
     if not stat.S_ISREG(st.mode):
         return "not a regular file (symlinks and devices are refused)"
     if st.mode & (stat.S_IWGRP | stat.S_IWOTH):
-        return f"writable by group or others (mode {stat.S_IMODE(st.mode):o}); chmod 644 it"
+        return (f"writable by group or others (mode {stat.S_IMODE(st.mode):o}, e.g. copied under umask 002): "
+                f"run chmod 644 {st.path} (or install -m 644 when copying)")
     if st.uid not in (uid, 0):
         return f"owned by uid {st.uid}, not by the service user (uid {uid}) or root"
     return None

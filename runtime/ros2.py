@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from runtime.config import Ros2Config
+from runtime.config import NO_SINK_LEFT, Ros2Config
 from runtime.sinks import Sink
 
 log = logging.getLogger("handover.ros2")
@@ -58,8 +58,9 @@ def availability_problem() -> str | None:
     return middleware_problem()
 
 
-def open_ros2_sink(cfg: Ros2Config, daemon: Any) -> Sink | None:
-    """The ROS 2 sink, or None after one error line saying why and what to do."""
+def open_ros2_sink(cfg: Ros2Config, daemon: Any, others: int = 1) -> Sink | None:
+    """The ROS 2 sink, or None after one error line saying why and what to do (and, when ``others``
+    is 0, that events go nowhere)."""
     problem = middleware_problem()
     if problem is None:
         try:
@@ -74,5 +75,5 @@ def open_ros2_sink(cfg: Ros2Config, daemon: Any) -> Sink | None:
         except Exception as exc:  # rclpy raises its own types (RCLError, InvalidHandle, ...)
             text = str(exc).strip().splitlines()
             problem = f"cannot start the ROS 2 node: {text[0] if text else type(exc).__name__}"
-    log.error("sink ros2: %s; events still go to the other sinks", problem)
+    log.error("sink ros2: %s; %s", problem, "events still go to the other sinks" if others else NO_SINK_LEFT)
     return None

@@ -57,7 +57,7 @@ def _pads_problem(meta: Any, cfg: Config, lay: SensorLayout) -> str | None:
     if tuple(meta.pads) != tuple(pads):
         return (f"model expects pads {list(meta.pads)}, the scene uses {list(pads)} (scene.pads = "
                 f"{cfg.scene.pads!r}); set scene.pads = \"{FOLLOW_MODEL}\" (follow the model) in {_where(cfg)} "
-                f"{RELOAD_HINT}, or train with --pads {_pad_list(pads)}")
+                f"{RELOAD_HINT}, or train with --pads {lay.selection_name(pads) or _pad_list(pads)}")
     return None
 
 

@@ -255,7 +255,7 @@ class SinkSet:
             from runtime.config import Ros2Config
             from runtime.ros2 import open_ros2_sink
 
-            ros = open_ros2_sink(ros2 or Ros2Config(), daemon)
+            ros = open_ros2_sink(ros2 or Ros2Config(), daemon, others=len(sinks))
             if ros is not None:
                 sinks.append(ros)
         return cls(sinks)

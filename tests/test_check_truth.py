@@ -92,3 +92,42 @@ def test_pads_that_follow_the_model_are_not_an_error(tmp_path):
     write_model(models, "m.onnx", tiny_model_bytes())
     proc = _check(_config(tmp_path, models, '[scene]\npads = "model"\n'))
     assert proc.returncode == 0 and "would serve model" in proc.stdout, proc.stdout + proc.stderr
+
+
+def test_a_missing_model_folder_is_an_error_an_empty_one_a_warning(tmp_path):
+    """A typo in model.folder passed --check (exit 0) and the daemon waited for a folder nobody
+    would ever fill; an existing empty folder stays a warning (the daemon waits for a model)."""
+    typo = tmp_path / "modles"
+    cfg = _config(tmp_path, typo)
+    _one_error(_check(cfg), f"model.folder {typo} does not exist: create it (mkdir -p {typo}) or fix the path "
+                            f"in {cfg}")
+    typo.mkdir()
+    proc = _check(cfg)
+    assert proc.returncode == 0 and proc.stderr.startswith("handover run: warning: no model in"), proc.stderr
+
+
+def test_the_running_daemon_waits_for_a_missing_folder_and_serves_once_it_appears(tmp_path, caplog):
+    """At run time (not --check) a folder that is missing, or removed later, is waited for, said once."""
+    import logging
+
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from tests.test_faults import _run_until
+
+    models = tmp_path / "models"
+    cfg = config_from_dict({"device": {"url": "sim://?events=4&realtime=0"},
+                            "model": {"folder": str(models), "poll_interval_s": 0.05}, "sinks": {"stdout": False}})
+    daemon = Daemon(cfg)
+    caplog.set_level(logging.WARNING, logger="handover")
+    state = {"made": None}
+
+    def appear(d) -> bool:
+        if d.health.frames_received > 50 and state["made"] is None:
+            models.mkdir()
+            write_model(models, "m.onnx", tiny_model_bytes())
+            state["made"] = time.monotonic()
+        return d.model is not None
+
+    assert _run_until(daemon, appear, timeout=30), "the model dropped into the new folder was never served"
+    missing = [r for r in caplog.records if "does not exist" in r.getMessage()]
+    assert len(missing) == 1, [r.getMessage() for r in caplog.records]

@@ -37,6 +37,22 @@ def test_demo_detects_the_scripted_events(demo_summary):
     assert demo_summary["latency_p50_us"] is not None
 
 
+def test_demo_ends_with_where_it_wrote_the_model(demo_summary, capsys):
+    """The README's next section copies out/demo/report/stream-model.onnx: the demo says where it is."""
+    import argparse
+
+    from trainer import demo_cli
+
+    assert demo_summary["model"].endswith("report/stream-model.onnx")
+    demo_cli._print_summary(demo_summary)
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith(f"  model: {demo_summary['model']} ")
+    parser = argparse.ArgumentParser()
+    demo_cli.add_arguments(parser)
+    retrain = next(a for a in parser._actions if a.dest == "retrain")
+    assert "OUT/report/stream-model.onnx" in retrain.help
+
+
 def test_demo_refuses_bad_options():
     proc = subprocess.run([sys.executable, "-m", "runtime.cli", "demo", "--speed", "fast"],
                           capture_output=True, text=True, timeout=60)

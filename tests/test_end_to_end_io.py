@@ -181,6 +181,21 @@ def test_tcp_server_refuses_non_loopback(rec):
         TcpEmulatorServer(DeviceEmulator(rec), host="0.0.0.0")
 
 
+def test_emulate_on_a_taken_port_says_to_pick_another_or_0(capsys):
+    import socket
+
+    from runtime.cli import main as handover
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert handover(["emulate", "--listen", f"tcp://127.0.0.1:{port}", "--duration", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"handover emulate: cannot listen on 127.0.0.1:{port}: ") and "\n" not in err
+    assert "give another port, or port 0 to pick a free one" in err
+
+
 def _args(module, argv):
     parser = argparse.ArgumentParser()
     module.add_arguments(parser)

@@ -227,3 +227,6 @@ def test_verify_accepts_a_flat_svm_reference(tmp_path, capsys):
                  "training": {"data_fingerprint": "synthetic", "n_trials": 96}}}, tmp_path / "flat.joblib")
     path = export_trained(tmp_path / "flat.joblib", tmp_path / "flat.onnx")
     assert handover(["verify", str(path), "--no-trials"]) == 0, capsys.readouterr()
+    lines = capsys.readouterr().out.splitlines()  # the verdict first, then what the figures mean
+    assert lines[0].startswith(f"verify {path}: PASSED: the graph gives the float64 reference's label on "), lines
+    assert any(line.startswith("  near ties (not failures") for line in lines)

@@ -256,8 +256,26 @@ def test_inspect_card(good_path, tmp_path, capsys):
     card = json.loads(capsys.readouterr().out)
     assert card["T"] == 12 and card["graph"]["n_nodes"] > 10 and card["pads"] == [1, 3]
     (tmp_path / "bad.onnx").write_bytes(b"\x00" * 10)
-    assert handover(["inspect", str(tmp_path / "bad.onnx")]) == 1
+    assert handover(["inspect", str(tmp_path / "bad.onnx")]) == 2
     assert capsys.readouterr().err.startswith("handover inspect: model ")
+
+
+def test_inspect_user_errors_exit_2_and_name_what_was_given(tmp_path, capsys):
+    """inspect exited 1 where verify exits 2, and called a recording `not an ONNX model or truncated
+    (unsupported wire type 3 ...)`."""
+    from firmware_io.recordings.recording import Recording
+    from runtime.cli import main as handover
+    from tests.protocol_standin import standin_recordings
+
+    assert handover(["inspect", str(tmp_path / "modle.onnx")]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    rec: Recording = standin_recordings(n_subjects=1, runs=1)[0]
+    path = tmp_path / "subject_s1.hrec"
+    rec.save(path)
+    assert handover(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"handover inspect: model {path}: this is a recording (a zip archive such as .hrec), not a model; " \
+                  "give a .onnx model", err
 
 
 @pytest.mark.parametrize("extra", [{"features": [1, 2]}, {"features": {"families": 5}},

@@ -118,17 +118,35 @@ def test_skl2onnx_converts_bag_of_words(rbf_model):
 def test_export_cli(rbf_model, tmp_path, capsys):
     src = tmp_path / "trained.joblib"
     joblib.dump({"model": rbf_model, "metadata": {"training": {"data_fingerprint": "f", "n_trials": 3}}}, src)
-    assert handover(["export", str(src), "--out", str(tmp_path / "m.onnx"), "--pads", "1,3"]) == 1  # 16 != 156 taxels
+    assert handover(["export", str(src), "--out", str(tmp_path / "m.onnx"), "--pads", "1,3"]) == 2  # 16 != 156 taxels
     assert "trained on 16" in capsys.readouterr().err
     joblib.dump({"model": rbf_model, "metadata": {"pads": [1, 3], "pad_sizes": [6, 10],
                                                   "training": {"data_fingerprint": "f", "n_trials": 3}}}, src)
     assert handover(["export", str(src), "--out", str(tmp_path / "m.onnx")]) == 0
+    wrote = capsys.readouterr().out
+    assert "T=12, features: 6 words of W=5 derivative steps" in wrote, wrote  # what this BoW model has
     meta = load_model(tmp_path / "m.onnx").meta
     assert meta.extra["reference"]["file"] == "trained.joblib"
     (tmp_path / "junk.joblib").write_bytes(b"not a pickle")
-    assert handover(["export", str(tmp_path / "junk.joblib")]) == 1
+    assert handover(["export", str(tmp_path / "junk.joblib")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("handover export: ") and "Traceback" not in err
+    assert err.strip().endswith(f"give the .joblib that train wrote (e.g. {tmp_path / 'model.joblib'})")
+
+
+def test_export_of_the_onnx_model_says_to_give_the_joblib(rbf_model, tmp_path, capsys):
+    """`handover export report/model.onnx` said `not a readable joblib file (KeyError: 8)`, exit 1."""
+    src = tmp_path / "model.joblib"
+    joblib.dump({"model": rbf_model, "metadata": {"pads": [1, 3], "pad_sizes": [6, 10]}}, src)
+    assert handover(["export", str(src)]) == 0
+    capsys.readouterr()
+    onnx_path = tmp_path / "model.onnx"
+    before = onnx_path.read_bytes()
+    assert handover(["export", str(onnx_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"handover export: {onnx_path}: this is an ONNX model (what export writes), not a trained model; "
+                   f"give the .joblib that train wrote (e.g. {src})")
+    assert onnx_path.read_bytes() == before  # nothing overwritten
 
 
 def _onehot_chain(path, tmp_path):

@@ -102,13 +102,19 @@ def test_a_middleware_that_cannot_load_is_one_line(tmp_path, caplog, monkeypatch
     assert len(messages) == 1 and says in messages[0], messages
 
 
-def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
+def _config_with_model(tmp_path: Path, sinks: str) -> Path:
+    """A config whose model folder holds one toy model, with these ``[sinks]`` lines."""
     pytest.importorskip("onnx")
     models = tmp_path / "models"
     models.mkdir()
     write_model(models, "m.onnx", tiny_model_bytes())
     cfg = tmp_path / "h.toml"
-    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\nros2 = true\n')
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[sinks]\n{sinks}')
+    return cfg
+
+
+def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
+    cfg = _config_with_model(tmp_path, "ros2 = true\n")
     code = ("import sys; from runtime.cli import main; rc = main(['run', '--config', sys.argv[1], '--check']);"
             "print('RCLPY', 'rclpy' in sys.modules); sys.exit(rc)")
     env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}
@@ -117,3 +123,35 @@ def test_check_reports_a_ros2_problem_without_starting_a_node(tmp_path):
     assert proc.returncode == 0 and "RCLPY False" in proc.stdout, proc.stdout + proc.stderr
     warnings = [line for line in proc.stderr.splitlines() if "sinks.ros2" in line]
     assert len(warnings) == 1 and "librmw_nowhere_cpp.so is not installed" in warnings[0], proc.stderr
+
+
+def test_ros2_as_the_only_sink_says_events_go_nowhere(tmp_path, caplog, monkeypatch):
+    """stdout = false and ros2 = true where ROS 2 cannot start: the line said `events still go to
+    the other sinks`, and there were none."""
+    from runtime.config import config_from_dict
+    from runtime.sinks import SinkSet
+
+    monkeypatch.setitem(sys.modules, "rclpy", None)
+    monkeypatch.delitem(sys.modules, "runtime.ros2_node", raising=False)
+    cfg = config_from_dict({"device": {"url": "sim://"}, "model": {"folder": str(tmp_path)},
+                            "sinks": {"stdout": False, "ros2": True}})
+    with caplog.at_level(logging.ERROR, logger="handover"):
+        sinks = SinkSet.from_config(cfg.sinks, ros2=cfg.ros2, daemon=None)
+    assert sinks.sinks == []
+    lines = [r.getMessage() for r in caplog.records if r.name == "handover.ros2"]
+    assert len(lines) == 1 and lines[0].endswith("; events go nowhere: no other sink is configured (set "
+                                                 "sinks.stdout = true, or add sinks.udp or sinks.unix targets)"), lines
+
+
+@pytest.mark.parametrize("sinks, says", [
+    ("stdout = false\nros2 = true\n", "librmw_nowhere_cpp.so is not installed"),
+    ("stdout = false\n", "sinks: events go nowhere: no sink is configured"),
+])
+def test_check_warns_when_no_sink_would_be_left(tmp_path, sinks, says):
+    cfg = _config_with_model(tmp_path, sinks)
+    env = {**os.environ, "RMW_IMPLEMENTATION": "rmw_nowhere_cpp"}
+    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60, env=env)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0] and "events go nowhere" in lines[0], proc.stderr

@@ -62,7 +62,16 @@ def test_pinned_scene_refuses_other_pads_and_says_what_to_do(tmp_path):
     problem = scene_problem(_model(tmp_path, "all.onnx", **ALL), cfg, SDH2)
     assert "model expects pads [0, 1, 2, 3, 4, 5], the scene uses [1, 3, 5]" in problem
     assert f'set scene.pads = "model" (follow the model) in {path}' in problem
-    assert "systemctl reload handover" in problem and "train with --pads 1,3,5" in problem
+    assert "systemctl reload handover" in problem and problem.endswith("or train with --pads distal")
+
+
+@pytest.mark.parametrize("pinned, suggests", [('"all"', "--pads all"), ('"0,1,2,3,4,5"', "--pads all"),
+                                              ('"1,3"', "--pads 1,3")])
+def test_the_pads_suggested_are_named_when_a_name_selects_them(tmp_path, pinned, suggests):
+    """`train with --pads 0,1,2,3,4,5` for all pads: the name train takes is shorter and clearer."""
+    cfg = load_config(_shipped_config(tmp_path, scene__pads=pinned))
+    problem = scene_problem(_model(tmp_path, "d.onnx"), cfg, SDH2)
+    assert problem.endswith(f"or train with {suggests}"), problem
 
 
 def test_every_refusal_names_a_fix(tmp_path):

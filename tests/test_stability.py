@@ -264,6 +264,8 @@ def test_verify_cli_fails_on_a_graph_with_swapped_codewords(tmp_path, capsys):
     path = _swap_codewords(_exported_with_reference(tmp_path))
     assert handover(["verify", str(path), "--no-trials", "--json"]) == 1
     report = json.loads(capsys.readouterr().out)
+    assert handover(["verify", str(path), "--no-trials"]) == 1
+    assert capsys.readouterr().out.startswith(f"verify {path}: FAILED: ")
     assert report["unexplained_disagreements"] > 0 or report["hist_mismatch_unexplained"] > 0
     assert report["window_word_mismatches_unexplained"] > 0
     # only windows built exactly between two codewords may still be excused: every window of such a

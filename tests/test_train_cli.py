@@ -91,7 +91,10 @@ def test_export_of_a_trained_file_needs_no_pads_and_keeps_the_card(tiny_data, tm
     assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "4",
                      "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--fraction", "0.15", "--quiet"]) == 0
     rc = handover(["export", str(out / "model.joblib"), "--out", str(out / "exported.onnx")])
-    assert rc == 0, capsys.readouterr().err
+    printed = capsys.readouterr()
+    assert rc == 0, printed.err
+    wrote = printed.out.strip().splitlines()[-1]  # the default features have no codebook: no K, no W
+    assert ", T=10, features: hand + stats, per pad (6 pads)" in wrote and "K=" not in wrote, wrote
     from runtime.model import load_model
 
     meta = load_model(out / "exported.onnx").meta

@@ -48,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "trainer.streams_eval.DEFAULT_SETTING): onset = onset trigger + 4-class model, onset_dormant "
                         "= onset trigger + 5-class model with a dormant class, continuous = every frame classified, "
                         "threshold = the paper's 15 %% level")
-    parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/model.onnx exists")
+    parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/stream-model.onnx exists (OUT/report/model.onnx "
+                        "for --setting threshold)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="only the summary")
 
@@ -299,6 +300,7 @@ def _print_summary(s: dict) -> None:
               "includes the frames queued before it; at speed 1.0 it is the daemon's own time)")
     print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
     print(f"  total {s['seconds']:.0f} s")
+    print(f"  model: {s['model']} (the README's \"daemon without a hand\" serves it; handover inspect {s['model']})")
 
 
 def _share(x: float | None) -> str:

@@ -46,23 +46,55 @@ LOSO_NEEDS_A_SECOND_SUBJECT = ("leave-one-subject-out needs a second subject: re
 and in report.md; the model is still trained and exported)."""
 
 
-def loso_unavailable(groups: np.ndarray) -> str | None:
-    """None when leave-one-subject-out can run, else the reason it cannot."""
-    return LOSO_NEEDS_A_SECOND_SUBJECT if len(set(np.asarray(groups).tolist())) < 2 else None
+def loso_skipped(groups: np.ndarray, y: np.ndarray) -> dict[str, str]:
+    """Held-out subject -> why its fold cannot run: the other subjects' cases (the fold's training
+    part) hold fewer than two classes, so no classifier can be fitted. A held-out subject with few
+    classes is still a valid test set; only a training part of one class is skipped."""
+    groups, y = np.asarray(groups), np.asarray(y)
+    labels = sorted(set(y.tolist()))
+    out = {}
+    for subject in sorted(set(groups.tolist())):
+        others = groups != subject
+        have = sorted(set(y[others].tolist()))
+        if len(have) >= 2:
+            continue
+        who = sorted(set(groups[others].tolist()))
+        lack = [c for c in labels if c not in have]
+        out[str(subject)] = (f"leaving out {subject} would train on {', '.join(map(str, who))} alone, whose cases "
+                             f"are all {have[0] if have else 'missing'}: record {', '.join(map(str, lack))} for "
+                             f"{', '.join(map(str, who))} (handover record continues an unfinished session)")
+    return out
 
 
-def loso_splits(groups: np.ndarray) -> list[Split]:
-    """Configuration 2: one split per subject, that subject's cases form the test set."""
+def loso_unavailable(groups: np.ndarray, y: np.ndarray | None = None) -> str | None:
+    """None when leave-one-subject-out can run at least one fold, else the reason it cannot."""
+    if len(set(np.asarray(groups).tolist())) < 2:
+        return LOSO_NEEDS_A_SECOND_SUBJECT
+    if y is None:
+        return None
+    skipped = loso_skipped(groups, y)
+    if len(skipped) == len(set(np.asarray(groups).tolist())):
+        return "no leave-one-subject-out fold can train: " + "; ".join(skipped.values())
+    return None
+
+
+def loso_splits(groups: np.ndarray, y: np.ndarray | None = None) -> list[Split]:
+    """Configuration 2: one split per subject, that subject's cases form the test set; given ``y``,
+    the folds :func:`loso_skipped` names are left out (the caller says so)."""
     groups = np.asarray(groups)
+    skip = loso_skipped(groups, y) if y is not None else {}
     out = []
     for subject in sorted(set(groups.tolist())):
         test = np.flatnonzero(groups == subject)
         train = np.flatnonzero(groups != subject)
         if set(groups[train].tolist()) & set(groups[test].tolist()):
             raise AssertionError(f"subject {subject} is in both train and test")
-        out.append(Split(str(subject), train, test))
-    if len(out) < 2:
+        if str(subject) not in skip:
+            out.append(Split(str(subject), train, test))
+    if len(set(groups.tolist())) < 2:
         raise ValueError(LOSO_NEEDS_A_SECOND_SUBJECT)
+    if not out:
+        raise ValueError(loso_unavailable(groups, y))
     return out
 
 
@@ -123,11 +155,12 @@ def config2(estimator, X, y, groups, n_jobs: int = N_JOBS, progress=None) -> dic
     """Leave one subject out: accuracy per held-out subject and over all held-out predictions."""
     y = np.asarray(y)
     labels = sorted(set(y.tolist()))
-    splits = loso_splits(groups)
+    splits = loso_splits(groups, y)
     out = _summary(run_splits(estimator, X, y, splits, n_jobs, progress), y, labels)
     per_subject = out.pop("accuracies")
     out.update(
         per_subject=per_subject,
+        skipped=loso_skipped(groups, y),
         accuracy=out["pooled_accuracy"],
         subject_mean=float(np.mean(list(per_subject.values()))),
         subject_std=float(np.std(list(per_subject.values()), ddof=1)) if len(per_subject) > 1 else 0.0,

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
-import sys
 from pathlib import Path
 
 
@@ -26,12 +25,22 @@ def load_trained(path: str | Path):
     import joblib
 
     path = Path(path)
+    beside = path.parent / "model.joblib" if path.suffix in (".onnx", ".joblib") else Path("report/model.joblib")
+    give = f"give the .joblib that train wrote (e.g. {beside})"
+    try:
+        with path.open("rb") as f:
+            head = f.read(16)
+    except FileNotFoundError:
+        raise ExportError(f"{path}: no such file; {give}") from None
+    except OSError as exc:
+        raise ExportError(f"{path}: cannot read ({exc.strerror or exc}); {give}") from None
+    kind = _other_kind(path, head)
+    if kind:
+        raise ExportError(f"{path}: this is {kind}, not a trained model; {give}")
     try:
         obj = joblib.load(path)
-    except FileNotFoundError:
-        raise ExportError(f"{path}: no such file") from None
     except Exception as exc:  # joblib/pickle raise many types for a broken file
-        raise ExportError(f"{path}: not a readable joblib file ({type(exc).__name__}: {exc})") from exc
+        raise ExportError(f"{path}: not a readable joblib file ({type(exc).__name__}: {exc}); {give}") from exc
     metadata: dict = {}
     if isinstance(obj, dict) and "model" in obj:
         metadata = dict(obj.get("metadata") or {})
@@ -39,6 +48,16 @@ def load_trained(path: str | Path):
     if not all(hasattr(obj, a) for a in ("svm_", "classes_")):
         raise ExportError(f"{path}: holds a {type(obj).__name__}, not a fitted BowSVC or FlatSVC")
     return obj, metadata
+
+
+def _other_kind(path: Path, head: bytes) -> str | None:
+    """What a file given to export is instead of a joblib: an ONNX model (export's own output) or a
+    recording; None when it may be a joblib (a pickle starts with 0x80, a compressed one otherwise)."""
+    if path.suffix == ".hrec":  # a zip of arrays
+        return "a recording (train on it first: handover train --data FOLDER)"
+    if path.suffix == ".onnx" or head.startswith(b"\x08"):  # ONNX: field 1 (ir_version), a varint
+        return "an ONNX model (what export writes)"
+    return None
 
 
 def export_trained(source: str | Path, out: str | Path, pads: str | None = None, fold_derivative: bool = False) -> Path:
@@ -82,15 +101,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from firmware_io.commands.errors import fail
+    from runtime.inspect_cli import feature_summary
     from runtime.model import ModelContractError, load_model
 
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
     try:
         path = export_trained(args.model, out, args.pads, args.fold_derivative)
+    except (ExportError, OSError) as exc:  # the file or options given: the user's to fix
+        return fail("export", str(exc))
+    try:
         model = load_model(path)
-    except (ExportError, ModelContractError, OSError) as exc:
-        print(f"handover export: {exc}", file=sys.stderr)
-        return 1
+    except ModelContractError as exc:  # the export itself broke the contract: not the user's input
+        return fail("export", f"{path}: the exported graph breaks the model contract ({exc})", 1)
     print(f"wrote {path}: id {model.model_id}, {model.n_nodes} nodes, {model.n_bytes} bytes, "
-          f"classes {', '.join(model.meta.classes)}, T={model.meta.T} W={model.meta.W} K={model.meta.K}")
+          f"classes {', '.join(model.meta.classes)}, T={model.meta.T}, {feature_summary(model)}")
     return 0

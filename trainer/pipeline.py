@@ -170,15 +170,18 @@ def evaluate(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -
     """The paper's two configurations for the estimator and the hand-designed baseline; with one
     subject only configuration 1 (``config2`` entries None, ``loso_unavailable`` says why)."""
     from trainer.baseline import BaselineSVC
-    from trainer.evaluation import config1, config2, loso_unavailable
+    from trainer.evaluation import config1, config2, loso_skipped, loso_unavailable
 
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     base = BaselineSVC(pad_shapes=shapes, kernel="rbf")
     seeds = list(range(options.seed, options.seed + options.repeats))
     n_subjects = len(set(ds.groups.tolist()))
-    missing = loso_unavailable(ds.groups)
+    missing = loso_unavailable(ds.groups, ds.y)
     if missing:  # a warning the user must see even with --quiet: the model is trained, LOSO is not measured
         print(f"handover train: {missing}", file=sys.stderr, flush=True)
+    else:  # folds whose training part has one class are skipped, never silently
+        for why in loso_skipped(ds.groups, ds.y).values():
+            print(f"handover train: {why}; that fold is skipped", file=sys.stderr, flush=True)
     say(f"evaluating (configuration 1, {'' if missing else 'leave one subject out, '}baseline) ...")
     q = options.quiet
     result: dict[str, Any] = {

@@ -300,6 +300,8 @@ def _loso_lines(metrics: dict, split1: str) -> list[str]:
     ]
     for s, acc in c2["per_subject"].items():
         lines.append(f"| {s} | {pct(acc)} | {pct(b2['per_subject'][s])} |")
+    for s, why in (c2.get("skipped") or {}).items():
+        lines.append(f"| {s} | not measured: {why} | not measured |")
     return lines
 
 

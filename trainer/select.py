@@ -76,10 +76,10 @@ def grouped_splits(ds) -> tuple[list, str]:
     """Leave one subject out, else grouped by run, else stratified 5-fold over trials."""
     from sklearn.model_selection import GroupKFold, StratifiedKFold
 
-    from trainer.evaluation import Split, loso_splits
+    from trainer.evaluation import Split, loso_splits, loso_unavailable
 
-    if len(set(ds.groups.tolist())) >= 2:
-        return loso_splits(ds.groups), "leave one subject out"
+    if loso_unavailable(ds.groups, ds.y) is None:  # folds whose training part has one class are left out
+        return loso_splits(ds.groups, ds.y), "leave one subject out"
     runs = np.asarray([f"{g}/{r}" for g, r in zip(ds.groups, ds.runs, strict=True)])
     if len(set(runs.tolist())) >= 2:
         cv = GroupKFold(n_splits=min(5, len(set(runs.tolist()))))

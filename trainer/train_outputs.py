@@ -29,6 +29,7 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
         "loso_accuracy": c2.get("accuracy"),
         "loso_per_subject": c2.get("per_subject"),
         "loso_subject_std": c2.get("subject_std"),
+        "loso_skipped": c2.get("skipped") or {},
         **missing,
         "baseline_config1_accuracy_mean": b1["mean"],
         "baseline_config1_accuracy_std": b1["std"],
@@ -94,6 +95,7 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "config1_split": metrics["config1"]["split"],
             "loso_accuracy": metrics["loso_accuracy"],
             "loso_per_subject": metrics["loso_per_subject"],
+            **({"loso_skipped": metrics["loso_skipped"]} if metrics.get("loso_skipped") else {}),
             "baseline_loso_accuracy": metrics["baseline_loso_accuracy"],
             **({"loso_unavailable": metrics["loso_unavailable"]} if "loso_unavailable" in metrics else {}),
         },
@@ -164,7 +166,9 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
         f"T={metrics['T']} {metrics['kernel']} SVM"
         + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
         f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
-        f"{pct(metrics['baseline_loso_accuracy'])})" if metrics["loso_accuracy"] is not None
+        f"{pct(metrics['baseline_loso_accuracy'])})"
+        + (f"; skipped (no second class to train on): {', '.join(metrics['loso_skipped'])}"
+           if metrics.get("loso_skipped") else "") if metrics["loso_accuracy"] is not None
         else f"  leave one subject out: not measured ({metrics['loso_unavailable']})",
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
         f"{pct(metrics['baseline_config1_accuracy_mean'])})",

@@ -37,27 +37,55 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
+def verdict(report) -> str:
+    """The first line: passed or failed, and why, before any figure a newcomer could misread."""
+    n = report.n_cases
+    agree = n - len(report.disagreements)
+    if report.ok and report.nonfinite_input_refused:
+        ties = (f" ({len(report.disagreements)} differ at near ties, where float32 rounding may pick either "
+                "label)" if report.disagreements else "")
+        return (f"PASSED: the graph gives the float64 reference's label on {agree} of {n} cases "
+                f"({100 * report.agreement:.3f} %){ties}; every difference is within float32 rounding; "
+                "no NaN/inf; non-finite input refused")
+    why = []
+    if report.unexplained_disagreements:
+        why.append(f"{report.unexplained_disagreements} cases get another label than the reference, not at a near tie")
+    if report.hist_mismatch_unexplained:
+        why.append(f"{report.hist_mismatch_unexplained} {report.features}s differ beyond float32 rounding")
+    if report.window_word_mismatches_unexplained:
+        why.append(f"{report.window_word_mismatches_unexplained} windows pick another codeword beyond float32 rounding")
+    if report.nan_or_inf_outputs:
+        why.append(f"{report.nan_or_inf_outputs} NaN/inf outputs")
+    if not report.nonfinite_input_refused:
+        why.append("non-finite input is not refused")
+    return "FAILED: " + "; ".join(why) + " (the graph does not compute what the float64 model does)"
+
+
 def _print_report(report, path: Path) -> None:
-    print(f"verify {path}: {report.n_cases} cases, label agreement {100 * report.agreement:.3f} %")
+    print(f"verify {path}: {verdict(report)}")
+    print(f"details ({report.n_cases} cases; the verdict above counts, the lines below explain it):")
     for source, entry in sorted(report.by_source.items()):
         print(f"  {source}: {entry['agree']}/{entry['n_cases']} agree")
-    print(f"  disagreements: {len(report.disagreements)} ({report.near_tie_disagreements} near ties, "
-          f"{report.unexplained_disagreements} unexplained)")
+    print(f"  disagreements: {len(report.disagreements)} ({report.near_tie_disagreements} at near ties, "
+          f"{report.unexplained_disagreements} unexplained: only unexplained ones fail)")
     for d in report.disagreements[:50]:
         print(f"    case {d.case} [{d.source}] graph={d.graph_label} reference={d.reference_label}: {d.reason}; "
               f"codeword margin {d.codeword_margin:.3g} x bound (gap {d.codeword_gap:.3g}), "
               f"SVM margin {d.svm_margin:.3g} x bound")
-    print(f"  max |score - reference|: {report.max_score_abs_diff:.3g} "
-          f"({report.max_score_abs_diff_same_votes:.3g} where {report.features} and votes agree)")
+    print(f"  largest |score - reference| (float32 rounding of the SVM scores, in score units): "
+          f"{report.max_score_abs_diff:.3g} ({report.max_score_abs_diff_same_votes:.3g} where {report.features} "
+          "and votes agree)")
     what = report.features
-    print(f"  max |{what} - reference|: {report.max_hist_abs_diff:.3g}; "
-          f"{report.hist_mismatch_cases} {what}s differ beyond their float32 bound "
-          f"({report.hist_mismatch_unexplained} not at a near tie)")
-    print(f"  windows whose word differs from float64: {report.window_word_mismatches} "
-          f"({report.window_word_mismatches_near_tie} near ties, {report.window_word_mismatches_unexplained} beyond the bound)")
+    print(f"  largest |{what} - reference| (in the features' own units, e.g. pressure sums of thousands): "
+          f"{report.max_hist_abs_diff:.3g}; beyond their float32 bound: {report.hist_mismatch_cases} "
+          f"({report.hist_mismatch_unexplained} not at a near tie: only these fail)")
+    print(f"  windows whose codeword differs from float64: {report.window_word_mismatches} "
+          f"({report.window_word_mismatches_near_tie} near ties, {report.window_word_mismatches_unexplained} "
+          "beyond the bound: only these fail)")
     share = 100 * report.near_tie_cases / max(report.n_cases, 1)
-    print(f"  cases float32 cannot certify by the worst-case bound (a near tie, whatever the outcome; not "
-          f"disagreements): {report.near_tie_cases} ({share:.1f} %; the SVM decision in {report.svm_near_tie_cases})")
+    print(f"  near ties (not failures; the label above was still compared): {report.near_tie_cases} cases "
+          f"({share:.1f} %) lie so close to a boundary that the worst-case float32 bound alone cannot guarantee "
+          f"their vote (the SVM decision in {report.svm_near_tie_cases})")
     print(f"  NaN/inf outputs: {report.nan_or_inf_outputs}; "
           f"non-finite input refused: {report.nonfinite_input_refused}")
     print(f"  near tie: margin < {report.safety:g} x the float32 error bound (see trainer/numerics.py)")

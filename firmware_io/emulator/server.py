@@ -11,16 +11,22 @@ from __future__ import annotations
 import contextlib
 import errno
 import ipaddress
+import logging
 import os
 import select
 import socket
 import threading
+import time
 import tty
 
 from firmware_io.emulator.device import DeviceEmulator
 
 POLL_S = 0.05  # longest wait before the loop looks at the stop flag again
 CHUNK = 65536
+REFUSAL_NOTE_S = 10.0
+"""Refused connections are logged at most once per this long (a retrying host is refused again and again)."""
+
+log = logging.getLogger("handover.emulator")
 
 
 class EmulatorServerError(OSError):
@@ -77,7 +83,8 @@ class _ServerBase:
 
 
 class TcpEmulatorServer(_ServerBase):
-    """One host at a time on ``tcp://127.0.0.1:PORT`` (a new connection replaces the old one)."""
+    """One host at a time on ``tcp://127.0.0.1:PORT``, like a controller serving one host: while a host
+    is connected, another connection is closed at once (and logged, naming the refused peer)."""
 
     def __init__(self, emulator: DeviceEmulator, host: str = "127.0.0.1", port: int = 0) -> None:
         super().__init__(emulator)
@@ -96,11 +103,17 @@ class TcpEmulatorServer(_ServerBase):
             self._listener.bind((self.host, port))
         except OSError as exc:
             self._listener.close()
-            raise EmulatorServerError(f"cannot listen on {self.host}:{port}: {exc.strerror or exc}") from None
+            hint = ("; another program (another emulator?) has it: give another port, or port 0 to pick a free one "
+                    "(the emulator prints the URL it listens on)" if exc.errno == errno.EADDRINUSE else "")
+            raise EmulatorServerError(f"cannot listen on {self.host}:{port}: {exc.strerror or exc}{hint}") from None
         self._listener.listen(2)
         self._listener.setblocking(False)
         self.port = self._listener.getsockname()[1]
         self._conn: socket.socket | None = None
+        self.refused = 0
+        """Connections closed at once because a host was connected."""
+        self._refusals_unlogged = 0
+        self._next_refusal_note = 0.0
 
     @property
     def url(self) -> str:
@@ -117,15 +130,44 @@ class TcpEmulatorServer(_ServerBase):
 
     def _accept(self) -> None:
         try:
-            conn, _ = self._listener.accept()
+            conn, peer = self._listener.accept()
         except (BlockingIOError, OSError):
             return
-        self._drop_conn()
+        if self._conn is not None and self._conn_closed_by_host():
+            self._drop_conn()  # the host closed and came back before the loop saw it go
+        if self._conn is not None:
+            self._refuse(conn, peer)
+            return
         conn.setblocking(False)
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._conn = conn
         self._pending = b""
         self.emulator.connect()
+
+    def _conn_closed_by_host(self) -> bool:
+        """The served host has closed its end (or the socket failed), without consuming its bytes."""
+        try:
+            return self._conn.recv(1, socket.MSG_PEEK) == b""
+        except BlockingIOError:
+            return False
+        except OSError:
+            return True
+
+    def _refuse(self, conn: socket.socket, peer: object) -> None:
+        """A second host while one is served: closed at once; one log line per ``REFUSAL_NOTE_S``."""
+        with contextlib.suppress(OSError):
+            conn.close()
+        self.refused += 1
+        self._refusals_unlogged += 1
+        now = time.monotonic()
+        if now < self._next_refusal_note:
+            return
+        self._next_refusal_note = now + REFUSAL_NOTE_S
+        where = ":".join(str(p) for p in peer[:2]) if isinstance(peer, tuple) else str(peer)
+        more = f" ({self._refusals_unlogged} refused since the last note)" if self._refusals_unlogged > 1 else ""
+        self._refusals_unlogged = 0
+        log.warning("refused a connection from %s: another host is connected (the emulated controller serves "
+                    "one host at a time)%s", where, more)
 
     def _drop_conn(self) -> None:
         if self._conn is not None:

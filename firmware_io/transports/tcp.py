@@ -22,6 +22,8 @@ from firmware_io.transports.base import (
 )
 
 DEFAULT_PORT = 13000
+HELD_ELSEWHERE = "another client, e.g. the daemon, may hold the device: it serves one host at a time"
+"""Why a device closes or resets a connection before sending a byte (a controller serving one host)."""
 
 
 class TcpTransport(Transport):
@@ -43,6 +45,7 @@ class TcpTransport(Transport):
         self._sock.settimeout(None)
         self._sock.setblocking(True)
         self._closed = False
+        self._received = 0
 
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
@@ -59,7 +62,7 @@ class TcpTransport(Transport):
         try:
             self._sock.sendall(data)
         except OSError as exc:
-            raise DeviceUnavailable(f"{self.url}: connection lost while sending: {exc.strerror or exc}") from None
+            raise DeviceUnavailable(self._lost(f"connection lost while sending: {exc.strerror or exc}")) from None
 
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
         self._check_open()
@@ -69,10 +72,15 @@ class TcpTransport(Transport):
                 return b""
             data = self._sock.recv(max_bytes)
         except OSError as exc:
-            raise DeviceUnavailable(f"{self.url}: connection lost: {exc.strerror or exc}") from None
+            raise DeviceUnavailable(self._lost(f"connection lost: {exc.strerror or exc}")) from None
         if not data:
-            raise DeviceUnavailable(f"{self.url}: the device closed the connection")
+            raise DeviceUnavailable(self._lost("the device closed the connection"))
+        self._received += len(data)
         return data
+
+    def _lost(self, what: str) -> str:
+        """The line for a lost connection; closed before the first byte, it says who may hold the device."""
+        return f"{self.url}: {what} at once ({HELD_ELSEWHERE})" if not self._received else f"{self.url}: {what}"
 
     def close(self) -> None:
         if self._closed:
