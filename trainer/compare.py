@@ -55,11 +55,10 @@ DIAGNOSES = {"real_slip": "why, judged on its training part only: results/slip_d
 
 def model_specs(quick: bool, minirocket: bool = True) -> list[ModelSpec]:
     """The compared models: the shipped default first, the references, then the paper and the families."""
-    from trainer.defaults import DEFAULT_MODEL
+    from trainer.defaults import default_candidate_name
     from trainer.select import ROCKET_SETTINGS
 
-    default_desc = f"what `handover train` exports without options: {'+'.join(DEFAULT_MODEL['families'])}, " \
-                   f"{DEFAULT_MODEL['kernel']} SVM (trainer/defaults.py)"
+    default_desc = f"what `handover train` exports without options: {default_candidate_name()} (trainer/defaults.py)"
     specs = [
         ModelSpec("default", "default", {}, default_desc, ""),
         ModelSpec("baseline", "features", {"families": ("hand",), "kernel": "rbf"},
@@ -240,13 +239,13 @@ def recommend(specs, tasks, ds, latency: dict, n_jobs: int, say) -> dict:
     with the latency of the candidates' exported graphs (CPU time p99: the shared machine's other
     work must not decide) and whether ``trainer.defaults`` ships that choice."""
     from trainer.default_choice import choose_default
-    from trainer.defaults import DEFAULT_MODEL
+    from trainer.defaults import default_candidate_name
 
     lat = {s.candidate: {"p50_us": latency[s.name]["cpu_p50_us"], "p99_us": latency[s.name]["cpu_p99_us"],
                          "model": s.name} for s in specs if s.candidate}
     choice = choose_default(tasks, ds, lat, n_jobs, say)
     chosen = next((s for s in specs if s.candidate == choice["chosen"]), None)
-    shipped = "+".join(DEFAULT_MODEL["families"]) + f" {DEFAULT_MODEL['kernel']}"
+    shipped = default_candidate_name()
     choice.update(model=chosen.name if chosen else None, flags=chosen.flags if chosen else "",
                   shipped=shipped, shipped_matches=bool(chosen) and choice["chosen"].replace(" ", "") ==
                   shipped.replace(" ", ""))

@@ -2,7 +2,8 @@
 options, what the demo and the benchmarks train, and what ``trainer.default_classifier`` returns.
 
 The default: the paper's hand-designed features plus per-pad level statistics (``hand``, ``stats``),
-standardised, RBF SVM. Chosen by the rule of ``trainer.default_choice`` (results/compare.md,
+standardised, a quantity both families compute counted once in the distance (``feature_weighting =
+"distinct"``, trainer/feature_weighting.py), RBF SVM. Chosen by the rule of ``trainer.default_choice`` (results/compare.md,
 "Choosing the default"): nested grouped cross-validation on the real SDH-2 tasks inside the outer
 training folds, a 1 ms latency budget and a 95 % nested leave-one-subject-out gate on the
 simulated protocol; the outer test folds never enter. The paper's configuration stays reachable:
@@ -16,19 +17,27 @@ from collections.abc import Sequence
 DEFAULT_MODEL = {
     "families": ("hand", "stats"),
     "kernel": "rbf",
+    "feature_weighting": "distinct",
     "K": 10,
     "W": 7,
     "T": 15,
     "pads": "all",
     "per_pad": True,
 }
-"""Feature families, SVM kernel, BoW words/window, frames per case, pads. ``per_pad``: the BoW
+"""Feature families, SVM kernel, weighting of the standardised features, BoW words/window, frames per case, pads. ``per_pad``: the BoW
 family keeps one histogram per pad (the paper's single histogram is ``per_pad=False``)."""
 
 def describe_default() -> str:
-    """One phrase for results files, e.g. ``hand + stats features, rbf SVM, T=15, all pads``."""
+    """One phrase for results files, e.g. ``hand + stats features (distinct), rbf SVM, T=15, all pads``."""
     m = DEFAULT_MODEL
-    return f"{' + '.join(m['families'])} features, {m['kernel']} SVM, T={m['T']}, {m['pads']} pads"
+    weighting = f" ({m['feature_weighting']})" if m["feature_weighting"] else ""
+    return f"{' + '.join(m['families'])} features{weighting}, {m['kernel']} SVM, T={m['T']}, {m['pads']} pads"
+
+
+def default_candidate_name() -> str:
+    """The default as a candidate of ``handover train --select`` is named, e.g. ``hand+stats rbf distinct``."""
+    m = DEFAULT_MODEL
+    return " ".join(x for x in ("+".join(m["families"]), m["kernel"], m["feature_weighting"]) if x)
 
 
 BOW_ALONE_KERNEL = "linear"
@@ -64,4 +73,5 @@ def default_classifier(pad_sizes: Sequence[int], pad_shapes: Sequence[tuple[int,
 
     return FeatureSVC(families=DEFAULT_MODEL["families"], pad_sizes=tuple(int(s) for s in pad_sizes),
                       pad_shapes=pad_shapes, kernel=DEFAULT_MODEL["kernel"], n_words=DEFAULT_MODEL["K"],
-                      window=DEFAULT_MODEL["W"], random_state=random_state, fullscale=fullscale)
+                      window=DEFAULT_MODEL["W"], random_state=random_state, fullscale=fullscale,
+                      feature_weighting=DEFAULT_MODEL["feature_weighting"])

@@ -47,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--feature-weighting", choices=FEATURE_WEIGHTING_CHOICES, default=None,
                         help="reweigh the standardised features in the SVM's distance (trainer/feature_weighting.py): "
                         "distinct (a quantity two families both compute counts once), block_count or block_mfa "
-                        "(every family weighs the same); default: unweighted")
+                        "(every family weighs the same), none (unweighted); default: the product default's (distinct) with the "
+                        "default families, else none")
     parser.add_argument("--per-pad", action=argparse.BooleanOptionalAction, default=D.per_pad,
                         help="one histogram per pad (default: on); --no-per-pad gives the paper's single histogram "
                         "per case (and bow alone: the paper's configuration)")

@@ -16,7 +16,7 @@ from trainer.feature_weighting import FEATURE_WEIGHTINGS
 KERNELS = ("rbf", "linear")
 ASSIGNMENTS = ("hard", "soft")
 TRIGGERS = ("onset", "threshold")
-FEATURE_WEIGHTING_CHOICES = tuple(w for w in FEATURE_WEIGHTINGS if w is not None)
+FEATURE_WEIGHTING_CHOICES = (*(w for w in FEATURE_WEIGHTINGS if w is not None), "none")
 
 
 class OptionsError(ValueError):
@@ -42,7 +42,8 @@ class TrainOptions:
     C: float | None = None
     gamma: float | None = None
     feature_weighting: str | None = None
-    """A rule of ``trainer.feature_weighting`` for the standardised features (None: unweighted)."""
+    """A rule of ``trainer.feature_weighting`` for the standardised features, ``"none"``: unweighted;
+    None: the product default's with the default families, else unweighted."""
     per_pad: bool = bool(DEFAULT_MODEL["per_pad"])
     select: bool = False
     latency_budget_us: float | None = None
@@ -87,6 +88,14 @@ class TrainOptions:
         return ("bow",) if self.bow_only else tuple(DEFAULT_MODEL["families"])
 
     @property
+    def weighting(self) -> str | None:
+        """The feature weighting the estimator gets (``feature_weighting``; see there)."""
+        if self.feature_weighting is not None:
+            return None if self.feature_weighting == "none" else self.feature_weighting
+        uses_default = not self.features and not self.bow_only
+        return DEFAULT_MODEL["feature_weighting"] if uses_default else None
+
+    @property
     def svm_kernel(self) -> str:
         """``kernel``, else linear for bow alone (BowSVC's product setting), else the default's kernel."""
         if self.kernel:
@@ -126,7 +135,7 @@ class TrainOptions:
             raise OptionsError(f"--temperature must be positive (got {self.temperature})")
         if self.latency_budget_us is not None and not self.latency_budget_us > 0:
             raise OptionsError(f"--latency-budget-us must be positive (got {self.latency_budget_us})")
-        if self.feature_weighting is not None and self.families == ("bow",):
+        if self.feature_weighting not in (None, "none") and self.families == ("bow",):
             raise OptionsError("--feature-weighting applies to the feature families, not to bow alone")
         for name, value, allowed in (("--kernel", self.kernel, KERNELS), ("--assignment", self.assignment, ASSIGNMENTS),
                                      ("--trigger", self.trigger, TRIGGERS),
@@ -146,7 +155,8 @@ class TrainOptions:
             parts += ["--trigger", self.trigger]
         if self.fraction is not None:
             parts += ["--fraction", str(self.fraction)]
-        for flag, value in (("--C", self.C), ("--gamma", self.gamma), ("--feature-weighting", self.feature_weighting),
+        for flag, value in (("--C", self.C), ("--gamma", self.gamma),
+                            ("--feature-weighting", self.weighting if self.families != ("bow",) else None),
                             ("--sweep", self.sweep_file)):
             if value is not None:
                 parts += [flag, str(value)]
@@ -220,4 +230,4 @@ def build_estimator(options: TrainOptions, ds):
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
     return FeatureSVC(families=o.families, pad_sizes=tuple(ds.pad_sizes), pad_shapes=shapes, kernel=o.svm_kernel,
                       C=o.C, gamma=o.gamma, n_words=o.K, window=o.W, random_state=o.seed, fullscale=ds.fullscale,
-                      feature_weighting=o.feature_weighting)
+                      feature_weighting=o.weighting)
