@@ -7,9 +7,9 @@ waits for a slice of the processes already running, several milliseconds; nicene
 SCHED_FIFO; results/latency.md has the benchmark's own figures). Under a real-time policy the hot
 thread runs first. Only the thread that calls :func:`enter_realtime` is raised (the model
 watcher, which loads models, and the control socket keep normal scheduling, so loading a model
-cannot hog a core); threads it starts afterwards inherit its policy (the rehearsal, which must
-run on time too; the ROS 2 sink and the control socket when a reload rebuilds them: they sleep
-on their sockets).
+cannot hog a core), and with SCHED_RESET_ON_FORK nothing it starts afterwards inherits the
+policy: neither threads (the rehearsal, sinks a reload rebuilds) nor child processes, which at
+the same priority would never yield the core back (a busy child of a real-time thread starves it).
 
 Priority :data:`DEFAULT_PRIORITY` (1-99, 0 = normal scheduling): above every normal process and
 below the kernel's interrupt threads (50 on PREEMPT_RT kernels) and a robot's control loops, which
@@ -40,7 +40,8 @@ class Scheduling:
 def current() -> Scheduling | None:
     """The calling thread's scheduling, or None where the platform cannot tell."""
     try:
-        return Scheduling(os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+        policy = os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+        return Scheduling(policy, os.sched_getparam(0).sched_priority)
     except (AttributeError, OSError):
         return None
 
@@ -55,7 +56,7 @@ def enter_realtime(priority: int) -> tuple[Scheduling | None, str]:
     if before is None or not hasattr(os, "SCHED_FIFO"):
         return None, "real-time scheduling is not available on this platform: normal scheduling"
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(priority))
     except OSError as exc:
         return None, (f"real-time scheduling (SCHED_FIFO {priority}) not permitted ({exc.strerror}): normal "
                       "scheduling; allow it with LimitRTPRIO= in the service (deploy/handover.service) or set "

@@ -127,3 +127,31 @@ def test_daemon_decides_at_real_time_priority_and_gives_it_back():
     after = _in_thread(run)
     assert seen and seen[0] == realtime.Scheduling(os.SCHED_FIFO, 7)
     assert after.policy == os.SCHED_OTHER
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="raising a thread to SCHED_FIFO here needs root")
+def test_nothing_started_from_the_hot_thread_inherits_it():
+    """A busy child at the hot thread's priority would never give the core back."""
+    import multiprocessing as mp
+
+    def run():
+        before, _ = realtime.enter_realtime(20)
+        seen: list = []
+        t = threading.Thread(target=lambda: seen.append(realtime.current()))
+        t.start()
+        t.join(5)
+        ctx = mp.get_context("fork")
+        parent, child = ctx.Pipe()
+        p = ctx.Process(target=_report_scheduling, args=(child,))
+        p.start()
+        seen.append(parent.recv() if parent.poll(20) else None)
+        p.join(5)
+        realtime.restore(before)
+        return seen
+
+    thread_sched, child_sched = _in_thread(run)
+    assert thread_sched.policy == os.SCHED_OTHER and child_sched == os.SCHED_OTHER
+
+
+def _report_scheduling(pipe) -> None:
+    pipe.send(os.sched_getscheduler(0))
