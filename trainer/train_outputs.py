@@ -36,7 +36,8 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
         "baseline_loso_accuracy": b2.get("accuracy"),
         "baseline_loso_subject_std": b2.get("subject_std"),
         "K": options.K, "W": max(windows), "windows": windows, "T": options.T, "kernel": model.kernel,
-        "families": list(getattr(model, "families", ("bow",))), "selection": selection and selection.to_dict(),
+        "families": list(getattr(model, "families", ("bow",))),
+        "feature_weighting": getattr(model, "feature_weighting", None), "selection": selection and selection.to_dict(),
         "per_pad": options.per_pad, "pads": options.pads, "trigger_fraction": ds.fraction,
         "trigger": ds.trigger.to_meta(), "trigger_hysteresis": ds.hysteresis, "seed": options.seed,
         "best_params": model.best_params_,
@@ -160,9 +161,10 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     model = out / "model.onnx"
     # K (words) and W (derivative window) mean something only to the BoW family
     bow = f"K={metrics['K']} W={metrics['W']} " if "bow" in metrics["families"] else ""
+    weighting = f" ({metrics['feature_weighting']})" if metrics.get("feature_weighting") else ""
     lines = [
         f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
-        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}, {bow}"
+        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}{weighting}, {bow}"
         f"T={metrics['T']} {metrics['kernel']} SVM"
         + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
         f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "
