@@ -135,8 +135,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.period_s = 1.0 / DEFAULT_RATE_HZ
         self.frame_clock = FrameClock(1000.0 * self.period_s, self.health, on_restart=self._restart_stream)
         """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
-        self._scheduling_before: realtime.Scheduling | None = None
-        """The hot thread's scheduling before ``realtime_priority`` raised it (restored at exit)."""
+        self._rt_state: tuple[int, realtime.Scheduling | None] | None = None
+        """(priority asked, scheduling to restore or None if it was not raised) while the link streams;
+        None before the first frame of a link (``raise_priority``)."""
+        self._rt_logged: int | None = None
+        """The ``realtime_priority`` whose outcome was logged (one line per setting)."""
         self.rehearsal = Rehearsal()
         """Runs the model once just before a decision is due, so it decides on warm caches."""
         self.listeners: list[FrameListener] = []
@@ -274,7 +277,6 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             log.warning("%s", warning)
         self._start_watcher()
         self.start_control()
-        self.apply_scheduling()  # after the helper threads start: they keep normal scheduling
         settle_heap()
         self.notifier.ready(self.health.status_line())
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
@@ -302,6 +304,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                         self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)", link_lost=False)
                     continue
                 self._last_frame_t = time.monotonic()
+                if self._rt_state is None:
+                    self.raise_priority()
                 if not self._flapping:  # a link that keeps dropping soon after connecting keeps backing off
                     self._backoff = self.cfg.device.reconnect_min_s
                 try:
@@ -310,16 +314,32 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                     self._frame_failed(exc)
         finally:
             self.shutdown()
-            realtime.restore(self._scheduling_before)
+            self.lower_priority()
         return 2 if self.fatal else 0
 
+    def raise_priority(self) -> None:
+        """The config's ``realtime_priority`` for this (the hot) thread, once the link delivers a valid
+        frame: a device that sends only garbage never gets the CPU at real-time priority. One log line
+        per setting says what came of it."""
+        priority = self.cfg.realtime_priority
+        before, line = realtime.enter_realtime(priority)
+        raised = before is not None and priority > 0
+        self._rt_state = (priority, before if raised else None)
+        if self._rt_logged != priority:
+            self._rt_logged = priority
+            log.info("%s", line)  # normal scheduling works, only with longer tails under load: not a warning
+
+    def lower_priority(self) -> None:
+        """Back to the scheduling the thread had (the link failed, the config changed, the daemon stops)."""
+        if self._rt_state is not None and self._rt_state[1] is not None:
+            realtime.restore(self._rt_state[1])
+        self._rt_state = None
+
     def apply_scheduling(self) -> None:
-        """The config's ``realtime_priority`` for this (the hot) thread; one log line says what came of it."""
-        if self._scheduling_before is not None:
-            realtime.restore(self._scheduling_before)
-        before, line = realtime.enter_realtime(self.cfg.realtime_priority)
-        self._scheduling_before = before or self._scheduling_before
-        log.info("%s", line)  # normal scheduling works, only with longer tails under load: not a warning
+        """A reload's ``realtime_priority``: taken at once while streaming, else with the next frame."""
+        if self._rt_state is not None:
+            self.lower_priority()
+            self.raise_priority()
 
     def shutdown(self) -> None:
         """STOPPING=1, stop the watcher, close the device, flush the sinks, final health."""

@@ -188,6 +188,7 @@ class DeviceLink:
     def _fault(self, reason: str, link_lost: bool = True) -> None:
         """The link failed while streaming (``link_lost``: closed or lost, else a stall): counted, reconnected."""
         reason = reason.removeprefix(f"{self.cfg.device.url}: ")
+        self.lower_priority()  # a failed link earns no real-time priority until it streams valid frames again
         h = self.health
         h.device_faults += 1
         h.reconnects += 1

@@ -15,6 +15,9 @@ cannot hog a core), and with SCHED_RESET_ON_FORK nothing it starts afterwards in
 policy: neither threads (the rehearsal, sinks a reload rebuilds) nor child processes, which at
 the same priority would never yield the core back (a busy child of a real-time thread starves it).
 
+The daemon raises its thread with a link's first valid frame and lowers it when the link fails,
+so a device that floods the link with nonsense is parsed at normal priority.
+
 Priority :data:`DEFAULT_PRIORITY` (1-99, 0 = normal scheduling): above every normal process and
 below the kernel's interrupt threads (50 on PREEMPT_RT kernels) and a robot's control loops, which
 are usually given more. The kernel's real-time throttling keeps 5 % of each second for the others

@@ -155,3 +155,45 @@ def test_nothing_started_from_the_hot_thread_inherits_it():
 
 def _report_scheduling(pipe) -> None:
     pipe.send(os.sched_getscheduler(0))
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="raising a thread to SCHED_FIFO here needs root")
+def test_a_device_that_sends_only_garbage_never_gets_real_time_priority():
+    """Parsing a flood of nonsense at real-time priority would starve the PC: priority comes with
+    the first valid frame of a link and goes with the link."""
+    import socket
+    import time
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    stop = threading.Event()
+
+    def flood() -> None:
+        conn, _ = server.accept()
+        with conn:
+            while not stop.is_set():
+                try:
+                    conn.sendall(os.urandom(4096))
+                except OSError:
+                    return
+                time.sleep(0.001)
+
+    threading.Thread(target=flood, daemon=True).start()
+    cfg = config_from_dict({"device": {"url": f"tcp://127.0.0.1:{server.getsockname()[1]}", "stall_timeout_s": 5.0},
+                            "sinks": {"stdout": False}, "realtime_priority": 9})
+    daemon = Daemon(cfg)
+    tid: list[int] = []
+    runner = threading.Thread(target=lambda: (tid.append(threading.get_native_id()), daemon.run()))
+    runner.start()
+    seen = []
+    for _ in range(20):
+        time.sleep(0.1)
+        if tid:
+            seen.append(os.sched_getscheduler(tid[0]) & ~os.SCHED_RESET_ON_FORK)
+    daemon.request_stop()
+    stop.set()
+    runner.join(10)
+    server.close()
+    assert seen and all(policy == os.SCHED_OTHER for policy in seen)
+    assert daemon.health.protocol_errors > 0, "the flood reached the parser"
