@@ -135,9 +135,10 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.period_s = 1.0 / DEFAULT_RATE_HZ
         self.frame_clock = FrameClock(1000.0 * self.period_s, self.health, on_restart=self._restart_stream)
         """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
-        self._rt_state: tuple[int, realtime.Scheduling | None] | None = None
-        """(priority asked, scheduling to restore or None if it was not raised) while the link streams;
-        None before the first frame of a link (``raise_priority``)."""
+        self._rt_applied = False
+        """Whether this link's first valid frame has applied ``realtime_priority`` (``raise_priority``)."""
+        self._rt_before: realtime.Scheduling | None = None
+        """The scheduling to restore, while the thread is raised."""
         self._rt_logged: int | None = None
         """The ``realtime_priority`` whose outcome was logged (one line per setting)."""
         self.rehearsal = Rehearsal()
@@ -304,7 +305,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                         self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)", link_lost=False)
                     continue
                 self._last_frame_t = time.monotonic()
-                if self._rt_state is None:
+                if not self._rt_applied:
                     self.raise_priority()
                 if not self._flapping:  # a link that keeps dropping soon after connecting keeps backing off
                     self._backoff = self.cfg.device.reconnect_min_s
@@ -323,21 +324,21 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         per setting says what came of it."""
         priority = self.cfg.realtime_priority
         before, line = realtime.enter_realtime(priority)
-        raised = before is not None and priority > 0
-        self._rt_state = (priority, before if raised else None)
+        self._rt_applied = True
+        self._rt_before = before if priority > 0 else None
         if self._rt_logged != priority:
             self._rt_logged = priority
             log.info("%s", line)  # normal scheduling works, only with longer tails under load: not a warning
 
     def lower_priority(self) -> None:
         """Back to the scheduling the thread had (the link failed, the config changed, the daemon stops)."""
-        if self._rt_state is not None and self._rt_state[1] is not None:
-            realtime.restore(self._rt_state[1])
-        self._rt_state = None
+        if self._rt_before is not None:
+            realtime.restore(self._rt_before)
+        self._rt_applied, self._rt_before = False, None
 
     def apply_scheduling(self) -> None:
         """A reload's ``realtime_priority``: taken at once while streaming, else with the next frame."""
-        if self._rt_state is not None:
+        if self._rt_applied:
             self.lower_priority()
             self.raise_priority()
 
