@@ -150,11 +150,15 @@ class DeviceLink:
         self.health.device_state = "disconnected"
         reason = one_line(exc).removeprefix(f"{url}: ")
         self.health.report_error(f"{url}: {reason}", "device")  # every attempt: the health file stays current
-        note = self.retry_notes.failed(reason, self._backoff)  # the log only when something is new
-        if note:
-            log.warning("device %s: %s", url, note)
+        self._note_failed_attempt(url, reason)
         self._schedule_reconnect()
         self._close_client()
+
+    def _note_failed_attempt(self, url: str, reason: str) -> None:
+        """A failed attempt for the retry log: a line only when something is new (runtime.retry_notes)."""
+        note = self.retry_notes.failed(reason, self._backoff)
+        if note:
+            log.warning("device %s: %s", url, note)
 
     def _fit_layout(self, layout: SensorLayout) -> None:
         """A new device layout rebuilds the hot path; the same one only forgets the history."""
@@ -199,9 +203,7 @@ class DeviceLink:
         if up is not None and self.retry_notes.clock() - up < SHORT_LINK_S:  # a flapping link: logged as a failed attempt
             self._flapping = True
             soon = SHORT_LINK_HINT if link_lost else f"within {SHORT_LINK_S:g} s of connecting"
-            note = self.retry_notes.failed(f"{reason} {soon}", self._backoff)
-            if note:
-                log.warning("device %s: %s", self.cfg.device.url, note)
+            self._note_failed_attempt(self.cfg.device.url, f"{reason} {soon}")
         else:
             log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
         self._close_client()

@@ -17,7 +17,7 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
-from json.encoder import encode_basestring_ascii
+from json.encoder import encode_basestring_ascii as _ascii  # the encoder's own string writer (ensure_ascii)
 from math import isfinite
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -29,8 +29,6 @@ log = logging.getLogger("handover.sinks")
 
 _compact = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 """One encoder built once (``json.dumps`` with options builds a new one per call)."""
-_ascii = encode_basestring_ascii
-"""The encoder's own string writer (its default, ``ensure_ascii``)."""
 
 PROTOCOL_VERSION = 1
 """The event protocol's version (docs/EVENTS.md): raised only when a field changes meaning or
