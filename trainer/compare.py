@@ -247,8 +247,7 @@ def recommend(specs, tasks, ds, latency: dict, n_jobs: int, say) -> dict:
     chosen = next((s for s in specs if s.candidate == choice["chosen"]), None)
     shipped = default_candidate_name()
     choice.update(model=chosen.name if chosen else None, flags=chosen.flags if chosen else "",
-                  shipped=shipped, shipped_matches=bool(chosen) and choice["chosen"].replace(" ", "") ==
-                  shipped.replace(" ", ""))
+                  shipped=shipped, shipped_matches=bool(chosen) and choice["chosen"] == shipped)
     return choice
 
 

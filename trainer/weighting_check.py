@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trainer.defaults import default_candidate_name
+
 WEIGHTED = "hand+stats rbf distinct"
 """The candidate of ``trainer.select.CANDIDATES`` this check is about."""
 VARIANTS = (("hand+stats rbf block_count", ("hand", "stats"), "rbf", {"feature_weighting": "block_count"}),
@@ -138,7 +140,7 @@ def markdown(res: dict) -> list[str]:
               + "; ".join(f"seed {seed}: " + ", ".join(f"{n} {100 * v:.1f}" for n, v in by.items())
                           for seed, by in res["noise_seeds"].items()) + ".", "",
               f"Verdict by the rule: **{res['chosen']}** is first"
-              + (" (the shipped default's candidate)." if res["chosen"] == "hand+stats rbf" else
+              + (" (the shipped default's candidate)." if res["chosen"] == default_candidate_name() else
                  " (not what trainer/defaults.py ships; a full `handover compare` would confirm)."), *_margin(res)]
     return lines
 
