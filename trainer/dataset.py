@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -140,10 +141,7 @@ class Dataset:
 
     def summary(self) -> dict:
         """Counts for reports: cases per class and subject, skipped trials and why."""
-        reasons: dict[str, int] = {}
-        for s in self.untriggered:
-            key = s.reason.split(":")[0]
-            reasons[key] = reasons.get(key, 0) + 1
+        reasons = dict(reason_counts(self.untriggered))
         known = self.onsets >= 0
         delay = (self.trigger_offsets[known] - self.onsets[known]) if known.any() else np.zeros(0)
         return {
@@ -183,15 +181,17 @@ THRESHOLD_RULE = ("runtime.trigger.ThresholdTrigger: rising edge; a trial above 
                   "triggers only after dropping below the re-arm level")
 
 
+def reason_counts(skipped) -> Counter:
+    """How many trials gave no case for each kind of reason (the text before its first colon)."""
+    return Counter(s.reason.split(":")[0] for s in skipped)
+
+
 def untriggered_lines(ds: Dataset) -> list[str]:
     """One line per class whose trials gave no case: how many, why, and what a recording needs."""
     lines = []
     for action in sorted({s.action for s in ds.untriggered}):
         skipped = [s for s in ds.untriggered if s.action == action]
-        why: dict[str, int] = {}
-        for s in skipped:
-            key = s.reason.split(":")[0]
-            why[key] = why.get(key, 0) + 1
+        why = reason_counts(skipped)
         total = len(skipped) + int(np.sum(ds.y == action))
         causes = "; ".join(f"{n} {key} ({_cause(key, ds)})" for key, n in sorted(why.items()))
         lines.append(f"{action}: {len(skipped)} of {total} trials gave no case: {causes}")

@@ -143,11 +143,13 @@ def too_few_cases(ds) -> str | None:
     why, and the likely cause for the trigger that cut them."""
     from collections import Counter
 
+    from trainer.dataset import reason_counts
+
     cases = Counter(ds.y.tolist())
     if len(cases) >= MIN_CLASSES and len(ds.y) >= MIN_CASES:
         return None
     missed = Counter(s.action for s in ds.untriggered)
-    why = Counter(s.reason.split(":")[0] for s in ds.untriggered)
+    why = reason_counts(ds.untriggered)
     text = (f"only {len(ds.y)} triggered cases of {len(cases)} class{'es' if len(cases) != 1 else ''} "
             f"({_counts(cases) or 'none'}): too few to train (at least {MIN_CASES} cases of {MIN_CLASSES} classes)")
     if missed:
