@@ -12,14 +12,15 @@ from runtime.model import load_model
 from tests.conftest import real_data_dir
 from tests.onnx_fixtures import PAD_SIZES, T, export, frames_of, synthetic_cases
 from trainer.feature_svc import FeatureSVC
-from trainer.features import HandGraphFeatures, PadStats, RandomConvPPV
+from trainer.features import ContactImage, HandGraphFeatures, PadStats, RandomConvPPV
 from trainer.features.signals import pad_shapes_for, pad_signals
 from trainer.numerics import SAFETY
 from trainer.stress import stress_cases
 from trainer.verify import GraphRunner, compare
 
 C = sum(PAD_SIZES)
-FAMILY_MIXES = [("stats",), ("rocket",), ("hand",), ("stats", "bow"), ("rocket", "stats", "hand", "bow")]
+FAMILY_MIXES = [("stats",), ("rocket",), ("hand",), ("image",), ("stats", "bow"), ("hand", "stats", "image"),
+                ("rocket", "stats", "hand", "bow")]
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +72,15 @@ def test_pad_stats_mean_std_change_peak():
     pressure = np.arange(4) * 1000.0 / 4095.0
     assert np.isclose(f[0], pressure.mean()) and np.isclose(f[4], pressure.std())
     assert np.isclose(f[8], pressure[-1]) and np.isclose(f[12], 3000.0 / 4095.0)
+
+
+def test_contact_image_is_each_taxels_mean():
+    X = np.zeros((2, 6, 4))
+    X[0, 2, :] = [0.0, 4095.0, 4095.0, 0.0]
+    X[1, 5, :] = 4095.0
+    f = ContactImage(pad_sizes=(6,)).fit(X).transform(X)
+    assert f.shape == (2, 6) and np.allclose(f[0], [0, 0, 0.5, 0, 0, 0]) and np.allclose(f[1], [0, 0, 0, 0, 0, 1])
+    assert list(ContactImage().fit(X).get_feature_names_out()[:2]) == ["taxel0_mean", "taxel1_mean"]
 
 
 def test_rocket_kernels_and_biases():

@@ -2,7 +2,8 @@
 
 Families (``trainer.features``): ``bow`` (the paper's derivative-window histogram, one per pad),
 ``stats`` (per-pad level statistics), ``rocket`` (MiniRocket-style PPV of per-pad signals), ``hand``
-(the paper's hand-designed baseline features). Their features are concatenated in the order given,
+(the paper's hand-designed baseline features), ``image`` (each taxel's mean over the window: the
+contact shape). Their features are concatenated in the order given,
 standardised (StandardScaler on the training cases: families differ in scale) and fed to an SVC
 whose C (and gamma) come from the same cross-validated search as BowSVC. ``feature_weighting``
 (``trainer.feature_weighting``; off by default) reweighs the standardised features in the distance.
@@ -21,7 +22,7 @@ from trainer.classifier import SVMHead, check_training_data
 from trainer.defaults import DEFAULT_MODEL
 from trainer.feature_weighting import check_feature_weighting, feature_weights
 
-FAMILIES = ("bow", "stats", "rocket", "hand")
+FAMILIES = ("bow", "stats", "rocket", "hand", "image")
 
 
 class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
@@ -56,7 +57,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         self.feature_weighting = feature_weighting
 
     def _family(self, name: str):
-        from trainer.features import HandGraphFeatures, PadStats, RandomConvPPV
+        from trainer.features import ContactImage, HandGraphFeatures, PadStats, RandomConvPPV
 
         sizes = None if self.pad_sizes is None else tuple(int(s) for s in self.pad_sizes)
         if name == "bow":
@@ -69,6 +70,8 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
                                  pad_sizes=sizes, pad_shapes=self.pad_shapes, fullscale=self.fullscale)
         if name == "hand":
             return HandGraphFeatures(pad_sizes=sizes, pad_shapes=self.pad_shapes)
+        if name == "image":
+            return ContactImage(pad_sizes=sizes, pad_shapes=self.pad_shapes, fullscale=self.fullscale)
         raise ValueError(f"unknown feature family {name!r}; choose from {', '.join(FAMILIES)}")
 
     def fit(self, X, y):
