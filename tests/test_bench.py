@@ -89,7 +89,10 @@ def test_latency_quick(tmp_path, capsys):
         assert table["total"]["p50"] > table["inference"]["p50"] > 0
     imps = result["implementations"]
     # the graph, numpy and scikit-learn on the same windows, interleaved (trainer.bench.numpy_decision)
-    assert set(imps["back_to_back"]) == {"onnxruntime", "numpy", "scikit-learn"}
+    assert set(imps["back_to_back"]) == set(imps["solo"]) == {"onnxruntime", "numpy", "scikit-learn"}
+    # the headline is the graph alone (warm), not its interleaved figure
+    assert printed["onnx_p50_us"] == result["implementations_distal"]["solo"]["onnxruntime"]["p50"]
+    assert printed["onnx_p50_us_all_pads"] == imps["solo"]["onnxruntime"]["p50"]
     assert imps["agreement_with_graph"] == {"numpy": 1.0, "scikit-learn": 1.0}
     assert 0.0 <= imps["numpy_max_score_difference"] < 1e-3
     assert all(imps[f"ratio_{s}"]["numpy"] > 0 for s in ("p50", "p99", "p999"))

@@ -15,8 +15,11 @@ Two rhythms:
   yields enough decisions for a p99.9.
 
 Beside the graph, the same windows are decided in the same run by a numpy-only implementation
-of the same model (``numpy_decision``) and by the fitted scikit-learn estimator, interleaved
-window by window, so their ratios hold on a noisy machine.
+of the same model (``numpy_decision``) and by the fitted scikit-learn estimator, two ways:
+interleaved window by window (``compare``: noise hits all three alike, so their *ratios* hold on a
+noisy machine) and each alone in its own warm block (``solo``: what one implementation costs when
+it is the only work, as in the daemon; interleaving makes every call run in caches the other two
+just filled, which more than doubles a 70 us graph call).
 """
 
 from __future__ import annotations
@@ -176,6 +179,24 @@ def compare(fns: dict, windows: np.ndarray, rounds: int, paced: bool) -> dict:
             fn(w)
             times[name][i] = (clock() - t0) / 1000.0
     return {name: percentiles(v) for name, v in times.items()}
+
+
+def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
+    """Each implementation alone, back to back over the same windows (warm caches: nothing else runs
+    between its calls); us per decision. The absolute figures of the graph come from here."""
+    clock = time.perf_counter_ns
+    out = {}
+    for name, fn in fns.items():
+        for w in windows[:20]:  # warm-up
+            fn(w)
+        times = np.empty(rounds)
+        for i in range(rounds):
+            w = windows[i % len(windows)]
+            t0 = clock()
+            fn(w)
+            times[i] = (clock() - t0) / 1000.0
+        out[name] = percentiles(times)
+    return out
 
 
 REHEARSAL_LEAD_S = 0.0003
