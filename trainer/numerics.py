@@ -24,7 +24,7 @@ bounded amount. With ``z_k = -(d_k - d_min) / tau`` the graph's exponent is off 
 rounding); summed over windows this bounds every histogram entry (``histogram_error_bounds``).
 **Level features** are sums of float32 values: ``gamma(T + C + 4)`` times the sum of |terms|.
 These entry bounds are carried into the SVM bound (``svm_decision_bounds(..., input_error)``),
-through the StandardScaler when there is one.
+through the StandardScaler when there is one (folded into the RBF kernel: ``trainer.svm_head``).
 
 **SVM near tie.** A one-vs-one decision ``dec_p = sum_m a_mp K_m + b_p`` computed in float32 is
 within ``E_p`` of the float64 value (bound from ``svm_decision_bounds``); its vote can flip only
@@ -140,33 +140,55 @@ def svm_pair_decisions(svm, hist: np.ndarray) -> np.ndarray:
     return np.asarray(ovo.decision_function(hist), dtype=np.float64)
 
 
-def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = None) -> np.ndarray:
+def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = None, scaler=None) -> np.ndarray:
     """Float32 error bound ``E_p`` of each one-vs-one decision of the graph, ``(n, P)``.
 
-    ``input_error`` ``(n, F)``: a bound on how far the graph's SVM input may be from ``hist``
-    (soft histograms, level features, scaling); zero when None.
+    ``hist``: the SVM's features before ``scaler`` (None: no scaler); ``input_error`` ``(n, F)``: a
+    bound on how far the graph's features may be from ``hist`` (soft histograms, families); zero
+    when None. The arithmetic bounded is ``trainer.svm_head``'s.
     """
     hist = np.asarray(hist, dtype=np.float64)
     delta = np.zeros_like(hist) if input_error is None else np.asarray(input_error, dtype=np.float64)
     coef, intercept, _ = svm_pair_coefficients(svm)
-    sv = np.asarray(svm.support_vectors_, dtype=np.float64)
-    n_features = hist.shape[1]
-    if svm.kernel == "linear":
-        weights = sv.T @ coef
-        return gamma(n_features + 4) * (np.abs(hist) @ np.abs(weights) + np.abs(intercept)) + delta @ np.abs(weights)
-    diff = hist[:, None, :] - sv[None]  # (n, M, F)
-    dist = (diff**2).sum(axis=-1)
-    d_err = gamma(n_features + 3) * (dist + 2.0 * (np.abs(diff) * (np.abs(hist)[:, None, :] + np.abs(sv)[None])).sum(-1))
-    d_err = d_err + (2.0 * np.abs(diff) * delta[:, None, :] + delta[:, None, :] ** 2).sum(-1)
-    g = float(svm._gamma)
-    kern = np.exp(-g * dist)
-    growth = g * d_err + 2.0 * U32 * g * dist + 6.0 * U32
+    if svm.kernel == "rbf":
+        return rbf_decision_bounds(svm, scaler, hist, delta, coef, intercept)
+    if scaler is not None:
+        hist, delta = scaled_input_and_error(scaler, hist, delta)
+    weights = np.asarray(svm.support_vectors_, dtype=np.float64).T @ coef
+    return gamma(hist.shape[1] + 4) * (np.abs(hist) @ np.abs(weights) + np.abs(intercept)) + delta @ np.abs(weights)
+
+
+def rbf_decision_bounds(svm, scaler, x: np.ndarray, delta: np.ndarray, coef: np.ndarray, intercept: np.ndarray
+                        ) -> np.ndarray:
+    """``E_p`` of the expanded RBF head (``trainer.svm_head``): ``u = (x - mean) * unit`` (three
+    roundings, plus the features' own error ``delta``), ``||u||^2`` and the exponent's Gemm
+    ``e = u . support - ||u||^2`` (sums of F terms: ``gamma(F + 3)`` times the sum of |terms|, no
+    cancellation assumed away), then ``exp(e)`` times the coefficients (folded ``exp(offset)``:
+    a few more roundings), summed over the M support vectors."""
+    from trainer.svm_head import RbfConstants
+
+    rbf = RbfConstants.of(svm, scaler)
+    n_features = x.shape[1]
+    mean = np.zeros(n_features) if rbf.mean is None else rbf.mean
+    u = (x - mean) * rbf.unit
+    du = gamma(3) * np.abs(u) + (1.0 + gamma(3)) * (delta + U32 * np.abs(mean)) * rbf.unit
+    uu = np.abs(u) + du
+    norm_err = (2.0 * np.abs(u) * du + du**2).sum(axis=1) + gamma(n_features + 1) * (uu**2).sum(axis=1)
+    exponent = u @ rbf.support.T - (u**2).sum(axis=1)[:, None]  # float64: gamma (||sv||^2 - d)
+    support = np.abs(rbf.support).T
+    e_err = (gamma(n_features + 3) * (uu @ support + (uu**2).sum(axis=1)[:, None] + np.abs(exponent))
+             + du @ support + norm_err[:, None])
+    if not rbf.folded:
+        e_err = e_err + U32 * np.abs(exponent + rbf.offset)
+    log_kern = exponent + rbf.offset  # -gamma d: the float64 kernel's logarithm
+    kern = np.exp(log_kern)
+    growth = e_err + 8.0 * U32  # exp, the folded coefficient and the product
     # kern * expm1(growth), in log space where the factor would overflow (far-away stress cases:
     # kern underflows to 0 while expm1 is inf); capped below float64's largest, so a bound can be
     # huge but is never NaN.
     small = growth < 20.0
-    k_err = np.where(small, kern * np.expm1(np.where(small, growth, 0.0)), np.exp(np.minimum(growth - g * dist, 709.0)))
-    n_sv = sv.shape[0]
+    k_err = np.where(small, kern * np.expm1(np.where(small, growth, 0.0)), np.exp(np.minimum(growth + log_kern, 709.0)))
+    n_sv = kern.shape[1]
     with np.errstate(over="ignore"):  # a sum past float64's range is an infinite (always safe) bound
         return np.abs(kern) @ np.abs(coef) * gamma(n_sv + 3) + k_err @ np.abs(coef) + gamma(n_sv + 3) * np.abs(intercept)
 
@@ -248,10 +270,8 @@ def histogram_error_bounds(model, X: np.ndarray, hist: np.ndarray, fold_derivati
     return out + 2.0 * U32 * np.abs(hist)
 
 
-def _svm_input_and_error(model, hist: np.ndarray, hist_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    scaler = getattr(model, "scaler_", None)
-    if scaler is None:
-        return hist, hist_err
+def scaled_input_and_error(scaler, hist: np.ndarray, hist_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The StandardScaler's output and its float32 bound, as a linear head computes it (Sub, Div)."""
     feats = scaler.transform(hist)
     err = (hist_err + gamma(2) * (np.abs(hist) + np.abs(scaler.mean_))) / scaler.scale_ + gamma(2) * np.abs(feats)
     return feats, err
@@ -265,7 +285,8 @@ def reference(model, frames: np.ndarray, fold_derivative: bool = False) -> dict:
     X = np.asarray(frames, dtype=np.float32).astype(np.float64).transpose(0, 2, 1)
     hist = model.transform_histograms(X)
     hist_err = histogram_error_bounds(model, X, hist, fold_derivative)
-    feats, feat_err = _svm_input_and_error(model, hist, hist_err)
+    scaler = getattr(model, "scaler_", None)
+    feats = hist if scaler is None else scaler.transform(hist)
     dec = svm_pair_decisions(model.svm_, feats)
     n_classes = len(model.classes_)
     _, scores = ovr_scores(dec, n_classes)
@@ -281,7 +302,7 @@ def reference(model, frames: np.ndarray, fold_derivative: bool = False) -> dict:
         "hist": hist,
         "hist_error": hist_err,
         "decisions": dec,
-        "decision_bounds": svm_decision_bounds(model.svm_, feats, feat_err),
+        "decision_bounds": svm_decision_bounds(model.svm_, hist, hist_err, scaler),
         "labels": labels.astype(np.int64),
         "scores": scores,
         "codeword_margin": cw_margin,

@@ -4,7 +4,7 @@ Options beyond the paper (see ``trainer.bow``) live in the same graph: one convo
 window length (multi-scale codebooks, derivative computed once), soft assignment as
 ``Softmax(-(f - min f) / tau)`` over the words, level features (ReduceMean over time and a
 Gather of the first and last frames, each followed by a per-pad MatMul), all joined by one Concat
-into the ``histogram`` tensor, then an optional StandardScaler as Sub/Div before the SVM.
+into the ``histogram`` tensor, then the SVM (with the optional StandardScaler folded in).
 
 Graph (standard ``ai.onnx`` domain only, opset 17, IR 8):
 
@@ -18,9 +18,9 @@ Graph (standard ``ai.onnx`` domain only, opset 17, IR 8):
    plane (a one-hot without OneHot), sum over windows, mask, per-pad-group sums (one MatMul with
    a group indicator), divide by the number of active windows (at least 1, so no NaN for an
    all-zero case);
-5. SVM: RBF kernel values from direct squared differences to the support vectors (no
-   ``||h||^2 - 2h.s + ||s||^2`` cancellation), one Gemm for all one-vs-one decisions, one Gemm
-   for the votes, one MatMul for the summed confidences, scikit-learn's ovr transform.
+5. SVM (``trainer.svm_head``): the scaler folded into the RBF kernel, whose exponent is one Gemm
+   (its float32 error bounded by ``trainer.numerics``), one Gemm for all one-vs-one decisions and
+   summed confidences, one for the votes, scikit-learn's ovr transform as Softsign.
    ``label`` = first class with the most votes (libsvm's ``predict``).
 
 This replaces skl2onnx's ``SVMClassifier`` + the long node chain it emits to mimic the ovr
@@ -236,39 +236,6 @@ def features_nodes(g: _Graph, frames: str, bow, fold_derivative: bool = False, o
     return g.op("Reshape", [joined, shape], outputs=[output or g.prefix + HISTOGRAM])
 
 
-def scaler_nodes(g: _Graph, features: str, scaler) -> str:
-    """StandardScaler as ``(x - mean) / scale`` (scikit-learn's arithmetic and order)."""
-    if scaler is None:
-        return features
-    centred = g.op("Sub", [features, g.const("feature_mean", scaler.mean_)], "centred")
-    return g.op("Div", [centred, g.const("feature_scale", scaler.scale_)], "scaled_features")
-
-
-def svm_nodes(g: _Graph, hist: str, svm, label_out: str = "label", scores_out: str = "scores") -> None:
-    """Append the one-vs-one SVM with votes, scikit-learn ovr scores and the voted label."""
-    coef, intercept, pairs = svm_pair_coefficients(svm)
-    n_classes = len(svm.classes_)
-    if svm.kernel == "rbf":
-        sv = np.asarray(svm.support_vectors_, dtype=np.float64)
-        h3 = g.op("Unsqueeze", [hist, g.const("axis1", [1], np.int64)], "h3")  # [N, 1, F]
-        diff = g.op("Sub", [h3, g.const("support_vectors", sv[None])], "diff")  # [N, M, F]
-        dist = g.op("ReduceSumSquare", [diff], "sqdist", axes=[2], keepdims=0)  # [N, M]
-        kern = g.op("Exp", [g.op("Mul", [dist, g.const("neg_gamma", -float(svm._gamma))], "scaled")], "kernel")
-        dec = g.op("Gemm", [kern, g.const("pair_coef", coef), g.const("pair_intercept", intercept)], "decision")
-    elif svm.kernel == "linear":
-        sv = np.asarray(svm.support_vectors_, dtype=np.float64)
-        dec = g.op("Gemm", [hist, g.const("pair_weights", sv.T @ coef), g.const("pair_intercept", intercept)], "decision")
-    else:
-        raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
-    vote_diff, vote_base, conf_sign = vote_matrices(pairs, n_classes)
-    pos = g.op("Cast", [g.op("Greater", [dec, g.const("zero", 0.0)])], "wins", to=1)
-    votes = g.op("Gemm", [pos, g.const("vote_diff", vote_diff), g.const("vote_base", vote_base)], "votes")
-    conf = g.op("MatMul", [dec, g.const("conf_sign", conf_sign)], "confidence")
-    scaled = g.op("Add", [g.op("Mul", [g.op("Abs", [conf]), g.const("three", 3.0)]), g.const("three", 3.0)], "conf_den")
-    g.op("Add", [votes, g.op("Div", [conf, scaled], "conf_term")], outputs=[scores_out])
-    g.op("ArgMax", [votes], outputs=[label_out], axis=1, keepdims=0)
-
-
 def model_shape(model) -> tuple[int, int]:
     """(T, C) of a fitted BowSVC, FlatSVC or FeatureSVC."""
     inner = model if hasattr(model, "n_timepoints_") else model.bow_
@@ -278,6 +245,8 @@ def model_shape(model) -> tuple[int, int]:
 def build_graph(model, fold_derivative: bool = False):
     """The ONNX ModelProto of a fitted BowSVC or FlatSVC (no metadata yet)."""
     from onnx import TensorProto, helper
+
+    from trainer.svm_head import svm_nodes
 
     n_timepoints, n_channels = model_shape(model)
     g = _Graph()
@@ -295,7 +264,7 @@ def build_graph(model, fold_derivative: bool = False):
         shape = g.const("hist_shape", [0, n_channels * n_timepoints], np.int64)
         hist = g.op("Reshape", [series, shape], outputs=[HISTOGRAM])
         name = "handover_flat_svm"
-    svm_nodes(g, scaler_nodes(g, hist, getattr(model, "scaler_", None)), model.svm_)
+    svm_nodes(g, hist, model.svm_, getattr(model, "scaler_", None))
     graph = helper.make_graph(
         g.nodes,
         name,

@@ -13,7 +13,8 @@ from runtime.model import CODEWORD_KERNEL
 from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 _SUPPORTED_OPS = frozenset({"Abs", "ReduceMax", "Greater", "Cast", "Unsqueeze", "Conv", "ArgMin", "OneHot", "ReduceSum",
-                            "Equal", "Transpose", "Mul", "MatMul", "Max", "Div", "Reshape", "Gemm", "Add", "ArgMax"})
+                            "Equal", "Transpose", "Mul", "MatMul", "Max", "Div", "Reshape", "Gemm", "Add", "ArgMax",
+                            "Softsign"})
 _NEEDED = (CODEWORD_KERNEL, "codeword_sqnorm", "group_of_channel", "windows_per_channel", "pair_weights")
 
 
@@ -35,7 +36,7 @@ class NumpyBow:
     def of(cls, parts: GraphParts) -> NumpyBow | None:
         """From a graph of this kind, or None (another kind: not implemented here)."""
         ops = parts.ops
-        if set(ops) - _SUPPORTED_OPS or ops.count("Conv") != 2 or ops.count("Gemm") != 2:
+        if set(ops) - _SUPPORTED_OPS or ops.count("Conv") != 2 or ops.count("Gemm") != 3:
             return None
         if not parts.has(*_NEEDED) or not SvmHead.readable(parts):
             return None

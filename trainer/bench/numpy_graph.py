@@ -48,39 +48,44 @@ class GraphParts:
         return all(h in self.params for h in hints)
 
 
-SVM_HEAD = ("pair_intercept", "vote_diff", "vote_base", "conf_sign")
-"""Initializers of the one-vs-one head every exported SVM ends with (``trainer.onnx_export.svm_nodes``)."""
+SVM_HEAD = ("pair_intercept", "vote_diff", "vote_base", "conf_pick")
+"""Initializers of the one-vs-one head every exported SVM ends with (``trainer.svm_head.svm_nodes``)."""
 
 
 class SvmHead:
-    """``(features [F] float32) -> (label, scores [n_classes])``: the scaler (if any), the linear or
-    RBF one-vs-one decisions, votes and scikit-learn's ovr scores, as ``svm_nodes`` builds them."""
+    """``(features [F] float32) -> (label, scores [n_classes])``: as ``trainer.svm_head`` builds it: the
+    RBF kernel with the scaler folded in (or the linear one after the scaler), decisions and summed
+    confidences from one product, votes and scikit-learn's ovr scores."""
 
     def __init__(self, parts: GraphParts) -> None:
         p = parts.first
         self.mean = p("feature_mean") if parts.has("feature_mean") else None
-        self.scale = p("feature_scale") if parts.has("feature_scale") else None
-        self.rbf = parts.has("support_vectors")
+        self.rbf = parts.has("rbf_support")
         if self.rbf:
-            self.support = np.ascontiguousarray(p("support_vectors")[0])  # [M, F]
-            self.neg_gamma = p("neg_gamma")
+            self.unit = p("rbf_unit")
+            self.support_t = np.ascontiguousarray(p("rbf_support").T)  # [F, M]
+            self.offset = p("rbf_offset") if parts.has("rbf_offset") else None
             self.coef = p("pair_coef")
         else:
+            self.scale = p("feature_scale") if parts.has("feature_scale") else None
             self.coef = p("pair_weights")
-        self.intercept, self.vote_diff, self.vote_base, self.conf_sign = (p(k) for k in SVM_HEAD)
+        self.intercept, self.vote_diff, self.vote_base, self.conf_pick = (p(k) for k in SVM_HEAD)
 
     @staticmethod
     def readable(parts: GraphParts) -> bool:
-        return parts.has(*SVM_HEAD) and (parts.has("support_vectors", "neg_gamma", "pair_coef")
-                                         or parts.has("pair_weights"))
+        return parts.has(*SVM_HEAD) and (parts.has("rbf_support", "rbf_unit", "pair_coef") or parts.has("pair_weights"))
 
     def __call__(self, features: np.ndarray) -> tuple[int, np.ndarray]:
-        h = features if self.mean is None else (features - self.mean) / self.scale
+        x = features if self.mean is None else features - self.mean
         if self.rbf:
-            diff = h - self.support
-            dec = np.exp(np.einsum("mf,mf->m", diff, diff) * self.neg_gamma) @ self.coef + self.intercept
+            u = x * self.unit
+            exponent = u @ self.support_t - np.dot(u, u)
+            if self.offset is not None:
+                exponent = exponent + self.offset
+            dec = np.exp(exponent) @ self.coef + self.intercept
         else:
+            h = x if self.scale is None else x / self.scale
             dec = h @ self.coef + self.intercept
         votes = (dec > 0).astype(np.float32) @ self.vote_diff + self.vote_base
-        conf = dec @ self.conf_sign
-        return int(votes.argmax()), votes + conf / (np.abs(conf) * 3.0 + 3.0)
+        soft = dec / (np.abs(dec) + np.float32(1.0))
+        return int(votes.argmax()), (soft @ self.conf_pick) * np.float32(1.0 / 3.0) + votes

@@ -1,0 +1,105 @@
+"""The SVM end of every exported graph: scaler, kernel, one-vs-one decisions, votes, ovr scores, label.
+
+Why this shape: onnxruntime pays per node, and the RBF kernel as squared differences to every
+support vector (``[N, M, F]``: Sub, then ReduceSumSquare) was the costliest pair of nodes in the
+graph. Here the StandardScaler and gamma fold into one per-feature map
+``u = (x - mean) * sqrt(gamma) / scale`` (so ``||u - sqrt(gamma) sv_m||^2 = gamma d_m``), and the
+kernel's exponent is one Gemm: ``e_m = 2 u . (sqrt(gamma) sv_m) - ||u||^2 = gamma ||sv_m||^2 - gamma d_m``.
+The constant ``exp(-gamma ||sv_m||^2)`` goes into the dual coefficients (when it cannot underflow:
+``FOLD_LIMIT``), else into an Add before the Exp. No cancellation is hidden: ``trainer.numerics``
+bounds exactly this arithmetic (``rbf_decision_bounds``), and ``handover verify`` checks it.
+
+One Gemm gives the one-vs-one decisions and the summed confidences side by side; the votes and
+the scores read their own columns through zero rows, and scikit-learn's ovr confidence term
+``conf / (3 (|conf| + 1))`` is ``Softsign(conf) / 3`` (the Gemm's ``alpha``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FOLD_LIMIT = 60.0
+"""Largest ``gamma ||sv||^2`` folded into the coefficients: exp(-60) ~ 1e-26 stays a normal float32
+coefficient, and the exponent (at most ``gamma ||sv_m||^2``) stays far below float32's exp overflow (88)."""
+THIRD = 1.0 / 3.0
+
+
+@dataclass(frozen=True)
+class RbfConstants:
+    """The expanded RBF kernel's constants in float64 (the graph stores them as float32)."""
+
+    mean: np.ndarray | None
+    """``[F]`` subtracted first (None: no scaler)."""
+    unit: np.ndarray
+    """``[F]`` ``sqrt(gamma) / scale``: ``u = (x - mean) * unit``."""
+    support: np.ndarray
+    """``[M, F]`` ``2 sqrt(gamma) sv``: the exponent's Gemm weights (transposed in the graph)."""
+    offset: np.ndarray
+    """``[M]`` ``-gamma ||sv_m||^2``."""
+    folded: bool
+    """Whether ``exp(offset)`` is folded into the coefficients (else an Add of ``offset``)."""
+
+    @classmethod
+    def of(cls, svm, scaler) -> RbfConstants:
+        gamma = float(svm._gamma)
+        sv = np.asarray(svm.support_vectors_, dtype=np.float64)
+        scale = np.ones(sv.shape[1]) if scaler is None else np.asarray(scaler.scale_, dtype=np.float64)
+        mean = None if scaler is None else np.asarray(scaler.mean_, dtype=np.float64)
+        offset = -gamma * (sv**2).sum(axis=1)
+        return cls(mean, np.sqrt(gamma) / scale, 2.0 * np.sqrt(gamma) * sv, offset,
+                   bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
+
+
+def head_matrices(svm, scaler=None) -> dict[str, np.ndarray]:
+    """The constants of the one-vs-one head (float64): ``pair_coef`` ``[M, P + K]`` (decisions, then
+    summed confidences; times ``exp(offset)`` when folded), ``pair_intercept``, ``vote_diff``
+    ``[P + K, K]`` (zero rows for the confidences), ``vote_base``, ``conf_pick`` ``[P + K, K]``."""
+    from trainer.onnx_export import svm_pair_coefficients, vote_matrices
+
+    coef, intercept, pairs = svm_pair_coefficients(svm)
+    n_classes, n_pairs = len(svm.classes_), len(pairs)
+    vote_diff, vote_base, conf_sign = vote_matrices(pairs, n_classes)
+    both = np.concatenate([coef, coef @ conf_sign], axis=1)
+    if svm.kernel == "rbf":
+        rbf = RbfConstants.of(svm, scaler)
+        if rbf.folded:
+            both = both * np.exp(rbf.offset)[:, None]
+    return {"pair_coef": both, "pair_intercept": np.concatenate([intercept, intercept @ conf_sign]),
+            "vote_diff": np.concatenate([vote_diff, np.zeros((n_classes, n_classes))]), "vote_base": vote_base,
+            "conf_pick": np.concatenate([np.zeros((n_pairs, n_classes)), np.eye(n_classes)])}
+
+
+def svm_nodes(g, features: str, svm, scaler=None, label_out: str = "label", scores_out: str = "scores") -> None:
+    """Append scaler, kernel, decisions, votes, scikit-learn's ovr scores and the voted label."""
+    head = head_matrices(svm, scaler)
+    if svm.kernel == "rbf":
+        inputs = _rbf_kernel_nodes(g, features, RbfConstants.of(svm, scaler))
+        weights = head["pair_coef"]
+    elif svm.kernel == "linear":
+        if scaler is not None:
+            centred = g.op("Sub", [features, g.const("feature_mean", scaler.mean_)], "centred")
+            features = g.op("Div", [centred, g.const("feature_scale", scaler.scale_)], "scaled_features")
+        inputs = features
+        weights = np.asarray(svm.support_vectors_, dtype=np.float64).T @ head["pair_coef"]
+    else:
+        raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
+    dec = g.op("Gemm", [inputs, g.const("pair_coef" if svm.kernel == "rbf" else "pair_weights", weights),
+                        g.const("pair_intercept", head["pair_intercept"])], "decision")  # [N, P + K]
+    pos = g.op("Cast", [g.op("Greater", [dec, g.const("zero", 0.0)])], "wins", to=1)
+    votes = g.op("Gemm", [pos, g.const("vote_diff", head["vote_diff"]), g.const("vote_base", head["vote_base"])], "votes")
+    soft = g.op("Softsign", [dec], "conf_soft")  # conf / (|conf| + 1) on the confidence columns
+    g.op("Gemm", [soft, g.const("conf_pick", head["conf_pick"]), votes], outputs=[scores_out], alpha=THIRD)
+    g.op("ArgMax", [votes], outputs=[label_out], axis=1, keepdims=0)
+
+
+def _rbf_kernel_nodes(g, features: str, rbf: RbfConstants) -> str:
+    """``exp(e)`` ``[N, M]`` (see the module docstring)."""
+    x = features if rbf.mean is None else g.op("Sub", [features, g.const("feature_mean", rbf.mean)], "centred")
+    u = g.op("Mul", [x, g.const("rbf_unit", rbf.unit)], "rbf_u")
+    norm = g.op("ReduceSumSquare", [u], "rbf_norm", axes=[1], keepdims=1)  # [N, 1]
+    exponent = g.op("Gemm", [u, g.const("rbf_support", rbf.support), norm], "rbf_exponent", transB=1, beta=-1.0)
+    if not rbf.folded:
+        exponent = g.op("Add", [exponent, g.const("rbf_offset", rbf.offset)], "rbf_exponent_offset")
+    return g.op("Exp", [exponent], "kernel")
