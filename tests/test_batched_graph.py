@@ -14,28 +14,43 @@ from tests.legacy_feature_graph import legacy_hand_nodes, legacy_stats_peak
 from tests.onnx_fixtures import T, frames_of, synthetic_cases
 from trainer.feature_svc import FeatureSVC
 from trainer.features import HandGraphFeatures, PadStats
+from trainer.features.base import OnnxParts
 from trainer.features.pad_batch import PadBatch
-from trainer.onnx_export import build_graph
+from trainer.onnx_export import build_graph, feature_columns
 from trainer.stress import stress_cases
 
 SDH2_SIZES = (84, 78, 84, 78, 84, 78)
 SDH2_SHAPES = [(14, 6), (13, 6)] * 3
 
 
-def _session(proto):
-    """A session that also outputs the features (``histogram``)."""
-    proto.graph.output.append(onnx.helper.make_tensor_value_info("histogram", onnx.TensorProto.FLOAT, None))
-    return ort.InferenceSession(proto.SerializeToString(), session_options(), providers=["CPUExecutionProvider"])
+class _Session:
+    """A session that also outputs the features (``histogram``, in the reference's order)."""
+
+    def __init__(self, proto) -> None:
+        self.columns = feature_columns(proto)
+        proto.graph.output.append(onnx.helper.make_tensor_value_info("histogram", onnx.TensorProto.FLOAT, None))
+        self.session = ort.InferenceSession(proto.SerializeToString(), session_options(),
+                                            providers=["CPUExecutionProvider"])
+
+    def run(self, names: list[str], feeds: dict) -> list[np.ndarray]:
+        out = self.session.run(names, feeds)
+        return [o[:, self.columns] if n == "histogram" and self.columns is not None else o
+                for n, o in zip(names, out, strict=True)]
+
+
+
+def _legacy_hand_parts(family, g, frames: str) -> OnnxParts:
+    return OnnxParts.in_order([legacy_hand_nodes(family, g, frames)], family.n_features_out_)
 
 
 def _both_graphs(model, monkeypatch):
-    new = _session(build_graph(model))
+    new = _Session(build_graph(model))
     with monkeypatch.context() as m:
-        m.setattr(HandGraphFeatures, "onnx_nodes", legacy_hand_nodes)
+        m.setattr(HandGraphFeatures, "onnx_parts", _legacy_hand_parts)
         m.setattr(PadStats, "_peak_nodes", legacy_stats_peak)
         old_proto = build_graph(model)
     assert len(old_proto.graph.node) > 2 * len(build_graph(model).graph.node)
-    old = _session(old_proto)
+    old = _Session(old_proto)
     return old, new
 
 
@@ -77,7 +92,7 @@ def test_median_by_pad_against_numpy(pad_sizes):
     X = X[:, : sum(pad_sizes)] if sum(pad_sizes) <= X.shape[1] else np.concatenate([X, X], axis=1)[:, : sum(pad_sizes)]
     family = HandGraphFeatures(pad_sizes=pad_sizes).fit(X)
     model = FeatureSVC(families=("hand",), pad_sizes=pad_sizes, C=10.0, gamma="scale").fit(X, y)
-    session = _session(build_graph(model))
+    session = _Session(build_graph(model))
     zero_mostly = X * (np.arange(X.shape[1]) % 3 == 0)[None, :, None]  # a third of each pad touched: no TopK
     stress = np.concatenate(list(stress_cases(T, sum(pad_sizes), np.eye(2, 4) * 100.0, seed=1).values()))
     for frames in (frames_of(X), frames_of(zero_mostly), frames_of(-X), stress):

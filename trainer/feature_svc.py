@@ -110,17 +110,25 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
                  for name, block in self.blocks_]
         return np.concatenate(parts, axis=1)
 
-    def onnx_features(self, g, frames: str) -> str:
-        """ONNX nodes of every family on ``frames`` ``[N, T, C]``, concatenated ``[N, F]``."""
+    def onnx_features(self, g, frames: str, output: str):
+        """ONNX nodes of every family on ``frames`` ``[N, T, C]``, joined by one Concat into ``output``
+        in the families' own layouts (``trainer.features.base.OnnxParts``: the exporter lays the SVM's
+        constants out to match, so no node reorders features)."""
+        from trainer.features.base import OnnxParts
         from trainer.onnx_export import features_nodes
 
-        parts = []
+        tensors, columns, width = [], [], 0
         for name, block in self.blocks_:
             if name == "bow":
-                parts.append(features_nodes(g, frames, block, output=g.name("bow_histogram")))
+                parts = OnnxParts.in_order([features_nodes(g, frames, block, output=g.name("bow_histogram"))],
+                                           block.n_features_out_)
             else:
-                parts.append(block.onnx_nodes(g, frames))
-        return g.op("Concat", parts, "features", axis=1) if len(parts) > 1 else parts[0]
+                parts = block.onnx_parts(g, frames)
+            tensors += parts.tensors
+            columns.append(parts.columns + width)
+            width += parts.width
+        g.op("Concat", tensors, outputs=[output], axis=1)
+        return OnnxParts([output], np.concatenate(columns), width)
 
     def describe(self) -> dict:
         """What the model file's metadata says about the features."""
@@ -135,3 +143,4 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         if any(name == "rocket" for name, _ in self.blocks_):
             out.update(dilations=[int(d) for d in np.atleast_1d(self.dilations)], n_biases=int(self.n_biases))
         return out
+

@@ -46,6 +46,9 @@ OPSET = 17
 IR_VERSION = 8
 HISTOGRAM = "histogram"
 """Name of the BoW histogram tensor inside the graph (``handover verify`` exposes it)."""
+FEATURE_COLUMNS = "handover_feature_columns"
+"""Model property (JSON list) written when a graph's ``histogram`` holds the features in its own
+layout (``trainer.svm_head.FeatureLayout``): the column of each reference feature."""
 SCORE_MEANING = "sklearn ovr scores: one-vs-one votes + summed confidence / (3 * (|summed confidence| + 1))"
 
 
@@ -246,15 +249,16 @@ def build_graph(model, fold_derivative: bool = False):
     """The ONNX ModelProto of a fitted BowSVC or FlatSVC (no metadata yet)."""
     from onnx import TensorProto, helper
 
-    from trainer.svm_head import svm_nodes
+    from trainer.svm_head import FeatureLayout, svm_nodes
 
     n_timepoints, n_channels = model_shape(model)
     g = _Graph()
+    layout = None
     if hasattr(model, "onnx_features"):  # FeatureSVC: any mix of feature families
         if fold_derivative:
             raise ValueError("fold_derivative applies to BowSVC graphs only")
-        shape = g.const("hist_shape", [0, int(model.scaler_.n_features_in_)], np.int64)
-        hist = g.op("Reshape", [model.onnx_features(g, "frames"), shape], outputs=[HISTOGRAM])
+        parts = model.onnx_features(g, "frames", HISTOGRAM)
+        hist, layout = HISTOGRAM, FeatureLayout(parts.columns, parts.width)
         name = "handover_feature_svm"
     elif hasattr(model, "bow_"):
         hist = features_nodes(g, "frames", model.bow_, fold_derivative)
@@ -264,7 +268,7 @@ def build_graph(model, fold_derivative: bool = False):
         shape = g.const("hist_shape", [0, n_channels * n_timepoints], np.int64)
         hist = g.op("Reshape", [series, shape], outputs=[HISTOGRAM])
         name = "handover_flat_svm"
-    svm_nodes(g, hist, model.svm_, getattr(model, "scaler_", None))
+    svm_nodes(g, hist, model.svm_, getattr(model, "scaler_", None), layout)
     graph = helper.make_graph(
         g.nodes,
         name,
@@ -278,7 +282,15 @@ def build_graph(model, fold_derivative: bool = False):
     onnx_model = helper.make_model(
         graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="tactile-handover", ir_version=IR_VERSION
     )
+    if layout is not None and not layout.in_order:
+        helper.set_model_props(onnx_model, {FEATURE_COLUMNS: json.dumps([int(c) for c in layout.columns])})
     return onnx_model
+
+
+def feature_columns(proto) -> np.ndarray | None:
+    """Where the ``histogram`` tensor of a graph holds each reference feature (None: in order)."""
+    props = {p.key: p.value for p in proto.metadata_props}
+    return np.asarray(json.loads(props[FEATURE_COLUMNS]), dtype=np.int64) if FEATURE_COLUMNS in props else None
 
 
 # -- metadata and file ----------------------------------------------------------------------------
@@ -344,7 +356,8 @@ def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool =
     meta = model_metadata(model, metadata, fold_derivative)
     ModelMeta.from_dict(json.loads(json.dumps(meta)))
     onnx_model = build_graph(model, fold_derivative)
-    onnx.helper.set_model_props(onnx_model, {METADATA_KEY: json.dumps(meta, sort_keys=True)})
+    props = {p.key: p.value for p in onnx_model.metadata_props}
+    onnx.helper.set_model_props(onnx_model, {**props, METADATA_KEY: json.dumps(meta, sort_keys=True)})
     onnx.checker.check_model(onnx_model, full_check=True)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -42,14 +42,37 @@ class RbfConstants:
     """Whether ``exp(offset)`` is folded into the coefficients (else an Add of ``offset``)."""
 
     @classmethod
-    def of(cls, svm, scaler) -> RbfConstants:
+    def of(cls, svm, scaler, layout: FeatureLayout | None = None) -> RbfConstants:
+        """From the fitted SVC and scaler; ``layout``: the graph's feature columns (None: in order)."""
         gamma = float(svm._gamma)
         sv = np.asarray(svm.support_vectors_, dtype=np.float64)
         scale = np.ones(sv.shape[1]) if scaler is None else np.asarray(scaler.scale_, dtype=np.float64)
         mean = None if scaler is None else np.asarray(scaler.mean_, dtype=np.float64)
         offset = -gamma * (sv**2).sum(axis=1)
-        return cls(mean, np.sqrt(gamma) / scale, 2.0 * np.sqrt(gamma) * sv, offset,
-                   bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
+        spread = (lambda v: v) if layout is None else layout.spread
+        # columns the graph computes but the SVM does not use get zero weight (and no centre)
+        return cls(None if mean is None else spread(mean), spread(np.sqrt(gamma) / scale),
+                   spread(2.0 * np.sqrt(gamma) * sv), offset, bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
+
+
+@dataclass(frozen=True)
+class FeatureLayout:
+    """Where the graph's feature tensor holds each feature: ``columns[i]`` of reference feature i,
+    ``width`` columns in all (``trainer.features.base.OnnxParts``)."""
+
+    columns: np.ndarray
+    width: int
+
+    def spread(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """``values`` ``[..., F]`` (reference order) laid out as ``[..., width]``, ``fill`` elsewhere."""
+        values = np.asarray(values, dtype=np.float64)
+        out = np.full((*values.shape[:-1], self.width), fill)
+        out[..., self.columns] = values
+        return out
+
+    @property
+    def in_order(self) -> bool:
+        return self.width == len(self.columns) and bool(np.array_equal(self.columns, np.arange(self.width)))
 
 
 def head_matrices(svm, scaler=None) -> dict[str, np.ndarray]:
@@ -71,18 +94,21 @@ def head_matrices(svm, scaler=None) -> dict[str, np.ndarray]:
             "conf_pick": np.concatenate([np.zeros((n_pairs, n_classes)), np.eye(n_classes)])}
 
 
-def svm_nodes(g, features: str, svm, scaler=None, label_out: str = "label", scores_out: str = "scores") -> None:
-    """Append scaler, kernel, decisions, votes, scikit-learn's ovr scores and the voted label."""
+def svm_nodes(g, features: str, svm, scaler=None, layout: FeatureLayout | None = None, label_out: str = "label",
+              scores_out: str = "scores") -> None:
+    """Append scaler, kernel, decisions, votes, scikit-learn's ovr scores and the voted label;
+    ``layout``: where ``features`` holds each of the SVM's features (None: in order)."""
     head = head_matrices(svm, scaler)
     if svm.kernel == "rbf":
-        inputs = _rbf_kernel_nodes(g, features, RbfConstants.of(svm, scaler))
+        inputs = _rbf_kernel_nodes(g, features, RbfConstants.of(svm, scaler, layout))
         weights = head["pair_coef"]
     elif svm.kernel == "linear":
+        spread = (lambda v, fill=0.0: v) if layout is None else layout.spread
         if scaler is not None:
-            centred = g.op("Sub", [features, g.const("feature_mean", scaler.mean_)], "centred")
-            features = g.op("Div", [centred, g.const("feature_scale", scaler.scale_)], "scaled_features")
+            centred = g.op("Sub", [features, g.const("feature_mean", spread(scaler.mean_))], "centred")
+            features = g.op("Div", [centred, g.const("feature_scale", spread(scaler.scale_, 1.0))], "scaled_features")
         inputs = features
-        weights = np.asarray(svm.support_vectors_, dtype=np.float64).T @ head["pair_coef"]
+        weights = spread(head["pair_coef"].T @ np.asarray(svm.support_vectors_, dtype=np.float64)).T
     else:
         raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
     dec = g.op("Gemm", [inputs, g.const("pair_coef" if svm.kernel == "rbf" else "pair_weights", weights),

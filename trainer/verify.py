@@ -103,18 +103,14 @@ class GraphRunner:
         import onnxruntime as ort
 
         from runtime.model import session_options
-        from trainer.onnx_export import HISTOGRAM
+        from trainer.onnx_export import HISTOGRAM, feature_columns
 
         self.path = Path(onnx_path)
         proto = onnx.load(str(onnx_path))
-        n_features = None
-        for node in proto.graph.node:
-            if HISTOGRAM in node.output:
-                shape = onnx.numpy_helper.to_array(next(i for i in proto.graph.initializer if i.name == node.input[1]))
-                n_features = int(shape[1])
-        if n_features is None:
+        if not any(HISTOGRAM in node.output for node in proto.graph.node):
             raise VerifyError(f"{onnx_path}: no {HISTOGRAM!r} tensor in the graph (not exported by this project)")
-        proto.graph.output.append(onnx.helper.make_tensor_value_info(HISTOGRAM, onnx.TensorProto.FLOAT, ["N", n_features]))
+        self.columns = feature_columns(proto)  # the graph's own layout of the features, or None
+        proto.graph.output.append(onnx.helper.make_tensor_value_info(HISTOGRAM, onnx.TensorProto.FLOAT, ["N", "F"]))
         self.word_outputs = [node.output[0] for node in proto.graph.node if node.op_type == "ArgMin"]
         for name in self.word_outputs:
             proto.graph.output.append(onnx.helper.make_tensor_value_info(name, onnx.TensorProto.INT64, ["N", "S", "C"]))
@@ -122,12 +118,16 @@ class GraphRunner:
 
     def run(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         labels, scores, hist = self.session.run(["label", "scores", "histogram"], {"frames": frames})
-        return labels, scores, hist
+        return labels, scores, self._in_order(hist)
+
+    def _in_order(self, hist: np.ndarray) -> np.ndarray:
+        """The features in the reference's order (the graph may hold them in its own layout)."""
+        return hist if self.columns is None else hist[:, self.columns]
 
     def run_with_words(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
         """Labels, scores, histogram and the word chosen for every window ``[N, S, C]`` per hard scale."""
         out = self.session.run(["label", "scores", "histogram", *self.word_outputs], {"frames": frames})
-        return out[0], out[1], out[2], list(out[3:])
+        return out[0], out[1], self._in_order(out[2]), list(out[3:])
 
 
 @dataclass

@@ -16,8 +16,8 @@ from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 FAMILIES = ("hand", "stats")
 _PADS = ("pad_slots", "pad_moments")
-_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "pad_major",
-         "pad_of_taxel", "most_touched")
+_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "pad_of_taxel",
+         "most_touched")
 _STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs")
 
 
@@ -33,7 +33,7 @@ class NumpyFeatures:
         if "hand" in families:
             self.kinds = moments[3]  # [G, 3, S]: ones, x, y of each slot
             (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.inv_steps, self.pair,
-             self.inv_count, self.pad_major, self.pad_of_taxel, self.most_touched) = (p(k) for k in _HAND)
+             self.inv_count, self.pad_of_taxel, self.most_touched) = (p(k) for k in _HAND)
             self.centre = self.centre.T[:, :, None]  # [G, 2, 1]
             self.padding = p("padding_slots") if parts.has("padding_slots") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
@@ -68,10 +68,10 @@ class NumpyFeatures:
         return self.head(np.concatenate([blocks[f] for f in self.families]))
 
     def _hand(self, x: np.ndarray, padded: np.ndarray, peak: np.ndarray) -> np.ndarray:
-        """``HandGraphFeatures.onnx_nodes``: 14 features per pad, pad-major."""
+        """``HandGraphFeatures.onnx_parts``: the time rows, peak, median, std (the graph's layout, which
+        its scaler and support vectors follow)."""
         rows, signal_mean = self._time_rows(padded)
-        by_pad = np.concatenate([peak, self._median(x, padded), self._std(padded, signal_mean)])
-        return np.concatenate([rows.ravel(), by_pad])[self.pad_major]
+        return np.concatenate([rows.ravel(), peak, self._median(x, padded), self._std(padded, signal_mean)])
 
     def _time_rows(self, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``hand._time_nodes``: rows ``[8, 3G]`` over (pad signal, centre x, centre y), and the pads' mean."""
@@ -117,7 +117,7 @@ class NumpyFeatures:
         return np.sqrt(sq * self.inv_count)
 
     def _stats(self, x: np.ndarray, peak: np.ndarray) -> np.ndarray:
-        """``PadStats.onnx_nodes`` over ``signals.signal_nodes``: mean, std, change of the 4G signals, peaks."""
+        """``PadStats.onnx_parts`` over ``signals.signal_nodes``: mean, std, change of the 4G signals, peaks."""
         moments = np.abs(x) @ self.signal_weights  # [T, 3G]
         g = self.n_pads
         total = moments[:, :g]

@@ -2,13 +2,18 @@
 n_timepoints)`` that also writes its own ONNX nodes and bounds its float32 error.
 
 A family implements ``_fit(X, y)``, ``_transform(X)`` (the float64 reference), ``error_bounds(X)``
-(``(n, F)`` bound on |float32 graph - float64 reference|, for ``handover verify``) and
-``onnx_nodes(g, frames)`` (``frames`` ``[N, T, C]`` -> ``[N, F]`` in the reference's order).
+(``(n, F)`` bound on |float32 graph - float64 reference|, for ``handover verify``) and its ONNX
+nodes: ``onnx_nodes(g, frames)`` (``frames`` ``[N, T, C]`` -> ``[N, F]`` in the reference's order),
+or ``onnx_parts(g, frames)``: tensors ``[N, k_i]`` in whatever layout the nodes make cheaply, and
+where each reference feature sits in their concatenation. ``FeatureSVC`` joins the parts of all
+families with one Concat and lays the scaler and support vectors out to match, so no node is spent
+on putting features in order (onnxruntime pays per node).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
@@ -16,6 +21,21 @@ from sklearn.utils.validation import check_is_fitted
 
 from trainer.bow import as_cases, check_case_shape
 from trainer.features.signals import pad_shapes_for
+
+
+@dataclass(frozen=True)
+class OnnxParts:
+    """A family's ONNX tensors ``[N, k_i]``; ``columns[i]``: where reference feature i sits in their
+    concatenation, ``width`` columns wide (columns not listed are computed and ignored)."""
+
+    tensors: list[str]
+    columns: np.ndarray
+    width: int
+
+    @classmethod
+    def in_order(cls, tensors: list[str], n_features: int) -> OnnxParts:
+        """Parts that already hold the features in the reference's order."""
+        return cls(tensors, np.arange(int(n_features)), int(n_features))
 
 
 class FeatureFamily(TransformerMixin, BaseEstimator):
@@ -44,6 +64,18 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
 
     def transform(self, X) -> np.ndarray:
         return self._transform(self._check(X))
+
+    def onnx_parts(self, g, frames: str) -> OnnxParts:
+        """The family's ONNX tensors and where each feature sits in them (default: ``onnx_nodes``)."""
+        return OnnxParts.in_order([self.onnx_nodes(g, frames)], self.n_features_out_)
+
+    def onnx_nodes(self, g, frames: str) -> str:
+        """``[N, F]`` in the reference's order: the parts joined and, where needed, reordered (a Gather)."""
+        parts = self.onnx_parts(g, frames)
+        joined = g.op("Concat", parts.tensors, "family_features", axis=1) if len(parts.tensors) > 1 else parts.tensors[0]
+        if parts.width == len(parts.columns) and np.array_equal(parts.columns, np.arange(parts.width)):
+            return joined
+        return g.op("Gather", [joined, g.const("feature_order", parts.columns, np.int64)], "family_ordered", axis=1)
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from trainer.baseline import FEATURES_PER_PAD, pad_features
-from trainer.features.base import FeatureFamily, pad_bounds
+from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds
 from trainer.features.pad_batch import PadBatch, median_nodes, peak_nodes
 from trainer.numerics import SAFETY, U32, gamma
 
@@ -53,9 +53,10 @@ class HandGraphFeatures(FeatureFamily):
                                for (a, b), (rows, cols) in zip(pad_bounds(self.shapes_), self.shapes_, strict=True)],
                               axis=1)
 
-    def onnx_nodes(self, g, frames: str) -> str:
-        """All pads at once (``trainer.features.pad_batch``): the features come out feature-major and one
-        Gather puts them in the reference's pad-major order."""
+    def onnx_parts(self, g, frames: str) -> OnnxParts:
+        """All pads at once (``trainer.features.pad_batch``): the features come out feature-major
+        (``_time_nodes``' rows, then peak, median, std), and ``_pad_major_order`` says where each one
+        of the reference's pad-major order sits."""
         n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
@@ -63,11 +64,8 @@ class HandGraphFeatures(FeatureFamily):
         median = median_nodes(g, batch, frames, padded, n_t)  # [N, G]
         rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
         std = _std_nodes(g, batch, padded, signal_mean, n_t)
-        by_pad = g.op("Concat", [peak, median, std], "by_pad", axis=1)  # [N, 3G]
         flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
-        joined = g.op("Concat", [flat, by_pad], "hand_blocks", axis=1)
-        return g.op("Gather", [joined, g.const("pad_major", _pad_major_order(n_pads), np.int64)], "hand_features",
-                    axis=1)
+        return OnnxParts([flat, peak, median, std], np.asarray(_pad_major_order(n_pads)), (_TIME_ROWS + 1) * 3 * n_pads)
 
 
 def _pad_major_order(n_pads: int) -> list[int]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trainer.features.base import FeatureFamily, pad_bounds, slice_nodes
+from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds, slice_nodes
 from trainer.features.pad_batch import PadBatch, peak_nodes
 from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
 from trainer.numerics import U32, gamma
@@ -54,7 +54,8 @@ class PadStats(FeatureFamily):
         peak = np.stack([np.abs(X[:, a:b]).max(axis=(1, 2)) for a, b in pad_bounds(self.shapes_)], axis=1)
         return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
 
-    def onnx_nodes(self, g, frames: str) -> str:
+    def onnx_parts(self, g, frames: str) -> OnnxParts:
+        """``[mean, std, change, peak]`` in the reference's order, as four parts (no Concat)."""
         n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
         sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
         mean3 = g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)
@@ -66,7 +67,7 @@ class PadStats(FeatureFamily):
                     "signal_rise3")
         change = g.op("Reshape", [rise, flat], "signal_change")
         peak = self._peak_nodes(g, frames)
-        return g.op("Concat", [mean, g.op("Sqrt", [var], "signal_std"), change, peak], "pad_stats", axis=1)
+        return OnnxParts.in_order([mean, g.op("Sqrt", [var], "signal_std"), change, peak], self.n_features_out_)
 
     def _peak_nodes(self, g, frames: str) -> str:
         """Each pad's peak taxel / fullscale ``[N, G]`` (shares the hand family's nodes when both are in)."""
