@@ -18,7 +18,7 @@ FAMILIES = ("hand", "stats")
 _PADS = ("pad_slots", "pad_moments")
 _HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "pad_of_taxel",
          "most_touched")
-_STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs")
+_STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs", "stats_time_rows", "inv_sqrt_t")
 
 
 class NumpyFeatures:
@@ -40,7 +40,8 @@ class NumpyFeatures:
             self.n_bins = (self.time_rows.shape[0] - self.time_rows.shape[1]) // 2
         if "stats" in families:
             self.signal_weights = moments[2]  # [C, 3G]: ones, x, y over the taxels
-            self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs = (p(k) for k in _STATS)
+            (self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs, self.stats_rows,
+             self.inv_sqrt_t) = (p(k) for k in _STATS)
         self.head = SvmHead(parts)
 
     @classmethod
@@ -117,7 +118,7 @@ class NumpyFeatures:
         return np.sqrt(sq * self.inv_count)
 
     def _stats(self, x: np.ndarray, peak: np.ndarray) -> np.ndarray:
-        """``PadStats.onnx_parts`` over ``signals.signal_nodes``: mean, std, change of the 4G signals, peaks."""
+        """``PadStats.onnx_parts`` over ``signals.signal_nodes``: mean and change, std of the 4G signals, peaks."""
         moments = np.abs(x) @ self.signal_weights  # [T, 3G]
         g = self.n_pads
         total = moments[:, :g]
@@ -125,7 +126,7 @@ class NumpyFeatures:
         area = (x >= self.contact_level).astype(np.float32) @ self.area_weights
         sig = np.concatenate([total * self.inv_size_fs, area, moments[:, g : 2 * g] / den, moments[:, 2 * g :] / den],
                              axis=1)  # [T, 4G]
-        mean = sig.mean(axis=0)
-        centred = sig - mean
-        std = np.sqrt((centred * centred).mean(axis=0))
-        return np.concatenate([mean, std, sig[-1] - sig[0], peak * self.inv_fs])
+        over_time = self.stats_rows @ sig  # [T + 2, 4G]: centred signals, mean, last - first
+        centred, ends = over_time[:-2], over_time[-2:]
+        std = np.sqrt(np.einsum("ts,ts->s", centred, centred)) * self.inv_sqrt_t
+        return np.concatenate([ends.ravel(), std, peak * self.inv_fs])

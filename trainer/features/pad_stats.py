@@ -10,10 +10,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds, slice_nodes
+from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds
 from trainer.features.pad_batch import PadBatch, peak_nodes
 from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
 from trainer.numerics import U32, gamma
+
+
+def time_rows(n_t: int) -> np.ndarray:
+    """``[T + 2, T]`` over the frames: the centred signal (``I - 1/T``), its mean, last - first.
+    A centred value's float32 error scales with the signal's values, as the two-pass mean's does
+    (``error_bounds``)."""
+    rise = np.zeros(n_t)
+    rise[0], rise[-1] = -1.0, 1.0
+    return np.vstack([np.eye(n_t) - 1.0 / n_t, np.full((1, n_t), 1.0 / n_t), rise[None]])
 
 
 class PadStats(FeatureFamily):
@@ -55,19 +64,21 @@ class PadStats(FeatureFamily):
         return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
 
     def onnx_parts(self, g, frames: str) -> OnnxParts:
-        """``[mean, std, change, peak]`` in the reference's order, as four parts (no Concat)."""
+        """One MatMul over time gives the centred signals, their mean and their change (``time_rows``);
+        the standard deviation is the centred signals' L2 norm / sqrt(T). Parts: ``[mean, change]``,
+        std, peak."""
         n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
         sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
-        mean3 = g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)
-        centred = g.op("Sub", [sig, mean3], "signal_centred")
-        var = g.op("ReduceMean", [g.op("Mul", [centred, centred], "signal_sq")], "signal_var", axes=[1], keepdims=0)
-        flat = g.const("flat_shape", [0, n_sig], np.int64)
-        mean = g.op("Reshape", [mean3, flat], "signal_mean")
-        rise = g.op("Sub", [slice_nodes(g, sig, n_t - 1, n_t, 1, "last"), slice_nodes(g, sig, 0, 1, 1, "first")],
-                    "signal_rise3")
-        change = g.op("Reshape", [rise, flat], "signal_change")
-        peak = self._peak_nodes(g, frames)
-        return OnnxParts.in_order([mean, g.op("Sqrt", [var], "signal_std"), change, peak], self.n_features_out_)
+        over_time = g.op("MatMul", [g.const("stats_time_rows", time_rows(n_t)), sig], "stats_time")  # [N, T + 2, S]
+        centred, ends = g.name("signal_centred"), g.name("signal_ends")
+        g.op("Split", [over_time, g.const("split_stats", [n_t, 2], np.int64)], outputs=[centred, ends], axis=1)
+        l2 = g.op("ReduceL2", [centred], "signal_l2", axes=[1], keepdims=0)
+        std = g.op("Mul", [l2, g.const("inv_sqrt_t", 1.0 / np.sqrt(n_t))], "signal_std")
+        mean_change = g.op("Reshape", [ends, g.const("flat_shape", [0, 2 * n_sig], np.int64)], "signal_mean_change")
+        n_pads = len(self.shapes_)
+        s = np.arange(n_sig)
+        columns = np.concatenate([s, 2 * n_sig + s, n_sig + s, 3 * n_sig + np.arange(n_pads)])
+        return OnnxParts([mean_change, std, self._peak_nodes(g, frames)], columns, 3 * n_sig + n_pads)
 
     def _peak_nodes(self, g, frames: str) -> str:
         """Each pad's peak taxel / fullscale ``[N, G]`` (shares the hand family's nodes when both are in)."""
