@@ -16,8 +16,7 @@ from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 FAMILIES = ("hand", "stats")
 _PADS = ("pad_slots", "pad_moments")
-_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "pad_of_taxel",
-         "most_touched")
+_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "touch_weights")
 _STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs", "stats_time_rows", "inv_sqrt_t")
 
 
@@ -33,11 +32,10 @@ class NumpyFeatures:
         if "hand" in families:
             self.kinds = moments[3]  # [G, 3, S]: ones, x, y of each slot
             (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.inv_steps, self.pair,
-             self.inv_count, self.pad_of_taxel, self.most_touched) = (p(k) for k in _HAND)
-            self.centre = self.centre.T[:, :, None]  # [G, 2, 1]
+             self.inv_count, self.touch_weights) = (p(k) for k in _HAND)
             self.padding = p("padding_slots") if parts.has("padding_slots") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
-            self.n_bins = (self.time_rows.shape[0] - self.time_rows.shape[1]) // 2
+            self.n_bins = (self.time_rows.shape[1] - self.time_rows.shape[0]) // 2  # [T, 2B + 1 + T-1]
         if "stats" in families:
             self.signal_weights = moments[2]  # [C, 3G]: ones, x, y over the taxels
             (self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs, self.stats_rows,
@@ -75,29 +73,30 @@ class NumpyFeatures:
         return np.concatenate([rows.ravel(), peak, self._median(x, padded), self._std(padded, signal_mean)])
 
     def _time_rows(self, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``hand._time_nodes``: rows ``[8, 3G]`` over (pad signal, centre x, centre y), and the pads' mean."""
+        """``hand._time_nodes``: rows ``[G, 3, 8]`` of each pad's (signal, centre x, centre y), and the
+        pads' mean."""
         moments = self.kinds @ padded  # [G, 3, T]
-        weight, mxy = moments[:, 0], moments[:, 1:]
+        weight, mxy = moments[:, :1], moments[:, 1:]
         pressed = weight > 0
         safe = np.where(pressed, weight, np.float32(1.0))
-        cop = np.where(pressed[:, None], mxy / safe[:, None], self.centre)  # [G, 2, T]
-        series = np.concatenate([weight * self.inv_size[:, None], cop[:, 0], cop[:, 1]])  # [3G, T]
-        mean = series.mean(axis=1)
-        over = (series - mean[:, None]) @ self.time_rows.T  # [3G, 2B + 1 + T-1]
+        cop = np.where(pressed, mxy / safe, self.centre)  # [G, 2, T]
+        series = np.concatenate([weight * self.inv_size, cop], axis=1)  # [G, 3, T]
+        mean = series.mean(axis=2, keepdims=True)
+        over = (series - mean) @ self.time_rows  # [G, 3, 2B + 1 + T-1]
         b2 = 2 * self.n_bins
-        dft, rise, step = over[:, :b2], over[:, b2], over[:, b2 + 1 :]
-        energy4 = (dft * dft) @ self.band_rows.T  # [3G, 4]
-        shares = energy4[:, :3] / np.maximum(energy4[:, 3:], self.tiny)
-        log_energy = np.log(energy4[:, 3] + np.float32(1.0))
-        speed = np.sqrt(self.pair.T @ (step * step)).mean(axis=1)
-        rows = np.vstack([mean, shares.T, log_energy, rise * self.inv_steps, rise, speed])
-        return rows, mean[: self.n_pads]
+        dft, rise, step = over[..., :b2], over[..., b2 : b2 + 1], over[..., b2 + 1 :]
+        energy4 = (dft * dft) @ self.band_rows  # [G, 3, 4]
+        shares = energy4[..., :3] / np.maximum(energy4[..., 3:], self.tiny)
+        log_energy = np.log(energy4[..., 3:] + np.float32(1.0))
+        speed = np.sqrt(self.pair @ (step * step)).mean(axis=2, keepdims=True)
+        rows = np.concatenate([mean, shares, log_energy, rise * self.inv_steps, rise, speed], axis=2)
+        return rows, mean[:, 0, 0]
 
     def _median(self, x: np.ndarray, padded: np.ndarray) -> np.ndarray:
         """``pad_batch.median_nodes``: 0 when fewer than half of every pad's values can be non-zero, else
         the middle of the padded values (padding offset by +-inf in equal numbers)."""
         touched = (np.abs(x).sum(axis=0) > 0).astype(np.float32)
-        if (touched @ self.pad_of_taxel - self.most_touched).max() <= 0:
+        if (touched @ self.touch_weights).max() <= 1:
             return np.zeros(self.n_pads, dtype=np.float32)
         values = padded if self.offset is None else padded + self.offset[:, :, None]
         values = values.reshape(self.n_pads, -1)
@@ -126,7 +125,7 @@ class NumpyFeatures:
         area = (x >= self.contact_level).astype(np.float32) @ self.area_weights
         sig = np.concatenate([total * self.inv_size_fs, area, moments[:, g : 2 * g] / den, moments[:, 2 * g :] / den],
                              axis=1)  # [T, 4G]
-        over_time = self.stats_rows @ sig  # [T + 2, 4G]: centred signals, mean, last - first
-        centred, ends = over_time[:-2], over_time[-2:]
+        centred = sig - sig.mean(axis=0)
+        ends = self.stats_rows @ sig  # [2, 4G]: mean, last - first
         std = np.sqrt(np.einsum("ts,ts->s", centred, centred)) * self.inv_sqrt_t
         return np.concatenate([ends.ravel(), std, peak * self.inv_fs])

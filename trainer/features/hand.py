@@ -61,25 +61,23 @@ class HandGraphFeatures(FeatureFamily):
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = peak_nodes(g, padded)  # [N, G]
-        median = median_nodes(g, batch, frames, padded, n_t)  # [N, G]
-        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, 8, 3G], [N, 1, G]
+        median = median_nodes(g, batch, frames, padded, peak, n_t)  # [N, G]
+        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, G, 3, 8], [N, G, 1, 1]
         std = _std_nodes(g, batch, padded, signal_mean, n_t)
         flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
         return OnnxParts([flat, peak, median, std], np.asarray(_pad_major_order(n_pads)), (_TIME_ROWS + 1) * 3 * n_pads)
 
 
 def _pad_major_order(n_pads: int) -> list[int]:
-    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in ``hand_blocks``: ``_time_nodes``'
-    rows (each ``3G`` wide: the pad signal, then the centre of pressure's x and y) flattened, then
+    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts: ``_time_nodes``' rows
+    flattened (pad by pad, 3 series - signal, centre of pressure x and y - by ``_TIME_ROWS``), then
     ``[peak, median, std]`` of the pads."""
-    width = 3 * n_pads
-    by_pad = _TIME_ROWS * width
+    by_pad = _TIME_ROWS * 3 * n_pads
     order = []
     for p in range(n_pads):
-        cop_x, cop_y = n_pads + p, 2 * n_pads + p
-        order += [by_pad + p, p, by_pad + n_pads + p, by_pad + 2 * n_pads + p,
-                  width + p, 2 * width + p, 3 * width + p, 4 * width + p, 5 * width + p,
-                  cop_x, cop_y, 6 * width + cop_x, 6 * width + cop_y, 7 * width + p]
+        signal, cop_x, cop_y = (_TIME_ROWS * (3 * p + k) for k in range(3))
+        order += [by_pad + p, signal, by_pad + n_pads + p, by_pad + 2 * n_pads + p, signal + 1, signal + 2,
+                  signal + 3, signal + 4, signal + 5, cop_x, cop_y, cop_x + 6, cop_y + 6, signal + 7]
     return order
 
 
@@ -88,9 +86,8 @@ _TIME_ROWS = 8
 
 
 def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
-    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, 1, G]`` (two passes)."""
-    mean4 = g.op("Reshape", [mean, g.const("mean4", [0, len(batch.sizes), 1, 1], np.int64)], "mean4")
-    dev = g.op("Sub", [padded, mean4], "dev")
+    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G, 1, 1]`` (two passes)."""
+    dev = g.op("Sub", [padded, mean], "dev")
     sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
     if batch.padded:
         # each padding slot repeats the pad's first taxel: take its squares out again (no mask pass
@@ -104,57 +101,63 @@ def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
     return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
 
 
+def time_rows(n_t: int) -> tuple[np.ndarray, int]:
+    """``[2B + 1 + T-1, T]`` over the frames: cosine and sine of rfft bins 1 .. T//2, last - first, the
+    T-1 steps; and B. Applied to the centred series (two passes: a constant series has exactly
+    zero energy, not float32 noise whose band shares are anything)."""
+    cos, sin, _ = dft_matrices(n_t)
+    rise = np.zeros((1, n_t))
+    rise[0, 0], rise[0, -1] = -1.0, 1.0
+    steps = np.eye(n_t - 1, n_t, 1) - np.eye(n_t - 1, n_t)
+    return np.concatenate([cos.T, sin.T, rise, steps]), cos.shape[1]
+
+
 def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str, str]:
     """Everything from the per-frame pad sums and centres of pressure, for all pads at once, as
-    ``_TIME_ROWS`` rows ``[N, 8, 3G]`` over the columns (pad signal, centre x, centre y): mean, FFT band
-    shares and log energy, mean derivative, last - first (the centre's net displacement), mean speed
-    (first G columns). Also the pads' mean value ``[N, 1, G]``. Rows a column does not use are
-    computed and ignored (cheaper than slicing them away)."""
+    ``_TIME_ROWS`` rows ``[N, G, 3, 8]`` of each pad's three series (signal, centre x, centre y):
+    mean, FFT band shares and log energy, mean derivative, last - first (the centre's net
+    displacement), mean speed (on the signal). Also the pads' mean value ``[N, G, 1, 1]``. Rows a
+    series does not use are computed and ignored (cheaper than slicing them away). Time stays the
+    last axis throughout, so each product over time is one GEMM for all pads."""
     n_pads, width = len(shapes), int(batch.sizes.max())
     kinds = np.zeros((n_pads, 3, width))  # per pad: ones, x, y of each taxel slot (0 on padding)
-    centre = np.zeros((2, n_pads))
+    centre = np.zeros((n_pads, 2, 1))
     for p, (rows, cols) in enumerate(shapes):
         y, x = np.divmod(np.arange(rows * cols), cols)
         kinds[p, 0, : rows * cols], kinds[p, 1, : rows * cols], kinds[p, 2, : rows * cols] = 1.0, x, y
-        centre[:, p] = (cols - 1) / 2, (rows - 1) / 2
+        centre[p, :, 0] = (cols - 1) / 2, (rows - 1) / 2
     sizes = batch.sizes.astype(np.float64)
     moments = g.op("MatMul", [g.const("pad_moments", kinds), padded], "moments")  # [N, G, 3, T]
-    moments4 = g.op("Transpose", [moments], "moments4", perm=[0, 3, 2, 1])  # [N, T, 3, G]
     weight, mxy = g.name("weight"), g.name("mxy")
-    g.op("Split", [moments4, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
-    signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes)], "signal")  # [N, T, 1, G]
+    g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
+    signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes[:, None, None])], "signal")  # [N, G, 1, T]
     pressed = g.op("Greater", [weight, g.const("zero", 0.0)], "pressed")
     safe = g.op("Where", [pressed, weight, g.const("one", 1.0)], "safe_weight")
     cop = g.op("Where", [pressed, g.op("Div", [mxy, safe], "cop_raw"), g.const("centre", centre)], "cop")
-    series = g.op("Reshape", [g.op("Concat", [signal, cop], "series4", axis=2),
-                              g.const("series_shape", [0, n_t, 3 * n_pads], np.int64)], "series")  # [N, T, 3G]
-    mean = g.op("ReduceMean", [series], "series_mean", axes=[1], keepdims=1)  # [N, 1, 3G]
+    series = g.op("Concat", [signal, cop], "series", axis=2)  # [N, G, 3, T]
+    mean = g.op("ReduceMean", [series], "series_mean", axes=[3], keepdims=1)  # [N, G, 3, 1]
     centred = g.op("Sub", [series, mean], "centred")
-    cos, sin, bands = dft_matrices(n_t)
-    n_bins = cos.shape[1]
-    rise_row = np.zeros((1, n_t))
-    rise_row[0, 0], rise_row[0, -1] = -1.0, 1.0
-    steps = np.eye(n_t - 1, n_t, 1) - np.eye(n_t - 1, n_t)
-    over_time = g.op("MatMul", [g.const("time_rows", np.concatenate([cos.T, sin.T, rise_row, steps])), centred],
-                     "over_time")  # [N, 2B + 1 + T-1, 3G]
+    rows_t, n_bins = time_rows(n_t)
+    over_time = g.op("MatMul", [centred, g.const("time_rows", rows_t.T)], "over_time")  # [N, G, 3, 2B + 1 + T-1]
     dft, rise, step = g.name("dft"), g.name("rise"), g.name("step")
-    g.op("Split", [over_time, g.const("split_time", [2 * n_bins, 1, n_t - 1], np.int64)], outputs=[dft, rise, step],
-         axis=1)
+    g.op("Split", [over_time, g.const("split_time", [2 * n_bins, 1, n_t - 1], np.int64)],
+         outputs=[dft, rise, step], axis=3)
     power = g.op("Mul", [dft, dft], "power")  # re^2 and im^2 of each bin
-    energy_rows = np.concatenate([np.concatenate([bands, bands]).T, np.ones((1, 2 * n_bins))])  # [4, 2B]
-    energy4 = g.op("MatMul", [g.const("band_rows", energy_rows), power], "energy4")  # [N, 4, 3G]
+    _, _, bands = dft_matrices(n_t)
+    energy_cols = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)  # [2B, 4]
+    energy4 = g.op("MatMul", [power, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
     band_energy, energy = g.name("band_energy"), g.name("energy")
-    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=1)
+    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=3)
     shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
     log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
     deriv = g.op("Mul", [rise, g.const("inv_steps", 1.0 / max(n_t - 1, 1))], "mean_deriv")
-    sq = g.op("Mul", [step, step], "step_sq")  # [N, T-1, 3G]
-    pair = np.zeros((3 * n_pads, 3 * n_pads))  # dx^2 + dy^2 into the first G columns
-    pair[n_pads : 2 * n_pads, :n_pads] = pair[2 * n_pads :, :n_pads] = np.eye(n_pads)
-    step_len = g.op("Sqrt", [g.op("MatMul", [sq, g.const("dx2_dy2", pair)], "step_len2")], "step_len")
-    speed = g.op("ReduceMean", [step_len], "speed", axes=[1], keepdims=1)  # [N, 1, 3G]
-    rows = g.op("Concat", [mean, shares, log_energy, deriv, rise, speed], "time_rows", axis=1)
-    signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [n_pads], np.int64),
+    sq = g.op("Mul", [step, step], "step_sq")  # [N, G, 3, T-1]
+    pair = np.zeros((3, 3))  # dx^2 + dy^2 into the signal's row
+    pair[0, 1] = pair[0, 2] = 1.0
+    step_len = g.op("Sqrt", [g.op("MatMul", [g.const("dx2_dy2", pair), sq], "step_len2")], "step_len")
+    speed = g.op("ReduceMean", [step_len], "speed", axes=[3], keepdims=1)  # [N, G, 3, 1]
+    rows = g.op("Concat", [mean, shares, log_energy, deriv, rise, speed], "time_rows", axis=3)
+    signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
                                  g.const("axis", [2], np.int64)], "signal_mean")
     return rows, signal_mean
 

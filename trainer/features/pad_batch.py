@@ -68,8 +68,8 @@ def peak_nodes(g, padded: str) -> str:
     return g.shared(("pad_peak", padded), lambda: g.op("ReduceMax", [padded], "pad_peak", axes=[2, 3], keepdims=0))
 
 
-def median_nodes(g, batch: PadBatch, frames: str, padded: str, n_t: int) -> str:
-    """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]``.
+def median_nodes(g, batch: PadBatch, frames: str, padded: str, peak: str, n_t: int) -> str:
+    """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]`` (``peak``: ``[N, G]``).
 
     Exact both ways, cheap where it can be: when in every pad of every window fewer than half the
     values can be non-zero (at most ``(size * T - 1) // 2`` from the taxels not zero all window
@@ -86,16 +86,18 @@ def median_nodes(g, batch: PadBatch, frames: str, padded: str, n_t: int) -> str:
         return g.op("Concat", parts, "median", axis=1)
     touched = g.op("Cast", [g.op("Greater", [g.op("ReduceL1", [frames], "taxel_l1", axes=[1], keepdims=0),
                                              g.const("zero", 0.0)], "touched")], "touched_f", to=1)  # [N, C]
-    indicator = np.zeros((int(batch.sizes.sum()), len(batch.sizes)))
-    for p, row in enumerate(batch.index):
-        indicator[row[batch.mask[p] > 0], p] = 1.0
-    n_touched = g.op("MatMul", [touched, g.const("pad_of_taxel", indicator)], "n_touched")  # [N, G]
+    # each pad's touched taxels, each weighing 1 / (most + 1/2): the pads may take the shortcut when
+    # every weighted count is at most 1 (counts are small integers: float32 rounding cannot cross 1,
+    # the nearest counts are 1 / (2 most + 1) away from it)
     most = ((batch.sizes * n_t - 1) // 2) // n_t  # touched taxels whose T values stay below half the pad's
-    over = g.op("ReduceMax", [g.op("Sub", [n_touched, g.const("most_touched", most)], "over")], "worst", keepdims=0)
-    zero_median = g.op("LessOrEqual", [over, g.const("zero", 0.0)], "zero_median")
-    zeros = g.op("Mul", [n_touched, g.const("zero", 0.0)], "zeros")  # [N, G]
+    weights = np.zeros((int(batch.sizes.sum()), len(batch.sizes)))
+    for p, row in enumerate(batch.index):
+        weights[row[batch.mask[p] > 0], p] = 1.0 / (most[p] + 0.5)
+    count = g.op("MatMul", [touched, g.const("touch_weights", weights)], "touch_count")  # [N, G]
+    worst = g.op("ReduceMax", [count], "worst", keepdims=0)
+    zero_median = g.op("LessOrEqual", [worst, g.const("one", 1.0)], "zero_median")
     then_g, else_g = type(g)(prefix=g.name("then") + "_"), type(g)(prefix=g.name("else") + "_")
-    then_out = then_g.op("Identity", [zeros], "median")
+    then_out = then_g.op("Mul", [peak, then_g.const("zero", 0.0)], "median")  # [N, G] zeros
     values = padded
     if batch.padded:
         values = else_g.op("Add", [padded, else_g.const("median_offset", batch.offset[:, :, None])], "median_values")

@@ -16,13 +16,11 @@ from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, 
 from trainer.numerics import U32, gamma
 
 
-def time_rows(n_t: int) -> np.ndarray:
-    """``[T + 2, T]`` over the frames: the centred signal (``I - 1/T``), its mean, last - first.
-    A centred value's float32 error scales with the signal's values, as the two-pass mean's does
-    (``error_bounds``)."""
+def ends_rows(n_t: int) -> np.ndarray:
+    """``[2, T]`` over the frames: the mean and last - first."""
     rise = np.zeros(n_t)
     rise[0], rise[-1] = -1.0, 1.0
-    return np.vstack([np.eye(n_t) - 1.0 / n_t, np.full((1, n_t), 1.0 / n_t), rise[None]])
+    return np.vstack([np.full(n_t, 1.0 / n_t), rise])
 
 
 class PadStats(FeatureFamily):
@@ -64,16 +62,15 @@ class PadStats(FeatureFamily):
         return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
 
     def onnx_parts(self, g, frames: str) -> OnnxParts:
-        """One MatMul over time gives the centred signals, their mean and their change (``time_rows``);
-        the standard deviation is the centred signals' L2 norm / sqrt(T). Parts: ``[mean, change]``,
-        std, peak."""
+        """The standard deviation in two passes (a constant signal's is exactly 0) as the centred
+        signals' L2 norm / sqrt(T); the mean and the change from one MatMul over time (``ends_rows``).
+        Parts: ``[mean, change]``, std, peak."""
         n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
         sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
-        over_time = g.op("MatMul", [g.const("stats_time_rows", time_rows(n_t)), sig], "stats_time")  # [N, T + 2, S]
-        centred, ends = g.name("signal_centred"), g.name("signal_ends")
-        g.op("Split", [over_time, g.const("split_stats", [n_t, 2], np.int64)], outputs=[centred, ends], axis=1)
+        centred = g.op("Sub", [sig, g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)], "signal_centred")
         l2 = g.op("ReduceL2", [centred], "signal_l2", axes=[1], keepdims=0)
         std = g.op("Mul", [l2, g.const("inv_sqrt_t", 1.0 / np.sqrt(n_t))], "signal_std")
+        ends = g.op("MatMul", [g.const("stats_time_rows", ends_rows(n_t)), sig], "signal_ends")  # [N, 2, S]
         mean_change = g.op("Reshape", [ends, g.const("flat_shape", [0, 2 * n_sig], np.int64)], "signal_mean_change")
         n_pads = len(self.shapes_)
         s = np.arange(n_sig)
