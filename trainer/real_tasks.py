@@ -127,17 +127,43 @@ def _slip_bags(bags: Path) -> RealTask:
 
     paths = {n: bags / f"{n}.bag" for n in ("no_slippage", "slip_down", "slip_up")}
     X, y, ch, files, sizes, shapes = load_windows(paths, ALL_PADS)
-    train, test = [], []
-    for label in paths:
-        idx = np.flatnonzero(y == label)
-        order = list(dict.fromkeys(ch[idx].tolist()))
-        first = set(order[: max(1, round(0.6 * len(order)))])
-        train += [i for i in idx if ch[i] in first]
-        test += [i for i in idx if ch[i] not in first]
-    splits = [Split("first 60 % of each file's chunks / rest", np.asarray(train), np.asarray(test))]
+    blocks = temporal_blocks(y, ch, SLIP_FOLDS)
+    splits = [Split(f"time block {i + 1} of {SLIP_FOLDS}", np.flatnonzero(blocks != i), np.flatnonzero(blocks == i))
+              for i in range(SLIP_FOLDS)]
     return RealTask("real_slip", "mas-group bags no_slippage / slip_down / slip_up (one file each, all pads)",
-                    X, y, ch, files, sizes, shapes, splits,
-                    "temporal: first 60 % of each file's contact chunks train, the rest test")
+                    X, y, ch, files, sizes, shapes, splits, SLIP_SPLIT)
+
+
+SLIP_FOLDS = 3
+SLIP_SPLIT = (f"temporal blocks: each file's contact chunks in time order cut into {SLIP_FOLDS} consecutive blocks; "
+              f"fold i tests block i of every file and trains on the rest (every chunk is tested once)")
+"""real_slip's split. Until 2026-11-24 it was one split (first 60 % of each file's chunks train, the rest
+test: ``first_part_split``), decided by one test chunk (results/slip_diagnosis.md); blocked folds keep
+time order inside each block and test every chunk once, so the figure has a spread."""
+
+
+def temporal_blocks(y: np.ndarray, chunks: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Block number of every window: each class's chunks in order of appearance (one file per class
+    here, so time order) cut into ``n_blocks`` consecutive runs (``np.array_split``)."""
+    out = np.empty(len(y), dtype=int)
+    for label in dict.fromkeys(y.tolist()):
+        order = list(dict.fromkeys(chunks[y == label].tolist()))
+        for b, part in enumerate(np.array_split(np.arange(len(order)), n_blocks)):
+            for k in part:
+                out[chunks == order[k]] = b
+    return out
+
+
+def first_part_split(y: np.ndarray, chunks: np.ndarray, share: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """real_slip's former split: the first ``share`` of each class's chunks train, the rest test."""
+    train, test = [], []
+    for label in dict.fromkeys(y.tolist()):
+        idx = np.flatnonzero(y == label)
+        order = list(dict.fromkeys(chunks[idx].tolist()))
+        first = set(order[: max(1, round(share * len(order)))])
+        train += [i for i in idx if chunks[i] in first]
+        test += [i for i in idx if chunks[i] not in first]
+    return np.asarray(train), np.asarray(test)
 
 
 SLIP_SCENES = ("slip_examples_pen_and_wooden_block", "slip_hockey_ball", "slip_test", "slip_test2")
