@@ -2,13 +2,15 @@
 
 A refused or unplugged device is retried every few seconds for as long as it takes; a warning per
 attempt (six a minute, forever) would bury everything else in the journal. So the first failure is
-logged, the same failure again only once ``REPEAT_NOTES_S`` have passed since it began (1, 10 and
+logged, the same failure (the same words: counts and durations in it may differ, e.g. how many
+bytes of nonsense arrived) again only once ``REPEAT_NOTES_S`` have passed since it began (1, 10 and
 60 minutes, then every hour), a different reason at once, and the connection that ends the outage
 says how long it lasted. The health file is told on every attempt (by the caller), not through here.
 """
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Callable
 
@@ -38,10 +40,11 @@ class RetryNotes:
         if self.attempts == 0:
             self._outage_start = now
         self.attempts += 1
-        if reason != self.reason:
+        if self.reason is None or _kind(reason) != _kind(self.reason):
             self.reason, self._reason_start, self._notes = reason, now, 0
             self._next_note = now + REPEAT_NOTES_S[0]
             return f"{reason}; retrying in {retry_in_s:.1f} s"
+        self.reason = reason  # the latest words, for "last:"
         if now < self._next_note:
             return None
         self._notes += 1
@@ -61,6 +64,11 @@ class RetryNotes:
                f"{_span(self.clock() - self._outage_start)}"
         self.reset()
         return text
+
+
+def _kind(reason: str) -> str:
+    """A failure's words without its numbers: the same failure whatever it counted this time."""
+    return re.sub(r"\d+(\.\d+)?", "#", reason)
 
 
 def _span(seconds: float) -> str:

@@ -213,13 +213,13 @@ def test_daemon_against_garbage_logs_reports_and_retries(models, garbage_device,
     def until(d: Daemon) -> bool:
         if health.exists():
             seen.append(json.loads(health.read_text()))
-        attempts = sum(1 for r in caplog.records if "retrying" in r.getMessage())
-        return attempts >= 2 and d.health.device_state == "disconnected"
+        return d.retry_notes.attempts >= 2 and d.health.device_state == "disconnected"
 
     held = _run_until(daemon, until, timeout=12)
     assert held, daemon.health.snapshot()
     lines = [r.getMessage() for r in caplog.records if garbage_device.url in r.getMessage()]
     assert lines and "baud rate" in lines[0] and "retrying" in lines[0], lines
+    assert len(lines) == 1, lines  # the second attempt counted other bytes: the same failure, not logged again
     assert "baud rate" in daemon.health.last_error
     assert factory_calls
     states = {s["device_state"] for s in seen}
@@ -391,6 +391,22 @@ class FakeClock:
 
     def __call__(self) -> float:
         return self.now
+
+
+def test_a_failure_that_counts_differently_each_time_is_the_same_failure():
+    """A device sending nonsense fails every open with another byte count: one line, then rarely."""
+    from runtime.retry_notes import RetryNotes
+
+    clock = FakeClock()
+    notes = RetryNotes(clock=clock)
+    lines = []
+    for n in range(7):
+        lines.append(notes.failed(f"open did not complete within 10 s although {31088640 - n * 4096} bytes arrived", 10.0))
+        clock.now += 10.0
+    assert lines[0].startswith("open did not complete") and lines[1:6] == [None] * 5
+    assert lines[6].startswith("still unreachable after 7 attempts in 60 s (last: open did not complete within 10 s "
+                               "although 31064064 bytes arrived)")
+    assert notes.failed("cannot connect: Connection refused", 10.0).startswith("cannot connect")  # other words: at once
 
 
 def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_attempt(models, caplog):

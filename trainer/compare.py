@@ -48,8 +48,9 @@ class ModelSpec:
 
 
 ONNX_KINDS = ("bow", "flat", "features", "default")
-DIAGNOSES = {"real_slip": "why, judged on its training part only: results/slip_diagnosis.md (one grasp per slip kind "
-                          "in training; no grouped evaluation there separates the methods; one test chunk decides)"}
+DIAGNOSES = {"real_slip": "its former single split (first 60 % of each file's chunks train, the rest test), where the "
+                          "default lost on one test chunk, and why, judged on the training part only: "
+                          "results/slip_diagnosis.md"}
 """Where a task's verdict is examined (``python -m trainer.slip_diagnosis``)."""
 
 

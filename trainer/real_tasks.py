@@ -12,7 +12,8 @@ that keeps files apart.
 
 Tasks: ``real_objects`` (7 objects, distal pads), ``real_objects_all_pads`` (the same files, all six
 pads), ``real_grasps`` (grasps/ by object, all pads), ``real_slip_scenes`` (kiechle slip-detection/
-by recording, distal pads), ``real_objects_across_folders``, ``real_slip`` (mas-group bags).
+by recording, distal pads), ``real_objects_across_folders``, ``real_objects_long`` (the objects of both
+folders, distal pads, cases of 30 frames, 5-fold), ``real_slip`` (mas-group bags).
 """
 
 from __future__ import annotations
@@ -47,8 +48,9 @@ class RealTask:
     split_rule: str
 
 
-def cut_windows(rec, pads, chunk_prefix: str) -> tuple[np.ndarray, np.ndarray]:
-    """Cases ``(n, C, T)`` float32 from one recording by the documented rule, and their chunk ids."""
+def cut_windows(rec, pads, chunk_prefix: str, n_frames: int = T, stride: int = STRIDE) -> tuple[np.ndarray, np.ndarray]:
+    """Cases ``(n, C, n_frames)`` float32 from one recording by the documented rule (a case every
+    ``stride`` frames), and their chunk ids."""
     cols = rec.layout.columns(list(pads))
     frames = rec.frames[:, cols].astype(np.float32)
     contact = frames.max(axis=1) >= CONTACT_FRACTION * FULLSCALE
@@ -64,45 +66,56 @@ def cut_windows(rec, pads, chunk_prefix: str) -> tuple[np.ndarray, np.ndarray]:
             j += 1
         for start in range(i, j, CHUNK_FRAMES):
             stop = min(j, start + CHUNK_FRAMES)
-            for s in range(start, stop - T + 1, STRIDE):
-                cases.append(frames[s : s + T].T)
+            for s in range(start, stop - n_frames + 1, stride):
+                cases.append(frames[s : s + n_frames].T)
                 chunk_ids.append(f"{chunk_prefix}#{n_chunk}")
             n_chunk += 1
         i = j
     if not cases:
-        return np.zeros((0, len(cols), T), np.float32), np.zeros(0, dtype=object)
+        return np.zeros((0, len(cols), n_frames), np.float32), np.zeros(0, dtype=object)
     return np.stack(cases), np.asarray(chunk_ids, dtype=object)
 
 
-def load_windows(paths: dict[str, Path], pads) -> tuple:
-    """Windows of every file (label = key): X, y, chunk ids, file names, pad sizes, pad shapes."""
+def load_windows(paths: dict[str, Path | list[Path]], pads, n_frames: int = T, stride: int = STRIDE) -> tuple:
+    """Windows of every file (label = key; a key may name several files): X, y, chunk ids, file
+    names, pad sizes, pad shapes."""
     from firmware_io.recordings.importers import import_any
 
     Xs, ys, chunks, files = [], [], [], []
     layout = None
-    for label, path in paths.items():
-        rec = import_any(path)
-        layout = rec.layout
-        X, ch = cut_windows(rec, pads, path.name)
-        Xs.append(X)
-        ys += [label] * len(X)
-        chunks.append(ch)
-        files += [path.name] * len(X)
+    for label, given in paths.items():
+        for path in given if isinstance(given, list) else [given]:
+            rec = import_any(path)
+            layout = rec.layout
+            X, ch = cut_windows(rec, pads, path.name, n_frames, stride)
+            Xs.append(X)
+            ys += [label] * len(X)
+            chunks.append(ch)
+            files += [path.name] * len(X)
     sizes = tuple(layout.pad_sizes(list(pads)))
     shapes = [(layout.matrices[p].cells_y, layout.matrices[p].cells_x) for p in pads]
     return np.concatenate(Xs), np.asarray(ys), np.concatenate(chunks), np.asarray(files), sizes, shapes
 
 
-def grouped_task(name: str, description: str, paths: dict[str, Path], pads, seed: int) -> RealTask:
-    """A task split by 3-fold StratifiedGroupKFold over contact chunks."""
+def grouped_task(name: str, description: str, paths: dict[str, Path | list[Path]], pads, seed: int,
+                 n_folds: int = 3, n_frames: int = T, stride: int = STRIDE, min_chunks: int = 0) -> RealTask:
+    """A task split by ``n_folds``-fold StratifiedGroupKFold over contact chunks; classes with fewer
+    than ``min_chunks`` contact chunks are left out (they cannot be both trained and tested)."""
     from sklearn.model_selection import StratifiedGroupKFold
 
     from trainer.evaluation import Split
 
-    X, y, ch, files, sizes, shapes = load_windows(paths, pads)
-    cv = StratifiedGroupKFold(n_splits=3, shuffle=True, random_state=seed)
+    X, y, ch, files, sizes, shapes = load_windows(paths, pads, n_frames, stride)
+    keep = np.isin(y, [c for c in np.unique(y) if len(set(ch[y == c].tolist())) >= min_chunks])
+    X, y, ch, files = X[keep], y[keep], ch[keep], files[keep]
+    cv = StratifiedGroupKFold(n_splits=n_folds, shuffle=True, random_state=seed)
     splits = [Split(f"fold {i}", tr, te) for i, (tr, te) in enumerate(cv.split(X, y, ch))]
-    return RealTask(name, description, X, y, ch, files, sizes, shapes, splits, GROUPED_3FOLD)
+    rule = GROUPED_3FOLD.replace("3-fold", f"{n_folds}-fold")
+    if n_frames != T:
+        rule += f"; cases of {n_frames} frames every {stride} frames"
+    if min_chunks:
+        rule += f"; objects with at least {min_chunks} contact chunks"
+    return RealTask(name, description, X, y, ch, files, sizes, shapes, splits, rule)
 
 
 def _across_folders(video: Path, grasps: Path) -> RealTask:
@@ -127,17 +140,62 @@ def _slip_bags(bags: Path) -> RealTask:
 
     paths = {n: bags / f"{n}.bag" for n in ("no_slippage", "slip_down", "slip_up")}
     X, y, ch, files, sizes, shapes = load_windows(paths, ALL_PADS)
-    train, test = [], []
-    for label in paths:
-        idx = np.flatnonzero(y == label)
-        order = list(dict.fromkeys(ch[idx].tolist()))
-        first = set(order[: max(1, round(0.6 * len(order)))])
-        train += [i for i in idx if ch[i] in first]
-        test += [i for i in idx if ch[i] not in first]
-    splits = [Split("first 60 % of each file's chunks / rest", np.asarray(train), np.asarray(test))]
+    blocks = temporal_blocks(y, ch, SLIP_FOLDS)
+    splits = [Split(f"time block {i + 1} of {SLIP_FOLDS}", np.flatnonzero(blocks != i), np.flatnonzero(blocks == i))
+              for i in range(SLIP_FOLDS)]
     return RealTask("real_slip", "mas-group bags no_slippage / slip_down / slip_up (one file each, all pads)",
-                    X, y, ch, files, sizes, shapes, splits,
-                    "temporal: first 60 % of each file's contact chunks train, the rest test")
+                    X, y, ch, files, sizes, shapes, splits, SLIP_SPLIT)
+
+
+SLIP_FOLDS = 3
+SLIP_SPLIT = (f"temporal blocks: each file's contact chunks in time order cut into {SLIP_FOLDS} consecutive blocks; "
+              f"fold i tests block i of every file and trains on the rest (every chunk is tested once)")
+"""real_slip's split. Until 2026-11-24 it was one split (first 60 % of each file's chunks train, the rest
+test: ``first_part_split``), decided by one test chunk (results/slip_diagnosis.md); blocked folds keep
+time order inside each block and test every chunk once, so the figure has a spread."""
+
+
+def temporal_blocks(y: np.ndarray, chunks: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Block number of every window: each class's chunks in order of appearance (one file per class
+    here, so time order) cut into ``n_blocks`` consecutive runs (``np.array_split``)."""
+    out = np.empty(len(y), dtype=int)
+    for label in dict.fromkeys(y.tolist()):
+        order = list(dict.fromkeys(chunks[y == label].tolist()))
+        for b, part in enumerate(np.array_split(np.arange(len(order)), n_blocks)):
+            for k in part:
+                out[chunks == order[k]] = b
+    return out
+
+
+def first_part_split(y: np.ndarray, chunks: np.ndarray, share: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """real_slip's former split: the first ``share`` of each class's chunks train, the rest test."""
+    train, test = [], []
+    for label in dict.fromkeys(y.tolist()):
+        idx = np.flatnonzero(y == label)
+        order = list(dict.fromkeys(chunks[idx].tolist()))
+        first = set(order[: max(1, round(share * len(order)))])
+        train += [i for i in idx if chunks[i] in first]
+        test += [i for i in idx if chunks[i] not in first]
+    return np.asarray(train), np.asarray(test)
+
+
+LONG_FRAMES, LONG_STRIDE, LONG_FOLDS = 30, 15, 5
+"""``real_objects_long``: the shape of task a new user tries first (many objects, distal pads, a few dozen
+frames per case, 5-fold), kept honest by grouping the folds by contact chunk."""
+
+
+def _objects_long(by_stem: dict[str, Path], grasps: Path, seed: int) -> RealTask:
+    """Every object of classification_video/ and grasps/ (the foam and the hockey ball, recorded in
+    both folders, are one class each), cases of ``LONG_FRAMES`` frames."""
+    same = {"foam_ball": "foam", "hockey_ball": "hockey"}
+    paths: dict[str, list[Path]] = {stem: [p] for stem, p in by_stem.items()}
+    for p in sorted(grasps.glob("*.dsa")):
+        paths.setdefault(same.get(p.stem, p.stem), []).append(p)
+    task = grouped_task("real_objects_long", "", paths, DISTAL, seed, n_folds=LONG_FOLDS, n_frames=LONG_FRAMES,
+                        stride=LONG_STRIDE, min_chunks=LONG_FOLDS)
+    task.description = (f"{len(set(task.y.tolist()))} objects of kiechle classification_video/ and grasps/ (foam and "
+                        "hockey ball from both folders; one class each), distal pads, longer cases")
+    return task
 
 
 SLIP_SCENES = ("slip_examples_pen_and_wooden_block", "slip_hockey_ball", "slip_test", "slip_test2")
@@ -166,6 +224,7 @@ def real_tasks(data_dir: Path, seed: int = 0) -> tuple[list[RealTask], list[str]
             "ball, slip_test, slip_test2; one file each, distal pads)",
             {n: slips / f"{n}.dsa" for n in SLIP_SCENES}, DISTAL, seed)),
         ("real_objects_across_folders", bool(by_stem) and grasps.is_dir(), lambda: _across_folders(video, grasps)),
+        ("real_objects_long", bool(by_stem) and grasps.is_dir(), lambda: _objects_long(by_stem, grasps, seed)),
         ("real_slip", all((bags / f"{n}.bag").is_file() for n in ("no_slippage", "slip_down", "slip_up")),
          lambda: _slip_bags(bags)),
     ]

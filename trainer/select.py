@@ -37,6 +37,8 @@ CANDIDATES: tuple[tuple[str, tuple[str, ...], str, dict], ...] = (
     ("hand+stats rbf distinct", ("hand", "stats"), "rbf", {"feature_weighting": "distinct"}),
     ("rocket+stats linear", ("rocket", "stats"), "linear", ROCKET_SETTINGS),
     ("hand rbf", ("hand",), "rbf", {}),
+    ("hand+stats+image rbf block_count", ("hand", "stats", "image"), "rbf", {"feature_weighting": "block_count"}),
+    ("image rbf", ("image",), "rbf", {}),
     ("bow per-pad linear", ("bow",), "linear", {}),
 )
 """(name, families, kernel, fixed settings); BoW with K and W from the command line."""

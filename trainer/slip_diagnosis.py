@@ -31,6 +31,20 @@ VARIANTS = {
 """SVM searches tried for the default's features; (folds, gamma factors, kernel)."""
 
 
+def former_split_task(task):
+    """real_slip with the one split it had when this diagnosis was written (``first_part_split``): the
+    diagnosis explains that split's verdict; the compare now uses blocked folds (``SLIP_SPLIT``)."""
+    from dataclasses import replace
+
+    from trainer.evaluation import Split
+    from trainer.real_tasks import first_part_split
+
+    train, test = first_part_split(task.y, task.chunks)
+    return replace(task, splits=[Split("first 60 % of each file's chunks / rest", train, test)],
+                   split_rule="temporal: first 60 % of each file's contact chunks train, the rest test "
+                              "(real_slip's split until 2026-11-24)")
+
+
 def chunk_map(task) -> list[dict]:
     """Every chunk: class, part of the outer split, windows, median peak taxel (% of full scale)."""
     from trainer.real_tasks import FULLSCALE
@@ -166,6 +180,7 @@ def run(data_dir: Path, say) -> dict:
     slip = next((t for t in tasks if t.name == "real_slip"), None)
     if slip is None:
         raise FileNotFoundError(f"real_slip's recordings are not under {data_dir}: {notes}")
+    slip = former_split_task(slip)
     train = np.asarray(slip.splits[0].train)
     say("real_slip: inner scores, leave one chunk out, grid ...")
     makers = {"default": lambda: default_classifier(slip.pad_sizes, slip.pad_shapes),
