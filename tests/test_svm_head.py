@@ -1,0 +1,65 @@
+"""The expanded RBF head (trainer/svm_head.py): its float32 decisions stay within the bound that
+``handover verify`` uses (trainer/numerics.py), folded or not, and features in the graph's own
+layout (unused columns, another order) decide like the reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+
+from runtime.model import session_options
+from tests.onnx_fixtures import PAD_SIZES, T, frames_of, synthetic_cases
+from trainer.feature_svc import FeatureSVC
+from trainer.numerics import reference, svm_decision_bounds
+from trainer.onnx_export import build_graph, feature_columns
+from trainer.stress import stress_cases
+from trainer.svm_head import FOLD_LIMIT, RbfConstants
+
+
+def _decisions(model, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's one-vs-one decisions (the first P columns of its decision Gemm) and labels."""
+    proto = build_graph(model)
+    name = next(n.output[0] for n in proto.graph.node if n.op_type == "Gemm" and n.output[0].startswith("decision"))
+    proto.graph.output.append(onnx.helper.make_tensor_value_info(name, onnx.TensorProto.FLOAT, None))
+    session = ort.InferenceSession(proto.SerializeToString(), session_options(), providers=["CPUExecutionProvider"])
+    labels, dec = session.run(["label", name], {"frames": frames})
+    n_classes = len(model.classes_)
+    return dec[:, : n_classes * (n_classes - 1) // 2], labels
+
+
+@pytest.mark.parametrize("gamma", ["scale", 1.0], ids=["folded", "offset-added"])
+def test_decisions_within_the_verify_bound(gamma):
+    X, y = synthetic_cases(n=96, seed=3)
+    model = FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, C=10.0, gamma=gamma,
+                       feature_weighting="distinct").fit(X, y)
+    folded = RbfConstants.of(model.svm_, model.scaler_).folded
+    assert folded == (gamma == "scale")  # gamma 1 puts gamma ||sv||^2 past FOLD_LIMIT
+    assert folded or -RbfConstants.of(model.svm_, model.scaler_).offset.min() > FOLD_LIMIT
+    stress = stress_cases(T, sum(PAD_SIZES), np.eye(2, 4) * 100.0, seed=2)
+    frames = np.concatenate([frames_of(synthetic_cases(n=64, seed=9)[0]), *stress.values()])
+    dec, labels = _decisions(model, frames)
+    ref = reference(model, frames)
+    assert np.isfinite(dec).all()
+    excess = np.abs(dec.astype(np.float64) - ref["decisions"]) - ref["decision_bounds"]
+    assert (excess <= 0).all(), excess.max()
+    # the head's own share of the bound (exact features) is float32 rounding, not a blanket
+    own = svm_decision_bounds(model.svm_, ref["hist"], None, model.scaler_)
+    assert np.median(own / np.maximum(np.abs(ref["decisions"]), 1e-300)) < 1e-3 or not own.any()
+    tie = np.abs(ref["decisions"]) <= ref["decision_bounds"]
+    assert np.array_equal(labels[~tie.any(axis=1)], ref["labels"][~tie.any(axis=1)])
+
+
+def test_graph_layout_differs_from_the_reference_order_and_decides_alike():
+    X, y = synthetic_cases(n=96, seed=4)
+    model = FeatureSVC(families=("stats", "hand"), pad_sizes=PAD_SIZES, C=10.0, gamma="scale").fit(X, y)
+    proto = build_graph(model)
+    columns = feature_columns(proto)
+    n_features = model.scaler_.n_features_in_
+    assert columns is not None and len(columns) == n_features and len(set(columns)) == n_features
+    assert not np.array_equal(columns, np.arange(n_features))  # reordered, with unused columns in between
+    assert columns.max() >= n_features
+    frames = frames_of(synthetic_cases(n=48, seed=11)[0])
+    _, labels = _decisions(model, frames)
+    assert np.array_equal(model.classes_[labels], model.predict(frames.transpose(0, 2, 1).astype(np.float64)))
