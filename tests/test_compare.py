@@ -38,6 +38,22 @@ def test_default_rule_ranks_by_real_inner_score_gates_on_simulation_and_latency(
     assert "sim_inner" not in rows["fast"]
 
 
+def test_a_gap_within_one_standard_error_of_paired_task_differences_is_a_tie():
+    from trainer.default_choice import apply_rule, ties
+
+    best = {"real_inner": {"a": 0.70, "b": 0.60, "c": 0.80}, "real_score": 0.70, "p50_us": 200.0, "p99_us": 400.0}
+    noisy = {"real_inner": {"a": 0.74, "b": 0.50, "c": 0.84}, "real_score": 0.6933, "p50_us": 80.0, "p99_us": 150.0}
+    steady = {"real_inner": {"a": 0.69, "b": 0.59, "c": 0.79}, "real_score": 0.69, "p50_us": 60.0, "p99_us": 100.0}
+    # noisy: gap 0.7 points, differences +4/-10/+4 (standard error 4.7 points): a tie
+    # steady: gap 1 point every task alike (standard error 0): worse, not a tie
+    assert ties(noisy, best) and not ties(steady, best)
+    rows = {"best": best, "noisy": noisy, "steady": steady}
+    chosen, order = apply_rule(rows, lambda name: 0.99)
+    assert order == ["noisy", "best", "steady"] and chosen == "noisy"
+    assert rows["noisy"]["ties_best"] and rows["best"]["ties_best"] and not rows["steady"]["ties_best"]
+    assert not ties({"real_inner": {"a": 0.69}, "real_score": 0.69}, {"real_inner": {"a": 0.70}, "real_score": 0.70})
+
+
 def test_real_windows_stay_inside_contact_chunks():
     from firmware_io.recordings.importers import import_any
 

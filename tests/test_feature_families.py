@@ -104,7 +104,7 @@ def test_hand_family_is_the_baseline_features(cases):
                        HandFeatures(shapes).fit(X).transform(X))
 
 
-@parametrize_with_checks([FeatureSVC(families=("stats",), C=10.0, gamma="scale")])
+@parametrize_with_checks([FeatureSVC(families=("stats",), kernel="rbf", C=10.0, gamma="scale")])
 def test_feature_svc_estimator_checks(estimator, check):
     check(estimator)
 

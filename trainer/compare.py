@@ -87,6 +87,14 @@ def model_specs(quick: bool, minirocket: bool = True) -> list[ModelSpec]:
         ModelSpec("rocket+stats", "features", {"families": ("rocket", "stats"), "kernel": "linear", **ROCKET_SETTINGS},
                   "MiniRocket-style PPV of per-pad signals (Conv, dilations 1, 2) + level statistics, linear SVM C=1",
                   "--features rocket,stats --kernel linear --C 1", "rocket+stats linear"),
+        ModelSpec("hand+stats linear distinct", "features",
+                  {"families": ("hand", "stats"), "kernel": "linear", "feature_weighting": "distinct"},
+                  "hand-designed + level statistics, counted once, linear SVM (C searched)",
+                  "--features hand,stats --kernel linear --feature-weighting distinct", "hand+stats linear distinct"),
+        ModelSpec("rocket+hand+stats", "features",
+                  {"families": ("rocket", "hand", "stats"), "kernel": "linear", **ROCKET_SETTINGS},
+                  "MiniRocket-style PPV + hand-designed + level statistics, linear SVM C=1",
+                  "--features rocket,hand,stats --kernel linear --C 1", "rocket+hand+stats linear"),
     ]
     if quick:
         specs = [s for s in specs if s.name in ("default", "paper", "baseline", "flat-svm", "stats")]

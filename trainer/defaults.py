@@ -2,11 +2,12 @@
 options, what the demo and the benchmarks train, and what ``trainer.default_classifier`` returns.
 
 The default: the paper's hand-designed features plus per-pad level statistics (``hand``, ``stats``),
-standardised, a quantity both families compute counted once in the distance (``feature_weighting =
-"distinct"``, trainer/feature_weighting.py), RBF SVM. Chosen by the rule of ``trainer.default_choice`` (results/compare.md,
-"Choosing the default"): nested grouped cross-validation on the real SDH-2 tasks inside the outer
-training folds, a 1 ms latency budget and a 95 % nested leave-one-subject-out gate on the
-simulated protocol; the outer test folds never enter. The paper's configuration stays reachable:
+standardised, a quantity both families compute counted once (``feature_weighting = "distinct"``,
+trainer/feature_weighting.py), linear SVM (C searched). Chosen by the rule of
+``trainer.default_choice`` (results/compare.md, "Choosing the default"): nested grouped
+cross-validation on the real SDH-2 tasks inside the outer training folds, ties by the
+one-standard-error rule going to the faster graph, a 1 ms latency budget and a 95 % nested
+leave-one-subject-out gate on the simulated protocol; the outer test folds never enter. The paper's configuration stays reachable:
 ``handover train --no-per-pad`` (one derivative histogram, ``--features bow``).
 """
 
@@ -16,7 +17,7 @@ from collections.abc import Sequence
 
 DEFAULT_MODEL = {
     "families": ("hand", "stats"),
-    "kernel": "rbf",
+    "kernel": "linear",
     "feature_weighting": "distinct",
     "K": 10,
     "W": 7,

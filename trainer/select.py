@@ -37,8 +37,8 @@ CANDIDATES: tuple[tuple[str, tuple[str, ...], str, dict], ...] = (
     ("hand+stats rbf distinct", ("hand", "stats"), "rbf", {"feature_weighting": "distinct"}),
     ("rocket+stats linear", ("rocket", "stats"), "linear", ROCKET_SETTINGS),
     ("hand rbf", ("hand",), "rbf", {}),
-    ("hand+stats+image rbf block_count", ("hand", "stats", "image"), "rbf", {"feature_weighting": "block_count"}),
-    ("image rbf", ("image",), "rbf", {}),
+    ("hand+stats linear distinct", ("hand", "stats"), "linear", {"feature_weighting": "distinct"}),
+    ("rocket+hand+stats linear", ("rocket", "hand", "stats"), "linear", ROCKET_SETTINGS),
     ("bow per-pad linear", ("bow",), "linear", {}),
 )
 """(name, families, kernel, fixed settings); BoW with K and W from the command line."""
