@@ -1,6 +1,7 @@
-"""The expanded RBF head (trainer/svm_head.py): its float32 decisions stay within the bound that
-``handover verify`` uses (trainer/numerics.py), folded or not, and features in the graph's own
-layout (unused columns, another order) decide like the reference."""
+"""The SVM head (trainer/svm_head.py): the expanded RBF kernel (folded or not) and the linear SVM with
+the scaler in its weights keep their float32 decisions within the bound ``handover verify`` uses
+(trainer/numerics.py), and features in the graph's own layout (unused columns, another order)
+decide like the reference."""
 
 from __future__ import annotations
 
@@ -29,14 +30,16 @@ def _decisions(model, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return dec[:, : n_classes * (n_classes - 1) // 2], labels
 
 
-@pytest.mark.parametrize("gamma", ["scale", 1.0], ids=["folded", "offset-added"])
-def test_decisions_within_the_verify_bound(gamma):
+@pytest.mark.parametrize(("kernel", "gamma"), [("rbf", "scale"), ("rbf", 1.0), ("linear", "scale")],
+                         ids=["rbf-folded", "rbf-offset-added", "linear-scaler-folded"])
+def test_decisions_within_the_verify_bound(kernel, gamma):
     X, y = synthetic_cases(n=96, seed=3)
-    model = FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, C=10.0, gamma=gamma,
+    model = FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, kernel=kernel, C=10.0, gamma=gamma,
                        feature_weighting="distinct").fit(X, y)
-    folded = RbfConstants.of(model.svm_, model.scaler_).folded
-    assert folded == (gamma == "scale")  # gamma 1 puts gamma ||sv||^2 past FOLD_LIMIT
-    assert folded or -RbfConstants.of(model.svm_, model.scaler_).offset.min() > FOLD_LIMIT
+    if kernel == "rbf":
+        rbf = RbfConstants.of(model.svm_, model.scaler_)
+        assert rbf.folded == (gamma == "scale")  # gamma 1 puts gamma ||sv||^2 past FOLD_LIMIT
+        assert rbf.folded or -rbf.offset.min() > FOLD_LIMIT
     stress = stress_cases(T, sum(PAD_SIZES), np.eye(2, 4) * 100.0, seed=2)
     frames = np.concatenate([frames_of(synthetic_cases(n=64, seed=9)[0]), *stress.values()])
     dec, labels = _decisions(model, frames)
@@ -53,7 +56,7 @@ def test_decisions_within_the_verify_bound(gamma):
 
 def test_graph_layout_differs_from_the_reference_order_and_decides_alike():
     X, y = synthetic_cases(n=96, seed=4)
-    model = FeatureSVC(families=("stats", "hand"), pad_sizes=PAD_SIZES, C=10.0, gamma="scale").fit(X, y)
+    model = FeatureSVC(families=("stats", "hand"), pad_sizes=PAD_SIZES, kernel="rbf", C=10.0, gamma="scale").fit(X, y)
     proto = build_graph(model)
     columns = feature_columns(proto)
     n_features = model.scaler_.n_features_in_

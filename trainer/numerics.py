@@ -152,10 +152,11 @@ def svm_decision_bounds(svm, hist: np.ndarray, input_error: np.ndarray | None = 
     coef, intercept, _ = svm_pair_coefficients(svm)
     if svm.kernel == "rbf":
         return rbf_decision_bounds(svm, scaler, hist, delta, coef, intercept)
-    if scaler is not None:
-        hist, delta = scaled_input_and_error(scaler, hist, delta)
-    weights = np.asarray(svm.support_vectors_, dtype=np.float64).T @ coef
-    return gamma(hist.shape[1] + 4) * (np.abs(hist) @ np.abs(weights) + np.abs(intercept)) + delta @ np.abs(weights)
+    from trainer.svm_head import linear_constants
+
+    # one Gemm on the raw features with the scaler folded in: F products, the intercept, stored constants
+    weights, bias = (np.abs(v[..., : coef.shape[1]]) for v in linear_constants(svm, scaler))
+    return gamma(hist.shape[1] + 4) * (np.abs(hist) @ weights + bias) + delta @ weights
 
 
 def rbf_decision_bounds(svm, scaler, x: np.ndarray, delta: np.ndarray, coef: np.ndarray, intercept: np.ndarray
@@ -268,13 +269,6 @@ def histogram_error_bounds(model, X: np.ndarray, hist: np.ndarray, fold_derivati
         parts.append(level_feature_bounds(X, bow.level_groups_, float(bow.fullscale)))
     out = np.concatenate(parts, axis=1)
     return out + 2.0 * U32 * np.abs(hist)
-
-
-def scaled_input_and_error(scaler, hist: np.ndarray, hist_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The StandardScaler's output and its float32 bound, as a linear head computes it (Sub, Div)."""
-    feats = scaler.transform(hist)
-    err = (hist_err + gamma(2) * (np.abs(hist) + np.abs(scaler.mean_))) / scaler.scale_ + gamma(2) * np.abs(feats)
-    return feats, err
 
 
 # -- the whole reference -------------------------------------------------------------------------

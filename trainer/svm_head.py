@@ -11,7 +11,8 @@ bounds exactly this arithmetic (``rbf_decision_bounds``), and ``handover verify`
 
 One Gemm gives the one-vs-one decisions and the summed confidences side by side; the votes and
 the scores read their own columns through zero rows, and scikit-learn's ovr confidence term
-``conf / (3 (|conf| + 1))`` is ``Softsign(conf) / 3`` (the Gemm's ``alpha``).
+``conf / (3 (|conf| + 1))`` is ``Softsign(conf) / 3`` (the Gemm's ``alpha``). A linear SVM takes the
+scaler into its weights and intercepts (``linear_constants``): one Gemm.
 """
 
 from __future__ import annotations
@@ -94,6 +95,19 @@ def head_matrices(svm, scaler=None) -> dict[str, np.ndarray]:
             "conf_pick": np.concatenate([np.zeros((n_pairs, n_classes)), np.eye(n_classes)])}
 
 
+def linear_constants(svm, scaler=None) -> tuple[np.ndarray, np.ndarray]:
+    """A linear SVM's weights ``[F, P + K]`` and intercepts (decisions, then summed confidences) on the
+    features before the scaler: ``((x - mean) / scale) W + b = x (W / scale) + (b - (mean / scale) W)``,
+    one Gemm (``trainer.numerics`` bounds it on the raw features' magnitudes)."""
+    head = head_matrices(svm, scaler)
+    weights = np.asarray(svm.support_vectors_, dtype=np.float64).T @ head["pair_coef"]
+    intercept = head["pair_intercept"]
+    if scaler is not None:
+        weights = weights / np.asarray(scaler.scale_, dtype=np.float64)[:, None]
+        intercept = intercept - np.asarray(scaler.mean_, dtype=np.float64) @ weights
+    return weights, intercept
+
+
 def svm_nodes(g, features: str, svm, scaler=None, layout: FeatureLayout | None = None, label_out: str = "label",
               scores_out: str = "scores") -> None:
     """Append scaler, kernel, decisions, votes, scikit-learn's ovr scores and the voted label;
@@ -101,18 +115,15 @@ def svm_nodes(g, features: str, svm, scaler=None, layout: FeatureLayout | None =
     head = head_matrices(svm, scaler)
     if svm.kernel == "rbf":
         inputs = _rbf_kernel_nodes(g, features, RbfConstants.of(svm, scaler, layout))
-        weights = head["pair_coef"]
+        weights, intercept, hint = head["pair_coef"], head["pair_intercept"], "pair_coef"
     elif svm.kernel == "linear":
-        spread = (lambda v, fill=0.0: v) if layout is None else layout.spread
-        if scaler is not None:
-            centred = g.op("Sub", [features, g.const("feature_mean", spread(scaler.mean_))], "centred")
-            features = g.op("Div", [centred, g.const("feature_scale", spread(scaler.scale_, 1.0))], "scaled_features")
-        inputs = features
-        weights = spread(head["pair_coef"].T @ np.asarray(svm.support_vectors_, dtype=np.float64)).T
+        weights, intercept = linear_constants(svm, scaler)
+        inputs, hint = features, "pair_weights"
+        if layout is not None:
+            weights = layout.spread(weights.T).T
     else:
         raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
-    dec = g.op("Gemm", [inputs, g.const("pair_coef" if svm.kernel == "rbf" else "pair_weights", weights),
-                        g.const("pair_intercept", head["pair_intercept"])], "decision")  # [N, P + K]
+    dec = g.op("Gemm", [inputs, g.const(hint, weights), g.const("pair_intercept", intercept)], "decision")  # [N, P + K]
     pos = g.op("Cast", [g.op("Greater", [dec, g.const("zero", 0.0)])], "wins", to=1)
     votes = g.op("Gemm", [pos, g.const("vote_diff", head["vote_diff"]), g.const("vote_base", head["vote_base"])], "votes")
     soft = g.op("Softsign", [dec], "conf_soft")  # conf / (|conf| + 1) on the confidence columns

@@ -54,7 +54,7 @@ SVM_HEAD = ("pair_intercept", "vote_diff", "vote_base", "conf_pick")
 
 class SvmHead:
     """``(features [F] float32) -> (label, scores [n_classes])``: as ``trainer.svm_head`` builds it: the
-    RBF kernel with the scaler folded in (or the linear one after the scaler), decisions and summed
+    RBF kernel or the linear weights with the scaler folded in, decisions and summed
     confidences from one product, votes and scikit-learn's ovr scores."""
 
     def __init__(self, parts: GraphParts) -> None:
@@ -66,8 +66,7 @@ class SvmHead:
             self.support_t = np.ascontiguousarray(p("rbf_support").T)  # [F, M]
             self.offset = p("rbf_offset") if parts.has("rbf_offset") else None
             self.coef = p("pair_coef")
-        else:
-            self.scale = p("feature_scale") if parts.has("feature_scale") else None
+        else:  # the scaler is folded into the weights
             self.coef = p("pair_weights")
         self.intercept, self.vote_diff, self.vote_base, self.conf_pick = (p(k) for k in SVM_HEAD)
 
@@ -84,8 +83,7 @@ class SvmHead:
                 exponent = exponent + self.offset
             dec = np.exp(exponent) @ self.coef + self.intercept
         else:
-            h = x if self.scale is None else x / self.scale
-            dec = h @ self.coef + self.intercept
+            dec = x @ self.coef + self.intercept
         votes = (dec > 0).astype(np.float32) @ self.vote_diff + self.vote_base
         soft = dec / (np.abs(dec) + np.float32(1.0))
         return int(votes.argmax()), (soft @ self.conf_pick) * np.float32(1.0 / 3.0) + votes
