@@ -16,7 +16,7 @@ from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 FAMILIES = ("hand", "stats")
 _PADS = ("pad_slots", "pad_moments")
-_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "inv_steps", "dx2_dy2", "inv_count", "touch_weights")
+_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "step_mean", "dx2_dy2", "inv_count", "touch_weights")
 _STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs", "stats_time_rows", "inv_sqrt_t")
 
 
@@ -31,11 +31,10 @@ class NumpyFeatures:
         moments = {m.ndim: m for m in parts.params["pad_moments"]}
         if "hand" in families:
             self.kinds = moments[3]  # [G, 3, S]: ones, x, y of each slot
-            (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.inv_steps, self.pair,
+            (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.step_mean, self.pair,
              self.inv_count, self.touch_weights) = (p(k) for k in _HAND)
             self.padding = p("padding_slots") if parts.has("padding_slots") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
-            self.n_bins = (self.time_rows.shape[1] - self.time_rows.shape[0]) // 2  # [T, 2B + 1 + T-1]
         if "stats" in families:
             self.signal_weights = moments[2]  # [C, 3G]: ones, x, y over the taxels
             (self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs, self.stats_rows,
@@ -82,14 +81,14 @@ class NumpyFeatures:
         cop = np.where(pressed, mxy / safe, self.centre)  # [G, 2, T]
         series = np.concatenate([weight * self.inv_size, cop], axis=1)  # [G, 3, T]
         mean = series.mean(axis=2, keepdims=True)
-        over = (series - mean) @ self.time_rows  # [G, 3, 2B + 1 + T-1]
-        b2 = 2 * self.n_bins
-        dft, rise, step = over[..., :b2], over[..., b2 : b2 + 1], over[..., b2 + 1 :]
-        energy4 = (dft * dft) @ self.band_rows  # [G, 3, 4]
+        over = (series - mean) @ self.time_rows  # [G, 3, 2B + T-1 + 2]: DFT, steps, deriv, rise
+        squared, ends = over[..., :-2], over[..., -2:]
+        sq = squared * squared
+        energy4 = sq @ self.band_rows  # [G, 3, 4]
         shares = energy4[..., :3] / np.maximum(energy4[..., 3:], self.tiny)
         log_energy = np.log(energy4[..., 3:] + np.float32(1.0))
-        speed = np.sqrt(self.pair @ (step * step)).mean(axis=2, keepdims=True)
-        rows = np.concatenate([mean, shares, log_energy, rise * self.inv_steps, rise, speed], axis=2)
+        speed = np.sqrt(self.pair @ sq) @ self.step_mean
+        rows = np.concatenate([mean, shares, log_energy, ends, speed], axis=2)
         return rows, mean[:, 0, 0]
 
     def _median(self, x: np.ndarray, padded: np.ndarray) -> np.ndarray:

@@ -102,14 +102,15 @@ def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
 
 
 def time_rows(n_t: int) -> tuple[np.ndarray, int]:
-    """``[2B + 1 + T-1, T]`` over the frames: cosine and sine of rfft bins 1 .. T//2, last - first, the
-    T-1 steps; and B. Applied to the centred series (two passes: a constant series has exactly
-    zero energy, not float32 noise whose band shares are anything)."""
+    """``[2B + T-1 + 2, T]`` over the frames: cosine and sine of rfft bins 1 .. T//2 and the T-1 steps
+    (the values whose squares count), then the mean derivative and last - first; and B. Applied to
+    the centred series (two passes: a constant series has exactly zero energy, not float32 noise
+    whose band shares are anything)."""
     cos, sin, _ = dft_matrices(n_t)
     rise = np.zeros((1, n_t))
     rise[0, 0], rise[0, -1] = -1.0, 1.0
     steps = np.eye(n_t - 1, n_t, 1) - np.eye(n_t - 1, n_t)
-    return np.concatenate([cos.T, sin.T, rise, steps]), cos.shape[1]
+    return np.concatenate([cos.T, sin.T, steps, rise / max(n_t - 1, 1), rise]), cos.shape[1]
 
 
 def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str, str]:
@@ -138,25 +139,26 @@ def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str,
     mean = g.op("ReduceMean", [series], "series_mean", axes=[3], keepdims=1)  # [N, G, 3, 1]
     centred = g.op("Sub", [series, mean], "centred")
     rows_t, n_bins = time_rows(n_t)
-    over_time = g.op("MatMul", [centred, g.const("time_rows", rows_t.T)], "over_time")  # [N, G, 3, 2B + 1 + T-1]
-    dft, rise, step = g.name("dft"), g.name("rise"), g.name("step")
-    g.op("Split", [over_time, g.const("split_time", [2 * n_bins, 1, n_t - 1], np.int64)],
-         outputs=[dft, rise, step], axis=3)
-    power = g.op("Mul", [dft, dft], "power")  # re^2 and im^2 of each bin
+    n_sq = 2 * n_bins + n_t - 1
+    over_time = g.op("MatMul", [centred, g.const("time_rows", rows_t.T)], "over_time")  # [N, G, 3, 2B + T-1 + 2]
+    squared, ends = g.name("squared"), g.name("deriv_rise")
+    g.op("Split", [over_time, g.const("split_time", [n_sq, 2], np.int64)], outputs=[squared, ends], axis=3)
+    sq = g.op("Mul", [squared, squared], "power")  # re^2 and im^2 of each bin, then the steps' squares
     _, _, bands = dft_matrices(n_t)
-    energy_cols = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)  # [2B, 4]
-    energy4 = g.op("MatMul", [power, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
+    energy_cols = np.zeros((n_sq, 4))  # [band energies, energy] from the bins' squares
+    energy_cols[: 2 * n_bins] = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)
+    energy4 = g.op("MatMul", [sq, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
     band_energy, energy = g.name("band_energy"), g.name("energy")
     g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=3)
     shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
     log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
-    deriv = g.op("Mul", [rise, g.const("inv_steps", 1.0 / max(n_t - 1, 1))], "mean_deriv")
-    sq = g.op("Mul", [step, step], "step_sq")  # [N, G, 3, T-1]
     pair = np.zeros((3, 3))  # dx^2 + dy^2 into the signal's row
     pair[0, 1] = pair[0, 2] = 1.0
     step_len = g.op("Sqrt", [g.op("MatMul", [g.const("dx2_dy2", pair), sq], "step_len2")], "step_len")
-    speed = g.op("ReduceMean", [step_len], "speed", axes=[3], keepdims=1)  # [N, G, 3, 1]
-    rows = g.op("Concat", [mean, shares, log_energy, deriv, rise, speed], "time_rows", axis=3)
+    step_mean = np.zeros((n_sq, 1))  # the mean over the steps' columns
+    step_mean[2 * n_bins :] = 1.0 / max(n_t - 1, 1)
+    speed = g.op("MatMul", [step_len, g.const("step_mean", step_mean)], "speed")  # [N, G, 3, 1]
+    rows = g.op("Concat", [mean, shares, log_energy, ends, speed], "time_rows", axis=3)
     signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
                                  g.const("axis", [2], np.int64)], "signal_mean")
     return rows, signal_mean
