@@ -411,14 +411,23 @@ def fmt_cpu(lat: dict) -> str:
 
 def choice_lines(rec: dict) -> list[str]:
     rows = rec["rows"]
-    lines = ["| candidate | compare row | real inner score | " + " | ".join(
+    lines = ["| candidate | compare row | real inner score | ties the best | " + " | ".join(
                  next(iter(rows.values()))["real_inner"]) + " | sim. inner LOSO | CPU p50 | CPU p99 |",
-             "|---|---|---|" + "---|" * len(next(iter(rows.values()))["real_inner"]) + "---|---|---|"] if rows else []
+             "|---|---|---|---|" + "---|" * len(next(iter(rows.values()))["real_inner"]) + "---|---|---|"] if rows else []
     for name, r in rows.items():
         sim = _pct(r["sim_inner"]) if "sim_inner" in r else "not needed"
-        lines.append(f"| {name} | {r['model']} | {_pct(r['real_score'])} | "
+        tie = {True: "yes", False: "no"}.get(r.get("ties_best"), "-")
+        lines.append(f"| {name} | {r['model']} | {_pct(r['real_score'])} | {tie} | "
                      + " | ".join(_pct(v) for v in r["real_inner"].values())
                      + f" | {sim} | {r['p50_us']:.0f} | {r['p99_us']:.0f} |")
+    scored = [n for n in rows if "ties_best" in rows[n]]
+    if scored:
+        top = min(scored, key=lambda n: (-round(rows[n]["real_score"], 3), rows[n]["p50_us"]))
+        lines += ["", f"Ties (the one-standard-error rule, trainer/default_choice.py `ties`) are new on 2026-11-24: "
+                  f"before, only equal scores at 3 decimals tied, and that rule would put **{top}** first "
+                  f"({_pct(rows[top]['real_score'])}). The top candidates now sit within half a point of each other, "
+                  "inside the inner split's seed noise (results/weighting_check.md), so the rule no longer ships a "
+                  "slower graph for a gap that noise explains."]
     lines += ["", f"Chosen: **{rec['chosen']}** (compare row {rec['model']}, `handover train {rec['flags']}`). "
               f"Shipped default (trainer/defaults.py): {rec['shipped']} -- "
               + ("the same." if rec["shipped_matches"] else "**differs from the rule's choice**.")]
