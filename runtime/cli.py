@@ -73,10 +73,16 @@ class HelpFormatter(argparse.HelpFormatter):
         return f"{text} (default: %(default)s)"
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """A wrong option is one line that says where the options are, not argparse's usage block."""
+
+    def error(self, message: str):  # noqa: D401 - argparse's hook
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser(name: str, module) -> argparse.ArgumentParser:
     """The parser of one command, its --help showing every default (also of options without a help text)."""
-    parser = argparse.ArgumentParser(prog=f"handover {name}", description=COMMANDS[name][1],
-                                     formatter_class=HelpFormatter)
+    parser = OneLineParser(prog=f"handover {name}", description=COMMANDS[name][1], formatter_class=HelpFormatter)
     module.add_arguments(parser)
     for action in parser._actions:
         if not action.help and shows_default(action):

@@ -23,7 +23,8 @@ def card(model) -> dict:
     meta = model.meta
     kernel = meta.extra.get("kernel")
     svm = dict(optional_table(meta.extra.get("svm")))
-    families = optional_table(meta.extra.get("features")).get("families")
+    features = optional_table(meta.extra.get("features"))
+    families = features.get("families")
     if kernel != "rbf":
         svm.pop("gamma", None)  # only the RBF kernel has one
     groups = meta.extra.get("feature_groups")
@@ -40,6 +41,7 @@ def card(model) -> dict:
         "K": meta.K,
         "per_pad": None if groups is None else len(groups) > 1,
         "families": [str(f) for f in families] if isinstance(families, list) else None,
+        "feature_weighting": str(features["feature_weighting"]) if features.get("feature_weighting") else None,
         "window_seconds": round(meta.T / meta.sample_rate_hz, 4),
         "sample_rate_hz": meta.sample_rate_hz,
         "trigger": meta.trigger,
@@ -81,7 +83,8 @@ def _pad_name(pads: list[int]) -> str:
 
 def _features(c: dict) -> str:
     if c.get("families"):  # trainer.feature_svc: feature families per pad, not one codebook
-        return f"  features: {' + '.join(c['families'])}, per pad ({len(c['pads'])} pads), standardised"
+        weighting = f", weighted '{c['feature_weighting']}'" if c.get("feature_weighting") else ""
+        return f"  features: {' + '.join(c['families'])}, per pad ({len(c['pads'])} pads), standardised{weighting}"
     hist = {None: "", True: f", one histogram per pad ({len(c['pads'])})", False: ", one histogram over all pads"}
     return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}"
 

@@ -20,6 +20,23 @@ def test_unknown_command_is_one_clear_error(capsys):
     assert "unknown command 'no-such-command'" in err
 
 
+def test_a_wrong_option_is_one_line_that_points_at_help(capsys):
+    import pytest
+
+    for argv, said in ((["train", "--kernel", "foo"], "argument --kernel: invalid choice: 'foo'"),
+                       (["run"], "the following arguments are required: --config")):
+        with pytest.raises(SystemExit) as stop:
+            cli.main(argv)
+        err = capsys.readouterr().err
+        assert stop.value.code == 2 and err.count("\n") == 1 and said in err, err
+        assert err.startswith(f"handover {argv[0]}: ") and err.rstrip().endswith(f"(see handover {argv[0]} --help)")
+
+
+def test_an_empty_feature_list_is_refused(capsys):
+    assert cli.main(["train", "--features", "", "--out", "/nonexistent/never-written"]) == 2
+    assert "--features ''" in capsys.readouterr().err
+
+
 def test_every_command_module_has_the_two_functions():
     import importlib.util
 

@@ -24,6 +24,8 @@ def test_default_rule_ranks_by_real_inner_score_gates_on_simulation_and_latency(
             "best": {"real_score": 0.80, "p50_us": 200.0, "p99_us": 400.0},
             "slow": {"real_score": 0.95, "p50_us": 900.0, "p99_us": 5000.0},
             "tie": {"real_score": 0.8001, "p50_us": 100.0, "p99_us": 300.0}}
+    for row in rows.values():
+        row["real_inner"] = {"a": row["real_score"], "b": row["real_score"]}  # no spread: only equal scores tie
     sims = {"tie": 0.90, "best": 0.97, "fast": 0.99}
     asked = []
 
@@ -46,12 +48,12 @@ def test_a_gap_within_one_standard_error_of_paired_task_differences_is_a_tie():
     steady = {"real_inner": {"a": 0.69, "b": 0.59, "c": 0.79}, "real_score": 0.69, "p50_us": 60.0, "p99_us": 100.0}
     # noisy: gap 0.7 points, differences +4/-10/+4 (standard error 4.7 points): a tie
     # steady: gap 1 point every task alike (standard error 0): worse, not a tie
-    assert ties(noisy, best) and not ties(steady, best)
+    assert ties(noisy["real_inner"], best["real_inner"]) and not ties(steady["real_inner"], best["real_inner"])
     rows = {"best": best, "noisy": noisy, "steady": steady}
     chosen, order = apply_rule(rows, lambda name: 0.99)
     assert order == ["noisy", "best", "steady"] and chosen == "noisy"
     assert rows["noisy"]["ties_best"] and rows["best"]["ties_best"] and not rows["steady"]["ties_best"]
-    assert not ties({"real_inner": {"a": 0.69}, "real_score": 0.69}, {"real_inner": {"a": 0.70}, "real_score": 0.70})
+    assert not ties({"a": 0.69}, {"a": 0.70}) and ties({"a": 0.70}, {"a": 0.70})
 
 
 def test_real_windows_stay_inside_contact_chunks():

@@ -74,6 +74,13 @@ def test_pad_stats_mean_std_change_peak():
     assert np.isclose(f[8], pressure[-1]) and np.isclose(f[12], 3000.0 / 4095.0)
 
 
+@pytest.mark.parametrize("sizes", [(0, 78, 156), (-1, 79, 156)])
+def test_pad_sizes_must_be_positive(sizes):
+    X = np.zeros((4, 234, 15))
+    with pytest.raises(ValueError, match="all positive"):
+        PadStats(pad_sizes=sizes).fit(X)
+
+
 def test_contact_image_is_each_taxels_mean():
     X = np.zeros((2, 6, 4))
     X[0, 2, :] = [0.0, 4095.0, 4095.0, 0.0]
@@ -144,12 +151,27 @@ def test_select_chooses_within_the_budget_and_reports_runners_up():
     sel = select_model(ds, options, candidates=candidates)
     assert sel.split == "leave one subject out" and {r.name for r in sel.rows} == {"stats rbf", "stats+bow rbf"}
     assert all(len(r.fold_accuracies) == 3 and r.p99_us > 0 for r in sel.rows)
-    best = max((r for r in sel.rows if r.within_budget), key=lambda r: round(r.mean, 3))
-    assert sel.winner == best.name and sel.estimator.families == best.families
+    tied = [r for r in sel.rows if r.ties_best and r.within_budget]
+    winner = min(tied, key=lambda r: r.p50_us)  # the best and its ties (one standard error): the fastest
+    assert sel.winner == winner.name == sel.rows[0].name and sel.estimator.families == winner.families
     assert any("(winner)" in line for line in markdown_lines(sel))
     # a budget nothing meets: the rule still names the most accurate, and says none is within it
     sel = select_model(ds, replace(options, latency_budget_us=0.001), candidates=candidates)
     assert not any(r.within_budget for r in sel.rows)
+
+
+def test_select_ranks_like_the_default_rule():
+    from trainer.select import Row, rank
+
+    def row(name, folds, p50, within=True):
+        return Row(name, (), "rbf", {}, folds, float(np.mean(list(folds.values()))), 0.0, p50, p50, within)
+
+    best = row("best", {"s1": 0.90, "s2": 0.80, "s3": 0.85}, 200.0)
+    noisy = row("noisy", {"s1": 0.95, "s2": 0.70, "s3": 0.88}, 50.0)  # 0.7 points lower, differences +5/-10/+3
+    steady = row("steady", {"s1": 0.89, "s2": 0.79, "s3": 0.84}, 20.0)  # 1 point lower on every fold
+    slow = row("slow", {"s1": 0.99, "s2": 0.99, "s3": 0.99}, 5000.0, within=False)
+    rows = [best, noisy, steady, slow]
+    assert rank(rows) is noisy and [r.name for r in rows] == ["noisy", "best", "steady", "slow"]
 
 
 @pytest.mark.realdata

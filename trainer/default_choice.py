@@ -112,7 +112,7 @@ def apply_rule(rows: dict, sim_score: Callable[[str], float], say: Callable[[str
     by_score = sorted(eligible, key=lambda n: (-round(rows[n]["real_score"], 3), rows[n]["p50_us"]))
     best = by_score[0] if by_score else None
     for name in eligible:
-        rows[name]["ties_best"] = best is not None and ties(rows[name], rows[best])
+        rows[name]["ties_best"] = best is not None and ties(rows[name]["real_inner"], rows[best]["real_inner"])
     tied = sorted((n for n in by_score if rows[n]["ties_best"]), key=lambda n: rows[n]["p50_us"])
     order = tied + [n for n in by_score if n not in tied]
     for name in order:
@@ -123,18 +123,20 @@ def apply_rule(rows: dict, sim_score: Callable[[str], float], say: Callable[[str
     return None, order
 
 
-def ties(row: dict, best: dict) -> bool:
-    """Whether ``row`` is as good as ``best`` by the one-standard-error rule (Hastie, Tibshirani,
-    Friedman, *Elements of Statistical Learning*, 7.10) on paired per-task differences: its mean
-    inner score is below the best's by at most one standard error of the per-task differences (equal
-    at 3 decimals where there are fewer than two tasks to pair)."""
-    gap = round(best["real_score"], 3) - round(row["real_score"], 3)
-    tasks = [t for t in best.get("real_inner", {}) if t in row.get("real_inner", {})]
+def ties(scores: dict[str, float], best: dict[str, float]) -> bool:
+    """Whether a candidate scoring ``scores`` ({task or fold: accuracy}) is as good as the best
+    (``best``, same keys) by the one-standard-error rule (Hastie, Tibshirani, Friedman, *Elements of
+    Statistical Learning*, 7.10) on paired differences: its mean is below the best's (both at 3
+    decimals) by at most one standard error of the paired differences (equal means only, where
+    there are fewer than two pairs). ``handover train --select`` uses it over folds, the default's
+    rule over tasks."""
+    keys = [k for k in best if k in scores]
+    gap = round(float(np.mean([best[k] for k in keys])), 3) - round(float(np.mean([scores[k] for k in keys])), 3)
     if gap <= 0:
         return True
-    if len(tasks) < 2:
+    if len(keys) < 2:
         return False
-    diff = np.array([row["real_inner"][t] - best["real_inner"][t] for t in tasks])
+    diff = np.array([scores[k] - best[k] for k in keys])
     return gap <= diff.std(ddof=1) / np.sqrt(len(diff))
 
 

@@ -29,14 +29,14 @@ DEFAULT_MODEL = {
 family keeps one histogram per pad (the paper's single histogram is ``per_pad=False``)."""
 
 def describe_default() -> str:
-    """One phrase for results files, e.g. ``hand + stats features (distinct), rbf SVM, T=15, all pads``."""
+    """One phrase for results files, e.g. ``hand + stats features (distinct), linear SVM, T=15, all pads``."""
     m = DEFAULT_MODEL
     weighting = f" ({m['feature_weighting']})" if m["feature_weighting"] else ""
     return f"{' + '.join(m['families'])} features{weighting}, {m['kernel']} SVM, T={m['T']}, {m['pads']} pads"
 
 
 def default_candidate_name() -> str:
-    """The default as a candidate of ``handover train --select`` is named, e.g. ``hand+stats rbf distinct``."""
+    """The default as a candidate of ``handover train --select`` is named, e.g. ``hand+stats linear distinct``."""
     m = DEFAULT_MODEL
     return " ".join(x for x in ("+".join(m["families"]), m["kernel"], m["feature_weighting"]) if x)
 

@@ -6,8 +6,9 @@ case is one trial). Each candidate is also fitted on all the data, exported as O
 timed one case at a time through the runtime's loader; candidates whose single-case p99 exceeds
 the latency budget are out (CPU time of the calling thread: onnxruntime runs one intra-op thread
 there, and other work on a shared machine must not decide the choice; ``handover bench latency``
-measures wall time end to end). The winner is the highest mean fold accuracy (3 decimals), ties to
-the faster median; the runners-up are reported with their fold spread. Nothing here sees a test
+measures wall time end to end). The best is the highest mean fold accuracy (3 decimals); candidates
+within one standard error of it (paired per-fold differences, ``trainer.default_choice.ties``) tie,
+and the fastest of the ties wins; the runners-up are reported with their fold spread. Nothing here sees a test
 set: the user's held-out data, if any, is never passed in.
 """
 
@@ -56,6 +57,7 @@ class Row:
     p50_us: float | None = None
     p99_us: float | None = None
     within_budget: bool = False
+    ties_best: bool = False
 
 
 @dataclass
@@ -144,21 +146,37 @@ def select_model(ds, options: TrainOptions, say: Callable[[str], None] = lambda 
             rows.append(row)
             say(f"  select {name}: {100 * row.mean:.1f} % +/- {100 * row.spread:.1f} ({split_rule}), "
                 f"p99 {row.p99_us:.0f} us{'' if row.within_budget else ' (over the budget)'}")
+    winner = rank(rows)
+    rule = (f"highest mean accuracy over the folds ({split_rule}, training data only), 3 decimals, among "
+            f"candidates whose exported graph answers one case with p99 <= {budget:.0f} us; a candidate within one "
+            "standard error of the best (paired per-fold differences, the same rule as the shipped default's) "
+            "ties with it, and of the ties the fastest wins")
+    return Selection(rule, split_rule, budget, rows, winner.name,
+                     _estimator(options, ds, winner.families, winner.kernel, winner.settings))
+
+
+def rank(rows: list[Row]) -> Row:
+    """Sort ``rows`` in the rule's order (within the budget first; the best and its ties, fastest
+    first; then by score) and return the winner (``trainer.default_choice.ties``)."""
+    from trainer.default_choice import ties
+
     eligible = [r for r in rows if r.within_budget] or rows
     best = max(eligible, key=lambda r: (round(r.mean, 3), -(r.p50_us or 0.0)))
-    rows.sort(key=lambda r: (not r.within_budget, -round(r.mean, 3), r.p50_us or 0.0))
-    rule = (f"highest mean accuracy over the folds ({split_rule}, training data only), 3 decimals, among "
-            f"candidates whose exported graph answers one case with p99 <= {budget:.0f} us; ties go to the faster")
-    return Selection(rule, split_rule, budget, rows, best.name, _estimator(options, ds, best.families, best.kernel, best.settings))
+    for r in rows:
+        r.ties_best = r in eligible and ties(r.fold_accuracies, best.fold_accuracies)
+    rows.sort(key=lambda r: (not r.within_budget, not r.ties_best, (r.p50_us or 0.0) if r.ties_best else 0.0,
+                             -round(r.mean, 3), r.p50_us or 0.0))
+    return rows[0]
 
 
 def markdown_lines(selection: Selection) -> list[str]:
     """The selection table for the training report."""
     lines = ["", "## Model selection (--select)", "", f"Rule: {selection.rule}.", "",
-             "| candidate | families | kernel | mean accuracy | spread (std over folds) | p50 us | p99 us | "
-             "within budget |", "|---|---|---|---|---|---|---|---|"]
+             "| candidate | families | kernel | mean accuracy | spread (std over folds) | ties the best | p50 us | "
+             "p99 us | within budget |", "|---|---|---|---|---|---|---|---|---|"]
     for r in selection.rows:
         star = " **(winner)**" if r.name == selection.winner else ""
         lines.append(f"| {r.name}{star} | {', '.join(r.families)} | {r.kernel} | {100 * r.mean:.1f} % | "
-                     f"{100 * r.spread:.1f} | {r.p50_us:.0f} | {r.p99_us:.0f} | {'yes' if r.within_budget else 'no'} |")
+                     f"{100 * r.spread:.1f} | {'yes' if r.ties_best else 'no'} | {r.p50_us:.0f} | {r.p99_us:.0f} | "
+                     f"{'yes' if r.within_budget else 'no'} |")
     return lines

@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--K", type=int, default=D.K, help="number of words (k-means centres)")
     parser.add_argument("--W", type=int, default=D.W, help="sliding window length (frames)")
     parser.add_argument("--T", type=int, default=D.T, help="frames per case from the trigger")
-    parser.add_argument("--features", help="feature families, comma-separated, from bow, stats, rocket, hand "
+    parser.add_argument("--features", help="feature families, comma-separated, from bow, stats, rocket, hand, image "
                         "(default: the product default of trainer/defaults.py, chosen in results/compare.md; "
                         "--no-per-pad and the BoW-only options below select bow alone, the paper's family)")
     parser.add_argument("--kernel", choices=KERNELS, default=None,
@@ -86,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def options_from_args(args: argparse.Namespace) -> TrainOptions:
     """The one place the command's arguments become TrainOptions (OptionsError for unreadable lists)."""
     given = {k: v for k, v in vars(args).items() if k in TrainOptions.names()}
-    given["features"] = parse_features(args.features) if args.features else None
+    given["features"] = parse_features(args.features) if args.features is not None else None
     given["windows"] = parse_windows(args.windows) if args.windows else None
     return TrainOptions(**given)
 
