@@ -76,7 +76,7 @@ class HelpFormatter(argparse.HelpFormatter):
 class OneLineParser(argparse.ArgumentParser):
     """A wrong option is one line that says where the options are, not argparse's usage block."""
 
-    def error(self, message: str):  # noqa: D401 - argparse's hook
+    def error(self, message: str):  # argparse calls it for every wrong option
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
