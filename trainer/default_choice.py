@@ -137,7 +137,7 @@ def ties(scores: dict[str, float], best: dict[str, float]) -> bool:
     if len(keys) < 2:
         return False
     diff = np.array([scores[k] - best[k] for k in keys])
-    return gap <= diff.std(ddof=1) / np.sqrt(len(diff))
+    return bool(gap <= diff.std(ddof=1) / np.sqrt(len(diff)))
 
 
 def rule_text() -> str:

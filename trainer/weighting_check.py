@@ -33,7 +33,8 @@ VARIANTS = (("hand+stats rbf block_count", ("hand", "stats"), "rbf", {"feature_w
             ("hand+stats rbf block_mfa", ("hand", "stats"), "rbf", {"feature_weighting": "block_mfa"}))
 """The two multi-block scalings of the hypothesis, scored but not candidates."""
 NOISE_SEEDS = (1, 2)
-NOISE_ROWS = ("hand+stats rbf", WEIGHTED, "stats rbf", "rocket+stats linear", *(v[0] for v in VARIANTS))
+NOISE_ROWS = tuple(dict.fromkeys(("hand+stats rbf", WEIGHTED, default_candidate_name(), "stats rbf", "rocket+stats linear",
+                                  *(v[0] for v in VARIANTS))))
 SECTION_END = "<!-- /weighting_check -->"
 SECTION_START = "<!-- weighting_check: python -m trainer.weighting_check writes this section; " \
                 "python -m trainer.slip_diagnosis keeps it -->"
