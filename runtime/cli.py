@@ -12,6 +12,7 @@ import importlib
 import importlib.util
 import os
 import sys
+from typing import NoReturn
 
 # name -> (module, one-line help, extra it needs beyond the daemon's install or None)
 COMMANDS: dict[str, tuple[str, str, str | None]] = {
@@ -76,7 +77,7 @@ class HelpFormatter(argparse.HelpFormatter):
 class OneLineParser(argparse.ArgumentParser):
     """A wrong option is one line that says where the options are, not argparse's usage block."""
 
-    def error(self, message: str):  # argparse calls it for every wrong option
+    def error(self, message: str) -> NoReturn:  # argparse calls it for every wrong option
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 

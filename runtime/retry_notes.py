@@ -68,7 +68,7 @@ class RetryNotes:
 
 def _kind(reason: str) -> str:
     """A failure's words without its numbers: the same failure whatever it counted this time."""
-    return re.sub(r"\d+(\.\d+)?", "#", reason)
+    return re.sub(r"0x[0-9A-Fa-f]+|\d+(\.\d+)?", "#", reason)
 
 
 def _span(seconds: float) -> str:

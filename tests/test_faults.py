@@ -407,6 +407,8 @@ def test_a_failure_that_counts_differently_each_time_is_the_same_failure():
     assert lines[6].startswith("still unreachable after 7 attempts in 60 s (last: open did not complete within 10 s "
                                "although 31064064 bytes arrived)")
     assert notes.failed("cannot connect: Connection refused", 10.0).startswith("cannot connect")  # other words: at once
+    assert notes.failed("bad reply to command 0x01 (CRC 0xBEEF)", 10.0)
+    assert notes.failed("bad reply to command 0x01 (CRC 0x0C3A)", 10.0) is None  # another checksum, same failure
 
 
 def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_attempt(models, caplog):

@@ -66,3 +66,25 @@ def test_graph_layout_differs_from_the_reference_order_and_decides_alike():
     frames = frames_of(synthetic_cases(n=48, seed=11)[0])
     _, labels = _decisions(model, frames)
     assert np.array_equal(model.classes_[labels], model.predict(frames.transpose(0, 2, 1).astype(np.float64)))
+
+
+@pytest.mark.parametrize("value", ["[0, 1", "{\"a\": 1}", "[0, 0, 1]", "[0, 99999]"])
+def test_a_damaged_feature_layout_is_one_clear_verify_error(value, tmp_path):
+    """The graph's feature layout is a model property; damaged, verify says so instead of a traceback."""
+    import onnx
+
+    from tests.onnx_fixtures import PAD_SIZES, export, frames_of, synthetic_cases
+    from trainer.feature_svc import FeatureSVC
+    from trainer.onnx_export import FEATURE_COLUMNS
+    from trainer.verify import GraphRunner, VerifyError
+
+    X, y = synthetic_cases(n=40, seed=2)
+    path = export(FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, kernel="linear", C=1.0).fit(X, y),
+                  tmp_path)
+    proto = onnx.load(str(path))
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert FEATURE_COLUMNS in props  # the hand family's layout is not the reference's order
+    onnx.helper.set_model_props(proto, {**props, FEATURE_COLUMNS: value})
+    onnx.save(proto, str(path))
+    with pytest.raises(VerifyError, match="handover_feature_columns .*re-export the model"):
+        GraphRunner(path).run(frames_of(X))

@@ -288,9 +288,20 @@ def build_graph(model, fold_derivative: bool = False):
 
 
 def feature_columns(proto) -> np.ndarray | None:
-    """Where the ``histogram`` tensor of a graph holds each reference feature (None: in order)."""
+    """Where the ``histogram`` tensor of a graph holds each reference feature (None: in order);
+    ValueError (one line, what to do) when the property is damaged."""
     props = {p.key: p.value for p in proto.metadata_props}
-    return np.asarray(json.loads(props[FEATURE_COLUMNS]), dtype=np.int64) if FEATURE_COLUMNS in props else None
+    if FEATURE_COLUMNS not in props:
+        return None
+    damaged = f"model property {FEATURE_COLUMNS} is damaged; re-export the model"
+    try:
+        columns = json.loads(props[FEATURE_COLUMNS])
+    except ValueError:
+        raise ValueError(damaged) from None
+    if not isinstance(columns, list) or not all(isinstance(c, int) and c >= 0 for c in columns) \
+            or len(set(columns)) != len(columns):
+        raise ValueError(damaged)
+    return np.asarray(columns, dtype=np.int64)
 
 
 # -- metadata and file ----------------------------------------------------------------------------

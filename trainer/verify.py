@@ -109,7 +109,10 @@ class GraphRunner:
         proto = onnx.load(str(onnx_path))
         if not any(HISTOGRAM in node.output for node in proto.graph.node):
             raise VerifyError(f"{onnx_path}: no {HISTOGRAM!r} tensor in the graph (not exported by this project)")
-        self.columns = feature_columns(proto)  # the graph's own layout of the features, or None
+        try:
+            self.columns = feature_columns(proto)  # the graph's own layout of the features, or None
+        except ValueError as exc:
+            raise VerifyError(f"{onnx_path}: {exc}") from None
         proto.graph.output.append(onnx.helper.make_tensor_value_info(HISTOGRAM, onnx.TensorProto.FLOAT, ["N", "F"]))
         self.word_outputs = [node.output[0] for node in proto.graph.node if node.op_type == "ArgMin"]
         for name in self.word_outputs:
@@ -122,7 +125,12 @@ class GraphRunner:
 
     def _in_order(self, hist: np.ndarray) -> np.ndarray:
         """The features in the reference's order (the graph may hold them in its own layout)."""
-        return hist if self.columns is None else hist[:, self.columns]
+        if self.columns is None:
+            return hist
+        if self.columns.size and self.columns.max() >= hist.shape[1]:
+            raise VerifyError(f"{self.path}: model property handover_feature_columns points past the graph's "
+                              f"{hist.shape[1]} features (damaged); re-export the model")
+        return hist[:, self.columns]
 
     def run_with_words(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
         """Labels, scores, histogram and the word chosen for every window ``[N, S, C]`` per hard scale."""

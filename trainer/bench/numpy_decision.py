@@ -2,7 +2,7 @@
 
 Why: onnxruntime's share of a decision is measured against what the same arithmetic costs without
 it, in the same run (a ratio holds on a noisy machine where absolute figures do not). One module
-per kind of graph: ``numpy_features`` (the default: hand + stats features, scaler, RBF SVM) and
+per kind of graph: ``numpy_features`` (the default: hand + stats features, scaler, linear or RBF SVM) and
 ``numpy_bow`` (the BoW default before it); ``numpy_decision(path)`` picks the one that reads the
 graph, or returns None where none does.
 """
