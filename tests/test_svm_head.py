@@ -86,5 +86,5 @@ def test_a_damaged_feature_layout_is_one_clear_verify_error(value, tmp_path):
     assert FEATURE_COLUMNS in props  # the hand family's layout is not the reference's order
     onnx.helper.set_model_props(proto, {**props, FEATURE_COLUMNS: value})
     onnx.save(proto, str(path))
-    with pytest.raises(VerifyError, match="handover_feature_columns .*re-export the model"):
+    with pytest.raises(VerifyError, match=r"handover_feature_columns .*re-export the model"):
         GraphRunner(path).run(frames_of(X))
