@@ -152,7 +152,8 @@ SLIP_SPLIT = (f"temporal blocks: each file's contact chunks in time order cut in
               f"fold i tests block i of every file and trains on the rest (every chunk is tested once)")
 """real_slip's split. Until 2026-11-24 it was one split (first 60 % of each file's chunks train, the rest
 test: ``first_part_split``), decided by one test chunk (results/slip_diagnosis.md); blocked folds keep
-time order inside each block and test every chunk once, so the figure has a spread."""
+time order inside each block and test every chunk once, so the figure has a spread. Thin all the same:
+slip_down has two chunks, so the third block tests none of it, and the task rests on eight chunks."""
 
 
 def temporal_blocks(y: np.ndarray, chunks: np.ndarray, n_blocks: int) -> np.ndarray:
