@@ -370,3 +370,14 @@ def test_the_full_hostile_set_has_no_failures(tmp_path, capsys):
     print(json.dumps(summary(result)))
     assert result["hostile_failures"] == 0
     assert result["frames"]["delivered_over_12bit"] == 0 and result["daemon"]["non_json_stdout_lines"] == 0
+
+
+def test_every_config_number_is_attacked_top_level_keys_too(tmp_path):
+    """`handover bench hostile` sets every ranged number (also `realtime_priority`, which has no section)
+    to NaN, infinities, huge and negative values: each is refused in one line naming the key."""
+    from runtime.config import RANGES
+    from trainer.bench.hostile_io import BAD_NUMBERS, attack_config
+
+    res = attack_config(tmp_path)
+    assert "realtime_priority" in RANGES and res["tried"] == len(RANGES) * len(BAD_NUMBERS)
+    assert res["failures"] == 0, res

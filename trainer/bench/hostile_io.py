@@ -74,9 +74,9 @@ def attack_config(work: Path) -> dict:
     count: Counter = Counter()
     path = work / "bad.toml"
     for key in RANGES:
-        section, name = key.split(".")
+        section, _, name = key.rpartition(".")  # a top-level key (realtime_priority) has no section
         for value in BAD_NUMBERS:
-            path.write_text(f"[{section}]\n{name} = {value}\n")
+            path.write_text((f"[{section}]\n" if section else "") + f"{name} = {value}\n")
             try:
                 load_config(path)
                 count["accepted"] += 1
