@@ -422,7 +422,9 @@ def choice_lines(rec: dict) -> list[str]:
                      + f" | {sim} | {r['p50_us']:.0f} | {r['p99_us']:.0f} |")
     scored = [n for n in rows if "ties_best" in rows[n]]
     if scored:
-        top = min(scored, key=lambda n: (-round(rows[n]["real_score"], 3), rows[n]["p50_us"]))
+        from trainer.default_choice import score_order
+
+        top = min(scored, key=lambda n: score_order(rows[n]["real_score"], rows[n]["p50_us"]))
         lines += ["", f"Ties (the one-standard-error rule, trainer/default_choice.py `ties`) are new on 2026-11-24: "
                   f"before, only equal scores at 3 decimals tied, and that rule would put **{top}** first "
                   f"({_pct(rows[top]['real_score'])}). The top candidates now sit within half a point of each other, "

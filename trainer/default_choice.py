@@ -109,7 +109,7 @@ def apply_rule(rows: dict, sim_score: Callable[[str], float], say: Callable[[str
     """The rule on scored rows ({name: {"real_score", "real_inner", "p50_us", "p99_us"}}); ``sim_score``
     is asked lazily, in rank order, and its answer stored as ``sim_inner``."""
     eligible = [n for n in rows if (rows[n]["p99_us"] or np.inf) <= LATENCY_BUDGET_US]
-    by_score = sorted(eligible, key=lambda n: (-round(rows[n]["real_score"], 3), rows[n]["p50_us"]))
+    by_score = sorted(eligible, key=lambda n: score_order(rows[n]["real_score"], rows[n]["p50_us"]))
     best = by_score[0] if by_score else None
     for name in eligible:
         rows[name]["ties_best"] = best is not None and ties(rows[name]["real_inner"], rows[best]["real_inner"])
@@ -121,6 +121,11 @@ def apply_rule(rows: dict, sim_score: Callable[[str], float], say: Callable[[str
         if rows[name]["sim_inner"] >= SIM_GATE or np.isnan(rows[name]["sim_inner"]):
             return name, order
     return None, order
+
+
+def score_order(score: float, p50_us: float | None) -> tuple[float, float]:
+    """Sort key of "best first": the higher score at 3 decimals, then the faster median."""
+    return -round(float(score), 3), float(p50_us or 0.0)
 
 
 def ties(scores: dict[str, float], best: dict[str, float]) -> bool:

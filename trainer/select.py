@@ -158,14 +158,14 @@ def select_model(ds, options: TrainOptions, say: Callable[[str], None] = lambda 
 def rank(rows: list[Row]) -> Row:
     """Sort ``rows`` in the rule's order (within the budget first; the best and its ties, fastest
     first; then by score) and return the winner (``trainer.default_choice.ties``)."""
-    from trainer.default_choice import ties
+    from trainer.default_choice import score_order, ties
 
     eligible = [r for r in rows if r.within_budget] or rows
-    best = max(eligible, key=lambda r: (round(r.mean, 3), -(r.p50_us or 0.0)))
+    best = min(eligible, key=lambda r: score_order(r.mean, r.p50_us))
     for r in rows:
         r.ties_best = r in eligible and ties(r.fold_accuracies, best.fold_accuracies)
     rows.sort(key=lambda r: (not r.within_budget, not r.ties_best, (r.p50_us or 0.0) if r.ties_best else 0.0,
-                             -round(r.mean, 3), r.p50_us or 0.0))
+                             *score_order(r.mean, r.p50_us)))
     return rows[0]
 
 
