@@ -16,7 +16,7 @@ from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 FAMILIES = ("hand", "stats")
 _PADS = ("pad_slots", "pad_moments")
-_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "step_mean", "dx2_dy2", "inv_count", "touch_weights")
+_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "step_mean", "dx2_dy2", "touch_weights")
 _STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs", "stats_time_rows", "inv_sqrt_t")
 
 
@@ -32,8 +32,9 @@ class NumpyFeatures:
         if "hand" in families:
             self.kinds = moments[3]  # [G, 3, S]: ones, x, y of each slot
             (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.step_mean, self.pair,
-             self.inv_count, self.touch_weights) = (p(k) for k in _HAND)
-            self.padding = p("padding_slots") if parts.has("padding_slots") else None
+             self.touch_weights) = (p(k) for k in _HAND)
+            self.inv_count = p("inv_count") if parts.has("inv_count") else None
+            self.std_weights = p("std_weights") if parts.has("std_weights") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
         if "stats" in families:
             self.signal_weights = moments[2]  # [C, 3G]: ones, x, y over the taxels
@@ -50,7 +51,9 @@ class NumpyFeatures:
         needed = _PADS + (_HAND if "hand" in families else ()) + (_STATS if "stats" in families else ())
         if not parts.has(*needed) or not SvmHead.readable(parts):
             return None
-        if "hand" in families and parts.has("padding_slots") and not parts.has("median_offset"):
+        if "hand" in families and not parts.has("inv_count") and not parts.has("std_weights"):
+            return None  # neither form of the std's weights
+        if "hand" in families and parts.has("std_weights") and not parts.has("median_offset"):
             return None  # pads whose padding does not split evenly: the graph takes medians pad by pad
         return cls(parts, families)
 
@@ -107,13 +110,11 @@ class NumpyFeatures:
         return (part[:, k - 1] + part[:, k]) * np.float32(0.5)
 
     def _std(self, padded: np.ndarray, mean: np.ndarray) -> np.ndarray:
-        """``hand._std_nodes``: two passes, the padding slots' squares taken out again."""
+        """``hand._std_nodes``: two passes; padded pads weigh each slot's squares (0 on padding)."""
         dev = padded - mean[:, None, None]
-        sq = np.einsum("gst,gst->g", dev, dev)
-        if self.padding is not None:
-            first = dev[:, 0]
-            sq = np.maximum(sq - np.einsum("gt,gt->g", first, first) * self.padding, np.float32(0.0))
-        return np.sqrt(sq * self.inv_count)
+        if self.std_weights is not None:
+            return np.sqrt((np.einsum("gst,gst->gs", dev, dev) * self.std_weights).sum(axis=1))
+        return np.sqrt(np.einsum("gst,gst->g", dev, dev) * self.inv_count)
 
     def _stats(self, x: np.ndarray, peak: np.ndarray) -> np.ndarray:
         """``PadStats.onnx_parts`` over ``signals.signal_nodes``: mean and change, std of the 4G signals, peaks."""

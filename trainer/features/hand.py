@@ -88,17 +88,16 @@ _TIME_ROWS = 8
 def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
     """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G, 1, 1]`` (two passes)."""
     dev = g.op("Sub", [padded, mean], "dev")
-    sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
-    if batch.padded:
-        # each padding slot repeats the pad's first taxel: take its squares out again (no mask pass
-        # over the whole tensor). They are at most (S - size) times a part of the sum, so this
-        # subtraction loses no more than a few roundings of the result
-        first = g.op("Slice", [dev, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
-                               g.const("axis", [2], np.int64)], "first_taxel")
-        first_sq = g.op("ReduceSumSquare", [first], "first_sq", axes=[2, 3], keepdims=0)
-        extra = g.const("padding_slots", batch.sizes.max() - batch.sizes)
-        sq = g.op("Relu", [g.op("Sub", [sq, g.op("Mul", [first_sq, extra])], "dev_sq_real")], "dev_sq_pad")
-    return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
+    if not batch.padded:
+        sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
+        return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
+    # padded pads: each slot's squares over time [N, G, S], then a weighted sum over the slots whose
+    # weights are 0 on padding and 1 / (size T) on the pad's taxels (a pass over T times fewer values
+    # than the whole tensor, and no subtraction that could cancel)
+    slot_sq = g.op("ReduceSumSquare", [dev], "slot_sq", axes=[3], keepdims=0)
+    weighted = g.op("Mul", [slot_sq, g.const("std_weights", batch.mask / (batch.sizes[:, None] * n_t))], "slot_var")
+    var = g.op("ReduceSum", [weighted, g.const("slot_axis", [2], np.int64)], "var", keepdims=0)
+    return g.op("Sqrt", [var], "std")
 
 
 def time_rows(n_t: int) -> tuple[np.ndarray, int]:
