@@ -37,7 +37,7 @@ class NumpyFeatures:
             self.std_weights = p("std_weights") if parts.has("std_weights") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
         if "stats" in families:
-            self.signal_weights = moments[2]  # [C, 3G]: ones, x, y over the taxels
+            self.signal_weights = moments[2][:, : 3 * self.n_pads]  # [C, 3G]: ones, x, y (then the ones twice more)
             (self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs, self.stats_rows,
              self.inv_sqrt_t) = (p(k) for k in _STATS)
         self.head = SvmHead(parts)
