@@ -84,8 +84,9 @@ def median_nodes(g, batch: PadBatch, frames: str, padded: str, peak: str, n_t: i
                                  g.const("axes", [1, 2], np.int64)], "one_pad")
             parts.append(_middle_nodes(g, pad, int(size) * n_t, 1))
         return g.op("Concat", parts, "median", axis=1)
-    touched = g.op("Cast", [g.op("Greater", [g.op("ReduceL1", [frames], "taxel_l1", axes=[1], keepdims=0),
-                                             g.const("zero", 0.0)], "touched")], "touched_f", to=1)  # [N, C]
+    # Sign of an L1 norm (never negative) is 1 for a taxel touched in the window, else 0: one node for
+    # Greater and Cast
+    touched = g.op("Sign", [g.op("ReduceL1", [frames], "taxel_l1", axes=[1], keepdims=0)], "touched_f")  # [N, C]
     # each pad's touched taxels, each weighing 1 / (most + 1/2): the pads may take the shortcut when
     # every weighted count is at most 1 (counts are small integers: float32 rounding cannot cross 1,
     # the nearest counts are 1 / (2 most + 1) away from it)
