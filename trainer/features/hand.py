@@ -132,8 +132,8 @@ def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str,
     g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
     signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes[:, None, None])], "signal")  # [N, G, 1, T]
     pressed = g.op("Greater", [weight, g.const("zero", 0.0)], "pressed")
-    safe = g.op("Where", [pressed, weight, g.const("one", 1.0)], "safe_weight")
-    cop = g.op("Where", [pressed, g.op("Div", [mxy, safe], "cop_raw"), g.const("centre", centre)], "cop")
+    # an unpressed pad's quotient (0/0, x/negative) is computed and never selected: no guard needed
+    cop = g.op("Where", [pressed, g.op("Div", [mxy, weight], "cop_raw"), g.const("centre", centre)], "cop")
     series = g.op("Concat", [signal, cop], "series", axis=2)  # [N, G, 3, T]
     mean = g.op("ReduceMean", [series], "series_mean", axes=[3], keepdims=1)  # [N, G, 3, 1]
     centred = g.op("Sub", [series, mean], "centred")
