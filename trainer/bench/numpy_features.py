@@ -51,8 +51,8 @@ class NumpyFeatures:
         needed = _PADS + (_HAND if "hand" in families else ()) + (_STATS if "stats" in families else ())
         if not parts.has(*needed) or not SvmHead.readable(parts):
             return None
-        if "hand" in families and not parts.has("inv_count") and not parts.has("std_weights"):
-            return None  # neither form of the std's weights
+        if "hand" in families and (parts.has("padding_slots") or not (parts.has("inv_count") or parts.has("std_weights"))):
+            return None  # a graph from before std_weights (padding subtracted out again), or neither form
         if "hand" in families and parts.has("std_weights") and not parts.has("median_offset"):
             return None  # pads whose padding does not split evenly: the graph takes medians pad by pad
         return cls(parts, families)
