@@ -158,12 +158,16 @@ time order inside each block and test every chunk once, so the figure has a spre
 slip_down has two chunks, so the third block tests none of it, and the task rests on eight chunks."""
 
 
+def class_chunks(y: np.ndarray, chunks: np.ndarray) -> dict:
+    """Each class's chunk ids in order of appearance (one file per class here, so time order)."""
+    return {label: list(dict.fromkeys(chunks[y == label].tolist())) for label in dict.fromkeys(y.tolist())}
+
+
 def temporal_blocks(y: np.ndarray, chunks: np.ndarray, n_blocks: int) -> np.ndarray:
-    """Block number of every window: each class's chunks in order of appearance (one file per class
-    here, so time order) cut into ``n_blocks`` consecutive runs (``np.array_split``)."""
+    """Block number of every window: each class's chunks (``class_chunks``) cut into ``n_blocks``
+    consecutive runs (``np.array_split``)."""
     out = np.empty(len(y), dtype=int)
-    for label in dict.fromkeys(y.tolist()):
-        order = list(dict.fromkeys(chunks[y == label].tolist()))
+    for order in class_chunks(y, chunks).values():
         for b, part in enumerate(np.array_split(np.arange(len(order)), n_blocks)):
             for k in part:
                 out[chunks == order[k]] = b
@@ -172,14 +176,9 @@ def temporal_blocks(y: np.ndarray, chunks: np.ndarray, n_blocks: int) -> np.ndar
 
 def first_part_split(y: np.ndarray, chunks: np.ndarray, share: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
     """real_slip's former split: the first ``share`` of each class's chunks train, the rest test."""
-    train, test = [], []
-    for label in dict.fromkeys(y.tolist()):
-        idx = np.flatnonzero(y == label)
-        order = list(dict.fromkeys(chunks[idx].tolist()))
-        first = set(order[: max(1, round(share * len(order)))])
-        train += [i for i in idx if chunks[i] in first]
-        test += [i for i in idx if chunks[i] not in first]
-    return np.asarray(train), np.asarray(test)
+    first = {c for order in class_chunks(y, chunks).values() for c in order[: max(1, round(share * len(order)))]}
+    in_first = np.isin(chunks, list(first))
+    return np.flatnonzero(in_first), np.flatnonzero(~in_first)
 
 
 LONG_FRAMES, LONG_STRIDE, LONG_FOLDS = 30, 15, 5

@@ -73,7 +73,9 @@ class FeatureLayout:
 
     @property
     def in_order(self) -> bool:
-        return self.width == len(self.columns) and bool(np.array_equal(self.columns, np.arange(self.width)))
+        from trainer.features.base import columns_in_order
+
+        return columns_in_order(self.columns, self.width)
 
 
 def head_matrices(svm, scaler=None) -> dict[str, np.ndarray]:

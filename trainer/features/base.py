@@ -38,6 +38,11 @@ class OnnxParts:
         return cls(tensors, np.arange(int(n_features)), int(n_features))
 
 
+def columns_in_order(columns: np.ndarray, width: int) -> bool:
+    """Whether ``width`` columns hold exactly the reference's features, in order (no layout to undo)."""
+    return width == len(columns) and bool(np.array_equal(columns, np.arange(width)))
+
+
 class FeatureFamily(TransformerMixin, BaseEstimator):
     """Base of the feature families: input checks, pad layout, fitted shape."""
 
@@ -76,7 +81,7 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
         """``[N, F]`` in the reference's order: the parts joined and, where needed, reordered (a Gather)."""
         parts = self.onnx_parts(g, frames)
         joined = g.op("Concat", parts.tensors, "family_features", axis=1) if len(parts.tensors) > 1 else parts.tensors[0]
-        if parts.width == len(parts.columns) and np.array_equal(parts.columns, np.arange(parts.width)):
+        if columns_in_order(parts.columns, parts.width):
             return joined
         return g.op("Gather", [joined, g.const("feature_order", parts.columns, np.int64)], "family_ordered", axis=1)
 
