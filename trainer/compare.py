@@ -185,24 +185,13 @@ def evaluate_real(specs, task: RealTask, n_jobs: int, say: Callable[[str], None]
     return out
 
 
-def _cycling(fn: Callable, cases: list) -> Callable[[], object]:
-    """A no-argument call that runs ``fn`` on the next case, round robin."""
-    state = {"i": 0}
-
-    def call():
-        state["i"] += 1
-        return fn(cases[state["i"] % len(cases)])
-
-    return call
-
-
 def time_single_case(specs, ds, folder: Path, repeats: int, seed: int, say) -> dict:
     """Single-case latency of a model trained on all simulated cases: ONNX through the runtime's
     loader (1 thread) where the model exports, else the Python predict (marked)."""
     from threadpoolctl import threadpool_limits
 
     from runtime.model import load_model
-    from trainer.bench.common import export_metadata, percentiles, time_calls
+    from trainer.bench.common import cycling, export_metadata, percentiles, time_calls
     from trainer.onnx_export import export_onnx
 
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
@@ -220,13 +209,13 @@ def time_single_case(specs, ds, folder: Path, repeats: int, seed: int, say) -> d
                 entry["engine"] = "onnxruntime (runtime.model.load_model, 1 thread)"
                 entry["model_bytes"] = path.stat().st_size
                 one = [frames[i : i + 1] for i in range(len(frames))]
-                stats = percentiles(time_calls(_cycling(loaded.run, one), repeats))
-                cpu = percentiles(time_calls(_cycling(loaded.run, one), repeats, cpu=True))
+                stats = percentiles(time_calls(cycling(loaded.run, one), repeats))
+                cpu = percentiles(time_calls(cycling(loaded.run, one), repeats, cpu=True))
                 entry.update(cpu_p50_us=cpu["p50"], cpu_p99_us=cpu["p99"])
             else:
                 entry["engine"] = "python predict (no ONNX graph)"
                 cases = [ds.X[i : i + 1] for i in pick]
-                stats = percentiles(time_calls(_cycling(model.predict, cases), max(20, repeats // 10), warmup=5))
+                stats = percentiles(time_calls(cycling(model.predict, cases), max(20, repeats // 10), warmup=5))
         entry.update(p50_us=stats["p50"], p99_us=stats["p99"], n=stats["n"])
         out[spec.name] = entry
         say(f"  latency {spec.name}: median {stats['p50']:.0f} us, p99 {stats['p99']:.0f} us, CPU p99 "

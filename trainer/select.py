@@ -103,7 +103,7 @@ def _estimator(options: TrainOptions, ds, families: tuple[str, ...], kernel: str
 def graph_latency(model, ds, folder: Path, name: str, seed: int) -> dict:
     """Single-case p50/p99 (us) of the exported graph through the runtime's loader (1 thread)."""
     from runtime.model import load_model
-    from trainer.bench.common import export_metadata, percentiles, time_calls
+    from trainer.bench.common import cycling, export_metadata, percentiles, time_calls
     from trainer.onnx_export import export_onnx
 
     path = export_onnx(model, folder / f"{name.replace(' ', '_')}.onnx", export_metadata(ds, model, seed=seed))
@@ -111,13 +111,7 @@ def graph_latency(model, ds, folder: Path, name: str, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     cases = [np.ascontiguousarray(ds.X[i : i + 1].transpose(0, 2, 1), dtype=np.float32)
              for i in rng.integers(0, len(ds.X), 32)]
-    state = {"i": 0}
-
-    def call():
-        state["i"] += 1
-        return loaded.run(cases[state["i"] % len(cases)])
-
-    return percentiles(time_calls(call, TIMING_REPEATS, cpu=True))
+    return percentiles(time_calls(cycling(loaded.run, cases), TIMING_REPEATS, cpu=True))
 
 
 def select_model(ds, options: TrainOptions, say: Callable[[str], None] = lambda text: None,

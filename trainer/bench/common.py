@@ -66,6 +66,17 @@ def deadline_ratio(stats: dict) -> dict:
     return {k: (DEADLINE_US / stats[k] if stats.get(k) else None) for k in ("p50", "p99", "p999", "max")}
 
 
+def cycling(fn: Callable, cases) -> Callable[[], object]:
+    """A no-argument call that runs ``fn`` on the next case, round robin (for ``time_calls``)."""
+    state = {"i": 0}
+
+    def call():
+        state["i"] += 1
+        return fn(cases[state["i"] % len(cases)])
+
+    return call
+
+
 def time_calls(fn: Callable[[], object], repeats: int, warmup: int = 20, period_s: float | None = None,
                cpu: bool = False) -> np.ndarray:
     """Durations (us) of ``repeats`` calls; with ``period_s`` the calls are paced (sleep in between).

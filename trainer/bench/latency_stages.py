@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.listeners import DecisionTimings, FrameListener
-from trainer.bench.common import percentiles
+from trainer.bench.common import cycling, percentiles, time_calls
 
 PERIOD_S = 1.0 / 32.0
 STAGES = ("parse_crc_decode", "plausibility", "ring_trigger", "window", "inference", "output_check", "event_build",
@@ -184,19 +184,7 @@ def compare(fns: dict, windows: np.ndarray, rounds: int, paced: bool) -> dict:
 def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
     """Each implementation alone, back to back over the same windows (warm caches: nothing else runs
     between its calls); us per decision. The absolute figures of the graph come from here."""
-    clock = time.perf_counter_ns
-    out = {}
-    for name, fn in fns.items():
-        for w in windows[:20]:  # warm-up
-            fn(w)
-        times = np.empty(rounds)
-        for i in range(rounds):
-            w = windows[i % len(windows)]
-            t0 = clock()
-            fn(w)
-            times[i] = (clock() - t0) / 1000.0
-        out[name] = percentiles(times)
-    return out
+    return {name: percentiles(time_calls(cycling(fn, windows), rounds)) for name, fn in fns.items()}
 
 
 REHEARSAL_LEAD_S = 0.0003
