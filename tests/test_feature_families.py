@@ -74,7 +74,7 @@ def test_pad_stats_mean_std_change_peak():
     assert np.isclose(f[8], pressure[-1]) and np.isclose(f[12], 3000.0 / 4095.0)
 
 
-@pytest.mark.parametrize("sizes", [(0, 78, 156), (-1, 79, 156)])
+@pytest.mark.parametrize("sizes", [(0, 78, 156), (-1, 79, 156), (77.5, 78.5, 78)])
 def test_pad_sizes_must_be_positive(sizes):
     X = np.zeros((4, 234, 15))
     with pytest.raises(ValueError, match="all positive"):

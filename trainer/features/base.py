@@ -48,7 +48,7 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
 
     def _layout(self, n_channels: int) -> list[tuple[int, int]]:
         sizes = self.pad_sizes if self.pad_sizes is not None else (n_channels,)
-        if any(int(s) <= 0 for s in sizes):
+        if any(not float(s).is_integer() or int(s) <= 0 for s in sizes):
             raise ValueError(f"pad_sizes {tuple(sizes)}: give the number of taxels of each pad, all positive "
                              "(e.g. [78, 78, 78] for the three distal pads)")
         if sum(int(s) for s in sizes) != n_channels:
