@@ -229,19 +229,23 @@ class DSAClient:
         """The next frame, or None after ``timeout`` seconds. ``newest``: drop queued stale frames.
 
         After a transport failure it reconnects (if allowed) and keeps waiting until the deadline.
+        ``timeout <= 0`` polls: one read of what has arrived, never blocking, not counted as a timeout.
         """
         self._require_open()
         deadline = time.monotonic() + timeout
         if newest:
             self._pump_available()
             self._keep_newest()
+        polled = timeout > 0
         while not self._frames:
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                self._counts["timeouts"] += 1
+            if remaining <= 0 and polled:
+                if timeout > 0:
+                    self._counts["timeouts"] += 1
                 return None
+            polled = True
             try:
-                self._pump(min(remaining, self.gap_timeout))
+                self._pump(min(max(remaining, 0.0), self.gap_timeout))
             except TransportError:
                 if not self.auto_reconnect or isinstance(self._source, Transport):
                     raise

@@ -37,7 +37,7 @@ from runtime.model_serving import DEFAULT_RATE_HZ, ModelServing
 from runtime.model_watch import ModelWatcher
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore, store_path
-from runtime.rehearsal import REHEARSAL_LEAD_S, Rehearsal
+from runtime.rehearsal import Rehearsal
 from runtime.retry_notes import RetryNotes
 from runtime.ring import RingBuffer
 from runtime.scene import events_problem, scene_problem
@@ -142,7 +142,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self._rt_logged: int | None = None
         """The ``realtime_priority`` whose outcome was logged (one line per setting)."""
         self.rehearsal = Rehearsal()
-        """Runs the model once just before a decision is due, so it decides on warm caches."""
+        """Keeps the hot path warm for a due frame: the model runs once just before it, then the
+        device is polled instead of slept on (runtime.rehearsal)."""
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
@@ -185,9 +186,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             if number == due and ring.count >= self.model.meta.T:
                 self._classify(frame)
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
-            model = self.model  # warm it up just before the frame that completes the window is due
-            self.rehearsal.schedule(partial(model.run_trusted, ring.window(model.meta.T)),
-                                    frame.received + self.period_s - REHEARSAL_LEAD_S)
+            model = self.model  # keep warm for the frame that completes the window, due one period on
+            self.rehearsal.expect(frame.received + self.period_s, partial(model.run_trusted, ring.window(model.meta.T)))
 
     def _classify(self, frame: Any) -> None:
         """Run the model on the window ending at ``frame``, check, report; each stage stamped."""
@@ -295,7 +295,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                         time.sleep(min(READ_TIMEOUT_S, self._next_connect - now))
                     continue
                 try:
-                    frame = self.client.read_frame(timeout=READ_TIMEOUT_S)
+                    frame = self.rehearsal.read(self.client.read_frame, READ_TIMEOUT_S)
                 except Exception as exc:  # unplug, closed link, end of a replay: reconnect
                     self._fault(one_line(exc))
                     continue
@@ -348,7 +348,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         if self.watcher is not None:
             self.watcher.stop(timeout=0.5)
         self.stop_control()
-        self.rehearsal.close()
+        self.rehearsal.cancel()
         self._close_client(stop_timeout=SHUTDOWN_STOP_S)
         self.health.device_state = "stopped" if not self.fatal else "failed"
         if self.fatal:

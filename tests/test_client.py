@@ -327,6 +327,22 @@ def test_partial_frame_survives_a_short_read_timeout() -> None:
     np.testing.assert_array_equal(f.values, np.arange(24))
 
 
+def test_a_zero_timeout_polls_once_without_blocking_or_counting_a_timeout() -> None:
+    """``read_frame(0)``: what the daemon calls while it polls for a due frame (runtime.rehearsal)."""
+    frame = encode_frame(np.arange(24, dtype=np.uint16), 7, rle=False)
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev, **QUICK)
+    client.open()
+    before = client.stats["timeouts"]
+    started = time.perf_counter()
+    assert client.read_frame(0) is None and time.perf_counter() - started < 0.05
+    dev.out += frame[:20]
+    assert client.read_frame(0) is None  # half a frame waits in the parser
+    dev.out += frame[20:]
+    f = client.read_frame(0)
+    assert f is not None and f.timestamp_ms == 7 and client.stats["timeouts"] == before
+
+
 def test_close_then_open_again_on_the_same_client() -> None:
     """What the daemon does after a fault: close, later open() the same client again."""
     client = DSAClient(FAST)

@@ -10,7 +10,8 @@ Two rhythms:
 
 - back to back: frames fed as fast as the hot path takes them (warm caches);
 - paced at 32 Hz: the frame that completes a window arrives one sample period (31.25 ms) after
-  the frame before it, with the process idle in between, as in service. The frames between
+  the frame before it, and the daemon waits for it as in service (``runtime.rehearsal``: blocked
+  until shortly before, then a rehearsal and polling). The frames between
   windows (which only push and test the trigger) are fed back to back, so a run of a minute
   yields enough decisions for a p99.9.
 
@@ -78,7 +79,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     marks = np.zeros((len(packets), 4))
     for number, packet in enumerate(packets):
         if number in pace_frames:
-            time.sleep(PERIOD_S)
+            wait_for_arrival(daemon.rehearsal, clock() + PERIOD_S)
         t0 = clock()
         (pkt,) = parser.feed(packet)
         stamp, values = decode_frame_payload(pkt.payload, n)
@@ -187,27 +188,38 @@ def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
     return {name: percentiles(time_calls(cycling(fn, windows), rounds)) for name, fn in fns.items()}
 
 
-REHEARSAL_LEAD_S = 0.0003
-"""How long before the timed decision the rehearsal (the same model run, result discarded) happens."""
-
-
 def rehearsed(fn, windows: np.ndarray, rounds: int) -> dict:
-    """Paced at 32 Hz, with one rehearsal run ``REHEARSAL_LEAD_S`` before each timed run: how much
-    of the paced cliff is caches that other processes filled meanwhile (what a daemon waking just
-    before a due frame would gain). Not what the daemon does today."""
-    times = np.empty(rounds)
+    """Paced at 32 Hz the way the daemon waits for a due frame (``runtime.rehearsal``: one rehearsal
+    run ``LEAD_S`` before it, then polling): how much of the paced cliff keeping warm removes."""
+    from runtime.rehearsal import Rehearsal
+
+    warm, times = Rehearsal(), np.empty(rounds)
     clock = time.perf_counter_ns
     for i in range(rounds):
         w = windows[i % len(windows)]
-        time.sleep(PERIOD_S - REHEARSAL_LEAD_S)
-        fn(w)
-        deadline = time.perf_counter() + REHEARSAL_LEAD_S
-        while time.perf_counter() < deadline:
-            pass
+        due = time.perf_counter() + PERIOD_S
+        warm.expect(due, lambda w=w: fn(w))
+        wait_for_arrival(warm, due)
         t0 = clock()
         fn(w)
         times[i] = (clock() - t0) / 1000.0
     return percentiles(times)
+
+
+def wait_for_arrival(warm, at: float) -> None:
+    """Wait as the daemon's loop does (``warm.read`` of the device, READ_TIMEOUT_S at a time) for a
+    frame arriving at ``perf_counter() == at``: the emulated device read blocks like a select until
+    then, or polls when given no time."""
+    from runtime.daemon import READ_TIMEOUT_S
+
+    def device(timeout: float) -> bool | None:
+        left = at - time.perf_counter()
+        if left > 0 and timeout > 0:
+            time.sleep(min(timeout, left))
+        return True if time.perf_counter() >= at else None
+
+    while warm.read(device, READ_TIMEOUT_S) is None:
+        pass
 
 
 def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
