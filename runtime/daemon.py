@@ -187,7 +187,15 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                 self._classify(frame)
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
             model = self.model  # keep warm for the frame that completes the window, due one period on
-            self.rehearsal.expect(frame.received + self.period_s, partial(model.run_trusted, ring.window(model.meta.T)))
+            self.rehearsal.expect(frame.received + self.period_s, partial(self._rehearse, model, ring.window(model.meta.T)))
+
+    def _rehearse(self, model: Any, window: Any) -> None:
+        """The due frame's path once ahead of it, results discarded: the model, then the client's
+        receive path (parse, CRC, decode, plausibility), the code that frame meets first."""
+        model.run_trusted(window)
+        rehearse = getattr(self.client, "rehearse", None)
+        if rehearse is not None:
+            rehearse()
 
     def _classify(self, frame: Any) -> None:
         """Run the model on the window ending at ``frame``, check, report; each stage stamped."""

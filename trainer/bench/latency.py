@@ -1,6 +1,6 @@
 """Latency by stage (frame bytes to the sink's send) and end to end (emulator -> daemon -> UDP sink).
 
-Stages: ``latency_stages`` drives the real parser, decoder, plausibility check and
+Stages: ``latency_stages`` drives the real client (parser, decoder, plausibility check) and
 ``Daemon.handle_frame`` in this process, back to back and paced at 32 Hz, quiet and (``--load``)
 with two busy-loop processes; the daemon's own stamps (``runtime.listeners``) split each
 decision. The graph is compared in the same run with a numpy-only implementation of the same
@@ -219,8 +219,7 @@ def _row(name: str, s: dict) -> str:
 HEAD = ["| what | median (us) | p99 (us) | p99.9 (us) | max (us) | n | deadline / figure (p50 / p99 / p99.9 / max) |",
         "|---|---|---|---|---|---|---|"]
 STAGE_TITLES = {
-    "parse_crc_decode": "parse + CRC + decode (StreamParser.feed, decode_frame_payload)",
-    "plausibility": "plausibility checks (FrameCheck) + Frame",
+    "receive": "frame bytes -> Frame: parse + CRC + decode + plausibility (DSAClient.read_frame)",
     "ring_trigger": "handle_frame up to the model: ring push + trigger",
     "window": "model input window from the ring",
     "inference": "onnxruntime run",
