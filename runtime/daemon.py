@@ -68,6 +68,13 @@ def settle_heap() -> None:
     gc.freeze()
 
 
+def _event(model: Any, frame: Any, index: int, scores: Any, latency_us: float, missed: bool, first: int) -> Event:
+    """The decision line of class ``index`` for the window ending at ``frame`` (its first frame ``first``)."""
+    meta = model.meta
+    return Event(time.time(), meta.classes[index], dict(zip(meta.classes, scores[0].tolist(), strict=True)),
+                 latency_us, model.model_id, first, frame.number, int(frame.timestamp_ms), missed)
+
+
 class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
     """The long-running service. ``run()`` returns the exit code.
 
@@ -190,9 +197,13 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             self.rehearsal.expect(frame.received + self.period_s, partial(self._rehearse, model, ring.window(model.meta.T)))
 
     def _rehearse(self, model: Any, window: Any) -> None:
-        """The due frame's path once ahead of it, results discarded: the model, then the client's
-        receive path (parse, CRC, decode, plausibility), the code that frame meets first."""
-        model.run_trusted(window)
+        """The due frame's path once ahead of it, nothing sent or counted: the model, the output
+        check, an event built and encoded (not sent), then the client's receive path (parse, CRC,
+        decode, plausibility), the code that frame meets first."""
+        labels, scores = model.run_trusted(window)
+        frame = self.latest_frame
+        if output_problem(labels, scores, model.meta.n_classes) is None and frame is not None:
+            _event(model, frame, int(labels[0]), scores, 0.0, False, 0).to_json().encode()
         rehearse = getattr(self.client, "rehearse", None)
         if rehearse is not None:
             rehearse()
@@ -230,9 +241,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             index = self.decision.update(index, scores[0])
         cls = meta.classes[index] if index >= 0 else None
         if cls is not None and cls in self.cfg.scene.events:
-            event = Event(time.time(), cls, dict(zip(meta.classes, scores[0].tolist(), strict=True)), latency_us,
-                          model.model_id, self.frame_clock.window_first(frame.number, meta.T), frame.number,
-                          int(frame.timestamp_ms), missed)
+            event = _event(model, frame, index, scores, latency_us, missed,
+                           self.frame_clock.window_first(frame.number, meta.T))
             stamps.built = clock()
             encoded = self.sinks.encode(event)
             stamps.serialised = clock()
