@@ -14,7 +14,6 @@ the config and keeps the old one if the new one is invalid.
 
 from __future__ import annotations
 
-import gc
 import logging
 import signal
 import time
@@ -32,6 +31,7 @@ from runtime.decision import ContinuousDecision
 from runtime.device_link import CONNECT_BOUND_S, DeviceLink, default_client
 from runtime.frame_rate import FrameClock
 from runtime.health import Health, StatusFile, one_line
+from runtime.heap import GarbageSchedule, release_heap, settle_heap
 from runtime.listeners import DecisionTimings, FrameListener
 from runtime.model_serving import DEFAULT_RATE_HZ, ModelServing
 from runtime.model_watch import ModelWatcher
@@ -54,18 +54,6 @@ READ_TIMEOUT_S = 0.1
 HEALTH_PERIOD_S = 1.0
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
-
-
-def settle_heap() -> None:
-    """Collect once, then hide every object alive now (modules, model, config) from the cyclic
-    garbage collector (``gc.freeze``), once start-up is done.
-
-    Why: the collector's older generations re-scan every long-lived object when they run, which
-    pauses whichever frame is being handled: a full collection took 6.6 ms in the latency
-    benchmark's process (1 us after freezing), a middle one 0.24 ms. Those objects live as long
-    as the service; reference counting still frees whatever is dropped later."""
-    gc.collect()
-    gc.freeze()
 
 
 def _event(model: Any, frame: Any, index: int, scores: Any, latency_us: float, missed: bool, first: int) -> Event:
@@ -148,6 +136,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         """The scheduling to restore, while the thread is raised."""
         self._rt_logged: int | None = None
         """The ``realtime_priority`` whose outcome was logged (one line per setting)."""
+        self.garbage = GarbageSchedule()
+        """Collects from the loop between windows; automatic collection is off once running (runtime.heap)."""
         self.rehearsal = Rehearsal()
         """Keeps the hot path warm for a due frame: the model runs once just before it, then the
         device is polled instead of slept on (runtime.rehearsal)."""
@@ -166,6 +156,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         signal.signal(signal.SIGTERM, self.request_stop)
         signal.signal(signal.SIGINT, self.request_stop)
         signal.signal(signal.SIGHUP, self.request_reload)
+
+    @property
+    def window_open(self) -> bool:
+        """Whether a trigger has fired and its window's last frame is still to come."""
+        return bool(self._pending)
 
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
@@ -264,6 +259,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
 
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
+        self.garbage.collect(now, self.window_open)
         self.notifier.watchdog(now)
         self._swap_and_report(now)
         self._link_held()
@@ -334,6 +330,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         finally:
             self.shutdown()
             self.lower_priority()
+            release_heap()
         return 2 if self.fatal else 0
 
     def raise_priority(self) -> None:

@@ -102,7 +102,8 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     packets in ``pace_frames`` arrive one sample period after the one before. Per-stage
     microseconds of each decision."""
     from firmware_io.client import DSAClient
-    from runtime.daemon import READ_TIMEOUT_S, settle_heap
+    from runtime.daemon import READ_TIMEOUT_S
+    from runtime.heap import release_heap, settle_heap
     from trainer.bench.throughput import serving_daemon
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -114,18 +115,22 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     daemon.client = DSAClient.streaming(link, recording.layout)
     recorder = _Decisions()
     daemon.listeners.append(recorder)
-    settle_heap()  # as Daemon.run does once started
+    settle_heap()  # as Daemon.run does once started: automatic collection off
     handle, clock, read = daemon.handle_frame, time.perf_counter, daemon.client.read_frame
     marks = np.zeros((len(packets), 3))
-    while not link.done:
-        frame = daemon.rehearsal.read(read, READ_TIMEOUT_S)
-        if frame is None:
-            continue
-        t1 = clock()
-        handle(frame)
-        marks[frame.number] = frame.received, t1, clock()
-        if frame.number % 64 == 0:
-            _drain(sink)
+    try:
+        while not link.done:
+            daemon.garbage.collect(clock(), daemon.window_open)  # as the loop's housekeeping does
+            frame = daemon.rehearsal.read(read, READ_TIMEOUT_S)
+            if frame is None:
+                continue
+            t1 = clock()
+            handle(frame)
+            marks[frame.number] = frame.received, t1, clock()
+            if frame.number % 64 == 0:
+                _drain(sink)
+    finally:
+        release_heap()
     _drain(sink)
     sink.close()
     return _stage_table(marks, recorder.timings)
