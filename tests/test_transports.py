@@ -8,6 +8,7 @@ import re
 import socket
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -239,6 +240,17 @@ def test_hid_transport_through_cp2110_stand_in(rec):
     assert [r[0] for r in device.feature_reports] == [0x50, 0x41, 0x43]
     _check_client(transport, rec)
     assert not device.is_open
+
+
+def test_hid_transport_polls_without_waiting_for_a_report(rec):
+    """hidapi's read with timeout 0 blocks until the next report unless the device is non-blocking:
+    the daemon's polling (read timeout 0, runtime.rehearsal) must come back at once on a quiet line."""
+    device = EmulatedCp2110(DeviceEmulator(rec, speed=None))
+    t = open_transport("hid://10c4:ea80", device=device)
+    started = time.monotonic()
+    assert t.read(10, 0.0) == b""
+    assert time.monotonic() - started < 0.5 and not device.blocking
+    t.close()
 
 
 def test_hid_transport_errors(rec):

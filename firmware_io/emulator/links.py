@@ -261,6 +261,10 @@ class EmulatedUsbBackend:
             raise USBError("No such device (it may have been disconnected)", errno=errno.ENODEV)
 
 
+BLOCKING_READ_S = 5.0
+"""How long the CP2110 stand-in's blocking ``read`` waits on a silent line (hidapi: for ever)."""
+
+
 class EmulatedCp2110:
     """A stand-in for ``hid.device()`` speaking the CP2110's report format to a DeviceEmulator."""
 
@@ -272,6 +276,8 @@ class EmulatedCp2110:
         self.uart_config: tuple[int, int, int, int, int] | None = None
         self.is_open = False
         self.unplugged = False
+        self.blocking = True
+        """hidapi's mode: ``read`` without a timeout (0) waits for a report unless set_nonblocking(1)."""
         self._pending = bytearray()
 
     def open(self, vendor_id: int = 0, product_id: int = 0, serial_number: str | None = None) -> None:
@@ -284,6 +290,7 @@ class EmulatedCp2110:
         self.is_open = False
 
     def set_nonblocking(self, v: int) -> int:
+        self.blocking = not v
         return 0
 
     def send_feature_report(self, data) -> int:
@@ -317,8 +324,11 @@ class EmulatedCp2110:
         return len(report)
 
     def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+        """As cython-hidapi: ``timeout_ms > 0`` waits that long; 0 calls hid_read, which in blocking
+        mode waits for the next report however long that takes (here: up to BLOCKING_READ_S)."""
         self._check()
-        deadline = time.monotonic() + timeout_ms / 1000.0
+        wait_s = timeout_ms / 1000.0 if timeout_ms > 0 else BLOCKING_READ_S if self.blocking else 0.0
+        deadline = time.monotonic() + wait_s
         while not self._pending:
             if self.uart_enabled:
                 self._pending += self.emulator.read(4096)

@@ -89,6 +89,7 @@ class HidTransport(Transport):
             self._feature(uart_config_report(baud))
             self._feature(bytes([UART_ENABLE, 1]))
             self._feature(bytes([PURGE_FIFOS, 3]))
+            self._dev.set_nonblocking(1)  # else hidapi's read with timeout 0 waits for the next report
         except BaseException:
             self._safe_close()
             raise
