@@ -10,7 +10,8 @@ Fields used (onnx.proto3 numbers, onnx 1.23): ModelProto.graph = 7, .opset_impor
 NodeProto.attribute = 5, .domain = 7; AttributeProto.t = 5, .g = 6, .tensors = 10,
 .graphs = 11, .sparse_tensor = 22, .sparse_tensors = 23; SparseTensorProto.values = 1,
 .indices = 2; TensorProto.dims = 1, .data_type = 2, .float_data = 4, .name = 8, .raw_data = 9,
-.double_data = 10, .external_data = 13, .data_location = 14;
+.double_data = 10, .external_data = 13, .data_location = 14, .int32_data = 5 (float16 bits);
+NodeProto.output = 2, .op_type = 4; AttributeProto.f = 2, .floats = 7;
 OperatorSetIdProto.domain = 1; FunctionProto.input = 4 (strings, skipped), .node = 7,
 .opset_import = 9, .domain = 10.
 """
@@ -36,7 +37,8 @@ class WireSummary:
     initializer_dims: dict[str, tuple[int, ...]] = field(default_factory=dict)
     """Shape of every initializer of the main graph, by name (what the contract checks K and W on)."""
     nan_initializers: list[str] = field(default_factory=list)
-    """Float constants (any graph, subgraphs included) holding a NaN: never a deliberate value
+    """Float constants (initializers, sparse ones and Constant nodes, in any graph, subgraphs and
+    functions included; float, double, float16, bfloat16) holding a NaN: never a deliberate value
     (infinities can be: the padded median's offsets are +-inf), so a damaged or badly fitted model."""
 
 
@@ -90,23 +92,63 @@ def _sparse_is_external(buf: bytes) -> bool:
 
 _FLOAT_TYPES = {1: "<f4", 11: "<f8"}
 """TensorProto.data_type (2) -> numpy dtype of its raw_data (9) / packed float_data (4) or double_data (10)."""
+_HALF_NAN = {10: (0x7C00, 0x03FF), 16: (0x7F80, 0x007F)}
+"""float16 / bfloat16 (data_type 10 / 16): (exponent mask, mantissa mask) of a NaN's bits; their
+values sit in raw_data (9) as little-endian uint16 or in int32_data (5), one varint each."""
+
+
+def _varints(value: bytes | int) -> list[int]:
+    if isinstance(value, int):
+        return [value]
+    out, pos = [], 0
+    while pos < len(value):
+        number, pos = _varint(value, pos)
+        out.append(number)
+    return out
 
 
 def _has_nan(buf: bytes) -> bool:
-    """Whether a float or double TensorProto's values hold a NaN (float16 and others: not checked)."""
+    """Whether a float, double, float16 or bfloat16 TensorProto's values hold a NaN."""
     import numpy as np
 
-    data_type, chunks = 0, []
+    data_type, chunks, halves = 0, [], []
     for number, wtype, value in _fields(buf):
         if number == 2 and wtype == 0:
             data_type = value
         elif (wtype == 2 and number in (4, 9, 10)) or (wtype, number) in ((5, 4), (1, 10)):  # packed or one value
             chunks.append(value)
+        elif number == 5 and wtype in (0, 2):
+            halves.extend(_varints(value))
+    if data_type in _HALF_NAN:
+        exponent, mantissa = _HALF_NAN[data_type]
+        bits = [b for c in chunks if len(c) % 2 == 0 for b in np.frombuffer(c, dtype="<u2").tolist()] + halves
+        return any(b & exponent == exponent and b & mantissa for b in bits)
     dtype = _FLOAT_TYPES.get(data_type)
     if dtype is None:
         return False
     size = np.dtype(dtype).itemsize
     return any(len(c) % size == 0 and np.isnan(np.frombuffer(c, dtype=dtype)).any() for c in chunks)
+
+
+def _constant_has_nan(attribute: bytes) -> bool:
+    """A Constant node's attribute holding NaN: its value tensor (5) or value_float(s) (2, 7).
+    Only Constant nodes: other operators may mean NaN (TreeEnsemble's set separators, Imputer)."""
+    import numpy as np
+
+    floats = []
+    for number, wtype, value in _fields(attribute):
+        if number == 5 and wtype == 2:
+            return _has_nan(value)
+        if number == 22 and wtype == 2:
+            return _sparse_has_nan(value)
+        if (number, wtype) in ((2, 5), (7, 5), (7, 2)):
+            floats.append(value)
+    return any(len(c) % 4 == 0 and np.isnan(np.frombuffer(c, dtype="<f4")).any() for c in floats)
+
+
+def _sparse_has_nan(buf: bytes) -> bool:
+    """A SparseTensorProto whose values tensor (1) holds NaN."""
+    return any(number == 1 and wtype == 2 and _has_nan(value) for number, wtype, value in _fields(buf))
 
 
 def _tensor_name_and_dims(buf: bytes) -> tuple[str, tuple[int, ...]]:
@@ -138,17 +180,29 @@ def _walk_graph(buf: bytes, out: WireSummary, main: bool = False) -> None:
                 out.initializer_dims[name] = dims
             if _has_nan(value):
                 out.nan_initializers.append(name)
-        elif number == 15 and _sparse_is_external(value):
-            out.external_data = True
+        elif number == 15:
+            if _sparse_is_external(value):
+                out.external_data = True
+            if _sparse_has_nan(value):
+                out.nan_initializers.append(_sparse_name(value))
+
+
+def _sparse_name(buf: bytes) -> str:
+    return next((_tensor_name_and_dims(v)[0] for n, t, v in _fields(buf) if n == 1 and t == 2), "")
 
 
 def _walk_node(buf: bytes, out: WireSummary) -> None:
     out.n_nodes += 1
-    domain = ""
+    domain, op_type, outputs, attributes = "", "", [], []
     for number, wtype, value in _fields(buf):
         if number == 7 and wtype == 2:
             domain = value.decode("utf-8", "replace")
+        elif number == 4 and wtype == 2:
+            op_type = value.decode("utf-8", "replace")
+        elif number == 2 and wtype == 2:
+            outputs.append(value.decode("utf-8", "replace"))
         elif number == 5 and wtype == 2:
+            attributes.append(value)
             for a_number, a_type, a_value in _fields(value):
                 if a_type != 2:
                     continue
@@ -159,6 +213,8 @@ def _walk_node(buf: bytes, out: WireSummary) -> None:
                 ):
                     out.external_data = True
     out.node_domains.add(domain)
+    if op_type == "Constant" and domain in ("", "ai.onnx") and any(_constant_has_nan(a) for a in attributes):
+        out.nan_initializers.append(outputs[0] if outputs else "Constant")
 
 
 def _opset_domain(buf: bytes) -> str:

@@ -312,3 +312,50 @@ def test_a_nan_constant_is_refused_in_one_line_and_an_infinity_is_not_a_wire_pro
     target.CopyFrom(replaced)
     assert summarize(proto.SerializeToString()).nan_initializers == [target.name]
     _refused(_save(proto, tmp_path), f"constant\\(s\\) {target.name} hold NaN.*export it again")
+
+
+def _with_nan_carrier(proto, carrier: str):
+    """The model with one extra constant holding NaN the way ``carrier`` says; returns its name."""
+    from onnx import TensorProto, numpy_helper
+
+    nan = np.array([np.nan, 1.0], dtype=np.float32)
+    graph = proto.graph
+    if carrier in ("float16 raw", "float16 int32_data", "bfloat16"):
+        kind = TensorProto.BFLOAT16 if carrier == "bfloat16" else TensorProto.FLOAT16
+        tensor = (numpy_helper.from_array(nan.astype(np.float16), "c") if carrier == "float16 raw"
+                  else helper.make_tensor("c", kind, [2], nan.tolist()))
+        graph.initializer.append(tensor)
+    elif carrier == "sparse initializer":
+        graph.sparse_initializer.append(helper.make_sparse_tensor(
+            numpy_helper.from_array(nan[:1], "c"), numpy_helper.from_array(np.array([0], np.int64), "ci"), [4]))
+    elif carrier.startswith("Constant value"):
+        attr = {"Constant value": {"value": numpy_helper.from_array(nan, "v")},
+                "Constant value_float": {"value_float": float("nan")},
+                "Constant value_floats": {"value_floats": nan.tolist()}}[carrier]
+        graph.node.insert(0, helper.make_node("Constant", [], ["c"], **attr))
+    elif carrier == "Constant in a subgraph":
+        branches = [helper.make_graph([helper.make_node("Constant", [], [out], value_float=value)], out, [],
+                                      [helper.make_tensor_value_info(out, TensorProto.FLOAT, [])])
+                    for out, value in (("c", float("nan")), ("d", 1.0))]
+        graph.initializer.append(numpy_helper.from_array(np.array(True), "cond"))
+        graph.node.append(helper.make_node("If", ["cond"], ["unused"], then_branch=branches[0], else_branch=branches[1]))
+    return "c"
+
+
+@pytest.mark.parametrize("carrier", ["float16 raw", "float16 int32_data", "bfloat16", "sparse initializer",
+                                     "Constant value", "Constant value_float", "Constant value_floats",
+                                     "Constant in a subgraph"])
+def test_a_nan_in_any_float_constant_is_refused(proto, tmp_path, carrier):
+    """Float initializers alone were scanned: NaN in float16, a sparse initializer or a Constant
+    node (subgraphs too) loaded silently."""
+    name = _with_nan_carrier(proto, carrier)
+    assert summarize(proto.SerializeToString()).nan_initializers == [name]
+    _refused(_save(proto, tmp_path), f"constant\\(s\\) {name} hold NaN")
+
+
+def test_a_nan_attribute_of_another_operator_is_not_a_damaged_constant(proto):
+    """Operators other than Constant may mean NaN (ai.onnx.ml Imputer's replaced value, TreeEnsemble's
+    set separators): the wire scan leaves them to the model contract."""
+    proto.graph.node.append(helper.make_node("Imputer", ["x"], ["y"], domain="ai.onnx.ml",
+                                             imputed_value_floats=[0.0], replaced_value_float=float("nan")))
+    assert summarize(proto.SerializeToString()).nan_initializers == []
