@@ -194,7 +194,7 @@ def test_stall_and_disconnect(rec):
 @pytest.mark.parametrize(
     "text, said", [("crc=2", "a probability from 0 to 1, e.g. crc=0.02"), ("bogus=1", "known: crc"),
                    ("stall=0.1:0", "0 < SECONDS <= 60"), ("disconnect=0", "at least 1"),
-                   ("garbage=x", "a probability from 0 to 1")]
+                   ("garbage=x", "a probability from 0 to 1"), ("boot=3", "nothing (on), or on/off")]
 )
 def test_fault_spec_errors_say_what_to_give(text, said):
     with pytest.raises(FaultSpecError, match=re.escape(said)):
@@ -206,3 +206,4 @@ def test_fault_spec_parses():
     assert (plan.crc, plan.garbage, plan.drop, plan.stall, plan.stall_seconds) == (0.01, 0.02, 0.03, 0.004, 0.25)
     assert plan.disconnect_after == 300 and plan.boot_query and plan.any
     assert not FaultPlan.parse("").any
+    assert FaultPlan.parse("boot=on").boot_query and not FaultPlan.parse("boot=off").any

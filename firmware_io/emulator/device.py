@@ -89,7 +89,10 @@ class FaultPlan:
             key = key.strip().lower()
             try:
                 if key == "boot":
-                    plan.boot_query = value.strip() in ("", "1", "true", "yes", "on")
+                    switch = value.strip().lower()
+                    if switch not in _SWITCHES:
+                        raise ValueError
+                    plan.boot_query = _SWITCHES[switch]
                 elif key == "disconnect":
                     plan.disconnect_after = int(value)
                     if plan.disconnect_after < 1:
@@ -118,7 +121,11 @@ class FaultPlan:
         return bool(self.crc or self.garbage or self.drop or self.stall or self.disconnect_after or self.boot_query)
 
 
-_FAULT_VALUES = {"crc": "a probability from 0 to 1, e.g. crc=0.02", "garbage": "a probability from 0 to 1",
+_SWITCHES = {"": True, "1": True, "true": True, "yes": True, "on": True,
+             "0": False, "false": False, "no": False, "off": False}
+"""What ``boot`` may be set to (nothing: on)."""
+
+_FAULT_VALUES = {"boot": "nothing (on), or on/off", "crc": "a probability from 0 to 1, e.g. crc=0.02", "garbage": "a probability from 0 to 1",
                  "drop": "a probability from 0 to 1", "disconnect": "a whole number of frames, at least 1",
                  "stall": "P:SECONDS, a probability from 0 to 1 and 0 < SECONDS <= 60, e.g. stall=0.01:2"}
 """What each fault's value must be, for the line that refuses a bad one."""
