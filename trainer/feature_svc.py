@@ -117,7 +117,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         from trainer.features.base import OnnxParts
         from trainer.onnx_export import features_nodes
 
-        tensors, columns, width = [], [], 0
+        tensors, columns, scales, width = [], [], [], 0
         for name, block in self.blocks_:
             if name == "bow":
                 parts = OnnxParts.in_order([features_nodes(g, frames, block, output=g.name("bow_histogram"))],
@@ -126,9 +126,10 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
                 parts = block.onnx_parts(g, frames)
             tensors += parts.tensors
             columns.append(parts.columns + width)
+            scales.append(parts.scale_of_each())
             width += parts.width
         g.op("Concat", tensors, outputs=[output], axis=1)
-        return OnnxParts([output], np.concatenate(columns), width)
+        return OnnxParts([output], np.concatenate(columns), width, np.concatenate(scales))
 
     def describe(self) -> dict:
         """What the model file's metadata says about the features."""

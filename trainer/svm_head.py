@@ -50,19 +50,35 @@ class RbfConstants:
         scale = np.ones(sv.shape[1]) if scaler is None else np.asarray(scaler.scale_, dtype=np.float64)
         mean = None if scaler is None else np.asarray(scaler.mean_, dtype=np.float64)
         offset = -gamma * (sv**2).sum(axis=1)
-        spread = (lambda v: v) if layout is None else layout.spread
-        # columns the graph computes but the SVM does not use get zero weight (and no centre)
-        return cls(None if mean is None else spread(mean), spread(np.sqrt(gamma) / scale),
-                   spread(2.0 * np.sqrt(gamma) * sv), offset, bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
+        layout = layout or FeatureLayout(np.arange(sv.shape[1]), sv.shape[1])
+        # columns the graph computes but the SVM does not use get zero weight (and no centre); a column
+        # holding a feature times s gets its centre times s and its unit over s (u is unchanged)
+        return cls(None if mean is None else layout.spread(mean * layout.scale_of_each()),
+                   layout.per_unit(np.sqrt(gamma) / scale), layout.spread(2.0 * np.sqrt(gamma) * sv), offset,
+                   bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
 
 
 @dataclass(frozen=True)
 class FeatureLayout:
     """Where the graph's feature tensor holds each feature: ``columns[i]`` of reference feature i,
-    ``width`` columns in all (``trainer.features.base.OnnxParts``)."""
+    ``width`` columns in all, ``scales[i]`` times the reference's value (None: 1;
+    ``trainer.features.base.OnnxParts``)."""
 
     columns: np.ndarray
     width: int
+    scales: np.ndarray | None = None
+
+    def scale_of_each(self) -> np.ndarray:
+        return np.ones(len(self.columns)) if self.scales is None else np.asarray(self.scales, dtype=np.float64)
+
+    @property
+    def scaled(self) -> bool:
+        return bool(np.any(self.scale_of_each() != 1.0))
+
+    def per_unit(self, values: np.ndarray) -> np.ndarray:
+        """Per-feature factors ``[..., F]`` (weights on the reference's features) laid out for the
+        graph's columns: divided by each column's scale, then ``spread``."""
+        return self.spread(np.asarray(values, dtype=np.float64) / self.scale_of_each())
 
     def spread(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
         """``values`` ``[..., F]`` (reference order) laid out as ``[..., width]``, ``fill`` elsewhere."""
@@ -122,7 +138,7 @@ def svm_nodes(g, features: str, svm, scaler=None, layout: FeatureLayout | None =
         weights, intercept = linear_constants(svm, scaler)
         inputs, hint = features, "pair_weights"
         if layout is not None:
-            weights = layout.spread(weights.T).T
+            weights = layout.per_unit(weights.T).T
     else:
         raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
     dec = g.op("Gemm", [inputs, g.const(hint, weights), g.const("pair_intercept", intercept)], "decision")  # [N, P + K]

@@ -26,11 +26,18 @@ from trainer.features.signals import pad_shapes_for
 @dataclass(frozen=True)
 class OnnxParts:
     """A family's ONNX tensors ``[N, k_i]``; ``columns[i]``: where reference feature i sits in their
-    concatenation, ``width`` columns wide (columns not listed are computed and ignored)."""
+    concatenation, ``width`` columns wide (columns not listed are computed and ignored); ``scales[i]``
+    (None: all 1): the column holds reference feature i times it, so a constant factor is left to the
+    SVM's weights instead of costing a node."""
 
     tensors: list[str]
     columns: np.ndarray
     width: int
+    scales: np.ndarray | None = None
+
+    def scale_of_each(self) -> np.ndarray:
+        """``scales`` with None spelled out (ones)."""
+        return np.ones(len(self.columns)) if self.scales is None else np.asarray(self.scales, dtype=np.float64)
 
     @classmethod
     def in_order(cls, tensors: list[str], n_features: int) -> OnnxParts:
@@ -81,9 +88,12 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
         """``[N, F]`` in the reference's order: the parts joined and, where needed, reordered (a Gather)."""
         parts = self.onnx_parts(g, frames)
         joined = g.op("Concat", parts.tensors, "family_features", axis=1) if len(parts.tensors) > 1 else parts.tensors[0]
-        if columns_in_order(parts.columns, parts.width):
+        if not columns_in_order(parts.columns, parts.width):
+            joined = g.op("Gather", [joined, g.const("feature_order", parts.columns, np.int64)], "family_ordered", axis=1)
+        scales = parts.scale_of_each()
+        if np.all(scales == 1.0):
             return joined
-        return g.op("Gather", [joined, g.const("feature_order", parts.columns, np.int64)], "family_ordered", axis=1)
+        return g.op("Mul", [joined, g.const("feature_unscale", 1.0 / scales)], "family_unscaled")
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()

@@ -56,48 +56,59 @@ class HandGraphFeatures(FeatureFamily):
     def onnx_parts(self, g, frames: str) -> OnnxParts:
         """All pads at once (``trainer.features.pad_batch``): the features come out feature-major
         (``_time_nodes``' rows, then peak, median, std), and ``_pad_major_order`` says where each one
-        of the reference's pad-major order sits."""
+        of the reference's pad-major order sits and what it is multiplied by there."""
         n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = peak_nodes(g, padded)  # [N, G]
         median = median_nodes(g, batch, frames, padded, peak, n_t)  # [N, G]
-        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, G, 3, 8], [N, G, 1, 1]
-        std = _std_nodes(g, batch, padded, signal_mean, n_t)
+        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, G, 3, width], [N, G, 1, 1]
+        std, std_scale = _std_nodes(g, batch, padded, signal_mean, n_t)
         flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
-        return OnnxParts([flat, peak, median, std], np.asarray(_pad_major_order(n_pads)), (_TIME_ROWS + 1) * 3 * n_pads)
+        columns, scales = _pad_major_order(n_pads, n_t)
+        scales[3 :: len(FEATURES_PER_PAD)] = std_scale
+        return OnnxParts([flat, peak, median, std], np.asarray(columns), (_row_width(n_t) * 3 + 3) * n_pads, scales)
 
 
-def _pad_major_order(n_pads: int) -> list[int]:
+def _row_width(n_t: int) -> int:
+    """Columns of ``_time_nodes``' rows of one series: mean, 4 band shares / 2 (the last is 1/2), 4
+    log(1 + band energy) (the last is the log energy), ``time_rows``' products, mean speed."""
+    return 1 + 4 + 4 + time_rows(n_t)[0].shape[0] + 1
+
+
+def _pad_major_order(n_pads: int, n_t: int) -> tuple[list[int], np.ndarray]:
     """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts: ``_time_nodes``' rows
-    flattened (pad by pad, 3 series - signal, centre of pressure x and y - by ``_TIME_ROWS``), then
-    ``[peak, median, std]`` of the pads."""
-    by_pad = _TIME_ROWS * 3 * n_pads
+    flattened (pad by pad, 3 series - signal, centre of pressure x and y - by ``_row_width``), then
+    ``[peak, median, std]`` of the pads; and the factor each carries there (shares 1/2, std set by
+    the caller)."""
+    width = _row_width(n_t)
+    by_pad = width * 3 * n_pads
+    deriv = width - 3  # time_rows' last two products (mean derivative, last - first), then the speed
     order = []
     for p in range(n_pads):
-        signal, cop_x, cop_y = (_TIME_ROWS * (3 * p + k) for k in range(3))
+        signal, cop_x, cop_y = (width * (3 * p + k) for k in range(3))
         order += [by_pad + p, signal, by_pad + n_pads + p, by_pad + 2 * n_pads + p, signal + 1, signal + 2,
-                  signal + 3, signal + 4, signal + 5, cop_x, cop_y, cop_x + 6, cop_y + 6, signal + 7]
-    return order
+                  signal + 3, signal + 8, signal + deriv, cop_x, cop_y, cop_x + deriv + 1, cop_y + deriv + 1,
+                  signal + width - 1]
+    scales = np.ones(len(order))
+    for k in (4, 5, 6):  # the band shares
+        scales[k :: len(FEATURES_PER_PAD)] = 0.5
+    return order, scales
 
 
-_TIME_ROWS = 8
-"""Rows of ``_time_nodes``: mean, 3 band shares, log energy, mean derivative, last - first, mean speed."""
-
-
-def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
-    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G, 1, 1]`` (two passes)."""
+def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> tuple[str, np.ndarray]:
+    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G, 1, 1]`` (two passes),
+    times the returned factor per pad."""
     dev = g.op("Sub", [padded, mean], "dev")
-    if not batch.padded:
-        sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
-        return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
+    if not batch.padded:  # the root of the sum of squares: the std times sqrt(size T)
+        return g.op("ReduceL2", [dev], "std_root", axes=[2, 3], keepdims=0), np.sqrt(batch.sizes * float(n_t))
     # padded pads: each slot's squares over time [N, G, S], then a weighted sum over the slots whose
     # weights are 0 on padding and 1 / (size T) on the pad's taxels (a pass over T times fewer values
     # than the whole tensor, and no subtraction that could cancel)
     slot_sq = g.op("ReduceSumSquare", [dev], "slot_sq", axes=[3], keepdims=0)
     weighted = g.op("Mul", [slot_sq, g.const("std_weights", batch.mask / (batch.sizes[:, None] * n_t))], "slot_var")
     var = g.op("ReduceSum", [weighted, g.const("slot_axis", [2], np.int64)], "var", keepdims=0)
-    return g.op("Sqrt", [var], "std")
+    return g.op("Sqrt", [var], "std"), np.ones(len(batch.sizes))
 
 
 def time_rows(n_t: int) -> tuple[np.ndarray, int]:
@@ -113,51 +124,46 @@ def time_rows(n_t: int) -> tuple[np.ndarray, int]:
 
 
 def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str, str]:
-    """Everything from the per-frame pad sums and centres of pressure, for all pads at once, as
-    ``_TIME_ROWS`` rows ``[N, G, 3, 8]`` of each pad's three series (signal, centre x, centre y):
-    mean, FFT band shares and log energy, mean derivative, last - first (the centre's net
-    displacement), mean speed (on the signal). Also the pads' mean value ``[N, G, 1, 1]``. Rows a
-    series does not use are computed and ignored (cheaper than slicing them away). Time stays the
-    last axis throughout, so each product over time is one GEMM for all pads."""
+    """Everything from the per-frame pad means and centres of pressure, for all pads at once, as rows
+    ``[N, G, 3, _row_width]`` of each pad's three series (signal, centre x, centre y): mean, FFT band
+    shares / 2 and log energy, mean derivative, last - first (the centre's net displacement), mean
+    speed (on the signal). Also the pads' mean value ``[N, G, 1, 1]``. Columns a series does not use
+    are computed and ignored (cheaper than slicing them away: onnxruntime pays per node). Time stays
+    the last axis throughout, so each product over time is one GEMM for all pads."""
     n_pads, width = len(shapes), int(batch.sizes.max())
-    kinds = np.zeros((n_pads, 3, width))  # per pad: ones, x, y of each taxel slot (0 on padding)
+    kinds = np.zeros((n_pads, 3, width))  # per pad: 1, x, y of each taxel slot over the pad's size (0 on padding)
     centre = np.zeros((n_pads, 2, 1))
     for p, (rows, cols) in enumerate(shapes):
         y, x = np.divmod(np.arange(rows * cols), cols)
-        kinds[p, 0, : rows * cols], kinds[p, 1, : rows * cols], kinds[p, 2, : rows * cols] = 1.0, x, y
+        kinds[p, :, : rows * cols] = np.stack([np.ones(rows * cols), x, y]) / (rows * cols)
         centre[p, :, 0] = (cols - 1) / 2, (rows - 1) / 2
-    sizes = batch.sizes.astype(np.float64)
     moments = g.op("MatMul", [g.const("pad_moments", kinds), padded], "moments")  # [N, G, 3, T]
-    weight, mxy = g.name("weight"), g.name("mxy")
-    g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
-    signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes[:, None, None])], "signal")  # [N, G, 1, T]
-    pressed = g.op("Greater", [weight, g.const("zero", 0.0)], "pressed")
+    signal, mxy = g.name("signal"), g.name("mxy")
+    g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[signal, mxy], axis=2)
+    pressed = g.op("Greater", [signal, g.const("zero", 0.0)], "pressed")
     # an unpressed pad's quotient (0/0, x/negative) is computed and never selected: no guard needed
-    cop = g.op("Where", [pressed, g.op("Div", [mxy, weight], "cop_raw"), g.const("centre", centre)], "cop")
+    cop = g.op("Where", [pressed, g.op("Div", [mxy, signal], "cop_raw"), g.const("centre", centre)], "cop")
     series = g.op("Concat", [signal, cop], "series", axis=2)  # [N, G, 3, T]
     mean = g.op("ReduceMean", [series], "series_mean", axes=[3], keepdims=1)  # [N, G, 3, 1]
     centred = g.op("Sub", [series, mean], "centred")
     rows_t, n_bins = time_rows(n_t)
-    n_sq = 2 * n_bins + n_t - 1
     over_time = g.op("MatMul", [centred, g.const("time_rows", rows_t.T)], "over_time")  # [N, G, 3, 2B + T-1 + 2]
-    squared, ends = g.name("squared"), g.name("deriv_rise")
-    g.op("Split", [over_time, g.const("split_time", [n_sq, 2], np.int64)], outputs=[squared, ends], axis=3)
-    sq = g.op("Mul", [squared, squared], "power")  # re^2 and im^2 of each bin, then the steps' squares
+    sq = g.op("Mul", [over_time, over_time], "power")  # re^2 and im^2 of each bin, the steps' squares (and 2 unused)
     _, _, bands = dft_matrices(n_t)
-    energy_cols = np.zeros((n_sq, 4))  # [band energies, energy] from the bins' squares
+    energy_cols = np.zeros((rows_t.shape[0], 4))  # [band energies, energy] from the bins' squares
     energy_cols[: 2 * n_bins] = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)
     energy4 = g.op("MatMul", [sq, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
-    band_energy, energy = g.name("band_energy"), g.name("energy")
-    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=3)
-    shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
-    log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
+    # the bands partition the bins: over the 4 columns' sum (2 x energy) the first three are shares / 2
+    # (0 where the energy is 0, like the reference's floored quotient)
+    shares = g.op("LpNormalization", [energy4], "half_shares", axis=-1, p=1)
+    log_energy = g.op("Log", [g.op("Add", [energy4, g.const("one", 1.0)])], "log_energy")
     pair = np.zeros((3, 3))  # dx^2 + dy^2 into the signal's row
     pair[0, 1] = pair[0, 2] = 1.0
     step_len = g.op("Sqrt", [g.op("MatMul", [g.const("dx2_dy2", pair), sq], "step_len2")], "step_len")
-    step_mean = np.zeros((n_sq, 1))  # the mean over the steps' columns
-    step_mean[2 * n_bins :] = 1.0 / max(n_t - 1, 1)
+    step_mean = np.zeros((rows_t.shape[0], 1))  # the mean over the steps' columns
+    step_mean[2 * n_bins : 2 * n_bins + n_t - 1] = 1.0 / max(n_t - 1, 1)
     speed = g.op("MatMul", [step_len, g.const("step_mean", step_mean)], "speed")  # [N, G, 3, 1]
-    rows = g.op("Concat", [mean, shares, log_energy, ends, speed], "time_rows", axis=3)
+    rows = g.op("Concat", [mean, shares, log_energy, over_time, speed], "time_rows", axis=3)
     signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
                                  g.const("axis", [2], np.int64)], "signal_mean")
     return rows, signal_mean
@@ -195,11 +201,14 @@ def pad_error_bounds(P: np.ndarray, rows: int, cols: int) -> np.ndarray:
                + gamma(3) * power)
     energy = power.sum(axis=1)
     e_energy = e_power.sum(axis=1) + gamma(power.shape[1] + 1) * energy
-    conditioned = energy > SAFETY * e_energy
+    # the graph divides by the sum of the three band energies and the energy (2 x energy, 3 more roundings)
+    e_den = e_energy + gamma(3) * energy
+    # where the reference floors a tiny energy at 1e-12 the graph does not: the whole range
+    conditioned = (energy > SAFETY * e_den) & ~((energy > 0) & (energy < 1e-12))
     shares = f[:, 4:7]
     exact = e_energy == 0  # an all-zero pad: every sum is exact, the shares are 0 in both
     share_err = np.where(exact[:, None], 0.0, np.where(conditioned[:, None],
-                         (1 + shares) * (e_energy / np.where(conditioned, energy - e_energy, 1.0))[:, None] + U32,
+                         (1 + shares) * (e_den / np.where(conditioned, energy - e_den, 1.0))[:, None] + U32,
                          1.0))
     e_log = e_energy / (1 + np.maximum(energy - e_energy, 0)) + U32 * (1 + np.abs(f[:, 7]))
     e_deriv = 2 * e_sig / max(n_t - 1, 1) + gamma(3) * np.abs(f[:, 8])
