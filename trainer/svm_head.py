@@ -25,6 +25,11 @@ FOLD_LIMIT = 60.0
 """Largest ``gamma ||sv||^2`` folded into the coefficients: exp(-60) ~ 1e-26 stays a normal float32
 coefficient, and the exponent (at most ``gamma ||sv_m||^2``) stays far below float32's exp overflow (88)."""
 THIRD = 1.0 / 3.0
+WIN_SLOPE = float(np.finfo(np.float32).max)
+"""``HardSigmoid(dec) = clip(WIN_SLOPE dec, 0, 1)``: a one-vs-one win as one node (was Greater, Cast).
+It is 1 for every decision > 0 down to 2.9e-39 and 0 for every decision <= 0, libsvm's rule; only a
+subnormal decision (below 1.2e-38) could give part of a vote, and such a decision is within float32
+rounding of 0 anyway: a near tie that no float32 graph decides reliably (``trainer.numerics``)."""
 
 
 @dataclass(frozen=True)
@@ -142,7 +147,7 @@ def svm_nodes(g, features: str, svm, scaler=None, layout: FeatureLayout | None =
     else:
         raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
     dec = g.op("Gemm", [inputs, g.const(hint, weights), g.const("pair_intercept", intercept)], "decision")  # [N, P + K]
-    pos = g.op("Cast", [g.op("Greater", [dec, g.const("zero", 0.0)])], "wins", to=1)
+    pos = g.op("HardSigmoid", [dec], "wins", alpha=WIN_SLOPE, beta=0.0)  # 1 where dec > 0, else 0
     votes = g.op("Gemm", [pos, g.const("vote_diff", head["vote_diff"]), g.const("vote_base", head["vote_base"])], "votes")
     soft = g.op("Softsign", [dec], "conf_soft")  # conf / (|conf| + 1) on the confidence columns
     g.op("Gemm", [soft, g.const("conf_pick", head["conf_pick"]), votes], outputs=[scores_out], alpha=THIRD)

@@ -68,19 +68,16 @@ class PadStats(FeatureFamily):
         n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
         sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
         centred = g.op("Sub", [sig, g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)], "signal_centred")
-        l2 = g.op("ReduceL2", [centred], "signal_l2", axes=[1], keepdims=0)
-        std = g.op("Mul", [l2, g.const("inv_sqrt_t", 1.0 / np.sqrt(n_t))], "signal_std")
+        std = g.op("ReduceL2", [centred], "signal_l2", axes=[1], keepdims=0)  # the std times sqrt(T)
         ends = g.op("MatMul", [g.const("stats_time_rows", ends_rows(n_t)), sig], "signal_ends")  # [N, 2, S]
         mean_change = g.op("Reshape", [ends, g.const("flat_shape", [0, 2 * n_sig], np.int64)], "signal_mean_change")
         n_pads = len(self.shapes_)
         s = np.arange(n_sig)
         columns = np.concatenate([s, 2 * n_sig + s, n_sig + s, 3 * n_sig + np.arange(n_pads)])
-        return OnnxParts([mean_change, std, self._peak_nodes(g, frames)], columns, 3 * n_sig + n_pads)
-
-    def _peak_nodes(self, g, frames: str) -> str:
-        """Each pad's peak taxel / fullscale ``[N, G]`` (shares the hand family's nodes when both are in)."""
-        peak = peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))
-        return g.op("Mul", [peak, g.const("inv_fs", 1.0 / float(self.fullscale))], "peak")
+        scales = np.concatenate([np.ones(n_sig), np.full(n_sig, np.sqrt(n_t)), np.ones(n_sig),
+                                 np.full(n_pads, float(self.fullscale))])  # std times sqrt(T), the peak unscaled
+        peak = peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))  # shared with the hand family's
+        return OnnxParts([mean_change, std, peak], columns, 3 * n_sig + n_pads, scales)
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         pads = range(len(self.shapes_))
