@@ -58,6 +58,9 @@ class PadBatch:
         built once per graph."""
         def build() -> str:
             series = g.op("Transpose", [frames], "series", perm=[0, 2, 1])  # [N, C, T]
+            if not self.padded:  # pads of one size in channel order: a view, no copy
+                shape = [0, *self.index.shape, -1]
+                return g.op("Reshape", [series, g.const("pad_shape", shape, np.int64)], "pad_batch")
             return g.op("Gather", [series, g.const("pad_slots", self.index, np.int64)], "pad_batch", axis=1)
 
         return g.shared(("pad_batch", frames, self.index.tobytes()), build)
