@@ -16,7 +16,7 @@ from trainer.feature_svc import FeatureSVC
 from trainer.features import HandGraphFeatures, PadStats
 from trainer.features.base import OnnxParts
 from trainer.features.pad_batch import PadBatch
-from trainer.onnx_export import build_graph, feature_columns
+from trainer.onnx_export import build_graph, feature_columns, feature_scales
 from trainer.stress import stress_cases
 
 SDH2_SIZES = (84, 78, 84, 78, 84, 78)
@@ -24,18 +24,21 @@ SDH2_SHAPES = [(14, 6), (13, 6)] * 3
 
 
 class _Session:
-    """A session that also outputs the features (``histogram``, in the reference's order)."""
+    """A session that also outputs the features (``histogram``, in the reference's order and units)."""
 
     def __init__(self, proto) -> None:
-        self.columns = feature_columns(proto)
+        self.columns, self.scales = feature_columns(proto), feature_scales(proto)
         proto.graph.output.append(onnx.helper.make_tensor_value_info("histogram", onnx.TensorProto.FLOAT, None))
         self.session = ort.InferenceSession(proto.SerializeToString(), session_options(),
                                             providers=["CPUExecutionProvider"])
 
     def run(self, names: list[str], feeds: dict) -> list[np.ndarray]:
         out = self.session.run(names, feeds)
-        return [o[:, self.columns] if n == "histogram" and self.columns is not None else o
-                for n, o in zip(names, out, strict=True)]
+        return [self._features(o) if n == "histogram" else o for n, o in zip(names, out, strict=True)]
+
+    def _features(self, hist: np.ndarray) -> np.ndarray:
+        hist = hist if self.columns is None else hist[:, self.columns]
+        return hist if self.scales is None else hist / self.scales
 
 
 

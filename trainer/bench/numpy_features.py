@@ -16,7 +16,7 @@ from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 FAMILIES = ("hand", "stats")
 _PADS = ("pad_moments",)
-_HAND = ("centre", "time_rows", "band_rows", "step_mean", "dx2_dy2", "touch_weights")
+_HAND = ("centre", "time_rows", "band_rows", "tiny", "step_mean", "dx2_dy2", "touch_weights")
 _STATS = ("fullscale", "contact_level", "area_weights", "stats_time_rows")
 _BEFORE = ("inv_size", "inv_count", "inv_sqrt_t", "padding_slots")
 """Initializers only graphs exported before the current layout have (read as another kind: None)."""
@@ -37,7 +37,7 @@ class NumpyFeatures:
         moments = {m.ndim: m for m in parts.params["pad_moments"]}
         if "hand" in families:
             self.kinds = moments[3]  # [G, 3, S]: 1, x, y of each slot over the pad's size
-            (self.centre, self.time_rows, self.band_rows, self.step_mean, self.pair,
+            (self.centre, self.time_rows, self.band_rows, self.tiny, self.step_mean, self.pair,
              self.touch_weights) = (p(k) for k in _HAND)
             self.std_weights = p("std_weights") if parts.has("std_weights") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
@@ -91,11 +91,10 @@ class NumpyFeatures:
         over = (series - mean) @ self.time_rows  # [G, 3, 2B + T-1 + 2]: DFT, steps, deriv, rise
         sq = over * over
         energy4 = sq @ self.band_rows  # [G, 3, 4]
-        total = energy4.sum(axis=2, keepdims=True)
-        half_shares = energy4 / np.where(total > 0, total, np.float32(1.0))
-        log_energy = np.log(energy4 + np.float32(1.0))
+        shares = energy4[..., :3] / np.maximum(energy4[..., 3:], self.tiny)
+        log_energy = np.log(energy4[..., 3:] + np.float32(1.0))
         speed = np.sqrt(self.pair @ sq) @ self.step_mean
-        rows = np.concatenate([mean, half_shares, log_energy, over, speed], axis=2)
+        rows = np.concatenate([mean, shares, log_energy, over, speed], axis=2)
         return rows, mean[:, 0, 0]
 
     def _median(self, x: np.ndarray, padded: np.ndarray) -> np.ndarray:

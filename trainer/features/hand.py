@@ -71,15 +71,15 @@ class HandGraphFeatures(FeatureFamily):
 
 
 def _row_width(n_t: int) -> int:
-    """Columns of ``_time_nodes``' rows of one series: mean, 4 band shares / 2 (the last is 1/2), 4
-    log(1 + band energy) (the last is the log energy), ``time_rows``' products, mean speed."""
-    return 1 + 4 + 4 + time_rows(n_t)[0].shape[0] + 1
+    """Columns of ``_time_nodes``' rows of one series: mean, 3 band shares, log energy, ``time_rows``'
+    products, mean speed."""
+    return 1 + 3 + 1 + time_rows(n_t)[0].shape[0] + 1
 
 
 def _pad_major_order(n_pads: int, n_t: int) -> tuple[list[int], np.ndarray]:
     """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts: ``_time_nodes``' rows
     flattened (pad by pad, 3 series - signal, centre of pressure x and y - by ``_row_width``), then
-    ``[peak, median, std]`` of the pads; and the factor each carries there (shares 1/2, std set by
+    ``[peak, median, std]`` of the pads; and the factor each carries there (1; the std's is set by
     the caller)."""
     width = _row_width(n_t)
     by_pad = width * 3 * n_pads
@@ -88,12 +88,9 @@ def _pad_major_order(n_pads: int, n_t: int) -> tuple[list[int], np.ndarray]:
     for p in range(n_pads):
         signal, cop_x, cop_y = (width * (3 * p + k) for k in range(3))
         order += [by_pad + p, signal, by_pad + n_pads + p, by_pad + 2 * n_pads + p, signal + 1, signal + 2,
-                  signal + 3, signal + 8, signal + deriv, cop_x, cop_y, cop_x + deriv + 1, cop_y + deriv + 1,
+                  signal + 3, signal + 4, signal + deriv, cop_x, cop_y, cop_x + deriv + 1, cop_y + deriv + 1,
                   signal + width - 1]
-    scales = np.ones(len(order))
-    for k in (4, 5, 6):  # the band shares
-        scales[k :: len(FEATURES_PER_PAD)] = 0.5
-    return order, scales
+    return order, np.ones(len(order))
 
 
 def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> tuple[str, np.ndarray]:
@@ -153,10 +150,12 @@ def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str,
     energy_cols = np.zeros((rows_t.shape[0], 4))  # [band energies, energy] from the bins' squares
     energy_cols[: 2 * n_bins] = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)
     energy4 = g.op("MatMul", [sq, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
-    # the bands partition the bins: over the 4 columns' sum (2 x energy) the first three are shares / 2
-    # (0 where the energy is 0, like the reference's floored quotient)
-    shares = g.op("LpNormalization", [energy4], "half_shares", axis=-1, p=1)
-    log_energy = g.op("Log", [g.op("Add", [energy4, g.const("one", 1.0)])], "log_energy")
+    band_energy, energy = g.name("band_energy"), g.name("energy")
+    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=3)
+    # floored like the reference: a constant series whose float32 mean is an ulp off its values has an
+    # energy of float32 noise, and unfloored shares of that noise would be anything
+    shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
+    log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
     pair = np.zeros((3, 3))  # dx^2 + dy^2 into the signal's row
     pair[0, 1] = pair[0, 2] = 1.0
     step_len = g.op("Sqrt", [g.op("MatMul", [g.const("dx2_dy2", pair), sq], "step_len2")], "step_len")
@@ -201,14 +200,11 @@ def pad_error_bounds(P: np.ndarray, rows: int, cols: int) -> np.ndarray:
                + gamma(3) * power)
     energy = power.sum(axis=1)
     e_energy = e_power.sum(axis=1) + gamma(power.shape[1] + 1) * energy
-    # the graph divides by the sum of the three band energies and the energy (2 x energy, 3 more roundings)
-    e_den = e_energy + gamma(3) * energy
-    # where the reference floors a tiny energy at 1e-12 the graph does not: the whole range
-    conditioned = (energy > SAFETY * e_den) & ~((energy > 0) & (energy < 1e-12))
+    conditioned = energy > SAFETY * e_energy
     shares = f[:, 4:7]
     exact = e_energy == 0  # an all-zero pad: every sum is exact, the shares are 0 in both
     share_err = np.where(exact[:, None], 0.0, np.where(conditioned[:, None],
-                         (1 + shares) * (e_den / np.where(conditioned, energy - e_den, 1.0))[:, None] + U32,
+                         (1 + shares) * (e_energy / np.where(conditioned, energy - e_energy, 1.0))[:, None] + U32,
                          1.0))
     e_log = e_energy / (1 + np.maximum(energy - e_energy, 0)) + U32 * (1 + np.abs(f[:, 7]))
     e_deriv = 2 * e_sig / max(n_t - 1, 1) + gamma(3) * np.abs(f[:, 8])

@@ -76,8 +76,11 @@ class PadStats(FeatureFamily):
         columns = np.concatenate([s, 2 * n_sig + s, n_sig + s, 3 * n_sig + np.arange(n_pads)])
         scales = np.concatenate([np.ones(n_sig), np.full(n_sig, np.sqrt(n_t)), np.ones(n_sig),
                                  np.full(n_pads, float(self.fullscale))])  # std times sqrt(T), the peak unscaled
-        peak = peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))  # shared with the hand family's
-        return OnnxParts([mean_change, std, peak], columns, 3 * n_sig + n_pads, scales)
+        return OnnxParts([mean_change, std, self._peak_nodes(g, frames)], columns, 3 * n_sig + n_pads, scales)
+
+    def _peak_nodes(self, g, frames: str) -> str:
+        """Each pad's peak taxel ``[N, G]`` (unscaled; shares the hand family's nodes when both are in)."""
+        return peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         pads = range(len(self.shapes_))
