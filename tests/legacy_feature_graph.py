@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from trainer.features.base import pad_bounds, slice_nodes
-from trainer.features.hand import dft_matrices
+from trainer.features.pad_series import dft_matrices
 
 
 def legacy_hand_nodes(family, g, frames: str) -> str:

@@ -34,6 +34,9 @@ class OnnxParts:
     columns: np.ndarray
     width: int
     scales: np.ndarray | None = None
+    widths: tuple[int, ...] | None = None
+    """Columns of each tensor (None: unknown). With them, a tensor two families share (the same
+    name) is joined into the features once."""
 
     def scale_of_each(self) -> np.ndarray:
         """``scales`` with None spelled out (ones)."""

@@ -15,20 +15,8 @@ import numpy as np
 from trainer.baseline import FEATURES_PER_PAD, pad_features
 from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds
 from trainer.features.pad_batch import PadBatch, median_nodes, peak_nodes
+from trainer.features.pad_series import SeriesColumns, SeriesNeed, pad_series_nodes
 from trainer.numerics import SAFETY, U32, gamma
-
-
-def dft_matrices(n_t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cosine and sine ``[T, B]`` of rfft bins 1 .. T//2 and the band indicator ``[B, 3]`` of
-    ``pad_features`` (thirds by ``np.array_split``; all bins in each band when fewer than 3)."""
-    bins = np.arange(1, n_t // 2 + 1)
-    angle = 2.0 * np.pi * np.outer(np.arange(n_t), bins) / n_t
-    n_bins = len(bins)
-    bands = np.array_split(np.arange(n_bins), 3) if n_bins >= 3 else [np.arange(n_bins)] * 3
-    indicator = np.zeros((n_bins, 3))
-    for b, idx in enumerate(bands):
-        indicator[idx, b] = 1.0
-    return np.cos(angle), np.sin(angle), indicator
 
 
 class HandGraphFeatures(FeatureFamily):
@@ -54,42 +42,37 @@ class HandGraphFeatures(FeatureFamily):
                               axis=1)
 
     def onnx_parts(self, g, frames: str) -> OnnxParts:
-        """All pads at once (``trainer.features.pad_batch``): the features come out feature-major
-        (``_time_nodes``' rows, then peak, median, std), and ``_pad_major_order`` says where each one
-        of the reference's pad-major order sits and what it is multiplied by there."""
+        """All pads at once (``trainer.features.pad_batch``, ``trainer.features.pad_series``): the series'
+        rows over time, then peak, median, std of the pads; ``_pad_major_order`` says where each
+        feature of the reference's pad-major order sits and what it is multiplied by there."""
         n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = peak_nodes(g, padded)  # [N, G]
         median = median_nodes(g, batch, frames, padded, peak, n_t)  # [N, G]
-        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, G, 3, width], [N, G, 1, 1]
-        std, std_scale = _std_nodes(g, batch, padded, signal_mean, n_t)
-        flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
-        columns, scales = _pad_major_order(n_pads, n_t)
+        series = pad_series_nodes(g, frames, self.shapes_, n_t, SeriesNeed(hand=True, fullscale=None))
+        std, std_scale = _std_nodes(g, batch, padded, series.signal_mean, n_t)
+        n_rows = n_pads * len(series.columns.series) * series.columns.width
+        columns, scales = _pad_major_order(series.columns, n_pads, n_rows)
         scales[3 :: len(FEATURES_PER_PAD)] = std_scale
-        return OnnxParts([flat, peak, median, std], np.asarray(columns), (_row_width(n_t) * 3 + 3) * n_pads, scales)
+        return OnnxParts([series.flat, peak, median, std], np.asarray(columns), n_rows + 3 * n_pads, scales,
+                         (n_rows, n_pads, n_pads, n_pads))
 
 
-def _row_width(n_t: int) -> int:
-    """Columns of ``_time_nodes``' rows of one series: mean, 3 band shares, log energy, ``time_rows``'
-    products, mean speed."""
-    return 1 + 3 + 1 + time_rows(n_t)[0].shape[0] + 1
+_FROM_SERIES = [("signal", "mean"), ("signal", "share1"), ("signal", "share2"), ("signal", "share3"),
+                ("signal", "log_energy"), ("signal", "mean_derivative"), ("cop_x", "mean"), ("cop_y", "mean"),
+                ("cop_x", "change"), ("cop_y", "change"), ("signal", "speed")]
+"""``FEATURES_PER_PAD`` 1 and 4 .. 13 as (series, quantity) of ``trainer.features.pad_series``."""
 
 
-def _pad_major_order(n_pads: int, n_t: int) -> tuple[list[int], np.ndarray]:
-    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts: ``_time_nodes``' rows
-    flattened (pad by pad, 3 series - signal, centre of pressure x and y - by ``_row_width``), then
-    ``[peak, median, std]`` of the pads; and the factor each carries there (1; the std's is set by
-    the caller)."""
-    width = _row_width(n_t)
-    by_pad = width * 3 * n_pads
-    deriv = width - 3  # time_rows' last two products (mean derivative, last - first), then the speed
+def _pad_major_order(columns: SeriesColumns, n_pads: int, n_rows: int) -> tuple[list[int], np.ndarray]:
+    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts (the series' rows,
+    ``n_rows`` columns, then ``[peak, median, std]`` of the pads), and the factor each carries there
+    (1; the std's is set by the caller)."""
     order = []
     for p in range(n_pads):
-        signal, cop_x, cop_y = (width * (3 * p + k) for k in range(3))
-        order += [by_pad + p, signal, by_pad + n_pads + p, by_pad + 2 * n_pads + p, signal + 1, signal + 2,
-                  signal + 3, signal + 4, signal + deriv, cop_x, cop_y, cop_x + deriv + 1, cop_y + deriv + 1,
-                  signal + width - 1]
+        rows = [columns.column(p, series, quantity) for series, quantity in _FROM_SERIES]
+        order += [n_rows + p, rows[0], n_rows + n_pads + p, n_rows + 2 * n_pads + p, *rows[1:]]
     return order, np.ones(len(order))
 
 
@@ -106,66 +89,6 @@ def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> tuple[st
     weighted = g.op("Mul", [slot_sq, g.const("std_weights", batch.mask / (batch.sizes[:, None] * n_t))], "slot_var")
     var = g.op("ReduceSum", [weighted, g.const("slot_axis", [2], np.int64)], "var", keepdims=0)
     return g.op("Sqrt", [var], "std"), np.ones(len(batch.sizes))
-
-
-def time_rows(n_t: int) -> tuple[np.ndarray, int]:
-    """``[2B + T-1 + 2, T]`` over the frames: cosine and sine of rfft bins 1 .. T//2 and the T-1 steps
-    (the values whose squares count), then the mean derivative and last - first; and B. Applied to
-    the centred series (two passes: a constant series has exactly zero energy, not float32 noise
-    whose band shares are anything)."""
-    cos, sin, _ = dft_matrices(n_t)
-    rise = np.zeros((1, n_t))
-    rise[0, 0], rise[0, -1] = -1.0, 1.0
-    steps = np.eye(n_t - 1, n_t, 1) - np.eye(n_t - 1, n_t)
-    return np.concatenate([cos.T, sin.T, steps, rise / max(n_t - 1, 1), rise]), cos.shape[1]
-
-
-def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str, str]:
-    """Everything from the per-frame pad means and centres of pressure, for all pads at once, as rows
-    ``[N, G, 3, _row_width]`` of each pad's three series (signal, centre x, centre y): mean, FFT band
-    shares / 2 and log energy, mean derivative, last - first (the centre's net displacement), mean
-    speed (on the signal). Also the pads' mean value ``[N, G, 1, 1]``. Columns a series does not use
-    are computed and ignored (cheaper than slicing them away: onnxruntime pays per node). Time stays
-    the last axis throughout, so each product over time is one GEMM for all pads."""
-    n_pads, width = len(shapes), int(batch.sizes.max())
-    kinds = np.zeros((n_pads, 3, width))  # per pad: 1, x, y of each taxel slot over the pad's size (0 on padding)
-    centre = np.zeros((n_pads, 2, 1))
-    for p, (rows, cols) in enumerate(shapes):
-        y, x = np.divmod(np.arange(rows * cols), cols)
-        kinds[p, :, : rows * cols] = np.stack([np.ones(rows * cols), x, y]) / (rows * cols)
-        centre[p, :, 0] = (cols - 1) / 2, (rows - 1) / 2
-    moments = g.op("MatMul", [g.const("pad_moments", kinds), padded], "moments")  # [N, G, 3, T]
-    signal, mxy = g.name("signal"), g.name("mxy")
-    g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[signal, mxy], axis=2)
-    pressed = g.op("Greater", [signal, g.const("zero", 0.0)], "pressed")
-    # an unpressed pad's quotient (0/0, x/negative) is computed and never selected: no guard needed
-    cop = g.op("Where", [pressed, g.op("Div", [mxy, signal], "cop_raw"), g.const("centre", centre)], "cop")
-    series = g.op("Concat", [signal, cop], "series", axis=2)  # [N, G, 3, T]
-    mean = g.op("ReduceMean", [series], "series_mean", axes=[3], keepdims=1)  # [N, G, 3, 1]
-    centred = g.op("Sub", [series, mean], "centred")
-    rows_t, n_bins = time_rows(n_t)
-    over_time = g.op("MatMul", [centred, g.const("time_rows", rows_t.T)], "over_time")  # [N, G, 3, 2B + T-1 + 2]
-    sq = g.op("Mul", [over_time, over_time], "power")  # re^2 and im^2 of each bin, the steps' squares (and 2 unused)
-    _, _, bands = dft_matrices(n_t)
-    energy_cols = np.zeros((rows_t.shape[0], 4))  # [band energies, energy] from the bins' squares
-    energy_cols[: 2 * n_bins] = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)
-    energy4 = g.op("MatMul", [sq, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
-    band_energy, energy = g.name("band_energy"), g.name("energy")
-    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=3)
-    # floored like the reference: a constant series whose float32 mean is an ulp off its values has an
-    # energy of float32 noise, and unfloored shares of that noise would be anything
-    shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
-    log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
-    pair = np.zeros((3, 3))  # dx^2 + dy^2 into the signal's row
-    pair[0, 1] = pair[0, 2] = 1.0
-    step_len = g.op("Sqrt", [g.op("MatMul", [g.const("dx2_dy2", pair), sq], "step_len2")], "step_len")
-    step_mean = np.zeros((rows_t.shape[0], 1))  # the mean over the steps' columns
-    step_mean[2 * n_bins : 2 * n_bins + n_t - 1] = 1.0 / max(n_t - 1, 1)
-    speed = g.op("MatMul", [step_len, g.const("step_mean", step_mean)], "speed")  # [N, G, 3, 1]
-    rows = g.op("Concat", [mean, shares, log_energy, over_time, speed], "time_rows", axis=3)
-    signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
-                                 g.const("axis", [2], np.int64)], "signal_mean")
-    return rows, signal_mean
 
 
 def pad_error_bounds(P: np.ndarray, rows: int, cols: int) -> np.ndarray:

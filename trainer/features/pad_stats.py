@@ -12,7 +12,8 @@ import numpy as np
 
 from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds
 from trainer.features.pad_batch import PadBatch, peak_nodes
-from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
+from trainer.features.pad_series import STATS_SERIES, SeriesNeed, pad_series_nodes
+from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds
 from trainer.numerics import U32, gamma
 
 
@@ -62,21 +63,20 @@ class PadStats(FeatureFamily):
         return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
 
     def onnx_parts(self, g, frames: str) -> OnnxParts:
-        """The standard deviation in two passes (a constant signal's is exactly 0) as the centred
-        signals' L2 norm / sqrt(T); the mean and the change from one MatMul over time (``ends_rows``).
-        Parts: ``[mean, change]``, std, peak."""
-        n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
-        sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
-        centred = g.op("Sub", [sig, g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)], "signal_centred")
-        std = g.op("ReduceL2", [centred], "signal_l2", axes=[1], keepdims=0)  # the std times sqrt(T)
-        ends = g.op("MatMul", [g.const("stats_time_rows", ends_rows(n_t)), sig], "signal_ends")  # [N, 2, S]
-        mean_change = g.op("Reshape", [ends, g.const("flat_shape", [0, 2 * n_sig], np.int64)], "signal_mean_change")
-        n_pads = len(self.shapes_)
-        s = np.arange(n_sig)
-        columns = np.concatenate([s, 2 * n_sig + s, n_sig + s, 3 * n_sig + np.arange(n_pads)])
+        """From the pads' series (``trainer.features.pad_series``, shared with the hand family's): the
+        mean, the change (last - first of the centred series) and the root of the centred squares
+        (the std times sqrt(T): two passes, a constant signal's is exactly 0), and the peak taxel
+        (unscaled: its 1 / fullscale is in the SVM's weights). Parts: the series' rows, peak."""
+        n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
+        series = pad_series_nodes(g, frames, self.shapes_, n_t, SeriesNeed(hand=False, fullscale=float(self.fullscale)))
+        rows, n_rows = series.columns, n_pads * len(series.columns.series) * series.columns.width
+        columns = [rows.column(p, s, quantity) for quantity in ("mean", "root_sq", "change")
+                   for s in STATS_SERIES for p in range(n_pads)] + [n_rows + p for p in range(n_pads)]
+        n_sig = len(SIGNALS) * n_pads
         scales = np.concatenate([np.ones(n_sig), np.full(n_sig, np.sqrt(n_t)), np.ones(n_sig),
-                                 np.full(n_pads, float(self.fullscale))])  # std times sqrt(T), the peak unscaled
-        return OnnxParts([mean_change, std, self._peak_nodes(g, frames)], columns, 3 * n_sig + n_pads, scales)
+                                 np.full(n_pads, float(self.fullscale))])
+        return OnnxParts([series.flat, self._peak_nodes(g, frames)], np.asarray(columns), n_rows + n_pads, scales,
+                         (n_rows, n_pads))
 
     def _peak_nodes(self, g, frames: str) -> str:
         """Each pad's peak taxel ``[N, G]`` (unscaled; shares the hand family's nodes when both are in)."""
