@@ -89,15 +89,14 @@ def median_nodes(g, batch: PadBatch, frames: str, padded: str, peak: str, n_t: i
         return g.op("Concat", parts, "median", axis=1)
     # Sign of an L1 norm (never negative) is 1 for a taxel touched in the window, else 0: one node for
     # Greater and Cast
-    touched = g.op("Sign", [g.op("ReduceL1", [frames], "taxel_l1", axes=[1], keepdims=0)], "touched_f")  # [N, C]
+    # (over the padded tensor's last axis: contiguous in memory, several times faster than over frames' time axis)
+    touched = g.op("Sign", [g.op("ReduceL1", [padded], "taxel_l1", axes=[3], keepdims=1)], "touched_f")  # [N, G, S, 1]
     # each pad's touched taxels, each weighing 1 / (most + 1/2): the pads may take the shortcut when
     # every weighted count is at most 1 (counts are small integers: float32 rounding cannot cross 1,
-    # the nearest counts are 1 / (2 most + 1) away from it)
+    # the nearest counts are 1 / (2 most + 1) away from it); padding slots weigh 0
     most = ((batch.sizes * n_t - 1) // 2) // n_t  # touched taxels whose T values stay below half the pad's
-    weights = np.zeros((int(batch.sizes.sum()), len(batch.sizes)))
-    for p, row in enumerate(batch.index):
-        weights[row[batch.mask[p] > 0], p] = 1.0 / (most[p] + 0.5)
-    count = g.op("MatMul", [touched, g.const("touch_weights", weights)], "touch_count")  # [N, G]
+    weights = (batch.mask / (most[:, None] + 0.5))[:, None, :]  # [G, 1, S]
+    count = g.op("MatMul", [g.const("touch_weights", weights), touched], "touch_count")  # [N, G, 1, 1]
     worst = g.op("ReduceMax", [count], "worst", keepdims=0)
     zero_median = g.op("LessOrEqual", [worst, g.const("one", 1.0)], "zero_median")
     then_g, else_g = type(g)(prefix=g.name("then") + "_"), type(g)(prefix=g.name("else") + "_")

@@ -17,13 +17,6 @@ from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds
 from trainer.numerics import U32, gamma
 
 
-def ends_rows(n_t: int) -> np.ndarray:
-    """``[2, T]`` over the frames: the mean and last - first."""
-    rise = np.zeros(n_t)
-    rise[0], rise[-1] = -1.0, 1.0
-    return np.vstack([np.full(n_t, 1.0 / n_t), rise])
-
-
 class PadStats(FeatureFamily):
     """Per-pad level statistics; ``pad_sizes`` (and optionally ``pad_shapes``) in channel order."""
 
@@ -45,7 +38,7 @@ class PadStats(FeatureFamily):
 
     def error_bounds(self, X) -> np.ndarray:
         """Bound on |float32 - float64| per feature: the signals' bound carried through mean, the
-        two-pass variance and its square root, and the difference of two frames."""
+        two-pass variance and its square root, and the difference of two centred frames."""
         X = self._check(X)
         s = pad_signals(X, self.shapes_, float(self.fullscale))
         e = signal_error_bounds(X, self.shapes_, float(self.fullscale))
@@ -58,7 +51,8 @@ class PadStats(FeatureFamily):
         e_var = (2 * np.abs(c) * e_c + e_c**2).mean(axis=2) + gamma(n_t + 2) * var
         std = np.sqrt(var)
         e_std = np.minimum(np.sqrt(e_var), e_var / np.maximum(std, 1e-300)) + U32 * std
-        e_change = e[:, :, -1] + e[:, :, 0] + U32 * (np.abs(s[:, :, -1]) + np.abs(s[:, :, 0]))
+        # the graph takes last - first of the centred signal: both differences round (the mean cancels)
+        e_change = e[:, :, -1] + e[:, :, 0] + 2 * U32 * (np.abs(s[:, :, -1]) + np.abs(s[:, :, 0]) + np.abs(mean))
         peak = np.stack([np.abs(X[:, a:b]).max(axis=(1, 2)) for a, b in pad_bounds(self.shapes_)], axis=1)
         return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
 
