@@ -103,3 +103,19 @@ def test_median_by_pad_against_numpy(pad_sizes):
         ref = family.transform(frames.transpose(0, 2, 1).astype(np.float64))
         np.testing.assert_allclose(hist[:, 2::14], ref[:, 2::14], rtol=1e-6, atol=1e-3)  # the medians
     assert PadBatch.of([(1, s) for s in pad_sizes]).median_in_one == (len(set(np.array(pad_sizes) % 2)) == 1)
+
+
+@pytest.mark.parametrize(("pad_shapes", "budget"), [([(13, 6)] * 3, 49), (SDH2_SHAPES, 52)], ids=["distal", "all-pads"])
+def test_default_graph_node_budget(pad_shapes, budget):
+    """onnxruntime pays per node (issue #16): the default's graph keeps its count (distal 62 and all
+    pads 63 before the hand and stats families shared one series pipeline and constant factors moved
+    into the SVM's weights)."""
+    sizes = [r * c for r, c in pad_shapes]
+    rng = np.random.default_rng(3)
+    X = rng.integers(0, 4096, (24, sum(sizes), T)) * (rng.random((24, sum(sizes), 1)) < 0.3)
+    y = np.array(["pull", "push", "hold", "bump"])[np.arange(24) % 4]
+    model = FeatureSVC(pad_sizes=sizes, pad_shapes=pad_shapes, kernel="linear", C=1.0,
+                       feature_weighting="distinct").fit(X.astype(np.float64), y)
+    ops = [n.op_type for n in build_graph(model).graph.node]
+    assert len(ops) <= budget, ops
+    assert ops.count("ReduceMean") == 1 and "Transpose" in ops  # one series pipeline; one layout change

@@ -88,3 +88,43 @@ def test_a_damaged_feature_layout_is_one_clear_verify_error(value, tmp_path):
     onnx.save(proto, str(path))
     with pytest.raises(VerifyError, match=r"handover_feature_columns .*re-export the model"):
         GraphRunner(path).run(frames_of(X))
+
+
+def test_features_held_times_a_constant_are_read_back_in_the_reference_units(tmp_path):
+    """Constant factors (the stats' std times sqrt(T), the peak times fullscale) sit in the SVM's
+    weights instead of a Mul node; ``handover verify`` divides them out again."""
+    from tests.onnx_fixtures import export
+    from trainer.onnx_export import FEATURE_SCALES, feature_scales
+    from trainer.verify import GraphRunner
+
+    X, y = synthetic_cases(n=64, seed=6)
+    for kernel in ("linear", "rbf"):
+        model = FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, kernel=kernel, C=10.0,
+                           gamma="scale" if kernel == "rbf" else None).fit(X, y)
+        path = export(model, tmp_path, f"{kernel}.onnx")
+        proto = onnx.load(str(path))
+        scales = feature_scales(proto)
+        assert FEATURE_SCALES in {p.key for p in proto.metadata_props} and (scales != 1).any()
+        frames = frames_of(synthetic_cases(n=32, seed=12)[0])
+        labels, _, features = GraphRunner(path).run(frames)
+        cases = frames.transpose(0, 2, 1).astype(np.float64)
+        excess = np.abs(features - model.transform_histograms(cases)) - model.feature_error_bounds(cases)
+        assert (excess <= 0).all(), excess.max()
+        assert np.array_equal(model.classes_[labels], model.predict(cases))
+
+
+@pytest.mark.parametrize("value", ["[1, 2", "\"x\"", "[1, 0]", "[1, NaN]", "[1, 2]"])
+def test_damaged_feature_scales_are_one_clear_verify_error(value, tmp_path):
+    from tests.onnx_fixtures import export
+    from trainer.onnx_export import FEATURE_SCALES
+    from trainer.verify import GraphRunner, VerifyError
+
+    X, y = synthetic_cases(n=40, seed=2)
+    path = export(FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, kernel="linear", C=1.0).fit(X, y),
+                  tmp_path)
+    proto = onnx.load(str(path))
+    props = {p.key: p.value for p in proto.metadata_props}
+    onnx.helper.set_model_props(proto, {**props, FEATURE_SCALES: value})
+    onnx.save(proto, str(path))
+    with pytest.raises(VerifyError, match=r"handover_feature_scales .*re-export the model"):
+        GraphRunner(path).run(frames_of(X))
