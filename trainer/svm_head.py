@@ -9,8 +9,8 @@ The constant ``exp(-gamma ||sv_m||^2)`` goes into the dual coefficients (when it
 ``FOLD_LIMIT``), else into an Add before the Exp. No cancellation is hidden: ``trainer.numerics``
 bounds exactly this arithmetic (``rbf_decision_bounds``), and ``handover verify`` checks it.
 
-One Gemm gives the one-vs-one decisions and the summed confidences side by side; the votes and
-the scores read their own columns through zero rows, and scikit-learn's ovr confidence term
+One Gemm gives the one-vs-one decisions and the summed confidences side by side; a HardSigmoid
+makes the wins (``WIN_SLOPE``); the votes and the scores read their own columns through zero rows, and scikit-learn's ovr confidence term
 ``conf / (3 (|conf| + 1))`` is ``Softsign(conf) / 3`` (the Gemm's ``alpha``). A linear SVM takes the
 scaler into its weights and intercepts (``linear_constants``): one Gemm.
 """

@@ -1,11 +1,12 @@
 """The paper's hand-designed baseline features (``trainer.baseline.pad_features``: 14 per pad) as
 ONNX nodes, so the baseline ships as one graph like every other family.
 
-Per pad: max, mean and standard deviation of all taxel values (ReduceMax/ReduceMean), the median
-(TopK of the largest half, then the middle one or two), the FFT band shares and log energy of the
-pad's mean-pressure signal (two MatMuls with cosine/sine matrices: a DFT, not an FFT op), the mean
-derivative ((last - first) / (T - 1), the telescoped mean of the differences), and the centre of
-pressure (Where for an empty pad), its net displacement and mean speed.
+Per pad: max and standard deviation of all taxel values (ReduceMax, ReduceL2 about the mean), the
+median (an exact If for a zero median, else TopK of the largest half, then the middle one or two);
+from the pad's mean-pressure signal and centre of pressure over time (``trainer.features.pad_series``,
+shared with the level statistics): the mean, the FFT band shares and log energy (a DFT as a MatMul,
+not an FFT op), the mean derivative ((last - first) / (T - 1), the telescoped mean of the
+differences), the centre's mean, net displacement and mean speed.
 """
 
 from __future__ import annotations

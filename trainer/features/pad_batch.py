@@ -54,8 +54,8 @@ class PadBatch:
         return bool(((self.sizes.max() - self.sizes) % 2 == 0).all())
 
     def nodes(self, g, frames: str) -> str:
-        """``frames`` ``[N, T, C]`` -> ``[N, G, S, T]`` (one Transpose, one Gather of whole time series),
-        built once per graph."""
+        """``frames`` ``[N, T, C]`` -> ``[N, G, S, T]`` (one Transpose, then a Gather of whole time series,
+        or a Reshape where no pad is padded), built once per graph."""
         def build() -> str:
             series = g.op("Transpose", [frames], "series", perm=[0, 2, 1])  # [N, C, T]
             if not self.padded:  # pads of one size in channel order: a view, no copy
