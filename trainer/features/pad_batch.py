@@ -71,6 +71,11 @@ def peak_nodes(g, padded: str) -> str:
     return g.shared(("pad_peak", padded), lambda: g.op("ReduceMax", [padded], "pad_peak", axes=[2, 3], keepdims=0))
 
 
+def magnitude_nodes(g, padded: str) -> str:
+    """``|padded|``, built once per graph (the level statistics and the median's shortcut read it)."""
+    return g.shared(("pad_magnitude", padded), lambda: g.op("Abs", [padded], "magnitude"))
+
+
 def median_nodes(g, batch: PadBatch, frames: str, padded: str, peak: str, n_t: int) -> str:
     """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]`` (``peak``: ``[N, G]``).
 
@@ -87,10 +92,11 @@ def median_nodes(g, batch: PadBatch, frames: str, padded: str, peak: str, n_t: i
                                  g.const("axes", [1, 2], np.int64)], "one_pad")
             parts.append(_middle_nodes(g, pad, int(size) * n_t, 1))
         return g.op("Concat", parts, "median", axis=1)
-    # Sign of an L1 norm (never negative) is 1 for a taxel touched in the window, else 0: one node for
-    # Greater and Cast
-    # (over the padded tensor's last axis: contiguous in memory, several times faster than over frames' time axis)
-    touched = g.op("Sign", [g.op("ReduceL1", [padded], "taxel_l1", axes=[3], keepdims=1)], "touched_f")  # [N, G, S, 1]
+    # Sign of a sum of magnitudes is 1 for a taxel touched in the window, else 0 (one node for Greater
+    # and Cast); the sum over time as a MatMul on the magnitudes the level statistics read anyway
+    # (measured faster than a ReduceL1 of the frames)
+    l1 = g.op("MatMul", [magnitude_nodes(g, padded), g.const("time_ones", np.ones((n_t, 1)))], "taxel_l1")
+    touched = g.op("Sign", [l1], "touched_f")  # [N, G, S, 1]
     # each pad's touched taxels, each weighing 1 / (most + 1/2): the pads may take the shortcut when
     # every weighted count is at most 1 (counts are small integers: float32 rounding cannot cross 1,
     # the nearest counts are 1 / (2 most + 1) away from it); padding slots weigh 0

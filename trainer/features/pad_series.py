@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trainer.features.pad_batch import PadBatch
+from trainer.features.pad_batch import PadBatch, magnitude_nodes
 from trainer.features.signals import CONTACT_FRACTION
 
 HAND_SERIES = ("signal", "cop_x", "cop_y")
@@ -167,7 +167,7 @@ def _stats_series(g, padded: str, shapes, width: int, fullscale: float) -> list[
                                          (y - (rows - 1) / 2.0) / rows]) / (size * fullscale)
         area[p, 0, :size] = 1.0 / size
         inv_size[p] = 1.0 / size
-    mag = g.op("Abs", [padded], "magnitude")  # taxels are non-negative on the wire; |x| for stress input
+    mag = magnitude_nodes(g, padded)  # taxels are non-negative on the wire; |x| for stress input
     moments = g.op("MatMul", [g.const("stats_moments", weights), mag], "stats_moments")  # [N, G, 3, T]
     pressure, mxy = g.name("pressure"), g.name("stats_mxy")
     g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[pressure, mxy], axis=2)
