@@ -12,6 +12,7 @@ import contextlib
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
@@ -21,7 +22,7 @@ from firmware_io.wire import requests as R
 from firmware_io.wire.device_time import TimestampUnwrapper
 from firmware_io.wire.errors import DeviceError, DSAError, DSAErrorCode, FrameDecodeError, ProtocolError
 from firmware_io.wire.frames import decode_frame_payload
-from firmware_io.wire.packets import Packet, PacketId, check_reply
+from firmware_io.wire.packets import Packet, PacketId, check_reply, encode_packet
 from firmware_io.wire.parser import StreamParser
 from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensitivityReply, SensorInfo, ThresholdReply
 
@@ -96,6 +97,8 @@ class DSAClient:
         self._open_deadline: float | None = None
         self._open_bytes = 0
         self._counts = dict.fromkeys(COUNTERS, 0)
+        self._last_frame: Packet | None = None
+        self._rehearsal_parser: StreamParser | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------
     @property
@@ -135,10 +138,24 @@ class DSAClient:
             MatrixInfoReply.decode(self._request(R.query_matrix_info_request(m), 0x0B))
             for m in range(self.sensor.nb_matrices)
         ]
-        self.layout = SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices))
-        self._plausible = FrameCheck(self.layout)
-        self.parser.set_cells(self.layout.n_taxels)
-        return self.layout
+        return self._use_layout(SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices)))
+
+    def _use_layout(self, layout: SensorLayout) -> SensorLayout:
+        self.layout = layout
+        self._plausible = FrameCheck(layout)
+        self.parser.set_cells(layout.n_taxels)
+        self._rehearsal_parser = StreamParser(layout.n_taxels)
+        self._last_frame = None
+        return layout
+
+    @classmethod
+    def streaming(cls, transport: Transport, layout: SensorLayout, **opts: Any) -> DSAClient:
+        """A client on a link that already streams frames of ``layout`` (a benchmark's or a test's
+        feed of frame packets): no handshake, ``read_frame`` works at once, no reconnect."""
+        client = cls(transport, auto_reconnect=False, **opts)
+        client._use_layout(layout)
+        client.streaming = True
+        return client
 
     def start(self, should_stop: Callable[[], bool] | None = None) -> None:
         """Push mode: the controller sends frames as fast as it can (about 30 fps).
@@ -229,19 +246,23 @@ class DSAClient:
         """The next frame, or None after ``timeout`` seconds. ``newest``: drop queued stale frames.
 
         After a transport failure it reconnects (if allowed) and keeps waiting until the deadline.
+        ``timeout <= 0`` polls: one read of what has arrived, never blocking, not counted as a timeout.
         """
         self._require_open()
         deadline = time.monotonic() + timeout
         if newest:
             self._pump_available()
             self._keep_newest()
+        polled = timeout > 0
         while not self._frames:
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                self._counts["timeouts"] += 1
+            if remaining <= 0 and polled:
+                if timeout > 0:
+                    self._counts["timeouts"] += 1
                 return None
+            polled = True
             try:
-                self._pump(min(remaining, self.gap_timeout))
+                self._pump(min(max(remaining, 0.0), self.gap_timeout))
             except TransportError:
                 if not self.auto_reconnect or isinstance(self._source, Transport):
                     raise
@@ -380,12 +401,23 @@ class DSAClient:
             self._counts["frames_implausible"] += 1  # corrupt bits the CRC let through: never classified
             return
         frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
+        self._last_frame = packet
         self._number += 1
         self._counts["frames"] += 1
         if len(self._frames) >= self._max_queued:
             self._frames.popleft()
             self._counts["frames_stale"] += 1
         self._frames.append(frame)
+
+    def rehearse(self) -> None:
+        """Take the last frame's packet through the receive path once more (parse with its CRC,
+        decode, plausibility) on a scratch parser, result discarded: called just before a frame is
+        due (runtime.rehearsal) so that frame is parsed on warm caches. Changes no state or count."""
+        packet, parser = self._last_frame, self._rehearsal_parser
+        if packet is None or parser is None or self._plausible is None:
+            return
+        for again in parser.feed(encode_packet(packet.packet_id, packet.payload)):
+            self._plausible.problem(decode_frame_payload(again.payload, parser.n_cells)[1])
 
     def _keep_newest(self) -> None:
         while len(self._frames) > 1:

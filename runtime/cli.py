@@ -122,7 +122,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
-        print(f"handover: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        import difflib
+
+        close = difflib.get_close_matches(name, COMMANDS, n=1)
+        hint = f"did you mean 'handover {close[0]}'? " if close else ""
+        print(f"handover: unknown command {name!r}; {hint}'handover --help' lists the commands", file=sys.stderr)
         return 2
     module_name, _help, extra = COMMANDS[name]
     if missing := missing_packages(extra):

@@ -14,7 +14,6 @@ the config and keeps the old one if the new one is invalid.
 
 from __future__ import annotations
 
-import gc
 import logging
 import signal
 import time
@@ -32,12 +31,13 @@ from runtime.decision import ContinuousDecision
 from runtime.device_link import CONNECT_BOUND_S, DeviceLink, default_client
 from runtime.frame_rate import FrameClock
 from runtime.health import Health, StatusFile, one_line
+from runtime.heap import GarbageSchedule, release_heap, settle_heap
 from runtime.listeners import DecisionTimings, FrameListener
 from runtime.model_serving import DEFAULT_RATE_HZ, ModelServing
 from runtime.model_watch import ModelWatcher
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore, store_path
-from runtime.rehearsal import REHEARSAL_LEAD_S, Rehearsal
+from runtime.rehearsal import Rehearsal
 from runtime.retry_notes import RetryNotes
 from runtime.ring import RingBuffer
 from runtime.scene import events_problem, scene_problem
@@ -56,16 +56,11 @@ SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 
 
-def settle_heap() -> None:
-    """Collect once, then hide every object alive now (modules, model, config) from the cyclic
-    garbage collector (``gc.freeze``), once start-up is done.
-
-    Why: the collector's older generations re-scan every long-lived object when they run, which
-    pauses whichever frame is being handled: a full collection took 6.6 ms in the latency
-    benchmark's process (1 us after freezing), a middle one 0.24 ms. Those objects live as long
-    as the service; reference counting still frees whatever is dropped later."""
-    gc.collect()
-    gc.freeze()
+def _event(model: Any, frame: Any, index: int, scores: Any, latency_us: float, missed: bool, first: int) -> Event:
+    """The decision line of class ``index`` for the window ending at ``frame`` (its first frame ``first``)."""
+    meta = model.meta
+    return Event(time.time(), meta.classes[index], dict(zip(meta.classes, scores[0].tolist(), strict=True)),
+                 latency_us, model.model_id, first, frame.number, int(frame.timestamp_ms), missed)
 
 
 class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
@@ -141,8 +136,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         """The scheduling to restore, while the thread is raised."""
         self._rt_logged: int | None = None
         """The ``realtime_priority`` whose outcome was logged (one line per setting)."""
+        self.garbage = GarbageSchedule()
+        """Collects from the loop between windows; automatic collection is off once running (runtime.heap)."""
         self.rehearsal = Rehearsal()
-        """Runs the model once just before a decision is due, so it decides on warm caches."""
+        """Keeps the hot path warm for a due frame: the model runs once just before it, then the
+        device is polled instead of slept on (runtime.rehearsal)."""
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
@@ -158,6 +156,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         signal.signal(signal.SIGTERM, self.request_stop)
         signal.signal(signal.SIGINT, self.request_stop)
         signal.signal(signal.SIGHUP, self.request_reload)
+
+    @property
+    def window_open(self) -> bool:
+        """Whether a trigger has fired and its window's last frame is still to come."""
+        return bool(self._pending)
 
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
@@ -185,9 +188,20 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             if number == due and ring.count >= self.model.meta.T:
                 self._classify(frame)
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
-            model = self.model  # warm it up just before the frame that completes the window is due
-            self.rehearsal.schedule(partial(model.run_trusted, ring.window(model.meta.T)),
-                                    frame.received + self.period_s - REHEARSAL_LEAD_S)
+            model = self.model  # keep warm for the frame that completes the window, due one period on
+            self.rehearsal.expect(frame.received + self.period_s, partial(self._rehearse, model, ring.window(model.meta.T)))
+
+    def _rehearse(self, model: Any, window: Any) -> None:
+        """The due frame's path once ahead of it, nothing sent or counted: the model, the output
+        check, an event built and encoded (not sent), then the client's receive path (parse, CRC,
+        decode, plausibility), the code that frame meets first."""
+        labels, scores = model.run_trusted(window)
+        frame = self.latest_frame
+        if output_problem(labels, scores, model.meta.n_classes) is None and frame is not None:
+            _event(model, frame, int(labels[0]), scores, 0.0, False, 0).to_json().encode()
+        rehearse = getattr(self.client, "rehearse", None)
+        if rehearse is not None:
+            rehearse()
 
     def _classify(self, frame: Any) -> None:
         """Run the model on the window ending at ``frame``, check, report; each stage stamped."""
@@ -222,9 +236,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             index = self.decision.update(index, scores[0])
         cls = meta.classes[index] if index >= 0 else None
         if cls is not None and cls in self.cfg.scene.events:
-            event = Event(time.time(), cls, dict(zip(meta.classes, scores[0].tolist(), strict=True)), latency_us,
-                          model.model_id, self.frame_clock.window_first(frame.number, meta.T), frame.number,
-                          int(frame.timestamp_ms), missed)
+            event = _event(model, frame, index, scores, latency_us, missed,
+                           self.frame_clock.window_first(frame.number, meta.T))
             stamps.built = clock()
             encoded = self.sinks.encode(event)
             stamps.serialised = clock()
@@ -246,6 +259,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
 
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
+        self.garbage.collect(now, self.window_open)
         self.notifier.watchdog(now)
         self._swap_and_report(now)
         self._link_held()
@@ -295,7 +309,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                         time.sleep(min(READ_TIMEOUT_S, self._next_connect - now))
                     continue
                 try:
-                    frame = self.client.read_frame(timeout=READ_TIMEOUT_S)
+                    frame = self.rehearsal.read(self.client.read_frame, READ_TIMEOUT_S)
                 except Exception as exc:  # unplug, closed link, end of a replay: reconnect
                     self._fault(one_line(exc))
                     continue
@@ -316,6 +330,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         finally:
             self.shutdown()
             self.lower_priority()
+            release_heap()
         return 2 if self.fatal else 0
 
     def raise_priority(self) -> None:
@@ -348,7 +363,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         if self.watcher is not None:
             self.watcher.stop(timeout=0.5)
         self.stop_control()
-        self.rehearsal.close()
+        self.rehearsal.cancel()
         self._close_client(stop_timeout=SHUTDOWN_STOP_S)
         self.health.device_state = "stopped" if not self.fatal else "failed"
         if self.fatal:

@@ -400,6 +400,10 @@ def load_model(
         raise ModelUnreadableError(f"{where}: not an ONNX model or truncated ({exc})") from exc
     if wire.external_data:
         raise ModelContractError(f"{where}: references external data; a model must be one self-contained file")
+    if wire.nan_initializers:
+        names = ", ".join(wire.nan_initializers[:3]) + (" ..." if len(wire.nan_initializers) > 3 else "")
+        raise ModelContractError(f"{where}: constant(s) {names} hold NaN (a damaged file or a model fitted on "
+                                 "NaN); export it again from its .joblib or train it again")
     foreign = sorted((wire.opset_domains | wire.node_domains) - ALLOWED_DOMAINS)
     if foreign:
         raise ModelContractError(f"{where}: uses non-standard operator domain(s) {foreign}; allowed: ai.onnx, ai.onnx.ml")

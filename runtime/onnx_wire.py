@@ -9,7 +9,8 @@ Fields used (onnx.proto3 numbers, onnx 1.23): ModelProto.graph = 7, .opset_impor
 .functions = 25; GraphProto.node = 1, .initializer = 5, .sparse_initializer = 15;
 NodeProto.attribute = 5, .domain = 7; AttributeProto.t = 5, .g = 6, .tensors = 10,
 .graphs = 11, .sparse_tensor = 22, .sparse_tensors = 23; SparseTensorProto.values = 1,
-.indices = 2; TensorProto.dims = 1, .name = 8, .external_data = 13, .data_location = 14;
+.indices = 2; TensorProto.dims = 1, .data_type = 2, .float_data = 4, .name = 8, .raw_data = 9,
+.double_data = 10, .external_data = 13, .data_location = 14;
 OperatorSetIdProto.domain = 1; FunctionProto.input = 4 (strings, skipped), .node = 7,
 .opset_import = 9, .domain = 10.
 """
@@ -34,6 +35,9 @@ class WireSummary:
     external_data: bool = False
     initializer_dims: dict[str, tuple[int, ...]] = field(default_factory=dict)
     """Shape of every initializer of the main graph, by name (what the contract checks K and W on)."""
+    nan_initializers: list[str] = field(default_factory=list)
+    """Float constants (any graph, subgraphs included) holding a NaN: never a deliberate value
+    (infinities can be: the padded median's offsets are +-inf), so a damaged or badly fitted model."""
 
 
 def _varint(buf: bytes, pos: int) -> tuple[int, int]:
@@ -84,6 +88,27 @@ def _sparse_is_external(buf: bytes) -> bool:
     return any(t == 2 and number in (1, 2) and _tensor_is_external(v) for number, t, v in _fields(buf))
 
 
+_FLOAT_TYPES = {1: "<f4", 11: "<f8"}
+"""TensorProto.data_type (2) -> numpy dtype of its raw_data (9) / packed float_data (4) or double_data (10)."""
+
+
+def _has_nan(buf: bytes) -> bool:
+    """Whether a float or double TensorProto's values hold a NaN (float16 and others: not checked)."""
+    import numpy as np
+
+    data_type, chunks = 0, []
+    for number, wtype, value in _fields(buf):
+        if number == 2 and wtype == 0:
+            data_type = value
+        elif (wtype == 2 and number in (4, 9, 10)) or (wtype, number) in ((5, 4), (1, 10)):  # packed or one value
+            chunks.append(value)
+    dtype = _FLOAT_TYPES.get(data_type)
+    if dtype is None:
+        return False
+    size = np.dtype(dtype).itemsize
+    return any(len(c) % size == 0 and np.isnan(np.frombuffer(c, dtype=dtype)).any() for c in chunks)
+
+
 def _tensor_name_and_dims(buf: bytes) -> tuple[str, tuple[int, ...]]:
     name, dims = "", []
     for number, wtype, value in _fields(buf):
@@ -108,9 +133,11 @@ def _walk_graph(buf: bytes, out: WireSummary, main: bool = False) -> None:
         elif number == 5:
             if _tensor_is_external(value):
                 out.external_data = True
+            name, dims = _tensor_name_and_dims(value)
             if main:
-                name, dims = _tensor_name_and_dims(value)
                 out.initializer_dims[name] = dims
+            if _has_nan(value):
+                out.nan_initializers.append(name)
         elif number == 15 and _sparse_is_external(value):
             out.external_data = True
 

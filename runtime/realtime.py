@@ -12,7 +12,7 @@ moves further from the back-to-back one. Tails under other work matter more to a
 of a 31 ms period; set ``realtime_priority = 0`` on a PC with nothing else to do. Only the thread that calls :func:`enter_realtime` is raised (the model
 watcher, which loads models, and the control socket keep normal scheduling, so loading a model
 cannot hog a core), and with SCHED_RESET_ON_FORK nothing it starts afterwards inherits the
-policy: neither threads (the rehearsal, sinks a reload rebuilds) nor child processes, which at
+policy: neither threads (sinks a reload rebuilds) nor child processes, which at
 the same priority would never yield the core back (a busy child of a real-time thread starves it).
 
 The daemon raises its thread with a link's first valid frame and lowers it when the link fails,

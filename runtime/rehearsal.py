@@ -1,94 +1,94 @@
-"""A rehearsal of the model just before the frame that completes a window is due, so the decision
-runs on warm caches.
+"""Keep the hot path warm for the frame that completes a window: rehearse the model just before it
+is due, then poll the device instead of sleeping until it arrives.
 
-Why: at 32 Hz the daemon idles 31 ms between frames; other processes and the CPU's sleep states
-evict the model's code and data meanwhile, and a decision after that idle took about twice as
-long as one back to back (results/latency.md, "paced"). When the trigger has fixed the due frame,
-its arrival is predictable (one sample period after the frame before it); a background thread
-runs the model once on the current window ``lead_s`` before that, result discarded. Cost: one
-extra inference per decision (not per frame), in a thread that otherwise sleeps.
+Why: at 32 Hz the hot thread idles 31 ms between frames; meanwhile other processes and the idle
+core itself (on a virtual machine a halted vCPU leaves the host's caches to others) evict the
+model's code and data, and a decision after that idle took about three times as long as one
+back to back. Measured here (the default graph, all pads, alone in a process; medians): back to
+back 57 us; after a 31 ms sleep 158 us; a rehearsal 2 ms before, then sleeping until the frame,
+104 us; the same rehearsal followed by polling (the core never idles) 79 us. Warming the caches
+is not enough when the core then sleeps; polling alone is not enough when the caches are cold.
 
-onnxruntime releases the GIL while it runs, so the main thread is not held up if the frame
-arrives during the rehearsal; a session may be run from two threads at once. The window is a
-view of the ring the main thread keeps writing: a rehearsal may see a frame half-written, which
-does not matter as its answer is thrown away.
+Policy: when the trigger has fixed the due frame, its arrival is predictable (one sample period
+after the frame before it, ``expect``). The hot thread reads as usual until ``LEAD_S`` before
+that, runs the model once on the current window (answer discarded), then polls the device
+without blocking until the frame arrives or ``GRACE_S`` after its expected arrival, when it goes
+back to blocking reads. Cost: at most ``LEAD_S + GRACE_S`` of one core per decision, nothing
+per frame and nothing while no window is open. Everything runs in the hot thread: no thread to
+start, to race with the ring, or to join at shutdown.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
-REHEARSAL_LEAD_S = 0.002
-"""How long before the due frame's expected arrival the rehearsal runs: more than the arrival
-jitter of a 32 Hz stream, short enough that the caches it fills are still warm."""
-IDLE_S = 5.0
-"""A thread with nothing scheduled for this long ends (the next schedule starts another): a
-daemon that is dropped without ``shutdown`` (replays, benchmarks, tests make thousands) leaves
-no thread behind; it is also the longest single wait."""
+LEAD_S = 0.002
+"""How long before the due frame's expected arrival the rehearsal runs and polling starts: more
+than one cold decision plus the arrival jitter of a 32 Hz stream, short enough that polling costs
+about 6 % of one core while deciding."""
+GRACE_S = 0.002
+"""How long after the expected arrival polling goes on before the thread blocks again (a late frame)."""
 
-CLOSE_WAIT_S = 0.2
-"""Longest a shutdown waits for a running rehearsal (a decision takes about a millisecond; SIGTERM
-must end the process within a second)."""
+Item = TypeVar("Item")
 
 
 class Rehearsal:
-    """``schedule(run, at)``: call ``run()`` at ``time.perf_counter() == at`` in a background thread
-    (a newer schedule replaces an older one; ``cancel()`` drops it). ``runs``: rehearsals done."""
+    """``expect(at, run)``: the frame that completes a window should arrive at ``perf_counter() == at``;
+    ``read(read_fn, timeout)`` then reads the way this module's docstring says. ``cancel()`` drops the
+    expectation (a reconnect, a model swap). ``runs``: rehearsals done; ``polled_s``: time spent polling."""
 
-    def __init__(self) -> None:
-        self._wake = threading.Condition()
-        self._job: tuple[Callable[[], Any], float] | None = None
-        self._thread: threading.Thread | None = None
-        self._closing = False
+    def __init__(self, lead_s: float = LEAD_S, grace_s: float = GRACE_S) -> None:
+        self.lead_s = lead_s
+        self.grace_s = grace_s
+        self._due: float | None = None
+        self._run: Callable[[], Any] | None = None
         self.runs = 0
+        self.polled_s = 0.0
 
-    def schedule(self, run: Callable[[], Any], at: float) -> None:
-        with self._wake:
-            self._job = (run, at)
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._loop, name="handover-rehearsal", daemon=True)
-                self._thread.start()
-            self._wake.notify()
+    @property
+    def due(self) -> float | None:
+        """When the expected frame should arrive (``perf_counter`` seconds), or None."""
+        return self._due
+
+    def expect(self, at: float, run: Callable[[], Any]) -> None:
+        self._due, self._run = at, run
 
     def cancel(self) -> None:
-        if self._job is not None:
-            with self._wake:
-                self._job = None
+        self._due = self._run = None
 
-    def close(self, timeout: float = CLOSE_WAIT_S) -> None:
-        """Drop any schedule, let the thread end and wait up to ``timeout`` for a rehearsal still
-        running (the daemon's shutdown): a process that exits while onnxruntime runs a session in
-        another thread aborts ("terminate called without an active exception", SIGABRT)."""
-        with self._wake:
-            self._job = None
-            thread = self._thread
-            self._closing = thread is not None
-            self._wake.notify()
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(timeout)
+    def read(self, read: Callable[[float], Item | None], timeout: float) -> Item | None:
+        """``read(timeout)`` (the next item, or None after ``timeout`` s; 0 polls without blocking),
+        warm around an expected frame. Returns what ``read`` returns; None may come before ``timeout``."""
+        due = self._due
+        if due is None:
+            return read(timeout)
+        clock = time.perf_counter
+        now = clock()
+        start = due - self.lead_s
+        if now < start:
+            item = read(min(timeout, start - now))
+            if item is not None or clock() < start:
+                return item
+        self._rehearse()
+        began, stop = clock(), due + self.grace_s
+        try:
+            while clock() < stop:
+                item = read(0.0)
+                if item is not None:
+                    return item
+        finally:
+            self.polled_s += clock() - began
+        self.cancel()  # late: block as usual until it comes
+        return None
 
-    def _loop(self) -> None:
-        while True:
-            with self._wake:
-                idle_until = time.perf_counter() + IDLE_S
-                while self._job is None:
-                    left = idle_until - time.perf_counter()
-                    if self._closing or left <= 0:
-                        self._thread, self._closing = None, False
-                        return
-                    self._wake.wait(left)
-                run, at = self._job
-                delay = at - time.perf_counter()
-                if delay > 0:
-                    self._wake.wait(min(delay, IDLE_S))  # woken early by a newer job or a cancel: look again
-                    if self._job is None or self._job[1] != at or time.perf_counter() < at:
-                        continue
-                self._job = None
-            try:
-                run()
-                self.runs += 1
-            except Exception:  # a failing model is the decision's business, not the rehearsal's
-                pass
+    def _rehearse(self) -> None:
+        run, self._run = self._run, None
+        if run is None:
+            return
+        try:
+            run()
+            self.runs += 1
+        except Exception:  # a failing model is the decision's business, not the rehearsal's
+            pass

@@ -4,7 +4,9 @@ A refused or unplugged device is retried every few seconds for as long as it tak
 attempt (six a minute, forever) would bury everything else in the journal. So the first failure is
 logged, the same failure (the same words: counts and durations in it may differ, e.g. how many
 bytes of nonsense arrived) again only once ``REPEAT_NOTES_S`` have passed since it began (1, 10 and
-60 minutes, then every hour), a different reason at once, and the connection that ends the outage
+60 minutes, then every hour), a reason not yet seen in this outage at once (a device that
+alternates between two ways of failing, e.g. a port that accepts and then closes or resets, is
+one outage with two reasons, not a line per attempt), and the connection that ends the outage
 says how long it lasted. The health file is told on every attempt (by the caller), not through here.
 """
 
@@ -29,6 +31,7 @@ class RetryNotes:
         """Forget the outage (a new device URL starts afresh)."""
         self.attempts = 0
         self.reason: str | None = None
+        self._kinds: set[str] = set()
         self._outage_start = 0.0
         self._reason_start = 0.0
         self._notes = 0
@@ -40,7 +43,9 @@ class RetryNotes:
         if self.attempts == 0:
             self._outage_start = now
         self.attempts += 1
-        if self.reason is None or _kind(reason) != _kind(self.reason):
+        kind = _kind(reason)
+        if kind not in self._kinds:
+            self._kinds.add(kind)
             self.reason, self._reason_start, self._notes = reason, now, 0
             self._next_note = now + REPEAT_NOTES_S[0]
             return f"{reason}; retrying in {retry_in_s:.1f} s"

@@ -17,7 +17,9 @@ def test_help_lists_commands(capsys):
 def test_unknown_command_is_one_clear_error(capsys):
     assert cli.main(["no-such-command"]) == 2
     err = capsys.readouterr().err
-    assert "unknown command 'no-such-command'" in err
+    assert "unknown command 'no-such-command'" in err and len(err.strip().splitlines()) == 1
+    assert cli.main(["tarin"]) == 2
+    assert "did you mean 'handover train'?" in capsys.readouterr().err
 
 
 def test_a_wrong_option_is_one_line_that_points_at_help(capsys):

@@ -327,6 +327,55 @@ def test_partial_frame_survives_a_short_read_timeout() -> None:
     np.testing.assert_array_equal(f.values, np.arange(24))
 
 
+def test_a_zero_timeout_polls_once_without_blocking_or_counting_a_timeout() -> None:
+    """``read_frame(0)``: what the daemon calls while it polls for a due frame (runtime.rehearsal)."""
+    frame = encode_frame(np.arange(24, dtype=np.uint16), 7, rle=False)
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(dev, **QUICK)
+    client.open()
+    before = client.stats["timeouts"]
+    started = time.perf_counter()
+    assert client.read_frame(0) is None and time.perf_counter() - started < 0.05
+    dev.out += frame[:20]
+    assert client.read_frame(0) is None  # half a frame waits in the parser
+    dev.out += frame[20:]
+    f = client.read_frame(0)
+    assert f is not None and f.timestamp_ms == 7 and client.stats["timeouts"] == before
+
+
+def test_rehearse_takes_the_last_frame_through_the_receive_path_and_changes_nothing() -> None:
+    """What the daemon runs just before a due frame (runtime.rehearsal): the parser, CRC, decoder and
+    plausibility check on a copy of the last frame's packet; no frame, count or parser state changes."""
+    from firmware_io.transports.base import Transport
+
+    class Packets(Transport):
+        def __init__(self, chunks: list[bytes]) -> None:
+            self.chunks = chunks
+
+        def read(self, max_bytes: int = 0, timeout: float = 0.1) -> bytes:
+            return self.chunks.pop(0) if self.chunks else b""
+
+        def write(self, data: bytes) -> None:
+            pass
+
+        def close(self) -> None:
+            pass
+
+    layout = SensorLayout.sdh2()
+    values = np.zeros(layout.n_taxels, dtype=np.uint16)
+    values[40:46] = 900
+    client = DSAClient.streaming(Packets([encode_frame(values, 5, rle=True)] * 2), layout)
+    client.rehearse()  # nothing received yet: nothing to rehearse
+    first = client.read_frame(0)
+    assert first is not None and first.timestamp_ms == 5
+    stats, parsed = client.stats, client.parser.stats.packets
+    client.rehearse()
+    assert client.stats == stats and client.parser.stats.packets == parsed
+    assert client._rehearsal_parser.stats.packets == 1 and client._rehearsal_parser.stats.crc_errors == 0
+    second = client.read_frame(0)
+    assert second.number == 1 and np.array_equal(second.values, values)
+
+
 def test_close_then_open_again_on_the_same_client() -> None:
     """What the daemon does after a fault: close, later open() the same client again."""
     client = DSAClient(FAST)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -190,10 +192,12 @@ def test_stall_and_disconnect(rec):
 
 
 @pytest.mark.parametrize(
-    "text", ["crc=2", "bogus=1", "stall=0.1:0", "disconnect=0", "garbage=x"]
+    "text, said", [("crc=2", "a probability from 0 to 1, e.g. crc=0.02"), ("bogus=1", "known: crc"),
+                   ("stall=0.1:0", "0 < SECONDS <= 60"), ("disconnect=0", "at least 1"),
+                   ("garbage=x", "a probability from 0 to 1")]
 )
-def test_fault_spec_errors(text):
-    with pytest.raises(FaultSpecError):
+def test_fault_spec_errors_say_what_to_give(text, said):
+    with pytest.raises(FaultSpecError, match=re.escape(said)):
         FaultPlan.parse(text)
 
 

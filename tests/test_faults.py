@@ -411,6 +411,26 @@ def test_a_failure_that_counts_differently_each_time_is_the_same_failure():
     assert notes.failed("bad reply to command 0x01 (CRC 0x0C3A)", 10.0) is None  # another checksum, same failure
 
 
+def test_a_device_that_alternates_two_ways_of_failing_is_one_outage():
+    """A port that accepts and then closes, or resets, by turns: each reason once, then the 1/10/60 min
+    rhythm (the attacker saw 7 warnings in 80 s)."""
+    from runtime.retry_notes import RetryNotes
+
+    clock = FakeClock()
+    notes = RetryNotes(clock=clock)
+    reasons = ("tcp://h:1: the device closed the connection at once", "tcp://h:1: connection lost: "
+               "Connection reset by peer at once")
+    lines = []
+    for n in range(13):
+        lines.append(notes.failed(reasons[n % 2], 5.0))
+        clock.now += 5.0
+    assert [line is not None for line in lines] == [True, True] + [False] * 11
+    # a minute after the latest new reason began
+    assert notes.failed(reasons[1], 5.0).startswith("still unreachable after 14 attempts in 65 s")
+    notes.connected()
+    assert notes.failed(reasons[1], 5.0).startswith("tcp://h:1: connection lost")  # a new outage starts afresh
+
+
 def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_attempt(models, caplog):
     """Six identical warnings a minute forever buried the journal: now the first failure, the same one
     again 1, 10 and 60 minutes later (then hourly), a new reason at once, and one line when it is back."""

@@ -42,11 +42,16 @@ def test_streaming_daemon_never_imports_training_packages(tmp_path):
         f'[model]\nfolder = "{models}"\n'
         '[scene]\npads = "distal"\n'
     )
+    import os
+
+    home = tmp_path / "home"  # onnxruntime's telemetry would keep its store here
+    env = {k: v for k, v in os.environ.items() if k != "ORT_DISABLE_TELEMETRY"}
     proc = subprocess.run(
         [sys.executable, "-c", _DRIVER, str(cfg), "4", ",".join(HEAVY)],
-        cwd=ROOT, capture_output=True, text=True, timeout=60,
+        cwd=ROOT, capture_output=True, text=True, timeout=60, env={**env, "HOME": str(home)},
     )
     assert proc.returncode == 0, proc.stderr
+    assert not (home / ".cache" / "Microsoft").exists()  # no device id, no telemetry store (runtime/__init__.py)
     heavy_line = [line for line in proc.stderr.splitlines() if line.startswith("HEAVY")]
     assert heavy_line == ["HEAVY "], proc.stderr
     health = json.loads(status.read_text())

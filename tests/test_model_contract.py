@@ -291,3 +291,24 @@ def test_inspect_card_of_odd_optional_metadata_is_a_card_not_a_traceback(proto, 
     path = _save(_with_meta(proto, meta), tmp_path)
     assert handover(["inspect", str(path)]) == 0
     assert "detects:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("stored", ["raw_data", "float_data"])
+def test_a_nan_constant_is_refused_in_one_line_and_an_infinity_is_not_a_wire_problem(proto, tmp_path, stored):
+    """One NaN weight passed every check before (the attacker's find); +-inf can be deliberate
+    (the padded median's offsets), so only NaN is refused at load."""
+    from onnx import numpy_helper
+
+    target = next(i for i in proto.graph.initializer if i.data_type == onnx.TensorProto.FLOAT and np.prod(i.dims) > 1)
+    values = numpy_helper.to_array(target).copy()
+    values.flat[len(values.flat) // 2] = np.inf
+    target.CopyFrom(numpy_helper.from_array(values, target.name))
+    assert summarize(proto.SerializeToString()).nan_initializers == []
+    values.flat[0] = np.nan
+    replaced = numpy_helper.from_array(values, target.name)
+    if stored == "float_data":
+        replaced.ClearField("raw_data")
+        replaced.float_data.extend(values.ravel().tolist())
+    target.CopyFrom(replaced)
+    assert summarize(proto.SerializeToString()).nan_initializers == [target.name]
+    _refused(_save(proto, tmp_path), f"constant\\(s\\) {target.name} hold NaN.*export it again")

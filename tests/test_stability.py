@@ -273,3 +273,16 @@ def test_verify_cli_fails_on_a_graph_with_swapped_codewords(tmp_path, capsys):
     excused = [d for d in report["disagreements"] if d["near_tie"]]
     assert all(d["source"] == "stress:between_codewords" and "beyond the bound" not in d["reason"] for d in excused)
     assert len(excused) < report["unexplained_disagreements"]
+
+
+def test_a_reference_fitted_on_other_windows_is_one_line_that_says_what_to_give(tmp_path):
+    """The attacker's case: another model's .joblib gave a bare numpy shape error."""
+    from trainer.verify import VerifyError, load_reference
+
+    path = _exported_with_reference(tmp_path)
+    meta = load_model(path).meta
+    T, C = meta.T, meta.n_channels
+    assert load_reference(path, {}, tmp_path / "model.joblib", (T, C)) is not None
+    with pytest.raises(VerifyError, match=rf"fitted on windows of {T * C} values, this graph takes {T} frames x "
+                                          rf"{C + 1} taxels .*give the .joblib this graph was exported from"):
+        load_reference(path, {}, tmp_path / "model.joblib", (T, C + 1))

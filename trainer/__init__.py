@@ -1,5 +1,7 @@
 """Offline training: dataset assembly, Bag-of-Words + SVM, evaluation, report, ONNX export."""
 
+import runtime  # noqa: F401  (before any onnxruntime import: it turns onnxruntime's telemetry off)
+
 
 def default_classifier(pad_sizes, pad_shapes=None, random_state: int = 0, fullscale: float = 4095.0):
     """The product's default estimator, unfitted (see ``trainer.defaults``)."""

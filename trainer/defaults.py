@@ -69,7 +69,8 @@ def default_classifier(pad_sizes: Sequence[int], pad_shapes: Sequence[tuple[int,
     """The unfitted default estimator (scikit-learn API) for cases ``(n_cases, n_channels, n_timepoints)``
     whose channels are the pads ``pad_sizes`` in wire order (e.g. ``[78, 78, 78]``: the three distal
     pads), with the features and settings ``handover train`` exports. ``pad_shapes`` (rows, cols)
-    default to SDH-2 pads, 6 taxels wide."""
+    default to SDH-2 pads, 6 taxels wide. Any ``n_timepoints`` of at least 2 fits (the product uses
+    ``DEFAULT_MODEL["T"]``); once fitted, the model takes cases of that same length only."""
     from trainer.feature_svc import FeatureSVC
 
     return FeatureSVC(families=DEFAULT_MODEL["families"], pad_sizes=tuple(int(s) for s in pad_sizes),

@@ -97,6 +97,11 @@ def main(args: argparse.Namespace) -> int:
         options.check()
     except OptionsError as exc:
         return fail(COMMAND, str(exc))
+    from firmware_io.commands.out_folder import out_folder_problem
+
+    problem = out_folder_problem(options.out)  # before minutes of training, not after
+    if problem:
+        return fail(COMMAND, problem)
     return run(options)
 
 

@@ -210,8 +210,10 @@ def reference_path_for(onnx_path: Path, meta_extra: dict, explicit: str | Path |
     return onnx_path.with_name(name) if name else onnx_path.with_suffix(".joblib")
 
 
-def load_reference(onnx_path: Path, meta_extra: dict, explicit: str | Path | None = None):
-    """The fitted scikit-learn model behind a graph; refuses a file whose sha256 does not match."""
+def load_reference(onnx_path: Path, meta_extra: dict, explicit: str | Path | None = None,
+                   frames_shape: tuple[int, int] | None = None):
+    """The fitted scikit-learn model behind a graph; refuses a file whose sha256 does not match, or
+    (``frames_shape``: the graph's ``(T, C)``) one fitted on windows of another size."""
     from trainer.export_cli import load_trained
 
     path = reference_path_for(onnx_path, meta_extra, explicit)
@@ -221,6 +223,11 @@ def load_reference(onnx_path: Path, meta_extra: dict, explicit: str | Path | Non
     if expected and hashlib.sha256(path.read_bytes()).hexdigest() != expected:
         raise VerifyError(f"reference model {path} is not the one this graph was exported from (sha256 differs)")
     model, _ = load_trained(path)
+    fitted = getattr(model, "n_features_in_", None)
+    if frames_shape is not None and fitted is not None and fitted != frames_shape[0] * frames_shape[1]:
+        raise VerifyError(f"reference model {path} was fitted on windows of {fitted} values, this graph takes "
+                          f"{frames_shape[0]} frames x {frames_shape[1]} taxels = {frames_shape[0] * frames_shape[1]}: "
+                          "give the .joblib this graph was exported from (--reference)")
     return model
 
 

@@ -137,7 +137,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         loaded = load_model(path)
         meta = loaded.meta
-        model = load_reference(path, meta.extra, args.reference)
+        model = load_reference(path, meta.extra, args.reference, (meta.T, meta.n_channels))
         fold = bool(meta.extra.get("graph", {}).get("fold_derivative", False))
         runner = GraphRunner(path)
         report = VerifyReport()

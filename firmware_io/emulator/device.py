@@ -110,12 +110,18 @@ class FaultPlan:
             except ValueError as exc:
                 if isinstance(exc, FaultSpecError):
                     raise
-                raise FaultSpecError(f"fault {item!r}: bad value") from None
+                raise FaultSpecError(f"fault {item!r}: bad value ({_FAULT_VALUES.get(key, 'see --help')})") from None
         return plan
 
     @property
     def any(self) -> bool:
         return bool(self.crc or self.garbage or self.drop or self.stall or self.disconnect_after or self.boot_query)
+
+
+_FAULT_VALUES = {"crc": "a probability from 0 to 1, e.g. crc=0.02", "garbage": "a probability from 0 to 1",
+                 "drop": "a probability from 0 to 1", "disconnect": "a whole number of frames, at least 1",
+                 "stall": "P:SECONDS, a probability from 0 to 1 and 0 < SECONDS <= 60, e.g. stall=0.01:2"}
+"""What each fault's value must be, for the line that refuses a bad one."""
 
 
 def _probability(text: str) -> float:

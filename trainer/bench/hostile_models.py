@@ -62,12 +62,14 @@ def _model(kind: str, n_nodes: int = 0, bias_class: int = 0, tag: str = "", peak
         helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
         helper.make_tensor("hundred", TensorProto.INT64, [], [100]),
         helper.make_tensor("nolabel", TensorProto.INT64, [], [0]),
-        helper.make_tensor("bad", TensorProto.FLOAT, [], [float("inf") if kind == "inf_scores" else float("nan")]),
+        helper.make_tensor("inf", TensorProto.FLOAT, [], [float("inf")]),
         helper.make_tensor("tiny", TensorProto.FLOAT, [], [1e-30]),
         helper.make_tensor("magic", TensorProto.FLOAT, [], [0.0 if peak is None else float(peak)]),
     ]
     scores = "raw"
     if kind in ("nan_scores", "inf_scores"):
+        # NaN made at run time (inf - inf): a NaN constant is refused when the file is loaded
+        nodes.append(helper.make_node("Sub" if kind == "nan_scores" else "Add", ["inf", "inf"], ["bad"]))
         nodes.append(helper.make_node("Where", ["pressed", "bad", "raw"], ["poisoned"]))
         scores = "poisoned"
     for i in range(n_nodes):  # kind == "slow": a chain the optimiser cannot fold

@@ -1,6 +1,6 @@
 """Latency by stage (frame bytes to the sink's send) and end to end (emulator -> daemon -> UDP sink).
 
-Stages: ``latency_stages`` drives the real parser, decoder, plausibility check and
+Stages: ``latency_stages`` drives the real client (parser, decoder, plausibility check) and
 ``Daemon.handle_frame`` in this process, back to back and paced at 32 Hz, quiet and (``--load``)
 with two busy-loop processes; the daemon's own stamps (``runtime.listeners``) split each
 decision. The graph is compared in the same run with a numpy-only implementation of the same
@@ -27,7 +27,7 @@ import numpy as np
 
 from runtime import realtime
 from runtime.realtime import DEFAULT_PRIORITY
-from runtime.rehearsal import REHEARSAL_LEAD_S
+from runtime.rehearsal import LEAD_S
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
 from trainer.bench.common import (
@@ -219,8 +219,7 @@ def _row(name: str, s: dict) -> str:
 HEAD = ["| what | median (us) | p99 (us) | p99.9 (us) | max (us) | n | deadline / figure (p50 / p99 / p99.9 / max) |",
         "|---|---|---|---|---|---|---|"]
 STAGE_TITLES = {
-    "parse_crc_decode": "parse + CRC + decode (StreamParser.feed, decode_frame_payload)",
-    "plausibility": "plausibility checks (FrameCheck) + Frame",
+    "receive": "frame bytes -> Frame: parse + CRC + decode + plausibility (DSAClient.read_frame)",
     "ring_trigger": "handle_frame up to the model: ring push + trigger",
     "window": "model input window from the ring",
     "inference": "onnxruntime run",
@@ -245,7 +244,7 @@ def _targets_lines(res: dict) -> list[str]:
 
 
 RHYTHMS = {"solo": "alone, back to back", "back_to_back": "interleaved, back to back",
-           "paced_32hz": "interleaved, paced 32 Hz", "paced_rehearsed": "paced 32 Hz, rehearsed",
+           "paced_32hz": "interleaved, paced 32 Hz", "paced_rehearsed": "paced 32 Hz, kept warm",
            "back_to_back_load": "interleaved, back to back, under load"}
 """Rows of the implementation table: ``solo`` gives the absolute figures (the headline), the
 interleaved ones the ratios."""
@@ -280,10 +279,10 @@ def _implementation_lines(res: dict) -> list[str]:
               "*ratios* hold where absolute figures do not (`numpy_over_onnx_p50`, `sklearn_over_onnx_p50`); but "
               "every call then runs in caches the other two just filled, which inflates a call of a few tens of "
               "microseconds by a factor of two to three: those medians are not what a decision costs.", "",
-              f"Paced rehearsed: paced at 32 Hz, with the same run done {stages.REHEARSAL_LEAD_S * 1e3:g} ms before "
-              "the timed one (the process busy in between): how much of the paced cliff is caches other processes "
-              "filled during the 31 ms idle. The daemon does the like for real (`runtime.rehearsal`: one run in a "
-              f"thread {REHEARSAL_LEAD_S * 1e3:g} ms before a due frame), which the stage tables above include."]
+              f"Paced, kept warm: paced at 32 Hz and waited for as the daemon waits for a due frame "
+              f"(`runtime.rehearsal`: blocked until {LEAD_S * 1e3:g} ms before it, then one rehearsal run and polling "
+              "instead of sleeping), as the stage tables above do. Against the interleaved paced row: how much of the "
+              "paced cliff is caches lost during the 31 ms idle."]
     return lines
 
 

@@ -1,8 +1,9 @@
 """Where each microsecond of a decision goes: a stage table from frame bytes to the sink's send.
 
 The real parts in this process: each frame of a dense synthetic stream is fed as its RLE packet
-to ``StreamParser`` (CRC), decoded, checked for plausibility (``FrameCheck``) and handed to the
-real ``Daemon.handle_frame`` serving the model, whose events go to a UDP socket; a
+to the real client (``DSAClient``: parse with CRC, decode, plausibility), read the way the
+daemon's loop reads it and handed to the real ``Daemon.handle_frame`` serving the model, whose
+events go to a UDP socket; a
 ``runtime.listeners`` listener collects the daemon's own stamps of each decision (window,
 inference, output check, event build, serialisation, sink send). Nothing is copied or swapped.
 
@@ -10,7 +11,8 @@ Two rhythms:
 
 - back to back: frames fed as fast as the hot path takes them (warm caches);
 - paced at 32 Hz: the frame that completes a window arrives one sample period (31.25 ms) after
-  the frame before it, with the process idle in between, as in service. The frames between
+  the frame before it, and the daemon waits for it as in service (``runtime.rehearsal``: blocked
+  until shortly before, then a rehearsal and polling). The frames between
   windows (which only push and test the trigger) are fed back to back, so a run of a minute
   yields enough decisions for a p99.9.
 
@@ -30,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.transports.base import Transport
 from runtime.listeners import DecisionTimings, FrameListener
 from trainer.bench.common import cycling, percentiles, time_calls
 
 PERIOD_S = 1.0 / 32.0
-STAGES = ("parse_crc_decode", "plausibility", "ring_trigger", "window", "inference", "output_check", "event_build",
-          "serialise", "sink_send")
+STAGES = ("receive", "ring_trigger", "window", "inference", "output_check", "event_build", "serialise", "sink_send")
 """The stage table's rows, in the order a frame goes through them."""
 
 
@@ -54,14 +56,54 @@ def _encoded(recording) -> list[bytes]:
     return [encode_frame(f, int(t) & 0xFFFFFFFF, rle=True) for f, t in zip(recording.frames, stamps, strict=True)]
 
 
+class PacketFeed(Transport):
+    """The stream's frame packets, one a read, as a device link delivers them: at once (back to
+    back), or, for a packet in ``paced``, one sample period after the read before it (the read
+    blocks like a select until then, or returns nothing when given no time)."""
+
+    url = "bench://packets"
+
+    def __init__(self, packets: list[bytes], paced: frozenset[int] = frozenset()) -> None:
+        self.packets, self.paced, self.next = packets, paced, 0
+        self._due: float | None = None
+        self._last = time.perf_counter()
+
+    @property
+    def done(self) -> bool:
+        return self.next >= len(self.packets)
+
+    def read(self, max_bytes: int = 0, timeout: float = 0.1) -> bytes:
+        if self.done:
+            return b""
+        if self.next in self.paced:
+            if self._due is None:
+                self._due = self._last + PERIOD_S
+            left = self._due - time.perf_counter()
+            if left > 0 and timeout > 0:
+                time.sleep(min(timeout, left))
+            if time.perf_counter() < self._due:
+                return b""
+            self._due = None
+        packet = self.packets[self.next]
+        self.next += 1
+        self._last = time.perf_counter()
+        return packet
+
+    def write(self, data: bytes) -> None:
+        pass
+
+    def close(self) -> None:
+        self._closed = True
+
+
 def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset()) -> dict:
-    """Feed every packet through parser, decode, plausibility and a fresh serving daemon; sleep one
-    sample period before each frame in ``pace_frames``. Per-stage microseconds of each decision."""
-    from firmware_io.client import Frame
-    from firmware_io.plausibility import FrameCheck
-    from firmware_io.wire.frames import decode_frame_payload
-    from firmware_io.wire.parser import StreamParser
-    from runtime.daemon import settle_heap
+    """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility) and
+    a fresh serving daemon, read the way the daemon's loop reads (``Daemon.rehearsal.read``); the
+    packets in ``pace_frames`` arrive one sample period after the one before. Per-stage
+    microseconds of each decision."""
+    from firmware_io.client import DSAClient
+    from runtime.daemon import READ_TIMEOUT_S
+    from runtime.heap import release_heap, settle_heap
     from trainer.bench.throughput import serving_daemon
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -69,27 +111,26 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     sink.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     sink.setblocking(False)
     daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1])
+    link = PacketFeed(packets, pace_frames)
+    daemon.client = DSAClient.streaming(link, recording.layout)
     recorder = _Decisions()
     daemon.listeners.append(recorder)
-    settle_heap()  # as Daemon.run does once started
-    layout = recording.layout
-    parser, check, n = StreamParser(layout.n_taxels), FrameCheck(layout), layout.n_taxels
-    handle, clock = daemon.handle_frame, time.perf_counter
-    marks = np.zeros((len(packets), 4))
-    for number, packet in enumerate(packets):
-        if number in pace_frames:
-            time.sleep(PERIOD_S)
-        t0 = clock()
-        (pkt,) = parser.feed(packet)
-        stamp, values = decode_frame_payload(pkt.payload, n)
-        t1 = clock()
-        check.problem(values)
-        frame = Frame(number, stamp, pkt.received, values)
-        t2 = clock()
-        handle(frame)
-        marks[number] = t0, t1, t2, clock()
-        if number % 64 == 0:
-            _drain(sink)
+    settle_heap()  # as Daemon.run does once started: automatic collection off
+    handle, clock, read = daemon.handle_frame, time.perf_counter, daemon.client.read_frame
+    marks = np.zeros((len(packets), 3))
+    try:
+        while not link.done:
+            daemon.garbage.collect(clock(), daemon.window_open)  # as the loop's housekeeping does
+            frame = daemon.rehearsal.read(read, READ_TIMEOUT_S)
+            if frame is None:
+                continue
+            t1 = clock()
+            handle(frame)
+            marks[frame.number] = frame.received, t1, clock()
+            if frame.number % 64 == 0:
+                _drain(sink)
+    finally:
+        release_heap()
     _drain(sink)
     sink.close()
     return _stage_table(marks, recorder.timings)
@@ -106,8 +147,8 @@ def _drain(sock: socket.socket) -> None:
 def _stage_table(marks: np.ndarray, timings: list[tuple[int, DecisionTimings]]) -> dict:
     rows: dict[str, list[float]] = {s: [] for s in (*STAGES, "total", "daemon_internal")}
     for number, t in timings:
-        t0, t1, t2, _ = marks[number]
-        cuts = (t0, t1, t2, t.started, t.windowed, t.decided, t.checked, t.built, t.serialised, t.sent)
+        t0, t1, _ = marks[number]
+        cuts = (t0, t1, t.started, t.windowed, t.decided, t.checked, t.built, t.serialised, t.sent)
         if t.sent is None:
             continue
         for name, a, b in zip(STAGES, cuts[:-1], cuts[1:], strict=True):
@@ -115,7 +156,7 @@ def _stage_table(marks: np.ndarray, timings: list[tuple[int, DecisionTimings]]) 
         rows["total"].append((t.sent - t0) * 1e6)
         rows["daemon_internal"].append((t.decided - t.received) * 1e6)
     decided = {n for n, _ in timings}
-    quiet = [(m[3] - m[2]) * 1e6 for i, m in enumerate(marks) if i not in decided]
+    quiet = [(m[2] - m[1]) * 1e6 for i, m in enumerate(marks) if i not in decided]
     out = {name: percentiles(v) for name, v in rows.items()}
     out["handle_frame_no_decision"] = percentiles(quiet)
     return out
@@ -187,27 +228,38 @@ def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
     return {name: percentiles(time_calls(cycling(fn, windows), rounds)) for name, fn in fns.items()}
 
 
-REHEARSAL_LEAD_S = 0.0003
-"""How long before the timed decision the rehearsal (the same model run, result discarded) happens."""
-
-
 def rehearsed(fn, windows: np.ndarray, rounds: int) -> dict:
-    """Paced at 32 Hz, with one rehearsal run ``REHEARSAL_LEAD_S`` before each timed run: how much
-    of the paced cliff is caches that other processes filled meanwhile (what a daemon waking just
-    before a due frame would gain). Not what the daemon does today."""
-    times = np.empty(rounds)
+    """Paced at 32 Hz the way the daemon waits for a due frame (``runtime.rehearsal``: one rehearsal
+    run ``LEAD_S`` before it, then polling): how much of the paced cliff keeping warm removes."""
+    from runtime.rehearsal import Rehearsal
+
+    warm, times = Rehearsal(), np.empty(rounds)
     clock = time.perf_counter_ns
     for i in range(rounds):
         w = windows[i % len(windows)]
-        time.sleep(PERIOD_S - REHEARSAL_LEAD_S)
-        fn(w)
-        deadline = time.perf_counter() + REHEARSAL_LEAD_S
-        while time.perf_counter() < deadline:
-            pass
+        due = time.perf_counter() + PERIOD_S
+        warm.expect(due, lambda w=w: fn(w))
+        wait_for_arrival(warm, due)
         t0 = clock()
         fn(w)
         times[i] = (clock() - t0) / 1000.0
     return percentiles(times)
+
+
+def wait_for_arrival(warm, at: float) -> None:
+    """Wait as the daemon's loop does (``warm.read`` of the device, READ_TIMEOUT_S at a time) for a
+    frame arriving at ``perf_counter() == at``: the emulated device read blocks like a select until
+    then, or polls when given no time."""
+    from runtime.daemon import READ_TIMEOUT_S
+
+    def device(timeout: float) -> bool | None:
+        left = at - time.perf_counter()
+        if left > 0 and timeout > 0:
+            time.sleep(min(timeout, left))
+        return True if time.perf_counter() >= at else None
+
+    while warm.read(device, READ_TIMEOUT_S) is None:
+        pass
 
 
 def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
