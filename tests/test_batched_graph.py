@@ -119,3 +119,16 @@ def test_default_graph_node_budget(pad_shapes, budget):
     ops = [n.op_type for n in build_graph(model).graph.node]
     assert len(ops) <= budget, ops
     assert ops.count("ReduceMean") == 1 and "Transpose" in ops  # one series pipeline; one layout change
+
+
+def test_join_parts_reads_a_shared_tensor_once_unless_its_columns_are_taken():
+    from trainer.features.base import join_parts
+
+    first = OnnxParts(["rows", "peak"], np.array([0, 2, 4]), 5, None, (4, 1))  # rows 0 and 2, the peak
+    second = OnnxParts(["rows", "peak"], np.array([1, 3, 4]), 5, np.array([1.0, 2.0, 3.0]), (4, 1))
+    joined = join_parts([first, second])
+    assert joined.tensors == ["rows", "peak", "peak"]  # rows shared (other columns), the peak's column taken
+    assert joined.columns.tolist() == [0, 2, 4, 1, 3, 5] and joined.width == 6
+    assert joined.scales.tolist() == [1, 1, 1, 1, 2, 3]
+    alone = join_parts([OnnxParts.in_order(["bow"], 3), first])  # parts without widths are one block
+    assert alone.tensors == ["bow", "rows", "peak"] and alone.columns.tolist() == [0, 1, 2, 3, 5, 7]

@@ -114,7 +114,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         """ONNX nodes of every family on ``frames`` ``[N, T, C]``, joined by one Concat into ``output``
         in the families' own layouts (``trainer.features.base.OnnxParts``: the exporter lays the SVM's
         constants out to match, so no node reorders features); a tensor two families share is joined once."""
-        from trainer.features.base import OnnxParts
+        from trainer.features.base import OnnxParts, join_parts
         from trainer.features.pad_series import SeriesNeed, announce
         from trainer.onnx_export import features_nodes
 
@@ -122,34 +122,16 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         if "hand" in names or "stats" in names:  # their shared series are built once, for both
             stats = dict(self.blocks_).get("stats")
             announce(g, frames, SeriesNeed("hand" in names, None if stats is None else float(stats.fullscale)))
-        tensors, columns, scales, width = [], [], [], 0
-        start_of: dict[str, int] = {}
+        every = []
         for name, block in self.blocks_:
             if name == "bow":
-                parts = OnnxParts.in_order([features_nodes(g, frames, block, output=g.name("bow_histogram"))],
-                                           block.n_features_out_)
+                every.append(OnnxParts.in_order([features_nodes(g, frames, block, output=g.name("bow_histogram"))],
+                                                block.n_features_out_))
             else:
-                parts = block.onnx_parts(g, frames)
-            if parts.widths is None:  # one block of columns
-                tensors += parts.tensors
-                columns.append(parts.columns + width)
-                width += parts.width
-            else:  # a tensor already joined is read where it is, unless the same columns are taken there
-                used = set(np.concatenate(columns).tolist()) if columns else set()
-                local = np.concatenate([[0], np.cumsum(parts.widths)]).astype(np.int64)
-                which = np.searchsorted(local, parts.columns, side="right") - 1
-                starts = []
-                for i, (tensor, size) in enumerate(zip(parts.tensors, parts.widths, strict=True)):
-                    start = start_of.get(tensor)
-                    if start is None or used & set((start + parts.columns[which == i] - local[i]).tolist()):
-                        start, width = width, width + size
-                        tensors.append(tensor)
-                        start_of.setdefault(tensor, start)
-                    starts.append(start)
-                columns.append(np.asarray(starts, dtype=np.int64)[which] + parts.columns - local[which])
-            scales.append(parts.scale_of_each())
-        g.op("Concat", tensors, outputs=[output], axis=1)
-        return OnnxParts([output], np.concatenate(columns), width, np.concatenate(scales))
+                every.append(block.onnx_parts(g, frames))
+        joined = join_parts(every)
+        g.op("Concat", joined.tensors, outputs=[output], axis=1)
+        return OnnxParts([output], joined.columns, joined.width, joined.scales)
 
     def describe(self) -> dict:
         """What the model file's metadata says about the features."""

@@ -48,6 +48,35 @@ class OnnxParts:
         return cls(tensors, np.arange(int(n_features)), int(n_features))
 
 
+def join_parts(every: Sequence[OnnxParts]) -> OnnxParts:
+    """The parts of several families as one: their tensors in order (to be joined by one Concat) and
+    where each family's features sit. A tensor two families share (same name, ``widths`` known) is
+    joined once and read where it is, unless the same columns of it are already taken there."""
+    tensors: list[str] = []
+    columns, scales, width = [], [], 0
+    start_of: dict[str, int] = {}
+    for parts in every:
+        scales.append(parts.scale_of_each())
+        if parts.widths is None:  # one block of columns
+            tensors += parts.tensors
+            columns.append(parts.columns + width)
+            width += parts.width
+            continue
+        used = set(np.concatenate(columns).tolist()) if columns else set()
+        local = np.concatenate([[0], np.cumsum(parts.widths)]).astype(np.int64)
+        which = np.searchsorted(local, parts.columns, side="right") - 1
+        starts = []
+        for i, (tensor, size) in enumerate(zip(parts.tensors, parts.widths, strict=True)):
+            start = start_of.get(tensor)
+            if start is None or used & set((start + parts.columns[which == i] - local[i]).tolist()):
+                start, width = width, width + size
+                tensors.append(tensor)
+                start_of.setdefault(tensor, start)
+            starts.append(start)
+        columns.append(np.asarray(starts, dtype=np.int64)[which] + parts.columns - local[which])
+    return OnnxParts(tensors, np.concatenate(columns).astype(np.int64), width, np.concatenate(scales))
+
+
 def columns_in_order(columns: np.ndarray, width: int) -> bool:
     """Whether ``width`` columns hold exactly the reference's features, in order (no layout to undo)."""
     return width == len(columns) and bool(np.array_equal(columns, np.arange(width)))
