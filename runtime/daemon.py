@@ -189,7 +189,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                 self._classify(frame)
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
             model = self.model  # keep warm for the frame that completes the window, due one period on
-            self.rehearsal.expect(frame.received + self.period_s, partial(self._rehearse, model, ring.window(model.meta.T)))
+            self.rehearsal.expect(frame.received + self.frame_clock.next_admitted_s(),
+                                  partial(self._rehearse, model, ring.window(model.meta.T)))
 
     def _rehearse(self, model: Any, window: Any) -> None:
         """The due frame's path once ahead of it, nothing sent or counted: the model, the output

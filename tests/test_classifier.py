@@ -124,3 +124,15 @@ def test_max_windows_and_fullscale_reach_the_bag_of_words():
     model = BowSVC(n_words=3, window=3, C=10.0, gamma=1.0, level_features=True, pad_sizes=(2, 2),
                    max_windows=50, fullscale=1000.0).fit(X, y)
     assert model.bow_.max_windows == 50 and model.bow_.fullscale == 1000.0
+
+
+def test_one_frame_cases_are_refused_in_one_line():
+    """A case of one frame has no change over time; it fitted silently before."""
+    import numpy as np
+    import pytest
+
+    from trainer import default_classifier
+
+    X, y = np.zeros((8, 78, 1)), np.array([0, 1] * 4)
+    with pytest.raises(ValueError, match=r"cases need at least 2 frames .* got 1 frame"):
+        default_classifier([78]).fit(X, y)

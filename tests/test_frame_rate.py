@@ -220,3 +220,20 @@ def test_a_stream_far_slower_than_the_model_is_measured_and_warned_about(model_h
     admit_all(clock, stamps(device_hz, 200))
     assert clock.stream_period_ms == pytest.approx(1000.0 / device_hz, rel=0.01)
     assert len(restarts) <= BLOCK and "slower" in health.last_error and health.frames_dropped == 0
+
+
+@pytest.mark.parametrize("rate_hz", [30.0, RATE, 70.0])
+def test_the_next_admitted_frame_is_expected_when_it_comes(rate_hz):
+    """What the daemon waits for a due frame around (runtime.rehearsal): the measured period, and
+    with decimation the device frames skipped; the model's period until the stream is measured."""
+    clock = FrameClock(MODEL_MS, Health())
+    assert clock.next_admitted_s() == pytest.approx(MODEL_MS / 1000.0)
+    ts = stamps(rate_hz, 600)
+    errors = []
+    for i, t in enumerate(ts[:-4]):
+        if clock.admit(i, int(t)) < 0 or i <= BLOCK:
+            continue
+        ahead, trial = clock.next_admitted_s(), copy.deepcopy(clock)  # the copy runs on to the next admitted frame
+        later = next(j for j in range(i + 1, len(ts)) if trial.admit(j, int(ts[j])) >= 0)
+        errors.append(abs(ahead - (ts[later] - t) / 1000.0))
+    assert errors and max(errors) < 0.0015  # within the stamps' 1 ms rounding

@@ -49,6 +49,9 @@ def check_training_data(estimator, X, y) -> tuple[np.ndarray, np.ndarray, np.nda
     if y is None:
         raise ValueError(f"{type(estimator).__name__} requires y to be passed, but the target y is None")
     X = as_cases(X)
+    if X.shape[2] < 2:
+        raise ValueError(f"cases need at least 2 frames (the features read how pressure changes), got "
+                         f"{X.shape[2]} frame ({X.shape[2]} feature(s) per channel)")
     y = column_or_1d(y, warn=True)
     if y.dtype.kind in "fc":  # NaN/inf labels: refuse before type_of_target casts them (RuntimeWarning)
         assert_all_finite(y, input_name="y")
