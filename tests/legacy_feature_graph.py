@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from trainer.features.base import pad_bounds, slice_nodes
-from trainer.features.hand import dft_matrices
+from trainer.features.pad_series import dft_matrices
 
 
 def legacy_hand_nodes(family, g, frames: str) -> str:
@@ -62,9 +62,9 @@ def _cop_nodes(g, P: str, rows: int, cols: int, n_t: int) -> str:
 
 
 def legacy_stats_peak(family, g, frames: str) -> str:
-    """The level statistics' per-pad peak as before: one Slice + ReduceMax per pad."""
+    """The level statistics' per-pad peak as before: one Slice + ReduceMax per pad (unscaled, as the
+    current layout holds it: its scale is in the SVM's weights)."""
     over_time = g.op("ReduceMax", [frames], "taxel_peak", axes=[1], keepdims=0)
     peaks = [g.op("ReduceMax", [slice_nodes(g, over_time, a, b, 1, "pad_taxels")], "pad_peak", axes=[1], keepdims=1)
              for a, b in pad_bounds(family.shapes_)]
-    return g.op("Mul", [g.op("Concat", peaks, "peaks", axis=1), g.const("inv_fs", 1.0 / float(family.fullscale))],
-                "peak")
+    return g.op("Concat", peaks, "peaks", axis=1)

@@ -16,7 +16,7 @@ from trainer.feature_svc import FeatureSVC
 from trainer.features import HandGraphFeatures, PadStats
 from trainer.features.base import OnnxParts
 from trainer.features.pad_batch import PadBatch
-from trainer.onnx_export import build_graph, feature_columns
+from trainer.onnx_export import build_graph, feature_columns, feature_scales
 from trainer.stress import stress_cases
 
 SDH2_SIZES = (84, 78, 84, 78, 84, 78)
@@ -24,18 +24,21 @@ SDH2_SHAPES = [(14, 6), (13, 6)] * 3
 
 
 class _Session:
-    """A session that also outputs the features (``histogram``, in the reference's order)."""
+    """A session that also outputs the features (``histogram``, in the reference's order and units)."""
 
     def __init__(self, proto) -> None:
-        self.columns = feature_columns(proto)
+        self.columns, self.scales = feature_columns(proto), feature_scales(proto)
         proto.graph.output.append(onnx.helper.make_tensor_value_info("histogram", onnx.TensorProto.FLOAT, None))
         self.session = ort.InferenceSession(proto.SerializeToString(), session_options(),
                                             providers=["CPUExecutionProvider"])
 
     def run(self, names: list[str], feeds: dict) -> list[np.ndarray]:
         out = self.session.run(names, feeds)
-        return [o[:, self.columns] if n == "histogram" and self.columns is not None else o
-                for n, o in zip(names, out, strict=True)]
+        return [self._features(o) if n == "histogram" else o for n, o in zip(names, out, strict=True)]
+
+    def _features(self, hist: np.ndarray) -> np.ndarray:
+        hist = hist if self.columns is None else hist[:, self.columns]
+        return hist if self.scales is None else hist / self.scales
 
 
 
@@ -100,3 +103,32 @@ def test_median_by_pad_against_numpy(pad_sizes):
         ref = family.transform(frames.transpose(0, 2, 1).astype(np.float64))
         np.testing.assert_allclose(hist[:, 2::14], ref[:, 2::14], rtol=1e-6, atol=1e-3)  # the medians
     assert PadBatch.of([(1, s) for s in pad_sizes]).median_in_one == (len(set(np.array(pad_sizes) % 2)) == 1)
+
+
+@pytest.mark.parametrize(("pad_shapes", "budget"), [([(13, 6)] * 3, 49), (SDH2_SHAPES, 52)], ids=["distal", "all-pads"])
+def test_default_graph_node_budget(pad_shapes, budget):
+    """onnxruntime pays per node (issue #16): the default's graph keeps its count (distal 62 and all
+    pads 63 before the hand and stats families shared one series pipeline and constant factors moved
+    into the SVM's weights)."""
+    sizes = [r * c for r, c in pad_shapes]
+    rng = np.random.default_rng(3)
+    X = rng.integers(0, 4096, (24, sum(sizes), T)) * (rng.random((24, sum(sizes), 1)) < 0.3)
+    y = np.array(["pull", "push", "hold", "bump"])[np.arange(24) % 4]
+    model = FeatureSVC(pad_sizes=sizes, pad_shapes=pad_shapes, kernel="linear", C=1.0,
+                       feature_weighting="distinct").fit(X.astype(np.float64), y)
+    ops = [n.op_type for n in build_graph(model).graph.node]
+    assert len(ops) <= budget, ops
+    assert ops.count("ReduceMean") == 1 and "Transpose" in ops  # one series pipeline; one layout change
+
+
+def test_join_parts_reads_a_shared_tensor_once_unless_its_columns_are_taken():
+    from trainer.features.base import join_parts
+
+    first = OnnxParts(["rows", "peak"], np.array([0, 2, 4]), 5, None, (4, 1))  # rows 0 and 2, the peak
+    second = OnnxParts(["rows", "peak"], np.array([1, 3, 4]), 5, np.array([1.0, 2.0, 3.0]), (4, 1))
+    joined = join_parts([first, second])
+    assert joined.tensors == ["rows", "peak", "peak"]  # rows shared (other columns), the peak's column taken
+    assert joined.columns.tolist() == [0, 2, 4, 1, 3, 5] and joined.width == 6
+    assert joined.scales.tolist() == [1, 1, 1, 1, 2, 3]
+    alone = join_parts([OnnxParts.in_order(["bow"], 3), first])  # parts without widths are one block
+    assert alone.tensors == ["bow", "rows", "peak"] and alone.columns.tolist() == [0, 1, 2, 3, 5, 7]

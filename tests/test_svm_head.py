@@ -68,14 +68,14 @@ def test_graph_layout_differs_from_the_reference_order_and_decides_alike():
     assert np.array_equal(model.classes_[labels], model.predict(frames.transpose(0, 2, 1).astype(np.float64)))
 
 
-@pytest.mark.parametrize("value", ["[0, 1", "{\"a\": 1}", "[0, 0, 1]", "[0, 99999]"])
-def test_a_damaged_feature_layout_is_one_clear_verify_error(value, tmp_path):
-    """The graph's feature layout is a model property; damaged, verify says so instead of a traceback."""
-    import onnx
-
-    from tests.onnx_fixtures import PAD_SIZES, export, frames_of, synthetic_cases
-    from trainer.feature_svc import FeatureSVC
-    from trainer.onnx_export import FEATURE_COLUMNS
+@pytest.mark.parametrize(("key", "value"), [("handover_feature_columns", v) for v in
+                                             ("[0, 1", "{\"a\": 1}", "[0, 0, 1]", "[0, 99999]")]
+                         + [("handover_feature_scales", v) for v in ("[1, 2", "\"x\"", "[1, 0]", "[1, NaN]", "[1, 2]")])
+def test_a_damaged_feature_layout_is_one_clear_verify_error(key, value, tmp_path):
+    """The graph's feature layout (columns, constant factors) is model properties; damaged, verify
+    says so instead of a traceback."""
+    from tests.onnx_fixtures import export
+    from trainer.onnx_export import FEATURE_COLUMNS, FEATURE_SCALES
     from trainer.verify import GraphRunner, VerifyError
 
     X, y = synthetic_cases(n=40, seed=2)
@@ -83,8 +83,32 @@ def test_a_damaged_feature_layout_is_one_clear_verify_error(value, tmp_path):
                   tmp_path)
     proto = onnx.load(str(path))
     props = {p.key: p.value for p in proto.metadata_props}
-    assert FEATURE_COLUMNS in props  # the hand family's layout is not the reference's order
-    onnx.helper.set_model_props(proto, {**props, FEATURE_COLUMNS: value})
+    # the hand family's layout is not the reference's order, and the level statistics' std is held times sqrt(T)
+    assert FEATURE_COLUMNS in props and FEATURE_SCALES in props and key in (FEATURE_COLUMNS, FEATURE_SCALES)
+    onnx.helper.set_model_props(proto, {**props, key: value})
     onnx.save(proto, str(path))
-    with pytest.raises(VerifyError, match=r"handover_feature_columns .*re-export the model"):
+    with pytest.raises(VerifyError, match=rf"{key} .*re-export the model"):
         GraphRunner(path).run(frames_of(X))
+
+
+def test_features_held_times_a_constant_are_read_back_in_the_reference_units(tmp_path):
+    """Constant factors (the stats' std times sqrt(T), the peak times fullscale) sit in the SVM's
+    weights instead of a Mul node; ``handover verify`` divides them out again."""
+    from tests.onnx_fixtures import export
+    from trainer.onnx_export import FEATURE_SCALES, feature_scales
+    from trainer.verify import GraphRunner
+
+    X, y = synthetic_cases(n=64, seed=6)
+    for kernel in ("linear", "rbf"):
+        model = FeatureSVC(families=("hand", "stats"), pad_sizes=PAD_SIZES, kernel=kernel, C=10.0,
+                           gamma="scale" if kernel == "rbf" else None).fit(X, y)
+        path = export(model, tmp_path, f"{kernel}.onnx")
+        proto = onnx.load(str(path))
+        scales = feature_scales(proto)
+        assert FEATURE_SCALES in {p.key for p in proto.metadata_props} and (scales != 1).any()
+        frames = frames_of(synthetic_cases(n=32, seed=12)[0])
+        labels, _, features = GraphRunner(path).run(frames)
+        cases = frames.transpose(0, 2, 1).astype(np.float64)
+        excess = np.abs(features - model.transform_histograms(cases)) - model.feature_error_bounds(cases)
+        assert (excess <= 0).all(), excess.max()
+        assert np.array_equal(model.classes_[labels], model.predict(cases))

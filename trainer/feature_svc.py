@@ -113,22 +113,25 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     def onnx_features(self, g, frames: str, output: str):
         """ONNX nodes of every family on ``frames`` ``[N, T, C]``, joined by one Concat into ``output``
         in the families' own layouts (``trainer.features.base.OnnxParts``: the exporter lays the SVM's
-        constants out to match, so no node reorders features)."""
-        from trainer.features.base import OnnxParts
+        constants out to match, so no node reorders features); a tensor two families share is joined once."""
+        from trainer.features.base import OnnxParts, join_parts
+        from trainer.features.pad_series import SeriesNeed, announce
         from trainer.onnx_export import features_nodes
 
-        tensors, columns, width = [], [], 0
+        names = [name for name, _ in self.blocks_]
+        if "hand" in names or "stats" in names:  # their shared series are built once, for both
+            stats = dict(self.blocks_).get("stats")
+            announce(g, frames, SeriesNeed("hand" in names, None if stats is None else float(stats.fullscale)))
+        every = []
         for name, block in self.blocks_:
             if name == "bow":
-                parts = OnnxParts.in_order([features_nodes(g, frames, block, output=g.name("bow_histogram"))],
-                                           block.n_features_out_)
+                every.append(OnnxParts.in_order([features_nodes(g, frames, block, output=g.name("bow_histogram"))],
+                                                block.n_features_out_))
             else:
-                parts = block.onnx_parts(g, frames)
-            tensors += parts.tensors
-            columns.append(parts.columns + width)
-            width += parts.width
-        g.op("Concat", tensors, outputs=[output], axis=1)
-        return OnnxParts([output], np.concatenate(columns), width)
+                every.append(block.onnx_parts(g, frames))
+        joined = join_parts(every)
+        g.op("Concat", joined.tensors, outputs=[output], axis=1)
+        return OnnxParts([output], joined.columns, joined.width, joined.scales)
 
     def describe(self) -> dict:
         """What the model file's metadata says about the features."""

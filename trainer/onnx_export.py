@@ -49,6 +49,9 @@ HISTOGRAM = "histogram"
 FEATURE_COLUMNS = "handover_feature_columns"
 """Model property (JSON list) written when a graph's ``histogram`` holds the features in its own
 layout (``trainer.svm_head.FeatureLayout``): the column of each reference feature."""
+FEATURE_SCALES = "handover_feature_scales"
+"""Model property (JSON list, one per reference feature) written when a graph's ``histogram`` holds
+features times a constant (``trainer.svm_head.FeatureLayout.scales``): divide to get the reference's."""
 SCORE_MEANING = "sklearn ovr scores: one-vs-one votes + summed confidence / (3 * (|summed confidence| + 1))"
 
 
@@ -258,7 +261,7 @@ def build_graph(model, fold_derivative: bool = False):
         if fold_derivative:
             raise ValueError("fold_derivative applies to BowSVC graphs only")
         parts = model.onnx_features(g, "frames", HISTOGRAM)
-        hist, layout = HISTOGRAM, FeatureLayout(parts.columns, parts.width)
+        hist, layout = HISTOGRAM, FeatureLayout(parts.columns, parts.width, parts.scales)
         name = "handover_feature_svm"
     elif hasattr(model, "bow_"):
         hist = features_nodes(g, "frames", model.bow_, fold_derivative)
@@ -282,8 +285,13 @@ def build_graph(model, fold_derivative: bool = False):
     onnx_model = helper.make_model(
         graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="tactile-handover", ir_version=IR_VERSION
     )
+    props = {}
     if layout is not None and not layout.in_order:
-        helper.set_model_props(onnx_model, {FEATURE_COLUMNS: json.dumps([int(c) for c in layout.columns])})
+        props[FEATURE_COLUMNS] = json.dumps([int(c) for c in layout.columns])
+    if layout is not None and layout.scaled:
+        props[FEATURE_SCALES] = json.dumps([float(s) for s in layout.scale_of_each()])
+    if props:
+        helper.set_model_props(onnx_model, props)
     return onnx_model
 
 
@@ -302,6 +310,22 @@ def feature_columns(proto) -> np.ndarray | None:
             or len(set(columns)) != len(columns):
         raise ValueError(damaged)
     return np.asarray(columns, dtype=np.int64)
+
+
+def feature_scales(proto) -> np.ndarray | None:
+    """What each reference feature is multiplied by in the graph's ``histogram`` (None: 1), in the
+    reference's order; ValueError (one line, what to do) when the property is damaged."""
+    props = {p.key: p.value for p in proto.metadata_props}
+    if FEATURE_SCALES not in props:
+        return None
+    damaged = f"model property {FEATURE_SCALES} is damaged; re-export the model"
+    try:
+        scales = np.asarray(json.loads(props[FEATURE_SCALES]), dtype=np.float64)
+    except (ValueError, TypeError):
+        raise ValueError(damaged) from None
+    if scales.ndim != 1 or not np.all(np.isfinite(scales)) or np.any(scales == 0):
+        raise ValueError(damaged)
+    return scales
 
 
 # -- metadata and file ----------------------------------------------------------------------------

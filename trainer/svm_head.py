@@ -9,8 +9,8 @@ The constant ``exp(-gamma ||sv_m||^2)`` goes into the dual coefficients (when it
 ``FOLD_LIMIT``), else into an Add before the Exp. No cancellation is hidden: ``trainer.numerics``
 bounds exactly this arithmetic (``rbf_decision_bounds``), and ``handover verify`` checks it.
 
-One Gemm gives the one-vs-one decisions and the summed confidences side by side; the votes and
-the scores read their own columns through zero rows, and scikit-learn's ovr confidence term
+One Gemm gives the one-vs-one decisions and the summed confidences side by side; a HardSigmoid
+makes the wins (``WIN_SLOPE``); the votes and the scores read their own columns through zero rows, and scikit-learn's ovr confidence term
 ``conf / (3 (|conf| + 1))`` is ``Softsign(conf) / 3`` (the Gemm's ``alpha``). A linear SVM takes the
 scaler into its weights and intercepts (``linear_constants``): one Gemm.
 """
@@ -25,6 +25,11 @@ FOLD_LIMIT = 60.0
 """Largest ``gamma ||sv||^2`` folded into the coefficients: exp(-60) ~ 1e-26 stays a normal float32
 coefficient, and the exponent (at most ``gamma ||sv_m||^2``) stays far below float32's exp overflow (88)."""
 THIRD = 1.0 / 3.0
+WIN_SLOPE = float(np.finfo(np.float32).max)
+"""``HardSigmoid(dec) = clip(WIN_SLOPE dec, 0, 1)``: a one-vs-one win as one node (was Greater, Cast).
+It is 1 for every decision > 0 down to 2.9e-39 and 0 for every decision <= 0, libsvm's rule; only a
+subnormal decision (below 1.2e-38) could give part of a vote, and such a decision is within float32
+rounding of 0 anyway: a near tie that no float32 graph decides reliably (``trainer.numerics``)."""
 
 
 @dataclass(frozen=True)
@@ -50,19 +55,35 @@ class RbfConstants:
         scale = np.ones(sv.shape[1]) if scaler is None else np.asarray(scaler.scale_, dtype=np.float64)
         mean = None if scaler is None else np.asarray(scaler.mean_, dtype=np.float64)
         offset = -gamma * (sv**2).sum(axis=1)
-        spread = (lambda v: v) if layout is None else layout.spread
-        # columns the graph computes but the SVM does not use get zero weight (and no centre)
-        return cls(None if mean is None else spread(mean), spread(np.sqrt(gamma) / scale),
-                   spread(2.0 * np.sqrt(gamma) * sv), offset, bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
+        layout = layout or FeatureLayout(np.arange(sv.shape[1]), sv.shape[1])
+        # columns the graph computes but the SVM does not use get zero weight (and no centre); a column
+        # holding a feature times s gets its centre times s and its unit over s (u is unchanged)
+        return cls(None if mean is None else layout.spread(mean * layout.scale_of_each()),
+                   layout.per_unit(np.sqrt(gamma) / scale), layout.spread(2.0 * np.sqrt(gamma) * sv), offset,
+                   bool(offset.size == 0 or offset.min() >= -FOLD_LIMIT))
 
 
 @dataclass(frozen=True)
 class FeatureLayout:
     """Where the graph's feature tensor holds each feature: ``columns[i]`` of reference feature i,
-    ``width`` columns in all (``trainer.features.base.OnnxParts``)."""
+    ``width`` columns in all, ``scales[i]`` times the reference's value (None: 1;
+    ``trainer.features.base.OnnxParts``)."""
 
     columns: np.ndarray
     width: int
+    scales: np.ndarray | None = None
+
+    def scale_of_each(self) -> np.ndarray:
+        return np.ones(len(self.columns)) if self.scales is None else np.asarray(self.scales, dtype=np.float64)
+
+    @property
+    def scaled(self) -> bool:
+        return bool(np.any(self.scale_of_each() != 1.0))
+
+    def per_unit(self, values: np.ndarray) -> np.ndarray:
+        """Per-feature factors ``[..., F]`` (weights on the reference's features) laid out for the
+        graph's columns: divided by each column's scale, then ``spread``."""
+        return self.spread(np.asarray(values, dtype=np.float64) / self.scale_of_each())
 
     def spread(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
         """``values`` ``[..., F]`` (reference order) laid out as ``[..., width]``, ``fill`` elsewhere."""
@@ -122,11 +143,11 @@ def svm_nodes(g, features: str, svm, scaler=None, layout: FeatureLayout | None =
         weights, intercept = linear_constants(svm, scaler)
         inputs, hint = features, "pair_weights"
         if layout is not None:
-            weights = layout.spread(weights.T).T
+            weights = layout.per_unit(weights.T).T
     else:
         raise ValueError(f"kernel {svm.kernel!r} is not exported (rbf and linear are)")
     dec = g.op("Gemm", [inputs, g.const(hint, weights), g.const("pair_intercept", intercept)], "decision")  # [N, P + K]
-    pos = g.op("Cast", [g.op("Greater", [dec, g.const("zero", 0.0)])], "wins", to=1)
+    pos = g.op("HardSigmoid", [dec], "wins", alpha=WIN_SLOPE, beta=0.0)  # 1 where dec > 0, else 0
     votes = g.op("Gemm", [pos, g.const("vote_diff", head["vote_diff"]), g.const("vote_base", head["vote_base"])], "votes")
     soft = g.op("Softsign", [dec], "conf_soft")  # conf / (|conf| + 1) on the confidence columns
     g.op("Gemm", [soft, g.const("conf_pick", head["conf_pick"]), votes], outputs=[scores_out], alpha=THIRD)

@@ -103,7 +103,7 @@ class GraphRunner:
         import onnxruntime as ort
 
         from runtime.model import session_options
-        from trainer.onnx_export import HISTOGRAM, feature_columns
+        from trainer.onnx_export import HISTOGRAM, feature_columns, feature_scales
 
         self.path = Path(onnx_path)
         proto = onnx.load(str(onnx_path))
@@ -111,6 +111,7 @@ class GraphRunner:
             raise VerifyError(f"{onnx_path}: no {HISTOGRAM!r} tensor in the graph (not exported by this project)")
         try:
             self.columns = feature_columns(proto)  # the graph's own layout of the features, or None
+            self.scales = feature_scales(proto)  # and the factor each one carries there, or None
         except ValueError as exc:
             raise VerifyError(f"{onnx_path}: {exc}") from None
         proto.graph.output.append(onnx.helper.make_tensor_value_info(HISTOGRAM, onnx.TensorProto.FLOAT, ["N", "F"]))
@@ -124,13 +125,19 @@ class GraphRunner:
         return labels, scores, self._in_order(hist)
 
     def _in_order(self, hist: np.ndarray) -> np.ndarray:
-        """The features in the reference's order (the graph may hold them in its own layout)."""
-        if self.columns is None:
+        """The features in the reference's order and units (the graph may hold them in its own layout,
+        times constants)."""
+        if self.columns is not None:
+            if self.columns.size and self.columns.max() >= hist.shape[1]:
+                raise VerifyError(f"{self.path}: model property handover_feature_columns points past the graph's "
+                                  f"{hist.shape[1]} features (damaged); re-export the model")
+            hist = hist[:, self.columns]
+        if self.scales is None:
             return hist
-        if self.columns.size and self.columns.max() >= hist.shape[1]:
-            raise VerifyError(f"{self.path}: model property handover_feature_columns points past the graph's "
-                              f"{hist.shape[1]} features (damaged); re-export the model")
-        return hist[:, self.columns]
+        if self.scales.size != hist.shape[1]:
+            raise VerifyError(f"{self.path}: model property handover_feature_scales has {self.scales.size} entries "
+                              f"for {hist.shape[1]} features (damaged); re-export the model")
+        return hist.astype(np.float64) / self.scales
 
     def run_with_words(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
         """Labels, scores, histogram and the word chosen for every window ``[N, S, C]`` per hard scale."""

@@ -12,7 +12,7 @@ import numpy as np
 from runtime.model import CODEWORD_KERNEL
 from trainer.bench.numpy_graph import GraphParts, SvmHead
 
-_SUPPORTED_OPS = frozenset({"Abs", "ReduceMax", "Greater", "Cast", "Unsqueeze", "Conv", "ArgMin", "OneHot", "ReduceSum",
+_SUPPORTED_OPS = frozenset({"Abs", "ReduceMax", "Greater", "Cast", "HardSigmoid", "Unsqueeze", "Conv", "ArgMin", "OneHot", "ReduceSum",
                             "Equal", "Transpose", "Mul", "MatMul", "Max", "Div", "Reshape", "Gemm", "Add", "ArgMax",
                             "Softsign"})
 _NEEDED = (CODEWORD_KERNEL, "codeword_sqnorm", "group_of_channel", "windows_per_channel", "pair_weights")

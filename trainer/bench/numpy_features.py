@@ -15,9 +15,10 @@ import numpy as np
 from trainer.bench.numpy_graph import GraphParts, SvmHead
 
 FAMILIES = ("hand", "stats")
-_PADS = ("pad_slots", "pad_moments")
-_HAND = ("inv_size", "centre", "time_rows", "band_rows", "tiny", "step_mean", "dx2_dy2", "touch_weights")
-_STATS = ("inv_size_fs", "fullscale", "contact_level", "area_weights", "inv_fs", "stats_time_rows", "inv_sqrt_t")
+_HAND = ("pad_moments", "centre", "time_rows", "band_rows", "tiny", "step_mean", "dx2_dy2", "touch_weights")
+_STATS = ("stats_moments", "inv_size", "contact_level", "area_weights")
+_BEFORE = ("inv_count", "inv_sqrt_t", "inv_fs", "inv_size_fs", "stats_time_rows", "padding_slots")
+"""Initializers only graphs exported before the current layout have (read as another kind: None)."""
 
 
 class NumpyFeatures:
@@ -26,20 +27,21 @@ class NumpyFeatures:
     def __init__(self, parts: GraphParts, families: tuple[str, ...]) -> None:
         self.families = families
         p = parts.first
-        self.slots = p("pad_slots")  # [G, S]
+        if parts.has("pad_slots"):
+            self.slots = p("pad_slots")  # [G, S]
+        else:  # pads of one size in channel order: a reshape
+            _, n_pads, size, _ = p("pad_shape")
+            self.slots = np.arange(n_pads * size).reshape(n_pads, size)
         self.n_pads, self.n_channels = self.slots.shape[0], int(self.slots.max()) + 1
-        moments = {m.ndim: m for m in parts.params["pad_moments"]}
         if "hand" in families:
-            self.kinds = moments[3]  # [G, 3, S]: ones, x, y of each slot
-            (self.inv_size, self.centre, self.time_rows, self.band_rows, self.tiny, self.step_mean, self.pair,
-             self.touch_weights) = (p(k) for k in _HAND)
-            self.inv_count = p("inv_count") if parts.has("inv_count") else None
+            (self.kinds, self.centre, self.time_rows, self.band_rows, self.tiny, self.step_mean, self.pair,
+             self.touch_weights) = (p(k) for k in _HAND)  # kinds [G, 3, S]: 1, x, y of each slot over the size
             self.std_weights = p("std_weights") if parts.has("std_weights") else None
             self.offset = p("median_offset")[:, :, 0] if parts.has("median_offset") else None
+        else:
+            self.rise = p("rise")
         if "stats" in families:
-            self.signal_weights = moments[2][:, : 3 * self.n_pads]  # [C, 3G]: ones, x, y (then the ones twice more)
-            (self.inv_size_fs, self.fullscale, self.contact_level, self.area_weights, self.inv_fs, self.stats_rows,
-             self.inv_sqrt_t) = (p(k) for k in _STATS)
+            self.stats_kinds, self.inv_size, self.contact_level, self.area_weights = (p(k) for k in _STATS)
         self.head = SvmHead(parts)
 
     @classmethod
@@ -48,11 +50,11 @@ class NumpyFeatures:
         families = tuple(parts.meta.get("features", {}).get("families", ()))
         if parts.meta.get("model_kind") != "feature_svm" or not families or set(families) - set(FAMILIES):
             return None
-        needed = _PADS + (_HAND if "hand" in families else ()) + (_STATS if "stats" in families else ())
-        if not parts.has(*needed) or not SvmHead.readable(parts):
+        needed = (_HAND if "hand" in families else ("rise",)) + (_STATS if "stats" in families else ())
+        if not parts.has(*needed) or not SvmHead.readable(parts) or any(parts.has(k) for k in _BEFORE):
             return None
-        if "hand" in families and (parts.has("padding_slots") or not (parts.has("inv_count") or parts.has("std_weights"))):
-            return None  # a graph from before std_weights (padding subtracted out again), or neither form
+        if not (parts.has("pad_slots") or parts.has("pad_shape")):
+            return None
         if "hand" in families and parts.has("std_weights") and not parts.has("median_offset"):
             return None  # pads whose padding does not split evenly: the graph takes medians pad by pad
         return cls(parts, families)
@@ -61,44 +63,48 @@ class NumpyFeatures:
         x = window.reshape(-1, self.n_channels)
         padded = x.T[self.slots]  # [G, S, T]: padding slots repeat a taxel of their pad
         peak = padded.max(axis=(1, 2))
-        blocks = {}
+        rows, signal_mean = self._rows(padded)
+        blocks = [rows.ravel()]  # the series' rows, joined once (``FeatureSVC.onnx_features``)
+        for family in self.families:  # the peak twice with both families (the same columns are taken)
+            blocks += [peak, self._median(padded), self._std(padded, signal_mean)] if family == "hand" else [peak]
+        return self.head(np.concatenate(blocks))
+
+    def _series(self, padded: np.ndarray) -> np.ndarray:
+        """``pad_series._hand_series`` and ``_stats_series``: ``[G, K, T]``."""
+        parts = []
         if "hand" in self.families:
-            blocks["hand"] = self._hand(x, padded, peak)
+            moments = self.kinds @ padded  # [G, 3, T]
+            signal, mxy = moments[:, :1], moments[:, 1:]
+            pressed = signal > 0
+            safe = np.where(pressed, signal, np.float32(1.0))
+            parts += [signal, np.where(pressed, mxy / safe, self.centre)]
         if "stats" in self.families:
-            blocks["stats"] = self._stats(x, peak)
-        return self.head(np.concatenate([blocks[f] for f in self.families]))
+            moments = self.stats_kinds @ np.abs(padded)  # [G, 3, T]
+            contact = (padded >= self.contact_level).astype(np.float32)
+            parts += [moments[:, :1], self.area_weights @ contact, moments[:, 1:] / (moments[:, :1] + self.inv_size)]
+        return np.concatenate(parts, axis=1)
 
-    def _hand(self, x: np.ndarray, padded: np.ndarray, peak: np.ndarray) -> np.ndarray:
-        """``HandGraphFeatures.onnx_parts``: the time rows, peak, median, std (the graph's layout, which
-        its scaler and support vectors follow)."""
-        rows, signal_mean = self._time_rows(padded)
-        return np.concatenate([rows.ravel(), peak, self._median(x, padded), self._std(padded, signal_mean)])
-
-    def _time_rows(self, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``hand._time_nodes``: rows ``[G, 3, 8]`` of each pad's (signal, centre x, centre y), and the
-        pads' mean."""
-        moments = self.kinds @ padded  # [G, 3, T]
-        weight, mxy = moments[:, :1], moments[:, 1:]
-        pressed = weight > 0
-        safe = np.where(pressed, weight, np.float32(1.0))
-        cop = np.where(pressed, mxy / safe, self.centre)  # [G, 2, T]
-        series = np.concatenate([weight * self.inv_size, cop], axis=1)  # [G, 3, T]
+    def _rows(self, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``pad_series._time_nodes``: rows ``[G, K, width]`` of every series, and the pads' mean value."""
+        series = self._series(padded)
         mean = series.mean(axis=2, keepdims=True)
-        over = (series - mean) @ self.time_rows  # [G, 3, 2B + T-1 + 2]: DFT, steps, deriv, rise
-        squared, ends = over[..., :-2], over[..., -2:]
-        sq = squared * squared
-        energy4 = sq @ self.band_rows  # [G, 3, 4]
+        centred = series - mean
+        root_sq = np.sqrt(np.einsum("gkt,gkt->gk", centred, centred))[..., None] if "stats" in self.families else mean
+        if "hand" not in self.families:
+            return np.concatenate([mean, root_sq, centred @ self.rise], axis=2), mean[:, 0, 0]
+        over = centred @ self.time_rows  # [G, K, 2B + T-1 + 2]: DFT, steps, deriv, rise
+        sq = over * over
+        energy4 = sq @ self.band_rows  # [G, K, 4]
         shares = energy4[..., :3] / np.maximum(energy4[..., 3:], self.tiny)
         log_energy = np.log(energy4[..., 3:] + np.float32(1.0))
         speed = np.sqrt(self.pair @ sq) @ self.step_mean
-        rows = np.concatenate([mean, shares, log_energy, ends, speed], axis=2)
-        return rows, mean[:, 0, 0]
+        return np.concatenate([mean, root_sq, shares, log_energy, over, speed], axis=2), mean[:, 0, 0]
 
-    def _median(self, x: np.ndarray, padded: np.ndarray) -> np.ndarray:
+    def _median(self, padded: np.ndarray) -> np.ndarray:
         """``pad_batch.median_nodes``: 0 when fewer than half of every pad's values can be non-zero, else
         the middle of the padded values (padding offset by +-inf in equal numbers)."""
-        touched = (np.abs(x).sum(axis=0) > 0).astype(np.float32)
-        if (touched @ self.touch_weights).max() <= 1:
+        touched = (np.abs(padded).sum(axis=2) > 0).astype(np.float32)  # [G, S]
+        if np.einsum("gs,gs->g", self.touch_weights[:, 0], touched).max() <= 1:
             return np.zeros(self.n_pads, dtype=np.float32)
         values = padded if self.offset is None else padded + self.offset[:, :, None]
         values = values.reshape(self.n_pads, -1)
@@ -110,22 +116,9 @@ class NumpyFeatures:
         return (part[:, k - 1] + part[:, k]) * np.float32(0.5)
 
     def _std(self, padded: np.ndarray, mean: np.ndarray) -> np.ndarray:
-        """``hand._std_nodes``: two passes; padded pads weigh each slot's squares (0 on padding)."""
+        """``hand._std_nodes``: two passes; padded pads weigh each slot's squares (0 on padding), pads of
+        one size give the root of the sum of squares (the graph's factor is in the SVM's weights)."""
         dev = padded - mean[:, None, None]
         if self.std_weights is not None:
             return np.sqrt((np.einsum("gst,gst->gs", dev, dev) * self.std_weights).sum(axis=1))
-        return np.sqrt(np.einsum("gst,gst->g", dev, dev) * self.inv_count)
-
-    def _stats(self, x: np.ndarray, peak: np.ndarray) -> np.ndarray:
-        """``PadStats.onnx_parts`` over ``signals.signal_nodes``: mean and change, std of the 4G signals, peaks."""
-        moments = np.abs(x) @ self.signal_weights  # [T, 3G]
-        g = self.n_pads
-        total = moments[:, :g]
-        den = total + self.fullscale
-        area = (x >= self.contact_level).astype(np.float32) @ self.area_weights
-        sig = np.concatenate([total * self.inv_size_fs, area, moments[:, g : 2 * g] / den, moments[:, 2 * g :] / den],
-                             axis=1)  # [T, 4G]
-        centred = sig - sig.mean(axis=0)
-        ends = self.stats_rows @ sig  # [2, 4G]: mean, last - first
-        std = np.sqrt(np.einsum("ts,ts->s", centred, centred)) * self.inv_sqrt_t
-        return np.concatenate([ends.ravel(), std, peak * self.inv_fs])
+        return np.sqrt(np.einsum("gst,gst->g", dev, dev))

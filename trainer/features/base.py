@@ -26,16 +26,55 @@ from trainer.features.signals import pad_shapes_for
 @dataclass(frozen=True)
 class OnnxParts:
     """A family's ONNX tensors ``[N, k_i]``; ``columns[i]``: where reference feature i sits in their
-    concatenation, ``width`` columns wide (columns not listed are computed and ignored)."""
+    concatenation, ``width`` columns wide (columns not listed are computed and ignored); ``scales[i]``
+    (None: all 1): the column holds reference feature i times it, so a constant factor is left to the
+    SVM's weights instead of costing a node."""
 
     tensors: list[str]
     columns: np.ndarray
     width: int
+    scales: np.ndarray | None = None
+    widths: tuple[int, ...] | None = None
+    """Columns of each tensor (None: unknown). With them, a tensor two families share (the same
+    name) is joined into the features once."""
+
+    def scale_of_each(self) -> np.ndarray:
+        """``scales`` with None spelled out (ones)."""
+        return np.ones(len(self.columns)) if self.scales is None else np.asarray(self.scales, dtype=np.float64)
 
     @classmethod
     def in_order(cls, tensors: list[str], n_features: int) -> OnnxParts:
         """Parts that already hold the features in the reference's order."""
         return cls(tensors, np.arange(int(n_features)), int(n_features))
+
+
+def join_parts(every: Sequence[OnnxParts]) -> OnnxParts:
+    """The parts of several families as one: their tensors in order (to be joined by one Concat) and
+    where each family's features sit. A tensor two families share (same name, ``widths`` known) is
+    joined once and read where it is, unless the same columns of it are already taken there."""
+    tensors: list[str] = []
+    columns, scales, width = [], [], 0
+    start_of: dict[str, int] = {}
+    for parts in every:
+        scales.append(parts.scale_of_each())
+        if parts.widths is None:  # one block of columns
+            tensors += parts.tensors
+            columns.append(parts.columns + width)
+            width += parts.width
+            continue
+        used = set(np.concatenate(columns).tolist()) if columns else set()
+        local = np.concatenate([[0], np.cumsum(parts.widths)]).astype(np.int64)
+        which = np.searchsorted(local, parts.columns, side="right") - 1
+        starts = []
+        for i, (tensor, size) in enumerate(zip(parts.tensors, parts.widths, strict=True)):
+            start = start_of.get(tensor)
+            if start is None or used & set((start + parts.columns[which == i] - local[i]).tolist()):
+                start, width = width, width + size
+                tensors.append(tensor)
+                start_of.setdefault(tensor, start)
+            starts.append(start)
+        columns.append(np.asarray(starts, dtype=np.int64)[which] + parts.columns - local[which])
+    return OnnxParts(tensors, np.concatenate(columns).astype(np.int64), width, np.concatenate(scales))
 
 
 def columns_in_order(columns: np.ndarray, width: int) -> bool:
@@ -81,9 +120,12 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
         """``[N, F]`` in the reference's order: the parts joined and, where needed, reordered (a Gather)."""
         parts = self.onnx_parts(g, frames)
         joined = g.op("Concat", parts.tensors, "family_features", axis=1) if len(parts.tensors) > 1 else parts.tensors[0]
-        if columns_in_order(parts.columns, parts.width):
+        if not columns_in_order(parts.columns, parts.width):
+            joined = g.op("Gather", [joined, g.const("feature_order", parts.columns, np.int64)], "family_ordered", axis=1)
+        scales = parts.scale_of_each()
+        if np.all(scales == 1.0):
             return joined
-        return g.op("Gather", [joined, g.const("feature_order", parts.columns, np.int64)], "family_ordered", axis=1)
+        return g.op("Mul", [joined, g.const("feature_unscale", 1.0 / scales)], "family_unscaled")
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()

@@ -1,11 +1,12 @@
 """The paper's hand-designed baseline features (``trainer.baseline.pad_features``: 14 per pad) as
 ONNX nodes, so the baseline ships as one graph like every other family.
 
-Per pad: max, mean and standard deviation of all taxel values (ReduceMax/ReduceMean), the median
-(TopK of the largest half, then the middle one or two), the FFT band shares and log energy of the
-pad's mean-pressure signal (two MatMuls with cosine/sine matrices: a DFT, not an FFT op), the mean
-derivative ((last - first) / (T - 1), the telescoped mean of the differences), and the centre of
-pressure (Where for an empty pad), its net displacement and mean speed.
+Per pad: max and standard deviation of all taxel values (ReduceMax, ReduceL2 about the mean), the
+median (an exact If for a zero median, else TopK of the largest half, then the middle one or two);
+from the pad's mean-pressure signal and centre of pressure over time (``trainer.features.pad_series``,
+shared with the level statistics): the mean, the FFT band shares and log energy (a DFT as a MatMul,
+not an FFT op), the mean derivative ((last - first) / (T - 1), the telescoped mean of the
+differences), the centre's mean, net displacement and mean speed.
 """
 
 from __future__ import annotations
@@ -15,20 +16,8 @@ import numpy as np
 from trainer.baseline import FEATURES_PER_PAD, pad_features
 from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds
 from trainer.features.pad_batch import PadBatch, median_nodes, peak_nodes
+from trainer.features.pad_series import SeriesColumns, SeriesNeed, pad_series_nodes
 from trainer.numerics import SAFETY, U32, gamma
-
-
-def dft_matrices(n_t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cosine and sine ``[T, B]`` of rfft bins 1 .. T//2 and the band indicator ``[B, 3]`` of
-    ``pad_features`` (thirds by ``np.array_split``; all bins in each band when fewer than 3)."""
-    bins = np.arange(1, n_t // 2 + 1)
-    angle = 2.0 * np.pi * np.outer(np.arange(n_t), bins) / n_t
-    n_bins = len(bins)
-    bands = np.array_split(np.arange(n_bins), 3) if n_bins >= 3 else [np.arange(n_bins)] * 3
-    indicator = np.zeros((n_bins, 3))
-    for b, idx in enumerate(bands):
-        indicator[idx, b] = 1.0
-    return np.cos(angle), np.sin(angle), indicator
 
 
 class HandGraphFeatures(FeatureFamily):
@@ -54,113 +43,53 @@ class HandGraphFeatures(FeatureFamily):
                               axis=1)
 
     def onnx_parts(self, g, frames: str) -> OnnxParts:
-        """All pads at once (``trainer.features.pad_batch``): the features come out feature-major
-        (``_time_nodes``' rows, then peak, median, std), and ``_pad_major_order`` says where each one
-        of the reference's pad-major order sits."""
+        """All pads at once (``trainer.features.pad_batch``, ``trainer.features.pad_series``): the series'
+        rows over time, then peak, median, std of the pads; ``_pad_major_order`` says where each
+        feature of the reference's pad-major order sits and what it is multiplied by there."""
         n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = peak_nodes(g, padded)  # [N, G]
         median = median_nodes(g, batch, frames, padded, peak, n_t)  # [N, G]
-        rows, signal_mean = _time_nodes(g, batch, padded, self.shapes_, n_t)  # [N, G, 3, 8], [N, G, 1, 1]
-        std = _std_nodes(g, batch, padded, signal_mean, n_t)
-        flat = g.op("Reshape", [rows, g.const("flat", [0, -1], np.int64)], "time_flat")
-        return OnnxParts([flat, peak, median, std], np.asarray(_pad_major_order(n_pads)), (_TIME_ROWS + 1) * 3 * n_pads)
+        series = pad_series_nodes(g, frames, self.shapes_, n_t, SeriesNeed(hand=True, fullscale=None))
+        std, std_scale = _std_nodes(g, batch, padded, series.signal_mean, n_t)
+        n_rows = n_pads * len(series.columns.series) * series.columns.width
+        columns, scales = _pad_major_order(series.columns, n_pads, n_rows)
+        scales[3 :: len(FEATURES_PER_PAD)] = std_scale
+        return OnnxParts([series.flat, peak, median, std], np.asarray(columns), n_rows + 3 * n_pads, scales,
+                         (n_rows, n_pads, n_pads, n_pads))
 
 
-def _pad_major_order(n_pads: int) -> list[int]:
-    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts: ``_time_nodes``' rows
-    flattened (pad by pad, 3 series - signal, centre of pressure x and y - by ``_TIME_ROWS``), then
-    ``[peak, median, std]`` of the pads."""
-    by_pad = _TIME_ROWS * 3 * n_pads
+_FROM_SERIES = [("signal", "mean"), ("signal", "share1"), ("signal", "share2"), ("signal", "share3"),
+                ("signal", "log_energy"), ("signal", "mean_derivative"), ("cop_x", "mean"), ("cop_y", "mean"),
+                ("cop_x", "change"), ("cop_y", "change"), ("signal", "speed")]
+"""``FEATURES_PER_PAD`` 1 and 4 .. 13 as (series, quantity) of ``trainer.features.pad_series``."""
+
+
+def _pad_major_order(columns: SeriesColumns, n_pads: int, n_rows: int) -> tuple[list[int], np.ndarray]:
+    """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts (the series' rows,
+    ``n_rows`` columns, then ``[peak, median, std]`` of the pads), and the factor each carries there
+    (1; the std's is set by the caller)."""
     order = []
     for p in range(n_pads):
-        signal, cop_x, cop_y = (_TIME_ROWS * (3 * p + k) for k in range(3))
-        order += [by_pad + p, signal, by_pad + n_pads + p, by_pad + 2 * n_pads + p, signal + 1, signal + 2,
-                  signal + 3, signal + 4, signal + 5, cop_x, cop_y, cop_x + 6, cop_y + 6, signal + 7]
-    return order
+        rows = [columns.column(p, series, quantity) for series, quantity in _FROM_SERIES]
+        order += [n_rows + p, rows[0], n_rows + n_pads + p, n_rows + 2 * n_pads + p, *rows[1:]]
+    return order, np.ones(len(order))
 
 
-_TIME_ROWS = 8
-"""Rows of ``_time_nodes``: mean, 3 band shares, log energy, mean derivative, last - first, mean speed."""
-
-
-def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> str:
-    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G, 1, 1]`` (two passes)."""
+def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> tuple[str, np.ndarray]:
+    """Standard deviation of each pad's values ``[N, G]`` about ``mean`` ``[N, G, 1, 1]`` (two passes),
+    times the returned factor per pad."""
     dev = g.op("Sub", [padded, mean], "dev")
-    if not batch.padded:
-        sq = g.op("ReduceSumSquare", [dev], "dev_sq", axes=[2, 3], keepdims=0)
-        return g.op("Sqrt", [g.op("Mul", [sq, g.const("inv_count", 1.0 / (batch.sizes * n_t))], "var")], "std")
+    if not batch.padded:  # the root of the sum of squares: the std times sqrt(size T)
+        return g.op("ReduceL2", [dev], "std_root", axes=[2, 3], keepdims=0), np.sqrt(batch.sizes * float(n_t))
     # padded pads: each slot's squares over time [N, G, S], then a weighted sum over the slots whose
     # weights are 0 on padding and 1 / (size T) on the pad's taxels (a pass over T times fewer values
     # than the whole tensor, and no subtraction that could cancel)
     slot_sq = g.op("ReduceSumSquare", [dev], "slot_sq", axes=[3], keepdims=0)
     weighted = g.op("Mul", [slot_sq, g.const("std_weights", batch.mask / (batch.sizes[:, None] * n_t))], "slot_var")
     var = g.op("ReduceSum", [weighted, g.const("slot_axis", [2], np.int64)], "var", keepdims=0)
-    return g.op("Sqrt", [var], "std")
-
-
-def time_rows(n_t: int) -> tuple[np.ndarray, int]:
-    """``[2B + T-1 + 2, T]`` over the frames: cosine and sine of rfft bins 1 .. T//2 and the T-1 steps
-    (the values whose squares count), then the mean derivative and last - first; and B. Applied to
-    the centred series (two passes: a constant series has exactly zero energy, not float32 noise
-    whose band shares are anything)."""
-    cos, sin, _ = dft_matrices(n_t)
-    rise = np.zeros((1, n_t))
-    rise[0, 0], rise[0, -1] = -1.0, 1.0
-    steps = np.eye(n_t - 1, n_t, 1) - np.eye(n_t - 1, n_t)
-    return np.concatenate([cos.T, sin.T, steps, rise / max(n_t - 1, 1), rise]), cos.shape[1]
-
-
-def _time_nodes(g, batch: PadBatch, padded: str, shapes, n_t: int) -> tuple[str, str]:
-    """Everything from the per-frame pad sums and centres of pressure, for all pads at once, as
-    ``_TIME_ROWS`` rows ``[N, G, 3, 8]`` of each pad's three series (signal, centre x, centre y):
-    mean, FFT band shares and log energy, mean derivative, last - first (the centre's net
-    displacement), mean speed (on the signal). Also the pads' mean value ``[N, G, 1, 1]``. Rows a
-    series does not use are computed and ignored (cheaper than slicing them away). Time stays the
-    last axis throughout, so each product over time is one GEMM for all pads."""
-    n_pads, width = len(shapes), int(batch.sizes.max())
-    kinds = np.zeros((n_pads, 3, width))  # per pad: ones, x, y of each taxel slot (0 on padding)
-    centre = np.zeros((n_pads, 2, 1))
-    for p, (rows, cols) in enumerate(shapes):
-        y, x = np.divmod(np.arange(rows * cols), cols)
-        kinds[p, 0, : rows * cols], kinds[p, 1, : rows * cols], kinds[p, 2, : rows * cols] = 1.0, x, y
-        centre[p, :, 0] = (cols - 1) / 2, (rows - 1) / 2
-    sizes = batch.sizes.astype(np.float64)
-    moments = g.op("MatMul", [g.const("pad_moments", kinds), padded], "moments")  # [N, G, 3, T]
-    weight, mxy = g.name("weight"), g.name("mxy")
-    g.op("Split", [moments, g.const("split", [1, 2], np.int64)], outputs=[weight, mxy], axis=2)
-    signal = g.op("Mul", [weight, g.const("inv_size", 1.0 / sizes[:, None, None])], "signal")  # [N, G, 1, T]
-    pressed = g.op("Greater", [weight, g.const("zero", 0.0)], "pressed")
-    # an unpressed pad's quotient (0/0, x/negative) is computed and never selected: no guard needed
-    cop = g.op("Where", [pressed, g.op("Div", [mxy, weight], "cop_raw"), g.const("centre", centre)], "cop")
-    series = g.op("Concat", [signal, cop], "series", axis=2)  # [N, G, 3, T]
-    mean = g.op("ReduceMean", [series], "series_mean", axes=[3], keepdims=1)  # [N, G, 3, 1]
-    centred = g.op("Sub", [series, mean], "centred")
-    rows_t, n_bins = time_rows(n_t)
-    n_sq = 2 * n_bins + n_t - 1
-    over_time = g.op("MatMul", [centred, g.const("time_rows", rows_t.T)], "over_time")  # [N, G, 3, 2B + T-1 + 2]
-    squared, ends = g.name("squared"), g.name("deriv_rise")
-    g.op("Split", [over_time, g.const("split_time", [n_sq, 2], np.int64)], outputs=[squared, ends], axis=3)
-    sq = g.op("Mul", [squared, squared], "power")  # re^2 and im^2 of each bin, then the steps' squares
-    _, _, bands = dft_matrices(n_t)
-    energy_cols = np.zeros((n_sq, 4))  # [band energies, energy] from the bins' squares
-    energy_cols[: 2 * n_bins] = np.concatenate([np.concatenate([bands, bands]), np.ones((2 * n_bins, 1))], axis=1)
-    energy4 = g.op("MatMul", [sq, g.const("band_rows", energy_cols)], "energy4")  # [N, G, 3, 4]
-    band_energy, energy = g.name("band_energy"), g.name("energy")
-    g.op("Split", [energy4, g.const("split_energy", [3, 1], np.int64)], outputs=[band_energy, energy], axis=3)
-    shares = g.op("Div", [band_energy, g.op("Max", [energy, g.const("tiny", 1e-12)], "energy_floor")], "shares")
-    log_energy = g.op("Log", [g.op("Add", [energy, g.const("one", 1.0)])], "log_energy")
-    pair = np.zeros((3, 3))  # dx^2 + dy^2 into the signal's row
-    pair[0, 1] = pair[0, 2] = 1.0
-    step_len = g.op("Sqrt", [g.op("MatMul", [g.const("dx2_dy2", pair), sq], "step_len2")], "step_len")
-    step_mean = np.zeros((n_sq, 1))  # the mean over the steps' columns
-    step_mean[2 * n_bins :] = 1.0 / max(n_t - 1, 1)
-    speed = g.op("MatMul", [step_len, g.const("step_mean", step_mean)], "speed")  # [N, G, 3, 1]
-    rows = g.op("Concat", [mean, shares, log_energy, ends, speed], "time_rows", axis=3)
-    signal_mean = g.op("Slice", [mean, g.const("start", [0], np.int64), g.const("stop", [1], np.int64),
-                                 g.const("axis", [2], np.int64)], "signal_mean")
-    return rows, signal_mean
+    return g.op("Sqrt", [var], "std"), np.ones(len(batch.sizes))
 
 
 def pad_error_bounds(P: np.ndarray, rows: int, cols: int) -> np.ndarray:

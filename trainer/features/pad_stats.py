@@ -12,15 +12,9 @@ import numpy as np
 
 from trainer.features.base import FeatureFamily, OnnxParts, pad_bounds
 from trainer.features.pad_batch import PadBatch, peak_nodes
-from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
+from trainer.features.pad_series import STATS_SERIES, SeriesNeed, pad_series_nodes
+from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds
 from trainer.numerics import U32, gamma
-
-
-def ends_rows(n_t: int) -> np.ndarray:
-    """``[2, T]`` over the frames: the mean and last - first."""
-    rise = np.zeros(n_t)
-    rise[0], rise[-1] = -1.0, 1.0
-    return np.vstack([np.full(n_t, 1.0 / n_t), rise])
 
 
 class PadStats(FeatureFamily):
@@ -44,7 +38,7 @@ class PadStats(FeatureFamily):
 
     def error_bounds(self, X) -> np.ndarray:
         """Bound on |float32 - float64| per feature: the signals' bound carried through mean, the
-        two-pass variance and its square root, and the difference of two frames."""
+        two-pass variance and its square root, and the difference of two centred frames."""
         X = self._check(X)
         s = pad_signals(X, self.shapes_, float(self.fullscale))
         e = signal_error_bounds(X, self.shapes_, float(self.fullscale))
@@ -57,30 +51,30 @@ class PadStats(FeatureFamily):
         e_var = (2 * np.abs(c) * e_c + e_c**2).mean(axis=2) + gamma(n_t + 2) * var
         std = np.sqrt(var)
         e_std = np.minimum(np.sqrt(e_var), e_var / np.maximum(std, 1e-300)) + U32 * std
-        e_change = e[:, :, -1] + e[:, :, 0] + U32 * (np.abs(s[:, :, -1]) + np.abs(s[:, :, 0]))
+        # the graph takes last - first of the centred signal: both differences round (the mean cancels)
+        e_change = e[:, :, -1] + e[:, :, 0] + 2 * U32 * (np.abs(s[:, :, -1]) + np.abs(s[:, :, 0]) + np.abs(mean))
         peak = np.stack([np.abs(X[:, a:b]).max(axis=(1, 2)) for a, b in pad_bounds(self.shapes_)], axis=1)
         return np.concatenate([e_mean, e_std, e_change, U32 * peak / float(self.fullscale)], axis=1)
 
     def onnx_parts(self, g, frames: str) -> OnnxParts:
-        """The standard deviation in two passes (a constant signal's is exactly 0) as the centred
-        signals' L2 norm / sqrt(T); the mean and the change from one MatMul over time (``ends_rows``).
-        Parts: ``[mean, change]``, std, peak."""
-        n_t, n_sig = int(self.n_timepoints_), len(SIGNALS) * len(self.shapes_)
-        sig = signal_nodes(g, frames, self.shapes_, float(self.fullscale))  # [N, T, S]
-        centred = g.op("Sub", [sig, g.op("ReduceMean", [sig], "signal_mean3", axes=[1], keepdims=1)], "signal_centred")
-        l2 = g.op("ReduceL2", [centred], "signal_l2", axes=[1], keepdims=0)
-        std = g.op("Mul", [l2, g.const("inv_sqrt_t", 1.0 / np.sqrt(n_t))], "signal_std")
-        ends = g.op("MatMul", [g.const("stats_time_rows", ends_rows(n_t)), sig], "signal_ends")  # [N, 2, S]
-        mean_change = g.op("Reshape", [ends, g.const("flat_shape", [0, 2 * n_sig], np.int64)], "signal_mean_change")
-        n_pads = len(self.shapes_)
-        s = np.arange(n_sig)
-        columns = np.concatenate([s, 2 * n_sig + s, n_sig + s, 3 * n_sig + np.arange(n_pads)])
-        return OnnxParts([mean_change, std, self._peak_nodes(g, frames)], columns, 3 * n_sig + n_pads)
+        """From the pads' series (``trainer.features.pad_series``, shared with the hand family's): the
+        mean, the change (last - first of the centred series) and the root of the centred squares
+        (the std times sqrt(T): two passes, a constant signal's is exactly 0), and the peak taxel
+        (unscaled: its 1 / fullscale is in the SVM's weights). Parts: the series' rows, peak."""
+        n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
+        series = pad_series_nodes(g, frames, self.shapes_, n_t, SeriesNeed(hand=False, fullscale=float(self.fullscale)))
+        rows, n_rows = series.columns, n_pads * len(series.columns.series) * series.columns.width
+        columns = [rows.column(p, s, quantity) for quantity in ("mean", "root_sq", "change")
+                   for s in STATS_SERIES for p in range(n_pads)] + [n_rows + p for p in range(n_pads)]
+        n_sig = len(SIGNALS) * n_pads
+        scales = np.concatenate([np.ones(n_sig), np.full(n_sig, np.sqrt(n_t)), np.ones(n_sig),
+                                 np.full(n_pads, float(self.fullscale))])
+        return OnnxParts([series.flat, self._peak_nodes(g, frames)], np.asarray(columns), n_rows + n_pads, scales,
+                         (n_rows, n_pads))
 
     def _peak_nodes(self, g, frames: str) -> str:
-        """Each pad's peak taxel / fullscale ``[N, G]`` (shares the hand family's nodes when both are in)."""
-        peak = peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))
-        return g.op("Mul", [peak, g.const("inv_fs", 1.0 / float(self.fullscale))], "peak")
+        """Each pad's peak taxel ``[N, G]`` (unscaled; shares the hand family's nodes when both are in)."""
+        return peak_nodes(g, PadBatch.of(self.shapes_).nodes(g, frames))
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         pads = range(len(self.shapes_))

@@ -102,12 +102,12 @@ def signal_nodes(g, frames: str, pad_shapes: Sequence[tuple[int, int]], fullscal
     mag = g.op("Abs", [frames], "magnitude")
     # the pad sums twice more, so one Add and one Div give both centroids (no broadcast of [N, T, G]
     # over [N, T, 2G] without a node to spare)
-    weights = np.concatenate([ones, xs, ys, ones, ones], axis=1)
+    # the pressure's scale in its weights (no Mul after the sum)
+    weights = np.concatenate([ones / (sizes * fullscale), xs, ys, ones, ones], axis=1)
     moments = g.op("MatMul", [mag, g.const("pad_moments", weights)], "moments")
-    total, mxy, total2 = g.name("total"), g.name("mxy"), g.name("total2")
-    g.op("Split", [moments, g.const("split3", [n_pads, 2 * n_pads, 2 * n_pads], np.int64)], outputs=[total, mxy, total2],
-         axis=2)
-    pressure = g.op("Mul", [total, g.const("inv_size_fs", 1.0 / (sizes * fullscale))], "pressure")
+    pressure, mxy, total2 = g.name("pressure"), g.name("mxy"), g.name("total2")
+    g.op("Split", [moments, g.const("split3", [n_pads, 2 * n_pads, 2 * n_pads], np.int64)],
+         outputs=[pressure, mxy, total2], axis=2)
     den = g.op("Add", [total2, g.const("fullscale", fullscale)], "centroid_den")
     contact = g.op("Cast", [g.op("GreaterOrEqual", [frames, g.const("contact_level", contact_fraction * fullscale)])],
                    "contact", to=1)
