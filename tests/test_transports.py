@@ -217,6 +217,20 @@ def test_usb_transport_through_emulated_pyusb_backend(rec, chip, vid, expected):
     assert backend.detached == [] and backend.claimed == set()  # kernel driver back, interface released
 
 
+def test_usb_transport_polls_one_packet_at_a_time(rec):
+    """A poll (read timeout 0, runtime.rehearsal) waits libusb's shortest timeout, 1 ms; pyusb drops
+    whatever a timed-out transfer had received, so a transfer longer than one packet that times
+    out while a frame streams in loses its full packets. One packet per poll loses nothing."""
+    backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
+    t = open_transport("usb://0403:6001", backend=backend)
+    before = len(backend.read_sizes)
+    t.read(4096, 0.0)
+    polled = backend.read_sizes[before:]
+    t.read(4096, 0.05)
+    assert polled == [EmulatedUsbBackend.PACKET] and backend.read_sizes[-1] == 4096
+    t.close()
+
+
 def test_usb_transport_errors(rec):
     backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
     with pytest.raises(DeviceUnavailable, match="serial 'other'"):

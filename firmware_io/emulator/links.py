@@ -104,6 +104,8 @@ class EmulatedUsbBackend:
         self.control_requests: list[tuple[int, int, int, int, bytes]] = []
         self.configuration: int | None = None
         self.unplugged = False
+        self.read_sizes: list[int] = []
+        """Bytes each bulk IN transfer asked for (a transfer that times out loses what it had received)."""
         self._lock = threading.Lock()
         if chip == "cdc":
             self._interfaces = [
@@ -217,6 +219,7 @@ class EmulatedUsbBackend:
         from usb.core import USBTimeoutError
 
         self._check_plugged()
+        self.read_sizes.append(len(buff))
         status = FTDI_STATUS if self.chip == "ftdi" else b""
         room = len(buff) // self.PACKET * (self.PACKET - len(status)) or (len(buff) - len(status))
         deadline = time.monotonic() + (timeout or 1000) / 1000.0

@@ -223,7 +223,9 @@ class UsbTransport(Transport):
         deadline = time.monotonic() + max(timeout, 0.0)
         while not self._buf:
             remaining = deadline - time.monotonic()
-            size = max(self._packet, min(16384, -(-max_bytes // self._packet) * self._packet))
+            # A poll asks for one packet: pyusb drops what a timed-out transfer had received, and a
+            # longer transfer that times out between full packets of a frame loses them (a CRC error).
+            size = self._packet if timeout <= 0 else max(self._packet, min(16384, -(-max_bytes // self._packet) * self._packet))
             try:
                 chunk = bytes(self._ep_in.read(size, timeout=max(1, int(remaining * 1000))))
             except self._core.USBTimeoutError:
