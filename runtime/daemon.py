@@ -260,7 +260,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
 
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
-        self.garbage.collect(now, self.window_open)
+        self.garbage.collect(now, self.window_open, self.rehearsal.due is not None)
         self.notifier.watchdog(now)
         self._swap_and_report(now)
         self._link_held()

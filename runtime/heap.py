@@ -5,7 +5,8 @@ wherever that happens; in the daemon that was about once per 600 frames, 100 us 
 worst), a middle generation 0.8 ms and a full one 7 ms in the latency benchmark's process. One
 such pause inside a decision is the decision's p99.9. So the daemon hides start-up's objects from
 the collector (``gc.freeze``), turns automatic collection off, and collects itself from its loop,
-only while no window is open (between frames there are 31 ms; a collection takes at most a few):
+only while no window is open (between frames there are 31 ms; a collection takes at most a few;
+a stream that keeps windows open still gets one every ``MAX_DEFER_S``, never just before a due frame):
 the young generations every ``YOUNG_PERIOD_S``, everything every ``FULL_PERIOD_S``. Reference
 counting frees almost everything at once anyway; the collector is only for cycles.
 """
@@ -34,16 +35,24 @@ def release_heap() -> None:
     gc.enable()
 
 
+MAX_DEFER_S = 10.0
+"""A collection kept waiting this long by windows that stay open (a trigger that fires all the
+time) runs anyway, unless the frame that completes a window is the next one."""
+
+
 class GarbageSchedule:
-    """``collect(now, window_open)``: collect what is due, unless a window is open (then later)."""
+    """``collect(now, window_open, frame_due)``: collect what is due, unless a window is open (then
+    later, at most ``MAX_DEFER_S`` late) or its last frame is the next to come (then never)."""
 
     def __init__(self) -> None:
-        self._young_due = 0.0
+        self._young_due: float | None = None
         self._full_due = 0.0
         self.collections = 0
 
-    def collect(self, now: float, window_open: bool) -> None:
-        if window_open or now < self._young_due:
+    def collect(self, now: float, window_open: bool, frame_due: bool = False) -> None:
+        if self._young_due is None:  # the first call: everything is due from now on
+            self._young_due = self._full_due = now
+        if now < self._young_due or frame_due or (window_open and now < self._young_due + MAX_DEFER_S):
             return
         full = now >= self._full_due
         gc.collect(2 if full else 1)

@@ -7,7 +7,7 @@ import threading
 
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
-from runtime.heap import FULL_PERIOD_S, YOUNG_PERIOD_S, GarbageSchedule
+from runtime.heap import FULL_PERIOD_S, MAX_DEFER_S, YOUNG_PERIOD_S, GarbageSchedule
 from runtime.listeners import FrameListener
 from tests.tiny_models import tiny_model_bytes, write_model
 
@@ -23,6 +23,13 @@ def test_the_schedule_collects_between_windows_only_and_everything_now_and_then(
     garbage.collect(100.0 + YOUNG_PERIOD_S, window_open=False)
     garbage.collect(100.0 + FULL_PERIOD_S, window_open=False)
     assert calls == [2, 1, 2] and garbage.collections == 3
+    # windows open all the time (a trigger that keeps firing): late, but not never; never just before a due frame
+    t = 100.0 + FULL_PERIOD_S + YOUNG_PERIOD_S
+    garbage.collect(t + MAX_DEFER_S / 2, window_open=True)
+    garbage.collect(t + MAX_DEFER_S, window_open=True, frame_due=True)
+    assert calls == [2, 1, 2]
+    garbage.collect(t + MAX_DEFER_S, window_open=True)
+    assert calls == [2, 1, 2, 1]
 
 
 class _GcState(FrameListener):

@@ -12,6 +12,8 @@ from pathlib import Path
 
 def out_folder_problem(folder: str | Path, option: str = "--out") -> str | None:
     """Create ``folder`` (and its parents) and check it takes files; None, or the line to print."""
+    if not str(folder).strip():  # Path("") is the current folder: an empty option is a slip, not a choice
+        return f"{option} is empty; give a folder (it is created if missing), e.g. {option} ./out"
     path = Path(folder)
     try:
         path.mkdir(parents=True, exist_ok=True)

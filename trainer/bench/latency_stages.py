@@ -120,7 +120,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     marks = np.zeros((len(packets), 3))
     try:
         while not link.done:
-            daemon.garbage.collect(clock(), daemon.window_open)  # as the loop's housekeeping does
+            daemon.garbage.collect(clock(), daemon.window_open, daemon.rehearsal.due is not None)  # as the loop does
             frame = daemon.rehearsal.read(read, READ_TIMEOUT_S)
             if frame is None:
                 continue
