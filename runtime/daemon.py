@@ -102,6 +102,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.trigger: Any = None
         """ThresholdTrigger, OnsetTrigger (runtime/onset.py) or ContinuousTrigger."""
         self.trigger_settings: TriggerSettings | None = None
+        self._trigger_key: tuple | None = None
+        """What the trigger was built from (runtime.model_serving): the same key keeps it, and its state."""
         self._grasp_requests: deque[tuple[bool, str]] = deque(maxlen=64)
         self.grasp_closed: bool | None = None
         """The robot's last word on its grasp (``set_grasp``), None before any."""

@@ -54,6 +54,7 @@ class ModelServing:
     period_s: float
     frame_clock: Any  # runtime.frame_rate.FrameClock
     rehearsal: Any  # runtime.rehearsal.Rehearsal
+    _trigger_key: tuple | None
 
     def serve(self, model: Any, layout: SensorLayout) -> None:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame``.
@@ -144,6 +145,21 @@ class ModelServing:
             self.ring = RingBuffer(cols, capacity)
         elif self.ring.capacity < capacity:
             self.ring = self.ring.resized(capacity)
+        mode = self.cfg.scene.mode
+        key = (mode, settings, self.cfg.continuous if mode == "continuous" else None, cols.tobytes(), T,
+               self.period_s, meta.fullscale if meta else self.layout.fullscale, meta.classes if meta else None,
+               meta.dormant_class if meta else None)
+        # the same trigger and report rule (a SIGHUP that changed other sections, a model of the same kind
+        # swapped in) keep their state, e.g. the onset trigger's settled grasp
+        if not (keep_history and self.trigger is not None and key == self._trigger_key):
+            self._new_trigger(settings, pads, meta, T, keep_history)
+        self._trigger_key = key
+        self._pending.clear()
+        self.rehearsal.cancel()  # a rehearsal of the old ring or model is not worth running
+
+    def _new_trigger(self, settings: Any, pads: Any, meta: Any, T: int, keep_history: bool) -> None:
+        """A trigger (and continuous mode's report rule) for these settings; a threshold trigger takes
+        over the old one's arming, an onset trigger the robot's closed grasp."""
         old = self.trigger
         self.decision = None
         if self.cfg.scene.mode == "continuous":
@@ -153,17 +169,14 @@ class ModelServing:
                 self.decision = ContinuousDecision(
                     len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
                     min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
-        else:
-            fullscale = float(meta.fullscale) if meta else self.layout.fullscale
-            pad_sizes = self.layout.pad_sizes(pads)
-            self.trigger = build_trigger(settings, pad_sizes, fullscale, T, 1.0 / self.period_s,
-                                         self.layout.pad_fingers(pads))
-            if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
-                self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
-            elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
-                self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
-        self._pending.clear()
-        self.rehearsal.cancel()  # a rehearsal of the old ring or model is not worth running
+            return
+        fullscale = float(meta.fullscale) if meta else self.layout.fullscale
+        self.trigger = build_trigger(settings, self.layout.pad_sizes(pads), fullscale, T, 1.0 / self.period_s,
+                                     self.layout.pad_fingers(pads))
+        if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
+            self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
+        elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
+            self.trigger.set_grasp(True)  # a new trigger on the same settled grasp
 
     def _take_out_of_service(self, model: Any, reason: str) -> None:
         """A model broke the output contract at run time: one line, never load this file version

@@ -265,3 +265,22 @@ def test_continuous_mode_reports_a_hold_once(tmp_path):
     for frame in _frames(levels):
         daemon.handle_frame(frame)
     assert [e.cls for e in events] == ["hold"] and 100 <= events[0].frame_last <= 125
+
+
+def test_a_reload_that_changes_no_trigger_setting_keeps_the_settled_grasp(tmp_path):
+    """SIGHUP rebuilt the onset trigger, which then had to find the settled grasp again (the attacker:
+    a storm of reloads gave 0 decisions in 18 s). Same settings: the same trigger, its state kept."""
+    daemon, events = _daemon(tmp_path)
+    levels = grasp_levels(400)
+    levels[200:240, 0] *= 1.3
+    frames = _frames(levels)
+    for frame in frames[:150]:  # the grasp has settled
+        daemon.handle_frame(frame)
+    trigger = daemon.trigger
+    daemon._build_hot_path(keep_history=True)  # what a reload with an unchanged scene and trigger does
+    assert daemon.trigger is trigger
+    for frame in frames[150:]:
+        daemon.handle_frame(frame)
+    assert len(events) == 1 and 200 <= events[0].frame_first <= 202
+    daemon._build_hot_path(keep_history=False)  # a reconnect forgets the history: a new trigger
+    assert daemon.trigger is not trigger
