@@ -149,7 +149,7 @@ class DSAClient:
         return layout
 
     @classmethod
-    def streaming(cls, transport: Transport, layout: SensorLayout, **opts: Any) -> DSAClient:
+    def already_streaming(cls, transport: Transport, layout: SensorLayout, **opts: Any) -> DSAClient:
         """A client on a link that already streams frames of ``layout`` (a benchmark's or a test's
         feed of frame packets): no handshake, ``read_frame`` works at once, no reconnect."""
         client = cls(transport, auto_reconnect=False, **opts)

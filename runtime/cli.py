@@ -80,6 +80,19 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:  # argparse calls it for every wrong option
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
+    def parse_known_args(self, args=None, namespace=None):
+        """Also refuses an empty value (``--out ''``, ``--data=``): always a slip, and an empty path
+        means the current folder (``simulate --out ''`` wrote 84 MB of recordings there)."""
+        args = list(sys.argv[1:] if args is None else args)
+        for i, arg in enumerate(args):
+            name, eq, value = arg.partition("=")
+            if name.startswith("--") and eq and not value.strip():
+                self.error(f"{name} is empty; give it a value")
+            if not arg.strip():
+                before = args[i - 1] if i and args[i - 1].startswith("-") else "an argument"
+                self.error(f"{before} is empty; give it a value")
+        return super().parse_known_args(args, namespace)
+
 
 def build_parser(name: str, module) -> argparse.ArgumentParser:
     """The parser of one command, its --help showing every default (also of options without a help text)."""

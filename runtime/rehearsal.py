@@ -9,10 +9,12 @@ back 57 us; after a 31 ms sleep 158 us; a rehearsal 2 ms before, then sleeping u
 104 us; the same rehearsal followed by polling (the core never idles) 79 us. Warming the caches
 is not enough when the core then sleeps; polling alone is not enough when the caches are cold.
 
-Policy: when the trigger has fixed the due frame, its arrival is predictable (one sample period
-after the frame before it, ``expect``). The hot thread reads as usual until ``LEAD_S`` before
-that, runs the model once on the current window (answer discarded), then polls the device
-without blocking until the frame arrives or ``GRACE_S`` after its expected arrival, when it goes
+Policy: when the trigger has fixed the due frame, its arrival is predictable (the measured stream
+period after the frame before it: ``runtime.frame_rate.FrameClock.next_admitted_s``, ``expect``).
+The hot thread reads as usual until ``LEAD_S`` before that, runs the rehearsal it was given (the
+daemon's: the model on the current window, the output check, an event encoded, the client's receive
+path; nothing sent or counted), then polls the device without blocking until the frame arrives or
+``GRACE_S`` after its expected arrival, when it goes
 back to blocking reads. Cost: at most ``LEAD_S + GRACE_S`` of one core per decision, nothing
 per frame and nothing while no window is open. Everything runs in the hot thread: no thread to
 start, to race with the ring, or to join at shutdown.

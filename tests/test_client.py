@@ -364,7 +364,7 @@ def test_rehearse_takes_the_last_frame_through_the_receive_path_and_changes_noth
     layout = SensorLayout.sdh2()
     values = np.zeros(layout.n_taxels, dtype=np.uint16)
     values[40:46] = 900
-    client = DSAClient.streaming(Packets([encode_frame(values, 5, rle=True)] * 2), layout)
+    client = DSAClient.already_streaming(Packets([encode_frame(values, 5, rle=True)] * 2), layout)
     client.rehearse()  # nothing received yet: nothing to rehearse
     first = client.read_frame(0)
     assert first is not None and first.timestamp_ms == 5

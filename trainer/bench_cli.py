@@ -35,7 +35,7 @@ HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("which", choices=(*BENCHMARKS, "all", *SINGLE),
+    parser.add_argument("which", metavar="BENCHMARK", choices=(*BENCHMARKS, "all", *SINGLE),
                         help=f"which benchmark to run ('all' = {', '.join(BENCHMARKS)}; {', '.join(SINGLE)} run only "
                         "by name)")
     parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")

@@ -113,7 +113,7 @@ class FaultPlan:
             except ValueError as exc:
                 if isinstance(exc, FaultSpecError):
                     raise
-                raise FaultSpecError(f"fault {item!r}: bad value ({_FAULT_VALUES.get(key, 'see --help')})") from None
+                raise FaultSpecError(f"{item!r}: bad value ({_FAULT_VALUES.get(key, 'see --help')})") from None
         return plan
 
     @property

@@ -111,7 +111,8 @@ def implementations(model_path: Path, stream, rounds: int, load: bool) -> dict:
            "solo": stages.solo(fns, windows, rounds),
            "back_to_back": stages.compare(fns, windows, rounds, paced=False),
            "paced_32hz": stages.compare(fns, windows, max(20, rounds // 10), paced=True),
-           "paced_rehearsed": {"onnxruntime": stages.rehearsed(fns["onnxruntime"], windows, max(20, rounds // 10))}}
+           "paced_asleep": {"onnxruntime": stages.paced_alone(fns["onnxruntime"], windows, max(20, rounds // 10), False)},
+           "paced_rehearsed": {"onnxruntime": stages.paced_alone(fns["onnxruntime"], windows, max(20, rounds // 10), True)}}
     if load:
         with harness.CpuLoad(2):
             out["back_to_back_load"] = stages.compare(fns, windows, max(20, rounds // 4), paced=False)
@@ -138,6 +139,7 @@ def run(args) -> dict:
         model_path = train_default_model(work, seed=args.seed, quick=args.quick)
         distal_path = train_default_model(work, seed=args.seed, quick=args.quick, name="distal.onnx", pads="distal")
         model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
+        distal_nodes = load_model(distal_path, intra_op_threads=1, allow_spinning=False).n_nodes
         dense = tap_stream(args.seed, args.quick, n_windows=paced_decisions + 10, gap=tap_gap())
         say(f"latency: stage table, back to back and paced at 32 Hz ({paced_decisions} decisions) ...")
         before, result["scheduling"] = realtime.enter_realtime(DEFAULT_PRIORITY)  # as the daemon's hot thread
@@ -170,7 +172,8 @@ def run(args) -> dict:
     result.update(headline(result))
     result.update(
         model={"kind": model.meta.extra.get("model_kind"), "K": model.meta.K, "W": model.meta.W, "T": model.meta.T,
-               "n_channels": model.meta.n_channels, "n_nodes": model.n_nodes, "pads": list(model.meta.pads)},
+               "n_channels": model.meta.n_channels, "n_nodes": model.n_nodes, "pads": list(model.meta.pads),
+               "n_nodes_distal": distal_nodes},
         duration_s=duration, window_period_frames=15 + tap_gap(), seconds=round(time.perf_counter() - t_start, 1),
         machine=machine_info(), load_before=load_before, load_after=load_average(), command=command_line(NAME, args),
     )
@@ -244,7 +247,8 @@ def _targets_lines(res: dict) -> list[str]:
 
 
 RHYTHMS = {"solo": "alone, back to back", "back_to_back": "interleaved, back to back",
-           "paced_32hz": "interleaved, paced 32 Hz", "paced_rehearsed": "paced 32 Hz, kept warm",
+           "paced_32hz": "interleaved, paced 32 Hz", "paced_asleep": "alone, paced 32 Hz, asleep until the frame",
+           "paced_rehearsed": "alone, paced 32 Hz, kept warm",
            "back_to_back_load": "interleaved, back to back, under load"}
 """Rows of the implementation table: ``solo`` gives the absolute figures (the headline), the
 interleaved ones the ratios."""
@@ -279,10 +283,11 @@ def _implementation_lines(res: dict) -> list[str]:
               "*ratios* hold where absolute figures do not (`numpy_over_onnx_p50`, `sklearn_over_onnx_p50`); but "
               "every call then runs in caches the other two just filled, which inflates a call of a few tens of "
               "microseconds by a factor of two to three: those medians are not what a decision costs.", "",
-              f"Paced, kept warm: paced at 32 Hz and waited for as the daemon waits for a due frame "
-              f"(`runtime.rehearsal`: blocked until {LEAD_S * 1e3:g} ms before it, then one rehearsal run and polling "
-              "instead of sleeping), as the stage tables above do. Against the interleaved paced row: how much of the "
-              "paced cliff is caches lost during the 31 ms idle."]
+              "Alone, paced 32 Hz: the graph by itself, one window each sample period. **Asleep until the frame**: "
+              "the thread blocks until the window's last frame arrives (as the daemon did before "
+              f"`runtime.rehearsal`). **Kept warm**: waited for as the daemon waits for a due frame (blocked until "
+              f"{LEAD_S * 1e3:g} ms before it, then one rehearsal run and polling instead of sleeping), as the stage "
+              "tables above do. The two rows together: how much of the paced cliff keeping warm removes."]
     return lines
 
 
@@ -296,7 +301,7 @@ def markdown(res: dict) -> list[str]:
     m = res["model"]
     lines = ["# Latency by stage and end to end (synthetic data)", "",
              f"Deadline: one sample period, {DEADLINE_US:.0f} us at 32 Hz. Model: the default ({_kind(m)}T={m['T']}, "
-             f"{m['n_channels']} taxels of pads {m['pads']}, {m['n_nodes']} nodes) trained "
+             f"{m['n_channels']} taxels of pads {m['pads']}, {m['n_nodes']} nodes; {m.get('n_nodes_distal', '?')} on the distal pads) trained "
              "on the simulated protocol (synthetic). The last column says how many times each figure fits into "
              "the deadline.", "", res["note"], "", "## Targets of issue #16", "", *_targets_lines(res), "",
              "`onnx_p50_us` (distal pads) and `onnx_p50_us_all_pads` are the graph's median alone, one window back to "

@@ -112,7 +112,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     sink.setblocking(False)
     daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1])
     link = PacketFeed(packets, pace_frames)
-    daemon.client = DSAClient.streaming(link, recording.layout)
+    daemon.client = DSAClient.already_streaming(link, recording.layout)
     recorder = _Decisions()
     daemon.listeners.append(recorder)
     settle_heap()  # as Daemon.run does once started: automatic collection off
@@ -228,18 +228,20 @@ def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
     return {name: percentiles(time_calls(cycling(fn, windows), rounds)) for name, fn in fns.items()}
 
 
-def rehearsed(fn, windows: np.ndarray, rounds: int) -> dict:
-    """Paced at 32 Hz the way the daemon waits for a due frame (``runtime.rehearsal``: one rehearsal
-    run ``LEAD_S`` before it, then polling): how much of the paced cliff keeping warm removes."""
+def paced_alone(fn, windows: np.ndarray, rounds: int, warm: bool) -> dict:
+    """One implementation alone, paced at 32 Hz and waited for as the daemon waits for a due frame:
+    ``warm`` with its keeping warm (``runtime.rehearsal``: one rehearsal run ``LEAD_S`` before, then
+    polling), else blocked until the frame (how much of the paced cliff keeping warm removes)."""
     from runtime.rehearsal import Rehearsal
 
-    warm, times = Rehearsal(), np.empty(rounds)
+    wait, times = Rehearsal(), np.empty(rounds)
     clock = time.perf_counter_ns
     for i in range(rounds):
         w = windows[i % len(windows)]
         due = time.perf_counter() + PERIOD_S
-        warm.expect(due, lambda w=w: fn(w))
-        wait_for_arrival(warm, due)
+        if warm:
+            wait.expect(due, lambda w=w: fn(w))
+        wait_for_arrival(wait, due)
         t0 = clock()
         fn(w)
         times[i] = (clock() - t0) / 1000.0
