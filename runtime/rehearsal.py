@@ -11,7 +11,9 @@ is not enough when the core then sleeps; polling alone is not enough when the ca
 
 Policy: when the trigger has fixed the due frame, its arrival is predictable (the measured stream
 period after the frame before it: ``runtime.frame_rate.FrameClock.next_admitted_s``, ``expect``).
-The hot thread reads as usual until ``LEAD_S`` before that, runs the rehearsal it was given (the
+The hot thread reads as usual until ``LEAD_S`` before that (and earlier by as long as the last
+rehearsal took, so a slow model's rehearsal still ends before the frame instead of leaving it
+unread, its arrival stamp late and the delay unmeasured), runs the rehearsal it was given (the
 daemon's: the model on the current window, the output check, an event encoded, the client's receive
 path; nothing sent or counted), then polls the device without blocking until the frame arrives or
 ``GRACE_S`` after its expected arrival, when it goes
@@ -48,6 +50,8 @@ class Rehearsal:
         self._run: Callable[[], Any] | None = None
         self.runs = 0
         self.polled_s = 0.0
+        self.run_s = 0.0
+        """How long the last rehearsal took: the next one starts that much before ``due - lead_s``."""
 
     @property
     def due(self) -> float | None:
@@ -68,7 +72,7 @@ class Rehearsal:
             return read(timeout)
         clock = time.perf_counter
         now = clock()
-        start = due - self.lead_s
+        start = due - self.lead_s - self.run_s
         if now < start:
             item = read(min(timeout, start - now))
             if item is not None or clock() < start:
@@ -89,8 +93,11 @@ class Rehearsal:
         run, self._run = self._run, None
         if run is None:
             return
+        began = time.perf_counter()
         try:
             run()
             self.runs += 1
         except Exception:  # a failing model is the decision's business, not the rehearsal's
             pass
+        finally:
+            self.run_s = time.perf_counter() - began

@@ -57,6 +57,20 @@ def test_rehearses_once_just_before_the_due_frame_then_polls_until_it_arrives():
     assert warm.read(device, 0.07) == "frame" and device.timeouts[-1] == 0.07  # nothing expected: a plain read
 
 
+def test_a_slow_rehearsal_starts_early_enough_to_end_before_its_frame():
+    """A model near the decision budget (3 ms at 32 Hz) rehearsed LEAD_S before the frame would
+    leave the frame unread until it ends: the decision late by the overrun, unmeasured."""
+    warm, late_ms = Rehearsal(), []
+    for _ in range(3):
+        due = time.perf_counter() + 0.02
+        device = _Device(due)
+        warm.expect(due, lambda: time.sleep(0.003))
+        assert _wait(warm, device) == "frame"
+        late_ms.append((time.perf_counter() - due) * 1e3)
+    assert warm.run_s >= 0.003
+    assert max(late_ms[1:]) < 0.7, late_ms  # the first, unmeasured, is late by about 1 ms
+
+
 def test_a_late_frame_ends_the_polling_after_the_grace_and_a_failing_run_is_harmless():
     warm = Rehearsal()
     due = time.perf_counter() + 0.01
