@@ -12,6 +12,7 @@ import importlib
 import importlib.util
 import os
 import sys
+from collections.abc import Sequence
 from typing import NoReturn
 
 # name -> (module, one-line help, extra it needs beyond the daemon's install or None)
@@ -80,7 +81,8 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:  # argparse calls it for every wrong option
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
-    def parse_known_args(self, args=None, namespace=None):
+    def parse_known_args(self, args: Sequence[str] | None = None,
+                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
         """Also refuses an empty value (``--out ''``, ``--data=``): always a slip, and an empty path
         means the current folder (``simulate --out ''`` wrote 84 MB of recordings there)."""
         args = list(sys.argv[1:] if args is None else args)
