@@ -6,7 +6,8 @@ worst), a middle generation 0.8 ms and a full one 7 ms in the latency benchmark'
 such pause inside a decision is the decision's p99.9. So the daemon hides start-up's objects from
 the collector (``gc.freeze``), turns automatic collection off, and collects itself from its loop,
 only while no window is open (between frames there are 31 ms; a collection takes at most a few;
-a stream that keeps windows open still gets one every ``MAX_DEFER_S``, never just before a due frame):
+a stream that keeps windows open still gets one ``MAX_DEFER_S`` after it was due, every 11 s,
+never just before a due frame):
 the young generations every ``YOUNG_PERIOD_S``, everything every ``FULL_PERIOD_S``. Reference
 counting frees almost everything at once anyway; the collector is only for cycles.
 """
