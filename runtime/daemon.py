@@ -45,7 +45,7 @@ from runtime.sdnotify import Notifier
 from runtime.sinks import Event, SinkSet
 from runtime.trigger_settings import TriggerSettings
 
-__all__ = ["Daemon", "events_problem", "scene_problem", "settle_heap"]  # the last two are re-exported for run --check
+__all__ = ["Daemon", "events_problem", "scene_problem"]  # the last two are re-exported for run --check
 
 log = logging.getLogger("handover.daemon")
 
