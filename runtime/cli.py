@@ -83,17 +83,23 @@ class OneLineParser(argparse.ArgumentParser):
 
     def parse_known_args(self, args: Sequence[str] | None = None,
                          namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
-        """Also refuses an empty value (``--out ''``, ``--data=``): always a slip, and an empty path
-        means the current folder (``simulate --out ''`` wrote 84 MB of recordings there)."""
+        """Also refuses an empty value (``--out ''``, ``--data=``): a slip, and an empty path means the
+        current folder (``simulate --out ''`` wrote 84 MB of recordings there). Options whose default
+        is the empty string (``--fault ''``: no faults) take it."""
         args = list(sys.argv[1:] if args is None else args)
         for i, arg in enumerate(args):
             name, eq, value = arg.partition("=")
-            if name.startswith("--") and eq and not value.strip():
+            if name.startswith("--") and eq and not value.strip() and not self._empty_allowed(name):
                 self.error(f"{name} is empty; give it a value")
-            if not arg.strip():
-                before = args[i - 1] if i and args[i - 1].startswith("-") else "an argument"
-                self.error(f"{before} is empty; give it a value")
+            before = args[i - 1] if i and args[i - 1].startswith("-") else ""
+            if not arg.strip() and not self._empty_allowed(before):
+                self.error(f"{before or 'an argument'} is empty; give it a value")
         return super().parse_known_args(args, namespace)
+
+
+    def _empty_allowed(self, option: str) -> bool:
+        action = self._option_string_actions.get(option)
+        return action is not None and action.default == ""
 
 
 def build_parser(name: str, module) -> argparse.ArgumentParser:

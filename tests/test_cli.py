@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 
@@ -45,6 +46,8 @@ def test_an_empty_value_is_refused_by_every_command(capsys):
             cli.main(argv)
         err = capsys.readouterr().err
         assert stop.value.code == 2 and err.count("\n") == 1 and said in err, (argv, err)
+    parser = cli.build_parser("demo", importlib.import_module(cli.COMMANDS["demo"][0]))
+    assert parser.parse_args(["--fault", ""]).fault == ""  # its default: no faults, as documented
 
 
 def test_every_command_module_has_the_two_functions():

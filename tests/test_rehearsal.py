@@ -118,7 +118,9 @@ def test_the_daemon_keeps_warm_for_each_due_frame_over_a_real_link_with_the_same
     finally:
         server.stop()
     assert daemon.health.frames_received == rec.n_frames and len(served) == 2
-    assert daemon.rehearsal.runs == 2 and daemon.rehearsal.polled_s > 0
+    # each due frame is rehearsed for, unless a loaded machine delivered it together with the one before
+    # (then it is simply read): at least one of the two, and polling around it
+    assert 1 <= daemon.rehearsal.runs <= 2 and daemon.rehearsal.polled_s > 0
 
     replayed: list[Event] = []
     plain = Daemon(config_from_dict({"sinks": {"stdout": False}}), on_event=replayed.append)
