@@ -146,8 +146,9 @@ class ModelServing:
         elif self.ring.capacity < capacity:
             self.ring = self.ring.resized(capacity)
         mode = self.cfg.scene.mode
-        key = (mode, settings, self.cfg.continuous if mode == "continuous" else None, cols.tobytes(), T,
-               self.period_s, meta.fullscale if meta else self.layout.fullscale, meta.classes if meta else None,
+        key = (mode, settings, self.cfg.continuous if mode == "continuous" else None, cols.tobytes(),
+               tuple(self.layout.pad_sizes(pads)), tuple(self.layout.pad_fingers(pads)), T, self.period_s,
+               meta.fullscale if meta else self.layout.fullscale, meta.classes if meta else None,
                meta.dormant_class if meta else None)
         # the same trigger and report rule (a SIGHUP that changed other sections, a model of the same kind
         # swapped in) keep their state, e.g. the onset trigger's settled grasp
