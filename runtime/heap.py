@@ -32,7 +32,8 @@ def settle_heap() -> None:
 
 
 def release_heap() -> None:
-    """Automatic collection on again (the daemon stops; in-process callers get their default back)."""
+    """Automatic collection on again when the daemon stops (in-process callers: tests, replays). The
+    frozen start-up objects stay frozen; ``gc.unfreeze()`` is the caller's if it wants them scanned."""
     gc.enable()
 
 
