@@ -109,18 +109,25 @@ def apply_rule(rows: dict, sim_score: Callable[[str], float], say: Callable[[str
     """The rule on scored rows ({name: {"real_score", "real_inner", "p50_us", "p99_us"}}); ``sim_score``
     is asked lazily, in rank order, and its answer stored as ``sim_inner``."""
     eligible = [n for n in rows if (rows[n]["p99_us"] or np.inf) <= LATENCY_BUDGET_US]
-    by_score = sorted(eligible, key=lambda n: score_order(rows[n]["real_score"], rows[n]["p50_us"]))
-    best = by_score[0] if by_score else None
+    order, tied = rank_with_ties(eligible, lambda n: rows[n]["real_score"], lambda n: rows[n]["p50_us"],
+                                 lambda n: rows[n]["real_inner"])
     for name in eligible:
-        rows[name]["ties_best"] = best is not None and ties(rows[name]["real_inner"], rows[best]["real_inner"])
-    tied = sorted((n for n in by_score if rows[n]["ties_best"]), key=lambda n: rows[n]["p50_us"])
-    order = tied + [n for n in by_score if n not in tied]
+        rows[name]["ties_best"] = name in tied
     for name in order:
         rows[name]["sim_inner"] = sim_score(name)
         say(f"  default choice {name}: simulated inner LOSO {rows[name]['sim_inner']:.3f} (synthetic)")
         if rows[name]["sim_inner"] >= SIM_GATE or np.isnan(rows[name]["sim_inner"]):
             return name, order
     return None, order
+
+
+def rank_with_ties(candidates: list, score: Callable, p50_us: Callable, inner: Callable) -> tuple[list, list]:
+    """``candidates`` in the rule's order: the best (``score_order``) and every one that ``ties`` it
+    (``inner``: its {task or fold: accuracy}), fastest first, then the rest by ``score_order``; and the ties."""
+    by_score = sorted(candidates, key=lambda c: score_order(score(c), p50_us(c)))
+    tied = [c for c in by_score if ties(inner(c), inner(by_score[0]))]
+    tied.sort(key=lambda c: float(p50_us(c) or 0.0))
+    return tied + [c for c in by_score if not any(c is t for t in tied)], tied
 
 
 def score_order(score: float, p50_us: float | None) -> tuple[float, float]:

@@ -152,14 +152,14 @@ def select_model(ds, options: TrainOptions, say: Callable[[str], None] = lambda 
 def rank(rows: list[Row]) -> Row:
     """Sort ``rows`` in the rule's order (within the budget first; the best and its ties, fastest
     first; then by score) and return the winner (``trainer.default_choice.ties``)."""
-    from trainer.default_choice import score_order, ties
+    from trainer.default_choice import rank_with_ties, score_order
 
-    eligible = [r for r in rows if r.within_budget] or rows
-    best = min(eligible, key=lambda r: score_order(r.mean, r.p50_us))
+    eligible = [r for r in rows if r.within_budget] or list(rows)
+    order, tied = rank_with_ties(eligible, lambda r: r.mean, lambda r: r.p50_us, lambda r: r.fold_accuracies)
     for r in rows:
-        r.ties_best = r in eligible and ties(r.fold_accuracies, best.fold_accuracies)
-    rows.sort(key=lambda r: (not r.within_budget, not r.ties_best, (r.p50_us or 0.0) if r.ties_best else 0.0,
-                             *score_order(r.mean, r.p50_us)))
+        r.ties_best = any(r is t for t in tied)
+    rest = sorted((r for r in rows if not any(r is e for e in eligible)), key=lambda r: score_order(r.mean, r.p50_us))
+    rows[:] = order + rest
     return rows[0]
 
 
