@@ -115,13 +115,15 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         in the families' own layouts (``trainer.features.base.OnnxParts``: the exporter lays the SVM's
         constants out to match, so no node reorders features); a tensor two families share is joined once."""
         from trainer.features.base import OnnxParts, join_parts
-        from trainer.features.pad_series import SeriesNeed, announce
+        from trainer.features.pad_series import SeriesNeed, pad_series_nodes
         from trainer.onnx_export import features_nodes
 
-        names = [name for name, _ in self.blocks_]
-        if "hand" in names or "stats" in names:  # their shared series are built once, for both
-            stats = dict(self.blocks_).get("stats")
-            announce(g, frames, SeriesNeed("hand" in names, None if stats is None else float(stats.fullscale)))
+        blocks = dict(self.blocks_)
+        series_of = blocks.get("hand", blocks.get("stats"))
+        if series_of is not None:  # the series hand and stats share, built once with what both need
+            stats = blocks.get("stats")
+            pad_series_nodes(g, frames, series_of.shapes_, int(series_of.n_timepoints_),
+                             SeriesNeed("hand" in blocks, None if stats is None else float(stats.fullscale)))
         every = []
         for name, block in self.blocks_:
             if name == "bow":

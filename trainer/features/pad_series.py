@@ -100,17 +100,9 @@ class SeriesNeed:
     fullscale: float | None
 
 
-def announce(g, frames: str, need: SeriesNeed) -> None:
-    """Say before any family builds its nodes which series the graph will need, so the first family
-    to ask builds them all once (``trainer.feature_svc.FeatureSVC.onnx_features``)."""
-    g.shared(("pad_series_need", frames), lambda: need)
-
-
 def pad_series_nodes(g, frames: str, shapes: Sequence[tuple[int, int]], n_t: int, need: SeriesNeed) -> PadSeries:
-    """The series and their rows over time (built once per graph, with the announced series too)."""
-    announced = g.shared(("pad_series_need", frames), lambda: need)
-    need = SeriesNeed(need.hand or announced.hand,
-                      need.fullscale if need.fullscale is not None else announced.fullscale)
+    """The series and their rows over time, built once per graph with the first call's ``need``
+    (``trainer.feature_svc.FeatureSVC.onnx_features`` calls first, with every family's)."""
     return g.shared(("pad_series", frames), lambda: _build(g, frames, shapes, n_t, need))
 
 
