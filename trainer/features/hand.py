@@ -45,7 +45,7 @@ class HandGraphFeatures(FeatureFamily):
     def onnx_parts(self, g, frames: str) -> OnnxParts:
         """All pads at once (``trainer.features.pad_batch``, ``trainer.features.pad_series``): the series'
         rows over time, then peak, median, std of the pads; ``_pad_major_order`` says where each
-        feature of the reference's pad-major order sits and what it is multiplied by there."""
+        feature of the reference's pad-major order sits (the std is multiplied by ``_std_nodes``' factor)."""
         n_t, n_pads = int(self.n_timepoints_), len(self.shapes_)
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
@@ -54,8 +54,9 @@ class HandGraphFeatures(FeatureFamily):
         series = pad_series_nodes(g, frames, self.shapes_, n_t, SeriesNeed(hand=True, fullscale=None))
         std, std_scale = _std_nodes(g, batch, padded, series.signal_mean, n_t)
         n_rows = n_pads * len(series.columns.series) * series.columns.width
-        columns, scales = _pad_major_order(series.columns, n_pads, n_rows)
-        scales[3 :: len(FEATURES_PER_PAD)] = std_scale
+        columns = _pad_major_order(series.columns, n_pads, n_rows)
+        scales = np.ones(len(columns))
+        scales[3 :: len(FEATURES_PER_PAD)] = std_scale  # the std's factor; every other feature is as computed
         return OnnxParts([series.flat, peak, median, std], np.asarray(columns), n_rows + 3 * n_pads, scales,
                          (n_rows, n_pads, n_pads, n_pads))
 
@@ -66,15 +67,14 @@ _FROM_SERIES = [("signal", "mean"), ("signal", "share1"), ("signal", "share2"), 
 """``FEATURES_PER_PAD`` 1 and 4 .. 13 as (series, quantity) of ``trainer.features.pad_series``."""
 
 
-def _pad_major_order(columns: SeriesColumns, n_pads: int, n_rows: int) -> tuple[list[int], np.ndarray]:
+def _pad_major_order(columns: SeriesColumns, n_pads: int, n_rows: int) -> list[int]:
     """Where each feature of ``FEATURES_PER_PAD``, pad by pad, sits in the parts (the series' rows,
-    ``n_rows`` columns, then ``[peak, median, std]`` of the pads), and the factor each carries there
-    (1; the std's is set by the caller)."""
+    ``n_rows`` columns, then ``[peak, median, std]`` of the pads)."""
     order = []
     for p in range(n_pads):
         rows = [columns.column(p, series, quantity) for series, quantity in _FROM_SERIES]
         order += [n_rows + p, rows[0], n_rows + n_pads + p, n_rows + 2 * n_pads + p, *rows[1:]]
-    return order, np.ones(len(order))
+    return order
 
 
 def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> tuple[str, np.ndarray]:

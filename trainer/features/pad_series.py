@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -66,14 +67,18 @@ class SeriesColumns:
         """Whether the rows hold the spectral columns (only the hand family reads them)."""
         return "signal" in self.series
 
+    @cached_property
+    def n_products(self) -> int:
+        """How many of ``time_rows``' products the spectral rows hold."""
+        return time_rows(self.n_t)[0].shape[0]
+
     @property
     def width(self) -> int:
-        return 7 + time_rows(self.n_t)[0].shape[0] if self.spectral else 3
+        return 7 + self.n_products if self.spectral else 3
 
     def column(self, pad: int, series: str, quantity: str) -> int:
         if self.spectral:
-            products = 6  # where time_rows' products start
-            n_products = time_rows(self.n_t)[0].shape[0]
+            products, n_products = 6, self.n_products  # where time_rows' products start, how many
             at = {"mean": 0, "root_sq": 1, "share1": 2, "share2": 3, "share3": 4, "log_energy": 5,
                   "mean_derivative": products + n_products - 2, "change": products + n_products - 1,
                   "speed": products + n_products}[quantity]
