@@ -78,10 +78,7 @@ class PacketFeed(Transport):
         if self.next in self.paced:
             if self._due is None:
                 self._due = self._last + PERIOD_S
-            left = self._due - time.perf_counter()
-            if left > 0 and timeout > 0:
-                time.sleep(min(timeout, left))
-            if time.perf_counter() < self._due:
+            if not arrived(self._due, timeout):
                 return b""
             self._due = None
         packet = self.packets[self.next]
@@ -254,14 +251,17 @@ def wait_for_arrival(warm, at: float) -> None:
     then, or polls when given no time."""
     from runtime.daemon import READ_TIMEOUT_S
 
-    def device(timeout: float) -> bool | None:
-        left = at - time.perf_counter()
-        if left > 0 and timeout > 0:
-            time.sleep(min(timeout, left))
-        return True if time.perf_counter() >= at else None
-
-    while warm.read(device, READ_TIMEOUT_S) is None:
+    while warm.read(lambda timeout: arrived(at, timeout) or None, READ_TIMEOUT_S) is None:
         pass
+
+
+def arrived(at: float, timeout: float) -> bool:
+    """Whether a frame due at ``perf_counter() == at`` is in, after blocking like a select for at
+    most ``timeout`` (none: a poll)."""
+    left = at - time.perf_counter()
+    if left > 0 and timeout > 0:
+        time.sleep(min(timeout, left))
+    return time.perf_counter() >= at
 
 
 def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
