@@ -36,6 +36,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -298,34 +299,32 @@ def build_graph(model, fold_derivative: bool = False):
 def feature_columns(proto) -> np.ndarray | None:
     """Where the ``histogram`` tensor of a graph holds each reference feature (None: in order);
     ValueError (one line, what to do) when the property is damaged."""
-    props = {p.key: p.value for p in proto.metadata_props}
-    if FEATURE_COLUMNS not in props:
-        return None
-    damaged = f"model property {FEATURE_COLUMNS} is damaged; re-export the model"
-    try:
-        columns = json.loads(props[FEATURE_COLUMNS])
-    except ValueError:
-        raise ValueError(damaged) from None
-    if not isinstance(columns, list) or not all(isinstance(c, int) and c >= 0 for c in columns) \
-            or len(set(columns)) != len(columns):
-        raise ValueError(damaged)
-    return np.asarray(columns, dtype=np.int64)
+    columns = _json_property(proto, FEATURE_COLUMNS, lambda c: isinstance(c, list)
+                             and all(isinstance(i, int) and i >= 0 for i in c) and len(set(c)) == len(c))
+    return None if columns is None else np.asarray(columns, dtype=np.int64)
 
 
 def feature_scales(proto) -> np.ndarray | None:
     """What each reference feature is multiplied by in the graph's ``histogram`` (None: 1), in the
     reference's order; ValueError (one line, what to do) when the property is damaged."""
+    scales = _json_property(proto, FEATURE_SCALES, lambda v: isinstance(v, list)
+                            and all(isinstance(x, int | float) and np.isfinite(x) and x != 0 for x in v))
+    return None if scales is None else np.asarray(scales, dtype=np.float64)
+
+
+def _json_property(proto, key: str, valid: Callable[[object], bool]):
+    """The JSON value of model property ``key`` (None: absent); ValueError when it is not JSON or not
+    ``valid``."""
     props = {p.key: p.value for p in proto.metadata_props}
-    if FEATURE_SCALES not in props:
+    if key not in props:
         return None
-    damaged = f"model property {FEATURE_SCALES} is damaged; re-export the model"
     try:
-        scales = np.asarray(json.loads(props[FEATURE_SCALES]), dtype=np.float64)
-    except (ValueError, TypeError):
-        raise ValueError(damaged) from None
-    if scales.ndim != 1 or not np.all(np.isfinite(scales)) or np.any(scales == 0):
-        raise ValueError(damaged)
-    return scales
+        ok = valid(value := json.loads(props[key]))
+    except (ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise ValueError(f"model property {key} is damaged; re-export the model")
+    return value
 
 
 # -- metadata and file ----------------------------------------------------------------------------
