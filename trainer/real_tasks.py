@@ -31,9 +31,6 @@ CONTACT_FRACTION = 0.05
 FULLSCALE = 4095.0
 DISTAL = (1, 3, 5)
 ALL_PADS = (0, 1, 2, 3, 4, 5)
-def grouped_rule(n_folds: int) -> str:
-    """How a grouped task is split, as compare.md writes it."""
-    return f"{n_folds}-fold StratifiedGroupKFold over contact chunks (a chunk is all train or all test)"
 
 
 @dataclass
@@ -112,7 +109,7 @@ def grouped_task(name: str, description: str, paths: dict[str, Path | list[Path]
     X, y, ch, files = X[keep], y[keep], ch[keep], files[keep]
     cv = StratifiedGroupKFold(n_splits=n_folds, shuffle=True, random_state=seed)
     splits = [Split(f"fold {i}", tr, te) for i, (tr, te) in enumerate(cv.split(X, y, ch))]
-    rule = grouped_rule(n_folds)
+    rule = f"{n_folds}-fold StratifiedGroupKFold over contact chunks (a chunk is all train or all test)"
     if n_frames != T:
         rule += f"; cases of {n_frames} frames every {stride} frames"
     if min_chunks:
