@@ -246,23 +246,24 @@ class DSAClient:
         """The next frame, or None after ``timeout`` seconds. ``newest``: drop queued stale frames.
 
         After a transport failure it reconnects (if allowed) and keeps waiting until the deadline.
-        ``timeout <= 0`` polls: one read of what has arrived, never blocking, not counted as a timeout.
+        ``timeout <= 0`` polls: takes in what has arrived without blocking (``_pump_available``; a
+        transport failure is raised, not reconnected), not counted as a timeout.
         """
         self._require_open()
         deadline = time.monotonic() + timeout
-        if newest:
+        if newest or (timeout <= 0 and not self._frames):
             self._pump_available()
+        if newest:
             self._keep_newest()
-        polled = timeout > 0
+        if timeout <= 0:
+            return self._frames.popleft() if self._frames else None
         while not self._frames:
             remaining = deadline - time.monotonic()
-            if remaining <= 0 and polled:
-                if timeout > 0:
-                    self._counts["timeouts"] += 1
+            if remaining <= 0:
+                self._counts["timeouts"] += 1
                 return None
-            polled = True
             try:
-                self._pump(min(max(remaining, 0.0), self.gap_timeout))
+                self._pump(min(remaining, self.gap_timeout))
             except TransportError:
                 if not self.auto_reconnect or isinstance(self._source, Transport):
                     raise

@@ -96,7 +96,6 @@ class OneLineParser(argparse.ArgumentParser):
                 self.error(f"{before or 'an argument'} is empty; give it a value")
         return super().parse_known_args(args, namespace)
 
-
     def _empty_allowed(self, option: str) -> bool:
         action = self._option_string_actions.get(option)
         return action is not None and action.default == ""

@@ -164,6 +164,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         """Whether a trigger has fired and its window's last frame is still to come."""
         return bool(self._pending)
 
+    def collect_garbage(self, now: float) -> None:
+        """What the loop collects between frames (runtime.heap): never inside a window at will, never
+        just before a due frame."""
+        self.garbage.collect(now, self.window_open, self.rehearsal.due is not None)
+
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
         """One frame: ring, trigger, and inference if this frame ends a window."""
@@ -262,7 +267,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
 
     # -- housekeeping ---------------------------------------------------------------------------
     def _housekeeping(self, now: float) -> None:
-        self.garbage.collect(now, self.window_open, self.rehearsal.due is not None)
+        self.collect_garbage(now)
         self.notifier.watchdog(now)
         self._swap_and_report(now)
         self._link_held()

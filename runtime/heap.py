@@ -4,12 +4,12 @@ Why: CPython collects the young generation whenever 700 more objects were alloca
 wherever that happens; in the daemon that was about once per 600 frames, 100 us each (213 us at
 worst), a middle generation 0.8 ms and a full one 7 ms in the latency benchmark's process. One
 such pause inside a decision is the decision's p99.9. So the daemon hides start-up's objects from
-the collector (``gc.freeze``), turns automatic collection off, and collects itself from its loop,
-only while no window is open (between frames there are 31 ms; a collection takes at most a few;
-a stream that keeps windows open still gets one ``MAX_DEFER_S`` after it was due, every 11 s,
-never just before a due frame):
-the young generations every ``YOUNG_PERIOD_S``, everything every ``FULL_PERIOD_S``. Reference
-counting frees almost everything at once anyway; the collector is only for cycles.
+the collector (``gc.freeze``), turns automatic collection off, and collects itself from its loop:
+the young generations every ``YOUNG_PERIOD_S``, everything every ``FULL_PERIOD_S``, only while no
+window is open (between frames there are 31 ms; a collection takes at most a few). A stream that
+keeps windows open still gets one ``MAX_DEFER_S`` after it was due (about every 11 s), never just
+before a due frame. Reference counting frees almost everything at once anyway; the collector is
+only for cycles.
 """
 
 from __future__ import annotations

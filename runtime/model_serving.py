@@ -146,34 +146,33 @@ class ModelServing:
         elif self.ring.capacity < capacity:
             self.ring = self.ring.resized(capacity)
         mode = self.cfg.scene.mode
-        key = (mode, settings, self.cfg.continuous if mode == "continuous" else None, cols.tobytes(),
-               tuple(self.layout.pad_sizes(pads)), tuple(self.layout.pad_fingers(pads)), T, self.period_s,
-               meta.fullscale if meta else self.layout.fullscale, meta.classes if meta else None,
-               meta.dormant_class if meta else None)
+        fullscale = float(meta.fullscale) if meta else self.layout.fullscale
+        inputs = (settings, tuple(self.layout.pad_sizes(pads)), fullscale, T, 1.0 / self.period_s,
+                  tuple(self.layout.pad_fingers(pads)))  # build_trigger's arguments
+        key = (mode, self.cfg.continuous if mode == "continuous" else None, cols.tobytes(),
+               meta.classes if meta else None, meta.dormant_class if meta else None, inputs)
         # the same trigger and report rule (a SIGHUP that changed other sections, a model of the same kind
         # swapped in) keep their state, e.g. the onset trigger's settled grasp
         if not (keep_history and self.trigger is not None and key == self._trigger_key):
-            self._new_trigger(settings, pads, meta, T, keep_history)
+            self._new_trigger(inputs, meta, keep_history)
         self._trigger_key = key
         self._pending.clear()
         self.rehearsal.cancel()  # a rehearsal of the old ring or model is not worth running
 
-    def _new_trigger(self, settings: Any, pads: Any, meta: Any, T: int, keep_history: bool) -> None:
-        """A trigger (and continuous mode's report rule) for these settings; a threshold trigger takes
-        over the old one's arming, an onset trigger the robot's closed grasp."""
+    def _new_trigger(self, inputs: tuple, meta: Any, keep_history: bool) -> None:
+        """A trigger (and continuous mode's report rule) for ``build_trigger``'s ``inputs``; a threshold
+        trigger takes over the old one's arming, an onset trigger the robot's closed grasp."""
         old = self.trigger
         self.decision = None
         if self.cfg.scene.mode == "continuous":
-            self.trigger = ContinuousTrigger(T)
+            self.trigger = ContinuousTrigger(inputs[3])
             if meta is not None and meta.dormant_class in meta.classes:
                 cc = self.cfg.continuous
                 self.decision = ContinuousDecision(
                     len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
                     min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
             return
-        fullscale = float(meta.fullscale) if meta else self.layout.fullscale
-        self.trigger = build_trigger(settings, self.layout.pad_sizes(pads), fullscale, T, 1.0 / self.period_s,
-                                     self.layout.pad_fingers(pads))
+        self.trigger = build_trigger(*inputs)
         if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
             self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
         elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):

@@ -124,8 +124,14 @@ def _has_nan(buf: bytes) -> bool:
         bits = [b for c in chunks if len(c) % 2 == 0 for b in np.frombuffer(c, dtype="<u2").tolist()] + halves
         return any(b & exponent == exponent and b & mantissa for b in bits)
     dtype = _FLOAT_TYPES.get(data_type)
-    if dtype is None:
-        return False
+    return dtype is not None and _any_nan(chunks, dtype)
+
+
+def _any_nan(chunks: list[bytes], dtype: str) -> bool:
+    """Whether little-endian ``dtype`` values packed in ``chunks`` hold a NaN (a chunk of the wrong
+    length for the type is skipped: the loader refuses a damaged tensor by other means)."""
+    import numpy as np
+
     size = np.dtype(dtype).itemsize
     return any(len(c) % size == 0 and np.isnan(np.frombuffer(c, dtype=dtype)).any() for c in chunks)
 
@@ -133,8 +139,6 @@ def _has_nan(buf: bytes) -> bool:
 def _constant_has_nan(attribute: bytes) -> bool:
     """A Constant node's attribute holding NaN: its value tensor (5) or value_float(s) (2, 7).
     Only Constant nodes: other operators may mean NaN (TreeEnsemble's set separators, Imputer)."""
-    import numpy as np
-
     floats = []
     for number, wtype, value in _fields(attribute):
         if number == 5 and wtype == 2:
@@ -143,7 +147,7 @@ def _constant_has_nan(attribute: bytes) -> bool:
             return _sparse_has_nan(value)
         if (number, wtype) in ((2, 5), (7, 5), (7, 2)):
             floats.append(value)
-    return any(len(c) % 4 == 0 and np.isnan(np.frombuffer(c, dtype="<f4")).any() for c in floats)
+    return _any_nan(floats, "<f4")
 
 
 def _sparse_has_nan(buf: bytes) -> bool:

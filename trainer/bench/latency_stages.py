@@ -117,7 +117,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     marks = np.zeros((len(packets), 3))
     try:
         while not link.done:
-            daemon.garbage.collect(clock(), daemon.window_open, daemon.rehearsal.due is not None)  # as the loop does
+            daemon.collect_garbage(clock())  # as the loop's housekeeping does
             frame = daemon.rehearsal.read(read, READ_TIMEOUT_S)
             if frame is None:
                 continue
