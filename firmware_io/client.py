@@ -246,13 +246,13 @@ class DSAClient:
         """The next frame, or None after ``timeout`` seconds. ``newest``: drop queued stale frames.
 
         After a transport failure it reconnects (if allowed) and keeps waiting until the deadline.
-        ``timeout <= 0`` polls: takes in what has arrived without blocking (``_pump_available``; a
-        transport failure is raised, not reconnected), not counted as a timeout.
+        ``timeout <= 0`` polls: takes in what has arrived without blocking, up to the first whole frame
+        (``_pump_available``; a transport failure is raised, not reconnected), not counted as a timeout.
         """
         self._require_open()
         deadline = time.monotonic() + timeout
         if newest or (timeout <= 0 and not self._frames):
-            self._pump_available()
+            self._pump_available(until_frame=not newest)
         if newest:
             self._keep_newest()
         if timeout <= 0:
@@ -374,9 +374,13 @@ class DSAClient:
         self._dispatch(self.parser.feed(data))
         return len(data)
 
-    def _pump_available(self, limit: int = 64) -> None:
-        """Take in whatever bytes are already waiting, without blocking (at most ``limit`` reads)."""
+    def _pump_available(self, limit: int = 64, until_frame: bool = False) -> None:
+        """Take in whatever bytes are already waiting, without blocking (at most ``limit`` reads);
+        ``until_frame``: stop once a frame is queued, so a poll returns it without first parsing
+        the frames a burst holds behind it."""
         for _ in range(limit):
+            if until_frame and self._frames:
+                return
             data = self._ensure_transport().read(READ_SIZE, 0.0)
             if not data:
                 return

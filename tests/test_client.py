@@ -376,6 +376,35 @@ def test_rehearse_takes_the_last_frame_through_the_receive_path_and_changes_noth
     assert second.number == 1 and np.array_equal(second.values, values)
 
 
+def test_a_poll_returns_the_first_frame_of_a_burst_without_parsing_the_rest() -> None:
+    """A due frame with more queued behind it (a burst after a stall): the poll hands over the first
+    frame after one read, and the rest wait in the transport for the next reads, none lost."""
+    from firmware_io.transports.base import Transport
+
+    class Burst(Transport):
+        def __init__(self, chunks: list[bytes]) -> None:
+            self.chunks, self.reads = chunks, 0
+
+        def read(self, max_bytes: int = 0, timeout: float = 0.1) -> bytes:
+            self.reads += 1
+            return self.chunks.pop(0) if self.chunks else b""
+
+        def write(self, data: bytes) -> None:
+            pass
+
+        def close(self) -> None:
+            pass
+
+    layout = SensorLayout.sdh2()
+    values = np.zeros(layout.n_taxels, dtype=np.uint16)
+    link = Burst([encode_frame(values, t, rle=True) for t in range(5)])
+    client = DSAClient.already_streaming(link, layout)
+    first = client.read_frame(0)
+    assert first is not None and first.timestamp_ms == 0 and link.reads == 1
+    rest = [client.read_frame(0) for _ in range(4)]
+    assert [f.timestamp_ms for f in rest] == [1, 2, 3, 4] and client.read_frame(0) is None
+
+
 def test_close_then_open_again_on_the_same_client() -> None:
     """What the daemon does after a fault: close, later open() the same client again."""
     client = DSAClient(FAST)
