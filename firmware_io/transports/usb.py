@@ -223,11 +223,12 @@ class UsbTransport(Transport):
         deadline = time.monotonic() + max(timeout, 0.0)
         while not self._buf:
             remaining = deadline - time.monotonic()
-            # A poll asks for one packet: pyusb drops what a timed-out transfer had received, and a
-            # longer transfer that times out between full packets of a frame loses them (a CRC error).
-            size = self._packet if timeout <= 0 else max(self._packet, min(16384, -(-max_bytes // self._packet) * self._packet))
+            # One packet a transfer: pyusb drops what a timed-out transfer had received, so a longer
+            # transfer that times out between full packets of a frame loses them (a CRC error); a
+            # one-packet transfer ends with the first packet, full or short. A 32 Hz frame is a few
+            # packets, so the extra transfers cost little.
             try:
-                chunk = bytes(self._ep_in.read(size, timeout=max(1, int(remaining * 1000))))
+                chunk = bytes(self._ep_in.read(self._packet, timeout=max(1, int(remaining * 1000))))
             except self._core.USBTimeoutError:
                 return b""
             except self._core.USBError as exc:
