@@ -52,6 +52,8 @@ log = logging.getLogger("handover.daemon")
 READ_TIMEOUT_S = 0.1
 """Longest the loop blocks on the device: bounds the reaction to SIGTERM and the watchdog."""
 HEALTH_PERIOD_S = 1.0
+HOLD_LIMIT_S = 10.0
+"""How long open windows may hold back a model swap or a reload (``Daemon.windows_hold``)."""
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 
@@ -116,6 +118,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.fatal: str | None = None
         """Why the daemon gave up (a device URL that can never open, a missing package), or None."""
         self._pending: list[int] = []
+        self._held_since: float | None = None
+        """Since when open windows have held back a model swap or a reload (``windows_hold``)."""
         self._backoff = cfg.device.reconnect_min_s
         self._next_connect = 0.0
         self.retry_notes = RetryNotes()
@@ -163,6 +167,25 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
     def window_open(self) -> bool:
         """Whether a trigger has fired and its window's last frame is still to come."""
         return bool(self._pending)
+
+    def windows_hold(self, now: float) -> bool:
+        """Whether open windows still hold back a model swap or a reload that wants in: it waits for
+        their decisions, but at most ``HOLD_LIMIT_S``; then the open windows are dropped (one warning
+        line), so a trigger that fires all the time cannot keep a new model or config out for ever."""
+        if not self._pending:
+            self._held_since = None
+            return False
+        if self._held_since is None:
+            self._held_since = now
+        if now - self._held_since < HOLD_LIMIT_S:
+            return True
+        log.warning("a model swap or reload waited %g s for windows that kept opening; %d open window(s) "
+                    "dropped undecided to let it in (the trigger fires all the time: see [trigger] "
+                    "refractory_s and rearm_quiet_s)", now - self._held_since, len(self._pending))
+        self._pending.clear()
+        self.rehearsal.cancel()
+        self._held_since = None
+        return False
 
     def collect_garbage(self, now: float) -> None:
         """What the loop collects between frames (runtime.heap): never inside a window at will, never
@@ -274,7 +297,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
 
     def _swap_and_report(self, now: float) -> None:
         """Take a pending model and write the health file when due (the loop and a slow connect)."""
-        self._take_pending_model()
+        self._take_pending_model(now)
         if now >= self._next_health:
             self._next_health = now + HEALTH_PERIOD_S
             self.write_health(now)
@@ -306,7 +329,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                  self.cfg.scene.pads, self.cfg.scene.mode)
         try:
             while not self._stop:
-                if self._reload and not self._pending:  # never between a trigger and its window's end
+                if self._reload and not self.windows_hold(time.monotonic()):  # not inside a window
                     self._do_reload()
                 now = time.monotonic()
                 self._housekeeping(now)

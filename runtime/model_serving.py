@@ -102,9 +102,10 @@ class ModelServing:
                         self.cfg.model.folder)
         self.watcher.start()
 
-    def _take_pending_model(self) -> None:
-        """Swap in the watcher's validated model, never between a trigger and its window's end."""
-        if self.watcher is not None and self.watcher.pending is not None and not self._pending:
+    def _take_pending_model(self, now: float) -> None:
+        """Swap in the watcher's validated model, not between a trigger and its window's end
+        (``windows_hold``: at most ``HOLD_LIMIT_S``)."""
+        if self.watcher is not None and self.watcher.pending is not None and not self.windows_hold(now):
             model = self.watcher.take()
             if model is not None:
                 self._use_model(model)

@@ -159,3 +159,33 @@ def test_a_reconnect_or_a_model_swap_mid_window_drops_the_expectation(tmp_path):
     assert daemon.rehearsal.due is None and other.rehearsal.due is None
     device = _Device(None)
     assert daemon.rehearsal.read(device, 0.01) is None and device.timeouts == [0.01] and daemon.rehearsal.runs == 0
+
+
+def test_windows_that_keep_opening_hold_a_swap_or_reload_back_at_most_the_limit(tmp_path, caplog):
+    """A trigger that fires all the time (refractory_s = 0, rearm_quiet_s = 0) always has a window open:
+    a dropped-in model and a SIGHUP waited for ever (the attacker's reload storm). They wait for the
+    open windows' decisions at most HOLD_LIMIT_S; then those windows are dropped, in one warning."""
+    from runtime.daemon import HOLD_LIMIT_S
+
+    daemon = _daemon_with_a_due_frame_expected(tmp_path)
+    newer = load_model(tmp_path / "m.onnx")
+
+    class Watcher:
+        pending = newer
+
+        def take(self):
+            Watcher.pending = None
+            return newer
+
+    daemon.watcher = Watcher()
+    t = 1000.0
+    daemon._take_pending_model(t)
+    daemon._take_pending_model(t + HOLD_LIMIT_S / 2)
+    assert daemon.model is not newer and daemon.window_open and daemon.rehearsal.due is not None
+    with caplog.at_level("WARNING", logger="handover"):
+        daemon._take_pending_model(t + HOLD_LIMIT_S)
+    assert daemon.model is newer and not daemon.window_open and daemon.rehearsal.due is None
+    assert "dropped undecided" in caplog.text and "refractory_s" in caplog.text
+    assert not daemon.windows_hold(t + 2 * HOLD_LIMIT_S)  # nothing open: nothing held, the clock restarts
+    other = _daemon_with_a_due_frame_expected(tmp_path / "b")
+    assert other.windows_hold(t + 3 * HOLD_LIMIT_S)  # a fresh hold starts its own clock
