@@ -343,28 +343,30 @@ def test_a_zero_timeout_polls_once_without_blocking_or_counting_a_timeout() -> N
     assert f is not None and f.timestamp_ms == 7 and client.stats["timeouts"] == before
 
 
+class _Chunks(Transport):
+    """A link that hands over one queued chunk per read (nothing waiting: b"") and counts the reads."""
+
+    def __init__(self, chunks: list[bytes]) -> None:
+        self.chunks, self.reads = chunks, 0
+
+    def read(self, max_bytes: int = 0, timeout: float = 0.1) -> bytes:
+        self.reads += 1
+        return self.chunks.pop(0) if self.chunks else b""
+
+    def write(self, data: bytes) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def test_rehearse_takes_the_last_frame_through_the_receive_path_and_changes_nothing() -> None:
     """What the daemon runs just before a due frame (runtime.rehearsal): the parser, CRC, decoder and
     plausibility check on a copy of the last frame's packet; no frame, count or parser state changes."""
-    from firmware_io.transports.base import Transport
-
-    class Packets(Transport):
-        def __init__(self, chunks: list[bytes]) -> None:
-            self.chunks = chunks
-
-        def read(self, max_bytes: int = 0, timeout: float = 0.1) -> bytes:
-            return self.chunks.pop(0) if self.chunks else b""
-
-        def write(self, data: bytes) -> None:
-            pass
-
-        def close(self) -> None:
-            pass
-
     layout = SensorLayout.sdh2()
     values = np.zeros(layout.n_taxels, dtype=np.uint16)
     values[40:46] = 900
-    client = DSAClient.already_streaming(Packets([encode_frame(values, 5, rle=True)] * 2), layout)
+    client = DSAClient.already_streaming(_Chunks([encode_frame(values, 5, rle=True)] * 2), layout)
     client.rehearse()  # nothing received yet: nothing to rehearse
     first = client.read_frame(0)
     assert first is not None and first.timestamp_ms == 5
@@ -379,25 +381,9 @@ def test_rehearse_takes_the_last_frame_through_the_receive_path_and_changes_noth
 def test_a_poll_returns_the_first_frame_of_a_burst_without_parsing_the_rest() -> None:
     """A due frame with more queued behind it (a burst after a stall): the poll hands over the first
     frame after one read, and the rest wait in the transport for the next reads, none lost."""
-    from firmware_io.transports.base import Transport
-
-    class Burst(Transport):
-        def __init__(self, chunks: list[bytes]) -> None:
-            self.chunks, self.reads = chunks, 0
-
-        def read(self, max_bytes: int = 0, timeout: float = 0.1) -> bytes:
-            self.reads += 1
-            return self.chunks.pop(0) if self.chunks else b""
-
-        def write(self, data: bytes) -> None:
-            pass
-
-        def close(self) -> None:
-            pass
-
     layout = SensorLayout.sdh2()
     values = np.zeros(layout.n_taxels, dtype=np.uint16)
-    link = Burst([encode_frame(values, t, rle=True) for t in range(5)])
+    link = _Chunks([encode_frame(values, t, rle=True) for t in range(5)])
     client = DSAClient.already_streaming(link, layout)
     first = client.read_frame(0)
     assert first is not None and first.timestamp_ms == 0 and link.reads == 1
