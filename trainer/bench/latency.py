@@ -27,7 +27,7 @@ import numpy as np
 
 from runtime import realtime
 from runtime.realtime import DEFAULT_PRIORITY
-from runtime.rehearsal import LEAD_S
+from runtime.rehearsal import LEAD_S, MIN_LEAD_S
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
 from trainer.bench.common import (
@@ -353,7 +353,8 @@ def _implementation_lines(res: dict) -> list[str]:
               "Alone, paced 32 Hz: the graph by itself, one window each sample period. **Asleep until the frame**: "
               "the thread blocks until the window's last frame arrives (as the daemon did before "
               f"`runtime.rehearsal`). **Kept warm**: waited for as the daemon waits for a due frame (blocked until "
-              f"{LEAD_S * 1e3:g} ms before it, then one rehearsal run and polling instead of sleeping), as the stage "
+              f"a lead before it, at most {LEAD_S * 1e3:g} ms and {MIN_LEAD_S * 1e3:g} ms for frames on time, then one "
+              "rehearsal run and polling instead of sleeping), as the stage "
               "tables above do. The two rows together: how much of the paced cliff keeping warm removes."]
     return lines
 
