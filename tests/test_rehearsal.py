@@ -219,3 +219,24 @@ def test_windows_that_keep_opening_hold_a_swap_or_reload_back_at_most_the_limit(
     assert not daemon.windows_hold(t + 2 * HOLD_LIMIT_S)  # nothing open: nothing held, the clock restarts
     other = _daemon_with_a_due_frame_expected(tmp_path / "b")
     assert other.windows_hold(t + 3 * HOLD_LIMIT_S)  # a fresh hold starts its own clock
+
+
+def test_the_daemons_rehearsal_warms_the_model_last(tmp_path):
+    """What runs just before a due frame: the model, the output check, an event, the client's receive
+    path, and the model again, so the decision's largest part is the last thing warmed."""
+    daemon = _daemon_with_a_due_frame_expected(tmp_path)
+    calls: list[str] = []
+    run = daemon.model.run_trusted
+
+    def counted(window):
+        calls.append("model")
+        return run(window)
+
+    class Client:
+        def rehearse(self) -> None:
+            calls.append("receive")
+
+    daemon.model.run_trusted = counted
+    daemon.client = Client()
+    daemon.rehearsal._run()
+    assert calls == ["model", "receive", "model"]
