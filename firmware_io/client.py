@@ -31,6 +31,9 @@ __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 READ_SIZE = 4096
 CANCEL_POLL_S = 0.05
 """While a cancel predicate is set, no single read waits longer than this."""
+MAX_QUEUED_REPLIES = 64
+"""Non-frame packets kept for a command to look through; older ones are dropped (a streaming device
+that keeps sending packets nobody asked for would otherwise fill the memory)."""
 COUNTERS = ("frames", "frames_stale", "frames_ignored", "decode_errors", "frames_implausible", "unexpected_replies",
             "reconnects", "timeouts")
 """What ``stats`` counts beside the parser's byte and packet counters."""
@@ -88,7 +91,7 @@ class DSAClient:
         self._plausible: FrameCheck | None = None
         self.streaming = False
         self._frames: deque[Frame] = deque()
-        self._replies: deque[Packet] = deque()
+        self._replies: deque[Packet] = deque(maxlen=MAX_QUEUED_REPLIES)
         self._last_rx = 0.0
         self._max_queued = max_queued_frames
         self._unwrap = TimestampUnwrapper()

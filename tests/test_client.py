@@ -391,6 +391,22 @@ def test_a_poll_returns_the_first_frame_of_a_burst_without_parsing_the_rest() ->
     assert [f.timestamp_ms for f in rest] == [1, 2, 3, 4] and client.read_frame(0) is None
 
 
+def test_replies_a_streaming_device_sends_between_frames_do_not_pile_up() -> None:
+    """Non-frame packets while streaming (a confused or rebooting device answering nothing asked) are
+    read between frames and no command waits for them: frames all come through, in order, and the
+    queue of replies stays bounded instead of growing for as long as the device keeps sending them."""
+    from firmware_io.client import MAX_QUEUED_REPLIES
+
+    layout = SensorLayout.sdh2()
+    values = np.zeros(layout.n_taxels, dtype=np.uint16)
+    stray = encode_ack(0x01)
+    link = _Chunks([stray * 50 + encode_frame(values, t, rle=True) for t in range(200)])
+    client = DSAClient.already_streaming(link, layout)
+    got = [client.read_frame(0) for _ in range(200)]
+    assert [f.timestamp_ms for f in got] == list(range(200))
+    assert len(client._replies) <= MAX_QUEUED_REPLIES
+
+
 def test_close_then_open_again_on_the_same_client() -> None:
     """What the daemon does after a fault: close, later open() the same client again."""
     client = DSAClient(FAST)
