@@ -387,6 +387,7 @@ class DSAClient:
             data = self._ensure_transport().read(READ_SIZE, 0.0)
             if not data:
                 return
+            self._last_rx = time.monotonic()  # else a blocking read soon after takes the line for silent
             self._dispatch(self.parser.feed(data))
 
     def _dispatch(self, packets: list[Packet]) -> None:

@@ -407,6 +407,23 @@ def test_replies_a_streaming_device_sends_between_frames_do_not_pile_up() -> Non
     assert len(client._replies) <= MAX_QUEUED_REPLIES
 
 
+def test_bytes_a_poll_took_in_are_not_given_up_as_a_silent_line() -> None:
+    """The rehearsal polls the due frame in, then blocks on the next one: a poll that took in a frame and
+    the start of the next (one USB packet or TCP segment holding both) leaves that start pending. The
+    next blocking read that finds nothing yet must not take the line for silent for a gap timeout (the
+    last bytes came a moment ago, in the poll) and drop the start: the next frame would be lost."""
+    layout = SensorLayout.sdh2()
+    values = np.zeros(layout.n_taxels, dtype=np.uint16)
+    first, second = (encode_frame(values, t, rle=True) for t in (1, 2))
+    half = len(second) // 2
+    link = _Chunks([first + second[:half], b"", second[half:]])
+    client = DSAClient.already_streaming(link, layout, gap_timeout=0.5)
+    assert client.read_frame(0).timestamp_ms == 1
+    frame = client.read_frame(0.05)  # its first read finds nothing yet, the next one the rest
+    assert frame is not None and frame.timestamp_ms == 2
+    assert client.stats["bytes_dropped"] == 0
+
+
 def test_close_then_open_again_on_the_same_client() -> None:
     """What the daemon does after a fault: close, later open() the same client again."""
     client = DSAClient(FAST)
