@@ -225,7 +225,9 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
     def _rehearse(self, model: Any, window: Any) -> None:
         """The due frame's path once ahead of it, nothing sent or counted: the model, the output
         check, an event built and encoded (not sent), then the client's receive path (parse, CRC,
-        decode, plausibility), the code that frame meets first."""
+        decode, plausibility), the code that frame meets first; and the model once more, so that the
+        largest part of the decision is also the last one warmed (paced stage table, medians: inference
+        112-125 us without that run, 81-83 us with it)."""
         labels, scores = model.run_trusted(window)
         frame = self.latest_frame
         if output_problem(labels, scores, model.meta.n_classes) is None and frame is not None:
@@ -233,6 +235,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         rehearse = getattr(self.client, "rehearse", None)
         if rehearse is not None:
             rehearse()
+        model.run_trusted(window)
 
     def _classify(self, frame: Any) -> None:
         """Run the model on the window ending at ``frame``, check, report; each stage stamped."""

@@ -98,6 +98,11 @@ def test_latency_quick(tmp_path, capsys):
     assert all(imps[f"ratio_{s}"]["numpy"] > 0 for s in ("p50", "p99", "p999"))
     assert printed["numpy_over_onnx_p50"] == imps["ratio_p50"]["numpy"] and printed["sklearn_over_onnx_p50"] > 1
     assert "numpy, distal pads" in (tmp_path / "latency.md").read_text()
+    # the limits: a steady job can only be slowed by the machine; the split's scores are the whole graph's
+    assert result["floor_p999_us"] >= result["daemon_p50_us"] * 0.99 and result["e2e_floor_p999_us"] > 0
+    split = result["implementations_distal"]["per_frame_split"]
+    assert split["max_score_difference"] < 1e-4 and result["split_p50_us"] == split["decision_with_its_frame_p50_us"]
+    assert split["nodes"]["per_frame_part"] + split["nodes"]["decision_part"] >= split["nodes"]["whole"]
     e2e = result["e2e_32hz"]
     assert e2e["events"] == e2e["windows_sent"] and e2e["unmatched"] == 0  # one event per window: the trigger re-arms
     assert e2e["e2e_us"]["p50"] > e2e["daemon_internal_us"]["p50"] > 0  # the wire and the sink add time

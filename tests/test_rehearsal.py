@@ -14,7 +14,7 @@ from firmware_io.recordings.recording import Recording
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
 from runtime.model import load_model
-from runtime.rehearsal import GRACE_S, LEAD_S, Rehearsal
+from runtime.rehearsal import EARLY_HISTORY, GRACE_S, LEAD_MARGIN_S, LEAD_S, MIN_LEAD_S, Rehearsal
 from runtime.sinks import Event
 from tests.tiny_models import tiny_model_bytes, write_model
 
@@ -55,6 +55,36 @@ def test_rehearses_once_just_before_the_due_frame_then_polls_until_it_arrives():
     assert 0 < warm.polled_s < LEAD_S + GRACE_S + 0.01
     warm.cancel()
     assert warm.read(device, 0.07) == "frame" and device.timeouts[-1] == 0.07  # nothing expected: a plain read
+
+
+def test_the_lead_follows_how_early_due_frames_come():
+    """Frames on time: the lead shrinks to MIN_LEAD_S (less polling to cool the caches again). A frame
+    1 ms early: the next rehearsal ends LEAD_MARGIN_S before that. A frame much earlier than the longest
+    lead is another frame (a device frame the decimation skips): it does not move the lead."""
+    warm = Rehearsal()
+    assert warm.lead_s == LEAD_S  # nothing measured: the longest
+    for _ in range(3):
+        due = time.perf_counter() + 0.005
+        warm.expect(due, lambda: None)
+        assert _wait(warm, _Device(due)) == "frame"
+        warm.cancel()
+    assert warm.lead_s == MIN_LEAD_S
+    due = time.perf_counter() + 0.01
+    warm.expect(due, lambda: None)
+    assert _wait(warm, _Device(due - 0.001)) == "frame"  # 1 ms early, while the thread blocks
+    warm.cancel()
+    assert 0.0005 < warm.lead_s <= 0.001 + LEAD_MARGIN_S  # (less the clock's lateness in noticing it)
+    due = time.perf_counter() + 0.02
+    warm.expect(due, lambda: None)
+    assert _wait(warm, _Device(due - 0.01)) == "frame"  # 10 ms early: not the due frame
+    warm.cancel()
+    assert warm.lead_s < 0.001 + LEAD_MARGIN_S + 1e-9
+    for _ in range(EARLY_HISTORY):  # the early one ages out
+        due = time.perf_counter() + 0.003
+        warm.expect(due, lambda: None)
+        _wait(warm, _Device(due))
+        warm.cancel()
+    assert warm.lead_s == MIN_LEAD_S
 
 
 def test_a_slow_rehearsal_starts_early_enough_to_end_before_its_frame():
@@ -189,3 +219,24 @@ def test_windows_that_keep_opening_hold_a_swap_or_reload_back_at_most_the_limit(
     assert not daemon.windows_hold(t + 2 * HOLD_LIMIT_S)  # nothing open: nothing held, the clock restarts
     other = _daemon_with_a_due_frame_expected(tmp_path / "b")
     assert other.windows_hold(t + 3 * HOLD_LIMIT_S)  # a fresh hold starts its own clock
+
+
+def test_the_daemons_rehearsal_warms_the_model_last(tmp_path):
+    """What runs just before a due frame: the model, the output check, an event, the client's receive
+    path, and the model again, so the decision's largest part is the last thing warmed."""
+    daemon = _daemon_with_a_due_frame_expected(tmp_path)
+    calls: list[str] = []
+    run = daemon.model.run_trusted
+
+    def counted(window):
+        calls.append("model")
+        return run(window)
+
+    class Client:
+        def rehearse(self) -> None:
+            calls.append("receive")
+
+    daemon.model.run_trusted = counted
+    daemon.client = Client()
+    daemon.rehearsal._run()
+    assert calls == ["model", "receive", "model"]

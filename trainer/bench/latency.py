@@ -27,7 +27,7 @@ import numpy as np
 
 from runtime import realtime
 from runtime.realtime import DEFAULT_PRIORITY
-from runtime.rehearsal import LEAD_S
+from runtime.rehearsal import LEAD_S, MIN_LEAD_S
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
 from trainer.bench.common import (
@@ -147,10 +147,8 @@ def run(args) -> dict:
         before, result["scheduling"] = realtime.enter_realtime(DEFAULT_PRIORITY)  # as the daemon's hot thread
         try:
             result["stages"] = stages.stage_tables(model, dense, paced_decisions)
-            internal = [result["stages"][k]["daemon_internal"]["p50"] for k in ("back_to_back", "paced_32hz")]
             say("latency: the machine's interference (a spinning thread) ...")
-            result["interference"] = interference(0.5 if args.quick else 10.0, tuple(round(v) for v in internal),
-                                                  seed=args.seed)
+            gaps = interference(0.5 if args.quick else 10.0)
             if args.load:
                 say("latency: stage table under load (two busy-loop processes) ...")
                 with harness.CpuLoad(2):
@@ -175,6 +173,8 @@ def run(args) -> dict:
             with harness.CpuLoad(2):
                 result["e2e_32hz_load_normal"] = end_to_end(model_path, load_stream, 1.0, work,
                                                             timeout=load_stream.n_frames / 32 + 60, priority=0)
+    result["interference"] = {**gaps.summary(), "steady_job_us": {
+        f"{round(job):g}": gaps.steady_job(round(job), seed=args.seed) for job in _job_lengths(result) if job}}
     result.update(headline(result))
     result.update(
         model={"kind": model.meta.extra.get("model_kind"), "K": model.meta.K, "W": model.meta.W, "T": model.meta.T,
@@ -216,15 +216,24 @@ def headline(res: dict) -> dict:
         "numpy_over_onnx_p50": res["implementations"]["ratio_p50"].get("numpy"),
         # the limits: a steady job as long as the paced median, on this machine; the per-frame split
         "floor_p999_us": _floor(res, internal_paced["p50"]),
+        "e2e_floor_p999_us": _floor(res, e2e["p50"]),
         "split_p50_us": (res["implementations_distal"].get("per_frame_split") or {}).get("decision_with_its_frame_p50_us"),
         "sklearn_over_onnx_p50": res["implementations"]["ratio_p50"].get("scikit-learn"),
     }
 
 
+def _job_lengths(res: dict) -> list[float]:
+    """The medians whose floor the results give: frame parsed -> decision back to back and paced, and
+    end to end."""
+    stages = res["stages"]
+    return [stages["back_to_back"]["daemon_internal"]["p50"], stages["paced_32hz"]["daemon_internal"]["p50"],
+            res["e2e_32hz"]["e2e_us"]["p50"]]
+
+
 def _floor(res: dict, job_us: float) -> float | None:
     """p99.9 of a steady job of ``job_us`` (rounded as measured) given the machine's interference."""
     jobs = res.get("interference", {}).get("steady_job_us", {})
-    job = jobs.get(f"{round(job_us):g}")
+    job = jobs.get(f"{round(job_us):g}") if job_us else None
     return job["p999"] if job else None
 
 
@@ -241,9 +250,11 @@ def _limit_lines(res: dict) -> list[str]:
                   "| steady job (us of core) | median (us) | p99 (us) | p99.9 (us) |", "|---|---|---|---|"]
         for job, s in inter["steady_job_us"].items():
             lines.append(f"| {job} | {fmt_us(s['p50'])} | {fmt_us(s['p99'])} | {fmt_us(s['p999'])} |")
-        lines += ["", "The job lengths are this run's medians of frame parsed -> decision, back to back and paced. "
-                  "`floor_p999_us` is the paced one's p99.9: the lowest `daemon_p999_us` this machine allows at "
-                  "that median, even if every decision needed exactly the median.", ""]
+        lines += ["", "The job lengths are this run's medians of frame parsed -> decision, back to back and paced, "
+                  "and of end to end. `floor_p999_us` is the paced one's p99.9: the lowest `daemon_p999_us` this "
+                  "machine allows at that median, even if every decision needed exactly the median; "
+                  "`e2e_floor_p999_us` the same for `e2e_p999_us` (three processes, so the true floor is higher).",
+                  ""]
     rows = [(pads, res[key].get("per_frame_split")) for key, pads in
             (("implementations", "all pads"), ("implementations_distal", "distal pads"))]
     if any(split for _, split in rows):
@@ -342,7 +353,8 @@ def _implementation_lines(res: dict) -> list[str]:
               "Alone, paced 32 Hz: the graph by itself, one window each sample period. **Asleep until the frame**: "
               "the thread blocks until the window's last frame arrives (as the daemon did before "
               f"`runtime.rehearsal`). **Kept warm**: waited for as the daemon waits for a due frame (blocked until "
-              f"{LEAD_S * 1e3:g} ms before it, then one rehearsal run and polling instead of sleeping), as the stage "
+              f"a lead before it, at most {LEAD_S * 1e3:g} ms and {MIN_LEAD_S * 1e3:g} ms for frames on time, then one "
+              "rehearsal run and polling instead of sleeping), as the stage "
               "tables above do. The two rows together: how much of the paced cliff keeping warm removes."]
     return lines
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +30,37 @@ SPIN_CHUNK_S = 0.25
 kernel's real-time budget (0.95 s a second) would be throttled, which is not the machine's noise."""
 
 
-def interference(seconds: float, job_us: tuple[float, ...], seed: int = 0) -> dict:
-    """Time taken from a spinning thread over ``seconds`` of spinning; for each job length, the
-    p50/p99/p99.9 of a steady job of that length once the gaps it meets are added."""
+@dataclass
+class Interference:
+    """Where (``at``, seconds into the spinning) and for how long (``taken``) a spinning thread lost
+    its core, over ``spun`` seconds of spinning."""
+
+    at: np.ndarray
+    taken: np.ndarray
+    spun: float
+
+    def summary(self) -> dict:
+        return {"spun_s": round(self.spun, 2), "gaps_per_s": len(self.taken) / self.spun,
+                "gap_us": percentiles(self.taken * 1e6)}
+
+    def steady_job(self, job_us: float, seed: int = 0, n: int = 200_000) -> dict:
+        """p50/p99/p99.9 of the wall time of a job needing ``job_us`` of the core, started at ``n``
+        random moments: it is stretched by every gap that begins before it ends."""
+        job_s, at, taken = job_us * 1e-6, self.at, self.taken
+        out = np.empty(n)
+        starts = np.random.default_rng(seed).uniform(0.0, max(self.spun - 10 * job_s, job_s), n)
+        for k, s in enumerate(starts):
+            i = int(np.searchsorted(at, s))
+            end = s + job_s
+            while i < len(at) and at[i] < end:
+                end += taken[i]
+                i += 1
+            out[k] = end - s
+        return percentiles(out * 1e6)
+
+
+def interference(seconds: float) -> Interference:
+    """Time taken from a thread that only reads the clock, over ``seconds`` of spinning."""
     clock = time.perf_counter
     starts: list[float] = []
     lengths: list[float] = []
@@ -47,26 +76,7 @@ def interference(seconds: float, job_us: tuple[float, ...], seed: int = 0) -> di
             last = now
         spun += last - t0
         time.sleep(SPIN_CHUNK_S)
-    at, taken = np.asarray(starts), np.asarray(lengths)
-    out = {"spun_s": round(spun, 2), "gaps_per_s": len(taken) / spun, "gap_us": percentiles(taken * 1e6)}
-    rng = np.random.default_rng(seed)
-    out["steady_job_us"] = {f"{job:g}": percentiles(_job_times(at, taken, job * 1e-6, spun, rng) * 1e6)
-                            for job in job_us}
-    return out
-
-
-def _job_times(at: np.ndarray, taken: np.ndarray, job_s: float, spun: float, rng, n: int = 200_000) -> np.ndarray:
-    """Wall time of a job needing ``job_s`` of the core, started at ``n`` random moments: it is
-    stretched by every gap that begins before it ends."""
-    out = np.empty(n)
-    for k, s in enumerate(rng.uniform(0.0, max(spun - 10 * job_s, job_s), n)):
-        i = int(np.searchsorted(at, s))
-        end = s + job_s
-        while i < len(at) and at[i] < end:
-            end += taken[i]
-            i += 1
-        out[k] = end - s
-    return out
+    return Interference(np.asarray(starts), np.asarray(lengths), spun)
 
 
 def _cut_names(graph) -> tuple[str, str] | None:

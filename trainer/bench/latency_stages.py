@@ -227,7 +227,7 @@ def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
 
 def paced_alone(fn, windows: np.ndarray, rounds: int, warm: bool) -> dict:
     """One implementation alone, paced at 32 Hz and waited for as the daemon waits for a due frame:
-    ``warm`` with its keeping warm (``runtime.rehearsal``: one rehearsal run ``LEAD_S`` before, then
+    ``warm`` with its keeping warm (``runtime.rehearsal``: one rehearsal run a lead before, then
     polling), else blocked until the frame (how much of the paced cliff keeping warm removes)."""
     from runtime.rehearsal import Rehearsal
 
