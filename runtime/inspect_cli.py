@@ -40,6 +40,7 @@ def card(model) -> dict:
         "W": meta.W,
         "K": meta.K,
         "per_pad": None if groups is None else len(groups) > 1,
+        "level_features": bool(features.get("level_features") or meta.training.get("level_features")),
         "families": [str(f) for f in families] if isinstance(families, list) else None,
         "feature_weighting": str(features["feature_weighting"]) if features.get("feature_weighting") else None,
         "window_seconds": round(meta.T / meta.sample_rate_hz, 4),
@@ -57,8 +58,9 @@ def card(model) -> dict:
 
 
 def _trials(n) -> str:
-    """``36 trials``; a model exported from a bare estimator file does not know its trials."""
-    return "an unknown number of trials (not recorded)" if n is None else f"{n} trials"
+    """``36 windows``: the training cases (one per trial on the paper's protocol, many per stream);
+    a model exported from a bare estimator file does not know them."""
+    return "an unknown number of windows (not recorded)" if n is None else f"{n} windows"
 
 
 def _value(key: str, v) -> str:
@@ -86,7 +88,8 @@ def _features(c: dict) -> str:
         weighting = f", weighted '{c['feature_weighting']}'" if c.get("feature_weighting") else ""
         return f"  features: {' + '.join(c['families'])}, per pad ({len(c['pads'])} pads), standardised{weighting}"
     hist = {None: "", True: f", one histogram per pad ({len(c['pads'])})", False: ", one histogram over all pads"}
-    return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}"
+    level = ", plus each pad's mean level and slope" if c.get("level_features") else ""
+    return f"  features: {c['K']} words of W={c['W']} derivative steps{hist[c['per_pad']]}{level}"
 
 
 def feature_summary(model) -> str:
@@ -103,7 +106,7 @@ def _svm(c: dict) -> str:
     return f"  SVM: {c['kernel']} kernel" + (f", {', '.join(parts)}" if parts else "")
 
 
-SHOWN_TRAINING = ("n_trials", "data_fingerprint", "date", "project_version", "C", "gamma")
+SHOWN_TRAINING = ("n_trials", "n_cases", "level_features", "data_fingerprint", "date", "project_version", "C", "gamma")
 """Training keys the card shows in its own words (C and gamma are on the SVM line)."""
 
 

@@ -132,6 +132,26 @@ def test_decode_quick(tmp_path, capsys):
     assert printed["rle_frames_per_s"] == result["rle_frames_per_s"]
 
 
+def test_a_quick_run_never_overwrites_the_committed_results(tmp_path, monkeypatch, capsys):
+    """``--quick`` without ``--out`` writes under the system's temp folder (a stranger's smoke test had
+    rewritten results/latency.*, and its table then read like a measurement), and says it is one."""
+    import tempfile
+
+    from trainer.bench.common import default_out
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    parser = argparse.ArgumentParser()
+    bench_cli.add_arguments(parser)
+    assert bench_cli.main(parser.parse_args(["decode", "--quick", "--quiet", "--synthetic"])) == 0
+    out = tmp_path / "handover-bench-quick"
+    assert default_out(True) == str(out) and default_out(False) == "results"
+    assert not (tmp_path / "results").exists()
+    md = (out / "decode.md").read_text()
+    assert "a smoke test, not a measurement" in md.splitlines()[2]
+    assert "--out" not in json.loads((out / "decode.json").read_text())["command"]
+
+
 @pytest.mark.slow
 def test_inference_quick(tmp_path, capsys):
     printed, result = _run("inference", tmp_path, capsys)

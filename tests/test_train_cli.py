@@ -104,7 +104,7 @@ def test_export_of_a_trained_file_needs_no_pads_and_keeps_the_card(tiny_data, tm
     capsys.readouterr()
     assert handover(["inspect", str(out / "exported.onnx")]) == 0
     card = capsys.readouterr().out
-    assert "None trials" not in card and "36" in card
+    assert "None windows" not in card and "trained on: 36 windows" in card
 
 
 def test_failed_onnx_export_fails_the_command(tiny_data, tmp_path, capsys):

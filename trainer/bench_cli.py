@@ -38,7 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("which", metavar="BENCHMARK", choices=(*BENCHMARKS, "all", *SINGLE),
                         help=f"which benchmark to run ('all' = {', '.join(BENCHMARKS)}; {', '.join(SINGLE)} run only "
                         "by name)")
-    parser.add_argument("--out", default="results", help="folder for <name>.json/.md/.png (default results)")
+    parser.add_argument("--out", default=None, help="folder for <name>.json/.md/.png (default results; with "
+                        "--quick handover-bench-quick in the system's temp folder, so a smoke test never "
+                        "overwrites the committed results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
     parser.add_argument("--load", action="store_true", help="latency: also measure with two busy-loop processes")
@@ -61,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from trainer.bench.common import progress
+    from trainer.bench.common import default_out, progress
 
     if args.duration is not None and args.duration <= 0:
         return fail(COMMAND, f"--duration must be positive, got {args.duration}")
@@ -71,6 +73,8 @@ def main(args: argparse.Namespace) -> int:
                         ("--speed", args.speed), ("--pad-rate", args.pad_rate)):
         if value is not None and not value > 0:
             return fail(COMMAND, f"{flag} must be positive, got {value}")
+    if args.out is None:
+        args.out = default_out(args.quick)
     args.say = progress(args.quiet)
     which = BENCHMARKS if args.which == "all" else (args.which,)
     figures: dict = {}

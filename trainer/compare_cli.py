@@ -20,7 +20,9 @@ COMMAND = "compare"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="2 simulated subjects, fewer models and repeats (a smoke run)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
-    parser.add_argument("--out", default="results", help="folder for compare.json/.md/.png (default results/)")
+    parser.add_argument("--out", default=None, help="folder for compare.json/.md/.png (default results; with "
+                        "--quick handover-bench-quick in the system's temp folder, so a smoke run never overwrites "
+                        "the committed results)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-jobs", type=int, default=2, help="parallel folds (at most 2)")
     parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default $HANDOVER_SHARED_DATA or "
@@ -42,6 +44,10 @@ def command_line(args: argparse.Namespace) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
+    from trainer.bench.common import default_out
+
+    if args.out is None:
+        args.out = default_out(args.quick)
     if not 1 <= args.n_jobs <= 2:
         return fail(COMMAND, f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
     minirocket = not args.no_minirocket
@@ -49,8 +55,9 @@ def main(args: argparse.Namespace) -> int:
         import importlib.util
 
         if importlib.util.find_spec("aeon") is None:
-            return fail(COMMAND, "MiniRocket needs the Python package 'aeon' (pip install 'tactile-handover[bench]'), "
-                         "or pass --no-minirocket")
+            return fail(COMMAND, "MiniRocket needs the Python package 'aeon': in a checkout `./dev bench --help` "
+                         "installs it into .venv (elsewhere pip install 'tactile-handover[bench]'), or pass "
+                         "--no-minirocket")
     from trainer import compare
     from trainer.bench.common import write_results
 

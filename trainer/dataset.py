@@ -344,7 +344,9 @@ def build_dataset(
             onset = trial.extra.get("onset") if isinstance(trial.extra, dict) else None
             labels.append((trial, start, _relative_onset(onset, trial)))
     if not cases and not skipped:
-        raise DatasetError("the recordings hold no labelled trials")
+        raise DatasetError("the recordings hold no labelled trials (imported .dsa files and bags have none): "
+                           "record subjects with `handover record`, or run `handover compare` to train "
+                           "and evaluate on the real SDH-2 recordings, which are labelled by file")
     n_ch = len(cols)
     X = np.asarray(cases, dtype=np.float32).reshape(len(cases), n_ch, T)
     rate = float(1.0 / np.median(intervals)) if intervals else float("nan")

@@ -11,6 +11,7 @@ import json
 import os
 import platform
 import shlex
+import tempfile
 import time
 from collections.abc import Callable
 from functools import lru_cache
@@ -102,6 +103,12 @@ def time_calls(fn: Callable[[], object], repeats: int, warmup: int = 20, period_
     return out / 1000.0
 
 
+def default_out(quick: bool) -> str:
+    """Where a benchmark writes: the committed ``results`` folder for a measurement; a smoke test
+    (``--quick``) under the system's temp folder, so it never overwrites the committed figures."""
+    return str(Path(tempfile.gettempdir()) / "handover-bench-quick") if quick else "results"
+
+
 def command_line(name: str, args) -> str:
     """The command that reproduces a result (``args``: handover bench's own options; a benchmark
     called from Python may pass a namespace with only some of them)."""
@@ -119,7 +126,7 @@ def command_line(name: str, args) -> str:
         parts.append("--synthetic")
     if getattr(args, "seed", None) is not None:
         parts += ["--seed", str(args.seed)]
-    if getattr(args, "out", None) not in (None, "results"):
+    if getattr(args, "out", None) not in (None, default_out(getattr(args, "quick", False))):
         parts += ["--out", str(args.out)]
     return shlex.join(parts)
 
@@ -133,8 +140,10 @@ def write_results(out: str | Path, name: str, result: dict, markdown: list[str])
     tmp.write_text(json.dumps(result, indent=2, default=_json_default) + "\n")
     os.replace(tmp, path)
     m = result["machine"]
+    quick = ["", "**A quick run (`--quick`): tiny sizes and short runs, a smoke test, not a measurement.**"] \
+        if " --quick" in result.get("command", "") else []
     md = [
-        *markdown,
+        markdown[0], *quick, *markdown[1:],
         "",
         f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
         f"onnxruntime {m['onnxruntime']}" + (f", scikit-learn {m['scikit-learn']}" if "scikit-learn" in m else "")
