@@ -100,6 +100,8 @@ class DSAClient:
         self._open_deadline: float | None = None
         self._open_bytes = 0
         self._counts = dict.fromkeys(COUNTERS, 0)
+        self.last_refusal: str | None = None
+        """Why the newest frame that arrived whole but was refused (undecodable, implausible) was."""
         self._last_frame: Packet | None = None
         self._rehearsal_parser: StreamParser | None = None
 
@@ -403,11 +405,14 @@ class DSAClient:
             return
         try:
             raw_ts, values = decode_frame_payload(packet.payload, self.layout.n_taxels)
-        except FrameDecodeError:
+        except FrameDecodeError as exc:
             self._counts["decode_errors"] += 1
+            self.last_refusal = str(exc)
             return
-        if self._plausible is not None and self._plausible.problem(values) is not None:
+        problem = None if self._plausible is None else self._plausible.problem(values)
+        if problem is not None:
             self._counts["frames_implausible"] += 1  # corrupt bits the CRC let through: never classified
+            self.last_refusal = problem
             return
         frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
         self._last_frame = packet

@@ -53,7 +53,8 @@ READ_TIMEOUT_S = 0.1
 """Longest the loop blocks on the device: bounds the reaction to SIGTERM and the watchdog."""
 HEALTH_PERIOD_S = 1.0
 HOLD_LIMIT_S = 10.0
-"""How long open windows may hold back a model swap or a reload (``Daemon.windows_hold``)."""
+"""How long open windows may hold back a model swap or a reload (``Daemon.windows_hold``); longer
+for a stream so slow that two windows take longer."""
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 
@@ -118,6 +119,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.fatal: str | None = None
         """Why the daemon gave up (a device URL that can never open, a missing package), or None."""
         self._pending: list[int] = []
+        self._refused_mark = 0
+        """Frames the client had refused (CRC, undecodable, implausible) at the last stall."""
         self._held_since: float | None = None
         """Since when open windows have held back a model swap or a reload (``windows_hold``)."""
         self._backoff = cfg.device.reconnect_min_s
@@ -177,7 +180,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             return False
         if self._held_since is None:
             self._held_since = now
-        if now - self._held_since < HOLD_LIMIT_S:
+        window_s = self.model.meta.T * self.frame_clock.next_admitted_s() if self.model is not None else 0.0
+        if now - self._held_since < max(HOLD_LIMIT_S, 2 * window_s):  # a slow stream's windows still end
             return True
         log.warning("a model swap or reload waited %g s for windows that kept opening; %d open window(s) "
                     "dropped undecided to let it in (the trigger fires all the time: see [trigger] "
@@ -350,7 +354,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
                 if frame is None:
                     if time.monotonic() - self._last_frame_t > self.cfg.device.stall_timeout_s:
                         self.health.stalls += 1
-                        self._fault(f"no frame for {self.cfg.device.stall_timeout_s:g} s (stall)", link_lost=False)
+                        self._fault(self._stall_reason(), link_lost=False)
                     continue
                 self._last_frame_t = time.monotonic()
                 if not self._rt_applied:

@@ -218,6 +218,21 @@ class DeviceLink:
                 else:
                     self.client.close(stop_timeout=stop_timeout)
 
+    def _stall_reason(self) -> str:
+        """The stall's line. Frames that arrived whole but were all refused (CRC, undecodable,
+        implausible) are named with the last reason: a device sending nonsense is not a silent one."""
+        stall_s = self.cfg.device.stall_timeout_s
+        stats = getattr(self.client, "stats", None)
+        refused = sum(int(stats.get(k, 0)) for k in REFUSALS) if isinstance(stats, dict) else 0
+        new = refused - self._refused_mark if refused >= self._refused_mark else refused  # a new client counts from 0
+        self._refused_mark = refused
+        if new <= 0:
+            return f"no frame for {stall_s:g} s (stall)"
+        last = getattr(self.client, "last_refusal", None)
+        return (f"no usable frame for {stall_s:g} s: {new} arrived but were refused (CRC, undecodable or "
+                f"implausible{'; last: ' + last if last else ''}); check the cable and that the device is a "
+                "DSACON32m with the hand's pads")
+
     def _absorb_client_stats(self) -> None:
         """The client's error counters (cumulative over reconnects of the same client)."""
         stats = getattr(self.client, "stats", None)
@@ -228,6 +243,10 @@ class DeviceLink:
         self.health.frames_implausible = int(stats.get("frames_implausible", 0))
         self.health.frames_stale = int(stats.get("frames_stale", 0))
 
+
+
+REFUSALS = ("crc_errors", "decode_errors", "frames_implausible")
+"""The client's counts of frames that arrived whole but were not used."""
 
 
 def default_client(url: str) -> Any:

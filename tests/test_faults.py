@@ -477,3 +477,30 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
     state["up"] = False
     again = attempts(1)
     assert len(again) == 1 and again[0].endswith("no answer within 3 s (hand powered? cable?); retrying in 0.2 s")
+
+
+def test_a_device_whose_every_frame_is_refused_says_so_at_the_stall(models, caplog):
+    """CRC-valid frames with pressure on a cell the pad does not have, all of them: no frame reaches the
+    daemon, and its stall line used to read like a silent device. It names the refused frames and why."""
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.recordings.recording import Recording
+    from firmware_io.transports.emulated import EmulatedTransport
+
+    rec = load_source("sim", seed=3, events=1)
+    frames = rec.frames[:200].copy()
+    frames[:, 84] = 700  # matrix 1 starts at 84; its cell (0, 0) does not exist
+    nonsense = Recording(rec.layout, frames, rec.timestamps[:200])
+
+    def factory(url: str):
+        emulator = DeviceEmulator(nonsense, speed=1.0, loop=True)
+        return DSAClient(EmulatedTransport(emulator), auto_reconnect=False, gap_timeout=0.3, stop_timeout=0.3,
+                         flush_max=0.3)
+
+    cfg = _config(models, "sim://?events=1", device={"stall_timeout_s": 0.5})
+    daemon = Daemon(cfg, client_factory=factory)
+    caplog.set_level(logging.WARNING, logger="handover")
+    assert _run_until(daemon, lambda d: d.health.stalls >= 1, timeout=15)
+    lines = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert lines and "no usable frame for 0.5 s" in lines[0] and "a cell the pad does not have" in lines[0], lines
+    assert daemon.health.frames_received == 0
