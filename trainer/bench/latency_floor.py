@@ -25,9 +25,11 @@ from trainer.bench.common import percentiles, time_calls
 
 GAP_S = 5e-6
 """A clock reading later than this after the one before counts as time taken from the thread."""
-SPIN_CHUNK_S = 0.25
+SPIN_CHUNK_S = 0.02
 """Spin in chunks with as much rest between them: a real-time thread spinning longer than the
-kernel's real-time budget (0.95 s a second) would be throttled, which is not the machine's noise."""
+kernel's real-time budget (0.95 s a second) would be throttled, which is not the machine's noise;
+and short ones keep another thread of that core (a daemon at the same priority) waiting at most
+this long, not a quarter of a second."""
 
 
 @dataclass
