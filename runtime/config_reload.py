@@ -8,6 +8,7 @@ model watcher when their sections changed, and the ring and trigger for the new 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -20,6 +21,14 @@ from runtime.sdnotify import Notifier
 from runtime.sinks import SinkSet
 
 log = logging.getLogger("handover.daemon")
+
+
+def changed_sections(old: Config, new: Config) -> str:
+    """``changed: sinks, trigger`` (the config's tables and top-level keys that differ), or
+    ``nothing changed``: what an operator wants to read after a SIGHUP."""
+    names = [f.name for f in dataclasses.fields(new)
+             if f.name not in ("source", "warnings") and getattr(new, f.name) != getattr(old, f.name)]
+    return "changed: " + ", ".join(names) if names else "nothing changed"
 
 
 class ConfigReload:
@@ -83,7 +92,7 @@ class ConfigReload:
             self._refit_model(old, new)
         self._build_hot_path(keep_history=new.scene == old.scene)
         self.health.resolve("config")
-        log.info("configuration reloaded from %s", source)
+        log.info("configuration reloaded from %s (%s)", source, changed_sections(old, new))
         self.notifier.ready(self.health.status_line())
 
     def _refit_model(self, old: Config, new: Config) -> None:

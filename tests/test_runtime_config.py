@@ -319,3 +319,26 @@ def test_sighup_never_kills_the_daemon_it_keeps_the_running_configuration(tmp_pa
     assert lines[0].endswith("; keeping the running configuration")
     assert ("tcp://[::1" if failure == "malformed url" else "RuntimeError: a bug in a check") in lines[0]
     assert "reload refused" in (daemon.health.last_error or "")
+
+
+def test_a_reload_says_which_sections_changed(tmp_path, caplog):
+    """After a SIGHUP the operator reads what the new file changed (the stranger added a UDP sink and
+    read only "configuration reloaded")."""
+    import logging
+
+    from runtime.config import load_config
+    from runtime.daemon import Daemon
+
+    config = tmp_path / "handover.toml"
+    base = f'[device]\nurl = "sim://"\n[model]\nfolder = "{tmp_path}"\n'
+    config.write_text(base + "[sinks]\nstdout = false\n")
+    daemon = Daemon(load_config(config))
+    try:
+        with caplog.at_level(logging.INFO, logger="handover.daemon"):
+            daemon._do_reload()
+            config.write_text(base + '[sinks]\nstdout = false\nudp = ["127.0.0.1:9"]\n[trigger]\nfraction = 0.2\n')
+            daemon._do_reload()
+        lines = [r.getMessage() for r in caplog.records if "configuration reloaded" in r.getMessage()]
+        assert lines[0].endswith("(nothing changed)") and lines[1].endswith("(changed: trigger, sinks)"), lines
+    finally:
+        daemon.sinks.close()
