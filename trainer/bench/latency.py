@@ -174,7 +174,8 @@ def run(args) -> dict:
                 result["e2e_32hz_load_normal"] = end_to_end(model_path, load_stream, 1.0, work,
                                                             timeout=load_stream.n_frames / 32 + 60, priority=0)
     result["interference"] = {**gaps.summary(), "steady_job_us": {
-        f"{round(job):g}": gaps.steady_job(round(job), seed=args.seed) for job in _job_lengths(result) if job}}
+        name: {"job_us": round(job), **gaps.steady_job(round(job), seed=args.seed)}
+        for name, job in _job_lengths(result).items() if job}}
     result.update(headline(result))
     result.update(
         model={"kind": model.meta.extra.get("model_kind"), "K": model.meta.K, "W": model.meta.W, "T": model.meta.T,
@@ -215,25 +216,24 @@ def headline(res: dict) -> dict:
         # the same windows, interleaved: these ratios hold on a noisy machine (None: not measured)
         "numpy_over_onnx_p50": res["implementations"]["ratio_p50"].get("numpy"),
         # the limits: a steady job as long as the paced median, on this machine; the per-frame split
-        "floor_p999_us": _floor(res, internal_paced["p50"]),
-        "e2e_floor_p999_us": _floor(res, e2e["p50"]),
+        "floor_p999_us": _floor(res, "paced"),
+        "e2e_floor_p999_us": _floor(res, "e2e"),
         "split_p50_us": (res["implementations_distal"].get("per_frame_split") or {}).get("decision_with_its_frame_p50_us"),
         "sklearn_over_onnx_p50": res["implementations"]["ratio_p50"].get("scikit-learn"),
     }
 
 
-def _job_lengths(res: dict) -> list[float]:
+def _job_lengths(res: dict) -> dict[str, float | None]:
     """The medians whose floor the results give: frame parsed -> decision back to back and paced, and
     end to end."""
     stages = res["stages"]
-    return [stages["back_to_back"]["daemon_internal"]["p50"], stages["paced_32hz"]["daemon_internal"]["p50"],
-            res["e2e_32hz"]["e2e_us"]["p50"]]
+    return {"back_to_back": stages["back_to_back"]["daemon_internal"]["p50"],
+            "paced": stages["paced_32hz"]["daemon_internal"]["p50"], "e2e": res["e2e_32hz"]["e2e_us"]["p50"]}
 
 
-def _floor(res: dict, job_us: float) -> float | None:
-    """p99.9 of a steady job of ``job_us`` (rounded as measured) given the machine's interference."""
-    jobs = res.get("interference", {}).get("steady_job_us", {})
-    job = jobs.get(f"{round(job_us):g}") if job_us else None
+def _floor(res: dict, name: str) -> float | None:
+    """p99.9 of a steady job as long as the ``name`` median (``_job_lengths``) on this machine."""
+    job = res.get("interference", {}).get("steady_job_us", {}).get(name)
     return job["p999"] if job else None
 
 
@@ -248,8 +248,8 @@ def _limit_lines(res: dict) -> list[str]:
                   f"p99 {fmt_us(gap['p99'])} us, longest {fmt_us(gap['max'])} us. A job that always needs the same "
                   "time of the core, started at random moments, therefore takes:", "",
                   "| steady job (us of core) | median (us) | p99 (us) | p99.9 (us) |", "|---|---|---|---|"]
-        for job, s in inter["steady_job_us"].items():
-            lines.append(f"| {job} | {fmt_us(s['p50'])} | {fmt_us(s['p99'])} | {fmt_us(s['p999'])} |")
+        for s in inter["steady_job_us"].values():
+            lines.append(f"| {s['job_us']} | {fmt_us(s['p50'])} | {fmt_us(s['p99'])} | {fmt_us(s['p999'])} |")
         lines += ["", "The job lengths are this run's medians of frame parsed -> decision, back to back and paced, "
                   "and of end to end. `floor_p999_us` is the paced one's p99.9: the lowest `daemon_p999_us` this "
                   "machine allows at that median, even if every decision needed exactly the median; "
