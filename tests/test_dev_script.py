@@ -49,3 +49,50 @@ def test_extras_accumulate_and_nothing_is_reinstalled_for_fewer(tmp_path, monkey
     (tmp_path / "pyproject.toml").write_text("[project]\nname = 'y'\n")  # a dependency changed
     dev.ensure_env("train,dev")
     assert installs[-1] == "bench,dev,train"
+
+
+def test_a_corrupt_stamp_reinstalls_and_never_crashes(tmp_path, monkeypatch, capsys):
+    """A stamp of binary junk raised UnicodeDecodeError; one whose extras field was junk (``,train``
+    or ``x;y``) was carried into every later install, so pip refused ``[,train]`` on every ./dev."""
+    dev, installs = _dev(tmp_path, monkeypatch)
+    dev.ensure_env("train,dev")
+    stamp = tmp_path / ".venv" / ".installed"
+    digest = stamp.read_text().split()[0]
+    for junk in (b"\xff\xfe\x00junk", b"", b"\n\n", f"{digest} ,train".encode(), f"{digest} x;y,train".encode(),
+                 f"  {digest}\n dev,train \n".encode()):
+        stamp.write_bytes(junk)
+        dev.ensure_env("train,dev")
+        assert all(e and all(n.replace("-", "").replace("_", "").isalnum() for n in e.split(","))
+                   for e in installs), installs
+        assert installs[-1] == "dev,train"
+    stamp.unlink()
+    stamp.mkdir()  # not even a file: install and say so, no traceback
+    try:
+        dev.ensure_env("train,dev")
+    except SystemExit as exc:
+        assert ".installed" in str(exc)
+
+
+def test_a_failed_install_is_one_line_not_a_traceback(tmp_path, monkeypatch):
+    dev, _ = _dev(tmp_path, monkeypatch)
+
+    def fails(cmd) -> None:
+        raise dev.subprocess.CalledProcessError(1, cmd)
+
+    monkeypatch.setattr(dev.subprocess, "check_call", fails)
+    import pytest
+
+    with pytest.raises(SystemExit) as exc:
+        dev.ensure_env("train,dev")
+    assert "pip" in str(exc.value) and "\n" not in str(exc.value)
+    assert not (tmp_path / ".venv" / ".installed").exists()
+
+
+def test_python_deleted_with_a_stamp_present_reinstalls(tmp_path, monkeypatch):
+    dev, installs = _dev(tmp_path, monkeypatch)
+    dev.ensure_env("train,dev,bench")
+    (tmp_path / ".venv" / "bin" / "python").unlink()
+    monkeypatch.setattr(dev.venv, "EnvBuilder", lambda **_: type("B", (), {"create": lambda self, p: (
+        Path(p, "bin").mkdir(parents=True, exist_ok=True), Path(p, "bin", "python").write_text(""))})())
+    dev.ensure_env("train,dev")
+    assert len(installs) == 2 and installs[-1] == "dev,train"
