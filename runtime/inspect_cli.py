@@ -40,7 +40,7 @@ def card(model) -> dict:
         "W": meta.W,
         "K": meta.K,
         "per_pad": None if groups is None else len(groups) > 1,
-        "level_features": bool(features.get("level_features") or meta.training.get("level_features")),
+        "level_features": any(v is True for v in (features.get("level_features"), meta.training.get("level_features"))),
         "families": [str(f) for f in families] if isinstance(families, list) else None,
         "feature_weighting": str(features["feature_weighting"]) if features.get("feature_weighting") else None,
         "window_seconds": round(meta.T / meta.sample_rate_hz, 4),

@@ -363,3 +363,22 @@ def test_a_nan_attribute_of_another_operator_is_not_a_damaged_constant(proto):
     proto.graph.node.append(helper.make_node("Imputer", ["x"], ["y"], domain="ai.onnx.ml",
                                              imputed_value_floats=[0.0], replaced_value_float=float("nan")))
     assert summarize(proto.SerializeToString()).nan_initializers == []
+
+
+@pytest.mark.parametrize("where", ["features", "training"])
+@pytest.mark.parametrize("value", ["false", "no", None, 0, [], {"a": 1}])
+def test_inspect_level_features_only_when_recorded_true(tmp_path, capsys, where, value):
+    """``"level_features": "false"`` (a string) was truthy: the card claimed level features the model lacks."""
+    from runtime.cli import main as handover
+    from tests.tiny_models import tiny_model_bytes
+
+    m = onnx.load_from_string(tiny_model_bytes())
+    meta = json.loads(m.metadata_props[0].value)
+    meta.setdefault(where, {})["level_features"] = value
+    m.metadata_props[0].value = json.dumps(meta)
+    path = tmp_path / "m.onnx"
+    onnx.save(m, str(path))
+    assert handover(["inspect", str(path)]) == 0
+    assert "mean level and slope" not in capsys.readouterr().out
+    assert handover(["inspect", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["level_features"] is False
