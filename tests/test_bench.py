@@ -164,3 +164,15 @@ def test_ros2_quick(tmp_path, capsys):
     pytest.importorskip("rclpy", reason="needs a sourced ROS 2 (rclpy)")
     _printed, result = _run("ros2", tmp_path, capsys)
     assert result["events_received"] == result["events_sent"] > 0 and result["pad_images_lost"] == 0
+
+
+def test_bench_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsys, monkeypatch):
+    """--out naming a file failed only after the benchmark ran, as `decode: [Errno 17] File exists`."""
+    from runtime.cli import main as handover
+
+    (tmp_path / "file").write_text("")
+    monkeypatch.setattr(bench_cli, "BENCHMARKS", ())
+    for out in (tmp_path / "file", tmp_path / "file" / "below"):
+        assert handover(["bench", "all", "--quick", "--quiet", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"handover bench: --out {out}: cannot make") and err.count("\n") == 1, err

@@ -108,3 +108,19 @@ def test_done_check_reads_the_spread_of_the_best_reference():
                     "c": {"results": {"default": entry(0.5, [0.5]), "minirocket": entry(0.8, [0.8])}}}}
     lines = done_check(res)
     assert "within its fold spread" in lines[0] and "at or above" in lines[1] and "outside the spread" in lines[2]
+
+
+def test_compare_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsys, monkeypatch):
+    """--out naming a file raised FileExistsError with a traceback, and only after the whole run (a
+    real compare takes an hour): the folder is checked first, its error is one line."""
+    from trainer import compare
+
+    def run(*_a, **_k):
+        raise AssertionError("ran before checking --out")
+
+    monkeypatch.setattr(compare, "run", run)
+    (tmp_path / "file").write_text("")
+    for out in (tmp_path / "file", tmp_path / "file" / "below"):
+        assert handover(["compare", "--quick", "--no-real", "--no-minirocket", "--quiet", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("handover compare: --out") and err.count("\n") == 1, err

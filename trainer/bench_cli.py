@@ -63,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from trainer.bench.common import default_out, progress
+    from trainer.bench.common import default_out, out_problem, progress
 
     if args.duration is not None and args.duration <= 0:
         return fail(COMMAND, f"--duration must be positive, got {args.duration}")
@@ -75,6 +75,8 @@ def main(args: argparse.Namespace) -> int:
             return fail(COMMAND, f"{flag} must be positive, got {value}")
     if args.out is None:
         args.out = default_out(args.quick)
+    if problem := out_problem(args.out):
+        return fail(COMMAND, problem)
     args.say = progress(args.quiet)
     which = BENCHMARKS if args.which == "all" else (args.which,)
     figures: dict = {}

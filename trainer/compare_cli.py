@@ -44,10 +44,12 @@ def command_line(args: argparse.Namespace) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from trainer.bench.common import default_out
+    from trainer.bench.common import default_out, out_problem
 
     if args.out is None:
         args.out = default_out(args.quick)
+    if problem := out_problem(args.out):
+        return fail(COMMAND, problem)
     if not 1 <= args.n_jobs <= 2:
         return fail(COMMAND, f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
     minirocket = not args.no_minirocket
@@ -75,9 +77,11 @@ def main(args: argparse.Namespace) -> int:
     res["command"] = command_line(args)
     res["load_after"] = [round(v, 2) for v in os.getloadavg()]
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    compare.plot(res, out / "compare.png")
-    path = write_results(out, "compare", res, compare.markdown(res))
+    try:
+        compare.plot(res, out / "compare.png")
+        path = write_results(out, "compare", res, compare.markdown(res))
+    except OSError as exc:
+        return fail(COMMAND, f"--out {out}: cannot write the results ({exc.strerror or exc})")
     say(f"written {path}, {out / 'compare.md'}, {out / 'compare.png'}")
     if args.json:
         print(json.dumps(res, default=str))

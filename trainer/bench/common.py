@@ -109,6 +109,18 @@ def default_out(quick: bool) -> str:
     return str(Path(tempfile.gettempdir()) / "handover-bench-quick") if quick else "results"
 
 
+def out_problem(out: str) -> str | None:
+    """What is wrong with ``--out`` as a results folder (made if missing), or None: checked before a
+    run, so a long benchmark never ends in a folder it cannot write."""
+    try:
+        Path(out).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"--out {out}: cannot make that folder ({exc.strerror or exc}); give a writable folder"
+    if not os.access(out, os.W_OK | os.X_OK):
+        return f"--out {out}: the folder is not writable; give a writable folder"
+    return None
+
+
 def command_line(name: str, args) -> str:
     """The command that reproduces a result (``args``: handover bench's own options; a benchmark
     called from Python may pass a namespace with only some of them)."""
