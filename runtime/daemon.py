@@ -313,6 +313,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         h = self.health
         h.update_rate(now)
         self._absorb_client_stats()
+        self._mark_refusals(time.monotonic() if now is None else now, HEALTH_PERIOD_S)
         h.sink_errors = self.sinks.errors
         h.events_invalid = self.sinks.invalid
         self.notifier.status(h.status_line())

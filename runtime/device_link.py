@@ -104,7 +104,7 @@ class DeviceLink:
             h.device_state = "connecting"
         try:
             if self.client is None:
-                self.client = self.client_factory(url)
+                self._use_new_client(url)
             layout = self.client.open(should_stop=self._still_connecting)
             self.client.start(should_stop=self._still_connecting)
         except Cancelled:
@@ -218,13 +218,28 @@ class DeviceLink:
                 else:
                     self.client.close(stop_timeout=stop_timeout)
 
+    def _use_new_client(self, url: str) -> None:
+        """A new client counts its refusals from 0 (the mark was the old one's)."""
+        self.client = self.client_factory(url)
+        self._refused_mark = 0
+
+    def _refusals(self) -> int:
+        stats = getattr(self.client, "stats", None)
+        return sum(int(stats.get(k, 0)) for k in REFUSALS) if isinstance(stats, dict) else 0
+
+    def _mark_refusals(self, now: float, period_s: float) -> None:
+        """Called every ``period_s`` (the health write): while usable frames still arrive, the refusals
+        so far are not a coming stall's (a device alternating good and refused frames, then silent,
+        read as one whose every frame was refused)."""
+        if self.connected and now - self._last_frame_t <= period_s:
+            self._refused_mark = self._refusals()
+
     def _stall_reason(self) -> str:
         """The stall's line. Frames that arrived whole but were all refused (CRC, undecodable,
         implausible) are named with the last reason: a device sending nonsense is not a silent one."""
         stall_s = self.cfg.device.stall_timeout_s
-        stats = getattr(self.client, "stats", None)
-        refused = sum(int(stats.get(k, 0)) for k in REFUSALS) if isinstance(stats, dict) else 0
-        new = refused - self._refused_mark if refused >= self._refused_mark else refused  # a new client counts from 0
+        refused = self._refusals()
+        new = refused - self._refused_mark if refused >= self._refused_mark else refused
         self._refused_mark = refused
         if new <= 0:
             return f"no frame for {stall_s:g} s (stall)"
