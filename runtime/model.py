@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.trigger_level import is_trigger_level
+from runtime.bound_run import BoundRun
 from runtime.onnx_wire import WireError, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
 from runtime.trigger_settings import recorded_problems
@@ -242,6 +243,7 @@ class LoadedModel:
         self.n_bytes = n_bytes
         self._session = session
         self._shape = (meta.T, meta.n_channels)
+        self._bound = BoundRun(session, INPUT_NAME, OUTPUT_NAMES, self._shape, meta.n_classes)
 
     def __repr__(self) -> str:
         return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
@@ -273,7 +275,11 @@ class LoadedModel:
     def run_trusted(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``run`` without ``check_input``: for the daemon's hot path, whose windows are float32
         ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No copy,
-        no finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error)."""
+        no finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error). One
+        window runs through buffers bound once (``runtime.bound_run``)."""
+        answer = self._bound.run(x)
+        if answer is not None:
+            return answer
         labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x})
         return labels, scores
 
