@@ -93,6 +93,14 @@ def test_vectorised_crc_equals_the_byte_loop(data: bytes) -> None:
     assert crc16(data) == _crc_loop(data)
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.binary(min_size=0, max_size=600), st.integers(0, 0xFFFF))
+def test_the_two_bytes_a_step_crc_equals_the_byte_loop(data: bytes, start: int) -> None:
+    from firmware_io.wire.crc import _crc_words
+
+    assert _crc_words(data, start) == _crc_loop(data, start)
+
+
 def test_crc_at_the_switch_between_loop_and_vector() -> None:
     from firmware_io.wire.crc import _VECTOR_CRC_MAX, _VECTOR_CRC_MIN
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+from array import array
+
 import numpy as np
 
 
@@ -19,7 +22,8 @@ CRC_TABLE = _ccitt_table()
 CRC_INIT = 0xFFFF
 _CRC_TABLE_NP = np.array(CRC_TABLE, dtype=np.uint16)
 _VECTOR_CRC_MIN = 512
-"""Below this a Python loop is cheaper than NumPy. Why so high: in service a frame arrives after
+"""Below this a Python loop is cheaper than NumPy (figures for the byte loop; the word loop now used
+is faster still, see ``_crc_words``). Why so high: in service a frame arrives after
 31 ms of idle, when NumPy's call paths and the table are out of the caches; measured so (one CRC
 after 15 ms asleep, median of 40): 200 bytes 22 us looped, 73 us vectorised; 450 bytes 37 against
 87 us; 980 bytes (a raw SDH-2 frame) 62 against 111 us. Back to back the vectorised CRC wins from
@@ -34,9 +38,38 @@ _ROW_OF_POSITION = np.arange(_VECTOR_CRC_MAX - 1, -1, -1, dtype=np.intp) * 256
 
 
 def _crc_loop(data: bytes, crc: int = CRC_INIT) -> int:
+    """One byte a step: the definition (the faster paths are checked against it)."""
     table = CRC_TABLE
     for byte in data:
         crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
+    return crc
+
+
+def _word_table() -> array:
+    """Two bytes a step. Two byte steps from ``crc`` over ``b0, b1`` depend only on
+    ``x = crc ^ (b0 | b1 << 8)``: ``T[x & 0xFF] >> 8 ^ T[(x >> 8 ^ T[x & 0xFF]) & 0xFF]`` (the first step's
+    ``crc >> 8`` only reaches the second step's index byte). 65,536 entries, 128 KiB."""
+    t = _CRC_TABLE_NP.astype(np.uint32)
+    x = np.arange(1 << 16, dtype=np.uint32)
+    first = t[x & 0xFF]
+    return array("H", ((first >> 8) ^ t[((x >> 8) ^ first) & 0xFF]).astype(np.uint16).tobytes())
+
+
+_WORD_TABLE = _word_table()
+_LITTLE_ENDIAN = sys.byteorder == "little"
+
+
+def _crc_words(data: bytes, crc: int = CRC_INIT) -> int:
+    """``_crc_loop`` two bytes a step: half the Python steps (a 219-byte RLE frame 8.7 -> 5.0 us warm,
+    10.1 -> 6.8 us after 15 ms asleep)."""
+    view = memoryview(data)
+    if len(view) & 1:
+        crc = (crc >> 8) ^ CRC_TABLE[(crc ^ view[0]) & 0xFF]
+        view = view[1:]
+    words = view.cast("H") if _LITTLE_ENDIAN else np.frombuffer(view, dtype="<u2").tolist()
+    table = _WORD_TABLE
+    for word in words:
+        crc = table[crc ^ word]
     return crc
 
 
@@ -67,7 +100,7 @@ def crc16(data: bytes) -> int:
     """DSACON32m CRC16: init 0xFFFF, reflected update with the MSB-first CCITT (0x1021) table."""
     n = len(data)
     if n < _VECTOR_CRC_MIN or n > _VECTOR_CRC_MAX:
-        return _crc_loop(data)
+        return _crc_words(data)
     contrib, init = _build_crc_tables()
     terms = contrib.ravel().take(_ROW_OF_POSITION[-n:] + np.frombuffer(data, dtype=np.uint8))
     return int(np.bitwise_xor.reduce(terms)) ^ int(init[n])
