@@ -192,9 +192,10 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         return False
 
     def collect_garbage(self, now: float) -> None:
-        """What the loop collects between frames (runtime.heap): never inside a window at will, never
-        just before a due frame."""
-        self.garbage.collect(now, self.window_open, self.rehearsal.due is not None)
+        """What the loop collects between frames (runtime.heap): not inside a window nor just before a
+        due frame, unless held back too long."""
+        due = self.rehearsal.due  # a perf_counter time; ``now`` may be another clock
+        self.garbage.collect(now, self.window_open, None if due is None else due - time.perf_counter())
 
     # -- the hot path -----------------------------------------------------------------------------
     def handle_frame(self, frame: Any) -> None:
@@ -221,10 +222,16 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             due = pending.pop(0)
             if number == due and ring.count >= self.model.meta.T:
                 self._classify(frame)
+                if getattr(self.trigger, "every_frame", False) and self.model is not None:
+                    self._expect_next(frame)  # continuous mode: the next frame is due too
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
-            model = self.model  # keep warm for the frame that completes the window, due one period on
-            self.rehearsal.expect(frame.received + self.frame_clock.next_admitted_s(),
-                                  partial(self._rehearse, model, ring.window(model.meta.T)))
+            self._expect_next(frame)  # keep warm for the frame that completes the window, due one period on
+
+    def _expect_next(self, frame: Any) -> None:
+        """The next frame is due: rehearse its decision shortly before it arrives (runtime.rehearsal)."""
+        model = self.model
+        self.rehearsal.expect(frame.received + self.frame_clock.next_admitted_s(),
+                              partial(self._rehearse, model, self.ring.window(model.meta.T)))
 
     def _rehearse(self, model: Any, window: Any) -> None:
         """The due frame's path once ahead of it, nothing sent or counted: the model, the output

@@ -6,9 +6,11 @@ worst), a middle generation 0.8 ms and a full one 7 ms in the latency benchmark'
 such pause inside a decision is the decision's p99.9. So the daemon hides start-up's objects from
 the collector (``gc.freeze``), turns automatic collection off, and collects itself from its loop:
 the young generations every ``YOUNG_PERIOD_S``, everything every ``FULL_PERIOD_S``, only while no
-window is open (between frames there are 31 ms; a collection takes at most a few). A stream that
-keeps windows open still gets one ``MAX_DEFER_S`` after it was due (about every 11 s), never just
-before a due frame. Reference counting frees almost everything at once anyway; the collector is
+window is open (between frames there are 31 ms; a collection takes at most a few) and not within
+``CLEARANCE_S`` of a due frame. A stream that keeps windows open, or whose every frame is due within
+the clearance (continuous mode faster than about 80 Hz), still gets one ``MAX_DEFER_S`` after it was
+due (about every 11 s). Continuous mode at 32 Hz, where every frame is due, collects right after a
+decision, 30 ms before the next. Reference counting frees almost everything at once anyway; the collector is
 only for cycles.
 """
 
@@ -39,22 +41,30 @@ def release_heap() -> None:
 
 MAX_DEFER_S = 10.0
 """A collection kept waiting this long by windows that stay open (a trigger that fires all the
-time) runs anyway, unless the frame that completes a window is the next one."""
+time) or by due frames always within the clearance runs anyway."""
+CLEARANCE_S = 0.01
+"""No collection when a due frame is expected sooner than this: a collection takes at most a few ms
+(7 ms for a full one before ``gc.freeze``), and the rehearsal starts up to ``LEAD_S`` plus its own run
+before the frame (runtime.rehearsal)."""
 
 
 class GarbageSchedule:
-    """``collect(now, window_open, frame_due)``: collect what is due, unless a window is open (then
-    later, at most ``MAX_DEFER_S`` late) or its last frame is the next to come (then never)."""
+    """``collect(now, window_open, due_in)``: collect what is due, unless a window is open or a due
+    frame is expected within ``CLEARANCE_S`` (``due_in``, seconds; None: none expected): then later,
+    at most ``MAX_DEFER_S`` late."""
 
     def __init__(self) -> None:
         self._young_due: float | None = None
         self._full_due = 0.0
         self.collections = 0
 
-    def collect(self, now: float, window_open: bool, frame_due: bool = False) -> None:
+    def collect(self, now: float, window_open: bool, due_in: float | None = None) -> None:
         if self._young_due is None:  # the first call: everything is due from now on
             self._young_due = self._full_due = now
-        if now < self._young_due or frame_due or (window_open and now < self._young_due + MAX_DEFER_S):
+        if now < self._young_due:
+            return
+        held = window_open or (due_in is not None and due_in < CLEARANCE_S)
+        if held and now < self._young_due + MAX_DEFER_S:
             return
         full = now >= self._full_due
         gc.collect(2 if full else 1)

@@ -18,7 +18,9 @@ daemon's: the model on the current window, the output check, an event encoded, t
 path; nothing sent or counted), then polls the device without blocking until the frame arrives or
 ``GRACE_S`` after its expected arrival, when it goes
 back to blocking reads. Cost: at most ``LEAD_S + GRACE_S`` of one core per decision, nothing
-per frame and nothing while no window is open. Everything runs in the hot thread: no thread to
+per frame and nothing while no window is open. In continuous mode every frame is a decision, so the
+daemon rehearses before each (a default-sized model fed at 32 Hz, frame parsed -> decision medians:
+285 us cold, 126 us kept warm; polling took 1 % of a core, the rehearsals' model runs about 0.6 %). Everything runs in the hot thread: no thread to
 start, to race with the ring, or to join at shutdown.
 
 The lead follows the stream: the polling between rehearsal and frame cools the caches again (the

@@ -104,6 +104,9 @@ class ThresholdTrigger:
 class ContinuousTrigger:
     """Every frame ends a window once the ring holds T frames (models with a dormant class)."""
 
+    every_frame = True
+    """Each next frame is due: the daemon keeps warm for it (runtime.rehearsal) after every decision."""
+
     def __init__(self, window: int) -> None:
         self.window = int(window)
         self.pre_frames = 0

@@ -240,3 +240,51 @@ def test_the_daemons_rehearsal_warms_the_model_last(tmp_path):
     daemon.client = Client()
     daemon.rehearsal._run()
     assert calls == ["model", "receive", "model"]
+
+
+def test_continuous_mode_keeps_warm_for_every_next_frame_with_the_same_decisions(tmp_path):
+    """Continuous mode decides on every frame, so every next frame is due: the daemon rehearses before
+    each (it never did, and each decision after 31 ms of idle ran cold), over the real TCP emulator
+    at 32 Hz, and decides the frames exactly as a replay without waiting does."""
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes(weights=(0.01, -0.01, 0.0, 0.0), dormant_class="hold"))
+    rec = _pushes()
+    decided: list[tuple[int, int]] = []
+
+    class Decisions:
+        def on_frame(self, frame) -> None:
+            pass
+
+        def on_decision(self, frame, timings) -> None:
+            decided.append(frame.number)
+
+    cfg = {"device": {"url": None}, "model": {"folder": str(models)}, "sinks": {"stdout": False},
+           "scene": {"mode": "continuous"}}
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0, loop=False)).start()
+    try:
+        cfg["device"]["url"] = server.url
+        daemon = Daemon(config_from_dict(cfg))
+        daemon.listeners.append(Decisions())
+        stopper = threading.Thread(target=lambda: (_until(lambda: daemon.health.frames_received >= rec.n_frames),
+                                                   daemon.request_stop()), daemon=True)
+        stopper.start()
+        daemon.run()
+        stopper.join()
+    finally:
+        server.stop()
+    n_windows = rec.n_frames - 15 + 1
+    assert daemon.health.frames_received == rec.n_frames and len(decided) == n_windows
+    # one rehearsal before each next frame, except those a loaded machine delivered with the one before
+    assert daemon.rehearsal.runs >= n_windows // 2 and daemon.rehearsal.polled_s > 0
+    # a next frame is always expected, but 30 ms away after a decision: the garbage is still collected
+    assert daemon.garbage.collections >= 2  # one at start, then about one a second over 3 s
+
+    replay = Daemon(config_from_dict({"sinks": {"stdout": False}, "scene": {"mode": "continuous"}}))
+    replay.serve(load_model(models / "m.onnx"), rec.layout)
+    for i, values in enumerate(rec.frames):
+        replay.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
+    assert replay.health.decisions == daemon.health.decisions == n_windows
