@@ -87,6 +87,11 @@ def test_latency_quick(tmp_path, capsys):
         table = result["stages"][rhythm]
         assert all(table[stage]["n"] > 0 for stage in STAGES)  # every stage of every decision stamped
         assert table["total"]["p50"] > table["inference"]["p50"] > 0
+    # continuous mode: every frame a decision (frames of the ring's first window excepted), each kept warm
+    continuous = result["stages"]["continuous_paced_32hz"]
+    assert continuous["daemon_internal"]["n"] == continuous["inference"]["n"] > 10
+    assert result["continuous_daemon_p50_us"] == continuous["daemon_internal"]["p50"] > 0
+    assert "continuous mode, paced at 32 Hz" in (tmp_path / "latency.md").read_text()
     imps = result["implementations"]
     # the graph, numpy and scikit-learn on the same windows, interleaved (trainer.bench.numpy_decision)
     assert set(imps["back_to_back"]) == set(imps["solo"]) == {"onnxruntime", "numpy", "scikit-learn"}

@@ -93,7 +93,8 @@ class PacketFeed(Transport):
         self._closed = True
 
 
-def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset()) -> dict:
+def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset(),
+         mode: str = "trigger") -> dict:
     """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility) and
     a fresh serving daemon, read the way the daemon's loop reads (``Daemon.rehearsal.read``); the
     packets in ``pace_frames`` arrive one sample period after the one before. Per-stage
@@ -107,7 +108,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     sink.bind(("127.0.0.1", 0))
     sink.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     sink.setblocking(False)
-    daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1])
+    daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1], mode=mode)
     link = PacketFeed(packets, pace_frames)
     daemon.client = DSAClient.already_streaming(link, recording.layout)
     recorder = _Decisions()
@@ -145,13 +146,14 @@ def _stage_table(marks: np.ndarray, timings: list[tuple[int, DecisionTimings]]) 
     rows: dict[str, list[float]] = {s: [] for s in (*STAGES, "total", "daemon_internal")}
     for number, t in timings:
         t0, t1, _ = marks[number]
+        rows["daemon_internal"].append((t.decided - t.received) * 1e6)  # every decision, reported or not
         cuts = (t0, t1, t.started, t.windowed, t.decided, t.checked, t.built, t.serialised, t.sent)
-        if t.sent is None:
-            continue
-        for name, a, b in zip(STAGES, cuts[:-1], cuts[1:], strict=True):
+        if t.sent is None:  # no event (continuous mode between reports): the stages up to the check
+            cuts = cuts[:6]
+        for name, a, b in zip(STAGES, cuts[:-1], cuts[1:], strict=False):
             rows[name].append((b - a) * 1e6)
-        rows["total"].append((t.sent - t0) * 1e6)
-        rows["daemon_internal"].append((t.decided - t.received) * 1e6)
+        if t.sent is not None:
+            rows["total"].append((t.sent - t0) * 1e6)
     decided = {n for n, _ in timings}
     quiet = [(m[2] - m[1]) * 1e6 for i, m in enumerate(marks) if i not in decided]
     out = {name: percentiles(v) for name, v in rows.items()}
@@ -172,15 +174,42 @@ def decision_frames(model, recording) -> frozenset[int]:
     return frozenset(n for n, _ in recorder.timings)
 
 
-def stage_tables(model, recording, paced_decisions: int) -> dict:
-    """Back to back over the whole stream, and paced at 32 Hz for ``paced_decisions`` windows."""
+def stage_tables(model, recording, paced_decisions: int, continuous_model=None) -> dict:
+    """Back to back over the whole stream, and paced at 32 Hz for ``paced_decisions`` windows; with a
+    ``continuous_model`` (a dormant class), continuous mode paced at 32 Hz for as many frames (every
+    frame a decision, each one sample period after the one before)."""
     packets = _encoded(recording)
     due = decision_frames(model, recording)
     feed(model, recording, packets[: min(len(packets), 500)])  # warm-up pass, discarded
     fast = feed(model, recording, packets)
     last = sorted(due)[min(len(due), paced_decisions) - 1] if due else 0
     paced = feed(model, recording, packets[: last + 1], frozenset(due))
-    return {"back_to_back": fast, "paced_32hz": paced, "decisions": len(due)}
+    out = {"back_to_back": fast, "paced_32hz": paced, "decisions": len(due)}
+    if continuous_model is not None:
+        n = min(len(packets), paced_decisions + continuous_model.meta.T)
+        out["continuous_paced_32hz"] = feed(continuous_model, recording, packets[:n], frozenset(range(1, n)),
+                                            mode="continuous")
+    return out
+
+
+def declared_dormant(model_path: Path, out: Path, dormant: str) -> Path:
+    """A copy of ``model_path`` whose metadata names ``dormant`` its dormant class, so that continuous
+    mode serves it. For timing only: the graph is the same, and what the classes mean does not change
+    how long a decision takes."""
+    import json
+
+    import onnx
+
+    from runtime.model import METADATA_KEY
+
+    graph = onnx.load(str(model_path))
+    for prop in graph.metadata_props:
+        if prop.key == METADATA_KEY:
+            meta = json.loads(prop.value)
+            meta["dormant_class"] = dormant
+            prop.value = json.dumps(meta)
+    onnx.save(graph, str(out))
+    return out
 
 
 # -- the graph against numpy and scikit-learn, one window at a time --------------------------------------

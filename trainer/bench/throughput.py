@@ -43,16 +43,18 @@ from trainer.defaults import describe_default
 NAME = "throughput"
 
 
-def serving_daemon(model, layout, udp_port: int | None = None):
-    """The real ``Daemon`` serving ``model`` for ``layout`` (all pads, default trigger), fed by the
-    caller through ``handle_frame``; events go to a UDP port when given, else nowhere."""
+def serving_daemon(model, layout, udp_port: int | None = None, mode: str = "trigger"):
+    """The real ``Daemon`` serving ``model`` for ``layout`` (all pads, default trigger, or ``mode``
+    ``continuous``), fed by the caller through ``handle_frame``; events go to a UDP port when given,
+    else nowhere."""
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
     from runtime.sdnotify import Notifier
 
     pads = ",".join(str(p) for p in model.meta.pads)
     udp = [f"127.0.0.1:{udp_port}"] if udp_port else []
-    cfg = config_from_dict({"scene": {"pads": pads}, "sinks": {"stdout": False, "udp": udp}, "log_level": "error"})
+    cfg = config_from_dict({"scene": {"pads": pads, "mode": mode}, "sinks": {"stdout": False, "udp": udp},
+                            "log_level": "error"})
     daemon = Daemon(cfg, notifier=Notifier({}))
     daemon.serve(model, layout)
     return daemon
