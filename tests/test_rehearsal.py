@@ -4,6 +4,7 @@ polled instead of slept on until it arrives, and no decision changes."""
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 import time
 
 import numpy as np
@@ -288,3 +289,47 @@ def test_continuous_mode_keeps_warm_for_every_next_frame_with_the_same_decisions
     for i, values in enumerate(rec.frames):
         replay.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
     assert replay.health.decisions == daemon.health.decisions == n_windows
+
+
+def _nan_when_pressed_at(rate_hz: float) -> bytes:
+    """A continuous-mode model at ``rate_hz`` that passes every static check but answers NaN scores
+    (sqrt of a negative number) once the frames' mean exceeds 1, i.e. on the first press."""
+    import json
+
+    import onnx
+    from onnx import helper
+
+    graph = onnx.load_from_string(tiny_model_bytes(weights=(-1.0, 0.0, 0.0, 0.0), bias=(1.0, 0.0, 0.0, 0.0),
+                                                   dormant_class="hold"))
+    add = next(n for n in graph.graph.node if n.op_type == "Add")
+    add.output[0] = "before_sqrt"
+    graph.graph.node.append(helper.make_node("Sqrt", ["before_sqrt"], ["scores"]))
+    graph.graph.node.sort(key=lambda n: n.op_type == "ArgMax")  # ArgMax last: it reads the scores
+    for prop in graph.metadata_props:
+        meta = json.loads(prop.value)
+        meta["sample_rate_hz"] = rate_hz
+        prop.value = json.dumps(meta)
+    return graph.SerializeToString()
+
+
+def test_continuous_mode_goes_on_deciding_when_the_fallback_starts_a_new_ring(tmp_path, caplog):
+    """A continuous-mode decision that takes its model out of service hands over to the model it
+    replaced; at another sample rate that one starts a new, empty ring. The daemon then keeps warm for
+    the next frame only once the ring holds a window (it asked the empty ring for one: the frame's
+    handling failed with 'window of 15 frames needs 15 pushed, have 0')."""
+    models = tmp_path / "models"
+    models.mkdir()
+    old = write_model(models, "old.onnx", tiny_model_bytes(dormant_class="hold"))
+    new = write_model(models, "new.onnx", _nan_when_pressed_at(40.0))
+    layout = SensorLayout.sdh2()
+    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}, "scene": {"mode": "continuous"}}))
+    daemon.serve(load_model(old), layout)
+    daemon.serve(load_model(new, warm_up=False), layout)  # the warm-up would have caught it: a sleeper
+    for i in range(80):  # frames at 40 Hz; the press from frame 30 on
+        values = np.full(layout.n_taxels, 500 if i >= 30 else 0, dtype=np.uint16)
+        daemon.handle_frame(Frame(i, round(i * 25), time.perf_counter(), values))  # raised at frame 30
+        if i == 30:
+            assert Path(daemon.model.path).name == "old.onnx" and daemon.health.models_quarantined == 1
+            decided = daemon.health.decisions
+    assert daemon.health.decisions > decided  # the fallback decides once its ring holds a window ...
+    assert daemon.rehearsal.due is not None  # ... and keeps warm for the next frame again
