@@ -4,8 +4,8 @@ polled instead of slept on until it arrives, and no decision changes."""
 from __future__ import annotations
 
 import threading
-from pathlib import Path
 import time
+from pathlib import Path
 
 import numpy as np
 
