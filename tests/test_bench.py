@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -129,6 +131,26 @@ def test_bad_duration_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("handover bench: --duration")
 
 
+def test_the_quick_folder_is_one_per_user(tmp_path, monkeypatch):
+    """Another user's smoke-test folder on a shared machine (not writable for us) blocked ``--quick``."""
+    import getpass
+    import tempfile
+
+    from trainer.bench.common import default_out
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(getpass, "getuser", lambda: "alice")
+    alice = default_out(True)
+    monkeypatch.setattr(getpass, "getuser", lambda: "bob/../x")
+    assert alice.endswith("handover-bench-quick-alice") and default_out(True).endswith("handover-bench-quick-bob..x")
+
+    def nameless():
+        raise KeyError("uid not in the password database")
+
+    monkeypatch.setattr(getpass, "getuser", nameless)
+    assert default_out(True).endswith(f"handover-bench-quick-{os.getuid()}")
+
+
 def test_decode_quick(tmp_path, capsys):
     printed, result = _run("decode", tmp_path, capsys, "--synthetic")
     assert result["synthetic"] is True and "--synthetic" in result["command"]
@@ -149,8 +171,8 @@ def test_a_quick_run_never_overwrites_the_committed_results(tmp_path, monkeypatc
     parser = argparse.ArgumentParser()
     bench_cli.add_arguments(parser)
     assert bench_cli.main(parser.parse_args(["decode", "--quick", "--quiet", "--synthetic"])) == 0
-    out = tmp_path / "handover-bench-quick"
-    assert default_out(True) == str(out) and default_out(False) == "results"
+    out = Path(default_out(True))
+    assert out.parent == tmp_path and out.name.startswith("handover-bench-quick-") and default_out(False) == "results"
     assert not (tmp_path / "results").exists()
     md = (out / "decode.md").read_text()
     assert "a smoke test, not a measurement" in md.splitlines()[2]
