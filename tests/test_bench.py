@@ -203,3 +203,23 @@ def test_bench_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsy
         assert handover(["bench", "all", "--quick", "--quiet", "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"handover bench: --out {out}: cannot make") and err.count("\n") == 1, err
+
+
+def test_compare_records_its_out_folder_only_when_it_is_not_the_default(tmp_path, monkeypatch):
+    """A ``--quick`` compare recorded its temp folder in its Reproduce line, a path of one machine."""
+    import tempfile
+
+    from trainer import compare_cli
+    from trainer.bench.common import default_out
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    parser = argparse.ArgumentParser()
+    compare_cli.add_arguments(parser)
+    quick = parser.parse_args(["--quick"])
+    quick.out = default_out(True)
+    assert compare_cli.command_line(quick) == "handover compare --quick --seed 0 --n-jobs 2"
+    measured = parser.parse_args([])
+    measured.out = "results"
+    assert compare_cli.command_line(measured) == "handover compare --seed 0 --n-jobs 2"
+    elsewhere = parser.parse_args(["--out", str(tmp_path / "mine")])
+    assert compare_cli.command_line(elsewhere).endswith(f"--out {tmp_path / 'mine'}")

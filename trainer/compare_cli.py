@@ -37,7 +37,11 @@ def command_line(args: argparse.Namespace) -> str:
     for flag, on in (("--quick", args.quick), ("--no-real", args.no_real), ("--no-minirocket", args.no_minirocket)):
         if on:
             parts.append(flag)
-    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs), "--out", str(args.out)]
+    from trainer.bench.common import default_out
+
+    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs)]
+    if args.out not in (None, default_out(args.quick)):  # the default folder goes without saying (a temp one on --quick)
+        parts += ["--out", str(args.out)]
     if args.data:
         parts += ["--data", str(args.data)]
     return shlex.join(parts)
