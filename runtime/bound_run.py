@@ -11,7 +11,8 @@ starts in memory (a ring window's offset changed the scores' last bits); the sta
 one 64-byte aligned address, so one window gives one answer, bit for bit, wherever the ring holds it.
 
 One caller at a time holds the binding (a non-blocking lock: the daemon's loop in service); a caller
-that finds it taken, a batch, or a window of another dtype, or a graph whose outputs do not fit the preallocated shapes gets ``None``
+that finds it taken, a batch, a window of another dtype or no array at all (a nested list, which
+``session.run`` converts), or a graph whose outputs do not fit the preallocated shapes gets ``None``
 and uses ``session.run``, whose answer the output contract check then judges with its own message.
 """
 
@@ -60,7 +61,8 @@ class BoundRun:
         """Set when a bound run failed (a graph whose outputs do not fit): the binding is not tried again."""
 
     def run(self, window: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        if self.broken or window.shape != self.stage.shape or window.dtype != _FLOAT32 or not self._lock.acquire(False):
+        if (self.broken or not isinstance(window, np.ndarray) or window.shape != self.stage.shape
+                or window.dtype != _FLOAT32 or not self._lock.acquire(False)):
             return None
         try:
             self.stage[...] = window  # same shape, checked above

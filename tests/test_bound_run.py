@@ -106,3 +106,14 @@ def test_a_window_of_another_dtype_is_left_to_session_run_which_refuses_it(other
     assert bound.run(w) is None and not bound.broken
     with pytest.raises(Exception, match=r"(?i)type"):
         session.run(OUTPUT_NAMES, {INPUT_NAME: w})
+
+
+def test_a_nested_list_is_left_to_session_run_which_converts_it(tmp_path) -> None:
+    """``run(x, check=False)`` is ``run_trusted``; before the binding a nested list ran (onnxruntime
+    converts it), and the binding must not turn it into an AttributeError ('list' has no 'shape')."""
+    model = load_model(write_model(tmp_path, "m.onnx", tiny_model_bytes(weights=(1.0, -1.0, 0.5, 0.0))))
+    window = _windows(1)[0]
+    labels, scores = model.run(window.tolist(), check=False)
+    ref_labels, ref_scores = model.run_trusted(window)
+    assert np.array_equal(labels, ref_labels)
+    np.testing.assert_allclose(scores, ref_scores, rtol=1e-6)
