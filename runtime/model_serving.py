@@ -46,6 +46,7 @@ class ModelServing:
     _pending: list[int]
     model: Any
     _fallback: Any
+    _announced: Any
     ring: RingBuffer | None
     trigger: Any
     trigger_settings: TriggerSettings | None
@@ -119,7 +120,9 @@ class ModelServing:
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
         self.health.resolve("model")
-        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
+        # the model announced last, also when a reload or a quarantine took it out before this one came
+        previous, self._announced = self._announced, model
+        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, previous))
         period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
         same_rate = period_s == self.period_s  # frames kept at another rate would splice two time scales
         self.period_s = period_s
