@@ -129,8 +129,15 @@ class ModelServing:
         self.frame_clock.set_model_period(1000.0 * period_s)
         self._build_hot_path(keep_history=same_rate)
         what = "swapped in" if old is not None else "serving"
-        log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
-                 model.meta.T, ",".join(model.meta.classes))
+        log.info("model %s %s (%s, T=%d, classes %s; %s)", model.model_id, what, Path(model.path).name,
+                 model.meta.T, ",".join(model.meta.classes), self._windows_by(model))
+
+    def _windows_by(self, model: Any) -> str:
+        """What starts a window with ``model`` (settings come from the config, else the model: a swap may
+        change the trigger, and the operator should read that)."""
+        if self.cfg.scene.mode == "continuous":
+            return "continuous mode: a decision every frame"
+        return f"{resolve_trigger(self.cfg.trigger, model.meta.trigger).name} trigger"
 
     def _build_hot_path(self, keep_history: bool) -> None:
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""

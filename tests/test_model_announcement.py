@@ -58,3 +58,27 @@ def test_a_reload_to_continuous_announces_the_dormant_model_as_replacing_the_one
     (rejected,) = [r.getMessage() for r in caplog.records if "rejected" in r.getMessage()]
     assert "plain.onnx" in rejected and "the model in use keeps serving" not in rejected, rejected
     assert "no model serves yet" in rejected
+
+
+def test_the_swap_line_says_which_trigger_the_new_model_brings(tmp_path, caplog):
+    """A stranger dropped a threshold-cut model onto a daemon serving an onset model: the trigger changed
+    with it (settings come from the model), but the swap line did not say so."""
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "onset.onnx", tiny_model_bytes(trigger={"kind": "onset"}), mtime=time.time() - 60)
+    config = tmp_path / "handover.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{models}"\n')
+    daemon = Daemon(load_config(config))
+    try:
+        with caplog.at_level(logging.INFO, logger="handover.daemon"):
+            daemon.layout = SensorLayout.sdh2()
+            daemon._start_watcher()
+            write_model(models, "paper.onnx", tiny_model_bytes(tag="paper"))  # no kind: the paper's threshold
+            daemon.watcher.poll(require_stable=False)
+            daemon._take_pending_model(time.monotonic())
+    finally:
+        daemon.watcher.stop()
+        daemon.sinks.close()
+    serving, swapped = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
+    assert "onset.onnx" in serving and "onset trigger" in serving, serving
+    assert "paper.onnx" in swapped and "threshold trigger" in swapped and "swapped in" in swapped, swapped
