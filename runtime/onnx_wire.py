@@ -90,8 +90,13 @@ def _sparse_is_external(buf: bytes) -> bool:
     return any(t == 2 and number in (1, 2) and _tensor_is_external(v) for number, t, v in _fields(buf))
 
 
-_FLOAT_TYPES = {1: "<f4", 11: "<f8"}
-"""TensorProto.data_type (2) -> numpy dtype of its raw_data (9) / packed float_data (4) or double_data (10)."""
+_FLOAT_TYPES = {1: "<f4", 11: "<f8", 14: "<f4", 15: "<f8"}
+"""TensorProto.data_type (2) -> numpy dtype of its raw_data (9) / packed float_data (4) or double_data (10)
+(complex64 / complex128: real and imaginary parts in turn, each a float / double)."""
+_FLOAT8_NANS = {17: frozenset((0x7F, 0xFF)), 18: frozenset((0x80,)),
+                19: frozenset(b for b in range(256) if b & 0x7C == 0x7C and b & 0x03), 20: frozenset((0x80,))}
+"""float8 e4m3fn / e4m3fnuz / e5m2 / e5m2fnuz (data_type 17-20): the byte values that are NaN; values sit in
+raw_data (9), a byte each, or in int32_data (5), one varint each."""
 _HALF_NAN = {10: (0x7C00, 0x03FF), 16: (0x7F80, 0x007F)}
 """float16 / bfloat16 (data_type 10 / 16): (exponent mask, mantissa mask) of a NaN's bits; their
 values sit in raw_data (9) as little-endian uint16 or in int32_data (5), one varint each."""
@@ -108,7 +113,7 @@ def _varints(value: bytes | int) -> list[int]:
 
 
 def _has_nan(buf: bytes) -> bool:
-    """Whether a float, double, float16 or bfloat16 TensorProto's values hold a NaN."""
+    """Whether a float, double, complex, float16, bfloat16 or float8 TensorProto's values hold a NaN."""
     import numpy as np
 
     data_type, chunks, halves = 0, [], []
@@ -119,6 +124,9 @@ def _has_nan(buf: bytes) -> bool:
             chunks.append(value)
         elif number == 5 and wtype in (0, 2):
             halves.extend(_varints(value))
+    if data_type in _FLOAT8_NANS:
+        nans = _FLOAT8_NANS[data_type]
+        return any(b in nans for c in chunks for b in c) or any(v in nans for v in halves)
     if data_type in _HALF_NAN:
         exponent, mantissa = _HALF_NAN[data_type]
         bits = [b for c in chunks if len(c) % 2 == 0 for b in np.frombuffer(c, dtype="<u2").tolist()] + halves

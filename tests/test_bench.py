@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -133,6 +135,26 @@ def test_bad_duration_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("handover bench: --duration")
 
 
+def test_the_quick_folder_is_one_per_user(tmp_path, monkeypatch):
+    """Another user's smoke-test folder on a shared machine (not writable for us) blocked ``--quick``."""
+    import getpass
+    import tempfile
+
+    from trainer.bench.common import default_out
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(getpass, "getuser", lambda: "alice")
+    alice = default_out(True)
+    monkeypatch.setattr(getpass, "getuser", lambda: "bob/../x")
+    assert alice.endswith("handover-bench-quick-alice") and default_out(True).endswith("handover-bench-quick-bob..x")
+
+    def nameless():
+        raise KeyError("uid not in the password database")
+
+    monkeypatch.setattr(getpass, "getuser", nameless)
+    assert default_out(True).endswith(f"handover-bench-quick-{os.getuid()}")
+
+
 def test_decode_quick(tmp_path, capsys):
     printed, result = _run("decode", tmp_path, capsys, "--synthetic")
     assert result["synthetic"] is True and "--synthetic" in result["command"]
@@ -153,8 +175,8 @@ def test_a_quick_run_never_overwrites_the_committed_results(tmp_path, monkeypatc
     parser = argparse.ArgumentParser()
     bench_cli.add_arguments(parser)
     assert bench_cli.main(parser.parse_args(["decode", "--quick", "--quiet", "--synthetic"])) == 0
-    out = tmp_path / "handover-bench-quick"
-    assert default_out(True) == str(out) and default_out(False) == "results"
+    out = Path(default_out(True))
+    assert out.parent == tmp_path and out.name.startswith("handover-bench-quick-") and default_out(False) == "results"
     assert not (tmp_path / "results").exists()
     md = (out / "decode.md").read_text()
     assert "a smoke test, not a measurement" in md.splitlines()[2]
@@ -185,3 +207,23 @@ def test_bench_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsy
         assert handover(["bench", "all", "--quick", "--quiet", "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"handover bench: --out {out}: cannot make") and err.count("\n") == 1, err
+
+
+def test_compare_records_its_out_folder_only_when_it_is_not_the_default(tmp_path, monkeypatch):
+    """A ``--quick`` compare recorded its temp folder in its Reproduce line, a path of one machine."""
+    import tempfile
+
+    from trainer import compare_cli
+    from trainer.bench.common import default_out
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    parser = argparse.ArgumentParser()
+    compare_cli.add_arguments(parser)
+    quick = parser.parse_args(["--quick"])
+    quick.out = default_out(True)
+    assert compare_cli.command_line(quick) == "handover compare --quick --seed 0 --n-jobs 2"
+    measured = parser.parse_args([])
+    measured.out = "results"
+    assert compare_cli.command_line(measured) == "handover compare --seed 0 --n-jobs 2"
+    elsewhere = parser.parse_args(["--out", str(tmp_path / "mine")])
+    assert compare_cli.command_line(elsewhere).endswith(f"--out {tmp_path / 'mine'}")

@@ -329,6 +329,13 @@ def _with_nan_carrier(proto, carrier: str):
         tensor = (numpy_helper.from_array(nan.astype(np.float16), "c") if carrier == "float16 raw"
                   else helper.make_tensor("c", kind, [2], nan.tolist()))
         graph.initializer.append(tensor)
+    elif carrier.startswith("complex"):
+        kind = np.complex64 if carrier == "complex64" else np.complex128
+        graph.initializer.append(numpy_helper.from_array(np.array([1 + 2j, complex(0, np.nan)], dtype=kind), "c"))
+    elif carrier.startswith("float8"):
+        kind = {"float8 e4m3fn": TensorProto.FLOAT8E4M3FN, "float8 e5m2": TensorProto.FLOAT8E5M2,
+                "float8 e4m3fnuz": TensorProto.FLOAT8E4M3FNUZ}[carrier]
+        graph.initializer.append(helper.make_tensor("c", kind, [2], [1.0, float("nan")]))
     elif carrier == "sparse initializer":
         graph.sparse_initializer.append(helper.make_sparse_tensor(
             numpy_helper.from_array(nan[:1], "c"), numpy_helper.from_array(np.array([0], np.int64), "ci"), [4]))
@@ -346,12 +353,13 @@ def _with_nan_carrier(proto, carrier: str):
     return "c"
 
 
-@pytest.mark.parametrize("carrier", ["float16 raw", "float16 int32_data", "bfloat16", "sparse initializer",
+@pytest.mark.parametrize("carrier", ["float16 raw", "float16 int32_data", "bfloat16", "complex64", "complex128",
+                                     "float8 e4m3fn", "float8 e5m2", "float8 e4m3fnuz", "sparse initializer",
                                      "Constant value", "Constant value_float", "Constant value_floats",
                                      "Constant in a subgraph"])
 def test_a_nan_in_any_float_constant_is_refused(proto, tmp_path, carrier):
-    """Float initializers alone were scanned: NaN in float16, a sparse initializer or a Constant
-    node (subgraphs too) loaded silently."""
+    """Float initializers alone were scanned: NaN in float16, complex, float8, a sparse initializer or a
+    Constant node (subgraphs too) loaded silently."""
     name = _with_nan_carrier(proto, carrier)
     assert summarize(proto.SerializeToString()).nan_initializers == [name]
     _refused(_save(proto, tmp_path), f"constant\\(s\\) {name} hold NaN")
@@ -382,3 +390,17 @@ def test_inspect_level_features_only_when_recorded_true(tmp_path, capsys, where,
     assert "mean level and slope" not in capsys.readouterr().out
     assert handover(["inspect", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["level_features"] is False
+
+
+@pytest.mark.parametrize("kind", ["FLOAT8E4M3FN", "FLOAT8E4M3FNUZ", "FLOAT8E5M2", "FLOAT8E5M2FNUZ"])
+def test_the_largest_and_infinite_float8_values_are_not_nan(proto, kind):
+    """The float8 scan reads NaN bit patterns only: e4m3fn's +-448 (0x7E, 0xFE), e5m2's infinity (0x7C) pass."""
+    from onnx import TensorProto
+
+    values = {"FLOAT8E4M3FN": [448.0, -448.0, 0.0], "FLOAT8E4M3FNUZ": [240.0, -240.0, 0.0],
+              "FLOAT8E5M2": [float("inf"), float("-inf"), 57344.0], "FLOAT8E5M2FNUZ": [57344.0, -57344.0, 0.0]}[kind]
+    proto.graph.initializer.append(helper.make_tensor("c", getattr(TensorProto, kind), [3], values))
+    from onnx import numpy_helper
+
+    proto.graph.initializer.append(numpy_helper.from_array(np.array([1 - 2j, complex(np.inf, 0)], np.complex64), "z"))
+    assert summarize(proto.SerializeToString()).nan_initializers == []

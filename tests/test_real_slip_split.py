@@ -37,3 +37,22 @@ def test_real_slip_tests_every_chunk_once_and_trains_every_class():
     for s in task.splits:
         assert not set(task.chunks[s.train]) & set(task.chunks[s.test])
         assert set(task.y[s.train]) == set(task.y)
+
+
+def test_real_objects_long_names_the_objects_it_leaves_out():
+    """Objects with too few contact chunks for 5 folds are left out; the rule names them (it did not)."""
+    from tests.conftest import real_data_dir
+    from trainer.real_tasks import LONG_FOLDS, real_tasks
+
+    data = real_data_dir()
+    task = next(t for t in real_tasks(data.parent)[0] if t.name == "real_objects_long")
+    profiles = data / "kiechle" / "pressure_profiles"
+    same = {"foam_ball": "foam", "hockey_ball": "hockey"}
+    recorded = {same.get(p.stem, p.stem) for folder in ("classification_video", "grasps")
+                for p in (profiles / folder).glob("*.dsa")}
+    left_out = sorted(recorded - set(task.y.tolist()))
+    assert f"at least {LONG_FOLDS} contact chunks" in task.split_rule
+    if left_out:
+        assert f"(left out: {', '.join(left_out)})" in task.split_rule
+    else:
+        assert "left out" not in task.split_rule

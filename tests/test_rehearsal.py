@@ -128,25 +128,13 @@ def _pushes() -> Recording:
 def test_the_daemon_keeps_warm_for_each_due_frame_over_a_real_link_with_the_same_decisions(tmp_path):
     """The TCP emulator at 32 Hz in real time: one rehearsal and some polling before each decision
     (none per frame), and the decisions of the same frames handed over without waiting."""
-    from firmware_io.emulator.device import DeviceEmulator
-    from firmware_io.emulator.server import TcpEmulatorServer
 
     models = tmp_path / "models"
     models.mkdir()
     write_model(models, "m.onnx", tiny_model_bytes())
     rec = _pushes()
     served: list[Event] = []
-    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0, loop=False)).start()
-    try:
-        daemon = Daemon(config_from_dict({"device": {"url": server.url}, "model": {"folder": str(models)},
-                                          "sinks": {"stdout": False}}), on_event=served.append)
-        stopper = threading.Thread(target=lambda: (_until(lambda: daemon.health.frames_received >= rec.n_frames),
-                                                   daemon.request_stop()), daemon=True)
-        stopper.start()
-        daemon.run()
-        stopper.join()
-    finally:
-        server.stop()
+    daemon = _served_in_real_time(rec, {"model": {"folder": str(models)}}, on_event=served.append)
     assert daemon.health.frames_received == rec.n_frames and len(served) == 2
     # each due frame is rehearsed for, unless a loaded machine delivered it together with the one before
     # (then it is simply read): at least one of the two, and polling around it
@@ -158,6 +146,28 @@ def test_the_daemon_keeps_warm_for_each_due_frame_over_a_real_link_with_the_same
     for i, values in enumerate(rec.frames):
         plain.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
     assert [(e.cls, e.frame_last, e.scores) for e in served] == [(e.cls, e.frame_last, e.scores) for e in replayed]
+
+
+def _served_in_real_time(rec: Recording, cfg: dict, listener=None, on_event=None) -> Daemon:
+    """A daemon with ``cfg`` (no stdout) reading ``rec`` from the real TCP emulator at 32 Hz, until every
+    frame arrived."""
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0, loop=False)).start()
+    try:
+        daemon = Daemon(config_from_dict({**cfg, "device": {"url": server.url}, "sinks": {"stdout": False}}),
+                        on_event=on_event)
+        if listener is not None:
+            daemon.listeners.append(listener)
+        stopper = threading.Thread(target=lambda: (_until(lambda: daemon.health.frames_received >= rec.n_frames),
+                                                   daemon.request_stop()), daemon=True)
+        stopper.start()
+        daemon.run()
+        stopper.join()
+    finally:
+        server.stop()
+    return daemon
 
 
 def _until(condition, limit_s: float = 30.0) -> None:
@@ -246,8 +256,6 @@ def test_continuous_mode_keeps_warm_for_every_next_frame_with_the_same_decisions
     """Continuous mode decides on every frame, so every next frame is due: the daemon rehearses before
     each (it never did, and each decision after 31 ms of idle ran cold), over the real TCP emulator
     at 32 Hz, and decides the frames exactly as a replay without waiting does."""
-    from firmware_io.emulator.device import DeviceEmulator
-    from firmware_io.emulator.server import TcpEmulatorServer
 
     models = tmp_path / "models"
     models.mkdir()
@@ -262,20 +270,8 @@ def test_continuous_mode_keeps_warm_for_every_next_frame_with_the_same_decisions
         def on_decision(self, frame, timings) -> None:
             decided.append(frame.number)
 
-    cfg = {"device": {"url": None}, "model": {"folder": str(models)}, "sinks": {"stdout": False},
-           "scene": {"mode": "continuous"}}
-    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0, loop=False)).start()
-    try:
-        cfg["device"]["url"] = server.url
-        daemon = Daemon(config_from_dict(cfg))
-        daemon.listeners.append(Decisions())
-        stopper = threading.Thread(target=lambda: (_until(lambda: daemon.health.frames_received >= rec.n_frames),
-                                                   daemon.request_stop()), daemon=True)
-        stopper.start()
-        daemon.run()
-        stopper.join()
-    finally:
-        server.stop()
+    daemon = _served_in_real_time(rec, {"model": {"folder": str(models)}, "scene": {"mode": "continuous"}},
+                                  listener=Decisions())
     n_windows = rec.n_frames - 15 + 1
     assert daemon.health.frames_received == rec.n_frames and len(decided) == n_windows
     # one rehearsal before each next frame, except those a loaded machine delivered with the one before

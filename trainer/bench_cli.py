@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"which benchmark to run ('all' = {', '.join(BENCHMARKS)}; {', '.join(SINGLE)} run only "
                         "by name)")
     parser.add_argument("--out", default=None, help="folder for <name>.json/.md/.png (default results; with "
-                        "--quick handover-bench-quick in the system's temp folder, so a smoke test never "
+                        "--quick handover-bench-quick-USER in the system's temp folder, so a smoke test never "
                         "overwrites the committed results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")

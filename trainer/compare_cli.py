@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="2 simulated subjects, fewer models and repeats (a smoke run)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     parser.add_argument("--out", default=None, help="folder for compare.json/.md/.png (default results; with "
-                        "--quick handover-bench-quick in the system's temp folder, so a smoke run never overwrites "
+                        "--quick handover-bench-quick-USER in the system's temp folder, so a smoke run never overwrites "
                         "the committed results)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-jobs", type=int, default=2, help="parallel folds (at most 2)")
@@ -37,7 +37,11 @@ def command_line(args: argparse.Namespace) -> str:
     for flag, on in (("--quick", args.quick), ("--no-real", args.no_real), ("--no-minirocket", args.no_minirocket)):
         if on:
             parts.append(flag)
-    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs), "--out", str(args.out)]
+    from trainer.bench.common import default_out
+
+    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs)]
+    if args.out not in (None, default_out(args.quick)):  # the default folder goes without saying (a temp one on --quick)
+        parts += ["--out", str(args.out)]
     if args.data:
         parts += ["--data", str(args.data)]
     return shlex.join(parts)

@@ -105,7 +105,9 @@ def grouped_task(name: str, description: str, paths: dict[str, Path | list[Path]
     from trainer.evaluation import Split
 
     X, y, ch, files, sizes, shapes = load_windows(paths, pads, n_frames, stride)
-    keep = np.isin(y, [c for c in np.unique(y) if len(set(ch[y == c].tolist())) >= min_chunks])
+    kept = [c for c in np.unique(y) if len(set(ch[y == c].tolist())) >= min_chunks]
+    left_out = sorted(str(c) for c in np.unique(y) if c not in kept)
+    keep = np.isin(y, kept)
     X, y, ch, files = X[keep], y[keep], ch[keep], files[keep]
     cv = StratifiedGroupKFold(n_splits=n_folds, shuffle=True, random_state=seed)
     splits = [Split(f"fold {i}", tr, te) for i, (tr, te) in enumerate(cv.split(X, y, ch))]
@@ -114,6 +116,8 @@ def grouped_task(name: str, description: str, paths: dict[str, Path | list[Path]
         rule += f"; cases of {n_frames} frames every {stride} frames"
     if min_chunks:
         rule += f"; objects with at least {min_chunks} contact chunks"
+        if left_out:
+            rule += f" (left out: {', '.join(left_out)})"
     return RealTask(name, description, X, y, ch, files, sizes, shapes, splits, rule)
 
 

@@ -105,8 +105,23 @@ def time_calls(fn: Callable[[], object], repeats: int, warmup: int = 20, period_
 
 def default_out(quick: bool) -> str:
     """Where a benchmark writes: the committed ``results`` folder for a measurement; a smoke test
-    (``--quick``) under the system's temp folder, so it never overwrites the committed figures."""
-    return str(Path(tempfile.gettempdir()) / "handover-bench-quick") if quick else "results"
+    (``--quick``) under the system's temp folder, so it never overwrites the committed figures; one
+    folder per user, so another user's smoke test on a shared machine does not stand in the way."""
+    if not quick:
+        return "results"
+    return str(Path(tempfile.gettempdir()) / f"handover-bench-quick-{_user()}")
+
+
+def _user() -> str:
+    """The user's name for a folder name (the uid where the name cannot be found)."""
+    import getpass
+
+    try:
+        name = getpass.getuser()
+    except (KeyError, OSError):
+        name = ""
+    safe = "".join(c for c in name if c.isalnum() or c in "-_.")
+    return safe or str(os.getuid())
 
 
 def out_problem(out: str) -> str | None:
