@@ -7,22 +7,16 @@ why the newer file was passed over, while the running daemon logs it as rejected
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 from runtime.cli import main as handover
-from tests.tiny_models import tiny_model_bytes, write_model
+from tests.tiny_models import dormant_then_plain
 
 pytest.importorskip("onnx")
 
 
 def test_check_warns_about_a_newer_file_it_would_refuse(tmp_path, capsys):
-    models = tmp_path / "models"
-    models.mkdir()
-    dormant = tiny_model_bytes(classes=("pull", "push", "hold", "bump", "dormant"), dormant_class="dormant")
-    write_model(models, "stream.onnx", dormant, mtime=time.time() - 60)
-    write_model(models, "plain.onnx", tiny_model_bytes(tag="plain"))
+    models = dormant_then_plain(tmp_path)
     config = tmp_path / "handover.toml"
     config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[scene]\nmode = "continuous"\n')
     assert handover(["run", "--config", str(config), "--check"]) == 0

@@ -18,7 +18,7 @@ import pytest
 from firmware_io.layout import SensorLayout
 from runtime.config import load_config
 from runtime.daemon import Daemon
-from tests.tiny_models import tiny_model_bytes, write_model
+from tests.tiny_models import dormant_then_plain, tiny_model_bytes, write_model
 
 pytest.importorskip("onnx")
 
@@ -29,11 +29,7 @@ def _model_lines(stream: io.StringIO) -> list[dict]:
 
 
 def test_a_reload_to_continuous_announces_the_dormant_model_as_replacing_the_one_that_served(tmp_path, caplog):
-    models = tmp_path / "models"
-    models.mkdir()
-    dormant = tiny_model_bytes(classes=("pull", "push", "hold", "bump", "dormant"), dormant_class="dormant")
-    write_model(models, "stream.onnx", dormant, mtime=time.time() - 60)
-    write_model(models, "plain.onnx", tiny_model_bytes(tag="plain"))
+    models = dormant_then_plain(tmp_path)
     config = tmp_path / "handover.toml"
     base = f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\npoll_interval_s = 0.05\n'
     config.write_text(base)
