@@ -97,6 +97,8 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.model: Any = None
         self._fallback: Any = None
         """The model the last swap replaced: it serves again if the new one is taken out of service."""
+        self._announced: Any = None
+        """The model of the last ``model`` line: the next line's ``previous_model_id``."""
         self.quarantine = QuarantineStore(store_path(cfg.model.quarantine_file, cfg.health_file))
         self.layout: SensorLayout | None = None
         self.client: Any = None

@@ -107,6 +107,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
     for warning in cfg.warnings:
         print(f"{PROG}: warning: {warning}", file=sys.stderr)
     if model is not None:
+        for r in rejections:  # tried first, so dropped after the one that would serve: say why it would not
+            print(f"{PROG}: warning: {r.path.name} (dropped later) would be refused: {r.reason}", file=sys.stderr)
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
     reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or "no .onnx file"

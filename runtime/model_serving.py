@@ -46,6 +46,7 @@ class ModelServing:
     _pending: list[int]
     model: Any
     _fallback: Any
+    _announced: Any
     ring: RingBuffer | None
     trigger: Any
     trigger_settings: TriggerSettings | None
@@ -119,15 +120,24 @@ class ModelServing:
         self.health.model_id = model.model_id
         self.health.models_loaded += 1
         self.health.resolve("model")
-        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, old))
+        # the model announced last, also when a reload or a quarantine took it out before this one came
+        previous, self._announced = self._announced, model
+        self.sinks.emit(ModelAnnouncement.of(model, self.health.models_loaded, previous))
         period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
         same_rate = period_s == self.period_s  # frames kept at another rate would splice two time scales
         self.period_s = period_s
         self.frame_clock.set_model_period(1000.0 * period_s)
         self._build_hot_path(keep_history=same_rate)
         what = "swapped in" if old is not None else "serving"
-        log.info("model %s %s (%s, T=%d, classes %s)", model.model_id, what, Path(model.path).name,
-                 model.meta.T, ",".join(model.meta.classes))
+        log.info("model %s %s (%s, T=%d, classes %s; %s)", model.model_id, what, Path(model.path).name,
+                 model.meta.T, ",".join(model.meta.classes), self._windows_by(model))
+
+    def _windows_by(self, model: Any) -> str:
+        """What starts a window with ``model`` (settings come from the config, else the model: a swap may
+        change the trigger, and the operator should read that)."""
+        if self.cfg.scene.mode == "continuous":
+            return "continuous mode: a decision every frame"
+        return f"{resolve_trigger(self.cfg.trigger, model.meta.trigger).name} trigger"
 
     def _build_hot_path(self, keep_history: bool) -> None:
         """Ring and trigger for the current layout, scene and model (not on the per-frame path)."""

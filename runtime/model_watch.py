@@ -291,7 +291,9 @@ class ModelWatcher:
     def _reject(self, path: Path, reason: str) -> None:
         rejection = Rejection(path, reason)
         self.rejections.append(rejection)
-        log.error("model %s rejected: %s; the model in use keeps serving", path.name, reason)
+        serving = ("the model in use keeps serving" if self.current is not None
+                   else "no model serves yet: the newest valid file in the folder will, or the next valid one dropped")
+        log.error("model %s rejected: %s; %s", path.name, reason, serving)
         if self.on_reject is not None:
             self.on_reject(rejection)
         return None

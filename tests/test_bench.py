@@ -93,7 +93,11 @@ def test_latency_quick(tmp_path, capsys):
     continuous = result["stages"]["continuous_paced_32hz"]
     assert continuous["daemon_internal"]["n"] == continuous["inference"]["n"] > 10
     assert result["continuous_daemon_p50_us"] == continuous["daemon_internal"]["p50"] > 0
-    assert "continuous mode, paced at 32 Hz" in (tmp_path / "latency.md").read_text()
+    md = (tmp_path / "latency.md").read_text()
+    assert "continuous mode, paced at 32 Hz" in md
+    # a stranger read "(a change of class)" and n = 1 rows: the md says which rule reports and what n counts
+    assert "a change of class" not in md and "confirm_frames" in md and "continuous_daemon_p999_us" in md
+    assert continuous["handle_frame_no_decision"]["n"] == result["model"]["T"] - 1 and "first T - 1 frames" in md
     imps = result["implementations"]
     # the graph, numpy and scikit-learn on the same windows, interleaved (trainer.bench.numpy_decision)
     assert set(imps["back_to_back"]) == set(imps["solo"]) == {"onnxruntime", "numpy", "scikit-learn"}

@@ -93,3 +93,16 @@ def write_model(folder: Path, name: str, data: bytes, mode: int = 0o644, mtime: 
     final = folder / name
     os.replace(tmp, final)
     return final
+
+
+def dormant_then_plain(root: Path) -> Path:
+    """``root``/models with ``stream.onnx`` (a dormant class, dropped a minute ago) and ``plain.onnx``
+    (the four actions, dropped last): what a switch to ``scene.mode = "continuous"`` meets."""
+    import time
+
+    folder = Path(root) / "models"
+    folder.mkdir()
+    dormant = tiny_model_bytes(classes=(*CLASSES, "dormant"), dormant_class="dormant")
+    write_model(folder, "stream.onnx", dormant, mtime=time.time() - 60)
+    write_model(folder, "plain.onnx", tiny_model_bytes(tag="plain"))
+    return folder

@@ -36,7 +36,8 @@ CRITERION = ("utility = correct first reports - wrong-class first reports - dupl
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="results", help="folder for dormant.json, dormant.md, figures (default results)")
-    parser.add_argument("--quick", action="store_true", help="small protocol and short streams (a smoke run, ~30 s)")
+    parser.add_argument("--quick", action="store_true",
+                        help="small protocol and short streams (a smoke run, a few minutes; --no-loso saves some)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the training data (protocol, idle streams)")
     parser.add_argument("--eval-seed", type=int, default=1, help="seed of the evaluation streams (unseen subjects)")
     parser.add_argument("--val-seed", type=int, default=2,
