@@ -224,18 +224,12 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
             due = pending.pop(0)
             if number == due and ring.count >= self.model.meta.T:
                 self._classify(frame)
-                if getattr(self.trigger, "every_frame", False):
-                    self._expect_next(frame)  # continuous mode: the next frame is due too
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
             self._expect_next(frame)  # keep warm for the frame that completes the window, due one period on
 
     def _expect_next(self, frame: Any) -> None:
-        """The next frame is due: rehearse its decision shortly before it arrives (runtime.rehearsal).
-        Nothing to rehearse when the decision just took its model out of service and none, or one on a
-        new ring still short of its window, serves."""
+        """The next frame is due: rehearse its decision shortly before it arrives (runtime.rehearsal)."""
         model, ring = self.model, self.ring
-        if model is None or ring.count < model.meta.T:
-            return
         self.rehearsal.expect(frame.received + self.frame_clock.next_admitted_s(),
                               partial(self._rehearse, model, ring.window(model.meta.T)))
 

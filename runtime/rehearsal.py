@@ -18,10 +18,15 @@ daemon's: the model on the current window, the output check, an event encoded, t
 path; nothing sent or counted), then polls the device without blocking until the frame arrives or
 ``GRACE_S`` after its expected arrival, when it goes
 back to blocking reads. Cost: at most ``LEAD_S + GRACE_S`` of one core per decision, nothing
-per frame and nothing while no window is open. In continuous mode every frame is a decision, so the
-daemon rehearses before each (a default-sized model fed at 32 Hz, frame parsed -> decision medians:
-285 us cold, 126 us kept warm; polling took 1 % of a core, the rehearsals' model runs about 0.6 %). Everything runs in the hot thread: no thread to
+per frame and nothing while no window is open. Everything runs in the hot thread: no thread to
 start, to race with the ring, or to join at shutdown.
+
+Continuous mode does not keep warm. Every frame is a decision there, so every frame would pay it: tried,
+and against the real emulator at 32 Hz the daemon went from 1.5 % to 7.5-10 % of a core (21-34 % at
+125 Hz), at SCHED_FIFO, for a median 344 -> 278 us per decision (the arrival jitter of a live link kept
+the lead near its 2 ms maximum and late frames added the grace). A continuous-mode report waits for
+``[continuous] confirm_frames`` frames anyway (8 by default: 250 ms), so those 70 us are not worth a
+tenth of a core for months; its cold figures are in the latency bench's continuous-mode table.
 
 The lead follows the stream: the polling between rehearsal and frame cools the caches again (the
 paced stage table, frame parsed -> decision median: 168 us with a 2 ms lead, 153 us with 1 ms, 145 us

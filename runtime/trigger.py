@@ -102,10 +102,8 @@ class ThresholdTrigger:
 
 
 class ContinuousTrigger:
-    """Every frame ends a window once the ring holds T frames (models with a dormant class)."""
-
-    every_frame = True
-    """Each next frame is due: the daemon keeps warm for it (runtime.rehearsal) after every decision."""
+    """Every frame ends a window once the ring holds T frames (models with a dormant class). The daemon
+    does not keep warm for these decisions (runtime.rehearsal says why)."""
 
     def __init__(self, window: int) -> None:
         self.window = int(window)

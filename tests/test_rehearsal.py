@@ -253,11 +253,10 @@ def test_the_daemons_rehearsal_warms_the_model_last(tmp_path):
     assert calls == ["model", "receive", "model"]
 
 
-def test_continuous_mode_keeps_warm_for_every_next_frame_with_the_same_decisions(tmp_path):
-    """Continuous mode decides on every frame, so every next frame is due: the daemon rehearses before
-    each (it never did, and each decision after 31 ms of idle ran cold), over the real TCP emulator
-    at 32 Hz, and decides the frames exactly as a replay without waiting does."""
-
+def test_continuous_mode_does_not_keep_warm_and_decides_every_frame_as_a_replay(tmp_path):
+    """Continuous mode decides on every frame; keeping warm for each cost 7.5-10 % of a core against the
+    real emulator for 70 us a decision (runtime/rehearsal.py): it reads as before, over the real TCP
+    emulator at 32 Hz, deciding the frames exactly as a replay without waiting does, garbage collected."""
     models = tmp_path / "models"
     models.mkdir()
     write_model(models, "m.onnx", tiny_model_bytes(weights=(0.01, -0.01, 0.0, 0.0), dormant_class="hold"))
@@ -275,9 +274,7 @@ def test_continuous_mode_keeps_warm_for_every_next_frame_with_the_same_decisions
                                   listener=Decisions())
     n_windows = rec.n_frames - 15 + 1
     assert daemon.health.frames_received == rec.n_frames and len(decided) == n_windows
-    # one rehearsal before each next frame, except those a loaded machine delivered with the one before
-    assert daemon.rehearsal.runs >= n_windows // 2 and daemon.rehearsal.polled_s > 0
-    # a next frame is always expected, but 30 ms away after a decision: the garbage is still collected
+    assert daemon.rehearsal.runs == 0 and daemon.rehearsal.polled_s == 0
     assert daemon.garbage.collections >= 2  # one at start, then about one a second over 3 s
 
     replay = Daemon(config_from_dict({"sinks": {"stdout": False}, "scene": {"mode": "continuous"}}))
@@ -310,9 +307,9 @@ def _nan_when_pressed_at(rate_hz: float) -> bytes:
 
 def test_continuous_mode_goes_on_deciding_when_the_fallback_starts_a_new_ring(tmp_path, caplog):
     """A continuous-mode decision that takes its model out of service hands over to the model it
-    replaced; at another sample rate that one starts a new, empty ring. The daemon then keeps warm for
-    the next frame only once the ring holds a window (it asked the empty ring for one: the frame's
-    handling failed with 'window of 15 frames needs 15 pushed, have 0')."""
+    replaced; at another sample rate that one starts a new, empty ring, and decides once it holds a
+    window (while continuous mode kept warm, it asked the empty ring for one: the frame's handling
+    failed with 'window of 15 frames needs 15 pushed, have 0')."""
     models = tmp_path / "models"
     models.mkdir()
     old = write_model(models, "old.onnx", tiny_model_bytes(dormant_class="hold"))
@@ -327,5 +324,4 @@ def test_continuous_mode_goes_on_deciding_when_the_fallback_starts_a_new_ring(tm
         if i == 30:
             assert Path(daemon.model.path).name == "old.onnx" and daemon.health.models_quarantined == 1
             decided = daemon.health.decisions
-    assert daemon.health.decisions > decided  # the fallback decides once its ring holds a window ...
-    assert daemon.rehearsal.due is not None  # ... and keeps warm for the next frame again
+    assert daemon.health.decisions > decided and daemon.health.frame_errors == 0

@@ -213,7 +213,7 @@ def headline(res: dict) -> dict:
         "onnx_p99_us": res["implementations"]["solo"]["onnxruntime"]["p99"],
         "daemon_p999_us": internal_paced["p999"],
         "daemon_p50_us": internal_paced["p50"],
-        # continuous mode (every frame a decision, kept warm for each): not a target of the issue
+        # continuous mode (every frame a decision, not kept warm: runtime/rehearsal.py): not a target of the issue
         "continuous_daemon_p50_us": quiet.get("continuous_paced_32hz", {}).get("daemon_internal", {}).get("p50"),
         "continuous_daemon_p999_us": quiet.get("continuous_paced_32hz", {}).get("daemon_internal", {}).get("p999"),
         "paced_over_back_to_back": internal_paced["p50"] / internal_fast["p50"],
@@ -402,7 +402,7 @@ def markdown(res: dict) -> list[str]:
     lines += ["Paced: the frame that completes each window arrives one sample period after the frame before it "
               "(the process idle in between, as in service); the frames between windows are fed back to back. "
               "Continuous mode: every frame arrives one sample period after the one before, and every frame is a "
-              "decision (the daemon keeps warm for each next one); the graph is the default's, its metadata naming "
+              "decision, not kept warm (`runtime/rehearsal.py` says why); the graph is the default's, its metadata naming "
               f"a dormant class (`{res['model'].get('continuous_dormant', '?')}`) so that continuous mode serves it: "
               "what the classes mean does not change how long a decision takes. Its rows up to the output check "
               "and `frame parsed -> decision` count every frame's decision (the json's `continuous_daemon_p50_us` "
