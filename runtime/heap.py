@@ -7,10 +7,9 @@ such pause inside a decision is the decision's p99.9. So the daemon hides start-
 the collector (``gc.freeze``), turns automatic collection off, and collects itself from its loop:
 the young generations every ``YOUNG_PERIOD_S``, everything every ``FULL_PERIOD_S``, only while no
 window is open (between frames there are 31 ms; a collection takes at most a few) and not within
-``CLEARANCE_S`` of a due frame. A stream that keeps windows open, or whose every frame is due within
-the clearance (continuous mode faster than about 80 Hz), still gets one ``MAX_DEFER_S`` after it was
-due (about every 11 s). Continuous mode at 32 Hz, where every frame is due, collects right after a
-decision, 30 ms before the next. Reference counting frees almost everything at once anyway; the collector is
+``CLEARANCE_S`` of a due frame. A stream that keeps windows open, or a trigger that makes every next
+frame a due one, still gets one ``MAX_DEFER_S`` after it was due (about every 11 s; a due frame used to
+hold a collection back for ever). Reference counting frees almost everything at once anyway; the collector is
 only for cycles.
 """
 
