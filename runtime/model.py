@@ -274,8 +274,8 @@ class LoadedModel:
 
     def run_trusted(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``run`` without ``check_input``: for the daemon's hot path, whose windows are float32
-        ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No copy,
-        no finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error). One
+        ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No
+        finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error). One
         window runs through buffers bound once (``runtime.bound_run``)."""
         answer = self._bound.run(x)
         if answer is not None:
