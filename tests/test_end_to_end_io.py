@@ -288,3 +288,30 @@ def test_emulate_cli_bad_options_are_one_line(capsys):
         assert emulate_cli.main(_args(emulate_cli, argv)) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("handover emulate: ") and words in err and "\n" not in err
+
+
+def test_serial_asks_for_low_latency_mode_and_a_port_that_refuses_it_still_works(rec):
+    """ftdi_sio holds a short packet 16 ms unless the port is in low-latency mode: the transport asks
+    for it. A pty refuses (as a native UART or another OS would), and the port works all the same."""
+    from firmware_io.transports import open_transport, serial_port
+
+    with PtyEmulatorServer(DeviceEmulator(rec, speed=4.0)) as server:
+        transport = open_transport(server.url)
+        assert transport.low_latency is False
+        transport.close()
+        client = client_for(server.url)
+        client.open()
+        client.start()
+        assert len(read_n(client, 3)) == 3
+        client.close()
+
+    class AdapterPort:
+        def __init__(self) -> None:
+            self.asked: list[bool] = []
+
+        def set_low_latency_mode(self, on: bool) -> None:
+            self.asked.append(on)
+
+    port = AdapterPort()
+    assert serial_port._ask_low_latency(port) is True and port.asked == [True]
+    assert serial_port._ask_low_latency(object()) is False  # pyserial off Linux has no such call

@@ -197,7 +197,8 @@ def _check_client(transport, rec, n=12):
 @pytest.mark.parametrize(
     ("chip", "vid", "expected"),
     [
-        ("ftdi", 0x0403, [(0x40, 0x00, 0, 1), (0x40, 0x03, 26, 0), (0x40, 0x04, 8, 1), (0x40, 0x02, 0, 1)]),
+        ("ftdi", 0x0403, [(0x40, 0x00, 0, 1), (0x40, 0x03, 26, 0), (0x40, 0x04, 8, 1), (0x40, 0x02, 0, 1),
+                          (0x40, 0x09, 1, 1)]),
         ("cdc", 0x2341, [(0x21, 0x20, 0, 0), (0x21, 0x22, 3, 0)]),
         ("cp210x", 0x10C4, [(0x41, 0x00, 1, 0), (0x41, 0x1E, 0, 0), (0x41, 0x03, 0x0800, 0)]),
     ],
@@ -230,6 +231,44 @@ def test_usb_transport_reads_one_packet_at_a_time(rec):
     t.read(16384, 1.0)
     assert set(backend.read_sizes[before:]) == {EmulatedUsbBackend.PACKET}
     t.close()
+
+
+def _short_packet_wait(backend: EmulatedUsbBackend) -> float:
+    """Seconds an emulated bridge takes to hand over 10 bytes that do not fill a packet."""
+    import array
+
+    backend._held = bytes(10)  # the emulator stands idle: bytes put in the chip by hand
+    buff = array.array("B", bytes(64))
+    t0 = time.monotonic()
+    n = backend.bulk_read(None, 0x81, 0, buff, 2000)
+    assert n == 12 and bytes(buff[:2]) == b"\x01\x60"  # status bytes, then the 10
+    return time.monotonic() - t0
+
+
+def test_the_emulated_ftdi_chip_holds_a_short_packet_until_its_latency_timer_runs_out(rec):
+    """An FTDI chip sends a packet that is not full when its latency timer (16 ms after reset) runs
+    out: a frame's last packet came up to 16 ms late, half the sample period. The transport sets the
+    timer to 1 ms, and the emulated chip honours it (wide margins: this is about the model of the
+    chip, not the machine's speed)."""
+    backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
+    backend.latency_ms = 250
+    assert _short_packet_wait(backend) >= 0.2
+    t = open_transport("usb://0403:6001", backend=backend)
+    assert backend.latency_ms == 1
+    assert _short_packet_wait(backend) < 0.15
+    t.close()
+
+
+def test_an_idle_ftdi_chip_answers_its_status_bytes_at_each_latency_period(rec):
+    """With nothing to send the chip answers two status bytes when its timer runs out (every 16 ms
+    by default), not only when the host's read times out."""
+    import array
+
+    backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
+    buff = array.array("B", bytes(64))
+    t0 = time.monotonic()
+    assert backend.bulk_read(None, 0x81, 0, buff, 5000) == 2 and bytes(buff[:2]) == b"\x01\x60"
+    assert time.monotonic() - t0 < 2.0  # the 16 ms timer, not the 5 s read timeout
 
 
 def test_usb_transport_errors(rec):

@@ -19,6 +19,9 @@ from dataclasses import dataclass, field
 from firmware_io.emulator.device import DeviceEmulator
 
 FTDI_STATUS = b"\x01\x60"  # modem status, line status: what an idle FT232R reports
+FTDI_DEFAULT_LATENCY_MS = 16
+"""An FTDI chip's latency timer after reset: it sends a packet that is not full (or its two status
+bytes alone) only when the timer runs out; SIO_SET_LATENCY_TIMER (request 0x09) sets 1..255 ms."""
 
 
 @dataclass
@@ -96,6 +99,10 @@ class EmulatedUsbBackend:
     ) -> None:
         self.emulator = emulator
         self.chip = chip
+        self.latency_ms = FTDI_DEFAULT_LATENCY_MS
+        """The FTDI latency timer (ms); SIO_SET_LATENCY_TIMER changes it."""
+        self._held = b""
+        """Bytes the bridge took from the emulator and has not handed over yet."""
         self.serial = serial
         self.device = _device_desc(vid, pid)
         self.kernel_driver = kernel_driver
@@ -207,6 +214,8 @@ class EmulatedUsbBackend:
             return 0
         payload = bytes(data) if data is not None else b""
         self.control_requests.append((bmRequestType, bRequest, wValue, wIndex, payload))
+        if self.chip == "ftdi" and (bmRequestType, bRequest) == (0x40, 0x09) and wValue & 0xFF:
+            self.latency_ms = wValue & 0xFF  # SIO_SET_LATENCY_TIMER
         return len(payload)
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
@@ -216,27 +225,37 @@ class EmulatedUsbBackend:
         return len(data)
 
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
+        """Bytes the emulator has sent, as the bridge hands them over. An FTDI chip holds bytes that do
+        not fill a packet until its latency timer runs out (16 ms unless the host set it), and with
+        nothing to send it answers its two status bytes alone at that moment; other bridges hand over
+        what they have at once. Bytes a timed-out read did not take stay in the chip."""
         from usb.core import USBTimeoutError
 
         self._check_plugged()
         self.read_sizes.append(len(buff))
         status = FTDI_STATUS if self.chip == "ftdi" else b""
         room = len(buff) // self.PACKET * (self.PACKET - len(status)) or (len(buff) - len(status))
-        deadline = time.monotonic() + (timeout or 1000) / 1000.0
+        start = time.monotonic()
+        deadline = start + (timeout or 1000) / 1000.0
+        flush_at = start + self.latency_ms / 1000.0 if status else start
         while True:
             with self._lock:
-                data = self.emulator.read(room)
+                if len(self._held) < room:
+                    self._held += self.emulator.read(room - len(self._held))
                 wait = self.emulator.seconds_until_output()
-            if data:
-                break
+            now = time.monotonic()
+            if now >= flush_at and (self._held or status):
+                break  # what there is, or an FTDI chip's status bytes alone
+            if len(self._held) >= self.PACKET - len(status):
+                break  # a full packet goes at once
             if self.emulator.disconnected:
                 self.unplugged = True
                 self._check_plugged()
+            if status:
+                wait = flush_at - now if wait is None else min(wait, flush_at - now)
             if not _nap(deadline, wait):
-                if status:  # an FTDI chip answers with status bytes alone when it has no data
-                    data = b""
-                    break
                 raise USBTimeoutError("Operation timed out", -7, 110)
+        data, self._held = self._held[:room], self._held[room:]
         if status:
             step = self.PACKET - len(status)
             data = b"".join(status + data[i : i + step] for i in range(0, len(data), step)) or status

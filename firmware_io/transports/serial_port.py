@@ -54,6 +54,7 @@ class SerialTransport(Transport):
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceUnavailable(f"{self.url}: cannot open serial port: {_reason(exc, port)}") from None
+        self.low_latency = _ask_low_latency(self._ser)
         try:
             self._fd: int | None = self._ser.fileno()
         except (AttributeError, serial.SerialException, OSError):
@@ -110,6 +111,23 @@ class SerialTransport(Transport):
     def _check_open(self) -> None:
         if self._closed:
             raise TransportError(f"{self.url}: transport is closed")
+
+
+def _ask_low_latency(ser) -> bool:
+    """Ask the tty driver for low-latency mode (Linux ``ASYNC_LOW_LATENCY``), True if it took it.
+
+    Why: a USB-serial adapter's driver may hold bytes that do not fill a packet; ftdi_sio keeps the
+    chip's 16 ms latency timer unless the port is in low-latency mode (then 1 ms), so a frame's last
+    bytes reached the daemon up to 16 ms late. Drivers and ports without it (a pty, a native UART,
+    another OS) refuse, and nothing changes."""
+    setter = getattr(ser, "set_low_latency_mode", None)
+    if setter is None:
+        return False
+    try:
+        setter(True)
+    except (ValueError, OSError, NotImplementedError):
+        return False
+    return True
 
 
 def _context_errno(exc: Exception) -> int | None:

@@ -9,8 +9,8 @@ Bridges (``chip=auto`` picks by vendor id and interface class):
 
 - ``cdc``: CDC-ACM. SET_LINE_CODING and SET_CONTROL_LINE_STATE (DTR|RTS) on the
   communication interface.
-- ``ftdi`` (VID 0403): reset, baud divisor (3 MHz base clock, eighths), 8N1, no flow control.
-  Every IN packet starts with two modem-status bytes, which are removed.
+- ``ftdi`` (VID 0403): reset, baud divisor (3 MHz base clock, eighths), 8N1, no flow control, latency
+  timer 1 ms (``FTDI_LATENCY_MS``). Every IN packet starts with two modem-status bytes, which are removed.
 - ``cp210x`` (VID 10C4, bulk models such as the CP2102): IFC_ENABLE, SET_BAUDRATE, SET_LINE_CTL.
 - ``raw``: no set-up; the bytes of the bulk endpoints are the UART's bytes.
 
@@ -42,6 +42,10 @@ CHIPS = ("auto", "cdc", "ftdi", "cp210x", "raw")
 VENDOR_CHIPS = {0x0403: "ftdi", 0x10C4: "cp210x"}
 CDC_COMM_CLASS, CDC_DATA_CLASS = 0x02, 0x0A
 FTDI_STATUS_BYTES = 2
+FTDI_LATENCY_MS = 1
+"""The FTDI latency timer the transport sets: the chip holds a packet that is not full until the timer
+runs out, 16 ms after reset, so a frame's last packet reached the host up to 16 ms late (half the
+sample period); 1 ms is the shortest."""
 FTDI_FRACTION_CODES = (0, 3, 2, 4, 1, 5, 6, 7)  # eighths of the divisor -> the chip's encoding
 _GONE_ERRNOS = {errno.ENODEV, errno.ENOENT, errno.ESHUTDOWN, errno.EPIPE, errno.EIO}
 EXTRA_HINT = "pip install 'tactile-handover[usb]'"
@@ -171,6 +175,7 @@ class UsbTransport(Transport):
             dev.ctrl_transfer(0x40, 0x03, value, index | (port << 8 if number else 0))  # SIO_SET_BAUD_RATE
             dev.ctrl_transfer(0x40, 0x04, 0x0008, port)  # SIO_SET_DATA: 8 bits, no parity, 1 stop
             dev.ctrl_transfer(0x40, 0x02, 0x0000, port)  # SIO_SET_FLOW_CTRL: none
+            dev.ctrl_transfer(0x40, 0x09, FTDI_LATENCY_MS, port)  # SIO_SET_LATENCY_TIMER
         elif chip == "cp210x":
             dev.ctrl_transfer(0x41, 0x00, 0x0001, number)  # IFC_ENABLE
             dev.ctrl_transfer(0x41, 0x1E, 0x0000, number, struct.pack("<I", baud))  # SET_BAUDRATE
