@@ -315,3 +315,25 @@ def test_serial_asks_for_low_latency_mode_and_a_port_that_refuses_it_still_works
     port = AdapterPort()
     assert serial_port._ask_low_latency(port) is True and port.asked == [True]
     assert serial_port._ask_low_latency(object()) is False  # pyserial off Linux has no such call
+
+
+def test_a_low_latency_request_that_fails_otherwise_neither_blocks_nor_leaks_the_port(rec, monkeypatch):
+    """pyserial's Linux set_low_latency_mode looks up termios.TIOCGSERIAL when called: a Python without
+    it raised AttributeError out of the transport's constructor, so the daemon retried for ever a port
+    that works. The request is a nicety: any failure leaves the port as it was, and the port opens
+    (again: nothing left open and locked) and serves."""
+    import termios
+
+    from firmware_io.transports import open_transport
+
+    monkeypatch.delattr(termios, "TIOCGSERIAL", raising=False)
+    with PtyEmulatorServer(DeviceEmulator(rec, speed=4.0)) as server:
+        for _ in range(2):  # the second open finds the port free: nothing was left locked
+            transport = open_transport(server.url)
+            assert transport.low_latency is False
+            transport.close()
+        client = client_for(server.url)
+        client.open()
+        client.start()
+        assert len(read_n(client, 3)) == 3
+        client.close()

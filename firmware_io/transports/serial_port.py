@@ -119,13 +119,15 @@ def _ask_low_latency(ser) -> bool:
     Why: a USB-serial adapter's driver may hold bytes that do not fill a packet; ftdi_sio keeps the
     chip's 16 ms latency timer unless the port is in low-latency mode (then 1 ms), so a frame's last
     bytes reached the daemon up to 16 ms late. Drivers and ports without it (a pty, a native UART,
-    another OS) refuse, and nothing changes."""
+    another OS) refuse, and nothing changes. Any failure counts as a refusal: pyserial raises ValueError
+    or NotImplementedError, but its Linux code also looks up ``termios.TIOCGSERIAL`` (AttributeError where
+    Python lacks it), and a nicety must not keep a working port from opening."""
     setter = getattr(ser, "set_low_latency_mode", None)
     if setter is None:
         return False
     try:
         setter(True)
-    except (ValueError, OSError, NotImplementedError):
+    except Exception:  # any failure is a refusal (docstring)
         return False
     return True
 
