@@ -271,6 +271,42 @@ def test_an_idle_ftdi_chip_answers_its_status_bytes_at_each_latency_period(rec):
     assert time.monotonic() - t0 < 2.0  # the 16 ms timer, not the 5 s read timeout
 
 
+def _stale_reply_in_the_chip(backend: EmulatedUsbBackend) -> bytes:
+    """A controller-info reply the chip took from the UART and still holds: the host's read timed
+    out before the latency timer (16 ms after reset) let the short packet go."""
+    import array
+
+    from usb.core import USBTimeoutError
+
+    from firmware_io.wire import requests as R
+
+    backend.bulk_write(None, 0x02, 0, R.query_controller_info_request(), 1000)
+    with pytest.raises(USBTimeoutError):
+        backend.bulk_read(None, 0x81, 0, array.array("B", bytes(64)), 2)
+    assert backend._held  # kept for the next read, as the chip does
+    return backend._held
+
+
+def test_a_reset_or_replugged_ftdi_chip_hands_no_stale_bytes_to_the_next_session(rec):
+    """SIO_RESET (sent when the transport opens) purges the chip's buffers, and an unplugged chip
+    loses them with its power (and its latency timer goes back to 16 ms): the bytes a timed-out read
+    left in the emulated chip were handed to the next session instead."""
+    backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
+    _stale_reply_in_the_chip(backend)
+    t = open_transport("usb://0403:6001", backend=backend)
+    assert t.read(64, 0.05) == b""
+    t.close()
+
+    backend.latency_ms = 16  # as a host that set nothing would leave it
+    _stale_reply_in_the_chip(backend)
+    backend.unplugged = True
+    backend.replug()
+    assert (backend._held, backend.latency_ms, backend.unplugged) == (b"", 16, False)
+    t = open_transport("usb://0403:6001", backend=backend)
+    assert t.read(64, 0.05) == b""
+    t.close()
+
+
 def test_usb_transport_errors(rec):
     backend = EmulatedUsbBackend(DeviceEmulator(rec, speed=None))
     with pytest.raises(DeviceUnavailable, match="serial 'other'"):

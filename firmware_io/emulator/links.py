@@ -214,8 +214,11 @@ class EmulatedUsbBackend:
             return 0
         payload = bytes(data) if data is not None else b""
         self.control_requests.append((bmRequestType, bRequest, wValue, wIndex, payload))
-        if self.chip == "ftdi" and (bmRequestType, bRequest) == (0x40, 0x09) and wValue & 0xFF:
-            self.latency_ms = wValue & 0xFF  # SIO_SET_LATENCY_TIMER
+        if self.chip == "ftdi" and bmRequestType == 0x40:
+            if bRequest == 0x09 and wValue & 0xFF:
+                self.latency_ms = wValue & 0xFF  # SIO_SET_LATENCY_TIMER
+            elif bRequest == 0x00 and wValue in (0, 1):
+                self._held = b""  # SIO_RESET: reset (0) or purge RX (1) empties the chip's buffer
         return len(payload)
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
@@ -273,6 +276,18 @@ class EmulatedUsbBackend:
 
     def iso_read(self, dev_handle, ep, intf, buff, timeout):
         raise NotImplementedError
+
+    def replug(self) -> None:
+        """The bridge plugged in again after ``unplugged``: the chip lost its buffer and settings with
+        its power (latency timer back to 16 ms), and the controller behind it was power-cycled too."""
+        with self._lock:
+            self._held = b""
+            self.latency_ms = FTDI_DEFAULT_LATENCY_MS
+            self.emulator.power_cycle()
+        self.detached.clear()
+        self.claimed.clear()
+        self.configuration = None
+        self.unplugged = False
 
     def _check_plugged(self) -> None:
         if self.unplugged:
