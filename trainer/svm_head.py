@@ -74,7 +74,9 @@ class FeatureLayout:
     scales: np.ndarray | None = None
 
     def scale_of_each(self) -> np.ndarray:
-        return np.ones(len(self.columns)) if self.scales is None else np.asarray(self.scales, dtype=np.float64)
+        from trainer.features.base import scale_of_each
+
+        return scale_of_each(self.columns, self.scales)
 
     @property
     def scaled(self) -> bool:

@@ -23,6 +23,11 @@ from trainer.bow import as_cases, check_case_shape
 from trainer.features.signals import pad_shapes_for
 
 
+def scale_of_each(columns: np.ndarray, scales: np.ndarray | None) -> np.ndarray:
+    """Each feature column's scale, None (all 1) spelled out as ones (``OnnxParts``, ``FeatureLayout``)."""
+    return np.ones(len(columns)) if scales is None else np.asarray(scales, dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class OnnxParts:
     """A family's ONNX tensors ``[N, k_i]``; ``columns[i]``: where reference feature i sits in their
@@ -39,8 +44,7 @@ class OnnxParts:
     name) is joined into the features once."""
 
     def scale_of_each(self) -> np.ndarray:
-        """``scales`` with None spelled out (ones)."""
-        return np.ones(len(self.columns)) if self.scales is None else np.asarray(self.scales, dtype=np.float64)
+        return scale_of_each(self.columns, self.scales)
 
     @classmethod
     def in_order(cls, tensors: list[str], n_features: int) -> OnnxParts:
