@@ -83,6 +83,8 @@ class EmulatedUsbBackend:
     data class with bulk 0x81 IN / 0x02 OUT), ``ftdi`` (one vendor interface, bulk 0x81 / 0x02,
     two status bytes in front of every 64-byte IN packet) or ``cp210x`` (like ftdi without
     status bytes). ``kernel_driver`` pretends a kernel driver is bound until it is detached.
+    ``unplugged = True`` pulls the bridge out (the emulator's ``disconnect`` fault does too);
+    ``replug()`` plugs it in again.
     """
 
     PACKET = 64
