@@ -293,17 +293,9 @@ def test_emulate_cli_bad_options_are_one_line(capsys):
 def test_serial_asks_for_low_latency_mode_and_a_port_that_refuses_it_still_works(rec):
     """ftdi_sio holds a short packet 16 ms unless the port is in low-latency mode: the transport asks
     for it. A pty refuses (as a native UART or another OS would), and the port works all the same."""
-    from firmware_io.transports import open_transport, serial_port
+    from firmware_io.transports import serial_port
 
-    with PtyEmulatorServer(DeviceEmulator(rec, speed=4.0)) as server:
-        transport = open_transport(server.url)
-        assert transport.low_latency is False
-        transport.close()
-        client = client_for(server.url)
-        client.open()
-        client.start()
-        assert len(read_n(client, 3)) == 3
-        client.close()
+    _pty_refuses_low_latency_and_serves(rec, opens=1)
 
     class AdapterPort:
         def __init__(self) -> None:
@@ -324,11 +316,16 @@ def test_a_low_latency_request_that_fails_otherwise_neither_blocks_nor_leaks_the
     (again: nothing left open and locked) and serves."""
     import termios
 
+    monkeypatch.delattr(termios, "TIOCGSERIAL", raising=False)
+    _pty_refuses_low_latency_and_serves(rec, opens=2)  # the second open finds the port free
+
+
+def _pty_refuses_low_latency_and_serves(rec, opens: int) -> None:
+    """Open the emulator's pty ``opens`` times (low-latency mode refused each time), then stream."""
     from firmware_io.transports import open_transport
 
-    monkeypatch.delattr(termios, "TIOCGSERIAL", raising=False)
     with PtyEmulatorServer(DeviceEmulator(rec, speed=4.0)) as server:
-        for _ in range(2):  # the second open finds the port free: nothing was left locked
+        for _ in range(opens):
             transport = open_transport(server.url)
             assert transport.low_latency is False
             transport.close()
