@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from firmware_io.emulator.frame_source import load_source
+from firmware_io.transports.usb import FTDI_LATENCY_MS
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
 from runtime.listeners import FrameRecorder
@@ -148,7 +149,7 @@ def test_over_an_emulated_ftdi_bridge_unplugged_and_replugged(models):
         stop.set()
         plugger.join()
     h, sent = daemon.health, emulator.stats.frames_sent
-    assert backend.latency_ms == 1 and emulator.stats.disconnects >= 2
+    assert backend.latency_ms == FTDI_LATENCY_MS and emulator.stats.disconnects >= 2
     assert h.crc_errors == h.protocol_errors == h.frames_dropped == 0
     assert sent - emulator.stats.disconnects - 1 <= h.frames_received <= sent
 

@@ -198,7 +198,7 @@ def _check_client(transport, rec, n=12):
     ("chip", "vid", "expected"),
     [
         ("ftdi", 0x0403, [(0x40, 0x00, 0, 1), (0x40, 0x03, 26, 0), (0x40, 0x04, 8, 1), (0x40, 0x02, 0, 1),
-                          (0x40, 0x09, 1, 1)]),
+                          (0x40, 0x09, 2, 1)]),
         ("cdc", 0x2341, [(0x21, 0x20, 0, 0), (0x21, 0x22, 3, 0)]),
         ("cp210x", 0x10C4, [(0x41, 0x00, 1, 0), (0x41, 0x1E, 0, 0), (0x41, 0x03, 0x0800, 0)]),
     ],
@@ -254,8 +254,11 @@ def test_the_emulated_ftdi_chip_holds_a_short_packet_until_its_latency_timer_run
     backend.latency_ms = 250
     assert _short_packet_wait(backend) >= 0.2
     t = open_transport("usb://0403:6001", backend=backend)
-    assert backend.latency_ms == 1
+    assert backend.latency_ms == 2  # the transport's default (FTDI_LATENCY_MS: CPU against delay)
     assert _short_packet_wait(backend) < 0.15
+    t.close()
+    t = open_transport("usb://0403:6001?latency=1", backend=backend)
+    assert backend.latency_ms == 1
     t.close()
 
 
@@ -315,6 +318,9 @@ def test_usb_transport_errors(rec):
         open_transport("usb://0403:6002", backend=backend)
     with pytest.raises(TransportError, match="no interface 3"):
         open_transport("usb://0403:6001?interface=3", backend=backend)
+    for bad in ("0", "256", "fast"):
+        with pytest.raises(TransportError, match=f"option latency={bad!r}|option latency={bad} must"):
+            open_transport(f"usb://0403:6001?latency={bad}", backend=backend)
     t = open_transport("usb://0403:6001", backend=backend)
     assert t.read(64, 0.05) == b""  # idle FTDI: status bytes only
     backend.unplugged = True
