@@ -58,6 +58,9 @@ class BoundRun:
         # the entry, onnxruntime's wrapper looks it up, fails and catches the error on every run (about 30 us)
         self._options = ort.RunOptions()
         self._options.add_run_config_entry("gpu_graph_id", "-1")
+        # a failed bound run is caught and handed to session.run, whose answer the output check judges in
+        # one line; onnxruntime would print its own multi-line ERROR (with colour codes) to stderr first
+        self._options.log_severity_level = 4
         self.broken = False
         """Set when a bound run failed (a graph whose outputs do not fit): the binding is not tried again."""
 

@@ -117,3 +117,34 @@ def test_a_nested_list_is_left_to_session_run_which_converts_it(tmp_path) -> Non
     ref_labels, ref_scores = model.run_trusted(window)
     assert np.array_equal(labels, ref_labels)
     np.testing.assert_allclose(scores, ref_scores, rtol=1e-6)
+
+
+def _wider_scores_than_declared() -> bytes:
+    """A tiny model whose ``scores`` gets one more column at run time than its declared (and inferred)
+    width: the extra column's shape comes from the batch size, so shape inference cannot see it."""
+    import onnx
+    from onnx import helper, numpy_helper
+
+    model = onnx.load_from_string(tiny_model_bytes())
+    for node in model.graph.node:
+        node.output[:] = ["scores_raw" if o == "scores" else o for o in node.output]
+        node.input[:] = ["scores_raw" if i == "scores" else i for i in node.input]
+    model.graph.initializer.extend([numpy_helper.from_array(np.zeros((1, 1), np.float32), "zero"),
+                                    numpy_helper.from_array(np.array([1], np.int64), "one")])
+    model.graph.node.extend([
+        helper.make_node("Shape", ["scores_raw"], ["rows"], start=0, end=1),
+        helper.make_node("Concat", ["rows", "one"], ["column_shape"], axis=0),
+        helper.make_node("Expand", ["zero", "column_shape"], ["column"]),
+        helper.make_node("Concat", ["scores_raw", "column"], ["scores"], axis=1),
+    ])
+    return model.SerializeToString()
+
+
+def test_a_graph_wider_than_declared_is_refused_in_one_line_without_onnxruntimes_own_error(tmp_path, capfd) -> None:
+    """The bound run fails (its buffer has the declared width) and session.run's answer is refused by
+    the output check; onnxruntime printed a multi-line coloured ERROR to stderr before that one line."""
+    from runtime.model import ModelContractError
+
+    with pytest.raises(ModelContractError, match=r"scores output is float32 \[1, 5\], expected float \[1, 4\]"):
+        load_model(write_model(tmp_path, "wide.onnx", _wider_scores_than_declared()))
+    assert "onnxruntime" not in capfd.readouterr().err
