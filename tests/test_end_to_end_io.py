@@ -281,6 +281,7 @@ def test_emulate_cli_bad_options_are_one_line(capsys):
     for argv, words in [
         (["--listen", "tcp://10.1.2.3:5000"], "loopback only"),
         (["--listen", "udp://127.0.0.1:5"], "use tcp://"),
+        (["--listen", "pty"], "or --pty for a pseudo-terminal"),  # the serial case is a flag, not a URL
         (["--pty", "--fault", "crc=7"], "--fault"),
         (["--pty", "--speed", "fast"], "--speed"),
         (["--pty", "--source", "/no/such.hrec"], "no such file"),

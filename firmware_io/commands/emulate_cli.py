@@ -70,7 +70,8 @@ def main(args: argparse.Namespace) -> int:
             except TransportError as exc:
                 return fail(COMMAND, str(exc))
             if parsed.scheme != "tcp" or not parsed.netloc or parsed.path not in ("", "/") or parsed.options:
-                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT")
+                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT (or --pty for a "
+                                     "pseudo-terminal to open as serial://)")
             host, _, port = parsed.netloc.rpartition(":")
             if not host or not port.isdigit() or int(port) > 65535:
                 return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
