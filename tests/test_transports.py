@@ -321,6 +321,9 @@ def test_usb_transport_errors(rec):
     for bad in ("0", "256", "fast"):
         with pytest.raises(TransportError, match=f"option latency={bad!r}|option latency={bad} must"):
             open_transport(f"usb://0403:6001?latency={bad}", backend=backend)
+    for other in ("0403:6001?chip=cdc&latency=5", "0403:6001?chip=cp210x&latency=1", "10c4:ea60?latency=2"):
+        with pytest.raises(TransportError, match="latency= sets an FTDI chip's latency timer and this is a"):
+            open_transport(f"usb://{other}", backend=backend)  # was silently ignored
     t = open_transport("usb://0403:6001", backend=backend)
     assert t.read(64, 0.05) == b""  # idle FTDI: status bytes only
     backend.unplugged = True

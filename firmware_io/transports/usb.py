@@ -43,7 +43,8 @@ VENDOR_CHIPS = {0x0403: "ftdi", 0x10C4: "cp210x"}
 CDC_COMM_CLASS, CDC_DATA_CLASS = 0x02, 0x0A
 FTDI_STATUS_BYTES = 2
 FTDI_LATENCY_MS = 2
-"""The FTDI latency timer the transport sets (``latency=`` in the URL, 1..255 ms): the chip holds a
+"""The FTDI latency timer the transport sets (``latency=`` in the URL, 1..255 ms; refused on a bridge the
+URL names as another chip, ignored on one only found to be another at open): the chip holds a
 packet that is not full until the timer runs out, 16 ms after reset, so a frame's last packet reached
 the host up to 16 ms late (half the sample period). But each timer period ends a transfer (with data or
 the two status bytes), and every transfer costs the hot thread about 40 us: measured over the emulated
@@ -111,6 +112,10 @@ class UsbTransport(Transport):
         chip = str(parsed.option(opts, "chip", "auto")).lower()
         if chip not in CHIPS:
             raise TransportError(f"{url}: unknown chip {chip!r} (use {', '.join(CHIPS)})")
+        known = VENDOR_CHIPS.get(vid, "") if chip == "auto" else chip
+        if parsed.option(opts, "latency") is not None and known not in ("", "ftdi"):
+            raise TransportError(f"{url}: latency= sets an FTDI chip's latency timer and this is a {known} "
+                                 "bridge, which has none: leave latency= out")
         return {
             "vid": vid,
             "pid": pid,
