@@ -127,6 +127,9 @@ def _user() -> str:
 def out_problem(out: str) -> str | None:
     """What is wrong with ``--out`` as a results folder (made if missing), or None: checked before a
     run, so a long benchmark never ends in a folder it cannot write."""
+    blocker = next((p for p in (Path(out), *Path(out).parents) if p.exists()), None)
+    if blocker is not None and not blocker.is_dir():
+        return f"--out {out}: {blocker} is a file, not a folder; give a folder (it is made if missing)"
     try:
         Path(out).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
