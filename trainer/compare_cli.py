@@ -37,11 +37,9 @@ def command_line(args: argparse.Namespace) -> str:
     for flag, on in (("--quick", args.quick), ("--no-real", args.no_real), ("--no-minirocket", args.no_minirocket)):
         if on:
             parts.append(flag)
-    from trainer.bench.common import default_out
+    from trainer.bench.common import out_option
 
-    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs)]
-    if args.out not in (None, default_out(args.quick)):  # the default folder goes without saying (a temp one on --quick)
-        parts += ["--out", str(args.out)]
+    parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs), *out_option(args.out, args.quick)]
     if args.data:
         parts += ["--data", str(args.data)]
     return shlex.join(parts)

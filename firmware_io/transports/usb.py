@@ -153,7 +153,7 @@ class UsbTransport(Transport):
             raise DeviceUnavailable(f"{self.url}: no USB device {vid:04x}:{pid:04x}{which} (plugged in? lsusb)")
         return dev
 
-    def _setup(self, interface: int | None, chip: str, baud: int, latency_ms: int = FTDI_LATENCY_MS) -> None:
+    def _setup(self, interface: int | None, chip: str, baud: int, latency_ms: int) -> None:
         core, util, dev = self._core, self._util, self._dev
         try:
             cfg = dev.get_active_configuration()

@@ -156,9 +156,31 @@ def command_line(name: str, args) -> str:
         parts.append("--synthetic")
     if getattr(args, "seed", None) is not None:
         parts += ["--seed", str(args.seed)]
-    if getattr(args, "out", None) not in (None, default_out(getattr(args, "quick", False))):
-        parts += ["--out", str(args.out)]
+    parts += out_option(getattr(args, "out", None), getattr(args, "quick", False))
     return shlex.join(parts)
+
+
+def out_option(out: str | None, quick: bool) -> list[str]:
+    """``--out`` for a Reproduce line: nothing for the default folder (a temp one on ``--quick``, a
+    path of one machine), else the folder given."""
+    return [] if out in (None, default_out(quick)) else ["--out", str(out)]
+
+
+def with_metadata(model_path: Path, out: Path, change: Callable[[dict], None]) -> Path:
+    """A copy of ``model_path`` at ``out`` whose model metadata ``change`` edited in place (the same
+    graph; a different file, so a different model id)."""
+    import onnx
+
+    from runtime.model import METADATA_KEY
+
+    graph = onnx.load(str(model_path))
+    for prop in graph.metadata_props:
+        if prop.key == METADATA_KEY:
+            meta = json.loads(prop.value)
+            change(meta)
+            prop.value = json.dumps(meta, sort_keys=True)
+    onnx.save(graph, str(out))
+    return out
 
 
 def write_results(out: str | Path, name: str, result: dict, markdown: list[str]) -> Path:

@@ -147,12 +147,11 @@ def _stage_table(marks: np.ndarray, timings: list[tuple[int, DecisionTimings]]) 
     for number, t in timings:
         t0, t1, _ = marks[number]
         rows["daemon_internal"].append((t.decided - t.received) * 1e6)  # every decision, reported or not
-        cuts = (t0, t1, t.started, t.windowed, t.decided, t.checked, t.built, t.serialised, t.sent)
-        if t.sent is None:  # no event (continuous mode between reports): the stages up to the check
-            cuts = cuts[:6]
+        reported = t.sent is not None  # no event (continuous mode between reports): the stages up to the check
+        cuts = (t0, t1, t.started, t.windowed, t.decided, t.checked, t.built, t.serialised, t.sent)[: 9 if reported else 6]
         for name, a, b in zip(STAGES, cuts[:-1], cuts[1:], strict=False):
             rows[name].append((b - a) * 1e6)
-        if t.sent is not None:
+        if reported:
             rows["total"].append((t.sent - t0) * 1e6)
     decided = {n for n, _ in timings}
     quiet = [(m[2] - m[1]) * 1e6 for i, m in enumerate(marks) if i not in decided]
@@ -196,20 +195,9 @@ def declared_dormant(model_path: Path, out: Path, dormant: str) -> Path:
     """A copy of ``model_path`` whose metadata names ``dormant`` its dormant class, so that continuous
     mode serves it. For timing only: the graph is the same, and what the classes mean does not change
     how long a decision takes."""
-    import json
+    from trainer.bench.common import with_metadata
 
-    import onnx
-
-    from runtime.model import METADATA_KEY
-
-    graph = onnx.load(str(model_path))
-    for prop in graph.metadata_props:
-        if prop.key == METADATA_KEY:
-            meta = json.loads(prop.value)
-            meta["dormant_class"] = dormant
-            prop.value = json.dumps(meta)
-    onnx.save(graph, str(out))
-    return out
+    return with_metadata(model_path, out, lambda meta: meta.update(dormant_class=dormant))
 
 
 # -- the graph against numpy and scikit-learn, one window at a time --------------------------------------

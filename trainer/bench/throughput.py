@@ -16,7 +16,6 @@ time to READY, and the time to swap a model.
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import tempfile
@@ -36,6 +35,7 @@ from trainer.bench.common import (
     tap_gap,
     tap_stream,
     train_default_model,
+    with_metadata,
     write_results,
 )
 from trainer.defaults import describe_default
@@ -250,19 +250,7 @@ def footprint_and_swap(model_path: Path, second_model: Path, work: Path, duratio
 
 def variant_model(model_path: Path, folder: Path) -> Path:
     """The same graph with one metadata field changed: a different file, so a different model id."""
-    import onnx
-
-    from runtime.model import METADATA_KEY
-
-    m = onnx.load(str(model_path))
-    for prop in m.metadata_props:
-        if prop.key == METADATA_KEY:
-            meta = json.loads(prop.value)
-            meta["training"]["variant"] = "bench swap"
-            prop.value = json.dumps(meta, sort_keys=True)
-    out = folder / "variant.onnx"
-    onnx.save(m, str(out))
-    return out
+    return with_metadata(model_path, folder / "variant.onnx", lambda meta: meta["training"].update(variant="bench swap"))
 
 
 def run(args) -> dict:
