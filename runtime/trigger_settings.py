@@ -20,96 +20,59 @@ the onset trigger existed): it is served with the threshold unless the config sa
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, field, make_dataclass
 from typing import Any
 
-from firmware_io.trigger_level import PAPER_FRACTION
+from firmware_io.trigger_level import PAPER_FRACTION  # noqa: F401 - the threshold's default level, named here
+from runtime.config_keys import key, section_keys
 
-DEFAULT_KIND = "onset"
-DEFAULT_HYSTERESIS = 0.05
-"""The threshold re-arms below (fraction - 0.05) x full scale."""
+_TRIGGER_KEYS = section_keys("trigger", config_only=False)
+DEFAULT_KIND: str = key("trigger.kind").default
+DEFAULT_HYSTERESIS: float = key("trigger.hysteresis").default
+"""The threshold re-arms below (fraction - hysteresis) x full scale."""
 HYSTERESIS_CAP = 0.99
 """A hysteresis is capped at 0.99 x the fraction, so the re-arm level stays above zero."""
-ONSET_CHANGE = 0.12
-"""A pad's pressure departing from the settled grasp's prediction by 12 % fires. Chosen on the
-validation seed (2; a 60-event session and 15 min of idle stream, synthetic) by the rule "most
-onsets caught within [-2, +8] frames minus extra fires minus fires in the idle stream" over
-change 0.08 / 0.12 x trend gain 0 / 1/16 / 1/4 x trend started while settling or not: 0.12 with
-the trend (56 of 60 onsets, 26 idle fires, mostly arm moves) against 0.08 (57, 42). The trend
-itself (runtime/onset.py) was added on physical grounds, after seeing a real pad creep ~1 % per
-frame under a static calibration weight (the simulator's creep is 0.08 %/frame); the same script
-printed the fires on the real recordings too, which are the test set of results/streams.md."""
-ONSET_FLOOR = 0.25
-"""Changes of a pad are measured against at least this x full scale of summed pressure (an
-unloaded pad must gain a real contact, 0.12 x 0.25 x 4095 = 123 counts, before it fires)."""
-ONSET_CONTACT = 0.02
-"""Summed scene pressure below this x full scale is an empty hand."""
-ONSET_TRACK_TAU_S = 1.0
-ONSET_SETTLE_S = 0.2
-ONSET_SETTLE_CHANGE = 0.02
-"""A grasp is settled when no pad changed by 2 % of its level from one frame to the next for 0.2 s."""
-ONSET_PRE_FRAMES = 0
-"""The window starts at the trigger frame (a frame or two after the person's onset). Chosen by
-leave-one-subject-out on the training protocol (simulated, seed 0, default model): the window
-from 0 / 1 / 2 frames before the trigger scores 97.0 / 96.1 / 93.2 % (all 900 trials cut)."""
 
 
-@dataclass(frozen=True)
-class TriggerSettings:
-    """Everything that decides where a window starts (recorded in a model's metadata)."""
-
-    kind: str = DEFAULT_KIND
-    fraction: float = PAPER_FRACTION
-    hysteresis: float = DEFAULT_HYSTERESIS
-    baseline: bool = False
-    baseline_tau_s: float = 2.0
-    refractory_s: float = 1.5
-    rearm_quiet_s: float = 0.25
-    pre_frames: int = ONSET_PRE_FRAMES
-    change: float = ONSET_CHANGE
-    floor: float = ONSET_FLOOR
-    contact: float = ONSET_CONTACT
-    track_tau_s: float = ONSET_TRACK_TAU_S
-    settle_s: float = ONSET_SETTLE_S
-    settle_change: float = ONSET_SETTLE_CHANGE
-
-    def to_meta(self) -> dict[str, Any]:
-        """The model metadata's ``trigger`` object (``fraction`` always present: the contract needs it)."""
-        return asdict(self)
-
-    @property
-    def name(self) -> str:
-        """``onset``, ``threshold`` or ``baseline`` (the threshold above a tracked baseline)."""
-        return "baseline" if self.kind == "threshold" and self.baseline else self.kind
+def _to_meta(self: Any) -> dict[str, Any]:
+    """The model metadata's ``trigger`` object (``fraction`` always present: the contract needs it)."""
+    return asdict(self)
 
 
-_FROM_MODEL = ("kind", "fraction", "hysteresis", "pre_frames", "change", "floor", "contact", "track_tau_s", "settle_s",
-               "settle_change")
+def _name(self: Any) -> str:
+    """``onset``, ``threshold`` or ``baseline`` (the threshold above a tracked baseline)."""
+    return "baseline" if self.kind == "threshold" and self.baseline else self.kind
+
+
+TriggerSettings = make_dataclass(
+    "TriggerSettings",
+    [(k.short, k.type.__name__, field(default=k.default)) for k in _TRIGGER_KEYS],
+    frozen=True,
+    namespace={"__module__": __name__, "to_meta": _to_meta, "name": property(_name),
+               "__doc__": "Everything that decides where a window starts (recorded in a model's metadata): "
+                          "one field per ``trigger`` key of runtime/config_keys.py, its default the key's."},
+)
+
+_FROM_MODEL = tuple(k.short for k in _TRIGGER_KEYS if k.recorded)
 """Settings a model's metadata may carry (what its training windows were cut with)."""
-
-
-RECORDED_RANGES: dict[str, tuple[float, float]] = {"floor": (0.001, 1.0), "contact": (0.0, 1.0),
-                                                   "settle_change": (0.0, 1.0)}
-"""Ranges of the recorded settings that are not config keys (the rest use the config's RANGES)."""
 
 
 def recorded_problems(recorded: dict) -> list[str]:
     """What is wrong with a model's recorded trigger settings (a hostile or broken file must
-    be refused when loaded, not crash the daemon when it builds the trigger)."""
-    from runtime.config import RANGES, TRIGGER_KINDS
-
+    be refused when loaded, not crash the daemon when it builds the trigger). ``fraction`` is the
+    model contract's own check (runtime/model.py)."""
     problems = []
     kind = recorded.get("kind")
-    if kind is not None and kind not in TRIGGER_KINDS:
-        problems.append(f"trigger.kind {kind!r} must be one of {', '.join(TRIGGER_KINDS)}")
-    for name in _FROM_MODEL[2:]:
-        value = recorded.get(name)
-        if value is None:
+    if kind is not None and kind not in key("trigger.kind").choices:
+        problems.append(f"trigger.kind {kind!r} must be one of {', '.join(key('trigger.kind').choices)}")
+    for k in _TRIGGER_KEYS:
+        value = recorded.get(k.short)
+        if not k.recorded or k.range is None or k.short == "fraction" or value is None:
             continue
-        lo, hi = RANGES.get(f"trigger.{name}") or RECORDED_RANGES[name]
+        lo, hi = k.range
         number = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        if not number or not lo <= value <= hi or (name == "pre_frames" and not isinstance(value, int)):
-            problems.append(f"trigger.{name} {value!r} must be a number in [{lo:g}, {hi:g}]")
+        if not number or not lo <= value <= hi or (k.type is int and not isinstance(value, int)):
+            problems.append(f"trigger.{k.short} {value!r} must be a number in [{lo:g}, {hi:g}]")
     return problems
 
 
@@ -125,7 +88,7 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
     ``config`` is a ``runtime.config.TriggerConfig`` (or None); ``model_trigger`` the model's
     metadata ``trigger`` object (or None when there is no model yet).
     """
-    from runtime.config import TriggerConfig
+    from runtime.config import TriggerConfig  # runtime.config builds its classes from the keys too
 
     cfg = config if config is not None else TriggerConfig()
     recorded = dict(model_trigger or {})
@@ -138,14 +101,9 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
         if value is None and name in recorded and recorded[name] is not None:
             value = recorded[name]
         chosen[name] = getattr(default, name) if value is None else value
-    fraction = float(chosen["fraction"])
-    return TriggerSettings(
-        kind=str(chosen["kind"]), fraction=fraction, hysteresis=capped_hysteresis(fraction, chosen["hysteresis"]),
-        baseline=cfg.baseline, baseline_tau_s=cfg.baseline_tau_s, refractory_s=cfg.refractory_s,
-        rearm_quiet_s=cfg.rearm_quiet_s, pre_frames=int(chosen["pre_frames"]), change=float(chosen["change"]),
-        floor=float(chosen["floor"]), contact=float(chosen["contact"]), track_tau_s=float(chosen["track_tau_s"]),
-        settle_s=float(chosen["settle_s"]), settle_change=float(chosen["settle_change"]),
-    )
+    values = {k.short: k.type(chosen[k.short] if k.recorded else getattr(cfg, k.short)) for k in _TRIGGER_KEYS}
+    values["hysteresis"] = capped_hysteresis(values["fraction"], values["hysteresis"])
+    return TriggerSettings(**values)
 
 
 def build_trigger(s: TriggerSettings, pad_sizes: tuple[int, ...] | list[int], fullscale: float, window: int,

@@ -19,7 +19,7 @@ import numpy as np
 
 LEAD_IN_SECONDS = 1.0
 """Stream kept before the go cue: the held grasp. The onset trigger arms after 0.2 s without
-change (runtime/trigger_settings.py ONSET_SETTLE_S); 1 s leaves room for a grasp still settling
+change (``trigger.settle_s`` in runtime/config_keys.py); 1 s leaves room for a grasp still settling
 when go is said, and for the window's pre_frames."""
 
 

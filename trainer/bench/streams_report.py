@@ -63,7 +63,7 @@ def markdown(r: dict, load_text: str) -> list[str]:
     lines += _test_table(r) + _per_class(r) + _choice(r) + _demo(r) + _real(r)
     trig = r.get("onset_trigger") or {}
     lines += ["", "## Notes", "", load_text,
-              f"Onset trigger settings (runtime/trigger_settings.py, where their choice is written down): change "
+              f"Onset trigger settings (runtime/config_keys.py; how they were chosen: docs/TRIGGER_DEFAULTS.md): change "
               f"{trig.get('change')}, floor {trig.get('floor')} x full scale, baseline tau {trig.get('track_tau_s')} s, "
               f"settle {trig.get('settle_s')} s, window from {trig.get('pre_frames')} frames before the trigger.",
               "Product rules the false events on real files led to (issue 13): the daemon feeds a model at its "
