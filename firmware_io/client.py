@@ -29,13 +29,18 @@ from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, Sensitivit
 __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 
 READ_SIZE = 4096
+RESTART_STALLED_S = 2.0
+"""Push mode silent this long on an open link: start it again (a power-cycled controller comes back
+with acquisition stopped; its host has to ask again, as the vendor's client does)."""
+BOOT_READY_S = 1.2
+"""After the controller's power-up terminal query ESC[5n, it takes commands about a second later."""
 CANCEL_POLL_S = 0.05
 """While a cancel predicate is set, no single read waits longer than this."""
 MAX_QUEUED_REPLIES = 64
 """Non-frame packets kept for a command to look through; older ones are dropped (a streaming device
 that keeps sending packets nobody asked for would otherwise fill the memory)."""
 COUNTERS = ("frames", "frames_stale", "frames_ignored", "decode_errors", "frames_implausible", "unexpected_replies",
-            "reconnects", "timeouts")
+            "reconnects", "timeouts", "restarts")
 """What ``stats`` counts beside the parser's byte and packet counters."""
 
 
@@ -64,6 +69,7 @@ class DSAClient:
         backoff_initial: float = 0.1,
         backoff_max: float = 5.0,
         auto_reconnect: bool = True,
+        restart_stalled_s: float | None = RESTART_STALLED_S,
         transport_opts: dict | None = None,
     ) -> None:
         self._source = source
@@ -81,6 +87,8 @@ class DSAClient:
         self.backoff_initial = backoff_initial
         self.backoff_max = backoff_max
         self.auto_reconnect = auto_reconnect
+        self.restart_stalled_s = restart_stalled_s
+        """Push mode silent this long with the link open: send the push start again (None: never)."""
         self.transport_opts = dict(transport_opts or {})
 
         self.parser = StreamParser()
@@ -93,6 +101,9 @@ class DSAClient:
         self._frames: deque[Frame] = deque()
         self._replies: deque[Packet] = deque(maxlen=MAX_QUEUED_REPLIES)
         self._last_rx = 0.0
+        self._last_frame_at = 0.0  # monotonic time of the last frame queued, or of the last (re)start
+        self._boots_seen = 0
+        self._boot_at: float | None = None  # a power-up query came while streaming
         self._max_queued = max_queued_frames
         self._unwrap = TimestampUnwrapper()
         self._number = 0
@@ -169,6 +180,33 @@ class DSAClient:
         with self._cancellable(should_stop):
             self._ack(R.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
         self.streaming = True
+        self._last_frame_at = time.monotonic()
+        self._boots_seen, self._boot_at = self.parser.stats.boot_queries, None
+
+    def _restart_if_stalled(self) -> None:
+        """Push mode that went silent with the link still open (the controller was power-cycled: a
+        boot query came, or just nothing): send the push start again, at most once per
+        ``restart_stalled_s``; while it is still booting the try times out and is made again later."""
+        if not self.streaming or self.restart_stalled_s is None or self._frames:
+            return
+        now = time.monotonic()
+        boots = self.parser.stats.boot_queries
+        if boots != self._boots_seen:
+            self._boots_seen, self._boot_at = boots, now
+        booted = self._boot_at is not None and now - self._boot_at >= BOOT_READY_S
+        if not booted and now - self._last_frame_at < self.restart_stalled_s:
+            return
+        rebooted = self._boot_at is not None
+        self._last_frame_at, self._boot_at = now, None
+        try:
+            self._ack(R.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.gap_timeout)
+        except DSAError:
+            self._boot_at = now if rebooted else None
+            return  # still booting (or not a DSACON32m any more): tried again after restart_stalled_s
+        self._counts["restarts"] += 1
+        self._last_frame_at = time.monotonic()
+        if rebooted:
+            self._unwrap.reset()  # its clock restarted at power-on
 
     @contextlib.contextmanager
     def _cancellable(self, should_stop: Callable[[], bool] | None):
@@ -269,6 +307,7 @@ class DSAClient:
                 return None
             try:
                 self._pump(min(remaining, self.gap_timeout))
+                self._restart_if_stalled()
             except TransportError:
                 if not self.auto_reconnect or isinstance(self._source, Transport):
                     raise
@@ -416,6 +455,7 @@ class DSAClient:
             return
         frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
         self._last_frame = packet
+        self._last_frame_at = time.monotonic()
         self._number += 1
         self._counts["frames"] += 1
         if len(self._frames) >= self._max_queued:

@@ -46,15 +46,25 @@ def main(args: argparse.Namespace) -> int:
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
     if args.check:
         return _check(cfg, require_model=args.require_model)
+    from runtime import instance_lock
+
+    try:  # before anything is opened or written: a second daemon leaves the first one's files alone
+        locks = instance_lock.take_all(cfg)
+    except instance_lock.InstanceLockError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
     from runtime.daemon import Daemon
     from runtime.sinks import claim_stdout_for_events
 
-    daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
-    daemon.install_signal_handlers()
-    code = daemon.run()
-    if daemon.fatal:
-        print(f"{PROG}: {daemon.fatal}", file=sys.stderr)
-    return code
+    try:
+        daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
+        daemon.install_signal_handlers()
+        code = daemon.run()
+        if daemon.fatal:
+            print(f"{PROG}: {daemon.fatal}", file=sys.stderr)
+        return code
+    finally:
+        instance_lock.release(locks)
 
 
 def log_format(environ: dict | None = None) -> str:
@@ -88,6 +98,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
     _warn_about_sinks(cfg)
+    _note_held_locks(cfg)
     daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
 
     def newest(check_events: bool):
@@ -134,6 +145,16 @@ def _warn_about_sinks(cfg) -> None:
             print(f"{PROG}: warning: sinks.ros2: {problem}; {then}", file=sys.stderr)
     elif not others:
         print(f"{PROG}: warning: sinks: {NO_SINK_LEFT.replace('other ', '')}", file=sys.stderr)
+
+
+def _note_held_locks(cfg) -> None:
+    """A daemon already serving this device or health file: the config may be fine, but another
+    daemon of it would exit 2 (checking the config of the running service is a normal step)."""
+    from runtime import instance_lock
+
+    for what, path in instance_lock.targets(cfg):
+        if line := instance_lock.held_by_other(what, path):
+            print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
 
 
 def _missing_folder(cfg) -> str | None:

@@ -96,3 +96,28 @@ def test_python_deleted_with_a_stamp_present_reinstalls(tmp_path, monkeypatch):
         Path(p, "bin").mkdir(parents=True, exist_ok=True), Path(p, "bin", "python").write_text(""))})())
     dev.ensure_env("train,dev")
     assert len(installs) == 2 and installs[-1] == "dev,train"
+
+
+def test_install_md_ros_section_keeps_a_checkout_editable_and_matches_dev():
+    """deploy/INSTALL.md's ROS 2 step: every pip install of a checkout or of '.' is editable (-e),
+    or goes into the robot PC's own venv (/opt/handover); ./dev already installs the ros extra, as
+    the section says. A plain `.venv/bin/pip install '.[ros]'` turned the checkout into a copy."""
+    import re
+    import shlex
+
+    loader = importlib.machinery.SourceFileLoader("dev_script_extras", str(ROOT / "dev"))
+    spec = importlib.util.spec_from_loader("dev_script_extras", loader)
+    dev = importlib.util.module_from_spec(spec)
+    loader.exec_module(dev)
+    assert "ros" in dev.EXTRAS.split(",")
+    text = (ROOT / "deploy" / "INSTALL.md").read_text()
+    section = text[text.index("## ROS 2"):]
+    section = section[: section.index("\n## ", 5)]
+    assert "./dev` already installs the `ros` extra" in section
+    allowed = section.replace("`.venv/bin/pip install '.[ros]'` there", "")  # the warning names it
+    commands = re.findall(r"(\S*pip (?:install|wheel) [^`\n#]*)", allowed)
+    assert len(commands) >= 3
+    for command in commands:
+        words = shlex.split(command.replace('"', "").replace("$SRC", "SRC"))
+        into_opt = words[0].startswith("/opt/handover/")
+        assert into_opt or "-e" in words or words[1] == "wheel", f"{command!r} would replace an editable checkout by a copy"

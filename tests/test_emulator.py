@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import re
 
 import numpy as np
@@ -207,3 +209,111 @@ def test_fault_spec_parses():
     assert plan.disconnect_after == 300 and plan.boot_query and plan.any
     assert not FaultPlan.parse("").any
     assert FaultPlan.parse("boot=on").boot_query and not FaultPlan.parse("boot=off").any
+
+
+# -- fidelity to the real controller: clock, pacing, power cycle ------------------------------------
+
+
+def _frames(emu, parser=None) -> list[tuple[int, np.ndarray]]:
+    parser = parser or StreamParser(486)
+    return [decode_frame_payload(p.payload, 486) for p in parser.feed(emu.read(1 << 20)) if p.packet_id == 0]
+
+
+def test_the_device_clock_runs_while_nothing_is_sent(rec):
+    """Acquisition paused 3 s: the next frame's timestamp is about 3 s later, and it is the frame the
+    sensor sees then, not the one after the last sent; single frames asked 0.55 s apart are that far apart."""
+    emu, clock = make(rec, speed=1.0, start_ms=5000)
+    _ack, first = ask(emu, requests.push_request())
+    assert decode_frame_payload(first.payload, 486)[0] == 5000  # the clock's start value
+    clock.t += 0.2
+    before = _frames(emu)
+    ask(emu, requests.stop_request())
+    clock.t += 3.0
+    ask(emu, requests.push_request())
+    clock.t += 0.05
+    after = _frames(emu)
+    gap = after[0][0] - before[-1][0]
+    assert 2900 <= gap <= 3100, gap
+    stamps = []
+    ask(emu, requests.stop_request())
+    for _ in range(3):
+        clock.t += 0.5
+        emu.feed(requests.single_frame_request())
+        clock.t += 0.05
+        stamps += [ts for ts, _ in _frames(emu)]
+    assert [b - a for a, b in itertools.pairwise(stamps)] == pytest.approx([550, 550], abs=35)  # asked every 0.55 s
+    i = int(np.searchsorted(rec.timestamps - rec.timestamps[0], (stamps[-1] - 5000) / 1000 - 1e-6))
+    assert np.array_equal(_frame_at(emu, stamps[-1]), rec.frames[i])
+    assert emu.stats.frames_skipped > 50
+
+
+def _frame_at(emu, stamp: int) -> np.ndarray:
+    emu.feed(requests.stop_request())
+    emu.read(1 << 20)
+    rel = np.round((emu.recording.timestamps - emu.recording.timestamps[0]) * 1000).astype(int)
+    return emu.recording.frames[int(np.searchsorted(rel, stamp - emu.start_ms))]
+
+
+def test_raw_frames_are_paced_by_the_line_rate(rec):
+    """115200 baud carries 11520 bytes/s: raw frames (985 bytes) come at about 11.7 per second, each
+    the newest the sensor saw; RLE frames of a quiet pad still come at the sensor's rate."""
+    emu, clock = make(rec, speed=1.0)
+    emu.set_line_rate(115200 / 10)
+    parser = StreamParser(486)
+    ask(emu, requests.push_request(rle=False))
+    got, sent = [], 0
+    for _ in range(2000):  # 2 s in 1 ms steps
+        clock.t += 0.001
+        data = emu.read(1 << 16)
+        sent += len(data)
+        got += [p for p in parser.feed(data) if p.packet_id == 0]
+    assert sent <= 2.0 * 11520 + 200
+    assert 20 <= len(got) <= 24, len(got)
+    stamps = [decode_frame_payload(p.payload, 486)[0] for p in got]
+    assert min(np.diff(stamps)) >= 62  # frames in between went by
+    quiet = dataclasses.replace(rec, frames=np.zeros_like(rec.frames))
+    emu2, clock2 = make(quiet, speed=1.0)
+    emu2.set_line_rate(115200 / 10)
+    ask(emu2, requests.push_request(rle=True))
+    n, parser = 0, StreamParser(486)
+    for _ in range(1000):
+        clock2.t += 0.001
+        n += sum(p.packet_id == 0 for p in parser.feed(emu2.read(1 << 16)))
+    assert n >= 28  # 1 s at 32 Hz: small frames fit the line
+
+
+def test_a_power_cycle_takes_the_boot_time_and_forgets_what_was_not_stored(rec):
+    emu, clock = make(rec, speed=1.0, start_ms=1000)
+    ask(emu, requests.SetThresholdRequest(2, 150).to_packet())
+    ask(emu, requests.SetThresholdRequest(3, 99, persistent=True).to_packet())
+    ask(emu, requests.SetSensitivityRequest(1, 0.25).to_packet())
+    ask(emu, requests.SetSensitivityRequest(4, 0.75, persistent=True).to_packet())
+    ask(emu, requests.push_request())
+    clock.t += 2.0
+    emu.read(1 << 20)
+    emu.power_cycle()
+    parser = StreamParser(486)
+    answered_at, query_at = None, None
+    for step in range(100):  # 10 s in 0.1 s steps, asking for the controller info each step
+        clock.t += 0.1
+        emu.feed(requests.query_controller_info_request())
+        packets = parser.feed(emu.read(1 << 16))
+        if parser.stats.boot_queries and query_at is None:
+            query_at = (step + 1) * 0.1
+        if packets and answered_at is None:
+            answered_at = (step + 1) * 0.1
+    assert query_at == pytest.approx(7.0, abs=0.15) and answered_at == pytest.approx(8.0, abs=0.15)
+    assert not emu.pushing and emu.stats.power_cycles == 1
+
+    def threshold(m):
+        return replies.ThresholdReply.decode(ask(emu, requests.get_threshold_request(m))[0].payload).threshold
+
+    def sensitivity(m):
+        return replies.SensitivityReply.decode(ask(emu, requests.get_sensitivity_request(m))[0].payload).cur_sens
+
+    assert (threshold(2), threshold(3)) == (0, 99)
+    assert sensitivity(1) == pytest.approx(0.5) and sensitivity(4) == pytest.approx(0.75)
+    ask(emu, requests.push_request())
+    clock.t += 0.05
+    (ts, _), *_ = _frames(emu)
+    assert 1000 + 10000 - 100 <= ts <= 1000 + 10000 + 100  # the clock restarted at power-on, 10 s ago

@@ -14,6 +14,7 @@ from firmware_io.client import DSAClient
 from firmware_io.emulator.device import DeviceEmulator, FaultPlan
 from firmware_io.emulator.frame_source import load_source
 from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+from firmware_io.wire.errors import DSAError
 
 QUICK = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet": 0.05}
 
@@ -39,9 +40,43 @@ def test_single_frames_come_at_the_sensors_rate():
     assert all(b > a for a, b in itertools.pairwise(stamps))
 
 
-def test_disconnect_over_the_pty_ends_push_mode_and_loses_data():
+def test_a_power_cycle_over_the_pty_ends_push_mode_and_the_controller_boots_before_answering():
+    """``disconnect`` on a pty is a power cycle: push mode ends, the controller is deaf while it
+    boots (here 3 s, ESC[5n at 2.5 s), then answers a new open and start."""
     rec = _recording()
-    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=40))
+    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=40), boot_s=3.0, boot_query_s=2.5)
+    try:
+        server = PtyEmulatorServer(emulator).start()
+    except EmulatorServerError as exc:
+        pytest.skip(f"no pseudo-terminal here: {exc}")
+    try:
+        client = DSAClient(server.url, auto_reconnect=False, restart_stalled_s=None, **QUICK)
+        client.open()
+        client.start()
+        frames = 0
+        while client.read_frame(timeout=0.5) is not None:
+            frames += 1
+            assert frames < 500, "frames keep coming after the unplug"
+        assert frames <= 40 and not emulator.pushing and emulator.booting
+        with pytest.raises(DSAError):
+            client.open()  # nobody answers while it boots
+        while emulator.booting:
+            time.sleep(0.05)
+        client.open()
+        client.start()
+        assert client.read_frame(timeout=1.0) is not None
+        assert client.stats["boot_queries"] >= 1
+        client.close()
+    finally:
+        server.stop()
+    assert emulator.stats.disconnects >= 1 and emulator.stats.power_cycles >= 1
+
+
+def test_the_reader_restarts_acquisition_after_a_power_cycle_over_the_pty():
+    """The reader alone (as handover dump uses it) keeps reading across two power cycles: after
+    the boot query it sends the push start again, and frames resume."""
+    rec = _recording()
+    emulator = DeviceEmulator(rec, speed=4.0, faults=FaultPlan(disconnect_after=60), boot_s=1.5, boot_query_s=1.2)
     try:
         server = PtyEmulatorServer(emulator).start()
     except EmulatorServerError as exc:
@@ -50,27 +85,26 @@ def test_disconnect_over_the_pty_ends_push_mode_and_loses_data():
         client = DSAClient(server.url, auto_reconnect=False, **QUICK)
         client.open()
         client.start()
-        frames = 0
-        while client.read_frame(timeout=1.0) is not None:
-            frames += 1
-            assert frames < 500, "frames keep coming after the unplug"
-        assert frames <= 40 and not emulator.pushing
-        # the host notices (a stall) and starts again: frames come back
-        client.open()
-        client.start()
-        assert client.read_frame(timeout=1.0) is not None
+        frames, stamps = 0, []
+        deadline = time.monotonic() + 30
+        while emulator.stats.power_cycles < 2 or frames < 150:
+            assert time.monotonic() < deadline, f"{frames} frames, {emulator.stats.power_cycles} power cycles"
+            frame = client.read_frame(timeout=0.5)
+            if frame is not None:
+                frames += 1
+                stamps.append(frame.timestamp_ms)
+        assert client.stats["restarts"] >= 2
         client.close()
     finally:
         server.stop()
-    assert emulator.stats.disconnects >= 1
 
 
 def test_the_replayed_files_sensor_serial_number_is_served():
-    rec = _recording(dsa_serial_nr="4711", dsa_hw_revision="2")
+    rec = _recording(dsa_serial_nr="1D9B0057", dsa_hw_revision="2")  # hex without 0x, as DSA-Konqueror writes it
     server = TcpEmulatorServer(DeviceEmulator(rec, speed=None, serial_no=99)).start()
     try:
         with DSAClient(server.url, **QUICK) as client:
-            assert client.sensor.serial_no == 4711 and client.sensor.hw_revision == 2
+            assert client.sensor.serial_no == 0x1D9B0057 and client.sensor.hw_revision == 2
             assert client.controller.serial_no == 99
     finally:
         server.stop()
@@ -79,3 +113,20 @@ def test_the_replayed_files_sensor_serial_number_is_served():
 def test_a_recorded_sessions_sensor_serial_number_is_served():
     rec = _recording(sessions=[{"controller": {"serial_no": 5, "sensor_serial_no": 31337}}])
     assert DeviceEmulator(rec).sensor.serial_no == 31337
+
+
+def test_a_real_dsa_files_sensor_serial_is_what_the_client_reads():
+    """A real DSA-Konqueror file replayed: its ``<serial_nr>`` is hex without 0x (1D9B0057)."""
+    from tests.conftest import real_data_dir
+
+    path = real_data_dir() / "kiechle/pressure_profiles/frequency_analysis/sliptest_highspeed_xmasball.dsa"
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    rec = load_source(path)
+    assert rec.meta["dsa_serial_nr"] == "1D9B0057"
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=None)).start()
+    try:
+        with DSAClient(server.url, **QUICK) as client:
+            assert client.sensor.serial_no == 0x1D9B0057
+    finally:
+        server.stop()

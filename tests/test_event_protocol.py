@@ -100,3 +100,16 @@ def test_a_bad_line_is_refused_by_the_schema(lines):
                    {**decision, "model_id": "not-hex"}, {**decision, "type": "model"}):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate(broken, SCHEMA)
+
+
+def test_a_line_of_a_type_not_defined_yet_validates_as_the_protocol_says():
+    """Listeners skip types they do not know (docs/EVENTS.md), so the schema must not refuse them;
+    known types are still held to their definition, and type and protocol stay required."""
+    jsonschema = pytest.importorskip("jsonschema")
+    jsonschema.Draft202012Validator.check_schema(SCHEMA)
+    jsonschema.validate({"type": "heartbeat", "protocol": 1}, SCHEMA)
+    jsonschema.validate({"type": "heartbeat", "protocol": 1, "uptime_s": 12.5}, SCHEMA)
+    for refused in ({"type": "decision", "protocol": 1}, {"type": "model", "protocol": 1, "model_id": "x"},
+                    {"protocol": 1}, {"type": "heartbeat"}, {"type": 3, "protocol": 1}):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(refused, SCHEMA)

@@ -133,10 +133,6 @@ def drop_model(model: Path, folder: Path) -> Path:
     return final
 
 
-def _frame_index(rel_ms: np.ndarray, device_ms: int, start_ms: int) -> int:
-    return int(np.searchsorted(rel_ms, device_ms - start_ms, side="left"))
-
-
 def main(args: argparse.Namespace) -> int:
     from firmware_io.commands.playback import playback_options
 
@@ -213,19 +209,20 @@ class EventLog:
     """The daemon's events as they happen: each matched to the scripted event it answers, printed."""
 
     def __init__(self, args: argparse.Namespace, session, script, emulator) -> None:
+        from firmware_io.emulator.script_file import session_script
         from trainer.streams_eval import Decision
 
         self.decision_of = Decision
+        self.clock = session_script(session, emulator.start_ms)  # device time -> frame, as handover score maps it
         self.args, self.script, self.emulator = args, script, emulator
         self.trials = session.trials
         self.firsts = np.array([t.first for t in self.trials])
-        self.rel_ms = np.round((session.timestamps - session.timestamps[0]) * 1000.0).astype(np.int64)
         self.decisions: list = []
         self.answered: set[int] = set()
 
     def on_event(self, event) -> None:
         args, trials = self.args, self.trials
-        idx = _frame_index(self.rel_ms, event.device_time_ms, self.emulator.start_ms)
+        _, idx = self.clock.frame_of(event.device_time_ms)
         self.decisions.append(self.decision_of(idx, event.cls, event.latency_us))
         k = int(np.searchsorted(self.firsts, idx, side="right")) - 1
         if k < 0 or idx > trials[k].last:
@@ -239,6 +236,7 @@ class EventLog:
 
 
 def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
+    from trainer.session_score import outcome_summary
     from trainer.streams_eval import session_outcomes
 
     h = daemon.health
@@ -248,18 +246,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
         "synthetic": True,
         "setting": setting_of(args),
         "trigger": daemon.trigger_settings.name if daemon.trigger_settings else None,
-        "events_expected": o["expected"],
-        "events_detected": o["detected"],
-        "events_correct": o["correct"],
-        "events_missed": o["missed"],
-        "false_events": o["outside"],
-        "repeat_events": o["repeats"],
-        "missed_events": o["missed_events"],
-        "wrong_events": o["wrong_events"],
-        "per_class_precision": {c: v["precision"] for c, v in o["per_class"].items()},
-        "per_class_recall": {c: v["recall"] for c, v in o["per_class"].items()},
-        "per_class_correct": {c: f"{v['correct']}/{v['n']}" for c, v in o["per_class"].items() if v["n"]},
-        "report_minus_onset_frames": o["report_minus_onset_frames"],
+        **outcome_summary(o),
         "decisions": int(h.decisions),
         "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None,
         "latency_p99_us": float(np.percentile(lat, 99)) if lat.size else None,
@@ -274,24 +261,15 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
 
 
 def _print_summary(s: dict) -> None:
+    from trainer.session_score import summary_lines
+
     def us(v: float | None) -> str:
         return "-" if v is None else f"{v:.0f} us"
 
     print()
     print("summary (synthetic session, unseen simulated subjects)")
-    print(f"  events: {s['events_expected']} scripted, {s['events_detected']} detected, "
-          f"{s['events_correct']} correct ({s['events_correct'] / max(1, s['events_expected']):.0%}), "
-          f"{s['events_missed']} missed, {s['false_events']} outside any scripted event")
-    print(f"  per class correct: {s['per_class_correct']}")
-    pr = [f"{c} {_share(p)} / {_share(s['per_class_recall'][c])}" for c, p in s["per_class_precision"].items()]
-    print(f"  per class precision / recall: {', '.join(pr)}")
-    print("  missed: " + (", ".join(f"#{e['event']} {e['action']} (onset frame {e['onset']})"
-                                    for e in s["missed_events"]) or "none"))
-    print("  wrong: " + (", ".join(f"#{e['event']} {e['action']} reported as {e['reported']} at frame {e['frame']} "
-                                   f"(onset {e['onset']})" for e in s["wrong_events"]) or "none"))
-    if s["report_minus_onset_frames"]:
-        print(f"  onset to report: median {s['report_minus_onset_frames']['median']:.0f} frames "
-              f"(stream setting: {s['setting']})")
+    for line in summary_lines(s, s["setting"]):
+        print(line)
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
           f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
           f"missed deadlines {s['missed_deadlines']}")
@@ -302,6 +280,3 @@ def _print_summary(s: dict) -> None:
     print(f"  total {s['seconds']:.0f} s")
     print(f"  model: {s['model']} (the README's \"daemon without a hand\" serves it; handover inspect {s['model']})")
 
-
-def _share(x: float | None) -> str:
-    return "-" if x is None else f"{x:.0%}"

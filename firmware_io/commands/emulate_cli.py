@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import time
 
 from firmware_io.commands.errors import fail
@@ -31,6 +32,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--old-firmware", action="store_true", help="behave like firmware <= R288 (single frame pushes)")
     parser.add_argument("--no-loop", action="store_true", help="stop sending at the end of the recording")
     parser.add_argument("--duration", type=float, default=None, help="exit after this many seconds (default: Ctrl-C)")
+    parser.add_argument("--clock-start", type=int, default=0, metavar="MS",
+                        help="the device clock's value at power-on, in ms (0..4294967295; it wraps there)")
+    parser.add_argument("--boot-seconds", type=float, default=None, metavar="S",
+                        help="how long a power cycle (--fault disconnect=N on --pty) keeps the controller silent; "
+                             "ESC[5n comes 1 s before it ends (default 8, as the real one)")
+    parser.add_argument("--script-out", metavar="FILE",
+                        help="write the session's scripted events (onset frame, action, subject, frame span) and "
+                             "its device times, for handover score EVENTS.jsonl FILE")
 
 
 def _interrupt(*_: object) -> None:
@@ -54,13 +63,31 @@ def main(args: argparse.Namespace) -> int:
                     "leave it out to serve until Ctrl-C")
     if not 1 <= args.events <= MAX_EVENTS:
         return fail(COMMAND, f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
+    if not 0 <= args.clock_start < 2**32:
+        return fail(COMMAND, f"--clock-start must be in 0..4294967295 ms, got {args.clock_start}")
+    boot = {}
+    if args.boot_seconds is not None:
+        if not 0 <= args.boot_seconds <= 600:  # also NaN
+            return fail(COMMAND, f"--boot-seconds must be within 0..600, got {args.boot_seconds}")
+        boot = {"boot_s": args.boot_seconds, "boot_query_s": max(0.0, args.boot_seconds - 1.0)}
     try:
         recording = load_source(args.source, seed=args.seed, events=args.events)
     except RecordingError as exc:
         return fail(COMMAND, str(exc))
     emulator = DeviceEmulator(
-        recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed
+        recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed,
+        start_ms=args.clock_start, **boot,
     )
+    if args.script_out:
+        from firmware_io.emulator.script_file import write_script
+
+        try:
+            n = write_script(args.script_out, recording, args.clock_start, loop=not args.no_loop, source=str(args.source))
+        except OSError as exc:
+            return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
+        if n == 0:
+            print(f"handover emulate: warning: {args.source} has no scripted events; {args.script_out} holds none",
+                  file=sys.stderr, flush=True)
     try:
         if args.pty:
             server = PtyEmulatorServer(emulator)
@@ -86,7 +113,8 @@ def main(args: argparse.Namespace) -> int:
     print(
         f"emulated DSACON32m: {what}{synthetic}, {recording.n_frames} frames, {recording.layout.n_matrices} pads, "
         f"{recording.layout.n_taxels} taxels, {rate:.1f} Hz, speed {args.speed}"
-        + (f", faults {args.fault}" if faults.any else ""),
+        + (f", faults {args.fault}" if faults.any else "")
+        + (f"; script in {args.script_out}" if args.script_out else ""),
         flush=True,
     )
     server.start()

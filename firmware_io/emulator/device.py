@@ -18,8 +18,20 @@ Behaviour (see ``../shared/reference/dsacon32m-protocol.md``):
 - Old-firmware mode: a single-frame request starts push mode (firmware <= R288).
 - Frames carry the recording's values unchanged (thresholds and sensitivity are stored and
   reported, not applied), so a client's frames can be compared bit for bit with the source.
-  Device time is the recording's time in ms from its first frame plus ``start_ms``, wrapping
-  at 2**32; the recording repeats when ``loop`` is set.
+- The recording is the world the sensor looks at: it plays from the emulator's creation on,
+  whether or not the host acquires (frames not asked for go by unseen; a single frame is the one
+  the sensor sees when asked), and repeats when ``loop`` is set. The device clock runs from
+  power-on at the same pace, starting at ``start_ms`` and wrapping at 2**32; a frame's
+  timestamp is the clock when it was acquired. Until a power cycle or a stall fault, that is the
+  recording's own time from its first frame plus ``start_ms``. At ``speed=None`` (as fast as
+  possible) nothing goes by: frames follow each other and carry the recording's times.
+- A line rate (``set_line_rate``; the pseudo-terminal server passes the baud rate the host set)
+  lets bytes out no faster than the line carries them, and in push mode the controller sends
+  the newest frame once the previous one is out (raw frames at 115200 baud: about 11.7 per
+  second), as the real one does. Not applied at ``speed=None``.
+- ``power_cycle``: the controller is silent and deaf for ``boot_s`` (about 8 s on the real one),
+  sends the terminal query ESC[5n at ``boot_query_s``, restarts its clock, forgets push mode and
+  the settings that were not stored persistently.
 - Host packets with a bad CRC are dropped silently (what the real firmware does is not known).
 """
 
@@ -45,6 +57,12 @@ NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
 OLD_FIRMWARE = 288  # R288: a single-frame request starts push mode
 FACTORY_SENSITIVITY = 0.5
 MAX_COMMAND_PAYLOAD = 64
+BOOT_S = 8.0
+"""A power-cycled DSACON32m answers again after about this long."""
+BOOT_QUERY_S = 7.0
+"""... and sends its terminal query ESC[5n about this long after power-on."""
+LINE_BURST_S = 0.005
+"""Bytes a paced line may owe and then send at once (a UART's FIFO, a scheduler's slice)."""
 
 
 class HostCommandParser(StreamParser):
@@ -152,6 +170,8 @@ class EmulatorStats:
     bytes_dropped: int = 0
     stalls: int = 0
     disconnects: int = 0
+    power_cycles: int = 0
+    frames_skipped: int = 0
     boot_queries: int = 0
     connections: int = 0
     by_command: dict[int, int] = field(default_factory=dict)
@@ -177,6 +197,8 @@ class DeviceEmulator:
         start_ms: int = 0,
         serial_no: int = 12345,
         clock: Callable[[], float] = time.monotonic,
+        boot_s: float = BOOT_S,
+        boot_query_s: float = BOOT_QUERY_S,
     ) -> None:
         if recording.n_frames == 0:
             raise ValueError("the emulator needs a recording with at least one frame")
@@ -190,6 +212,9 @@ class DeviceEmulator:
         self.faults = faults or FaultPlan()
         self.start_ms = int(start_ms)
         self.clock = clock
+        if not 0 <= boot_query_s <= boot_s:
+            raise ValueError(f"boot_query_s must be within 0..boot_s, got {boot_query_s} of {boot_s}")
+        self.boot_s, self.boot_query_s = float(boot_s), float(boot_query_s)
         self.stats = EmulatorStats()
         self._rng = np.random.default_rng(seed)
         self._parser = HostCommandParser()
@@ -197,6 +222,8 @@ class DeviceEmulator:
         n = self.layout.n_matrices
         self._thresholds = [0] * n
         self._sensitivity = [FACTORY_SENSITIVITY] * n
+        self._stored_thresholds = [0] * n  # what a power cycle returns to (persistent writes)
+        self._stored_sensitivity = [FACTORY_SENSITIVITY] * n
         self.controller = replies.ControllerInfo(
             serial_no=serial_no, hw_version=1, sw_version=OLD_FIRMWARE if old_firmware else NEW_FIRMWARE
         )
@@ -209,7 +236,14 @@ class DeviceEmulator:
         self._next = 0  # frame sequence number across loops
         self._pushing = False
         self._rle = True
-        self._origin = 0.0  # wall time at which frame sequence 0 would be due
+        created = self.clock()
+        self._origin = created  # wall time at which frame sequence 0 is due (the world started)
+        self._power_on = created  # wall time of the last power-on: the device clock's zero
+        self._booting_until = 0.0
+        self._boot_query_at: float | None = None
+        self._line_bps: float | None = None  # bytes per second the line carries; None: unlimited
+        self._line_t = created
+        self._line_credit = 0.0
         self._stall_until = 0.0
         self._frames_this_connection = 0
         self.disconnected = False
@@ -229,16 +263,45 @@ class DeviceEmulator:
             self._out += BOOT_TERMINAL_QUERY * 3
             self.stats.boot_queries += 1
 
-    def power_cycle(self) -> None:
-        """What an unplugged and replugged controller does: the bytes in flight are lost, push
-        mode ends (the host must start it again), the boot query comes back if enabled."""
+    def power_cycle(self, now: float | None = None) -> None:
+        """What an unplugged and replugged controller does: the bytes in flight are lost, it is
+        silent and ignores commands for ``boot_s``, sends ESC[5n at ``boot_query_s``, and comes back
+        with its clock restarted, push mode off and only the persistently stored settings."""
+        now = self.clock() if now is None else now
         self.connect()
+        self.stats.power_cycles += 1
         self._pushing = False
         self._single_at = None
+        self._power_on = now
+        self._booting_until = now + self.boot_s
+        self._boot_query_at = now + self.boot_query_s
+        self._sensitivity = list(self._stored_sensitivity)
+        self._thresholds = list(self._stored_thresholds)
+
+    @property
+    def booting(self) -> bool:
+        return self.clock() < self._booting_until
+
+    def device_ms(self, now: float | None = None) -> int:
+        """The device clock: ms since power-on plus ``start_ms`` (device time runs ``speed`` times
+        the wall clock), wrapping at 2**32."""
+        now = self.clock() if now is None else now
+        pace = 1.0 if self.speed is None else self.speed
+        return (self.start_ms + round((now - self._power_on) * pace * 1000.0)) % 2**32
+
+    def set_line_rate(self, bytes_per_s: float | None) -> None:
+        """The line's capacity (a serial line at B baud, 8N1: B / 10 bytes per second); None: unlimited."""
+        self._line_bps = bytes_per_s if bytes_per_s and bytes_per_s > 0 else None
+
+    def _paced(self) -> bool:
+        return self._line_bps is not None and self.speed is not None
 
     def feed(self, data: bytes, now: float | None = None) -> None:
-        """Bytes the host wrote: every complete command is answered into the output queue."""
+        """Bytes the host wrote: every complete command is answered into the output queue (a
+        booting controller hears nothing)."""
         now = self.clock() if now is None else now
+        if now < self._booting_until:
+            return
         for packet in self._parser.feed(bytes(data)):
             self._handle(packet.packet_id, bytes(packet.payload), now)
 
@@ -247,11 +310,28 @@ class DeviceEmulator:
         now = self.clock() if now is None else now
         if self.disconnected or now < self._stall_until:
             return b""
+        if self._boot_query_at is not None and now >= self._boot_query_at:
+            self._boot_query_at = None
+            self._out += BOOT_TERMINAL_QUERY
+            self.stats.boot_queries += 1
+        if now < self._booting_until:
+            return self._take(max_bytes, now)
         self._produce(now, max_bytes)
         if now < self._stall_until and not self._out:
             return b""
+        return self._take(max_bytes, now)
+
+    def _take(self, max_bytes: int, now: float) -> bytes:
+        """Up to ``max_bytes`` of the output queue, no more than the line has carried since."""
+        if self._paced():
+            burst = max(64.0, self._line_bps * LINE_BURST_S)
+            self._line_credit = min(burst, self._line_credit + (now - self._line_t) * self._line_bps)
+            self._line_t = now
+            max_bytes = min(max_bytes, int(self._line_credit))
         out = bytes(self._out[:max_bytes])
         del self._out[:max_bytes]
+        if self._paced():
+            self._line_credit -= len(out)
         return out
 
     def seconds_until_output(self, now: float | None = None) -> float | None:
@@ -261,8 +341,14 @@ class DeviceEmulator:
             return None
         if now < self._stall_until:
             return self._stall_until - now
+        if self._boot_query_at is not None:
+            return max(0.0, self._boot_query_at - now)
         if self._out:
+            if self._paced() and self._line_credit < 1.0:
+                return min(LINE_BURST_S, (1.0 - self._line_credit) / self._line_bps)
             return 0.0
+        if now < self._booting_until:
+            return None
         if self._single_at is not None:
             return max(0.0, self._single_at - now)
         if not self._pushing or self.finished:
@@ -291,30 +377,60 @@ class DeviceEmulator:
     def _exhausted(self) -> bool:
         return not self.loop and self._next >= self.recording.n_frames
 
+    def _seq_at(self, t: float) -> int:
+        """The frame the sensor sees at wall time ``t``: the newest one due by then (0 before the first)."""
+        if self.speed is None:
+            return self._next
+        elapsed = max(0.0, (t - self._origin) * self.speed)
+        loops, within = divmod(elapsed, self._loop_period)
+        i = int(np.searchsorted(self._rel_s, within, side="right")) - 1
+        return int(loops) * self.recording.n_frames + max(i, 0)
+
+    def _skip_to(self, seq: int) -> None:
+        """Frames before ``seq`` went by while nobody asked for them."""
+        if seq > self._next:
+            self.stats.frames_skipped += seq - self._next
+            self._next = seq
+
     def _produce(self, now: float, budget: int) -> None:
         if self._single_at is not None and now >= self._single_at and now >= self._stall_until:
             self._single_at, self._last_single = None, now
+            if self.speed is not None:
+                self._skip_to(self._seq_at(now))
             if not self._exhausted():
                 self._emit_frame(now)
         while self._pushing and len(self._out) < budget and not self._exhausted():
             if now < self._stall_until or self.disconnected or self._due(self._next) > now:
                 return
+            if self._paced():
+                if self._out:
+                    return  # the previous frame is still on the line
+                self._skip_to(self._seq_at(now))  # the newest frame, once the line is free
+                if self._exhausted():
+                    return
             self._emit_frame(now)
 
     def _emit_frame(self, now: float) -> None:
         seq = self._next
         self._next += 1
         loops, i = divmod(seq, self.recording.n_frames)
-        stamp = self.start_ms + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
+        stamp = self._clock_offset_ms() + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
         values = self.recording.frames[i]
         rle = self._rle and int(values.max(initial=0)) <= MAX_TEXEL_VALUE
-        packet = bytearray(encode_frame(values, stamp, rle=rle))
+        packet = bytearray(encode_frame(values, stamp % 2**32, rle=rle))
         self._inject(packet, now)
         self.stats.frames_sent += 1
         self._frames_this_connection += 1
         if self.faults.disconnect_after and self._frames_this_connection >= self.faults.disconnect_after:
             self.disconnected = True
             self.stats.disconnects += 1
+
+    def _clock_offset_ms(self) -> int:
+        """The device clock at the moment the world's frame 0 was due (``start_ms`` until a power cycle
+        or a stall shifts one against the other)."""
+        if self.speed is None:
+            return self.start_ms
+        return self.start_ms + round((self._origin - self._power_on) * self.speed * 1000.0)
 
     def _inject(self, packet: bytearray, now: float) -> None:
         f, rng = self.faults, self._rng
@@ -397,7 +513,10 @@ class DeviceEmulator:
         elif mode == "push":
             if not self._pushing:
                 self._pushing = True
-                self._origin = now if self.speed is None else now - self._seq_time(self._next) / self.speed
+                if self.speed is None:
+                    self._origin = now
+                else:  # the first frame sent is the one the sensor sees now
+                    self._skip_to(self._seq_at(now))
         elif not self._exhausted():  # single frame: the next one the sensor acquires, not at once
             self._pushing = False
             self._single_at = max(now, self._last_single + self._frame_period())
@@ -420,6 +539,8 @@ class DeviceEmulator:
             return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
         for m in targets:
             self._sensitivity[m] = FACTORY_SENSITIVITY if req.factory_reset else float(req.sensitivity)
+            if req.persistent:
+                self._stored_sensitivity[m] = self._sensitivity[m]
         return b"" if payload[0] & FLAG_PERSISTENT else encode_ack(pid)
 
     def _on_get_sensitivity(self, payload: bytes, now: float) -> bytes:
@@ -438,6 +559,8 @@ class DeviceEmulator:
         targets = range(self.layout.n_matrices) if req.all_matrices else [req.matrix]
         for m in targets:
             self._thresholds[m] = 0 if req.factory_reset else int(req.threshold)
+            if req.persistent:
+                self._stored_thresholds[m] = self._thresholds[m]
         return b"" if req.persistent else encode_ack(pid)
 
     def _on_get_threshold(self, payload: bytes, now: float) -> bytes:
@@ -472,17 +595,19 @@ _MIN_SIZE = {
 
 def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> replies.SensorInfo:
     """The sensor a recording was made with (serial number, generator, hardware revision), as
-    DSA-Konqueror files and ``handover record`` sessions store them; defaults where absent."""
+    DSA-Konqueror files (serial in hex) and ``handover record`` sessions (an int) store them;
+    defaults where absent."""
     fields = {"serial_no": default_serial, "generated_by": replies.SensorInfo.generated_by, "hw_revision": replies.SensorInfo.hw_revision}
     sessions = meta.get("sessions") or []
     controller = (sessions[-1].get("controller") or {}) if sessions and isinstance(sessions[-1], dict) else {}
-    candidates = {"serial_no": (meta.get("dsa_serial_nr"), meta.get("sensor_serial_no"), controller.get("sensor_serial_no")),
-                  "generated_by": (meta.get("dsa_generated_by"),), "hw_revision": (meta.get("dsa_hw_revision"),)}
+    candidates = {"serial_no": ((meta.get("dsa_serial_nr"), 16), (meta.get("sensor_serial_no"), 0),
+                                (controller.get("sensor_serial_no"), 0)),
+                  "generated_by": ((meta.get("dsa_generated_by"), 0),), "hw_revision": ((meta.get("dsa_hw_revision"), 0),)}
     limits = {"serial_no": 0xFFFFFFFF, "generated_by": 0xFFFF, "hw_revision": 0xFF}
     for key, values in candidates.items():
-        for value in values:
-            try:
-                number = int(str(value).strip(), 0)
+        for value, base in values:
+            try:  # DSA-Konqueror writes <serial_nr> in hex without 0x (1D9B0057); the rest in decimal
+                number = value if isinstance(value, int) else int(str(value).strip(), base)
             except (TypeError, ValueError):
                 continue
             if 0 <= number <= limits[key]:

@@ -15,6 +15,7 @@ import logging
 import os
 import select
 import socket
+import termios
 import threading
 import time
 import tty
@@ -22,6 +23,8 @@ import tty
 from firmware_io.emulator.device import DeviceEmulator
 
 POLL_S = 0.05  # longest wait before the loop looks at the stop flag again
+BAUD_CHECK_S = 0.1
+"""How often the pty server reads the baud rate the host set."""
 CHUNK = 65536
 REFUSAL_NOTE_S = 10.0
 """Refused connections are logged at most once per this long (a retrying host is refused again and again)."""
@@ -215,10 +218,13 @@ class TcpEmulatorServer(_ServerBase):
 class PtyEmulatorServer(_ServerBase):
     """The emulator behind a pseudo-terminal; ``path`` is what a client opens (``/dev/pts/N``).
 
-    A pty cannot be unplugged, so the ``disconnect`` fault acts as a controller power cycle, as
-    pulling a USB-serial adapter's cable would: the bytes in flight are lost, push mode ends (no
-    frame comes until the host starts it again: the host sees a stall) and the boot query (when
-    enabled) is sent again.
+    A pty cannot be unplugged, so the ``disconnect`` fault acts as a controller power cycle
+    (``DeviceEmulator.power_cycle``): the bytes in flight are lost, the controller is silent while
+    it boots (ESC[5n near the end), push mode ends (no frame comes until the host starts it again:
+    the host sees a stall) and settings not stored persistently are lost.
+
+    Bytes go out at the baud rate the host set on its end (8N1: baud / 10 bytes per second), as a
+    serial line carries them; a pty itself would pass them at memory speed.
     """
 
     def __init__(self, emulator: DeviceEmulator) -> None:
@@ -231,7 +237,25 @@ class PtyEmulatorServer(_ServerBase):
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
         self._pending = b""
+        self.baud: int | None = None
+        """The baud rate the host set on the line (None until read)."""
+        self._baud_checked = 0.0
         self.emulator.connect()
+
+    def _follow_baud(self) -> None:
+        """The host's baud rate, read from the terminal settings both ends share (a few times a second)."""
+        now = time.monotonic()
+        if now - self._baud_checked < BAUD_CHECK_S:
+            return
+        self._baud_checked = now
+        try:
+            speed = termios.tcgetattr(self._slave)[5]  # ospeed: the termios constant, e.g. B115200
+        except (termios.error, OSError):
+            return
+        baud = _BAUDS.get(speed)
+        if baud != self.baud:
+            self.baud = baud
+            self.emulator.set_line_rate(baud / 10.0 if baud else None)
 
     @property
     def url(self) -> str:
@@ -239,6 +263,7 @@ class PtyEmulatorServer(_ServerBase):
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            self._follow_baud()
             wlist = [self._master] if self._pending else []
             readable, _writable, _ = select.select([self._master], wlist, [], self._wait_time())
             if readable:
@@ -270,3 +295,9 @@ class PtyEmulatorServer(_ServerBase):
             with contextlib.suppress(OSError):
                 os.close(fd)
         self._master = self._slave = -1
+
+
+_BAUDS = {getattr(termios, f"B{b}"): b for b in (
+    300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+    1000000, 1152000, 1500000, 2000000, 3000000, 4000000) if hasattr(termios, f"B{b}")}
+"""termios speed constants -> baud."""

@@ -1,0 +1,103 @@
+"""The ground truth of an emulated session, as a file: what the person did, and when on the device clock.
+
+``handover emulate --script-out FILE`` writes it; ``handover score EVENTS SCRIPT`` reads it to
+score a captured event stream. JSON lines: a header (``type: "script"``) with each frame's time
+in ms from the first (device time = ``clock_start_ms`` + that, plus one ``loop_ms`` per pass
+when the session repeats), then one ``type: "scripted"`` line per event: the frame span the
+event can be answered in (``first_frame`` .. ``last_frame``, the object placed .. taken away),
+its ``onset_frame``, the ``action`` and who did it (``subject``, ``object``, ``pose``).
+
+The device clock matches the recording's own time until the controller is power-cycled or a
+stall fault shifts the two (the emulator's ``disconnect`` and ``stall`` faults): score a
+session served without those.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from firmware_io.recordings.recording import Recording, Trial
+
+SCRIPT_VERSION = 1
+
+
+class ScriptFileError(ValueError):
+    """A script file that cannot be read (one line naming the file and the problem)."""
+
+
+@dataclass(frozen=True)
+class SessionScript:
+    """A scripted session: its trials and how device time maps to its frames."""
+
+    trials: list[Trial]
+    frame_ms: np.ndarray
+    clock_start_ms: int
+    loop_ms: int | None
+    synthetic: bool
+
+    def frame_of(self, device_time_ms: int) -> tuple[int, int]:
+        """(pass, frame) of the frame stamped ``device_time_ms``: the first frame at or after it
+        (a stamp between two recorded times belongs to the later one)."""
+        t = int(device_time_ms) - self.clock_start_ms
+        loop = 0
+        if self.loop_ms:
+            loop, t = divmod(t, self.loop_ms)
+        return loop, int(np.searchsorted(self.frame_ms, t, side="left"))
+
+
+def session_script(recording: Recording, clock_start_ms: int = 0, loop: bool = False) -> SessionScript:
+    """The script of ``recording`` served from power-on with the clock starting at ``clock_start_ms``."""
+    ms = np.round((recording.timestamps - recording.timestamps[0]) * 1000.0).astype(np.int64)
+    step = recording.sample_interval()
+    loop_ms = int(ms[-1] + round((step if np.isfinite(step) else 1 / 32) * 1000)) if loop else None
+    return SessionScript(list(recording.trials), ms, int(clock_start_ms), loop_ms,
+                         bool(recording.meta.get("synthetic", False)))
+
+
+def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: int = 0, loop: bool = False,
+                 source: str = "") -> int:
+    """Write the script of ``recording`` to ``path``; returns the number of scripted events."""
+    script = session_script(recording, clock_start_ms, loop)
+    header = {"type": "script", "protocol": SCRIPT_VERSION, "source": source, "synthetic": script.synthetic,
+              "clock_start_ms": script.clock_start_ms, "loop_ms": script.loop_ms, "frames": len(script.frame_ms),
+              "frame_ms": script.frame_ms.tolist()}
+    lines = [json.dumps(header)]
+    for k, t in enumerate(script.trials):
+        lines.append(json.dumps({"type": "scripted", "event": k + 1, "onset_frame": int(t.extra.get("onset", t.first)),
+                                 "action": t.action, "subject": t.subject, "object": t.object, "pose": t.pose,
+                                 "first_frame": t.first, "last_frame": t.last,
+                                 "time_s": t.extra.get("onset_s")}))
+    Path(path).write_text("\n".join(lines) + "\n")
+    return len(script.trials)
+
+
+def read_script(path: str | os.PathLike) -> SessionScript:
+    """The script ``write_script`` wrote; ScriptFileError with one line when it is not one."""
+    p = Path(path)
+    try:
+        rows = [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+    except OSError as exc:
+        raise ScriptFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise ScriptFileError(f"{p}: not JSON lines ({exc}); give the file handover emulate --script-out wrote") from None
+    if not rows or not isinstance(rows[0], dict) or rows[0].get("type") != "script":
+        raise ScriptFileError(f"{p}: no script header; give the file handover emulate --script-out wrote")
+    head = rows[0]
+    if head.get("protocol") != SCRIPT_VERSION:
+        raise ScriptFileError(f"{p}: script version {head.get('protocol')!r}, this handover reads {SCRIPT_VERSION}")
+    try:
+        trials = [Trial(subject=str(r["subject"]), object=str(r["object"]), pose=str(r["pose"]), action=str(r["action"]),
+                        run=int(r["event"]), first=int(r["first_frame"]), last=int(r["last_frame"]),
+                        extra={"onset": int(r["onset_frame"])})
+                  for r in rows[1:] if isinstance(r, dict) and r.get("type") == "scripted"]
+        frame_ms = np.asarray(head["frame_ms"], dtype=np.int64)
+        loop_ms = None if head.get("loop_ms") is None else int(head["loop_ms"])
+        return SessionScript(trials, frame_ms, int(head["clock_start_ms"]), loop_ms, bool(head.get("synthetic")))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ScriptFileError(f"{p}: a script line lacks or garbles {exc}; write it again with handover emulate "
+                              "--script-out") from None

@@ -1,0 +1,143 @@
+"""One daemon per device and per health file: advisory locks the kernel releases when the holder dies.
+
+Two daemons on one device fight over it (each retrying while the other holds it) and two on one
+health file overwrite each other's status every second, so monitoring sees the health flap. The
+daemon therefore takes an exclusive ``flock`` on two lock files before it writes or opens
+anything: one per device (named by the device URL, in the runtime folder) and one beside the
+health file. A second daemon finds a lock held and exits with one line naming the holder's pid;
+a crashed holder leaves no stale lock, because the kernel drops a dead process's locks.
+
+The device lock lives in ``$RUNTIME_DIRECTORY`` (systemd's ``RuntimeDirectory=``, /run/handover),
+else ``$XDG_RUNTIME_DIR/handover``, else a per-user folder in the temp folder: daemons started
+the same way share it. A serial port is also opened exclusively by the transport itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+
+class InstanceLockError(RuntimeError):
+    """A lock is held by another daemon, or cannot be taken (one line saying which and what to do)."""
+
+
+def lock_folder(environ: dict | None = None) -> Path:
+    """Where device locks live (see the module docstring)."""
+    env = os.environ if environ is None else environ
+    if env.get("RUNTIME_DIRECTORY"):
+        return Path(env["RUNTIME_DIRECTORY"].split(":")[0])
+    if env.get("XDG_RUNTIME_DIR"):
+        return Path(env["XDG_RUNTIME_DIR"]) / "handover"
+    return Path(tempfile.gettempdir()) / f"handover-{os.getuid()}"
+
+
+def device_lock_path(url: str, environ: dict | None = None) -> Path:
+    """The lock file of a device URL: the same URL, the same file (query options ignored: they
+    change how the device is read, not which device it is)."""
+    where = url.strip().split("?")[0].rstrip("/")
+    digest = hashlib.sha256(where.encode()).hexdigest()[:16]
+    return lock_folder(environ) / f"device-{digest}.lock"
+
+
+def health_lock_path(health_file: str | os.PathLike) -> Path:
+    p = Path(health_file)
+    return p.with_name(f".{p.name}.lock")
+
+
+@dataclass
+class Held:
+    """A lock this process holds (the open file keeps it)."""
+
+    what: str
+    path: Path
+    fd: int
+
+
+def _holder(path: Path) -> str:
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return "unknown pid"
+    return f"pid {text}" if text.isdigit() else "unknown pid"
+
+
+def _open(path: Path) -> int:
+    path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+    return os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+
+
+def take(what: str, path: Path) -> Held:
+    """Lock ``path`` for this process and write its pid there; InstanceLockError when another holds it."""
+    try:
+        fd = _open(path)
+    except OSError as exc:
+        raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.EWOULDBLOCK, errno.EACCES):
+            raise InstanceLockError(f"{what} is in use by another handover daemon ({_holder(path)}, lock {path}); "
+                                    "stop that one first, or give this one another device and health_file") from None
+        raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}") from None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    return Held(what, path, fd)
+
+
+def held_by_other(what: str, path: Path) -> str | None:
+    """The line saying ``path`` is locked by another process, or None (the lock is not kept)."""
+    if not path.exists():
+        return None
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        return f"{what} is in use by a running handover daemon ({_holder(path)}, lock {path})"
+    finally:
+        os.close(fd)
+    return None
+
+
+IN_PROCESS = ("sim:", "replay:", "subject:")
+"""Devices each daemon emulates inside itself: nothing to share, nothing to lock."""
+
+
+def targets(cfg) -> list[tuple[str, Path]]:
+    """What one daemon of ``cfg`` must have to itself: its device (unless emulated in process), and
+    its health file if it writes one."""
+    out = []
+    if not cfg.device.url.strip().lower().startswith(IN_PROCESS):
+        out.append((f"device {cfg.device.url}", device_lock_path(cfg.device.url)))
+    if cfg.health_file:
+        out.append((f"health_file {cfg.health_file}", health_lock_path(cfg.health_file)))
+    return out
+
+
+def take_all(cfg) -> list[Held]:
+    """Every lock of ``cfg``, or none (InstanceLockError for the first one held elsewhere)."""
+    held: list[Held] = []
+    try:
+        for what, path in targets(cfg):
+            held.append(take(what, path))
+    except InstanceLockError:
+        release(held)
+        raise
+    return held
+
+
+def release(held: list[Held]) -> None:
+    for h in held:
+        with contextlib.suppress(OSError):
+            os.close(h.fd)
+    held.clear()

@@ -1,0 +1,136 @@
+"""One daemon per device and per health file: a second ``handover run`` on the same config exits 2
+within seconds with one line naming the first one's pid, and the first one's health file never
+changes hands. Real processes, real locks (the kernel drops them when the holder dies)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from runtime import instance_lock
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _config(tmp_path: Path, url: str = "sim://?seed=0&events=4", health: str = "status.json") -> Path:
+    models = tmp_path / "models"
+    models.mkdir(exist_ok=True)
+    cfg = tmp_path / f"handover-{health}.toml"
+    cfg.write_text(f'log_level = "info"\nhealth_file = "{tmp_path / health}"\nrealtime_priority = 0\n'
+                   f'[device]\nurl = "{url}"\n[model]\nfolder = "{models}"\npoll_interval_s = 0.2\n'
+                   '[sinks]\nstdout = false\n')
+    return cfg
+
+
+def _env(tmp_path: Path) -> dict:
+    env = dict(os.environ, XDG_RUNTIME_DIR=str(tmp_path / "run"), PYTHONPATH=str(ROOT))
+    env.pop("RUNTIME_DIRECTORY", None)
+    (tmp_path / "run").mkdir(exist_ok=True)
+    return env
+
+
+def _run(cfg: Path, env: dict, *more: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), *more],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+
+
+def _health(path: Path, timeout: float = 30.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError):
+            time.sleep(0.1)
+    raise AssertionError(f"no health file at {path}")
+
+
+def test_a_second_daemon_on_the_same_config_exits_2_naming_the_first(tmp_path):
+    cfg, env = _config(tmp_path), _env(tmp_path)
+    health = tmp_path / "status.json"
+    first = _run(cfg, env)
+    try:
+        _health(health)
+        seen = []
+        second = _run(cfg, env)
+        while second.poll() is None:  # watch the first one's health file while the second one lives
+            seen.append(_health(health)["uptime_s"])
+            time.sleep(0.05)
+        _, err = second.communicate()
+        assert second.returncode == 2, err
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1 and f"pid {first.pid}" in lines[0] and "in use by another handover daemon" in lines[0], err
+        for _ in range(15):  # and for a while after: uptime only grows (a second writer would restart it at 0)
+            seen.append(_health(health)["uptime_s"])
+            time.sleep(0.1)
+        assert seen == sorted(seen) and seen[-1] > seen[0]
+        check = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check"],
+                               capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+        assert check.returncode == 0 and f"health_file {health} is in use by a running handover daemon (pid {first.pid}" \
+            in check.stderr, check.stderr
+        assert first.poll() is None
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=20)
+    # the kernel released the locks with the process: the next daemon starts
+    again = _run(cfg, env)
+    try:
+        time.sleep(0.5)
+        _health(health)
+        assert again.poll() is None
+    finally:
+        again.send_signal(signal.SIGTERM)
+        again.communicate(timeout=20)
+
+
+def test_a_second_daemon_on_the_same_device_with_its_own_health_file_is_refused(tmp_path):
+    """The device lock alone: another health file, the same controller (a TCP emulator)."""
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    env = _env(tmp_path)
+    server = TcpEmulatorServer(DeviceEmulator(load_source("sim", seed=0, events=4))).start()
+    first = _run(_config(tmp_path, server.url, "a.json"), env)
+    try:
+        _health(tmp_path / "a.json")
+        t0 = time.monotonic()
+        second = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config",
+                                 str(_config(tmp_path, server.url, "b.json"))], capture_output=True, text=True,
+                                env=env, cwd=ROOT, timeout=60)
+        assert second.returncode == 2 and f"device {server.url} is in use" in second.stderr
+        assert f"pid {first.pid}" in second.stderr and time.monotonic() - t0 < 30
+        assert not (tmp_path / "b.json").exists()
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=20)
+        server.stop()
+
+
+def test_a_killed_holder_leaves_no_stale_lock_and_each_resource_counts_alone(tmp_path):
+    env = _env(tmp_path)
+    path = instance_lock.device_lock_path("tcp://127.0.0.1:13000", env)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom pathlib import Path\n"
+                               "from runtime import instance_lock as L\n"
+                               "L.take('device x', Path(sys.argv[1])); print('held', flush=True); time.sleep(60)",
+                               str(path)], stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert f"pid {holder.pid}" in instance_lock.held_by_other("device x", path)
+        with pytest.raises(instance_lock.InstanceLockError, match=f"pid {holder.pid}"):
+            instance_lock.take("device x", path)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert instance_lock.held_by_other("device x", path) is None  # SIGKILL: no clean-up ran, the kernel let go
+    held = instance_lock.take("device x", path)
+    instance_lock.release([held])
+    # the same device with other read options is the same device; another health file on another device is free
+    assert instance_lock.device_lock_path("tcp://127.0.0.1:13000?x=1", env) == path
+    assert instance_lock.device_lock_path("tcp://127.0.0.1:13001", env) != path

@@ -1,0 +1,124 @@
+"""``handover emulate --script-out`` + ``handover score``: a captured event stream scored against the
+scripted session gives the demo's counts. Real processes: the emulator on loopback TCP, the daemon
+writing its event lines to stdout, the score command reading them. Data: the simulated hand
+(synthetic); the model is a toy that always says pull (tests/tiny_models.py)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from firmware_io.emulator.script_file import ScriptFileError, read_script, session_script, write_script
+from firmware_io.sim import demo_script, simulate_session
+from tests.ros2_helpers import TRIGGER
+from tests.tiny_models import tiny_model_bytes, write_model
+
+ROOT = Path(__file__).resolve().parents[1]
+EVENTS, SEED = 6, 3
+
+
+def _handover(*argv: str, **kw) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), XDG_RUNTIME_DIR=kw.pop("run_dir"))
+    return subprocess.Popen([sys.executable, "-m", "runtime.cli", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, **kw)
+
+
+def _demo_counts(lines: list[str]) -> dict:
+    """The demo's own path for the same lines: its EventLog maps each event to the session's frames
+    and session_outcomes scores them (trainer/demo_cli.py)."""
+    from trainer.demo_cli import EventLog
+    from trainer.session_score import outcome_summary
+    from trainer.streams_eval import session_outcomes
+
+    session = simulate_session(demo_script(EVENTS, seed=SEED), seed=SEED)
+    log = EventLog(SimpleNamespace(quiet=True, json=False), session, demo_script(EVENTS, seed=SEED),
+                   SimpleNamespace(start_ms=0))
+    for line in lines:
+        obj = json.loads(line)
+        if obj.get("type") == "decision":
+            log.on_event(SimpleNamespace(device_time_ms=obj["device_time_ms"], cls=obj["class"],
+                                         latency_us=obj["latency_us"]))
+    return outcome_summary(session_outcomes(log.decisions, session.trials))
+
+
+def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes(), mtime=time.time() - 10)
+    script = tmp_path / "script.jsonl"
+    emu = _handover("emulate", "--listen", "tcp://127.0.0.1:0", "--events", str(EVENTS), "--seed", str(SEED),
+                    "--speed", "max", "--no-loop", "--script-out", str(script), run_dir=str(run_dir))
+    daemon = None
+    try:
+        head = emu.stdout.readline()
+        n_frames = int(head.split(" frames")[0].rsplit(" ", 1)[1])
+        url = emu.stdout.readline().split()[-1]
+        assert url.startswith("tcp://"), url
+        trigger = "".join(f"{k} = {v}\n" for k, v in TRIGGER.items())
+        cfg = tmp_path / "handover.toml"
+        cfg.write_text(f'health_file = "{tmp_path / "status.json"}"\n[device]\nurl = "{url}"\nstall_timeout_s = 5.0\n'
+                       f'[model]\nfolder = "{models}"\n[trigger]\n{trigger}[sinks]\nstdout = true\n')
+        daemon = _handover("run", "--config", str(cfg), run_dir=str(run_dir))
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                if json.loads((tmp_path / "status.json").read_text())["frames_received"] >= n_frames:
+                    break
+            except (OSError, ValueError, KeyError):
+                pass
+            time.sleep(0.2)
+        else:
+            raise AssertionError("the daemon did not read the whole session")
+        time.sleep(1.0)
+    finally:
+        for proc in (daemon, emu):
+            if proc is not None:
+                proc.send_signal(signal.SIGTERM)
+        out = daemon.communicate(timeout=30)[0] if daemon is not None else ""
+        emu.communicate(timeout=30)
+    events = tmp_path / "events.jsonl"
+    events.write_text(out)
+    lines = [line for line in out.splitlines() if line.startswith("{")]
+    assert sum('"decision"' in line for line in lines) >= 3
+    scored = subprocess.run([sys.executable, "-m", "runtime.cli", "score", str(events), str(script), "--json"],
+                            capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                            timeout=60)
+    assert scored.returncode == 0, scored.stderr
+    got = json.loads(scored.stdout)
+    want = _demo_counts(lines)
+    keys = ("events_expected", "events_detected", "events_correct", "events_missed", "false_events", "repeat_events",
+            "missed_events", "wrong_events", "per_class_correct", "report_minus_onset_frames")
+    assert {k: got[k] for k in keys} == {k: want[k] for k in keys}
+    assert got["events_expected"] == EVENTS and got["events_detected"] >= 3
+    assert 0 < got["events_correct"] < got["events_detected"]  # the toy says pull to everything: some wrong
+    text = subprocess.run([sys.executable, "-m", "runtime.cli", "score", str(events), str(script)],
+                          capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                          timeout=60).stdout
+    assert f"  events: {EVENTS} scripted, {got['events_detected']} detected" in text and "  wrong: #" in text
+
+
+def test_the_script_names_each_event_and_maps_device_time_to_frames(tmp_path):
+    rec = simulate_session(demo_script(4, seed=1), seed=1)
+    path = tmp_path / "s.jsonl"
+    assert write_script(path, rec, clock_start_ms=1000, loop=True, source="sim") == 4
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [r["action"] for r in rows[1:]] == [t.action for t in rec.trials]
+    assert all({"onset_frame", "subject", "first_frame", "last_frame"} <= set(r) for r in rows[1:])
+    script = read_script(path)
+    assert script.trials == rec.trials and script.clock_start_ms == 1000
+    ms = session_script(rec).frame_ms
+    assert script.frame_of(1000 + int(ms[37])) == (0, 37)
+    assert script.frame_of(1000 + script.loop_ms + int(ms[37])) == (1, 37)  # the second pass of a looping session
+    path.write_text('{"type": "decision"}\n')
+    with pytest.raises(ScriptFileError, match="no script header"):
+        read_script(path)

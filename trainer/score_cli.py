@@ -1,0 +1,58 @@
+"""``handover score EVENTS.jsonl SCRIPT``: how a captured event stream did against a scripted session.
+
+EVENTS is what the daemon sent (its stdout, or a UDP listener's lines; ``-`` reads stdin), SCRIPT
+what ``handover emulate --script-out`` wrote. The summary is the demo's (right, wrong, missed,
+outside any scripted event, onset to report), computed by the same rule
+(``trainer.session_score``). Needs no extra: numpy only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from firmware_io.commands.errors import fail
+
+COMMAND = "score"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("events", metavar="EVENTS.jsonl", help="the daemon's event lines ('-': stdin)")
+    parser.add_argument("script", metavar="SCRIPT", help="the file handover emulate --script-out wrote")
+    parser.add_argument("--instance", default=None, help="score only the lines of this daemon instance")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def main(args: argparse.Namespace) -> int:
+    from firmware_io.emulator.script_file import ScriptFileError, read_script
+    from trainer.session_score import decisions_from_lines, outcome_summary, score, summary_lines
+
+    try:
+        script = read_script(args.script)
+    except ScriptFileError as exc:
+        return fail(COMMAND, str(exc))
+    try:
+        if args.events == "-":
+            lines = sys.stdin.read().splitlines()
+        else:
+            with open(args.events, encoding="utf-8", errors="replace") as f:
+                lines = f.read().splitlines()
+    except OSError as exc:
+        return fail(COMMAND, f"{args.events}: cannot read ({exc.strerror or exc})")
+    decisions, skipped = decisions_from_lines(lines, script, args.instance)
+    if not script.trials:
+        return fail(COMMAND, f"{args.script}: the session has no scripted events to score against")
+    o = score(decisions, script)
+    summary = {"synthetic": script.synthetic, "decisions": len(decisions), "lines_skipped": skipped,
+               "passes": o["passes"], **outcome_summary(o)}
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    kind = "synthetic session" if script.synthetic else "session"
+    passes = f", {o['passes']} passes of the script" if o["passes"] > 1 else ""
+    print(f"score ({kind}; {len(decisions)} decisions{passes}"
+          + (f"; {skipped} lines were not event lines" if skipped else "") + ")")
+    for line in summary_lines(summary):
+        print(line)
+    return 0

@@ -1,0 +1,98 @@
+"""Scoring a captured event stream against a scripted session: the demo's summary, for any capture.
+
+The rule itself (which report answers which scripted event, what counts as missed, wrong or
+outside) is ``trainer.streams_eval.session_outcomes``; this module turns event lines into its
+input (device time -> frame of the session, ``firmware_io.emulator.script_file``) and its
+output into the summary the demo prints, so ``handover demo`` and ``handover score`` say the
+same thing about the same session.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Iterable
+
+from firmware_io.emulator.script_file import SessionScript
+from trainer.streams_eval import Decision, session_outcomes
+
+
+def decisions_from_lines(lines: Iterable[str], script: SessionScript,
+                         instance: str | None = None) -> tuple[list[tuple[int, Decision]], int]:
+    """Decision lines as (pass, Decision), in order; and how many lines were skipped as not JSON
+    objects. Lines of other types are skipped as the protocol says; ``instance``: only that daemon's."""
+    out, skipped = [], 0
+    for line in lines:
+        try:
+            obj = json.loads(line)
+        except ValueError:
+            skipped += bool(line.strip())
+            continue
+        if not isinstance(obj, dict) or obj.get("type") != "decision":
+            skipped += not isinstance(obj, dict)
+            continue
+        if instance is not None and obj.get("instance") != instance:
+            continue
+        try:
+            loop, frame = script.frame_of(int(obj["device_time_ms"]))
+            out.append((loop, Decision(frame, str(obj["class"]), float(obj.get("latency_us", 0.0)))))
+        except (KeyError, TypeError, ValueError):
+            skipped += 1
+    return out, skipped
+
+
+def score(decisions: list[tuple[int, Decision]], script: SessionScript) -> dict:
+    """``session_outcomes`` over the passes the decisions fall in (a looping session repeats its
+    script; passes before the first and after the last decision were not watched)."""
+    passes = sorted({loop for loop, _ in decisions}) or [0]
+    n = len(script.frame_ms)
+    first, last = passes[0], passes[-1]
+    trials = [dataclasses.replace(t, first=t.first + p * n, last=t.last + p * n,
+                                  extra={**t.extra, "onset": int(t.extra.get("onset", t.first)) + p * n})
+              for p in range(first, last + 1) for t in script.trials]
+    flat = [dataclasses.replace(d, frame=d.frame + loop * n) for loop, d in decisions]
+    outcomes = session_outcomes(flat, trials)
+    outcomes["passes"] = last - first + 1
+    return outcomes
+
+
+def outcome_summary(o: dict) -> dict:
+    """``session_outcomes``' result under the names the demo's summary (and its --json) uses."""
+    return {
+        "events_expected": o["expected"],
+        "events_detected": o["detected"],
+        "events_correct": o["correct"],
+        "events_missed": o["missed"],
+        "false_events": o["outside"],
+        "repeat_events": o["repeats"],
+        "missed_events": o["missed_events"],
+        "wrong_events": o["wrong_events"],
+        "per_class_precision": {c: v["precision"] for c, v in o["per_class"].items()},
+        "per_class_recall": {c: v["recall"] for c, v in o["per_class"].items()},
+        "per_class_correct": {c: f"{v['correct']}/{v['n']}" for c, v in o["per_class"].items() if v["n"]},
+        "report_minus_onset_frames": o["report_minus_onset_frames"],
+    }
+
+
+def summary_lines(s: dict, setting: str | None = None) -> list[str]:
+    """The summary's event lines: right, wrong, missed, outside, onset to report."""
+    lines = [
+        f"  events: {s['events_expected']} scripted, {s['events_detected']} detected, "
+        f"{s['events_correct']} correct ({s['events_correct'] / max(1, s['events_expected']):.0%}), "
+        f"{s['events_missed']} missed, {s['false_events']} outside any scripted event",
+        f"  per class correct: {s['per_class_correct']}",
+        "  per class precision / recall: " + ", ".join(
+            f"{c} {_share(p)} / {_share(s['per_class_recall'][c])}" for c, p in s["per_class_precision"].items()),
+        "  missed: " + (", ".join(f"#{e['event']} {e['action']} (onset frame {e['onset']})"
+                                  for e in s["missed_events"]) or "none"),
+        "  wrong: " + (", ".join(f"#{e['event']} {e['action']} reported as {e['reported']} at frame {e['frame']} "
+                                 f"(onset {e['onset']})" for e in s["wrong_events"]) or "none"),
+    ]
+    if s["report_minus_onset_frames"]:
+        where = f" (stream setting: {setting})" if setting else ""
+        lines.append(f"  onset to report: median {s['report_minus_onset_frames']['median']:.0f} frames{where}")
+    return lines
+
+
+def _share(x: float | None) -> str:
+    return "-" if x is None else f"{x:.0%}"
