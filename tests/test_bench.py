@@ -69,10 +69,10 @@ def test_tap_stream_triggers_once_per_window():
 def test_pareto_quick(tmp_path, capsys):
     printed, result = _run("pareto", tmp_path, capsys)
     assert (tmp_path / "pareto.png").stat().st_size > 0
-    for key in ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "default_on_front"):
+    for key in ("onnx_p50_us", "onnx_p99_us", "default_on_front"):
         assert key in printed
     kinds = {r["kind"] for r in result["rows"]}
-    assert {"bow", "sklearn", "baseline"} <= kinds
+    assert {"bow", "baseline"} <= kinds and "sklearn" not in kinds  # one benchmark a question: bench inference
     assert sum(r["default"] for r in result["rows"]) == 1
     assert any(r["on_front"] for r in result["rows"])
     assert all(0.0 <= r["loso_error"] <= 1.0 for r in result["rows"])

@@ -1,14 +1,14 @@
-"""The real_slip diagnosis (trainer.slip_diagnosis): its training-part checks on a small task whose
+"""The real_slip diagnosis (studies.slip_diagnosis): its training-part checks on a small task whose
 answer is known, and its report."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from studies.slip_diagnosis import VARIANTS, chunk_map, leave_one_chunk_out, markdown, search_variants
 from trainer.evaluation import Split
 from trainer.features.signals import pad_shapes_for
 from trainer.real_tasks import RealTask
-from trainer.slip_diagnosis import VARIANTS, chunk_map, leave_one_chunk_out, markdown, search_variants
 
 
 def _task() -> RealTask:

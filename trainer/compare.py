@@ -51,7 +51,7 @@ ONNX_KINDS = ("bow", "flat", "features", "default")
 DIAGNOSES = {"real_slip": "its former single split (first 60 % of each file's chunks train, the rest test), where the "
                           "default lost on one test chunk, and why, judged on the training part only: "
                           "results/slip_diagnosis.md"}
-"""Where a task's verdict is examined (``python -m trainer.slip_diagnosis``)."""
+"""Where a task's verdict is examined (``python -m studies.slip_diagnosis``)."""
 
 
 def model_specs(quick: bool, minirocket: bool = True) -> list[ModelSpec]:

@@ -4,8 +4,9 @@ Phase 1 (parallel, <= 2 joblib workers): for each grid point, leave-one-subject-
 configuration-1 error on the simulated protocol (synthetic data), a final fit on all cases and
 its ONNX export. Phase 2 (one process, nothing else of ours running): the single-case time of
 each exported graph through runtime.model.load_model (1 intra-op thread, spinning off), and of
-the reference points: the scikit-learn pipeline itself, the paper's hand-designed features
-with an SVM, and aeon's MiniRocket (no ONNX export exists for it: its Python predict is timed).
+the reference points: the paper's hand-designed features with an SVM, and aeon's MiniRocket (no
+ONNX export exists for it: its Python predict is timed). The graph against the scikit-learn
+pipeline of the same model is one question, answered by ``handover bench inference``.
 """
 
 from __future__ import annotations
@@ -173,7 +174,6 @@ def run(args) -> dict:
     for r, on in zip(rows, front, strict=True):
         r["on_front"] = bool(on)
     default = next((r for r in rows if r["kind"] == "bow" and is_default(r["params"])), None)
-    sk = next((r for r in rows if r["kind"] == "sklearn"), None)
     result = {
         "synthetic": True,
         "data": f"simulated protocol (synthetic), seed {args.seed}, {len(recordings)} subjects",
@@ -185,9 +185,6 @@ def run(args) -> dict:
         "default_on_front": bool(default and default["on_front"]),
         "onnx_p50_us": default and default["time_p50_us"],
         "onnx_p99_us": default and default["time_p99_us"],
-        "sklearn_p50_us": sk and sk["time_p50_us"],
-        "speedup_vs_sklearn": (sk["time_p50_us"] / default["time_p50_us"]) if sk and default else None,
-        "sklearn_model": label(DEFAULT_PARAMS) if sk else None,
         "notes": notes,
         "eval_seconds": round(eval_seconds, 1),
         "seconds": round(time.perf_counter() - t_start, 1),
@@ -205,8 +202,8 @@ def run(args) -> dict:
 def rerender(out: str | Path) -> dict:
     """Re-mark the default and rewrite pareto.md/.png from an earlier run's pareto.json: no new measurement.
 
-    For when the default changes to another point of the same grid. The scikit-learn row keeps the
-    model it measured, and its speedup is taken against that same model's graph.
+    For when the default changes to another point of the same grid. A scikit-learn row of an older
+    run is dropped (``handover bench inference`` measures the graph against scikit-learn).
     """
     import json
 
@@ -216,21 +213,17 @@ def rerender(out: str | Path) -> dict:
         rows = res["rows"]
     except (OSError, ValueError, KeyError) as exc:
         raise ValueError(f"{path}: no earlier pareto result to re-render ({exc})") from None
+    rows = res["rows"] = [r for r in rows if r["kind"] != "sklearn"]
+    for key in ("sklearn_p50_us", "sklearn_model", "speedup_vs_sklearn"):
+        res.pop(key, None)
     for r in rows:
         r["default"] = r["kind"] == "bow" and is_default(r["params"])
-        if r["kind"] == "sklearn":
-            r["label"] = f"{label(r['params'])}, scikit-learn pipeline (BowSVC.predict, Python)"
     d = next((r for r in rows if r["default"]), None)
     if d is None:
         raise ValueError(f"{path}: the default {label(DEFAULT_PARAMS)} is not among the measured points")
-    sk = next((r for r in rows if r["kind"] == "sklearn"), None)
-    same = sk and next((r for r in rows if r["kind"] == "bow" and r["params"] == sk["params"]), None)
-    res.update(default_on_front=bool(d["on_front"]), onnx_p50_us=d["time_p50_us"], onnx_p99_us=d["time_p99_us"],
-               sklearn_p50_us=sk and sk["time_p50_us"],
-               sklearn_model=sk and label(sk["params"]),
-               speedup_vs_sklearn=(sk["time_p50_us"] / same["time_p50_us"]) if same else None)
-    res["notes"].append(f"Re-rendered from this run's measurements (`handover bench pareto --rerender`) after the "
-                        f"default changed to {label(DEFAULT_PARAMS)}; nothing was measured again.")
+    res.update(default_on_front=bool(d["on_front"]), onnx_p50_us=d["time_p50_us"], onnx_p99_us=d["time_p99_us"])
+    res["notes"].append(f"Re-rendered from this run's measurements (`handover bench pareto --rerender`), the default "
+                        f"being {label(DEFAULT_PARAMS)}; nothing was measured again.")
     plot(rows, Path(out) / f"{NAME}.png")
     write_results(out, NAME, res, markdown(res))
     return res
@@ -242,7 +235,6 @@ def _time_all(done: list[dict], datasets: dict, args) -> list[dict]:
     repeats = 30 if args.quick else 2000
     py_repeats = 10 if args.quick else 200
     rows = []
-    default_model = None
     for r in done:
         p = r["params"]
         ds = datasets[(p["T"], p["pads"])]
@@ -254,8 +246,6 @@ def _time_all(done: list[dict], datasets: dict, args) -> list[dict]:
             t = percentiles(time_calls(lambda g=graph, x=x: g.run(x), repeats))
             row.update(label=label(p), n_nodes=graph.n_nodes, onnx_bytes=graph.n_bytes,
                        n_support_vectors=int(sum(r["model"].svm_.n_support_)), default=is_default(p))
-            if is_default(p):
-                default_model = (r["model"], case)
         else:
             xs = case[None]
             t = percentiles(time_calls(lambda m=r["model"], xs=xs: m.predict(xs), py_repeats, warmup=3))
@@ -263,15 +253,6 @@ def _time_all(done: list[dict], datasets: dict, args) -> list[dict]:
                        else f"MiniRocket (aeon, {p['n_kernels']} kernels, Python predict)", default=False)
         row.update(time_p50_us=t["p50"], time_p99_us=t["p99"], time_runs=t["n"])
         rows.append(row)
-    if default_model is not None:
-        model, case = default_model
-        d = next(x for x in rows if x.get("default"))
-        t = percentiles(time_calls(lambda: model.predict(case[None]), py_repeats, warmup=3))
-        rows.append({"kind": "sklearn", "params": dict(DEFAULT_PARAMS), "label": "default model, scikit-learn "
-                     "pipeline (BowSVC.predict, Python)", "loso_error": d["loso_error"],
-                     "loso_subject_std": d["loso_subject_std"], "config1_error": d["config1_error"],
-                     "config1_std": d["config1_std"], "time_p50_us": t["p50"], "time_p99_us": t["p99"],
-                     "time_runs": t["n"], "default": False})
     return rows
 
 
@@ -297,7 +278,7 @@ def plot(rows: list[dict], path: Path) -> Path:
         pts = [r for r in rows if r["kind"] == "bow" and r["params"]["kernel"] == kernel]
         ax.scatter([r["time_p50_us"] for r in pts], [100 * r["loso_error"] for r in pts], marker=marker,
                    facecolors="none", edgecolors=color, label=f"BoW + SVM ({kernel}), ONNX graph")
-    refs = {"sklearn": ("D", "tab:orange"), "baseline": ("^", "tab:red"), "minirocket": ("P", "tab:purple")}
+    refs = {"baseline": ("^", "tab:red"), "minirocket": ("P", "tab:purple")}
     for kind, (marker, color) in refs.items():
         pts = [r for r in rows if r["kind"] == kind]
         if pts:
@@ -338,10 +319,8 @@ def markdown(res: dict) -> list[str]:
         lines += [
             f"Default model ({label(DEFAULT_PARAMS)}, the BoW family alone, what `handover train --features bow` builds): LOSO error {d['loso_error']:.1%}, "
             f"ONNX median {fmt_us(d['time_p50_us'])} us, p99 {fmt_us(d['time_p99_us'])} us; "
-            f"**{'on' if d['on_front'] else 'not on'} the Pareto front**."
-            + (f" scikit-learn pipeline on one case{' (' + res['sklearn_model'] + ')' if res.get('sklearn_model') else ''}: "
-               f"median {fmt_us(res['sklearn_p50_us'])} us ({res['speedup_vs_sklearn']:.1f}x slower than the same "
-               "model's graph)." if res.get("speedup_vs_sklearn") else ""),
+            f"**{'on' if d['on_front'] else 'not on'} the Pareto front**. The graph against the same model's "
+            "scikit-learn pipeline: results/inference.md.",
             "",
         ]
         if not d["on_front"]:

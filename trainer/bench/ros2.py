@@ -2,8 +2,8 @@
 another process (median, p99, p99.9), and pad images delivered per second with none lost.
 
 The daemon reads the simulated hand (sim://, synthetic, sped up so that a minute holds enough
-events) with a toy model from tests/tiny_models.py (ROS delivery does not depend on what the
-model computes), publishes events and all six pads; a subscriber process records when each line
+events) with the product's default model, trained on the simulated protocol (quick; ROS delivery
+does not depend on what the model computes), publishes events and all six pads; a subscriber process records when each line
 arrives and counts the images. Latency = subscriber's wall clock at the callback minus the
 event's ``time`` (stamped right after the decision, before any sink), same machine and clock.
 
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -25,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import command_line, load_average, machine_info, write_results
+from trainer.bench.common import command_line, load_average, machine_info, train_default_model, write_results
 
 ROOT = Path(__file__).resolve().parents[2]
 PADS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal", "finger_2_proximal", "finger_2_distal")
@@ -81,10 +82,6 @@ def measure(seconds: float, speed: float, pad_rate: float) -> dict:
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
 
-    if str(ROOT) not in sys.path:  # the toy model of the test suite (a checkout, as for every benchmark)
-        sys.path.insert(0, str(ROOT))
-    from tests.tiny_models import tiny_model_bytes, write_model
-
     os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     child = subprocess.Popen([sys.executable, "-m", "trainer.bench.ros2", "--subscriber"], stdin=subprocess.PIPE,
@@ -93,9 +90,13 @@ def measure(seconds: float, speed: float, pad_rate: float) -> dict:
     if ready != "ready":
         child.kill()
         raise RuntimeError("the ROS 2 subscriber process did not start (is rclpy importable? source ROS 2 first)")
-    models = Path(tempfile.mkdtemp()) / "models"
+    work = Path(tempfile.mkdtemp())
+    models = work / "models"
     models.mkdir()
-    write_model(models, "toy.onnx", tiny_model_bytes(), mtime=time.time() - 10)
+    served = models / "bench.onnx"
+    shutil.copyfile(train_default_model(work, quick=True), served)  # the product default (synthetic data)
+    settled = time.time() - 10  # an old file: the watcher serves it at once (no copy in progress)
+    os.utime(served, (settled, settled))
     url = f"sim://?seed=0&events=40&realtime=1&speed={speed:g}&loop=1"
     cfg = config_from_dict({
         "device": {"url": url}, "model": {"folder": str(models)},

@@ -36,8 +36,8 @@ NOISE_SEEDS = (1, 2)
 NOISE_ROWS = tuple(dict.fromkeys(("hand+stats rbf", WEIGHTED, default_candidate_name(), "stats rbf", "rocket+stats linear",
                                   *(v[0] for v in VARIANTS))))
 SECTION_END = "<!-- /weighting_check -->"
-SECTION_START = "<!-- weighting_check: python -m trainer.weighting_check writes this section; " \
-                "python -m trainer.slip_diagnosis keeps it -->"
+SECTION_START = "<!-- weighting_check: python -m studies.weighting_check writes this section; " \
+                "python -m studies.slip_diagnosis keeps it -->"
 
 
 def family_sizes(task) -> dict:
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     from trainer.bench.common import write_results
     from trainer.shared_data import default_data_dir
 
-    parser = argparse.ArgumentParser(prog="python -m trainer.weighting_check", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m studies.weighting_check", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results")
     parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default ../shared/data)")
     parser.add_argument("--n-jobs", type=int, default=2)
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"weighting_check: {exc}", file=sys.stderr)
         return 2
     if not args.rewrite:
-        res["command"] = shlex.join(["python", "-m", "trainer.weighting_check", "--out", args.out]
+        res["command"] = shlex.join(["python", "-m", "studies.weighting_check", "--out", args.out]
                                     + (["--data", args.data] if args.data else []))
     lines = markdown(res)
     write_results(args.out, "weighting_check", res, ["# Feature weighting check (issue 12)", "", *lines[2:], "",
