@@ -152,37 +152,144 @@ class Sink:
         pass
 
 
+class ClosedStdout(io.TextIOBase):
+    """Stands for a stdout that was closed when the daemon started (``handover run >&-``): no
+    stdout sink is made from it, and ``sinks.stdout = true`` says so in one line."""
+
+
 def claim_stdout_for_events() -> IO[str]:
     """Reserve the process's stdout for event lines: a stream on the original stdout, while file
-    descriptor 1 and ``sys.stdout`` now lead to stderr.
+    descriptor 1 and ``sys.stdout`` now lead to stderr (a ``ClosedStdout`` when it was closed).
 
     Why: stdout is a JSON-lines stream that journald or a pipe parses. Anything else written there
     (a library's ``print``, onnxruntime's C++ logger, a warning banner) would corrupt it; after this
     call it lands in the log instead."""
-    sys.stdout.flush()
-    events = io.TextIOWrapper(io.FileIO(os.dup(1), "w"), encoding="utf-8", line_buffering=True)
-    os.dup2(2, 1)
+    if sys.stdout is None:  # Python found no file descriptor 1 at start: nothing to claim
+        try:
+            os.fstat(1)  # taken since by a file this process opened: leave it alone
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.dup2(2, 1)  # so that no file opened later becomes "stdout" by taking descriptor 1
+        sys.stdout = sys.stderr
+        return ClosedStdout()
+    with contextlib.suppress(OSError, ValueError):
+        sys.stdout.flush()
+    try:
+        fd = os.dup(1)
+    except OSError:
+        sys.stdout = sys.stderr
+        return ClosedStdout()
+    events = io.TextIOWrapper(io.FileIO(fd, "w"), encoding="utf-8", line_buffering=True)
+    with contextlib.suppress(OSError):
+        os.dup2(2, 1)
     sys.stdout = sys.stderr
     return events
 
 
+STDOUT_BACKLOG_BYTES = 256 * 1024
+"""Event lines kept for a stdout that does not take them now (a slow reader, a full pipe): about
+750 lines. Beyond it lines are dropped and counted; the thread that reads the pads never waits."""
+
+
+class SinkFull(OSError):
+    """A line dropped because its reader is too slow (counted like any failed send)."""
+
+
+def _file_descriptor(stream: Any) -> int | None:
+    """The descriptor under ``stream``, or None for an in-memory stream (tests, embedding)."""
+    try:
+        return int(stream.fileno())
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
 class StdoutSink(Sink):
-    """JSON lines on stdout: journald keeps them, a pipe can read them."""
+    """JSON lines on stdout: journald keeps them, a pipe can read them.
+
+    On a real file descriptor the writes never block: the descriptor is put in non-blocking mode,
+    what the reader has not taken yet waits in a bounded backlog (retried at each line and at the
+    health tick), and a line that does not fit is dropped and counted. Why: a pipe nobody reads
+    fills after 64 KB, and a blocking write would then stop detection and SIGTERM with it."""
 
     name = "stdout"
 
-    def __init__(self, stream: IO[str] | None = None) -> None:
+    def __init__(self, stream: IO[str] | None = None, backlog_bytes: int = STDOUT_BACKLOG_BYTES) -> None:
         super().__init__()
         self.stream = stream
+        self.backlog_bytes = int(backlog_bytes)
+        self.dropped = 0
+        """Lines dropped because the reader was too slow."""
+        self._backlog = bytearray()
+        self._fd = _file_descriptor(stream) if stream is not None else None
+        self._was_blocking: bool | None = None
+        if self._fd is not None:
+            try:
+                with contextlib.suppress(OSError, ValueError):
+                    stream.flush()  # anything written through the stream before goes first
+                self._was_blocking = os.get_blocking(self._fd)
+                os.set_blocking(self._fd, False)
+            except OSError:
+                self._fd = None
 
     def _send(self, line: str, data: bytes) -> None:
-        stream = self.stream or sys.stdout
-        stream.write(line + "\n")
-        stream.flush()
+        if self._fd is None:
+            stream = self.stream or sys.stdout
+            stream.write(line + "\n")
+            stream.flush()
+            return
+        chunk = data + b"\n"
+        if self._backlog:
+            self._drain()
+        if self._backlog:
+            if len(self._backlog) + len(chunk) > self.backlog_bytes:
+                self.dropped += 1
+                raise SinkFull(f"nobody reads stdout fast enough: {self.dropped} lines dropped, "
+                               f"{len(self._backlog)} bytes waiting")
+            self._backlog += chunk
+            return
+        try:
+            n = os.write(self._fd, chunk)
+        except BlockingIOError:
+            n = 0
+        if n < len(chunk):
+            self._backlog += chunk[n:]  # the rest of a line begun must follow it, or the stream breaks
+
+    def _drain(self) -> None:
+        """Write what the backlog holds as far as the reader takes it now (never waits)."""
+        while self._backlog:
+            try:
+                n = os.write(self._fd, self._backlog)
+            except BlockingIOError:
+                return
+            except OSError:
+                self._backlog.clear()  # a closed pipe: nothing will ever take it
+                raise
+            del self._backlog[:n]
+
+    def health(self, snapshot: dict) -> None:
+        if self._fd is not None and self._backlog:
+            with contextlib.suppress(OSError):
+                self._drain()
 
     def flush(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                self._drain()
+            return
         with contextlib.suppress(OSError, ValueError):
             (self.stream or sys.stdout).flush()
+
+    def close(self) -> None:
+        """What the reader did not take is dropped (counted); the descriptor's mode is given back."""
+        if self._fd is None:
+            return
+        if self._backlog:
+            self.dropped += 1
+            self._backlog.clear()
+        if self._was_blocking:
+            with contextlib.suppress(OSError):
+                os.set_blocking(self._fd, True)
+        self._fd = None
 
 
 class UdpSink(Sink):
@@ -239,7 +346,11 @@ class SinkSet:
         from runtime.config import parse_host_port
 
         sinks: list[Sink] = []
-        if cfg.stdout:
+        if cfg.stdout and isinstance(stream, ClosedStdout):
+            then = "events go to the other sinks only" if cfg.n_without_ros2 > 1 or cfg.ros2 else "no event goes anywhere"
+            log.error("sinks.stdout: stdout was closed when the daemon started; %s (start it with stdout open, "
+                      "or set sinks.stdout = false)", then)
+        elif cfg.stdout:
             sinks.append(StdoutSink(stream))
         for target in cfg.udp:
             host, port = parse_host_port(target)

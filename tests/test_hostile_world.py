@@ -1,0 +1,58 @@
+"""The daemon in a hostile world: nothing it writes blocks the thread that reads the pads, nothing
+outside its user steers it, nothing a file claims is taken on trust. Each case of
+trainer/bench/hostile_world.py runs here with real parts; ``handover bench hostile`` counts them."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import pytest
+
+pytest.importorskip("onnx")
+W = pytest.importorskip("trainer.bench.hostile_world")
+
+
+def _held(result: dict) -> None:
+    assert result["held"], result["detail"]
+
+
+def test_a_stdout_nobody_reads_never_stops_detection_nor_the_udp_sink(tmp_path):
+    _held(W.blocked_stdout(tmp_path))
+
+
+@pytest.mark.slow
+def test_handover_run_into_a_pipe_nobody_reads_keeps_sending_udp_and_ends_on_sigterm(tmp_path):
+    _held(W.blocked_stdout_process(tmp_path))
+
+
+def test_stdout_closed_at_start_is_one_line_or_no_stdout_sink_never_a_crash(tmp_path):
+    _held(W.closed_stdout(tmp_path))
+
+
+def test_the_stdout_sink_keeps_whole_lines_and_counts_what_it_dropped():
+    from runtime.sinks import StdoutSink
+
+    read_end, write_end = os.pipe()
+    sink = StdoutSink(os.fdopen(write_end, "w"), backlog_bytes=1000)
+    line = '{"type":"decision","pad":"' + "x" * 90 + '"}'
+    done = threading.Event()
+
+    def flood() -> None:
+        for _ in range(2000):  # 190 KB into a 64 KB pipe nobody reads
+            sink.send(line, line.encode())
+        done.set()
+
+    threading.Thread(target=flood, daemon=True).start()
+    assert done.wait(30), "a send blocked on a full pipe"
+    assert sink.dropped > 0 and sink.errors == sink.dropped
+    os.set_blocking(read_end, False)
+    text = os.read(read_end, 1 << 20).decode()
+    sink.flush()  # room again: the backlog follows
+    text += os.read(read_end, 1 << 20).decode()
+    lines = text.splitlines()
+    assert set(lines) == {line} and text.endswith("\n")
+    assert len(lines) + sink.dropped == 2000
+    sink.close()
+    assert os.get_blocking(write_end)  # the descriptor's mode is given back
+    os.close(read_end)

@@ -1,0 +1,240 @@
+"""A hostile world around the daemon: the cases where it could be stalled or steered, each tried
+with real parts (pipes, sockets, subprocess daemons, ONNX files) and judged held or not.
+
+``handover bench hostile`` counts them (results/hostile.md, "The world around the daemon"); the
+tests in tests/test_hostile_world.py run each case and name what did not hold. A case returns
+``{"held": bool, "detail": str, ...}``; a case that raises counts as not held.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+HANG_GUARD_S = 30.0
+"""How long a case waits for a part that should never block before calling it blocked."""
+SMALL_PIPE = 4096
+"""A pipe this small fills after about a dozen event lines (a pipe nobody reads, sooner)."""
+
+
+def write_model(folder: Path, name: str, data: bytes, mtime: float | None = None) -> Path:
+    """Drop a model file the safe way (a temporary name, then a rename), mode 644."""
+    tmp = folder / f".{name}.tmp"
+    tmp.write_bytes(data)
+    os.chmod(tmp, 0o644)
+    if mtime is not None:
+        os.utime(tmp, (mtime, mtime))
+    os.replace(tmp, folder / name)
+    return folder / name
+
+
+def cli(argv: list[str], timeout: float = 120, **kw) -> subprocess.CompletedProcess:
+    """``handover ARGV`` as a process (stdout and stderr captured as text)."""
+    return subprocess.run([sys.executable, "-m", "runtime.cli", *argv], capture_output=True, text=True, cwd=ROOT,
+                          timeout=timeout, **kw)
+
+
+def one_line(text: str, *needles: str) -> bool:
+    """Whether ``text`` is exactly one line that names every needle."""
+    lines = text.strip().splitlines()
+    return len(lines) == 1 and all(n in lines[0] for n in needles)
+
+
+def udp_listener() -> tuple[socket.socket, int]:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.setblocking(False)
+    return sock, sock.getsockname()[1]
+
+
+def drain(sock: socket.socket) -> list[bytes]:
+    out = []
+    while True:
+        try:
+            out.append(sock.recv(65536))
+        except BlockingIOError:
+            return out
+
+
+def served_daemon(work: Path, sinks: dict, stream=None, events: list | None = None, **sections):
+    """A Daemon serving a valid model (always ``pull``) for the SDH-2 layout, frames fed by the caller."""
+    from firmware_io.layout import SensorLayout
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from runtime.model import load_model
+    from trainer.bench import hostile_models as H
+
+    models = work / "models"
+    models.mkdir(parents=True, exist_ok=True)
+    path = write_model(models, "good.onnx", H.valid(bias_class=0))
+    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": sinks, "model": {"folder": str(models)},
+                            "trigger": {"kind": "threshold", "fraction": 0.2, "hysteresis": 0.1, "refractory_s": 0.2,
+                                        "rearm_quiet_s": 0.05}, **sections})
+    daemon = Daemon(cfg, stream=stream, on_event=None if events is None else events.append)
+    daemon.serve(load_model(path), SensorLayout.sdh2())
+    return daemon
+
+
+def press_cycles(daemon, cycles: int, first: int = 0, level: int = 3000) -> int:
+    """``cycles`` presses of a distal taxel (10 frames on, 10 off) through the hot path; the next frame number."""
+    from firmware_io.client import Frame
+
+    layout = daemon.layout
+    column = int(layout.columns("distal")[40])
+    number = first
+    for _ in range(cycles):
+        for i in range(20):
+            values = np.zeros(layout.n_taxels, dtype=np.uint16)
+            values[column] = level if i < 10 else 0
+            daemon.handle_frame(Frame(number, round(number * 31.25), time.perf_counter(), values))
+            number += 1
+    return number
+
+
+def in_thread(fn: Callable[[], object], guard_s: float = HANG_GUARD_S) -> tuple[bool, object]:
+    """Run ``fn`` in a daemon thread: (finished, its result or exception). A part that blocks for
+    good leaves the thread behind instead of the caller."""
+    box: list = []
+
+    def run() -> None:
+        try:
+            box.append(fn())
+        except BaseException as exc:  # reported to the caller
+            box.append(exc)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(guard_s)
+    return (not thread.is_alive()), (box[0] if box else None)
+
+
+# -- 1, 2: stdout ----------------------------------------------------------------------------------
+def blocked_stdout(work: Path) -> dict:
+    """A daemon whose stdout is a pipe nobody reads keeps deciding; its UDP listener keeps receiving."""
+    import fcntl
+
+    listener, port = udp_listener()
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, SMALL_PIPE)
+    stream = os.fdopen(write_end, "w", encoding="utf-8")
+    daemon = served_daemon(work, {"stdout": True, "udp": [f"127.0.0.1:{port}"]}, stream=stream)
+    try:
+        finished, _ = in_thread(lambda: press_cycles(daemon, 60))
+        received = len([d for d in drain(listener) if b'"decision"' in d])
+        events = daemon.health.events
+        stdout = daemon.sinks.sinks[0]
+        waiting = len(getattr(stdout, "_backlog", b""))
+        held = finished and events >= 50 and received == events
+        detail = (f"{events} decisions reported with stdout never read; the UDP listener received {received}; "
+                  f"stdout holds {waiting} bytes for its reader, dropped {getattr(stdout, 'dropped', 0)} lines"
+                  if finished else f"the hot path blocked on stdout after {daemon.health.events} events")
+        return {"held": held, "detail": detail, "events": events, "udp_received": received}
+    finally:
+        listener.close()
+        os.close(read_end)
+
+
+def blocked_stdout_process(work: Path) -> dict:
+    """``handover run | nobody-reads``: UDP keeps receiving after the pipe is full; SIGTERM ends it (exit 0)."""
+    import fcntl
+
+    from trainer.bench import hostile_models as H
+
+    models, state = work / "models", work / "state"
+    models.mkdir(parents=True)
+    state.mkdir(parents=True)
+    write_model(models, "good.onnx", H.valid(bias_class=0))
+    listener, port = udp_listener()
+    config = state / "h.toml"
+    config.write_text(f'health_file = "{state / "status.json"}"\nrealtime_priority = 0\n'
+                      '[device]\nurl = "sim://?events=400&speed=16"\n'
+                      f'[model]\nfolder = "{models}"\n[sinks]\nudp = ["127.0.0.1:{port}"]\n'
+                      '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\nrefractory_s = 0.3\n')
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, SMALL_PIPE)
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
+                            stdout=write_end, stderr=subprocess.PIPE, text=True)
+    os.close(write_end)
+    try:
+        got: list[bytes] = []
+        deadline = time.monotonic() + 4 * HANG_GUARD_S
+        while time.monotonic() < deadline and proc.poll() is None and len(got) < 60:
+            got += [d for d in drain(listener) if b'"decision"' in d]
+            time.sleep(0.1)
+        pipe_full = len(os.read(read_end, 1 << 20)) >= SMALL_PIPE - 512  # read only now: it was full
+        proc.send_signal(signal.SIGTERM)
+        try:
+            code = proc.wait(timeout=HANG_GUARD_S)
+        except subprocess.TimeoutExpired:
+            code = None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        err = proc.communicate()[1]
+        listener.close()
+        os.close(read_end)
+    held = len(got) >= 60 and pipe_full and code == 0 and "Traceback" not in err
+    return {"held": held, "udp_received": len(got), "exit_code": code,
+            "detail": f"UDP received {len(got)} events while stdout (a {SMALL_PIPE}-byte pipe) was never read "
+                      f"(full: {pipe_full}); SIGTERM: exit code {code}"}
+
+
+def closed_stdout(work: Path) -> dict:
+    """``handover run ... >&-``: one line (sinks.stdout) or no stdout sink, never a crash."""
+    from trainer.bench import hostile_models as H
+
+    models, state = work / "models", work / "state"
+    models.mkdir(parents=True)
+    state.mkdir(parents=True)
+    write_model(models, "good.onnx", H.valid(bias_class=0))
+    listener, port = udp_listener()
+    outcomes = {}
+    for stdout_on in (True, False):
+        config = state / f"h-{stdout_on}.toml"
+        config.write_text(f'health_file = "{state / "status.json"}"\nrealtime_priority = 0\n'
+                          '[device]\nurl = "sim://?events=20&speed=16"\n'
+                          f'[model]\nfolder = "{models}"\n[sinks]\nstdout = {str(stdout_on).lower()}\n'
+                          f'udp = ["127.0.0.1:{port}"]\n'
+                          '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\n')
+        proc = subprocess.Popen(["sh", "-c", 'exec "$0" -m runtime.cli run --config "$1" >&-', sys.executable,
+                                 str(config)], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+        got = 0
+        deadline = time.monotonic() + HANG_GUARD_S
+        while time.monotonic() < deadline and proc.poll() is None and got < 1:
+            got += len(drain(listener))
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGTERM)
+        try:
+            code = proc.wait(timeout=HANG_GUARD_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            code = None
+        err = proc.communicate()[1]
+        said = [line for line in err.splitlines() if "sinks.stdout" in line]
+        outcomes[stdout_on] = {"exit_code": code, "udp_datagrams": got, "traceback": "Traceback" in err,
+                               "stdout_lines": len(said)}
+    listener.close()
+    held = all(o["exit_code"] == 0 and not o["traceback"] and o["udp_datagrams"] > 0 for o in outcomes.values())
+    held = held and outcomes[True]["stdout_lines"] <= 1 and outcomes[False]["stdout_lines"] == 0
+    return {"held": held, "outcomes": {str(k): v for k, v in outcomes.items()},
+            "detail": "; ".join(f"sinks.stdout = {str(k).lower()}: exit {v['exit_code']}, "
+                                f"{v['udp_datagrams']} datagrams, {v['stdout_lines']} line(s) about stdout"
+                                f"{', a traceback' if v['traceback'] else ''}" for k, v in outcomes.items())}
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
