@@ -145,6 +145,19 @@ def _warn_about_sinks(cfg) -> None:
             print(f"{PROG}: warning: sinks.ros2: {problem}; {then}", file=sys.stderr)
     elif not others:
         print(f"{PROG}: warning: sinks: {NO_SINK_LEFT.replace('other ', '')}", file=sys.stderr)
+    _warn_about_udp_hosts(cfg)
+
+
+def _warn_about_udp_hosts(cfg) -> None:
+    """A UDP sink whose host name does not resolve: the daemon runs and sends there once it does."""
+    from runtime.config import parse_host_port
+    from runtime.name_resolver import resolve_problem
+
+    for target in cfg.sinks.udp:
+        host, port = parse_host_port(target)
+        if problem := resolve_problem(host, port):
+            print(f"{PROG}: warning: sinks.udp: {target}: the host name does not resolve ({problem}); the daemon "
+                  "sends events there once it does", file=sys.stderr)
 
 
 def _note_held_locks(cfg) -> None:

@@ -293,21 +293,36 @@ class StdoutSink(Sink):
 
 
 class UdpSink(Sink):
-    """One JSON datagram per event to host:port (a ROS node or any process can listen)."""
+    """One JSON datagram per event to host:port (a ROS node or any process can listen).
 
-    def __init__(self, host: str, port: int) -> None:
+    A host name is looked up off the loop (runtime.name_resolver): until it resolves, sends to
+    it are counted as failed; the daemon never waits for DNS."""
+
+    def __init__(self, host: str, port: int, resolve: Any = None) -> None:
+        from runtime.name_resolver import ResolvedTarget
+
         super().__init__()
         self.name = f"udp://{host}:{port}"
-        info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
-        self.address = info[4]
-        self.sock = socket.socket(info[0], socket.SOCK_DGRAM)
-        self.sock.setblocking(False)
+        self.sock: socket.socket | None = None
+        self.address: Any = None
+        self.target = ResolvedTarget(host, port, self._resolved, resolve=resolve)
+
+    def _resolved(self, family: int, address: tuple) -> None:
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        sock.setblocking(False)
+        self.sock, self.address = sock, address  # the socket first: a send sees both or neither
 
     def _send(self, line: str, data: bytes) -> None:
-        self.sock.sendto(data, self.address)
+        sock, address = self.sock, self.address
+        if sock is None or address is None:
+            why = self.target.error or "still being looked up"
+            raise OSError(f"host {self.target.host} not resolved ({why}); event not sent")
+        sock.sendto(data, address)
 
     def close(self) -> None:
-        self.sock.close()
+        self.target.close()
+        if self.sock is not None:
+            self.sock.close()
 
 
 class UnixDatagramSink(Sink):
@@ -339,7 +354,7 @@ class SinkSet:
     @classmethod
     def from_config(cls, cfg: SinksConfig, stream: IO[str] | None = None, ros2: Ros2Config | None = None,
                     daemon: Any = None) -> SinkSet:
-        """Build from a SinksConfig; a UDP host that does not resolve is logged and skipped.
+        """Build from a SinksConfig; a UDP host name is looked up in the background (never waited for).
 
         ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and the daemon it reads
         frames and health from are then needed); rclpy is imported only then."""
@@ -353,11 +368,7 @@ class SinkSet:
         elif cfg.stdout:
             sinks.append(StdoutSink(stream))
         for target in cfg.udp:
-            host, port = parse_host_port(target)
-            try:
-                sinks.append(UdpSink(host, port))
-            except OSError as exc:
-                log.error("sink udp://%s: %s; events will not go there", target, exc)
+            sinks.append(UdpSink(*parse_host_port(target)))
         for path in cfg.unix:
             sinks.append(UnixDatagramSink(path))
         if cfg.ros2:

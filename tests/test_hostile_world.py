@@ -56,3 +56,30 @@ def test_the_stdout_sink_keeps_whole_lines_and_counts_what_it_dropped():
     sink.close()
     assert os.get_blocking(write_end)  # the descriptor's mode is given back
     os.close(read_end)
+
+
+def test_a_udp_host_whose_dns_is_silent_never_holds_ready_or_sighup(tmp_path):
+    _held(W.silent_dns(tmp_path))
+
+
+def test_a_udp_address_literal_needs_no_lookup_and_a_name_is_looked_up_off_the_caller():
+    import socket
+
+    from runtime.sinks import UdpSink
+
+    calls = []
+    release = threading.Event()
+
+    def dns(host, port, **kw):
+        calls.append(host)
+        release.wait()
+        raise socket.gaierror(socket.EAI_AGAIN, "Temporary failure in name resolution")
+
+    literal = UdpSink("127.0.0.1", 9, resolve=dns)
+    assert literal.address is not None and not calls
+    named = UdpSink("robot-pc.example", 9, resolve=dns)  # returns while the lookup hangs
+    named.send("x", b"x")
+    assert named.errors == 1 and named.sent == 0
+    release.set()
+    named.close()
+    literal.close()

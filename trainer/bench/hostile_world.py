@@ -67,10 +67,23 @@ def drain(sock: socket.socket) -> list[bytes]:
             return out
 
 
-def served_daemon(work: Path, sinks: dict, stream=None, events: list | None = None, **sections):
+SERVED_TRIGGER = ('[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\nrefractory_s = 0.2\n'
+                  'rearm_quiet_s = 0.05\n')
+"""A trigger that fires at each press of ``press_cycles``."""
+
+
+def served_config(work: Path, sinks: str = "stdout = false", more: str = "") -> Path:
+    """A config file for ``served_daemon`` (a SIGHUP reads it again); ``sinks``: the [sinks] lines."""
+    path = work / "served.toml"
+    path.write_text(f'realtime_priority = 0\n[device]\nurl = "sim://"\n[model]\nfolder = "{work / "models"}"\n'
+                    f'[sinks]\n{sinks}\n{SERVED_TRIGGER}{more}')
+    return path
+
+
+def served_daemon(work: Path, sinks: str = "stdout = false", stream=None, events: list | None = None, more: str = ""):
     """A Daemon serving a valid model (always ``pull``) for the SDH-2 layout, frames fed by the caller."""
     from firmware_io.layout import SensorLayout
-    from runtime.config import config_from_dict
+    from runtime.config import load_config
     from runtime.daemon import Daemon
     from runtime.model import load_model
     from trainer.bench import hostile_models as H
@@ -78,9 +91,7 @@ def served_daemon(work: Path, sinks: dict, stream=None, events: list | None = No
     models = work / "models"
     models.mkdir(parents=True, exist_ok=True)
     path = write_model(models, "good.onnx", H.valid(bias_class=0))
-    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": sinks, "model": {"folder": str(models)},
-                            "trigger": {"kind": "threshold", "fraction": 0.2, "hysteresis": 0.1, "refractory_s": 0.2,
-                                        "rearm_quiet_s": 0.05}, **sections})
+    cfg = load_config(served_config(work, sinks, more))
     daemon = Daemon(cfg, stream=stream, on_event=None if events is None else events.append)
     daemon.serve(load_model(path), SensorLayout.sdh2())
     return daemon
@@ -128,7 +139,7 @@ def blocked_stdout(work: Path) -> dict:
     read_end, write_end = os.pipe()
     fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, SMALL_PIPE)
     stream = os.fdopen(write_end, "w", encoding="utf-8")
-    daemon = served_daemon(work, {"stdout": True, "udp": [f"127.0.0.1:{port}"]}, stream=stream)
+    daemon = served_daemon(work, f'stdout = true\nudp = ["127.0.0.1:{port}"]', stream=stream)
     try:
         finished, _ = in_thread(lambda: press_cycles(daemon, 60))
         received = len([d for d in drain(listener) if b'"decision"' in d])
@@ -238,3 +249,69 @@ def read_json(path: Path) -> dict:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
+
+
+# -- 3: DNS ------------------------------------------------------------------------------------------
+def silent_dns(work: Path) -> dict:
+    """A UDP sink named by a host whose DNS does not answer: the daemon is built (READY) and reloads
+    (SIGHUP) without waiting for it; events reach the host once it resolves; ``--check`` names it."""
+    import runtime.name_resolver as R
+    from runtime.sinks import UdpSink
+
+    listener, port = udp_listener()
+    answer = threading.Event()
+    real = socket.getaddrinfo
+
+    def dns(host, port, *args, **kw):  # a DNS server that answers only when told to
+        if host == "robot-pc.example":
+            answer.wait()
+            return real("127.0.0.1", port, *args, **kw)
+        return real(host, port, *args, **kw)
+
+    original = socket.getaddrinfo
+    socket.getaddrinfo = dns
+    try:
+        daemon = None
+
+        def build():
+            nonlocal daemon
+            daemon = served_daemon(work, f'stdout = false\nudp = ["robot-pc.example:{port}"]')
+            daemon._do_reload()  # SIGHUP: the sinks are built again
+            return daemon
+
+        built, _ = in_thread(build, guard_s=HANG_GUARD_S / 3)
+        before = press_cycles(daemon, 3) if built else 0
+        sink = next((s for s in daemon.sinks.sinks if isinstance(s, UdpSink)), None) if built else None
+        unsent = sink.errors if sink is not None else 0
+        answer.set()
+        resolved = sink is not None and _wait(lambda: sink.address is not None)
+        if built and resolved:
+            press_cycles(daemon, 3, first=before)
+        got = len([d for d in drain(listener) if b'"decision"' in d])
+    finally:
+        socket.getaddrinfo = original
+        answer.set()
+        listener.close()
+    check = R.resolve_problem("no-such-host.invalid", 9, bound_s=HANG_GUARD_S / 3)
+    done = cli(["run", "--config", str(_unresolvable_config(work)), "--check"])
+    check_says = "no-such-host.invalid" in done.stderr and "sinks.udp" in done.stderr
+    held = built and resolved and unsent == 3 and got == 3 and check is not None and check_says
+    return {"held": held, "detail": f"built and reloaded while DNS was silent: {built}; {unsent} events counted "
+                                    f"unsent before it answered, {got} received after; --check names the "
+                                    f"unresolvable host: {check_says}"}
+
+
+def _unresolvable_config(work: Path) -> Path:
+    path = work / "unresolvable.toml"
+    path.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{work}"\n'
+                    '[sinks]\nudp = ["no-such-host.invalid:9999"]\n')
+    return path
+
+
+def _wait(condition: Callable[[], bool], guard_s: float = HANG_GUARD_S) -> bool:
+    deadline = time.monotonic() + guard_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
