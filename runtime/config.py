@@ -70,7 +70,7 @@ SinksConfig = _section_class("SinksConfig", "sinks", "``[sinks]``: where events 
                              n_without_ros2=property(_n_without_ros2))
 OnnxConfig = _section_class("OnnxConfig", "onnxruntime", "``[onnxruntime]``: the session's threads.")
 Ros2Config = _section_class("Ros2Config", "ros2", "``[ros2]``: the ROS 2 sink (runtime/ros2_node.py).")
-ControlConfig = _section_class("ControlConfig", "control", "``[control]``: the robot's grasp messages.")
+ControlConfig = _section_class("ControlConfig", "control", "``[control]``: the robot's grasp and arm messages.")
 
 _SECTION_CLASSES: dict[str, type] = {
     "device": DeviceConfig, "scene": SceneConfig, "model": ModelConfig, "trigger": TriggerConfig,
@@ -262,11 +262,22 @@ def _ros2_node_name(k: Key, table: dict) -> str:
     return node_name
 
 
+def _ros2_joint_states(k: Key, table: dict) -> str | None:
+    topic = read_key(k, table)
+    if topic is None:
+        return None
+    tokens = topic.lstrip("/").split("/")
+    if not all(_ROS_TOKEN.fullmatch(t) for t in tokens):
+        raise ConfigError(f"ros2.joint_states: must be a topic name like /joint_states or /arm/joint_states "
+                          f"(letters, digits, _), got {topic!r}")
+    return topic
+
+
 _READERS: dict[str, Callable[[Key, dict], Any]] = {
     "device.url": _device_url, "scene.pads": _scene_pads, "scene.events": _scene_events,
     "trigger.fraction": _trigger_fraction, "sinks.udp": _sinks_udp, "sinks.unix": _sinks_unix,
     "control.socket": _control_socket, "log_level": _log_level, "health_file": _health_file,
-    "ros2.namespace": _ros2_namespace, "ros2.node_name": _ros2_node_name,
+    "ros2.namespace": _ros2_namespace, "ros2.node_name": _ros2_node_name, "ros2.joint_states": _ros2_joint_states,
 }
 """Keys read with more than their declared type and range."""
 

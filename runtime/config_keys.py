@@ -71,9 +71,11 @@ SECTIONS: dict[str, str] = {
     "onnxruntime": "One thread, no spinning: a flat latency tail on a busy core.",
     "ros2": "Used when [sinks] ros2 = true (needs the ros extra; deploy/INSTALL.md, section ROS 2).\n"
             "Topics: <namespace>/events (std_msgs/String, the JSON line of docs/EVENTS.md), <namespace>/model\n"
-            "(latched: the model now serving), /diagnostics (the health view), <namespace>/pads/<pad>, <namespace>/grasp.",
+            "(latched: the model now serving), /diagnostics (the health view), <namespace>/pads/<pad>, <namespace>/grasp,\n"
+            "<namespace>/arm, and the arm's motion from sensor_msgs/JointState on joint_states.",
     "control": 'Robot messages, one datagram each: "grasp closed" (the grasp has settled: the onset trigger arms at\n'
-               'once) and "grasp open" (the robot lets go: no event until the hand is empty or closed again).\n'
+               'once), "grasp open" (the robot lets go: no event until the hand is empty or closed again),\n'
+               '"arm moving" / "arm still" (no window is reported while the arm moves, nor arm_settle_s after).\n'
                "Without them the onset trigger finds the settled grasp itself. Anything else is counted and logged once.\n"
                'Send one with: echo -n "grasp closed" | socat - UNIX-SENDTO:/run/handover/control.sock',
 }
@@ -147,6 +149,10 @@ KEYS: tuple[Key, ...] = (
         range=(0.0, 1000.0)),
     Key("continuous.rearm_frames", int, 4, "next report only after dormant won this many frames in a row (0 = report "
         "every change of the confirmed class)", range=(0, 100000)),
+    Key("continuous.gap_frames", int, 0, "dormant frames in a row that do not break a run (a hold flickers with "
+        "dormant)", range=(0, 1000)),
+    Key("continuous.vote", bool, False, "true: a run is any non-dormant class; the class that won most of its frames "
+        "is reported"),
 
     Key("sinks.stdout", bool, True, "JSON lines on stdout (journald)"),
     Key("sinks.udp", tuple, (), "host:port targets, one JSON datagram per event", example=("127.0.0.1:5005",)),
@@ -171,9 +177,17 @@ KEYS: tuple[Key, ...] = (
     Key("ros2.pad_gain", int, 1, "taxel value x this in the images (16: 12-bit full scale = mono16 white)",
         range=(1, 16)),
     Key("ros2.grasp", bool, False, 'true: listen on <namespace>/grasp ("closed" / "open") from the robot'),
+    Key("ros2.arm", bool, False, 'true: listen on <namespace>/arm ("moving" / "still") from the robot'),
+    Key("ros2.joint_states", str, None, "sensor_msgs/JointState topic: the arm counts as moving while a joint's speed "
+        "exceeds joint_speed (runtime/arm_motion.py)", optional=True, example="/joint_states"),
+    Key("ros2.joint_speed", float, 0.05, "rad/s (or m/s): a joint faster than this moves the arm", range=(1e-6, 100.0)),
 
     Key("control.socket", str, None, "Unix datagram socket (absolute path or @abstract name) for robot messages",
         optional=True, example="/run/handover/control.sock"),
+    Key("control.arm_settle_s", float, 0.5, "after 'arm still' the arm counts as moving this long (the object rings "
+        "on the fingers after the stop; runtime/arm_motion.py)", range=(0.0, 60.0)),
+    Key("control.arm_max_move_s", float, 30.0, "'arm moving' holds this long unless repeated (a lost 'arm still' "
+        "must not deafen the daemon)", range=(0.1, _S)),
 )
 """Every key, section by section in the order of ``SECTIONS``."""
 

@@ -10,7 +10,9 @@ one (another daemon) is not; a socket file deleted while running is bound again.
 Messages (ASCII, case and surrounding white space ignored):
 
 - ``grasp closed``: the robot's grasp has settled on the object (arm the onset trigger now);
-- ``grasp open``: the robot releases the object (no event until the hand is empty or closed again).
+- ``grasp open``: the robot releases the object (no event until the hand is empty or closed again);
+- ``arm moving``: the robot's arm starts moving (no window is reported while it moves: runtime.arm_motion);
+- ``arm still``: the arm has stopped (windows are reported again after the settle time).
 """
 
 from __future__ import annotations
@@ -33,9 +35,13 @@ daemon_log = logging.getLogger("handover.daemon")
 MAX_DATAGRAM = 512
 POLL_S = 0.2
 """Longest the reader blocks: bounds how long ``stop`` takes."""
-MESSAGES = {"grasp closed": True, "grasp open": False}
+MESSAGES: dict[str, tuple[str, bool]] = {
+    "grasp closed": ("grasp", True), "grasp open": ("grasp", False),
+    "arm moving": ("arm", True), "arm still": ("arm", False),
+}
+"""Every control datagram the daemon knows: text -> (topic, value)."""
 GRASP_LOG_INTERVAL_S = 1.0
-"""At most one log line per this many seconds for grasp messages (the rest are counted in the next)."""
+"""At most one log line per this many seconds for each kind of robot message (the rest are counted in the next)."""
 
 
 def _is_live(path: str) -> bool:
@@ -50,9 +56,9 @@ def _is_live(path: str) -> bool:
     return True
 
 
-def parse_message(data: bytes) -> bool | None:
-    """``True`` for ``grasp closed``, ``False`` for ``grasp open``, None for anything else
-    (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
+def parse_message(data: bytes) -> tuple[str, bool] | None:
+    """``("grasp", closed)`` or ``("arm", moving)`` for a known message (``MESSAGES``), None for anything
+    else (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
     if len(data) > MAX_DATAGRAM:
         return None
     try:
@@ -63,11 +69,13 @@ def parse_message(data: bytes) -> bool | None:
 
 
 class ControlSocket:
-    """Reads control datagrams on ``address`` and calls ``on_grasp(closed, "control")``."""
+    """Reads control datagrams on ``address``; calls ``on_grasp(closed, "control")`` or ``on_arm(moving, "control")``."""
 
-    def __init__(self, address: str, on_grasp: Callable[[bool, str], None]) -> None:
+    def __init__(self, address: str, on_grasp: Callable[[bool, str], None],
+                 on_arm: Callable[[bool, str], None] | None = None) -> None:
         self.address = address
         self.on_grasp = on_grasp
+        self.on_arm = on_arm
         self.received = 0
         self.garbage = 0
         """Datagrams that were not a known message (the first is logged, all are counted)."""
@@ -89,7 +97,7 @@ class ControlSocket:
         self._sock = sock
         self._thread = threading.Thread(target=self._loop, name="handover-control", daemon=True)
         self._thread.start()
-        log.info("control socket %s: listening (grasp closed / grasp open)", self.address)
+        log.info("control socket %s: listening (%s)", self.address, " / ".join(MESSAGES))
         return self
 
     def _bind_address(self) -> str | bytes:
@@ -143,16 +151,17 @@ class ControlSocket:
         log.warning("control socket %s was removed while running; bound it again", self.address)
 
     def _handle(self, data: bytes) -> None:
-        closed = parse_message(data)
-        if closed is None:
+        message = parse_message(data)
+        callback = None if message is None else self.on_grasp if message[0] == "grasp" else self.on_arm
+        if message is None or callback is None:
             self.garbage += 1
             if self.garbage == 1:
-                log.warning("control socket %s: ignored a datagram that is not 'grasp closed' or 'grasp open' "
-                            "(%r); further ones are only counted", self.address, data[:64])
+                log.warning("control socket %s: ignored a datagram that is not one of %s (%r); further ones are "
+                            "only counted", self.address, ", ".join(repr(m) for m in MESSAGES), data[:64])
             return
         self.received += 1
         try:
-            self.on_grasp(closed, "control")
+            callback(message[1], "control")
         except Exception as exc:  # the callback must never end the reader
             log.error("control socket %s: %s", self.address, exc)
 
@@ -170,11 +179,31 @@ class ControlSocket:
                     os.unlink(self.address)
 
 
-class GraspControl:
-    """The daemon's side of the robot's grasp messages (mixed into ``runtime.daemon.Daemon``).
+class MessageLog:
+    """At most one log line per ``GRASP_LOG_INTERVAL_S`` for each kind of robot message: a chatty robot
+    (or a flood on the socket) must not flood the journal; the lines skipped are counted in the next."""
 
-    Expects ``cfg``, ``health``, ``trigger``, ``control``, ``grasp_closed`` and ``_grasp_requests``
-    (a deque) on the instance; the hot path calls ``_apply_grasp`` when requests are queued.
+    def __init__(self) -> None:
+        self._logged: dict[str, float] = {}
+        self._unlogged: dict[str, int] = {}
+
+    def note(self, kind: str, word: str, source: str) -> None:
+        now = time.monotonic()
+        if now - self._logged.get(kind, float("-inf")) < GRASP_LOG_INTERVAL_S:
+            self._unlogged[kind] = self._unlogged.get(kind, 0) + 1
+            return
+        skipped = self._unlogged.pop(kind, 0)
+        more = f"; {skipped} more {kind} messages since the last line" if skipped else ""
+        self._logged[kind] = now
+        daemon_log.info("%s %s%s%s", kind, word, f" (from {source})" if source else "", more)
+
+
+class GraspControl:
+    """The daemon's side of the robot's grasp and arm messages (mixed into ``runtime.daemon.Daemon``).
+
+    Expects ``cfg``, ``health``, ``trigger``, ``control``, ``grasp_closed``, ``_grasp_requests``
+    (a deque), ``arm`` (runtime.arm_motion.ArmMotion) and ``_messages`` (MessageLog) on the
+    instance; the hot path calls ``_apply_grasp`` when requests are queued.
     """
 
     cfg: Any
@@ -183,9 +212,10 @@ class GraspControl:
     control: ControlSocket | None
     grasp_closed: bool | None
     grasp_request: tuple[bool, str] | None
+    arm_request: tuple[bool, str] | None
+    arm: Any
     _grasp_requests: deque
-    _grasp_logged: float = float("-inf")
-    _grasp_unlogged: int = 0
+    _messages: MessageLog
 
     def set_grasp(self, closed: bool, source: str = "") -> None:
         """The robot says its grasp has settled (``closed``) or is released; thread-safe.
@@ -196,13 +226,16 @@ class GraspControl:
         request = (bool(closed), str(source))
         self.grasp_request = request  # the latest call, for status and tests
         self._grasp_requests.append(request)
-        now = time.monotonic()
-        if now - self._grasp_logged < GRASP_LOG_INTERVAL_S:  # a chatty robot must not flood the journal
-            self._grasp_unlogged += 1
-            return
-        more = f"; {self._grasp_unlogged} more grasp messages since the last line" if self._grasp_unlogged else ""
-        self._grasp_logged, self._grasp_unlogged = now, 0
-        daemon_log.info("grasp %s%s%s", "closed" if closed else "open", f" (from {source})" if source else "", more)
+        self._messages.note("grasp", "closed" if closed else "open", source)
+
+    def set_arm_moving(self, moving: bool, source: str = "") -> None:
+        """The robot says its arm moves (``True``) or has stopped; thread-safe.
+
+        Only records the request; the hot path applies it at the next frame (runtime.arm_motion:
+        no window is reported while the arm moves and for the settle time after it stops)."""
+        self.arm_request = (bool(moving), str(source))
+        self.arm.request(moving)
+        self._messages.note("arm", "moving" if moving else "still", source)
 
     def _apply_grasp(self) -> None:
         while self._grasp_requests:
@@ -217,7 +250,7 @@ class GraspControl:
         if self.control is not None or not self.cfg.control.socket:
             return
         try:
-            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp).start()
+            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp, self.set_arm_moving).start()
         except OSError as exc:
             daemon_log.error("%s; running without robot messages", exc)
             self.health.last_error = str(exc)

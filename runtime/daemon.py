@@ -24,9 +24,10 @@ from typing import IO, Any
 
 from firmware_io.layout import SensorLayout
 from runtime import realtime
+from runtime.arm_motion import ArmMotion, arm_frames
 from runtime.config import Config
 from runtime.config_reload import ConfigReload, set_log_level
-from runtime.control import ControlSocket, GraspControl
+from runtime.control import ControlSocket, GraspControl, MessageLog
 from runtime.decision import ContinuousDecision
 from runtime.device_link import CONNECT_BOUND_S, DeviceLink, default_client
 from runtime.frame_rate import FrameClock
@@ -113,6 +114,11 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         self.grasp_closed: bool | None = None
         """The robot's last word on its grasp (``set_grasp``), None before any."""
         self.control: ControlSocket | None = None
+        self._messages = MessageLog()
+        self.arm = ArmMotion(*arm_frames(DEFAULT_RATE_HZ, cfg.control.arm_settle_s, cfg.control.arm_max_move_s))
+        """Which frames the robot's arm counts as moving in (``set_arm_moving``; runtime.arm_motion)."""
+        self.arm_request: tuple[bool, str] | None = None
+        """The latest ``set_arm_moving`` call: (moving, source)."""
         self.decision: ContinuousDecision | None = None
         """Continuous mode's report rule (confirm, margin, one report per interaction)."""
         self.watcher: ModelWatcher | None = None
@@ -214,6 +220,7 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         ring.push(frame.values, number)
         if self._grasp_requests:
             self._apply_grasp()
+        self.arm.update(number)
         due = self.trigger.update(ring.latest(), number)
         if self.model is None:
             return
@@ -223,9 +230,18 @@ class Daemon(GraspControl, ModelServing, DeviceLink, ConfigReload):
         if pending and number >= pending[0]:
             due = pending.pop(0)
             if number == due and ring.count >= self.model.meta.T:
-                self._classify(frame)
+                if self.arm.touches(number - self.model.meta.T + 1):
+                    self._judged_dormant()
+                else:
+                    self._classify(frame)
         elif pending and number + 1 == pending[0] and ring.count >= self.model.meta.T:
             self._expect_next(frame)  # keep warm for the frame that completes the window, due one period on
+
+    def _judged_dormant(self) -> None:
+        """A window that held frames of the arm's motion (runtime.arm_motion): the model does not run;
+        continuous mode's report rule sees the dormant class."""
+        if self.decision is not None:
+            self.decision.update(self.decision.dormant)
 
     def _expect_next(self, frame: Any) -> None:
         """The next frame is due: rehearse its decision shortly before it arrives (runtime.rehearsal)."""

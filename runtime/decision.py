@@ -11,7 +11,11 @@ again on every flicker. The rule here, per frame and in O(n_classes) scalar work
 - a confirmed class is reported only while the rule is *armed*; a report disarms it, and it
   re-arms once dormant has won ``rearm_frames`` frames in a row (the interaction is over);
 - ``rearm_frames = 0`` never disarms: every change of the confirmed class is reported (with
-  ``confirm_frames = 1`` and ``min_margin = 0`` this is the plain report-on-change rule).
+  ``confirm_frames = 1`` and ``min_margin = 0`` this is the plain report-on-change rule);
+- ``gap_frames``: up to this many dormant frames in a row do not break a run (a person holding the
+  object still reads as dormant now and then: hold flickers with dormant);
+- ``vote``: the run is any non-dormant class, and the class reported is the one that won most of
+  its frames (the latest on a tie): pull and push flicker in the first frames of either.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ class ContinuousDecision:
     """Per-frame labels and scores in, the class index to report (or -1) out."""
 
     def __init__(self, n_classes: int, dormant: int, confirm_frames: int = 1, min_margin: float = 0.0,
-                 rearm_frames: int = 0) -> None:
+                 rearm_frames: int = 0, gap_frames: int = 0, vote: bool = False) -> None:
         if not 0 <= dormant < n_classes:
             raise ValueError(f"dormant class index {dormant} is not one of {n_classes} classes")
         if confirm_frames < 1:
@@ -32,11 +36,16 @@ class ContinuousDecision:
             raise ValueError("min_margin must be >= 0")
         if rearm_frames < 0:
             raise ValueError("rearm_frames must be >= 0")
+        if gap_frames < 0:
+            raise ValueError("gap_frames must be >= 0")
         self.n_classes = int(n_classes)
         self.dormant = int(dormant)
         self.confirm_frames = int(confirm_frames)
         self.min_margin = float(min_margin)
         self.rearm_frames = int(rearm_frames)
+        self.gap_frames = int(gap_frames)
+        self.vote = bool(vote)
+        self._votes = [0] * self.n_classes
         self.reset()
 
     def reset(self) -> None:
@@ -47,12 +56,19 @@ class ContinuousDecision:
         self.armed = True
         self.last_reported = -1
         self.margin = 0.0
+        self._clear_votes()
+
+    def _clear_votes(self) -> None:
+        votes = self._votes
+        for k in range(self.n_classes):
+            votes[k] = 0
 
     def update(self, label: int, scores: np.ndarray | None = None) -> int:
         """One frame's decision (``scores``: that frame's score per class); the class to report, or -1."""
         if label == self.dormant:
-            self.candidate, self.run = -1, 0
             self.dormant_run += 1
+            if self.dormant_run > self.gap_frames:
+                self._break_run()
             if self.dormant_run >= self.rearm_frames:
                 self.armed = True
                 self.last_reported = -1
@@ -61,9 +77,16 @@ class ContinuousDecision:
         if self.min_margin > 0.0:
             self.margin = margin_of(scores, label)
             if self.margin < self.min_margin:
-                self.candidate, self.run = -1, 0
+                self._break_run()
                 return -1
-        if label == self.candidate:
+        if self.vote:
+            votes = self._votes
+            votes[label] += 1
+            self.run += 1
+            if self.candidate < 0 or votes[label] >= votes[self.candidate]:
+                self.candidate = label
+            label = self.candidate
+        elif label == self.candidate:
             self.run += 1
         else:
             self.candidate, self.run = label, 1
@@ -73,6 +96,12 @@ class ContinuousDecision:
         if self.rearm_frames > 0:
             self.armed = False
         return label
+
+    def _break_run(self) -> None:
+        if self.run:
+            self.candidate, self.run = -1, 0
+            if self.vote:
+                self._clear_votes()
 
 
 def margin_of(scores: np.ndarray | None, label: int) -> float:

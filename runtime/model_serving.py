@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from runtime.arm_motion import ArmMotion, arm_frames
 from runtime.decision import ContinuousDecision
 from runtime.health import Health
 from runtime.model_watch import ModelWatcher, Rejection
@@ -51,6 +52,7 @@ class ModelServing:
     trigger: Any
     trigger_settings: TriggerSettings | None
     decision: ContinuousDecision | None
+    arm: ArmMotion
     watcher: ModelWatcher | None
     period_s: float
     frame_clock: Any  # runtime.frame_rate.FrameClock
@@ -167,6 +169,8 @@ class ModelServing:
         if not (keep_history and self.trigger is not None and key == self._trigger_key):
             self._new_trigger(inputs, meta, keep_history)
         self._trigger_key = key
+        self.arm.configure(*arm_frames(1.0 / self.period_s, self.cfg.control.arm_settle_s,
+                                       self.cfg.control.arm_max_move_s))
         self._pending.clear()
         self.rehearsal.cancel()  # a rehearsal of the old ring or model is not worth running
 
@@ -181,7 +185,8 @@ class ModelServing:
                 cc = self.cfg.continuous
                 self.decision = ContinuousDecision(
                     len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
-                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames)
+                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames,
+                    gap_frames=cc.gap_frames, vote=cc.vote)
             return
         self.trigger = build_trigger(*inputs)
         if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:

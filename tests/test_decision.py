@@ -87,3 +87,57 @@ def test_bad_parameters_are_refused(kwargs, message):
     args = {"n_classes": 5, "dormant": D, **kwargs}
     with pytest.raises(ValueError, match=message):
         ContinuousDecision(**args)
+
+
+def test_a_hold_that_flickers_with_dormant_is_confirmed_when_short_gaps_do_not_break_the_run():
+    flicker = [HOLD, D, HOLD, HOLD, D, HOLD, HOLD, D, HOLD, HOLD] + [D] * 10
+    assert _reports(ContinuousDecision(5, D, confirm_frames=4, rearm_frames=4), flicker) == []
+    assert _reports(ContinuousDecision(5, D, confirm_frames=4, rearm_frames=4, gap_frames=1), flicker) == [(5, HOLD)]
+    two_gap = [HOLD, HOLD, D, D, HOLD, HOLD]
+    assert _reports(ContinuousDecision(5, D, confirm_frames=4, gap_frames=1), two_gap) == []
+
+
+def test_vote_reports_the_class_that_won_most_frames_of_a_run_of_any_non_dormant_class():
+    flicker = [PULL, PUSH, PULL, PUSH, PULL, PULL, D, D, D, D]
+    assert _reports(ContinuousDecision(5, D, confirm_frames=3, rearm_frames=2), flicker) == []
+    assert _reports(ContinuousDecision(5, D, confirm_frames=5, rearm_frames=2, vote=True), flicker) == [(4, PULL)]
+
+
+def test_gap_and_vote_off_is_the_rule_as_before():
+    rng = np.random.default_rng(3)
+    labels = rng.choice([D, D, D, PULL, PUSH, HOLD, BUMP], size=2000).tolist()
+    margins = rng.uniform(0, 2, size=2000)
+    for confirm, margin, rearm in ((1, 0.0, 0), (3, 0.5, 4), (8, 0.0, 4)):
+        new = ContinuousDecision(5, D, confirm, margin, rearm, gap_frames=0, vote=False)
+        old = _OldRule(confirm, margin, rearm)
+        assert _reports(new, labels, margins) == _reports(old, labels, margins)
+
+
+class _OldRule:
+    """The rule before gap_frames and vote, verbatim, to show the defaults did not change it."""
+
+    def __init__(self, confirm, margin, rearm):
+        self.confirm_frames, self.min_margin, self.rearm_frames = confirm, margin, rearm
+        self.candidate, self.run, self.dormant_run, self.armed, self.last_reported = -1, 0, 0, True, -1
+
+    def update(self, label, scores):
+        if label == D:
+            self.candidate, self.run = -1, 0
+            self.dormant_run += 1
+            if self.dormant_run >= self.rearm_frames:
+                self.armed, self.last_reported = True, -1
+            return -1
+        self.dormant_run = 0
+        if self.min_margin > 0.0 and margin_of(scores, label) < self.min_margin:
+            self.candidate, self.run = -1, 0
+            return -1
+        if label == self.candidate:
+            self.run += 1
+        else:
+            self.candidate, self.run = label, 1
+        if self.run != self.confirm_frames or not self.armed or label == self.last_reported:
+            return -1
+        self.last_reported = label
+        if self.rearm_frames > 0:
+            self.armed = False
+        return label

@@ -142,8 +142,9 @@ def test_bad_trigger_and_control_keys_are_one_line(table, message):
 
 
 def test_control_messages():
-    assert parse_message(b"grasp closed\n") is True and parse_message(b"  GRASP   open ") is False
-    assert parse_message(b"grasp") is None and parse_message(b"\xff\xfe") is None
+    assert parse_message(b"grasp closed\n") == ("grasp", True) and parse_message(b"  GRASP   open ") == ("grasp", False)
+    assert parse_message(b"arm moving") == ("arm", True) and parse_message(b"ARM  still\n") == ("arm", False)
+    assert parse_message(b"grasp") is None and parse_message(b"\xff\xfe") is None and parse_message(b"arm") is None
 
 
 # -- the daemon --------------------------------------------------------------------------------------

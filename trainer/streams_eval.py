@@ -13,7 +13,10 @@ do. The modes, the same streams for all:
   (``Daemon.set_grasp``, as the control socket or the ROS 2 topic would; ``robot_messages``);
 - ``onset_dormant``: the onset trigger + the 5-class model with a dormant class (a window it reads
   as dormant is not reported);
-- ``continuous``: every frame classified by the 5-class model with a dormant class.
+- ``continuous``: every frame classified by the 5-class model with a dormant class;
+- ``onset_arm``, ``onset_dormant_arm``, ``continuous_arm``: the same three, and the robot says when
+  its arm moves (``Daemon.set_arm_moving`` from the recording's marks, ``firmware_io.recordings.arm_marks``:
+  the simulator's own moves, a recorder's robot messages or prompted ``arm_move`` stretches).
 """
 
 from __future__ import annotations
@@ -26,10 +29,14 @@ import numpy as np
 
 from firmware_io.recordings.recording import Recording
 
-MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous")
+MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous", "onset_arm",
+         "onset_dormant_arm", "continuous_arm")
+ARM_MODES = ("onset_arm", "onset_dormant_arm", "continuous_arm")
+"""Modes in which the robot says when its arm moves (the recording's arm marks are sent)."""
 TRIGGER_TABLE = {"threshold": {"kind": "threshold"}, "baseline": {"kind": "threshold", "baseline": True},
                  "onset": {"kind": "onset"}, "onset_robot": {"kind": "onset"}, "onset_dormant": {"kind": "onset"},
-                 "continuous": {}}
+                 "continuous": {}, "onset_arm": {"kind": "onset"}, "onset_dormant_arm": {"kind": "onset"},
+                 "continuous_arm": {}}
 """The ``[trigger]`` config table of each mode (unset keys: the model's recorded settings, else the defaults)."""
 DEFAULT_SETTING = "onset_dormant"
 """The stream setting ``handover demo`` runs by default: the one ``handover bench streams`` chose
@@ -60,13 +67,15 @@ class Truth:
 
 
 def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None,
-           robot: dict[int, bool] | None = None) -> list[Decision]:
+           robot: dict[int, bool] | None = None, arm: dict[int, bool] | None = None) -> list[Decision]:
     """Feed every frame of ``rec`` to a fresh daemon in ``mode``; the events it reports.
 
     ``rule``: the ``[continuous]`` config table (confirm_frames, min_margin, rearm_frames) for
     continuous mode; None takes the config defaults. ``robot``: frame index -> grasp closed
     (True) / open (False), passed to ``Daemon.set_grasp`` before that frame (``onset_robot``
-    computes them with ``robot_messages`` when not given).
+    computes them with ``robot_messages`` when not given). ``arm``: frame index -> arm moving, passed
+    to ``Daemon.set_arm_moving`` before that frame (the ``*_arm`` modes take the recording's marks,
+    ``firmware_io.recordings.arm_marks.marks_of``, when not given).
     """
     from firmware_io.client import Frame
     from runtime.config import config_from_dict
@@ -77,7 +86,7 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     pads = ",".join(str(p) for p in model.meta.pads)
     events = [c for c in model.meta.classes if c != model.meta.dormant_class]
     cfg = config_from_dict({
-        "scene": {"pads": pads, "events": events, "mode": "continuous" if mode == "continuous" else "trigger"},
+        "scene": {"pads": pads, "events": events, "mode": "continuous" if mode.startswith("continuous") else "trigger"},
         "trigger": dict(TRIGGER_TABLE[mode]),
         "continuous": dict(rule or {}),
         "sinks": {"stdout": False},
@@ -96,9 +105,16 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     if robot is None and mode == "onset_robot":
         robot = robot_messages(rec)
     robot = robot or {}
+    if arm is None and mode in ARM_MODES:
+        from firmware_io.recordings.arm_marks import marks_of
+
+        arm = marks_of(rec.meta, rec.n_frames)
+    arm = arm or {}
     for i in range(rec.n_frames):
         if i in robot:
             daemon.set_grasp(robot[i], source="replay")
+        if i in arm:
+            daemon.set_arm_moving(arm[i], source="replay")
         handle(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
     return out
 
@@ -167,7 +183,7 @@ def apply_rule(labels: np.ndarray, scores: np.ndarray, model_meta, rule: dict | 
     classes = list(model_meta.classes)
     events = {i for i, c in enumerate(classes) if c != model_meta.dormant_class}
     dec = ContinuousDecision(len(classes), classes.index(model_meta.dormant_class), cc.confirm_frames,
-                             cc.min_margin, cc.rearm_frames)
+                             cc.min_margin, cc.rearm_frames, cc.gap_frames, cc.vote)
     start = int(model_meta.T) - 1 if first_frame is None else first_frame
     out = []
     for i in range(len(labels)):

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_io.recordings import arm_marks
 from firmware_io.recordings.recording import Recording
 from firmware_io.sim import constants as K
 from firmware_io.sim.actions import Motion, baseline, smooth
@@ -287,6 +288,22 @@ def source_codes(plan: HoldPlan, n_frames: int) -> np.ndarray:
     return code
 
 
+def move_marks(plan: HoldPlan, offset: int = 0) -> dict[int, bool]:
+    """What a robot that tells the truth says about its arm during ``plan`` (frame -> moving): ``arm moving``
+    from the frame in which a move starts, ``arm still`` from the frame in which it ends (its own
+    plan, not the pads: the settling after the stop is the daemon's settle time). ``offset``: the
+    hold's first frame in the stream."""
+    out: dict[int, bool] = {}
+    for mv in plan.moves:
+        start = offset + max(0, math.ceil(mv.start_s / K.FRAME_PERIOD_S - 1.0 - 1e-9))
+        stop = offset + max(0, math.ceil((mv.start_s + mv.duration_s) / K.FRAME_PERIOD_S - 1.0 - 1e-9))
+        if stop < offset + plan.n_frames:
+            out[stop] = False
+        if start < offset + plan.n_frames:
+            out[start] = True
+    return out
+
+
 def render_hold(plan: HoldPlan, sensor: HandSensor, rng: np.random.Generator) -> np.ndarray:
     """uint16 frames ``[n_frames, C]`` of one hold (open hand before the close and after the release)."""
     layout = sensor.layout
@@ -334,6 +351,8 @@ def simulate_idle(duration_s: float, seed: int = 0, part: int = 0, sensor: HandS
     sensor = sensor or hand_sensor(seed)
     n_taxels = sensor.layout.n_taxels
     frames, codes, elapsed, i = [], [], 0.0, 0
+    marks: dict[int, bool] = {}
+    first = 0
     while elapsed < duration_s:
         rng = idle_rng(seed, part, i)
         gap = float(rng.uniform(*OPEN_GAP_S))
@@ -344,6 +363,8 @@ def simulate_idle(duration_s: float, seed: int = 0, part: int = 0, sensor: HandS
         plan = plan_hold(rng, hold_s)
         frames.append(render_hold(plan, sensor, rng))
         codes.append(source_codes(plan, plan.n_frames))
+        marks.update(move_marks(plan, first + n_gap))
+        first += n_gap + plan.n_frames
         elapsed += (n_gap + plan.n_frames) * K.FRAME_PERIOD_S
         i += 1
     all_frames = np.concatenate(frames)
@@ -351,7 +372,7 @@ def simulate_idle(duration_s: float, seed: int = 0, part: int = 0, sensor: HandS
     stamps = frame_stamps(len(all_frames), idle_rng(seed, part, "timing"))
     meta = {"source": "synthetic idle stream (firmware_io.sim.idle)", "synthetic": True, "seed": int(seed),
             "part": int(part), "sources": list(SOURCES), "source_codes": code.tolist(),
-            "frame_period_s": K.FRAME_PERIOD_S}
+            "frame_period_s": K.FRAME_PERIOD_S, arm_marks.KEY: arm_marks.encode(marks)}
     return Recording(sensor.layout, all_frames, stamps, [], meta)
 
 
@@ -372,6 +393,7 @@ def simulate_mixed(events: Sequence[ScriptedEvent], seed: int = 0, margin_s: flo
         code[tr.first:tr.last + 1] = -1
     bounds = [-1] + [b for tr in rec.trials for b in (tr.first, tr.last)] + [rec.n_frames]
     margin = math.ceil(margin_s / K.FRAME_PERIOD_S)
+    marks: dict[int, bool] = {}
     for k in range(0, len(bounds), 2):
         start, stop = bounds[k] + 1 + margin, bounds[k + 1] - margin  # [start, stop)
         if (stop - start) * K.FRAME_PERIOD_S < min_hold_s:
@@ -381,8 +403,12 @@ def simulate_mixed(events: Sequence[ScriptedEvent], seed: int = 0, margin_s: flo
         n = min(plan.n_frames, stop - start)
         frames[start:start + n] = render_hold(plan, sensor, rng)[:n]
         code[start:start + n] = source_codes(plan, plan.n_frames)[:n]
+        hold_marks = {f: m for f, m in move_marks(plan, start).items() if f < start + n}
+        if hold_marks and hold_marks[max(hold_marks)] and start + n < rec.n_frames:
+            hold_marks[start + n] = False  # a move cut short by the hold's end: the arm stops with it
+        marks.update(hold_marks)
     meta = {**rec.meta, "source": "synthetic mixed stream (firmware_io.sim.idle)", "sources": list(SOURCES),
-            "source_codes": code.tolist()}
+            "source_codes": code.tolist(), arm_marks.KEY: arm_marks.encode(marks)}
     return Recording(rec.layout, frames, rec.timestamps, list(rec.trials), meta)
 
 

@@ -67,7 +67,9 @@ def train_models(work: Path, seed: int, s: dict, say) -> dict:
                                                    work / "dormant.onnx")
     loaded = {k: load_model(p) for k, p in paths.items()}
     return {"threshold": loaded["threshold"], "baseline": loaded["threshold"], "onset": loaded["onset"],
-            "onset_robot": loaded["onset"], "onset_dormant": loaded["continuous"], "continuous": loaded["continuous"]}
+            "onset_robot": loaded["onset"], "onset_dormant": loaded["continuous"], "continuous": loaded["continuous"],
+            "onset_arm": loaded["onset"], "onset_dormant_arm": loaded["continuous"],
+            "continuous_arm": loaded["continuous"]}
 
 
 def _default_estimator(cls, pad_sizes, seed: int, **options):
@@ -94,11 +96,14 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
         sc = se.score(se.replay(mixed, models[mode], mode), truths, mixed.n_frames, period, names)
         out[mode] = {"mixed": sc, "f1": se.macro_f1(sc["per_class"])}
     idle_scores: dict[str, list] = {m: [] for m in se.MODES}
+    source_hours: dict[str, float] = {}
     n_parts = max(1, round(3600.0 * idle_h / PART_S))
     for p in range(n_parts):
         say(f"streams: {label} idle stream part {p + 1}/{n_parts} (synthetic, seed {seed}) ...")
         rec = simulate_idle(3600.0 * idle_h / n_parts, seed=seed, part=p)
         names = se.source_names(rec, rec.n_frames)
+        for k, v in se.source_hours([rec], period).items():
+            source_hours[k] = source_hours.get(k, 0.0) + v
         for mode in se.MODES:
             idle_scores[mode].append(se.score(se.replay(rec, models[mode], mode), [], rec.n_frames, period, names))
     for mode in se.MODES:
@@ -108,8 +113,12 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
         hours = m["idle_hours"] + idle["idle_hours"]
         out[mode].update(idle=idle, false_per_hour=false / hours if hours else None,
                          utility=m["correct"] - m["wrong_class"] - m["duplicates"] - false)
+        arm_h = source_hours.get("arm_move", 0.0)
+        out[mode]["idle"]["arm_move_false_per_hour"] = (out[mode]["idle"]["false_by_source"].get("arm_move", 0) / arm_h
+                                                        if arm_h else None)
     out["_info"] = {"seed": seed, "events": len(truths), "mixed_hours": mixed.n_frames * period / 3600.0,
-                    "idle_hours": sum(s["idle_hours"] for s in idle_scores[se.MODES[0]])}
+                    "idle_hours": sum(s["idle_hours"] for s in idle_scores[se.MODES[0]]),
+                    "idle_source_hours": source_hours}
     return out
 
 
@@ -167,7 +176,7 @@ def evaluate_real(models: dict, root: Path, say) -> dict:
     """False events per hour of every real recording (none holds a handover), each mode but onset_robot."""
     from firmware_io.recordings.importers import import_any
 
-    modes = [m for m in se.MODES if m != "onset_robot"]  # no robot messages were recorded
+    modes = [m for m in se.MODES if m != "onset_robot" and m not in se.ARM_MODES]  # no robot messages were recorded
     rows = []
     for k, (path, cat, why) in enumerate(real_files(root)):
         try:
@@ -264,6 +273,8 @@ def summary(test: dict, val: dict, chosen: str, demo: dict, real: dict | None) -
         "onset_to_report_median_frames": {m: (test[m]["mixed"]["delay_frames"] or {}).get("median")
                                           for m in se.MODES},
         "continuous_hold_recall": hold["correct"] / hold["n"] if hold["n"] else None,
+        "sim_arm_move_hours": test["_info"]["idle_source_hours"].get("arm_move"),
+        "sim_arm_move_false_per_hour": {m: test[m]["idle"]["arm_move_false_per_hour"] for m in se.MODES},
         "continuous_events_correct_fraction": cont["correct_rate"],
         "real_idle_hours": real["hours"] if real else None,
         "real_idle_false_events_per_hour": real["false_per_hour"].get(chosen) if real else None,

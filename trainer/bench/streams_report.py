@@ -11,6 +11,9 @@ MODE_TEXT = {
     "onset_robot": "onset trigger + the robot's `grasp closed` / `grasp open` + 4-class model",
     "onset_dormant": "onset trigger + 5-class model (a window read as dormant is not reported)",
     "continuous": "continuous, 5-class model with dormant class and level features + report rule",
+    "onset_arm": "onset + 4-class model + the robot's `arm moving` / `arm still`",
+    "onset_dormant_arm": "onset + 5-class model + the robot's `arm moving` / `arm still`",
+    "continuous_arm": "continuous + the robot's `arm moving` / `arm still`",
 }
 
 
@@ -60,7 +63,7 @@ def markdown(r: dict, load_text: str) -> list[str]:
         + ", ".join(f"{m} {_f(v, '.0f')}" for m, v in r["onset_to_report_median_frames"].items()),
         "",
     ]
-    lines += _test_table(r) + _per_class(r) + _choice(r) + _demo(r) + _real(r)
+    lines += _test_table(r) + _arm(r) + _per_class(r) + _choice(r) + _demo(r) + _real(r)
     trig = r.get("onset_trigger") or {}
     lines += ["", "## Notes", "", load_text,
               f"Onset trigger settings (runtime/config_keys.py; how they were chosen: docs/TRIGGER_DEFAULTS.md): change "
@@ -111,6 +114,33 @@ def _test_table(r: dict) -> list[str]:
         src = t[m]["idle"]["false_by_source"]
         lines.append(f"| {m} | " + " | ".join(str(src.get(k, 0)) for k in
                                                ("quiet", "arm_move", "regrasp", "grasp", "release", "open")) + " |")
+    return [*lines, ""]
+
+
+def _arm(r: dict) -> list[str]:
+    """False events while the arm moves, with and without the robot saying so."""
+    t = r["test"]
+    hours = t["_info"]["idle_source_hours"].get("arm_move")
+    from runtime.config_keys import key
+
+    settle_s = key("control.arm_settle_s").default
+
+    lines = ["## The robot says when its arm moves (test idle stream, synthetic)", "",
+             f"The simulated robot sends `arm moving` when a move starts and `arm still` when it ends (the simulator's "
+             f"own plan, `firmware_io.sim.idle.move_marks`); the daemon judges every window that holds a frame from "
+             f"`arm moving` to {settle_s:g} s after `arm still` as dormant (runtime/arm_motion.py). Arm-move time in "
+             f"the idle stream: {_f(hours, '.3f')} h (the move plus 0.5 s of settling, the simulator's `arm_move` "
+             "source); a false event counts for the source of the frame that ended its window.", "",
+             "| model and trigger | without the robot's arm messages: false during arm moves (per hour of arm "
+             "move) / all false per hour of idle | with them |", "|---|---|---|"]
+    for base, text in (("onset", "onset trigger + 4-class model"), ("onset_dormant", "onset trigger + 5-class model"),
+                       ("continuous", "continuous, 5-class model")):
+        cells = []
+        for m in (base, f"{base}_arm"):
+            idle = t[m]["idle"]
+            cells.append(f"{idle['false_by_source'].get('arm_move', 0)} ({_f(idle.get('arm_move_false_per_hour'), '.1f')}"
+                         f"/h) / {_f(idle['false_per_hour'], '.1f')}/h")
+        lines.append(f"| {text} | {cells[0]} | {cells[1]} |")
     return [*lines, ""]
 
 

@@ -1,0 +1,104 @@
+"""The robot's word on its arm: while the arm moves, and a settle time after it stops, nothing is reported.
+
+A moving arm loads the held object with inertia, vibration and a changing pose: the pads see
+what looks like a person pulling or pushing. The robot knows when it moves, so it may say so
+(``arm moving`` / ``arm still`` on the control socket, the ROS 2 ``<ns>/arm`` topic or joint
+velocities, ``set_arm_moving`` from code). The one rule, kept here:
+
+    The arm counts as moving from the frame at which the robot says ``arm moving`` until
+    ``settle_frames`` frames after the frame at which it says ``arm still``. A window that holds
+    any frame of that span is judged dormant: a trigger's window is dropped without running the
+    model, and in continuous mode the window's decision is the dormant class (the report rule
+    sees an idle hand, which also re-arms it).
+
+Why dormant rather than a stricter test of the model's scores: it does not depend on the model
+having a dormant class (a lab's four-class model gets the same rule), it costs nothing (the model
+does not run), and a person acting while the robot moves the object is not a hand-over anyway
+(the robot moves the object *to* the person, then stops). The settle time (``[control]
+arm_settle_s``, 0.5 s) covers the object ringing on the compliant fingers after the stop: the
+simulator's arm stops ring at 7-13 Hz with damping ratio 0.15-0.3 (docs/DORMANT.md), whose
+slowest case decays to 5 % in about 0.45 s; physical grounds, results/streams.md measures it.
+
+A lost ``arm still`` must not deafen the daemon: ``arm moving`` holds for at most
+``max_move_frames`` (``[control] arm_max_move_s``, 30 s: longer than a service arm's moves, short
+enough that a lost message costs half a minute) unless repeated (one warning line), then the arm
+counts as still.
+
+Thread use: ``request`` from any thread (the control socket's, a ROS 2 executor's); ``update``
+and ``touches`` from the hot path only.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+
+log = logging.getLogger("handover.daemon")
+
+NEVER = -(1 << 62)
+
+
+def arm_frames(rate_hz: float, settle_s: float, max_move_s: float) -> tuple[int, int]:
+    """``(settle_frames, max_move_frames)`` at the model's frame rate (``[control] arm_settle_s``, ``arm_max_move_s``)."""
+    return max(0, math.ceil(settle_s * rate_hz - 1e-9)), max(1, math.ceil(max_move_s * rate_hz - 1e-9))
+
+
+class ArmMotion:
+    """Which frames the arm counts as moving in (the robot's messages plus the settle time)."""
+
+    def __init__(self, settle_frames: int, max_move_frames: int) -> None:
+        if settle_frames < 0:
+            raise ValueError("settle_frames must be >= 0")
+        if max_move_frames < 1:
+            raise ValueError("max_move_frames must be >= 1")
+        self.settle_frames = int(settle_frames)
+        self.max_move_frames = int(max_move_frames)
+        self._requests: deque[bool] = deque(maxlen=64)
+        self.moving = False
+        """The robot's last word (True between ``arm moving`` and ``arm still``)."""
+        self.last_motion = NEVER
+        """The last frame number that counts as moving (the settle time included; may lie ahead)."""
+        self._since = NEVER
+        self.expired = 0
+        """``arm moving`` spans ended because no message came for ``max_move_frames``."""
+        self.dropped = 0
+        """Windows judged dormant because they held frames of the arm's motion."""
+
+    def request(self, moving: bool) -> None:
+        """The robot's word; applied at the next frame (thread-safe: one deque append)."""
+        self._requests.append(bool(moving))
+
+    def configure(self, settle_frames: int, max_move_frames: int) -> None:
+        """New settings (a reload, a model at another rate); the robot's last word is kept."""
+        if settle_frames < 0 or max_move_frames < 1:
+            raise ValueError("settle_frames must be >= 0 and max_move_frames >= 1")
+        self.settle_frames, self.max_move_frames = int(settle_frames), int(max_move_frames)
+
+    def update(self, number: int) -> None:
+        """Hot path, once per admitted frame ``number`` (the model's frame count)."""
+        while self._requests:
+            moving = self._requests.popleft()
+            if moving:
+                self._since = number  # a repeated 'arm moving' renews the span
+            elif self.moving:
+                self.last_motion = number - 1 + self.settle_frames
+            self.moving = moving
+        if not self.moving:
+            return
+        if number - self._since >= self.max_move_frames:
+            self.moving = False
+            self.expired += 1
+            self.last_motion = number - 1 + self.settle_frames
+            log.warning("the robot said 'arm moving' %d frames ago and nothing since: taken as still (send 'arm "
+                        "still' when it stops, or repeat 'arm moving' while it moves; [arm] max_move_s)",
+                        self.max_move_frames)
+            return
+        self.last_motion = number
+
+    def touches(self, first: int) -> bool:
+        """Whether the window starting at frame ``first`` (and ending now) holds a frame of the arm's motion."""
+        if self.last_motion >= first:
+            self.dropped += 1
+            return True
+        return False

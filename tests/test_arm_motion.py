@@ -1,0 +1,178 @@
+"""The robot says when its arm moves: the rule (runtime.arm_motion), the control datagrams, the daemon's
+windows during and after a move, the marks a recording keeps and the simulator writes."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from firmware_io.recordings import arm_marks
+from runtime.arm_motion import ArmMotion, arm_frames
+from tests.test_onset import _daemon, _frames, grasp_levels
+
+
+def _feed(arm: ArmMotion, words: dict[int, bool], n: int) -> list[int]:
+    """Frames (0..n-1) that a one-frame window would find inside the arm's motion."""
+    out = []
+    for i in range(n):
+        if i in words:
+            arm.request(words[i])
+        arm.update(i)
+        if arm.touches(i):
+            out.append(i)
+    return out
+
+
+def test_the_arm_counts_as_moving_from_the_message_to_the_settle_time_after_it_stops():
+    arm = ArmMotion(settle_frames=3, max_move_frames=1000)
+    assert _feed(arm, {10: True, 20: False}, 40) == list(range(10, 23))
+    assert arm.dropped == 13
+
+
+def test_a_window_that_started_before_the_move_and_ends_in_it_is_judged_dormant():
+    arm = ArmMotion(settle_frames=0, max_move_frames=1000)
+    for i in range(30):
+        if i == 25:
+            arm.request(True)
+        arm.update(i)
+    assert arm.touches(30 - 15 + 1)  # window 16..30 holds frames 25..29
+    arm.request(False)
+    for i in range(30, 60):
+        arm.update(i)
+    assert not arm.touches(60 - 15 + 1) and arm.touches(30 - 15 + 1 + 10)
+
+
+def test_a_lost_arm_still_does_not_deafen_the_daemon_and_says_so_once(caplog):
+    arm = ArmMotion(settle_frames=2, max_move_frames=50)
+    with caplog.at_level(logging.WARNING, logger="handover.daemon"):
+        inside = _feed(arm, {5: True}, 200)
+    assert inside == list(range(5, 57)) and arm.expired == 1 and not arm.moving
+    assert sum("taken as still" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_a_repeated_arm_moving_renews_the_span():
+    arm = ArmMotion(settle_frames=0, max_move_frames=50)
+    words = {5: True, 40: True, 80: True, 120: False}
+    assert _feed(arm, words, 200) == list(range(5, 120)) and arm.expired == 0
+
+
+def test_settle_and_longest_move_in_frames_at_the_model_rate():
+    assert arm_frames(32.0, settle_s=0.5, max_move_s=30.0) == (16, 960)  # the config's defaults
+    assert arm_frames(32.0, settle_s=0.0, max_move_s=0.01) == (0, 1)
+    with pytest.raises(ValueError):
+        ArmMotion(-1, 10)
+
+
+# -- the daemon ----------------------------------------------------------------------------------------
+def _push(levels: np.ndarray, at: int) -> None:
+    levels[at:at + 40, 0] *= 1.3
+
+
+def test_a_push_while_the_arm_moves_is_not_reported_and_one_after_the_settle_time_is(tmp_path):
+    daemon, events = _daemon(tmp_path)
+    levels = grasp_levels(700)
+    _push(levels, 200)  # the arm moves 190..230: this one is the arm's load, not a person
+    _push(levels, 500)  # well after the arm stopped: a person
+    for frame in _frames(levels):
+        if frame.number == 190:
+            daemon.set_arm_moving(True, source="test")
+        if frame.number == 230:
+            daemon.set_arm_moving(False, source="test")
+        daemon.handle_frame(frame)
+    assert len(events) == 1 and 500 <= events[0].frame_first <= 502
+    assert daemon.arm.dropped == 1 and daemon.arm_request == (False, "test")
+
+
+def test_without_the_message_the_same_push_is_reported(tmp_path):
+    daemon, events = _daemon(tmp_path)
+    levels = grasp_levels(700)
+    _push(levels, 200)
+    for frame in _frames(levels):
+        daemon.handle_frame(frame)
+    assert len(events) == 1 and daemon.arm.dropped == 0
+
+
+def _send(path: str, data: bytes) -> None:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
+        s.sendto(data, path)
+
+
+def _wait(predicate, timeout: float = 3.0) -> bool:
+    end = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < end:
+        time.sleep(0.01)
+    return predicate()
+
+
+def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones_are_one_line(tmp_path, caplog):
+    path = str(tmp_path / "control.sock")
+    daemon, _ = _daemon(tmp_path, control={"socket": path})
+    daemon.start_control()
+    try:
+        frames = _frames(grasp_levels(700))
+        daemon.handle_frame(frames[0])
+        _send(path, b"arm moving\n")
+        assert _wait(lambda: daemon.control.received == 1)
+        daemon.handle_frame(frames[1])
+        assert daemon.arm.moving and daemon.arm_request == (True, "control")
+        with caplog.at_level(logging.WARNING, logger="handover.control"):
+            for text in (b"arm flying", b"ARM", b"arm moving please", b"\x00" * 40):
+                _send(path, text)
+            assert _wait(lambda: daemon.control.garbage == 4)
+        assert sum("ignored a datagram" in r.getMessage() for r in caplog.records) == 1
+        _send(path, b"  ARM   STILL ")
+        assert _wait(lambda: daemon.control.received == 2)
+        daemon.handle_frame(frames[2])
+        assert not daemon.arm.moving and daemon.arm.last_motion == 1 + daemon.arm.settle_frames
+    finally:
+        daemon.stop_control()
+
+
+def test_a_flood_of_arm_datagrams_is_a_few_log_lines_and_the_loop_keeps_up(tmp_path, caplog):
+    path = str(tmp_path / "control.sock")
+    daemon, _ = _daemon(tmp_path, control={"socket": path})
+    daemon.start_control()
+    frames = _frames(grasp_levels(400))
+    try:
+        with caplog.at_level(logging.INFO, logger="handover.daemon"):
+            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
+                for i in range(3000):
+                    s.sendto(b"arm moving" if i % 2 else b"arm still", path)
+                    if i % 10 == 0:
+                        daemon.handle_frame(frames[i // 10])  # the hot path runs meanwhile, never waits
+            assert _wait(lambda: daemon.control.received + daemon.control.garbage >= 2000)
+        lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("arm ")]
+        assert 1 <= len(lines) <= 10, lines
+        assert len(daemon.arm._requests) <= 64  # bounded: the newest words are kept
+    finally:
+        daemon.stop_control()
+
+
+# -- marks with the data ---------------------------------------------------------------------------------
+def test_the_simulator_marks_its_own_moves_and_they_lie_inside_its_arm_move_frames():
+    from firmware_io.sim.idle import simulate_idle
+    from trainer.streams_eval import source_names
+
+    rec = simulate_idle(120.0, seed=3)
+    marks = arm_marks.marks_of(rec.meta, rec.n_frames)
+    moving = arm_marks.moving_frames(marks, rec.n_frames)
+    names = source_names(rec, rec.n_frames)
+    assert moving.sum() > 0 and np.all(names[moving] == "arm_move")
+    assert next(iter(marks.values())) is True and len(marks) % 2 == 0
+
+
+def test_recorded_arm_move_stretches_count_as_marks_and_stored_marks_win():
+    meta = {"sources": ["open", "quiet", "arm_move"], "source_codes": [1, 1, 2, 2, 2, 1, -1, 2, 2]}
+    assert arm_marks.marks_of(meta, 9) == {2: True, 5: False, 7: True}
+    meta[arm_marks.KEY] = arm_marks.encode({3: True, 4: False})
+    assert arm_marks.marks_of(meta, 9) == {3: True, 4: False}
+
+
+@pytest.mark.parametrize("bad", [{"x": 1}, [[3, 1], [2, 0]], [[3, 2]], [[99, 1]], [[True, 1]], [[1]]])
+def test_marks_that_do_not_fit_the_recording_are_one_line_naming_the_key(bad):
+    with pytest.raises(ValueError, match=r"meta\.arm_marks"):
+        arm_marks.marks_of({arm_marks.KEY: bad}, 10)
