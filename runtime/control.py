@@ -5,7 +5,9 @@ thread, so the hot path never blocks on it. Known messages call back into the da
 (``Daemon.set_grasp``, which only records the request; the hot path applies it at the next
 frame). Anything else is counted and logged once (the first one, with what arrived); it never
 stops the thread or the daemon. A stale socket file left by an earlier run is replaced; a live
-one (another daemon) is not; a socket file deleted while running is bound again.
+one (another daemon) is not; a socket file deleted while running is bound again. Only the
+daemon's own user and root may send (runtime.control_access, which also says where a socket
+cannot live).
 
 Messages (ASCII, case and surrounding white space ignored):
 
@@ -28,6 +30,8 @@ from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from runtime import control_access as access
 
 log = logging.getLogger("handover.control")
 daemon_log = logging.getLogger("handover.daemon")
@@ -79,6 +83,8 @@ class ControlSocket:
         self.received = 0
         self.garbage = 0
         """Datagrams that were not a known message (the first is logged, all are counted)."""
+        self.refused = 0
+        """Datagrams from another user than the daemon's (or root): dropped (the first is logged)."""
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -89,7 +95,9 @@ class ControlSocket:
         address = self._bind_address()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
+            access.allow_credentials(sock)
             sock.bind(address)
+            access.restrict(self.address)
         except OSError as exc:
             sock.close()
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
@@ -101,15 +109,13 @@ class ControlSocket:
         return self
 
     def _bind_address(self) -> str | bytes:
+        if problem := access.socket_path_problem(self.address):
+            raise OSError(problem)
         if self.address.startswith("@"):
             return b"\0" + self.address[1:].encode()
         path = Path(self.address)
-        try:
-            mode = path.lstat().st_mode
-        except FileNotFoundError:
+        if not path.exists():
             return self.address
-        if not stat.S_ISSOCK(mode):
-            raise OSError(f"control.socket {self.address}: exists and is not a socket; remove it or choose another path")
         if _is_live(self.address):
             raise OSError(f"control.socket {self.address}: in use by another process (another daemon?); "
                           "stop it or choose another path")
@@ -118,8 +124,8 @@ class ControlSocket:
 
     def _loop(self) -> None:
         while not self._stop.is_set() and (sock := self._sock) is not None:
-            try:
-                data = sock.recv(MAX_DATAGRAM + 1)  # one byte more: a longer datagram is seen, not cut
+            try:  # one byte more: a longer datagram is seen, not cut
+                data, ancillary, _flags, _sender = sock.recvmsg(MAX_DATAGRAM + 1, access.ANCILLARY_BYTES)
             except TimeoutError:
                 self._rebind_if_removed()
                 continue
@@ -127,7 +133,17 @@ class ControlSocket:
                 if self._stop.is_set():
                     return
                 continue
+            uid = access.sender_uid(ancillary)
+            if not access.may_steer(uid):
+                self._refuse(uid)
+                continue
             self._handle(data)
+
+    def _refuse(self, uid: int | None) -> None:
+        self.refused += 1
+        if self.refused == 1:
+            log.warning("control socket %s: dropped a datagram from uid %s (only the daemon's user and root may "
+                        "send robot messages); further ones are only counted", self.address, uid)
 
     def _rebind_if_removed(self) -> None:
         """A socket file deleted while running (tmp cleaner, a careless ``rm``) is bound again:
@@ -136,7 +152,9 @@ class ControlSocket:
             return
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
+            access.allow_credentials(sock)
             sock.bind(self.address)
+            access.restrict(self.address)
         except OSError as exc:
             sock.close()
             if not self._rebind_failed:

@@ -93,7 +93,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
     from runtime.daemon import Daemon, events_problem, scene_problem
     from runtime.model_watch import ModelWatcher, folder_problem
 
-    problem = _missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
+    problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
+               or _control_problem(cfg))
     if problem:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
@@ -138,11 +139,13 @@ def _warn_about_sinks(cfg) -> None:
 
     others = cfg.sinks.n_without_ros2
     if cfg.sinks.ros2:
-        from runtime.ros2 import availability_problem
+        from runtime.ros2 import availability_problem, grasp_exposure
 
         if problem := availability_problem():
             then = "events will go to the other sinks only" if others else NO_SINK_LEFT
             print(f"{PROG}: warning: sinks.ros2: {problem}; {then}", file=sys.stderr)
+        if exposure := grasp_exposure(cfg.ros2):
+            print(f"{PROG}: warning: {exposure}", file=sys.stderr)
     elif not others:
         print(f"{PROG}: warning: sinks: {NO_SINK_LEFT.replace('other ', '')}", file=sys.stderr)
     _warn_about_udp_hosts(cfg)
@@ -168,6 +171,13 @@ def _note_held_locks(cfg) -> None:
     for what, path in instance_lock.targets(cfg):
         if line := instance_lock.held_by_other(what, path):
             print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
+
+
+def _control_problem(cfg) -> str | None:
+    """A ``control.socket`` that can never be bound: the daemon would run deaf to the robot."""
+    from runtime.control_access import socket_path_problem
+
+    return socket_path_problem(cfg.control.socket) if cfg.control.socket else None
 
 
 def _missing_folder(cfg) -> str | None:

@@ -49,6 +49,30 @@ def middleware_problem(env: dict[str, str] | None = None) -> str | None:
     return f"RMW_IMPLEMENTATION={name}: lib{name}.so is not installed; unset RMW_IMPLEMENTATION or install that middleware"
 
 
+CONFINED_RANGES = ("LOCALHOST", "OFF")
+"""``ROS_AUTOMATIC_DISCOVERY_RANGE`` values that keep other machines' nodes away (ROS 2 Iron and later)."""
+
+
+def grasp_exposure(cfg: Ros2Config, env: dict[str, str] | None = None) -> str | None:
+    """Why the ROS 2 grasp input can be steered from elsewhere, or None.
+
+    Why: ``<namespace>/grasp`` takes ``open`` from any node that discovers the daemon, and ``open``
+    silences the trigger. Without SROS2 (enforced) or discovery kept to this PC, that is any
+    machine on the robot's network with the same domain id."""
+    if not cfg.grasp:
+        return None
+    env = os.environ if env is None else env
+    if env.get("ROS_SECURITY_ENABLE", "").lower() == "true" and env.get("ROS_SECURITY_STRATEGY") == "Enforce":
+        return None
+    if env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in CONFINED_RANGES or env.get("ROS_LOCALHOST_ONLY") == "1":
+        return None
+    domain = env.get("ROS_DOMAIN_ID", "").strip() or "0"
+    return (f"ros2.grasp: any ROS 2 node on the network in domain {domain} can send 'open' on {cfg.namespace}/grasp "
+            "and silence the trigger; set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (or ROS_LOCALHOST_ONLY=1), or "
+            "SROS2 (ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce), or use the control socket "
+            "(deploy/INSTALL.md, section ROS 2)")
+
+
 def availability_problem() -> str | None:
     """Why the ROS 2 sink would not start here, found without importing rclpy (for ``--check``)."""
     from importlib.util import find_spec
@@ -62,6 +86,8 @@ def open_ros2_sink(cfg: Ros2Config, daemon: Any, others: int = 1) -> Sink | None
     """The ROS 2 sink, or None after one error line saying why and what to do (and, when ``others``
     is 0, that events go nowhere)."""
     problem = middleware_problem()
+    if exposure := grasp_exposure(cfg):
+        log.warning("%s", exposure)
     if problem is None:
         try:
             from runtime.ros2_node import Ros2Sink

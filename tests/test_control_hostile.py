@@ -78,7 +78,7 @@ def test_a_socket_removed_while_running_is_bound_again_with_one_line(tmp_path, s
 def test_a_path_that_is_a_file_or_folder_is_left_alone_with_one_line_saying_so(tmp_path, kind):
     path = tmp_path / "c.sock"
     path.mkdir() if kind == "folder" else path.write_text("keep me")
-    with pytest.raises(OSError, match="exists and is not a socket; remove it or choose another path"):
+    with pytest.raises(OSError, match=r"exists and is not a socket \(a (file|folder)\); remove it or choose another path"):
         ControlSocket(str(path), lambda closed, source: None).start()
     assert path.is_dir() if kind == "folder" else path.read_text() == "keep me"
 

@@ -83,3 +83,20 @@ def test_a_udp_address_literal_needs_no_lookup_and_a_name_is_looked_up_off_the_c
     release.set()
     named.close()
     literal.close()
+
+
+def test_only_the_daemons_user_or_root_may_steer_it_and_ros2_grasp_is_off_and_named(tmp_path):
+    if os.geteuid() != 0:
+        pytest.skip("sending as another user needs root")
+    _held(W.foreign_grasp(tmp_path))
+
+
+def test_the_sender_credentials_rule():
+    from runtime.control_access import may_steer
+
+    assert may_steer(1000, own_uid=1000) and may_steer(0, own_uid=1000)
+    assert not may_steer(65534, own_uid=1000) and not may_steer(None, own_uid=1000)
+
+
+def test_a_control_socket_path_that_cannot_work_is_one_line_at_check_and_at_run(tmp_path):
+    _held(W.control_paths(tmp_path))

@@ -9,6 +9,7 @@ tests in tests/test_hostile_world.py run each case and name what did not hold. A
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import socket
@@ -111,6 +112,30 @@ def press_cycles(daemon, cycles: int, first: int = 0, level: int = 3000) -> int:
             daemon.handle_frame(Frame(number, round(number * 31.25), time.perf_counter(), values))
             number += 1
     return number
+
+
+class LogLines(logging.Handler):
+    """The daemon's log lines (``handover.*``, warnings and up) while in a ``with`` block."""
+
+    def __init__(self, level: int = logging.WARNING) -> None:
+        super().__init__(level)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
+
+    def __enter__(self) -> list[str]:
+        logger = logging.getLogger("handover")
+        self._level = logger.level
+        logger.addHandler(self)
+        if logger.getEffectiveLevel() > self.level:
+            logger.setLevel(self.level)
+        return self.lines
+
+    def __exit__(self, *exc) -> None:
+        logger = logging.getLogger("handover")
+        logger.removeHandler(self)
+        logger.setLevel(self._level)
 
 
 def in_thread(fn: Callable[[], object], guard_s: float = HANG_GUARD_S) -> tuple[bool, object]:
@@ -315,3 +340,88 @@ def _wait(condition: Callable[[], bool], guard_s: float = HANG_GUARD_S) -> bool:
             return False
         time.sleep(0.01)
     return True
+
+
+# -- 4, 6: the control socket, the ROS 2 grasp input ------------------------------------------------
+SENDER = ("import socket, sys; s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM); a = sys.argv[1]\n"
+          "try:\n    s.sendto(b'grasp open', a.encode().replace(b'@', b'\\0', 1) if a.startswith('@') else a)\n"
+          "except OSError as e:\n    print(e.errno)")
+NOBODY = 65534
+
+
+def _send_as(uid: int | None, address: str) -> str:
+    """``grasp open`` to ``address`` from a process of user ``uid`` (None: this user)."""
+    python = "/usr/bin/python3" if Path("/usr/bin/python3").exists() else sys.executable
+    done = subprocess.run([python, "-c", SENDER, address], capture_output=True, text=True, timeout=HANG_GUARD_S,
+                          user=uid, cwd="/")
+    return done.stdout.strip() or "sent"
+
+
+def foreign_grasp(work: Path) -> dict:
+    """``grasp open`` from another user, to an abstract and a filesystem control socket, is dropped and
+    counted; from the daemon's user it is heard. The ROS 2 grasp input is off by default, and turned on
+    without a confining environment it is named in one line."""
+    from runtime.config import Ros2Config
+    from runtime.ros2 import grasp_exposure
+
+    if os.geteuid() != 0:
+        return {"held": False, "tried": False, "detail": "needs root to send as another user; not tried"}
+    outcomes = {}
+    for kind, address in (("abstract", f"@handover-hostile-{os.getpid()}"), ("path", str(work / "c.sock"))):
+        daemon = served_daemon(work / kind, more=f'[control]\nsocket = "{address}"\n')
+        daemon.start_control()
+        control = daemon.control
+        try:
+            foreign = _send_as(NOBODY, address)  # "sent", or the errno the kernel refused it with
+            if foreign == "sent":
+                _wait(lambda c=control: c.refused + c.received >= 1, HANG_GUARD_S / 3)
+            heard_foreign = daemon.grasp_request is not None
+            _send_as(None, address)
+            _wait(lambda c=control: c.received >= 1, HANG_GUARD_S / 3)
+            mode = oct(os.stat(address).st_mode & 0o777) if kind == "path" else "-"
+            outcomes[kind] = {"foreign": foreign, "refused": control.refused, "heard_foreign": heard_foreign,
+                              "own_heard": daemon.grasp_request == (False, "control"), "mode": mode}
+        finally:
+            daemon.stop_control()
+    open_net = grasp_exposure(Ros2Config(grasp=True), {"ROS_DOMAIN_ID": "7"})
+    local = grasp_exposure(Ros2Config(grasp=True), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
+    held = (all(not o["heard_foreign"] and o["own_heard"] for o in outcomes.values())
+            and outcomes["path"]["mode"] == "0o600" and not Ros2Config().grasp and open_net is not None
+            and one_line(open_net, "ros2.grasp", "domain 7") and local is None)
+    return {"held": held, "tried": True, "outcomes": outcomes,
+            "detail": "; ".join(f"{k}: from uid {NOBODY} {'heard' if o['heard_foreign'] else 'dropped'} "
+                                f"({o['refused']} counted), own user heard: {o['own_heard']}, mode {o['mode']}"
+                                for k, o in outcomes.items())
+            + f"; ROS 2 grasp off by default: {not Ros2Config().grasp}; named when open to the network: "
+              f"{open_net is not None}"}
+
+
+def control_paths(work: Path) -> dict:
+    """A control socket path that cannot work (a file, a folder, a symlink, too long, no parent):
+    ``--check`` exits 2 with one line naming it, and the running daemon says the same in one line."""
+    folder = work / "paths"
+    folder.mkdir(parents=True)
+    (folder / "file").write_text("x")
+    (folder / "dir").mkdir()
+    (folder / "link").symlink_to(folder / "elsewhere.sock")
+    cases = {"regular file": folder / "file", "folder": folder / "dir", "symlink": folder / "link",
+             "too long": folder / ("x" * 120 + ".sock"), "no parent": folder / "missing" / "c.sock"}
+    models = work / "models"
+    models.mkdir(parents=True, exist_ok=True)
+    rows = {}
+    for name, path in cases.items():
+        config = work / "c.toml"
+        config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[control]\nsocket = "{path}"\n')
+        done = cli(["run", "--config", str(config), "--check"])
+        check_ok = done.returncode == 2 and one_line(done.stderr, "control.socket", str(path))
+        daemon = served_daemon(work / "run" / name.replace(" ", "-"), more=f'[control]\nsocket = "{path}"\n')
+        with LogLines() as records:
+            daemon.start_control()
+        daemon.stop_control()
+        said = [r for r in records if str(path) in r]
+        run_ok = len(said) == 1 and "\n" not in said[0] and daemon.control is None
+        rows[name] = {"check_exit2_one_line": check_ok, "run_one_line": run_ok}
+    held = all(r["check_exit2_one_line"] and r["run_one_line"] for r in rows.values())
+    return {"held": held, "rows": rows,
+            "detail": "; ".join(f"{k}: --check {'one line, exit 2' if r['check_exit2_one_line'] else 'PASSED IT'}, "
+                                f"run {'one line' if r['run_one_line'] else 'FAILED'}" for k, r in rows.items())}

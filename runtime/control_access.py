@@ -1,0 +1,75 @@
+"""Who may talk to the control socket, and where it can live.
+
+Why: a robot message ``grasp open`` silences the trigger, so only the daemon's own user (or
+root) may send one. A filesystem socket is made mode 600 once bound, and on every socket,
+abstract ones included (they have no permissions at all), the kernel hands each datagram's
+sender credentials (SCM_CREDENTIALS): a datagram from another user is dropped and counted.
+
+``socket_path_problem`` says, before anything is bound, why a ``control.socket`` can never work
+(a regular file, a folder or a symlink in the way, a path longer than a Unix socket address,
+no parent folder): ``run --check`` and the running daemon say the same line.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import stat
+import struct
+from pathlib import Path
+
+MAX_ADDRESS_BYTES = 107
+"""sun_path holds 108 bytes with the closing NUL (Linux)."""
+SOCKET_MODE = 0o600
+_UCRED = struct.Struct("3i")  # pid, uid, gid
+ANCILLARY_BYTES = socket.CMSG_SPACE(_UCRED.size)
+
+
+def socket_path_problem(address: str) -> str | None:
+    """Why ``control.socket`` = ``address`` cannot be bound, or None (a stale socket file is fine:
+    it is replaced; one another process is reading is found at bind time)."""
+    name = address[1:] if address.startswith("@") else address
+    if len(name.encode()) > MAX_ADDRESS_BYTES:
+        return (f"control.socket {address}: {len(name.encode())} bytes, longer than a Unix socket address "
+                f"({MAX_ADDRESS_BYTES}); choose a shorter path, e.g. /run/handover/control.sock")
+    if address.startswith("@"):
+        return None
+    path = Path(address)
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:
+        return f"control.socket {address}: cannot look at it ({exc.strerror or exc})"
+    if mode is not None and not stat.S_ISSOCK(mode):
+        what = "a symlink" if stat.S_ISLNK(mode) else "a folder" if stat.S_ISDIR(mode) else "a file"
+        return f"control.socket {address}: exists and is not a socket ({what}); remove it or choose another path"
+    if not path.parent.is_dir():
+        return (f"control.socket {address}: cannot bind: folder {path.parent} does not exist; create it (RuntimeDirectory= "
+                "in the unit file) or choose another path")
+    return None
+
+
+def allow_credentials(sock: socket.socket) -> None:
+    """Ask the kernel for each datagram's sender credentials (pid, uid, gid)."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_PASSCRED, 1)
+
+
+def restrict(address: str) -> None:
+    """A freshly bound filesystem socket: only its owner may send (abstract names have no mode)."""
+    if not address.startswith("@"):
+        os.chmod(address, SOCKET_MODE)
+
+
+def sender_uid(ancillary: list[tuple[int, int, bytes]]) -> int | None:
+    """The sender's uid from ``recvmsg``'s ancillary data, or None when the kernel gave none."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == socket.SCM_CREDENTIALS and len(data) >= _UCRED.size:
+            return _UCRED.unpack(data[:_UCRED.size])[1]
+    return None
+
+
+def may_steer(uid: int | None, own_uid: int | None = None) -> bool:
+    """Only the daemon's own user and root may send robot messages (no credentials: refused)."""
+    own = os.geteuid() if own_uid is None else own_uid
+    return uid is not None and uid in (own, 0)
