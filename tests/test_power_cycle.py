@@ -104,7 +104,7 @@ def test_the_daemon_resumes_events_after_a_controller_power_cycle(tmp_path):
 
 
 def test_dump_reads_on_across_a_controller_power_cycle(tmp_path):
-    emulator, server, returns = _pty_emulator()
+    _, server, returns = _pty_emulator()
     log = tmp_path / "dump.err"
     with log.open("w") as err_file:
         proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "dump", server.url, "--seconds", "30", "--json"],
