@@ -33,7 +33,7 @@ from runtime.cli import main as handover
 
 SPEED = 10.0
 SHORT = ["--poses", "down", "--objects", "ball", "--runs", "1", "--trial-seconds", "2", "--gap", "0",
-         "--countdown", "0", "--quiet"]
+         "--countdown", "0", "--quiet", "--idle-minutes", "0"]
 PLAN = ProtocolPlan(("down",), ("ball",), ACTIONS, 1)
 KEYS = {("down", "ball", a, 1) for a in ACTIONS}
 

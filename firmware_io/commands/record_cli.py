@@ -14,12 +14,15 @@ import sys
 
 from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
 from firmware_io.commands.out_folder import out_folder_problem
+from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 COMMAND = "record"
+IDLE_ONLY_MINUTES = 20.0
+"""``--idle-only`` without ``--idle-minutes``: a long idle session."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "recorded again --retries times, then kept flagged")
     parser.add_argument("--retries", type=int, default=1, help="--auto: repeats of a never-triggered trial")
     parser.add_argument("--max-trials", type=int, default=None, help="stop after this many trials")
+    parser.add_argument("--idle-minutes", type=float, default=None,
+                        help=f"idle recorded after the trials: the object held still, the arm moving, regrasps, the "
+                             f"hand closing and opening, nobody touching it; what a model needs to stay quiet "
+                             f"(default {DEFAULT_IDLE_MINUTES:g} min, {IDLE_ONLY_MINUTES:g} with --idle-only; 0: none)")
+    parser.add_argument("--idle-only", action="store_true",
+                        help="record idle stretches only (a long idle session; no trials)")
     parser.add_argument("--quiet", action="store_true", help="no voice (espeak-ng)")
     parser.add_argument("--no-look", action="store_true", help="no per-pad sparklines after each trial")
 
@@ -100,6 +109,10 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     if args.trial_seconds <= 0.3 or min(args.gap, args.countdown, args.retries, args.lead_in) < 0:
         return fail(COMMAND, "--trial-seconds must be > 0.3 and --lead-in, --gap, --countdown, --retries >= 0")
+    if idle_minutes(args) < 0:
+        return fail(COMMAND, f"--idle-minutes must be >= 0, got {args.idle_minutes:g}")
+    if args.idle_only and idle_minutes(args) == 0:
+        return fail(COMMAND, "--idle-only with --idle-minutes 0 records nothing: give the minutes of idle to record")
     if not is_trigger_level(args.fraction):
         return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
     problem = out_folder_problem(args.out)
@@ -115,6 +128,13 @@ def main(args: argparse.Namespace) -> int:
     finally:
         client.close()
         voice.close()
+
+
+def idle_minutes(args: argparse.Namespace) -> float:
+    """Minutes of idle this session records (``--idle-minutes``, else the default for the mode)."""
+    if args.idle_minutes is not None:
+        return float(args.idle_minutes)
+    return IDLE_ONLY_MINUTES if args.idle_only else DEFAULT_IDLE_MINUTES
 
 
 def _plan_and_options(args: argparse.Namespace):
@@ -149,6 +169,8 @@ def _connect(device: str, trial_seconds: float):
 
 def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice) -> int:
     """Open the device and the session file, walk the protocol; the exit code."""
+    from firmware_io.recordings.idle_session import run_idle
+    from firmware_io.recordings.idle_stretches import idle_plan
     from firmware_io.recordings.record_session import (
         DeviceLost,
         SessionError,
@@ -181,25 +203,34 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
                    cue=subject.cue if subject is not None else (lambda kind, slot: None))
     info = {"device": client.url, "controller": _controller_info(client)}
     resume = "run the same command again to resume"
+    idle_plan_ = idle_plan(idle_minutes(args))
+    result = idle = None
     try:
-        result = run_session(client, store, plan, opts, io, session_info=info)
+        if not args.idle_only:
+            result = run_session(client, store, plan, opts, io, session_info=info)
+        if args.idle_only or (result.complete and idle_plan_):
+            idle = run_idle(client, store, idle_plan_, opts, io, session_info=info)
     except (SessionError, ValueError) as exc:
         return fail(COMMAND, str(exc))
     except (DeviceLost, TransportError, DSAError) as exc:
         return fail(COMMAND, f"device lost ({_first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
     except KeyboardInterrupt:
         return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
-    flagged = f", {len(result.flagged)} flagged as never triggered" if result.flagged else ""
-    if result.complete:
-        print(f"session complete: {_saved(store)}{flagged}")
-    else:
+    flagged = f", {len(result.flagged)} flagged as never triggered" if result and result.flagged else ""
+    if result is not None and not result.complete:
         print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
               f"{_saved(store)}{flagged}; run the same command again to continue")
+    elif idle is not None and not idle.complete:
+        print(f"session stopped ({idle.stopped}): {idle.done} of {idle.planned} idle stretches done; "
+              f"{_saved(store)}{flagged}; run the same command again to continue")
+    else:
+        print(f"session complete: {_saved(store)}{flagged}")
     return 0
 
 
 def _saved(store) -> str:
-    return f"{store.n_trials} trials saved in {store.path}"
+    idle = f" and {store.n_idle} idle stretches ({store.idle_seconds() / 60:.1f} min)" if store.n_idle else ""
+    return f"{store.n_trials} trials{idle} saved in {store.path}"
 
 
 def _first_line(exc: BaseException) -> str:

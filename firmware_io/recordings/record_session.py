@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from firmware_io.recordings.idle_stretches import IdleSlot, idle_meta, stretches_of
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS, Capture, DeviceLost, capture_trial, drain
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
@@ -134,6 +135,12 @@ def recording_path(out_dir: str | Path, subject: str) -> Path:
     return Path(out_dir) / f"subject_{subject}.hrec"
 
 
+IDLE_KEY = "idle"
+"""A segment's fields under this key make it an idle stretch (source, plan index, annotations), not a trial."""
+DERIVED_META = ("idle_stretches", "sources", "source_codes")
+"""Metadata written from the segments on every save, never carried over from the file read."""
+
+
 @dataclass
 class _Segment:
     frames: np.ndarray
@@ -168,23 +175,47 @@ class SessionStore:
                 f"{path}: recorded with another sensor layout ({rec.layout.n_taxels} taxels in "
                 f"{rec.layout.n_matrices} pads; the device has {layout.n_taxels} in {layout.n_matrices})"
             )
-        segments = []
+        placed = []
         for t in rec.trials:
-            frames, stamps = rec.trial_frames(t)
             fields = {k: v for k, v in t.to_dict().items() if k not in ("first", "last")}
-            segments.append(_Segment(frames.copy(), stamps.copy(), fields))
-        meta = dict(rec.meta)
+            placed.append((t.first, t.last, fields))
+        for st in stretches_of(rec.meta):
+            placed.append((st["first"], st["last"], {IDLE_KEY: {k: v for k, v in st.items()
+                                                                if k not in ("first", "last")}}))
+        segments = [_Segment(rec.frames[a:b + 1].copy(), rec.timestamps[a:b + 1].copy(), fields)
+                    for a, b, fields in sorted(placed, key=lambda p: p[0])]
+        meta = {k: v for k, v in rec.meta.items() if k not in DERIVED_META}
         meta.setdefault("subject", subject)
         meta.setdefault("sessions", [])
         return cls(path, layout, subject, meta, segments)
 
     @property
     def n_trials(self) -> int:
-        return len(self.segments)
+        return sum(IDLE_KEY not in s.fields for s in self.segments)
+
+    @property
+    def n_idle(self) -> int:
+        """Idle stretches recorded."""
+        return sum(IDLE_KEY in s.fields for s in self.segments)
+
+    def idle_seconds(self) -> float:
+        """Seconds of idle recorded (frame count x median frame interval)."""
+        frames = sum(len(s.frames) for s in self.segments if IDLE_KEY in s.fields)
+        stamps = [s.stamps for s in self.segments if len(s.stamps) > 1]
+        period = float(np.median(np.concatenate([np.diff(t) for t in stamps]))) if stamps else 1 / 32
+        return frames * period
 
     def done_keys(self) -> set[tuple[str, str, str, int]]:
         return {(s.fields["pose"], s.fields["object"], s.fields["action"], int(s.fields["run"]))
-                for s in self.segments}
+                for s in self.segments if IDLE_KEY not in s.fields}
+
+    def done_idle(self) -> set[int]:
+        """Plan indices of the idle stretches recorded."""
+        return {int(s.fields[IDLE_KEY]["index"]) for s in self.segments if IDLE_KEY in s.fields}
+
+    def remaining_idle(self, plan: Sequence[IdleSlot]) -> list[IdleSlot]:
+        done = self.done_idle()
+        return [s for s in plan if s.index not in done]
 
     def remaining(self, plan: ProtocolPlan) -> list[TrialSlot]:
         done = self.done_keys()
@@ -192,16 +223,25 @@ class SessionStore:
 
     def add(self, slot: TrialSlot, frames: np.ndarray, stamps: np.ndarray, extra: dict) -> int:
         """Append a trial and save; returns its index. Timestamps stay strictly increasing."""
+        fields = {"subject": self.subject, "object": slot.object, "pose": slot.pose, "action": slot.action,
+                  "run": slot.run, "extra": dict(extra)}
+        self._append(frames, stamps, fields)
+        return self.n_trials - 1
+
+    def add_idle(self, slot: IdleSlot, frames: np.ndarray, stamps: np.ndarray, extra: dict) -> None:
+        """Append an idle stretch and save."""
+        self._append(frames, stamps, {IDLE_KEY: {"source": slot.source, "index": slot.index,
+                                                 "seconds": slot.seconds, "extra": dict(extra)}})
+
+    def _append(self, frames: np.ndarray, stamps: np.ndarray, fields: dict) -> None:
+        """A segment after the last one, timestamps kept strictly increasing; saved at once."""
         stamps = np.asarray(stamps, dtype=np.float64)
         if self.segments:
             last = float(self.segments[-1].stamps[-1])
             if stamps[0] <= last:  # the PC clock went back (or a foreign file): keep the order
                 stamps = stamps + (last - stamps[0] + 1e-3)
-        fields = {"subject": self.subject, "object": slot.object, "pose": slot.pose, "action": slot.action,
-                  "run": slot.run, "extra": dict(extra)}
         self.segments.append(_Segment(np.asarray(frames, dtype=np.uint16), stamps, fields))
         self.save()
-        return len(self.segments) - 1
 
     def remove_last(self) -> None:
         """Drop the newest trial (redo or discard) and save."""
@@ -210,7 +250,15 @@ class SessionStore:
             self.save()
 
     def to_recording(self) -> Recording:
-        return Recording.concatenate(self.layout, ((s.frames, s.stamps, s.fields) for s in self.segments), self.meta)
+        rec = Recording.concatenate(self.layout, ((s.frames, s.stamps, None if IDLE_KEY in s.fields else s.fields)
+                                                  for s in self.segments), self.meta)
+        stretches, pos = [], 0
+        for s in self.segments:
+            if IDLE_KEY in s.fields and len(s.frames):
+                stretches.append({"first": pos, "last": pos + len(s.frames) - 1, **s.fields[IDLE_KEY]})
+            pos += len(s.frames)
+        rec.meta.update(idle_meta(rec.n_frames, stretches))
+        return rec
 
     def save(self) -> Path:
         return self.to_recording().save(self.path)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_io.recordings import arm_marks
+from firmware_io.recordings.idle_stretches import SOURCES as IDLE_SOURCES
 from firmware_io.recordings.recording import Recording
 from firmware_io.sim import constants as K
 from firmware_io.sim.actions import Motion, baseline, smooth
@@ -46,11 +47,11 @@ from firmware_io.sim.session import ScriptedEvent, simulate_session
 from firmware_io.sim.streams import stream
 from firmware_io.sim.timing import frame_stamps
 
-SOURCES = ("open", "quiet", "grasp", "release", "arm_move", "regrasp")
-"""What a frame of an idle stream shows (index = code in ``meta["source_codes"]``):
-open hand; grasp held, nothing happening but noise, creep and drift; the hand closing on an
-object; the hand opening; the arm moving (inertial load, vibration, pose change, settling);
-the hand re-seating its grasp."""
+SOURCES = IDLE_SOURCES
+"""What a frame of an idle stream shows (index = code in ``meta["source_codes"]``), the names a
+recorded session's idle stretches carry too: open hand; grasp held, nothing happening but noise,
+creep and drift; the hand closing on an object; the hand opening; the arm moving (inertial load,
+vibration, pose change, settling); the hand re-seating its grasp."""
 
 HOLD_S = (20.0, 90.0)
 """assumed: the robot holds one object this long before it puts it down."""
@@ -176,6 +177,48 @@ def plan_hold(rng: np.random.Generator, duration_s: float, obj: str | None = Non
     amp = DRIFT_REL / np.sqrt(3) * rng.uniform(0.5, 1.5, (3, 3))
     return HoldPlan(setup, n_frames, close_s, release_s, tuple(moves), tuple(regrasps),
                     np.stack([periods, phases], axis=-1), amp)
+
+
+def plan_stretch(rng: np.random.Generator, source: str, duration_s: float, obj: str | None = None,
+                 pose: str | None = None) -> HoldPlan:
+    """One recorded idle stretch of ``source`` (the recorder's prompt acted out by the simulated hand).
+
+    ``quiet``: held from before the stretch to after it; ``arm_move``: point-to-point moves one
+    after another (each as ``plan_hold`` draws them, 0.3-1 s apart); ``regrasp``: a re-seat every
+    3-5 s; ``grasp``: the hand closes on the object 1 s in; ``release``: it opens 1 s in. Drift and
+    creep as in a hold; the draws are this function's own, so ``plan_hold``'s streams are unchanged.
+    """
+    base = plan_hold(rng, duration_s, obj, pose)
+    held_from, held_to = -60.0, duration_s + 60.0  # the grasp closed well before, opened well after
+    moves: list[ArmMove] = []
+    regrasps: list[Regrasp] = []
+    pose_now = base.setup.pose.name
+    if source == "arm_move":
+        t = float(rng.uniform(0.2, 0.8))
+        while t + ARM_MOVE_S[0] < duration_s:
+            dur = float(rng.uniform(*ARM_MOVE_S))
+            new_pose = (str(rng.choice([p for p in POSES if p != pose_now])) if rng.random() < POSE_CHANGE_PROB
+                        else None)
+            moves.append(ArmMove(t, dur, float(rng.uniform(*ARM_PEAK_ACCEL)), float(rng.uniform(-np.pi, np.pi)),
+                                 float(rng.uniform(-1.0, 1.0)), float(rng.uniform(*ARM_VIBRATION_ACCEL)),
+                                 float(rng.uniform(*ARM_VIBRATION_HZ)), float(rng.uniform(*SETTLE_HZ)),
+                                 float(rng.uniform(*SETTLE_ZETA)), new_pose))
+            pose_now = new_pose or pose_now
+            t += dur + float(rng.uniform(0.3, 1.0))
+    elif source == "regrasp":
+        t = float(rng.uniform(0.5, 1.5))
+        while t + 1.0 < duration_s:
+            regrasps.append(Regrasp(t, float(rng.uniform(*REGRASP_DEPTH)), float(rng.uniform(*REGRASP_DIP_S)),
+                                    float(rng.uniform(*REGRASP_RECOVER_S)), rng.normal(0.0, REGRASP_SHIFT_MM, 3)))
+            t += float(rng.uniform(3.0, 5.0))
+    elif source == "grasp":
+        held_from = 1.0
+    elif source == "release":
+        held_to = 1.0
+    elif source not in ("quiet", "open"):
+        raise ValueError(f"idle source {source!r}: one of {', '.join(SOURCES)}")
+    return HoldPlan(base.setup, base.n_frames, held_from, held_to, tuple(moves), tuple(regrasps), base.drift,
+                    base.drift_amp)
 
 
 # -- effects on the contact state ----------------------------------------------------------------
@@ -412,4 +455,4 @@ def simulate_mixed(events: Sequence[ScriptedEvent], seed: int = 0, margin_s: flo
     return Recording(rec.layout, frames, rec.timestamps, list(rec.trials), meta)
 
 
-__all__ = ["SOURCES", "plan_hold", "render_hold", "simulate_idle", "simulate_mixed"]
+__all__ = ["SOURCES", "plan_hold", "plan_stretch", "render_hold", "simulate_idle", "simulate_mixed"]

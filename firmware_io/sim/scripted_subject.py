@@ -90,6 +90,8 @@ class ScriptedSubject:
         self._pending_key: tuple = ()
         self._pending_attempt = 0
         self._lock = threading.Lock()
+        self._idles = 0
+        self._sensor = None
         self.emulator = DeviceEmulator(_LiveSource(self, self.layout, FRAME_PERIOD_S), speed=speed, loop=True,
                                        faults=faults, seed=self.seed)
 
@@ -135,6 +137,8 @@ class ScriptedSubject:
         if kind == "prepare":
             self._prepare(slot)
             return None
+        if kind == "idle":
+            return self._idle_stretch(slot)
         if kind == "stop":
             with self._lock:
                 self._segment, self._idle = None, self._empty
@@ -154,6 +158,30 @@ class ScriptedSubject:
             self._segment, self._pos = frames, 0
         self.performed.append({"slot": key, "attempt": attempt, "acted": True, "onset": onset})
         return {"synthetic": True, "onset": onset, "scripted_subject": {"seed": self.seed, "acted": True}}
+
+    def _idle_stretch(self, slot) -> dict:
+        """Act out an idle stretch (``firmware_io.recordings.idle_stretches.IdleSlot``): the simulated
+        hand does what the recorder prompted, nobody touches the object; afterwards the hand stays as
+        the stretch left it (holding, or open after a release)."""
+        from firmware_io.sim.idle import idle_rng, plan_stretch, render_hold
+        from firmware_io.sim.paper_protocol import hand_sensor
+
+        self._idles += 1
+        seconds = float(slot.seconds) + 1.0  # the capture starts a frame or two after the cue
+        if slot.source == "open":
+            frames = np.zeros((int(np.ceil(seconds / FRAME_PERIOD_S)), self.layout.n_taxels), dtype=np.uint16)
+        else:
+            rng = idle_rng(self.seed, "recorded", self._idles)
+            if self._sensor is None:
+                self._sensor = hand_sensor(self.seed)
+            frames = render_hold(plan_stretch(rng, slot.source, seconds), self._sensor, rng)
+        if frames.shape[1] != self.layout.n_taxels:
+            raise ValueError("the simulated hand's layout differs from the subject's")
+        with self._lock:
+            self._segment, self._pos = frames, 0
+            self._idle = self._empty if slot.source in ("release", "open") else frames[-1]
+        self.performed.append({"idle": slot.source, "index": int(slot.index)})
+        return {"synthetic": True, "scripted_subject": {"seed": self.seed, "idle": slot.source}}
 
     def _prepare(self, slot) -> None:
         """Place the object: the next attempt of this slot is drawn and its grasp held until go."""

@@ -1,0 +1,111 @@
+"""Idle stretches of a recorded session: the hand's time with nobody interacting, labelled by what went on.
+
+A deployed hand spends most of its time holding an object nobody touches while the arm moves,
+the hand re-seats its grasp, closes on and lets go of objects. A model that has never seen
+those stretches reads some of them as a person's action, so the recorder records them as part
+of each subject's session, each stretch with the name of what the investigator asked for. The
+names are the simulator's idle sources (``firmware_io.sim.idle`` takes them from here), so
+recorded and simulated idle data are cut and scored by the same code.
+
+In a ``.hrec`` file a stretch is kept in ``meta["idle_stretches"]`` (first and last frame,
+source, its place in the plan); ``meta["sources"]`` / ``meta["source_codes"]`` code every frame
+as the simulator's idle streams do (``-1``: a trial's frames), derived from the stretches on
+every save. numpy only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+SOURCES = ("open", "quiet", "grasp", "release", "arm_move", "regrasp")
+"""What an idle frame shows (index = code in ``meta["source_codes"]``): open hand; grasp held,
+nothing happening; the hand closing on an object; the hand opening; the arm moving; the hand
+re-seating its grasp."""
+
+PROMPTS = {
+    "grasp": "Place the object in the hand and close the hand on it; nobody touches it afterwards.",
+    "quiet": "Hold the object still; nobody touches it.",
+    "arm_move": "Move the arm now (the robot's usual moves, nobody touches the object).",
+    "regrasp": "Re-grasp: loosen the hand a little and close it again on the object.",
+    "release": "Open the hand and let the object go.",
+    "open": "Hand open and empty; nobody touches it.",
+}
+"""What the recorder says at the start of each kind of stretch."""
+
+CYCLE = (("grasp", 5.0), ("quiet", 20.0), ("arm_move", 15.0), ("regrasp", 10.0), ("arm_move", 15.0),
+         ("release", 5.0), ("open", 6.0))
+"""One round of idle stretches (source, seconds): every kind in the order a robot meets them, arm
+moves twice (a service arm moves most of the time it holds something). A plan repeats the round
+until it has the minutes asked for, so any length keeps the mix."""
+
+DEFAULT_IDLE_MINUTES = 3.0
+"""Idle recorded per subject after the trials (``handover record --idle-minutes``)."""
+MIN_STRETCH_S = 1.0
+"""A shorter stretch is refused by the recorder: it would hold no window of the model."""
+
+
+@dataclass(frozen=True, order=True)
+class IdleSlot:
+    """One stretch of the plan: its place, what goes on, how long."""
+
+    index: int
+    source: str
+    seconds: float
+
+    def describe(self) -> str:
+        return f"idle stretch {self.index + 1}: {self.source.replace('_', ' ')}, {self.seconds:g} s"
+
+    @property
+    def prompt(self) -> str:
+        return PROMPTS[self.source]
+
+
+def idle_plan(minutes: float, cycle: Sequence[tuple[str, float]] = CYCLE) -> list[IdleSlot]:
+    """Stretches of the round ``cycle`` repeated until ``minutes`` are reached (none for 0)."""
+    if minutes < 0:
+        raise ValueError(f"idle minutes must be >= 0, got {minutes:g}")
+    out: list[IdleSlot] = []
+    total = 0.0
+    while total < 60.0 * minutes - 1e-9:
+        source, seconds = cycle[len(out) % len(cycle)]
+        out.append(IdleSlot(len(out), source, float(seconds)))
+        total += seconds
+    return out
+
+
+def stretch_codes(n_frames: int, stretches: Sequence[dict]) -> np.ndarray:
+    """Per frame the index into SOURCES of its stretch, ``-1`` outside every stretch (trials)."""
+    code = np.full(n_frames, -1, dtype=np.int8)
+    for s in stretches:
+        code[int(s["first"]):int(s["last"]) + 1] = SOURCES.index(str(s["source"]))
+    return code
+
+
+def stretches_of(meta: dict) -> list[dict]:
+    """The idle stretches a recording's metadata lists (recorded, or imported as idle)."""
+    raw = meta.get("idle_stretches") if isinstance(meta, dict) else None
+    if not isinstance(raw, list):
+        return []
+    return [s for s in raw if isinstance(s, dict) and s.get("source") in SOURCES
+            and isinstance(s.get("first"), int) and isinstance(s.get("last"), int)]
+
+
+def has_idle(meta: dict) -> bool:
+    """Whether a recording holds idle frames coded by source (recorded, imported or simulated)."""
+    codes, names = meta.get("source_codes"), meta.get("sources")
+    return isinstance(codes, list) and isinstance(names, list) and any(c >= 0 for c in codes)
+
+
+def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
+    """The metadata keys a recording with these stretches carries (empty without stretches)."""
+    if not stretches:
+        return {}
+    return {"idle_stretches": [dict(s) for s in stretches], "sources": list(SOURCES),
+            "source_codes": stretch_codes(n_frames, stretches).tolist()}
+
+
+__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MIN_STRETCH_S", "PROMPTS", "SOURCES", "IdleSlot", "has_idle",
+           "idle_meta", "idle_plan", "stretch_codes", "stretches_of"]
