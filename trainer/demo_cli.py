@@ -50,6 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "threshold = the paper's 15 %% level")
     parser.add_argument("--retrain", action="store_true", help="train again even if OUT/report/stream-model.onnx exists (OUT/report/model.onnx "
                         "for --setting threshold)")
+    parser.add_argument("--model", help="score this model file (e.g. report/model.onnx from handover train) on the "
+                        "same scripted session instead of training one: compare your model with the demo's on the "
+                        "same events (the stream setting follows the model: onset_dormant with a dormant class, "
+                        "else its recorded trigger; --setting continuous classifies every frame)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="only the summary")
 
@@ -62,7 +66,36 @@ def _say(args: argparse.Namespace, text: str) -> None:
 def setting_of(args: argparse.Namespace) -> str:
     from trainer.streams_eval import DEFAULT_SETTING
 
-    return args.setting or DEFAULT_SETTING
+    return args.setting or getattr(args, "model_setting", None) or DEFAULT_SETTING
+
+
+def given_model(args: argparse.Namespace) -> Path:
+    """``--model``, checked as the daemon would load it; sets the stream setting it serves (ValueError: one line)."""
+    from runtime.model import ModelContractError, load_model
+
+    path = Path(args.model)
+    try:
+        model = load_model(path, warm_up=False)
+    except ModelContractError as exc:
+        raise ValueError(f"--model: {exc}") from None
+    meta = model.meta
+    served = served_settings(meta.dormant_class, meta.trigger)
+    if args.setting and args.setting not in served:
+        raise ValueError(f"--model {path} serves the stream settings {', '.join(served)}, not --setting "
+                         f"{args.setting}" + ("; continuous mode needs a dormant class" if args.setting == "continuous"
+                                              else ""))
+    args.model_setting = served[0]
+    if args.pads == "all":
+        args.pads = ",".join(str(p) for p in meta.pads)
+    return path
+
+
+def served_settings(dormant_class: str | None, trigger: dict) -> list[str]:
+    """The stream settings a model serves, the one the daemon runs it in first (its recorded trigger)."""
+    kind = trigger.get("kind", "threshold") if isinstance(trigger, dict) else "threshold"
+    if dormant_class:
+        return ["onset_dormant", "continuous"] if kind == "onset" else ["threshold", "continuous"]
+    return ["onset"] if kind == "onset" else ["threshold"]
 
 
 def train_model(args: argparse.Namespace, out: Path) -> Path:
@@ -85,7 +118,7 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
 
     _say(args, f"[1/4] simulating the paper's protocol (synthetic, seed {args.seed}) and [2/4] training ...")
     result = train(TrainOptions(out=str(report), pads=args.pads, seed=args.seed, trigger=wanted["trigger"], repeats=3,
-                                no_sweep=True, quiet=args.quiet or args.json))
+                                no_sweep=True, replay=False, quiet=args.quiet or args.json))
     if result.exit_code != 0 or not model.is_file():
         raise RuntimeError("training did not produce model.onnx (see the messages above)")
     stamp.write_text(json.dumps(wanted))
@@ -145,7 +178,7 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     t_start = time.perf_counter()
     try:
-        model_path = train_model(args, out)
+        model_path = given_model(args) if args.model else train_model(args, out)
     except (OSError, ValueError, RuntimeError) as exc:
         return fail(COMMAND, str(exc))
     model_dir = drop_model(model_path, out / "models").parent

@@ -131,12 +131,14 @@ def in_view(code: np.ndarray, names: Sequence[str], T: int) -> list[str | None]:
 
 
 def idle_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, rng: np.random.Generator,
-                 per_source: int = IDLE_WINDOWS_PER_SOURCE) -> tuple[list, list, list]:
+                 per_source: int = IDLE_WINDOWS_PER_SOURCE, group_of: Sequence[str] | None = None
+                 ) -> tuple[list, list, list]:
     """Dormant windows from idle streams, up to ``per_source`` per kind of idle situation in view.
 
     A window counts for a transition (release, grasp, regrasp, arm move) when any of its
     frames shows it, otherwise for the source of its last frame. Returns windows, origins and
-    groups (``idle0`` .. ``idle4``: the contiguous fifth of its stream, for held-out folds).
+    groups (``idle0`` .. ``idle4``: the contiguous fifth of its stream, for held-out folds; or
+    ``group_of[r]``, the group of the r-th stream, e.g. a recorded subject's).
     """
     ends: dict[str, list[tuple[int, int]]] = {}
     for r, rec in enumerate(idle):
@@ -151,7 +153,36 @@ def idle_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, rng: np.ra
             r, k = pool[i]
             X.append(idle[r].frames[k - T + 1:k + 1, cols].T)
             origin.append(f"idle:{source}")
-            groups.append(f"idle{IDLE_FOLDS * k // idle[r].n_frames}")
+            groups.append(group_of[r] if group_of is not None else f"idle{IDLE_FOLDS * k // idle[r].n_frames}")
+    return X, origin, groups
+
+
+def trigger_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, settings, pad_sizes: Sequence[int],
+                    fullscale: float, pad_fingers: Sequence[int] | None = None,
+                    group_of: Sequence[str] | None = None) -> tuple[list, list, list]:
+    """Dormant windows where the daemon's trigger fires on idle streams: what a trigger-mode model
+    with a dormant class is asked about while nobody interacts (the trigger's cut, ``pre_frames``
+    before its frame, as the daemon and ``trainer.dataset`` cut). Each stream is fed from its first
+    frame to a fresh trigger that finds the settled grasp itself (no robot messages). Returns
+    windows, origins (``trigger:<source of the firing frame>``) and groups (``group_of[r]`` or ``idle``).
+    """
+    from runtime.trigger_settings import build_trigger
+
+    pre = min(int(settings.pre_frames), T - 1)
+    X, origin, groups = [], [], []
+    for r, rec in enumerate(idle):
+        rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
+        trig = build_trigger(settings, tuple(pad_sizes), fullscale, T, rate, pad_fingers)
+        frames = rec.frames[:, cols].astype(np.float32)
+        code = rec.meta.get("source_codes")
+        names = rec.meta.get("sources", ())
+        for i in range(len(frames)):
+            if trig.update(frames[i], i) < 0 or i - pre < 0 or i - pre + T > len(frames):
+                continue
+            X.append(frames[i - pre:i - pre + T].T)
+            source = names[code[i]] if code is not None and 0 <= code[i] < len(names) else "idle"
+            origin.append(f"trigger:{source}")
+            groups.append(group_of[r] if group_of is not None else "idle")
     return X, origin, groups
 
 

@@ -73,6 +73,15 @@ def load_or_simulate(data: str | None, seed: int, say: Callable[[str], None]) ->
     return recs, f"simulated protocol, firmware_io.sim.simulate_protocol(seed={seed})", True
 
 
+def recording_names(data: str | None, recordings: list) -> list[str]:
+    """File names of the recordings (as ``load_or_simulate`` read them), for lines about one of them."""
+    from firmware_io.recordings.recording import find_recordings
+
+    if data:
+        return [p.name for p in find_recordings(data)]
+    return [f"simulated recording {i + 1}" for i in range(len(recordings))]
+
+
 def _looks_simulated(meta: dict) -> bool:
     text = json.dumps(meta, default=str).lower()
     return bool(meta.get("synthetic")) or "simulat" in text or "synthetic" in text
@@ -84,6 +93,7 @@ def train(options: TrainOptions) -> TrainResult:
     from trainer import report
     from trainer.dataset import DatasetError, build_dataset, dataset_trigger, untriggered_lines
     from trainer.evaluation import tsne_embedding
+    from trainer.recorded_idle import add_idle, idle_only_problem
     from trainer.train_outputs import figures, headline, metrics_of, write_model
 
     options.check()
@@ -92,6 +102,10 @@ def train(options: TrainOptions) -> TrainResult:
     out = Path(options.out)
     out.mkdir(parents=True, exist_ok=True)
     recordings, source, synthetic = load_or_simulate(options.data, options.seed, say)
+    names = recording_names(options.data, recordings)
+    problem = idle_only_problem(recordings, names)
+    if problem:
+        raise DatasetError(problem)
     ds = build_dataset(recordings, T=options.T, pads=options.pads,
                        trigger=dataset_trigger(options.trigger, options.fraction))
     summary = ds.summary()
@@ -102,6 +116,9 @@ def train(options: TrainOptions) -> TrainResult:
     problem = too_few_cases(ds)
     if problem:
         raise DatasetError(problem)
+    idle = None
+    if options.dormant:  # the lines about idle data are warnings the user must see even with --quiet
+        ds, idle = add_idle(ds, recordings, names, options.seed, say_to(False))
     selection = None
     if options.select:
         from trainer.select import select_model
@@ -116,7 +133,18 @@ def train(options: TrainOptions) -> TrainResult:
     sweep = None if options.no_sweep else _sweeps(options, recordings, out, say)
     say(f"t-SNE of the {report.features_label(getattr(model, 'families', ('bow',)))} ...")
     embedding = tsne_embedding(model.transform_histograms(ds.X), seed=options.seed)
+    replay = None
+    if options.replay:
+        from trainer.own_replay import held_out_replay, replay_lines
+
+        say("replaying each held-out subject's recording through the daemon ...")
+        replay = held_out_replay(ds, estimator, recordings, names, say)
+        for line in replay_lines(replay):
+            say(f"  {line}")
     metrics = metrics_of(options, ds, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
+    metrics["idle"] = idle and {"seconds": round(idle.seconds, 1), "dormant_windows": len(idle.X),
+                                "per_origin": idle.per_source, "notes": idle.notes}
+    metrics["own_replay"] = replay
     onnx_ok = write_model(options, ds, model, metrics, out)
     say("writing figures and the report ...")
     shown = figures(options, ds, embedding, metrics, out)

@@ -79,6 +79,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "if present, else a small built-in sweep)")
     parser.add_argument("--no-sweep", action="store_true", help="skip the accuracy-vs-K/W/T figures")
     parser.add_argument("--no-onnx", action="store_true", help="do not export model.onnx")
+    parser.add_argument("--dormant", action=argparse.BooleanOptionalAction, default=D.dormant,
+                        help="with idle stretches in the recordings (handover record, import --idle), add the fifth "
+                        "class 'dormant' the default stream setting serves (default: on); --no-dormant: the four "
+                        "actions only")
+    parser.add_argument("--replay", action=argparse.BooleanOptionalAction, default=D.replay,
+                        help="replay each held-out subject's recording (trials and idle) through the daemon with a "
+                        "model trained without it: events right, wrong, missed, false events per hour of idle "
+                        "(default: on)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or messages on stderr")
 

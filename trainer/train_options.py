@@ -59,6 +59,10 @@ class TrainOptions:
     repeats: int = 5
     sweep_file: str | None = None
     no_sweep: bool = False
+    dormant: bool = True
+    replay: bool = True
+    """Replay each held-out subject's recording through the daemon (stream figures in the report)."""
+    """Add the dormant class from the recordings' idle stretches (when they hold any)."""
     no_onnx: bool = False
     json: bool = False
     quiet: bool = False
@@ -170,7 +174,8 @@ class TrainOptions:
             if self.latency_budget_us is not None:
                 parts += ["--latency-budget-us", str(self.latency_budget_us)]
         for flag, on in (("--level-features", self.level_features), ("--scale-features", self.scale_features),
-                         ("--no-sweep", self.no_sweep), ("--no-onnx", self.no_onnx)):
+                         ("--no-sweep", self.no_sweep), ("--no-onnx", self.no_onnx),
+                         ("--no-dormant", not self.dormant), ("--no-replay", not self.replay)):
             if on:
                 parts.append(flag)
         return " ".join(parts)

@@ -76,8 +76,11 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
 
     # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
     folder = {"data_folder": str(Path(options.data).resolve())} if options.data else {}
+    from trainer.dormant import DORMANT
+
     return dataset_metadata(
         ds,
+        dormant_class=DORMANT if DORMANT in ds.classes else None,
         training={
             "data": metrics["data"],
             **folder,

@@ -1,0 +1,188 @@
+"""Stream figures from a lab's own recordings: each held-out subject replayed through the daemon.
+
+Accuracy on cut windows says little about a live stream: what a robot meets is events right,
+wrong or missed, and events nobody made while the arm moves. So for every subject (and every
+recording that holds only idle) a model is trained without it, exported as the one ONNX graph
+the daemon serves, and that subject's recording is replayed frame by frame through the daemon's
+own code (``trainer.streams_eval.replay``) in the stream setting the model serves: each trial
+from its held grasp, each idle stretch on its own (the recorder's segments are not one
+continuous stream). A trial's event is right when the first report inside it (from
+``EARLY_FRAMES`` before the reference on) names its action; reports before that are early;
+reports in idle stretches are false events, counted per hour of what was going on. The
+reference is the annotated onset where the recording has one (a scripted subject's), else the
+go cue (a person's reaction time is then part of onset-to-report).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from firmware_io.recordings.recording import Recording
+from trainer import streams_eval as se
+from trainer.recorded_idle import idle_pieces, subject_of
+
+
+def stream_mode(dormant: bool, trigger_kind: str) -> str:
+    """The stream setting (``streams_eval.MODES``) a trigger-mode model is replayed in."""
+    if trigger_kind == "onset":
+        return "onset_dormant" if dormant else "onset"
+    return "threshold"
+
+
+def _segment(rec: Recording, first: int, last: int, meta: dict | None = None) -> Recording:
+    sl = slice(first, last + 1)
+    return Recording(rec.layout, rec.frames[sl], rec.timestamps[sl], [], dict(meta or {}))
+
+
+def _reference(trial) -> tuple[int, str]:
+    """(frame within the trial the event counts from, what it is)."""
+    onset = trial.extra.get("onset") if isinstance(trial.extra, dict) else None
+    if isinstance(onset, int):
+        if 0 <= onset < trial.n_frames:
+            return onset, "onset"
+        if trial.first <= onset <= trial.last:
+            return onset - trial.first, "onset"
+    go = trial.extra.get("go_frame") if isinstance(trial.extra, dict) else None
+    if isinstance(go, int) and 0 <= go < trial.n_frames:
+        return go, "go"
+    return 0, "start"
+
+
+def replay_recording(rec: Recording, model, mode: str) -> dict:
+    """Trials and idle pieces of one recording replayed through the daemon (``model``: a loaded model)."""
+    period = rec.sample_interval() if rec.n_frames > 1 else 1 / 32
+    events, delays, refs = [], [], set()
+    early = 0
+    for tr in rec.trials:
+        ref, kind = _reference(tr)
+        refs.add(kind)
+        decisions = se.replay(_segment(rec, tr.first, tr.last), model, mode)
+        owned = [d for d in decisions if d.frame >= ref - se.EARLY_FRAMES]
+        early += len(decisions) - len(owned)
+        first = owned[0] if owned else None
+        outcome = "missed" if first is None else "right" if first.cls == tr.action else "wrong"
+        events.append({"action": tr.action, "outcome": outcome, "reported": first.cls if first else None})
+        if first is not None:
+            delays.append(first.frame - ref)
+    idle_frames: dict[str, int] = {}
+    false_by: dict[str, int] = {}
+    false_classes: dict[str, int] = {}
+    for first, last, _ in idle_pieces(rec):
+        piece = _segment(rec, first, last, {"sources": rec.meta["sources"],
+                                            "source_codes": rec.meta["source_codes"][first:last + 1]})
+        names = se.source_names(piece, piece.n_frames)
+        for name, n in zip(*np.unique(names.astype(str), return_counts=True), strict=True):
+            idle_frames[str(name)] = idle_frames.get(str(name), 0) + int(n)
+        for d in se.replay(piece, model, mode):
+            name = str(names[d.frame]) if 0 <= d.frame < piece.n_frames else "?"
+            false_by[name] = false_by.get(name, 0) + 1
+            false_classes[d.cls] = false_classes.get(d.cls, 0) + 1
+    return {"events": events, "delays": delays, "early": early, "references": sorted(refs), "period": period,
+            "idle_frames": idle_frames, "false_by_source": false_by, "false_by_class": false_classes}
+
+
+def summarize(parts: Sequence[dict]) -> dict:
+    """Pooled figures over replayed recordings."""
+    events = [e for p in parts for e in p["events"]]
+    count = {k: sum(e["outcome"] == k for e in events) for k in ("right", "wrong", "missed")}
+    period = float(np.median([p["period"] for p in parts])) if parts else 1 / 32
+    frames: dict[str, int] = {}
+    false: dict[str, int] = {}
+    for p in parts:
+        for k, v in p["idle_frames"].items():
+            frames[k] = frames.get(k, 0) + v
+        for k, v in p["false_by_source"].items():
+            false[k] = false.get(k, 0) + v
+    hours = {k: v * period / 3600.0 for k, v in frames.items()}
+    total_h = sum(hours.values())
+    n_false = sum(false.values())
+    delays = np.array([d for p in parts for d in p["delays"]], dtype=np.float64)
+    per_action: dict[str, dict] = {}
+    for e in events:
+        a = per_action.setdefault(e["action"], {"n": 0, "right": 0})
+        a["n"] += 1
+        a["right"] += e["outcome"] == "right"
+    classes: dict[str, int] = {}
+    for p in parts:
+        for k, v in p["false_by_class"].items():
+            classes[k] = classes.get(k, 0) + v
+    return {
+        "events": len(events), **count, "early_reports": sum(p["early"] for p in parts),
+        "right_fraction": count["right"] / len(events) if events else None,
+        "per_action": dict(sorted(per_action.items())),
+        "idle_hours": total_h, "false_events": n_false, "false_per_hour": n_false / total_h if total_h else None,
+        "idle_by_source": {k: {"hours": hours[k], "false_events": false.get(k, 0),
+                               "false_per_hour": false.get(k, 0) / hours[k] if hours[k] else None}
+                           for k in sorted(hours)},
+        "false_by_class": dict(sorted(classes.items())),
+        "onset_to_report_frames": se._stats(delays),
+        "reference": sorted({r for p in parts for r in p["references"]}),
+    }
+
+
+def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Sequence[str],
+                    say: Callable[[str], None]) -> dict | None:
+    """Every subject (or idle-only recording) held out in turn: a model trained without it, exported,
+    its recording replayed through the daemon. None when there is nothing to hold out against."""
+    from sklearn.base import clone
+
+    from runtime.model import load_model
+    from trainer.dormant import DORMANT
+    from trainer.model_meta import dataset_metadata
+    from trainer.onnx_export import export_onnx
+
+    dormant = DORMANT in ds.classes
+    mode = stream_mode(dormant, ds.trigger.kind)
+    owners = [subject_of(r, Path(n).stem) for r, n in zip(recordings, names, strict=True)]
+    groups = sorted({g for g, r in zip(owners, recordings, strict=True) if r.trials or idle_pieces(r)})
+    if len(groups) < 2:
+        return None
+    folds, parts, skipped = [], [], {}
+    with tempfile.TemporaryDirectory(prefix="handover-replay-") as tmp:
+        for k, group in enumerate(groups):
+            train = ds.groups != group
+            classes = set(ds.y[train].tolist())
+            if len(classes - {DORMANT}) < 2:
+                skipped[group] = "the other recordings hold fewer than two actions"
+                continue
+            say(f"  replaying {group} through the daemon ({mode}), model trained without it "
+                f"({k + 1}/{len(groups)}) ...")
+            model = clone(estimator).fit(ds.X[train], ds.y[train])
+            meta = dataset_metadata(ds, training={"held_out": group}, dormant_class=DORMANT if dormant else None)
+            path = export_onnx(model, Path(tmp) / f"fold{k}.onnx", meta)
+            loaded = load_model(path, warm_up=False)
+            mine = [replay_recording(r, loaded, mode) for r, g in zip(recordings, owners, strict=True) if g == group]
+            fold = summarize(mine)
+            folds.append({"held_out": group, **{key: fold[key] for key in (
+                "events", "right", "wrong", "missed", "idle_hours", "false_events", "false_per_hour")}})
+            parts += mine
+    if not parts:
+        return {"mode": mode, "skipped": skipped, "folds": []}
+    return {"mode": mode, "dormant_class": dormant, **summarize(parts), "folds": folds, "skipped": skipped}
+
+
+def replay_lines(r: dict | None) -> list[str]:
+    """The held-out replay in a few lines (terminal and report)."""
+    if not r or not r.get("folds"):
+        return []
+    ref = {"onset": "the annotated onset", "go": "the go cue", "start": "the trial's start"}
+    refs = " / ".join(ref.get(x, x) for x in r["reference"]) or "-"
+    lines = []
+    if r["events"]:
+        d = r["onset_to_report_frames"]
+        lines.append(f"events: {r['events']} trials, {r['right']} right ({r['right_fraction']:.0%}), {r['wrong']} wrong, "
+                     f"{r['missed']} missed, {r['early_reports']} reports before the action; onset to report: "
+                     + (f"median {d['median']:.0f} frames from {refs}" if d else "-"))
+    if r["idle_hours"]:
+        by = ", ".join(f"{k} {v['false_events']} in {v['hours'] * 60:.1f} min"
+                       for k, v in r["idle_by_source"].items())
+        lines.append(f"idle: {r['false_events']} false events in {r['idle_hours'] * 60:.1f} min "
+                     f"({r['false_per_hour']:.1f} per hour; {by})")
+    else:
+        lines.append("idle: none recorded, so false events per hour are not measured (handover record records idle "
+                     "after the trials)")
+    return lines
