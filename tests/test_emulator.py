@@ -317,3 +317,14 @@ def test_a_power_cycle_takes_the_boot_time_and_forgets_what_was_not_stored(rec):
     clock.t += 0.05
     (ts, _), *_ = _frames(emu)
     assert 1000 + 10000 - 100 <= ts <= 1000 + 10000 + 100  # the clock restarted at power-on, 10 s ago
+
+
+def test_a_session_played_to_a_late_host_starts_when_it_first_asks(rec):
+    """``session_starts="first_acquisition"``: the recording starts at the host's first request (its
+    first frame is the recording's first), the clock has run since power-on all the same."""
+    emu, clock = make(rec, speed=1.0, start_ms=100, session_starts="first_acquisition")
+    clock.t += 12.5
+    assert emu.session_clock_ms is None
+    _, first = ask(emu, requests.push_request())
+    ts, values = decode_frame_payload(first.payload, 486)
+    assert np.array_equal(values, rec.frames[0]) and ts == 100 + 12500 == emu.session_clock_ms

@@ -31,7 +31,7 @@ def _handover(*argv: str, **kw) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, **kw)
 
 
-def _demo_counts(lines: list[str]) -> dict:
+def _demo_counts(lines: list[str], session_ms: int) -> dict:
     """The demo's own path for the same lines: its EventLog maps each event to the session's frames
     and session_outcomes scores them (trainer/demo_cli.py)."""
     from trainer.demo_cli import EventLog
@@ -40,7 +40,7 @@ def _demo_counts(lines: list[str]) -> dict:
 
     session = simulate_session(demo_script(EVENTS, seed=SEED), seed=SEED)
     log = EventLog(SimpleNamespace(quiet=True, json=False), session, demo_script(EVENTS, seed=SEED),
-                   SimpleNamespace(start_ms=0))
+                   SimpleNamespace(session_clock_ms=session_ms))
     for line in lines:
         obj = json.loads(line)
         if obj.get("type") == "decision":
@@ -57,7 +57,8 @@ def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
     write_model(models, "m.onnx", tiny_model_bytes(), mtime=time.time() - 10)
     script = tmp_path / "script.jsonl"
     emu = _handover("emulate", "--listen", "tcp://127.0.0.1:0", "--events", str(EVENTS), "--seed", str(SEED),
-                    "--speed", "max", "--no-loop", "--script-out", str(script), run_dir=str(run_dir))
+                    "--speed", "4", "--no-loop", "--clock-start", "5000", "--script-out", str(script),
+                    run_dir=str(run_dir))
     daemon = None
     try:
         head = emu.stdout.readline()
@@ -69,6 +70,10 @@ def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
         cfg.write_text(f'health_file = "{tmp_path / "status.json"}"\n[device]\nurl = "{url}"\nstall_timeout_s = 5.0\n'
                        f'[model]\nfolder = "{models}"\n[trigger]\n{trigger}[sinks]\nstdout = true\n')
         daemon = _handover("run", "--config", str(cfg), run_dir=str(run_dir))
+        started = emu.stdout.readline()  # once the daemon asks for frames: the session's first frame's device time
+        assert started.startswith("session started at device time"), started
+        session_ms = int(started.split("device time ")[1].split()[0])
+        assert session_ms > 5000  # the clock ran from power-on before the daemon came
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             try:
@@ -95,7 +100,7 @@ def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
                             timeout=60)
     assert scored.returncode == 0, scored.stderr
     got = json.loads(scored.stdout)
-    want = _demo_counts(lines)
+    want = _demo_counts(lines, session_ms)
     keys = ("events_expected", "events_detected", "events_correct", "events_missed", "false_events", "repeat_events",
             "missed_events", "wrong_events", "per_class_correct", "report_minus_onset_frames")
     assert {k: got[k] for k in keys} == {k: want[k] for k in keys}

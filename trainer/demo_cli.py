@@ -203,7 +203,8 @@ def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, 
     session_seed = args.seed + SESSION_SEED_OFFSET
     script = demo_script(args.events, seed=session_seed)
     session = simulate_session(script, seed=session_seed)
-    emulator = DeviceEmulator(session, speed=speed, loop=False, faults=faults, seed=session_seed)
+    emulator = DeviceEmulator(session, speed=speed, loop=False, faults=faults, seed=session_seed,
+                              session_starts="first_acquisition")  # the whole session, however long the daemon takes to start
     server = TcpEmulatorServer(emulator, host="127.0.0.1", port=0).start()
     duration = session.timestamps[-1] - session.timestamps[0]
     _say(args, f"[3/4] emulated DSACON32m on {server.url}: scripted session of {len(script)} events by unseen "
@@ -242,11 +243,10 @@ class EventLog:
     """The daemon's events as they happen: each matched to the scripted event it answers, printed."""
 
     def __init__(self, args: argparse.Namespace, session, script, emulator) -> None:
-        from firmware_io.emulator.script_file import session_script
         from trainer.streams_eval import Decision
 
         self.decision_of = Decision
-        self.clock = session_script(session, emulator.start_ms)  # device time -> frame, as handover score maps it
+        self.session, self.clock = session, None  # device time -> frame, as handover score maps it
         self.args, self.script, self.emulator = args, script, emulator
         self.trials = session.trials
         self.firsts = np.array([t.first for t in self.trials])
@@ -255,6 +255,10 @@ class EventLog:
 
     def on_event(self, event) -> None:
         args, trials = self.args, self.trials
+        if self.clock is None:  # the session started when the daemon first asked for frames
+            from firmware_io.emulator.script_file import session_script
+
+            self.clock = session_script(self.session, self.emulator.session_clock_ms or 0)
         _, idx = self.clock.frame_of(event.device_time_ms)
         self.decisions.append(self.decision_of(idx, event.cls, event.latency_us))
         k = int(np.searchsorted(self.firsts, idx, side="right")) - 1

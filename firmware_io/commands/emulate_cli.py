@@ -42,6 +42,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "its device times, for handover score EVENTS.jsonl FILE")
 
 
+def _write_script(args: argparse.Namespace, recording, emulator) -> None:
+    """The session's script; until a host asks for frames its device times are not known yet
+    (``started: false``), and the file is written again when they are."""
+    from firmware_io.emulator.script_file import write_script
+
+    start = emulator.session_clock_ms
+    write_script(args.script_out, recording, args.clock_start if start is None else start, loop=not args.no_loop,
+                 source=str(args.source), started=start is not None)
+
+
 def _interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
@@ -76,16 +86,14 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     emulator = DeviceEmulator(
         recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed,
-        start_ms=args.clock_start, **boot,
+        start_ms=args.clock_start, session_starts="first_acquisition", **boot,
     )
     if args.script_out:
-        from firmware_io.emulator.script_file import write_script
-
-        try:
-            n = write_script(args.script_out, recording, args.clock_start, loop=not args.no_loop, source=str(args.source))
+        try:  # written again, with the device time the session starts at, once a host asks for frames
+            _write_script(args, recording, emulator)
         except OSError as exc:
             return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
-        if n == 0:
+        if not recording.trials:
             print(f"handover emulate: warning: {args.source} has no scripted events; {args.script_out} holds none",
                   file=sys.stderr, flush=True)
     try:
@@ -124,10 +132,19 @@ def main(args: argparse.Namespace) -> int:
         else:
             print(f"listening: {server.url}", flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
+        script_due = bool(args.script_out)
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
             if server.error is not None:
                 return fail(COMMAND, f"server stopped: {server.error}")
+            if script_due and emulator.session_clock_ms is not None:
+                script_due = False
+                try:
+                    _write_script(args, recording, emulator)
+                except OSError as exc:
+                    return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
+                print(f"session started at device time {emulator.session_clock_ms} ms; script: {args.script_out}",
+                      flush=True)
     except KeyboardInterrupt:
         pass
     finally:

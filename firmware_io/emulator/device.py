@@ -18,8 +18,9 @@ Behaviour (see ``../shared/reference/dsacon32m-protocol.md``):
 - Old-firmware mode: a single-frame request starts push mode (firmware <= R288).
 - Frames carry the recording's values unchanged (thresholds and sensitivity are stored and
   reported, not applied), so a client's frames can be compared bit for bit with the source.
-- The recording is the world the sensor looks at: it plays from the emulator's creation on,
-  whether or not the host acquires (frames not asked for go by unseen; a single frame is the one
+- The recording is the world the sensor looks at: it plays from the emulator's creation on
+  (``session_starts="first_acquisition"``: from the host's first request for frames), whether
+  or not the host acquires (frames not asked for go by unseen; a single frame is the one
   the sensor sees when asked), and repeats when ``loop`` is set. The device clock runs from
   power-on at the same pace, starting at ``start_ms`` and wrapping at 2**32; a frame's
   timestamp is the clock when it was acquired. Until a power cycle or a stall fault, that is the
@@ -199,6 +200,7 @@ class DeviceEmulator:
         clock: Callable[[], float] = time.monotonic,
         boot_s: float = BOOT_S,
         boot_query_s: float = BOOT_QUERY_S,
+        session_starts: str = "power_on",
     ) -> None:
         if recording.n_frames == 0:
             raise ValueError("the emulator needs a recording with at least one frame")
@@ -215,6 +217,11 @@ class DeviceEmulator:
         if not 0 <= boot_query_s <= boot_s:
             raise ValueError(f"boot_query_s must be within 0..boot_s, got {boot_query_s} of {boot_s}")
         self.boot_s, self.boot_query_s = float(boot_s), float(boot_query_s)
+        if session_starts not in ("power_on", "first_acquisition"):
+            raise ValueError(f"session_starts must be 'power_on' or 'first_acquisition', got {session_starts!r}")
+        self._session_waits = session_starts == "first_acquisition"
+        """The recording starts when a host first asks for frames (a scripted session played to a host
+        that connects later), not at power-on; the clock runs from power-on either way."""
         self.stats = EmulatorStats()
         self._rng = np.random.default_rng(seed)
         self._parser = HostCommandParser()
@@ -425,6 +432,12 @@ class DeviceEmulator:
             self.disconnected = True
             self.stats.disconnects += 1
 
+    @property
+    def session_clock_ms(self) -> int | None:
+        """The device clock at the recording's first frame (frame i is stamped this plus its time
+        in the recording), or None while the session waits for a host to ask for frames."""
+        return None if self._session_waits else self._clock_offset_ms() % 2**32
+
     def _clock_offset_ms(self) -> int:
         """The device clock at the moment the world's frame 0 was due (``start_ms`` until a power cycle
         or a stall shifts one against the other)."""
@@ -504,6 +517,9 @@ class DeviceEmulator:
     def _on_acquisition(self, payload: bytes, now: float) -> bytes:
         cfg = AcquisitionConfig.decode(payload)
         self._out += encode_ack(PacketId.CONFIGURE_DATA_ACQUISITION)
+        if self._session_waits and cfg.mode != "stop":
+            self._session_waits = False
+            self._origin = now
         self._rle = cfg.rle
         mode = cfg.mode
         if mode == "single" and self.old_firmware:

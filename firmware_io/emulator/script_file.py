@@ -1,7 +1,7 @@
 """The ground truth of an emulated session, as a file: what the person did, and when on the device clock.
 
-``handover emulate --script-out FILE`` writes it; ``handover score EVENTS SCRIPT`` reads it to
-score a captured event stream. JSON lines: a header (``type: "script"``) with each frame's time
+``handover emulate --script-out FILE`` writes it (again when a host first asks for frames: the
+session starts then); ``handover score EVENTS SCRIPT`` reads it to score a captured event stream. JSON lines: a header (``type: "script"``) with each frame's time
 in ms from the first (device time = ``clock_start_ms`` + that, plus one ``loop_ms`` per pass
 when the session repeats), then one ``type: "scripted"`` line per event: the frame span the
 event can be answered in (``first_frame`` .. ``last_frame``, the object placed .. taken away),
@@ -60,10 +60,13 @@ def session_script(recording: Recording, clock_start_ms: int = 0, loop: bool = F
 
 
 def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: int = 0, loop: bool = False,
-                 source: str = "") -> int:
-    """Write the script of ``recording`` to ``path``; returns the number of scripted events."""
+                 source: str = "", started: bool = True) -> int:
+    """Write the script of ``recording`` to ``path`` (atomically: a reader never sees half a file);
+    returns the number of scripted events. ``started``: ``clock_start_ms`` is known (the device time
+    of the session's first frame); a script written before is refused by ``read_script``."""
     script = session_script(recording, clock_start_ms, loop)
-    header = {"type": "script", "protocol": SCRIPT_VERSION, "source": source, "synthetic": script.synthetic,
+    header = {"type": "script", "protocol": SCRIPT_VERSION, "started": bool(started), "source": source,
+              "synthetic": script.synthetic,
               "clock_start_ms": script.clock_start_ms, "loop_ms": script.loop_ms, "frames": len(script.frame_ms),
               "frame_ms": script.frame_ms.tolist()}
     lines = [json.dumps(header)]
@@ -72,7 +75,10 @@ def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: 
                                  "action": t.action, "subject": t.subject, "object": t.object, "pose": t.pose,
                                  "first_frame": t.first, "last_frame": t.last,
                                  "time_s": t.extra.get("onset_s")}))
-    Path(path).write_text("\n".join(lines) + "\n")
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, p)
     return len(script.trials)
 
 
@@ -90,6 +96,9 @@ def read_script(path: str | os.PathLike) -> SessionScript:
     head = rows[0]
     if head.get("protocol") != SCRIPT_VERSION:
         raise ScriptFileError(f"{p}: script version {head.get('protocol')!r}, this handover reads {SCRIPT_VERSION}")
+    if head.get("started") is False:
+        raise ScriptFileError(f"{p}: no host asked the emulator for frames yet, so the session's device times are "
+                              "not known; score once the daemon has read the session")
     try:
         trials = [Trial(subject=str(r["subject"]), object=str(r["object"]), pose=str(r["pose"]), action=str(r["action"]),
                         run=int(r["event"]), first=int(r["first_frame"]), last=int(r["last_frame"]),
