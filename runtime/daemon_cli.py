@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--check", action="store_true", help="validate the config and the model folder, then exit")
     parser.add_argument("--require-model", action="store_true",
                         help="with --check: exit 1 when no model in the folder would serve (default: a warning)")
+    parser.add_argument("--device", action="store_true",
+                        help="with --check: also open the device for a few seconds and report frames and rate "
+                             "(exit 1 when it gives none)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -44,8 +47,17 @@ def main(args: argparse.Namespace) -> int:
     handler.setFormatter(formatter)
     logging.basicConfig(handlers=[handler])
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
+    if args.device and not args.check:
+        print(f"{PROG}: --device goes with --check (handover run --config FILE --check --device)", file=sys.stderr)
+        return 2
     if args.check:
-        return _check(cfg, require_model=args.require_model)
+        code = _check(cfg, require_model=args.require_model)
+        if code == 2:
+            return code
+        device_code = _check_device(cfg) if args.device else 0
+        print(CHECKED)
+        print(NOT_CHECKED_WITH_DEVICE if args.device else NOT_CHECKED)
+        return code or device_code
     from runtime import instance_lock
 
     try:  # before anything is opened or written: a second daemon leaves the first one's files alone
@@ -161,6 +173,35 @@ def _warn_about_udp_hosts(cfg) -> None:
         if problem := resolve_problem(host, port):
             print(f"{PROG}: warning: sinks.udp: {target}: the host name does not resolve ({problem}); the daemon "
                   "sends events there once it does", file=sys.stderr)
+
+
+CHECKED = ("checked: config keys and values; the device URL's form; the model folder and the model that would "
+           "serve (its contract, pads, classes against scene.events, a warm-up decision); scene.pads; the packages "
+           "the sinks need; that no other daemon holds this device or health file")
+NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
+               "destinations listen; the control socket; the real-time priority")
+NOT_CHECKED_WITH_DEVICE = ("not checked: whether the UDP and Unix destinations listen; the control socket; "
+                           "the real-time priority")
+"""What ``--check`` looked at and what it did not, said after its verdict (a valid config is not a working daemon)."""
+
+
+def _check_device(cfg) -> int:
+    """Open the device for a few seconds (``runtime.device_check``): 0 when frames came, else 1 (one line).
+    A device another daemon holds is not opened: reading it would take it from that daemon."""
+    from runtime import instance_lock
+    from runtime.device_check import PROBE_S, probe_device
+
+    for what, path in instance_lock.targets(cfg):
+        if what.startswith("device ") and (held := instance_lock.held_by_other(what, path)):
+            print(f"{PROG}: {held}; not opened (stop that daemon to check the device)", file=sys.stderr)
+            return 1
+    print(f"opening {cfg.device.url} for {PROBE_S:g} s ...", flush=True)
+    probe = probe_device(cfg.device.url)
+    if probe.problem:
+        print(f"{PROG}: {probe.line()}", file=sys.stderr)
+        return 1
+    print(probe.line())
+    return 0
 
 
 def _note_held_locks(cfg) -> None:

@@ -1,0 +1,68 @@
+"""``handover run --check`` says what it checked and what not; with ``--device`` it opens the device
+for a few seconds and reports frames and rate (the real emulator on loopback TCP), or one line
+saying why nothing came (nothing listening), exit 1."""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+from firmware_io.emulator.device import DeviceEmulator
+from firmware_io.emulator.frame_source import load_source
+from firmware_io.emulator.server import TcpEmulatorServer
+from tests.tiny_models import tiny_model_bytes, write_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _check(tmp_path: Path, url: str, *more: str) -> subprocess.CompletedProcess:
+    models = tmp_path / "models"
+    models.mkdir(exist_ok=True)
+    write_model(models, "m.onnx", tiny_model_bytes())
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "{url}"\n[model]\nfolder = "{models}"\n')
+    (tmp_path / "run").mkdir(exist_ok=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), XDG_RUNTIME_DIR=str(tmp_path / "run"))
+    return subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check", *more],
+                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
+
+
+def test_check_says_it_did_not_open_the_device(tmp_path):
+    proc = _check(tmp_path, "tcp://127.0.0.1:9")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "would serve model" in out
+    assert re.search(r"^checked: .*model.*scene\.pads", out, re.M)
+    assert re.search(r"^not checked: the device itself \(add --device", out, re.M)
+
+
+def test_check_device_reports_frames_and_rate_of_the_emulator(tmp_path):
+    server = TcpEmulatorServer(DeviceEmulator(load_source("sim", seed=0, events=4), speed=1.0)).start()
+    try:
+        proc = _check(tmp_path, server.url, "--device")
+    finally:
+        server.stop()
+    assert proc.returncode == 0, proc.stderr
+    line = next(x for x in proc.stdout.splitlines() if x.startswith(f"device {server.url}:"))
+    m = re.search(r"(\d+) frames in ([\d.]+) s \(([\d.]+) frames/s; ([\d.]+) Hz on the device's clock\); 6 pads, "
+                  r"486 taxels, firmware 2\.9\.0\.0", line)
+    assert m, line
+    frames, rate, device_hz = int(m.group(1)), float(m.group(3)), float(m.group(4))
+    assert frames >= 30 and 20 <= rate <= 40 and abs(device_hz - 32) < 2, line
+    assert "not checked: the device itself" not in proc.stdout and "not checked: whether the UDP" in proc.stdout
+
+
+def test_check_device_with_nothing_listening_is_one_line_and_exit_1(tmp_path):
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    proc = _check(tmp_path, f"tcp://127.0.0.1:{port}", "--device")
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"handover run: device tcp://127.0.0.1:{port}: cannot read it"), lines
+    assert "Traceback" not in proc.stderr
