@@ -232,16 +232,22 @@ def _log_level(k: Key, table: dict) -> str:
     return log_level
 
 
-def _health_file(k: Key, table: dict) -> str | None:
-    """A path whose folder exists (or None)."""
-    health = table.get(k.short)
-    if health is not None and (not isinstance(health, str) or not health.strip()):
-        raise ConfigError(f"health_file: must be a path, got {health!r}")
-    if health is not None:
-        folder = Path(health).expanduser().parent
-        if not folder.is_dir():
-            raise ConfigError(f"health_file: folder {folder} does not exist (create it, or drop health_file)")
-    return health
+def _state_file(k: Key, table: dict) -> str | None:
+    """``health_file``, ``model.quarantine_file``: a path naming a file (not a folder) whose folder
+    exists, or None. Why: a folder there (``/``, ``.``) passed once and then crashed the daemon at
+    its first write, or left a model that broke the contract in service."""
+    value = table.get(k.short)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{k.name}: must be a path, got {value!r}")
+    path = Path(value).expanduser()
+    if path.name in ("", ".", "..") or path.is_dir():
+        raise ConfigError(f"{k.name}: {value} is a folder, not a file; name a file in it (e.g. "
+                          f"{path.resolve() / ('status.json' if k.name == 'health_file' else 'quarantined-models.json')})")
+    if not path.parent.is_dir():
+        raise ConfigError(f"{k.name}: folder {path.parent} does not exist (create it, or drop {k.name})")
+    return value
 
 
 _ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -276,7 +282,8 @@ def _ros2_joint_states(k: Key, table: dict) -> str | None:
 _READERS: dict[str, Callable[[Key, dict], Any]] = {
     "device.url": _device_url, "scene.pads": _scene_pads, "scene.events": _scene_events,
     "trigger.fraction": _trigger_fraction, "sinks.udp": _sinks_udp, "sinks.unix": _sinks_unix,
-    "control.socket": _control_socket, "log_level": _log_level, "health_file": _health_file,
+    "control.socket": _control_socket, "log_level": _log_level, "health_file": _state_file,
+    "model.quarantine_file": _state_file,
     "ros2.namespace": _ros2_namespace, "ros2.node_name": _ros2_node_name, "ros2.joint_states": _ros2_joint_states,
 }
 """Keys read with more than their declared type and range."""

@@ -188,14 +188,14 @@ class StatusFile:
         """True when written; False (and maybe one log line) when not."""
         try:
             write_json_atomically(self.path, data)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # ValueError: a path with no file name
             self.failures += 1
             self._unlogged += 1
             self._failing = True
             now = time.monotonic() if now is None else now
             if self._last_log is None or now - self._last_log >= self.log_every_s:
                 more = f" ({self._unlogged} failed writes since the last message)" if self._last_log is not None else ""
-                log.warning("health file %s: %s%s", self.path, exc.strerror or exc, more)
+                log.warning("health file %s: %s%s", self.path, getattr(exc, "strerror", None) or exc, more)
                 self._last_log, self._unlogged = now, 0
             return False
         if self._failing:

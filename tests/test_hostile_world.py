@@ -100,3 +100,7 @@ def test_the_sender_credentials_rule():
 
 def test_a_control_socket_path_that_cannot_work_is_one_line_at_check_and_at_run(tmp_path):
     _held(W.control_paths(tmp_path))
+
+
+def test_a_health_or_quarantine_file_naming_a_folder_is_one_line_at_check_run_and_sighup(tmp_path):
+    _held(W.state_file_paths(tmp_path))

@@ -425,3 +425,32 @@ def control_paths(work: Path) -> dict:
     return {"held": held, "rows": rows,
             "detail": "; ".join(f"{k}: --check {'one line, exit 2' if r['check_exit2_one_line'] else 'PASSED IT'}, "
                                 f"run {'one line' if r['run_one_line'] else 'FAILED'}" for k, r in rows.items())}
+
+
+# -- 11: state files that cannot work ---------------------------------------------------------------
+def state_file_paths(work: Path) -> dict:
+    """``health_file`` / ``model.quarantine_file`` naming a folder (``/``, ``.``): one line at ``--check``,
+    at ``run`` (exit 2) and at SIGHUP (the running config kept), never a crash."""
+    models = work / "models"
+    models.mkdir(parents=True, exist_ok=True)
+    rows = {}
+    for name, key, top, in_model in (("health_file = /", "health_file", 'health_file = "/"\n', ""),
+                                     ("health_file = .", "health_file", 'health_file = "."\n', ""),
+                                     ("quarantine_file = /", "model.quarantine_file", "", 'quarantine_file = "/"\n')):
+        config = work / "bad.toml"
+        config.write_text(f'{top}[device]\nurl = "sim://"\n[model]\n{in_model}folder = "{models}"\n')
+        check = cli(["run", "--config", str(config), "--check"])
+        run = cli(["run", "--config", str(config)], timeout=HANG_GUARD_S)
+        daemon = served_daemon(work / "served")
+        source = Path(daemon.cfg.source)
+        source.write_text(top + source.read_text().replace("[model]\n", "[model]\n" + in_model))
+        with LogLines() as said:
+            daemon._do_reload()
+        kept = daemon.cfg.health_file is None and daemon.cfg.model.quarantine_file is None
+        reload_lines = [s for s in said if key in s]
+        rows[name] = {"check": check.returncode == 2 and one_line(check.stderr, key),
+                      "run": run.returncode == 2 and one_line(run.stderr, key) and "Traceback" not in run.stderr,
+                      "sighup": kept and len(reload_lines) == 1}
+    held = all(all(r.values()) for r in rows.values())
+    return {"held": held, "rows": rows, "detail": "; ".join(
+        f"{k}: " + ", ".join(f"{w} {'one line' if ok else 'FAILED'}" for w, ok in r.items()) for k, r in rows.items())}
