@@ -11,7 +11,9 @@ problem raises :class:`ConfigError` whose message names the key, e.g.
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 import tomllib
 from collections.abc import Callable
 from dataclasses import field, make_dataclass, replace
@@ -99,7 +101,7 @@ def load_config(path: str | Path) -> Config:
     """Read and validate a TOML file; raises ConfigError naming the file or the key."""
     p = Path(path)
     try:
-        text = p.read_bytes().decode("utf-8")
+        text = read_whole(p).decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{p}: config file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -108,7 +110,44 @@ def load_config(path: str | Path) -> Config:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+    if not data:
+        raise ConfigError(f"{p}: the config file is empty (half-written by an editor or a deploy tool?); write at "
+                          "least one key (deploy/handover.toml is a complete example)")
     return replace(config_from_dict(data), source=str(p))
+
+
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def read_whole(path: Path) -> bytes:
+    """The bytes of a regular file, read whole and unchanged while reading; OSError (naming what is
+    wrong) otherwise. Why: a SIGHUP must never apply half a file (a deploy tool still writing it)
+    nor wait on a FIFO that nobody writes; it keeps the running config instead."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        before = os.fstat(fd)
+        if not stat.S_ISREG(before.st_mode):
+            raise OSError(f"not a regular file (a {_kind(before.st_mode)}); point --config at the file itself")
+        if before.st_size > MAX_CONFIG_BYTES:
+            raise OSError(f"{before.st_size} bytes, more than a config can be ({MAX_CONFIG_BYTES})")
+        chunks = []
+        while chunk := os.read(fd, 65536):
+            chunks.append(chunk)
+        after = os.fstat(fd)
+    finally:
+        os.close(fd)
+    data = b"".join(chunks)
+    if (after.st_size, after.st_mtime_ns) != (before.st_size, before.st_mtime_ns) or len(data) != after.st_size:
+        raise OSError("it changed while being read (still being written?); send SIGHUP again once it is complete")
+    return data
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, "FIFO"), (stat.S_ISDIR, "folder"), (stat.S_ISCHR, "character device"),
+                       (stat.S_ISBLK, "block device"), (stat.S_ISSOCK, "socket")):
+        if test(mode):
+            return name
+    return "special file"
 
 
 def config_from_dict(data: dict[str, Any]) -> Config:

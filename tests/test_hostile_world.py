@@ -104,3 +104,19 @@ def test_a_control_socket_path_that_cannot_work_is_one_line_at_check_and_at_run(
 
 def test_a_health_or_quarantine_file_naming_a_folder_is_one_line_at_check_run_and_sighup(tmp_path):
     _held(W.state_file_paths(tmp_path))
+
+
+def test_sighup_on_an_empty_cut_or_fifo_config_keeps_the_running_one_with_one_line(tmp_path):
+    _held(W.partial_config(tmp_path))
+
+
+def test_a_config_is_read_whole_from_a_regular_file_and_a_fifo_is_refused_at_once(tmp_path):
+    from runtime.config import read_whole
+
+    path = tmp_path / "h.toml"
+    path.write_text('[device]\nurl = "sim://"\n')
+    assert read_whole(path) == path.read_bytes()
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(OSError, match="not a regular file"):
+        read_whole(fifo)

@@ -454,3 +454,33 @@ def state_file_paths(work: Path) -> dict:
     held = all(all(r.values()) for r in rows.values())
     return {"held": held, "rows": rows, "detail": "; ".join(
         f"{k}: " + ", ".join(f"{w} {'one line' if ok else 'FAILED'}" for w, ok in r.items()) for k, r in rows.items())}
+
+
+# -- 12: SIGHUP with a config that is not whole -------------------------------------------------------
+def partial_config(work: Path) -> dict:
+    """SIGHUP while the config file is empty, cut off mid-line, or replaced by a FIFO: the running
+    config is kept with one line and the loop never blocks; ``--check`` and ``run`` refuse the same."""
+    rows = {}
+    for name in ("empty", "cut mid-line", "FIFO"):
+        daemon = served_daemon(work / name.replace(" ", "-"), more='[control]\nsocket = "@handover-kept"\n')
+        source = Path(daemon.cfg.source)
+        good, before = source.read_text(), daemon.cfg
+        source.unlink()
+        if name == "FIFO":
+            os.mkfifo(source)
+        else:
+            source.write_text("" if name == "empty" else good[: good.index("[trigger]") + 12])
+        with LogLines() as said:
+            finished, _ = in_thread(daemon._do_reload, guard_s=HANG_GUARD_S / 3)
+        kept = finished and daemon.cfg == before
+        lines = [s for s in said if str(source) in s]
+        check = cli(["run", "--config", str(source), "--check"], timeout=HANG_GUARD_S)
+        run = cli(["run", "--config", str(source)], timeout=HANG_GUARD_S)
+        rows[name] = {"sighup_kept_one_line": kept and len(lines) == 1,
+                      "check_exit2_one_line": check.returncode == 2 and one_line(check.stderr, str(source)),
+                      "run_exit2_one_line": run.returncode == 2 and one_line(run.stderr, str(source))}
+        if name == "FIFO":
+            source.unlink()
+    held = all(all(r.values()) for r in rows.values())
+    return {"held": held, "rows": rows, "detail": "; ".join(
+        f"{k}: " + ", ".join(f"{w} {ok}" for w, ok in r.items()) for k, r in rows.items())}
