@@ -22,7 +22,7 @@ from firmware_io.wire import requests as R
 from firmware_io.wire.device_time import TimestampUnwrapper
 from firmware_io.wire.errors import DeviceError, DSAError, DSAErrorCode, FrameDecodeError, ProtocolError
 from firmware_io.wire.frames import decode_frame_payload
-from firmware_io.wire.packets import Packet, PacketId, check_reply, encode_packet
+from firmware_io.wire.packets import Packet, PacketId, check_reply
 from firmware_io.wire.parser import StreamParser
 from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensitivityReply, SensorInfo, ThresholdReply
 
@@ -113,8 +113,6 @@ class DSAClient:
         self._counts = dict.fromkeys(COUNTERS, 0)
         self.last_refusal: str | None = None
         """Why the newest frame that arrived whole but was refused (undecodable, implausible) was."""
-        self._last_frame: Packet | None = None
-        self._rehearsal_parser: StreamParser | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------
     @property
@@ -160,8 +158,6 @@ class DSAClient:
         self.layout = layout
         self._plausible = FrameCheck(layout)
         self.parser.set_cells(layout.n_taxels)
-        self._rehearsal_parser = StreamParser(layout.n_taxels)
-        self._last_frame = None
         return layout
 
     @classmethod
@@ -454,7 +450,6 @@ class DSAClient:
             self.last_refusal = problem
             return
         frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
-        self._last_frame = packet
         self._last_frame_at = time.monotonic()
         self._number += 1
         self._counts["frames"] += 1
@@ -462,16 +457,6 @@ class DSAClient:
             self._frames.popleft()
             self._counts["frames_stale"] += 1
         self._frames.append(frame)
-
-    def rehearse(self) -> None:
-        """Take the last frame's packet through the receive path once more (parse with its CRC,
-        decode, plausibility) on a scratch parser, result discarded: called just before a frame is
-        due (runtime.rehearsal) so that frame is parsed on warm caches. Changes no state or count."""
-        packet, parser = self._last_frame, self._rehearsal_parser
-        if packet is None or parser is None or self._plausible is None:
-            return
-        for again in parser.feed(encode_packet(packet.packet_id, packet.payload)):
-            self._plausible.problem(decode_frame_payload(again.payload, parser.n_cells)[1])
 
     def _keep_newest(self) -> None:
         while len(self._frames) > 1:

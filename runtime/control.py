@@ -2,8 +2,8 @@
 
 A Unix datagram socket (``[control] socket``, a path or ``@abstract`` name) read by its own
 thread, so the hot path never blocks on it. Known messages call back into the daemon
-(``Daemon.set_grasp``, which only records the request; the hot path applies it at the next
-frame). Anything else is counted and logged once (the first one, with what arrived); it never
+(``Daemon.set_grasp``, ``Daemon.set_arm_moving``: only queued; the detector applies them at the
+next frame). Anything else is counted and logged once (the first one, with what arrived); it never
 stops the thread or the daemon. A stale socket file left by an earlier run is replaced; a live
 one (another daemon) is not; a socket file deleted while running is bound again. Only the
 daemon's own user and root may send (runtime.control_access, which also says where a socket
@@ -26,10 +26,8 @@ import socket
 import stat
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from runtime import control_access as access
 
@@ -214,67 +212,3 @@ class MessageLog:
         more = f"; {skipped} more {kind} messages since the last line" if skipped else ""
         self._logged[kind] = now
         daemon_log.info("%s %s%s%s", kind, word, f" (from {source})" if source else "", more)
-
-
-class GraspControl:
-    """The daemon's side of the robot's grasp and arm messages (mixed into ``runtime.daemon.Daemon``).
-
-    Expects ``cfg``, ``health``, ``trigger``, ``control``, ``grasp_closed``, ``_grasp_requests``
-    (a deque), ``arm`` (runtime.arm_motion.ArmMotion) and ``_messages`` (MessageLog) on the
-    instance; the hot path calls ``_apply_grasp`` when requests are queued.
-    """
-
-    cfg: Any
-    health: Any
-    trigger: Any
-    control: ControlSocket | None
-    grasp_closed: bool | None
-    grasp_request: tuple[bool, str] | None
-    arm_request: tuple[bool, str] | None
-    arm: Any
-    _grasp_requests: deque
-    _messages: MessageLog
-
-    def set_grasp(self, closed: bool, source: str = "") -> None:
-        """The robot says its grasp has settled (``closed``) or is released; thread-safe.
-
-        Only records the request; the hot path applies it at the next frame (the onset trigger
-        arms on the settled grasp at once, or disarms). Called by the control socket and sinks
-        such as the ROS 2 bridge (``source`` names the caller in the log)."""
-        request = (bool(closed), str(source))
-        self.grasp_request = request  # the latest call, for status and tests
-        self._grasp_requests.append(request)
-        self._messages.note("grasp", "closed" if closed else "open", source)
-
-    def set_arm_moving(self, moving: bool, source: str = "") -> None:
-        """The robot says its arm moves (``True``) or has stopped; thread-safe.
-
-        Only records the request; the hot path applies it at the next frame (runtime.arm_motion:
-        no window is reported while the arm moves and for the settle time after it stops)."""
-        self.arm_request = (bool(moving), str(source))
-        self.arm.request(moving)
-        self._messages.note("arm", "moving" if moving else "still", source)
-
-    def _apply_grasp(self) -> None:
-        while self._grasp_requests:
-            closed, _source = self._grasp_requests.popleft()
-            self.grasp_closed = closed
-            set_grasp = getattr(self.trigger, "set_grasp", None)
-            if set_grasp is not None:
-                set_grasp(closed)
-
-    def start_control(self) -> None:
-        """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""
-        if self.control is not None or not self.cfg.control.socket:
-            return
-        try:
-            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp, self.set_arm_moving).start()
-        except OSError as exc:
-            daemon_log.error("%s; running without robot messages", exc)
-            self.health.last_error = str(exc)
-
-    def stop_control(self) -> None:
-        if self.control is not None:
-            self.control.stop()
-            self.control = None
-

@@ -100,10 +100,11 @@ def _check(cfg, require_model: bool = False) -> int:
 
 
 def _check_quietly(cfg, require_model: bool) -> int:
-    from dataclasses import replace
-
-    from runtime.daemon import Daemon, events_problem, scene_problem
+    from runtime.detector import Detector
+    from runtime.health import Health
+    from runtime.model_serving import ModelSlot
     from runtime.model_watch import ModelWatcher, folder_problem
+    from runtime.scene import events_problem, scene_problem
 
     problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
                or _control_problem(cfg))
@@ -112,12 +113,12 @@ def _check_quietly(cfg, require_model: bool) -> int:
         return 2
     _warn_about_sinks(cfg)
     _note_held_locks(cfg)
-    daemon = Daemon(replace(cfg, sinks=replace(cfg.sinks, ros2=False)))  # --check starts no ROS 2 node
+    slot = ModelSlot(cfg, Detector(cfg.scene, cfg.trigger, cfg.continuous), Health(), announce=lambda _: None)
 
     def newest(check_events: bool):
-        watcher = ModelWatcher(cfg.model.folder, loader=daemon._load,
+        watcher = ModelWatcher(cfg.model.folder, loader=slot.load,
                                check=lambda m: scene_problem(m, cfg, None, check_events=check_events),
-                               decision_budget=cfg.model.decision_budget, quarantine=daemon.quarantine)
+                               decision_budget=cfg.model.decision_budget, quarantine=slot.quarantine)
         return watcher.poll(require_stable=False), watcher.rejections
 
     model, rejections = newest(check_events=True)

@@ -1,10 +1,11 @@
-"""The daemon's link to the device: connect, report faults, reconnect with backoff (mixed into
-``runtime.daemon.Daemon``).
+"""The daemon's link to the device: connect, report faults, reconnect with backoff.
 
 An unplugged, refused or silent device is reported and retried with doubling backoff, never
-fatal (the health file hears of every attempt, the log of the first and then rarely: runtime.retry_notes); only a URL that can never work (or a missing package) ends the daemon, with one line.
+fatal (the health file hears of every attempt, the log of the first and then rarely:
+runtime.retry_notes); only a URL that can never work (or a missing package) ends the daemon, with
+one line.
 While a slow open runs, the client asks ``_still_connecting``, which answers SIGTERM, feeds the
-watchdog for a bounded time and keeps the health file and model swaps current.
+watchdog for a bounded time and lets the owner keep the health file and model swaps current.
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from collections.abc import Callable
 from typing import Any
 
 from firmware_io.layout import SensorLayout
+from runtime.config import DeviceConfig
 from runtime.health import Health, one_line
 from runtime.retry_notes import RetryNotes
-from runtime.scene import scene_problem
 from runtime.sdnotify import Notifier
 
 log = logging.getLogger("handover.daemon")
@@ -40,41 +41,88 @@ SHORT_LINK_HINT = (f"within {SHORT_LINK_S:g} s of connecting (the device may be 
 
 
 class DeviceLink:
-    """Opening, watching and closing the device client.
+    """Opening, watching and closing the device client (module docstring).
 
-    Expects ``cfg``, ``health``, ``notifier``, ``client_factory``, ``model``, ``layout``, ``ring``,
-    ``trigger``, ``decision`` and ``_pending`` on the instance, and ``_build_hot_path`` and
-    ``_swap_and_report`` methods.
+    ``read(timeout)`` is the loop's one call while streaming: a frame, or None (nothing yet, or the
+    link failed: it is closed and a reconnect scheduled). ``connect()`` when ``due(now)``. The owner
+    hears of a new stream through ``on_stream(layout)``, and ``while_connecting(now)`` keeps its
+    housekeeping going during a slow open; ``should_stop()`` cancels an open.
     """
 
-    cfg: Any
-    health: Health
-    notifier: Notifier
-    client_factory: Any
-    client: Any
-    connected: bool
-    fatal: str | None
-    model: Any
-    layout: SensorLayout | None
-    ring: Any
-    trigger: Any
-    decision: Any
-    connect_bound_s: float
-    retry_notes: RetryNotes
-    _stop: bool
-    _pending: list[int]
-    _backoff: float
-    _next_connect: float
-    _last_frame_t: float
-    frame_clock: Any  # runtime.frame_rate.FrameClock
-    rehearsal: Any  # runtime.rehearsal.Rehearsal
-    _connect_started: float | None
-    _hang_logged: bool
-    _link_up_at: float | None
-    _back_note_due: bool
-    _flapping: bool
-    _build_hot_path: Callable[..., None]  # runtime.model_serving
-    _swap_and_report: Callable[[float], None]  # runtime.daemon
+    def __init__(self, device: DeviceConfig, health: Health, notifier: Notifier,
+                 client_factory: Callable[[str], Any] | None = None, *,
+                 on_stream: Callable[[SensorLayout], None] = lambda layout: None,
+                 while_connecting: Callable[[float], None] = lambda now: None,
+                 should_stop: Callable[[], bool] = lambda: False,
+                 on_fault: Callable[[], None] = lambda: None) -> None:
+        self.device = device
+        self.health = health
+        self.notifier = notifier
+        self.client_factory = client_factory or default_client
+        self.on_stream = on_stream
+        self.while_connecting = while_connecting
+        self.should_stop = should_stop
+        self.on_fault = on_fault
+        """Called when a streaming link fails (the daemon lowers its thread's priority)."""
+        self.scene = ""
+        """The scene's pads, for the log lines (the owner keeps it current)."""
+        self.client: Any = None
+        self.layout: SensorLayout | None = None
+        """The layout of the device the client last opened."""
+        self.connected = False
+        self.fatal: str | None = None
+        """Why the link can never work (a device URL that can never open, a missing package), or None."""
+        self.connect_bound_s = CONNECT_BOUND_S
+        self.retry_notes = RetryNotes()
+        """Which failed connection attempts get a log line (the first, then after 1, 10, 60 min)."""
+        self._backoff = device.reconnect_min_s
+        self._next_connect = 0.0
+        self._last_frame_t = 0.0
+        self._refused_mark = 0
+        """Frames the client had refused (CRC, undecodable, implausible) at the last stall."""
+        self._connect_started: float | None = None
+        self._hang_logged = False
+        self._link_up_at: float | None = None
+        """When the device connection now up was made (a drop soon after counts as a failed attempt)."""
+        self._back_note_due = False
+        self._flapping = False
+
+    def due(self, now: float) -> bool:
+        """Whether the next connection attempt is due."""
+        return now >= self._next_connect
+
+    def wait_s(self, now: float) -> float:
+        """Seconds until the next connection attempt."""
+        return max(0.0, self._next_connect - now)
+
+    def retarget(self, device: DeviceConfig) -> None:
+        """New device settings (a reload); another URL closes the client and connects at once."""
+        old, self.device = self.device, device
+        if device.url != old.url:
+            self.close()
+            self.client = None
+            self.layout = None
+            self._next_connect = 0.0
+            self.retry_notes.reset()
+
+    def read(self, timeout: float) -> Any:
+        """The next frame, or None after ``timeout`` s; a failed or stalled link is reported, closed and
+        scheduled for a reconnect (None)."""
+        try:
+            frame = self.client.read_frame(timeout)
+        except Exception as exc:  # unplug, closed link, end of a replay: reconnect
+            self.fault(one_line(exc))
+            return None
+        now = time.monotonic()
+        if frame is None:
+            if now - self._last_frame_t > self.device.stall_timeout_s:
+                self.health.stalls += 1
+                self.fault(self._stall_reason(), link_lost=False)
+            return None
+        self._last_frame_t = now
+        if not self._flapping:  # a link that keeps dropping soon after connecting keeps backing off
+            self._backoff = self.device.reconnect_min_s
+        return frame
 
     def _still_connecting(self) -> bool:
         """The client's cancel predicate while it opens a device (seconds when the device is
@@ -87,18 +135,18 @@ class DeviceLink:
             self.notifier.watchdog(now)
         elif not self._hang_logged:
             self._hang_logged = True
-            self.health.report_error(f"{self.cfg.device.url}: connecting has not completed in "
+            self.health.report_error(f"{self.device.url}: connecting has not completed in "
                                      f"{self.connect_bound_s:g} s", "device")
             log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
-                      "(systemd restarts the service)", self.cfg.device.url, self.connect_bound_s)
-        self._swap_and_report(now)  # a model dropped while a slow connect runs serves at once
-        return self._stop
+                      "(systemd restarts the service)", self.device.url, self.connect_bound_s)
+        self.while_connecting(now)  # a model dropped while a slow connect runs serves at once
+        return self.should_stop()
 
-    def _connect(self) -> None:
+    def connect(self) -> None:
         from firmware_io.client import Cancelled
 
         h = self.health
-        url = self.cfg.device.url
+        url = self.device.url
         self._connect_started, self._hang_logged = time.monotonic(), False
         if h.device_state in ("starting", "stopped"):
             h.device_state = "connecting"
@@ -109,7 +157,7 @@ class DeviceLink:
             self.client.start(should_stop=self._still_connecting)
         except Cancelled:
             self._connect_started = None
-            self._close_client()
+            self.close()
             return
         except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
             self._connect_failed(url, exc)
@@ -117,34 +165,33 @@ class DeviceLink:
         self._connect_started = None
         self.connected = True
         first = self.layout is None
-        self._fit_layout(layout)
-        self.frame_clock.reset()
+        self.layout = layout
+        self.on_stream(layout)
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
         self._link_up_at = self.retry_notes.clock()
         self._back_note_due = self.retry_notes.attempts > 0 and self._flapping
-        if not self._back_note_due:  # after short links, said once this link holds (_link_held)
+        if not self._back_note_due:  # after short links, said once this link holds (link_held)
             log.info("device %s %s%s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
-                     self.retry_notes.connected(), layout.n_taxels, self.cfg.scene.pads)
+                     self.retry_notes.connected(), layout.n_taxels, self.scene)
             self._flapping = False
 
-    def _link_held(self) -> None:
+    def link_held(self) -> None:
         """After an outage of short links: the line that says the device is back, once the link has
         held ``SHORT_LINK_S`` (called from the loop's housekeeping)."""
         if self._back_note_due and self.connected and self._link_up_at is not None \
                 and self.retry_notes.clock() - self._link_up_at >= SHORT_LINK_S:
             self._back_note_due = self._flapping = False
             n_taxels = self.layout.n_taxels if self.layout is not None else 0
-            log.info("device %s reconnected%s; the link has held %g s (%d taxels, scene %s)", self.cfg.device.url,
-                     self.retry_notes.connected(), SHORT_LINK_S, n_taxels, self.cfg.scene.pads)
+            log.info("device %s reconnected%s; the link has held %g s (%d taxels, scene %s)", self.device.url,
+                     self.retry_notes.connected(), SHORT_LINK_S, n_taxels, self.scene)
 
     def _connect_failed(self, url: str, exc: Exception) -> None:
         fatal = fatal_device_error(url, exc)
         if fatal:
-            self.fatal = fatal
-            self._stop = True  # run() returns 2; the caller prints self.fatal (one line)
-            self._close_client()
+            self.fatal = fatal  # the owner stops; run() returns 2 and the caller prints it (one line)
+            self.close()
             return
         self._connect_started = None
         self.health.device_state = "disconnected"
@@ -152,7 +199,7 @@ class DeviceLink:
         self.health.report_error(f"{url}: {reason}", "device")  # every attempt: the health file stays current
         self._note_failed_attempt(url, reason)
         self._schedule_reconnect()
-        self._close_client()
+        self.close()
 
     def _note_failed_attempt(self, url: str, reason: str) -> None:
         """A failed attempt for the retry log: a line only when something is new (runtime.retry_notes)."""
@@ -160,56 +207,32 @@ class DeviceLink:
         if note:
             log.warning("device %s: %s", url, note)
 
-    def _fit_layout(self, layout: SensorLayout) -> None:
-        """A new device layout rebuilds the hot path; the same one only forgets the history."""
-        if self.layout != layout:
-            self.layout = layout
-            if self.model is not None:
-                problem = scene_problem(self.model, self.cfg, layout)
-                if problem:
-                    log.error("model %s does not fit the device: %s; waiting for another model",
-                              self.model.model_id, problem)
-                    self.model = None
-                    self.health.model_id = None
-            self._build_hot_path(keep_history=False)
-        else:
-            self._restart_stream()
-
-    def _restart_stream(self) -> None:
-        """The stream is not continuous (a reconnect, a long gap in device time): forget its history."""
-        if self.ring is not None:
-            self.ring.reset()
-            self.trigger.reset()
-        if self.decision is not None:
-            self.decision.reset()
-        self._pending.clear()
-        self.rehearsal.cancel()  # its window was the history just forgotten
-
     def _schedule_reconnect(self) -> None:
         self._next_connect = time.monotonic() + self._backoff
-        self._backoff = min(self.cfg.device.reconnect_max_s, max(self._backoff * 2, 0.05))
+        self._backoff = min(self.device.reconnect_max_s, max(self._backoff * 2, 0.05))
 
-    def _fault(self, reason: str, link_lost: bool = True) -> None:
+    def fault(self, reason: str, link_lost: bool = True) -> None:
         """The link failed while streaming (``link_lost``: closed or lost, else a stall): counted, reconnected."""
-        reason = reason.removeprefix(f"{self.cfg.device.url}: ")
-        self.lower_priority()  # a failed link earns no real-time priority until it streams valid frames again
+        url = self.device.url
+        reason = reason.removeprefix(f"{url}: ")
+        self.on_fault()  # a failed link earns no real-time priority until it streams valid frames again
         h = self.health
         h.device_faults += 1
         h.reconnects += 1
         h.device_state = "reconnecting"
-        h.report_error(f"{self.cfg.device.url}: {reason}", "device")  # every drop: the health file stays current
+        h.report_error(f"{url}: {reason}", "device")  # every drop: the health file stays current
         up = self._link_up_at
         self._link_up_at = None
         if up is not None and self.retry_notes.clock() - up < SHORT_LINK_S:  # a flapping link: logged as a failed attempt
             self._flapping = True
             soon = SHORT_LINK_HINT if link_lost else f"within {SHORT_LINK_S:g} s of connecting"
-            self._note_failed_attempt(self.cfg.device.url, f"{reason} {soon}")
+            self._note_failed_attempt(url, f"{reason} {soon}")
         else:
-            log.warning("device %s: %s; reconnecting", self.cfg.device.url, reason)
-        self._close_client()
+            log.warning("device %s: %s; reconnecting", url, reason)
+        self.close()
         self._schedule_reconnect()
 
-    def _close_client(self, stop_timeout: float | None = None) -> None:
+    def close(self, stop_timeout: float | None = None) -> None:
         self.connected = False
         if self.client is not None:
             with contextlib.suppress(Exception):
@@ -227,17 +250,25 @@ class DeviceLink:
         stats = getattr(self.client, "stats", None)
         return sum(int(stats.get(k, 0)) for k in REFUSALS) if isinstance(stats, dict) else 0
 
-    def _mark_refusals(self, now: float, period_s: float) -> None:
-        """Called every ``period_s`` (the health write): while usable frames still arrive, the refusals
-        so far are not a coming stall's (a device alternating good and refused frames, then silent,
-        read as one whose every frame was refused)."""
+    def update_health(self, now: float, period_s: float) -> None:
+        """Called every ``period_s`` (the health write): the client's error counters (cumulative over
+        reconnects of the same client); and, while usable frames still arrive, the refusals so far are
+        not a coming stall's (a device alternating good and refused frames, then silent, read as one
+        whose every frame was refused)."""
+        stats = getattr(self.client, "stats", None)
+        if isinstance(stats, dict):
+            h = self.health
+            h.crc_errors = int(stats.get("crc_errors", 0))
+            h.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
+            h.frames_implausible = int(stats.get("frames_implausible", 0))
+            h.frames_stale = int(stats.get("frames_stale", 0))
         if self.connected and now - self._last_frame_t <= period_s:
             self._refused_mark = self._refusals()
 
     def _stall_reason(self) -> str:
         """The stall's line. Frames that arrived whole but were all refused (CRC, undecodable,
         implausible) are named with the last reason: a device sending nonsense is not a silent one."""
-        stall_s = self.cfg.device.stall_timeout_s
+        stall_s = self.device.stall_timeout_s
         refused = self._refusals()
         new = refused - self._refused_mark if refused >= self._refused_mark else refused
         self._refused_mark = refused
@@ -247,17 +278,6 @@ class DeviceLink:
         return (f"no usable frame for {stall_s:g} s: {new} arrived but were refused (CRC, undecodable or "
                 f"implausible{'; last: ' + last if last else ''}); check the cable and that the device is a "
                 "DSACON32m with the hand's pads")
-
-    def _absorb_client_stats(self) -> None:
-        """The client's error counters (cumulative over reconnects of the same client)."""
-        stats = getattr(self.client, "stats", None)
-        if not isinstance(stats, dict):
-            return
-        self.health.crc_errors = int(stats.get("crc_errors", 0))
-        self.health.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
-        self.health.frames_implausible = int(stats.get("frames_implausible", 0))
-        self.health.frames_stale = int(stats.get("frames_stale", 0))
-
 
 
 REFUSALS = ("crc_errors", "decode_errors", "frames_implausible")

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import math
 import statistics
 from collections.abc import Callable
 
@@ -129,15 +128,6 @@ class FrameClock:
         self._numbers[self.admitted % HISTORY] = number
         self.admitted += 1
         return self.number
-
-    def next_admitted_s(self) -> float:
-        """Seconds from the newest frame until the next admitted one should arrive: the measured
-        stream period (the model's until measured) times the device frames the decimation skips.
-        Why measured: a controller pushing at 30 fps sends a due frame 2 ms after the model's 32 Hz
-        period says (runtime.rehearsal waits for it around that time)."""
-        period = self.stream_period_ms or self.model_period_ms
-        frames = 1 if self.step >= 1.0 else max(1, math.ceil((1.0 - self._phase) / self.step))
-        return frames * period / 1000.0
 
     def device_number(self, back: int) -> int:
         """The device number of the frame admitted ``back`` admitted frames before the newest."""

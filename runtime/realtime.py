@@ -77,3 +77,28 @@ def restore(previous: Scheduling | None) -> None:
         return
     with contextlib.suppress(AttributeError, OSError):
         os.sched_setscheduler(0, previous.policy, os.sched_param(previous.priority))
+
+
+class HotThread:
+    """The calling thread's ``realtime_priority``: ``raise_`` with a link's first valid frame (a device
+    that sends only garbage never gets the CPU at real-time priority), ``lower`` when the link fails or
+    the daemon stops. ``raise_`` returns the log line the first time a priority is applied, else None."""
+
+    def __init__(self) -> None:
+        self.applied = False
+        self._before: Scheduling | None = None
+        self._logged: int | None = None
+
+    def raise_(self, priority: int) -> str | None:
+        before, line = enter_realtime(priority)
+        self.applied = True
+        self._before = before if priority > 0 else None
+        if self._logged == priority:
+            return None
+        self._logged = priority
+        return line
+
+    def lower(self) -> None:
+        if self._before is not None:
+            restore(self._before)
+        self.applied, self._before = False, None

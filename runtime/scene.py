@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from firmware_io.layout import LayoutError, SensorLayout
-from runtime.config import FOLLOW_MODEL, Config
+from runtime.config import FOLLOW_MODEL, Config, SceneConfig
 
 RELOAD_HINT = "and reload (systemctl reload handover, i.e. SIGHUP)"
 
@@ -22,10 +22,10 @@ def _pad_list(pads) -> str:
     return ",".join(str(int(p)) for p in pads)
 
 
-def scene_pads(cfg: Config, model: Any, layout: SensorLayout) -> tuple[int, ...]:
+def scene_pads(scene: SceneConfig, model: Any, layout: SensorLayout) -> tuple[int, ...]:
     """The matrices the hot path keeps: the scene's selection, or the model's (all pads while none serves)."""
-    if cfg.scene.pads != FOLLOW_MODEL:
-        return layout.pads(cfg.scene.pads)
+    if scene.pads != FOLLOW_MODEL:
+        return layout.pads(scene.pads)
     return layout.pads(list(model.meta.pads) if model is not None else "all")
 
 

@@ -103,7 +103,7 @@ class ThresholdTrigger:
 
 class ContinuousTrigger:
     """Every frame ends a window once the ring holds T frames (models with a dormant class). The daemon
-    does not keep warm for these decisions (runtime.rehearsal says why)."""
+    reports only what its report rule (runtime.decision) confirms."""
 
     def __init__(self, window: int) -> None:
         self.window = int(window)

@@ -84,7 +84,7 @@ def test_a_push_while_the_arm_moves_is_not_reported_and_one_after_the_settle_tim
             daemon.set_arm_moving(False, source="test")
         daemon.handle_frame(frame)
     assert len(events) == 1 and 500 <= events[0].frame_first <= 502
-    assert daemon.arm.dropped == 1 and daemon.arm_request == (False, "test")
+    assert daemon.detector.arm.dropped == 1 and daemon.detector.arm_request == (False, "test")
 
 
 def test_without_the_message_the_same_push_is_reported(tmp_path):
@@ -93,7 +93,7 @@ def test_without_the_message_the_same_push_is_reported(tmp_path):
     _push(levels, 200)
     for frame in _frames(levels):
         daemon.handle_frame(frame)
-    assert len(events) == 1 and daemon.arm.dropped == 0
+    assert len(events) == 1 and daemon.detector.arm.dropped == 0
 
 
 def _send(path: str, data: bytes) -> None:
@@ -118,7 +118,7 @@ def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones
         _send(path, b"arm moving\n")
         assert _wait(lambda: daemon.control.received == 1)
         daemon.handle_frame(frames[1])
-        assert daemon.arm.moving and daemon.arm_request == (True, "control")
+        assert daemon.detector.arm.moving and daemon.detector.arm_request == (True, "control")
         with caplog.at_level(logging.WARNING, logger="handover.control"):
             for text in (b"arm flying", b"ARM", b"arm moving please", b"\x00" * 40):
                 _send(path, text)
@@ -127,7 +127,7 @@ def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones
         _send(path, b"  ARM   STILL ")
         assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
-        assert not daemon.arm.moving and daemon.arm.last_motion == 1 + daemon.arm.settle_frames
+        assert not daemon.detector.arm.moving and daemon.detector.arm.last_motion == 1 + daemon.detector.arm.settle_frames
     finally:
         daemon.stop_control()
 
@@ -147,7 +147,7 @@ def test_a_flood_of_arm_datagrams_is_a_few_log_lines_and_the_loop_keeps_up(tmp_p
             assert _wait(lambda: daemon.control.received + daemon.control.garbage >= 2000)
         lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("arm ")]
         assert 1 <= len(lines) <= 10, lines
-        assert len(daemon.arm._requests) <= 64  # bounded: the newest words are kept
+        assert len(daemon.detector.arm._requests) <= 64  # bounded: the newest words are kept
     finally:
         daemon.stop_control()
 

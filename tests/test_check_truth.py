@@ -79,11 +79,11 @@ def test_check_names_the_model_the_daemon_serves_after_a_rollback(tmp_path):
     proc = _check(cfg)
     assert proc.returncode == 0 and "(v1.onnx)" in proc.stdout, proc.stdout + proc.stderr
     daemon = Daemon(load_config(cfg))
-    daemon._start_watcher()
+    daemon.models.start()
     try:
         assert Path(daemon.model.path).name == "v1.onnx"
     finally:
-        daemon.watcher.stop()
+        daemon.models.watcher.stop()
 
 
 def test_pads_that_follow_the_model_are_not_an_error(tmp_path):

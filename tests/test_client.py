@@ -328,7 +328,7 @@ def test_partial_frame_survives_a_short_read_timeout() -> None:
 
 
 def test_a_zero_timeout_polls_once_without_blocking_or_counting_a_timeout() -> None:
-    """``read_frame(0)``: what the daemon calls while it polls for a due frame (runtime.rehearsal)."""
+    """``read_frame(0)``: a poll (a caller that must not block, e.g. between two other duties)."""
     frame = encode_frame(np.arange(24, dtype=np.uint16), 7, rle=False)
     dev = ScriptedDevice(good_device)
     client = DSAClient(dev, **QUICK)
@@ -358,24 +358,6 @@ class _Chunks(Transport):
 
     def close(self) -> None:
         pass
-
-
-def test_rehearse_takes_the_last_frame_through_the_receive_path_and_changes_nothing() -> None:
-    """What the daemon runs just before a due frame (runtime.rehearsal): the parser, CRC, decoder and
-    plausibility check on a copy of the last frame's packet; no frame, count or parser state changes."""
-    layout = SensorLayout.sdh2()
-    values = np.zeros(layout.n_taxels, dtype=np.uint16)
-    values[40:46] = 900
-    client = DSAClient.already_streaming(_Chunks([encode_frame(values, 5, rle=True)] * 2), layout)
-    client.rehearse()  # nothing received yet: nothing to rehearse
-    first = client.read_frame(0)
-    assert first is not None and first.timestamp_ms == 5
-    stats, parsed = client.stats, client.parser.stats.packets
-    client.rehearse()
-    assert client.stats == stats and client.parser.stats.packets == parsed
-    assert client._rehearsal_parser.stats.packets == 1 and client._rehearsal_parser.stats.crc_errors == 0
-    second = client.read_frame(0)
-    assert second.number == 1 and np.array_equal(second.values, values)
 
 
 def test_a_poll_returns_the_first_frame_of_a_burst_without_parsing_the_rest() -> None:
@@ -408,7 +390,7 @@ def test_replies_a_streaming_device_sends_between_frames_do_not_pile_up() -> Non
 
 
 def test_bytes_a_poll_took_in_are_not_given_up_as_a_silent_line() -> None:
-    """The rehearsal polls the due frame in, then blocks on the next one: a poll that took in a frame and
+    """A caller polls a frame in, then blocks on the next one: a poll that took in a frame and
     the start of the next (one USB packet or TCP segment holding both) leaves that start pending. The
     next blocking read that finds nothing yet must not take the line for silent for a gap timeout (the
     last bytes came a moment ago, in the poll) and drop the start: the next frame would be lost."""

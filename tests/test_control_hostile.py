@@ -97,7 +97,7 @@ def test_sighup_retries_a_control_socket_that_could_not_bind(tmp_path, caplog):
             daemon.start_control()
         assert daemon.control is None and "cannot bind" in caplog.text
         folder.mkdir()  # the operator fixes it and sends SIGHUP
-        daemon._do_reload()
+        daemon.reload()
         assert daemon.control is not None and (folder / "c.sock").is_socket()
     finally:
         daemon.stop_control()
@@ -115,7 +115,7 @@ def test_a_flood_of_grasp_messages_is_a_few_log_lines_not_one_per_message(tmp_pa
             daemon.set_grasp(i % 3 != 0, source="control")
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("grasp ")]
     assert 1 <= len(lines) <= 3, len(lines)
-    assert daemon.grasp_request == (True, "control") and len(daemon._grasp_requests) > 0
+    assert daemon.detector.grasp_request == (True, "control") and len(daemon.detector._grasp) > 0
 
 
 @pytest.mark.parametrize("key", ["control.socket", "sinks.unix", "health_file", "model.folder", "model.quarantine_file"])

@@ -162,7 +162,7 @@ def test_model_dropped_mid_stream_is_swapped_without_losing_a_frame(models):
         if len(events) == 2:
             write_model(models, "second.onnx", tiny_model_bytes(bias=_bias("push")))
             deadline = time.monotonic() + 10  # hold the stream until the watcher thread has it ready
-            while daemon.watcher.pending is None and time.monotonic() < deadline:
+            while daemon.models.watcher.pending is None and time.monotonic() < deadline:
                 time.sleep(0.01)
 
     daemon = Daemon(_config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0"), on_event=on_event)
@@ -184,7 +184,7 @@ def test_broken_model_dropped_mid_stream_is_refused_and_the_old_keeps_serving(mo
             data = tiny_model_bytes(bias=_bias("push"))
             write_model(models, "broken.onnx", data[: len(data) // 2], mtime=time.time() - 20)  # not being copied
             deadline = time.monotonic() + 10
-            while not daemon.watcher.rejections and time.monotonic() < deadline:
+            while not daemon.models.watcher.rejections and time.monotonic() < deadline:
                 time.sleep(0.01)
 
     daemon = Daemon(_config(models, f"sim://?events={N_EVENTS}&realtime=0&loop=0"), on_event=on_event)
@@ -192,7 +192,7 @@ def test_broken_model_dropped_mid_stream_is_refused_and_the_old_keeps_serving(mo
     assert [e.cls for e in events] == ["pull"] * N_EVENTS
     assert len({e.model_id for e in events}) == 1
     assert daemon.health.models_rejected == 1
-    assert "broken.onnx" in daemon.health.last_error or daemon.watcher.rejections[0].path.name == "broken.onnx"
+    assert "broken.onnx" in daemon.health.last_error or daemon.models.watcher.rejections[0].path.name == "broken.onnx"
 
 
 def test_unplug_and_replug_are_survived(models):
@@ -355,7 +355,7 @@ def test_default_trigger_reports_a_wobbling_interaction_once(models):
     daemon.serve(load_model(models / "first.onnx"), layout)
     for frame in _level_frames(levels, int(layout.columns("distal")[40]), layout.n_taxels):
         daemon.handle_frame(frame)
-    assert daemon.trigger.fired == 2 and daemon.health.decisions == 2
+    assert daemon.detector.trigger.fired == 2 and daemon.health.decisions == 2
     assert [e.frame_first for e in decisions] == [20, 20 + len(push) + 70]
 
 

@@ -233,7 +233,7 @@ def test_daemon_serve_refuses_a_model_that_does_not_fit(models):
         Daemon(cfg).serve(models["four"], LAYOUT)
     daemon = Daemon(cfg)
     daemon.serve(models["five"], LAYOUT)
-    assert daemon.decision is not None and daemon.decision.confirm_frames == cfg.continuous.confirm_frames
+    assert daemon.detector.rule.continuous is not None and daemon.detector.rule.continuous.confirm_frames == cfg.continuous.confirm_frames
 
 
 def test_threshold_replay_fires_once_per_crossing(models):

@@ -47,7 +47,7 @@ def emitted_lines(tmp_path: Path) -> list[str]:
         if daemon.health.events == 2:
             write_model(models, "second.onnx", tiny_model_bytes(bias=_bias("push")))
             deadline = time.monotonic() + 10  # hold the stream until the watcher has it ready
-            while daemon.watcher.pending is None and time.monotonic() < deadline:
+            while daemon.models.watcher.pending is None and time.monotonic() < deadline:
                 time.sleep(0.01)
 
     daemon = Daemon(cfg, on_event=on_event)

@@ -213,7 +213,7 @@ def test_daemon_against_garbage_logs_reports_and_retries(models, garbage_device,
     def until(d: Daemon) -> bool:
         if health.exists():
             seen.append(json.loads(health.read_text()))
-        return d.retry_notes.attempts >= 2 and d.health.device_state == "disconnected"
+        return d.link.retry_notes.attempts >= 2 and d.health.device_state == "disconnected"
 
     held = _run_until(daemon, until, timeout=12)
     assert held, daemon.health.snapshot()
@@ -266,7 +266,7 @@ def test_watchdog_stops_being_fed_when_connecting_hangs(models, caplog):
 
     notifier = Recorder({"WATCHDOG_USEC": "100000"})  # ping every 50 ms while healthy
     daemon = Daemon(_config(models, "tcp://127.0.0.1:9"), notifier=notifier, client_factory=HangingClient)
-    daemon.connect_bound_s = 0.5
+    daemon.link.connect_bound_s = 0.5
     caplog.set_level(logging.ERROR, logger="handover")
     t0 = time.monotonic()
     _run_until(daemon, lambda d: time.monotonic() - t0 > 1.5, timeout=3)
@@ -363,9 +363,9 @@ def test_sighup_between_a_trigger_and_its_window_loses_no_event(tmp_path, models
 
     class ReloadMidWindow(Daemon):
         def handle_frame(self, frame) -> None:
-            had = len(self._pending)
+            had = len(self.detector.windows)
             super().handle_frame(frame)
-            if len(self._pending) > had:  # a trigger just fired: its window is still to come
+            if len(self.detector.windows) > had:  # a trigger just fired: its window is still to come
                 reloads.append(frame.number)
                 self.request_reload()
 
@@ -446,13 +446,13 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
 
     clock = FakeClock()
     daemon = Daemon(_config(models, "sim://?events=4&realtime=0"), client_factory=factory)
-    daemon.retry_notes = RetryNotes(clock=clock)
+    daemon.link.retry_notes = RetryNotes(clock=clock)
     caplog.set_level(logging.INFO, logger="handover.daemon")
 
     def attempts(n: int, every_s: float = 10.0) -> list[str]:
         caplog.clear()
         for _ in range(n):
-            daemon._connect()
+            daemon.link.connect()
             assert state["up"] or daemon.health.last_error.endswith(state["reason"])  # current on every attempt
             clock.now += every_s
         return [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
@@ -469,8 +469,8 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
     assert len(changed) == 1 and changed[0].endswith("no answer within 3 s (hand powered? cable?); retrying in 0.2 s")
     state["up"] = True
     back = attempts(1)
-    daemon._close_client()
-    daemon.client = None  # the next attempt asks the factory again
+    daemon.link.close()
+    daemon.link.client = None  # the next attempt asks the factory again
     assert len(back) == 1 and back[0].startswith("device sim://?events=4&realtime=0 connected after 753 failed "
                                                  "attempts in 2.1 h"), back
     assert daemon.health.last_error == ""

@@ -197,18 +197,18 @@ def test_a_swap_to_a_model_at_another_rate_forgets_frames_admitted_at_the_old_on
     full[:, LAYOUT.columns("distal")] = rows.astype(np.uint16)
     for i in range(200):
         daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
-    assert daemon.ring.count > 15 and daemon.frame_clock.step < 1.0
+    assert daemon.detector.ring.count > 15 and daemon.detector.frame_clock.step < 1.0
     model = daemon.model
     same = copy.copy(model)
-    daemon._use_model(same)  # the same rate: the history stays
-    assert daemon.ring.count > 15
+    daemon.models.use(same)  # the same rate: the history stays
+    assert daemon.detector.ring.count > 15
     other = copy.copy(model)
     other.meta = dataclasses.replace(model.meta, sample_rate_hz=70.0)
-    daemon._use_model(other)
-    assert daemon.ring.count == 0 and daemon.frame_clock.step == 1.0
+    daemon.models.use(other)
+    assert daemon.detector.ring.count == 0 and daemon.detector.frame_clock.step == 1.0
     for i in range(200, 230):
         daemon.handle_frame(Frame(i, int(fast_ts[i]), time.perf_counter(), full[i]))
-    assert daemon.ring.count == 30  # every frame of the 70 Hz stream, from the swap on
+    assert daemon.detector.ring.count == 30  # every frame of the 70 Hz stream, from the swap on
 
 
 @pytest.mark.parametrize(("model_hz", "device_hz"), [(32.0, 2.0), (1000.0, 32.0)])
@@ -221,19 +221,3 @@ def test_a_stream_far_slower_than_the_model_is_measured_and_warned_about(model_h
     assert clock.stream_period_ms == pytest.approx(1000.0 / device_hz, rel=0.01)
     assert len(restarts) <= BLOCK and "slower" in health.last_error and health.frames_dropped == 0
 
-
-@pytest.mark.parametrize("rate_hz", [30.0, RATE, 70.0])
-def test_the_next_admitted_frame_is_expected_when_it_comes(rate_hz):
-    """What the daemon waits for a due frame around (runtime.rehearsal): the measured period, and
-    with decimation the device frames skipped; the model's period until the stream is measured."""
-    clock = FrameClock(MODEL_MS, Health())
-    assert clock.next_admitted_s() == pytest.approx(MODEL_MS / 1000.0)
-    ts = stamps(rate_hz, 600)
-    errors = []
-    for i, t in enumerate(ts[:-4]):
-        if clock.admit(i, int(t)) < 0 or i <= BLOCK:
-            continue
-        ahead, trial = clock.next_admitted_s(), copy.deepcopy(clock)  # the copy runs on to the next admitted frame
-        later = next(j for j in range(i + 1, len(ts)) if trial.admit(j, int(ts[j])) >= 0)
-        errors.append(abs(ahead - (ts[later] - t) / 1000.0))
-    assert errors and max(errors) < 0.0015  # within the stamps' 1 ms rounding

@@ -49,10 +49,9 @@ def _press(daemon: Daemon, level: int, first: int = 0, n: int = 40) -> None:
 
 
 def _start(daemon: Daemon) -> None:
-    daemon.layout = SensorLayout.sdh2()
-    daemon._start_watcher()
-    daemon.watcher.stop()
-    daemon._build_hot_path(keep_history=False)
+    daemon.detector.fit(SensorLayout.sdh2())
+    daemon.models.start()
+    daemon.models.watcher.stop()
 
 
 @pytest.fixture
@@ -102,7 +101,7 @@ def test_a_sleeper_is_taken_out_of_service_once_and_stays_out_across_a_restart(f
     _press(daemon, level=int(H.SLEEPER_PEAK))
     lines = [r for r in caplog.records if "taken out of service" in r.getMessage()]
     assert len(lines) == 1 and "new.onnx" in lines[0].getMessage() and daemon.model is None
-    daemon.watcher.poll()  # the watcher thread's next scan: the next newest valid file
+    daemon.models.watcher.poll()  # the watcher thread's next scan: the next newest valid file
     daemon._housekeeping(time.monotonic())
     assert events == [] and Path(daemon.model.path).name == "old.onnx"
     assert daemon.health.models_quarantined == 1 and "new.onnx" in daemon.health.last_error
@@ -113,14 +112,14 @@ def test_a_sleeper_is_taken_out_of_service_once_and_stays_out_across_a_restart(f
     restarted = _daemon(models, state)
     _start(restarted)
     assert Path(restarted.model.path).name == "old.onnx"
-    assert any("taken out of service earlier" in r.reason for r in restarted.watcher.rejections)
+    assert any("taken out of service earlier" in r.reason for r in restarted.models.watcher.rejections)
     config = state / "handover.toml"
     config.write_text(f'health_file = "{state / "status.json"}"\n[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n')
     check = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(config), "--check"],
                            capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert check.returncode == 0 and "(old.onnx)" in check.stdout, check.stdout + check.stderr
     write_model(models, "new.onnx", H.valid(bias_class=2, tag="fixed"))  # a new file is tried again
-    assert restarted.watcher.poll(require_stable=False) is not None
+    assert restarted.models.watcher.poll(require_stable=False) is not None
 
 
 def test_with_no_previous_model_none_serves_and_health_says_so(folders):
@@ -244,7 +243,7 @@ def test_the_model_a_sleeper_replaced_serves_again_at_once(folders, caplog):
     daemon = _daemon(models, state, events)
     _start(daemon)
     write_model(models, "new.onnx", H.sleeper("nan_scores"))
-    daemon.watcher.poll(require_stable=False)
+    daemon.models.watcher.poll(require_stable=False)
     daemon._housekeeping(time.monotonic())
     assert Path(daemon.model.path).name == "new.onnx"
     _press(daemon, level=int(H.SLEEPER_PEAK))
@@ -253,7 +252,7 @@ def test_the_model_a_sleeper_replaced_serves_again_at_once(folders, caplog):
     assert "scores contain NaN" in line and "old.onnx) serves again" in line
     _press(daemon, level=int(H.SLEEPER_PEAK), first=200)
     assert [e.cls for e in events] == ["push"]
-    assert daemon.watcher.poll(require_stable=False) is None  # never reloaded while unchanged
+    assert daemon.models.watcher.poll(require_stable=False) is None  # never reloaded while unchanged
 
 
 # -- recordings -------------------------------------------------------------------------------------

@@ -36,17 +36,17 @@ def test_a_reload_to_continuous_announces_the_dormant_model_as_replacing_the_one
     stream = io.StringIO()
     daemon = Daemon(load_config(config), stream=stream)
     try:
-        daemon.layout = SensorLayout.sdh2()
-        daemon._start_watcher()
-        daemon.watcher.stop()
+        daemon.detector.fit(SensorLayout.sdh2())
+        daemon.models.start()
+        daemon.models.watcher.stop()
         plain_id = daemon.model.model_id
         config.write_text(base + '[scene]\nmode = "continuous"\n')
         with caplog.at_level(logging.ERROR, logger="handover.models"):
-            daemon._do_reload()
-            daemon.watcher.poll(require_stable=False)  # the watcher thread's next scan
-        daemon._take_pending_model(time.monotonic())
+            daemon.reload()
+            daemon.models.watcher.poll(require_stable=False)  # the watcher thread's next scan
+        daemon.take_pending_model(time.monotonic())
     finally:
-        daemon.watcher.stop()
+        daemon.models.watcher.stop()
         daemon.sinks.close()
     first, second = _model_lines(stream)
     assert second["model_file"] == "stream.onnx" and second["model_version"] == 2
@@ -67,13 +67,13 @@ def test_the_swap_line_says_which_trigger_the_new_model_brings(tmp_path, caplog)
     daemon = Daemon(load_config(config))
     try:
         with caplog.at_level(logging.INFO, logger="handover.daemon"):
-            daemon.layout = SensorLayout.sdh2()
-            daemon._start_watcher()
+            daemon.detector.fit(SensorLayout.sdh2())
+            daemon.models.start()
             write_model(models, "paper.onnx", tiny_model_bytes(tag="paper"))  # no kind: the paper's threshold
-            daemon.watcher.poll(require_stable=False)
-            daemon._take_pending_model(time.monotonic())
+            daemon.models.watcher.poll(require_stable=False)
+            daemon.take_pending_model(time.monotonic())
     finally:
-        daemon.watcher.stop()
+        daemon.models.watcher.stop()
         daemon.sinks.close()
     serving, swapped = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert "onset.onnx" in serving and "onset trigger" in serving, serving

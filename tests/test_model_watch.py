@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from runtime.config import config_from_dict
-from runtime.daemon import scene_problem
 from runtime.model import load_model
 from runtime.model_watch import ModelWatcher, is_candidate_name
+from runtime.scene import scene_problem
 from tests.tiny_models import tiny_model_bytes, write_model
 
 pytest.importorskip("onnx")

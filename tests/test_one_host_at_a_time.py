@@ -84,18 +84,18 @@ class _ConnectingClient:
 def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, caplog):
     clock = FakeClock()
     daemon = Daemon(_config(models, "sim://?events=4&realtime=0"), client_factory=_ConnectingClient)
-    daemon.retry_notes = RetryNotes(clock=clock)
+    daemon.link.retry_notes = RetryNotes(clock=clock)
     caplog.set_level(logging.INFO, logger="handover.daemon")
-    daemon._connect()  # the first connection is said at once
+    daemon.link.connect()  # the first connection is said at once
     drops = 2 * 3600 + 300  # every second for two hours and five minutes: up 0.5 s, down 0.5 s
     caplog.clear()
     for _ in range(drops):
         clock.now += 0.5
-        daemon._fault("the device closed the connection")
-        daemon.client = None
+        daemon.link.fault("the device closed the connection")
+        daemon.link.client = None
         clock.now += 0.5
-        daemon._connect()
-        daemon._link_held()
+        daemon.link.connect()
+        daemon.link.link_held()
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert len(lines) == 5, lines[:8]  # at once, after 1, 10, 60 and 120 minutes
     assert lines[0].startswith("device sim://?events=4&realtime=0: the device closed the connection within "
@@ -104,23 +104,23 @@ def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, ca
     assert daemon.health.reconnects == drops and daemon.health.device_faults == drops
     caplog.clear()
     clock.now += SHORT_LINK_S + 0.1
-    daemon._link_held()  # the link holds: said once
-    daemon._link_held()
+    daemon.link.link_held()  # the link holds: said once
+    daemon.link.link_held()
     back = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert len(back) == 1 and back[0].startswith(f"device sim://?events=4&realtime=0 reconnected after {drops} failed "
                                                  "attempts in 2.1 h; the link has held"), back
     caplog.clear()
     clock.now += 60
-    daemon._fault("the device closed the connection")  # a drop after a long link: one line as before
+    daemon.link.fault("the device closed the connection")  # a drop after a long link: one line as before
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert lines == ["device sim://?events=4&realtime=0: the device closed the connection; reconnecting"]
     caplog.clear()
-    daemon.client = None
-    daemon._connect()
+    daemon.link.client = None
+    daemon.link.connect()
     clock.now += 2.0
-    daemon._fault("no frame for 2 s (stall)", link_lost=False)  # soon, but a stall: no word of another client
+    daemon.link.fault("no frame for 2 s (stall)", link_lost=False)  # soon, but a stall: no word of another client
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert lines == ["device sim://?events=4&realtime=0 reconnected (486 taxels, scene model)",
                      "device sim://?events=4&realtime=0: no frame for 2 s (stall) within 5 s of connecting; "
                      "retrying in 0.2 s"], lines
-    daemon._close_client()
+    daemon.link.close()

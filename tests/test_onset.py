@@ -173,7 +173,7 @@ def _daemon(tmp_path, **tables) -> tuple[Daemon, list]:
 
 def test_daemon_serves_a_model_cut_by_the_onset_trigger_with_it(tmp_path):
     daemon, events = _daemon(tmp_path)
-    assert isinstance(daemon.trigger, OnsetTrigger) and daemon.trigger_settings.kind == "onset"
+    assert isinstance(daemon.detector.trigger, OnsetTrigger) and daemon.detector.trigger_settings.kind == "onset"
     levels = grasp_levels(400)
     levels[200:240, 0] *= 1.3
     for frame in _frames(levels):
@@ -203,7 +203,7 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
         _send(path, b"grasp closed\n")
         _wait(lambda: daemon.control.received == 1)
         daemon.handle_frame(frames[1])
-        assert daemon.grasp_closed is True and daemon.trigger.state == ARMED
+        assert daemon.detector.grasp_closed is True and daemon.detector.trigger.state == ARMED
         with caplog.at_level(logging.WARNING, logger="handover.control"):
             _send(path, b"\xff\xfe\x00")
             _send(path, b"grasp sideways")
@@ -212,10 +212,10 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
         _send(path, b"GRASP OPEN")
         _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
-        assert daemon.grasp_closed is False and daemon.trigger.state == OPEN and daemon.trigger.robot_open
+        assert daemon.detector.grasp_closed is False and daemon.detector.trigger.state == OPEN and daemon.detector.trigger.robot_open
         daemon.set_grasp(True, source="ros2")  # what the ROS 2 sink calls
         daemon.handle_frame(frames[3])
-        assert daemon.trigger.state == ARMED
+        assert daemon.detector.trigger.state == ARMED
     finally:
         daemon.stop_control()
     assert not (tmp_path / "control.sock").exists()
@@ -277,11 +277,11 @@ def test_a_reload_that_changes_no_trigger_setting_keeps_the_settled_grasp(tmp_pa
     frames = _frames(levels)
     for frame in frames[:150]:  # the grasp has settled
         daemon.handle_frame(frame)
-    trigger = daemon.trigger
-    daemon._build_hot_path(keep_history=True)  # what a reload with an unchanged scene and trigger does
-    assert daemon.trigger is trigger
+    trigger = daemon.detector.trigger
+    daemon.detector.rebuild(keep_history=True)  # what a reload with an unchanged scene and trigger does
+    assert daemon.detector.trigger is trigger
     for frame in frames[150:]:
         daemon.handle_frame(frame)
     assert len(events) == 1 and 200 <= events[0].frame_first <= 202
-    daemon._build_hot_path(keep_history=False)  # a reconnect forgets the history: a new trigger
-    assert daemon.trigger is not trigger
+    daemon.detector.rebuild(keep_history=False)  # a reconnect forgets the history: a new trigger
+    assert daemon.detector.trigger is not trigger

@@ -74,8 +74,8 @@ def test_the_daemon_gives_the_trigger_the_fingers_of_its_pads(tmp_path):
     from tests.test_onset import _daemon
 
     daemon, _ = _daemon(tmp_path)
-    fingers = daemon.trigger._fingers.tolist()
-    assert fingers == list(LAYOUT.pad_fingers(daemon.model.meta.pads)) and daemon.trigger.min_fingers == 2
+    fingers = daemon.detector.trigger._fingers.tolist()
+    assert fingers == list(LAYOUT.pad_fingers(daemon.model.meta.pads)) and daemon.detector.trigger.min_fingers == 2
 
 
 def test_contact_for_the_rule_is_a_patch_not_a_stray_taxel():

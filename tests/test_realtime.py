@@ -195,7 +195,7 @@ def test_a_device_that_sends_only_garbage_never_gets_real_time_priority():
     seen = []
     h = daemon.health
     def reached() -> bool:  # random bytes rarely hold a packet header: dropped bytes count too
-        dropped = (getattr(daemon.client, "stats", None) or {}).get("bytes_dropped", 0)
+        dropped = (getattr(daemon.link.client, "stats", None) or {}).get("bytes_dropped", 0)
         return h.protocol_errors + h.crc_errors + h.device_faults + dropped > 0
 
     deadline = time.monotonic() + 20.0  # connecting reads the nonsense first (up to its time bound)

@@ -148,8 +148,8 @@ def test_the_model_hysteresis_is_served_unless_the_config_sets_one(tmp_path):
         path = write_model(tmp_path, name, tiny_model_bytes(trigger={"kind": "threshold", **model_trigger}))
         daemon = Daemon(config_from_dict({"sinks": {"stdout": False}, "trigger": config_trigger}))
         daemon.serve(load_model(path), layout)
-        assert isinstance(daemon.trigger, ThresholdTrigger)
-        return daemon.trigger.off_level
+        assert isinstance(daemon.detector.trigger, ThresholdTrigger)
+        return daemon.detector.trigger.off_level
 
     assert off_level({"hysteresis": 0.02}, {}) == pytest.approx((PAPER_FRACTION - 0.02) * fullscale)
     assert off_level({"hysteresis": 0.02}, {"hysteresis": 0.1}) == pytest.approx((PAPER_FRACTION - 0.1) * fullscale)

@@ -153,13 +153,13 @@ def test_the_grasp_topic_reaches_the_daemon(tmp_path, caplog):
     try:
         assert wait_for(lambda: listener.grasp.get_subscription_count() >= 1), "grasp subscription never matched"
         listener.grasp.publish(String(data="closed"))
-        assert wait_for(lambda: daemon.grasp_request == (True, "ros2"))
+        assert wait_for(lambda: daemon.detector.grasp_request == (True, "ros2"))
         listener.grasp.publish(String(data=" Open\n"))
-        assert wait_for(lambda: daemon.grasp_request == (False, "ros2"))
+        assert wait_for(lambda: daemon.detector.grasp_request == (False, "ros2"))
         with caplog.at_level(logging.WARNING, logger="handover.ros2"):
             listener.grasp.publish(String(data="halfway"))
             assert wait_for(lambda: "expected 'closed' or 'open'" in caplog.text, 5.0)
-        assert daemon.grasp_request == (False, "ros2")
+        assert daemon.detector.grasp_request == (False, "ros2")
     finally:
         daemon.sinks.close()
         listener.close()
@@ -203,7 +203,7 @@ def test_a_reload_replaces_the_node_and_events_keep_flowing(tmp_path):
     daemon = Daemon(load_config(config))
     first = ros_sink(daemon)
     config.write_text(config.read_text().replace('"/one"', '"/two"'))
-    daemon._do_reload()  # what SIGHUP does between two frames
+    daemon.reload()  # what SIGHUP does between two frames
     listener = Listener("/two")
     try:
         second = ros_sink(daemon)

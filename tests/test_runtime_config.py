@@ -295,7 +295,7 @@ def test_a_malformed_url_is_a_config_error(tmp_path, url):
 def test_sighup_never_kills_the_daemon_it_keeps_the_running_configuration(tmp_path, caplog, monkeypatch, failure):
     import logging
 
-    import runtime.config_reload
+    import runtime.daemon
     from runtime.daemon import Daemon
 
     path = tmp_path / "h.toml"
@@ -307,10 +307,10 @@ def test_sighup_never_kills_the_daemon_it_keeps_the_running_configuration(tmp_pa
     else:
         def broken(source):
             raise RuntimeError("a bug in a check\nsecond line")
-        monkeypatch.setattr(runtime.config_reload, "load_config", broken)
+        monkeypatch.setattr(runtime.daemon, "load_config", broken)
     try:
         with caplog.at_level(logging.ERROR, logger="handover.daemon"):
-            daemon._do_reload()
+            daemon.reload()
     finally:
         daemon.sinks.close()
     assert daemon.cfg.device.url == "sim://"
@@ -335,9 +335,9 @@ def test_a_reload_says_which_sections_changed(tmp_path, caplog):
     daemon = Daemon(load_config(config))
     try:
         with caplog.at_level(logging.INFO, logger="handover.daemon"):
-            daemon._do_reload()
+            daemon.reload()
             config.write_text(base + '[sinks]\nstdout = false\nudp = ["127.0.0.1:9"]\n[trigger]\nfraction = 0.2\n')
-            daemon._do_reload()
+            daemon.reload()
         lines = [r.getMessage() for r in caplog.records if "configuration reloaded" in r.getMessage()]
         assert lines[0].endswith("(nothing changed)") and lines[1].endswith("(changed: trigger, sinks)"), lines
     finally:

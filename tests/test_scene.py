@@ -52,8 +52,8 @@ def test_shipped_config_follows_the_models_pads(tmp_path):
     for name, kw in (("all.onnx", ALL), ("distal.onnx", {})):
         model = _model(tmp_path, name, **kw)
         assert scene_problem(model, cfg, SDH2) is None
-        assert scene_pads(cfg, model, SDH2) == tuple(model.meta.pads)
-    assert scene_pads(cfg, None, SDH2) == (0, 1, 2, 3, 4, 5)  # before a model serves
+        assert scene_pads(cfg.scene, model, SDH2) == tuple(model.meta.pads)
+    assert scene_pads(cfg.scene, None, SDH2) == (0, 1, 2, 3, 4, 5)  # before a model serves
 
 
 def test_pinned_scene_refuses_other_pads_and_says_what_to_do(tmp_path):

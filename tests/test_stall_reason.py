@@ -4,9 +4,11 @@ still flowed before it, and a client replaced on reconnect counts its own from 0
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
 
+from runtime.config import DeviceConfig
 from runtime.device_link import DeviceLink
+from runtime.health import Health
+from runtime.sdnotify import Notifier
 
 
 class Client:
@@ -16,11 +18,9 @@ class Client:
 
 
 def _link(client: Client) -> DeviceLink:
-    link = DeviceLink.__new__(DeviceLink)
-    link.cfg = SimpleNamespace(device=SimpleNamespace(stall_timeout_s=2.0))
-    link.client = client
+    link = DeviceLink(DeviceConfig(stall_timeout_s=2.0), Health(), Notifier({}), client_factory=lambda url: client)
+    link._use_new_client("x://")
     link.connected = True
-    link._refused_mark = 0
     link._last_frame_t = time.monotonic()
     return link
 
@@ -33,7 +33,7 @@ def test_refusals_among_good_frames_are_not_the_silent_stall_s():
     for _ in range(60):  # a good frame, a refused one; the daemon's periodic health write in between
         link._last_frame_t = time.monotonic()
         client.stats["crc_errors"] += 1
-        link._mark_refusals(time.monotonic(), 1.0)
+        link.update_health(time.monotonic(), 1.0)
     assert link._stall_reason() == "no frame for 2 s (stall)"
     client.stats["crc_errors"] += 7  # now only refused frames arrive: the next stall names them
     assert "7 arrived but were refused" in link._stall_reason()

@@ -343,7 +343,7 @@ def test_hid_transport_through_cp2110_stand_in(rec):
 
 def test_hid_transport_polls_without_waiting_for_a_report(rec):
     """hidapi's read with timeout 0 blocks until the next report unless the device is non-blocking:
-    the daemon's polling (read timeout 0, runtime.rehearsal) must come back at once on a quiet line."""
+    a poll (read timeout 0) must come back at once on a quiet line."""
     device = EmulatedCp2110(DeviceEmulator(rec, speed=None))
     t = open_transport("hid://10c4:ea80", device=device)
     started = time.monotonic()

@@ -282,7 +282,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
     return {
         "synthetic": True,
         "setting": setting_of(args),
-        "trigger": daemon.trigger_settings.name if daemon.trigger_settings else None,
+        "trigger": daemon.detector.trigger_settings.name if daemon.detector.trigger_settings else None,
         **outcome_summary(o),
         "decisions": int(h.decisions),
         "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None,

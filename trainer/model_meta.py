@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from runtime.model_serving import DEFAULT_RATE_HZ
+from runtime.detector import DEFAULT_RATE_HZ
 from runtime.trigger_settings import PAPER_FRACTION
 
 DEFAULT_FULLSCALE = 4095.0

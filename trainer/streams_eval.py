@@ -1,21 +1,20 @@
 """What matters on a deployed robot, measured on long streams: false events per hour of idle,
 detection delay from the person's onset, events missed, wrong class.
 
-The stream is replayed frame by frame through the daemon's own hot path
-(``runtime.daemon.Daemon.handle_frame``: ring buffer, trigger, ONNX model, continuous report
-rule), fed in-process with the recorded frames, so what is measured is what the service would
-do. The modes, the same streams for all:
+The stream is replayed frame by frame through the daemon's own detector
+(``runtime.detector.Detector.feed``: ring buffer, trigger, ONNX model, report rule), fed
+in-process with the recorded frames, so what is measured is what the service would do. The modes, the same streams for all:
 
 - ``threshold``: the paper's trigger (15 % of full scale, hysteresis, refractory) + a 4-class model;
 - ``baseline``: the same trigger measured against a slowly tracked per-taxel baseline + a 4-class model;
 - ``onset``: the onset trigger (runtime/onset.py: per-pad change against the settled grasp) + a 4-class model;
 - ``onset_robot``: the same, and the robot says when its grasp has settled and when it lets go
-  (``Daemon.set_grasp``, as the control socket or the ROS 2 topic would; ``robot_messages``);
+  (``Detector.set_grasp``, as the control socket or the ROS 2 topic would; ``robot_messages``);
 - ``onset_dormant``: the onset trigger + the 5-class model with a dormant class (a window it reads
   as dormant is not reported);
 - ``continuous``: every frame classified by the 5-class model with a dormant class;
 - ``onset_arm``, ``onset_dormant_arm``, ``continuous_arm``: the same three, and the robot says when
-  its arm moves (``Daemon.set_arm_moving`` from the recording's marks, ``firmware_io.recordings.arm_marks``:
+  its arm moves (``Detector.set_arm_moving`` from the recording's marks, ``firmware_io.recordings.arm_marks``:
   the simulator's own moves, a recorder's robot messages or prompted ``arm_move`` stretches).
 """
 
@@ -68,18 +67,19 @@ class Truth:
 
 def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None,
            robot: dict[int, bool] | None = None, arm: dict[int, bool] | None = None) -> list[Decision]:
-    """Feed every frame of ``rec`` to a fresh daemon in ``mode``; the events it reports.
+    """Feed every frame of ``rec`` to a fresh detector in ``mode``; the events it reports.
 
     ``rule``: the ``[continuous]`` config table (confirm_frames, min_margin, rearm_frames) for
     continuous mode; None takes the config defaults. ``robot``: frame index -> grasp closed
-    (True) / open (False), passed to ``Daemon.set_grasp`` before that frame (``onset_robot``
+    (True) / open (False), passed to ``Detector.set_grasp`` before that frame (``onset_robot``
     computes them with ``robot_messages`` when not given). ``arm``: frame index -> arm moving, passed
-    to ``Daemon.set_arm_moving`` before that frame (the ``*_arm`` modes take the recording's marks,
+    to ``Detector.set_arm_moving`` before that frame (the ``*_arm`` modes take the recording's marks,
     ``firmware_io.recordings.arm_marks.marks_of``, when not given).
     """
     from firmware_io.client import Frame
     from runtime.config import config_from_dict
-    from runtime.daemon import Daemon, scene_problem
+    from runtime.detector import Detector
+    from runtime.scene import scene_problem
 
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -89,19 +89,16 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
         "scene": {"pads": pads, "events": events, "mode": "continuous" if mode.startswith("continuous") else "trigger"},
         "trigger": dict(TRIGGER_TABLE[mode]),
         "continuous": dict(rule or {}),
-        "sinks": {"stdout": False},
-        "log_level": "warning",
     })
     problem = scene_problem(model, cfg, rec.layout)
     if problem:
         raise ValueError(f"model {model.model_id} cannot serve mode {mode!r}: {problem}")
-    out: list[Decision] = []
-    daemon = Daemon(cfg, on_event=lambda e: out.append(Decision(e.frame_last - first_number, e.cls, e.latency_us)))
-    daemon.serve(model, rec.layout)
+    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous, control=cfg.control)
+    detector.swap(model, rec.layout)
     stamps_ms = np.rint(rec.timestamps * 1000.0).astype(np.int64)
     frames = rec.frames
     clock = time.perf_counter
-    handle = daemon.handle_frame
+    feed = detector.feed
     if robot is None and mode == "onset_robot":
         robot = robot_messages(rec)
     robot = robot or {}
@@ -110,12 +107,15 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
 
         arm = marks_of(rec.meta, rec.n_frames)
     arm = arm or {}
+    out: list[Decision] = []
     for i in range(rec.n_frames):
         if i in robot:
-            daemon.set_grasp(robot[i], source="replay")
+            detector.set_grasp(robot[i], source="replay")
         if i in arm:
-            daemon.set_arm_moving(arm[i], source="replay")
-        handle(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
+            detector.set_arm_moving(arm[i], source="replay")
+        decision = feed(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
+        if decision is not None and decision.cls is not None:
+            out.append(Decision(decision.frame.number - first_number, decision.cls, decision.latency_us))
     return out
 
 

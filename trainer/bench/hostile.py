@@ -89,11 +89,11 @@ def sleeper_in_daemon(folder: Path, kind: str) -> dict:
     cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
                             "model": {"folder": str(folder / "models")}, "health_file": str(folder / "status.json")})
     daemon = Daemon(cfg, on_event=events.append)
-    daemon.layout = SensorLayout.sdh2()
-    daemon._start_watcher()
-    daemon.watcher.stop()
+    daemon.detector.fit(SensorLayout.sdh2())
+    daemon.models.start()
+    daemon.models.watcher.stop()
     _write_model(folder / "models", "new.onnx", H.sleeper(kind))
-    daemon.watcher.poll(require_stable=False)
+    daemon.models.watcher.poll(require_stable=False)
     daemon._housekeeping(time.monotonic())
     column = int(daemon.layout.columns("distal")[40])
     for i in range(120):
@@ -101,9 +101,9 @@ def sleeper_in_daemon(folder: Path, kind: str) -> dict:
         values[column] = int(H.SLEEPER_PEAK) if i % 60 < 20 else 0
         daemon.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
     restarted = Daemon(cfg)
-    restarted.layout = SensorLayout.sdh2()
-    restarted._start_watcher()
-    restarted.watcher.stop()
+    restarted.detector.fit(SensorLayout.sdh2())
+    restarted.models.start()
+    restarted.models.watcher.stop()
     h = daemon.health
     serving = Path(daemon.model.path).name if daemon.model is not None else None
     after_restart = Path(restarted.model.path).name if restarted.model is not None else None

@@ -27,7 +27,6 @@ import numpy as np
 
 from runtime import realtime
 from runtime.realtime import DEFAULT_PRIORITY
-from runtime.rehearsal import LEAD_S, MIN_LEAD_S
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
 from trainer.bench.common import (
@@ -214,7 +213,7 @@ def headline(res: dict) -> dict:
         "onnx_p99_us": res["implementations"]["solo"]["onnxruntime"]["p99"],
         "daemon_p999_us": internal_paced["p999"],
         "daemon_p50_us": internal_paced["p50"],
-        # continuous mode (every frame a decision, not kept warm: runtime/rehearsal.py): not a target of the issue
+        # continuous mode (every frame a decision): not a target
         "continuous_daemon_p50_us": continuous.get("p50"),
         "continuous_daemon_p999_us": continuous.get("p999"),
         "paced_over_back_to_back": internal_paced["p50"] / internal_fast["p50"],
@@ -328,7 +327,7 @@ def _targets_lines(res: dict) -> list[str]:
 
 RHYTHMS = {"solo": "alone, back to back", "back_to_back": "interleaved, back to back",
            "paced_32hz": "interleaved, paced 32 Hz", "paced_asleep": "alone, paced 32 Hz, asleep until the frame",
-           "paced_rehearsed": "alone, paced 32 Hz, kept warm",
+           "paced_rehearsed": "alone, paced 32 Hz, warmed just before the frame (not done by the daemon)",
            "back_to_back_load": "interleaved, back to back, under load"}
 """Rows of the implementation table: ``solo`` gives the absolute figures (the headline), the
 interleaved ones the ratios."""
@@ -364,11 +363,10 @@ def _implementation_lines(res: dict) -> list[str]:
               "every call then runs in caches the other two just filled, which inflates a call of a few tens of "
               "microseconds by a factor of two to three: those medians are not what a decision costs.", "",
               "Alone, paced 32 Hz: the graph by itself, one window each sample period. **Asleep until the frame**: "
-              "the thread blocks until the window's last frame arrives (as the daemon did before "
-              f"`runtime.rehearsal`). **Kept warm**: waited for as the daemon waits for a due frame (blocked until "
-              f"a lead before it, at most {LEAD_S * 1e3:g} ms and {MIN_LEAD_S * 1e3:g} ms for frames on time, then one "
-              "rehearsal run and polling instead of sleeping), as the stage "
-              "tables above do. The two rows together: how much of the paced cliff keeping warm removes."]
+              "the thread blocks until the window's last frame arrives, as the daemon waits (and as the stage "
+              "tables above do). **Warmed just before the frame**: the same window decided once "
+              f"{stages.WARM_LEAD_S * 1e3:g} ms before the frame, the core spinning until it arrives: what keeping "
+              "the hot path warm would buy. The daemon does not keep warm (see *Keeping the hot path warm* below)."]
     return lines
 
 
@@ -403,7 +401,7 @@ def markdown(res: dict) -> list[str]:
     lines += ["Paced: the frame that completes each window arrives one sample period after the frame before it "
               "(the process idle in between, as in service); the frames between windows are fed back to back. "
               "Continuous mode: every frame arrives one sample period after the one before, and every frame is a "
-              "decision, not kept warm (`runtime/rehearsal.py` says why); the graph is the default's, its metadata naming "
+              "decision; the graph is the default's, its metadata naming "
               f"a dormant class (`{res['model'].get('continuous_dormant', '?')}`) so that continuous mode serves it: "
               "what the classes mean does not change how long a decision takes. Its rows up to the output check "
               "and `frame parsed -> decision` count every frame's decision (the json's `continuous_daemon_p50_us` "

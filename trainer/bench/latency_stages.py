@@ -2,17 +2,16 @@
 
 The real parts in this process: each frame of a dense synthetic stream is fed as its RLE packet
 to the real client (``DSAClient``: parse with CRC, decode, plausibility), read the way the
-daemon's loop reads it and handed to the real ``Daemon.handle_frame`` serving the model, whose
-events go to a UDP socket; a
-``runtime.listeners`` listener collects the daemon's own stamps of each decision (window,
-inference, output check, event build, serialisation, sink send). Nothing is copied or swapped.
+daemon's loop reads it and handed to the daemon's ``Detector`` serving the model; its decisions go
+through the daemon's ``Reporter`` to a UDP socket; a ``runtime.listeners`` listener collects the
+stamps of each decision (window, inference, output check, event build, serialisation, sink send).
+Nothing is copied or swapped.
 
 Two rhythms:
 
 - back to back: frames fed as fast as the hot path takes them (warm caches);
 - paced at 32 Hz: the frame that completes a window arrives one sample period (31.25 ms) after
-  the frame before it, and the daemon waits for it as in service (``runtime.rehearsal``: blocked
-  until shortly before, then a rehearsal and polling). The frames between
+  the frame before it, and the detector waits for it as in service (a blocking read). The frames between
   windows (which only push and test the trigger) are fed back to back, so a run of a minute
   yields enough decisions for a p99.9.
 
@@ -26,6 +25,7 @@ just filled, which more than doubles a 70 us graph call).
 
 from __future__ import annotations
 
+import gc
 import socket
 import time
 from pathlib import Path
@@ -95,40 +95,43 @@ class PacketFeed(Transport):
 
 def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset(),
          mode: str = "trigger") -> dict:
-    """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility) and
-    a fresh serving daemon, read the way the daemon's loop reads (``Daemon.rehearsal.read``); the
-    packets in ``pace_frames`` arrive one sample period after the one before. Per-stage
+    """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility), a
+    fresh detector and the daemon's reporter to a UDP socket, read the way the daemon's loop reads;
+    the packets in ``pace_frames`` arrive one sample period after the one before. Per-stage
     microseconds of each decision."""
     from firmware_io.client import DSAClient
     from runtime.daemon import READ_TIMEOUT_S
-    from runtime.heap import release_heap, settle_heap
-    from trainer.bench.throughput import serving_daemon
+    from runtime.heap import settle_heap
+    from trainer.bench.throughput import serving_detector, udp_reporter
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sink.bind(("127.0.0.1", 0))
     sink.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     sink.setblocking(False)
-    daemon = serving_daemon(model, recording.layout, udp_port=sink.getsockname()[1], mode=mode)
+    detector = serving_detector(model, recording.layout, mode=mode)
+    reporter = udp_reporter(sink.getsockname()[1])
     link = PacketFeed(packets, pace_frames)
-    daemon.client = DSAClient.already_streaming(link, recording.layout)
+    client = DSAClient.already_streaming(link, recording.layout)
     recorder = _Decisions()
-    daemon.listeners.append(recorder)
-    settle_heap()  # as Daemon.run does once started: automatic collection off
-    handle, clock, read = daemon.handle_frame, time.perf_counter, daemon.client.read_frame
+    reporter.listeners.append(recorder)
+    settle_heap()  # as Daemon.run does once started
+    step, report, clock, read = detector.feed, reporter.report, time.perf_counter, client.read_frame
     marks = np.zeros((len(packets), 3))
     try:
         while not link.done:
-            daemon.collect_garbage(clock())  # as the loop's housekeeping does
-            frame = daemon.rehearsal.read(read, READ_TIMEOUT_S)
+            frame = read(READ_TIMEOUT_S)
             if frame is None:
                 continue
             t1 = clock()
-            handle(frame)
+            decision = step(frame)
+            if decision is not None:
+                report(decision)
             marks[frame.number] = frame.received, t1, clock()
             if frame.number % 64 == 0:
                 _drain(sink)
     finally:
-        release_heap()
+        gc.unfreeze()
+        reporter.sinks.close()
     _drain(sink)
     sink.close()
     return _stage_table(marks, recorder.timings)
@@ -161,16 +164,13 @@ def _stage_table(marks: np.ndarray, timings: list[tuple[int, DecisionTimings]]) 
 
 
 def decision_frames(model, recording) -> frozenset[int]:
-    """The frames whose arrival completes a window (a back-to-back pass of the same daemon)."""
+    """The frames whose arrival completes a window (a back-to-back pass of the same detector)."""
     from firmware_io.client import Frame
-    from trainer.bench.throughput import serving_daemon
+    from trainer.bench.throughput import serving_detector
 
-    daemon = serving_daemon(model, recording.layout)
-    recorder = _Decisions()
-    daemon.listeners.append(recorder)
-    for number, values in enumerate(recording.frames):
-        daemon.handle_frame(Frame(number, number * 31, time.perf_counter(), values))
-    return frozenset(n for n, _ in recorder.timings)
+    feed = serving_detector(model, recording.layout).feed
+    return frozenset(number for number, values in enumerate(recording.frames)
+                     if feed(Frame(number, number * 31, time.perf_counter(), values)) is not None)
 
 
 def stage_tables(model, recording, paced_decisions: int, continuous_model=None) -> dict:
@@ -242,34 +242,31 @@ def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
     return {name: percentiles(time_calls(cycling(fn, windows), rounds)) for name, fn in fns.items()}
 
 
-def paced_alone(fn, windows: np.ndarray, rounds: int, warm: bool) -> dict:
-    """One implementation alone, paced at 32 Hz and waited for as the daemon waits for a due frame:
-    ``warm`` with its keeping warm (``runtime.rehearsal``: one rehearsal run a lead before, then
-    polling), else blocked until the frame (how much of the paced cliff keeping warm removes)."""
-    from runtime.rehearsal import Rehearsal
+WARM_LEAD_S = 0.0003
+"""How long before the frame the warmed rhythm runs its one extra decision (the lead the daemon's
+removed keeping-warm reached for frames on time)."""
 
-    wait, times = Rehearsal(), np.empty(rounds)
+
+def paced_alone(fn, windows: np.ndarray, rounds: int, warm: bool) -> dict:
+    """One implementation alone, paced at 32 Hz, the thread asleep until the frame arrives (as the daemon
+    waits); ``warm``: the same, but the window decided once ``WARM_LEAD_S`` before the frame and the core
+    kept spinning until it comes, what keeping warm would buy (the daemon does not: results/latency.md)."""
+    times = np.empty(rounds)
     clock = time.perf_counter_ns
     for i in range(rounds):
         w = windows[i % len(windows)]
         due = time.perf_counter() + PERIOD_S
         if warm:
-            wait.expect(due, lambda w=w: fn(w))
-        wait_for_arrival(wait, due)
+            arrived(due - WARM_LEAD_S, PERIOD_S)
+            fn(w)
+            while not arrived(due, 0.0):
+                pass
+        else:
+            arrived(due, PERIOD_S)
         t0 = clock()
         fn(w)
         times[i] = (clock() - t0) / 1000.0
     return percentiles(times)
-
-
-def wait_for_arrival(warm, at: float) -> None:
-    """Wait as the daemon's loop does (``warm.read`` of the device, READ_TIMEOUT_S at a time) for a
-    frame arriving at ``perf_counter() == at``: the emulated device read blocks like a select until
-    then, or polls when given no time."""
-    from runtime.daemon import READ_TIMEOUT_S
-
-    while warm.read(lambda timeout: arrived(at, timeout) or None, READ_TIMEOUT_S) is None:
-        pass
 
 
 def arrived(at: float, timeout: float) -> bool:

@@ -88,19 +88,21 @@ def reference_events(model_path: Path, recording, config_text: str, loops: int =
 
     from firmware_io.client import Frame
     from runtime.config import config_from_dict
-    from runtime.daemon import Daemon
+    from runtime.detector import Detector
     from runtime.model import load_model
 
     data = tomllib.loads(config_text)
     data.pop("health_file", None)
     data["sinks"] = {"stdout": False}
+    cfg = config_from_dict(data)
     ends: list[int] = []
-    daemon = Daemon(config_from_dict(data), on_event=lambda e: ends.append(e.frame_last))
-    daemon.serve(load_model(model_path), recording.layout)
+    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous)
+    detector.swap(load_model(model_path), recording.layout)
     n = recording.n_frames
     for k in range(loops * n):
-        i = k % n
-        daemon.handle_frame(Frame(k, round(k * 1000 / RATE_HZ), time.perf_counter(), recording.frames[i]))
+        decision = detector.feed(Frame(k, round(k * 1000 / RATE_HZ), time.perf_counter(), recording.frames[k % n]))
+        if decision is not None and decision.cls is not None:
+            ends.append(decision.frame.number)
     return {f % n for f in ends if f >= n}  # the first loop warms the trigger up
 
 

@@ -3,7 +3,7 @@ time to READY, and the time to swap a model.
 
 - replay: a dense synthetic stream (simulated trial windows back to back, each followed by just
   enough untouched frames for the daemon's trigger to re-arm), pre-encoded as RLE packets, through
-  StreamParser + decode + plausibility and the real ``Daemon.handle_frame`` (ring, trigger, model,
+  StreamParser + decode + plausibility and the daemon's ``Detector.feed`` (ring, trigger, model,
   output check; no socket) as fast as possible; and the real Daemon reading
   ``replay://FILE?speed=max`` (its emulator encodes the frames in the same thread, so this
   figure is a lower bound).
@@ -43,26 +43,31 @@ from trainer.defaults import describe_default
 NAME = "throughput"
 
 
-def serving_daemon(model, layout, udp_port: int | None = None, mode: str = "trigger"):
-    """The real ``Daemon`` serving ``model`` for ``layout`` (all pads, default trigger, or ``mode``
-    ``continuous``), fed by the caller through ``handle_frame``; events go to a UDP port when given,
-    else nowhere."""
-    from runtime.config import config_from_dict
-    from runtime.daemon import Daemon
-    from runtime.sdnotify import Notifier
+def serving_detector(model, layout, mode: str = "trigger"):
+    """The daemon's ``Detector`` serving ``model`` for ``layout`` (its pads, default trigger, or ``mode``
+    ``continuous``), fed by the caller."""
+    from runtime.config import SceneConfig
+    from runtime.detector import Detector
 
-    pads = ",".join(str(p) for p in model.meta.pads)
-    udp = [f"127.0.0.1:{udp_port}"] if udp_port else []
-    cfg = config_from_dict({"scene": {"pads": pads, "mode": mode}, "sinks": {"stdout": False, "udp": udp},
-                            "log_level": "error"})
-    daemon = Daemon(cfg, notifier=Notifier({}))
-    daemon.serve(model, layout)
-    return daemon
+    detector = Detector(SceneConfig(pads=",".join(str(p) for p in model.meta.pads), mode=mode))
+    detector.swap(model, layout)
+    return detector
+
+
+def udp_reporter(udp_port: int | None = None):
+    """The daemon's ``Reporter`` sending each reported decision to a UDP port (None: to no sink)."""
+    from runtime.config import SinksConfig
+    from runtime.health import Health
+    from runtime.reporter import Reporter
+    from runtime.sinks import SinkSet
+
+    udp = (f"127.0.0.1:{udp_port}",) if udp_port else ()
+    return Reporter(SinkSet.from_config(SinksConfig(stdout=False, udp=udp)), Health())
 
 
 def replay_hot_path(model, recording, repeats: int = 1) -> dict:
     """Frames per second through the client's steps (parser + CRC + decode + plausibility) and the
-    real ``Daemon.handle_frame`` (ring, trigger, inference, output check), no socket."""
+    daemon's ``Detector.feed`` (ring, trigger, inference, output check), no socket."""
     from firmware_io.client import Frame
     from firmware_io.plausibility import FrameCheck
     from firmware_io.wire.frames import decode_frame_payload, encode_frame
@@ -78,9 +83,8 @@ def replay_hot_path(model, recording, repeats: int = 1) -> dict:
     best = None
     for _ in range(repeats):
         parser = StreamParser(n)
-        daemon = serving_daemon(model, layout)
-        handle = daemon.handle_frame
-        number = 0
+        feed = serving_detector(model, layout).feed
+        number = decisions = 0
         t0 = time.perf_counter()
         for chunk in chunks:
             for pkt in parser.feed(chunk):
@@ -88,11 +92,11 @@ def replay_hot_path(model, recording, repeats: int = 1) -> dict:
                     continue
                 stamp, values = decode_frame_payload(pkt.payload, n)
                 if check.problem(values) is None:
-                    handle(Frame(number, stamp, pkt.received, values))
+                    decisions += feed(Frame(number, stamp, pkt.received, values)) is not None
                     number += 1
         seconds = time.perf_counter() - t0
         if best is None or seconds < best[0]:
-            best = (seconds, number, int(daemon.health.decisions))
+            best = (seconds, number, decisions)
     seconds, frames, decisions = best
     return {"frames": frames, "decisions": decisions, "seconds": seconds, "frames_per_s": frames / seconds,
             "bytes": len(stream)}

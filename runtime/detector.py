@@ -1,0 +1,376 @@
+"""The detector: frames in, decisions out. The daemon's hot path with nothing of the service around it.
+
+One ``Detector`` holds the ring of the scene's columns, the frame clock (the model's period), the
+trigger, the model it serves and the report rule; ``feed(frame)`` returns a ``Decision`` when the
+frame ends a window, else None. It does no I/O, starts no thread, reads no config file and knows no
+sink: the daemon (runtime/daemon.py) turns decisions into events, and replays, benchmarks and tests
+feed recorded frames to a Detector directly, so what they measure is what the service decides.
+
+Two narrow objects decide around the model and are the places to change what and when it reports:
+
+- ``Windows`` says which frames end a window (the trigger's due frames, in order);
+- ``ReportRule`` says which decided class is reported: continuous mode's ``ContinuousDecision``
+  (runtime/decision.py), and only classes in ``scene.events`` (a dormant class is never one).
+
+Settings come as the config's parsed sections (``SceneConfig``, ``TriggerConfig``,
+``ContinuousConfig``); which trigger they make is ``runtime.trigger_settings``' decision.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from firmware_io.layout import SensorLayout
+from runtime.arm_motion import ArmMotion, arm_frames
+from runtime.config import ContinuousConfig, ControlConfig, SceneConfig, TriggerConfig
+from runtime.decision import ContinuousDecision
+from runtime.frame_rate import FrameClock
+from runtime.health import Health, one_line
+from runtime.listeners import DecisionTimings
+from runtime.output_check import output_problem
+from runtime.ring import RingBuffer
+from runtime.scene import scene_pads
+from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+from runtime.trigger_settings import TriggerSettings, build_trigger, resolve_trigger
+
+if TYPE_CHECKING:
+    from firmware_io.client import Frame
+    from runtime.model import LoadedModel
+
+__all__ = ["DEFAULT_RATE_HZ", "Decision", "Detector", "ReportRule", "Trigger", "Windows"]
+
+DEFAULT_RATE_HZ = 32.0
+"""The period assumed until a model says its ``sample_rate_hz`` (the SDH-2's rate)."""
+
+
+class Trigger(Protocol):
+    """What starts a window: ``ThresholdTrigger``, ``OnsetTrigger`` (runtime/onset.py) or ``ContinuousTrigger``."""
+
+    window: int
+    pre_frames: int
+
+    def update(self, row: np.ndarray, number: int) -> int: ...
+
+    def reset(self) -> None: ...
+
+
+@dataclass(slots=True)
+class Decision:
+    """The model's answer on the window ending at ``frame``, and what of it is reported.
+
+    ``report`` is the class index to report, or -1 (continuous mode between reports, a class outside
+    ``scene.events``). ``problem`` is set instead when the model broke its output contract or failed
+    on this window: the caller takes the model out of service (the detector keeps it until told)."""
+
+    frame: Frame
+    model: LoadedModel
+    first: int
+    """The device number of the window's first frame."""
+    label: int
+    scores: np.ndarray
+    """float32 ``[1, n_classes]``."""
+    report: int
+    timings: DecisionTimings
+    latency_us: float
+    """From the window's last frame's arrival (``Frame.received``) to the model's answer."""
+    missed: bool
+    """Later than one model period."""
+    problem: str | None = None
+
+    @property
+    def cls(self) -> str | None:
+        """The reported class, or None."""
+        return self.model.meta.classes[self.report] if self.report >= 0 else None
+
+
+class Windows:
+    """The frames at which open windows end, in order (the trigger fixes each one as it fires).
+
+    With ``ArmMotion`` (a window that held a frame of the robot's arm moving is judged dormant, the model
+    not run) the one place that decides when the model runs: a rule that decides an event at several
+    frame counts belongs in ``ends``."""
+
+    __slots__ = ("_due",)
+
+    def __init__(self) -> None:
+        self._due: deque[int] = deque()
+
+    def open(self, due: int) -> None:
+        """The trigger fired: a window ends at frame ``due``."""
+        self._due.append(due)
+
+    def ends(self, number: int) -> bool:
+        """Whether frame ``number`` ends the oldest open window (a frame past it drops that window)."""
+        due = self._due
+        if due and number >= due[0]:
+            return due.popleft() == number
+        return False
+
+    def clear(self) -> int:
+        """Drop the open windows (the stream broke, the model changed); how many there were."""
+        n = len(self._due)
+        self._due.clear()
+        return n
+
+    def __len__(self) -> int:
+        return len(self._due)
+
+
+class ReportRule:
+    """Which decided class is reported: one in ``events``, and in continuous mode only when
+    ``ContinuousDecision`` confirms it (one report per interaction)."""
+
+    __slots__ = ("_reported", "continuous")
+
+    def __init__(self, classes: tuple[str, ...], events: tuple[str, ...],
+                 continuous: ContinuousDecision | None = None) -> None:
+        self.continuous = continuous
+        self._reported = tuple(c in events for c in classes)
+
+    def judge(self, label: int, scores: np.ndarray) -> int:
+        """The class index to report for this decision (``scores``: its row), or -1."""
+        if self.continuous is not None:
+            label = self.continuous.update(label, scores)
+        return label if label >= 0 and self._reported[label] else -1
+
+    def judge_dormant(self) -> None:
+        """A window judged dormant without running the model (runtime.arm_motion): continuous mode's rule
+        sees an idle hand; nothing is reported."""
+        if self.continuous is not None:
+            self.continuous.update(self.continuous.dormant)
+
+    def reset(self) -> None:
+        if self.continuous is not None:
+            self.continuous.reset()
+
+
+class Detector:
+    """Frames in, decisions out (module docstring). Not thread-safe, except ``set_grasp``."""
+
+    def __init__(self, scene: SceneConfig | None = None, trigger: TriggerConfig | None = None,
+                 continuous: ContinuousConfig | None = None, health: Health | None = None,
+                 control: ControlConfig | None = None) -> None:
+        self.scene = scene or SceneConfig()
+        self.trigger_config = trigger or TriggerConfig()
+        self.continuous = continuous or ContinuousConfig()
+        self.control = control or ControlConfig()
+        """Read for the arm's settle and longest move times (``arm_settle_s``, ``arm_max_move_s``)."""
+        self.layout: SensorLayout | None = None
+        self.model: LoadedModel | None = None
+        self.ring: RingBuffer | None = None
+        self.trigger: Trigger | None = None
+        self.trigger_settings: TriggerSettings | None = None
+        self.rule: ReportRule | None = None
+        self._continuous: ContinuousDecision | None = None
+        """Continuous mode's report rule (kept with the trigger: its state survives a reload)."""
+        self.windows = Windows()
+        self.period_s = 1.0 / DEFAULT_RATE_HZ
+        """The serving model's sample period."""
+        self.frame_clock = FrameClock(1000.0 * self.period_s, health, on_restart=self.restart)
+        """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
+        self.latest_frame: Frame | None = None
+        """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
+        self._key: tuple | None = None
+        """What the trigger and report rule were built from: the same key keeps them, and their state."""
+        self._grasp: deque[tuple[bool, str]] = deque(maxlen=64)
+        self.grasp_request: tuple[bool, str] | None = None
+        """The latest ``set_grasp`` call: (closed, source)."""
+        self.grasp_closed: bool | None = None
+        """The robot's last word on its grasp, applied; None before any."""
+        self.arm = ArmMotion(*self._arm_frames())
+        """Which frames the robot's arm counts as moving in (``set_arm_moving``; runtime.arm_motion)."""
+        self.arm_request: tuple[bool, str] | None = None
+        """The latest ``set_arm_moving`` call: (moving, source)."""
+
+    # -- settings, layout, model -------------------------------------------------------------------
+    def configure(self, scene: SceneConfig, trigger: TriggerConfig, continuous: ContinuousConfig,
+                  control: ControlConfig | None = None) -> None:
+        """New settings (a reload): the history is kept unless the scene changed."""
+        same_scene = scene == self.scene
+        self.scene, self.trigger_config, self.continuous = scene, trigger, continuous
+        self.control = control or self.control
+        self.rebuild(keep_history=same_scene)
+
+    def fit(self, layout: SensorLayout) -> None:
+        """The device's layout (at each connect): a new one rebuilds the hot path, the same one only
+        forgets the history (a reconnected stream is not continuous: its time stamps start afresh)."""
+        if layout != self.layout:
+            self.layout = layout
+            self.rebuild(keep_history=False)
+        else:
+            self.restart()
+        self.frame_clock.reset()
+
+    def swap(self, model: LoadedModel | None, layout: SensorLayout | None = None) -> None:
+        """Serve ``model`` (one reference assignment; the caller checked it fits the scene: runtime.scene),
+        or none (its windows are dropped). ``layout``: the device's, when it is new to the detector."""
+        if layout is not None and layout != self.layout:
+            self.layout, self.ring = layout, None
+        self.model = model
+        if model is None:
+            self.windows.clear()
+            return
+        period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        same_rate = period_s == self.period_s  # frames kept at another rate would splice two time scales
+        self.period_s = period_s
+        self.frame_clock.set_model_period(1000.0 * period_s)
+        self.rebuild(keep_history=same_rate)
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The robot's grasp has settled (``closed``) or is released. Thread-safe: only queued, applied
+        at the next frame (the onset trigger arms on the settled grasp at once, or disarms)."""
+        request = (bool(closed), str(source))
+        self.grasp_request = request
+        self._grasp.append(request)
+
+    def set_arm_moving(self, moving: bool, source: str = "") -> None:
+        """The robot's arm moves (``True``) or has stopped. Thread-safe: only queued, applied at the next
+        frame (runtime.arm_motion: a window holding a frame of the motion or its settle time is dormant)."""
+        self.arm_request = (bool(moving), str(source))
+        self.arm.request(moving)
+
+    def restart(self) -> None:
+        """The stream is not continuous (a reconnect, a long gap in device time): forget its history."""
+        if self.ring is not None:
+            self.ring.reset()
+        if self.trigger is not None:
+            self.trigger.reset()
+        if self.rule is not None:
+            self.rule.reset()
+        self.windows.clear()
+
+    @property
+    def window_open(self) -> bool:
+        """Whether a trigger has fired and its window's last frame is still to come."""
+        return bool(self.windows)
+
+    @property
+    def window_s(self) -> float:
+        """How long one window of the serving model takes to arrive at the stream's rate (0: no model)."""
+        if self.model is None:
+            return 0.0
+        period_ms = self.frame_clock.stream_period_ms or self.frame_clock.model_period_ms
+        step = self.frame_clock.step
+        return self.model.meta.T * period_ms / 1000.0 / (step if step < 1.0 else 1.0)
+
+    # -- the hot path ------------------------------------------------------------------------------
+    def feed(self, frame: Frame) -> Decision | None:
+        """One frame: ring, trigger, and the model if this frame ends a window."""
+        number = self.frame_clock.admit(frame.number, frame.timestamp_ms)  # the model's frame count; -1: skip
+        if number < 0:
+            return None
+        self.latest_frame = frame
+        ring = self.ring
+        if ring is None:  # no layout yet
+            return None
+        ring.push(frame.values, number)
+        if self._grasp:
+            self._apply_grasp()
+        self.arm.update(number)
+        due = self.trigger.update(ring.latest(), number)
+        model = self.model
+        if model is None:
+            return None
+        windows = self.windows
+        if due >= 0:
+            windows.open(due)
+        if windows.ends(number) and ring.count >= model.meta.T:
+            if self.arm.touches(number - model.meta.T + 1):
+                self.rule.judge_dormant()  # the arm moved during the window: the model does not run
+                return None
+            return self._decide(model, frame)
+        return None
+
+    def _decide(self, model: LoadedModel, frame: Frame) -> Decision:
+        """The model on the window ending at ``frame``, checked; each stage stamped."""
+        clock = time.perf_counter
+        started = clock()
+        meta = model.meta
+        window = self.ring.window(meta.T)  # a float32 [1, T, C] view of the ring: no copy
+        windowed = clock()
+        first = self.frame_clock.window_first(frame.number, meta.T)
+        problem = None
+        try:
+            labels, scores = model.run_trusted(window)
+        except Exception as exc:  # a graph that fails on real frames only
+            labels, scores = np.zeros(1, np.int64), np.zeros((1, meta.n_classes), np.float32)
+            problem = f"inference failed on frames {frame.number - meta.T + 1}..{frame.number}: {one_line(exc)}"
+        decided = clock()
+        if problem is None and (bad := output_problem(labels, scores, meta.n_classes)):
+            problem = f"{bad} (frames {frame.number - meta.T + 1}..{frame.number})"
+        stamps = DecisionTimings(frame.received, started, windowed, decided, clock())
+        latency_us = (decided - frame.received) * 1e6
+        if problem is not None:
+            return Decision(frame, model, first, -1, scores, -1, stamps, latency_us, False, problem)
+        label = int(labels[0])
+        report = self.rule.judge(label, scores[0])
+        return Decision(frame, model, first, label, scores, report, stamps, latency_us,
+                        latency_us > self.period_s * 1e6)
+
+    def _apply_grasp(self) -> None:
+        while self._grasp:
+            closed, _source = self._grasp.popleft()
+            self.grasp_closed = closed
+            set_grasp = getattr(self.trigger, "set_grasp", None)
+            if set_grasp is not None:
+                set_grasp(closed)
+
+    # -- fitting the hot path (never per frame) ----------------------------------------------------
+    def rebuild(self, keep_history: bool) -> None:
+        """Ring, trigger and report rule for the current layout, scene and model; with ``keep_history`` the
+        ring keeps its frames and the same trigger (same settings) its state."""
+        if self.layout is None:
+            return
+        pads = scene_pads(self.scene, self.model, self.layout)
+        cols = self.layout.columns(pads)
+        meta = self.model.meta if self.model is not None else None
+        T = int(meta.T) if meta else 15
+        settings = resolve_trigger(self.trigger_config, meta.trigger if meta else None)
+        self.trigger_settings = settings
+        capacity = max(64, 2 * (T + settings.pre_frames))
+        ring = self.ring
+        if ring is None or not keep_history or not np.array_equal(ring.columns, cols):
+            self.ring = RingBuffer(cols, capacity)
+        elif ring.capacity < capacity:
+            self.ring = ring.resized(capacity)
+        mode = self.scene.mode
+        fullscale = float(meta.fullscale) if meta else self.layout.fullscale
+        inputs = (settings, tuple(self.layout.pad_sizes(pads)), fullscale, T, 1.0 / self.period_s,
+                  tuple(self.layout.pad_fingers(pads)))  # build_trigger's arguments
+        key = (mode, self.continuous if mode == "continuous" else None, cols.tobytes(),
+               meta.classes if meta else None, meta.dormant_class if meta else None, inputs)
+        # the same trigger and report rule (a reload that changed other sections, a model of the same kind
+        # swapped in) keep their state, e.g. the onset trigger's settled grasp
+        if not (keep_history and self.trigger is not None and key == self._key):
+            self._new_trigger(inputs, meta, keep_history)
+        self._key = key
+        self.rule = ReportRule(tuple(meta.classes) if meta else (), self.scene.events, self._continuous)
+        self.arm.configure(*self._arm_frames())
+        self.windows.clear()
+
+    def _arm_frames(self) -> tuple[int, int]:
+        return arm_frames(1.0 / self.period_s, self.control.arm_settle_s, self.control.arm_max_move_s)
+
+    def _new_trigger(self, inputs: tuple, meta, keep_history: bool) -> None:
+        """A trigger (and continuous mode's ``ContinuousDecision``) for ``build_trigger``'s ``inputs``; a threshold trigger takes over the
+        old one's arming, an onset trigger the robot's closed grasp."""
+        old = self.trigger
+        self._continuous = None
+        if self.scene.mode == "continuous":
+            self.trigger = ContinuousTrigger(inputs[3])
+            if meta is not None and meta.dormant_class in meta.classes:
+                cc = self.continuous
+                self._continuous = ContinuousDecision(
+                    len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
+                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames, gap_frames=cc.gap_frames, vote=cc.vote)
+            return
+        self.trigger = build_trigger(*inputs)
+        if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
+            self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
+        elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
+            self.trigger.set_grasp(True)  # a new trigger on the same settled grasp

@@ -1,0 +1,237 @@
+"""The detector (runtime.detector): frames in, decisions out, with nothing of the service around it;
+and the daemon built around one detector (windows held back for a swap, a model taken out of service)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from firmware_io.client import Frame
+from firmware_io.layout import SensorLayout
+from firmware_io.recordings.recording import Recording
+from runtime.config import ContinuousConfig, SceneConfig, TriggerConfig, config_from_dict
+from runtime.daemon import Daemon
+from runtime.decision import ContinuousDecision
+from runtime.detector import Detector, ReportRule, Windows
+from runtime.model import load_model
+from runtime.sinks import Event
+from tests.tiny_models import tiny_model_bytes, write_model
+
+LAYOUT = SensorLayout.sdh2()
+
+
+def _pushes() -> Recording:
+    """Two pushes on one distal taxel, 32 Hz: frames for about 3 s."""
+    column = int(LAYOUT.columns("distal")[40])
+    levels = [0] * 5 + [900] * 20 + [0] * 45 + [900] * 20
+    frames = np.zeros((len(levels), LAYOUT.n_taxels), dtype=np.uint16)
+    frames[:, column] = levels
+    return Recording(LAYOUT, frames, np.arange(len(levels)) / 32.0)
+
+
+def _frames(rec: Recording, first: int = 0):
+    for i, values in enumerate(rec.frames):
+        yield Frame(first + i, round((first + i) * 31.25), time.perf_counter(), values)
+
+
+@pytest.fixture
+def model_path(tmp_path) -> Path:
+    folder = tmp_path / "models"
+    folder.mkdir()
+    return write_model(folder, "m.onnx", tiny_model_bytes())
+
+
+def test_the_detector_decides_what_the_daemon_reports(model_path):
+    """The same frames through a bare detector and through the daemon's ``handle_frame``: the same
+    classes at the same frames with the same scores (the daemon adds only the event line around them)."""
+    rec = _pushes()
+    detector = Detector(trigger=TriggerConfig(kind="threshold"))
+    detector.swap(load_model(model_path), rec.layout)
+    decisions = [d for d in map(detector.feed, _frames(rec)) if d is not None]
+    events: list[Event] = []
+    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}, "trigger": {"kind": "threshold"}}),
+                    on_event=events.append)
+    daemon.serve(load_model(model_path), rec.layout)
+    for frame in _frames(rec):
+        daemon.handle_frame(frame)
+    assert len(decisions) == 2 and all(d.problem is None and d.latency_us > 0 for d in decisions)
+    assert [(d.cls, d.first, d.frame.number) for d in decisions] == [(e.cls, e.frame_first, e.frame_last) for e in events]
+    assert [d.scores[0].tolist() for d in decisions] == [list(e.scores.values()) for e in events]
+    assert daemon.health.decisions == 2 and daemon.health.events == 2
+
+
+def test_the_report_rule_reports_only_event_classes_and_continuous_mode_only_what_it_confirms():
+    classes = ("pull", "push", "hold", "bump", "idle")
+    scores = np.zeros(5, dtype=np.float32)
+    rule = ReportRule(classes, ("pull", "push"))
+    assert [rule.judge(i, scores) for i in range(5)] == [0, 1, -1, -1, -1]  # hold, bump and dormant are not events
+    confirm = ReportRule(classes, ("pull", "push", "hold", "bump"), ContinuousDecision(5, 4, confirm_frames=2, rearm_frames=1))
+    assert [confirm.judge(label, scores) for label in (0, 0, 0, 4, 1, 1)] == [-1, 0, -1, -1, -1, 1]
+    confirm.reset()
+    assert confirm.judge(1, scores) == -1 and confirm.judge(1, scores) == 1
+
+
+def test_windows_end_in_order_and_a_frame_past_one_drops_it():
+    windows = Windows()
+    windows.open(14)
+    windows.open(20)
+    assert not windows.ends(13) and windows.ends(14) and len(windows) == 1
+    assert not windows.ends(21) and len(windows) == 0  # a frame never seen (skipped) drops its window
+    windows.open(30)
+    assert windows.clear() == 1 and not windows
+
+
+def test_a_grasp_message_is_applied_at_the_next_frame_and_survives_a_model_of_the_same_kind(model_path):
+    detector = Detector(trigger=TriggerConfig(kind="onset"))
+    detector.swap(load_model(model_path), LAYOUT)
+    detector.set_grasp(True, source="test")
+    assert detector.grasp_request == (True, "test") and detector.grasp_closed is None  # queued only
+    detector.feed(Frame(0, 0, time.perf_counter(), np.zeros(LAYOUT.n_taxels, dtype=np.uint16)))
+    assert detector.grasp_closed is True
+
+
+def test_continuous_mode_decides_every_frame_once_the_ring_holds_a_window(tmp_path):
+    folder = tmp_path / "models"
+    folder.mkdir()
+    path = write_model(folder, "m.onnx", tiny_model_bytes(weights=(0.01, -0.01, 0.0, 0.0), dormant_class="hold"))
+    rec = _pushes()
+    detector = Detector(SceneConfig(events=("pull", "push", "bump"), mode="continuous"),
+                        continuous=ContinuousConfig(confirm_frames=1, rearm_frames=0))
+    detector.swap(load_model(path), rec.layout)
+    decisions = [d for d in map(detector.feed, _frames(rec)) if d is not None]
+    assert len(decisions) == rec.n_frames - 15 + 1
+    assert {d.cls for d in decisions} <= {None, "pull", "push", "bump"}  # the dormant class is never reported
+
+
+def _daemon_with_a_window_open(folder: Path) -> Daemon:
+    """A daemon fed a push until a window is open (its last frame still to come)."""
+    folder.mkdir(exist_ok=True)
+    write_model(folder, "m.onnx", tiny_model_bytes())
+    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}}))
+    daemon.serve(load_model(folder / "m.onnx"), LAYOUT)
+    for frame in _frames(_pushes()):
+        daemon.handle_frame(frame)
+        if daemon.detector.window_open:
+            return daemon
+    raise AssertionError("no window opened")
+
+
+def test_a_reconnect_or_a_model_swap_mid_window_drops_the_open_window(tmp_path):
+    daemon = _daemon_with_a_window_open(tmp_path)
+    daemon.detector.fit(LAYOUT)  # the device reconnected (same layout): the history is forgotten
+    other = _daemon_with_a_window_open(tmp_path / "b")
+    other.models.use(load_model(tmp_path / "m.onnx"))  # SIGHUP or the watcher swapped a model in
+    assert not daemon.detector.window_open and not other.detector.window_open
+    assert daemon.detector.ring.count == 0
+
+
+def test_windows_that_keep_opening_hold_a_swap_or_reload_back_at_most_the_limit(tmp_path, caplog):
+    """A trigger that fires all the time (refractory_s = 0, rearm_quiet_s = 0) always has a window open:
+    a dropped-in model and a SIGHUP waited for ever (the attacker's reload storm). They wait for the
+    open windows' decisions at most HOLD_LIMIT_S; then those windows are dropped, in one warning."""
+    from runtime.daemon import HOLD_LIMIT_S
+
+    daemon = _daemon_with_a_window_open(tmp_path)
+    models = tmp_path / "models"
+    models.mkdir()
+    daemon.models.cfg = replace(daemon.cfg, model=replace(daemon.cfg.model, folder=str(models), poll_interval_s=60))
+    daemon.models.start()
+    write_model(models, "newer.onnx", tiny_model_bytes(tag="newer"))
+    daemon.models.watcher.poll(require_stable=False)
+    assert daemon.models.pending
+    t = 1000.0
+    daemon.take_pending_model(t)
+    daemon.take_pending_model(t + HOLD_LIMIT_S / 2)
+    assert Path(daemon.model.path).name == "m.onnx" and daemon.detector.window_open
+    with caplog.at_level("WARNING", logger="handover"):
+        daemon.take_pending_model(t + HOLD_LIMIT_S)
+    daemon.models.stop()
+    assert Path(daemon.model.path).name == "newer.onnx" and not daemon.detector.window_open
+    assert "dropped undecided" in caplog.text and "refractory_s" in caplog.text
+    assert not daemon.windows_hold(t + 2 * HOLD_LIMIT_S)  # nothing open: nothing held, the clock restarts
+    other = _daemon_with_a_window_open(tmp_path / "b")
+    assert other.windows_hold(t + 3 * HOLD_LIMIT_S)  # a fresh hold starts its own clock
+
+
+def _nan_when_pressed_at(rate_hz: float) -> bytes:
+    """A continuous-mode model at ``rate_hz`` that passes every static check but answers NaN scores
+    (sqrt of a negative number) once the frames' mean exceeds 1, i.e. on the first press."""
+    import json
+
+    import onnx
+    from onnx import helper
+
+    graph = onnx.load_from_string(tiny_model_bytes(weights=(-1.0, 0.0, 0.0, 0.0), bias=(1.0, 0.0, 0.0, 0.0),
+                                                   dormant_class="hold"))
+    add = next(n for n in graph.graph.node if n.op_type == "Add")
+    add.output[0] = "before_sqrt"
+    graph.graph.node.append(helper.make_node("Sqrt", ["before_sqrt"], ["scores"]))
+    graph.graph.node.sort(key=lambda n: n.op_type == "ArgMax")  # ArgMax last: it reads the scores
+    for prop in graph.metadata_props:
+        meta = json.loads(prop.value)
+        meta["sample_rate_hz"] = rate_hz
+        prop.value = json.dumps(meta)
+    return graph.SerializeToString()
+
+
+def test_a_broken_decision_is_a_problem_the_daemon_answers_with_the_fallback_on_a_new_ring(tmp_path):
+    """A continuous-mode decision that breaks the output contract takes its model out of service and hands
+    over to the model it replaced; at another sample rate that one starts a new, empty ring, and
+    decides once it holds a window."""
+    models = tmp_path / "models"
+    models.mkdir()
+    old = write_model(models, "old.onnx", tiny_model_bytes(dormant_class="hold"))
+    new = write_model(models, "new.onnx", _nan_when_pressed_at(40.0))
+    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}, "scene": {"mode": "continuous"}}))
+    daemon.serve(load_model(old), LAYOUT)
+    daemon.serve(load_model(new, warm_up=False), LAYOUT)  # the warm-up would have caught it: a sleeper
+    decided = 0
+    for i in range(80):  # frames at 40 Hz; the press from frame 30 on
+        values = np.full(LAYOUT.n_taxels, 500 if i >= 30 else 0, dtype=np.uint16)
+        daemon.handle_frame(Frame(i, round(i * 25), time.perf_counter(), values))
+        if i == 30:
+            assert Path(daemon.model.path).name == "old.onnx" and daemon.health.models_quarantined == 1
+            decided = daemon.health.decisions
+    assert daemon.health.decisions > decided and daemon.health.frame_errors == 0
+
+
+def test_continuous_mode_over_a_real_link_decides_the_frames_a_replay_decides(tmp_path):
+    """The TCP emulator at 32 Hz in real time: every frame once the ring holds a window, as a bare detector
+    replaying the same recording decides them."""
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.server import TcpEmulatorServer
+    from runtime.listeners import FrameRecorder
+
+    models = tmp_path / "models"
+    models.mkdir()
+    path = write_model(models, "m.onnx", tiny_model_bytes(weights=(0.01, -0.01, 0.0, 0.0), dormant_class="hold"))
+    rec = _pushes()
+    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0, loop=False)).start()
+    seen = FrameRecorder()
+    try:
+        daemon = Daemon(config_from_dict({"device": {"url": server.url}, "sinks": {"stdout": False},
+                                          "model": {"folder": str(models)}, "scene": {"mode": "continuous"}}))
+        daemon.listeners.append(seen)
+        stopper = threading.Thread(target=lambda: (_until(lambda: daemon.health.frames_received >= rec.n_frames),
+                                                   daemon.request_stop()), daemon=True)
+        stopper.start()
+        daemon.run()
+        stopper.join()
+    finally:
+        server.stop()
+    assert daemon.health.frames_received == rec.n_frames
+    detector = Detector(SceneConfig(mode="continuous"))
+    detector.swap(load_model(path), rec.layout)
+    replayed = [d.frame.number for d in map(detector.feed, _frames(rec)) if d is not None]
+    assert [n for n, _ in seen.decisions] == replayed and len(replayed) == rec.n_frames - 15 + 1
+
+
+def _until(condition, limit_s: float = 30.0) -> None:
+    end = time.monotonic() + limit_s
+    while not condition() and time.monotonic() < end:
+        time.sleep(0.01)
