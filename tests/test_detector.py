@@ -200,35 +200,38 @@ def test_a_broken_decision_is_a_problem_the_daemon_answers_with_the_fallback_on_
     assert daemon.health.decisions > decided and daemon.health.frame_errors == 0
 
 
-def test_continuous_mode_over_a_real_link_decides_the_frames_a_replay_decides(tmp_path):
-    """The TCP emulator at 32 Hz in real time: every frame once the ring holds a window, as a bare detector
-    replaying the same recording decides them."""
+def test_continuous_mode_over_a_real_link_decides_every_frame_once_the_ring_holds_a_window(tmp_path):
+    """The TCP emulator at 32 Hz in real time: a decision on every frame from the ring's first full window
+    on, none skipped (the emulator's clock runs from power-on: the frames sent before the daemon connected
+    are not its)."""
     from firmware_io.emulator.device import DeviceEmulator
     from firmware_io.emulator.server import TcpEmulatorServer
     from runtime.listeners import FrameRecorder
 
     models = tmp_path / "models"
     models.mkdir()
-    path = write_model(models, "m.onnx", tiny_model_bytes(weights=(0.01, -0.01, 0.0, 0.0), dormant_class="hold"))
-    rec = _pushes()
-    server = TcpEmulatorServer(DeviceEmulator(rec, speed=1.0, loop=False)).start()
+    write_model(models, "m.onnx", tiny_model_bytes(weights=(0.01, -0.01, 0.0, 0.0), dormant_class="hold"))
+    emulator = DeviceEmulator(_pushes(), speed=1.0, loop=False)
+    server = TcpEmulatorServer(emulator).start()
     seen = FrameRecorder()
     try:
         daemon = Daemon(config_from_dict({"device": {"url": server.url}, "sinks": {"stdout": False},
                                           "model": {"folder": str(models)}, "scene": {"mode": "continuous"}}))
         daemon.listeners.append(seen)
-        stopper = threading.Thread(target=lambda: (_until(lambda: daemon.health.frames_received >= rec.n_frames),
-                                                   daemon.request_stop()), daemon=True)
+
+        def stop_when_played() -> None:
+            _until(lambda: emulator.finished)
+            _until(lambda: daemon.health.device_faults > 0, limit_s=0.5)  # the last frames read
+            daemon.request_stop()
+
+        stopper = threading.Thread(target=stop_when_played, daemon=True)
         stopper.start()
         daemon.run()
         stopper.join()
     finally:
         server.stop()
-    assert daemon.health.frames_received == rec.n_frames
-    detector = Detector(SceneConfig(mode="continuous"))
-    detector.swap(load_model(path), rec.layout)
-    replayed = [d.frame.number for d in map(detector.feed, _frames(rec)) if d is not None]
-    assert [n for n, _ in seen.decisions] == replayed and len(replayed) == rec.n_frames - 15 + 1
+    assert len(seen.frames) > 30 and daemon.health.frames_received == len(seen.frames)
+    assert [n for n, _ in seen.decisions] == seen.frames[14:]
 
 
 def _until(condition, limit_s: float = 30.0) -> None:

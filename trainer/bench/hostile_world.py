@@ -301,7 +301,7 @@ def silent_dns(work: Path) -> dict:
         def build():
             nonlocal daemon
             daemon = served_daemon(work, f'stdout = false\nudp = ["robot-pc.example:{port}"]')
-            daemon._do_reload()  # SIGHUP: the sinks are built again
+            daemon.reload()  # SIGHUP: the sinks are built again
             return daemon
 
         built, _ = in_thread(build, guard_s=HANG_GUARD_S / 3)
@@ -375,12 +375,12 @@ def foreign_grasp(work: Path) -> dict:
             foreign = _send_as(NOBODY, address)  # "sent", or the errno the kernel refused it with
             if foreign == "sent":
                 _wait(lambda c=control: c.refused + c.received >= 1, HANG_GUARD_S / 3)
-            heard_foreign = daemon.grasp_request is not None
+            heard_foreign = daemon.detector.grasp_request is not None
             _send_as(None, address)
             _wait(lambda c=control: c.received >= 1, HANG_GUARD_S / 3)
             mode = oct(os.stat(address).st_mode & 0o777) if kind == "path" else "-"
             outcomes[kind] = {"foreign": foreign, "refused": control.refused, "heard_foreign": heard_foreign,
-                              "own_heard": daemon.grasp_request == (False, "control"), "mode": mode}
+                              "own_heard": daemon.detector.grasp_request == (False, "control"), "mode": mode}
         finally:
             daemon.stop_control()
     open_net = grasp_exposure(Ros2Config(grasp=True), {"ROS_DOMAIN_ID": "7"})
