@@ -445,7 +445,7 @@ def state_file_paths(work: Path) -> dict:
         source = Path(daemon.cfg.source)
         source.write_text(top + source.read_text().replace("[model]\n", "[model]\n" + in_model))
         with LogLines() as said:
-            daemon._do_reload()
+            daemon.reload()
         kept = daemon.cfg.health_file is None and daemon.cfg.model.quarantine_file is None
         reload_lines = [s for s in said if key in s]
         rows[name] = {"check": check.returncode == 2 and one_line(check.stderr, key),
@@ -471,7 +471,7 @@ def partial_config(work: Path) -> dict:
         else:
             source.write_text("" if name == "empty" else good[: good.index("[trigger]") + 12])
         with LogLines() as said:
-            finished, _ = in_thread(daemon._do_reload, guard_s=HANG_GUARD_S / 3)
+            finished, _ = in_thread(daemon.reload, guard_s=HANG_GUARD_S / 3)
         kept = finished and daemon.cfg == before
         lines = [s for s in said if str(source) in s]
         check = cli(["run", "--config", str(source), "--check"], timeout=HANG_GUARD_S)
