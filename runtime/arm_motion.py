@@ -102,3 +102,40 @@ class ArmMotion:
             self.dropped += 1
             return True
         return False
+
+
+class JointSpeed:
+    """The arm's motion read from joint states (``sensor_msgs/JointState`` on ``[ros2] joint_states``).
+
+    The arm moves while any joint is faster than ``threshold``: the message's velocities when it has
+    them, else the position change since the previous message over their time stamps (many drivers
+    publish positions only). It answers only on a change, and repeats ``moving`` every ``renew_s``
+    while the arm moves, so a long move is never taken for a lost ``arm still`` and a 100 Hz topic
+    is not 100 messages a second to the daemon. Non-finite values are ignored.
+    """
+
+    def __init__(self, threshold: float, renew_s: float = 1.0) -> None:
+        self.threshold = float(threshold)
+        self.renew_s = float(renew_s)
+        self.moving: bool | None = None
+        self._said_at = float("-inf")
+        self._prev: tuple[list[float], float] | None = None
+
+    def update(self, positions: list[float], velocities: list[float], stamp_s: float) -> bool | None:
+        """One message; the word to send (True: moving, False: still) or None (nothing new)."""
+        finite_v = [abs(v) for v in velocities if math.isfinite(v)]
+        if finite_v:
+            speed = max(finite_v)
+        else:
+            prev, self._prev = self._prev, (list(positions), stamp_s)
+            if prev is None or stamp_s <= prev[1] or len(prev[0]) != len(positions):
+                return None
+            moves = [abs(a - b) for a, b in zip(positions, prev[0], strict=True) if math.isfinite(a) and math.isfinite(b)]
+            if not moves:
+                return None
+            speed = max(moves) / (stamp_s - prev[1])
+        moving = speed > self.threshold
+        if moving == self.moving and not (moving and stamp_s - self._said_at >= self.renew_s):
+            return None
+        self.moving, self._said_at = moving, stamp_s
+        return moving

@@ -6,7 +6,10 @@ Topics (``ns`` = ``[ros2] namespace``, default ``/handover``):
 - ``ns/model``   std_msgs/String, latched (transient local, depth 1): the last ``"type": "model"`` line;
 - ``/diagnostics`` diagnostic_msgs/DiagnosticArray: the health view, about once a second;
 - ``ns/pads/<pad>`` sensor_msgs/Image mono16, one per pad, rows x columns as on the pad (optional);
-- ``ns/grasp``   std_msgs/String ``closed`` / ``open`` -> ``daemon.set_grasp`` (optional).
+- ``ns/grasp``   std_msgs/String ``closed`` / ``open`` -> ``daemon.set_grasp`` (optional);
+- ``ns/arm``     std_msgs/String ``moving`` / ``still`` -> ``daemon.set_arm_moving`` (optional);
+- ``[ros2] joint_states`` sensor_msgs/JointState: the arm moves while a joint is faster than
+  ``joint_speed`` (runtime.arm_motion.JointSpeed) -> ``daemon.set_arm_moving`` (optional).
 
 Events are published on the daemon's thread (a String publish costs a few microseconds).
 Everything else runs on one executor thread: the health snapshot is handed over by a guard
@@ -29,9 +32,10 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import String
 
+from runtime.arm_motion import JointSpeed
 from runtime.config import Ros2Config
 from runtime.sinks import Sink
 
@@ -39,6 +43,8 @@ log = logging.getLogger("handover.ros2")
 
 GRASP_WORDS = {"closed": True, "open": False}
 """What ``ns/grasp`` accepts (case and surrounding blanks ignored)."""
+ARM_WORDS = {"moving": True, "still": False}
+"""What ``ns/arm`` accepts (case and surrounding blanks ignored)."""
 DIAGNOSTICS_TOPIC = "/diagnostics"
 _MODEL_PREFIX = '{"type":"model"'
 _LEVELS = {"streaming": DiagnosticStatus.OK, "stopped": DiagnosticStatus.STALE, "failed": DiagnosticStatus.ERROR}
@@ -111,7 +117,14 @@ class Ros2Sink(Sink):
         self._thread.start()
         log.info("ros2: node %s/%s publishes %s/events and %s%s%s", cfg.namespace.rstrip("/"), cfg.node_name,
                  cfg.namespace, DIAGNOSTICS_TOPIC, f", {cfg.namespace}/pads/* at {cfg.pad_rate_hz:g} Hz" if cfg.pads
-                 else "", f"; listens on {cfg.namespace}/grasp" if cfg.grasp else "")
+                 else "", self._listens())
+
+    def _listens(self) -> str:
+        cfg = self.cfg
+        topics = [f"{cfg.namespace}/{t}" for t, on in (("grasp", cfg.grasp), ("arm", cfg.arm)) if on]
+        if cfg.joint_states:
+            topics.append(f"{cfg.joint_states} (joint speed > {cfg.joint_speed:g})")
+        return f"; listens on {', '.join(topics)}" if topics else ""
 
     def _build_node(self) -> None:
         cfg = self.cfg
@@ -129,6 +142,11 @@ class Ros2Sink(Sink):
             node.create_timer(1.0 / cfg.pad_rate_hz, self._publish_pads)
         if cfg.grasp:
             node.create_subscription(String, "grasp", self._on_grasp, 10)
+        if cfg.arm:
+            node.create_subscription(String, "arm", self._on_arm, 10)
+        if cfg.joint_states:
+            self._joints = JointSpeed(cfg.joint_speed)
+            node.create_subscription(JointState, cfg.joint_states, self._on_joints, 10)
         self._executor = SingleThreadedExecutor(context=self._context)
         self._executor.add_node(node)
 
@@ -208,6 +226,29 @@ class Ros2Sink(Sink):
             self.daemon.set_grasp(GRASP_WORDS[word], source="ros2")
         except Exception as exc:
             self._warn(f"ros2: grasp {word!r} not taken ({exc})")
+
+    def _on_arm(self, msg: String) -> None:
+        word = msg.data.strip().lower()
+        if word not in ARM_WORDS:
+            self._warn(f"ros2: {self.cfg.namespace}/arm: expected 'moving' or 'still', got {msg.data[:40]!r}; ignored")
+            return
+        self._set_arm(ARM_WORDS[word])
+
+    def _on_joints(self, msg: JointState) -> None:
+        try:
+            stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            moving = self._joints.update(list(msg.position), list(msg.velocity), stamp or time.monotonic())
+        except Exception as exc:  # a malformed message must not end the executor
+            self._warn(f"ros2: {self.cfg.joint_states}: joint state not read ({exc})")
+            return
+        if moving is not None:
+            self._set_arm(moving)
+
+    def _set_arm(self, moving: bool) -> None:
+        try:
+            self.daemon.set_arm_moving(moving, source="ros2")
+        except Exception as exc:
+            self._warn(f"ros2: arm {'moving' if moving else 'still'} not taken ({exc})")
 
     def _warn(self, text: str) -> None:
         now = time.monotonic()

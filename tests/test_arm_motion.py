@@ -176,3 +176,23 @@ def test_recorded_arm_move_stretches_count_as_marks_and_stored_marks_win():
 def test_marks_that_do_not_fit_the_recording_are_one_line_naming_the_key(bad):
     with pytest.raises(ValueError, match=r"meta\.arm_marks"):
         arm_marks.marks_of({arm_marks.KEY: bad}, 10)
+
+
+def test_joint_speed_says_moving_and_still_on_a_change_and_repeats_moving_while_it_lasts():
+    from runtime.arm_motion import JointSpeed
+
+    js = JointSpeed(threshold=0.1, renew_s=1.0)
+    words = [js.update([0.0], [v], t) for t, v in ((0.0, 0.0), (0.01, 0.5), (0.02, 0.5), (1.05, 0.4), (1.06, 0.0))]
+    assert words == [False, True, None, True, False]
+    assert js.update([0.0], [float("nan")], 2.0) is None  # nothing finite: positions say it, from the next message
+
+
+def test_joint_speed_from_positions_when_the_driver_sends_no_velocities():
+    from runtime.arm_motion import JointSpeed
+
+    js = JointSpeed(threshold=0.1)
+    assert js.update([0.0, 1.0], [], 10.0) is None  # one message: no speed yet
+    assert js.update([0.0, 1.0], [], 10.1) is False
+    assert js.update([0.0, 1.05], [], 10.2) is True  # 0.5 rad/s
+    assert js.update([0.0, 1.05], [], 10.2) is None  # the same stamp again: no speed
+    assert js.update([0.0], [], 10.3) is None  # joints changed in number: start over

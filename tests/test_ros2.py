@@ -165,6 +165,43 @@ def test_the_grasp_topic_reaches_the_daemon(tmp_path, caplog):
         listener.close()
 
 
+def test_the_arm_topic_and_joint_states_reach_the_daemon(tmp_path, caplog):
+    from sensor_msgs.msg import JointState
+
+    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"arm": True, "namespace": "/lab/hand",
+                                                         "joint_states": "/robot/joint_states", "joint_speed": 0.1})
+    daemon = Daemon(cfg)
+    listener = Listener("/lab/hand")
+    arm = listener.node.create_publisher(String, "/lab/hand/arm", 10)
+    joints = listener.node.create_publisher(JointState, "/robot/joint_states", 10)
+    try:
+        assert wait_for(lambda: arm.get_subscription_count() >= 1 and joints.get_subscription_count() >= 1)
+        arm.publish(String(data=" Moving\n"))
+        assert wait_for(lambda: daemon.arm_request == (True, "ros2"))
+        arm.publish(String(data="still"))
+        assert wait_for(lambda: daemon.arm_request == (False, "ros2"))
+        with caplog.at_level(logging.WARNING, logger="handover.ros2"):
+            arm.publish(String(data="flying"))
+            assert wait_for(lambda: "expected 'moving' or 'still'" in caplog.text, 5.0)
+        assert daemon.arm_request == (False, "ros2")
+
+        def state(t: float, position: list[float], velocity: list[float]) -> JointState:
+            msg = JointState(name=["shoulder", "elbow"], position=position, velocity=velocity)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = int(t), int((t % 1) * 1e9)
+            return msg
+
+        joints.publish(state(100.0, [0.0, 0.0], [0.0, 0.5]))  # the elbow turns at 0.5 rad/s
+        assert wait_for(lambda: daemon.arm_request == (True, "ros2"))
+        joints.publish(state(100.1, [0.0, 0.05], [0.0, 0.01]))
+        assert wait_for(lambda: daemon.arm_request == (False, "ros2"))
+        joints.publish(state(101.0, [0.0, 0.05], []))  # positions only: speed from the change
+        joints.publish(state(101.1, [0.0, 0.10], []))  # 0.5 rad/s
+        assert wait_for(lambda: daemon.arm_request == (True, "ros2"))
+    finally:
+        daemon.sinks.close()
+        listener.close()
+
+
 def test_a_node_rclpy_refuses_is_one_line(caplog):
     from runtime.ros2 import open_ros2_sink
 
