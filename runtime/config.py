@@ -289,6 +289,15 @@ def _state_file(k: Key, table: dict) -> str | None:
     return value
 
 
+def _instance(k: Key, table: dict) -> str | None:
+    from runtime.instance_name import instance_problem
+
+    name = table.get(k.short)
+    if name is not None and (problem := instance_problem(name)):
+        raise ConfigError(f"instance: {problem}")
+    return name
+
+
 _ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -323,6 +332,7 @@ _READERS: dict[str, Callable[[Key, dict], Any]] = {
     "trigger.fraction": _trigger_fraction, "sinks.udp": _sinks_udp, "sinks.unix": _sinks_unix,
     "control.socket": _control_socket, "log_level": _log_level, "health_file": _state_file,
     "model.quarantine_file": _state_file,
+    "instance": _instance,
     "ros2.namespace": _ros2_namespace, "ros2.node_name": _ros2_node_name, "ros2.joint_states": _ros2_joint_states,
 }
 """Keys read with more than their declared type and range."""

@@ -88,6 +88,9 @@ KEYS: tuple[Key, ...] = (
     Key("log_level", str, "info", "what reaches the journal", choices=("debug", "info", "warning", "error")),
     Key("health_file", str, None, "JSON status, rewritten atomically about once a second (its folder must exist)",
         optional=True, example="/var/lib/handover/status.json", shown=True),
+    Key("instance", str, None, "this daemon's name in every event and model line, the health file and /diagnostics "
+        "(unset: <host>:<device>, e.g. robot-pc:dsacon32m; set it when two daemons share a listener)", optional=True,
+        example="left-hand"),
     Key("realtime_priority", int, DEFAULT_PRIORITY,
         "SCHED_FIFO priority of the hot path (0 = normal scheduling); the unit's LimitRTPRIO=20 permits it",
         range=(0, 99)),

@@ -57,6 +57,10 @@ class Health:
         self.events_invalid = 0
         """Events not sent because they were not valid JSON (NaN/inf)."""
         self.model_id: str | None = None
+        self.instance = ""
+        """Which daemon this is (runtime.instance_name), as in its event lines."""
+        self.trigger: str | None = None
+        """The trigger serving now, with its settings (e.g. ``onset (change 0.12, ...)``), or None without a model."""
         self.device_state = "starting"
         self.last_error = ""
         """The problem that holds now ("" once it is resolved: streaming again, a model serving)."""
@@ -126,6 +130,7 @@ class Health:
         p50, p99 = self.latency_percentiles()
         return {
             "time": time.time(),
+            "instance": self.instance,
             "uptime_s": round(time.time() - self.started, 3),
             "device_state": self.device_state,
             "frame_rate_hz": round(self.frame_rate, 2),
@@ -152,6 +157,7 @@ class Health:
             "frame_errors": self.frame_errors,
             "events_invalid": self.events_invalid,
             "model_id": self.model_id,
+            "trigger": self.trigger,
             "last_error": self.last_error,
             "last_error_at": None if self.last_error_at is None else round(self.last_error_at, 3),
             "recent_errors": list(self.errors),

@@ -80,6 +80,8 @@ def diagnostic_status(snapshot: dict, name: str, hardware_id: str) -> Diagnostic
     if level == DiagnosticStatus.OK and not snapshot.get("model_id"):
         level = DiagnosticStatus.WARN
     message = f"{state}; {snapshot.get('frame_rate_hz', 0)} frames/s; model {snapshot.get('model_id') or 'none'}"
+    if snapshot.get("instance"):
+        message = f"{snapshot['instance']}: {message}"
     if level != DiagnosticStatus.OK and snapshot.get("last_error"):
         message += f"; {snapshot['last_error']}"
     values = dict(snapshot)
