@@ -120,3 +120,7 @@ def test_a_config_is_read_whole_from_a_regular_file_and_a_fifo_is_refused_at_onc
     os.mkfifo(fifo)
     with pytest.raises(OSError, match="not a regular file"):
         read_whole(fifo)
+
+
+def test_crafted_dsa_files_are_one_line_and_never_allocate_what_the_header_asks(tmp_path):
+    _held(W.crafted_dsa(tmp_path))

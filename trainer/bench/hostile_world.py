@@ -484,3 +484,69 @@ def partial_config(work: Path) -> dict:
     held = all(all(r.values()) for r in rows.values())
     return {"held": held, "rows": rows, "detail": "; ".join(
         f"{k}: " + ", ".join(f"{w} {ok}" for w, ok in r.items()) for k, r in rows.items())}
+
+
+# -- 13: crafted .dsa files ---------------------------------------------------------------------------
+def _dsa(cells_x: object, cells_y: object, token: str, fullscale: str = "4095", width: str = "3.4",
+         stamp: str = "1000") -> bytes:
+    """A one-matrix, one-frame DSA-Konqueror file (plain XML) with the given header values."""
+    return (f'<?xml version="1.0"?><root><sensor><matrix index="0"><cells_x>{cells_x}</cells_x>'
+            f'<cells_y>{cells_y}</cells_y><texel_width>{width}</texel_width><fullscale>{fullscale}</fullscale>'
+            f'</matrix></sensor><data><frame index="0"><time_stamp>{stamp}</time_stamp><frame_data>{token}'
+            '</frame_data></frame></data></root>').encode()
+
+
+def crafted_dsa_files(folder: Path) -> dict[str, Path]:
+    import struct
+
+    def run(n: float) -> str:  # a zero run of n taxels
+        return struct.pack(">f", -float(n)).hex()
+
+    five = struct.pack(">f", 5.0).hex() * 4
+    files = {"65536x32768 matrix, one zero run": _dsa(65536, 32768, run(65536 * 32768)),
+             "1e30 cells": _dsa(10**30, 1, run(1e30)), "fullscale = nan": _dsa(2, 2, five, fullscale="nan"),
+             "fullscale = 1e400": _dsa(2, 2, five, fullscale="1e400"), "texel_width = 1e400": _dsa(2, 2, five, width="1e400"),
+             "time stamp of 23 digits": _dsa(2, 2, five, stamp="9" * 23)}
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for i, (name, data) in enumerate(files.items()):
+        out[name] = folder / f"crafted{i}.dsa"
+        out[name].write_bytes(data)
+    return out
+
+
+READER = """import json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+from firmware_io.recordings.importers import import_any
+from firmware_io.recordings.recording import RecordingError
+out = {}
+for path in sys.argv[1:]:
+    try:
+        import_any(path)
+        out[path] = "accepted"
+    except RecordingError as exc:
+        out[path] = "one line" if str(exc).startswith(path) and "\\n" not in str(exc) else "unnamed: " + str(exc)
+    except BaseException as exc:
+        out[path] = type(exc).__name__ + ": " + str(exc)[:120]
+print(json.dumps(out))
+"""
+
+
+def crafted_dsa(work: Path) -> dict:
+    """Crafted .dsa files (a header declaring 65536 x 32768 taxels, a NaN full scale, numbers too big
+    for any field): refused in one line naming the file, without allocating what the header asks
+    (the reader runs with 2 GiB of address space), and ``handover import`` says the same."""
+    files = crafted_dsa_files(work / "crafted")
+    done = subprocess.run([sys.executable, "-c", READER, *map(str, files.values())], capture_output=True, text=True,
+                          cwd=ROOT, timeout=4 * HANG_GUARD_S)
+    try:
+        outcome = json.loads(done.stdout)
+    except ValueError:
+        outcome = {}
+    rows = {name: outcome.get(str(path), f"reader died: {done.stderr.strip()[-120:]}") for name, path in files.items()}
+    imported = cli(["import", str(work / "crafted"), "--out", str(work / "imported")], timeout=4 * HANG_GUARD_S)
+    unexpected = "unexpected" in imported.stderr or "Traceback" in imported.stderr
+    held = all(v == "one line" for v in rows.values()) and not unexpected
+    return {"held": held, "rows": rows,
+            "detail": "; ".join(f"{k}: {v}" for k, v in rows.items()) + f"; handover import: "
+                      f"{'an unexpected error' if unexpected else 'one line a file'}"}

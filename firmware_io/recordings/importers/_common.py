@@ -7,6 +7,29 @@ import numpy as np
 from firmware_io.recordings.recording import RecordingError
 
 MAX_12BIT = 4095
+VALUES_PER_BYTE = 16
+"""Most taxel values a file may decode to per byte of its (inflated) text. Why: a header may
+declare any matrix size, and zero runs make a few bytes stand for millions of values; the
+real SDH-2 recordings decode to at most 3.3 values a byte, so a file asking for more is
+refused before anything that size is allocated."""
+MAX_VALUES = 128 << 20
+"""Most taxel values one recording may hold at all (the largest real file holds 8.9 million)."""
+
+
+def check_allocation(n_frames: int, n_taxels: int, source_bytes: int) -> None:
+    """Refuse a recording that would decode to more values than its size can hold honestly."""
+    values = int(n_frames) * int(n_taxels)
+    bound = min(MAX_VALUES, VALUES_PER_BYTE * int(source_bytes))
+    if values > bound:
+        raise RecordingError(f"declares {n_frames} frames of {n_taxels} taxels ({values} values) from {source_bytes} "
+                             f"bytes of frame data; refused (at most {VALUES_PER_BYTE} values a byte, {MAX_VALUES} in all)")
+
+
+def check_fullscale(value: float, where: str) -> float:
+    """A full scale a 12-bit sensor can report (1..4095), else one error naming ``where``."""
+    if not (1 <= value <= MAX_12BIT):  # also NaN
+        raise RecordingError(f"{where}: fullscale {value!r} is not a 12-bit sensor's full scale (1..{MAX_12BIT})")
+    return value
 
 
 def keep_increasing(frames: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:

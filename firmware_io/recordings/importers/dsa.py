@@ -31,7 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import FULL_SCALE_12BIT, LayoutError, MatrixInfo, SensorLayout
-from firmware_io.recordings.importers._common import check_range, describe_timing, keep_increasing
+from firmware_io.recordings.importers._common import (
+    check_allocation,
+    check_fullscale,
+    check_range,
+    describe_timing,
+    keep_increasing,
+)
 from firmware_io.recordings.recording import Recording, RecordingError
 
 SUFFIX = ".dsa"
@@ -171,6 +177,9 @@ def _parse_matrix(m: ET.Element) -> MatrixInfo:
         fullscale = float(m.findtext("fullscale") or FULL_SCALE_12BIT)
     except ValueError as exc:
         raise RecordingError(f"bad <matrix> header ({exc})") from None
+    check_fullscale(fullscale, f"matrix {index}")
+    if not all(np.isfinite((width, height, *center))):
+        raise RecordingError(f"matrix {index}: texel size and centre must be finite numbers")
     rows = _mask_rows(m.findtext("static_mask"))
     mask = None
     if rows is not None:
@@ -208,7 +217,11 @@ def _parse_frames(body: bytes, layout: SensorLayout) -> tuple[np.ndarray, np.nda
         raise RecordingError(f"header says {int(declared.group(1))} frames, the file holds {len(matches)}")
     if not matches:
         raise RecordingError("holds no frames")
-    stamps_ms = np.array([int(t) for t, _ in matches], dtype=np.int64)
+    check_allocation(len(matches), layout.n_taxels, len(body))
+    try:
+        stamps_ms = np.array([int(t) for t, _ in matches], dtype=np.int64)
+    except OverflowError:
+        raise RecordingError("a <time_stamp> does not fit in 64 bits (ms since 1970 do)") from None
     hex_parts = [d.translate(None, _WHITESPACE) for _, d in matches]
     n_hex = np.array([len(h) for h in hex_parts], dtype=np.int64)
     odd = np.flatnonzero((n_hex % 8 != 0) | (n_hex == 0))

@@ -164,13 +164,13 @@ def _layout(first: list) -> SensorLayout:
 
 def _frames(messages: list[list], layout: SensorLayout) -> np.ndarray:
     sizes = [(m.cells_x, m.cells_y) for m in layout.matrices]
+    for k, mats in enumerate(messages):  # every size checked before the frames are allocated: a message may
+        if [(int(m.cells_x), int(m.cells_y)) for m in mats] != sizes:  # declare any size, only its array is real
+            raise RecordingError(f"message {k}: matrix sizes differ from the first message")
+        if any(len(m.tactile_array) != m.cells_x * m.cells_y for m in mats):
+            raise RecordingError(f"message {k}: a tactile_array length does not match cells_x * cells_y")
     out = np.empty((len(messages), layout.n_taxels), dtype=np.int32)
     for k, mats in enumerate(messages):
-        if [(int(m.cells_x), int(m.cells_y)) for m in mats] != sizes:
-            raise RecordingError(f"message {k}: matrix sizes differ from the first message")
-        row = [np.asarray(m.tactile_array) for m in mats]
-        if any(len(r) != m.cells_x * m.cells_y for r, m in zip(row, mats, strict=True)):
-            raise RecordingError(f"message {k}: a tactile_array length does not match cells_x * cells_y")
-        out[k] = np.concatenate(row)
+        out[k] = np.concatenate([np.asarray(m.tactile_array) for m in mats])
     check_range(out, layout.fullscale, "message")
     return out.astype(np.uint16)
