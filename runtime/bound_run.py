@@ -1,8 +1,7 @@
 """One window through onnxruntime with its buffers bound once (the daemon's decision).
 
 ``InferenceSession.run`` checks and converts its feed dict, makes new output arrays and wraps them
-on every call: measured on the default distal graph, one window back to back, 38.0 us through
-``session.run`` and 36.4 us through this (issue #16). Here the
+on every call, a few per cent of a decision of the default graph (results/latency.md). Here the
 input is a fixed staging array bound once (the ring's window is copied into it: 15 x 234 floats, well
 under a microsecond) and the outputs are preallocated arrays bound once; a run is one
 ``run_with_iobinding``. Answers are copies, so a caller may keep them past the next run.

@@ -213,11 +213,10 @@ def session_options(intra_op_threads: int = 1, allow_spinning: bool = False):
     """ORT options for a latency-bound daemon: one thread, no spinning (flat tail on a busy core).
 
     Chosen by measurement (``results/latency.md``, one window, sessions interleaved): for a BoW
-    graph ``ORT_ENABLE_EXTENDED`` decides about 22 % faster than ``ORT_ENABLE_ALL``, whose layout pass
-    turns the codeword Conv into NCHWc with reorder nodes around it. For the default (feature) graph
-    basic, extended and all, the arena off, denormals as zero and an IOBinding with preallocated
-    outputs were all within 10 % of each other (issue #16); without the memory pattern it was 10 %
-    slower with a long tail, so that stays on."""
+    graph ``ORT_ENABLE_EXTENDED`` decides faster than ``ORT_ENABLE_ALL``, whose layout pass turns the
+    codeword Conv into NCHWc with reorder nodes around it. For the default (feature) graph the
+    optimisation levels, the arena, denormals as zero and an IOBinding made no difference beyond
+    the run-to-run spread; without the memory pattern it was slower with a long tail, so that stays on."""
     import onnxruntime as ort
 
     opts = ort.SessionOptions()

@@ -2,7 +2,7 @@
 
 Why not the ``onnx`` package: the daemon installs numpy + onnxruntime only, and onnxruntime
 does not expose the graph's operator domains. Reading the few fields needed straight from the
-protobuf wire format (varints and length-delimited fields; see onnx/onnx.proto) is ~80 lines,
+protobuf wire format (varints and length-delimited fields; see onnx/onnx.proto) is short,
 has no dependency and no version skew, and is checked against ``onnx`` in the tests.
 
 Fields used (onnx.proto3 numbers, onnx 1.23): ModelProto.graph = 7, .opset_import = 8,

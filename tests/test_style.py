@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
@@ -18,3 +19,20 @@ def test_ruff_clean():
         pytest.skip("ruff is not installed (it comes with the dev extra)")
     result = subprocess.run([ruff, "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+ISSUE_NUMBER = re.compile(r"#\d+|\b[Ii]ssues? #?\d+")
+"""``#16``, ``issue 13``, ``issues #12``: an issue number (what a reader cannot look up in the code)."""
+
+
+def test_no_issue_numbers_in_the_packages():
+    """Docstrings and comments say why, not which issue asked for it (the tracker is not shipped)."""
+    found = [f"{path.relative_to(ROOT)}:{n}: {line.strip()}"
+             for package in ("firmware_io", "runtime", "trainer") for path in sorted((ROOT / package).rglob("*.py"))
+             for n, line in enumerate(path.read_text().splitlines(), 1) if ISSUE_NUMBER.search(line)]
+    assert not found, "\n".join(found)
+
+
+def test_the_issue_number_check_sees_them():
+    assert all(ISSUE_NUMBER.search(s) for s in ("(issue #16)", "issue 13", "see #19", "Issues 12"))
+    assert not any(ISSUE_NUMBER.search(s) for s in ("pad 3", "# comment", "[#] x", "tissue 3"))

@@ -1,4 +1,4 @@
-"""``handover bench hostile``: the daemon and the tools under attack, with counts (issue #19).
+"""``handover bench hostile``: the daemon and the tools under attack, with counts.
 
 Four kinds of hostile input, each counted by outcome; a *failure* is any outcome the house
 rules forbid (a crash, a traceback, more than one line, a non-JSON line on stdout, a frame the
@@ -248,7 +248,7 @@ def markdown(res: dict) -> list[str]:
     m, f, r, c, d = (res[k] for k in ("models", "frames", "recordings", "config", "daemon"))
     mu = m["mutations"]
     lines = [
-        "# Hostile input (issue #19)", "",
+        "# Hostile input", "",
         f"**{res['hostile_failures']} failures** (a crash, a traceback, more than one line, a non-JSON line on "
         "stdout, a frame the sensor cannot send reaching the classifier, an out-of-range number accepted).", "",
         "## Models", "",

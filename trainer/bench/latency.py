@@ -196,7 +196,7 @@ def run(args) -> dict:
 
 TARGETS = {"onnx_p50_us": 30.0, "onnx_p50_us_all_pads": 60.0, "daemon_p999_us": 200.0, "e2e_p999_us": 500.0,
            "e2e_p999_us_load": 1000.0, "paced_over_back_to_back": 1.5, "rss_mb": 80.0}
-"""Issue #16's targets (at most), each key as written to latency.json."""
+"""The latency targets (at most), each key as written to latency.json."""
 
 
 def headline(res: dict) -> dict:
@@ -382,7 +382,7 @@ def markdown(res: dict) -> list[str]:
              f"Deadline: one sample period, {DEADLINE_US:.0f} us at 32 Hz. Model: the default ({_kind(m)}T={m['T']}, "
              f"{m['n_channels']} taxels of pads {m['pads']}, {m['n_nodes']} nodes; {m.get('n_nodes_distal', '?')} on the distal pads) trained "
              "on the simulated protocol (synthetic). The last column says how many times each figure fits into "
-             "the deadline.", "", res["note"], "", "## Targets of issue #16", "", *_targets_lines(res), "",
+             "the deadline.", "", res["note"], "", "## Targets", "", *_targets_lines(res), "",
              "`onnx_p50_us` (distal pads) and `onnx_p50_us_all_pads` are the graph's median alone, one window back to "
              "back (the `alone` rows of the implementation table). "
              "`daemon_p999_us` and `paced_over_back_to_back` (medians) come from the stage table below, paced at "
@@ -405,7 +405,7 @@ def markdown(res: dict) -> list[str]:
               f"a dormant class (`{res['model'].get('continuous_dormant', '?')}`) so that continuous mode serves it: "
               "what the classes mean does not change how long a decision takes. Its rows up to the output check "
               "and `frame parsed -> decision` count every frame's decision (the json's `continuous_daemon_p50_us` "
-              "and `continuous_daemon_p999_us`, not targets of issue #16); the rows after the check only the "
+              "and `continuous_daemon_p999_us`, not targets); the rows after the check only the "
               "decisions continuous mode's report rule sent as an event (`[continuous]` in the config: a class "
               "that won `confirm_frames` frames in a row; docs/DORMANT.md), so their n is small; its "
               "`frames without a decision` are the first T - 1 frames, before the first window is full. "

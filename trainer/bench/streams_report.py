@@ -69,7 +69,7 @@ def markdown(r: dict, load_text: str) -> list[str]:
               f"Onset trigger settings (runtime/config_keys.py; how they were chosen: docs/TRIGGER_DEFAULTS.md): change "
               f"{trig.get('change')}, floor {trig.get('floor')} x full scale, baseline tau {trig.get('track_tau_s')} s, "
               f"settle {trig.get('settle_s')} s, window from {trig.get('pre_frames')} frames before the trigger.",
-              "Product rules the false events on real files led to (issue 13): the daemon feeds a model at its "
+              "Product rules the false events on real files led to: the daemon feeds a model at its "
               "trained period (runtime/frame_rate.py: a faster stream is decimated, a slower one gets a health line; "
               "a gap of more than 10 stream periods restarts the stream's history like a reconnect); the onset "
               "trigger fires only on a pad rising by the change (a departure in which no pad rose that much is the "
