@@ -19,6 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def card(model) -> dict:
     from runtime.model import optional_table
+    from runtime.stream_settings import describe, served_settings
 
     meta = model.meta
     kernel = meta.extra.get("kernel")
@@ -33,6 +34,8 @@ def card(model) -> dict:
         "model_id": model.model_id,
         "detects": list(meta.classes),
         "dormant_class": meta.dormant_class,
+        "stream_settings": served_settings(meta.dormant_class, meta.trigger),
+        "stream_settings_text": describe(meta.dormant_class, meta.trigger, meta.training.get("dormant_cut")),
         "pads": list(meta.pads),
         "pad_sizes": list(meta.pad_sizes),
         "n_channels": meta.n_channels,
@@ -125,6 +128,7 @@ def _text(c: dict) -> str:
     lines = [
         f"model {c['path']} (id {c['model_id']})",
         f"  detects: {', '.join(c['detects'])}" + (f" (dormant class: {c['dormant_class']})" if c["dormant_class"] else ""),
+        f"  stream settings: {c['stream_settings_text']}",
         f"  pads: {','.join(str(p) for p in c['pads'])}{_pad_name(c['pads'])} ({c['n_channels']} taxels: "
         f"{', '.join(str(s) for s in c['pad_sizes'])}); serves with scene.pads = \"model\" or this selection",
         f"  window: T={c['T']} frames ({c['window_seconds']:.2f} s at {c['sample_rate_hz']:.2f} Hz), "

@@ -100,8 +100,10 @@ class Dataset:
 
     @property
     def n_trials(self) -> int:
-        """Labelled trials seen, cases plus skipped."""
-        return len(self.y) + len(self.untriggered)
+        """Labelled trials seen, cases plus skipped (dormant windows from idle recordings are no trials)."""
+        from trainer.dormant import DORMANT
+
+        return int(np.sum(self.y != DORMANT)) + len(self.untriggered)
 
     @property
     def n_untriggered(self) -> int:

@@ -72,6 +72,7 @@ def setting_of(args: argparse.Namespace) -> str:
 def given_model(args: argparse.Namespace) -> Path:
     """``--model``, checked as the daemon would load it; sets the stream setting it serves (ValueError: one line)."""
     from runtime.model import ModelContractError, load_model
+    from runtime.stream_settings import served_settings
 
     path = Path(args.model)
     try:
@@ -80,6 +81,7 @@ def given_model(args: argparse.Namespace) -> Path:
         raise ValueError(f"--model: {exc}") from None
     meta = model.meta
     served = served_settings(meta.dormant_class, meta.trigger)
+    served = [n.replace("threshold_dormant", "threshold") for n in served]  # the demo's names
     if args.setting and args.setting not in served:
         raise ValueError(f"--model {path} serves the stream settings {', '.join(served)}, not --setting "
                          f"{args.setting}" + ("; continuous mode needs a dormant class" if args.setting == "continuous"
@@ -88,14 +90,6 @@ def given_model(args: argparse.Namespace) -> Path:
     if args.pads == "all":
         args.pads = ",".join(str(p) for p in meta.pads)
     return path
-
-
-def served_settings(dormant_class: str | None, trigger: dict) -> list[str]:
-    """The stream settings a model serves, the one the daemon runs it in first (its recorded trigger)."""
-    kind = trigger.get("kind", "threshold") if isinstance(trigger, dict) else "threshold"
-    if dormant_class:
-        return ["onset_dormant", "continuous"] if kind == "onset" else ["threshold", "continuous"]
-    return ["onset"] if kind == "onset" else ["threshold"]
 
 
 def train_model(args: argparse.Namespace, out: Path) -> Path:

@@ -130,20 +130,23 @@ def train(options: TrainOptions) -> TrainResult:
     say("training the final model on all cases ...")
     model = estimator.fit(ds.X, ds.y)
     evaluation = evaluate(options, ds, estimator, say)
-    sweep = None if options.no_sweep else _sweeps(options, recordings, out, say)
+    sweep = None
+    if not options.no_sweep and "bow" in options.families:
+        sweep = _sweeps(options, recordings, out, say)
+    elif not options.no_sweep:  # K and W are the BoW family's; its sweep says nothing about this model
+        say(f"no K/W/T sweep: it sweeps the BoW family, and this model is {'+'.join(options.families)} "
+            "(`handover sweep` runs it on its own)")
     say(f"t-SNE of the {report.features_label(getattr(model, 'families', ('bow',)))} ...")
     embedding = tsne_embedding(model.transform_histograms(ds.X), seed=options.seed)
     replay = None
     if options.replay:
-        from trainer.own_replay import held_out_replay, replay_lines
+        from trainer.own_replay import held_out_replay
 
         say("replaying each held-out subject's recording through the daemon ...")
         replay = held_out_replay(ds, estimator, recordings, names, say)
-        for line in replay_lines(replay):
-            say(f"  {line}")
     metrics = metrics_of(options, ds, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
     metrics["idle"] = idle and {"seconds": round(idle.seconds, 1), "dormant_windows": len(idle.X),
-                                "per_origin": idle.per_source, "notes": idle.notes}
+                                "per_origin": idle.per_source, "notes": idle.notes, "cut": idle.cut}
     metrics["own_replay"] = replay
     onnx_ok = write_model(options, ds, model, metrics, out)
     say("writing figures and the report ...")
@@ -214,10 +217,11 @@ def evaluate(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -
             print(f"handover train: {why}; that fold is skipped", file=sys.stderr, flush=True)
     say(f"evaluating (configuration 1, {'' if missing else 'leave one subject out, '}baseline) ...")
     q = options.quiet
+    name = "+".join(options.families) if options.families != ("bow",) else "BoW"
     result: dict[str, Any] = {
-        "config1": config1(estimator, ds.X, ds.y, seeds=seeds, progress=progress_bar(q, "config 1 (BoW)", len(seeds))),
+        "config1": config1(estimator, ds.X, ds.y, seeds=seeds, progress=progress_bar(q, f"config 1 ({name})", len(seeds))),
         "config2": None if missing else config2(estimator, ds.X, ds.y, ds.groups,
-                                                progress=progress_bar(q, "LOSO (BoW)", n_subjects)),
+                                                progress=progress_bar(q, f"LOSO ({name})", n_subjects)),
         "baseline_config1": config1(base, ds.X, ds.y, seeds=seeds,
                                     progress=progress_bar(q, "config 1 (baseline)", len(seeds))),
         "baseline_config2": None if missing else config2(base, ds.X, ds.y, ds.groups,

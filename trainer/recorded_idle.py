@@ -37,6 +37,8 @@ model is asked about while nobody interacts), every window stratified by the idl
 DORMANT_CUT = "trigger"
 """The cut ``handover train`` uses; chosen by the rule of ``trainer.bench.streams_own`` on validation
 streams (results/streams_own.md), never on the demo's session or the test streams."""
+MIN_DORMANT_WINDOWS = 10
+"""Fewer dormant windows than this make no class (the same floor as any training: trainer.pipeline.MIN_CASES)."""
 DORMANT_PER_SOURCE = 60
 """``in_view``: dormant windows per idle source in view."""
 
@@ -49,6 +51,7 @@ class IdleWindows:
     groups: np.ndarray
     origin: np.ndarray
     seconds: float
+    cut: str = DORMANT_CUT
     notes: list[str] = field(default_factory=list)
     """One line per thing the user should know (a stretch too short for a window, ...)."""
 
@@ -127,7 +130,7 @@ def recorded_idle_windows(recordings: Sequence[Recording], names: Sequence[str],
         X, origin, window_groups = X + x, origin + o, window_groups + g
     return IdleWindows(X=np.asarray(X, dtype=np.float32).reshape(len(X), len(cols), T),
                        groups=np.asarray(window_groups, dtype=object).astype(str),
-                       origin=np.asarray(origin, dtype=object).astype(str), seconds=seconds, notes=notes)
+                       origin=np.asarray(origin, dtype=object).astype(str), seconds=seconds, cut=cut, notes=notes)
 
 
 def idle_only_problem(recordings: Sequence[Recording], names: Sequence[str]) -> str | None:
@@ -185,9 +188,10 @@ def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: in
         return ds, None
     for note in idle.notes:
         say(note)
-    if not len(idle.X):
-        say(f"{idle.seconds / 60:.1f} min of recorded idle gave no dormant window (cut: {cut}): the model has "
-            "no dormant class; record longer idle stretches")
+    if len(idle.X) < MIN_DORMANT_WINDOWS:
+        say(f"{idle.seconds / 60:.1f} min of recorded idle gave {len(idle.X)} dormant windows (cut: {cut}; at least "
+            f"{MIN_DORMANT_WINDOWS} make the class): the model has no dormant class; record more idle, arm moves "
+            "above all (`handover record --idle-only --idle-minutes 10`)")
         return ds, None
     parts = ", ".join(f"{k} {v}" for k, v in sorted(idle.per_source.items()))
     say(f"{idle.seconds / 60:.1f} min of recorded idle: {len(idle.X)} dormant windows ({parts}; cut: {cut})")

@@ -181,7 +181,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
     """report.md: the command, the data, the two configurations, baseline, sweeps, figures."""
     label = "**synthetic**" if metrics["synthetic"] else "measured"
     lines = [*_header_lines(metrics, command), *_data_lines(metrics), *_model_lines(metrics),
-             *_results_lines(metrics, label), *_sweep_lines(metrics.get("sweep"), label),
+             *_results_lines(metrics, label), *_replay_lines(metrics, label), *_sweep_lines(metrics.get("sweep"), label),
              *_closing_lines(metrics, figures)]
     path = out / "report.md"
     path.write_text("\n".join(lines))
@@ -191,7 +191,7 @@ def write_markdown(out: Path, metrics: dict, command: str, figures: dict[str, st
 def _header_lines(metrics: dict, command: str) -> list[str]:
     syn = metrics["synthetic"]
     lines = [
-        "# Training report: Bag-of-Words + SVM (tactile handover events)",
+        f"# Training report: {model_label(metrics.get('families'))} (tactile handover events)",
         "",
         "Made by:",
         "",
@@ -224,6 +224,7 @@ def _data_lines(metrics: dict) -> list[str]:
         f"**untriggered: {metrics['n_untriggered']}** {ds['untriggered_reasons'] or ''} (listed in metrics.json, "
         "not padded, not in any split)",
         f"- cases per class: {ds['per_class']}; per subject: {ds['per_subject']}",
+        *_idle_lines(metrics.get("idle")),
     ]
     if ds.get("trigger_minus_onset_frames"):
         d = ds["trigger_minus_onset_frames"]
@@ -303,6 +304,48 @@ def _loso_lines(metrics: dict, split1: str) -> list[str]:
     for s, why in (c2.get("skipped") or {}).items():
         lines.append(f"| {s} | not measured: {why} | not measured |")
     return lines
+
+
+def _idle_lines(idle: dict | None) -> list[str]:
+    """Where the dormant class came from, or that there is none."""
+    if not idle:
+        return ["- idle recorded: none, so the model has no dormant class (`handover record` records idle after "
+                "the trials; `handover import --idle` marks a file as idle)"]
+    lines = [f"- idle recorded: {idle['seconds'] / 60:.1f} min; {idle['dormant_windows']} dormant windows "
+             f"({', '.join(f'{k} {v}' for k, v in idle['per_origin'].items())}): the class `dormant` "
+             "(trainer/recorded_idle.py)"]
+    lines += [f"- {note}" for note in idle.get("notes", [])]
+    return lines
+
+
+def _replay_lines(metrics: dict, label: str) -> list[str]:
+    """Each held-out subject's recording replayed through the daemon (trainer/own_replay.py)."""
+    from trainer.own_replay import replay_lines
+
+    r = metrics.get("own_replay")
+    if not r:
+        return []
+    lines = ["", f"## Stream replay of held-out subjects ({label})", "",
+             f"Each subject's recording (trials and idle stretches) replayed frame by frame through the daemon "
+             f"in the stream setting `{r['mode']}`, with a model trained without that subject (trainer/own_replay.py).",
+             ""]
+    if not r.get("folds"):
+        return [*lines, f"Not measured: {'; '.join(f'{k}: {v}' for k, v in r.get('skipped', {}).items()) or '-'}", ""]
+    lines += [f"- {line}" for line in replay_lines(r)]
+    lines += ["", "| held out | trials | right | wrong | missed | idle (min) | false events | per hour |",
+              "|---|---|---|---|---|---|---|---|"]
+    for f in r["folds"]:
+        fph = "-" if f["false_per_hour"] is None else f"{f['false_per_hour']:.1f}"
+        lines.append(f"| {f['held_out']} | {f['events']} | {f['right']} | {f['wrong']} | {f['missed']} | "
+                     f"{f['idle_hours'] * 60:.1f} | {f['false_events']} | {fph} |")
+    if r.get("idle_by_source"):
+        lines += ["", "| idle source | minutes | false events | per hour |", "|---|---|---|---|"]
+        for k, v in r["idle_by_source"].items():
+            fph = "-" if v["false_per_hour"] is None else f"{v['false_per_hour']:.1f}"
+            lines.append(f"| {k} | {v['hours'] * 60:.1f} | {v['false_events']} | {fph} |")
+    for k, v in (r.get("skipped") or {}).items():
+        lines.append(f"- {k}: not replayed ({v})")
+    return [*lines, ""]
 
 
 def _sweep_lines(sw: dict | None, label: str) -> list[str]:

@@ -91,6 +91,8 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "gamma": metrics["best_params"].get("gamma"),
             "hard_margin": metrics["svm_margin"]["hard_margin"],
             "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
+            **({"idle_seconds": metrics["idle"]["seconds"], "dormant_windows": metrics["idle"]["dormant_windows"],
+                "dormant_cut": metrics["idle"]["cut"]} if metrics.get("idle") else {}),
         },
         evaluation={
             "synthetic": metrics["synthetic"],
@@ -158,6 +160,7 @@ def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> d
 
 def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
+    from trainer.own_replay import replay_lines
     from trainer.report import pct, pooled_text
 
     tag = "synthetic data, " if metrics["synthetic"] else ""
@@ -165,8 +168,12 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     # K (words) and W (derivative window) mean something only to the BoW family
     bow = f"K={metrics['K']} W={metrics['W']} " if "bow" in metrics["families"] else ""
     weighting = f" ({metrics['feature_weighting']})" if metrics.get("feature_weighting") else ""
+    idle = metrics.get("idle")
+    dormant = (f" + {idle['dormant_windows']} dormant windows from {idle['seconds'] / 60:.1f} min of idle"
+               if idle else "")
+    n_trial_cases = metrics["n_cases"] - (idle["dormant_windows"] if idle else 0)
     lines = [
-        f"trained on {metrics['n_cases']} cases of {metrics['n_trials']} trials ({tag}{metrics['n_untriggered']} "
+        f"trained on {n_trial_cases} cases of {metrics['n_trials']} trials{dormant} ({tag}{metrics['n_untriggered']} "
         f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}{weighting}, {bow}"
         f"T={metrics['T']} {metrics['kernel']} SVM"
         + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
@@ -177,6 +184,7 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
         else f"  leave one subject out: not measured ({metrics['loso_unavailable']})",
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
         f"{pct(metrics['baseline_config1_accuracy_mean'])})",
+        *(f"  held-out replay through the daemon: {line}" for line in replay_lines(metrics.get("own_replay"))),
         f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
         f"  model:  {model} (handover inspect {model}; drop it into the daemon's model folder, deploy/INSTALL.md)"
         if onnx_written else "  model:  no model.onnx written (model.joblib only)",

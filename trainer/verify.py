@@ -72,6 +72,8 @@ class VerifyReport:
     """Of those, cases whose SVM decision is the near tie (large dual coefficients amplify rounding)."""
     features: str = "histogram"
     """What the graph's feature tensor is: ``histogram`` (BoW alone) or ``feature vector`` (families)."""
+    codebook: bool = True
+    """The model has the BoW family: its windows pick codewords (nothing to say about them otherwise)."""
     window_word_mismatches: int = 0
     """Active windows whose graph word differs from the float64 word."""
     window_word_mismatches_near_tie: int = 0
@@ -237,6 +239,7 @@ def compare(model, runner: GraphRunner, frames: np.ndarray, sources: list[str], 
     report = report or VerifyReport()
     families = [name for name, _ in getattr(model, "blocks_", [("bow", None)])]
     report.features = "histogram" if families == ["bow"] else "feature vector"
+    report.codebook = "bow" in families
     classes = [str(c) for c in model.classes_]
     n_done = report.n_cases
     n_agree = round(report.agreement * report.n_cases)

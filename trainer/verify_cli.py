@@ -68,10 +68,11 @@ def _print_report(report, path: Path) -> None:
         print(f"  {source}: {entry['agree']}/{entry['n_cases']} agree")
     print(f"  disagreements: {len(report.disagreements)} ({report.near_tie_disagreements} at near ties, "
           f"{report.unexplained_disagreements} unexplained: only unexplained ones fail)")
+    codebook = report.codebook  # codewords mean something only to a model with the BoW family
     for d in report.disagreements[:50]:
+        words = f"codeword margin {d.codeword_margin:.3g} x bound (gap {d.codeword_gap:.3g}), " if codebook else ""
         print(f"    case {d.case} [{d.source}] graph={d.graph_label} reference={d.reference_label}: {d.reason}; "
-              f"codeword margin {d.codeword_margin:.3g} x bound (gap {d.codeword_gap:.3g}), "
-              f"SVM margin {d.svm_margin:.3g} x bound")
+              f"{words}SVM margin {d.svm_margin:.3g} x bound")
     print(f"  largest |score - reference| (float32 rounding of the SVM scores, in score units): "
           f"{report.max_score_abs_diff:.3g} ({report.max_score_abs_diff_same_votes:.3g} where {report.features} "
           "and votes agree)")
@@ -79,9 +80,10 @@ def _print_report(report, path: Path) -> None:
     print(f"  largest |{what} - reference| (in the features' own units, e.g. pressure sums of thousands): "
           f"{report.max_hist_abs_diff:.3g}; beyond their float32 bound: {report.hist_mismatch_cases} "
           f"({report.hist_mismatch_unexplained} not at a near tie: only these fail)")
-    print(f"  windows whose codeword differs from float64: {report.window_word_mismatches} "
-          f"({report.window_word_mismatches_near_tie} near ties, {report.window_word_mismatches_unexplained} "
-          "beyond the bound: only these fail)")
+    if codebook:
+        print(f"  windows whose codeword differs from float64: {report.window_word_mismatches} "
+              f"({report.window_word_mismatches_near_tie} near ties, {report.window_word_mismatches_unexplained} "
+              "beyond the bound: only these fail)")
     share = 100 * report.near_tie_cases / max(report.n_cases, 1)
     print(f"  near ties (not failures; the label above was still compared): {report.near_tie_cases} cases "
           f"({share:.1f} %) lie so close to a boundary that the worst-case float32 bound alone cannot guarantee "
