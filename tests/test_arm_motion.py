@@ -196,3 +196,72 @@ def test_joint_speed_from_positions_when_the_driver_sends_no_velocities():
     assert js.update([0.0, 1.05], [], 10.2) is True  # 0.5 rad/s
     assert js.update([0.0, 1.05], [], 10.2) is None  # the same stamp again: no speed
     assert js.update([0.0], [], 10.3) is None  # joints changed in number: start over
+
+
+# -- the recorder hears the robot ----------------------------------------------------------------------
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_mark_log_places_the_robots_words_on_the_frames_that_arrived_after_them():
+    clock = _Clock()
+    log = arm_marks.ArmMarkLog(clock)
+    received = np.arange(10.0, 20.0)  # frames arrive at 10, 11, ... 19
+    assert log.marks_for(received) == []  # nothing heard: no marks at all
+    for t, word in ((5.0, True), (12.5, False), (12.6, False), (30.0, True)):
+        clock.t = t
+        log.note(word)
+    assert log.heard == 4
+    assert log.marks_for(received) == [[0, 1], [3, 0]]  # moving since before the segment; still from frame 3 (13.0)
+    assert log.marks_for(np.arange(20.0, 25.0)) == [[0, 0]]  # the next segment starts still
+    assert log.marks_for(None) == []
+
+
+def test_a_recorded_session_stores_the_robots_arm_words_heard_on_the_control_socket(tmp_path):
+    from firmware_io.recordings.idle_session import run_idle
+    from firmware_io.recordings.idle_stretches import IdleSlot
+    from firmware_io.recordings.record_session import SessionIO
+    from firmware_io.recordings.recording import Recording
+    from firmware_io.sim.scripted_subject import ScriptedSubject
+    from runtime.control import ControlSocket
+    from tests.test_record import auto_opts, open_session
+
+    subject = ScriptedSubject(seed=4, speed=10.0)
+    client, store = open_session(tmp_path, subject)
+    path = str(tmp_path / "robot.sock")
+    log = arm_marks.ArmMarkLog()
+    control = ControlSocket(path, on_grasp=lambda closed, source: None, on_arm=log.note).start()
+    words = {0: b"arm moving", 1: b"arm still"}
+
+    def cue(kind, slot):  # the robot speaks as each stretch starts
+        subject.cue(kind, slot)
+        if kind == "idle":
+            _send(path, words[slot.index])
+            assert _wait(lambda: log.heard == slot.index + 1)
+
+    try:
+        plan = [IdleSlot(0, "arm_move", 1.5), IdleSlot(1, "quiet", 1.5)]
+        result = run_idle(client, store, plan, auto_opts(arm_log=log), SessionIO(cue=cue, sleep=lambda s: None))
+    finally:
+        control.stop()
+        client.close()
+    assert result.complete
+    rec = Recording.load(store.path)
+    marks = arm_marks.marks_of(rec.meta, rec.n_frames)
+    stretches = rec.meta["idle_stretches"]
+    moving = arm_marks.moving_frames(marks, rec.n_frames)
+    first, second = stretches[0], stretches[1]
+    assert moving[first["first"] + 5:first["last"] + 1].all() and not moving[:first["first"]].any()
+    assert moving[second["first"]] and not moving[second["first"] + 5:].any()  # still a few frames in
+
+
+def test_record_with_a_control_socket_that_cannot_bind_is_one_line(tmp_path, capsys):
+    from tests.test_record import record
+
+    code = record(tmp_path, "--auto", "--control", str(tmp_path / "missing" / "robot.sock"))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "robot.sock" in err[0], err

@@ -54,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(default {DEFAULT_IDLE_MINUTES:g} min, {IDLE_ONLY_MINUTES:g} with --idle-only; 0: none)")
     parser.add_argument("--idle-only", action="store_true",
                         help="record idle stretches only (a long idle session; no trials)")
+    parser.add_argument("--control", default=None, metavar="SOCKET",
+                        help="Unix datagram socket (path or @name) on which the robot says 'arm moving' / 'arm still', "
+                             "as to the daemon's [control] socket; the marks are stored with the recording")
     parser.add_argument("--quiet", action="store_true", help="no voice (espeak-ng)")
     parser.add_argument("--no-look", action="store_true", help="no per-pad sparklines after each trial")
 
@@ -124,10 +127,30 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     voice = Voice(enabled=not args.quiet)
     try:
+        control = _listen(args.control, opts)
+    except OSError as exc:
+        client.close()
+        return fail(COMMAND, str(exc))
+    try:
         return _record(args, client, subject, plan, opts, voice)
     finally:
         client.close()
         voice.close()
+        if control is not None:
+            control.stop()
+
+
+def _listen(address: str | None, opts):
+    """The robot's arm messages on ``address`` (the daemon's own control socket reader and parser), or None."""
+    if not address:
+        return None
+    from firmware_io.recordings.arm_marks import ArmMarkLog
+    from runtime.control import ControlSocket
+
+    opts.arm_log = ArmMarkLog()
+    control = ControlSocket(address, on_grasp=lambda closed, source: None, on_arm=opts.arm_log.note).start()
+    print(f"listening on {address} for 'arm moving' / 'arm still'; the marks are stored with the recording", flush=True)
+    return control
 
 
 def idle_minutes(args: argparse.Namespace) -> float:

@@ -5,7 +5,8 @@ training and evaluation must see the same spans, so a recording keeps them with 
 
 - ``meta["arm_marks"]``: ``[[frame, moving], ...]``, frame indices ascending, ``moving`` 1 at the
   first frame after the robot said ``arm moving`` and 0 at the first frame after ``arm still``
-  (written by the simulator, which knows its moves, and by a recorder that heard the robot);
+  (written by the simulator, which knows its moves, and by ``handover record --control SOCKET``,
+  which hears the robot as the daemon does: ``ArmMarkLog``);
 - without it, a recorded idle stretch labelled ``arm_move`` (``meta["source_codes"]``) counts as
   the arm moving from its first frame to its last: the investigator moved the arm when prompted.
 
@@ -14,7 +15,9 @@ numpy only.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -83,3 +86,43 @@ def moving_frames(marks: Mapping[int, bool], n_frames: int) -> np.ndarray:
     if state:
         out[since:] = True
     return out
+
+
+class ArmMarkLog:
+    """What the robot said about its arm while a session was recorded, turned into each segment's marks.
+
+    ``note`` is called from the control socket's thread with each ``arm moving`` / ``arm still``; only
+    changes are kept (a flood of the same word is one entry). ``marks_for`` places them on a captured
+    segment by the frames' arrival times (the same clock), its first frame carrying the arm's state
+    then (a move that began before the segment)."""
+
+    def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._times: list[float] = []
+        self._words: list[bool] = []
+        self.heard = 0
+        """Arm messages heard (repeats included)."""
+
+    def note(self, moving: bool, source: str = "") -> None:
+        now = self._clock()
+        with self._lock:
+            self.heard += 1
+            if not self._words or self._words[-1] != bool(moving):
+                self._times.append(now)
+                self._words.append(bool(moving))
+
+    def marks_for(self, received: Sequence[float] | None) -> list[list[int]]:
+        """``[[frame, moving], ...]`` of a segment whose frames arrived at ``received`` (empty if nothing was heard)."""
+        with self._lock:
+            times, words = list(self._times), list(self._words)
+        if not words or received is None or len(received) == 0:
+            return []
+        arrived = np.asarray(received, dtype=np.float64)
+        k = int(np.searchsorted(times, arrived[0], side="right"))  # words said before the first frame
+        out = {0: words[k - 1] if k else False}
+        for t, word in zip(times[k:], words[k:], strict=True):
+            if t > arrived[-1]:
+                break
+            out[min(int(np.searchsorted(arrived, t, side="left")), len(arrived) - 1)] = word
+        return encode(out)

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from firmware_io.recordings import arm_marks
 from firmware_io.recordings.idle_stretches import IdleSlot
 from firmware_io.recordings.record_session import SessionIO, SessionOptions, SessionStore, _now
 from firmware_io.recordings.trial_capture import capture_trial, drain
@@ -80,6 +81,8 @@ def _record_stretch(client, store: SessionStore, slot: IdleSlot, opts: SessionOp
             continue
         extra = {"attempt": attempt, "session": session_no, "recorded_at": _now(), "frame_gaps": capture.gaps,
                  "device_ms": int(capture.device_ms[0]) if len(capture.device_ms) else None, **annotations}
+        if opts.arm_log is not None and (marks := opts.arm_log.marks_for(capture.received)):
+            extra[arm_marks.KEY] = marks
         store.add_idle(slot, capture.frames, capture.stamps, extra)
         result.recorded += 1
         result.done += 1

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from firmware_io.recordings import arm_marks
 from firmware_io.recordings.idle_stretches import IdleSlot, idle_meta, stretches_of
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS, Capture, DeviceLost, capture_trial, drain
@@ -137,7 +138,7 @@ def recording_path(out_dir: str | Path, subject: str) -> Path:
 
 IDLE_KEY = "idle"
 """A segment's fields under this key make it an idle stretch (source, plan index, annotations), not a trial."""
-DERIVED_META = ("idle_stretches", "sources", "source_codes")
+DERIVED_META = ("idle_stretches", "sources", "source_codes", arm_marks.KEY)
 """Metadata written from the segments on every save, never carried over from the file read."""
 
 
@@ -258,7 +259,21 @@ class SessionStore:
                 stretches.append({"first": pos, "last": pos + len(s.frames) - 1, **s.fields[IDLE_KEY]})
             pos += len(s.frames)
         rec.meta.update(idle_meta(rec.n_frames, stretches))
+        marks = self._arm_marks()
+        if marks:
+            rec.meta[arm_marks.KEY] = arm_marks.encode(marks)
         return rec
+
+    def _arm_marks(self) -> dict[int, bool]:
+        """The robot's arm marks of every segment (``extra["arm_marks"]``, segment frames) on the file's frames."""
+        out: dict[int, bool] = {}
+        pos = 0
+        for s in self.segments:
+            extra = s.fields.get(IDLE_KEY, s.fields).get("extra", {})
+            for frame, moving in extra.get(arm_marks.KEY, ()):
+                out[pos + int(frame)] = bool(moving)
+            pos += len(s.frames)
+        return out
 
     def save(self) -> Path:
         return self.to_recording().save(self.path)
@@ -300,6 +315,8 @@ class SessionOptions:
     """auto mode: how often a trial that never triggered is recorded again before it is kept flagged."""
     max_trials: int | None = None
     """stop after this many trials (scripted partial sessions)."""
+    arm_log: arm_marks.ArmMarkLog | None = None
+    """what the robot says about its arm (``--control``): its marks are stored with each trial and stretch."""
     quick_look: Callable[[np.ndarray, SensorLayout, TriggerCheck], str] | None = None
 
 
@@ -391,6 +408,8 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             "session": session_no, "recorded_at": _now(), **annotations, "go_frame": capture.go_frame,
             "lead_in_s": opts.lead_in_seconds,
         }
+        if opts.arm_log is not None and (marks := opts.arm_log.marks_for(capture.received)):
+            extra[arm_marks.KEY] = marks
         if isinstance(annotations.get("onset"), int) and annotations["onset"] >= 0:
             extra["onset"] = annotations["onset"] + capture.go_frame  # the cue's onset counts from go
         index = store.add(slot, capture.frames, capture.stamps, extra)

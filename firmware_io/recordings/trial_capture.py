@@ -39,6 +39,8 @@ class Capture:
     reconnected: bool = False
     gaps: int = 0
     go_frame: int = 0
+    received: np.ndarray | None = None
+    """When each frame arrived (``time.perf_counter``): places the robot's messages on the frames."""
 
 
 def drain(client, max_seconds: float = 0.25, fresh_wait: float = 0.005) -> int:
@@ -104,7 +106,8 @@ def _capture(kept: list, go_index: int, seconds: float, client) -> Capture:
     steps = np.diff(dev)
     typical = float(np.median(steps)) if len(steps) else 0.0
     gaps = int(np.sum(steps > 2.5 * typical)) if typical > 0 else 0
-    return Capture(_stack([f.values for f in kept], client), wall0 + rel, dev, gaps=gaps, go_frame=go_index)
+    return Capture(_stack([f.values for f in kept], client), wall0 + rel, dev, gaps=gaps, go_frame=go_index,
+                   received=np.asarray([f.received for f in kept], dtype=np.float64))
 
 
 def _stack(frames: list, client) -> np.ndarray:
