@@ -54,12 +54,16 @@ CONFINED_RANGES = ("LOCALHOST", "OFF")
 
 
 def grasp_exposure(cfg: Ros2Config, env: dict[str, str] | None = None) -> str | None:
-    """Why the ROS 2 grasp input can be steered from elsewhere, or None.
+    """Why the ROS 2 robot inputs (grasp, arm, joint states) can be steered from elsewhere, or None.
 
     Why: ``<namespace>/grasp`` takes ``open`` from any node that discovers the daemon, and ``open``
-    silences the trigger. Without SROS2 (enforced) or discovery kept to this PC, that is any
-    machine on the robot's network with the same domain id."""
-    if not cfg.grasp:
+    silences the trigger; so does ``moving`` on ``<namespace>/arm`` or a fast joint on the joint
+    states topic (no window is reported while the arm moves). Without SROS2 (enforced) or discovery
+    kept to this PC, that is any machine on the robot's network with the same domain id."""
+    inputs = [text for on, text in ((cfg.grasp, f"'open' on {cfg.namespace}/grasp"),
+                                    (cfg.arm, f"'moving' on {cfg.namespace}/arm"),
+                                    (bool(cfg.joint_states), f"fast joints on {cfg.joint_states}")) if on]
+    if not inputs:
         return None
     env = os.environ if env is None else env
     if env.get("ROS_SECURITY_ENABLE", "").lower() == "true" and env.get("ROS_SECURITY_STRATEGY") == "Enforce":
@@ -67,7 +71,8 @@ def grasp_exposure(cfg: Ros2Config, env: dict[str, str] | None = None) -> str | 
     if env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in CONFINED_RANGES or env.get("ROS_LOCALHOST_ONLY") == "1":
         return None
     domain = env.get("ROS_DOMAIN_ID", "").strip() or "0"
-    return (f"ros2.grasp: any ROS 2 node on the network in domain {domain} can send 'open' on {cfg.namespace}/grasp "
+    keys = "/".join(name for name, on in (("grasp", cfg.grasp), ("arm", cfg.arm), ("joint_states", cfg.joint_states)) if on)
+    return (f"ros2.{keys}: any ROS 2 node on the network in domain {domain} can send {' or '.join(inputs)} "
             "and silence the trigger; set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (or ROS_LOCALHOST_ONLY=1), or "
             "SROS2 (ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce), or use the control socket "
             "(deploy/INSTALL.md, section ROS 2)")

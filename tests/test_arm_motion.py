@@ -265,3 +265,15 @@ def test_record_with_a_control_socket_that_cannot_bind_is_one_line(tmp_path, cap
     code = record(tmp_path, "--auto", "--control", str(tmp_path / "missing" / "robot.sock"))
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and "robot.sock" in err[0], err
+
+
+def test_ros2_arm_inputs_open_to_the_network_are_named_in_one_line():
+    from runtime.config import config_from_dict
+    from runtime.ros2 import grasp_exposure
+
+    ros2 = config_from_dict({"ros2": {"arm": True, "joint_states": "/joint_states"}}).ros2
+    line = grasp_exposure(ros2, env={"ROS_DOMAIN_ID": "7"})
+    assert line.startswith("ros2.arm/joint_states: any ROS 2 node") and "'moving' on /handover/arm" in line
+    assert "fast joints on /joint_states" in line and "\n" not in line
+    assert grasp_exposure(ros2, env={"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}) is None
+    assert grasp_exposure(config_from_dict({}).ros2, env={}) is None
