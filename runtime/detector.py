@@ -310,7 +310,7 @@ class Detector:
         label = int(labels[0])
         report = self.rule.judge(label, scores[0])
         return Decision(frame, model, first, label, scores, report, stamps, latency_us,
-                        latency_us > self.period_s * 1e6)
+                        latency_us > self.frame_clock.deadline_s() * 1e6)
 
     def _apply_grasp(self) -> None:
         while self._grasp:

@@ -129,6 +129,15 @@ class FrameClock:
         self.admitted += 1
         return self.number
 
+    def deadline_s(self) -> float:
+        """How long a decision may take: until the next admitted frame, by the stream's *measured*
+        period (the device frames a decimation passes over included); the model's period only until
+        the stream is measured. Why measured: a model's ``sample_rate_hz`` is what its file claims
+        (1 Hz made 86 ms decisions at 32 Hz count as on time); the time stamps are what arrives."""
+        if self.stream_period_ms is None:
+            return self.model_period_ms / 1000.0
+        return self.stream_period_ms / (self.step if self.step < 1.0 else 1.0) / 1000.0
+
     def device_number(self, back: int) -> int:
         """The device number of the frame admitted ``back`` admitted frames before the newest."""
         if not 0 <= back < min(self.admitted, HISTORY):
@@ -194,8 +203,10 @@ class FrameClock:
                        f"at: its windows span {ratio:.1f}x their trained time and decisions may be wrong; set the "
                        f"device's rate to {model_hz} Hz or train a model at {stream_hz} Hz")
         elif ratio < FASTEST:
-            problem = (f"device time stamps say {stream_hz} Hz, more than {1 / FASTEST:.0f}x the model's {model_hz} "
-                       "Hz: not believed (a broken device clock?), frames are fed as they come")
+            problem = (f"device streams at {stream_hz} Hz by its time stamps, more than {1 / FASTEST:.0f}x the "
+                       f"{model_hz} Hz of the model's sample_rate_hz: one of them is wrong (a model exported with a "
+                       "wrong rate, or a broken device clock); frames are fed as they come and decisions are held "
+                       "to the stream's period")
         self.slow = problem is not None
         if problem and not was_off:
             self._tell("slow" if ratio > SLOWER else "absurd", problem)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.layout import FULL_SCALE_12BIT
 from firmware_io.trigger_level import is_trigger_level
 from runtime.bound_run import BoundRun
 from runtime.onnx_wire import WireError, summarize
@@ -172,6 +173,9 @@ class ModelMeta:
             problems.append(f"pad_sizes {list(self.pad_sizes)} must give a positive size for each of the pads {list(self.pads)}")
         if sum(self.pad_sizes) != self.n_channels:
             problems.append(f"n_channels={self.n_channels} != sum(pad_sizes)={sum(self.pad_sizes)}")
+        if not self.fullscale <= FULL_SCALE_12BIT:
+            problems.append(f"fullscale {self.fullscale:g} is more than the pads can report ({FULL_SCALE_12BIT}, "
+                            "12-bit); no press would ever reach the trigger: re-export the model")
         fraction = self.trigger.get("fraction")
         if not is_trigger_level(fraction):
             problems.append(f"trigger.fraction {fraction!r} must be a number in (0, 1)")

@@ -73,6 +73,9 @@ def scene_problem(model: Any, cfg: Config, layout: SensorLayout | None, check_ev
     if meta.n_channels != n:
         return (f"model expects {meta.n_channels} taxel columns, the device's pads {list(pads)} have {n}; "
                 "the model was trained on a hand with other pad sizes: train on recordings of this hand")
+    if meta.fullscale > lay.fullscale:
+        return (f"model fullscale {meta.fullscale:g} is more than the device's pads report ({lay.fullscale:g}): "
+                "its trigger levels could never be reached; train on recordings of this hand")
     if check_events and (problem := events_problem(model, cfg.scene.events, cfg)):
         return problem
     if cfg.scene.mode == "continuous" and meta.dormant_class is None:

@@ -130,7 +130,18 @@ def test_stamps_of_a_broken_device_clock_are_not_believed():
     health = Health()
     clock = FrameClock(MODEL_MS, health)
     numbers = admit_all(clock, np.arange(200))  # 1 ms per frame: 1000 Hz
-    assert numbers == list(range(200)) and "not believed" in health.last_error
+    assert numbers == list(range(200)) and "one of them is wrong" in health.last_error
+
+
+def test_the_deadline_is_the_streams_measured_period_not_the_models_claim():
+    """A model claiming 1 Hz on a 32 Hz stream: decisions have until the next frame, 31.25 ms, not 1 s."""
+    clock = FrameClock(1000.0, Health())
+    assert clock.deadline_s() == 1.0  # nothing measured yet: the model's period
+    admit_all(clock, np.rint(np.arange(100) * 31.25).astype(np.int64))
+    assert abs(clock.deadline_s() - 0.03125) < 1e-3
+    decimated = FrameClock(MODEL_MS, Health())  # a 70 Hz stream fed to a 32 Hz model: the next admitted frame
+    admit_all(decimated, np.rint(np.arange(200) * 1000 / 70).astype(np.int64))
+    assert abs(decimated.deadline_s() - MODEL_MS / 1000) < 1e-3
 
 
 def test_a_device_reboot_mid_stream_restarts_the_history_and_is_not_an_event(tmp_path):

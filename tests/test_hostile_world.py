@@ -124,3 +124,7 @@ def test_a_config_is_read_whole_from_a_regular_file_and_a_fifo_is_refused_at_onc
 
 def test_crafted_dsa_files_are_one_line_and_never_allocate_what_the_header_asks(tmp_path):
     _held(W.crafted_dsa(tmp_path))
+
+
+def test_the_model_metadata_is_not_believed_where_the_stream_says_otherwise(tmp_path):
+    _held(W.model_claims(tmp_path))

@@ -550,3 +550,56 @@ def crafted_dsa(work: Path) -> dict:
     return {"held": held, "rows": rows,
             "detail": "; ".join(f"{k}: {v}" for k, v in rows.items()) + f"; handover import: "
                       f"{'an unexpected error' if unexpected else 'one line a file'}"}
+
+
+# -- 8: what a model file claims ----------------------------------------------------------------------
+def model_with(folder: Path, name: str, base: bytes | None = None, **meta) -> Path:
+    """A valid model (always ``pull``) whose metadata says ``meta`` (same graph, another file)."""
+    from trainer.bench import hostile_models as H
+    from trainer.bench.common import with_metadata
+
+    folder.mkdir(parents=True, exist_ok=True)
+    plain = write_model(folder, f".{name}.plain", base or H.valid(bias_class=0))
+    out = with_metadata(plain, folder / f".{name}.tmp", lambda m: m.update(meta))
+    plain.unlink()
+    os.chmod(out, 0o644)
+    os.replace(out, folder / name)
+    return folder / name
+
+
+def model_claims(work: Path) -> dict:
+    """A model saying ``sample_rate_hz = 1`` on a 32 Hz stream: a decision later than the stream's period
+    is a missed deadline (not one of a second), and the health line names the model's claim; a
+    ``fullscale`` above the 12-bit pads' 4095 is refused with one line at load and at ``--check``."""
+    from firmware_io.client import Frame
+    from firmware_io.layout import SensorLayout
+    from runtime.model import ModelContractError, load_model
+
+    daemon = served_daemon(work / "rate")
+    slow_claim = load_model(model_with(work / "claims", "one-hertz.onnx", sample_rate_hz=1.0))
+    daemon.serve(slow_claim, SensorLayout.sdh2())
+    column = int(daemon.layout.columns("distal")[40])
+    for number in range(200):  # 32 Hz by the device's time stamps; each frame 50 ms old when handled
+        values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
+        values[column] = 3000 if 30 <= number % 40 < 35 else 0  # the first press after a block is measured
+        daemon.handle_frame(Frame(number, round(number * 31.25), time.perf_counter() - 0.05, values))
+    h = daemon.health
+    named = "sample_rate_hz" in h.last_error or any("sample_rate_hz" in e["error"] for e in h.errors)
+    refused = {}
+    for value in (1e15, 1e30):
+        path = model_with(work / f"fullscale-{value:g}", "big.onnx", fullscale=value)
+        try:
+            load_model(path)
+            refused[f"{value:g}"] = "accepted"
+        except ModelContractError as exc:
+            refused[f"{value:g}"] = "one line" if one_line(str(exc), str(path), "fullscale") else str(exc)[:100]
+        config = work / "fs.toml"
+        config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{path.parent}"\n')
+        done = cli(["run", "--config", str(config), "--check", "--require-model"])
+        if done.returncode != 1 or "fullscale" not in done.stderr:
+            refused[f"{value:g}"] += "; --check did not name it"
+    held = h.decisions > 0 and h.missed_deadlines == h.decisions and named and all(
+        v == "one line" for v in refused.values())
+    return {"held": held, "detail": f"sample_rate_hz = 1 on a 32 Hz stream: {h.missed_deadlines} of {h.decisions} "
+                                    f"decisions 50 ms late counted missed; health names the claim: {named}; "
+                                    + "; ".join(f"fullscale = {k}: {v}" for k, v in refused.items())}
