@@ -277,3 +277,10 @@ def test_ros2_arm_inputs_open_to_the_network_are_named_in_one_line():
     assert "fast joints on /joint_states" in line and "\n" not in line
     assert grasp_exposure(ros2, env={"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}) is None
     assert grasp_exposure(config_from_dict({}).ros2, env={}) is None
+
+
+def test_a_piece_of_a_recording_keeps_its_marks_and_the_state_it_starts_in():
+    meta = {arm_marks.KEY: [[2, 1], [6, 0], [8, 1]]}
+    assert arm_marks.piece_marks(meta, 10, 4, 9) == [[0, 1], [2, 0], [4, 1]]
+    assert arm_marks.piece_marks(meta, 10, 6, 7) == []
+    assert arm_marks.piece_marks({}, 10, 0, 9) == []

@@ -60,6 +60,16 @@ def marks_of(meta: Mapping, n_frames: int) -> dict[int, bool]:
     return stretch_marks(meta.get("source_codes"), meta.get("sources", ()))
 
 
+def piece_marks(meta: Mapping, n_frames: int, first: int, last: int) -> list[list[int]]:
+    """The recording's marks (``marks_of``) of frames ``first..last``, counted from ``first`` (stored form):
+    for replaying a piece on its own, the arm's state at ``first`` carried in."""
+    marks = marks_of(meta, n_frames)
+    before = [m for f, m in marks.items() if f <= first]
+    out = {0: before[-1]} if before and before[-1] else {}
+    out.update({f - first: m for f, m in marks.items() if first < f <= last})
+    return encode(out)
+
+
 def stretch_marks(codes: Iterable[int] | None, names: Iterable[str]) -> dict[int, bool]:
     """Marks of the frames coded ``arm_move``: moving at each run's first frame, still after its last."""
     names = list(names)
