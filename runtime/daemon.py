@@ -212,6 +212,10 @@ class Daemon:
         self.link.update_health(time.monotonic() if now is None else now, HEALTH_PERIOD_S)
         h.sink_errors = self.sinks.errors
         h.events_invalid = self.sinks.invalid
+        arm = self.detector.arm
+        h.arm_moving, h.arm_windows = arm.moving, arm.dropped
+        if self.control is not None:
+            h.control_ignored = self.control.garbage + self.control.refused
         self.notifier.status(h.status_line())
         snapshot = h.snapshot()
         if self.status_file is not None:

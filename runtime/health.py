@@ -56,6 +56,12 @@ class Health:
         """Exceptions while handling a frame (the loop went on)."""
         self.events_invalid = 0
         """Events not sent because they were not valid JSON (NaN/inf)."""
+        self.arm_moving = False
+        """The robot's last word on its arm (runtime.arm_motion)."""
+        self.arm_windows = 0
+        """Windows judged dormant because the arm moved during them (the model did not run)."""
+        self.control_ignored = 0
+        """Control datagrams that were not a known message, or from a sender not heard (counted, logged once)."""
         self.model_id: str | None = None
         self.instance = ""
         """Which daemon this is (runtime.instance_name), as in its event lines."""
@@ -156,6 +162,9 @@ class Health:
             "frames_implausible": self.frames_implausible,
             "frame_errors": self.frame_errors,
             "events_invalid": self.events_invalid,
+            "arm_moving": self.arm_moving,
+            "arm_windows": self.arm_windows,
+            "control_ignored": self.control_ignored,
             "model_id": self.model_id,
             "trigger": self.trigger,
             "last_error": self.last_error,

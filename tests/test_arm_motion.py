@@ -85,6 +85,8 @@ def test_a_push_while_the_arm_moves_is_not_reported_and_one_after_the_settle_tim
         daemon.handle_frame(frame)
     assert len(events) == 1 and 500 <= events[0].frame_first <= 502
     assert daemon.detector.arm.dropped == 1 and daemon.detector.arm_request == (False, "test")
+    daemon.write_health()
+    assert daemon.health.snapshot()["arm_windows"] == 1
 
 
 def test_without_the_message_the_same_push_is_reported(tmp_path):
@@ -124,6 +126,9 @@ def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones
                 _send(path, text)
             assert _wait(lambda: daemon.control.garbage == 4)
         assert sum("ignored a datagram" in r.getMessage() for r in caplog.records) == 1
+        daemon.write_health()
+        health = daemon.health.snapshot()
+        assert health["control_ignored"] == 4 and health["arm_moving"] is True
         _send(path, b"  ARM   STILL ")
         assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
