@@ -178,10 +178,11 @@ def _warn_about_udp_hosts(cfg) -> None:
 
 CHECKED = ("checked: config keys and values; the device URL's form; the model folder and the model that would "
            "serve (its contract, pads, classes against scene.events, a warm-up decision); scene.pads; the packages "
-           "the sinks need; that no other daemon holds this device or health file")
+           "the sinks need; that the UDP sinks' host names resolve; the control socket's path; that no other daemon "
+           "holds this device or health file")
 NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
-               "destinations listen; the control socket; the real-time priority")
-NOT_CHECKED_WITH_DEVICE = ("not checked: whether the UDP and Unix destinations listen; the control socket; "
+               "destinations listen; who sends on the control socket; the real-time priority")
+NOT_CHECKED_WITH_DEVICE = ("not checked: whether the UDP and Unix destinations listen; who sends on the control socket; "
                            "the real-time priority")
 """What ``--check`` looked at and what it did not, said after its verdict (a valid config is not a working daemon)."""
 

@@ -107,14 +107,21 @@ class ModelSlot:
     @property
     def pending(self) -> bool:
         """Whether the watcher holds a validated model that waits to serve."""
-        return self.watcher is not None and self.watcher.pending is not None
+        return self.watcher is not None and (self.watcher.pending is not None or self.watcher.withdrawn)
 
     def take_pending(self) -> None:
-        """Swap in the watcher's validated model (the caller waits until no window is open)."""
+        """Swap in the watcher's validated model (the caller waits until no window is open), or serve
+        none when the serving file left the folder and nothing there can serve."""
         if self.watcher is not None:
             model = self.watcher.take()
             if model is not None:
                 self.use(model)
+            elif self.watcher.take_withdrawal() and self.model is not None:
+                log.warning("model %s: its file left %s and no file there can serve; none serves until one is "
+                            "dropped", self.model.model_id, self.cfg.model.folder)
+                self.health.report_error(f"model {Path(self.model.path).name} left the model folder; no file there "
+                                         "can serve", "model")
+                self.drop()
 
     def use(self, model: LoadedModel, layout: SensorLayout | None = None) -> None:
         """Swap the serving model, announce it, say what starts its windows."""

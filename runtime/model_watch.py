@@ -10,10 +10,13 @@ in between two windows (one reference assignment). A rejected file is logged wit
 and never retried unless it changes (or ``rescan()`` is asked for: the scene it was checked
 against changed); the old model keeps serving.
 
-Which model serves when several exist: the valid one that arrived last. Arrival is the file's
-status change time (ctime): copying, renaming into the folder, ``cp -p`` and ``rsync -a`` all set
-it to the moment of the drop, while they keep an old modification time, so a rollback to an
-older file serves.
+Which model serves when several exist: the valid one that arrived last, by the file's modification
+time (mtime). Not its status change time (ctime): a no-op ``chmod`` or ``chown`` sets that, and
+swapped an old model back in. What the folder holds is what is served: when the serving file
+leaves the folder (removed, replaced, or a symlinked folder switched to another), the newest valid
+file the folder holds now serves, or none when it holds none (``withdrawn``), as ``run --check``
+would say. To roll back: remove the newer file, switch the folder, or ``touch`` the older file
+(``cp -p`` and ``rsync -a`` keep a copy's old mtime: it arrives as old as it was).
 """
 
 from __future__ import annotations
@@ -59,12 +62,17 @@ class FileState:
 
 
     @property
-    def arrival(self) -> tuple[int, int, str]:
-        """Order of arrival in the folder (the last dropped sorts last), whatever the mtime."""
-        return (self.ctime_ns, self.mtime_ns, self.path.name)
+    def arrival(self) -> tuple[int, str]:
+        """Order of arrival in the folder (the newest modified sorts last)."""
+        return (self.mtime_ns, self.path.name)
+
+    def same_file(self, other: FileState | None) -> bool:
+        """The same version of the same file (its mode or owner may have changed since)."""
+        return other is not None and (self.path, self.inode, self.size, self.mtime_ns) == (
+            other.path, other.inode, other.size, other.mtime_ns)
 
 
-NEVER: tuple[int, int, str] = (-1, -1, "")
+NEVER: tuple[int, str] = (-1, "")
 
 
 @dataclass(frozen=True)
@@ -161,6 +169,11 @@ class ModelWatcher:
         self._thread: threading.Thread | None = None
         self._folder_error_logged = False
         self._rescan: bool | None = None
+        self._listed = False
+        """Whether the last scan could list the folder (a folder that cannot be read withdraws nothing)."""
+        self.withdrawn = False
+        """The serving file left the folder and no file there can serve: the main loop serves none
+        (``take_withdrawal``)."""
 
     def rescan(self, keep_current: bool) -> None:
         """Try every file again at the next poll (the scene changed, so a rejection may no longer
@@ -176,8 +189,10 @@ class ModelWatcher:
             if not self._folder_error_logged:
                 log.error("%s", folder_error(self.folder, exc))
                 self._folder_error_logged = True
+            self._listed = False
             return out
         self._folder_error_logged = False
+        self._listed = True
         for entry in entries:
             if not is_candidate_name(entry.name):
                 continue
@@ -202,6 +217,9 @@ class ModelWatcher:
             self._skipped.clear()
             self.current = None
         now = self._list()
+        gone = self._listed and self.current is not None and not self.current.same_file(now.get(self.current.path))
+        if gone:
+            self._serving_file_left()
         stable = [s for p, s in now.items() if not require_stable or self._previous.get(p) == s]
         self._previous = now
         fresh = [s for s in stable if s not in self._tried]
@@ -222,14 +240,32 @@ class ModelWatcher:
             if model is not None:
                 accepted = (st, model)
         if accepted is None:
+            if gone and len(stable) == len(now):  # every file there was weighed: none can serve
+                with self._lock:
+                    self.withdrawn = True
             return None
         st, model = accepted
         self.current = st
         self._accepted_states[st.path] = st
         self.accepted.append(st.path)
         with self._lock:
-            self.pending = model
+            self.pending, self.withdrawn = model, False
         return model
+
+    def _serving_file_left(self) -> None:
+        """The file of the model in use is no longer what the folder holds: weigh again every file
+        passed over for it (files rejected on their own stay rejected)."""
+        log.warning("model %s is no longer in %s (removed, replaced, or the folder switched): the newest valid file "
+                    "the folder holds now serves", self.current.path.name, self.folder)
+        self._tried -= self._skipped
+        self._skipped.clear()
+        self.current = None
+
+    def take_withdrawal(self) -> bool:
+        """Whether the serving model was withdrawn (once): the main loop then serves none."""
+        with self._lock:
+            withdrawn, self.withdrawn = self.withdrawn, False
+        return withdrawn
 
     def _apply_rescan(self) -> None:
         keep, self._rescan = self._rescan, None

@@ -66,15 +66,15 @@ def test_pads_the_sdh2_does_not_have_are_an_error(tmp_path):
 
 
 def test_check_names_the_model_the_daemon_serves_after_a_rollback(tmp_path):
-    """v2 dropped, then v1 rolled back with cp -p (an old mtime): both name v1."""
+    """v2 and v1 in the folder, v1 rolled back by touching it (the newest mtime): both name v1."""
     from runtime.config import load_config
     from runtime.daemon import Daemon
 
     models = tmp_path / "models"
     models.mkdir()
-    write_model(models, "v2.onnx", tiny_model_bytes(tag="v2"))
-    time.sleep(0.02)
+    write_model(models, "v2.onnx", tiny_model_bytes(tag="v2"), mtime=time.time() - 100)
     write_model(models, "v1.onnx", tiny_model_bytes(tag="v1"), mtime=time.time() - 86400)
+    os.utime(models / "v1.onnx")  # the rollback: touch
     cfg = _config(tmp_path, models, '[sinks]\nstdout = false\n')
     proc = _check(cfg)
     assert proc.returncode == 0 and "(v1.onnx)" in proc.stdout, proc.stdout + proc.stderr

@@ -326,8 +326,9 @@ def test_sighup_with_a_changed_scene_retries_a_rejected_model(tmp_path):
     assert daemon.health.model_id == daemon.model.model_id
 
 
-def test_a_rollback_with_an_old_mtime_serves(tmp_path):
-    """cp -p / rsync -a keep the old mtime: the file dropped last still serves."""
+def test_a_copy_with_an_old_mtime_arrives_as_old_and_a_touched_one_serves(tmp_path):
+    """Arrival is the mtime: cp -p / rsync -a keep an old one, so such a copy does not displace the
+    newer model (a no-op chmod must not either); ``touch`` makes it the newest, and it serves."""
     from runtime.model import load_model
     from runtime.model_watch import ModelWatcher
 
@@ -338,12 +339,14 @@ def test_a_rollback_with_an_old_mtime_serves(tmp_path):
     assert w.poll(require_stable=False).path.name == "v2.onnx"
     old = tmp_path / "v1.onnx"
     write_model(tmp_path, "v1.onnx", tiny_model_bytes(tag="v1"), mtime=time.time() - 86400)
-    time.sleep(0.02)  # a later arrival than v2 (ctime granularity)
     os.system(f"cp -p {old} {folder}/v1.onnx")
+    assert w.poll() is None and w.poll() is None  # seen twice: as old as it was, not loaded
+    now = time.time() + 1
+    os.utime(folder / "v1.onnx", (now, now))
     assert w.poll() is None  # first sighting
     model = w.poll()
     assert model is not None and model.path.name == "v1.onnx"
-    # and a restart (or run --check) agrees: the last dropped serves
+    # and a restart (or run --check) agrees
     fresh = ModelWatcher(folder, loader=lambda p: load_model(p, warm_up=False))
     assert fresh.poll(require_stable=False).path.name == "v1.onnx"
 

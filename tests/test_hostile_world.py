@@ -128,3 +128,7 @@ def test_crafted_dsa_files_are_one_line_and_never_allocate_what_the_header_asks(
 
 def test_the_model_metadata_is_not_believed_where_the_stream_says_otherwise(tmp_path):
     _held(W.model_claims(tmp_path))
+
+
+def test_what_the_model_folder_holds_is_what_is_served_and_check_agrees(tmp_path):
+    _held(W.folder_rollbacks(tmp_path))

@@ -603,3 +603,73 @@ def model_claims(work: Path) -> dict:
     return {"held": held, "detail": f"sample_rate_hz = 1 on a 32 Hz stream: {h.missed_deadlines} of {h.decisions} "
                                     f"decisions 50 ms late counted missed; health names the claim: {named}; "
                                     + "; ".join(f"fullscale = {k}: {v}" for k, v in refused.items())}
+
+
+# -- 9: what the folder holds is what is served ---------------------------------------------------------
+def _folder_daemon(models: Path, state: Path):
+    from firmware_io.layout import SensorLayout
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+
+    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
+                            "model": {"folder": str(models)}, "health_file": str(state / "status.json")})
+    daemon = Daemon(cfg)
+    daemon.detector.fit(SensorLayout.sdh2())
+    daemon.models.start()
+    daemon.models.watcher.stop()
+    return daemon
+
+
+def _settle(daemon) -> str | None:
+    """Two polls (a file must look the same twice) and the loop's swap: the file that serves now."""
+    for _ in range(2):
+        daemon.models.watcher.poll()
+    daemon._housekeeping(time.monotonic())
+    return Path(daemon.model.path).name if daemon.model is not None else None
+
+
+def _check_names(config: Path) -> str | None:
+    done = cli(["run", "--config", str(config), "--check"])
+    for name in ("old.onnx", "new.onnx", "a.onnx", "b.onnx"):
+        if f"({name})" in done.stdout:
+            return name
+    return None
+
+
+def folder_rollbacks(work: Path) -> dict:
+    """A no-op ``chmod`` on an older model, removing the newest file, switching a symlinked folder:
+    the daemon serves the file the folder now names, and ``--check`` names the same."""
+    from trainer.bench import hostile_models as H
+
+    state = work / "state"
+    state.mkdir(parents=True)
+    rows = {}
+    # chmod and removal
+    models = work / "models"
+    models.mkdir()
+    write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
+    write_model(models, "new.onnx", H.valid(bias_class=2, tag="new"), mtime=time.time() - 50)
+    daemon = _folder_daemon(models, state)
+    config = state / "h.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n')
+    os.chmod(models / "old.onnx", 0o644)  # a no-op, that changes the ctime
+    rows["chmod 644 on the older file"] = (_settle(daemon), _check_names(config), "new.onnx")
+    (models / "new.onnx").unlink()
+    rows["the newest file removed"] = (_settle(daemon), _check_names(config), "old.onnx")
+    (models / "old.onnx").unlink()
+    rows["every file removed"] = (_settle(daemon), _check_names(config), None)
+    # a symlinked folder switched
+    for name, tag, age in (("a", "a", 50), ("b", "b", 100)):
+        (work / name).mkdir()
+        write_model(work / name, f"{name}.onnx", H.valid(bias_class=3, tag=tag), mtime=time.time() - age)
+    link = work / "current"
+    link.symlink_to(work / "a")
+    switched = _folder_daemon(link, state)
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{link}"\n')
+    tmp_link = work / ".current.tmp"
+    tmp_link.symlink_to(work / "b")
+    os.replace(tmp_link, link)  # the atomic switch of a deploy tool
+    rows["a symlinked folder switched to an older release"] = (_settle(switched), _check_names(config), "b.onnx")
+    held = all(serving == check == want for serving, check, want in rows.values())
+    return {"held": held, "rows": {k: {"serving": s, "check": c, "expected": w} for k, (s, c, w) in rows.items()},
+            "detail": "; ".join(f"{k}: serves {s}, --check names {c} (expected {w})" for k, (s, c, w) in rows.items())}
