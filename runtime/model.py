@@ -22,6 +22,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,8 @@ import numpy as np
 from firmware_io.layout import FULL_SCALE_12BIT
 from firmware_io.trigger_level import is_trigger_level
 from runtime.bound_run import BoundRun
-from runtime.onnx_wire import WireError, summarize
+from runtime.early import EARLY_KEY, EarlySpec, EarlySpecError, head_outputs, is_head_output
+from runtime.onnx_wire import WireError, keep_outputs, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
 from runtime.trigger_settings import recorded_problems
 
@@ -238,7 +240,8 @@ def session_options(intra_op_threads: int = 1, allow_spinning: bool = False):
 class LoadedModel:
     """A validated model, ready to run. ``run`` refuses bad input with ModelInputError."""
 
-    def __init__(self, path: Path, session, meta: ModelMeta, model_id: str, n_nodes: int, n_bytes: int):
+    def __init__(self, path: Path, session, meta: ModelMeta, model_id: str, n_nodes: int, n_bytes: int,
+                 head_sessions: list | None = None):
         self.path = path
         self.meta = meta
         self.model_id = model_id
@@ -247,6 +250,12 @@ class LoadedModel:
         self._session = session
         self._shape = (meta.T, meta.n_channels)
         self._bound = BoundRun(session, INPUT_NAME, OUTPUT_NAMES, self._shape, meta.n_classes)
+        self.early: EarlySpec | None = early_spec(meta)
+        """The early heads and their rule (runtime.early), or None: the model answers at T only."""
+        self._head_sessions = list(head_sessions or [session] * len(self.early.points if self.early else ()))
+        """One session per early head (``load_model`` prunes the file per head), or the one graph's."""
+        self._heads = [BoundRun(s, INPUT_NAME, head_outputs(p), self._shape, meta.n_classes)
+                       for s, p in zip(self._head_sessions, self.early.points if self.early else (), strict=True)]
 
     def __repr__(self) -> str:
         return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
@@ -286,6 +295,15 @@ class LoadedModel:
         labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x})
         return labels, scores
 
+    def run_head(self, index: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The early head ``index`` (of ``early.points``) on the newest T frames ``x`` ``[1, T, C]``
+        float32 (it reads their last ``p`` rows); like ``run_trusted``, no input check."""
+        answer = self._heads[index].run(x)
+        if answer is not None:
+            return answer
+        labels, scores = self._head_sessions[index].run(list(head_outputs(self.early.points[index])), {INPUT_NAME: x})
+        return labels, scores
+
     def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION) -> None:
         """Run realistic windows (so the first real inference does not pay for allocations), check
         every answer against the output contract and one decision against the time budget
@@ -295,6 +313,21 @@ class LoadedModel:
                         1.0 / meta.sample_rate_hz, budget_fraction)
         if problem:
             raise ModelContractError(f"model {self.path}: {problem}")
+        for index, point in enumerate(self.early.points if self.early else ()):
+            problem = probe(partial(self.run_head, index), meta.T, meta.n_channels, meta.n_classes, meta.fullscale,
+                            1.0 / meta.sample_rate_hz, budget_fraction)
+            if problem:
+                raise ModelContractError(f"model {self.path}: early head at {point} frames {problem}")
+
+
+def early_spec(meta: ModelMeta) -> EarlySpec | None:
+    """The metadata's early heads, or None; ModelContractError (one line) when they make no sense."""
+    if EARLY_KEY not in meta.extra:
+        return None
+    try:
+        return EarlySpec.from_meta(meta.extra[EARLY_KEY], meta.T)
+    except EarlySpecError as exc:
+        raise ModelContractError(f"metadata: {exc}") from None
 
 
 def _check_io(session, meta: ModelMeta) -> None:
@@ -314,17 +347,26 @@ def _check_io(session, meta: ModelMeta) -> None:
             "symbolic) batch dimension N, since the daemon runs single windows and tools run batches"
         )
     names = [o.name for o in outputs]
-    if sorted(names) != sorted(OUTPUT_NAMES):
-        raise ModelContractError(f"outputs {names}, expected {list(OUTPUT_NAMES)}")
+    spec = early_spec(meta)
+    heads = [name for p in (spec.points if spec else ()) for name in head_outputs(p)]
+    base = [n for n in names if not is_head_output(n)]
+    if sorted(base) != sorted(OUTPUT_NAMES):
+        raise ModelContractError(f"outputs {base}, expected {list(OUTPUT_NAMES)}")
+    found = sorted(n for n in names if is_head_output(n))
+    if found != sorted(heads):
+        says = f"early.points {list(spec.points)}" if spec else "no early heads"
+        raise ModelContractError(f"the graph's early-head outputs {found} disagree with the metadata ({says}); "
+                                 "re-export the model")
     by_name = {o.name: o for o in outputs}
-    label, scores = by_name["label"], by_name["scores"]
-    if label.type != "tensor(int64)" or len(label.shape) != 1:
-        raise ModelContractError(f"output 'label' is {label.type} {label.shape}, expected tensor(int64) [N]")
-    if scores.type != "tensor(float)" or len(scores.shape) != 2 or scores.shape[1] != meta.n_classes:
-        raise ModelContractError(
-            f"output 'scores' is {scores.type} {scores.shape}, expected tensor(float) [N, {meta.n_classes}] "
-            f"(one score per class of {list(meta.classes)})"
-        )
+    for label_name, scores_name in [OUTPUT_NAMES, *(head_outputs(p) for p in (spec.points if spec else ()))]:
+        label, scores = by_name[label_name], by_name[scores_name]
+        if label.type != "tensor(int64)" or len(label.shape) != 1:
+            raise ModelContractError(f"output {label_name!r} is {label.type} {label.shape}, expected tensor(int64) [N]")
+        if scores.type != "tensor(float)" or len(scores.shape) != 2 or scores.shape[1] != meta.n_classes:
+            raise ModelContractError(
+                f"output {scores_name!r} is {scores.type} {scores.shape}, expected tensor(float) [N, {meta.n_classes}] "
+                f"(one score per class of {list(meta.classes)})"
+            )
 
 
 CODEWORD_KERNEL = "codeword_kernel"
@@ -447,7 +489,17 @@ def load_model(
     except UnicodeDecodeError as exc:  # input/output names of a damaged file
         raise ModelContractError(f"{where}: a name in the graph is not valid UTF-8 (byte {exc.start}); damaged file?") from None
     model_id = hashlib.sha256(data).hexdigest()[:12]
-    model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data))
+    heads: list = []
+    if (spec := early_spec(meta)) is not None:  # one session per head: onnxruntime runs every node of a graph
+        parts = [OUTPUT_NAMES, *(head_outputs(p) for p in spec.points)]
+        try:
+            session, *heads = (ort.InferenceSession(keep_outputs(data, names), sess_options=session_options(
+                intra_op_threads, allow_spinning), providers=["CPUExecutionProvider"], enable_fallback=0)
+                for names in parts)
+        except Exception as exc:  # a damaged graph whose parts do not stand alone
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ModelContractError(f"{where}: its early heads do not load on their own: {first}") from exc
+    model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data), heads)
     if warm_up:
         model.warm_up(budget_fraction=decision_budget)
     return model

@@ -262,3 +262,70 @@ def summarize(model_bytes: bytes) -> WireSummary:
     if not saw_graph:
         raise WireError("no graph in the model")
     return out
+
+
+# -- one graph's part: the nodes some outputs need -------------------------------------------------
+def _encode_varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+def _encode_field(number: int, wtype: int, value: bytes | int) -> bytes:
+    key = _encode_varint((number << 3) | wtype)
+    if wtype == 0:
+        return key + _encode_varint(int(value))
+    if wtype == 2:
+        return key + _encode_varint(len(value)) + bytes(value)
+    return key + bytes(value)  # fixed 32/64-bit: already the raw bytes
+
+
+def _strings(buf: bytes, number: int) -> list[str]:
+    return [v.decode("utf-8", "replace") for n, t, v in _fields(buf) if n == number and t == 2]
+
+
+def _value_info_name(buf: bytes) -> str:
+    return next((v.decode("utf-8", "replace") for n, t, v in _fields(buf) if n == 1 and t == 2), "")
+
+
+def keep_outputs(model_bytes: bytes, outputs: tuple[str, ...]) -> bytes:
+    """The model with only the nodes, initializers and graph outputs that ``outputs`` need (the same
+    bytes for everything kept). Why: onnxruntime runs every node of a graph whatever outputs are
+    asked for, so a file with several heads is opened as one session per head. Raises WireError
+    when an output is not in the graph."""
+    graph = next((v for n, t, v in _fields(model_bytes) if n == 7 and t == 2), None)
+    if graph is None:
+        raise WireError("no graph in the model")
+    items = list(_fields(graph))
+    names = {_value_info_name(v) for n, t, v in items if n == 12 and t == 2}
+    missing = [o for o in outputs if o not in names]
+    if missing:
+        raise WireError(f"the graph has no output {missing[0]!r}")
+    needed = set(outputs)
+    keep_node: dict[int, bool] = {}
+    for i in range(len(items) - 1, -1, -1):  # nodes are stored in topological order
+        number, wtype, value = items[i]
+        if number == 1 and wtype == 2 and needed.intersection(_strings(value, 2)):
+            keep_node[i] = True
+            needed.update(_strings(value, 1))
+    body = bytearray()
+    for i, (number, wtype, value) in enumerate(items):
+        if number == 1 and wtype == 2 and not keep_node.get(i):
+            continue
+        if number == 5 and wtype == 2 and _tensor_name_and_dims(value)[0] not in needed:
+            continue
+        if number == 12 and wtype == 2 and _value_info_name(value) not in outputs:
+            continue
+        if number == 13:  # intermediate shapes: onnxruntime infers them again
+            continue
+        body += _encode_field(number, wtype, value)
+    out = bytearray()
+    for number, wtype, value in _fields(model_bytes):
+        out += _encode_field(7, 2, bytes(body)) if number == 7 and wtype == 2 else _encode_field(number, wtype, value)
+    return bytes(out)

@@ -381,15 +381,25 @@ def model_metadata(model, metadata: dict, fold_derivative: bool = False) -> dict
     return meta
 
 
-def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool = False) -> Path:
-    """Write the model as one ONNX file (atomically) and check it with the runtime's loader."""
+def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool = False, early=None) -> Path:
+    """Write the model as one ONNX file (atomically) and check it with the runtime's loader.
+
+    ``early``: a ``trainer.early.EarlyHeads`` whose heads join the graph (``trainer.early_export``)
+    and whose rule goes into the metadata (``runtime.early``)."""
     import onnx
 
+    from runtime.early import EARLY_KEY
     from runtime.model import METADATA_KEY, ModelMeta, load_model
 
     meta = model_metadata(model, metadata, fold_derivative)
+    if early is not None:
+        meta[EARLY_KEY] = early.spec.to_meta()
     ModelMeta.from_dict(json.loads(json.dumps(meta)))
     onnx_model = build_graph(model, fold_derivative)
+    if early is not None:
+        from trainer.early_export import add_heads
+
+        add_heads(onnx_model, model, early.models, early.spec.points, int(meta["T"]))
     props = {p.key: p.value for p in onnx_model.metadata_props}
     onnx.helper.set_model_props(onnx_model, {**props, METADATA_KEY: json.dumps(meta, sort_keys=True)})
     onnx.checker.check_model(onnx_model, full_check=True)

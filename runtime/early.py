@@ -1,0 +1,134 @@
+"""Early decisions: what a model file says about its early heads, and the rule that reports from them.
+
+Why: the full window (T frames after the trigger) makes the robot wait about half a second, while
+a firm pull is plain after a few frames. A model may carry *early heads*: extra outputs of the
+same graph, ``label_at_<p>`` and ``scores_at_<p>``, each a classifier trained on the first ``p``
+frames of the window (the graph reads them as the LAST ``p`` rows of its ``frames`` input, so the
+ring's newest T frames are the input at every point, no copy). The metadata key ``early`` (owned
+here; the trainer writes it with :meth:`EarlySpec.to_meta`) lists the points and the report rule
+chosen in training:
+
+- ``points``: frames after the window's start at which a head decides, ascending, each < T;
+- ``calibration``: per point ``[a, b]``, the probability that the head is right given its score
+  margin ``m`` (top score minus runner-up) is ``1 / (1 + exp(-(a m + b)))`` (Platt scaling on
+  cross-validated predictions);
+- ``threshold``: report at a point when that probability reaches it (``NEVER``: never early);
+- ``agree``: and, if true, when the head agrees with the previous point's head;
+- at T the full model answers, always.
+
+The rule is per event (one report per window) and costs a few scalar operations per point.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+EARLY_KEY = "early"
+"""The metadata key of the early heads (absent: a model without early heads, served as before)."""
+LABEL_PREFIX, SCORES_PREFIX = "label_at_", "scores_at_"
+NEVER = 1.01
+"""A threshold above every probability: the rule that always waits for T (what training chooses when no
+early rule keeps the accuracy)."""
+
+
+def head_outputs(point: int) -> tuple[str, str]:
+    """The graph's output names of the head that decides ``point`` frames into the window."""
+    return f"{LABEL_PREFIX}{point}", f"{SCORES_PREFIX}{point}"
+
+
+def is_head_output(name: str) -> bool:
+    return name.startswith((LABEL_PREFIX, SCORES_PREFIX))
+
+
+class EarlySpecError(ValueError):
+    """Early-head metadata that is inconsistent; the message says what and what to do."""
+
+
+@dataclass(frozen=True)
+class EarlySpec:
+    """The early heads of a model and the rule chosen for them (see the module docstring)."""
+
+    points: tuple[int, ...]
+    calibration: tuple[tuple[float, float], ...]
+    threshold: float
+    agree: bool
+
+    @classmethod
+    def from_meta(cls, value: object, T: int) -> EarlySpec:
+        """Validate the ``early`` metadata object against the window length ``T``."""
+        if not isinstance(value, dict):
+            raise EarlySpecError(f"{EARLY_KEY} must be an object, got {type(value).__name__}")
+        points, calib = value.get("points"), value.get("calibration")
+        threshold, agree = value.get("threshold"), value.get("agree")
+        if (not isinstance(points, list) or not points
+                or any(isinstance(p, bool) or not isinstance(p, int) for p in points)):
+            raise EarlySpecError(f"{EARLY_KEY}.points must be a non-empty list of frame counts, got {points!r}")
+        if sorted(set(points)) != points or points[0] < 2 or points[-1] >= T:
+            raise EarlySpecError(f"{EARLY_KEY}.points {points} must ascend, each from 2 to T-1={T - 1}")
+        if (not isinstance(calib, list) or len(calib) != len(points)
+                or any(not isinstance(c, list) or len(c) != 2 or not all(_finite(x) for x in c) for c in calib)):
+            raise EarlySpecError(f"{EARLY_KEY}.calibration must hold one [a, b] pair of numbers per point "
+                                 f"({len(points)}); re-export the model")
+        if not _finite(threshold) or not 0.0 <= float(threshold) <= NEVER:
+            raise EarlySpecError(f"{EARLY_KEY}.threshold must be a probability (or {NEVER}: never early), "
+                                 f"got {threshold!r}")
+        if not isinstance(agree, bool):
+            raise EarlySpecError(f"{EARLY_KEY}.agree must be true or false, got {agree!r}")
+        return cls(tuple(points), tuple((float(a), float(b)) for a, b in calib), float(threshold), agree)
+
+    def to_meta(self) -> dict:
+        return {"points": list(self.points), "calibration": [list(c) for c in self.calibration],
+                "threshold": self.threshold, "agree": self.agree}
+
+    def confidence(self, index: int, scores: np.ndarray, label: int) -> float:
+        """Calibrated probability that head ``index`` (of ``points``) is right, from one row of scores."""
+        a, b = self.calibration[index]
+        return _sigmoid(a * margin(scores, label) + b)
+
+
+def _finite(x: object) -> bool:
+    return not isinstance(x, bool) and isinstance(x, int | float) and math.isfinite(x)
+
+
+def _sigmoid(z: float) -> float:
+    return 1.0 / (1.0 + math.exp(-z)) if z >= 0 else math.exp(z) / (1.0 + math.exp(z))
+
+
+def margin(scores: np.ndarray, label: int) -> float:
+    """Score of ``label`` minus the best other score, of one row (O(n_classes), no allocation kept)."""
+    row = scores.reshape(-1)
+    top = float(row[label])
+    best = -math.inf
+    for k in range(row.shape[0]):
+        if k != label and row[k] > best:
+            best = float(row[k])
+    return top - best
+
+
+class EarlyRule:
+    """One event's early decisions: per point, whether to report now (one report per event).
+
+    ``early_classes``: the classes that may be reported before T (None: all); a scene that must
+    release on a pull but may wait on a bump lists only ``pull`` (``scene.early_events``)."""
+
+    def __init__(self, spec: EarlySpec, early_classes: frozenset[int] | None = None) -> None:
+        self.spec = spec
+        self.early_classes = early_classes
+        self._index = {p: i for i, p in enumerate(spec.points)}
+
+    def index_of(self, point: int) -> int:
+        """Position of ``point`` in the spec's points, or -1 when no head decides there."""
+        return self._index.get(point, -1)
+
+    def report_now(self, index: int, label: int, scores: np.ndarray, previous: int) -> bool:
+        """Whether head ``index``'s answer ``label`` is safe to report (``previous``: the label of the
+        head before it for this event, -1 when none)."""
+        spec = self.spec
+        if self.early_classes is not None and label not in self.early_classes:
+            return False
+        if spec.agree and label != previous:
+            return False
+        return spec.confidence(index, scores, label) >= spec.threshold

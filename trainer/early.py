@@ -1,0 +1,231 @@
+"""Early heads and their report rule, fitted on training data only.
+
+Why: a decision at T frames after the person's onset answers about half a second late; many
+events are plain after a few frames. Here, for each point ``p`` of ``EARLY_POINTS`` a head of the
+default kind (``trainer.defaults.default_classifier``: same features, same selection of C) is
+trained on the first ``p`` frames of the training windows, and the report rule
+(``runtime.early``: a calibrated confidence above a threshold, optionally agreement with the
+previous point) is chosen by cross-validation inside the training data, grouped by subject:
+
+1. out-of-fold answers of every head and of the full model (leave one group out);
+2. per point, Platt scaling of the score margin to the probability of being right;
+3. the rule (threshold, agree) with the fewest mean frames whose cascade accuracy stays within
+   ``target_loss`` of the full window's, over a fixed grid; ties go to the stricter rule.
+
+``evaluate`` nests the whole choice inside leave-one-group-out for an honest curve and operating
+point (``handover train``'s report and ``handover bench early``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.early import NEVER, EarlySpec, margin
+
+EARLY_POINTS = (4, 6, 8, 11)
+"""Frames after the window's start at which a head decides (the full model answers at T)."""
+TARGET_LOSS = 0.02
+"""The rule may lose at most this much accuracy against the full window (cross-validated)."""
+THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999)
+"""The grid of calibrated-confidence thresholds the rule is chosen from (1.0 + never: all at T)."""
+
+Factory = Callable[[int], object]
+"""Unfitted estimator for windows of ``p`` frames (``p`` = T: the full model)."""
+
+
+def head_factory(pad_sizes: Sequence[int], pad_shapes=None, seed: int = 0, fullscale: float = 4095.0) -> Factory:
+    """Heads of the default kind (the same features and C search as ``handover train``'s default)."""
+    from trainer.defaults import default_classifier
+
+    return lambda p: default_classifier(pad_sizes, pad_shapes, random_state=seed, fullscale=fullscale)
+
+
+def fit_heads(X: np.ndarray, y: np.ndarray, points: Sequence[int], make: Factory) -> list:
+    """One fitted head per point, each on the first ``p`` frames of ``X`` ``(n, C, T)``."""
+    return [make(p).fit(X[:, :, :p], y) for p in points]
+
+
+def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Sequence[str]
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Labels (indices into ``classes``) ``[n_points, n]`` and score margins ``[n_points, n]``."""
+    index = {c: i for i, c in enumerate(classes)}
+    labels = np.zeros((len(points), len(X)), dtype=np.int64)
+    margins = np.zeros((len(points), len(X)))
+    for k, (model, p) in enumerate(zip(models, points, strict=True)):
+        Xp = X[:, :, :p]
+        scores = np.asarray(model.decision_function(Xp), dtype=np.float64)
+        pred = [index[str(c)] for c in model.predict(Xp)]
+        own = [list(model.classes_).index(classes[i]) for i in pred]
+        labels[k] = pred
+        margins[k] = [margin(scores[j], own[j]) for j in range(len(X))]
+    return labels, margins
+
+
+def out_of_fold(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
+                classes: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-group-out answers of every point's head (folds whose training part lacks a class of
+    the test part still answer: the head never says that class)."""
+    labels = np.zeros((len(points), len(X)), dtype=np.int64)
+    margins = np.zeros((len(points), len(X)))
+    for g in np.unique(groups):
+        test = groups == g
+        if test.all():
+            raise ValueError("out-of-fold answers need at least two groups")
+        models = fit_heads(X[~test], y[~test], points, make)
+        labels[:, test], margins[:, test] = answers(models, points, X[test], classes)
+    return labels, margins
+
+
+def platt(margins: np.ndarray, correct: np.ndarray, iterations: int = 50) -> tuple[float, float]:
+    """``(a, b)`` with P(correct | m) = sigmoid(a m + b), fitted by Newton's method on Platt's smoothed
+    targets (so a head that was never wrong still gets a finite, cautious calibration)."""
+    m = np.asarray(margins, dtype=np.float64)
+    c = np.asarray(correct, dtype=bool)
+    n_pos, n_neg = int(c.sum()), int((~c).sum())
+    t = np.where(c, (n_pos + 1.0) / (n_pos + 2.0), 1.0 / (n_neg + 2.0))
+    a, b = 0.0, float(np.log((n_pos + 1.0) / (n_neg + 1.0)))
+    for _ in range(iterations):
+        p = 1.0 / (1.0 + np.exp(-(a * m + b)))
+        w = p * (1.0 - p) + 1e-12
+        g = np.array([np.sum((p - t) * m), np.sum(p - t)])
+        h = np.array([[np.sum(w * m * m), np.sum(w * m)], [np.sum(w * m), np.sum(w)]]) + 1e-9 * np.eye(2)
+        step = np.linalg.solve(h, g)
+        a, b = a - step[0], b - step[1]
+        if np.abs(step).max() < 1e-10:
+            break
+    return float(a), float(b)
+
+
+def confidences(margins: np.ndarray, calibration: Sequence[tuple[float, float]]) -> np.ndarray:
+    ab = np.asarray(calibration, dtype=np.float64)
+    return 1.0 / (1.0 + np.exp(-(ab[:, :1] * margins + ab[:, 1:])))
+
+
+def cascade(labels: np.ndarray, conf: np.ndarray, full: np.ndarray, threshold: float, agree: bool,
+            allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rule reports each case (index of the point, ``len(points)`` = T) and what it says.
+
+    ``labels``/``conf``: ``[n_points, n]`` of the early heads; ``full``: the full model's labels;
+    ``allowed``: bool per class index, the classes that may be reported early (None: all)."""
+    n_points, n = labels.shape
+    where = np.full(n, n_points, dtype=np.int64)
+    said = full.copy()
+    open_ = np.ones(n, dtype=bool)
+    for k in range(n_points):
+        ok = open_ & (conf[k] >= threshold)
+        if agree:
+            ok &= labels[k] == labels[k - 1] if k > 0 else False
+        if allowed is not None:
+            ok &= allowed[labels[k]]
+        where[ok], said[ok] = k, labels[k][ok]
+        open_ &= ~ok
+    return where, said
+
+
+@dataclass
+class RuleChoice:
+    spec: EarlySpec
+    accuracy: float
+    full_accuracy: float
+    mean_frames: float
+    grid: list[dict]
+
+
+def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth: np.ndarray,
+                points: Sequence[int], T: int, target_loss: float = TARGET_LOSS) -> RuleChoice:
+    """The calibration and the rule (see the module docstring) from out-of-fold answers."""
+    calibration = [platt(margins[k], labels[k] == truth) for k in range(len(points))]
+    conf = confidences(margins, calibration)
+    frames = np.asarray([*points, T], dtype=np.float64)
+    full_acc = float(np.mean(full == truth))
+    grid, best = [], None
+    for agree in (False, True):
+        for threshold in (*THRESHOLDS, NEVER):
+            where, said = cascade(labels, conf, full, threshold, agree)
+            row = {"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
+                   "mean_frames": float(frames[where].mean())}
+            grid.append(row)
+            if row["accuracy"] >= full_acc - target_loss - 1e-12 and (
+                    best is None or row["mean_frames"] < best["mean_frames"] - 1e-12):
+                best = row
+    assert best is not None  # NEVER reproduces the full window's accuracy
+    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]))
+    return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
+
+
+def fit_rule(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
+             make_full: Factory, classes: Sequence[str], target_loss: float = TARGET_LOSS) -> RuleChoice:
+    """The rule chosen by leave-one-group-out inside ``X`` (the training data)."""
+    T = X.shape[2]
+    labels, margins = out_of_fold(X, y, groups, points, make, classes)
+    full, _ = out_of_fold(X, y, groups, (T,), make_full, classes)
+    truth = np.asarray([list(classes).index(str(c)) for c in y])
+    return choose_rule(labels, margins, full[0], truth, points, T, target_loss)
+
+
+def evaluate(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
+             make_full: Factory, target_loss: float = TARGET_LOSS, say: Callable[[str], None] | None = None) -> dict:
+    """Nested leave-one-group-out: the accuracy-against-frames curve (overall and per class) of the
+    heads, and the operating point of the rule chosen inside each outer training part."""
+    classes = sorted({str(c) for c in y})
+    truth = np.asarray([classes.index(str(c)) for c in y])
+    T = X.shape[2]
+    all_points = (*points, T)
+    labels = np.zeros((len(all_points), len(X)), dtype=np.int64)
+    where = np.zeros(len(X), dtype=np.int64)
+    said = np.zeros(len(X), dtype=np.int64)
+    rules = []
+    for i, g in enumerate(np.unique(groups)):
+        if say:
+            say(f"early decisions: outer fold {i + 1}/{len(np.unique(groups))} (held out {g}) ...")
+        test = groups == g
+        train = ~test
+        choice = fit_rule(X[train], y[train], groups[train], points, make, make_full, classes, target_loss)
+        models = [*fit_heads(X[train], y[train], points, make), make_full(T).fit(X[train], y[train])]
+        lab, mar = answers(models, all_points, X[test], classes)
+        labels[:, test] = lab
+        conf = confidences(mar[:-1], choice.spec.calibration)
+        w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.threshold, choice.spec.agree)
+        where[test], said[test] = w, s
+        rules.append({"held_out": str(g), **choice.spec.to_meta(), "inner_accuracy": choice.accuracy,
+                      "inner_full_accuracy": choice.full_accuracy, "inner_mean_frames": choice.mean_frames})
+    frames = np.asarray(all_points)
+    curve = {str(p): float(np.mean(labels[k] == truth)) for k, p in enumerate(all_points)}
+    per_class = {c: {str(p): float(np.mean(labels[k][truth == i] == i)) for k, p in enumerate(all_points)}
+                 for i, c in enumerate(classes)}
+    op_class = {c: {"accuracy": float(np.mean(said[truth == i] == i)),
+                    "mean_frames": float(frames[where[truth == i]].mean())} for i, c in enumerate(classes)}
+    return {"points": list(all_points), "classes": classes, "curve": curve, "curve_per_class": per_class,
+            "operating_point": {"accuracy": float(np.mean(said == truth)), "mean_frames": float(frames[where].mean()),
+                                "median_frames": float(np.median(frames[where])), "per_class": op_class,
+                                "reported_at": {str(p): int(np.sum(where == k)) for k, p in enumerate(all_points)}},
+            "full_accuracy": curve[str(T)], "target_loss": target_loss, "rules": rules, "n_cases": len(y)}
+
+
+def earliness_score(accuracy: float, mean_frames: float, T: int) -> dict:
+    """Earliness (fraction of the window used, lower is earlier) and the harmonic mean of accuracy and
+    1 - earliness, the usual score of early classification."""
+    earliness = mean_frames / T
+    hm = 0.0 if accuracy <= 0 or earliness >= 1 else 2 * accuracy * (1 - earliness) / (accuracy + 1 - earliness)
+    return {"accuracy": accuracy, "earliness": earliness, "harmonic_mean": hm}
+
+
+@dataclass
+class EarlyHeads:
+    """Fitted heads (one per point of ``spec.points``) and the rule: what the exporter puts in the file."""
+
+    models: list
+    spec: EarlySpec
+    choice: RuleChoice | None = None
+
+
+def fit_early(X: np.ndarray, y: np.ndarray, groups: np.ndarray, make: Factory, make_full: Factory,
+              points: Sequence[int] = EARLY_POINTS, target_loss: float = TARGET_LOSS) -> EarlyHeads:
+    """Heads on all of ``X`` and the rule chosen by leave-one-group-out inside it."""
+    classes = sorted({str(c) for c in y})
+    points = tuple(int(p) for p in points if p < X.shape[2])
+    choice = fit_rule(X, y, groups, points, make, make_full, classes, target_loss)
+    return EarlyHeads(fit_heads(X, y, points, make), choice.spec, choice)
