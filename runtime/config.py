@@ -337,8 +337,15 @@ _READERS: dict[str, Callable[[Key, dict], Any]] = {
 }
 """Keys read with more than their declared type and range."""
 
+
+def _early_within_events(v: dict) -> None:
+    if v["early_events"] is not None and (stray := [e for e in v["early_events"] if e not in v["events"]]):
+        raise ConfigError(f"scene.early_events: {', '.join(map(repr, stray))} not in scene.events "
+                          f"({', '.join(v['events'])}); list only reported events")
+
+
 _SECTION_CHECKS: dict[str, tuple[Callable[[dict], None], ...]] = {
-    "device": (_reconnect_order,), "trigger": (_hysteresis_below_fraction,),
+    "device": (_reconnect_order,), "trigger": (_hysteresis_below_fraction,), "scene": (_early_within_events,),
 }
 """Checks of one key against another, after the section's keys were read."""
 

@@ -107,6 +107,9 @@ KEYS: tuple[Key, ...] = (
     Key("scene.events", tuple, ("pull", "push", "hold", "bump"), "classes reported to the sinks (others are counted)"),
     Key("scene.mode", str, "trigger", "trigger: a window per trigger ([trigger]); continuous: a decision every frame "
         "(a model with a dormant class)", choices=("trigger", "continuous")),
+    Key("scene.early_events", tuple, None, "events a model's early heads may report before the full window (unset: "
+        "every event; [] never early; [\"pull\"]: let go at once on a pull, a bump may wait; docs/EARLY.md)",
+        optional=True, example=["pull"]),
 
     Key("model.folder", str, "/var/lib/handover/models", "the newest valid *.onnx here serves"),
     Key("model.poll_interval_s", float, 1.0, "how often the folder is looked at", range=(0.01, _S)),

@@ -8,7 +8,8 @@ feed recorded frames to a Detector directly, so what they measure is what the se
 
 Two narrow objects decide around the model and are the places to change what and when it reports:
 
-- ``Windows`` says which frames end a window (the trigger's due frames, in order);
+- ``Windows`` says which frames end a window (the trigger's due frames, in order), and at which
+  frames a model's early heads may answer it sooner (runtime/early.py);
 - ``ReportRule`` says which decided class is reported: continuous mode's ``ContinuousDecision``
   (runtime/decision.py), and only classes in ``scene.events`` (a dormant class is never one).
 
@@ -29,6 +30,7 @@ from firmware_io.layout import SensorLayout
 from runtime.arm_motion import ArmMotion, arm_frames
 from runtime.config import ContinuousConfig, ControlConfig, SceneConfig, TriggerConfig
 from runtime.decision import ContinuousDecision
+from runtime.early import EarlyRule
 from runtime.frame_rate import FrameClock
 from runtime.health import Health, one_line
 from runtime.listeners import DecisionTimings
@@ -92,13 +94,19 @@ class Windows:
     """The frames at which open windows end, in order (the trigger fixes each one as it fires).
 
     With ``ArmMotion`` (a window that held a frame of the robot's arm moving is judged dormant, the model
-    not run) the one place that decides when the model runs: a rule that decides an event at several
-    frame counts belongs in ``ends``."""
+    not run) the one place that decides when the model runs. With a model's early heads (``early``:
+    runtime.early) a window may be answered before its end: ``head`` names the head that decides at a
+    frame, ``answered_early`` applies the rule to its answer and closes the window when it reports."""
 
-    __slots__ = ("_due",)
+    __slots__ = ("T", "_due", "_previous", "early")
 
     def __init__(self) -> None:
         self._due: deque[int] = deque()
+        self.early: EarlyRule | None = None
+        """The early heads' report rule of the serving model and scene (None: the full window only)."""
+        self.T = 0
+        self._previous = -1
+        """The label of the oldest window's last early head (-1: none yet)."""
 
     def open(self, due: int) -> None:
         """The trigger fired: a window ends at frame ``due``."""
@@ -108,13 +116,35 @@ class Windows:
         """Whether frame ``number`` ends the oldest open window (a frame past it drops that window)."""
         due = self._due
         if due and number >= due[0]:
+            self._previous = -1
             return due.popleft() == number
         return False
+
+    def head(self, number: int) -> int:
+        """The early head (index into ``early.points``) that decides the oldest window at frame
+        ``number``, or -1."""
+        if self.early is None or not self._due or number >= self._due[0]:
+            return -1
+        return self.early.index_of(number - self._due[0] + self.T)
+
+    def first(self) -> int:
+        """The model frame number of the oldest open window's first frame."""
+        return self._due[0] - self.T + 1
+
+    def answered_early(self, head: int, label: int, scores: np.ndarray) -> bool:
+        """Whether head ``head``'s answer is reported now; if so the window is closed (one report per event)."""
+        report = self.early.report_now(head, label, scores, self._previous)
+        self._previous = label
+        if report:
+            self._due.popleft()
+            self._previous = -1
+        return report
 
     def clear(self) -> int:
         """Drop the open windows (the stream broke, the model changed); how many there were."""
         n = len(self._due)
         self._due.clear()
+        self._previous = -1
         return n
 
     def __len__(self) -> int:
@@ -284,30 +314,37 @@ class Detector:
                 self.rule.judge_dormant()  # the arm moved during the window: the model does not run
                 return None
             return self._decide(model, frame)
+        if windows.early is not None and (head := windows.head(number)) >= 0 and ring.count >= model.meta.T \
+                and self.arm.last_motion < windows.first():  # an arm move: the window is judged at its end
+            return self._decide(model, frame, head)
         return None
 
-    def _decide(self, model: LoadedModel, frame: Frame) -> Decision:
-        """The model on the window ending at ``frame``, checked; each stage stamped."""
+    def _decide(self, model: LoadedModel, frame: Frame, head: int = -1) -> Decision | None:
+        """The model (or early head ``head``) on the window ending at ``frame``, checked; each stage
+        stamped. None when an early head's answer is not safe yet (``Windows.answered_early``)."""
         clock = time.perf_counter
         started = clock()
         meta = model.meta
         window = self.ring.window(meta.T)  # a float32 [1, T, C] view of the ring: no copy
         windowed = clock()
-        first = self.frame_clock.window_first(frame.number, meta.T)
+        seen = meta.T if head < 0 else model.early.points[head]
+        first = self.frame_clock.window_first(frame.number, seen)
         problem = None
         try:
-            labels, scores = model.run_trusted(window)
+            labels, scores = model.run_trusted(window) if head < 0 else model.run_head(head, window)
         except Exception as exc:  # a graph that fails on real frames only
             labels, scores = np.zeros(1, np.int64), np.zeros((1, meta.n_classes), np.float32)
-            problem = f"inference failed on frames {frame.number - meta.T + 1}..{frame.number}: {one_line(exc)}"
+            problem = f"inference failed on frames {frame.number - seen + 1}..{frame.number}: {one_line(exc)}"
         decided = clock()
         if problem is None and (bad := output_problem(labels, scores, meta.n_classes)):
-            problem = f"{bad} (frames {frame.number - meta.T + 1}..{frame.number})"
+            problem = f"{bad} (frames {frame.number - seen + 1}..{frame.number})"
         stamps = DecisionTimings(frame.received, started, windowed, decided, clock())
         latency_us = (decided - frame.received) * 1e6
         if problem is not None:
             return Decision(frame, model, first, -1, scores, -1, stamps, latency_us, False, problem)
         label = int(labels[0])
+        if head >= 0 and not self.windows.answered_early(head, label, scores[0]):
+            return None
         report = self.rule.judge(label, scores[0])
         return Decision(frame, model, first, label, scores, report, stamps, latency_us,
                         latency_us > self.frame_clock.deadline_s() * 1e6)
@@ -352,6 +389,16 @@ class Detector:
         self.rule = ReportRule(tuple(meta.classes) if meta else (), self.scene.events, self._continuous)
         self.arm.configure(*self._arm_frames())
         self.windows.clear()
+        self.windows.early, self.windows.T = self._early_rule(), T
+
+    def _early_rule(self) -> EarlyRule | None:
+        """The serving model's early heads under the scene's ``early_events`` (trigger mode only)."""
+        model = self.model
+        if model is None or model.early is None or self.scene.mode != "trigger":
+            return None
+        early = self.scene.early_events
+        allowed = None if early is None else frozenset(i for i, c in enumerate(model.meta.classes) if c in early)
+        return EarlyRule(model.early, allowed)
 
     def _arm_frames(self) -> tuple[int, int]:
         return arm_frames(1.0 / self.period_s, self.control.arm_settle_s, self.control.arm_max_move_s)

@@ -312,7 +312,7 @@ features the grid's large C (1e4, 1e6) did not converge within many minutes."""
 
 def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, n_sessions: int,
                      path: str | Path, K: int = PAPER_MODEL["K"], W: int = PAPER_MODEL["W"], T: int = 15,
-                     pads: str = "all") -> Path:
+                     pads: str = "all", early: bool = True, log=None) -> Path:
     """The 5-class model for live streams (synthetic training data, ``seed``), exported to ``path``.
 
     Per-pad histograms plus per-pad level and slope (a hold is a change of level the derivative
@@ -329,8 +329,17 @@ def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, 
     idle = [simulate_idle(60.0 * idle_min / n_parts, seed=seed, part=p) for p in range(n_parts)]
     sessions = [simulate_session(demo_script(n_sessions, seed=seed, gap=(4.0, 6.0)), seed=seed)]
     dds = build_dormant_dataset(protocol, idle, T=T, pads=pads, seed=seed, sessions=sessions)
-    model = paper_classifier(dds.pad_sizes, seed, n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C, per_pad=True,
-                             level_features=True, scale_features=True, fullscale=dds.fullscale).fit(dds.X, dds.y)
+
+    def make_full(_frames: int):
+        return paper_classifier(dds.pad_sizes, seed, n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C,
+                                per_pad=True, level_features=True, scale_features=True, fullscale=dds.fullscale)
+
+    model = make_full(T).fit(dds.X, dds.y)
+    heads = None
+    if early:
+        from trainer.early import fit_stream_heads
+
+        heads = fit_stream_heads(protocol, dds, pads, seed, make_full, log=log)
     trigger = resolve_trigger().to_meta()
     return export(model, path, pads=dds.pads, pad_sizes=dds.pad_sizes, fullscale=dds.fullscale,
                   fraction=trigger["fraction"], trigger=trigger, sample_rate_hz=1.0 / protocol[0].sample_interval(),
@@ -338,12 +347,12 @@ def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, 
                       "data_fingerprint": dds.fingerprint, "n_trials": len(dds.y), "n_cases": len(dds.y),
                       "synthetic": True, "seed": seed, "windows": dds.summary(), "level_features": True,
                       "data": f"protocol + {idle_min:g} min simulate_idle(seed={seed}) + "
-                              f"simulate_session(demo_script({n_sessions}, seed={seed}))"})
+                              f"simulate_session(demo_script({n_sessions}, seed={seed}))"}, early=heads)
 
 
 def export(model, path: str | Path, *, pads: Sequence[int], pad_sizes: Sequence[int], fullscale: float,
            fraction: float, sample_rate_hz: float, dormant_class: str | None, training: dict,
-           evaluation: dict | None = None, trigger: dict | None = None) -> Path:
+           evaluation: dict | None = None, trigger: dict | None = None, early=None) -> Path:
     """One ONNX file via trainer.onnx_export, with the metadata the daemon needs (``trigger``: the
     settings to record; default the paper's threshold at ``fraction``)."""
     from trainer.model_meta import file_metadata
@@ -353,4 +362,4 @@ def export(model, path: str | Path, *, pads: Sequence[int], pad_sizes: Sequence[
                          trigger=dict(trigger) if trigger else {"fraction": float(fraction)},
                          sample_rate_hz=sample_rate_hz, dormant_class=dormant_class, training=training,
                          evaluation=evaluation)
-    return export_onnx(model, path, meta)
+    return export_onnx(model, path, meta, early=early)

@@ -10,7 +10,8 @@ previous point) is chosen by cross-validation inside the training data, grouped 
 1. out-of-fold answers of every head and of the full model (leave one group out);
 2. per point, Platt scaling of the score margin to the probability of being right;
 3. the rule (threshold, agree) with the fewest mean frames whose cascade accuracy stays within
-   ``target_loss`` of the full window's, over a fixed grid; ties go to the stricter rule.
+   ``target_loss`` of the full window's, over a fixed grid; ties go to the more accurate, then the
+   stricter rule (so heads that never help give the rule that always waits for T).
 
 ``evaluate`` nests the whole choice inside leave-one-group-out for an honest curve and operating
 point (``handover train``'s report and ``handover bench early``).
@@ -30,7 +31,7 @@ EARLY_POINTS = (4, 6, 8, 11)
 TARGET_LOSS = 0.02
 """The rule may lose at most this much accuracy against the full window (cross-validated)."""
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999)
-"""The grid of calibrated-confidence thresholds the rule is chosen from (1.0 + never: all at T)."""
+"""The grid of calibrated-confidence thresholds the rule is chosen from (and ``NEVER``: all at T)."""
 
 Factory = Callable[[int], object]
 """Unfitted estimator for windows of ``p`` frames (``p`` = T: the full model)."""
@@ -141,16 +142,15 @@ def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth
     conf = confidences(margins, calibration)
     frames = np.asarray([*points, T], dtype=np.float64)
     full_acc = float(np.mean(full == truth))
-    grid, best = [], None
+    grid = []
     for agree in (False, True):
         for threshold in (*THRESHOLDS, NEVER):
             where, said = cascade(labels, conf, full, threshold, agree)
-            row = {"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
-                   "mean_frames": float(frames[where].mean())}
-            grid.append(row)
-            if row["accuracy"] >= full_acc - target_loss - 1e-12 and (
-                    best is None or row["mean_frames"] < best["mean_frames"] - 1e-12):
-                best = row
+            grid.append({"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
+                         "mean_frames": float(frames[where].mean())})
+    feasible = [r for r in grid if r["accuracy"] >= full_acc - target_loss - 1e-12]
+    best = min(feasible, key=lambda r: (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"]),
+               default=None)
     assert best is not None  # NEVER reproduces the full window's accuracy
     spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]))
     return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
@@ -229,3 +229,43 @@ def fit_early(X: np.ndarray, y: np.ndarray, groups: np.ndarray, make: Factory, m
     points = tuple(int(p) for p in points if p < X.shape[2])
     choice = fit_rule(X, y, groups, points, make, make_full, classes, target_loss)
     return EarlyHeads(fit_heads(X, y, points, make), choice.spec, choice)
+
+
+def fold_groups(groups: np.ndarray) -> np.ndarray:
+    """Subjects as folds, each idle-stream fifth (``idle<i>``) joined to the i-th subject's fold (as
+    ``trainer.dormant.leave_one_subject_out`` holds them out)."""
+    groups = np.asarray(groups).astype(str)
+    subjects = sorted({g for g in groups.tolist() if not g.startswith("idle")})
+    idle = sorted({g for g in groups.tolist() if g.startswith("idle")})
+    if not subjects:
+        return groups
+    join = {g: subjects[i % len(subjects)] for i, g in enumerate(idle)}
+    return np.asarray([join.get(g, g) for g in groups.tolist()])
+
+
+def stream_cases(protocol, dds, pads) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Training windows of the stream model's heads: the actions cut where the daemon's onset trigger
+    starts a window (trainer.dataset) and the dormant windows of the stream model's data set."""
+    from trainer.dataset import build_dataset
+    from trainer.dormant import DORMANT
+
+    ds = build_dataset(protocol, T=dds.T, pads=pads)
+    dormant = dds.y == DORMANT
+    X = np.concatenate([ds.X, dds.X[dormant]]).astype(np.float32)
+    y = np.concatenate([ds.y.astype(str), dds.y[dormant]])
+    return X, y, fold_groups(np.concatenate([ds.groups.astype(str), dds.groups[dormant]]))
+
+
+def fit_stream_heads(protocol, dds, pads, seed: int, make_full: Factory, points: Sequence[int] = EARLY_POINTS,
+                     target_loss: float = TARGET_LOSS, log: Callable[[str], None] | None = None) -> EarlyHeads:
+    """Early heads of the 5-class stream model (``trainer.dormant.fit_stream_model``)."""
+    X, y, groups = stream_cases(protocol, dds, pads)
+    if log:
+        log(f"early heads at {', '.join(map(str, points))} frames on {len(y)} windows, rule by leave-one-subject-out ...")
+    heads = fit_early(X, y, groups, head_factory(dds.pad_sizes, seed=seed, fullscale=dds.fullscale), make_full,
+                      points, target_loss)
+    if log and heads.choice is not None:
+        c = heads.choice
+        log(f"early rule: threshold {heads.spec.threshold:g}, agree {heads.spec.agree}: cross-validated accuracy "
+            f"{c.accuracy:.1%} (full window {c.full_accuracy:.1%}) at {c.mean_frames:.1f} frames on average")
+    return heads

@@ -66,7 +66,8 @@ class Truth:
 
 
 def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None,
-           robot: dict[int, bool] | None = None, arm: dict[int, bool] | None = None) -> list[Decision]:
+           robot: dict[int, bool] | None = None, arm: dict[int, bool] | None = None,
+           scene: dict | None = None) -> list[Decision]:
     """Feed every frame of ``rec`` to a fresh detector in ``mode``; the events it reports.
 
     ``rule``: the ``[continuous]`` config table (confirm_frames, min_margin, rearm_frames) for
@@ -74,7 +75,8 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     (True) / open (False), passed to ``Detector.set_grasp`` before that frame (``onset_robot``
     computes them with ``robot_messages`` when not given). ``arm``: frame index -> arm moving, passed
     to ``Detector.set_arm_moving`` before that frame (the ``*_arm`` modes take the recording's marks,
-    ``firmware_io.recordings.arm_marks.marks_of``, when not given).
+    ``firmware_io.recordings.arm_marks.marks_of``, when not given). ``scene``: more ``[scene]`` keys
+    (e.g. ``early_events``).
     """
     from firmware_io.client import Frame
     from runtime.config import config_from_dict
@@ -86,7 +88,8 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     pads = ",".join(str(p) for p in model.meta.pads)
     events = [c for c in model.meta.classes if c != model.meta.dormant_class]
     cfg = config_from_dict({
-        "scene": {"pads": pads, "events": events, "mode": "continuous" if mode.startswith("continuous") else "trigger"},
+        "scene": {"pads": pads, "events": events, "mode": "continuous" if mode.startswith("continuous") else "trigger",
+                  **(scene or {})},
         "trigger": dict(TRIGGER_TABLE[mode]),
         "continuous": dict(rule or {}),
     })

@@ -1,0 +1,167 @@
+"""Early decisions: the metadata and rule (runtime.early), their fitting (trainer.early), the heads in
+the one graph and the loader's checks, and the daemon reporting before the full window."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from runtime.early import NEVER, EarlyRule, EarlySpec, EarlySpecError, margin
+
+SPEC = {"points": [4, 8], "calibration": [[2.0, 0.0], [2.0, 1.0]], "threshold": 0.8, "agree": False}
+
+
+def test_spec_round_trips_and_refuses_nonsense():
+    spec = EarlySpec.from_meta(SPEC, T=15)
+    assert EarlySpec.from_meta(spec.to_meta(), T=15) == spec
+    for bad, word in [({**SPEC, "points": [8, 4]}, "ascend"), ({**SPEC, "points": [4, 15]}, "T-1"),
+                      ({**SPEC, "calibration": [[1.0, 0.0]]}, "one [a, b] pair"),
+                      ({**SPEC, "threshold": 2.0}, "probability"), ({**SPEC, "agree": "yes"}, "true or false"),
+                      ([4, 8], "object")]:
+        with pytest.raises(EarlySpecError, match=word.replace("[", r"\[").replace("]", r"\]")):
+            EarlySpec.from_meta(bad, T=15)
+
+
+def test_rule_reports_on_confidence_agreement_and_allowed_classes():
+    spec = EarlySpec.from_meta(SPEC, T=15)
+    sure, unsure = np.array([3.2, 0.1, 1.0]), np.array([1.1, 0.9, 1.0])
+    assert margin(sure, 0) == pytest.approx(2.2) and margin(unsure, 0) == pytest.approx(0.1)
+    rule = EarlyRule(spec)
+    assert rule.index_of(4) == 0 and rule.index_of(8) == 1 and rule.index_of(5) == -1
+    assert rule.report_now(0, 0, sure, -1)  # sigmoid(4.4) > 0.8
+    assert not rule.report_now(0, 0, unsure, -1)  # sigmoid(0.2) < 0.8
+    assert not EarlyRule(spec, frozenset({1})).report_now(0, 0, sure, -1)  # class 0 must wait for T
+    agree = EarlyRule(EarlySpec(spec.points, spec.calibration, spec.threshold, True))
+    assert not agree.report_now(0, 0, sure, -1) and agree.report_now(1, 0, sure, 0)
+    assert not agree.report_now(1, 0, sure, 2)
+    never = EarlyRule(EarlySpec(spec.points, spec.calibration, NEVER, False))
+    assert not never.report_now(0, 0, np.array([1e6, 0.0, 0.0]), -1)
+
+
+def test_platt_and_rule_choice_on_made_up_answers():
+    from trainer.early import cascade, choose_rule, confidences, platt
+
+    a, b = platt(np.array([0.1, 2.0, 3.0]), np.array([True, True, True]))  # never wrong: still finite, cautious
+    assert np.isfinite([a, b]).all() and 1 / (1 + np.exp(-(a * 3.0 + b))) < 1.0
+    rng = np.random.default_rng(0)
+    n = 400
+    truth = rng.integers(0, 3, n)
+    m4 = rng.uniform(0, 2, n)
+    lab4 = np.where(m4 > 0.6, truth, (truth + 1) % 3)  # a head right exactly when its margin is large
+    m8 = rng.uniform(0, 2, n)
+    lab8 = np.where(m8 > 0.2, truth, (truth + 1) % 3)
+    choice = choose_rule(np.stack([lab4, lab8]), np.stack([m4, m8]), truth.copy(), truth, (4, 8), 15)
+    assert choice.full_accuracy == 1.0 and choice.accuracy >= 0.98
+    assert choice.mean_frames < 15  # the margin tells right from wrong, so it reports early
+    _, said = cascade(np.stack([lab4, lab8]), confidences(np.stack([m4, m8]), choice.spec.calibration),
+                          truth, choice.spec.threshold, choice.spec.agree)
+    assert np.mean(said == truth) == pytest.approx(choice.accuracy)
+    useless = choose_rule(np.stack([(truth + 1) % 3] * 2), np.stack([m4, m8]), truth.copy(), truth, (4, 8), 15)
+    assert useless.spec.threshold == NEVER and useless.mean_frames == 15  # wrong heads: always wait for T
+
+
+@pytest.fixture(scope="module")
+def early_model(tmp_path_factory):
+    """A 4-class default model with early heads at 4 and 8 frames, on a small simulated protocol (synthetic)."""
+    from firmware_io.sim import simulate_protocol
+    from trainer import early
+    from trainer.bench.common import export_metadata
+    from trainer.dataset import build_dataset
+    from trainer.onnx_export import export_onnx
+
+    ds = build_dataset(simulate_protocol(seed=0, n_subjects=3, runs=1), T=15, pads="distal")
+    make = early.head_factory(ds.pad_sizes)
+    heads = early.fit_early(ds.X, ds.y, ds.groups, make, make, points=(4, 8))
+    full = make(15).fit(ds.X, ds.y)
+    path = export_onnx(full, tmp_path_factory.mktemp("early") / "early.onnx", export_metadata(ds, full, seed=0),
+                       early=heads)
+    return path, ds, heads, full
+
+
+def test_heads_in_the_file_answer_like_the_fitted_heads(early_model):
+    from runtime.model import load_model
+
+    path, ds, heads, full = early_model
+    model = load_model(path)
+    assert model.early == heads.spec and model.early.points == (4, 8)
+    frames = np.ascontiguousarray(ds.X[:20].transpose(0, 2, 1))
+    for index, (head, p) in enumerate(zip(heads.models, model.early.points, strict=True)):
+        want = head.predict(ds.X[:20, :, :p])
+        newest = np.zeros_like(frames)  # at point p the ring's newest T frames end with the window's first p
+        newest[:, -p:] = frames[:, :p]
+        got = [model.meta.classes[int(model.run_head(index, newest[i:i + 1])[0][0])] for i in range(20)]
+        assert got == list(want)
+    labels, _ = model.run(frames)
+    assert [model.meta.classes[i] for i in labels] == list(full.predict(ds.X[:20]))
+
+
+def test_heads_that_disagree_with_the_metadata_are_refused_in_one_line(early_model, tmp_path):
+    import onnx
+
+    from runtime.model import METADATA_KEY, ModelContractError, load_model
+
+    path, *_ = early_model
+    proto = onnx.load(str(path))
+    props = {p.key: p.value for p in proto.metadata_props}
+    meta = json.loads(props[METADATA_KEY])
+    for name, change in [("fewer", {**meta["early"], "points": [4], "calibration": meta["early"]["calibration"][:1]}),
+                         ("none", None)]:
+        changed = dict(meta)
+        if change is None:
+            changed.pop("early")
+        else:
+            changed["early"] = change
+        onnx.helper.set_model_props(proto, {**props, METADATA_KEY: json.dumps(changed)})
+        bad = tmp_path / f"{name}.onnx"
+        bad.write_bytes(proto.SerializeToString())
+        with pytest.raises(ModelContractError, match=r"early-head outputs .* disagree with the metadata") as info:
+            load_model(bad)
+        assert "\n" not in str(info.value)
+
+
+def test_a_model_without_early_heads_serves_as_before(tmp_path):
+    from runtime.model import load_model
+    from tests.tiny_models import tiny_model_bytes
+
+    path = tmp_path / "plain.onnx"
+    path.write_bytes(tiny_model_bytes())
+    model = load_model(path)
+    assert model.early is None
+    assert model.run(np.zeros((1, 15, 234), np.float32))[1].shape == (1, 4)
+
+
+def test_the_daemon_reports_a_pull_before_the_full_window(early_model):
+    """A simulated session through the daemon's hot path: events come from the early heads, one per event."""
+    from firmware_io.sim import demo_script, simulate_session
+    from runtime.model import load_model
+    from trainer.streams_eval import replay, session_outcomes
+
+    path, *_ = early_model
+    model = load_model(path)
+    session = simulate_session(demo_script(8, seed=5), seed=5)
+    decisions = replay(session, model, "onset")
+    outcome = session_outcomes(decisions, session.trials)
+    assert len(decisions) == len(session.trials)  # one report per event, none outside
+    delays = [d.frame - int(t.extra["onset"]) for d, t in zip(decisions, session.trials, strict=True)]
+    assert np.median(delays) < 15  # without heads a report comes T frames after the window's start
+    assert outcome["report_minus_onset_frames"]["median"] == pytest.approx(np.median(delays))
+
+
+def test_scene_early_events_keeps_the_others_for_the_full_window(early_model):
+    from firmware_io.sim import demo_script, simulate_session
+    from runtime.config import ConfigError, config_from_dict
+    from runtime.model import load_model
+    from trainer.streams_eval import replay
+
+    with pytest.raises(ConfigError, match=r"scene\.early_events: 'wave' not in scene\.events"):
+        config_from_dict({"scene": {"early_events": ["wave"]}})
+    path, *_ = early_model
+    model = load_model(path)
+    session = simulate_session(demo_script(8, seed=5), seed=5)
+    never = replay(session, model, "onset", scene={"early_events": []})
+    early = replay(session, model, "onset")
+    assert [d.cls for d in never] and all(
+        d.frame - int(t.extra["onset"]) >= 13 for d, t in zip(never, session.trials, strict=True))
+    assert sum(d.frame for d in early) < sum(d.frame for d in never)
