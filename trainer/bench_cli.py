@@ -1,4 +1,4 @@
-"""``handover bench pareto|latency|throughput|hostile|streams|all|soak|decode|inference|ros2``: the
+"""``handover bench pareto|latency|throughput|hostile|streams|all|soak|decode|inference|ros2|early``: the
 benchmarks (trainer/bench/, their one home), results in results/.
 
 Each benchmark writes ``<out>/<name>.json`` and ``.md`` (+ ``.png`` where a plot fits) with
@@ -18,9 +18,9 @@ from firmware_io.commands.errors import fail
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
 """What ``all`` runs (``./dev bench``)."""
-SINGLE = ("soak", "decode", "inference", "ros2")
+SINGLE = ("soak", "decode", "inference", "ros2", "early")
 """Run only by name: soak runs for hours; decode pins itself to one core; inference compares with
-scikit-learn on a small BoW model; ros2 needs a sourced ROS 2."""
+scikit-learn on a small BoW model; ros2 needs a sourced ROS 2; early needs aeon (the bench extra)."""
 HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
             "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
             "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn",
@@ -31,7 +31,7 @@ HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "
             "default_setting", "demo_events_correct_fraction", "demo_events_outside", "sim_event_f1", "real_idle_hours",
             "real_idle_false_events_per_hour", "continuous_hold_recall", "continuous_events_correct_fraction",
             "onset_to_report_median_frames", "rle_frames_per_s", "raw_frames_per_s", "speedup_median",
-            "ros2_event_p99_us")
+            "ros2_event_p99_us", "early_default_hm_mean")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

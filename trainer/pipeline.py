@@ -130,6 +130,7 @@ def train(options: TrainOptions) -> TrainResult:
     say("training the final model on all cases ...")
     model = estimator.fit(ds.X, ds.y)
     evaluation = evaluate(options, ds, estimator, say)
+    heads, early_metrics = fit_early_heads(options, ds, estimator, say)
     sweep = None
     if not options.no_sweep and "bow" in options.families:
         sweep = _sweeps(options, recordings, out, say)
@@ -148,9 +149,16 @@ def train(options: TrainOptions) -> TrainResult:
     metrics["idle"] = idle and {"seconds": round(idle.seconds, 1), "dormant_windows": len(idle.X),
                                 "per_origin": idle.per_source, "notes": idle.notes, "cut": idle.cut}
     metrics["own_replay"] = replay
-    onnx_ok = write_model(options, ds, model, metrics, out)
+    if early_metrics is not None:
+        metrics["early"] = early_metrics
+    onnx_ok = write_model(options, ds, model, metrics, out, early=heads)
     say("writing figures and the report ...")
     shown = figures(options, ds, embedding, metrics, out)
+    if early_metrics and not early_metrics.get("skipped"):
+        from trainer.early_report import plot_curve
+
+        shown["Early decisions: accuracy against frames, per class, the rule's operating point starred"] = \
+            plot_curve(early_metrics, out / "early_curve.png", synthetic).name
     metrics["seconds"] = round(time.perf_counter() - t0, 1)
     metrics["command"] = options.command_line()
     report.write_metrics(out, metrics)
@@ -159,10 +167,46 @@ def train(options: TrainOptions) -> TrainResult:
         from trainer.select import markdown_lines
 
         md_path.write_text(md_path.read_text() + "\n".join(markdown_lines(selection)) + "\n")
+    if early_metrics is not None:
+        from trainer.early_report import markdown_lines as early_lines
+
+        md_path.write_text(md_path.read_text() + "\n" + "\n".join(early_lines(early_metrics, synthetic)) + "\n")
     if not options.quiet:
         print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
               file=sys.stderr if options.json else sys.stdout)
     return TrainResult(out, metrics, onnx_ok)
+
+
+def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -> tuple[Any, dict | None]:
+    """Early heads and their rule (trainer.early) with the nested evaluation for the report, or
+    (None, None) with ``--early off``; (None, {"skipped": why}) when the data cannot choose a rule."""
+    if options.early == "off":
+        return None, None
+    import numpy as np
+    from sklearn.base import clone
+
+    from trainer import early
+
+    points = [p for p in early.EARLY_POINTS if p < options.T]
+    if len(set(ds.groups.tolist())) < 3 or not points:
+        why = (f"T={options.T} leaves no early point" if not points else
+               "early heads need at least three subjects (a rule chosen inside each training part)")
+        say(f"early decisions skipped: {why}")
+        return None, {"skipped": why}
+    shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
+    make = early.head_factory(ds.pad_sizes, shapes, options.seed, ds.fullscale)
+
+    def make_full(_frames: int):
+        return clone(estimator)
+
+    ev = early.evaluate(ds.X, ds.y, ds.groups, points, make, make_full, say=say)
+    say("early decisions: heads and rule on all training cases ...")
+    heads = early.fit_early(ds.X, ds.y, ds.groups, make, make_full, points)
+    ev["rule"] = heads.spec.to_meta()
+    ev["rule_inner"] = {"accuracy": heads.choice.accuracy, "full_accuracy": heads.choice.full_accuracy,
+                        "mean_frames": heads.choice.mean_frames}
+    ev["n_subjects"] = len(np.unique(ds.groups))
+    return heads, ev
 
 
 MIN_CASES, MIN_CLASSES = 10, 2

@@ -16,6 +16,7 @@ from firmware_io.commands.errors import fail
 from runtime.trigger_settings import PAPER_FRACTION
 from trainer.train_options import (
     ASSIGNMENTS,
+    EARLY,
     FEATURE_WEIGHTING_CHOICES,
     KERNELS,
     TRIGGERS,
@@ -87,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replay each held-out subject's recording (trials and idle) through the daemon with a "
                         "model trained without it: events right, wrong, missed, false events per hour of idle "
                         "(default: on)")
+    parser.add_argument("--early", choices=EARLY, default=D.early,
+                        help="on: early heads decide 4 to 11 frames after the window's start when their calibrated "
+                        "confidence allows, rule chosen by grouped cross-validation (docs/EARLY.md); off: the full "
+                        "window only")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or messages on stderr")
 

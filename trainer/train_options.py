@@ -16,6 +16,7 @@ from trainer.feature_weighting import FEATURE_WEIGHTINGS
 KERNELS = ("rbf", "linear")
 ASSIGNMENTS = ("hard", "soft")
 TRIGGERS = ("onset", "threshold")
+EARLY = ("on", "off")
 FEATURE_WEIGHTING_CHOICES = (*(w for w in FEATURE_WEIGHTINGS if w is not None), "none")
 
 
@@ -64,6 +65,8 @@ class TrainOptions:
     """Replay each held-out subject's recording through the daemon (stream figures in the report)."""
     """Add the dormant class from the recordings' idle stretches (when they hold any)."""
     no_onnx: bool = False
+    early: str = "on"
+    """``on``: early heads and their report rule in the model (trainer.early); ``off``: the full window only."""
     json: bool = False
     quiet: bool = False
 
@@ -142,7 +145,7 @@ class TrainOptions:
         if self.feature_weighting not in (None, "none") and self.families == ("bow",):
             raise OptionsError("--feature-weighting applies to the feature families, not to bow alone")
         for name, value, allowed in (("--kernel", self.kernel, KERNELS), ("--assignment", self.assignment, ASSIGNMENTS),
-                                     ("--trigger", self.trigger, TRIGGERS),
+                                     ("--trigger", self.trigger, TRIGGERS), ("--early", self.early, EARLY),
                                      ("--feature-weighting", self.feature_weighting, FEATURE_WEIGHTING_CHOICES)):
             if value is not None and value not in allowed:
                 raise OptionsError(f"{name} {value!r}: use one of {', '.join(allowed)}")
@@ -169,6 +172,8 @@ class TrainOptions:
         if self.assignment != "hard":
             parts += ["--assignment", self.assignment, "--temperature", str(self.temperature)]
         parts.append("--per-pad" if self.per_pad else "--no-per-pad")
+        if self.early != "on":
+            parts += ["--early", self.early]
         if self.select:
             parts.append("--select")
             if self.latency_budget_us is not None:

@@ -52,17 +52,18 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
     }
 
 
-def write_model(options: TrainOptions, ds, model, metrics: dict, out: Path) -> bool:
-    """model.joblib and (unless ``no_onnx``) model.onnx; sets ``metrics["onnx"]``. False: the export failed."""
+def write_model(options: TrainOptions, ds, model, metrics: dict, out: Path, early=None) -> bool:
+    """model.joblib and (unless ``no_onnx``) model.onnx, with ``early`` heads (trainer.early) when given;
+    sets ``metrics["onnx"]``. False: the export failed."""
     import joblib
 
     model_meta = model_metadata(options, ds, metrics)
     joblib_path = out / "model.joblib"
-    joblib.dump({"model": model, "metadata": model_meta}, joblib_path)
+    joblib.dump({"model": model, "metadata": model_meta, "early": early}, joblib_path)
     if options.no_onnx:
         metrics["onnx"] = None
         return True
-    onnx_ok, metrics["onnx"] = _export_onnx(model, model_meta, joblib_path, out)
+    onnx_ok, metrics["onnx"] = _export_onnx(model, model_meta, joblib_path, out, early)
     return onnx_ok
 
 
@@ -108,7 +109,7 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
     )
 
 
-def _export_onnx(model, meta: dict, joblib_path: Path, out: Path) -> tuple[bool, str]:
+def _export_onnx(model, meta: dict, joblib_path: Path, out: Path, early=None) -> tuple[bool, str]:
     """model.onnx beside model.joblib, whose sha256 it records as ``reference`` (so ``handover verify``
     refuses a mismatching pair). A failure is reported on stderr and makes ``train`` exit 1."""
     import hashlib
@@ -118,7 +119,7 @@ def _export_onnx(model, meta: dict, joblib_path: Path, out: Path) -> tuple[bool,
     digest = hashlib.sha256(joblib_path.read_bytes()).hexdigest()
     meta = {**meta, "reference": {"file": joblib_path.name, "sha256": digest}}
     try:
-        path = export_onnx(model, out / "model.onnx", meta)
+        path = export_onnx(model, out / "model.onnx", meta, early=early)
     except Exception as exc:  # the report is still worth having; say what failed, exit non-zero
         print(f"handover train: model.onnx not written: {type(exc).__name__}: {exc}", file=sys.stderr)
         return False, f"export failed: {type(exc).__name__}: {exc}"

@@ -43,6 +43,8 @@ from trainer.bench.common import (
     train_default_model,
     write_results,
 )
+from trainer.bench.latency_early import early_frames
+from trainer.bench.latency_early import markdown_lines as early_lines
 from trainer.bench.latency_floor import interference, per_frame_split
 
 NAME = "latency"
@@ -159,6 +161,7 @@ def run(args) -> dict:
                     result["stages_load"] = stages.stage_tables(model, dense, max(30, paced_decisions // 4))
         finally:
             realtime.restore(before)
+        result["early_frames"] = early_frames(work, args.seed, args.quick, say)
         say("latency: the graph against numpy and scikit-learn, all pads and distal pads ...")
         result["implementations"] = implementations(model_path, dense, rounds, args.load)
         result["implementations_distal"] = implementations(distal_path, dense, rounds, False)
@@ -228,6 +231,9 @@ def headline(res: dict) -> dict:
         "e2e_floor_p999_us": _floor(res, "e2e"),
         "split_p50_us": (res["implementations_distal"].get("per_frame_split") or {}).get("decision_with_its_frame_p50_us"),
         "sklearn_over_onnx_p50": res["implementations"]["ratio_p50"].get("scikit-learn"),
+        # early heads: every frame from the trigger to the report (trainer/bench/latency_early.py)
+        "early_inside_window_p99_us": ((res.get("early_frames") or {}).get("early") or {}).get(
+            "inside_window", {}).get("p99"),
     }
 
 
@@ -433,7 +439,7 @@ def markdown(res: dict) -> list[str]:
               "emulator and the listener run at the same priority (a real controller is hardware, the robot's "
               "receiver is not ours to measure), and so does this process's thread during the stage tables. "
               f"This run: {res.get('scheduling', 'not recorded')}. The `normal scheduling` row runs all three "
-              "at `realtime_priority = 0` for comparison."]
+              "at `realtime_priority = 0` for comparison.", "", *early_lines(res.get("early_frames"))]
     return lines
 
 
