@@ -330,16 +330,13 @@ def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, 
     sessions = [simulate_session(demo_script(n_sessions, seed=seed, gap=(4.0, 6.0)), seed=seed)]
     dds = build_dormant_dataset(protocol, idle, T=T, pads=pads, seed=seed, sessions=sessions)
 
-    def make_full(_frames: int):
-        return paper_classifier(dds.pad_sizes, seed, n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C,
-                                per_pad=True, level_features=True, scale_features=True, fullscale=dds.fullscale)
-
-    model = make_full(T).fit(dds.X, dds.y)
+    model = paper_classifier(dds.pad_sizes, seed, n_words=K, window=W, kernel=STREAM_KERNEL, C=STREAM_C, per_pad=True,
+                             level_features=True, scale_features=True, fullscale=dds.fullscale).fit(dds.X, dds.y)
     heads = None
     if early:
         from trainer.early import fit_stream_heads
 
-        heads = fit_stream_heads(protocol, dds, pads, seed, make_full, log=log)
+        heads = fit_stream_heads(protocol, dds, pads, seed, log=log)
     trigger = resolve_trigger().to_meta()
     return export(model, path, pads=dds.pads, pad_sizes=dds.pad_sizes, fullscale=dds.fullscale,
                   fraction=trigger["fraction"], trigger=trigger, sample_rate_hz=1.0 / protocol[0].sample_interval(),

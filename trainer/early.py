@@ -256,14 +256,16 @@ def stream_cases(protocol, dds, pads) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return X, y, fold_groups(np.concatenate([ds.groups.astype(str), dds.groups[dormant]]))
 
 
-def fit_stream_heads(protocol, dds, pads, seed: int, make_full: Factory, points: Sequence[int] = EARLY_POINTS,
+def fit_stream_heads(protocol, dds, pads, seed: int, points: Sequence[int] = EARLY_POINTS,
                      target_loss: float = TARGET_LOSS, log: Callable[[str], None] | None = None) -> EarlyHeads:
-    """Early heads of the 5-class stream model (``trainer.dormant.fit_stream_model``)."""
+    """Early heads of the 5-class stream model (``trainer.dormant.fit_stream_model``). The full window's
+    answers in the rule's cross-validation come from a head of the same kind at T: the stream model's
+    own estimator (RBF, C and gamma searched) refitted per fold would multiply the demo's training time."""
     X, y, groups = stream_cases(protocol, dds, pads)
     if log:
         log(f"early heads at {', '.join(map(str, points))} frames on {len(y)} windows, rule by leave-one-subject-out ...")
-    heads = fit_early(X, y, groups, head_factory(dds.pad_sizes, seed=seed, fullscale=dds.fullscale), make_full,
-                      points, target_loss)
+    make = head_factory(dds.pad_sizes, seed=seed, fullscale=dds.fullscale)
+    heads = fit_early(X, y, groups, make, make, points, target_loss)
     if log and heads.choice is not None:
         c = heads.choice
         log(f"early rule: threshold {heads.spec.threshold:g}, agree {heads.spec.agree}: cross-validated accuracy "
