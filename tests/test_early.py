@@ -165,3 +165,26 @@ def test_scene_early_events_keeps_the_others_for_the_full_window(early_model):
     assert [d.cls for d in never] and all(
         d.frame - int(t.extra["onset"]) >= 13 for d, t in zip(never, session.trials, strict=True))
     assert sum(d.frame for d in early) < sum(d.frame for d in never)
+
+
+def test_nested_evaluation_fits_each_leave_groups_out_model_once(early_model):
+    from trainer import early
+
+    _, ds, _, _ = early_model
+    made = []
+
+    def make(p):
+        made.append(p)
+        return early.head_factory(ds.pad_sizes)(p)
+
+    fits = early.Fits(ds.X, ds.y, ds.groups, (4, 8), make, make)
+    ev = early.evaluate(fits)
+    n_subjects = len(set(ds.groups.tolist()))
+    pairs = n_subjects * (n_subjects - 1) // 2
+    assert len(made) == 3 * (n_subjects + pairs)  # heads at 4, 8 and the full model, without one or two subjects
+    heads = early.fit_early(ds.X, ds.y, ds.groups, make, make, (4, 8), fits=fits)
+    assert len(made) == 3 * (n_subjects + pairs) + 2  # the final heads; the rule reuses the held-out models
+    op = ev["operating_point"]
+    assert ev["points"] == [4, 8, 15] and set(ev["curve_per_class"]) == set(ds.y.tolist())
+    assert 4 <= op["mean_frames"] <= 15 and sum(op["reported_at"].values()) == len(ds.y)
+    assert heads.spec.points == (4, 8)

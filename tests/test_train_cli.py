@@ -71,7 +71,7 @@ def test_trained_model_is_deterministic_for_a_seed(tiny_data, tmp_path):
         assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "5",
                          "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--fraction", "0.15", "--quiet"]) == 0
         saved = joblib.load(out / "model.joblib")
-        assert set(saved) == {"model", "metadata"} and saved["metadata"]["pads"] == [0, 1, 2, 3, 4, 5]
+        assert set(saved) == {"model", "metadata", "early"} and saved["metadata"]["pads"] == [0, 1, 2, 3, 4, 5]
         models.append(saved["model"])
     from trainer.defaults import DEFAULT_MODEL
 

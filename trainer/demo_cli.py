@@ -99,7 +99,7 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
     report = out / "report"
     model = report / ("stream-model.onnx" if setting in ("onset_dormant", "continuous") else "model.onnx")
     stamp = report / "demo-args.json"
-    wanted = {"seed": args.seed, "pads": args.pads, "model": model.name,
+    wanted = {"seed": args.seed, "pads": args.pads, "model": model.name, "early": True,
               "trigger": "threshold" if setting == "threshold" else "onset"}
     if model.is_file() and not args.retrain and stamp.is_file() and json.loads(stamp.read_text()) == wanted:
         _say(args, f"[1-2/4] reusing the trained model {model} (--retrain to train again)")

@@ -14,7 +14,8 @@ previous point) is chosen by cross-validation inside the training data, grouped 
    stricter rule (so heads that never help give the rule that always waits for T).
 
 ``evaluate`` nests the whole choice inside leave-one-group-out for an honest curve and operating
-point (``handover train``'s report and ``handover bench early``).
+point (``handover train``'s report): the rule of outer fold i is chosen from answers of models
+trained without i and one more group; ``Fits`` fits each leave-groups-out model once.
 """
 
 from __future__ import annotations
@@ -44,11 +45,6 @@ def head_factory(pad_sizes: Sequence[int], pad_shapes=None, seed: int = 0, fulls
     return lambda p: default_classifier(pad_sizes, pad_shapes, random_state=seed, fullscale=fullscale)
 
 
-def fit_heads(X: np.ndarray, y: np.ndarray, points: Sequence[int], make: Factory) -> list:
-    """One fitted head per point, each on the first ``p`` frames of ``X`` ``(n, C, T)``."""
-    return [make(p).fit(X[:, :, :p], y) for p in points]
-
-
 def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Sequence[str]
             ) -> tuple[np.ndarray, np.ndarray]:
     """Labels (indices into ``classes``) ``[n_points, n]`` and score margins ``[n_points, n]``."""
@@ -65,19 +61,46 @@ def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Seq
     return labels, margins
 
 
-def out_of_fold(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
-                classes: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Leave-one-group-out answers of every point's head (folds whose training part lacks a class of
-    the test part still answer: the head never says that class)."""
-    labels = np.zeros((len(points), len(X)), dtype=np.int64)
-    margins = np.zeros((len(points), len(X)))
-    for g in np.unique(groups):
-        test = groups == g
-        if test.all():
+class Fits:
+    """Heads (and the full model, last) trained without some groups, each fitted once and kept: the
+    nested evaluation and the final rule need the same leave-groups-out models many times."""
+
+    def __init__(self, X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
+                 make_full: Factory) -> None:
+        self.X, self.y, self.groups = X, np.asarray(y), np.asarray(groups).astype(str)
+        self.T = X.shape[2]
+        self.points = tuple(int(p) for p in points)
+        self.all_points = (*self.points, self.T)
+        self.make, self.make_full = make, make_full
+        self.classes = sorted({str(c) for c in self.y})
+        self.truth = np.asarray([self.classes.index(str(c)) for c in self.y])
+        self._models: dict[frozenset, list] = {}
+
+    def models(self, excluded: frozenset, full: bool = True) -> list:
+        """The heads (and with ``full`` the full model) trained on every group but ``excluded``."""
+        kept = ~np.isin(self.groups, list(excluded))
+        have = self._models.setdefault(excluded, [])
+        want = len(self.all_points) if full else len(self.points)
+        for k in range(len(have), want):
+            p = self.all_points[k]
+            make = self.make if p < self.T else self.make_full
+            have.append(make(p).fit(self.X[kept][:, :, :p], self.y[kept]))
+        return have[:want]
+
+    def out_of_fold(self, excluded: frozenset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Labels and margins ``[n_points + 1, n]`` of the cases outside ``excluded``, each group's cases
+        answered by the models trained without it (and without ``excluded``), and their index."""
+        index = np.flatnonzero(~np.isin(self.groups, list(excluded)))
+        labels = np.zeros((len(self.all_points), len(index)), dtype=np.int64)
+        margins = np.zeros((len(self.all_points), len(index)))
+        names = sorted(set(self.groups[index].tolist()))
+        if len(names) < 2:
             raise ValueError("out-of-fold answers need at least two groups")
-        models = fit_heads(X[~test], y[~test], points, make)
-        labels[:, test], margins[:, test] = answers(models, points, X[test], classes)
-    return labels, margins
+        for g in names:
+            at = self.groups[index] == g
+            models = self.models(excluded | {g})
+            labels[:, at], margins[:, at] = answers(models, self.all_points, self.X[index[at]], self.classes)
+        return labels, margins, index
 
 
 def platt(margins: np.ndarray, correct: np.ndarray, iterations: int = 50) -> tuple[float, float]:
@@ -156,36 +179,28 @@ def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth
     return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
 
 
-def fit_rule(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
-             make_full: Factory, classes: Sequence[str], target_loss: float = TARGET_LOSS) -> RuleChoice:
-    """The rule chosen by leave-one-group-out inside ``X`` (the training data)."""
-    T = X.shape[2]
-    labels, margins = out_of_fold(X, y, groups, points, make, classes)
-    full, _ = out_of_fold(X, y, groups, (T,), make_full, classes)
-    truth = np.asarray([list(classes).index(str(c)) for c in y])
-    return choose_rule(labels, margins, full[0], truth, points, T, target_loss)
+def fit_rule(fits: Fits, excluded: frozenset = frozenset(), target_loss: float = TARGET_LOSS) -> RuleChoice:
+    """The rule chosen by leave-one-group-out among the groups outside ``excluded`` (the training data)."""
+    labels, margins, index = fits.out_of_fold(excluded)
+    return choose_rule(labels[:-1], margins[:-1], labels[-1], fits.truth[index], fits.points, fits.T, target_loss)
 
 
-def evaluate(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[int], make: Factory,
-             make_full: Factory, target_loss: float = TARGET_LOSS, say: Callable[[str], None] | None = None) -> dict:
+def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], None] | None = None) -> dict:
     """Nested leave-one-group-out: the accuracy-against-frames curve (overall and per class) of the
     heads, and the operating point of the rule chosen inside each outer training part."""
-    classes = sorted({str(c) for c in y})
-    truth = np.asarray([classes.index(str(c)) for c in y])
-    T = X.shape[2]
-    all_points = (*points, T)
-    labels = np.zeros((len(all_points), len(X)), dtype=np.int64)
-    where = np.zeros(len(X), dtype=np.int64)
-    said = np.zeros(len(X), dtype=np.int64)
+    classes, truth, all_points = fits.classes, fits.truth, fits.all_points
+    n = len(truth)
+    labels = np.zeros((len(all_points), n), dtype=np.int64)
+    where = np.zeros(n, dtype=np.int64)
+    said = np.zeros(n, dtype=np.int64)
     rules = []
-    for i, g in enumerate(np.unique(groups)):
+    names = sorted(set(fits.groups.tolist()))
+    for i, g in enumerate(names):
         if say:
-            say(f"early decisions: outer fold {i + 1}/{len(np.unique(groups))} (held out {g}) ...")
-        test = groups == g
-        train = ~test
-        choice = fit_rule(X[train], y[train], groups[train], points, make, make_full, classes, target_loss)
-        models = [*fit_heads(X[train], y[train], points, make), make_full(T).fit(X[train], y[train])]
-        lab, mar = answers(models, all_points, X[test], classes)
+            say(f"early decisions: outer fold {i + 1}/{len(names)} (held out {g}) ...")
+        test = fits.groups == g
+        choice = fit_rule(fits, frozenset({g}), target_loss)
+        lab, mar = answers(fits.models(frozenset({g})), all_points, fits.X[test], classes)
         labels[:, test] = lab
         conf = confidences(mar[:-1], choice.spec.calibration)
         w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.threshold, choice.spec.agree)
@@ -202,7 +217,7 @@ def evaluate(X: np.ndarray, y: np.ndarray, groups: np.ndarray, points: Sequence[
             "operating_point": {"accuracy": float(np.mean(said == truth)), "mean_frames": float(frames[where].mean()),
                                 "median_frames": float(np.median(frames[where])), "per_class": op_class,
                                 "reported_at": {str(p): int(np.sum(where == k)) for k, p in enumerate(all_points)}},
-            "full_accuracy": curve[str(T)], "target_loss": target_loss, "rules": rules, "n_cases": len(y)}
+            "full_accuracy": curve[str(fits.T)], "target_loss": target_loss, "rules": rules, "n_cases": n}
 
 
 def earliness_score(accuracy: float, mean_frames: float, T: int) -> dict:
@@ -223,12 +238,14 @@ class EarlyHeads:
 
 
 def fit_early(X: np.ndarray, y: np.ndarray, groups: np.ndarray, make: Factory, make_full: Factory,
-              points: Sequence[int] = EARLY_POINTS, target_loss: float = TARGET_LOSS) -> EarlyHeads:
-    """Heads on all of ``X`` and the rule chosen by leave-one-group-out inside it."""
-    classes = sorted({str(c) for c in y})
-    points = tuple(int(p) for p in points if p < X.shape[2])
-    choice = fit_rule(X, y, groups, points, make, make_full, classes, target_loss)
-    return EarlyHeads(fit_heads(X, y, points, make), choice.spec, choice)
+              points: Sequence[int] = EARLY_POINTS, target_loss: float = TARGET_LOSS, fits: Fits | None = None
+              ) -> EarlyHeads:
+    """Heads on all of ``X`` and the rule chosen by leave-one-group-out inside it (``fits``: models
+    already fitted for these data, e.g. by ``evaluate``)."""
+    if fits is None:
+        fits = Fits(X, y, groups, tuple(p for p in points if p < X.shape[2]), make, make_full)
+    choice = fit_rule(fits, frozenset(), target_loss)
+    return EarlyHeads(fits.models(frozenset(), full=False), choice.spec, choice)
 
 
 def fold_groups(groups: np.ndarray) -> np.ndarray:

@@ -199,9 +199,10 @@ def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], N
     def make_full(_frames: int):
         return clone(estimator)
 
-    ev = early.evaluate(ds.X, ds.y, ds.groups, points, make, make_full, say=say)
+    fits = early.Fits(ds.X, ds.y, ds.groups, points, make, make_full)
+    ev = early.evaluate(fits, say=say)
     say("early decisions: heads and rule on all training cases ...")
-    heads = early.fit_early(ds.X, ds.y, ds.groups, make, make_full, points)
+    heads = early.fit_early(ds.X, ds.y, ds.groups, make, make_full, points, fits=fits)
     ev["rule"] = heads.spec.to_meta()
     ev["rule_inner"] = {"accuracy": heads.choice.accuracy, "full_accuracy": heads.choice.full_accuracy,
                         "mean_frames": heads.choice.mean_frames}

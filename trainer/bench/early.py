@@ -29,9 +29,9 @@ from trainer.bench.common import command_line, machine_info, write_results
 NAME = "early"
 SHOWN = (4, 8, 15)
 """The points every row reports accuracy at."""
-INNER_FOLDS = 4
+INNER_FOLDS = 3
 """Groups (contact chunks) of a real task's training part are joined into this many folds for the rule."""
-AEON_TREES = 100
+AEON_TREES = 50
 
 
 def fold_ids(groups: np.ndarray, k: int) -> np.ndarray:
