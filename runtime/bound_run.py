@@ -63,6 +63,11 @@ class BoundRun:
         self.broken = False
         """Set when a bound run failed (a graph whose outputs do not fit): the binding is not tried again."""
 
+    def end(self) -> None:
+        """End a run under way (from another thread: onnxruntime checks the flag between nodes and loop
+        steps); every later run fails at once."""
+        self._options.terminate = True
+
     def run(self, window: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         if (self.broken or not isinstance(window, np.ndarray) or window.shape != self.stage.shape
                 or window.dtype != _FLOAT32 or not self._lock.acquire(False)):
@@ -72,7 +77,7 @@ class BoundRun:
             self._run(self._binding, self._options)
             return self.labels.copy(), self.scores.copy()
         except Exception:  # session.run gives the caller the graph's own error or output
-            self.broken = True
+            self.broken = not self._options.terminate  # an ended run: the caller says so itself
             return None
         finally:
             self._lock.release()

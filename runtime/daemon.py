@@ -32,6 +32,7 @@ from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
 from runtime.config_reload import changed_sections, set_log_level
 from runtime.control import ControlSocket, MessageLog
+from runtime.decision_guard import DecisionGuard
 from runtime.detector import Decision, Detector
 from runtime.device_link import DeviceLink
 from runtime.health import Health, StatusFile, one_line
@@ -88,6 +89,9 @@ class Daemon:
         self.control: ControlSocket | None = None
         self.messages = MessageLog()
         self.hot_thread = HotThread()
+        self.guard = DecisionGuard(lambda: self.detector.model, self.detector.frame_clock.deadline_s,
+                                   on_stuck=self._stuck, priority=cfg.realtime_priority)
+        """Ends a decision that runs past the stream's period, from its own thread (runtime.decision_guard)."""
         self._stop = False
         self._reload = False
         self._held_since: float | None = None
@@ -163,6 +167,10 @@ class Daemon:
             self.models.take_out_of_service(decision.model, decision.problem)
         else:
             self.reporter.report(decision)
+
+    def _stuck(self, model: Any, reason: str) -> None:
+        """A decision that did not stop when ended: its file is quarantined before the process exits."""
+        self.models.quarantine_now(model, reason)
 
     def _frame_failed(self, exc: BaseException) -> None:
         """An exception while handling one frame: counted, logged at most every 10 s, never fatal."""
@@ -310,6 +318,7 @@ class Daemon:
             log.warning("%s", warning)
         self.models.start()
         self.start_control()
+        self.guard.start()
         settle_heap()
         self.notifier.ready(self.health.status_line())
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
@@ -344,6 +353,7 @@ class Daemon:
     def shutdown(self) -> None:
         """STOPPING=1, stop the watcher, close the device, flush the sinks, final health."""
         self.notifier.stopping()
+        self.guard.stop()
         self.models.stop(timeout=0.5)
         self.stop_control()
         self.link.close(stop_timeout=SHUTDOWN_STOP_S)

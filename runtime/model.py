@@ -21,9 +21,11 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import time
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +76,10 @@ class ModelContractError(ValueError):
 class ModelUnreadableError(ModelContractError):
     """Bytes that are not (yet) a whole model: empty, truncated, no graph onnxruntime can load, no
     metadata. What a file still being copied looks like, so the watcher retries it for a while."""
+
+
+class DecisionEnded(RuntimeError):
+    """A decision was ended from outside (``LoadedModel.end_decision``): the model ran too long."""
 
 
 class ModelInputError(ValueError):
@@ -256,6 +262,13 @@ class LoadedModel:
         """One session per early head (``load_model`` prunes the file per head), or the one graph's."""
         self._heads = [BoundRun(s, INPUT_NAME, head_outputs(p), self._shape, meta.n_classes)
                        for s, p in zip(self._head_sessions, self.early.points if self.early else (), strict=True)]
+        self.running_since: float | None = None
+        """``time.perf_counter()`` when the decision under way began, None between decisions (read by
+        runtime.decision_guard from its own thread)."""
+        self.ended: str | None = None
+        """Why ``end_decision`` ended this model's decisions (it then runs no more), or None."""
+        self._options: Any = None
+        """onnxruntime RunOptions of the unbound runs, made on the first one (it can be ended too)."""
 
     def __repr__(self) -> str:
         return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
@@ -289,20 +302,48 @@ class LoadedModel:
         ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No
         finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error). One
         window runs through buffers bound once (``runtime.bound_run``)."""
-        answer = self._bound.run(x)
-        if answer is not None:
-            return answer
-        labels, scores = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x})
-        return labels, scores
+        self.running_since = time.perf_counter()
+        try:
+            answer = self._bound.run(x)
+            if answer is None and self.ended is None:
+                answer = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x}, self._run_options())
+        finally:
+            self.running_since = None
+        if self.ended is not None:
+            raise DecisionEnded(self.ended)
+        return answer[0], answer[1]
+
+    def end_decision(self, reason: str) -> None:
+        """End the decision under way from another thread (a graph that runs too long: onnxruntime's
+        RunOptions.terminate is checked between nodes and loop steps); this model runs no more."""
+        self.ended = reason
+        for bound in (self._bound, *self._heads):
+            bound.end()
+        self._run_options().terminate = True
+
+    def _run_options(self) -> Any:
+        if self._options is None:
+            import onnxruntime as ort
+
+            options = ort.RunOptions()
+            options.log_severity_level = 4  # the failure is reported in one line by the caller
+            self._options = options
+        return self._options
 
     def run_head(self, index: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The early head ``index`` (of ``early.points``) on the newest T frames ``x`` ``[1, T, C]``
         float32 (it reads their last ``p`` rows); like ``run_trusted``, no input check."""
-        answer = self._heads[index].run(x)
-        if answer is not None:
-            return answer
-        labels, scores = self._head_sessions[index].run(list(head_outputs(self.early.points[index])), {INPUT_NAME: x})
-        return labels, scores
+        self.running_since = time.perf_counter()
+        try:
+            answer = self._heads[index].run(x)
+            if answer is None and self.ended is None:
+                answer = self._head_sessions[index].run(list(head_outputs(self.early.points[index])), {INPUT_NAME: x},
+                                                        self._run_options())
+        finally:
+            self.running_since = None
+        if self.ended is not None:
+            raise DecisionEnded(self.ended)
+        return answer[0], answer[1]
 
     def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION) -> None:
         """Run realistic windows (so the first real inference does not pay for allocations), check

@@ -164,12 +164,17 @@ class ModelSlot:
         elif self.watcher is not None:  # a file rejected under the old scene may fit the new one
             self.watcher.rescan(keep_current=self.model is not None)
 
+    def quarantine_now(self, model: LoadedModel, reason: str) -> None:
+        """Never load this version of the model's file again (also after a restart), without a swap:
+        from another thread, before the process exits over a decision that would not stop."""
+        (self.watcher or self.quarantine).quarantine_file(Path(model.path), reason)
+
     def take_out_of_service(self, model: LoadedModel, reason: str) -> None:
         """A model broke the output contract at run time: one line, never load this file version
         again (also after a restart), and serve the model it replaced, or none."""
         h = self.health
         h.models_quarantined += 1
-        (self.watcher or self.quarantine).quarantine_file(Path(model.path), reason)
+        self.quarantine_now(model, reason)
         fallback, self._fallback = self._fallback, None
         if fallback is not None and self.problem(fallback):
             fallback = None

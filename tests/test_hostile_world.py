@@ -132,3 +132,46 @@ def test_the_model_metadata_is_not_believed_where_the_stream_says_otherwise(tmp_
 
 def test_what_the_model_folder_holds_is_what_is_served_and_check_agrees(tmp_path):
     _held(W.folder_rollbacks(tmp_path))
+
+
+def test_a_model_that_hangs_on_real_windows_is_ended_from_outside_and_stays_out(tmp_path):
+    result = W.hanging_model(tmp_path)
+    assert result["held_untimed"], result["detail"]  # its time is the benchmark's to report
+
+
+@pytest.mark.slow
+def test_handover_run_with_a_hanging_model_serves_the_old_one_and_ends_on_sigterm(tmp_path):
+    _held(W.hanging_model_process(tmp_path))
+
+
+def test_the_guard_ends_a_real_hanging_decision_when_its_clock_says_so(tmp_path):
+    import numpy as np
+
+    from runtime.decision_guard import DecisionGuard
+    from runtime.model import DecisionEnded, load_model
+    from trainer.bench import hostile_models as H
+
+    path = tmp_path / "hang.onnx"
+    path.write_bytes(H.hang())
+    model = load_model(path)  # passes warm-up
+    window = np.zeros((1, H.T, sum(H.PAD_SIZES)), dtype=np.float32)
+    window[0, 3, 7] = H.SLEEPER_PEAK
+    outcome = []
+
+    def decide() -> None:
+        try:
+            model.run_trusted(window)
+        except DecisionEnded as exc:
+            outcome.append(str(exc))
+
+    exits = []
+    guard = DecisionGuard(lambda: model, lambda: 0.03125, exit=exits.append)
+    thread = threading.Thread(target=decide, daemon=True)
+    thread.start()
+    while model.running_since is None:
+        thread.join(0.001)
+    guard.check(model.running_since + 0.03)  # within the limit: left alone
+    assert model.ended is None and guard.ended == 0
+    guard.check(model.running_since + 0.04)
+    thread.join(30)
+    assert not thread.is_alive() and guard.ended == 1 and "31.2 ms" in outcome[0] and not exits

@@ -6,6 +6,7 @@ that tests and ``handover bench hostile`` attack the daemon with the same files:
 - ``label_out_of_range``: label + 100 whenever any taxel is non-zero (right on all-zero input);
 - ``nan_scores`` / ``inf_scores``: NaN / infinite scores whenever any taxel is non-zero;
 - ``slow``: a chain of ``n_nodes`` element-wise nodes, so one decision takes milliseconds;
+- ``hang``: an ONNX ``Loop`` whose trip count becomes 2e9 on a window of real frames;
 - ``mutations``: byte-level mutations of a valid file.
 """
 
@@ -72,6 +73,23 @@ def _model(kind: str, n_nodes: int = 0, bias_class: int = 0, tag: str = "", peak
         nodes.append(helper.make_node("Sub" if kind == "nan_scores" else "Add", ["inf", "inf"], ["bad"]))
         nodes.append(helper.make_node("Where", ["pressed", "bad", "raw"], ["poisoned"]))
         scores = "poisoned"
+    if kind == "hang":  # a Loop of 2e9 steps where the attack fires, of one step elsewhere
+        body = helper.make_graph(
+            [helper.make_node("Identity", ["cond_in"], ["cond_out"]), helper.make_node("Add", ["acc_in", "one"], ["acc_out"])],
+            "body", [helper.make_tensor_value_info("i", TensorProto.INT64, []),
+                     helper.make_tensor_value_info("cond_in", TensorProto.BOOL, []),
+                     helper.make_tensor_value_info("acc_in", TensorProto.FLOAT, [])],
+            [helper.make_tensor_value_info("cond_out", TensorProto.BOOL, []),
+             helper.make_tensor_value_info("acc_out", TensorProto.FLOAT, [])],
+            [helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])])
+        inits += [helper.make_tensor("many", TensorProto.INT64, [], [HANG_STEPS]),
+                  helper.make_tensor("once", TensorProto.INT64, [], [1]),
+                  helper.make_tensor("yes", TensorProto.BOOL, [], [True])]
+        nodes += [helper.make_node("Where", ["pressed", "many", "once"], ["trip"]),
+                  helper.make_node("Loop", ["trip", "yes", "zero"], ["steps"], body=body),
+                  helper.make_node("Mul", ["steps", "zero"], ["nothing"]),  # the loop's result feeds the scores
+                  helper.make_node("Add", [scores, "nothing"], ["after_loop"])]
+        scores = "after_loop"
     for i in range(n_nodes):  # kind == "slow": a chain the optimiser cannot fold
         nodes.append(helper.make_node("Add" if i % 2 else "Sub", [scores, "tiny"], [f"chain{i}"]))
         scores = f"chain{i}"
@@ -123,6 +141,16 @@ def sleeper(kind: str, peak: float = SLEEPER_PEAK) -> bytes:
     """A ``kind`` attack that fires only when a window's largest taxel value is exactly ``peak``:
     it passes the warm-up and breaks on real data (what the run-time check is for)."""
     return _model(kind, peak=peak, tag=f"sleeper-{kind}")
+
+
+HANG_STEPS = 2_000_000_000
+"""Loop steps of ``hang`` on a window it fires on: about half an hour of one core."""
+
+
+def hang(peak: float = SLEEPER_PEAK) -> bytes:
+    """A model whose graph runs a Loop of ``HANG_STEPS`` steps on a window whose largest value is
+    exactly ``peak`` (real frames), and one step on any other (it passes load and warm-up)."""
+    return _model("hang", peak=peak, tag="hang")
 
 
 RUNTIME_ATTACKS = {"label_out_of_range": label_out_of_range, "nan_scores": nan_scores, "inf_scores": inf_scores}

@@ -673,3 +673,124 @@ def folder_rollbacks(work: Path) -> dict:
     held = all(serving == check == want for serving, check, want in rows.values())
     return {"held": held, "rows": {k: {"serving": s, "check": c, "expected": w} for k, (s, c, w) in rows.items()},
             "detail": "; ".join(f"{k}: serves {s}, --check names {c} (expected {w})" for k, (s, c, w) in rows.items())}
+
+
+# -- 7: a model that hangs on real windows --------------------------------------------------------------
+def _frames_pressing(daemon, first: int, n: int, level: int, press: range, received_at=time.perf_counter):
+    from firmware_io.client import Frame
+
+    column = int(daemon.layout.columns("distal")[40])
+    for number in range(first, first + n):
+        values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
+        values[column] = level if (number - first) in press else 0
+        yield Frame(number, round(number * 31.25), received_at(), values)
+
+
+def hanging_model(work: Path) -> dict:
+    """A model that passes load and warm-up and runs a 2e9-step Loop on its first real window: the
+    decision is ended from outside the hot thread, the model is out of service (the one it replaced
+    serves) within two sample periods of that window, and stays out after a restart."""
+    from firmware_io.layout import SensorLayout
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from trainer.bench import hostile_models as H
+
+    models, state = work / "models", work / "state"
+    models.mkdir(parents=True)
+    state.mkdir(parents=True)
+    write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
+    write_model(models, "hang.onnx", H.hang(), mtime=time.time() - 10)
+    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False}, "realtime_priority": 0,
+                            "model": {"folder": str(models)}, "health_file": str(state / "status.json"),
+                            "trigger": {"kind": "threshold", "fraction": 0.2, "hysteresis": 0.1}})
+    daemon = Daemon(cfg)
+    daemon.detector.fit(SensorLayout.sdh2())
+    daemon.models.start()
+    daemon.models.watcher.stop()
+    served_first = Path(daemon.model.path).name if daemon.model is not None else None
+    daemon.guard.start()
+    took = None
+    try:
+        for frame in _frames_pressing(daemon, 0, 40, 0, range(0)):  # the stream's period is measured
+            daemon.handle_frame(frame)
+        period = daemon.detector.frame_clock.deadline_s()
+        frames = list(_frames_pressing(daemon, 40, 40, int(H.SLEEPER_PEAK), range(0, 20)))
+
+        def feed() -> float | None:
+            slowest = 0.0
+            for frame in frames:
+                t0 = time.perf_counter()
+                daemon.handle_frame(frame)
+                slowest = max(slowest, time.perf_counter() - t0)
+            return slowest
+
+        finished, took = in_thread(feed, guard_s=4 * HANG_GUARD_S)
+    finally:
+        daemon.guard.stop()
+    daemon.models.watcher.poll(require_stable=False)  # the watcher's next poll: the newest file left serves
+    daemon._housekeeping(time.monotonic())
+    serving = Path(daemon.model.path).name if daemon.model is not None else None
+    restarted = Daemon(cfg)
+    restarted.detector.fit(SensorLayout.sdh2())
+    restarted.models.start()
+    restarted.models.watcher.stop()
+    after_restart = Path(restarted.model.path).name if restarted.model is not None else None
+    out = (finished and served_first == "hang.onnx" and daemon.guard.ended == 1 and serving == "old.onnx"
+           and after_restart == "old.onnx" and daemon.health.models_quarantined == 1)
+    in_time = isinstance(took, float) and took < 2 * period
+    took_ms = f"{took * 1e3:.1f} ms" if isinstance(took, float) else "never"
+    return {"held": out and in_time, "held_untimed": out, "took_ms": None if not isinstance(took, float) else took * 1e3,
+            "detail": f"served first: {served_first}; its first real window took {took_ms} (two periods: "
+                      f"{2 * period * 1e3:.1f} ms) until it was out of service; {daemon.guard.ended} decision(s) "
+                      f"ended; serving then: {serving}; after a restart: {after_restart}"}
+
+
+def hanging_model_process(work: Path) -> dict:
+    """``handover run`` replaying real-looking frames into a model that hangs on them: the model is
+    quarantined, the old one serves, SIGTERM ends the daemon (exit 0), and ``--check`` keeps it out."""
+    from firmware_io.layout import SensorLayout
+    from firmware_io.recordings.recording import Recording
+    from trainer.bench import hostile_models as H
+
+    models, state = work / "models", work / "state"
+    models.mkdir(parents=True)
+    state.mkdir(parents=True)
+    write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
+    write_model(models, "hang.onnx", H.hang(), mtime=time.time() - 10)
+    layout = SensorLayout.sdh2()
+    frames = np.zeros((320, layout.n_taxels), dtype=np.uint16)
+    column = int(layout.columns("distal")[40])
+    for start in (100, 220):
+        frames[start:start + 20, column] = int(H.SLEEPER_PEAK)
+    rec = Recording(layout, frames, np.arange(len(frames)) / 32.0, [], {"source": "hostile"})
+    path = rec.save(work / "presses.hrec")
+    config = state / "h.toml"
+    config.write_text(f'health_file = "{state / "status.json"}"\nrealtime_priority = 0\n'
+                      f'[device]\nurl = "replay://{path}?speed=1&loop=1"\n[model]\nfolder = "{models}"\n'
+                      '[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\n')
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        status = {}
+        deadline = time.monotonic() + 4 * HANG_GUARD_S
+        while time.monotonic() < deadline and proc.poll() is None:
+            status = read_json(state / "status.json")
+            if status.get("models_quarantined", 0) >= 1 and status.get("events", 0) >= 1:
+                break
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        try:
+            code = proc.wait(timeout=HANG_GUARD_S)
+        except subprocess.TimeoutExpired:
+            code = None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out, err = proc.communicate()
+    check = cli(["run", "--config", str(config), "--check"])
+    models_said = [json.loads(line).get("model_file") for line in out.splitlines() if '"type":"model"' in line]
+    held = (status.get("models_quarantined") == 1 and status.get("events", 0) >= 1 and code == 0
+            and "(old.onnx)" in check.stdout and "hang.onnx" in check.stderr and "Traceback" not in err)
+    return {"held": held, "exit_code": code, "detail": f"models announced {models_said}; quarantined "
+            f"{status.get('models_quarantined')}, events after it {status.get('events')}; SIGTERM: exit {code}; "
+            f"--check after it would serve old.onnx: {'(old.onnx)' in check.stdout}"}

@@ -1,0 +1,104 @@
+"""Ends a decision that runs too long, from a thread of its own: the hot thread cannot.
+
+Why: a model may pass load and warm-up and hang on real windows only (an ONNX ``Loop`` whose trip
+count explodes when the pads are pressed). The hot thread is then inside onnxruntime for good:
+no frame is read, SIGTERM waits (Python runs its handler between bytecodes), and at real-time
+priority a core spins. This guard looks at the serving model every quarter of the limit; a
+decision under way for longer than the limit (the stream's period: it was due before the next
+frame) is ended with onnxruntime's ``RunOptions.terminate``. The hot thread then gets an error
+from the run and takes the model out of service (quarantined across restarts), so it is out
+within about two periods of its first real window.
+
+A graph that does not stop when told (one huge operator: onnxruntime checks the flag between
+nodes and loop steps) is still running ``ESCALATE_S`` later: the file is quarantined, one line
+says so, and the process exits with ``EXIT_HUNG`` (systemd restarts it; the quarantine keeps
+the model out).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from runtime import realtime
+
+log = logging.getLogger("handover.daemon")
+
+ESCALATE_S = 5.0
+"""How long an ended decision may take to stop before the process gives up."""
+EXIT_HUNG = 3
+MIN_LIMIT_S = 0.005
+
+
+class DecisionGuard:
+    """``check(now)`` ends the serving model's decision when it runs past ``limit_s()``; ``start()``
+    runs the checks in a thread (at ``priority`` + 1 when the hot thread runs at real-time priority)."""
+
+    def __init__(self, model: Callable[[], Any], limit_s: Callable[[], float],
+                 on_stuck: Callable[[Any, str], None] | None = None, priority: int = 0,
+                 clock: Callable[[], float] = time.perf_counter, exit: Callable[[int], None] = os._exit) -> None:
+        self.model = model
+        self.limit_s = limit_s
+        self.on_stuck = on_stuck
+        """Called with (model, reason) before the process exits over a decision that did not stop."""
+        self.priority = int(priority)
+        self.clock = clock
+        self.exit = exit
+        self.ended = 0
+        """Decisions ended so far."""
+        self._ended_at: float | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def limit(self) -> float:
+        return max(MIN_LIMIT_S, float(self.limit_s()))
+
+    def check(self, now: float) -> None:
+        """One look at the serving model's decision under way."""
+        model = self.model()
+        since = getattr(model, "running_since", None)
+        if since is None:
+            self._ended_at = None
+            return
+        if model.ended is None:
+            limit = self.limit()
+            if now - since > limit:
+                reason = (f"a decision ran longer than {limit * 1e3:.1f} ms (the stream's period) and was ended "
+                          f"from outside (a graph that hangs on real frames?)")
+                model.end_decision(reason)
+                self.ended += 1
+                self._ended_at = now
+                log.error("model %s: %s", getattr(model, "model_id", "?"), reason)
+            return
+        if self._ended_at is not None and now - self._ended_at > ESCALATE_S:
+            reason = f"a decision did not stop {ESCALATE_S:g} s after it was ended"
+            log.critical("model %s: %s; the model is quarantined and the daemon exits (code %d) to be restarted",
+                         getattr(model, "model_id", "?"), reason, EXIT_HUNG)
+            if self.on_stuck is not None:
+                self.on_stuck(model, reason)
+            self.exit(EXIT_HUNG)
+
+    def start(self) -> None:
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="decision-guard", daemon=True)
+            self._thread.start()
+
+    def _run(self) -> None:
+        if self.priority > 0:  # above the hot thread, or a hot thread spinning at real-time priority starves it
+            realtime.enter_realtime(min(99, self.priority + 1))
+        while not self._stop.wait(self.limit() / 4):
+            try:
+                self.check(self.clock())
+            except Exception:  # the guard must outlive any model
+                log.exception("decision guard check failed")
+
+    def stop(self, timeout: float = 0.5) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
