@@ -146,11 +146,19 @@ class ModelSlot:
         self.health.model_id = None
 
     def fit_layout(self, layout: SensorLayout) -> None:
-        """A device with a new layout: a model that does not fit it stops serving (one error line)."""
+        """A device with a new layout: a model that does not fit it stops serving (one error line, and the
+        health view's error until a model serves), and the folder's files are weighed again for it. Why
+        again: a controller that comes back with another layout and then the original one must get the
+        model that fits it back without a reload."""
+        if layout == self.detector.layout:
+            return
         model = self.model
-        if model is not None and layout != self.detector.layout and (problem := self.problem(model, layout)):
+        if model is not None and (problem := self.problem(model, layout)):
             log.error("model %s does not fit the device: %s; waiting for another model", model.model_id, problem)
+            self.health.report_error(f"model {Path(model.path).name} does not fit the device: {problem}", "model")
             self.drop()
+        if self.model is None and self.watcher is not None:
+            self.watcher.rescan(keep_current=False)
 
     def refit(self, old: Config, new: Config) -> None:
         """A reloaded config: the new scene may not fit the model in use; new model settings restart

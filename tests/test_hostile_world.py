@@ -175,3 +175,7 @@ def test_the_guard_ends_a_real_hanging_decision_when_its_clock_says_so(tmp_path)
     guard.check(model.running_since + 0.04)
     thread.join(30)
     assert not thread.is_alive() and guard.ended == 1 and "31.2 ms" in outcome[0] and not exits
+
+
+def test_a_controller_back_with_another_layout_then_the_original_gets_its_model_back(tmp_path):
+    _held(W.layout_comes_back(tmp_path))

@@ -794,3 +794,38 @@ def hanging_model_process(work: Path) -> dict:
     return {"held": held, "exit_code": code, "detail": f"models announced {models_said}; quarantined "
             f"{status.get('models_quarantined')}, events after it {status.get('events')}; SIGTERM: exit {code}; "
             f"--check after it would serve old.onnx: {'(old.onnx)' in check.stdout}"}
+
+
+# -- 10: a controller that comes back with another layout -------------------------------------------------
+def layout_comes_back(work: Path) -> dict:
+    """The controller reconnects reporting 3 pads, then 6 again: meanwhile the health file names the
+    error; then the model that fits serves again, without SIGHUP or a new drop."""
+    from firmware_io.layout import SensorLayout
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+    from trainer.bench import hostile_models as H
+
+    models, state = work / "models", work / "state"
+    models.mkdir(parents=True)
+    state.mkdir(parents=True)
+    write_model(models, "six-pads.onnx", H.valid(bias_class=0))
+    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False}, "model": {"folder": str(models)},
+                            "health_file": str(state / "status.json")})
+    daemon = Daemon(cfg)
+    six = SensorLayout.sdh2()
+    three = SensorLayout(tuple(six.matrices[:3]))
+    daemon.models.start()
+    daemon.models.watcher.stop()
+    steps = []
+    for layout in (six, three, six):
+        daemon._stream_began(layout)  # what the device link calls at each connect
+        for _ in range(2):
+            daemon.models.watcher.poll()
+        daemon._housekeeping(time.monotonic())
+        daemon.write_health()
+        status = read_json(state / "status.json")
+        steps.append((layout.n_matrices, status.get("model_id"), status.get("last_error", "")))
+    held = (steps[0][1] is not None and steps[1][1] is None and "six-pads.onnx" in steps[1][2]
+            and steps[2][1] == steps[0][1] and steps[2][2] == "")
+    return {"held": held, "detail": "; ".join(f"{n} pads: serving {m or 'none'}, health error "
+                                              f"{e[:60]!r}" for n, m, e in steps)}
