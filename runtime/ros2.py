@@ -78,6 +78,18 @@ def grasp_exposure(cfg: Ros2Config, env: dict[str, str] | None = None) -> str | 
             "(deploy/INSTALL.md, section ROS 2)")
 
 
+def namespace_clash(publishers: int, namespace: str) -> str | None:
+    """Why the events topic is not this daemon's alone (``publishers`` counts this daemon too), or None.
+
+    Why: two daemons on one namespace publish events nobody can tell apart, and a grasp message on
+    ``<namespace>/grasp`` reaches both."""
+    if publishers <= 1:
+        return None
+    return (f"ros2: {publishers - 1} other publisher(s) on {namespace}/events (another daemon on this namespace?): "
+            "listeners cannot tell the events apart and a grasp message reaches both; give each daemon its own "
+            "ros2.namespace")
+
+
 def availability_problem() -> str | None:
     """Why the ROS 2 sink would not start here, found without importing rclpy (for ``--check``)."""
     from importlib.util import find_spec

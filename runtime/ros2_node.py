@@ -37,6 +37,7 @@ from std_msgs.msg import String
 
 from runtime.arm_motion import JointSpeed
 from runtime.config import Ros2Config
+from runtime.ros2 import namespace_clash
 from runtime.sinks import Sink
 
 log = logging.getLogger("handover.ros2")
@@ -107,6 +108,8 @@ class Ros2Sink(Sink):
         self._pad_layout: Any = None
         self._pad_publishers: list[tuple[int, Any]] = []
         self._last_warning = 0.0
+        self.clash: str | None = None
+        """Why the events topic is not ours alone (runtime.ros2.namespace_clash), or None."""
         self._context = Context()
         rclpy.init(context=self._context, args=["--ros-args", "--disable-external-lib-logs"],
                    signal_handler_options=SignalHandlerOptions.NO)
@@ -189,6 +192,7 @@ class Ros2Sink(Sink):
         snapshot = self._snapshot
         if snapshot is None:
             return
+        self._check_namespace()
         try:
             msg = DiagnosticArray()
             msg.header.stamp = self.node.get_clock().now().to_msg()
@@ -197,6 +201,21 @@ class Ros2Sink(Sink):
             self._diagnostics.publish(msg)
         except Exception as exc:
             self._warn(f"ros2: diagnostics not published ({exc})")
+
+    def _check_namespace(self) -> None:
+        """Another publisher on our events topic: one warning line and the health view's error while it lasts."""
+        try:
+            clash = namespace_clash(self.node.count_publishers(self._events.topic_name), self.cfg.namespace)
+        except Exception:  # a node being shut down
+            return
+        health = getattr(self.daemon, "health", None)
+        if clash is not None and clash != self.clash:
+            log.warning("%s", clash)
+            if health is not None:
+                health.report_error(clash, "ros2")
+        elif clash is None and self.clash is not None and health is not None:
+            health.resolve("ros2")
+        self.clash = clash
 
     def _publish_pads(self) -> None:
         # read with getattr: the timer may fire before the daemon has finished making itself

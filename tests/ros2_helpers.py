@@ -31,7 +31,7 @@ def ros_sink(daemon: Daemon):
 
 def daemon_config(tmp_path: Path, url: str, ros2: dict, udp_port: int | None = None):
     models = tmp_path / "models"
-    models.mkdir(exist_ok=True)
+    models.mkdir(parents=True, exist_ok=True)
     write_model(models, "m.onnx", tiny_model_bytes(), mtime=time.time() - 10)
     sinks = {"stdout": False, "ros2": True, "udp": [f"127.0.0.1:{udp_port}"] if udp_port else []}
     return config_from_dict({

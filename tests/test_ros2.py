@@ -288,3 +288,24 @@ def test_a_closed_node_never_raises_into_the_daemon(tmp_path):
                                         model_file="m.onnx", classes=["pull"]))
     assert sink.errors == 1 and sink.sent == 0
     sink.close()  # twice is harmless
+
+
+def test_two_daemons_on_one_namespace_are_told_and_the_health_view_says_so(tmp_path, caplog):
+    """Both publish on /handover/events: each sees the other on the graph and says so (one warning
+    line, the health view's error); a daemon alone on its namespace says nothing."""
+    first = Daemon(daemon_config(tmp_path / "a", "sim://?realtime=0", {}))
+    second = Daemon(daemon_config(tmp_path / "b", "sim://?realtime=0", {}))
+    alone = Daemon(daemon_config(tmp_path / "c", "sim://?realtime=0", {"namespace": "/other"}))
+    try:
+        with caplog.at_level(logging.WARNING, logger="handover.ros2"):
+            def told() -> bool:
+                for d in (first, second, alone):
+                    d.write_health()
+                return all(ros_sink(d).clash is not None for d in (first, second))
+            assert wait_for(told, 20.0), "the other daemon on /handover was never seen"
+        assert "/handover/events (another daemon on this namespace?)" in first.health.last_error
+        assert caplog.text.count("other publisher(s) on /handover/events") == 2
+        assert ros_sink(alone).clash is None and "ros2" not in alone.health.last_error
+    finally:
+        for d in (first, second, alone):
+            d.sinks.close()

@@ -829,3 +829,39 @@ def layout_comes_back(work: Path) -> dict:
             and steps[2][1] == steps[0][1] and steps[2][2] == "")
     return {"held": held, "detail": "; ".join(f"{n} pads: serving {m or 'none'}, health error "
                                               f"{e[:60]!r}" for n, m, e in steps)}
+
+
+# -- 5: two daemons on one ROS 2 namespace --------------------------------------------------------------
+def two_daemons_one_namespace(work: Path) -> dict:
+    """Two daemons publishing on one ``ros2.namespace``: each warns in one line and its health view says so."""
+    from importlib.util import find_spec
+
+    if find_spec("rclpy") is None:
+        return {"held": False, "tried": False, "detail": "rclpy is not installed (the ros extra); not tried"}
+    env = {"ROS_DOMAIN_ID": str(1 + os.getpid() % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    daemons = []
+    try:
+        for name in ("a", "b"):
+            daemons.append(served_daemon(work / name, "stdout = false\nros2 = true"))
+        def each_saw_the_other() -> bool:
+            for d in daemons:
+                d.write_health()  # the node looks at the graph when it publishes the health view
+            return all(getattr(s, "clash", None) for d in daemons for s in d.sinks.sinks if s.name.startswith("ros2:"))
+
+        with LogLines() as said:
+            told = _wait(each_saw_the_other, HANG_GUARD_S)
+        lines = [s for s in said if "another daemon on this namespace" in s]
+        in_health = all("another daemon on this namespace" in d.health.last_error for d in daemons)
+    finally:
+        for d in daemons:
+            d.sinks.close()
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    held = told and len(lines) == 2 and in_health
+    return {"held": held, "tried": True, "detail": f"each daemon saw the other: {told}; warning lines: {len(lines)}; "
+                                                   f"in both health views: {in_health}"}
