@@ -180,7 +180,7 @@ class ReportRule:
 
 
 class Detector:
-    """Frames in, decisions out (module docstring). Not thread-safe, except ``set_grasp``."""
+    """Frames in, decisions out (module docstring). Not thread-safe, except ``set_grasp`` and ``set_arm_moving``."""
 
     def __init__(self, scene: SceneConfig | None = None, trigger: TriggerConfig | None = None,
                  continuous: ContinuousConfig | None = None, health: Health | None = None,

@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from functools import partial
@@ -31,7 +32,6 @@ import numpy as np
 
 from firmware_io.layout import FULL_SCALE_12BIT
 from firmware_io.trigger_level import is_trigger_level
-from runtime.bound_run import BoundRun
 from runtime.early import EARLY_KEY, EarlySpec, EarlySpecError, head_outputs, is_head_output
 from runtime.onnx_wire import WireError, keep_outputs, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
@@ -255,20 +255,20 @@ class LoadedModel:
         self.n_bytes = n_bytes
         self._session = session
         self._shape = (meta.T, meta.n_channels)
-        self._bound = BoundRun(session, INPUT_NAME, OUTPUT_NAMES, self._shape, meta.n_classes)
+        self._stage = _aligned((1, *self._shape))
+        """One window is copied here before it runs (``run_trusted`` says why)."""
+        self._staging = threading.Lock()
         self.early: EarlySpec | None = early_spec(meta)
         """The early heads and their rule (runtime.early), or None: the model answers at T only."""
         self._head_sessions = list(head_sessions or [session] * len(self.early.points if self.early else ()))
         """One session per early head (``load_model`` prunes the file per head), or the one graph's."""
-        self._heads = [BoundRun(s, INPUT_NAME, head_outputs(p), self._shape, meta.n_classes)
-                       for s, p in zip(self._head_sessions, self.early.points if self.early else (), strict=True)]
         self.running_since: float | None = None
         """``time.perf_counter()`` when the decision under way began, None between decisions (read by
         runtime.decision_guard from its own thread)."""
         self.ended: str | None = None
         """Why ``end_decision`` ended this model's decisions (it then runs no more), or None."""
         self._options: Any = None
-        """onnxruntime RunOptions of the unbound runs, made on the first one (it can be ended too)."""
+        """onnxruntime RunOptions of every run, made on the first one (``end_decision`` ends it)."""
 
     def __repr__(self) -> str:
         return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
@@ -300,25 +300,19 @@ class LoadedModel:
     def run_trusted(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``run`` without ``check_input``: for the daemon's hot path, whose windows are float32
         ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No
-        finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error). One
-        window runs through buffers bound once (``runtime.bound_run``)."""
-        self.running_since = time.perf_counter()
-        try:
-            answer = self._bound.run(x)
-            if answer is None and self.ended is None:
-                answer = self._session.run(OUTPUT_NAMES, {INPUT_NAME: x}, self._run_options())
-        finally:
-            self.running_since = None
-        if self.ended is not None:
-            raise DecisionEnded(self.ended)
-        return answer[0], answer[1]
+        finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error).
+
+        One ``[1, T, C]`` float32 window is first copied to one 64-byte aligned array: onnxruntime's
+        kernels sum in an order that depends on where the input starts in memory, so a ring window's
+        offset changed the scores' last bits; this way one window gives one answer, bit for bit,
+        wherever the ring holds it (a replay and the service agree). A second caller at the same
+        time, a batch or another dtype run as given."""
+        return self._run(self._session, OUTPUT_NAMES, x)
 
     def end_decision(self, reason: str) -> None:
         """End the decision under way from another thread (a graph that runs too long: onnxruntime's
         RunOptions.terminate is checked between nodes and loop steps); this model runs no more."""
         self.ended = reason
-        for bound in (self._bound, *self._heads):
-            bound.end()
         self._run_options().terminate = True
 
     def _run_options(self) -> Any:
@@ -333,17 +327,32 @@ class LoadedModel:
     def run_head(self, index: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The early head ``index`` (of ``early.points``) on the newest T frames ``x`` ``[1, T, C]``
         float32 (it reads their last ``p`` rows); like ``run_trusted``, no input check."""
+        return self._run(self._head_sessions[index], head_outputs(self.early.points[index]), x)
+
+    def _run(self, session: Any, outputs: tuple[str, str], x: Any) -> tuple[np.ndarray, np.ndarray]:
+        if self.ended is not None:
+            raise DecisionEnded(self.ended)
+        stage, options = self._stage, self._run_options()
         self.running_since = time.perf_counter()
         try:
-            answer = self._heads[index].run(x)
-            if answer is None and self.ended is None:
-                answer = self._head_sessions[index].run(list(head_outputs(self.early.points[index])), {INPUT_NAME: x},
-                                                        self._run_options())
+            if (isinstance(x, np.ndarray) and x.shape == stage.shape and x.dtype == stage.dtype
+                    and self._staging.acquire(False)):
+                try:
+                    stage[...] = x
+                    labels, scores = session.run(list(outputs), {INPUT_NAME: stage}, options)
+                finally:
+                    self._staging.release()
+            else:
+                labels, scores = session.run(list(outputs), {INPUT_NAME: x}, options)
+        except Exception:
+            if self.ended is not None:
+                raise DecisionEnded(self.ended) from None
+            raise
         finally:
             self.running_since = None
         if self.ended is not None:
             raise DecisionEnded(self.ended)
-        return answer[0], answer[1]
+        return labels, scores
 
     def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION) -> None:
         """Run realistic windows (so the first real inference does not pay for allocations), check
@@ -369,6 +378,14 @@ def early_spec(meta: ModelMeta) -> EarlySpec | None:
         return EarlySpec.from_meta(meta.extra[EARLY_KEY], meta.T)
     except EarlySpecError as exc:
         raise ModelContractError(f"metadata: {exc}") from None
+
+
+def _aligned(shape: tuple[int, ...]) -> np.ndarray:
+    """float32 zeros of ``shape`` starting on a 64-byte boundary."""
+    n = int(np.prod(shape))
+    raw = np.zeros(n + 16, dtype=np.float32)
+    start = (-raw.ctypes.data % 64) // 4
+    return raw[start : start + n].reshape(shape)
 
 
 def _check_io(session, meta: ModelMeta) -> None:

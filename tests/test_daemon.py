@@ -24,6 +24,7 @@ from firmware_io.emulator.frame_source import load_source
 from firmware_io.transports.usb import FTDI_LATENCY_MS
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
+from runtime.detector import Detector
 from runtime.listeners import FrameRecorder
 from runtime.sinks import Event
 from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
@@ -350,13 +351,12 @@ def test_default_trigger_reports_a_wobbling_interaction_once(models):
     on, dip = 800, 300  # trigger at 0.15 x 4095 = 614, re-arm below 0.10 x 4095 = 410
     push = [on] * 20 + [dip] * 4 + [on] * 20 + [0] * 10
     levels = [0] * 20 + push + [0] * 70 + push + [0] * 40
-    decisions: list[Event] = []
-    daemon = Daemon(config_from_dict({"sinks": {"stdout": False}}), on_event=decisions.append)
-    daemon.serve(load_model(models / "first.onnx"), layout)
-    for frame in _level_frames(levels, int(layout.columns("distal")[40]), layout.n_taxels):
-        daemon.handle_frame(frame)
-    assert daemon.detector.trigger.fired == 2 and daemon.health.decisions == 2
-    assert [e.frame_first for e in decisions] == [20, 20 + len(push) + 70]
+    detector = Detector()
+    detector.swap(load_model(models / "first.onnx"), layout)
+    frames = _level_frames(levels, int(layout.columns("distal")[40]), layout.n_taxels)
+    decisions = [d for d in map(detector.feed, frames) if d is not None]
+    assert detector.trigger.fired == 2 and len(decisions) == 2
+    assert [d.first for d in decisions] == [20, 20 + len(push) + 70]
 
 
 def _silent_tcp_peer():

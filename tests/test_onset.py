@@ -14,6 +14,7 @@ from firmware_io.layout import SensorLayout
 from runtime.config import ConfigError, TriggerConfig, config_from_dict
 from runtime.control import parse_message
 from runtime.daemon import Daemon
+from runtime.detector import Detector
 from runtime.onset import ARMED, OPEN, OnsetTrigger
 from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, resolve_trigger
 
@@ -255,17 +256,14 @@ def test_continuous_mode_reports_a_hold_once(tmp_path):
     path = dormant.export(model, tmp_path / "five.onnx", pads=(1, 3, 5), pad_sizes=PADS, fullscale=4095.0,
                           fraction=PAPER_FRACTION, sample_rate_hz=RATE, dormant_class="dormant",
                           training={"data_fingerprint": "test", "n_trials": 0})
-    cfg = config_from_dict({"scene": {"mode": "continuous", "events": ["hold", "bump"]}, "continuous": {"confirm_frames": 4},
-                            "sinks": {"stdout": False}, "log_level": "warning"})
-    events: list = []
-    daemon = Daemon(cfg, on_event=events.append)
-    daemon.serve(load_model(path), LAYOUT)
+    cfg = config_from_dict({"scene": {"mode": "continuous", "events": ["hold", "bump"]}, "continuous": {"confirm_frames": 4}})
+    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous)
+    detector.swap(load_model(path), LAYOUT)
     levels = np.full((260, 3), 1200.0)
     levels[100:125] *= (1.0 + 0.2 * np.arange(25) / 24.0)[:, None]  # a person grips: +20 % over 0.8 s
     levels[125:] *= 1.2  # ... and holds
-    for frame in _frames(levels):
-        daemon.handle_frame(frame)
-    assert [e.cls for e in events] == ["hold"] and 100 <= events[0].frame_last <= 125
+    reported = [d for d in map(detector.feed, _frames(levels)) if d is not None and d.cls is not None]
+    assert [d.cls for d in reported] == ["hold"] and 100 <= reported[0].frame.number <= 125
 
 
 def test_a_reload_that_changes_no_trigger_setting_keeps_the_settled_grasp(tmp_path):

@@ -135,7 +135,7 @@ def test_the_model_hysteresis_is_served_unless_the_config_sets_one(tmp_path):
     its config sets none (config value, else the model's, else the default, capped below the level)."""
     pytest.importorskip("onnx")
     from runtime.config import config_from_dict
-    from runtime.daemon import Daemon
+    from runtime.detector import Detector
     from runtime.model import load_model
     from runtime.trigger_settings import DEFAULT_HYSTERESIS, HYSTERESIS_CAP, PAPER_FRACTION
     from tests.tiny_models import tiny_model_bytes, write_model
@@ -146,10 +146,10 @@ def test_the_model_hysteresis_is_served_unless_the_config_sets_one(tmp_path):
     def off_level(model_trigger: dict, config_trigger: dict) -> float:
         name = f"m{len(list(tmp_path.iterdir()))}.onnx"
         path = write_model(tmp_path, name, tiny_model_bytes(trigger={"kind": "threshold", **model_trigger}))
-        daemon = Daemon(config_from_dict({"sinks": {"stdout": False}, "trigger": config_trigger}))
-        daemon.serve(load_model(path), layout)
-        assert isinstance(daemon.detector.trigger, ThresholdTrigger)
-        return daemon.detector.trigger.off_level
+        detector = Detector(trigger=config_from_dict({"trigger": config_trigger}).trigger)
+        detector.swap(load_model(path), layout)
+        assert isinstance(detector.trigger, ThresholdTrigger)
+        return detector.trigger.off_level
 
     assert off_level({"hysteresis": 0.02}, {}) == pytest.approx((PAPER_FRACTION - 0.02) * fullscale)
     assert off_level({"hysteresis": 0.02}, {"hysteresis": 0.1}) == pytest.approx((PAPER_FRACTION - 0.1) * fullscale)
