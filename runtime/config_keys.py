@@ -66,7 +66,7 @@ SECTIONS: dict[str, str] = {
     "trigger": "Unset keys take the settings the model was trained with (its metadata), else the defaults\n"
                "shown. Models trained before the onset trigger are served with the threshold.",
     "continuous": 'How scene.mode = "continuous" turns one decision per frame into one report per interaction\n'
-                  "(docs/DORMANT.md; defaults chosen on a synthetic validation stream, results/dormant.md).",
+                  "(docs/DORMANT.md; defaults chosen on synthetic validation streams, results/streams.md).",
     "sinks": "Where events go: one JSON line each (docs/EVENTS.md).",
     "onnxruntime": "One thread, no spinning: a flat latency tail on a busy core.",
     "ros2": "Used when [sinks] ros2 = true (needs the ros extra; deploy/INSTALL.md, section ROS 2).\n"
@@ -149,11 +149,11 @@ KEYS: tuple[Key, ...] = (
     Key("trigger.settle_change", float, 0.02, "onset: settled = no pad changed by this share of its level from one "
         "frame to the next for settle_s", range=(0.0, 1.0), recorded=True, config=False),
 
-    Key("continuous.confirm_frames", int, 8, "a class is reported after winning this many frames in a row",
+    Key("continuous.confirm_frames", int, 10, "a class is reported after winning this many frames in a row",
         range=(1, 1000)),
     Key("continuous.min_margin", float, 0.0, "... each by this score margin over the runner-up (0 = any win)",
         range=(0.0, 1000.0)),
-    Key("continuous.rearm_frames", int, 4, "next report only after dormant won this many frames in a row (0 = report "
+    Key("continuous.rearm_frames", int, 16, "next report only after dormant won this many frames in a row (0 = report "
         "every change of the confirmed class)", range=(0, 100000)),
     Key("continuous.gap_frames", int, 0, "dormant frames in a row that do not break a run (a hold flickers with "
         "dormant)", range=(0, 1000)),

@@ -80,8 +80,10 @@ def _default_estimator(cls, pad_sizes, seed: int, **options):
                random_state=seed, **options)
 
 
-def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, label: str) -> dict:
-    """Every mode on a mixed stream of ``n_events`` and ``idle_h`` hours of idle stream (seed ``seed``)."""
+def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, label: str,
+                 rule: dict | None = None) -> dict:
+    """Every mode on a mixed stream of ``n_events`` and ``idle_h`` hours of idle stream (seed ``seed``);
+    ``rule``: continuous mode's report rule (None: the config's)."""
     from firmware_io.sim import constants as K
     from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
@@ -93,7 +95,7 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
     names = se.source_names(mixed, mixed.n_frames)
     out: dict = {m: {} for m in se.MODES}
     for mode in se.MODES:
-        sc = se.score(se.replay(mixed, models[mode], mode), truths, mixed.n_frames, period, names)
+        sc = se.score(se.replay(mixed, models[mode], mode, rule=rule), truths, mixed.n_frames, period, names)
         out[mode] = {"mixed": sc, "f1": se.macro_f1(sc["per_class"])}
     idle_scores: dict[str, list] = {m: [] for m in se.MODES}
     source_hours: dict[str, float] = {}
@@ -105,7 +107,8 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
         for k, v in se.source_hours([rec], period).items():
             source_hours[k] = source_hours.get(k, 0.0) + v
         for mode in se.MODES:
-            idle_scores[mode].append(se.score(se.replay(rec, models[mode], mode), [], rec.n_frames, period, names))
+            idle_scores[mode].append(se.score(se.replay(rec, models[mode], mode, rule=rule), [], rec.n_frames, period,
+                                              names))
     for mode in se.MODES:
         idle = se.merge_idle(idle_scores[mode])
         m = out[mode]["mixed"]
@@ -120,6 +123,16 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
                     "idle_hours": sum(s["idle_hours"] for s in idle_scores[se.MODES[0]]),
                     "idle_source_hours": source_hours}
     return out
+
+
+def choose_continuous_rule(model, seed: int, s: dict, say) -> dict:
+    """Continuous mode's report rule on validation streams (trainer.bench.streams_rule)."""
+    from firmware_io.sim.idle import simulate_idle
+    from trainer.bench.streams_rule import choose_rule
+
+    n_parts = max(1, round(3600.0 * s["val_idle_h"] / PART_S))
+    idle = [simulate_idle(3600.0 * s["val_idle_h"] / n_parts, seed=seed, part=p) for p in range(n_parts)]
+    return choose_rule(model, seed, idle, say)
 
 
 def choose(val: dict, real: dict | None) -> str:
@@ -231,14 +244,18 @@ def run(args) -> dict:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="handover-streams-") as tmp:
         models = train_models(Path(tmp), args.seed, s, say)
-        val = evaluate_sim(models, args.seed + VAL_OFFSET, s["val_events"], s["val_idle_h"], say, "validation")
+        rule = choose_continuous_rule(models["continuous"], args.seed + VAL_OFFSET, s, say)
+        val = evaluate_sim(models, args.seed + VAL_OFFSET, s["val_events"], s["val_idle_h"], say, "validation",
+                           rule["chosen"])
         root = default_data_dir()
         real = evaluate_real(models, root, say) if root.is_dir() else None
         chosen = choose(val, real)
         say(f"streams: chosen stream setting on validation: {chosen}")
-        test = evaluate_sim(models, args.seed + TEST_OFFSET, s["test_events"], s["test_idle_h"], say, "test")
+        test = evaluate_sim(models, args.seed + TEST_OFFSET, s["test_events"], s["test_idle_h"], say, "test",
+                            rule["chosen"])
         demo = demo_session(models, chosen, args.seed)
     result = summary(test, val, chosen, demo, real)
+    result.update(continuous_rule=rule["chosen"], continuous_rule_in_code=rule["shipped"], continuous_rule_choice=rule)
     from runtime.trigger_settings import resolve_trigger
 
     result.update(synthetic_streams=True, sizes=s, seed=args.seed, machine=machine_info(),

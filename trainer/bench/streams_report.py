@@ -58,12 +58,13 @@ def markdown(r: dict, load_text: str) -> list[str]:
         "- test streams (synthetic, unseen subjects and hand): event F1 (macro over classes) "
         + ", ".join(f"{m} {_f(v)}" for m, v in r["sim_event_f1"].items()),
         f"- continuous mode: {_pct(r['continuous_events_correct_fraction'])} of events right, hold recall "
-        f"{_pct(r['continuous_hold_recall'])}",
+        f"{_pct(r['continuous_hold_recall'])} (report rule {_rule(r.get('continuous_rule'))}, chosen on validation "
+        "streams below)",
         "- median onset-to-report (frames; T = 15): "
         + ", ".join(f"{m} {_f(v, '.0f')}" for m, v in r["onset_to_report_median_frames"].items()),
         "",
     ]
-    lines += _test_table(r) + _arm(r) + _per_class(r) + _choice(r) + _demo(r) + _real(r)
+    lines += _test_table(r) + _arm(r) + _per_class(r) + _choice(r) + _rule_choice(r) + _demo(r) + _real(r)
     trig = r.get("onset_trigger") or {}
     lines += ["", "## Notes", "", load_text,
               f"Onset trigger settings (runtime/config_keys.py; how they were chosen: docs/TRIGGER_DEFAULTS.md): change "
@@ -83,7 +84,7 @@ def markdown(r: dict, load_text: str) -> list[str]:
               "on two fingers, every pad up by the same share, no contact moving) looks like a pull that wedges the "
               "object before it slips; no trigger rule told them apart without risking pulls.",
               f"Sizes: {r['sizes']}; training seed {r['seed']}, validation seed {r['seed'] + 2}, test seed "
-              f"{r['seed'] + 1}. The simulator was not changed for this benchmark. {r['seconds']:.0f} s."]
+              f"{r['seed'] + 1}. The simulator's frames were not changed for this benchmark (its streams carry the marks of its own arm moves). {r['seconds']:.0f} s."]
     return lines
 
 
@@ -179,6 +180,37 @@ def _choice(r: dict) -> list[str]:
         lines += ["", f"Real validation recordings: {sp['validation']['files']} files, {sp['validation']['hours']:.2f} h; "
                   f"real test recordings: {sp['test']['files']} files, {sp['test']['hours']:.2f} h, false events per "
                   "hour there: " + ", ".join(f"{m} {_f(x)}" for m, x in sp["test"]["false_per_hour"].items()) + "."]
+    return [*lines, ""]
+
+
+def _rule(rule: dict | None) -> str:
+    return "-" if not rule else ", ".join(f"{k} {v}" for k, v in rule.items())
+
+
+def _rule_choice(r: dict) -> list[str]:
+    c = r.get("continuous_rule_choice")
+    if not c:
+        return []
+    st = c["streams"]
+    same = c["chosen"] == c["shipped"]
+    lines = ["## Continuous mode's report rule: how it was chosen", "",
+             f"Chosen: {_rule(c['chosen'])} (runtime/decision.py; `[continuous]` in runtime/config_keys.py ships "
+             f"{'the same' if same else _rule(c['shipped']) + ': NOT the chosen rule'}). On validation streams (seed "
+             f"{st['seed']}: {st['events']} scripted events in {st['mixed_hours']:.2f} h of mixed stream + "
+             f"{st['idle_hours']:.2f} h of idle stream, synthetic), before the test streams were generated, over "
+             f"the grid {c['grid']}; criterion: {c['criterion']}. The continuous rows of every table above use it. "
+             "The ten best rules, then the shipped and the previous rule (8, 0, 4) where not among them:", "",
+             "| confirm | margin | rearm | gap | vote | right | wrong | missed | duplicates | false events | hold recall "
+             "| median onset-to-report | utility |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = list(c["best"])
+    for extra in (c.get("shipped_row"), c.get("previous_row")):
+        if extra and extra not in rows:
+            rows.append(extra)
+    for x in rows:
+        lines.append(f"| {x['confirm_frames']} | {x['min_margin']:g} | {x['rearm_frames']} | {x['gap_frames']} | "
+                     f"{x['vote']} | {x['correct']} | {x['wrong']} | {x['missed']} | {x['duplicates']} | "
+                     f"{x['false_events']} | {_pct(x['hold_recall'])} | {_f(x['delay_median_frames'], '.1f')} | "
+                     f"{x['utility']} |")
     return [*lines, ""]
 
 
