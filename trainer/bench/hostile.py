@@ -12,7 +12,9 @@ sensor cannot send reaching the classifier, an out-of-range number accepted):
 - recordings: a deflate bomb, huge declared shapes, deep nesting, bogus layouts, through
   ``Recording.load`` and the ``plot``/``train`` commands;
 - config: NaN, infinities and huge values for every number of the config;
-- the daemon as a process, with hostile models dropped into its folder while it serves.
+- the daemon as a process, with hostile models dropped into its folder while it serves;
+- the world around it (trainer/bench/hostile_world.py): a stdout nobody reads, silent DNS, other users
+  on the control socket, a hanging model, rollbacks, half-written configs, crafted files, and more.
 
 Writes results/hostile.json and .md.
 """
@@ -207,6 +209,7 @@ def attack_frames(n: int, seed: int = 0) -> dict:
 # -- the run --------------------------------------------------------------------------------------
 def run(args) -> dict:
     from trainer.bench.hostile_io import attack_config, attack_daemon, attack_recordings
+    from trainer.bench.hostile_world import attack_world
 
     say = args.say
     load_before = load_average()
@@ -224,7 +227,9 @@ def run(args) -> dict:
         config = attack_config(work)
         say("hostile: the daemon process while hostile models are dropped ...")
         daemon = attack_daemon(work)
-    result = {"models": models, "frames": frames, "recordings": recordings, "config": config, "daemon": daemon}
+        world = attack_world(work, say)
+    result = {"models": models, "frames": frames, "recordings": recordings, "config": config, "daemon": daemon,
+              "world": world}
     result["hostile_failures"] = sum(part["failures"] for part in result.values())
     result.update(seconds=round(time.perf_counter() - t0, 1), machine=machine_info(), load_before=load_before,
                   load_after=load_average(), command=command_line(NAME, args))
@@ -241,7 +246,8 @@ def summary(res: dict) -> dict:
             "frames_2bit": f["n"], "frames_passed_crc": f["passed_crc"], "frames_implausible_dropped":
             f["implausible_dropped"], "frames_over_12bit_delivered": f["delivered_over_12bit"],
             "recordings": len(r["files"]), "config_values": c["tried"], "daemon_events": d["events"],
-            "daemon_non_json_lines": d["non_json_stdout_lines"], "failures": res["hostile_failures"]}
+            "daemon_non_json_lines": d["non_json_stdout_lines"], "world_cases_held": res["world"]["held"],
+            "world_cases_tried": res["world"]["tried"], "failures": res["hostile_failures"]}
 
 
 def markdown(res: dict) -> list[str]:
@@ -285,9 +291,26 @@ def markdown(res: dict) -> list[str]:
         f"into its folder: {d['models_rejected']} rejected, still serving: {d['still_serving']}, {d['events']} decisions "
         f"on stdout, {d['non_json_stdout_lines']} lines that are not events or model announcements, {d['tracebacks']} tracebacks, exit code "
         f"{d['exit_code']} after SIGTERM.", "",
-        f"Took {res['seconds']} s. {res['note']} Timings here (the 40,000-node decision) include that load.",
+        *world_markdown(res["world"]),
+        f"Took {res['seconds']} s. {res['note']} Timings here (the 40,000-node decision, the hanging model's "
+        "window) include that load.",
     ]
     return lines
+
+
+def world_markdown(w: dict) -> list[str]:
+    """The world's cases (trainer/bench/hostile_world.py): one row each, what was tried and what came of it."""
+    untried = [str(r["case"]) for r in w["cases"] if not r["tried"]]
+    return [
+        "## The world around the daemon", "",
+        f"**{w['held']} of {w['tried']} cases held** (each with real pipes, sockets, subprocess daemons and ONNX "
+        "files; the tests in tests/test_hostile_world.py run the same probes)"
+        + (f"; not tried here: case {', '.join(untried)} (needs root or the ros extra)." if untried else "."), "",
+        "| # | case | held | what was seen |", "|---|---|---|---|",
+        *[f"| {r['case']} | {r['title']} | {'yes' if r['held'] else ('not tried' if not r['tried'] else 'NO')} | "
+          + " / ".join(p["detail"].replace("|", "/") for p in r["probes"]) + " |" for r in w["cases"]],
+        "",
+    ]
 
 
 def _ok(value: bool | None) -> str:

@@ -865,3 +865,49 @@ def two_daemons_one_namespace(work: Path) -> dict:
     held = told and len(lines) == 2 and in_health
     return {"held": held, "tried": True, "detail": f"each daemon saw the other: {told}; warning lines: {len(lines)}; "
                                                    f"in both health views: {in_health}"}
+
+
+# -- the cases, as ``handover bench hostile`` counts them ----------------------------------------------------
+CASES: tuple[tuple[int, str, tuple[Callable[[Path], dict], ...]], ...] = (
+    (1, "a stdout nobody reads", (blocked_stdout, blocked_stdout_process)),
+    (2, "stdout closed at start", (closed_stdout,)),
+    (3, "a UDP sink host whose DNS is silent", (silent_dns,)),
+    (4, "grasp messages from another user or the network", (foreign_grasp,)),
+    (5, "two daemons on one ROS 2 namespace", (two_daemons_one_namespace,)),
+    (6, "a control socket path that cannot work", (control_paths,)),
+    (7, "a model that hangs on real windows", (hanging_model, hanging_model_process)),
+    (8, "model metadata the stream contradicts", (model_claims,)),
+    (9, "rollbacks in the model folder", (folder_rollbacks,)),
+    (10, "a controller back with another layout, then the original", (layout_comes_back,)),
+    (11, "health_file / quarantine_file naming a folder", (state_file_paths,)),
+    (12, "SIGHUP with an empty, cut or FIFO config", (partial_config,)),
+    (13, "crafted .dsa files", (crafted_dsa,)),
+)
+"""The world's attacks: number, what, and the probes whose results all must hold."""
+
+
+def attack_world(work: Path, say: Callable[[str], None] = lambda line: None) -> dict:
+    """Every case of ``CASES``; a probe that raises has not held. Returns the rows and the counts."""
+    import tempfile
+
+    rows = []
+    for number, title, probes in CASES:
+        results = []
+        for probe in probes:
+            say(f"hostile: world case {number}: {probe.__name__} ...")
+            with tempfile.TemporaryDirectory(prefix=f"case{number}-", dir=work) as tmp:
+                t0 = time.perf_counter()
+                try:
+                    result = probe(Path(tmp))
+                except Exception as exc:  # what is being counted
+                    result = {"held": False, "detail": f"{type(exc).__name__}: {str(exc)[:200]}"}
+                result["seconds"] = round(time.perf_counter() - t0, 1)
+                result["probe"] = probe.__name__
+            results.append(result)
+        tried = all(r.get("tried", True) for r in results)
+        rows.append({"case": number, "title": title, "tried": tried, "held": tried and all(r["held"] for r in results),
+                     "probes": [{k: v for k, v in r.items() if k in ("probe", "held", "detail", "seconds", "took_ms")}
+                                for r in results]})
+    tried = [r for r in rows if r["tried"]]
+    return {"cases": rows, "tried": len(tried), "held": sum(r["held"] for r in tried),
+            "failures": sum(not r["held"] for r in tried)}
