@@ -98,6 +98,7 @@ class ModelSlot:
         elif self.model is None:
             log.warning("no valid model in %s yet; waiting for one (frames are read, nothing is classified)",
                         self.cfg.model.folder)
+            self.health.report_error(f"no model serves: no valid model in {self.cfg.model.folder} yet", "model")
         self.watcher.start()
 
     def stop(self, timeout: float = 0.5) -> None:
@@ -164,8 +165,10 @@ class ModelSlot:
         """A reloaded config: the new scene may not fit the model in use; new model settings restart
         the watcher."""
         self.cfg = new
-        if self.model is not None and self.problem(self.model):
+        if self.model is not None and (problem := self.problem(self.model)):
             log.warning("the model in use does not fit the new scene; waiting for one that does")
+            self.health.report_error(f"no model serves: the model in use does not fit the new scene ({problem})",
+                                     "model")
             self.drop()
         if new.model != old.model or new.onnxruntime != old.onnxruntime:
             self.start()

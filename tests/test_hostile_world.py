@@ -179,3 +179,24 @@ def test_the_guard_ends_a_real_hanging_decision_when_its_clock_says_so(tmp_path)
 
 def test_a_controller_back_with_another_layout_then_the_original_gets_its_model_back(tmp_path):
     _held(W.layout_comes_back(tmp_path))
+
+
+def test_the_device_rate_counts_frames_dropped_as_implausible():
+    from runtime.health import Health
+
+    h = Health()
+    h.update_rate(now=h._rate_t)
+    h.frames_received, h.frames_implausible = 22, 10  # 32 frames a second, 10 of them above 4095
+    h.update_rate(now=h._rate_t + 1.0)
+    assert h.frame_rate == 32.0
+
+
+def test_no_model_serving_is_the_health_views_error(tmp_path):
+    from runtime.config import config_from_dict
+    from runtime.daemon import Daemon
+
+    daemon = Daemon(config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
+                                      "model": {"folder": str(tmp_path)}}))
+    daemon.models.start()
+    daemon.models.stop()
+    assert daemon.model is None and "no model serves" in daemon.health.snapshot()["last_error"]
