@@ -78,6 +78,11 @@ class ModelUnreadableError(ModelContractError):
     metadata. What a file still being copied looks like, so the watcher retries it for a while."""
 
 
+WARM_UP_BOUND_S = 10.0
+"""Longest a model's whole warm-up may take (a few dozen decisions; the slowest model a budget lets
+through takes well under a second)."""
+
+
 class DecisionEnded(RuntimeError):
     """A decision was ended from outside (``LoadedModel.end_decision``): the model ran too long."""
 
@@ -354,10 +359,24 @@ class LoadedModel:
             raise DecisionEnded(self.ended)
         return labels, scores
 
-    def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION) -> None:
+    def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION, bound_s: float = WARM_UP_BOUND_S) -> None:
         """Run realistic windows (so the first real inference does not pay for allocations), check
         every answer against the output contract and one decision against the time budget
-        (``budget_fraction`` of the sample period; None: not timed). ModelContractError if not."""
+        (``budget_fraction`` of the sample period; None: not timed). ModelContractError if not,
+        also when the whole warm-up runs past ``bound_s`` (a graph that hangs on pressed pads would
+        otherwise hold the watcher, the daemon's start and ``run --check`` for good)."""
+        reason = f"the warm-up ran longer than {bound_s:g} s and was ended (a graph that hangs on pressed pads?)"
+        timer = threading.Timer(bound_s, self.end_decision, args=(reason,))
+        timer.daemon = True
+        timer.start()
+        try:
+            self._warm_up(budget_fraction)
+        except DecisionEnded as exc:
+            raise ModelContractError(f"model {self.path}: {exc}") from None
+        finally:
+            timer.cancel()
+
+    def _warm_up(self, budget_fraction: float | None) -> None:
         meta = self.meta
         problem = probe(self.run_trusted, meta.T, meta.n_channels, meta.n_classes, meta.fullscale,
                         1.0 / meta.sample_rate_hz, budget_fraction)

@@ -200,3 +200,15 @@ def test_no_model_serving_is_the_health_views_error(tmp_path):
     daemon.models.start()
     daemon.models.stop()
     assert daemon.model is None and "no model serves" in daemon.health.snapshot()["last_error"]
+
+
+def test_a_model_that_hangs_at_warm_up_is_refused_in_one_line(tmp_path):
+    from runtime.model import ModelContractError, load_model
+    from trainer.bench import hostile_models as H
+
+    path = tmp_path / "hangs-on-any-press.onnx"
+    path.write_bytes(H.hang(peak=None))
+    model = load_model(path, warm_up=False)
+    with pytest.raises(ModelContractError, match=r"warm-up ran longer than 0\.5 s") as info:
+        model.warm_up(bound_s=0.5)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)

@@ -147,10 +147,11 @@ HANG_STEPS = 2_000_000_000
 """Loop steps of ``hang`` on a window it fires on: about half an hour of one core."""
 
 
-def hang(peak: float = SLEEPER_PEAK) -> bytes:
+def hang(peak: float | None = SLEEPER_PEAK) -> bytes:
     """A model whose graph runs a Loop of ``HANG_STEPS`` steps on a window whose largest value is
-    exactly ``peak`` (real frames), and one step on any other (it passes load and warm-up)."""
-    return _model("hang", peak=peak, tag="hang")
+    exactly ``peak`` (real frames), and one step on any other (it passes load and warm-up); with
+    ``peak=None`` on any pressed window (it hangs at warm-up)."""
+    return _model("hang", peak=peak, tag=f"hang-{peak}")
 
 
 RUNTIME_ATTACKS = {"label_out_of_range": label_out_of_range, "nan_scores": nan_scores, "inf_scores": inf_scores}
