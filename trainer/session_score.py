@@ -71,6 +71,7 @@ def outcome_summary(o: dict) -> dict:
         "per_class_recall": {c: v["recall"] for c, v in o["per_class"].items()},
         "per_class_correct": {c: f"{v['correct']}/{v['n']}" for c, v in o["per_class"].items() if v["n"]},
         "report_minus_onset_frames": o["report_minus_onset_frames"],
+        "report_minus_onset_frames_per_class": o.get("report_minus_onset_frames_per_class"),
     }
 
 
@@ -90,7 +91,11 @@ def summary_lines(s: dict, setting: str | None = None) -> list[str]:
     ]
     if s["report_minus_onset_frames"]:
         where = f" (stream setting: {setting})" if setting else ""
-        lines.append(f"  onset to report: median {s['report_minus_onset_frames']['median']:.0f} frames{where}")
+        d = s["report_minus_onset_frames"]
+        per = s.get("report_minus_onset_frames_per_class") or {}
+        lines.append(f"  onset to report: median {d['median']:.0f} frames, p90 {d['p90']:.0f}{where}"
+                     + ("; per class median / p90: " + ", ".join(f"{c} {v['median']:.0f} / {v['p90']:.0f}"
+                                                                for c, v in per.items() if v) if per else ""))
     return lines
 
 

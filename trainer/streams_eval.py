@@ -259,6 +259,8 @@ def score(decisions: Sequence[Decision], truths: Sequence[Truth], n_frames: int,
     return {
         "per_class": per_class_scores(decisions, truths, first),
         "delay_frames": _stats(delay_frames),
+        "delay_frames_per_class": per_class_delay([first[i].frame - truths[i].onset for i in sorted(first)],
+                                                  [truths[i].action for i in sorted(first)]),
         "misses": [{"onset": truths[i].onset, "action": truths[i].action} for i in range(n) if i not in first],
         "wrong": [{"onset": truths[i].onset, "action": truths[i].action, "reported": first[i].cls}
                   for i in sorted(first) if first[i].cls != truths[i].action],
@@ -308,6 +310,12 @@ def _count(items) -> dict[str, int]:
     for x in items:
         out[x] = out.get(x, 0) + 1
     return dict(sorted(out.items()))
+
+
+def per_class_delay(delays: Sequence[int], actions: Sequence[str]) -> dict:
+    """Onset-to-report frames per true action: median and p90 (and the rest of ``_stats``)."""
+    d, a = np.asarray(delays, dtype=np.float64), np.asarray(actions)
+    return {c: _stats(d[a == c]) for c in sorted(set(a.tolist()))}
 
 
 def _stats(x: np.ndarray) -> dict | None:
@@ -387,4 +395,6 @@ def session_outcomes(decisions: Sequence[Decision], trials: Sequence) -> dict:
         "outside_events": outside,
         "report_minus_onset_frames": _stats(np.array([answer[k].frame - truths[k].onset for k in sorted(answer)],
                                                      dtype=np.float64)),
+        "report_minus_onset_frames_per_class": per_class_delay([answer[k].frame - truths[k].onset for k in sorted(answer)],
+                                                               [truths[k].action for k in sorted(answer)]),
     }

@@ -289,6 +289,7 @@ def summary(test: dict, val: dict, chosen: str, demo: dict, real: dict | None) -
         "sim_duplicates": {m: test[m]["mixed"]["duplicates"] for m in se.MODES},
         "onset_to_report_median_frames": {m: (test[m]["mixed"]["delay_frames"] or {}).get("median")
                                           for m in se.MODES},
+        "onset_to_report_p90_frames": {m: (test[m]["mixed"]["delay_frames"] or {}).get("p90") for m in se.MODES},
         "continuous_hold_recall": hold["correct"] / hold["n"] if hold["n"] else None,
         "sim_arm_move_hours": test["_info"]["idle_source_hours"].get("arm_move"),
         "sim_arm_move_false_per_hour": {m: test[m]["idle"]["arm_move_false_per_hour"] for m in se.MODES},

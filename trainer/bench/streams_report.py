@@ -64,7 +64,7 @@ def markdown(r: dict, load_text: str) -> list[str]:
         + ", ".join(f"{m} {_f(v, '.0f')}" for m, v in r["onset_to_report_median_frames"].items()),
         "",
     ]
-    lines += _test_table(r) + _arm(r) + _per_class(r) + _choice(r) + _rule_choice(r) + _demo(r) + _real(r)
+    lines += _test_table(r) + _delay_per_class(r) + _arm(r) + _per_class(r) + _choice(r) + _rule_choice(r) + _demo(r) + _real(r)
     trig = r.get("onset_trigger") or {}
     lines += ["", "## Notes", "", load_text,
               f"Onset trigger settings (runtime/config_keys.py; how they were chosen: docs/TRIGGER_DEFAULTS.md): change "
@@ -115,6 +115,23 @@ def _test_table(r: dict) -> list[str]:
         src = t[m]["idle"]["false_by_source"]
         lines.append(f"| {m} | " + " | ".join(str(src.get(k, 0)) for k in
                                                ("quiet", "arm_move", "regrasp", "grasp", "release", "open")) + " |")
+    return [*lines, ""]
+
+
+def _delay_per_class(r: dict) -> list[str]:
+    """Onset-to-report frames per true action, median / p90, on the test mixed stream (early heads answer
+    some classes sooner than others: docs/EARLY.md)."""
+    t = r["test"]
+    classes = sorted({c for m in se.MODES for c in (t[m]["mixed"].get("delay_frames_per_class") or {})})
+    if not classes:
+        return []
+    lines = ["Onset-to-report frames per class, median / p90 (test mixed stream, synthetic):", "",
+             "| mode | " + " | ".join(classes) + " |", "|---|" + "---|" * len(classes)]
+    for m in se.MODES:
+        per = t[m]["mixed"].get("delay_frames_per_class") or {}
+        lines.append(f"| {m} | " + " | ".join(
+            f"{_f((per.get(c) or {}).get('median'), '.0f')} / {_f((per.get(c) or {}).get('p90'), '.0f')}"
+            for c in classes) + " |")
     return [*lines, ""]
 
 
