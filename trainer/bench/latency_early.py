@@ -2,7 +2,8 @@
 
 A model with early heads runs one head at each of its points after the trigger until the rule
 reports, then nothing more for that event; without heads a frame inside a window only pushes the
-ring and tests the trigger. Measured here: every ``Detector.feed`` call of a simulated session
+ring and tests the trigger. Measured here: every ``Detector.feed`` call (the daemon's hot path,
+runtime/detector.py) of a simulated session
 (scripted handovers by unseen simulated subjects, the onset trigger) timed in this process, split into
 frames inside an open window (from the trigger to the report) and the others; the default model
 with early heads (trained on the simulated protocol, synthetic) against the same model without.
@@ -35,16 +36,17 @@ def early_model(work: Path, seed: int, quick: bool) -> tuple[Path, Path]:
 
 
 def timed_replay(model, rec) -> dict:
-    """``Detector.feed`` of every frame of ``rec`` timed; inside-window frames apart."""
+    """``Detector.feed`` (the daemon's hot path) of every frame of ``rec`` timed; inside-window frames apart."""
     from firmware_io.client import Frame
-    from runtime.config import SceneConfig, TriggerConfig
+    from runtime.config import config_from_dict
     from runtime.detector import Detector
 
-    detector = Detector(SceneConfig(pads=",".join(map(str, model.meta.pads)), mode="trigger"), TriggerConfig(kind="onset"))
+    cfg = config_from_dict({"scene": {"pads": ",".join(map(str, model.meta.pads)), "mode": "trigger"},
+                            "trigger": {"kind": "onset"}})
+    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous, control=cfg.control)
     detector.swap(model, rec.layout)
     stamps = np.rint(rec.timestamps * 1000.0).astype(np.int64)
-    inside, outside = [], []
-    events = 0
+    inside, outside, events = [], [], 0
     clock = time.perf_counter
     for i in range(rec.n_frames):
         frame = Frame(i, int(stamps[i]), clock(), rec.frames[i])
@@ -54,7 +56,7 @@ def timed_replay(model, rec) -> dict:
         took = (clock() - t0) * 1e6
         events += decision is not None and decision.cls is not None
         (inside if was_open or detector.window_open else outside).append(took)
-    return {"inside_window": percentiles(inside), "outside_window": percentiles(outside), "events": events}
+    return {"inside_window": percentiles(inside), "outside_window": percentiles(outside), "events": int(events)}
 
 
 def early_frames(work: Path, seed: int, quick: bool, say) -> dict:
@@ -80,7 +82,7 @@ def markdown_lines(res: dict | None) -> list[str]:
     if not res:
         return []
     lines = ["## Per-frame compute inside a window (early heads)", "",
-             "Every `Detector.feed` call of a simulated session (synthetic, "
+             "Every `Detector.feed` call (the daemon's hot path) of a simulated session (synthetic, "
              f"{res['session_events']} scripted handovers, onset trigger) timed in this process, frames inside an "
              f"open window (trigger to report) apart. `early`: the default model with heads at "
              f"{', '.join(map(str, res['points']))} frames (one head runs at each point until the rule reports); "
