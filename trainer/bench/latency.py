@@ -43,7 +43,7 @@ from trainer.bench.common import (
     train_default_model,
     write_results,
 )
-from trainer.bench.latency_early import early_frames
+from trainer.bench.latency_early import early_frames, early_model
 from trainer.bench.latency_early import markdown_lines as early_lines
 from trainer.bench.latency_floor import interference, per_frame_split
 
@@ -186,11 +186,14 @@ def run(args) -> dict:
         dense = tap_stream(args.seed, args.quick, n_windows=paced_decisions + 10, gap=tap_gap())
         say(f"latency: stage table, back to back, paced at 32 Hz and in continuous mode ({paced_decisions} "
             "decisions) ...")
+        say("latency: the default model with and without early heads (synthetic) ...")
+        early_paths = early_model(work, args.seed, args.quick)  # trained at normal priority
         before, result["scheduling"] = realtime.enter_realtime(DEFAULT_PRIORITY)  # as the daemon's hot thread
         try:
             continuous = load_model(stages.declared_dormant(model_path, work / "continuous.onnx", dormant),
                                     intra_op_threads=1, allow_spinning=False)
             result["stages"] = stages.stage_tables(model, dense, paced_decisions, continuous)
+            result["early_frames"] = early_frames(early_paths, args.seed, args.quick, say)  # at the hot thread's priority
             say("latency: the machine's interference (a spinning thread) ...")
             gaps = interference(0.5 if args.quick else 10.0)
             if args.load:
@@ -199,7 +202,6 @@ def run(args) -> dict:
                     result["stages_load"] = stages.stage_tables(model, dense, max(30, paced_decisions // 4))
         finally:
             realtime.restore(before)
-        result["early_frames"] = early_frames(work, args.seed, args.quick, say)
         say("latency: the graph against numpy and scikit-learn, all pads and distal pads ...")
         result["implementations"] = implementations(model_path, dense, rounds, args.load)
         result["implementations_distal"] = implementations(distal_path, dense, rounds, False)

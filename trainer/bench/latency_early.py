@@ -6,7 +6,8 @@ ring and tests the trigger. Measured here: every ``Detector.feed`` call (the dae
 runtime/detector.py) of a simulated session
 (scripted handovers by unseen simulated subjects, the onset trigger) timed in this process, split into
 frames inside an open window (from the trigger to the report) and the others; the default model
-with early heads (trained on the simulated protocol, synthetic) against the same model without.
+with early heads (trained on the simulated protocol, synthetic) against the same model without,
+at the daemon's real-time priority like the stage tables.
 """
 
 from __future__ import annotations
@@ -59,13 +60,14 @@ def timed_replay(model, rec) -> dict:
     return {"inside_window": percentiles(inside), "outside_window": percentiles(outside), "events": int(events)}
 
 
-def early_frames(work: Path, seed: int, quick: bool, say) -> dict:
-    """The table's figures: per-frame compute inside a window with and without early heads."""
+def early_frames(paths: tuple[Path, Path], seed: int, quick: bool, say) -> dict:
+    """The table's figures: per-frame compute inside a window with and without early heads
+    (``paths``: ``early_model``'s two files)."""
     from firmware_io.sim import demo_script, simulate_session
     from runtime.model import load_model
 
     say("latency: per-frame compute inside a window, with and without early heads (synthetic) ...")
-    with_heads, without = early_model(work, seed, quick)
+    with_heads, without = paths
     n = 8 if quick else 40
     session = simulate_session(demo_script(n, seed=seed + 7), seed=seed + 7)
     out = {}
