@@ -64,17 +64,18 @@ def check_training_data(estimator, X, y) -> tuple[np.ndarray, np.ndarray, np.nda
     return X, y, classes
 
 
-def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, gamma=None) -> dict:
+def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, gamma=None,
+                      c_grid: tuple[float, ...] | None = None) -> dict:
     """C (and gamma for rbf) by a stratified 3-fold grid search on these training features only.
 
-    Given values are kept; the grid covers only what is None. With a class of one case no
-    search is possible and DEFAULT_C / sklearn's "scale" gamma are used.
+    Given values are kept; the grid covers only what is None (C from ``c_grid``, default ``C_GRID``).
+    With a class of one case no search is possible and DEFAULT_C / sklearn's "scale" gamma are used.
     """
     scale = 1.0 / (features.shape[1] * max(float(features.var()), 1e-12))
     fixed: dict = {}
     grid: dict = {}
     if C is None:
-        grid["C"] = list(C_GRID)
+        grid["C"] = list(c_grid or C_GRID)
     else:
         fixed["C"] = float(C)
     if kernel == "rbf":
@@ -131,7 +132,7 @@ class SVMHead:
         if weigh is not None:
             self.scaler_.scale_ = self.scaler_.scale_ / weigh(self.scaler_.transform(features))
         scaled = self.scaler_.transform(features)
-        self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma)
+        self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma, getattr(self, "c_grid", None))
         self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(scaled, y)
 
     def decision_function(self, X) -> np.ndarray:

@@ -38,11 +38,17 @@ Factory = Callable[[int], object]
 """Unfitted estimator for windows of ``p`` frames (``p`` = T: the full model)."""
 
 
+HEAD_C_GRID = (100.0, 10.0, 1.0, 0.1)
+"""The C a head is chosen from: the default's grid reaches 1e6 (a hard margin where training cases
+are separable); a few frames of five classes are not, and libsvm then takes minutes per large-C fit."""
+
+
 def head_factory(pad_sizes: Sequence[int], pad_shapes=None, seed: int = 0, fullscale: float = 4095.0) -> Factory:
-    """Heads of the default kind (the same features and C search as ``handover train``'s default)."""
+    """Heads of the default kind (the default's features and C search, over ``HEAD_C_GRID``)."""
     from trainer.defaults import default_classifier
 
-    return lambda p: default_classifier(pad_sizes, pad_shapes, random_state=seed, fullscale=fullscale)
+    return lambda p: default_classifier(pad_sizes, pad_shapes, random_state=seed, fullscale=fullscale).set_params(
+        c_grid=HEAD_C_GRID)
 
 
 def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Sequence[str]

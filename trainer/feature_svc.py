@@ -32,6 +32,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     ``(rows, cols)`` (default: SDH-2 pads, 6 taxels wide). ``n_words``/``window``: the BoW family;
     ``dilations``/``n_biases``: the rocket family. ``feature_weighting``: None (one StandardScaler over
     all features) or a rule of ``trainer.feature_weighting`` (weights folded into the scaler).
+    ``c_grid``: the candidate C of the search (None: ``trainer.classifier.C_GRID``).
 
     Fitted: ``blocks_`` (fitted families, in order), ``bow_`` (the BagOfWords when ``bow`` is a
     family, else absent), ``bow_slice_``, ``scaler_``, ``svm_``, ``classes_``, ``best_params_``,
@@ -41,7 +42,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
     def __init__(self, families: Sequence[str] = DEFAULT_MODEL["families"], pad_sizes: Sequence[int] | None = None,
                  pad_shapes=None, kernel: str = DEFAULT_MODEL["kernel"], C: float | None = None, gamma: float | str | None = None,
                  n_words: int = DEFAULT_MODEL["K"], window: int = DEFAULT_MODEL["W"], dilations=(1, 2), n_biases: int = 1, random_state=0,
-                 fullscale: float = 4095.0, feature_weighting: str | None = None):
+                 fullscale: float = 4095.0, feature_weighting: str | None = None, c_grid: tuple[float, ...] | None = None):
         self.families = families
         self.pad_sizes = pad_sizes
         self.pad_shapes = pad_shapes
@@ -55,6 +56,7 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
         self.random_state = random_state
         self.fullscale = fullscale
         self.feature_weighting = feature_weighting
+        self.c_grid = c_grid
 
     def _family(self, name: str):
         from trainer.features import ContactImage, HandGraphFeatures, PadStats, RandomConvPPV
