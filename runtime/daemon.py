@@ -37,6 +37,7 @@ from runtime.detector import Decision, Detector
 from runtime.device_link import DeviceLink
 from runtime.health import Health, StatusFile, one_line
 from runtime.heap import settle_heap
+from runtime.instance_name import instance_of
 from runtime.listeners import FrameListener
 from runtime.model_serving import ModelSlot
 from runtime.realtime import HotThread
@@ -74,12 +75,14 @@ class Daemon:
         self.notifier = notifier or Notifier()
         self.stream = stream
         self.health = Health()
+        self.health.instance = instance_of(cfg)
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
         self.detector = Detector(cfg.scene, cfg.trigger, cfg.continuous, self.health, cfg.control)
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
-        self.reporter = Reporter(SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self), self.health,
+        self.reporter = Reporter(SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self,
+                                                     instance=self.health.instance), self.health,
                                  on_event, self.listeners)
         self.models = ModelSlot(cfg, self.detector, self.health, self._announce)
         self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory, on_stream=self._stream_began,
@@ -287,7 +290,9 @@ class Daemon:
         for warning in new.warnings:
             log.warning("%s", warning)
         self.sinks.close()
-        self.reporter.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self)
+        self.health.instance = instance_of(new)
+        self.reporter.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self,
+                                                  instance=self.health.instance)
         if new.control != old.control or self.control is None:  # also retries one that could not bind
             self.stop_control()
             self.start_control()

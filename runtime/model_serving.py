@@ -19,6 +19,7 @@ from firmware_io.layout import SensorLayout
 from runtime.config import Config
 from runtime.detector import Detector
 from runtime.health import Health
+from runtime.model_change import served, swap_warning, trigger_text
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.quarantine import QuarantineStore, store_path
 from runtime.scene import scene_problem
@@ -53,6 +54,8 @@ class ModelSlot:
         """The model the last swap replaced: it serves again if the new one is taken out of service."""
         self._announced: LoadedModel | None = None
         """The model of the last announcement: the next one's ``previous_model_id``."""
+        self._served: dict | None = None
+        """What the model that served last meant to the stream (runtime.model_change.served)."""
 
     @property
     def model(self) -> LoadedModel | None:
@@ -140,11 +143,30 @@ class ModelSlot:
         what = "swapped in" if old is not None else "serving"
         log.info("model %s %s (%s, T=%d, classes %s; %s)", model.model_id, what, Path(model.path).name,
                  model.meta.T, ",".join(model.meta.classes), self._windows_by(model))
+        view = served(self._settings(model), model.meta.pads, model.meta.classes)
+        if line := swap_warning(Path(model.path).name, self._served, view):
+            log.warning("%s", line)
+        self._served = view
+        self.show_trigger()
+
+    def _settings(self, model: LoadedModel | None):
+        """The trigger ``model`` is served with (None in continuous mode: every frame is classified)."""
+        if self.cfg.scene.mode == "continuous":
+            return None
+        return resolve_trigger(self.cfg.trigger, model.meta.trigger if model is not None else None)
+
+    def show_trigger(self) -> None:
+        """The health view's ``trigger``: what starts a window now, with its main settings."""
+        if self.cfg.scene.mode == "continuous":
+            self.health.trigger = "continuous (a decision every frame)"
+        else:
+            self.health.trigger = trigger_text(self._settings(self.model))
 
     def drop(self) -> None:
         """No model serves (it does not fit a new scene or device); the watcher may bring another."""
         self.detector.swap(None)
         self.health.model_id = None
+        self.show_trigger()
 
     def fit_layout(self, layout: SensorLayout) -> None:
         """A device with a new layout: a model that does not fit it stops serving (one error line, and the
@@ -165,6 +187,7 @@ class ModelSlot:
         """A reloaded config: the new scene may not fit the model in use; new model settings restart
         the watcher."""
         self.cfg = new
+        self.show_trigger()  # a [trigger] or scene.mode the config now sets
         if self.model is not None and (problem := self.problem(self.model)):
             log.warning("the model in use does not fit the new scene; waiting for one that does")
             self.health.report_error(f"no model serves: the model in use does not fit the new scene ({problem})",

@@ -50,6 +50,8 @@ class Event:
     frame_last: int
     device_time_ms: int = 0
     missed_deadline: bool = False
+    instance: str = ""
+    """Which daemon decided (runtime.instance_name); the SinkSet stamps it."""
 
     def to_json(self) -> str:
         # The fields spelled out (not dataclasses.asdict, which deep-copies): this runs on the hot path.
@@ -58,7 +60,7 @@ class Event:
         line = self._plain_line(scores, latency)
         if line is not None:
             return line
-        d = {"type": "decision", "protocol": PROTOCOL_VERSION, "class": self.cls, "time": self.time,
+        d = {"type": "decision", "protocol": PROTOCOL_VERSION, "instance": self.instance, "class": self.cls, "time": self.time,
              "scores": scores, "latency_us": latency, "model_id": self.model_id,
              "frame_first": self.frame_first, "frame_last": self.frame_last,
              "device_time_ms": self.device_time_ms, "missed_deadline": self.missed_deadline}
@@ -76,12 +78,14 @@ class Event:
             if type(key) is not str or not isfinite(value):
                 return None
             parts.append(f"{_ascii(key)}:{value!r}")
-        if not (type(self.cls) is str and type(self.model_id) is str and type(self.time) is float
+        if not (type(self.cls) is str and type(self.model_id) is str and type(self.instance) is str
+                and type(self.time) is float
                 and isfinite(self.time) and isfinite(latency) and type(self.frame_first) is int
                 and type(self.frame_last) is int and type(self.device_time_ms) is int
                 and type(self.missed_deadline) is bool):
             return None
-        return (f'{{"type":"decision","protocol":{PROTOCOL_VERSION},"class":{_ascii(self.cls)},"time":{self.time!r},'
+        return (f'{{"type":"decision","protocol":{PROTOCOL_VERSION},"instance":{_ascii(self.instance)},'
+                f'"class":{_ascii(self.cls)},"time":{self.time!r},'
                 f'"scores":{{{",".join(parts)}}},"latency_us":{latency!r},"model_id":{_ascii(self.model_id)},'
                 f'"frame_first":{self.frame_first!r},"frame_last":{self.frame_last!r},'
                 f'"device_time_ms":{self.device_time_ms!r},"missed_deadline":{"true" if self.missed_deadline else "false"}}}')
@@ -101,6 +105,8 @@ class ModelAnnouncement:
     classes: list[str]
     trained: str | None = None
     """The training date from the model's metadata, if it has one."""
+    instance: str = ""
+    """Which daemon serves it (runtime.instance_name); the SinkSet stamps it."""
 
     @classmethod
     def of(cls, model: Any, version: int, previous: Any) -> ModelAnnouncement:
@@ -112,7 +118,8 @@ class ModelAnnouncement:
                    trained=None if date is None else str(date))
 
     def to_json(self) -> str:
-        d = {"type": "model", "protocol": PROTOCOL_VERSION, **asdict(self)}
+        d = {"type": "model", "protocol": PROTOCOL_VERSION, "instance": self.instance,
+             **{k: v for k, v in asdict(self).items() if k != "instance"}}
         return json.dumps(d, separators=(",", ":"), allow_nan=False)
 
 
@@ -345,15 +352,17 @@ class UnixDatagramSink(Sink):
 class SinkSet:
     """All configured sinks; ``emit(event)`` serialises once and sends to each."""
 
-    def __init__(self, sinks: Iterable[Sink]) -> None:
+    def __init__(self, sinks: Iterable[Sink], instance: str = "") -> None:
         self.sinks = list(sinks)
+        self.instance = instance
+        """Stamped on every line that has none (runtime.instance_name: which daemon sent it)."""
         self.invalid = 0
         """Events refused because they could not be serialised as JSON (NaN or infinite numbers)."""
         self._last_invalid_log = 0.0
 
     @classmethod
     def from_config(cls, cfg: SinksConfig, stream: IO[str] | None = None, ros2: Ros2Config | None = None,
-                    daemon: Any = None) -> SinkSet:
+                    daemon: Any = None, instance: str = "") -> SinkSet:
         """Build from a SinksConfig; a UDP host name is looked up in the background (never waited for).
 
         ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and the daemon it reads
@@ -378,7 +387,7 @@ class SinkSet:
             ros = open_ros2_sink(ros2 or Ros2Config(), daemon, others=len(sinks))
             if ros is not None:
                 sinks.append(ros)
-        return cls(sinks)
+        return cls(sinks, instance)
 
     def emit(self, message: Event | ModelAnnouncement) -> bool:
         """Serialise once and send to every sink; False (counted, logged rate-limited) when the
@@ -391,6 +400,8 @@ class SinkSet:
 
     def encode(self, message: Event | ModelAnnouncement) -> tuple[str, bytes] | None:
         """The line and its bytes, or None (counted, logged rate-limited) when it is not valid JSON."""
+        if not message.instance:
+            message.instance = self.instance
         try:
             line = message.to_json()
         except (TypeError, ValueError) as exc:

@@ -17,6 +17,7 @@ import pytest
 
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
+from runtime.instance_name import default_instance
 from runtime.sinks import PROTOCOL_VERSION
 from tests.ros2_helpers import TRIGGER, drain, run_until, udp_socket
 from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
@@ -70,6 +71,8 @@ def test_real_lines_validate_against_the_schema(lines):
     types = [line["type"] for line in lines]
     assert types[0] == "model" and types.count("model") == 2 and types.count("decision") >= 4
     assert all(line["protocol"] == PROTOCOL_VERSION for line in lines)
+    # every line names the daemon: the config sets none, so <host>:<device> (the simulated hand's: sim)
+    assert {line["instance"] for line in lines} == {default_instance("sim://")} and default_instance("sim://").endswith(":sim")
 
 
 def test_the_swap_is_announced_before_the_new_models_decisions(lines):

@@ -133,6 +133,12 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
         assert key in values, key
     assert values["model_id"] == first["model_id"] and values["model_swaps"] == "0"
     assert values["device_state"] == "streaming" and status.level == DiagnosticStatus.OK
+    # which daemon: the instance name, in the key/value pairs, the message and every event line
+    from runtime.instance_name import default_instance
+
+    assert values["instance"] == default_instance(url) and status.message.startswith(f"{values['instance']}: ")
+    assert all(json.loads(x)["instance"] == values["instance"] for x in udp_lines)
+    assert values["trigger"].split(" ")[0] in ("onset", "threshold", "baseline")
     # pads: mono16, rows x columns as on the pad, the values of a frame the simulated hand sent
     frames = load_source("sim", seed=0, events=4).frames
     layout = daemon.layout

@@ -121,7 +121,7 @@ class _Int(int):
 
 def _reference_line(e: Event) -> str:
     """The documented line as the json module writes it (what ``to_json`` must equal)."""
-    d = {"type": "decision", "protocol": 1, "class": e.cls, "time": e.time,
+    d = {"type": "decision", "protocol": 1, "instance": e.instance, "class": e.cls, "time": e.time,
          "scores": {k: round(float(v), 6) for k, v in e.scores.items()}, "latency_us": round(float(e.latency_us), 1),
          "model_id": e.model_id, "frame_first": e.frame_first, "frame_last": e.frame_last,
          "device_time_ms": e.device_time_ms, "missed_deadline": e.missed_deadline}
@@ -138,7 +138,7 @@ def test_event_line_is_the_json_modules_character_for_character():
            "model_id": [*names[1:], 3], "frame_first": [0, -1, 2**70, _Int(5), True, 1.5],
            "device_time_ms": [0, 2**33, False], "missed_deadline": [True, False, 0, 1],
            "scores": [{}, {"a": 1}, {"a": True}, {_Str("s"): 0.5}, {1: 0.5}, {"x": 1e-7, "y": -2.5e-7, "z": 1e17}],
-           "latency_us": [0, 1e9, 0.05, 2.25]}
+           "latency_us": [0, 1e9, 0.05, 2.25], "instance": ["", "left-hand", *names[1:], None]}
     for field, values in odd.items():
         for value in values:
             event = _event()
@@ -164,8 +164,9 @@ def test_event_line_is_the_json_modules_character_for_character():
 
 def test_event_line_is_the_documented_dict_encoded():
     event = Event(1795482290.0698714, "pull", {"pull": 1 / 3, "push": -2.5e-7, "h\u00f6ld": 7.0}, 1033.449, "39f8d4c0dfa9",
-                  179, 193, 6091, False)
-    expected = {"type": "decision", "protocol": 1, "class": "pull", "time": 1795482290.0698714,
+                  179, 193, 6091, False, "robot-pc:ttyUSB0")
+    expected = {"type": "decision", "protocol": 1, "instance": "robot-pc:ttyUSB0", "class": "pull",
+                "time": 1795482290.0698714,
                 "scores": {"pull": 0.333333, "push": -0.0, "h\u00f6ld": 7.0}, "latency_us": 1033.4,
                 "model_id": "39f8d4c0dfa9", "frame_first": 179, "frame_last": 193, "device_time_ms": 6091,
                 "missed_deadline": False}
