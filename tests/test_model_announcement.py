@@ -75,6 +75,9 @@ def test_the_swap_line_says_which_trigger_the_new_model_brings(tmp_path, caplog)
     finally:
         daemon.models.watcher.stop()
         daemon.sinks.close()
-    serving, swapped = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
+    serving, swapped = [r.getMessage() for r in caplog.records if r.name == "handover.daemon" and r.levelno == logging.INFO]
     assert "onset.onnx" in serving and "onset trigger" in serving, serving
     assert "paper.onnx" in swapped and "threshold trigger" in swapped and "swapped in" in swapped, swapped
+    (warning,) = [r.getMessage() for r in caplog.records if r.name == "handover.daemon" and r.levelno == logging.WARNING]
+    assert "paper.onnx changes what is reported: trigger onset (" in warning and "-> threshold (fraction 0.15" in warning
+    assert daemon.health.trigger.startswith("threshold (fraction 0.15")
