@@ -57,6 +57,7 @@ def card(model) -> dict:
         "svm": svm or None,
         "graph": {**optional_table(meta.extra.get("graph")), "n_nodes": model.n_nodes, "n_bytes": model.n_bytes},
         "reference": meta.extra.get("reference"),
+        "early": model.early.to_meta() if getattr(model, "early", None) is not None else None,
     }
 
 
@@ -142,6 +143,11 @@ def _text(c: dict) -> str:
         f"  graph: {c['graph']['n_nodes']} nodes, {c['graph']['n_bytes']} bytes, opset {c['graph'].get('opset')}",
         f"  scores: {c['score']}",
     ]
+    if c.get("early"):
+        e = c["early"]
+        rule = ("never before T" if e["threshold"] > 1 else f"when the calibrated confidence reaches {e['threshold']:g}"
+                + (" and the head agrees with the previous one" if e["agree"] else ""))
+        lines.insert(4, f"  early heads: at {', '.join(map(str, e['points']))} frames, reported {rule} (docs/EARLY.md)")
     return "\n".join(lines)
 
 

@@ -188,3 +188,12 @@ def test_nested_evaluation_fits_each_leave_groups_out_model_once(early_model):
     assert ev["points"] == [4, 8, 15] and set(ev["curve_per_class"]) == set(ds.y.tolist())
     assert 4 <= op["mean_frames"] <= 15 and sum(op["reported_at"].values()) == len(ds.y)
     assert heads.spec.points == (4, 8)
+
+
+def test_inspect_names_the_early_heads(early_model, capsys):
+    from runtime.cli import main
+
+    path, *_ = early_model
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "early heads: at 4, 8 frames" in out
