@@ -202,3 +202,28 @@ def test_three_recorded_subjects_train_a_model_that_passes_the_demo(tmp_path, ca
     assert summary["events_correct"] >= 38, summary
     assert summary["false_events"] == 0
     assert json.loads((report / "metrics.json").read_text())["own_replay"]["events"] == 324
+
+
+def test_import_names_the_recorders_idle_sources():
+    from firmware_io.commands.import_cli import IDLE_SOURCES
+
+    assert IDLE_SOURCES == SOURCES
+
+
+def test_import_marks_a_recording_as_idle(tmp_path, capsys):
+    """A .dsa file imported with --idle is one idle stretch; training cuts dormant windows from it."""
+    from trainer.shared_data import default_data_dir
+
+    sources = sorted(default_data_dir().rglob("*.dsa")) if default_data_dir().is_dir() else []
+    if not sources:
+        pytest.skip(f"no real .dsa recordings in {default_data_dir()}")
+    src = sources[0]
+    assert handover(["import", str(src), "--out", str(tmp_path), "--idle", "arm_move", "--subject", "robot1"]) == 0
+    assert "idle (arm_move)" in capsys.readouterr().out
+    (rec_path,) = tmp_path.glob("*.hrec")
+    rec = Recording.load(rec_path)
+    (stretch,) = stretches_of(rec.meta)
+    assert (stretch["first"], stretch["last"], stretch["source"]) == (0, rec.n_frames - 1, "arm_move")
+    assert rec.meta["subject"] == "robot1" and set(rec.meta["source_codes"]) == {SOURCES.index("arm_move")}
+    assert handover(["import", str(src), "--out", str(tmp_path / "x"), "--subject", "robot1"]) == 2
+    assert "--idle" in capsys.readouterr().err

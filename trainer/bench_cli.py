@@ -18,9 +18,10 @@ from firmware_io.commands.errors import fail
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
 """What ``all`` runs (``./dev bench``)."""
-SINGLE = ("soak", "decode", "inference", "ros2", "early")
+SINGLE = ("soak", "decode", "inference", "ros2", "early", "streams_own")
 """Run only by name: soak runs for hours; decode pins itself to one core; inference compares with
-scikit-learn on a small BoW model; ros2 needs a sourced ROS 2; early needs aeon (the bench extra)."""
+scikit-learn on a small BoW model; ros2 needs a sourced ROS 2; early needs aeon (the bench extra);
+streams_own records scripted subjects and trains on them (after streams, whose results it adds to)."""
 HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected", "faults_recovered",
             "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",
             "watchdog_would_fire_while_healthy", "onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn",
@@ -31,7 +32,8 @@ HEADLINE = ("hours", "frames_expected", "frames_lost_outside_injected_faults", "
             "default_setting", "demo_events_correct_fraction", "demo_events_outside", "sim_event_f1", "real_idle_hours",
             "real_idle_false_events_per_hour", "continuous_hold_recall", "continuous_events_correct_fraction",
             "onset_to_report_median_frames", "rle_frames_per_s", "raw_frames_per_s", "speedup_median",
-            "ros2_event_p99_us", "early_default_hm_mean")
+            "ros2_event_p99_us", "early_default_hm_mean", "own_model_idle_false_events_per_hour",
+            "own_model_demo_events_correct_fraction", "own_model_real_idle_false_events_per_hour")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -71,6 +71,8 @@ def replay_recording(rec: Recording, model, mode: str) -> dict:
     idle_frames: dict[str, int] = {}
     false_by: dict[str, int] = {}
     false_classes: dict[str, int] = {}
+    with_arm: dict[str, int] = {}
+    arm_mode = f"{mode}_arm" if f"{mode}_arm" in se.ARM_MODES else None
     for first, last, _ in idle_pieces(rec):
         piece = _segment(rec, first, last, {"sources": rec.meta["sources"],
                                             "source_codes": rec.meta["source_codes"][first:last + 1]})
@@ -81,8 +83,13 @@ def replay_recording(rec: Recording, model, mode: str) -> dict:
             name = str(names[d.frame]) if 0 <= d.frame < piece.n_frames else "?"
             false_by[name] = false_by.get(name, 0) + 1
             false_classes[d.cls] = false_classes.get(d.cls, 0) + 1
+        if arm_mode:  # the robot says 'arm moving' / 'arm still' over the recorded arm_move stretches
+            for d in se.replay(piece, model, arm_mode):
+                name = str(names[d.frame]) if 0 <= d.frame < piece.n_frames else "?"
+                with_arm[name] = with_arm.get(name, 0) + 1
     return {"events": events, "delays": delays, "early": early, "references": sorted(refs), "period": period,
-            "idle_frames": idle_frames, "false_by_source": false_by, "false_by_class": false_classes}
+            "idle_frames": idle_frames, "false_by_source": false_by, "false_by_class": false_classes,
+            "false_by_source_arm_messages": with_arm if arm_mode else None}
 
 
 def summarize(parts: Sequence[dict]) -> dict:
@@ -110,6 +117,13 @@ def summarize(parts: Sequence[dict]) -> dict:
     for p in parts:
         for k, v in p["false_by_class"].items():
             classes[k] = classes.get(k, 0) + v
+    arm = None
+    if parts and all(p.get("false_by_source_arm_messages") is not None for p in parts):
+        arm = {}
+        for p in parts:
+            for k, v in p["false_by_source_arm_messages"].items():
+                arm[k] = arm.get(k, 0) + v
+    arm_h = hours.get("arm_move", 0.0)
     return {
         "events": len(events), **count, "early_reports": sum(p["early"] for p in parts),
         "right_fraction": count["right"] / len(events) if events else None,
@@ -119,6 +133,10 @@ def summarize(parts: Sequence[dict]) -> dict:
                                "false_per_hour": false.get(k, 0) / hours[k] if hours[k] else None}
                            for k in sorted(hours)},
         "false_by_class": dict(sorted(classes.items())),
+        "with_arm_messages": None if arm is None else {
+            "false_events": sum(arm.values()), "false_per_hour": sum(arm.values()) / total_h if total_h else None,
+            "arm_move_false_events": arm.get("arm_move", 0),
+            "arm_move_false_per_hour": arm.get("arm_move", 0) / arm_h if arm_h else None},
         "onset_to_report_frames": se._stats(delays),
         "reference": sorted({r for p in parts for r in p["references"]}),
     }
@@ -182,6 +200,11 @@ def replay_lines(r: dict | None) -> list[str]:
                        for k, v in r["idle_by_source"].items())
         lines.append(f"idle: {r['false_events']} false events in {r['idle_hours'] * 60:.1f} min "
                      f"({r['false_per_hour']:.1f} per hour; {by})")
+        arm = r.get("with_arm_messages")
+        if arm:
+            lines.append(f"idle with the robot's 'arm moving' / 'arm still' over the arm_move stretches: "
+                         f"{arm['false_events']} false events ({arm['false_per_hour']:.1f} per hour; during arm moves "
+                         f"{arm['arm_move_false_events']})")
     else:
         lines.append("idle: none recorded, so false events per hour are not measured (handover record records idle "
                      "after the trials)")

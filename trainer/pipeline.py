@@ -117,7 +117,7 @@ def train(options: TrainOptions) -> TrainResult:
     if problem:
         raise DatasetError(problem)
     idle = None
-    if options.dormant:  # the lines about idle data are warnings the user must see even with --quiet
+    if options.dormant and options.data:  # lines about the user's idle data are warnings to see even with --quiet
         ds, idle = add_idle(ds, recordings, names, options.seed, say_to(False))
     selection = None
     if options.select:

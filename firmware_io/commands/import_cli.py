@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 
 PROG = "handover import"
+IDLE_SOURCES = ("open", "quiet", "grasp", "release", "arm_move", "regrasp")
+"""``firmware_io.recordings.idle_stretches.SOURCES`` (tested equal; argparse needs them before any import)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,6 +29,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--pads", default=None, help="keep only these pads (all, distal, proximal, thumb-distal, 1,3,5, ...)"
     )
     parser.add_argument("--topic", default=None, help="bag topic (default: the only TactileSensor topic)")
+    parser.add_argument("--idle", default=None, choices=IDLE_SOURCES, metavar="WHAT",
+                        help="mark each imported recording as idle (nobody touched the object) and say what was going "
+                        f"on: {', '.join(IDLE_SOURCES)}; handover train cuts dormant windows from it")
+    parser.add_argument("--subject", default=None,
+                        help="with --idle: the subject (or session) the recording belongs to, so leave-one-out "
+                        "holds it out with that subject (default: its file name)")
 
 
 def output_names(sources: list[tuple[Path, Path]]) -> list[str]:
@@ -86,6 +94,21 @@ def _subset(recording, pads: str):
     return Recording(recording.layout.subset(pads), recording.frames[:, cols], recording.timestamps, [], meta)
 
 
+def _as_idle(recording, source: str, subject: str | None, src: Path):
+    """The recording as one idle stretch of ``source`` (the way ``handover record`` stores its idle)."""
+    from firmware_io.recordings.idle_stretches import idle_meta
+    from firmware_io.recordings.recording import Recording
+
+    n = recording.n_frames
+    seconds = float(recording.timestamps[-1] - recording.timestamps[0]) if n > 1 else 0.0
+    stretch = {"first": 0, "last": n - 1, "source": source, "index": 0, "seconds": round(seconds, 3),
+               "extra": {"imported_from": str(src)}}
+    meta = {**recording.meta, **idle_meta(n, [stretch] if n else [])}
+    if subject:
+        meta["subject"] = subject
+    return Recording(recording.layout, recording.frames, recording.timestamps, [], meta)
+
+
 def _summary(recording) -> str:
     n = recording.n_frames
     duration = float(recording.timestamps[-1] - recording.timestamps[0]) if n > 1 else 0.0
@@ -101,6 +124,8 @@ def _summary(recording) -> str:
             notes.append(f"{recording.meta[key]} {label}")
     if recording.meta.get("dsa_dynamic_masks"):
         notes.append(f"dynamic mask: matrices {', '.join(recording.meta['dsa_dynamic_masks'])} not fully read")
+    if recording.meta.get("idle_stretches"):
+        notes.append(f"idle ({recording.meta['idle_stretches'][0]['source']})")
     extra = f" ({'; '.join(notes)})" if notes else ""
     return f"{n} frames, {duration:.1f} s, {rate}, {recording.layout.n_taxels} taxels{extra}"
 
@@ -134,6 +159,9 @@ def main(args: argparse.Namespace) -> int:
         if problem:
             print(f"{PROG}: {problem}", file=sys.stderr)
             return 2
+    if args.subject and not args.idle:
+        print(f"{PROG}: --subject names whose idle an imported recording is; give --idle WHAT with it", file=sys.stderr)
+        return 2
     sources, errors = _expand(args.sources)
     for e in errors:
         print(f"{PROG}: {e}", file=sys.stderr)
@@ -145,6 +173,8 @@ def main(args: argparse.Namespace) -> int:
             recording = import_any(src, topic=args.topic)
             if args.pads:
                 recording = _subset(recording, args.pads)
+            if args.idle:
+                recording = _as_idle(recording, args.idle, args.subject, src)
             recording.save(target)
         except (RecordingError, LayoutError, OSError) as exc:
             _report(src, str(exc))

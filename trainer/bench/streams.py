@@ -256,6 +256,9 @@ def run(args) -> dict:
         demo = demo_session(models, chosen, args.seed)
     result = summary(test, val, chosen, demo, real)
     result.update(continuous_rule=rule["chosen"], continuous_rule_in_code=rule["shipped"], continuous_rule_choice=rule)
+    from trainer.bench.streams_own import own_keys
+
+    result.update(own_keys(args.out))  # the own-data model's figures (bench streams_own) stay in this file
     from runtime.trigger_settings import resolve_trigger
 
     result.update(synthetic_streams=True, sizes=s, seed=args.seed, machine=machine_info(),

@@ -1,0 +1,268 @@
+"""``handover bench streams_own``: the model a lab trains from its own recordings, measured on live streams.
+
+1. three scripted simulated subjects (``subject://``, synthetic, their own seeds) are recorded with
+   ``handover record`` (a short protocol: every pose, object and action, ``runs`` runs, plus the
+   default idle stretches);
+2. the cut of dormant windows (``trainer.recorded_idle.DORMANT_CUTS``) is chosen by ``CRITERION``
+   on validation streams (seed + 2): each cut's model replayed through the daemon;
+3. ``handover train`` on the recordings (the product path, with the cut in code) exports the model;
+   its held-out replay is taken from the training metrics;
+4. that model on the test streams of ``handover bench streams`` (seed + 1: the same synthetic idle
+   stream the demo model's 20 false events per hour come from; a mixed stream), on the demo's
+   scripted session, and on every real SDH-2 recording in ../shared/data (none holds a handover).
+
+Writes results/streams_own.json/.md and its headline keys into results/streams.json (``OWN_KEYS``;
+``handover bench streams`` carries them over when it rewrites that file).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from firmware_io.sim.constants import FRAME_PERIOD_S
+from trainer import streams_eval as se
+from trainer.bench.common import command_line, load_average, machine_info, write_results
+
+NAME = "streams_own"
+SUBJECT_SEEDS = (10, 11, 12)
+"""Seeds of the recorded scripted subjects: other people than the simulated protocol's training
+subjects (seed 0), the streams' subjects (seeds 1, 2) and the demo's (seed 1000)."""
+SIZES = {
+    "full": {"runs": 3, "idle_min": None, "val_events": 120, "val_idle_h": 0.25, "test_events": 100,
+             "test_idle_h": 1.0},
+    "quick": {"runs": 1, "idle_min": 1.3, "val_events": 12, "val_idle_h": 0.05, "test_events": 12,
+              "test_idle_h": 0.05},
+}
+"""``idle_min`` None: the recorder's default."""
+CRITERION = ("utility = right first reports - wrong first reports - repeats - reports outside any event on a "
+             "validation session (demo_script(val_events, seed + 2), synthetic) - false events on the validation "
+             "idle stream (seed + 2); every bad report costs what a good one gains (the streams bench's rule); "
+             "ties: the cut in code")
+OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events_per_hour_arm_messages",
+            "own_model_demo_events_correct_fraction", "own_model_demo_events_outside",
+            "own_model_real_idle_false_events_per_hour", "own_model_dormant_cut")
+"""The headline keys this bench writes into results/streams.json too."""
+
+
+def record_subjects(folder: Path, s: dict, say) -> list[str]:
+    """``handover record`` of each scripted subject into ``folder`` (its prompts swallowed)."""
+    from runtime.cli import main as handover
+
+    names = []
+    for seed in SUBJECT_SEEDS:
+        name = f"s{seed}"
+        say(f"streams_own: recording scripted subject {name} (synthetic, seed {seed}) ...")
+        idle = [] if s["idle_min"] is None else ["--idle-minutes", str(s["idle_min"])]
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name,
+                             "--out", str(folder), "--runs", str(s["runs"]), "--auto", "--retries", "0", "--gap",
+                             "0", "--quiet", "--no-look", *idle])
+        if code != 0:
+            raise RuntimeError(f"recording scripted subject {name} failed (exit {code})")
+        names.append(name)
+    return names
+
+
+def cut_models(folder: Path, work: Path, seed: int, say) -> dict:
+    """One loaded model per dormant cut, trained on the recordings as ``handover train`` would."""
+    from firmware_io.recordings.recording import find_recordings, load_all
+    from runtime.model import load_model
+    from trainer.dataset import build_dataset, dataset_trigger
+    from trainer.dormant import DORMANT
+    from trainer.model_meta import dataset_metadata
+    from trainer.onnx_export import export_onnx
+    from trainer.recorded_idle import DORMANT_CUTS, add_idle
+    from trainer.train_options import TrainOptions, build_estimator
+
+    paths = find_recordings(folder)
+    recs = load_all(paths)
+    ds0 = build_dataset(recs, trigger=dataset_trigger())
+    options = TrainOptions(data=str(folder), seed=seed)
+    out = {}
+    for cut in DORMANT_CUTS:
+        say(f"streams_own: training with dormant windows cut '{cut}' ...")
+        ds, idle = add_idle(ds0, recs, [p.name for p in paths], seed, lambda text: None, cut=cut)
+        model = build_estimator(options, ds).fit(ds.X, ds.y)
+        meta = dataset_metadata(ds, training={"dormant_cut": cut}, dormant_class=DORMANT if idle else None)
+        out[cut] = load_model(export_onnx(model, work / f"cut-{cut}.onnx", meta), warm_up=False)
+    return out
+
+
+def validation(models: dict, seed: int, s: dict, say) -> dict:
+    """Each cut's model on the validation session and idle stream; the utility of ``CRITERION``."""
+    from firmware_io.sim import demo_script, simulate_session
+    from firmware_io.sim.idle import simulate_idle
+
+    say(f"streams_own: validation session ({s['val_events']} events) and idle stream (synthetic, seed {seed}) ...")
+    session = simulate_session(demo_script(s["val_events"], seed=seed), seed=seed)
+    idle = simulate_idle(3600.0 * s["val_idle_h"], seed=seed, part=0)
+    names = se.source_names(idle, idle.n_frames)
+    out = {}
+    for cut, model in models.items():
+        mode = "onset_dormant" if model.meta.dormant_class else "onset"
+        o = se.session_outcomes(se.replay(session, model, mode), session.trials)
+        i = se.score(se.replay(idle, model, mode), [], idle.n_frames, FRAME_PERIOD_S, names)
+        wrong = o["detected"] - o["correct"]
+        out[cut] = {"mode": mode, "session": {k: o[k] for k in ("expected", "correct", "missed", "outside", "repeats")},
+                    "session_wrong": wrong, "idle_false_events": i["false_events"], "idle_hours": i["idle_hours"],
+                    "utility": o["correct"] - wrong - o["repeats"] - o["outside"] - i["false_events"]}
+    return out
+
+
+def choose(val: dict) -> str:
+    from trainer.recorded_idle import DORMANT_CUT
+
+    return max(val, key=lambda cut: (val[cut]["utility"], cut == DORMANT_CUT))
+
+
+def test_streams(model, seed: int, s: dict, say) -> dict:
+    """The streams bench's test idle stream (parts of its length, its seed) and a mixed stream."""
+    from firmware_io.sim import demo_script
+    from firmware_io.sim.idle import simulate_idle, simulate_mixed
+    from trainer.bench.streams import PART_S
+
+    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    n_parts = max(1, round(3600.0 * s["test_idle_h"] / PART_S))
+    plain, arm = [], []
+    for p in range(n_parts):
+        say(f"streams_own: test idle stream part {p + 1}/{n_parts} (synthetic, seed {seed}) ...")
+        rec = simulate_idle(3600.0 * s["test_idle_h"] / n_parts, seed=seed, part=p)
+        names = se.source_names(rec, rec.n_frames)
+        plain.append(se.score(se.replay(rec, model, mode), [], rec.n_frames, FRAME_PERIOD_S, names))
+        arm.append(se.score(se.replay(rec, model, f"{mode}_arm"), [], rec.n_frames, FRAME_PERIOD_S, names))
+    say(f"streams_own: test mixed stream, {s['test_events']} events ...")
+    mixed = simulate_mixed(demo_script(s["test_events"], seed=seed, gap=(10.0, 20.0)), seed=seed)
+    m = se.score(se.replay(mixed, model, mode), se.truths_of(mixed), mixed.n_frames, FRAME_PERIOD_S,
+                 se.source_names(mixed, mixed.n_frames))
+    return {"mode": mode, "idle": se.merge_idle(plain), "idle_arm_messages": se.merge_idle(arm),
+            "mixed": {k: m[k] for k in ("n_events", "correct", "wrong_class", "missed", "duplicates", "false_events",
+                                        "correct_rate", "delay_frames", "false_by_source")}}
+
+
+def demo_session(model, seed: int) -> dict:
+    from firmware_io.sim import demo_script, simulate_session
+    from trainer.bench.streams import DEMO_EVENTS
+    from trainer.demo_cli import SESSION_SEED_OFFSET
+
+    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    session_seed = seed + SESSION_SEED_OFFSET
+    session = simulate_session(demo_script(DEMO_EVENTS, seed=session_seed), seed=session_seed)
+    o = se.session_outcomes(se.replay(session, model, mode), session.trials)
+    return {"mode": mode, "seed": session_seed, **{k: o[k] for k in (
+        "expected", "detected", "correct", "missed", "outside", "repeats", "correct_fraction", "missed_events",
+        "wrong_events")}}
+
+
+def real_idle(model, root: Path, say) -> dict | None:
+    """False events of the model on every real SDH-2 recording (none holds a handover)."""
+    from firmware_io.recordings.importers import import_any
+    from trainer.bench.streams import real_files
+
+    if not root.is_dir():
+        return None
+    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    rows, hours, events = [], 0.0, 0
+    for path, cat, _ in real_files(root):
+        try:
+            rec = import_any(path)
+            found = se.replay(rec, model, mode)
+        except Exception as exc:  # a file the importers or the scene refuse is listed, not counted
+            rows.append({"file": str(path.relative_to(root)), "skipped": str(exc)[:200]})
+            continue
+        h = float(rec.timestamps[-1] - rec.timestamps[0]) / 3600.0 if rec.n_frames > 1 else 0.0
+        hours += h
+        events += len(found)
+        rows.append({"file": str(path.relative_to(root)), "category": cat, "hours": h,
+                     "events": [d.cls for d in found]})
+    say(f"streams_own: {len(rows)} real recordings replayed")
+    return {"root": str(root), "mode": mode, "hours": hours, "events": events,
+            "false_per_hour": events / hours if hours else None, "rows": rows}
+
+
+def run(args) -> dict:
+    from runtime.model import load_model
+    from trainer.bench.streams import TEST_OFFSET, VAL_OFFSET
+    from trainer.pipeline import train
+    from trainer.recorded_idle import DORMANT_CUT
+    from trainer.shared_data import default_data_dir
+    from trainer.train_options import TrainOptions
+
+    say = args.say
+    s = SIZES["quick" if args.quick else "full"]
+    load_before = load_average()
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="handover-streams-own-") as tmp:
+        work = Path(tmp)
+        data = work / "data"
+        record_subjects(data, s, say)
+        val = validation(cut_models(data, work, args.seed, say), args.seed + VAL_OFFSET, s, say)
+        chosen = choose(val)
+        say(f"streams_own: chosen dormant cut on validation: {chosen} (in code: {DORMANT_CUT})")
+        say("streams_own: handover train on the recordings ...")
+        result = train(TrainOptions(data=str(data), out=str(work / "report"), no_sweep=True, repeats=2, quiet=True,
+                                    seed=args.seed))
+        model = load_model(work / "report" / "model.onnx", warm_up=False)
+        metrics = result.metrics
+        test = test_streams(model, args.seed + TEST_OFFSET, s, say)
+        demo = demo_session(model, args.seed)
+        real = real_idle(model, default_data_dir(), say)
+    out = {
+        "own_model_idle_false_events_per_hour": test["idle"]["false_per_hour"],
+        "own_model_idle_false_events_per_hour_arm_messages": test["idle_arm_messages"]["false_per_hour"],
+        "own_model_demo_events_correct_fraction": demo["correct_fraction"],
+        "own_model_demo_events_outside": demo["outside"],
+        "own_model_real_idle_false_events_per_hour": real["false_per_hour"] if real else None,
+        "own_model_dormant_cut": DORMANT_CUT,
+        "dormant_cut_chosen": chosen,
+        "criterion": CRITERION,
+        "subjects": [f"subject://?seed={k}" for k in SUBJECT_SEEDS],
+        "sizes": s, "seed": args.seed,
+        "model": {"classes": list(model.meta.classes), "dormant_class": model.meta.dormant_class,
+                  "families": metrics.get("families"), "n_trials": metrics["n_trials"], "idle": metrics.get("idle"),
+                  "loso_accuracy": metrics.get("loso_accuracy")},
+        "held_out_replay": metrics.get("own_replay"),
+        "validation": val, "test": test, "demo": demo, "real": real,
+        "demo_model_idle_false_events_per_hour": _demo_model_figure(args.out),
+        "synthetic_streams": True, "machine": machine_info(), "command": command_line(NAME, args),
+        "load_before": load_before, "load_after": load_average(), "seconds": round(time.perf_counter() - t0, 1),
+    }
+    from trainer.bench.streams_own_report import markdown
+
+    write_results(args.out, NAME, out, markdown(out))
+    carry_into_streams(Path(args.out), out)
+    return out
+
+
+def _demo_model_figure(out: str) -> float | None:
+    """The demo model's false events per hour on the same test idle stream (results/streams.json)."""
+    try:
+        return float(json.loads((Path(out) / "streams.json").read_text())["test"]["onset_dormant"]["idle"]
+                     ["false_per_hour"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def carry_into_streams(out: Path, own: dict) -> None:
+    """Write ``OWN_KEYS`` into ``out/streams.json`` when it exists (the streams bench's headline file)."""
+    path = out / "streams.json"
+    if not path.is_file():
+        return
+    data = json.loads(path.read_text())
+    data.update({k: own.get(k) for k in OWN_KEYS})
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def own_keys(out: str | Path) -> dict:
+    """``OWN_KEYS`` from ``out/streams_own.json`` (for the streams bench to carry over), or none."""
+    try:
+        own = json.loads((Path(out) / f"{NAME}.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return {k: own.get(k) for k in OWN_KEYS}

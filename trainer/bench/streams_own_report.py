@@ -1,0 +1,73 @@
+"""results/streams_own.md from the streams_own bench's result (trainer/bench/streams_own.py)."""
+
+from __future__ import annotations
+
+
+def _rate(x) -> str:
+    return "-" if x is None else f"{x:.1f}"
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{100 * x:.0f} %"
+
+
+def markdown(r: dict) -> list[str]:
+    real, test, demo, rep = r["real"], r["test"], r["demo"], r.get("held_out_replay") or {}
+    m = r["model"]
+    lines = [
+        "# A lab's own model on live streams (`handover bench streams_own`)",
+        "",
+        f"Three scripted simulated subjects ({', '.join(r['subjects'])}; **synthetic**) recorded with `handover "
+        f"record` (every pose, object and action, {r['sizes']['runs']} run(s), plus the recorder's idle stretches), "
+        f"then `handover train` on the recordings: classes {', '.join(m['classes'])}, features "
+        f"{'+'.join(m['families'] or [])}, {m['n_trials']} trials"
+        + (f" + {m['idle']['dormant_windows']} dormant windows from {m['idle']['seconds'] / 60:.1f} min of idle"
+           if m.get("idle") else "") + ".",
+        "",
+        "## Headline",
+        "",
+    ]
+    if real:
+        lines.append(f"- **real SDH-2 recordings without a handover** ({real['hours']:.2f} h, ../shared/data): "
+                     f"{real['events']} false events, **{_rate(real['false_per_hour'])} per hour** ({real['mode']})")
+    else:
+        lines.append("- real SDH-2 recordings: not present on this machine (../shared/data), not measured")
+    lines += [
+        f"- synthetic idle test stream of `handover bench streams` ({test['idle']['idle_hours']:.2f} h, seed "
+        f"{r['seed'] + 1}): **{_rate(r['own_model_idle_false_events_per_hour'])} false events per hour** "
+        f"(the demo's simulator-trained model: {_rate(r['demo_model_idle_false_events_per_hour'])}); with the robot's "
+        f"`arm moving` / `arm still`: {_rate(r['own_model_idle_false_events_per_hour_arm_messages'])} per hour",
+        f"- the demo's scripted session (40 events, unseen subjects, synthetic): {demo['correct']} of "
+        f"{demo['expected']} right ({_pct(demo['correct_fraction'])}), {demo['missed']} missed, {demo['outside']} "
+        "outside any event",
+        f"- synthetic mixed test stream: {test['mixed']['correct']} of {test['mixed']['n_events']} right, "
+        f"{test['mixed']['wrong_class']} wrong, {test['mixed']['missed']} missed, {test['mixed']['false_events']} false",
+        "",
+        "## Held-out replay in `handover train` (each subject replayed through the daemon, model trained without it)",
+        "",
+    ]
+    if rep.get("folds"):
+        from trainer.own_replay import replay_lines
+
+        lines += [f"- {line}" for line in replay_lines(rep)]
+    else:
+        lines.append("- not measured")
+    lines += [
+        "",
+        "## How dormant windows are cut (chosen on validation streams)",
+        "",
+        f"Rule: {r['criterion']}.",
+        "",
+        "| cut | mode | session right | wrong | missed | outside | idle false events | utility |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for cut, v in r["validation"].items():
+        sess = v["session"]
+        lines.append(f"| {cut} | {v['mode']} | {sess['correct']}/{sess['expected']} | {v['session_wrong']} | "
+                     f"{sess['missed']} | {sess['outside']} | {v['idle_false_events']} in {v['idle_hours']:.2f} h | "
+                     f"{v['utility']} |")
+    same = r["dormant_cut_chosen"] == r["own_model_dormant_cut"]
+    lines += ["", f"Chosen: `{r['dormant_cut_chosen']}`; `handover train` uses `{r['own_model_dormant_cut']}` "
+              f"(trainer/recorded_idle.py DORMANT_CUT){'' if same else ' -- they differ: change the code or the rule'}.",
+              ""]
+    return lines
