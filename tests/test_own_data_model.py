@@ -183,6 +183,7 @@ def test_demo_with_a_model_that_is_not_one_is_one_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)  # three recordings, training with early heads and the replay, the demo: minutes
 def test_three_recorded_subjects_train_a_model_that_passes_the_demo(tmp_path, capsys):
     """The lab's path: 3 scripted subjects (short protocol: 3 runs, plus the default idle), train,
     then the demo's scripted session of 40 events by unseen subjects (synthetic)."""
@@ -227,3 +228,13 @@ def test_import_marks_a_recording_as_idle(tmp_path, capsys):
     assert rec.meta["subject"] == "robot1" and set(rec.meta["source_codes"]) == {SOURCES.index("arm_move")}
     assert handover(["import", str(src), "--out", str(tmp_path / "x"), "--subject", "robot1"]) == 2
     assert "--idle" in capsys.readouterr().err
+
+
+def test_real_idle_recordings_are_scored_for_real_data_or_when_asked(tmp_path, monkeypatch):
+    from trainer.pipeline import scores_real_idle
+
+    monkeypatch.setenv("HANDOVER_SHARED_DATA", str(tmp_path))
+    assert scores_real_idle(None, synthetic=False) and scores_real_idle(True, synthetic=True)
+    assert not scores_real_idle(None, synthetic=True) and not scores_real_idle(False, synthetic=False)
+    monkeypatch.setenv("HANDOVER_SHARED_DATA", str(tmp_path / "absent"))
+    assert not scores_real_idle(True, synthetic=False)

@@ -209,3 +209,36 @@ def replay_lines(r: dict | None) -> list[str]:
         lines.append("idle: none recorded, so false events per hour are not measured (handover record records idle "
                      "after the trials)")
     return lines
+
+
+def real_idle(model, root: Path, say) -> dict | None:
+    """False events of the model on every real SDH-2 recording (none holds a handover)."""
+    from firmware_io.recordings.importers import import_any
+    from trainer.bench.streams import real_files
+
+    if not root.is_dir():
+        return None
+    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    rows, hours, events = [], 0.0, 0
+    for path, cat, _ in real_files(root):
+        try:
+            rec = import_any(path)
+            found = se.replay(rec, model, mode)
+        except Exception as exc:  # a file the importers or the scene refuse is listed, not counted
+            rows.append({"file": str(path.relative_to(root)), "skipped": str(exc)[:200]})
+            continue
+        h = float(rec.timestamps[-1] - rec.timestamps[0]) / 3600.0 if rec.n_frames > 1 else 0.0
+        hours += h
+        events += len(found)
+        rows.append({"file": str(path.relative_to(root)), "category": cat, "hours": h,
+                     "events": [d.cls for d in found]})
+    say(f"{len(rows)} real recordings replayed ({hours:.2f} h): {events} events, none is a handover")
+    return {"root": str(root), "mode": mode, "hours": hours, "events": events,
+            "false_per_hour": events / hours if hours else None, "rows": rows}
+
+
+def real_idle_line(r: dict) -> str:
+    """The real recordings without a handover in one line."""
+    rate = "-" if r["false_per_hour"] is None else f"{r['false_per_hour']:.2f}"
+    return (f"  real SDH-2 recordings without a handover ({r['root']}, {r['hours']:.2f} h): {r['events']} false "
+            f"events, {rate} per hour ({r['mode']})")

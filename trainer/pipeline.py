@@ -130,7 +130,7 @@ def train(options: TrainOptions) -> TrainResult:
     say("training the final model on all cases ...")
     model = estimator.fit(ds.X, ds.y)
     evaluation = evaluate(options, ds, estimator, say)
-    heads, early_metrics = fit_early_heads(options, ds, estimator, say)
+    heads, early_metrics = fit_early_heads(options, with_actions(ds), estimator, say)
     sweep = None
     if not options.no_sweep and "bow" in options.families:
         sweep = _sweeps(options, recordings, out, say)
@@ -152,6 +152,13 @@ def train(options: TrainOptions) -> TrainResult:
     if early_metrics is not None:
         metrics["early"] = early_metrics
     onnx_ok = write_model(options, ds, model, metrics, out, early=heads)
+    if onnx_ok and not options.no_onnx and options.replay and scores_real_idle(options.real_idle, synthetic):
+        from runtime.model import load_model
+        from trainer.own_replay import real_idle
+        from trainer.shared_data import default_data_dir
+
+        say(f"replaying the real recordings without a handover in {default_data_dir()} through the daemon ...")
+        metrics["real_idle"] = real_idle(load_model(out / "model.onnx", warm_up=False), default_data_dir(), say)
     say("writing figures and the report ...")
     shown = figures(options, ds, embedding, metrics, out)
     if early_metrics and not early_metrics.get("skipped"):
@@ -175,6 +182,28 @@ def train(options: TrainOptions) -> TrainResult:
         print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
               file=sys.stderr if options.json else sys.stdout)
     return TrainResult(out, metrics, onnx_ok)
+
+
+def scores_real_idle(asked: bool | None, synthetic: bool) -> bool:
+    """Whether to replay the real recordings without a handover (../shared/data) through the model:
+    when asked, else for a model trained on real recordings where the folder is present (a minute)."""
+    from trainer.shared_data import default_data_dir
+
+    if asked is False:
+        return False
+    return default_data_dir().is_dir() and (asked is True or not synthetic)
+
+
+def with_actions(ds):
+    """The data set without groups that hold no action (an idle-only recording's dormant windows): a
+    leave-groups-out fit on those alone would hold one class."""
+    import numpy as np
+
+    from trainer.dormant import DORMANT
+
+    acting = {g for g, y in zip(ds.groups.tolist(), ds.y.tolist(), strict=True) if y != DORMANT}
+    keep = np.isin(ds.groups, sorted(acting))
+    return ds if keep.all() else ds.subset(np.flatnonzero(keep))
 
 
 def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -> tuple[Any, dict | None]:

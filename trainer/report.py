@@ -332,6 +332,10 @@ def _replay_lines(metrics: dict, label: str) -> list[str]:
     if not r.get("folds"):
         return [*lines, f"Not measured: {'; '.join(f'{k}: {v}' for k, v in r.get('skipped', {}).items()) or '-'}", ""]
     lines += [f"- {line}" for line in replay_lines(r)]
+    if metrics.get("real_idle"):
+        from trainer.own_replay import real_idle_line
+
+        lines.append(f"- {real_idle_line(metrics['real_idle']).strip()} (the final model)")
     lines += ["", "| held out | trials | right | wrong | missed | idle (min) | false events | per hour |",
               "|---|---|---|---|---|---|---|---|"]
     for f in r["folds"]:

@@ -92,6 +92,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="on: early heads decide 4 to 11 frames after the window's start when their calibrated "
                         "confidence allows, rule chosen by grouped cross-validation (docs/EARLY.md); off: the full "
                         "window only")
+    parser.add_argument("--real-idle", action=argparse.BooleanOptionalAction, default=None,
+                        help="replay the real SDH-2 recordings without a handover (../shared/data, "
+                        "HANDOVER_SHARED_DATA) through the model: false events per hour (default: for real "
+                        "recordings, where the folder is present; about a minute)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or messages on stderr")
 

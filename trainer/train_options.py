@@ -63,6 +63,9 @@ class TrainOptions:
     dormant: bool = True
     replay: bool = True
     """Replay each held-out subject's recording through the daemon (stream figures in the report)."""
+    real_idle: bool | None = None
+    """Replay the real recordings without a handover (../shared/data) through the model; None: for
+    models trained on real recordings, where the folder is present."""
     """Add the dormant class from the recordings' idle stretches (when they hold any)."""
     no_onnx: bool = False
     early: str = "on"
@@ -180,7 +183,8 @@ class TrainOptions:
                 parts += ["--latency-budget-us", str(self.latency_budget_us)]
         for flag, on in (("--level-features", self.level_features), ("--scale-features", self.scale_features),
                          ("--no-sweep", self.no_sweep), ("--no-onnx", self.no_onnx),
-                         ("--no-dormant", not self.dormant), ("--no-replay", not self.replay)):
+                         ("--no-dormant", not self.dormant), ("--no-replay", not self.replay),
+                         ("--real-idle", self.real_idle is True), ("--no-real-idle", self.real_idle is False)):
             if on:
                 parts.append(flag)
         return " ".join(parts)

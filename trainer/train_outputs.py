@@ -161,7 +161,7 @@ def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> d
 
 def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
-    from trainer.own_replay import replay_lines
+    from trainer.own_replay import real_idle_line, replay_lines
     from trainer.report import pct, pooled_text
 
     tag = "synthetic data, " if metrics["synthetic"] else ""
@@ -186,6 +186,7 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
         f"{pct(metrics['baseline_config1_accuracy_mean'])})",
         *(f"  held-out replay through the daemon: {line}" for line in replay_lines(metrics.get("own_replay"))),
+        *([real_idle_line(metrics["real_idle"])] if metrics.get("real_idle") else []),
         f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
         f"  model:  {model} (handover inspect {model}; drop it into the daemon's model folder, deploy/INSTALL.md)"
         if onnx_written else "  model:  no model.onnx written (model.joblib only)",

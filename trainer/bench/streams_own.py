@@ -158,35 +158,10 @@ def demo_session(model, seed: int) -> dict:
         "wrong_events")}}
 
 
-def real_idle(model, root: Path, say) -> dict | None:
-    """False events of the model on every real SDH-2 recording (none holds a handover)."""
-    from firmware_io.recordings.importers import import_any
-    from trainer.bench.streams import real_files
-
-    if not root.is_dir():
-        return None
-    mode = "onset_dormant" if model.meta.dormant_class else "onset"
-    rows, hours, events = [], 0.0, 0
-    for path, cat, _ in real_files(root):
-        try:
-            rec = import_any(path)
-            found = se.replay(rec, model, mode)
-        except Exception as exc:  # a file the importers or the scene refuse is listed, not counted
-            rows.append({"file": str(path.relative_to(root)), "skipped": str(exc)[:200]})
-            continue
-        h = float(rec.timestamps[-1] - rec.timestamps[0]) / 3600.0 if rec.n_frames > 1 else 0.0
-        hours += h
-        events += len(found)
-        rows.append({"file": str(path.relative_to(root)), "category": cat, "hours": h,
-                     "events": [d.cls for d in found]})
-    say(f"streams_own: {len(rows)} real recordings replayed")
-    return {"root": str(root), "mode": mode, "hours": hours, "events": events,
-            "false_per_hour": events / hours if hours else None, "rows": rows}
-
-
 def run(args) -> dict:
     from runtime.model import load_model
     from trainer.bench.streams import TEST_OFFSET, VAL_OFFSET
+    from trainer.own_replay import real_idle
     from trainer.pipeline import train
     from trainer.recorded_idle import DORMANT_CUT
     from trainer.shared_data import default_data_dir
@@ -210,7 +185,7 @@ def run(args) -> dict:
         metrics = result.metrics
         test = test_streams(model, args.seed + TEST_OFFSET, s, say)
         demo = demo_session(model, args.seed)
-        real = real_idle(model, default_data_dir(), say)
+        real = real_idle(model, default_data_dir(), say)  # trainer.own_replay: the one way real idle is scored
     out = {
         "own_model_idle_false_events_per_hour": test["idle"]["false_per_hour"],
         "own_model_idle_false_events_per_hour_arm_messages": test["idle_arm_messages"]["false_per_hour"],
