@@ -197,3 +197,29 @@ def test_inspect_names_the_early_heads(early_model, capsys):
     assert main(["inspect", str(path)]) == 0
     out = capsys.readouterr().out
     assert "early heads: at 4, 8 frames" in out
+
+
+def test_export_from_the_joblib_keeps_the_early_heads(early_model, tmp_path):
+    import joblib
+
+    from runtime.model import load_model
+    from trainer.export_cli import export_trained
+
+    path, _, heads, full = early_model
+    import onnx
+
+    from runtime.model import METADATA_KEY
+
+    meta = json.loads({p.key: p.value for p in onnx.load(str(path)).metadata_props}[METADATA_KEY])
+    saved = tmp_path / "model.joblib"
+    joblib.dump({"model": full, "metadata": {k: meta[k] for k in ("pads", "pad_sizes", "trigger")}, "early": heads},
+                saved)
+    again = load_model(export_trained(saved, tmp_path / "again.onnx"))
+    assert again.early == heads.spec
+
+
+def test_onset_to_report_per_class():
+    from trainer.streams_eval import per_class_delay
+
+    per = per_class_delay([3, 5, 7, 16, 15], ["pull", "pull", "pull", "bump", "bump"])
+    assert per["pull"]["median"] == 5 and per["bump"]["median"] == 15.5 and per["pull"]["p90"] == pytest.approx(6.6)

@@ -20,8 +20,9 @@ class ExportError(ValueError):
     """A trained-model file or option that cannot be exported."""
 
 
-def load_trained(path: str | Path):
-    """(fitted BowSVC/FlatSVC, metadata dict) from a joblib file; ExportError names what is wrong."""
+def load_trained(path: str | Path, with_early: bool = False):
+    """(fitted BowSVC/FlatSVC, metadata dict) from a joblib file; ExportError names what is wrong.
+    ``with_early``: also the early heads train saved beside the model (``trainer.early.EarlyHeads`` or None)."""
     import joblib
 
     path = Path(path)
@@ -42,12 +43,14 @@ def load_trained(path: str | Path):
     except Exception as exc:  # joblib/pickle raise many types for a broken file
         raise ExportError(f"{path}: not a readable joblib file ({type(exc).__name__}: {exc}); {give}") from exc
     metadata: dict = {}
+    early = None
     if isinstance(obj, dict) and "model" in obj:
         metadata = dict(obj.get("metadata") or {})
+        early = obj.get("early")  # trainer.early.EarlyHeads, when train fitted them
         obj = obj["model"]
     if not all(hasattr(obj, a) for a in ("svm_", "classes_")):
         raise ExportError(f"{path}: holds a {type(obj).__name__}, not a fitted BowSVC or FlatSVC")
-    return obj, metadata
+    return (obj, metadata, early) if with_early else (obj, metadata)
 
 
 def _other_kind(path: Path, head: bytes) -> str | None:
@@ -66,7 +69,7 @@ def export_trained(source: str | Path, out: str | Path, pads: str | None = None,
     from trainer.onnx_export import export_onnx, model_shape
 
     source = Path(source)
-    model, metadata = load_trained(source)
+    model, metadata, early = load_trained(source, with_early=True)
     _, n_channels = model_shape(model)
     if pads is not None or "pads" not in metadata:
         layout = SensorLayout.sdh2()
@@ -86,7 +89,7 @@ def export_trained(source: str | Path, out: str | Path, pads: str | None = None,
     ref_name = os.path.relpath(source.resolve(), out.resolve().parent)
     metadata["reference"] = {"file": ref_name, "sha256": hashlib.sha256(source.read_bytes()).hexdigest()}
     try:
-        return export_onnx(model, out, metadata, fold_derivative=fold_derivative)
+        return export_onnx(model, out, metadata, fold_derivative=fold_derivative, early=early)
     except ValueError as exc:
         raise ExportError(str(exc)) from exc
 
