@@ -8,7 +8,8 @@ model folder is only a warning, because the daemon is built to start without a m
 ``--require-model`` it exits 1 instead (for scripts that need a model in place).
 
 The daemon itself exits 0 after SIGTERM and 2 when the device URL turns out to be unusable
-(e.g. a transport's package is missing): retrying would never help.
+(e.g. a transport's package is missing): retrying would never help; 3 when a model's decision did
+not stop when ended (runtime.decision_guard): the model is quarantined first, so a restart helps.
 """
 
 from __future__ import annotations
