@@ -183,13 +183,13 @@ def test_the_arm_topic_and_joint_states_reach_the_daemon(tmp_path, caplog):
     try:
         assert wait_for(lambda: arm.get_subscription_count() >= 1 and joints.get_subscription_count() >= 1)
         arm.publish(String(data=" Moving\n"))
-        assert wait_for(lambda: daemon.arm_request == (True, "ros2"))
+        assert wait_for(lambda: daemon.detector.arm_request == (True, "ros2"))
         arm.publish(String(data="still"))
-        assert wait_for(lambda: daemon.arm_request == (False, "ros2"))
+        assert wait_for(lambda: daemon.detector.arm_request == (False, "ros2"))
         with caplog.at_level(logging.WARNING, logger="handover.ros2"):
             arm.publish(String(data="flying"))
             assert wait_for(lambda: "expected 'moving' or 'still'" in caplog.text, 5.0)
-        assert daemon.arm_request == (False, "ros2")
+        assert daemon.detector.arm_request == (False, "ros2")
 
         def state(t: float, position: list[float], velocity: list[float]) -> JointState:
             msg = JointState(name=["shoulder", "elbow"], position=position, velocity=velocity)
@@ -197,12 +197,12 @@ def test_the_arm_topic_and_joint_states_reach_the_daemon(tmp_path, caplog):
             return msg
 
         joints.publish(state(100.0, [0.0, 0.0], [0.0, 0.5]))  # the elbow turns at 0.5 rad/s
-        assert wait_for(lambda: daemon.arm_request == (True, "ros2"))
+        assert wait_for(lambda: daemon.detector.arm_request == (True, "ros2"))
         joints.publish(state(100.1, [0.0, 0.05], [0.0, 0.01]))
-        assert wait_for(lambda: daemon.arm_request == (False, "ros2"))
+        assert wait_for(lambda: daemon.detector.arm_request == (False, "ros2"))
         joints.publish(state(101.0, [0.0, 0.05], []))  # positions only: speed from the change
         joints.publish(state(101.1, [0.0, 0.10], []))  # 0.5 rad/s
-        assert wait_for(lambda: daemon.arm_request == (True, "ros2"))
+        assert wait_for(lambda: daemon.detector.arm_request == (True, "ros2"))
     finally:
         daemon.sinks.close()
         listener.close()
