@@ -26,7 +26,7 @@ import logging
 import signal
 import time
 from collections.abc import Callable
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from firmware_io.layout import SensorLayout
 from runtime.config import Config, ConfigError, load_config
@@ -44,7 +44,11 @@ from runtime.realtime import HotThread
 from runtime.reporter import Reporter
 from runtime.scene import events_problem, scene_problem
 from runtime.sdnotify import Notifier
-from runtime.sinks import Event, SinkSet
+from runtime.sinks import Event, ModelAnnouncement, SinkSet
+
+if TYPE_CHECKING:
+    from firmware_io.client import Frame
+    from runtime.model import LoadedModel
 
 __all__ = ["Daemon", "events_problem", "scene_problem"]  # the last two are re-exported for run --check
 
@@ -107,12 +111,12 @@ class Daemon:
         return self.reporter.sinks
 
     @property
-    def model(self) -> Any:
+    def model(self) -> LoadedModel | None:
         """The serving model (the detector's), or None."""
         return self.detector.model
 
     @property
-    def latest_frame(self) -> Any:
+    def latest_frame(self) -> Frame | None:
         """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
         return self.detector.latest_frame
 
@@ -139,7 +143,7 @@ class Daemon:
         self.detector.set_arm_moving(moving, source)
         self.messages.note("arm", "moving" if moving else "still", source)
 
-    def serve(self, model: Any, layout: SensorLayout) -> None:
+    def serve(self, model: LoadedModel, layout: SensorLayout) -> None:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame`` (no
         device, no watcher). Raises ValueError when the model cannot serve the configured scene."""
         self.models.serve(model, layout)
@@ -156,7 +160,7 @@ class Daemon:
         signal.signal(signal.SIGHUP, self.request_reload)
 
     # -- the hot path ---------------------------------------------------------------------------------
-    def handle_frame(self, frame: Any) -> None:
+    def handle_frame(self, frame: Frame) -> None:
         """One frame: the detector, and the decision it returns reported."""
         self.health.frames_received += 1
         for listener in self.listeners:
@@ -171,7 +175,7 @@ class Daemon:
         else:
             self.reporter.report(decision)
 
-    def _stuck(self, model: Any, reason: str) -> None:
+    def _stuck(self, model: LoadedModel, reason: str) -> None:
         """A decision that did not stop when ended: its file is quarantined before the process exits."""
         self.models.quarantine_now(model, reason)
 
@@ -233,7 +237,7 @@ class Daemon:
             self.status_file.write(snapshot)
         self.sinks.health(snapshot)
 
-    def _announce(self, announcement: Any) -> None:
+    def _announce(self, announcement: ModelAnnouncement) -> None:
         self.sinks.emit(announcement)
 
     def _stream_began(self, layout: SensorLayout) -> None:

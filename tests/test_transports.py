@@ -346,9 +346,8 @@ def test_hid_transport_polls_without_waiting_for_a_report(rec):
     a poll (read timeout 0) must come back at once on a quiet line."""
     device = EmulatedCp2110(DeviceEmulator(rec, speed=None))
     t = open_transport("hid://10c4:ea80", device=device)
-    started = time.monotonic()
     assert t.read(10, 0.0) == b""
-    assert time.monotonic() - started < 0.5 and not device.blocking
+    assert not device.blocking  # a blocking hidapi read would wait for the next report
     t.close()
 
 
