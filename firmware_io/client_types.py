@@ -12,6 +12,8 @@ import numpy as np
 
 from firmware_io.wire.errors import DSAError
 
+__all__ = ["Cancelled", "DSATimeout", "Frame"]
+
 
 class DSATimeout(DSAError):
     """The controller did not answer in time."""

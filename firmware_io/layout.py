@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = ["FULL_SCALE_12BIT", "LayoutError", "MatrixInfo", "SensorLayout"]
+
 FULL_SCALE_12BIT = 4095
 
 

@@ -17,6 +17,8 @@ import numpy as np
 
 from firmware_io.layout import FULL_SCALE_12BIT, SensorLayout
 
+__all__ = ["FrameCheck"]
+
 DISTAL_SHAPE = (13, 6)
 """(cells_y, cells_x) of the DSA 9205 distal pad."""
 

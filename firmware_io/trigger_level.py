@@ -4,6 +4,8 @@ It lives here, at the bottom of ``trainer -> runtime -> firmware_io``, so that t
 check a trial reaches it; ``runtime.trigger_settings`` takes it as the threshold trigger's level.
 """
 
+__all__ = ["PAPER_FRACTION", "is_trigger_level"]
+
 PAPER_FRACTION = 0.15
 """The paper's trigger level: any taxel at 15 % of full scale."""
 

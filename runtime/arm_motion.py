@@ -34,6 +34,8 @@ import logging
 import math
 from collections import deque
 
+__all__ = ["ArmMotion", "JointSpeed", "arm_frames", "log"]
+
 log = logging.getLogger("handover.daemon")
 
 NEVER = -(1 << 62)

@@ -15,6 +15,8 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
+__all__ = ["COMMANDS", "HelpFormatter", "OneLineParser", "build_parser", "main", "shows_default"]
+
 # name -> (module, one-line help, extra it needs beyond the daemon's install or None)
 COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "demo": ("trainer.demo_cli", "end-to-end demo on the simulated hand: simulate, train, export, emulate, detect", "train"),

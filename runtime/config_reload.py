@@ -8,6 +8,8 @@ import logging
 
 from runtime.config import Config
 
+__all__ = ["changed_sections", "set_log_level"]
+
 
 def changed_sections(old: Config, new: Config) -> str:
     """``changed: sinks, trigger`` (the config's tables and top-level keys that differ), or

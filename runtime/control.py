@@ -31,6 +31,8 @@ from pathlib import Path
 
 from runtime import control_access as access
 
+__all__ = ["MAX_DATAGRAM", "POLL_S", "ControlSocket", "MessageLog", "log", "parse_message"]
+
 log = logging.getLogger("handover.control")
 daemon_log = logging.getLogger("handover.daemon")
 

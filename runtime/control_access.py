@@ -18,6 +18,8 @@ import stat
 import struct
 from pathlib import Path
 
+__all__ = ["ANCILLARY_BYTES", "allow_credentials", "may_steer", "restrict", "sender_uid", "socket_path_problem"]
+
 MAX_ADDRESS_BYTES = 107
 """sun_path holds 108 bytes with the closing NUL (Linux)."""
 SOCKET_MODE = 0o600

@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+__all__ = ["add_arguments", "main"]
+
 PROG = "handover run"
 
 

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["ContinuousDecision", "margin_of"]
+
 
 class ContinuousDecision:
     """Per-frame labels and scores in, the class index to report (or -1) out."""

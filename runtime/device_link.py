@@ -22,6 +22,8 @@ from runtime.health import Health, one_line
 from runtime.retry_notes import RetryNotes
 from runtime.sdnotify import Notifier
 
+__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceLink", "default_client", "log"]
+
 log = logging.getLogger("handover.daemon")
 
 CONNECT_BOUND_S = 30.0

@@ -41,6 +41,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+__all__ = ["BLOCK", "FrameClock", "log"]
+
 log = logging.getLogger("handover.daemon")
 
 FASTER = 0.8

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = ["Health", "StatusFile", "log", "one_line", "write_json_atomically"]
+
 log = logging.getLogger("handover.health")
 ERROR_HISTORY = 8
 

@@ -11,6 +11,8 @@ import argparse
 import json
 import sys
 
+__all__ = ["add_arguments", "main"]
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", help="model file (.onnx)")

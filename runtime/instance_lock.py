@@ -23,6 +23,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+__all__ = ["Held", "InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "take_all", "targets"]
+
 
 class InstanceLockError(RuntimeError):
     """A lock is held by another daemon, or cannot be taken (one line saying which and what to do)."""

@@ -12,6 +12,8 @@ from __future__ import annotations
 import socket
 from urllib.parse import urlsplit
 
+__all__ = ["instance_problem"]
+
 MAX_LENGTH = 64
 
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+__all__ = ["DecisionTimings", "FrameListener", "FrameRecorder"]
+
 
 @dataclass(slots=True)
 class DecisionTimings:

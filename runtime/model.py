@@ -37,6 +37,12 @@ from runtime.onnx_wire import WireError, keep_outputs, summarize
 from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
 from runtime.trigger_settings import recorded_problems
 
+__all__ = [
+    "CODEWORD_KERNEL", "INPUT_NAME", "METADATA_KEY", "OUTPUT_NAMES", "SCHEMA_VERSION", "LoadedModel",
+    "ModelContractError", "ModelInputError", "ModelMeta", "ModelUnreadableError", "load_model", "optional_table",
+    "session_options"
+]
+
 SCHEMA_VERSION = 1
 METADATA_KEY = "handover"
 INPUT_NAME = "frames"

@@ -17,6 +17,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+__all__ = ["ResolvedTarget", "log", "resolve_problem"]
+
 log = logging.getLogger("handover.sinks")
 
 RETRY_S = 30.0

@@ -21,6 +21,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+__all__ = ["WireError", "WireSummary", "summarize"]
+
 
 class WireError(ValueError):
     """Bytes that are not a well-formed protobuf message."""

@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["MIN_CONTACT_TAXELS", "MIN_GRASP_FINGERS", "RELEASE_RISE", "OnsetTrigger"]
+
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
 TREND_GAIN = 0.25
 """The trend takes this share of the level's correction (Holt's beta)."""

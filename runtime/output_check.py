@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+__all__ = ["DEFAULT_BUDGET_FRACTION", "output_problem", "probe"]
+
 DEFAULT_BUDGET_FRACTION = 0.1
 """A decision may take at most this fraction of the model's sample period (3.1 ms at 32 Hz)."""
 TIMED_RUNS = 7

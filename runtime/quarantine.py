@@ -18,6 +18,8 @@ from pathlib import Path
 
 from runtime.health import write_json_atomically
 
+__all__ = ["QuarantineStore", "file_key", "log", "store_path"]
+
 log = logging.getLogger("handover.models")
 
 FILE_NAME = "quarantined-models.json"

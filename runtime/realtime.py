@@ -32,6 +32,8 @@ import contextlib
 import os
 from dataclasses import dataclass
 
+__all__ = ["DEFAULT_PRIORITY", "HotThread", "Scheduling", "current", "enter_realtime", "restore"]
+
 DEFAULT_PRIORITY = 20
 """The config's ``realtime_priority`` unless set (0 turns it off)."""
 

@@ -16,6 +16,8 @@ import re
 import time
 from collections.abc import Callable
 
+__all__ = ["RetryNotes"]
+
 REPEAT_NOTES_S = (60.0, 600.0, 3600.0)
 """The same failure is logged again this long after it began; after the last step, once per last step."""
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["RingBuffer", "column_runs"]
+
 
 def column_runs(columns: np.ndarray) -> tuple[tuple[int, int, int, int], ...]:
     """Contiguous runs of frame columns as (src_start, src_stop, dst_start, dst_stop)."""

@@ -19,6 +19,8 @@ from typing import Any
 from runtime.config import NO_SINK_LEFT, Ros2Config
 from runtime.sinks import Sink
 
+__all__ = ["availability_problem", "grasp_exposure", "log", "middleware_problem", "open_ros2_sink"]
+
 log = logging.getLogger("handover.ros2")
 
 EXTRA_HINT = "pip install 'tactile-handover[ros]' (deploy/INSTALL.md, section ROS 2)"

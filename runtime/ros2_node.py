@@ -40,6 +40,8 @@ from runtime.config import Ros2Config
 from runtime.ros2 import namespace_clash
 from runtime.sinks import Sink
 
+__all__ = ["Ros2Sink", "log", "pad_image", "pad_topic"]
+
 log = logging.getLogger("handover.ros2")
 
 GRASP_WORDS = {"closed": True, "open": False}

@@ -11,6 +11,8 @@ from typing import Any
 from firmware_io.layout import LayoutError, SensorLayout
 from runtime.config import FOLLOW_MODEL, Config, SceneConfig
 
+__all__ = ["events_problem", "scene_pads", "scene_problem"]
+
 RELOAD_HINT = "and reload (systemctl reload handover, i.e. SIGHUP)"
 
 

@@ -12,6 +12,8 @@ import os
 import socket
 import time
 
+__all__ = ["Notifier", "log"]
+
 log = logging.getLogger("handover.sdnotify")
 
 

@@ -22,6 +22,11 @@ from math import isfinite
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
+__all__ = [
+    "PROTOCOL_VERSION", "ClosedStdout", "Event", "ModelAnnouncement", "Sink", "SinkFull", "SinkSet", "StdoutSink",
+    "UdpSink", "UnixDatagramSink", "claim_stdout_for_events", "log"
+]
+
 if TYPE_CHECKING:
     from runtime.config import Ros2Config, SinksConfig
 

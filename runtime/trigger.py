@@ -20,6 +20,8 @@ import numpy as np
 from firmware_io.trigger_level import is_trigger_level
 from runtime.trigger_settings import DEFAULT_HYSTERESIS, PAPER_FRACTION
 
+__all__ = ["ContinuousTrigger", "ThresholdTrigger"]
+
 
 class ThresholdTrigger:
     """Fires when max(scene taxels) crosses ``on``; re-arms once it stayed below ``off`` for

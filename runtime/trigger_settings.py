@@ -26,6 +26,11 @@ from typing import Any
 from firmware_io.trigger_level import PAPER_FRACTION  # noqa: F401 - the threshold's default level, named here
 from runtime.config_keys import key, section_keys
 
+__all__ = [
+    "DEFAULT_HYSTERESIS", "DEFAULT_KIND", "HYSTERESIS_CAP", "TriggerSettings", "build_trigger",
+    "capped_hysteresis", "recorded_problems", "resolve_trigger"
+]
+
 _TRIGGER_KEYS = section_keys("trigger", config_only=False)
 DEFAULT_KIND: str = key("trigger.kind").default
 DEFAULT_HYSTERESIS: float = key("trigger.hysteresis").default

@@ -28,6 +28,8 @@ from sklearn.utils.validation import check_is_fitted
 from trainer.bow import as_cases
 from trainer.classifier import SVMHead, check_training_data
 
+__all__ = ["FEATURES_PER_PAD", "BaselineSVC", "HandFeatures", "pad_features"]
+
 FEATURES_PER_PAD = (
     "max", "mean", "median", "std",
     "fft_low", "fft_mid", "fft_high", "fft_log_energy",

@@ -15,6 +15,8 @@ import json
 
 from firmware_io.commands.errors import fail
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "bench"
 BENCHMARKS = ("pareto", "latency", "throughput", "hostile", "streams")
 """What ``all`` runs (``./dev bench``)."""

@@ -41,6 +41,11 @@ from sklearn.utils.validation import check_is_fitted
 
 from trainer.defaults import PAPER_MODEL
 
+__all__ = [
+    "BagOfWords", "active_series", "as_cases", "channel_groups", "check_case_shape", "derivative_windows",
+    "level_features", "nearest_words"
+]
+
 KMEANS_N_INIT = 3
 """k-means restarts: fixed so that a seed gives the same codebook everywhere."""
 

@@ -30,6 +30,11 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 
 from trainer.real_tasks import CHUNK_FRAMES, CONTACT_FRACTION, FULLSCALE, STRIDE, RealTask, T, cut_windows  # noqa: F401
 
+__all__ = [
+    "LATENCY_BUDGET_US", "MiniRocketCases", "ModelSpec", "done_check", "machine_info", "markdown", "pareto_front",
+    "plot", "run"
+]
+
 N_JOBS = 2
 LATENCY_BUDGET_US = 1e6 / 32.0 / 10.0
 """A tenth of a sample period: the recommended model must answer within it (p99)."""

@@ -14,6 +14,8 @@ from pathlib import Path
 from firmware_io.commands.errors import fail
 from trainer.shared_data import default_data_dir
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "compare"
 
 

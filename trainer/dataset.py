@@ -43,6 +43,12 @@ from runtime.trigger_settings import (
     resolve_trigger,
 )
 
+__all__ = [
+    "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
+    "dataset_trigger", "fingerprint", "load_dataset", "onset_start", "reason_counts", "rising_trigger",
+    "trigger_frame", "untriggered_lines"
+]
+
 ABOVE_FROM_START = "above the level from the first frame"
 NEVER = "never triggered"
 TOO_LATE = "triggered too late"

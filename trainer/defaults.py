@@ -15,6 +15,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+__all__ = [
+    "BOW_ALONE_KERNEL", "DEFAULT_MODEL", "PAPER_MODEL", "default_candidate_name", "default_classifier",
+    "describe_default", "paper_classifier"
+]
+
 DEFAULT_MODEL = {
     "families": ("hand", "stats"),
     "kernel": "linear",

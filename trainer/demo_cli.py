@@ -27,6 +27,8 @@ import numpy as np
 
 from firmware_io.commands.errors import fail
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "demo"
 SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
 STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60

@@ -32,6 +32,12 @@ from firmware_io.recordings.recording import Recording
 from trainer.dataset import fingerprint
 from trainer.defaults import PAPER_MODEL, paper_classifier
 
+__all__ = [
+    "ACTION_LATE_MAX", "ACTION_VIEW_MIN", "DORMANT", "IDLE_FOLDS", "TRANSITION_VISIBLE", "DormantDataset",
+    "action_starts", "build_dormant_dataset", "export", "fit_stream_model", "idle_windows", "in_view",
+    "leave_one_subject_out", "session_windows", "train", "trigger_windows"
+]
+
 DORMANT = "dormant"
 ACTION_VIEW_MIN = 7
 """An action window shows at least this many frames from the onset (about half of T = 15)."""

@@ -22,6 +22,8 @@ from pathlib import Path
 from firmware_io.commands.errors import fail
 from trainer.defaults import PAPER_MODEL
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "dormant"
 PART_S = 900.0
 """Idle evaluation streams are generated and replayed in parts of 15 min (bounded memory)."""

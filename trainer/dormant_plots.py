@@ -10,6 +10,8 @@ import numpy as np
 
 from runtime.trigger_settings import PAPER_FRACTION
 
+__all__ = ["false_by_source", "rule_grid", "timeline", "tradeoff"]
+
 MODE_COLORS = {"threshold": "tab:red", "baseline": "tab:orange", "continuous_plain": "tab:gray",
                "continuous": "tab:blue"}
 SOURCE_COLORS = {"arm_move": "#c6dbef", "regrasp": "#fdd0a2", "grasp": "#d9d9d9", "release": "#d9d9d9"}

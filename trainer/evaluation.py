@@ -18,6 +18,11 @@ from sklearn.metrics import confusion_matrix, precision_recall_fscore_support
 from sklearn.model_selection import train_test_split
 from threadpoolctl import threadpool_limits
 
+__all__ = [
+    "LOSO_NEEDS_A_SECOND_SUBJECT", "N_JOBS", "Split", "config1", "config2", "loso_skipped", "loso_splits",
+    "loso_unavailable", "per_class", "pooled_splits", "run_splits", "sweep", "tsne_embedding"
+]
+
 N_JOBS = 2
 
 

@@ -15,6 +15,8 @@ import hashlib
 import os
 from pathlib import Path
 
+__all__ = ["add_arguments", "main"]
+
 
 class ExportError(ValueError):
     """A trained-model file or option that cannot be exported."""

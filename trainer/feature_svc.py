@@ -22,6 +22,8 @@ from trainer.classifier import SVMHead, check_training_data
 from trainer.defaults import DEFAULT_MODEL
 from trainer.feature_weighting import check_feature_weighting, feature_weights
 
+__all__ = ["FAMILIES", "FeatureSVC"]
+
 FAMILIES = ("bow", "stats", "rocket", "hand", "image")
 
 

@@ -17,6 +17,8 @@ from sklearn.utils.validation import check_is_fitted
 from trainer.bow import check_case_shape
 from trainer.classifier import SVMHead, check_training_data
 
+__all__ = ["FlatSVC"]
+
 
 class FlatSVC(SVMHead, ClassifierMixin, BaseEstimator):
     """StandardScaler + SVC on the flattened ``(n_channels, n_timepoints)`` window.

@@ -18,6 +18,8 @@ from typing import Any
 from runtime.detector import DEFAULT_RATE_HZ
 from runtime.trigger_settings import PAPER_FRACTION
 
+__all__ = ["dataset_metadata", "defaults", "file_metadata", "provenance"]
+
 DEFAULT_FULLSCALE = 4095.0
 """The SDH-2 pads' 12-bit full scale, for a model whose maker did not record one."""
 

@@ -39,6 +39,11 @@ import numpy as np
 
 from trainer.onnx_export import folded_codebook, svm_pair_coefficients, vote_matrices
 
+__all__ = [
+    "SAFETY", "U32", "codeword_margins", "gamma", "rbf_decision_bounds", "reference", "svm_decision_bounds",
+    "window_codewords"
+]
+
 U32 = 2.0**-24
 SAFETY = 2.0
 

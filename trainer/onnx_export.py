@@ -43,6 +43,12 @@ import numpy as np
 
 from runtime.model import CODEWORD_KERNEL
 
+__all__ = [
+    "FEATURE_COLUMNS", "FEATURE_SCALES", "HISTOGRAM", "IR_VERSION", "OPSET", "build_graph", "export_onnx",
+    "feature_columns", "feature_scales", "features_nodes", "folded_codebook", "model_metadata", "model_shape",
+    "register_skl2onnx", "svm_pair_coefficients", "vote_matrices"
+]
+
 OPSET = 17
 IR_VERSION = 8
 HISTOGRAM = "histogram"

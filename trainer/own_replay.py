@@ -25,6 +25,8 @@ from firmware_io.recordings.recording import Recording
 from trainer import streams_eval as se
 from trainer.recorded_idle import idle_pieces, subject_of
 
+__all__ = ["held_out_replay", "replay_lines"]
+
 
 def stream_mode(dormant: bool, trigger_kind: str) -> str:
     """The stream setting (``streams_eval.MODES``) a trigger-mode model is replayed in."""

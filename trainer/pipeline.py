@@ -18,6 +18,8 @@ from typing import Any
 
 from trainer.train_options import TrainOptions, build_estimator
 
+__all__ = ["TrainResult", "evaluate", "load_or_simulate", "progress_bar", "say_to", "train"]
+
 
 @dataclass
 class TrainResult:

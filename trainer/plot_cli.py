@@ -15,6 +15,8 @@ from pathlib import Path
 from firmware_io.commands.errors import fail
 from runtime.trigger_settings import PAPER_FRACTION
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "plot"
 
 

@@ -24,6 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = [
+    "ALL_PADS", "CHUNK_FRAMES", "CONTACT_FRACTION", "FULLSCALE", "SLIP_SPLIT", "STRIDE", "RealTask", "T",
+    "cut_windows", "first_part_split", "grouped_task", "real_tasks", "temporal_blocks"
+]
+
 T = 15
 STRIDE = 8
 CHUNK_FRAMES = 96

@@ -12,6 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = [
+    "features_label", "model_label", "pct", "plot_confusion", "plot_model_vs_baseline", "plot_sweep", "plot_tsne",
+    "pooled_text", "write_markdown", "write_metrics"
+]
+
 DPI = 150
 WIDE = (8.0, 5.0)
 """Figure size in inches: at DPI 150, 1200 x 750 px, text at 11 pt readable on a screen."""

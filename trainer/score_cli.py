@@ -14,6 +14,8 @@ import sys
 
 from firmware_io.commands.errors import fail
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "score"
 
 

@@ -23,6 +23,11 @@ import numpy as np
 
 from trainer.train_options import TrainOptions, build_estimator
 
+__all__ = [
+    "CANDIDATES", "LATENCY_BUDGET_US", "ROCKET_SETTINGS", "Row", "Selection", "graph_latency", "markdown_lines",
+    "rank", "select_model"
+]
+
 LATENCY_BUDGET_US = 1000.0
 """Default budget: single-case p99 of the exported graph (a thirtieth of the 31.25 ms period)."""
 TIMING_REPEATS = 300

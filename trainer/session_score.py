@@ -16,6 +16,8 @@ from collections.abc import Iterable
 from firmware_io.emulator.script_file import SessionScript
 from trainer.streams_eval import Decision, session_outcomes
 
+__all__ = ["decisions_from_lines", "outcome_summary", "score", "summary_lines"]
+
 
 def decisions_from_lines(lines: Iterable[str], script: SessionScript,
                          instance: str | None = None) -> tuple[list[tuple[int, Decision]], int]:

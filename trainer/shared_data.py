@@ -9,6 +9,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+__all__ = ["default_data_dir"]
+
 ENV_VAR = "HANDOVER_SHARED_DATA"
 
 

@@ -28,6 +28,12 @@ import numpy as np
 
 from firmware_io.recordings.recording import Recording
 
+__all__ = [
+    "ARM_MODES", "DEFAULT_SETTING", "EARLY_FRAMES", "MODES", "Decision", "Truth", "apply_rule", "frame_decisions",
+    "latency_stats", "macro_f1", "merge_idle", "replay", "score", "session_outcomes", "source_hours",
+    "source_names", "truths_of"
+]
+
 MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous", "onset_arm",
          "onset_dormant_arm", "continuous_arm")
 ARM_MODES = ("onset_arm", "onset_dormant_arm", "continuous_arm")

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["stress_cases"]
+
 FULL = 4095.0
 
 

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["FOLD_LIMIT", "FeatureLayout", "RbfConstants", "linear_constants", "svm_nodes"]
+
 FOLD_LIMIT = 60.0
 """Largest ``gamma ||sv||^2`` folded into the coefficients: exp(-60) ~ 1e-26 stays a normal float32
 coefficient, and the exponent (at most ``gamma ||sv_m||^2``) stays far below float32's exp overflow (88)."""

@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "sweep"
 
 

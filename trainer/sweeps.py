@@ -14,6 +14,8 @@ from trainer.dataset import build_dataset
 from trainer.defaults import paper_classifier
 from trainer.evaluation import sweep
 
+__all__ = ["FULL_K", "FULL_T", "FULL_W", "QUICK_K", "QUICK_T", "QUICK_W", "run_sweeps"]
+
 QUICK_K = (4, 7, 10, 15, 20)
 QUICK_W = (3, 5, 7, 9)
 QUICK_T = (10, 15, 20)

@@ -26,6 +26,8 @@ from trainer.train_options import (
     parse_windows,
 )
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "train"
 
 

@@ -13,6 +13,11 @@ from dataclasses import dataclass, fields
 from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
 from trainer.feature_weighting import FEATURE_WEIGHTINGS
 
+__all__ = [
+    "ASSIGNMENTS", "FEATURE_WEIGHTING_CHOICES", "KERNELS", "TRIGGERS", "OptionsError", "TrainOptions",
+    "build_estimator", "parse_features", "parse_windows"
+]
+
 KERNELS = ("rbf", "linear")
 ASSIGNMENTS = ("hard", "soft")
 TRIGGERS = ("onset", "threshold")

@@ -8,6 +8,8 @@ from pathlib import Path
 
 from trainer.train_options import TrainOptions
 
+__all__ = ["figures", "headline", "metrics_of", "write_model"]
+
 
 def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict | None, selection, *, source: str,
                synthetic: bool) -> dict:

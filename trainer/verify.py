@@ -25,6 +25,11 @@ import numpy as np
 
 from trainer.numerics import SAFETY, reference
 
+__all__ = [
+    "BATCH", "Disagreement", "GraphRunner", "VerifyError", "VerifyReport", "WindowCheck",
+    "check_nonfinite_refused", "compare", "load_reference"
+]
+
 BATCH = 64
 """Windows per run of graph and reference: the float64 reference holds ~20 MB per batch of 64."""
 HIST_TOLERANCE = 1e-6

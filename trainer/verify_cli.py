@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+__all__ = ["add_arguments", "main"]
+
 STRIDE = 8
 SUBJECTS = 2
 """Defaults sized for a check after each training (a few thousand held-out windows, about a minute on

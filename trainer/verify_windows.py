@@ -16,6 +16,8 @@ import numpy as np
 
 from trainer.verify import BATCH, VerifyError
 
+__all__ = ["WindowStream", "recording_stream", "simulated_stream", "stress_windows", "trained_data_folder"]
+
 
 @dataclass
 class WindowStream:

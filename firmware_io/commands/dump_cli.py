@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 from firmware_io.commands.errors import DEVICE_ERROR, fail
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "dump"
 
 BURST_NOTE = "n/a (as fast as possible: the frames arrived together)"

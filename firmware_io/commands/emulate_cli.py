@@ -13,6 +13,8 @@ import time
 
 from firmware_io.commands.errors import fail
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "emulate"
 
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import sys
 
+__all__ = ["DEVICE_ERROR", "INTERRUPTED", "USER_ERROR", "fail"]
+
 USER_ERROR = 2
 """Bad option, bad file, bad URL: what the user can fix."""
 DEVICE_ERROR = 1

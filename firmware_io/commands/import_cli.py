@@ -12,6 +12,8 @@ import re
 import sys
 from pathlib import Path
 
+__all__ = ["add_arguments", "main"]
+
 PROG = "handover import"
 IDLE_SOURCES = ("open", "quiet", "grasp", "release", "arm_move", "regrasp")
 """``firmware_io.recordings.idle_stretches.SOURCES`` (tested equal; argparse needs them before any import)."""

@@ -9,6 +9,8 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+__all__ = ["out_folder_problem"]
+
 
 def out_folder_problem(folder: str | Path, option: str = "--out") -> str | None:
     """Create ``folder`` (and its parents) and check it takes files; None, or the line to print."""

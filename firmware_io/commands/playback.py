@@ -6,6 +6,8 @@ from __future__ import annotations
 from firmware_io.emulator.device import FaultPlan, FaultSpecError
 from firmware_io.transports.base import TransportError, parse_speed
 
+__all__ = ["playback_options"]
+
 
 def playback_options(speed: str, fault: str) -> tuple[float | None, FaultPlan]:
     """The playback speed (None: as fast as read) and the fault plan; ValueError with the line to print."""

@@ -20,6 +20,8 @@ from firmware_io.recordings.recording import ACTIONS
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "record"
 IDLE_ONLY_MINUTES = 20.0
 """``--idle-only`` without ``--idle-minutes``: a long idle session."""

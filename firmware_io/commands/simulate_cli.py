@@ -10,6 +10,8 @@ from pathlib import Path
 from firmware_io.commands.errors import DEVICE_ERROR, fail
 from firmware_io.commands.out_folder import out_folder_problem
 
+__all__ = ["add_arguments", "main"]
+
 COMMAND = "simulate"
 
 

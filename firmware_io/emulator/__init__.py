@@ -3,3 +3,5 @@
 device) and ``frame_source`` (the frames it sends: the simulated hand or a recording file).
 Its in-process transports (``sim://``, ``replay://``, ``subject://``) sit with every other
 transport in :mod:`firmware_io.transports`."""
+
+__all__: list[str] = []

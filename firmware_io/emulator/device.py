@@ -54,6 +54,8 @@ from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, PacketId, encode_ack
 from firmware_io.wire.parser import StreamParser
 from firmware_io.wire.requests import FLAG_PERSISTENT, AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
 
+__all__ = ["DeviceEmulator", "EmulatorStats", "FaultPlan", "FaultSpecError", "HostCommandParser"]
+
 NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
 OLD_FIRMWARE = 288  # R288: a single-frame request starts push mode
 FACTORY_SENSITIVITY = 0.5

@@ -17,6 +17,8 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording, RecordingError
 
+__all__ = ["load_source", "placeholder_session"]
+
 SIM = "sim"
 
 

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 from firmware_io.emulator.device import DeviceEmulator
 
+__all__ = ["EmulatedCp2110", "EmulatedUsbBackend"]
+
 FTDI_STATUS = b"\x01\x60"  # modem status, line status: what an idle FT232R reports
 FTDI_DEFAULT_LATENCY_MS = 16
 """An FTDI chip's latency timer after reset: it sends a packet that is not full (or its two status

@@ -23,6 +23,8 @@ import numpy as np
 
 from firmware_io.recordings.recording import Recording, Trial
 
+__all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", "write_script"]
+
 SCRIPT_VERSION = 1
 
 

@@ -22,6 +22,8 @@ import tty
 
 from firmware_io.emulator.device import DeviceEmulator
 
+__all__ = ["EmulatorServerError", "PtyEmulatorServer", "TcpEmulatorServer", "log"]
+
 POLL_S = 0.05  # longest wait before the loop looks at the stop flag again
 BAUD_CHECK_S = 0.1
 """How often the pty server reads the baud rate the host set."""

@@ -21,6 +21,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+__all__ = ["KEY", "encode", "marks_of", "moving_frames", "problem"]
+
 KEY = "arm_marks"
 ARM_SOURCE = "arm_move"
 

@@ -16,6 +16,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+__all__ = ["LimitError", "read_json", "read_npy"]
+
 CHUNK = 1 << 20
 MAX_JSON_DEPTH = 32
 """A recording header nests four levels (header, layout, matrices, mask rows)."""

@@ -29,6 +29,8 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
 
+__all__ = ["ACTIONS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all"]
+
 FORMAT_NAME = "handover-recording"
 FORMAT_VERSION = 1
 SUFFIX = ".hrec"

@@ -10,6 +10,8 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 
+__all__ = ["pad_name", "pad_sums", "sparkline", "trial_view"]
+
 BLOCKS = " ▁▂▃▄▅▆▇█"
 
 

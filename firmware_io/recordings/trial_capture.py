@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["LEAD_IN_SECONDS", "Capture", "DeviceLost", "capture_trial", "drain"]
+
 LEAD_IN_SECONDS = 1.0
 """Stream kept before the go cue: the held grasp. The onset trigger arms after 0.2 s without
 change (``trigger.settle_s`` in runtime/config_keys.py); 1 s leaves room for a grasp still settling

@@ -7,6 +7,14 @@
 
 from __future__ import annotations
 
+__all__ = [
+    "CONTACT_NOISE_REL", "FRAME_PERIOD_S", "FRICTION_BARE", "FULL_SCALE", "GAIN_SPREAD", "GRAVITY",
+    "IDLE_NOISE_SD", "IDLE_READING_MEAN", "IDLE_READING_SD", "RESPONSE_CEILING", "RESPONSE_CEILING_SD",
+    "RESPONSE_HILL_N", "RESPONSE_P50_KPA", "RUBBER_SPREAD_MM", "SCANS_PER_FRAME", "STAMP_BASE_JITTER_S",
+    "STAMP_LATE_MEAN_S", "STAMP_LATE_PROB", "STAMP_RESOLUTION_S", "STAMP_VERY_LATE_MEAN_S",
+    "STAMP_VERY_LATE_PROB", "TAPE_FRICTION_FACTOR", "TAPE_SPREAD_MM", "TEXEL_MM", "THRESHOLD"
+]
+
 # -- timing -------------------------------------------------------------------------------------
 FRAME_PERIOD_S = 0.03156
 """measured: mean PC time-stamp interval over all ~31 Hz .dsa files (170 903 intervals, gaps

@@ -13,6 +13,8 @@ import numpy as np
 
 from firmware_io.sim import constants as K
 
+__all__ = ["blur_width", "erf", "pad_pressure"]
+
 
 def erf(x: np.ndarray) -> np.ndarray:
     """Error function (Abramowitz & Stegun 7.1.26, |error| < 1.5e-7): numpy has none."""

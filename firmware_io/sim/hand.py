@@ -17,6 +17,8 @@ from firmware_io.sim.contact import blur_width, pad_pressure
 from firmware_io.sim.scenario import TrialSetup, half_widths
 from firmware_io.sim.sensor import HandSensor, average_scans, firmware_output, response
 
+__all__ = ["CREEP_GAIN", "CREEP_TAU_S", "SCAN_PERIOD_S", "Job", "creep", "render", "shear_tilt"]
+
 SCAN_PERIOD_S = K.FRAME_PERIOD_S / K.SCANS_PER_FRAME
 CHUNK_SCANS = 20000
 

@@ -18,6 +18,8 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording
 
+__all__ = ["contact_area", "frame_intervals", "load_real", "noise_floor", "real_dsa_files", "summarise"]
+
 MAX_INTERVAL_S = 0.1
 """Intervals longer than this are recording pauses, not jitter."""
 CONTACT_PAD_MIN = 100

@@ -12,6 +12,11 @@ import numpy as np
 
 from firmware_io.sim import constants as K
 
+__all__ = [
+    "FINGER_ANGLES", "OBJECTS", "OBJECT_MODELS", "POSES", "POSE_MODELS", "ObjectModel", "PoseModel", "Subject",
+    "TrialSetup", "grasp_force", "half_widths", "make_subject", "make_trial", "pose_load"
+]
+
 OBJECTS = ("ball", "cylinder", "plank")
 POSES = ("down", "up", "horizontal")
 

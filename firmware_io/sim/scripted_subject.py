@@ -26,6 +26,8 @@ from firmware_io.layout import SensorLayout
 from firmware_io.transports.base import DeviceUnavailable, ParsedURL, Transport, TransportError
 from firmware_io.transports.emulated import SUBJECT_SCHEME, EmulatedTransport, SubjectTransport
 
+__all__ = ["ScriptedSubject"]
+
 FRAME_PERIOD_S = 1 / 32
 
 

@@ -17,6 +17,8 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.sim import constants as K
 
+__all__ = ["HandSensor", "average_scans", "firmware_output", "response"]
+
 
 @dataclass(frozen=True)
 class HandSensor:

@@ -18,6 +18,8 @@ from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS, POSE_MODELS, POSES,
 from firmware_io.sim.streams import stream
 from firmware_io.sim.timing import frame_stamps
 
+__all__ = ["RELEASE_AFTER_S", "ScriptedEvent", "demo_script", "simulate_session"]
+
 GRASP_BEFORE_S = (0.9, 1.4)
 """the object is placed and grasped this long before the person acts."""
 RELEASE_AFTER_S = 1.8

@@ -11,6 +11,8 @@ import zlib
 
 import numpy as np
 
+__all__ = ["stream"]
+
 _KINDS = {"hand": 1, "subject": 2, "trial": 3, "timing": 4, "script": 5, "event": 6}
 
 

@@ -6,6 +6,8 @@ import numpy as np
 
 from firmware_io.sim import constants as K
 
+__all__ = ["frame_stamps"]
+
 
 def frame_stamps(n: int, rng: np.random.Generator, start: float = 0.0) -> np.ndarray:
     """``n`` strictly increasing stamps (seconds) with the jitter of the real recordings.

@@ -14,6 +14,11 @@ from types import TracebackType
 from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
+__all__ = [
+    "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "DeviceUnavailable", "EndOfStream", "MissingDependency",
+    "ParsedURL", "Transport", "TransportError", "parse_bool", "parse_number", "parse_speed", "parse_vid_pid"
+]
+
 DEFAULT_READ_SIZE = 4096
 
 

@@ -29,6 +29,8 @@ from firmware_io.transports.base import (
     parse_speed,
 )
 
+__all__ = ["SUBJECT_SCHEME", "EmulatedTransport", "ReplayTransport", "SimTransport", "SubjectTransport"]
+
 _COMMON = {"fault", "old_firmware", "loop", "start_ms"}
 SUBJECT_SCHEME = "subject"
 

@@ -32,6 +32,8 @@ from firmware_io.transports.base import (
     parse_vid_pid,
 )
 
+__all__ = ["DEFAULT_BAUD", "EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
+
 DEFAULT_BAUD = 115200
 MAX_DATA_REPORT = 63
 REPORT_SIZE = 64

@@ -24,6 +24,8 @@ from firmware_io.transports.base import (
     parse_number,
 )
 
+__all__ = ["SerialTransport"]
+
 DEFAULT_BAUD = 115200
 
 

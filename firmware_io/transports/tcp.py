@@ -21,6 +21,8 @@ from firmware_io.transports.base import (
     parse_number,
 )
 
+__all__ = ["TcpTransport"]
+
 DEFAULT_PORT = 13000
 HELD_ELSEWHERE = "another client, e.g. the daemon, may hold the device: it serves one host at a time"
 """Why a device closes or resets a connection before sending a byte (a controller serving one host)."""

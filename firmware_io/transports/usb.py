@@ -37,6 +37,8 @@ from firmware_io.transports.base import (
     parse_vid_pid,
 )
 
+__all__ = ["DEFAULT_BAUD", "EXTRA_HINT", "FTDI_LATENCY_MS", "UsbTransport", "ftdi_baud_divisor", "strip_ftdi_status"]
+
 DEFAULT_BAUD = 115200
 CHIPS = ("auto", "cdc", "ftdi", "cp210x", "raw")
 VENDOR_CHIPS = {0x0403: "ftdi", 0x10C4: "cp210x"}

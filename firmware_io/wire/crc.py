@@ -7,6 +7,8 @@ from array import array
 
 import numpy as np
 
+__all__ = ["CRC_TABLE", "crc16"]
+
 
 def _ccitt_table() -> tuple[int, ...]:
     table = []

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+__all__ = ["TimestampUnwrapper"]
+
 
 class TimestampUnwrapper:
     """Turns the device's wrapping u32 millisecond counter into a monotonic int.

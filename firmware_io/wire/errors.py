@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+__all__ = [
+    "ChecksumError", "DSAError", "DSAErrorCode", "DeviceError", "FrameDecodeError", "ProtocolError",
+    "RLECountError", "RLETooLongError", "RawLengthError"
+]
+
 
 class DSAErrorCode(IntEnum):
     SUCCESS = 0

@@ -9,6 +9,11 @@ import numpy as np
 from firmware_io.wire.errors import FrameDecodeError, RawLengthError, RLECountError, RLETooLongError
 from firmware_io.wire.packets import PacketId, encode_packet
 
+__all__ = [
+    "FRAME_HEADER_SIZE", "MAX_TEXEL_VALUE", "RLE_FLAG", "decode_frame_payload", "encode_frame",
+    "encode_frame_payload", "max_frame_payload", "rle_units"
+]
+
 FRAME_HEADER_SIZE = 5  # timestamp u32 + flags u8
 MAX_TEXEL_VALUE = 0x0FFF
 RLE_FLAG = 0x01

@@ -15,6 +15,11 @@ from enum import IntEnum
 from firmware_io.wire.crc import crc16
 from firmware_io.wire.errors import ChecksumError, DeviceError, DSAErrorCode, ProtocolError
 
+__all__ = [
+    "BOOT_TERMINAL_QUERY", "CRC_SIZE", "HEADER_SIZE", "PREAMBLE", "Packet", "PacketId", "check_reply",
+    "decode_packet", "encode_ack", "encode_packet", "error_code_of", "expect_size"
+]
+
 PREAMBLE = b"\xaa\xaa\xaa"
 HEADER_SIZE = 6  # preamble + id + length
 CRC_SIZE = 2

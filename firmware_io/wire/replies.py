@@ -11,6 +11,8 @@ from firmware_io.layout import MatrixInfo
 from firmware_io.wire.errors import ProtocolError
 from firmware_io.wire.packets import PacketId, check_reply, encode_packet, expect_size
 
+__all__ = ["ControllerInfo", "MatrixInfoReply", "MatrixMaskReply", "SensitivityReply", "SensorInfo", "ThresholdReply"]
+
 
 def _reply_prologue(payload: bytes, packet_id: int, sizes: int | tuple[int, ...], what: str) -> None:
     """Check the error code first (an error reply is only 2 bytes), then the size."""

@@ -8,6 +8,13 @@ from dataclasses import dataclass
 from firmware_io.wire.frames import MAX_TEXEL_VALUE, RLE_FLAG
 from firmware_io.wire.packets import PacketId, encode_packet, expect_size
 
+__all__ = [
+    "FLAG_PERSISTENT", "AcquisitionConfig", "SetSensitivityRequest", "SetThresholdRequest",
+    "get_sensitivity_request", "get_threshold_request", "matrix_index_of", "push_request",
+    "query_controller_info_request", "query_matrix_info_request", "query_sensor_info_request",
+    "read_matrix_mask_request", "single_frame_request", "stop_request"
+]
+
 ACQ_ENABLE = 0x80
 FLAG_PERSISTENT = 0x80
 FLAG_ALL_MATRICES = 0x02

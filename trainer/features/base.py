@@ -22,6 +22,10 @@ from sklearn.utils.validation import check_is_fitted
 from trainer.bow import as_cases, check_case_shape
 from trainer.features.signals import pad_shapes_for
 
+__all__ = [
+    "FeatureFamily", "OnnxParts", "columns_in_order", "join_parts", "pad_bounds", "scale_of_each", "slice_nodes"
+]
+
 
 def scale_of_each(columns: np.ndarray, scales: np.ndarray | None) -> np.ndarray:
     """Each feature column's scale, None (all 1) spelled out as ones (``OnnxParts``, ``FeatureLayout``)."""

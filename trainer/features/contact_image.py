@@ -15,6 +15,8 @@ import numpy as np
 from trainer.features.base import FeatureFamily
 from trainer.numerics import U32, gamma
 
+__all__ = ["ContactImage"]
+
 
 class ContactImage(FeatureFamily):
     """Per-taxel mean over the window / ``fullscale``; ``pad_sizes`` only check the channel count."""

@@ -19,6 +19,8 @@ from trainer.features.pad_batch import PadBatch, median_nodes, peak_nodes
 from trainer.features.pad_series import SeriesColumns, SeriesNeed, pad_series_nodes
 from trainer.numerics import SAFETY, U32, gamma
 
+__all__ = ["HandGraphFeatures", "pad_error_bounds"]
+
 
 class HandGraphFeatures(FeatureFamily):
     """The 14 hand-designed features per pad of ``trainer.baseline``, with ONNX nodes."""

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["PadBatch", "magnitude_nodes", "median_nodes", "peak_nodes"]
+
 
 @dataclass(frozen=True)
 class PadBatch:

@@ -16,6 +16,8 @@ from trainer.features.pad_series import STATS_SERIES, SeriesNeed, pad_series_nod
 from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds
 from trainer.numerics import U32, gamma
 
+__all__ = ["PadStats"]
+
 
 class PadStats(FeatureFamily):
     """Per-pad level statistics; ``pad_sizes`` (and optionally ``pad_shapes``) in channel order."""

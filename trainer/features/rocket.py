@@ -25,6 +25,8 @@ from trainer.features.base import FeatureFamily
 from trainer.features.signals import SIGNALS, pad_signals, signal_error_bounds, signal_nodes
 from trainer.numerics import SAFETY, U32, gamma
 
+__all__ = ["RandomConvPPV", "minirocket_kernels"]
+
 KERNEL_LENGTH = 9
 MAX_FIT_CASES = 2000
 """Cases whose outputs set the bias quantiles (a seeded subset beyond this)."""

@@ -20,6 +20,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+__all__ = ["CONTACT_FRACTION", "SIGNALS", "pad_shapes_for", "pad_signals", "signal_error_bounds", "signal_nodes"]
+
 SIGNALS = ("pressure", "area", "cx", "cy")
 CONTACT_FRACTION = 0.05
 """A taxel is in contact at 5 % of full scale (the window rule of the real tasks in the compare)."""

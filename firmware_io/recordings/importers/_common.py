@@ -6,6 +6,8 @@ import numpy as np
 
 from firmware_io.recordings.recording import RecordingError
 
+__all__ = ["MAX_12BIT", "check_allocation", "check_fullscale", "check_range", "describe_timing", "keep_increasing"]
+
 MAX_12BIT = 4095
 VALUES_PER_BYTE = 16
 """Most taxel values a file may decode to per byte of its (inflated) text. Why: a header may

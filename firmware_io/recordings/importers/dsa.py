@@ -40,6 +40,8 @@ from firmware_io.recordings.importers._common import (
 )
 from firmware_io.recordings.recording import Recording, RecordingError
 
+__all__ = ["MAX_XML_BYTES", "SUFFIX", "iter_dsa_files", "read_dsa"]
+
 SUFFIX = ".dsa"
 
 _FRAME_RE = re.compile(

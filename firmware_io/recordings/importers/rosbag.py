@@ -23,6 +23,8 @@ from firmware_io.layout import LayoutError, MatrixInfo, SensorLayout
 from firmware_io.recordings.importers._common import MAX_12BIT, check_range, describe_timing, keep_increasing
 from firmware_io.recordings.recording import Recording, RecordingError
 
+__all__ = ["MATRIX_MSGTYPE", "MSGTYPE", "read_rosbag", "typestore"]
+
 MSGTYPE = "schunk_sdh/msg/TactileSensor"
 MATRIX_MSGTYPE = "schunk_sdh/msg/TactileMatrix"
 
