@@ -10,6 +10,8 @@ first setting is the one the daemon runs it in by default (``[scene] mode = "tri
 
 from __future__ import annotations
 
+__all__ = ["SETTINGS", "describe", "served_settings"]
+
 SETTINGS = {
     "onset": "onset trigger; every window it starts is reported",
     "onset_dormant": "onset trigger; a window read as dormant is not reported",
