@@ -26,6 +26,8 @@ from typing import Any
 
 from runtime import realtime
 
+__all__ = ["DecisionGuard", "log"]
+
 log = logging.getLogger("handover.daemon")
 
 ESCALATE_S = 5.0

@@ -26,6 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = [
+    "EARLY_KEY", "NEVER", "EarlyRule", "EarlySpec", "EarlySpecError", "head_outputs", "is_head_output", "margin"
+]
+
 EARLY_KEY = "early"
 """The metadata key of the early heads (absent: a model without early heads, served as before)."""
 LABEL_PREFIX, SCORES_PREFIX = "label_at_", "scores_at_"

@@ -27,6 +27,11 @@ import numpy as np
 
 from runtime.early import NEVER, EarlySpec, margin
 
+__all__ = [
+    "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "RuleChoice", "answers", "cascade", "choose_rule",
+    "confidences", "earliness_score", "evaluate", "fit_early", "fit_stream_heads", "head_factory", "platt"
+]
+
 EARLY_POINTS = (4, 6, 8, 11)
 """Frames after the window's start at which a head decides (the full model answers at T)."""
 TARGET_LOSS = 0.02

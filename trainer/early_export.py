@@ -12,6 +12,8 @@ import numpy as np
 
 from runtime.early import head_outputs
 
+__all__ = ["add_heads"]
+
 
 def add_heads(proto, full_model, heads, points, T: int) -> None:
     """Append one head per point to ``proto``'s graph (in place), with outputs ``label_at_p``, ``scores_at_p``."""

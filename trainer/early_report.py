@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+__all__ = ["markdown_lines", "plot_curve"]
+
 
 def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
     """The report.md section of ``metrics["early"]``."""
