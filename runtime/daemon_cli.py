@@ -110,7 +110,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
     from runtime.scene import events_problem, scene_problem
 
     problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
-               or _control_problem(cfg))
+               or _control_problem(cfg) or _lock_problem(cfg))
     if problem:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
@@ -217,6 +217,13 @@ def _note_held_locks(cfg) -> None:
     for what, path in instance_lock.targets(cfg):
         if line := instance_lock.held_by_other(what, path):
             print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
+
+
+def _lock_problem(cfg) -> str | None:
+    """A lock path no daemon could take (a symbolic link, a FIFO, a folder): ``run`` would exit 2."""
+    from runtime import instance_lock
+
+    return next((line for what, path in instance_lock.targets(cfg) if (line := instance_lock.problem(what, path))), None)
 
 
 def _control_problem(cfg) -> str | None:

@@ -19,6 +19,7 @@ import errno
 import fcntl
 import hashlib
 import os
+import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,15 +71,32 @@ def _holder(path: Path) -> str:
     return f"pid {text}" if text.isdigit() else "unknown pid"
 
 
-def _open(path: Path) -> int:
-    path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-    return os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+def _open(path: Path, flags: int) -> int:
+    """Open a lock file that is a plain file of its own: never through a symbolic link (another user
+    may plant one in a shared temp folder), nor a second hard link (the pid written into it would
+    overwrite whatever file the name leads to), nor a FIFO (it would block the opener).
+    OSError with the line to print otherwise."""
+    try:
+        fd = os.open(path, flags | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OSError(f"{path} is a symbolic link: remove it (a lock is never followed elsewhere)") from None
+        if exc.errno == errno.EISDIR:
+            raise OSError(f"{path} is a folder: remove it (the lock is a file there)") from None
+        raise
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode) or info.st_nlink != 1:
+        os.close(fd)
+        kind = "a second name of another file" if stat.S_ISREG(info.st_mode) else "a special file"
+        raise OSError(f"{path} is {kind}, not a lock file of its own: remove it")
+    return fd
 
 
 def take(what: str, path: Path) -> Held:
     """Lock ``path`` for this process and write its pid there; InstanceLockError when another holds it."""
     try:
-        fd = _open(path)
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        fd = _open(path, os.O_RDWR | os.O_CREAT)
     except OSError as exc:
         raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}") from None
     try:
@@ -96,11 +114,11 @@ def take(what: str, path: Path) -> Held:
 
 def held_by_other(what: str, path: Path) -> str | None:
     """The line saying ``path`` is locked by another process, or None (the lock is not kept)."""
-    if not path.exists():
+    if not os.path.lexists(path):
         return None
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-    except OSError:
+        fd = _open(path, os.O_RDONLY)
+    except OSError:  # not a lock anyone holds (problem() says why the daemon would refuse it)
         return None
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
@@ -108,6 +126,18 @@ def held_by_other(what: str, path: Path) -> str | None:
         return f"{what} is in use by a running handover daemon ({_holder(path)}, lock {path})"
     finally:
         os.close(fd)
+    return None
+
+
+def problem(what: str, path: Path) -> str | None:
+    """Why no daemon could take the lock at ``path`` (a symbolic link, a FIFO, a folder, a second
+    hard link), or None; ``run --check`` says it rather than leave it to ``run``'s exit 2."""
+    if not os.path.lexists(path):
+        return None
+    try:
+        os.close(_open(path, os.O_RDONLY))
+    except OSError as exc:
+        return f"cannot take the lock of {what} at {path}: {exc.strerror or exc}"
     return None
 
 

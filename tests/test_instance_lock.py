@@ -134,3 +134,43 @@ def test_a_killed_holder_leaves_no_stale_lock_and_each_resource_counts_alone(tmp
     # the same device with other read options is the same device; another health file on another device is free
     assert instance_lock.device_lock_path("tcp://127.0.0.1:13000?x=1", env) == path
     assert instance_lock.device_lock_path("tcp://127.0.0.1:13001", env) != path
+
+
+def test_a_lock_name_planted_by_another_user_is_refused_and_what_it_leads_to_is_untouched(tmp_path):
+    """The per-user temp folder can be made by anyone before the daemon's first start: a symbolic
+    link or a second hard link at the lock's name must not have the daemon write its pid into the
+    file it leads to."""
+    env = _env(tmp_path)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    path = instance_lock.device_lock_path("tcp://127.0.0.1:13000", env)
+    path.parent.mkdir(parents=True)
+    path.symlink_to(victim)
+    with pytest.raises(instance_lock.InstanceLockError, match="is a symbolic link: remove it"):
+        instance_lock.take("device x", path)
+    path.unlink()
+    os.link(victim, path)
+    with pytest.raises(instance_lock.InstanceLockError, match="not a lock file of its own: remove it"):
+        instance_lock.take("device x", path)
+    assert victim.read_text() == "precious\n"
+    path.unlink()
+    path.mkdir()
+    with pytest.raises(instance_lock.InstanceLockError, match="is a folder: remove it"):
+        instance_lock.take("device x", path)
+
+
+def test_check_and_run_with_a_fifo_or_a_symlink_at_the_health_lock_say_one_line_and_never_hang(tmp_path):
+    cfg, env = _config(tmp_path), _env(tmp_path)
+    lock = instance_lock.health_lock_path(tmp_path / "status.json")
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    for plant in (lambda: os.mkfifo(lock), lambda: lock.symlink_to(victim)):
+        plant()
+        for more in (("--check",), ()):
+            done = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), *more],
+                                  capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+            lines = [line for line in done.stderr.splitlines() if line.strip()]
+            assert done.returncode == 2 and len(lines) == 1 and f"lock of health_file {tmp_path / 'status.json'}" \
+                in lines[0] and "remove it" in lines[0], (more, done.stderr)
+        lock.unlink()
+    assert victim.read_text() == "precious\n" and not (tmp_path / "status.json").exists()
