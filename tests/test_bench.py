@@ -99,16 +99,13 @@ def test_latency_quick(tmp_path, capsys):
     assert "a change of class" not in md and "confirm_frames" in md and "continuous_daemon_p999_us" in md
     assert continuous["handle_frame_no_decision"]["n"] == result["model"]["T"] - 1 and "first T - 1 frames" in md
     imps = result["implementations"]
-    # the graph, numpy and scikit-learn on the same windows, interleaved (trainer.bench.numpy_decision)
-    assert set(imps["back_to_back"]) == set(imps["solo"]) == {"onnxruntime", "numpy", "scikit-learn"}
-    # the headline is the graph alone (warm), not its interleaved figure
+    # the graph alone (one benchmark a question: the graph against scikit-learn is bench inference's)
+    assert set(imps["back_to_back"]) == set(imps["solo"]) == {"onnxruntime"}
+    # the headline is the graph alone (warm)
     assert printed["onnx_p50_us"] == result["implementations_distal"]["solo"]["onnxruntime"]["p50"]
     assert printed["onnx_p50_us_all_pads"] == imps["solo"]["onnxruntime"]["p50"]
-    assert imps["agreement_with_graph"] == {"numpy": 1.0, "scikit-learn": 1.0}
-    assert 0.0 <= imps["numpy_max_score_difference"] < 1e-3
-    assert all(imps[f"ratio_{s}"]["numpy"] > 0 for s in ("p50", "p99", "p999"))
-    assert printed["numpy_over_onnx_p50"] == imps["ratio_p50"]["numpy"] and printed["sklearn_over_onnx_p50"] > 1
-    assert "numpy, distal pads" in (tmp_path / "latency.md").read_text()
+    assert "numpy_over_onnx_p50" not in printed and "sklearn_over_onnx_p50" not in printed
+    assert "onnxruntime, distal pads" in (tmp_path / "latency.md").read_text()
     # the limits: a steady job can only be slowed by the machine; the split's scores are the whole graph's
     assert result["floor_p999_us"] >= result["daemon_p50_us"] * 0.99 and result["e2e_floor_p999_us"] > 0
     split = result["implementations_distal"]["per_frame_split"]

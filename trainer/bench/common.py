@@ -284,7 +284,7 @@ def train_default_model(folder: str | Path, seed: int = 0, quick: bool = False, 
     model = default_classifier(ds.pad_sizes, pad_shapes=shapes, random_state=seed, fullscale=ds.fullscale)
     model.fit(ds.X, ds.y)
     path = export_onnx(model, Path(folder) / name, export_metadata(ds, model, seed=seed))
-    joblib.dump(model, path.with_suffix(".joblib"))  # the fitted estimator: latency compares scikit-learn with it
+    joblib.dump(model, path.with_suffix(".joblib"))  # the fitted estimator beside its graph, as handover train leaves it
     return path
 
 

@@ -3,9 +3,8 @@
 Stages: ``latency_stages`` drives the real client (parser, decoder, plausibility check) and
 ``Daemon.handle_frame`` in this process, back to back and paced at 32 Hz, quiet and (``--load``)
 with two busy-loop processes; the daemon's own stamps (``runtime.listeners``) split each
-decision. The graph is compared in the same run with a numpy-only implementation of the same
-model and with the fitted scikit-learn estimator, one window at a time, for the default model
-on all pads and on the distal pads.
+decision. The graph alone is timed one window at a time, for the default model on all pads and
+on the distal pads (the graph against scikit-learn is ``handover bench inference``'s question).
 
 End to end: ``handover run`` in its own process reads an emulated DSACON32m (another process)
 over loopback TCP and sends each event to a UDP listener in this process. Latency = from the
@@ -101,16 +100,13 @@ def case_windows(model, recording) -> np.ndarray:
 
 
 def implementations(model_path: Path, stream, rounds: int, load: bool) -> dict:
-    """The graph, numpy and scikit-learn on the same windows: each alone (``solo``), interleaved back to
-    back and paced, quiet (and loaded)."""
+    """The graph on the stream's windows: alone (``solo``), back to back and paced, quiet (and loaded)."""
     from runtime.model import load_model
 
     model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
     fns = stages.comparators(model, model_path)
     windows = case_windows(model, stream)
-    out = {"agreement_with_graph": stages.agreement(fns, windows[:200], model.meta.classes),
-           "numpy_max_score_difference": stages.score_difference(fns, windows[:200]),
-           "solo": stages.solo(fns, windows, rounds),
+    out = {"solo": stages.solo(fns, windows, rounds),
            "back_to_back": stages.compare(fns, windows, rounds, paced=False),
            "paced_32hz": stages.compare(fns, windows, max(20, rounds // 10), paced=True),
            "paced_asleep": {"onnxruntime": stages.paced_alone(fns["onnxruntime"], windows, max(20, rounds // 10), False)},
@@ -120,9 +116,6 @@ def implementations(model_path: Path, stream, rounds: int, load: bool) -> dict:
         with harness.CpuLoad(2):
             out["back_to_back_load"] = stages.compare(fns, windows, max(20, rounds // 4), paced=False)
     out["per_frame_split"] = per_frame_split(model_path, windows, rounds)
-    graph = out["back_to_back"]["onnxruntime"]
-    for stat in ("p50", "p99", "p999"):
-        out[f"ratio_{stat}"] = {name: s[stat] / graph[stat] for name, s in out["back_to_back"].items()}
     return out
 
 
@@ -202,7 +195,7 @@ def run(args) -> dict:
                     result["stages_load"] = stages.stage_tables(model, dense, max(30, paced_decisions // 4))
         finally:
             realtime.restore(before)
-        say("latency: the graph against numpy and scikit-learn, all pads and distal pads ...")
+        say("latency: the graph alone, all pads and distal pads ...")
         result["implementations"] = implementations(model_path, dense, rounds, args.load)
         result["implementations_distal"] = implementations(distal_path, dense, rounds, False)
         result["heap"] = heap_figures()
@@ -266,12 +259,10 @@ def headline(res: dict) -> dict:
         "e2e_load_p99_us": load["e2e_us"]["p99"] if load else None,
         "rss_mb": res["e2e_32hz"]["rss_mb"],
         # the same windows, interleaved: these ratios hold on a noisy machine (None: not measured)
-        "numpy_over_onnx_p50": res["implementations"]["ratio_p50"].get("numpy"),
         # the limits: a steady job as long as the paced median, on this machine; the per-frame split
         "floor_p999_us": _floor(res, "paced"),
         "e2e_floor_p999_us": _floor(res, "e2e"),
         "split_p50_us": (res["implementations_distal"].get("per_frame_split") or {}).get("decision_with_its_frame_p50_us"),
-        "sklearn_over_onnx_p50": res["implementations"]["ratio_p50"].get("scikit-learn"),
         # early heads: every frame from the trigger to the report (trainer/bench/latency_early.py)
         "early_inside_window_p99_us": ((res.get("early_frames") or {}).get("early") or {}).get(
             "inside_window", {}).get("p99"),
@@ -393,22 +384,9 @@ def _implementation_lines(res: dict) -> list[str]:
                 ratios = " / ".join(f"{s[k] / graph[k]:.2f}" for k in ("p50", "p99", "p999"))
                 lines.append(f"| {name}, {pads} | {RHYTHMS[rhythm]} | {fmt_us(s['p50'])} | {fmt_us(s['p99'])} | "
                              f"{fmt_us(s['p999'])} | {s['n']} | {ratios} |")
-    lines.append("")
-    for key, pads in (("implementations", "all pads"), ("implementations_distal", "distal pads")):
-        imp = res[key]
-        diff = imp.get("numpy_max_score_difference")
-        lines.append(f"- {pads}: same class as the graph on the first 200 windows: "
-                     + ", ".join(f"{k} {100 * v:.1f} %" for k, v in imp["agreement_with_graph"].items())
-                     + ("" if diff is None else f"; numpy's scores within {diff:.1e} of the graph's") + ".")
-    lines += ["", "numpy: the same float32 arithmetic in plain numpy, every parameter read from the graph "
-              "(`trainer.bench.numpy_decision`); scikit-learn: the fitted estimator (float64).", "",
-              "Two ways of timing them on the same windows in the same process. **Alone** (`solo`): each "
-              "implementation in its own warm back-to-back block, nothing else between its calls, as the graph "
-              "runs in the daemon; `onnx_p50_us` and `onnx_p50_us_all_pads` are the graph's median here. "
-              "**Interleaved**: each window is decided by all three in turn, so load hits them alike and the "
-              "*ratios* hold where absolute figures do not (`numpy_over_onnx_p50`, `sklearn_over_onnx_p50`); but "
-              "every call then runs in caches the other two just filled, which inflates a call of a few tens of "
-              "microseconds by a factor of two to three: those medians are not what a decision costs.", "",
+    lines += ["", "**Alone** (`solo`): the graph in its own warm back-to-back block, nothing else between its "
+              "calls, as it runs in the daemon; `onnx_p50_us` and `onnx_p50_us_all_pads` are its median here. "
+              "The graph against scikit-learn: `handover bench inference` (results/inference.md).", "",
               "Alone, paced 32 Hz: the graph by itself, one window each sample period. **Asleep until the frame**: "
               "the thread blocks until the window's last frame arrives, as the daemon waits (and as the stage "
               "tables above do). **Warmed just before the frame**: the same window decided once "
@@ -506,7 +484,7 @@ def markdown(res: dict) -> list[str]:
               "that won `confirm_frames` frames in a row; docs/DORMANT.md), so their n is small; its "
               "`frames without a decision` are the first T - 1 frames, before the first window is full. "
               "Under load: two busy-loop processes, one per core.", "",
-              "## The graph against numpy and scikit-learn (one window, same run: alone and interleaved)", "",
+              "## The graph alone (one window)", "",
               *_implementation_lines(res), "", *_keep_warm_lines(res), *_limit_lines(res),
               "## End to end (emulator process -> loopback TCP -> `handover run` -> UDP -> listener)", "", *HEAD]
     for key, title in (("e2e_32hz", "end to end at 32 Hz"), ("e2e_32hz_load", "end to end at 32 Hz, under load"),

@@ -15,12 +15,8 @@ Two rhythms:
   windows (which only push and test the trigger) are fed back to back, so a run of a minute
   yields enough decisions for a p99.9.
 
-Beside the graph, the same windows are decided in the same run by a numpy-only implementation
-of the same model (``numpy_decision``) and by the fitted scikit-learn estimator, two ways:
-interleaved window by window (``compare``: noise hits all three alike, so their *ratios* hold on a
-noisy machine) and each alone in its own warm block (``solo``: what one implementation costs when
-it is the only work, as in the daemon; interleaving makes every call run in caches the other two
-just filled, which more than doubles a 70 us graph call).
+The graph alone is timed on the same windows (``comparators``), back to back in its own warm block
+(``solo``: what a decision costs when it is the only work, as in the daemon) and paced.
 """
 
 from __future__ import annotations
@@ -200,22 +196,10 @@ def declared_dormant(model_path: Path, out: Path, dormant: str) -> Path:
     return with_metadata(model_path, out, lambda meta: meta.update(dormant_class=dormant))
 
 
-# -- the graph against numpy and scikit-learn, one window at a time --------------------------------------
+# -- the graph alone, one window at a time -------------------------------------------------------------
 def comparators(model, model_path: Path) -> dict:
-    """name -> callable(window [T, C] float32): the graph as the daemon runs it, numpy, scikit-learn."""
-    from trainer.bench.numpy_decision import numpy_decision
-
-    out = {"onnxruntime": lambda w: model.run_trusted(w[None])}
-    decide = numpy_decision(model_path)
-    if decide is not None:
-        out["numpy"] = decide
-    estimator = model_path.with_suffix(".joblib")
-    if estimator.exists():
-        import joblib
-
-        fitted = joblib.load(estimator)
-        out["scikit-learn"] = lambda w: fitted.predict(w.T[None].astype(np.float64))
-    return out
+    """name -> callable(window [T, C] float32): the graph as the daemon runs it."""
+    return {"onnxruntime": lambda w: model.run_trusted(w[None])}
 
 
 def compare(fns: dict, windows: np.ndarray, rounds: int, paced: bool) -> dict:
@@ -276,23 +260,3 @@ def arrived(at: float, timeout: float) -> bool:
     if left > 0 and timeout > 0:
         time.sleep(min(timeout, left))
     return time.perf_counter() >= at
-
-
-def agreement(fns: dict, windows: np.ndarray, classes: tuple[str, ...]) -> dict:
-    """Share of windows on which each implementation's class equals the graph's (the scores of the
-    numpy one are checked against the graph's by ``score_difference``)."""
-
-    def name_of(answer) -> str:
-        first = np.asarray(answer[0] if isinstance(answer, tuple) else answer).ravel()[0]
-        return str(first) if isinstance(first, str | np.str_) else classes[int(first)]
-
-    graph = [name_of(fns["onnxruntime"](w)) for w in windows]
-    return {name: float(np.mean([name_of(fn(w)) == g for w, g in zip(windows, graph, strict=True)]))
-            for name, fn in fns.items() if name != "onnxruntime"}
-
-
-def score_difference(fns: dict, windows: np.ndarray) -> float | None:
-    """Largest |numpy score - graph score| over ``windows`` (None without a numpy implementation)."""
-    if "numpy" not in fns:
-        return None
-    return max(float(np.abs(fns["numpy"](w)[1] - fns["onnxruntime"](w)[1][0]).max()) for w in windows)
