@@ -66,6 +66,8 @@ class ArmMotion:
         """``arm moving`` spans ended because no message came for ``max_move_frames``."""
         self.dropped = 0
         """Windows judged dormant because they held frames of the arm's motion."""
+        self._last = NEVER
+        """The frame number of the previous ``update``."""
 
     def request(self, moving: bool) -> None:
         """The robot's word; applied at the next frame (thread-safe: one deque append)."""
@@ -79,6 +81,13 @@ class ArmMotion:
 
     def update(self, number: int) -> None:
         """Hot path, once per admitted frame ``number`` (the model's frame count)."""
+        if self._last != NEVER and number <= self._last:
+            # the count starts afresh (a new device client): carry the span over as if this frame followed
+            # the last one; in the old count a past move would hold every window until the new one passed it
+            shift = number - self._last - 1
+            self._since = max(NEVER, self._since + shift)
+            self.last_motion = max(NEVER, self.last_motion + shift)
+        self._last = number
         while self._requests:
             moving = self._requests.popleft()
             if moving:

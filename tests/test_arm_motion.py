@@ -289,3 +289,35 @@ def test_a_piece_of_a_recording_keeps_its_marks_and_the_state_it_starts_in():
     assert arm_marks.piece_marks(meta, 10, 4, 9) == [[0, 1], [2, 0], [4, 1]]
     assert arm_marks.piece_marks(meta, 10, 6, 7) == []
     assert arm_marks.piece_marks({}, 10, 0, 9) == []
+
+
+def test_a_device_count_that_starts_afresh_does_not_leave_the_daemon_deaf_to_a_past_arm_move(tmp_path):
+    """A new device client (another device URL on SIGHUP) counts frames from 0 again: an arm move
+    said at frame 100190 of the old count must not hold every window of the new one."""
+    import dataclasses
+
+    from tests.test_onset import LAYOUT
+
+    daemon, events = _daemon(tmp_path)
+    for frame in _frames(grasp_levels(300)):
+        frame = dataclasses.replace(frame, number=frame.number + 100_000)
+        if frame.number in (100_190, 100_230):
+            daemon.set_arm_moving(frame.number == 100_190, source="test")
+        daemon.handle_frame(frame)
+    daemon.detector.fit(LAYOUT)
+    levels = grasp_levels(700)
+    _push(levels, 500)
+    for frame in _frames(levels):
+        daemon.handle_frame(frame)
+    assert len(events) == 1 and 500 <= events[0].frame_first <= 502 and daemon.detector.arm.dropped == 0
+
+
+def test_a_count_that_starts_afresh_keeps_the_settle_time_and_a_move_in_progress():
+    arm = ArmMotion(settle_frames=5, max_move_frames=50)
+    assert _feed(arm, {95: True}, 100) == list(range(95, 100))
+    inside = []
+    for i in range(60):  # numbers from 0 again; still moving, expires 50 frames after 'arm moving'
+        arm.update(i)
+        if arm.touches(i):
+            inside.append(i)
+    assert inside == list(range(0, 45 + 5)) and arm.expired == 1
