@@ -33,6 +33,10 @@ __all__ = [
 EARLY_KEY = "early"
 """The metadata key of the early heads (absent: a model without early heads, served as before)."""
 LABEL_PREFIX, SCORES_PREFIX = "label_at_", "scores_at_"
+MAX_POINTS = 16
+"""The most early heads a model may carry: each one is a session of its own (load time and memory per
+head), so a file claiming hundreds would hold the model watcher (and ``run --check``) for minutes
+before its warm-up could refuse it; training fits a handful (trainer.early.EARLY_POINTS)."""
 NEVER = 1.01
 """A threshold above every probability: the rule that always waits for T (what training chooses when no
 early rule keeps the accuracy)."""
@@ -70,6 +74,9 @@ class EarlySpec:
         if (not isinstance(points, list) or not points
                 or any(isinstance(p, bool) or not isinstance(p, int) for p in points)):
             raise EarlySpecError(f"{EARLY_KEY}.points must be a non-empty list of frame counts, got {points!r}")
+        if len(points) > MAX_POINTS:
+            raise EarlySpecError(f"{EARLY_KEY}.points lists {len(points)} heads, at most {MAX_POINTS} are served; "
+                                 "train with fewer early points")
         if sorted(set(points)) != points or points[0] < 2 or points[-1] >= T:
             raise EarlySpecError(f"{EARLY_KEY}.points {points} must ascend, each from 2 to T-1={T - 1}")
         if (not isinstance(calib, list) or len(calib) != len(points)

@@ -223,3 +223,44 @@ def test_onset_to_report_per_class():
 
     per = per_class_delay([3, 5, 7, 16, 15], ["pull", "pull", "pull", "bump", "bump"])
     assert per["pull"]["median"] == 5 and per["bump"]["median"] == 15.5 and per["pull"]["p90"] == pytest.approx(6.6)
+
+
+def _tiny_with_heads(T: int, points: list[int]) -> bytes:
+    """A tiny model whose early heads answer like its full model (Identity outputs), one per point."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from tests.tiny_models import tiny_model_bytes
+
+    proto = onnx.load_from_string(tiny_model_bytes(T=T))
+    for p in points:
+        proto.graph.node.extend([helper.make_node("Identity", ["label"], [f"label_at_{p}"]),
+                                 helper.make_node("Identity", ["scores"], [f"scores_at_{p}"])])
+        proto.graph.output.extend([helper.make_tensor_value_info(f"label_at_{p}", TensorProto.INT64, ["N"]),
+                                   helper.make_tensor_value_info(f"scores_at_{p}", TensorProto.FLOAT, ["N", 4])])
+    meta = json.loads(proto.metadata_props[0].value)
+    meta["early"] = {"points": points, "calibration": [[1.0, 0.0]] * len(points), "threshold": 0.9, "agree": False}
+    del proto.metadata_props[:]
+    helper.set_model_props(proto, {"handover": json.dumps(meta)})
+    return proto.SerializeToString()
+
+
+def test_a_file_claiming_hundreds_of_early_heads_is_refused_before_one_session_is_built(tmp_path, monkeypatch):
+    """Each head is a session of its own: 998 heads held the watcher for 49 s and 270 MB before the
+    warm-up bound refused it. The metadata is refused first, in one line."""
+    import onnxruntime as ort
+
+    from runtime.early import MAX_POINTS
+    from runtime.model import ModelContractError, load_model
+
+    many = tmp_path / "many.onnx"
+    many.write_bytes(_tiny_with_heads(200, list(range(2, 200))))
+    built = []
+    real = ort.InferenceSession
+    monkeypatch.setattr(ort, "InferenceSession", lambda *a, **k: built.append(1) or real(*a, **k))
+    with pytest.raises(ModelContractError, match=f"198 heads, at most {MAX_POINTS}") as info:
+        load_model(many)
+    assert "\n" not in str(info.value) and len(built) <= 1  # the whole graph once, to read its metadata
+    enough = tmp_path / "enough.onnx"
+    enough.write_bytes(_tiny_with_heads(30, list(range(2, 2 + MAX_POINTS))))
+    assert len(load_model(enough).early.points) == MAX_POINTS
