@@ -127,3 +127,62 @@ def test_the_script_names_each_event_and_maps_device_time_to_frames(tmp_path):
     path.write_text('{"type": "decision"}\n')
     with pytest.raises(ScriptFileError, match="no script header"):
         read_script(path)
+
+
+def _score(events: Path, script: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "runtime.cli", "score", str(events), str(script)],
+                          capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                          timeout=120)
+
+
+def test_garbled_numbers_in_a_script_or_the_events_are_one_line_and_never_hang(tmp_path):
+    """Numbers JSON allows but no emulator writes (1e400 is infinite, 10^30 overflows an int64, a loop
+    of 1 ms, a device time of 10^18 ms on a looping script) were tracebacks or hours of work."""
+    rec = simulate_session(demo_script(2, seed=1), seed=1)
+    good = tmp_path / "good.script"
+    write_script(good, rec, loop=True, source="sim")
+    head, *rest = good.read_text().splitlines()
+    ms = int(session_script(rec).frame_ms[40])
+    events = tmp_path / "events.jsonl"
+    events.write_text(json.dumps({"type": "decision", "class": "pull", "device_time_ms": ms}) + "\n")
+    assert _score(events, good).returncode == 0
+    meta = json.loads(head)
+    garbled = {"clock_inf": head.replace(f'"clock_start_ms": {meta["clock_start_ms"]}', '"clock_start_ms": 1e400'),
+               "frame_huge": head.replace('"frame_ms": [0,', f'"frame_ms": [{10 ** 30},'),
+               "loop_1ms": json.dumps({**meta, "loop_ms": 1}), "loop_negative": json.dumps({**meta, "loop_ms": -5})}
+    for name, text in garbled.items():
+        assert text != head, name
+        path = tmp_path / f"{name}.script"
+        path.write_text("\n".join([text, *rest]) + "\n")
+        done = _score(events, path)
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2 and len(lines) == 1 and "write it again with handover emulate" in lines[0], \
+            (name, done.stderr)
+    trial = json.loads(rest[0])
+    for name, line in {"time_inf": '{"type": "decision", "class": "pull", "device_time_ms": 1e400}',
+                       "trial_inf": None}.items():
+        if line is None:
+            bad_script = tmp_path / "trial_inf.script"
+            bad_script.write_text("\n".join([head, json.dumps(trial).replace(
+                f'"first_frame": {trial["first_frame"]}', '"first_frame": 1e400'), *rest[1:]]) + "\n")
+            done = _score(events, bad_script)
+            assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+            continue
+        bad = tmp_path / f"{name}.jsonl"
+        bad.write_text(events.read_text() + line + "\n")
+        done = _score(bad, good)
+        assert done.returncode == 0 and "1 lines were not event lines" in done.stdout and not done.stderr, done.stderr
+    far = tmp_path / "far.jsonl"
+    far.write_text(events.read_text() + json.dumps({"type": "decision", "class": "pull", "device_time_ms": 10 ** 18}) + "\n")
+    done = _score(far, good)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "passes of the script" in lines[0], done.stderr
+
+
+def test_a_script_out_naming_a_folder_leaves_no_temporary_file(tmp_path):
+    rec = simulate_session(demo_script(2, seed=1), seed=1)
+    folder = tmp_path / "scripts"
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError):
+        write_script(folder, rec)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scripts"]

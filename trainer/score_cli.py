@@ -17,6 +17,9 @@ from firmware_io.commands.errors import fail
 __all__ = ["add_arguments", "main"]
 
 COMMAND = "score"
+MAX_PASSES = 100_000
+"""Passes of a looping script one score covers (each is expanded): days of a session; a stamp of 1e18 ms
+would be 10^14 passes, hours of work and memory."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +48,11 @@ def main(args: argparse.Namespace) -> int:
     decisions, skipped = decisions_from_lines(lines, script, args.instance)
     if not script.trials:
         return fail(COMMAND, f"{args.script}: the session has no scripted events to score against")
+    passes = {loop for loop, _ in decisions}
+    if passes and max(passes) - min(passes) >= MAX_PASSES:  # each pass between is scored: a garbled time
+        return fail(COMMAND, f"{args.events}: its decisions span {max(passes) - min(passes) + 1} passes of the "
+                    f"script (at most {MAX_PASSES} are scored); a line's device_time_ms is garbled, or the events "
+                    "are not from this session")
     o = score(decisions, script)
     summary = {"synthetic": script.synthetic, "decisions": len(decisions), "lines_skipped": skipped,
                "passes": o["passes"], **outcome_summary(o)}

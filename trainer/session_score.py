@@ -38,7 +38,7 @@ def decisions_from_lines(lines: Iterable[str], script: SessionScript,
         try:
             loop, frame = script.frame_of(int(obj["device_time_ms"]))
             out.append((loop, Decision(frame, str(obj["class"]), float(obj.get("latency_us", 0.0)))))
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):  # OverflowError: a time of 1e400
             skipped += 1
     return out, skipped
 

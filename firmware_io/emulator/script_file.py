@@ -79,8 +79,12 @@ def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: 
                                  "time_s": t.extra.get("onset_s")}))
     p = Path(path)
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, p)
+    try:
+        tmp.write_text("\n".join(lines) + "\n")
+        os.replace(tmp, p)
+    except OSError:  # e.g. FILE names a folder: leave nothing behind
+        tmp.unlink(missing_ok=True)
+        raise
     return len(script.trials)
 
 
@@ -108,7 +112,20 @@ def read_script(path: str | os.PathLike) -> SessionScript:
                   for r in rows[1:] if isinstance(r, dict) and r.get("type") == "scripted"]
         frame_ms = np.asarray(head["frame_ms"], dtype=np.int64)
         loop_ms = None if head.get("loop_ms") is None else int(head["loop_ms"])
-        return SessionScript(trials, frame_ms, int(head["clock_start_ms"]), loop_ms, bool(head.get("synthetic")))
-    except (KeyError, TypeError, ValueError) as exc:
+        script = SessionScript(trials, frame_ms, int(head["clock_start_ms"]), loop_ms, bool(head.get("synthetic")))
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:  # OverflowError: 1e400, a 30-digit number
         raise ScriptFileError(f"{p}: a script line lacks or garbles {exc}; write it again with handover emulate "
                               "--script-out") from None
+    if problem := _script_problem(script):
+        raise ScriptFileError(f"{p}: {problem}; write it again with handover emulate --script-out")
+    return script
+
+
+def _script_problem(script: SessionScript) -> str | None:
+    """What no ``write_script`` writes (a hand-edited or damaged file), or None."""
+    ms = script.frame_ms
+    if ms.ndim != 1 or not len(ms):
+        return "frame_ms must list the frames' times in ms from the first"
+    if script.loop_ms is not None and script.loop_ms <= int(ms[-1]):  # else each ms would be a pass
+        return f"loop_ms {script.loop_ms} must be longer than the session ({int(ms[-1])} ms)"
+    return None
