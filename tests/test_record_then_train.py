@@ -26,7 +26,7 @@ def recorded(tmp_path_factory):
     for name, seed in SUBJECTS.items():
         code = handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name,
                          "--out", str(data), "--runs", "1", "--auto", "--retries", "0", "--gap", "0",
-                         "--quiet", "--no-look"])
+                         "--quiet", "--no-look", "--idle-minutes", "0"])  # the trials only (idle: test_own_data_model)
         assert code == 0
     return data
 

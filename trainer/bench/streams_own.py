@@ -44,6 +44,7 @@ CRITERION = ("utility = right first reports - wrong first reports - repeats - re
              "idle stream (seed + 2); every bad report costs what a good one gains (the streams bench's rule); "
              "ties: the cut in code")
 OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events_per_hour_arm_messages",
+            "own_model_idle_false_events_per_hour_full_window",
             "own_model_demo_events_correct_fraction", "own_model_demo_events_outside",
             "own_model_real_idle_false_events_per_hour", "own_model_dormant_cut")
 """The headline keys this bench writes into results/streams.json too."""
@@ -128,18 +129,22 @@ def test_streams(model, seed: int, s: dict, say) -> dict:
 
     mode = "onset_dormant" if model.meta.dormant_class else "onset"
     n_parts = max(1, round(3600.0 * s["test_idle_h"] / PART_S))
-    plain, arm = [], []
+    plain, arm, full = [], [], []
     for p in range(n_parts):
         say(f"streams_own: test idle stream part {p + 1}/{n_parts} (synthetic, seed {seed}) ...")
         rec = simulate_idle(3600.0 * s["test_idle_h"] / n_parts, seed=seed, part=p)
         names = se.source_names(rec, rec.n_frames)
         plain.append(se.score(se.replay(rec, model, mode), [], rec.n_frames, FRAME_PERIOD_S, names))
         arm.append(se.score(se.replay(rec, model, f"{mode}_arm"), [], rec.n_frames, FRAME_PERIOD_S, names))
+        if getattr(model, "early", None) is not None:  # the same model answering only at the full window
+            full.append(se.score(se.replay(rec, model, mode, scene={"early_events": []}), [], rec.n_frames,
+                                 FRAME_PERIOD_S, names))
     say(f"streams_own: test mixed stream, {s['test_events']} events ...")
     mixed = simulate_mixed(demo_script(s["test_events"], seed=seed, gap=(10.0, 20.0)), seed=seed)
     m = se.score(se.replay(mixed, model, mode), se.truths_of(mixed), mixed.n_frames, FRAME_PERIOD_S,
                  se.source_names(mixed, mixed.n_frames))
     return {"mode": mode, "idle": se.merge_idle(plain), "idle_arm_messages": se.merge_idle(arm),
+            "idle_full_window": se.merge_idle(full) if full else None,
             "mixed": {k: m[k] for k in ("n_events", "correct", "wrong_class", "missed", "duplicates", "false_events",
                                         "correct_rate", "delay_frames", "false_by_source")}}
 
@@ -189,6 +194,7 @@ def run(args) -> dict:
     out = {
         "own_model_idle_false_events_per_hour": test["idle"]["false_per_hour"],
         "own_model_idle_false_events_per_hour_arm_messages": test["idle_arm_messages"]["false_per_hour"],
+        "own_model_idle_false_events_per_hour_full_window": (test["idle_full_window"] or {}).get("false_per_hour"),
         "own_model_demo_events_correct_fraction": demo["correct_fraction"],
         "own_model_demo_events_outside": demo["outside"],
         "own_model_real_idle_false_events_per_hour": real["false_per_hour"] if real else None,

@@ -36,7 +36,10 @@ def markdown(r: dict) -> list[str]:
         f"- synthetic idle test stream of `handover bench streams` ({test['idle']['idle_hours']:.2f} h, seed "
         f"{r['seed'] + 1}): **{_rate(r['own_model_idle_false_events_per_hour'])} false events per hour** "
         f"(the demo's simulator-trained model: {_rate(r['demo_model_idle_false_events_per_hour'])}); with the robot's "
-        f"`arm moving` / `arm still`: {_rate(r['own_model_idle_false_events_per_hour_arm_messages'])} per hour",
+        f"`arm moving` / `arm still`: {_rate(r['own_model_idle_false_events_per_hour_arm_messages'])} per hour"
+        + (f"; answering only at the full window (`[scene] early_events = []`, no early heads' reports): "
+           f"{_rate(r['own_model_idle_false_events_per_hour_full_window'])} per hour"
+           if r.get("own_model_idle_false_events_per_hour_full_window") is not None else ""),
         f"- the demo's scripted session (40 events, unseen subjects, synthetic): {demo['correct']} of "
         f"{demo['expected']} right ({_pct(demo['correct_fraction'])}), {demo['missed']} missed, {demo['outside']} "
         "outside any event",
