@@ -321,3 +321,22 @@ def test_a_count_that_starts_afresh_keeps_the_settle_time_and_a_move_in_progress
         if arm.touches(i):
             inside.append(i)
     assert inside == list(range(0, 45 + 5)) and arm.expired == 1
+
+
+def test_the_labs_replay_uses_the_robots_stored_marks_not_only_the_arm_move_stretches(tmp_path):
+    """A recording made with ``record --control``: the robot said the arm moved over a stretch labelled
+    quiet; the held-out replay with the arm messages judges that push dormant, without them it is false."""
+    from firmware_io.layout import SensorLayout
+    from firmware_io.recordings.idle_stretches import idle_meta
+    from firmware_io.recordings.recording import Recording
+    from tests.test_onset import _onset_model
+    from trainer.own_replay import replay_recording
+
+    levels = grasp_levels(500)
+    _push(levels, 200)
+    frames = np.stack([f.values for f in _frames(levels)])
+    meta = idle_meta(len(frames), [{"first": 0, "last": len(frames) - 1, "source": "quiet", "index": 0}])
+    meta[arm_marks.KEY] = [[190, 1], [230, 0]]
+    rec = Recording(SensorLayout.sdh2(), frames, np.arange(len(frames)) / 32.0, [], meta)
+    out = replay_recording(rec, _onset_model(tmp_path), "onset")
+    assert out["false_by_source"] == {"quiet": 1} and out["false_by_source_arm_messages"] == {}

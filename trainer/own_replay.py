@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.recordings import arm_marks
 from firmware_io.recordings.recording import Recording
 from trainer import streams_eval as se
 from trainer.recorded_idle import idle_pieces, subject_of
@@ -77,7 +78,8 @@ def replay_recording(rec: Recording, model, mode: str) -> dict:
     arm_mode = f"{mode}_arm" if f"{mode}_arm" in se.ARM_MODES else None
     for first, last, _ in idle_pieces(rec):
         piece = _segment(rec, first, last, {"sources": rec.meta["sources"],
-                                            "source_codes": rec.meta["source_codes"][first:last + 1]})
+                                            "source_codes": rec.meta["source_codes"][first:last + 1],
+                                            arm_marks.KEY: arm_marks.piece_marks(rec.meta, rec.n_frames, first, last)})
         names = se.source_names(piece, piece.n_frames)
         for name, n in zip(*np.unique(names.astype(str), return_counts=True), strict=True):
             idle_frames[str(name)] = idle_frames.get(str(name), 0) + int(n)
@@ -85,7 +87,7 @@ def replay_recording(rec: Recording, model, mode: str) -> dict:
             name = str(names[d.frame]) if 0 <= d.frame < piece.n_frames else "?"
             false_by[name] = false_by.get(name, 0) + 1
             false_classes[d.cls] = false_classes.get(d.cls, 0) + 1
-        if arm_mode:  # the robot says 'arm moving' / 'arm still' over the recorded arm_move stretches
+        if arm_mode:  # the robot's words stored while recording, else 'arm moving' over the arm_move stretches
             for d in se.replay(piece, model, arm_mode):
                 name = str(names[d.frame]) if 0 <= d.frame < piece.n_frames else "?"
                 with_arm[name] = with_arm.get(name, 0) + 1
