@@ -392,13 +392,15 @@ class Detector:
         self.windows.early, self.windows.T = self._early_rule(), T
 
     def _early_rule(self) -> EarlyRule | None:
-        """The serving model's early heads under the scene's ``early_events`` (trigger mode only)."""
+        """The serving model's early heads under the scene's ``early_events`` (trigger mode only). Only a
+        reported event is answered early: a head that reads the window as dormant (or as a class the scene
+        does not report) leaves it to the next head, and to the full model at T."""
         model = self.model
         if model is None or model.early is None or self.scene.mode != "trigger":
             return None
-        early = self.scene.early_events
-        allowed = None if early is None else frozenset(i for i, c in enumerate(model.meta.classes) if c in early)
-        return EarlyRule(model.early, allowed)
+        early = self.scene.events if self.scene.early_events is None else self.scene.early_events
+        return EarlyRule(model.early, frozenset(i for i, c in enumerate(model.meta.classes)
+                                                if c in early and c in self.scene.events))
 
     def _arm_frames(self) -> tuple[int, int]:
         return arm_frames(1.0 / self.period_s, self.control.arm_settle_s, self.control.arm_max_move_s)

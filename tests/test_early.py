@@ -264,3 +264,14 @@ def test_a_file_claiming_hundreds_of_early_heads_is_refused_before_one_session_i
     enough = tmp_path / "enough.onnx"
     enough.write_bytes(_tiny_with_heads(30, list(range(2, 2 + MAX_POINTS))))
     assert len(load_model(enough).early.points) == MAX_POINTS
+
+
+def test_a_dormant_answer_is_never_reported_early_and_actions_keep_their_accuracy():
+    from trainer.early import choose_rule
+
+    truth = np.r_[np.zeros(300, int), np.ones(60, int)]  # many dormant (0) windows, few actions (1)
+    lab = np.zeros((1, len(truth)), int)  # the early head says dormant, sure of it, for every window
+    margins = np.full((1, len(truth)), 3.0)
+    choice = choose_rule(lab, margins, truth.copy(), truth, (4,), 15, dormant=0)
+    assert choice.mean_frames == 15  # nothing may be reported early: dormant waits for T
+    assert choice.accuracy == 1.0

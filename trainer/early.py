@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.early import NEVER, EarlySpec, margin
+from trainer.dormant import DORMANT
 
 __all__ = [
     "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "RuleChoice", "answers", "cascade", "choose_rule",
@@ -85,6 +86,8 @@ class Fits:
         self.make, self.make_full = make, make_full
         self.classes = sorted({str(c) for c in self.y})
         self.truth = np.asarray([self.classes.index(str(c)) for c in self.y])
+        self.dormant = self.classes.index(DORMANT) if DORMANT in self.classes else -1
+        """The dormant class's index (-1: none): never reported early (``choose_rule``)."""
         self._models: dict[frozenset, list] = {}
 
     def models(self, excluded: frozenset, full: bool = True) -> list:
@@ -170,19 +173,29 @@ class RuleChoice:
 
 
 def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth: np.ndarray,
-                points: Sequence[int], T: int, target_loss: float = TARGET_LOSS) -> RuleChoice:
-    """The calibration and the rule (see the module docstring) from out-of-fold answers."""
+                points: Sequence[int], T: int, target_loss: float = TARGET_LOSS, dormant: int = -1) -> RuleChoice:
+    """The calibration and the rule (see the module docstring) from out-of-fold answers.
+
+    ``dormant``: index of the dormant class (-1: none). A dormant answer is never reported early (the
+    window waits for a later head or T, as the daemon does), and the rule must keep the accuracy on
+    the action cases too: dormant windows outnumber them, so the loss allowed over all cases could
+    otherwise all fall on the actions."""
     calibration = [platt(margins[k], labels[k] == truth) for k in range(len(points))]
     conf = confidences(margins, calibration)
     frames = np.asarray([*points, T], dtype=np.float64)
+    allowed = None if dormant < 0 else np.arange(max(int(labels.max(initial=0)), int(truth.max()), dormant) + 1) != dormant
+    actions = truth != dormant
     full_acc = float(np.mean(full == truth))
+    full_actions = float(np.mean(full[actions] == truth[actions])) if actions.any() else 1.0
     grid = []
     for agree in (False, True):
         for threshold in (*THRESHOLDS, NEVER):
-            where, said = cascade(labels, conf, full, threshold, agree)
+            where, said = cascade(labels, conf, full, threshold, agree, allowed)
             grid.append({"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
+                         "action_accuracy": float(np.mean(said[actions] == truth[actions])) if actions.any() else 1.0,
                          "mean_frames": float(frames[where].mean())})
-    feasible = [r for r in grid if r["accuracy"] >= full_acc - target_loss - 1e-12]
+    feasible = [r for r in grid if r["accuracy"] >= full_acc - target_loss - 1e-12
+                and r["action_accuracy"] >= full_actions - target_loss - 1e-12]
     best = min(feasible, key=lambda r: (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"]),
                default=None)
     assert best is not None  # NEVER reproduces the full window's accuracy
@@ -193,7 +206,8 @@ def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth
 def fit_rule(fits: Fits, excluded: frozenset = frozenset(), target_loss: float = TARGET_LOSS) -> RuleChoice:
     """The rule chosen by leave-one-group-out among the groups outside ``excluded`` (the training data)."""
     labels, margins, index = fits.out_of_fold(excluded)
-    return choose_rule(labels[:-1], margins[:-1], labels[-1], fits.truth[index], fits.points, fits.T, target_loss)
+    return choose_rule(labels[:-1], margins[:-1], labels[-1], fits.truth[index], fits.points, fits.T, target_loss,
+                       fits.dormant)
 
 
 def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], None] | None = None) -> dict:
@@ -214,7 +228,8 @@ def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], 
         lab, mar = answers(fits.models(frozenset({g})), all_points, fits.X[test], classes)
         labels[:, test] = lab
         conf = confidences(mar[:-1], choice.spec.calibration)
-        w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.threshold, choice.spec.agree)
+        allowed = None if fits.dormant < 0 else np.arange(len(classes)) != fits.dormant
+        w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.threshold, choice.spec.agree, allowed)
         where[test], said[test] = w, s
         rules.append({"held_out": str(g), **choice.spec.to_meta(), "inner_accuracy": choice.accuracy,
                       "inner_full_accuracy": choice.full_accuracy, "inner_mean_frames": choice.mean_frames})
@@ -275,7 +290,6 @@ def stream_cases(protocol, dds, pads) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """Training windows of the stream model's heads: the actions cut where the daemon's onset trigger
     starts a window (trainer.dataset) and the dormant windows of the stream model's data set."""
     from trainer.dataset import build_dataset
-    from trainer.dormant import DORMANT
 
     ds = build_dataset(protocol, T=dds.T, pads=pads)
     dormant = dds.y == DORMANT
