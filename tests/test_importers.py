@@ -458,3 +458,22 @@ def test_missing_rosbags_gives_the_install_hint(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "rosbags.typesys", None)
     with pytest.raises(RecordingError, match=r"tactile-handover\[train\]"):
         read_rosbag(bag)
+
+
+def test_importing_another_file_of_the_same_name_into_a_folder_keeps_the_first(tmp_path, capsys):
+    """Two sessions' A.dsa imported one after the other into one folder (idle, say): the second
+    lands beside the first; importing the same file again (now as idle) replaces it, nothing doubled."""
+    frames = synthetic_frames(10)
+    (tmp_path / "room").mkdir()
+    (tmp_path / "hot").mkdir()
+    write_dsa(tmp_path / "room" / "A.dsa", frames, np.arange(10) * 32)
+    write_dsa(tmp_path / "hot" / "A.dsa", frames[::-1].copy(), np.arange(10) * 32)
+    out = tmp_path / "out"
+    assert handover(["import", str(tmp_path / "room" / "A.dsa"), "--out", str(out), "--idle", "quiet"]) == 0
+    assert handover(["import", str(tmp_path / "hot" / "A.dsa"), "--out", str(out), "--idle", "quiet"]) == 0
+    assert f"-> {out / 'A-2.hrec'}" in capsys.readouterr().out
+    assert np.array_equal(Recording.load(out / "A.hrec").frames, frames)
+    assert np.array_equal(Recording.load(out / "A-2.hrec").frames, frames[::-1])
+    assert handover(["import", str(tmp_path / "room" / "A.dsa"), "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["A-2.hrec", "A.hrec"]
+    assert "idle_stretches" not in Recording.load(out / "A.hrec").meta

@@ -2,7 +2,8 @@
 
 One line per source (frames, duration, rate); a bad source costs one error line, the rest
 are still converted, and the exit code is non-zero if any failed. A folder given as a
-source is searched for every importable file below it.
+source is searched for every importable file below it. A file already in ``--out`` under the
+same name is replaced only by the same frames (importing again); another recording lands beside it.
 """
 
 from __future__ import annotations
@@ -70,6 +71,28 @@ def output_names(sources: list[tuple[Path, Path]]) -> list[str]:
         seen[n] = seen.get(n, 0) + 1
         out.append(n if seen[n] == 1 else f"{n}-{seen[n]}")
     return out
+
+
+def _free_target(out: Path, name: str, recording) -> Path:
+    """Where ``recording`` goes in ``out``: ``name.hrec``, unless that holds another recording (an
+    earlier import of another file of the same name, a recorded session), then ``name-2.hrec``, ...;
+    a file holding the same frames is replaced (importing again, e.g. with ``--idle``, loses nothing)."""
+    import numpy as np
+
+    from firmware_io.recordings.recording import SUFFIX, Recording, RecordingError
+
+    target, k = out / f"{name}{SUFFIX}", 1
+    while target.exists() or target.is_symlink():
+        try:
+            old = Recording.load(target)
+        except (RecordingError, OSError, ValueError):
+            old = None
+        if old is not None and old.frames.shape == recording.frames.shape \
+                and np.array_equal(old.frames, recording.frames) and np.array_equal(old.timestamps, recording.timestamps):
+            return target
+        k += 1
+        target = out / f"{name}-{k}{SUFFIX}"
+    return target
 
 
 def _expand(sources: list[str]) -> tuple[list[tuple[Path, Path]], list[str]]:
@@ -177,6 +200,7 @@ def main(args: argparse.Namespace) -> int:
                 recording = _subset(recording, args.pads)
             if args.idle:
                 recording = _as_idle(recording, args.idle, args.subject, src)
+            target = _free_target(args.out, name, recording)
             recording.save(target)
         except (RecordingError, LayoutError, OSError) as exc:
             _report(src, str(exc))
