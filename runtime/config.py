@@ -316,14 +316,23 @@ def _ros2_node_name(k: Key, table: dict) -> str:
     return node_name
 
 
+ROS_TOPIC_MAX = 255 - 8
+"""The longest topic name rclpy takes (its limit, ``255U - 8U``): a longer one fails the node's start."""
+
+
 def _ros2_joint_states(k: Key, table: dict) -> str | None:
     topic = read_key(k, table)
     if topic is None:
         return None
-    tokens = topic.lstrip("/").split("/")
+    tokens = topic.removeprefix("/").split("/")  # one leading '/': rclpy refuses '//joint_states'
     if not all(_ROS_TOKEN.fullmatch(t) for t in tokens):
         raise ConfigError(f"ros2.joint_states: must be a topic name like /joint_states or /arm/joint_states "
                           f"(letters, digits, _), got {topic!r}")
+    namespace = table.get("namespace") if isinstance(table.get("namespace"), str) else key("ros2.namespace").default
+    full = topic if topic.startswith("/") else f"{namespace}/{topic}"  # a relative name is under the namespace
+    if len(full) > ROS_TOPIC_MAX:
+        raise ConfigError(f"ros2.joint_states: {full[:40]}... is {len(full)} characters, ROS 2 takes at most "
+                          f"{ROS_TOPIC_MAX}; name a shorter topic")
     return topic
 
 

@@ -49,6 +49,9 @@ def test_ros2_is_off_by_default_and_the_section_has_defaults():
     ({"pad_gain": 17}, "ros2.pad_gain: must be a finite number in [1, 16], got 17"),
     ({"pad_rate_hz": float("nan")}, "ros2.pad_rate_hz: must be a finite number in [0.1, 1000], got nan"),
     ({"qos": "reliable"}, "ros2.qos: unknown key"),
+    ({"joint_states": "///joint_states"}, "ros2.joint_states: must be a topic name"),
+    ({"joint_states": "/" + "j" * 247}, "ros2.joint_states: /jjjj"),
+    ({"joint_states": "j" * 238}, "ros2.joint_states: /handover/jjj"),
 ])
 def test_bad_ros2_keys_name_the_key(section, says):
     with pytest.raises(ConfigError, match="^" + re.escape(says)):
