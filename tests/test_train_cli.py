@@ -205,3 +205,15 @@ def test_too_few_triggered_trials_say_which_classes_never_triggered_and_why(tmp_
     assert "too few to train (at least 10 cases of 2 classes)" in err[0]
     assert re.search(r"; \d+ trials gave no case \(((bump|hold|pull|push) \d+(, )?)+\): (never triggered|triggered too late) \d+", err[0]), err[0]
     assert cause in err[0]
+
+
+def test_enough_cases_to_train_but_not_to_split_say_so_in_the_trainers_words(tmp_path, capsys):
+    """Five runs of each action by one subject, 12 of them triggered: enough to train, but the stratified
+    80/20 split cannot hold four classes in 3 test cases (was the splitter's own sentence about test_size)."""
+    data = tmp_path / "data"
+    write_standin(data, n_subjects=1, runs=5)
+    assert handover(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--quiet", "--no-sweep",
+                     "--early", "off", "--no-real-idle"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handover train: only 12 triggered cases of 4 classes"), err
+    assert "record more runs of each action (handover record --runs)" in err[0] and "test_size" not in err[0]

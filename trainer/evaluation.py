@@ -19,7 +19,7 @@ from sklearn.model_selection import train_test_split
 from threadpoolctl import threadpool_limits
 
 __all__ = [
-    "LOSO_NEEDS_A_SECOND_SUBJECT", "N_JOBS", "Split", "config1", "config2", "loso_skipped", "loso_splits",
+    "LOSO_NEEDS_A_SECOND_SUBJECT", "N_JOBS", "POOLED_TEST_SIZE", "Split", "config1", "config2", "loso_skipped", "loso_splits",
     "loso_unavailable", "per_class", "pooled_splits", "run_splits", "sweep", "tsne_embedding"
 ]
 
@@ -35,7 +35,11 @@ class Split:
     test: np.ndarray
 
 
-def pooled_splits(y: np.ndarray, seeds: Iterable[int], test_size: float = 0.2) -> list[Split]:
+POOLED_TEST_SIZE = 0.2
+"""Configuration 1's test share (the paper's 80/20)."""
+
+
+def pooled_splits(y: np.ndarray, seeds: Iterable[int], test_size: float = POOLED_TEST_SIZE) -> list[Split]:
     """Configuration 1: a stratified random 80/20 split of all cases for each seed."""
     idx = np.arange(len(y))
     out = []
@@ -139,7 +143,7 @@ def _summary(results: list[dict], y: np.ndarray, labels: Sequence[str]) -> dict:
     }
 
 
-def config1(estimator, X, y, seeds: Sequence[int] = (0, 1, 2, 3, 4), test_size: float = 0.2,
+def config1(estimator, X, y, seeds: Sequence[int] = (0, 1, 2, 3, 4), test_size: float = POOLED_TEST_SIZE,
             n_jobs: int = N_JOBS, progress=None) -> dict:
     """Pooled random stratified 80/20 splits over seeds: mean +/- std, summed confusion matrix."""
     y = np.asarray(y)

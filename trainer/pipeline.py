@@ -254,7 +254,7 @@ def too_few_cases(ds) -> str | None:
 
     cases = Counter(ds.y.tolist())
     if len(cases) >= MIN_CLASSES and len(ds.y) >= MIN_CASES:
-        return None
+        return _split_problem(cases)
     missed = Counter(s.action for s in ds.untriggered)
     why = reason_counts(ds.untriggered)
     text = (f"only {len(ds.y)} triggered cases of {len(cases)} class{'es' if len(cases) != 1 else ''} "
@@ -269,6 +269,23 @@ def too_few_cases(ds) -> str | None:
                        "so check where the trials start, or try --trigger threshold")
     return text + (f"; the threshold trigger needs a rising edge to {ds.fraction:g} x full scale, and pulls lower "
                    "the pressure: try --trigger onset or a lower --fraction")
+
+
+def _split_problem(cases) -> str | None:
+    """Enough cases to train, too few for the evaluation's stratified split (each class on both sides):
+    said in the trainer's words, not the splitter's."""
+    import math
+
+    from trainer.evaluation import POOLED_TEST_SIZE
+
+    n, k = sum(cases.values()), len(cases)
+    test = math.ceil(POOLED_TEST_SIZE * n)
+    if test >= k and n - test >= k and min(cases.values()) >= 2:
+        return None
+    return (f"only {n} triggered cases of {k} classes ({_counts(cases)}): the evaluation's stratified "
+            f"{POOLED_TEST_SIZE:.0%} test split needs each class at least twice and {k} cases on each side "
+            f"(about {math.ceil((k - 1) / POOLED_TEST_SIZE) + 1} cases); record more runs of each action "
+            "(handover record --runs)")
 
 
 def _counts(counter) -> str:
