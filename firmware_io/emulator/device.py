@@ -423,8 +423,8 @@ class DeviceEmulator:
     def _emit_frame(self, now: float) -> None:
         seq = self._next
         self._next += 1
-        loops, i = divmod(seq, self.recording.n_frames)
-        stamp = self._clock_offset_ms() + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
+        i = seq % self.recording.n_frames
+        stamp = self.stamp_of(seq)
         values = self.recording.frames[i]
         rle = self._rle and int(values.max(initial=0)) <= MAX_TEXEL_VALUE
         packet = bytearray(encode_frame(values, stamp % 2**32, rle=rle))
@@ -440,6 +440,11 @@ class DeviceEmulator:
         """The device clock at the recording's first frame (frame i is stamped this plus its time
         in the recording), or None while the session waits for a host to ask for frames."""
         return None if self._session_waits else self._clock_offset_ms() % 2**32
+
+    def stamp_of(self, seq: int) -> int:
+        """The device timestamp frame ``seq`` (counted over loops) carries when sent, before the u32 wrap."""
+        loops, i = divmod(seq, self.recording.n_frames)
+        return self._clock_offset_ms() + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
 
     def _clock_offset_ms(self) -> int:
         """The device clock at the moment the world's frame 0 was due (``start_ms`` until a power cycle

@@ -47,9 +47,7 @@ class StampingEmulator(DeviceEmulator):
     def _emit_frame(self, now: float) -> None:
         seq = self._next
         super()._emit_frame(now)
-        loops, i = divmod(seq, self.recording.n_frames)
-        stamp = self.start_ms + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
-        self.frame_ends.append((self.read_total + len(self._out), stamp))
+        self.frame_ends.append((self.read_total + len(self._out), self.stamp_of(seq)))
 
 
 class _TimedSocket:
@@ -100,7 +98,8 @@ def _serve(recording, speed, pipe, priority: int) -> None:
     real-time ``priority`` (runtime/realtime.py): a real device is hardware, not one more process
     waiting for the CPU."""
     realtime.enter_realtime(priority)
-    emulator = StampingEmulator(recording, speed=speed, loop=False)
+    # the whole recording, however late the daemon asks for frames (the emulator's world runs from then on)
+    emulator = StampingEmulator(recording, speed=speed, loop=False, session_starts="first_acquisition")
     server = StampingServer(emulator, host="127.0.0.1", port=0).start()
     pipe.send(server.port)
     while not emulator.finished:
