@@ -41,10 +41,20 @@ def lock_folder(environ: dict | None = None) -> Path:
     return Path(tempfile.gettempdir()) / f"handover-{os.getuid()}"
 
 
-def device_lock_path(url: str, environ: dict | None = None) -> Path:
-    """The lock file of a device URL: the same URL, the same file (query options ignored: they
-    change how the device is read, not which device it is)."""
+def device_identity(url: str) -> str:
+    """Which device a URL reaches: query options ignored (they change how it is read, not which one it
+    is); a serial port by its real path (``/dev/dsacon32m``, ``serial:///dev/dsacon32m`` and the
+    ``/dev/ttyUSB0`` the udev symlink points at are one device)."""
     where = url.strip().split("?")[0].rstrip("/")
+    path = where[len("serial://"):] if where.lower().startswith("serial://") else where
+    if path.startswith("/"):
+        return "serial://" + os.path.realpath(path)
+    return where
+
+
+def device_lock_path(url: str, environ: dict | None = None) -> Path:
+    """The lock file of a device URL: the same device, the same file (``device_identity``)."""
+    where = device_identity(url)
     digest = hashlib.sha256(where.encode()).hexdigest()[:16]
     return lock_folder(environ) / f"device-{digest}.lock"
 

@@ -134,6 +134,13 @@ def test_a_killed_holder_leaves_no_stale_lock_and_each_resource_counts_alone(tmp
     # the same device with other read options is the same device; another health file on another device is free
     assert instance_lock.device_lock_path("tcp://127.0.0.1:13000?x=1", env) == path
     assert instance_lock.device_lock_path("tcp://127.0.0.1:13001", env) != path
+    # a serial port by its real path: the udev symlink, the URL and the plain path are one device
+    port = tmp_path / "ttyUSB0"
+    port.touch()
+    (tmp_path / "dsacon32m").symlink_to(port)
+    same = {instance_lock.device_lock_path(u, env) for u in (f"serial://{tmp_path}/dsacon32m?baud=115200",
+                                                             f"{tmp_path}/dsacon32m", f"serial://{port}")}
+    assert len(same) == 1
 
 
 def test_a_lock_name_planted_by_another_user_is_refused_and_what_it_leads_to_is_untouched(tmp_path):

@@ -110,6 +110,13 @@ def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
                           capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                           timeout=60).stdout
     assert f"  events: {EVENTS} scripted, {got['events_detected']} detected" in text and "  wrong: #" in text
+    # --instance: only that daemon's lines (the config set none: <host>:<device>)
+    mine = json.loads(lines[0])["instance"]
+    for instance, detected in ((mine, got["events_detected"]), ("another-hand", 0)):
+        only = subprocess.run([sys.executable, "-m", "runtime.cli", "score", str(events), str(script), "--json",
+                               "--instance", instance], capture_output=True, text=True, cwd=ROOT,
+                              env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
+        assert json.loads(only.stdout)["events_detected"] == detected, only.stderr
 
 
 def test_the_script_names_each_event_and_maps_device_time_to_frames(tmp_path):
