@@ -94,6 +94,8 @@ class Daemon:
                                on_fault=self.hot_thread_lower)
         self.link.scene = cfg.scene.pads
         self.control: ControlSocket | None = None
+        self.locks: Any = None
+        """The instance locks ``handover run`` took (runtime.instance_lock.Locks): a reload moves them."""
         self.messages = MessageLog()
         self.hot_thread = HotThread()
         self.guard = DecisionGuard(lambda: self.detector.model, self.detector.frame_clock.deadline_s,
@@ -287,6 +289,11 @@ class Daemon:
             reason = one_line(exc) if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {one_line(exc)}"
             log.error("SIGHUP: %s; keeping the running configuration", reason)
             self.health.report_error(f"reload refused: {reason}", "config")
+            self.notifier.ready(self.health.status_line())
+            return
+        if self.locks is not None and (held := self.locks.retarget(new)):
+            log.error("SIGHUP: %s; keeping the running configuration", held)
+            self.health.report_error(f"reload refused: {held}", "config")
             self.notifier.ready(self.health.status_line())
             return
         old, self.cfg = self.cfg, new

@@ -64,7 +64,7 @@ def main(args: argparse.Namespace) -> int:
     from runtime import instance_lock
 
     try:  # before anything is opened or written: a second daemon leaves the first one's files alone
-        locks = instance_lock.take_all(cfg)
+        locks = instance_lock.Locks.take(cfg)
     except instance_lock.InstanceLockError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
@@ -73,13 +73,14 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
+        daemon.locks = locks  # a reload to another device or health file moves them
         daemon.install_signal_handlers()
         code = daemon.run()
         if daemon.fatal:
             print(f"{PROG}: {daemon.fatal}", file=sys.stderr)
         return code
     finally:
-        instance_lock.release(locks)
+        locks.release()
 
 
 def log_format(environ: dict | None = None) -> str:

@@ -183,3 +183,36 @@ def release(held: list[Held]) -> None:
         with contextlib.suppress(OSError):
             os.close(h.fd)
     held.clear()
+
+
+class Locks:
+    """The locks one daemon holds, kept in step with its config: a reload that names another device or
+    health file takes the new locks first (refused, the running config kept, when another daemon holds
+    one) and lets go of those it no longer needs, so a second daemon is refused exactly while this one
+    uses the resource."""
+
+    def __init__(self, held: list[Held]) -> None:
+        self.held = held
+
+    @classmethod
+    def take(cls, cfg) -> Locks:
+        return cls(take_all(cfg))
+
+    def retarget(self, cfg) -> str | None:
+        """Hold ``cfg``'s locks instead of the current ones; the line saying why not (nothing changed), or None."""
+        have = {h.path: h for h in self.held}
+        new: list[Held] = []
+        try:
+            for what, path in targets(cfg):
+                if path not in have:
+                    new.append(take(what, path))
+        except InstanceLockError as exc:
+            release(new)
+            return str(exc)
+        wanted = {path for _, path in targets(cfg)}
+        release([h for h in self.held if h.path not in wanted])
+        self.held = [h for h in self.held if h.path in wanted] + new
+        return None
+
+    def release(self) -> None:
+        release(self.held)

@@ -181,3 +181,36 @@ def test_check_and_run_with_a_fifo_or_a_symlink_at_the_health_lock_say_one_line_
                 in lines[0] and "remove it" in lines[0], (more, done.stderr)
         lock.unlink()
     assert victim.read_text() == "precious\n" and not (tmp_path / "status.json").exists()
+
+
+def test_a_reload_onto_another_daemons_health_file_is_refused_and_a_reload_away_frees_the_old_one(tmp_path):
+    """SIGHUP moves the locks with the config: onto a health file another daemon writes, the reload is
+    refused in one line (both keep their own); onto a free one, the old one is let go at once."""
+    env = _env(tmp_path)
+    cfg_a, cfg_b = _config(tmp_path, health="a.json"), _config(tmp_path, health="b.json")
+    a, b = _run(cfg_a, env), _run(cfg_b, env)
+    try:
+        _health(tmp_path / "a.json")
+        _health(tmp_path / "b.json")
+        cfg_a.write_text(cfg_a.read_text().replace("a.json", "b.json"))
+        a.send_signal(signal.SIGHUP)
+        deadline = time.monotonic() + 30
+        while "reload refused" not in json.dumps(_health(tmp_path / "a.json")) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert "in use by another handover daemon" in json.dumps(_health(tmp_path / "a.json"))
+        assert f"pid {b.pid}" in instance_lock.held_by_other("b", instance_lock.health_lock_path(tmp_path / "b.json"))
+        cfg_a.write_text(cfg_a.read_text().replace("b.json", "c.json"))
+        a.send_signal(signal.SIGHUP)
+        _health(tmp_path / "c.json")
+        while instance_lock.held_by_other("a", instance_lock.health_lock_path(tmp_path / "a.json")) \
+                and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert instance_lock.held_by_other("a", instance_lock.health_lock_path(tmp_path / "a.json")) is None
+        assert f"pid {a.pid}" in instance_lock.held_by_other("c", instance_lock.health_lock_path(tmp_path / "c.json"))
+        assert a.poll() is None and b.poll() is None
+    finally:
+        for p in (a, b):
+            p.send_signal(signal.SIGTERM)
+        _, err = a.communicate(timeout=20)
+        b.communicate(timeout=20)
+    assert a.returncode == 0 and sum("SIGHUP" in line and "in use" in line for line in err.splitlines()) == 1, err
