@@ -134,6 +134,10 @@ class JointSpeed:
 
     def update(self, positions: list[float], velocities: list[float], stamp_s: float) -> bool | None:
         """One message; the word to send (True: moving, False: still) or None (nothing new)."""
+        if stamp_s < self._said_at:
+            # the clock went back (a bag played in a loop, sim time reset): 'moving' must still be
+            # renewed, or the daemon takes the arm as still after arm_max_move_s while it moves
+            self._said_at = float("-inf")
         finite_v = [abs(v) for v in velocities if math.isfinite(v)]
         if finite_v:
             speed = max(finite_v)

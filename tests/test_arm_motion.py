@@ -340,3 +340,14 @@ def test_the_labs_replay_uses_the_robots_stored_marks_not_only_the_arm_move_stre
     rec = Recording(SensorLayout.sdh2(), frames, np.arange(len(frames)) / 32.0, [], meta)
     out = replay_recording(rec, _onset_model(tmp_path), "onset")
     assert out["false_by_source"] == {"quiet": 1} and out["false_by_source_arm_messages"] == {}
+
+
+def test_joint_speed_keeps_renewing_moving_when_the_stamps_go_back():
+    """A bag played in a loop (or sim time reset) restarts the stamps: 'moving' is still renewed every
+    second, else the daemon's arm would expire after arm_max_move_s while the arm moves."""
+    from runtime.arm_motion import JointSpeed
+
+    js = JointSpeed(threshold=0.1, renew_s=1.0)
+    assert js.update([0.0], [0.5], 100.0) is True
+    said = [js.update([0.0], [0.5], 0.5 * k) for k in range(1, 8)]  # stamps from 0.5 s again, arm moving
+    assert said.count(True) >= 3 and said[0] is True
