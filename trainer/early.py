@@ -66,6 +66,10 @@ def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Seq
     for k, (model, p) in enumerate(zip(models, points, strict=True)):
         Xp = X[:, :, :p]
         scores = np.asarray(model.decision_function(Xp), dtype=np.float64)
+        if scores.ndim == 1:  # two classes: one decision value; the graph's ovr-style pair (votes + confidence)
+            c = np.abs(scores) / (3.0 * (np.abs(scores) + 1.0))
+            scores = np.stack([(scores <= 0) + np.where(scores <= 0, c, -c), (scores > 0) + np.where(scores > 0, c, -c)],
+                              axis=1)
         pred = [index[str(c)] for c in model.predict(Xp)]
         own = [list(model.classes_).index(classes[i]) for i in pred]
         labels[k] = pred
