@@ -90,7 +90,8 @@ def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
             if proc is not None:
                 proc.send_signal(signal.SIGTERM)
         out = daemon.communicate(timeout=30)[0] if daemon is not None else ""
-        emu.communicate(timeout=30)
+        emu_out = emu.communicate(timeout=30)[0]
+    assert f"session over: all {n_frames} frames sent (--no-loop); stop the daemon; then handover score" in emu_out
     events = tmp_path / "events.jsonl"
     events.write_text(out)
     lines = [line for line in out.splitlines() if line.startswith("{")]

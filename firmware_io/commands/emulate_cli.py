@@ -135,6 +135,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"listening: {server.url}", flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
         script_due = bool(args.script_out)
+        end_due = bool(args.no_loop)
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
             if server.error is not None:
@@ -147,6 +148,11 @@ def main(args: argparse.Namespace) -> int:
                     return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
                 print(f"session started at device time {emulator.session_clock_ms} ms; script: {args.script_out}",
                       flush=True)
+            if end_due and emulator.finished:  # the host now only sees a stall: say the session is over
+                end_due = False
+                score = f"; then handover score EVENTS.jsonl {args.script_out}" if args.script_out else ""
+                print(f"session over: all {recording.n_frames} frames sent (--no-loop); stop the daemon{score}; "
+                      "Ctrl-C ends the emulator", flush=True)
     except KeyboardInterrupt:
         pass
     finally:
