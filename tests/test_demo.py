@@ -59,3 +59,21 @@ def test_demo_refuses_bad_options():
     assert proc.returncode == 2
     assert proc.stderr.strip().startswith("handover demo: --speed")
     assert "Traceback" not in proc.stderr
+
+
+def test_demo_summary_says_when_the_model_was_taken_out_of_service(capsys):
+    """A session whose model the daemon took out (say a decision ran past the period on a busy machine)
+    otherwise reads as a model that misses every later event."""
+    from trainer import demo_cli
+    from trainer.session_score import outcome_summary
+    from trainer.streams_eval import session_outcomes
+
+    s = {**outcome_summary(session_outcomes([], [])), "setting": "onset_dormant", "decisions": 0,
+         "latency_p50_us": None, "latency_p99_us": None, "latency_max_us": None, "deadline_us": 31250.0,
+         "missed_deadlines": 0, "frames_received": 10, "frames_dropped": 0, "crc_errors": 0, "seconds": 1.0,
+         "model": "m.onnx", "models_taken_out": 0, "last_error": ""}
+    demo_cli._print_summary(s)
+    assert "taken out of service" not in capsys.readouterr().out
+    demo_cli._print_summary({**s, "models_taken_out": 1, "last_error": "model m.onnx taken out of service: slow"})
+    out = capsys.readouterr().out
+    assert "the model was taken out of service during the session (model m.onnx taken out of service: slow)" in out

@@ -290,6 +290,8 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
         "frames_received": int(h.frames_received),
         "frames_dropped": int(h.frames_dropped),
         "crc_errors": int(h.crc_errors),
+        "models_taken_out": int(h.models_quarantined),
+        "last_error": h.last_error,
     }
 
 
@@ -310,6 +312,9 @@ def _print_summary(s: dict) -> None:
         print(f"  (replayed at speed {s['replayed_at']}: frames arrive in bursts and a frame's arrival -> decision "
               "includes the frames queued before it; at speed 1.0 it is the daemon's own time)")
     print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
+    if s.get("models_taken_out"):  # else a session that lost its model reads as a model that misses events
+        print(f"  the model was taken out of service during the session ({s['last_error']}): the events after it "
+              "were not decided; on a busy machine run the demo again when it is quieter")
     print(f"  total {s['seconds']:.0f} s")
     print(f"  model: {s['model']} (the README's \"daemon without a hand\" serves it; handover inspect {s['model']})")
 
