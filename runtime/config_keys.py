@@ -77,7 +77,9 @@ SECTIONS: dict[str, str] = {
                'once), "grasp open" (the robot lets go: no event until the hand is empty or closed again),\n'
                '"arm moving" / "arm still" (no window is reported while the arm moves, nor arm_settle_s after).\n'
                "Without them the onset trigger finds the settled grasp itself. Anything else is counted and logged once.\n"
-               'Send one with: echo -n "grasp closed" | socat - UNIX-SENDTO:/run/handover/control.sock',
+               'Send one with: echo -n "grasp closed" | socat - UNIX-SENDTO:/run/handover/control.sock\n'
+               "or, without socat: python3 -c 'import socket; socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)"
+               '.sendto(b"arm moving", "/run/handover/control.sock")\'',
 }
 """The sections in the order they are read (the first bad key reported is the first in this order),
 each with the note deploy/handover.toml and docs/CONFIG.md put above its keys."""
