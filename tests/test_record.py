@@ -205,6 +205,8 @@ def test_never_triggered_trial_is_flagged_and_repeated(tmp_path, capsys):
     result = run_session(client, store, PLAN, auto_opts(retries=1), SessionIO(show=shown.append, cue=subject.cue))
     client.close()
     assert any("never reached the trigger level" in s for s in shown)
+    # the level is the paper's threshold; the trainer's default onset trigger may still cut a case there
+    assert any("the default onset trigger may" in s for s in shown)
     rec = Recording.load(store.path)
     assert sorted(keys(rec)) == sorted(KEYS)
     assert rec.trials[0].extra["attempt"] == 2 and rec.trials[0].extra["scripted_subject"]["acted"]

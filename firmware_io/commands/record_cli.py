@@ -241,7 +241,8 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
         return fail(COMMAND, f"device lost ({_first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
     except KeyboardInterrupt:
         return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
-    flagged = f", {len(result.flagged)} flagged as never triggered" if result and result.flagged else ""
+    flagged = (f", {len(result.flagged)} flagged as never reaching {args.fraction:.0%} of full scale (the threshold "
+               "trigger's level)" if result and result.flagged else "")
     if result is not None and not result.complete:
         print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
               f"{_saved(store)}{flagged}; run the same command again to continue")

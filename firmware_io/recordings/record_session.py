@@ -419,8 +419,9 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
         status = (f"trial {n} saved ({len(capture.frames)} frames, peak {check.peak_fraction:.0%} of full scale)")
         io.show(status)
         if not check.triggered:
-            io.show(f"!! the pads never reached the trigger level ({opts.fraction:.0%} of full scale): "
-                    "this trial gives no training case; redo it")
+            io.show(f"!! the pads never reached the trigger level ({opts.fraction:.0%} of full scale): the paper's "
+                    "threshold trigger gets no training case from this trial (the default onset trigger may: "
+                    "handover train lists the trials that give none); redo it if the person did not act")
         if opts.auto:
             if not check.triggered and attempt <= opts.retries:
                 store.remove_last()
