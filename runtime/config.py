@@ -25,6 +25,7 @@ from firmware_io.transports import TransportError, validate_url
 from firmware_io.trigger_level import is_trigger_level
 from runtime.config_keys import RANGES, SECTIONS, Key, key, section_keys
 from runtime.config_read import ConfigError, no_nul, no_unknown, read_key, read_str, read_str_list
+from runtime.instance_name import instance_problem
 
 __all__ = ["FOLLOW_MODEL", "KNOWN_EVENTS", "NO_SINK_LEFT", "RANGES", "TRIGGER_KINDS", "Config", "ConfigError",
            "ContinuousConfig", "ControlConfig", "DeviceConfig", "ModelConfig", "OnnxConfig", "Ros2Config",
@@ -290,7 +291,6 @@ def _state_file(k: Key, table: dict) -> str | None:
 
 
 def _instance(k: Key, table: dict) -> str | None:
-    from runtime.instance_name import instance_problem
 
     name = table.get(k.short)
     if name is not None and (problem := instance_problem(name)):

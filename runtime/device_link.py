@@ -16,7 +16,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from firmware_io.client import Cancelled, DSAClient
 from firmware_io.layout import SensorLayout
+from firmware_io.transports import DeviceUnavailable, MissingDependency, TransportError, validate_url
 from runtime.config import DeviceConfig
 from runtime.health import Health, one_line
 from runtime.retry_notes import RetryNotes
@@ -145,7 +147,6 @@ class DeviceLink:
         return self.should_stop()
 
     def connect(self) -> None:
-        from firmware_io.client import Cancelled
 
         h = self.health
         url = self.device.url
@@ -287,7 +288,6 @@ REFUSALS = ("crc_errors", "decode_errors", "frames_implausible")
 
 
 def default_client(url: str) -> Any:
-    from firmware_io.client import DSAClient
 
     # The daemon reconnects itself (with backoff, answering SIGTERM and the watchdog meanwhile).
     return DSAClient(url, auto_reconnect=False)
@@ -297,7 +297,6 @@ def fatal_device_error(url: str, exc: BaseException) -> str | None:
     """A device error no retry can cure: the URL itself is wrong, or a package is missing.
 
     Everything else (unplugged, refused, silent, wrong replies) is retried with backoff."""
-    from firmware_io.transports import DeviceUnavailable, MissingDependency, TransportError, validate_url
 
     if not isinstance(exc, TransportError) or isinstance(exc, DeviceUnavailable):
         return None

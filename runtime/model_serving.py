@@ -19,6 +19,7 @@ from firmware_io.layout import SensorLayout
 from runtime.config import Config
 from runtime.detector import Detector
 from runtime.health import Health
+from runtime.model import load_model
 from runtime.model_change import served, swap_warning, trigger_text
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.quarantine import QuarantineStore, store_path
@@ -67,7 +68,6 @@ class ModelSlot:
 
     def load(self, path: Path) -> LoadedModel:
         """Load a model file as the daemon does (validated, not yet warmed up: the watcher does that)."""
-        from runtime.model import load_model
 
         ox = self.cfg.onnxruntime
         return load_model(path, max_bytes=self.cfg.model.max_bytes, intra_op_threads=ox.intra_op_threads,

@@ -22,6 +22,9 @@ from math import isfinite
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
+from runtime.config import parse_host_port
+from runtime.name_resolver import ResolvedTarget
+
 __all__ = [
     "PROTOCOL_VERSION", "ClosedStdout", "Event", "ModelAnnouncement", "Sink", "SinkFull", "SinkSet", "StdoutSink",
     "UdpSink", "UnixDatagramSink", "claim_stdout_for_events", "log"
@@ -311,7 +314,6 @@ class UdpSink(Sink):
     it are counted as failed; the daemon never waits for DNS."""
 
     def __init__(self, host: str, port: int, resolve: Any = None) -> None:
-        from runtime.name_resolver import ResolvedTarget
 
         super().__init__()
         self.name = f"udp://{host}:{port}"
@@ -372,7 +374,6 @@ class SinkSet:
 
         ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and the daemon it reads
         frames and health from are then needed); rclpy is imported only then."""
-        from runtime.config import parse_host_port
 
         sinks: list[Sink] = []
         if cfg.stdout and isinstance(stream, ClosedStdout):

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from firmware_io.recordings.importers import import_any
 from firmware_io.recordings.recording import Recording, RecordingError
 
 __all__ = ["load_source", "placeholder_session"]
@@ -39,7 +40,6 @@ def load_source(source: str | os.PathLike = SIM, *, seed: int = 0, events: int =
 
 @lru_cache(maxsize=4)
 def _from_file(path: str, mtime_ns: int) -> Recording:
-    from firmware_io.recordings.importers import import_any
 
     rec = import_any(path)
     if rec.n_frames == 0:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from firmware_io.recordings.importers.dsa import read_dsa
 from firmware_io.recordings.recording import Recording
 
 __all__ = ["contact_area", "frame_intervals", "load_real", "noise_floor", "real_dsa_files", "summarise"]
@@ -137,6 +138,5 @@ def real_dsa_files(folder: str | Path, names: Sequence[str] = REAL_31HZ_FOLDERS)
 
 def load_real(folder: str | Path, names: Sequence[str] = REAL_31HZ_FOLDERS) -> list[Recording]:
     """Read the real reference recordings with the project's .dsa importer."""
-    from firmware_io.recordings.importers.dsa import read_dsa
 
     return [read_dsa(p) for p in real_dsa_files(folder, names)]

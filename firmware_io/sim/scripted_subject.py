@@ -23,6 +23,9 @@ import numpy as np
 
 from firmware_io.emulator.device import DeviceEmulator, FaultPlan
 from firmware_io.layout import SensorLayout
+from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
+from firmware_io.sim.idle import idle_rng, plan_stretch, render_hold
+from firmware_io.sim.paper_protocol import hand_sensor
 from firmware_io.transports.base import DeviceUnavailable, ParsedURL, Transport, TransportError
 from firmware_io.transports.emulated import SUBJECT_SCHEME, EmulatedTransport, SubjectTransport
 
@@ -165,8 +168,6 @@ class ScriptedSubject:
         """Act out an idle stretch (``firmware_io.recordings.idle_stretches.IdleSlot``): the simulated
         hand does what the recorder prompted, nobody touches the object; afterwards the hand stays as
         the stretch left it (holding, or open after a release)."""
-        from firmware_io.sim.idle import idle_rng, plan_stretch, render_hold
-        from firmware_io.sim.paper_protocol import hand_sensor
 
         self._idles += 1
         seconds = float(slot.seconds) + 1.0  # the capture starts a frame or two after the cue
@@ -197,7 +198,6 @@ class ScriptedSubject:
 
     def _render(self, slot, attempt: int) -> tuple[np.ndarray, int]:
         """One simulated trial of this slot; every attempt is a new draw (a person never repeats exactly)."""
-        from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
 
         pose = slot.pose if slot.pose in POSES else POSES[0]
         obj = slot.object if slot.object in OBJECTS else OBJECTS[0]
