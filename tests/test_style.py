@@ -36,3 +36,12 @@ def test_no_issue_numbers_in_the_packages():
 def test_the_issue_number_check_sees_them():
     assert all(ISSUE_NUMBER.search(s) for s in ("(issue #16)", "issue 13", "see #19", "Issues 12"))
     assert not any(ISSUE_NUMBER.search(s) for s in ("pad 3", "# comment", "[#] x", "tissue 3"))
+
+
+def test_the_readme_is_read_in_five_minutes():
+    """At most 150 lines: what it is, the two commands, the daemon without a hand, from a real hand to a
+    service, one results table, links; everything else lives in docs/ (docs/GUIDE.md)."""
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= 150, f"README.md has {len(lines)} lines; move details to docs/GUIDE.md"
+    for target in ("docs/GUIDE.md", "docs/CONFIG.md", "docs/INTERFACES.md", "deploy/INSTALL.md"):
+        assert (ROOT / target).exists() and target in "\n".join(lines), target
