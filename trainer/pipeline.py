@@ -119,8 +119,8 @@ def train(options: TrainOptions) -> TrainResult:
     if problem:
         raise DatasetError(problem)
     idle = None
-    if options.dormant and options.data:  # lines about the user's idle data are warnings to see even with --quiet
-        ds, idle = add_idle(ds, recordings, names, options.seed, say_to(False))
+    if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
+        ds, idle = add_idle(ds, recordings, names, options.seed, say, warn=say_to(False))
     selection = None
     if options.select:
         from trainer.select import select_model

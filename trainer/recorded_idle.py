@@ -181,17 +181,18 @@ def with_dormant(ds, idle: IdleWindows):
 
 
 def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: int, say: Callable[[str], None],
-             cut: str = DORMANT_CUT):
+             cut: str = DORMANT_CUT, warn: Callable[[str], None] | None = None):
     """``(data set with dormant windows, IdleWindows)``, or ``(ds, None)`` and the one line saying what
-    a model without them costs."""
+    a model without them costs (``say``: progress; ``warn``: lines about the data to see even when quiet)."""
+    warn = warn or say
     idle = recorded_idle_windows(recordings, names, ds, seed, cut)
     if idle is None:
         say(no_idle_line())
         return ds, None
     for note in idle.notes:
-        say(note)
+        warn(note)
     if len(idle.X) < MIN_DORMANT_WINDOWS:
-        say(f"{idle.seconds / 60:.1f} min of recorded idle gave {len(idle.X)} dormant windows (cut: {cut}; at least "
+        warn(f"{idle.seconds / 60:.1f} min of recorded idle gave {len(idle.X)} dormant windows (cut: {cut}; at least "
             f"{MIN_DORMANT_WINDOWS} make the class): the model has no dormant class; record more idle, arm moves "
             "above all (`handover record --idle-only --idle-minutes 10`)")
         return ds, None
