@@ -4,8 +4,12 @@ Why: a model may pass load and warm-up and hang on real windows only (an ONNX ``
 count explodes when the pads are pressed). The hot thread is then inside onnxruntime for good:
 no frame is read, SIGTERM waits (Python runs its handler between bytecodes), and at real-time
 priority a core spins. This guard looks at the serving model every quarter of the limit; a
-decision under way for longer than the limit (the stream's period: it was due before the next
-frame) is ended with onnxruntime's ``RunOptions.terminate``. The hot thread then gets an error
+decision whose thread has spent more CPU time in it than the limit (the stream's period: it was due
+before the next frame) is ended with onnxruntime's ``RunOptions.terminate``. CPU time, not the
+clock on the wall: on a busy machine a decision may wait for a core far longer than it computes,
+and a good model must not be quarantined for the machine's load. A decision that has not ended
+``WALL_LIMIT_S`` after it began is ended too (a platform without thread CPU clocks, or a graph
+whose work runs on onnxruntime's other threads while the deciding one waits). The hot thread then gets an error
 from the run and takes the model out of service (quarantined across restarts), so it is out
 within about two periods of its first real window.
 
@@ -30,6 +34,8 @@ __all__ = ["DecisionGuard", "log"]
 
 log = logging.getLogger("handover.daemon")
 
+WALL_LIMIT_S = 1.0
+"""The wall-clock backstop: about 32 periods, far beyond any wait for a core."""
 ESCALATE_S = 5.0
 """How long an ended decision may take to stop before the process gives up."""
 EXIT_HUNG = 3
@@ -68,9 +74,16 @@ class DecisionGuard:
             return
         if model.ended is None:
             limit = self.limit()
-            if now - since > limit:
-                reason = (f"a decision ran longer than {limit * 1e3:.1f} ms (the stream's period) and was ended "
-                          f"from outside (a graph that hangs on real frames?)")
+            cpu = model.decision_cpu_s() if hasattr(model, "decision_cpu_s") else None
+            if cpu is not None and cpu > limit:
+                reason = (f"a decision computed for longer than {limit * 1e3:.1f} ms (the stream's period) and was "
+                          f"ended from outside (a graph that hangs on real frames?)")
+            elif now - since > max(WALL_LIMIT_S, limit):
+                reason = (f"a decision had not ended {now - since:.1f} s after it began and was ended from outside "
+                          f"(a graph that hangs on real frames?)")
+            else:
+                reason = None
+            if reason is not None:
                 model.end_decision(reason)
                 self.ended += 1
                 self._ended_at = now

@@ -276,6 +276,10 @@ class LoadedModel:
         self.running_since: float | None = None
         """``time.perf_counter()`` when the decision under way began, None between decisions (read by
         runtime.decision_guard from its own thread)."""
+        self._cpu: tuple[int, float] | None = None
+        """The deciding thread's CPU clock and its reading when the decision under way began."""
+        self._clocks: dict[int, int] = {}
+        """Thread ident -> its CPU clock id (``decision_cpu_s``)."""
         self.ended: str | None = None
         """Why ``end_decision`` ended this model's decisions (it then runs no more), or None."""
         self._options: Any = None
@@ -344,6 +348,8 @@ class LoadedModel:
         if self.ended is not None:
             raise DecisionEnded(self.ended)
         stage, options = self._stage, self._run_options()
+        clock = self._thread_clock()
+        self._cpu = None if clock is None else (clock, time.clock_gettime(clock))
         self.running_since = time.perf_counter()
         try:
             if (isinstance(x, np.ndarray) and x.shape == stage.shape and x.dtype == stage.dtype
@@ -364,6 +370,29 @@ class LoadedModel:
         if self.ended is not None:
             raise DecisionEnded(self.ended)
         return labels, scores
+
+    def _thread_clock(self) -> int | None:
+        """The calling thread's CPU clock (None where the platform has none)."""
+        ident = threading.get_ident()
+        clock = self._clocks.get(ident)
+        if clock is None and hasattr(time, "pthread_getcpuclockid"):
+            try:
+                clock = self._clocks[ident] = time.pthread_getcpuclockid(ident)
+            except OSError:
+                return None
+        return clock
+
+    def decision_cpu_s(self) -> float | None:
+        """CPU seconds the deciding thread has spent in the decision under way, or None (no decision
+        under way, or no thread CPU clock here). Read from another thread: a thread that only waited for
+        a core (a busy machine) has spent little; a graph that hangs spends it all."""
+        cpu = self._cpu
+        if cpu is None or self.running_since is None:
+            return None
+        try:
+            return time.clock_gettime(cpu[0]) - cpu[1]
+        except OSError:  # the thread ended meanwhile
+            return None
 
     def warm_up(self, budget_fraction: float | None = DEFAULT_BUDGET_FRACTION, bound_s: float = WARM_UP_BOUND_S) -> None:
         """Run realistic windows (so the first real inference does not pay for allocations), check

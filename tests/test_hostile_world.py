@@ -168,13 +168,36 @@ def test_the_guard_ends_a_real_hanging_decision_when_its_clock_says_so(tmp_path)
     guard = DecisionGuard(lambda: model, lambda: 0.03125, exit=exits.append)
     thread = threading.Thread(target=decide, daemon=True)
     thread.start()
-    while model.running_since is None:
-        thread.join(0.001)
-    guard.check(model.running_since + 0.03)  # within the limit: left alone
-    assert model.ended is None and guard.ended == 0
+    while (cpu := model.decision_cpu_s()) is None or cpu <= 0.04:  # the hanging graph spends CPU time
+        thread.join(0.005)
     guard.check(model.running_since + 0.04)
     thread.join(30)
     assert not thread.is_alive() and guard.ended == 1 and "31.2 ms" in outcome[0] and not exits
+
+
+class _Waiting:
+    """A decision under way whose thread has waited for a core rather than computed."""
+
+    model_id = "waiting"
+    running_since = 100.0
+    ended = None
+
+    def decision_cpu_s(self) -> float:
+        return 0.002
+
+    def end_decision(self, reason: str) -> None:
+        self.ended = reason
+
+
+def test_the_guard_leaves_a_decision_that_only_waited_for_a_core_until_its_wall_limit():
+    from runtime.decision_guard import WALL_LIMIT_S, DecisionGuard
+
+    model = _Waiting()
+    guard = DecisionGuard(lambda: model, lambda: 0.03125, exit=lambda code: None)
+    guard.check(model.running_since + 0.5)  # 16 periods late, 2 ms computed: a busy machine, not the model
+    assert model.ended is None and guard.ended == 0
+    guard.check(model.running_since + WALL_LIMIT_S + 0.01)  # the backstop
+    assert model.ended is not None and "had not ended" in model.ended and guard.ended == 1
 
 
 def test_a_controller_back_with_another_layout_then_the_original_gets_its_model_back(tmp_path):
