@@ -8,6 +8,10 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.timeout(1500)
+"""The demo trains a model before its session: minutes on a machine whose cores are busy with other work,
+longer than the suite's default bound per test; a hang still ends (the subprocess's own bound, 1200 s)."""
+
 KEYS = {"events_expected", "events_detected", "events_correct", "latency_p50_us", "latency_p99_us",
         "latency_max_us", "missed_deadlines", "frames_dropped"}
 
@@ -17,7 +21,7 @@ def demo_summary(tmp_path_factory) -> dict:
     out = tmp_path_factory.mktemp("demo")
     proc = subprocess.run(
         [sys.executable, "-m", "runtime.cli", "demo", "--out", str(out), "--events", "8", "--speed", "max", "--json"],
-        capture_output=True, text=True, timeout=600,
+        capture_output=True, text=True, timeout=1200,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
