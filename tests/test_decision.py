@@ -103,41 +103,37 @@ def test_vote_reports_the_class_that_won_most_frames_of_a_run_of_any_non_dormant
     assert _reports(ContinuousDecision(5, D, confirm_frames=5, rearm_frames=2, vote=True), flicker) == [(4, PULL)]
 
 
-def test_gap_and_vote_off_is_the_rule_as_before():
+def _confirmed_at(labels, margins, confirm: int, min_margin: float) -> list[int]:
+    """Frames where a non-dormant class completes ``confirm`` wins in a row, each with the margin."""
+    out, run = [], 0
+    for i, k in enumerate(labels):
+        ok = k != D and margins[i] >= min_margin
+        run = run + 1 if ok and run and labels[i - 1] == k else int(ok)
+        if run == confirm:
+            out.append(i)
+    return out
+
+
+def _longest_dormant(labels) -> int:
+    best = run = 0
+    for k in labels:
+        run = run + 1 if k == D else 0
+        best = max(best, run)
+    return best
+
+
+def test_gap_and_vote_off_is_the_rule_as_documented():
+    """With the defaults, a confirmed class is reported unless no interaction ended since the last report."""
     rng = np.random.default_rng(3)
     labels = rng.choice([D, D, D, PULL, PUSH, HOLD, BUMP], size=2000).tolist()
     margins = rng.uniform(0, 2, size=2000)
-    for confirm, margin, rearm in ((1, 0.0, 0), (3, 0.5, 4), (8, 0.0, 4)):
-        new = ContinuousDecision(5, D, confirm, margin, rearm, gap_frames=0, vote=False)
-        old = _OldRule(confirm, margin, rearm)
-        assert _reports(new, labels, margins) == _reports(old, labels, margins)
-
-
-class _OldRule:
-    """The rule before gap_frames and vote, verbatim, to show the defaults did not change it."""
-
-    def __init__(self, confirm, margin, rearm):
-        self.confirm_frames, self.min_margin, self.rearm_frames = confirm, margin, rearm
-        self.candidate, self.run, self.dormant_run, self.armed, self.last_reported = -1, 0, 0, True, -1
-
-    def update(self, label, scores):
-        if label == D:
-            self.candidate, self.run = -1, 0
-            self.dormant_run += 1
-            if self.dormant_run >= self.rearm_frames:
-                self.armed, self.last_reported = True, -1
-            return -1
-        self.dormant_run = 0
-        if self.min_margin > 0.0 and margin_of(scores, label) < self.min_margin:
-            self.candidate, self.run = -1, 0
-            return -1
-        if label == self.candidate:
-            self.run += 1
-        else:
-            self.candidate, self.run = label, 1
-        if self.run != self.confirm_frames or not self.armed or label == self.last_reported:
-            return -1
-        self.last_reported = label
-        if self.rearm_frames > 0:
-            self.armed = False
-        return label
+    for confirm, margin, rearm in ((1, 0.0, 0), (2, 0.5, 0), (3, 0.5, 4), (2, 0.0, 1)):
+        expected, last = [], -1
+        for i in _confirmed_at(labels, margins, confirm, margin):
+            gap = _longest_dormant(labels[last + 1:i])
+            ended = gap >= rearm if rearm else gap > 0 or labels[i] != labels[last]
+            if last < 0 or ended:
+                expected.append((i, labels[i]))
+                last = i
+        assert len(expected) > 5
+        assert _reports(ContinuousDecision(5, D, confirm, margin, rearm), labels, margins) == expected
