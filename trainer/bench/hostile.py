@@ -22,7 +22,6 @@ Writes results/hostile.json and .md.
 from __future__ import annotations
 
 import json
-import os
 import tempfile
 import time
 from collections import Counter
@@ -31,20 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from trainer.bench.common import command_line, load_average, load_note, machine_info, write_results
+from trainer.bench.hostile_models import write_model
 from trainer.shared_data import default_data_dir
 
 NAME = "hostile"
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _write_model(folder: Path, name: str, data: bytes, mtime: float | None = None) -> Path:
-    tmp = folder / f".{name}.tmp"
-    tmp.write_bytes(data)
-    os.chmod(tmp, 0o644)
-    if mtime is not None:
-        os.utime(tmp, (mtime, mtime))
-    os.replace(tmp, folder / name)
-    return folder / name
 
 
 # -- models -------------------------------------------------------------------------------------
@@ -55,7 +45,7 @@ def attack_models(work: Path, quick: bool) -> dict:
 
     out: dict = {"warm_up": {}, "sleepers": {}}
     for name, build in H.RUNTIME_ATTACKS.items():
-        path = _write_model(work, f"{name}.onnx", build())
+        path = write_model(work, f"{name}.onnx", build())
         load_model(path, warm_up=False)  # passes the static contract
         try:
             load_model(path)
@@ -64,7 +54,7 @@ def attack_models(work: Path, quick: bool) -> dict:
             out["warm_up"][name] = "refused"
     for name in H.RUNTIME_ATTACKS:
         out["sleepers"][name] = sleeper_in_daemon(work / f"sleeper-{name}", name)
-    path = _write_model(work, "slow.onnx", H.slow(40_000))
+    path = write_model(work, "slow.onnx", H.slow(40_000))
     try:
         load_model(path, decision_budget=DEFAULT_BUDGET_FRACTION)  # the daemon's rule
         out["slow_40000_nodes"] = "accepted"
@@ -86,7 +76,7 @@ def sleeper_in_daemon(folder: Path, kind: str) -> dict:
     from trainer.bench import hostile_models as H
 
     (folder / "models").mkdir(parents=True)
-    _write_model(folder / "models", "old.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
+    write_model(folder / "models", "old.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
     events: list = []
     cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
                             "model": {"folder": str(folder / "models")}, "health_file": str(folder / "status.json")})
@@ -94,7 +84,7 @@ def sleeper_in_daemon(folder: Path, kind: str) -> dict:
     daemon.detector.fit(SensorLayout.sdh2())
     daemon.models.start()
     daemon.models.watcher.stop()
-    _write_model(folder / "models", "new.onnx", H.sleeper(kind))
+    write_model(folder / "models", "new.onnx", H.sleeper(kind))
     daemon.models.watcher.poll(require_stable=False)
     daemon._housekeeping(time.monotonic())
     column = int(daemon.layout.columns("distal")[40])

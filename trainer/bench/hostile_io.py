@@ -113,12 +113,12 @@ def attack_daemon(work: Path) -> dict:
     import onnx
 
     from trainer.bench import hostile_models as H
-    from trainer.bench.hostile import _write_model
+    from trainer.bench.hostile_models import write_model
 
     models, state = work / "daemon-models", work / "daemon-state"
     models.mkdir()
     state.mkdir()
-    _write_model(models, "good.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
+    write_model(models, "good.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
     config = state / "h.toml"
     config.write_text(f'health_file = "{state / "status.json"}"\n[device]\nurl = "sim://?events=6&speed=8"\n'
                       f'[model]\nfolder = "{models}"\npoll_interval_s = 0.05\n'
@@ -133,7 +133,7 @@ def attack_daemon(work: Path) -> dict:
     try:
         time.sleep(1.0)
         for i, (name, data) in enumerate(hostile.items()):
-            _write_model(models, name, data, mtime=time.time() - 50 + i)
+            write_model(models, name, data, mtime=time.time() - 50 + i)
             time.sleep(0.3)
         status = _wait_for_rejections(state / "status.json", len(hostile), proc)
         proc.send_signal(signal.SIGTERM)

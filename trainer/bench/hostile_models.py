@@ -13,8 +13,10 @@ that tests and ``handover bench hostile`` attack the daemon with the same files:
 from __future__ import annotations
 
 import json
+import os
 import random
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +24,17 @@ CLASSES = ("pull", "push", "hold", "bump")
 PADS = (1, 3, 5)
 PAD_SIZES = (78, 78, 78)
 T = 15
+
+
+def write_model(folder: Path, name: str, data: bytes, mtime: float | None = None) -> Path:
+    """Drop a model file the safe way (a temporary name, then a rename), mode 644."""
+    tmp = folder / f".{name}.tmp"
+    tmp.write_bytes(data)
+    os.chmod(tmp, 0o644)
+    if mtime is not None:
+        os.utime(tmp, (mtime, mtime))
+    os.replace(tmp, folder / name)
+    return folder / name
 
 
 def metadata(tag: str = "") -> dict:

@@ -22,22 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+from trainer.bench.hostile_models import write_model
+
 ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD_S = 30.0
 """How long a case waits for a part that should never block before calling it blocked."""
 SMALL_PIPE = 4096
 """A pipe this small fills after about a dozen event lines (a pipe nobody reads, sooner)."""
-
-
-def write_model(folder: Path, name: str, data: bytes, mtime: float | None = None) -> Path:
-    """Drop a model file the safe way (a temporary name, then a rename), mode 644."""
-    tmp = folder / f".{name}.tmp"
-    tmp.write_bytes(data)
-    os.chmod(tmp, 0o644)
-    if mtime is not None:
-        os.utime(tmp, (mtime, mtime))
-    os.replace(tmp, folder / name)
-    return folder / name
 
 
 def cli(argv: list[str], timeout: float = 120, **kw) -> subprocess.CompletedProcess:
