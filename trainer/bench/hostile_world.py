@@ -43,6 +43,31 @@ def one_line(text: str, *needles: str) -> bool:
     return len(lines) == 1 and all(n in lines[0] for n in needles)
 
 
+def _daemon_folders(work: Path) -> tuple[Path, Path]:
+    """``work/models`` (the watched folder) and ``work/state`` (config, health file), made."""
+    models, state = work / "models", work / "state"
+    models.mkdir(parents=True)
+    state.mkdir(parents=True)
+    return models, state
+
+
+def _run_config(config: Path, url: str, models: Path, rest: str) -> Path:
+    """A ``handover run`` config: the health file beside it, no realtime priority, ``url``, ``models``; then ``rest``."""
+    config.write_text(f'health_file = "{config.parent / "status.json"}"\nrealtime_priority = 0\n'
+                      f'[device]\nurl = "{url}"\n[model]\nfolder = "{models}"\n{rest}')
+    return config
+
+
+def _sigterm(proc: subprocess.Popen) -> int | None:
+    """SIGTERM, then the exit code; None (and killed) when it does not end within the hang guard."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=HANG_GUARD_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return None
+
+
 def udp_listener() -> tuple[socket.socket, int]:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
@@ -178,16 +203,12 @@ def blocked_stdout_process(work: Path) -> dict:
 
     from trainer.bench import hostile_models as H
 
-    models, state = work / "models", work / "state"
-    models.mkdir(parents=True)
-    state.mkdir(parents=True)
+    models, state = _daemon_folders(work)
     write_model(models, "good.onnx", H.valid(bias_class=0))
     listener, port = udp_listener()
-    config = state / "h.toml"
-    config.write_text(f'health_file = "{state / "status.json"}"\nrealtime_priority = 0\n'
-                      '[device]\nurl = "sim://?events=400&speed=16"\n'
-                      f'[model]\nfolder = "{models}"\n[sinks]\nudp = ["127.0.0.1:{port}"]\n'
-                      '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\nrefractory_s = 0.3\n')
+    config = _run_config(state / "h.toml", "sim://?events=400&speed=16", models,
+                         f'[sinks]\nudp = ["127.0.0.1:{port}"]\n'
+                         '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\nrefractory_s = 0.3\n')
     read_end, write_end = os.pipe()
     fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, SMALL_PIPE)
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
@@ -200,11 +221,7 @@ def blocked_stdout_process(work: Path) -> dict:
             got += [d for d in drain(listener) if b'"decision"' in d]
             time.sleep(0.1)
         pipe_full = len(os.read(read_end, 1 << 20)) >= SMALL_PIPE - 512  # read only now: it was full
-        proc.send_signal(signal.SIGTERM)
-        try:
-            code = proc.wait(timeout=HANG_GUARD_S)
-        except subprocess.TimeoutExpired:
-            code = None
+        code = _sigterm(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -221,19 +238,14 @@ def closed_stdout(work: Path) -> dict:
     """``handover run ... >&-``: one line (sinks.stdout) or no stdout sink, never a crash."""
     from trainer.bench import hostile_models as H
 
-    models, state = work / "models", work / "state"
-    models.mkdir(parents=True)
-    state.mkdir(parents=True)
+    models, state = _daemon_folders(work)
     write_model(models, "good.onnx", H.valid(bias_class=0))
     listener, port = udp_listener()
     outcomes = {}
     for stdout_on in (True, False):
-        config = state / f"h-{stdout_on}.toml"
-        config.write_text(f'health_file = "{state / "status.json"}"\nrealtime_priority = 0\n'
-                          '[device]\nurl = "sim://?events=20&speed=16"\n'
-                          f'[model]\nfolder = "{models}"\n[sinks]\nstdout = {str(stdout_on).lower()}\n'
-                          f'udp = ["127.0.0.1:{port}"]\n'
-                          '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\n')
+        config = _run_config(state / f"h-{stdout_on}.toml", "sim://?events=20&speed=16", models,
+                             f'[sinks]\nstdout = {str(stdout_on).lower()}\nudp = ["127.0.0.1:{port}"]\n'
+                             '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\n')
         proc = subprocess.Popen(["sh", "-c", 'exec "$0" -m runtime.cli run --config "$1" >&-', sys.executable,
                                  str(config)], cwd=ROOT, stderr=subprocess.PIPE, text=True)
         got = 0
@@ -241,12 +253,7 @@ def closed_stdout(work: Path) -> dict:
         while time.monotonic() < deadline and proc.poll() is None and got < 1:
             got += len(drain(listener))
             time.sleep(0.1)
-        proc.send_signal(signal.SIGTERM)
-        try:
-            code = proc.wait(timeout=HANG_GUARD_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            code = None
+        code = _sigterm(proc)
         err = proc.communicate()[1]
         said = [line for line in err.splitlines() if "sinks.stdout" in line]
         outcomes[stdout_on] = {"exit_code": code, "udp_datagrams": got, "traceback": "Traceback" in err,
@@ -686,9 +693,7 @@ def hanging_model(work: Path) -> dict:
     from runtime.daemon import Daemon
     from trainer.bench import hostile_models as H
 
-    models, state = work / "models", work / "state"
-    models.mkdir(parents=True)
-    state.mkdir(parents=True)
+    models, state = _daemon_folders(work)
     write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
     write_model(models, "hang.onnx", H.hang(), mtime=time.time() - 10)
     cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False}, "realtime_priority": 0,
@@ -743,9 +748,7 @@ def hanging_model_process(work: Path) -> dict:
     from firmware_io.recordings.recording import Recording
     from trainer.bench import hostile_models as H
 
-    models, state = work / "models", work / "state"
-    models.mkdir(parents=True)
-    state.mkdir(parents=True)
+    models, state = _daemon_folders(work)
     write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
     write_model(models, "hang.onnx", H.hang(), mtime=time.time() - 10)
     layout = SensorLayout.sdh2()
@@ -755,10 +758,8 @@ def hanging_model_process(work: Path) -> dict:
         frames[start:start + 20, column] = int(H.SLEEPER_PEAK)
     rec = Recording(layout, frames, np.arange(len(frames)) / 32.0, [], {"source": "hostile"})
     path = rec.save(work / "presses.hrec")
-    config = state / "h.toml"
-    config.write_text(f'health_file = "{state / "status.json"}"\nrealtime_priority = 0\n'
-                      f'[device]\nurl = "replay://{path}?speed=1&loop=1"\n[model]\nfolder = "{models}"\n'
-                      '[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\n')
+    config = _run_config(state / "h.toml", f"replay://{path}?speed=1&loop=1", models,
+                         '[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\n')
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -769,11 +770,7 @@ def hanging_model_process(work: Path) -> dict:
             if status.get("models_quarantined", 0) >= 1 and status.get("events", 0) >= 1:
                 break
             time.sleep(0.2)
-        proc.send_signal(signal.SIGTERM)
-        try:
-            code = proc.wait(timeout=HANG_GUARD_S)
-        except subprocess.TimeoutExpired:
-            code = None
+        code = _sigterm(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -796,9 +793,7 @@ def layout_comes_back(work: Path) -> dict:
     from runtime.daemon import Daemon
     from trainer.bench import hostile_models as H
 
-    models, state = work / "models", work / "state"
-    models.mkdir(parents=True)
-    state.mkdir(parents=True)
+    models, state = _daemon_folders(work)
     write_model(models, "six-pads.onnx", H.valid(bias_class=0))
     cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False}, "model": {"folder": str(models)},
                             "health_file": str(state / "status.json")})
