@@ -17,17 +17,23 @@ def _held(result: dict) -> None:
     assert result["held"], result["detail"]
 
 
-def test_a_stdout_nobody_reads_never_stops_detection_nor_the_udp_sink(tmp_path):
-    _held(W.blocked_stdout(tmp_path))
-
-
-@pytest.mark.slow
-def test_handover_run_into_a_pipe_nobody_reads_keeps_sending_udp_and_ends_on_sigterm(tmp_path):
-    _held(W.blocked_stdout_process(tmp_path))
-
-
-def test_stdout_closed_at_start_is_one_line_or_no_stdout_sink_never_a_crash(tmp_path):
-    _held(W.closed_stdout(tmp_path))
+# Each case runs the world's parts for real and says whether it held; the id says what must hold.
+@pytest.mark.parametrize("case", [
+    pytest.param("blocked_stdout", id="a_stdout_nobody_reads_never_stops_detection_nor_the_udp_sink"),
+    pytest.param("blocked_stdout_process", id="handover_run_into_a_pipe_nobody_reads_keeps_sending_udp_and_ends_on_sigterm", marks=pytest.mark.slow),
+    pytest.param("closed_stdout", id="stdout_closed_at_start_is_one_line_or_no_stdout_sink_never_a_crash"),
+    pytest.param("silent_dns", id="a_udp_host_whose_dns_is_silent_never_holds_ready_or_sighup"),
+    pytest.param("control_paths", id="a_control_socket_path_that_cannot_work_is_one_line_at_check_and_at_run"),
+    pytest.param("state_file_paths", id="a_health_or_quarantine_file_naming_a_folder_is_one_line_at_check_run_and_sighup"),
+    pytest.param("partial_config", id="sighup_on_an_empty_cut_or_fifo_config_keeps_the_running_one_with_one_line"),
+    pytest.param("crafted_dsa", id="crafted_dsa_files_are_one_line_and_never_allocate_what_the_header_asks"),
+    pytest.param("model_claims", id="the_model_metadata_is_not_believed_where_the_stream_says_otherwise"),
+    pytest.param("folder_rollbacks", id="what_the_model_folder_holds_is_what_is_served_and_check_agrees"),
+    pytest.param("hanging_model_process", id="handover_run_with_a_hanging_model_serves_the_old_one_and_ends_on_sigterm", marks=pytest.mark.slow),
+    pytest.param("layout_comes_back", id="a_controller_back_with_another_layout_then_the_original_gets_its_model_back"),
+])
+def test_the_case_holds(case, tmp_path):
+    _held(getattr(W, case)(tmp_path))
 
 
 def test_the_stdout_sink_keeps_whole_lines_and_counts_what_it_dropped():
@@ -56,10 +62,6 @@ def test_the_stdout_sink_keeps_whole_lines_and_counts_what_it_dropped():
     sink.close()
     assert os.get_blocking(write_end)  # the descriptor's mode is given back
     os.close(read_end)
-
-
-def test_a_udp_host_whose_dns_is_silent_never_holds_ready_or_sighup(tmp_path):
-    _held(W.silent_dns(tmp_path))
 
 
 def test_a_udp_address_literal_needs_no_lookup_and_a_name_is_looked_up_off_the_caller():
@@ -98,18 +100,6 @@ def test_the_sender_credentials_rule():
     assert not may_steer(65534, own_uid=1000) and not may_steer(None, own_uid=1000)
 
 
-def test_a_control_socket_path_that_cannot_work_is_one_line_at_check_and_at_run(tmp_path):
-    _held(W.control_paths(tmp_path))
-
-
-def test_a_health_or_quarantine_file_naming_a_folder_is_one_line_at_check_run_and_sighup(tmp_path):
-    _held(W.state_file_paths(tmp_path))
-
-
-def test_sighup_on_an_empty_cut_or_fifo_config_keeps_the_running_one_with_one_line(tmp_path):
-    _held(W.partial_config(tmp_path))
-
-
 def test_a_config_is_read_whole_from_a_regular_file_and_a_fifo_is_refused_at_once(tmp_path):
     from runtime.config import read_whole
 
@@ -122,26 +112,9 @@ def test_a_config_is_read_whole_from_a_regular_file_and_a_fifo_is_refused_at_onc
         read_whole(fifo)
 
 
-def test_crafted_dsa_files_are_one_line_and_never_allocate_what_the_header_asks(tmp_path):
-    _held(W.crafted_dsa(tmp_path))
-
-
-def test_the_model_metadata_is_not_believed_where_the_stream_says_otherwise(tmp_path):
-    _held(W.model_claims(tmp_path))
-
-
-def test_what_the_model_folder_holds_is_what_is_served_and_check_agrees(tmp_path):
-    _held(W.folder_rollbacks(tmp_path))
-
-
 def test_a_model_that_hangs_on_real_windows_is_ended_from_outside_and_stays_out(tmp_path):
     result = W.hanging_model(tmp_path)
     assert result["held_untimed"], result["detail"]  # its time is the benchmark's to report
-
-
-@pytest.mark.slow
-def test_handover_run_with_a_hanging_model_serves_the_old_one_and_ends_on_sigterm(tmp_path):
-    _held(W.hanging_model_process(tmp_path))
 
 
 def test_the_guard_ends_a_real_hanging_decision_when_its_clock_says_so(tmp_path):
@@ -198,10 +171,6 @@ def test_the_guard_leaves_a_decision_that_only_waited_for_a_core_until_its_wall_
     assert model.ended is None and guard.ended == 0
     guard.check(model.running_since + WALL_LIMIT_S + 0.01)  # the backstop
     assert model.ended is not None and "had not ended" in model.ended and guard.ended == 1
-
-
-def test_a_controller_back_with_another_layout_then_the_original_gets_its_model_back(tmp_path):
-    _held(W.layout_comes_back(tmp_path))
 
 
 def test_the_device_rate_counts_frames_dropped_as_implausible():
