@@ -239,6 +239,14 @@ def _notify_socket(tmp_path: Path) -> tuple[socket.socket, str]:
     return sock, path
 
 
+def _sigterm_seconds(proc: subprocess.Popen) -> float:
+    """SIGTERM, then how long the daemon took to end (at most 10 s)."""
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=10)
+    return time.monotonic() - t0
+
+
 def _wait_for(sock: socket.socket, needle: str, timeout: float, seen: list[str]) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -280,10 +288,7 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
         cfg.write_text(text)
         proc.send_signal(signal.SIGHUP)
         time.sleep(0.5)
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
-        stop_s = time.monotonic() - t0
+        stop_s = _sigterm_seconds(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -396,10 +401,7 @@ def test_sigterm_while_connecting_to_a_silent_device(models, tmp_path):
         during: list[str] = []
         assert _wait_for(sock, "WATCHDOG=1", 1.0, during), during  # fed while the open waits
         time.sleep(0.5)  # well inside the open's stop retries (1 s gap timeout each)
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
-        stop_s = time.monotonic() - t0
+        stop_s = _sigterm_seconds(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
