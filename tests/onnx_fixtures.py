@@ -46,3 +46,14 @@ def export(model, folder: Path, name: str = "model.onnx", **kw) -> Path:
 def frames_of(X: np.ndarray) -> np.ndarray:
     """Aeon ``(n, C, T)`` cases as graph input ``[n, T, C]`` float32."""
     return np.ascontiguousarray(np.asarray(X).transpose(0, 2, 1), dtype=np.float32)
+
+
+def check_report(report) -> None:
+    """A verified graph: no NaN/inf, every disagreement with the reference a true near tie."""
+    from trainer.numerics import SAFETY
+
+    assert report.nan_or_inf_outputs == 0
+    assert report.unexplained_disagreements == 0, report.disagreements
+    assert report.hist_mismatch_unexplained == 0
+    for d in report.disagreements:
+        assert d.near_tie and min(d.codeword_margin, d.svm_margin) < SAFETY

@@ -13,13 +13,12 @@ from sklearn.base import clone
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from runtime.model import load_model
-from tests.onnx_fixtures import PAD_SIZES, T, export, frames_of, synthetic_cases
+from tests.onnx_fixtures import PAD_SIZES, T, check_report, export, frames_of, synthetic_cases
 from trainer.bow import BagOfWords, level_features
 from trainer.classifier import BowSVC
 from trainer.flat import FlatSVC
-from trainer.numerics import SAFETY
 from trainer.stress import stress_cases
-from trainer.verify import GraphRunner, VerifyReport, compare
+from trainer.verify import GraphRunner, compare
 
 C = sum(PAD_SIZES)
 
@@ -52,14 +51,6 @@ single-option models run with ``-m slow``."""
 def exported(request, tmp_path_factory):
     model = fit_option(request.param)
     return request.param, model, GraphRunner(export(model, tmp_path_factory.mktemp(request.param)))
-
-
-def _check(report: VerifyReport) -> None:
-    assert report.nan_or_inf_outputs == 0
-    assert report.unexplained_disagreements == 0, report.disagreements
-    assert report.hist_mismatch_unexplained == 0
-    for d in report.disagreements:
-        assert d.near_tie and min(d.codeword_margin, d.svm_margin) < SAFETY
 
 
 def test_paper_defaults_unchanged():
@@ -136,7 +127,7 @@ def test_graph_parity_on_cases_and_stress(exported):
     families = stress_cases(T, C, model.bow_.codebook_, seed=1)
     stress = np.concatenate(list(families.values()))
     report = compare(model, runner, np.concatenate([frames_of(X), stress]), ["sim"] * 64 + ["stress"] * len(stress))
-    _check(report)
+    check_report(report)
     assert report.by_source["sim"]["agree"] >= 62  # synthetic; near ties are rare
     _labels, _scores, hist = runner.run(frames_of(X))
     assert hist.shape == (64, model.bow_.n_features_out_)
@@ -170,7 +161,7 @@ def soft_all(tmp_path_factory):
 @given(arrays(np.float32, (2, T, C), elements=window_values))
 def test_random_windows_soft_levels_scaled(soft_all, frames):
     model, runner = soft_all
-    _check(compare(model, runner, frames, ["hypothesis"] * 2))
+    check_report(compare(model, runner, frames, ["hypothesis"] * 2))
 
 
 @pytest.mark.slow
@@ -178,7 +169,7 @@ def test_random_windows_soft_levels_scaled(soft_all, frames):
 @given(arrays(np.float32, (2, T, C), elements=window_values))
 def test_random_windows_soft_levels_scaled_thorough(soft_all, frames):
     model, runner = soft_all
-    _check(compare(model, runner, frames, ["hypothesis"] * 2))
+    check_report(compare(model, runner, frames, ["hypothesis"] * 2))
 
 
 # -- flattened-series SVM -------------------------------------------------------------------------
@@ -206,7 +197,7 @@ def test_flat_svm_graph_parity(kernel, tmp_path):
     runner = GraphRunner(path)
     stress = np.concatenate(list(stress_cases(T, C, np.eye(3, 5), seed=2).values()))
     report = compare(model, runner, np.concatenate([frames_of(Xt), stress]), ["sim"] * 64 + ["stress"] * len(stress))
-    _check(report)
+    check_report(report)
     labels, _, hist = runner.run(frames_of(Xt))
     np.testing.assert_array_equal(hist, Xt.reshape(64, -1))
     assert np.mean(labels == np.searchsorted(model.classes_, model.predict(Xt))) >= 0.98

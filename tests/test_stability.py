@@ -15,10 +15,10 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from runtime.model import load_model
-from tests.onnx_fixtures import PAD_SIZES, T, export, fit_model, frames_of, synthetic_cases
+from tests.onnx_fixtures import PAD_SIZES, T, check_report, export, fit_model, frames_of, synthetic_cases
 from trainer.numerics import SAFETY, codeword_margins, reference
 from trainer.stress import stress_cases
-from trainer.verify import GraphRunner, VerifyReport, compare
+from trainer.verify import GraphRunner, compare
 
 C = sum(PAD_SIZES)
 
@@ -27,14 +27,6 @@ C = sum(PAD_SIZES)
 def rbf(tmp_path_factory):
     model = fit_model("rbf")
     return model, GraphRunner(export(model, tmp_path_factory.mktemp("rbf")))
-
-
-def _check(report: VerifyReport) -> None:
-    assert report.nan_or_inf_outputs == 0
-    assert report.unexplained_disagreements == 0, report.disagreements
-    assert report.hist_mismatch_unexplained == 0
-    for d in report.disagreements:
-        assert d.near_tie and min(d.codeword_margin, d.svm_margin) < SAFETY
 
 
 def _stress(model) -> tuple[np.ndarray, list[str]]:
@@ -53,7 +45,7 @@ def test_stress_cases_agree_or_near_tie(rbf):
     model, runner = rbf
     frames, names = _stress(model)
     report = compare(model, runner, frames, names)
-    _check(report)
+    check_report(report)
     assert report.agreement >= 0.95
 
 
@@ -99,7 +91,7 @@ def test_duplicate_codewords(tmp_path):
     X, _ = synthetic_cases(n=64, seed=9)
     frames, names = _stress(model)
     report = compare(model, runner, np.concatenate([frames_of(X), frames]), ["sim"] * 64 + names)
-    _check(report)
+    check_report(report)
     _, _, hist = runner.run(frames_of(X))
     assert np.all(hist[:, 1] == 0) and np.all(hist[:, 7] == 0)  # word 1 never wins, in both pad groups
 
@@ -112,7 +104,7 @@ def test_extreme_C_and_gamma(C_svm, gamma, tmp_path):
     X, _ = synthetic_cases(n=64, seed=13)
     frames, names = _stress(model)
     report = compare(model, runner, np.concatenate([frames_of(X), frames]), ["sim"] * 64 + names)
-    _check(report)
+    check_report(report)
 
 
 def test_float32_against_float64_throughout(rbf):
@@ -143,7 +135,7 @@ _fixture_ok = [HealthCheck.function_scoped_fixture]
 @given(arrays(np.float32, (2, T, C), elements=window_values))
 def test_random_windows_never_nan_and_only_near_ties_differ(rbf, frames):
     model, runner = rbf
-    _check(compare(model, runner, frames, ["hypothesis"] * 2))
+    check_report(compare(model, runner, frames, ["hypothesis"] * 2))
 
 
 @pytest.mark.slow
@@ -151,7 +143,7 @@ def test_random_windows_never_nan_and_only_near_ties_differ(rbf, frames):
 @given(arrays(np.float32, (2, T, C), elements=window_values))
 def test_random_windows_thorough(rbf, frames):
     model, runner = rbf
-    _check(compare(model, runner, frames, ["hypothesis"] * 2))
+    check_report(compare(model, runner, frames, ["hypothesis"] * 2))
 
 
 @settings(max_examples=FAST_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
