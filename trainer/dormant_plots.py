@@ -26,6 +26,14 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path: Path) -> str:
+    """Every figure here at one size and resolution; the file name, for the results page's link."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
+
+
 def _window(truths, n_frames: int, period: float, span_s: float = 75.0) -> tuple[int, int]:
     """A stretch that starts just before an event and holds several of them."""
     n = int(span_s / period)
@@ -81,10 +89,7 @@ def timeline(path: Path, rec, truths, decisions: dict, pads: Sequence[int]) -> s
     ax2.set_xlabel("time (s)")
     ax2.set_title("reported events: green = first, right-class report of an event; red = false, wrong or duplicate",
                   fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.name
+    return _save(plt, fig, path)
 
 
 def tradeoff(path: Path, idle: dict, mixed: dict) -> str:
@@ -105,10 +110,7 @@ def tradeoff(path: Path, idle: dict, mixed: dict) -> str:
     ax.set_title("False alarms vs delay (synthetic)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.name
+    return _save(plt, fig, path)
 
 
 def false_by_source(path: Path, idle: dict, hours: dict) -> str:
@@ -124,10 +126,7 @@ def false_by_source(path: Path, idle: dict, hours: dict) -> str:
     ax.set_ylabel("false events per hour of that situation")
     ax.set_title("False events by what the idle hand was doing (synthetic)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.name
+    return _save(plt, fig, path)
 
 
 def rule_grid(path: Path, rows: list[dict], chosen: dict) -> str:
@@ -147,7 +146,4 @@ def rule_grid(path: Path, rows: list[dict], chosen: dict) -> str:
     ax.set_title("Continuous report rules on the validation streams (synthetic)")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.name
+    return _save(plt, fig, path)
