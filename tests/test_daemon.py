@@ -239,6 +239,13 @@ def _notify_socket(tmp_path: Path) -> tuple[socket.socket, str]:
     return sock, path
 
 
+def _notified_run(cfg: Path, notify_socket: str, watchdog_usec: int) -> subprocess.Popen:
+    """``handover run --config CFG`` as systemd starts it: a notify socket and a watchdog period."""
+    env = {**os.environ, "NOTIFY_SOCKET": notify_socket, "WATCHDOG_USEC": str(watchdog_usec), "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
 def _sigterm_seconds(proc: subprocess.Popen) -> float:
     """SIGTERM, then how long the daemon took to end (at most 10 s)."""
     t0 = time.monotonic()
@@ -268,9 +275,7 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
             f'[model]\nfolder = "{models}"\npoll_interval_s = 0.1\n'
             '[trigger]\nfraction = 0.02\nhysteresis = 0.01\n')
     cfg.write_text(text)
-    env = {**os.environ, "NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000", "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = _notified_run(cfg, path, watchdog_usec=400000)
     seen: list[str] = []
     try:
         assert _wait_for(sock, "READY=1", 30, seen), seen
@@ -388,9 +393,7 @@ def test_sigterm_while_connecting_to_a_silent_device(models, tmp_path):
     sock, path = _notify_socket(tmp_path)
     cfg = tmp_path / "h.toml"
     cfg.write_text(f'[device]\nurl = "tcp://127.0.0.1:{server.getsockname()[1]}"\n[model]\nfolder = "{models}"\n')
-    env = {**os.environ, "NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000", "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = _notified_run(cfg, path, watchdog_usec=200000)
     seen: list[str] = []
     try:
         assert _wait_for(sock, "READY=1", 30, seen), seen
