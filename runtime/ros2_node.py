@@ -240,10 +240,18 @@ class Ros2Sink(Sink):
         except Exception as exc:
             self._warn(f"ros2: pad images not published ({exc})")
 
-    def _on_grasp(self, msg: String) -> None:
+    def _word(self, msg: String, topic: str, words: dict[str, bool]) -> str | None:
+        """The message's word if ``words`` has it (case and blanks ignored); else one warning and None."""
         word = msg.data.strip().lower()
-        if word not in GRASP_WORDS:
-            self._warn(f"ros2: {self.cfg.namespace}/grasp: expected 'closed' or 'open', got {msg.data[:40]!r}; ignored")
+        if word in words:
+            return word
+        expected = " or ".join(repr(w) for w in words)
+        self._warn(f"ros2: {self.cfg.namespace}/{topic}: expected {expected}, got {msg.data[:40]!r}; ignored")
+        return None
+
+    def _on_grasp(self, msg: String) -> None:
+        word = self._word(msg, "grasp", GRASP_WORDS)
+        if word is None:
             return
         try:
             self.daemon.set_grasp(GRASP_WORDS[word], source="ros2")
@@ -251,11 +259,9 @@ class Ros2Sink(Sink):
             self._warn(f"ros2: grasp {word!r} not taken ({exc})")
 
     def _on_arm(self, msg: String) -> None:
-        word = msg.data.strip().lower()
-        if word not in ARM_WORDS:
-            self._warn(f"ros2: {self.cfg.namespace}/arm: expected 'moving' or 'still', got {msg.data[:40]!r}; ignored")
-            return
-        self._set_arm(ARM_WORDS[word])
+        word = self._word(msg, "arm", ARM_WORDS)
+        if word is not None:
+            self._set_arm(ARM_WORDS[word])
 
     def _on_joints(self, msg: JointState) -> None:
         try:
