@@ -12,16 +12,10 @@ from pathlib import Path
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
 from tests.tiny_models import tiny_model_bytes, write_model
+from tests.waiting import wait_for
 
 TRIGGER = {"fraction": 0.02, "hysteresis": 0.01, "refractory_s": 1.0}
 """The simulated hand presses lightly (synthetic): a low threshold makes every scripted event trigger."""
-
-
-def wait_for(condition, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    return bool(condition())
 
 
 def ros_sink(daemon: Daemon):
@@ -63,8 +57,6 @@ def run_until(daemon: Daemon, condition, timeout: float = 15.0) -> None:
 
     threading.Thread(target=watch, daemon=True).start()
     daemon.run()
-
-
 
 
 def sigterm_seconds(proc: subprocess.Popen) -> float:

@@ -3,9 +3,9 @@ windows during and after a move, the marks a recording keeps and the simulator w
 
 from __future__ import annotations
 
+import functools
 import logging
 import socket
-import time
 
 import numpy as np
 import pytest
@@ -13,6 +13,7 @@ import pytest
 from firmware_io.recordings import arm_marks
 from runtime.arm_motion import ArmMotion, arm_frames
 from tests.test_onset import _daemon, _frames, grasp_levels
+from tests.waiting import wait_for
 
 
 def _feed(arm: ArmMotion, words: dict[int, bool], n: int) -> list[int]:
@@ -103,11 +104,7 @@ def _send(path: str, data: bytes) -> None:
         s.sendto(data, path)
 
 
-def _wait(predicate, timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < end:
-        time.sleep(0.01)
-    return predicate()
+_wait = functools.partial(wait_for, timeout=3.0)
 
 
 def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones_are_one_line(tmp_path, caplog):

@@ -3,24 +3,18 @@ same path, the socket file removed while the daemon runs."""
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import socket
-import time
 from pathlib import Path
 
 import pytest
 
 from runtime.control import MAX_DATAGRAM, POLL_S, ControlSocket
+from tests.waiting import wait_for
 
-
-def _wait(predicate, timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
+_wait = functools.partial(wait_for, timeout=3.0)
 
 
 @pytest.fixture

@@ -3,6 +3,7 @@ and the daemon built around one detector (windows held back for a swap, a model 
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from dataclasses import replace
@@ -21,6 +22,7 @@ from runtime.detector import Detector, ReportRule, Windows
 from runtime.model import load_model
 from runtime.sinks import Event
 from tests.tiny_models import tiny_model_bytes, write_model
+from tests.waiting import wait_for
 
 LAYOUT = SensorLayout.sdh2()
 
@@ -221,7 +223,7 @@ def test_continuous_mode_over_a_real_link_decides_every_frame_once_the_ring_hold
 
         def stop_when_played() -> None:
             _until(lambda: emulator.finished)
-            _until(lambda: daemon.health.device_faults > 0, limit_s=0.5)  # the last frames read
+            _until(lambda: daemon.health.device_faults > 0, timeout=0.5)  # the last frames read
             daemon.request_stop()
 
         stopper = threading.Thread(target=stop_when_played, daemon=True)
@@ -234,7 +236,4 @@ def test_continuous_mode_over_a_real_link_decides_every_frame_once_the_ring_hold
     assert [n for n, _ in seen.decisions] == seen.frames[14:]
 
 
-def _until(condition, limit_s: float = 30.0) -> None:
-    end = time.monotonic() + limit_s
-    while not condition() and time.monotonic() < end:
-        time.sleep(0.01)
+_until = functools.partial(wait_for, timeout=30.0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import socket
 import time
@@ -17,6 +18,7 @@ from runtime.daemon import Daemon
 from runtime.detector import Detector
 from runtime.onset import ARMED, OPEN, OnsetTrigger
 from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, resolve_trigger
+from tests.waiting import wait_for
 
 LAYOUT = SensorLayout.sdh2()
 PADS = (78, 78, 78)
@@ -187,11 +189,7 @@ def _send(path: str, data: bytes) -> None:
         s.sendto(data, path)
 
 
-def _wait(predicate, timeout: float = 3.0) -> None:
-    end = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < end:
-        time.sleep(0.01)
-    assert predicate()
+_wait = functools.partial(wait_for, timeout=3.0)
 
 
 def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_once(tmp_path, caplog):
@@ -202,16 +200,16 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
         frames = _frames(grasp_levels(60, close=0))
         daemon.handle_frame(frames[0])
         _send(path, b"grasp closed\n")
-        _wait(lambda: daemon.control.received == 1)
+        assert _wait(lambda: daemon.control.received == 1)
         daemon.handle_frame(frames[1])
         assert daemon.detector.grasp_closed is True and daemon.detector.trigger.state == ARMED
         with caplog.at_level(logging.WARNING, logger="handover.control"):
             _send(path, b"\xff\xfe\x00")
             _send(path, b"grasp sideways")
-            _wait(lambda: daemon.control.garbage == 2)
+            assert _wait(lambda: daemon.control.garbage == 2)
         assert sum("ignored a datagram" in r.getMessage() for r in caplog.records) == 1
         _send(path, b"GRASP OPEN")
-        _wait(lambda: daemon.control.received == 2)
+        assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
         assert daemon.detector.grasp_closed is False and daemon.detector.trigger.state == OPEN and daemon.detector.trigger.robot_open
         daemon.set_grasp(True, source="ros2")  # what the ROS 2 sink calls

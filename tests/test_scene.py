@@ -3,8 +3,8 @@ other pads, and every refusal says what to do next (runtime/scene.py)."""
 
 from __future__ import annotations
 
+import functools
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -14,6 +14,7 @@ from runtime.config import load_config
 from runtime.model import load_model
 from runtime.scene import scene_pads, scene_problem
 from tests.tiny_models import tiny_model_bytes, write_model
+from tests.waiting import wait_for
 
 pytest.importorskip("onnx")
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,7 +108,4 @@ def test_daemon_with_the_shipped_config_serves_an_all_pads_model(tmp_path):
     assert len(events) >= 3 and all(e.model_id == events[0].model_id for e in events)
 
 
-def _wait(cond, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.01)
+_wait = functools.partial(wait_for, timeout=30.0)

@@ -4,6 +4,7 @@ daemon (``instance``). A real daemon process on the simulated hand, models dropp
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import signal
@@ -13,17 +14,12 @@ import time
 from pathlib import Path
 
 from tests.tiny_models import tiny_model_bytes, write_model
+from tests.waiting import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _wait(predicate, timeout: float = 60.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return False
+_wait = functools.partial(wait_for, timeout=60.0)
 
 
 def _health(path: Path) -> dict:
