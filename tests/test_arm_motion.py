@@ -12,6 +12,7 @@ import pytest
 
 from firmware_io.recordings import arm_marks
 from runtime.arm_motion import ArmMotion, arm_frames
+from tests.datagrams import send_datagram
 from tests.test_onset import _daemon, _frames, grasp_levels
 from tests.waiting import wait_for
 
@@ -99,11 +100,6 @@ def test_without_the_message_the_same_push_is_reported(tmp_path):
     assert len(events) == 1 and daemon.detector.arm.dropped == 0
 
 
-def _send(path: str, data: bytes) -> None:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
-        s.sendto(data, path)
-
-
 _wait = functools.partial(wait_for, timeout=3.0)
 
 
@@ -114,19 +110,19 @@ def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones
     try:
         frames = _frames(grasp_levels(700))
         daemon.handle_frame(frames[0])
-        _send(path, b"arm moving\n")
+        send_datagram(path, b"arm moving\n")
         assert _wait(lambda: daemon.control.received == 1)
         daemon.handle_frame(frames[1])
         assert daemon.detector.arm.moving and daemon.detector.arm_request == (True, "control")
         with caplog.at_level(logging.WARNING, logger="handover.control"):
             for text in (b"arm flying", b"ARM", b"arm moving please", b"\x00" * 40):
-                _send(path, text)
+                send_datagram(path, text)
             assert _wait(lambda: daemon.control.garbage == 4)
         assert sum("ignored a datagram" in r.getMessage() for r in caplog.records) == 1
         daemon.write_health()
         health = daemon.health.snapshot()
         assert health["control_ignored"] == 4 and health["arm_moving"] is True
-        _send(path, b"  ARM   STILL ")
+        send_datagram(path, b"  ARM   STILL ")
         assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
         assert not daemon.detector.arm.moving and daemon.detector.arm.last_motion == 1 + daemon.detector.arm.settle_frames
@@ -242,7 +238,7 @@ def test_a_recorded_session_stores_the_robots_arm_words_heard_on_the_control_soc
     def cue(kind, slot):  # the robot speaks as each stretch starts
         subject.cue(kind, slot)
         if kind == "idle":
-            _send(path, words[slot.index])
+            send_datagram(path, words[slot.index])
             assert _wait(lambda: log.heard == slot.index + 1)
 
     try:

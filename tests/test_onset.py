@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import socket
 import time
 
 import numpy as np
@@ -18,6 +17,7 @@ from runtime.daemon import Daemon
 from runtime.detector import Detector
 from runtime.onset import ARMED, OPEN, OnsetTrigger
 from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, resolve_trigger
+from tests.datagrams import send_datagram
 from tests.waiting import wait_for
 
 LAYOUT = SensorLayout.sdh2()
@@ -184,11 +184,6 @@ def test_daemon_serves_a_model_cut_by_the_onset_trigger_with_it(tmp_path):
     assert len(events) == 1 and 200 <= events[0].frame_first <= 202  # from the person's onset (200), not the close (20)
 
 
-def _send(path: str, data: bytes) -> None:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
-        s.sendto(data, path)
-
-
 _wait = functools.partial(wait_for, timeout=3.0)
 
 
@@ -199,16 +194,16 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
     try:
         frames = _frames(grasp_levels(60, close=0))
         daemon.handle_frame(frames[0])
-        _send(path, b"grasp closed\n")
+        send_datagram(path, b"grasp closed\n")
         assert _wait(lambda: daemon.control.received == 1)
         daemon.handle_frame(frames[1])
         assert daemon.detector.grasp_closed is True and daemon.detector.trigger.state == ARMED
         with caplog.at_level(logging.WARNING, logger="handover.control"):
-            _send(path, b"\xff\xfe\x00")
-            _send(path, b"grasp sideways")
+            send_datagram(path, b"\xff\xfe\x00")
+            send_datagram(path, b"grasp sideways")
             assert _wait(lambda: daemon.control.garbage == 2)
         assert sum("ignored a datagram" in r.getMessage() for r in caplog.records) == 1
-        _send(path, b"GRASP OPEN")
+        send_datagram(path, b"GRASP OPEN")
         assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
         assert daemon.detector.grasp_closed is False and daemon.detector.trigger.state == OPEN and daemon.detector.trigger.robot_open
