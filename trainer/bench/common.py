@@ -231,6 +231,13 @@ def _load_sentence(result: dict, machine: dict) -> str:
     return "The machine is shared: tails (p99, p99.9, max) may include other work."
 
 
+def run_facts(name: str, args, load_before: list[float], t_start: float) -> dict:
+    """What a results file records about its run: how long, on what, under what load, by which command."""
+    seconds, machine, load_after = round(time.perf_counter() - t_start, 1), machine_info(), load_average()
+    return {"seconds": seconds, "machine": machine, "load_before": load_before, "load_after": load_after,
+            "command": command_line(name, args), "note": load_note(load_before, load_after, machine["cores"])}
+
+
 def load_note(before: list[float], after: list[float], cores: int | None) -> str:
     """An honest line about other work on the machine during the run."""
     worst = max(before[0], after[0])

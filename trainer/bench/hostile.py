@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import command_line, load_average, load_note, machine_info, write_results
+from trainer.bench.common import load_average, run_facts, write_results
 from trainer.bench.hostile_models import write_model
 from trainer.shared_data import default_data_dir
 
@@ -221,9 +221,7 @@ def run(args) -> dict:
     result = {"models": models, "frames": frames, "recordings": recordings, "config": config, "daemon": daemon,
               "world": world}
     result["hostile_failures"] = sum(part["failures"] for part in result.values())
-    result.update(seconds=round(time.perf_counter() - t0, 1), machine=machine_info(), load_before=load_before,
-                  load_after=load_average(), command=command_line(NAME, args))
-    result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
+    result.update(run_facts(NAME, args, load_before, t0))
     write_results(args.out, NAME, result, markdown(result))
     say(f"hostile: {result['hostile_failures']} failures; " + json.dumps(summary(result)))
     return result

@@ -30,13 +30,11 @@ from trainer.bench import harness
 from trainer.bench import latency_stages as stages
 from trainer.bench.common import (
     DEADLINE_US,
-    command_line,
     deadline_ratio,
     fmt_us,
     load_average,
-    load_note,
-    machine_info,
     percentiles,
+    run_facts,
     tap_gap,
     tap_stream,
     train_default_model,
@@ -222,10 +220,8 @@ def run(args) -> dict:
         model={"kind": model.meta.extra.get("model_kind"), "K": model.meta.K, "W": model.meta.W, "T": model.meta.T,
                "n_channels": model.meta.n_channels, "n_nodes": model.n_nodes, "pads": list(model.meta.pads),
                "n_nodes_distal": distal_nodes, "continuous_dormant": dormant},
-        duration_s=duration, window_period_frames=15 + tap_gap(), seconds=round(time.perf_counter() - t_start, 1),
-        machine=machine_info(), load_before=load_before, load_after=load_average(), command=command_line(NAME, args),
+        duration_s=duration, window_period_frames=15 + tap_gap(), **run_facts(NAME, args, load_before, t_start),
     )
-    result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
     plot(result, Path(args.out) / f"{NAME}.png")
     write_results(args.out, NAME, result, markdown(result))
     return result

@@ -20,13 +20,11 @@ from sklearn.base import BaseEstimator, ClassifierMixin, clone
 
 from trainer.bench.common import (
     DEFAULT_PARAMS,
-    command_line,
     export_metadata,
     fmt_us,
     load_average,
-    load_note,
-    machine_info,
     percentiles,
+    run_facts,
     simulated_protocol,
     time_calls,
     write_results,
@@ -187,13 +185,8 @@ def run(args) -> dict:
         "onnx_p99_us": default and default["time_p99_us"],
         "notes": notes,
         "eval_seconds": round(eval_seconds, 1),
-        "seconds": round(time.perf_counter() - t_start, 1),
-        "machine": machine_info(),
-        "load_before": load_before,
-        "load_after": load_average(),
-        "command": command_line(NAME, args),
+        **run_facts(NAME, args, load_before, t_start),
     }
-    result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
     plot(rows, Path(args.out) / f"{NAME}.png")
     write_results(args.out, NAME, result, markdown(result))
     return result

@@ -28,10 +28,8 @@ import numpy as np
 from runtime.listeners import FrameListener
 from trainer.bench import harness
 from trainer.bench.common import (
-    command_line,
     load_average,
-    load_note,
-    machine_info,
+    run_facts,
     tap_gap,
     tap_stream,
     train_default_model,
@@ -291,13 +289,8 @@ def run(args) -> dict:
         "cpu_share": foot["cpu_share"],
         "startup_to_ready_s": start["median_s"],
         "swap_s": foot["swap_to_first_event_s"],
-        "seconds": round(time.perf_counter() - t_start, 1),
-        "machine": machine_info(),
-        "load_before": load_before,
-        "load_after": load_average(),
-        "command": command_line(NAME, args),
+        **run_facts(NAME, args, load_before, t_start),
     }
-    result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
     write_results(args.out, NAME, result, markdown(result))
     return result
 
