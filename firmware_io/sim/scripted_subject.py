@@ -70,6 +70,7 @@ class ScriptedSubject:
         faults: FaultPlan | None = None,
         drop_at: Iterable[int] = (),
         unplug_at: int | None = None,
+        unplug_idle: int = 0,
         lazy: Iterable[int] = (),
         trial_seconds: float = 3.0,
         layout: SensorLayout | None = None,
@@ -79,6 +80,9 @@ class ScriptedSubject:
         self.trial_seconds = max(float(trial_seconds), 1.5)
         self.drop_at = set(int(k) for k in drop_at)
         self.unplug_at = unplug_at
+        self.unplug_idle = int(unplug_idle)
+        """Unplugged for good when cued for this idle stretch (1-based; 0: never): at ``speed=max``
+        a frame count lands wherever the machine's speed puts it, a stretch does not."""
         self.lazy = set(int(k) for k in lazy)
         self.emitted = 0
         self.connections = 0
@@ -170,6 +174,10 @@ class ScriptedSubject:
         the stretch left it (holding, or open after a release)."""
 
         self._idles += 1
+        if self.unplug_idle and self._idles >= self.unplug_idle:
+            with self._lock:
+                self.unplugged = True
+                self.emulator.disconnected = True
         seconds = float(slot.seconds) + 1.0  # the capture starts a frame or two after the cue
         if slot.source == "open":
             frames = np.zeros((int(np.ceil(seconds / FRAME_PERIOD_S)), self.layout.n_taxels), dtype=np.uint16)

@@ -8,7 +8,7 @@ byte link is missing.
   scripted session (synthetic data). ``realtime=0`` sends frames as fast as they are read.
 - ``replay://PATH?speed=1.0|max&loop=0&fault=...``: any recording (.hrec, .dsa, .bag).
   Without ``loop`` the transport raises EndOfStream once the last frame has been read.
-- ``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&lazy=2&fault=...&seconds=3``: a scripted
+- ``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&unplug_idle=2&lazy=2&fault=...&seconds=3``: a scripted
   simulated subject (``firmware_io.sim.scripted_subject``) who does what ``handover record`` prompts.
 """
 
@@ -174,7 +174,7 @@ class SubjectTransport(EmulatedTransport):
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         """The ScriptedSubject's keyword arguments."""
         _no_location(parsed)
-        parsed.check_options({"seed", "speed", "drop", "unplug", "lazy", "fault", "seconds"})
+        parsed.check_options({"seed", "speed", "drop", "unplug", "unplug_idle", "lazy", "fault", "seconds"})
         url = parsed.url
         unplug = _frame_numbers(parsed, opts, "unplug")
         return {
@@ -183,6 +183,7 @@ class SubjectTransport(EmulatedTransport):
             "faults": _fault_plan(parsed, opts),
             "drop_at": _frame_numbers(parsed, opts, "drop"),
             "unplug_at": unplug[0] if unplug else None,
+            "unplug_idle": int(parse_number(url, "unplug_idle", parsed.option(opts, "unplug_idle", 0), int, 0, 2**31 - 1)),
             "lazy": _frame_numbers(parsed, opts, "lazy"),
             "trial_seconds": parse_number(url, "seconds", parsed.option(opts, "seconds", 3.0), float, 0.0, 3600.0),
         }
