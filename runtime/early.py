@@ -26,8 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from runtime.decision import margin_of
+
 __all__ = [
-    "EARLY_KEY", "NEVER", "EarlyRule", "EarlySpec", "EarlySpecError", "head_outputs", "is_head_output", "margin"
+    "EARLY_KEY", "NEVER", "EarlyRule", "EarlySpec", "EarlySpecError", "head_outputs", "is_head_output"
 ]
 
 EARLY_KEY = "early"
@@ -97,7 +99,7 @@ class EarlySpec:
     def confidence(self, index: int, scores: np.ndarray, label: int) -> float:
         """Calibrated probability that head ``index`` (of ``points``) is right, from one row of scores."""
         a, b = self.calibration[index]
-        return _sigmoid(a * margin(scores, label) + b)
+        return _sigmoid(a * margin_of(scores.reshape(-1), label) + b)
 
 
 def _finite(x: object) -> bool:
@@ -106,17 +108,6 @@ def _finite(x: object) -> bool:
 
 def _sigmoid(z: float) -> float:
     return 1.0 / (1.0 + math.exp(-z)) if z >= 0 else math.exp(z) / (1.0 + math.exp(z))
-
-
-def margin(scores: np.ndarray, label: int) -> float:
-    """Score of ``label`` minus the best other score, of one row (O(n_classes), no allocation kept)."""
-    row = scores.reshape(-1)
-    top = float(row[label])
-    best = -math.inf
-    for k in range(row.shape[0]):
-        if k != label and row[k] > best:
-            best = float(row[k])
-    return top - best
 
 
 class EarlyRule:

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from runtime.early import NEVER, EarlyRule, EarlySpec, EarlySpecError, margin
+from runtime.decision import margin_of as margin
+from runtime.early import NEVER, EarlyRule, EarlySpec, EarlySpecError
 
 SPEC = {"points": [4, 8], "calibration": [[2.0, 0.0], [2.0, 1.0]], "threshold": 0.8, "agree": False}
 

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.early import NEVER, EarlySpec, margin
+from runtime.decision import margin_of
+from runtime.early import NEVER, EarlySpec
 from trainer.dormant import DORMANT
 
 __all__ = [
@@ -73,7 +74,7 @@ def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Seq
         pred = [index[str(c)] for c in model.predict(Xp)]
         own = [list(model.classes_).index(classes[i]) for i in pred]
         labels[k] = pred
-        margins[k] = [margin(scores[j], own[j]) for j in range(len(X))]
+        margins[k] = [margin_of(scores[j], own[j]) for j in range(len(X))]
     return labels, margins
 
 
