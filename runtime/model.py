@@ -273,6 +273,8 @@ class LoadedModel:
         """The early heads and their rule (runtime.early), or None: the model answers at T only."""
         self._head_sessions = list(head_sessions or [session] * len(self.early.points if self.early else ()))
         """One session per early head (``load_model`` prunes the file per head), or the one graph's."""
+        self._head_outputs = [head_outputs(p) for p in (self.early.points if self.early else ())]
+        """Each head's output names, made once (not per decision)."""
         self.running_since: float | None = None
         """``time.perf_counter()`` when the decision under way began, None between decisions (read by
         runtime.decision_guard from its own thread)."""
@@ -342,7 +344,7 @@ class LoadedModel:
     def run_head(self, index: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The early head ``index`` (of ``early.points``) on the newest T frames ``x`` ``[1, T, C]``
         float32 (it reads their last ``p`` rows); like ``run_trusted``, no input check."""
-        return self._run(self._head_sessions[index], head_outputs(self.early.points[index]), x)
+        return self._run(self._head_sessions[index], self._head_outputs[index], x)
 
     def _run(self, session: Any, outputs: tuple[str, str], x: Any) -> tuple[np.ndarray, np.ndarray]:
         if self.ended is not None:
@@ -356,11 +358,11 @@ class LoadedModel:
                     and self._staging.acquire(False)):
                 try:
                     stage[...] = x
-                    labels, scores = session.run(list(outputs), {INPUT_NAME: stage}, options)
+                    labels, scores = session.run(outputs, {INPUT_NAME: stage}, options)
                 finally:
                     self._staging.release()
             else:
-                labels, scores = session.run(list(outputs), {INPUT_NAME: x}, options)
+                labels, scores = session.run(outputs, {INPUT_NAME: x}, options)
         except Exception:
             if self.ended is not None:
                 raise DecisionEnded(self.ended) from None
