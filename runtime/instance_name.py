@@ -38,7 +38,8 @@ def instance_problem(name: object) -> str | None:
     if not isinstance(name, str) or not name.strip():
         return f"must be a non-empty string, got {name!r}"
     if len(name) > MAX_LENGTH or not name.isprintable():
-        return f"must be at most {MAX_LENGTH} printable characters, got {name!r}"
+        shown = repr(name) if len(name) <= MAX_LENGTH else f"{name[:MAX_LENGTH]!r}... ({len(name)} characters)"
+        return f"must be at most {MAX_LENGTH} printable characters, got {shown}"
     return None
 
 

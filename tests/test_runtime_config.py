@@ -342,3 +342,10 @@ def test_a_reload_says_which_sections_changed(tmp_path, caplog):
         assert lines[0].endswith("(nothing changed)") and lines[1].endswith("(changed: trigger, sinks)"), lines
     finally:
         daemon.sinks.close()
+
+
+def test_a_long_instance_name_is_refused_in_one_short_line():
+    """The error quotes the start of the name and its length, not the whole value (one journal line)."""
+    with pytest.raises(ConfigError, match=r"^instance: must be at most 64 printable") as info:
+        config_from_dict({"instance": "x" * 5000})
+    assert len(str(info.value)) < 200 and "5000 characters" in str(info.value)
