@@ -101,13 +101,8 @@ def summarize(parts: Sequence[dict]) -> dict:
     events = [e for p in parts for e in p["events"]]
     count = {k: sum(e["outcome"] == k for e in events) for k in ("right", "wrong", "missed")}
     period = float(np.median([p["period"] for p in parts])) if parts else 1 / 32
-    frames: dict[str, int] = {}
-    false: dict[str, int] = {}
-    for p in parts:
-        for k, v in p["idle_frames"].items():
-            frames[k] = frames.get(k, 0) + v
-        for k, v in p["false_by_source"].items():
-            false[k] = false.get(k, 0) + v
+    frames = se.sum_counts(p["idle_frames"] for p in parts)
+    false = se.sum_counts(p["false_by_source"] for p in parts)
     hours = {k: v * period / 3600.0 for k, v in frames.items()}
     total_h = sum(hours.values())
     n_false = sum(false.values())
@@ -117,16 +112,10 @@ def summarize(parts: Sequence[dict]) -> dict:
         a = per_action.setdefault(e["action"], {"n": 0, "right": 0})
         a["n"] += 1
         a["right"] += e["outcome"] == "right"
-    classes: dict[str, int] = {}
-    for p in parts:
-        for k, v in p["false_by_class"].items():
-            classes[k] = classes.get(k, 0) + v
+    classes = se.sum_counts(p["false_by_class"] for p in parts)
     arm = None
     if parts and all(p.get("false_by_source_arm_messages") is not None for p in parts):
-        arm = {}
-        for p in parts:
-            for k, v in p["false_by_source_arm_messages"].items():
-                arm[k] = arm.get(k, 0) + v
+        arm = se.sum_counts(p["false_by_source_arm_messages"] for p in parts)
     arm_h = hours.get("arm_move", 0.0)
     return {
         "events": len(events), **count, "early_reports": sum(p["early"] for p in parts),

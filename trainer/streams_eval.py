@@ -21,7 +21,7 @@ in-process with the recorded frames, so what is measured is what the service wou
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,7 +31,7 @@ from firmware_io.recordings.recording import Recording
 __all__ = [
     "ARM_MODES", "DEFAULT_SETTING", "EARLY_FRAMES", "MODES", "Decision", "Truth", "apply_rule", "frame_decisions",
     "latency_stats", "macro_f1", "merge_idle", "replay", "score", "session_outcomes", "source_hours",
-    "source_names", "truths_of"
+    "source_names", "sum_counts", "truths_of"
 ]
 
 MODES = ("threshold", "baseline", "onset", "onset_robot", "onset_dormant", "continuous", "onset_arm",
@@ -332,17 +332,21 @@ def _stats(x: np.ndarray) -> dict | None:
             "min": float(x.min()), "max": float(x.max())}
 
 
+def sum_counts(counts: Iterable[dict]) -> dict:
+    """Counts (or hours) summed key by key over several dicts; keys in the order first met."""
+    out: dict = {}
+    for d in counts:
+        for k, v in d.items():
+            out[k] = out.get(k, 0) + v
+    return out
+
+
 def merge_idle(scores: Sequence[dict]) -> dict:
     """False events and idle hours summed over several idle parts."""
     hours = sum(s["idle_hours"] for s in scores)
     false = sum(s["false_events"] for s in scores)
-    by_source: dict[str, int] = {}
-    by_class: dict[str, int] = {}
-    for s in scores:
-        for k, v in s["false_by_source"].items():
-            by_source[k] = by_source.get(k, 0) + v
-        for k, v in s["false_by_class"].items():
-            by_class[k] = by_class.get(k, 0) + v
+    by_source = sum_counts(s["false_by_source"] for s in scores)
+    by_class = sum_counts(s["false_by_class"] for s in scores)
     return {"idle_hours": hours, "false_events": false, "false_per_hour": false / hours if hours else None,
             "false_by_source": dict(sorted(by_source.items())), "false_by_class": dict(sorted(by_class.items()))}
 
