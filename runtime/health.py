@@ -224,15 +224,6 @@ class StatusFile:
         return True
 
 
-def write_status_file(path: str | Path, data: dict) -> bool:
-    """Write JSON atomically (temp file in the same folder, then rename). False on failure."""
-    try:
-        write_json_atomically(Path(path), data)
-    except OSError:
-        return False
-    return True
-
-
 def write_json_atomically(p: Path, data: dict) -> None:
     """JSON to a temp file in the same folder, then renamed over ``p``; OSError passes on (temp removed)."""
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")

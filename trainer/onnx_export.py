@@ -212,17 +212,6 @@ def _level_nodes(g: _Graph, frames: str, level_groups: tuple[int, ...], fullscal
     return g.op("Concat", [levels, slopes], "level_features", axis=1)
 
 
-def bow_nodes(g: _Graph, frames: str, codebook: np.ndarray, pad_sizes: tuple[int, ...], n_timepoints: int,
-              fold_derivative: bool = False) -> str:
-    """Append the paper's BoW transform (one hard codebook) of ``frames`` [N, T, C]; return the histogram name."""
-    active = _active_nodes(g, frames)
-    x4 = g.op("Unsqueeze", [frames, g.const("axis1", [1], np.int64)], "x4")  # [N, 1, T, C]
-    deriv = None if fold_derivative else _derivative_nodes(g, x4)
-    hist = _scale_nodes(g, x4, deriv, active, codebook, pad_sizes, n_timepoints)
-    n_features = len(pad_sizes) * len(codebook)
-    return g.op("Reshape", [hist, g.const("hist_shape", [0, n_features], np.int64)], outputs=[g.prefix + HISTOGRAM])
-
-
 def _derivative_nodes(g: _Graph, x4: str) -> str:
     deriv_kernel = np.array([-1.0, 1.0]).reshape(1, 1, 2, 1)
     return g.op("Conv", [x4, g.const("deriv_kernel", deriv_kernel)], "deriv")  # [N, 1, T-1, C]

@@ -18,8 +18,6 @@ import random
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
-
 CLASSES = ("pull", "push", "hold", "bump")
 PADS = (1, 3, 5)
 PAD_SIZES = (78, 78, 78)
@@ -187,10 +185,3 @@ def mutations(base: bytes, n: int, seed: int = 0, max_flips: int = 8) -> Iterato
         for _ in range(rng.randint(1, max_flips)):
             data[rng.randrange(len(data))] = rng.randrange(256)
         yield bytes(data)
-
-
-def pressed_window(value: float = 1000.0) -> np.ndarray:
-    """One float32 ``[1, T, C]`` window with a pressed pad (what makes the attacks fire)."""
-    window = np.zeros((1, T, int(sum(PAD_SIZES))), dtype=np.float32)
-    window[0, :, :10] = value
-    return window
