@@ -70,12 +70,13 @@ def early_frames(paths: tuple[Path, Path], seed: int, quick: bool, say) -> dict:
     with_heads, without = paths
     n = 8 if quick else 40
     session = simulate_session(demo_script(n, seed=seed + 7), seed=seed + 7)
-    out = {}
+    out, points = {}, None
     for name, path in (("early", with_heads), ("full_window_only", without)):
         model = load_model(path, intra_op_threads=1, allow_spinning=False)
         timed_replay(model, session)  # warm: first calls pay for allocations
         out[name] = timed_replay(model, session)
-    out["points"] = list(load_model(with_heads).early.points)
+        points = points or list(model.early.points)
+    out["points"] = points
     out["session_events"] = n
     return out
 
