@@ -22,10 +22,15 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from firmware_io.commands.errors import fail
+
+if TYPE_CHECKING:
+    from firmware_io.recordings.recording import Recording
+    from firmware_io.sim.session import ScriptedEvent
 
 __all__ = ["add_arguments", "main"]
 
@@ -35,11 +40,14 @@ STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
 """Training data of the 5-class stream model (as ``handover bench streams`` trains it)."""
 SESSION_SEED_OFFSET = 1000
 """The scripted session's seed = training seed + this: its subjects are not the trained ones."""
+DEMO_EVENTS = 40
+"""Scripted events in the demo's session (``--events``); the streams benches replay the same session."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/demo", help="working folder (data, report, models; default out/demo)")
-    parser.add_argument("--events", type=int, default=40, help="scripted events in the session (default 40)")
+    parser.add_argument("--events", type=int, default=DEMO_EVENTS,
+                        help=f"scripted events in the session (default {DEMO_EVENTS})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the training protocol (default 0)")
     parser.add_argument("--pads", default="all", help="pads the model and the scene use (default all)")
     parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
@@ -187,18 +195,25 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def scripted_session(seed: int, events: int = DEMO_EVENTS) -> tuple[int, list[ScriptedEvent], Recording]:
+    """The demo's scripted session for training seed ``seed``: (its own seed, the script, the simulated
+    session); ``handover bench streams`` and ``streams_own`` replay the same one in process."""
+    from firmware_io.sim import demo_script, simulate_session
+
+    session_seed = seed + SESSION_SEED_OFFSET
+    script = demo_script(events, seed=session_seed)
+    return session_seed, script, simulate_session(script, seed=session_seed)
+
+
 def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, faults) -> dict:
     """Steps 3 and 4: an emulated DSACON32m plays a scripted session of unseen simulated subjects to
     the real daemon serving ``model_dir``; every event is printed as it happens. The summary."""
     from firmware_io.emulator.device import DeviceEmulator
     from firmware_io.emulator.server import TcpEmulatorServer
-    from firmware_io.sim import demo_script, simulate_session
     from runtime.daemon import Daemon
     from runtime.sdnotify import Notifier
 
-    session_seed = args.seed + SESSION_SEED_OFFSET
-    script = demo_script(args.events, seed=session_seed)
-    session = simulate_session(script, seed=session_seed)
+    session_seed, script, session = scripted_session(args.seed, args.events)
     emulator = DeviceEmulator(session, speed=speed, loop=False, faults=faults, seed=session_seed,
                               session_starts="first_acquisition")  # the whole session, however long the daemon takes to start
     server = TcpEmulatorServer(emulator, host="127.0.0.1", port=0).start()

@@ -27,7 +27,6 @@ from trainer.bench.common import command_line, load_average, load_note, machine_
 NAME = "streams"
 VAL_OFFSET, TEST_OFFSET = 2, 1
 """Validation streams use seed + 2, test streams seed + 1 (the training data use the seed itself)."""
-DEMO_EVENTS = 40
 CANDIDATES = ("threshold", "baseline", "onset", "onset_dormant", "continuous")
 """Stream settings the daemon runs without any input but the pads (the default must not need the robot)."""
 CRITERION = ("utility = right first reports - wrong first reports - duplicates - false events, on the validation "
@@ -151,11 +150,9 @@ def choose(val: dict, real: dict | None) -> str:
 
 def demo_session(models: dict, mode: str, seed: int) -> dict:
     """``handover demo``'s scripted session (its seed, 40 events), in-process through the daemon."""
-    from firmware_io.sim import demo_script, simulate_session
-    from trainer.demo_cli import SESSION_SEED_OFFSET
+    from trainer.demo_cli import scripted_session
 
-    session_seed = seed + SESSION_SEED_OFFSET
-    session = simulate_session(demo_script(DEMO_EVENTS, seed=session_seed), seed=session_seed)
+    session_seed, _, session = scripted_session(seed)
     out = {"mode": mode, "seed": session_seed}
     for m in dict.fromkeys((mode, "threshold", "onset", "onset_robot")):
         out[m] = se.session_outcomes(se.replay(session, models[m], m), session.trials)

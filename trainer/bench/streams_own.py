@@ -150,13 +150,10 @@ def test_streams(model, seed: int, s: dict, say) -> dict:
 
 
 def demo_session(model, seed: int) -> dict:
-    from firmware_io.sim import demo_script, simulate_session
-    from trainer.bench.streams import DEMO_EVENTS
-    from trainer.demo_cli import SESSION_SEED_OFFSET
+    from trainer.demo_cli import scripted_session
 
     mode = "onset_dormant" if model.meta.dormant_class else "onset"
-    session_seed = seed + SESSION_SEED_OFFSET
-    session = simulate_session(demo_script(DEMO_EVENTS, seed=session_seed), seed=session_seed)
+    session_seed, _, session = scripted_session(seed)
     o = se.session_outcomes(se.replay(session, model, mode), session.trials)
     return {"mode": mode, "seed": session_seed, **{k: o[k] for k in (
         "expected", "detected", "correct", "missed", "outside", "repeats", "correct_fraction", "missed_events",
