@@ -50,12 +50,7 @@ class ArmMotion:
     """Which frames the arm counts as moving in (the robot's messages plus the settle time)."""
 
     def __init__(self, settle_frames: int, max_move_frames: int) -> None:
-        if settle_frames < 0:
-            raise ValueError("settle_frames must be >= 0")
-        if max_move_frames < 1:
-            raise ValueError("max_move_frames must be >= 1")
-        self.settle_frames = int(settle_frames)
-        self.max_move_frames = int(max_move_frames)
+        self.configure(settle_frames, max_move_frames)
         self._requests: deque[bool] = deque(maxlen=64)
         self.moving = False
         """The robot's last word (True between ``arm moving`` and ``arm still``)."""
