@@ -81,7 +81,7 @@ class Daemon:
         self.health = Health()
         self.health.instance = instance_of(cfg)
         self.status_file: StatusFile | None = StatusFile(cfg.health_file) if cfg.health_file else None
-        self.detector = Detector(cfg.scene, cfg.trigger, cfg.continuous, self.health, cfg.control)
+        self.detector = Detector.from_config(cfg, self.health)
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""

@@ -117,7 +117,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
         return 2
     _warn_about_sinks(cfg)
     _note_held_locks(cfg)
-    slot = ModelSlot(cfg, Detector(cfg.scene, cfg.trigger, cfg.continuous), Health(), announce=lambda _: None)
+    slot = ModelSlot(cfg, Detector.from_config(cfg), Health(), announce=lambda _: None)
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=slot.load,

@@ -28,7 +28,7 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from runtime.arm_motion import ArmMotion, arm_frames
-from runtime.config import ContinuousConfig, ControlConfig, SceneConfig, TriggerConfig
+from runtime.config import Config, ContinuousConfig, ControlConfig, SceneConfig, TriggerConfig
 from runtime.decision import ContinuousDecision
 from runtime.early import EarlyRule
 from runtime.frame_rate import FrameClock
@@ -216,6 +216,11 @@ class Detector:
         """Which frames the robot's arm counts as moving in (``set_arm_moving``; runtime.arm_motion)."""
         self.arm_request: tuple[bool, str] | None = None
         """The latest ``set_arm_moving`` call: (moving, source)."""
+
+    @classmethod
+    def from_config(cls, cfg: Config, health: Health | None = None) -> Detector:
+        """A detector with the settings of ``cfg`` (its scene, trigger, continuous and control sections)."""
+        return cls(cfg.scene, cfg.trigger, cfg.continuous, health, cfg.control)
 
     # -- settings, layout, model -------------------------------------------------------------------
     def configure(self, scene: SceneConfig, trigger: TriggerConfig, continuous: ContinuousConfig,

@@ -102,7 +102,7 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
     problem = scene_problem(model, cfg, rec.layout)
     if problem:
         raise ValueError(f"model {model.model_id} cannot serve mode {mode!r}: {problem}")
-    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous, control=cfg.control)
+    detector = Detector.from_config(cfg)
     detector.swap(model, rec.layout)
     stamps_ms = np.rint(rec.timestamps * 1000.0).astype(np.int64)
     frames = rec.frames

@@ -44,7 +44,7 @@ def timed_replay(model, rec) -> dict:
 
     cfg = config_from_dict({"scene": {"pads": ",".join(map(str, model.meta.pads)), "mode": "trigger"},
                             "trigger": {"kind": "onset"}})
-    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous, control=cfg.control)
+    detector = Detector.from_config(cfg)
     detector.swap(model, rec.layout)
     stamps = np.rint(rec.timestamps * 1000.0).astype(np.int64)
     inside, outside, events = [], [], 0

@@ -96,7 +96,7 @@ def reference_events(model_path: Path, recording, config_text: str, loops: int =
     data["sinks"] = {"stdout": False}
     cfg = config_from_dict(data)
     ends: list[int] = []
-    detector = Detector(cfg.scene, cfg.trigger, cfg.continuous)
+    detector = Detector.from_config(cfg)
     detector.swap(load_model(model_path), recording.layout)
     n = recording.n_frames
     for k in range(loops * n):
