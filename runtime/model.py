@@ -258,7 +258,7 @@ class LoadedModel:
     """A validated model, ready to run. ``run`` refuses bad input with ModelInputError."""
 
     def __init__(self, path: Path, session, meta: ModelMeta, model_id: str, n_nodes: int, n_bytes: int,
-                 head_sessions: list | None = None):
+                 early: EarlySpec | None = None, head_sessions: list | None = None):
         self.path = path
         self.meta = meta
         self.model_id = model_id
@@ -269,7 +269,7 @@ class LoadedModel:
         self._stage = _aligned((1, *self._shape))
         """One window is copied here before it runs (``run_trusted`` says why)."""
         self._staging = threading.Lock()
-        self.early: EarlySpec | None = early_spec(meta)
+        self.early = early
         """The early heads and their rule (runtime.early), or None: the model answers at T only."""
         self._head_sessions = list(head_sessions or [session] * len(self.early.points if self.early else ()))
         """One session per early head (``load_model`` prunes the file per head), or the one graph's."""
@@ -444,7 +444,7 @@ def _aligned(shape: tuple[int, ...]) -> np.ndarray:
     return raw[start : start + n].reshape(shape)
 
 
-def _check_io(session, meta: ModelMeta) -> None:
+def _check_io(session, meta: ModelMeta, spec: EarlySpec | None) -> None:
     inputs, outputs = session.get_inputs(), session.get_outputs()
     if [i.name for i in inputs] != [INPUT_NAME]:
         raise ModelContractError(f"inputs {[i.name for i in inputs]}, expected exactly [{INPUT_NAME!r}]")
@@ -461,7 +461,6 @@ def _check_io(session, meta: ModelMeta) -> None:
             "symbolic) batch dimension N, since the daemon runs single windows and tools run batches"
         )
     names = [o.name for o in outputs]
-    spec = early_spec(meta)
     heads = [name for p in (spec.points if spec else ()) for name in head_outputs(p)]
     base = [n for n in names if not is_head_output(n)]
     if sorted(base) != sorted(OUTPUT_NAMES):
@@ -596,7 +595,8 @@ def load_model(
         raise ModelContractError(f"{where}: metadata is nested too deeply") from None
     try:
         meta = ModelMeta.from_dict(meta_dict)
-        _check_io(session, meta)
+        spec = early_spec(meta)
+        _check_io(session, meta, spec)
         _check_bow_params(meta, wire.initializer_dims)
     except ModelContractError as exc:
         raise ModelContractError(f"{where}: {exc}") from exc
@@ -604,7 +604,7 @@ def load_model(
         raise ModelContractError(f"{where}: a name in the graph is not valid UTF-8 (byte {exc.start}); damaged file?") from None
     model_id = hashlib.sha256(data).hexdigest()[:12]
     heads: list = []
-    if (spec := early_spec(meta)) is not None:  # one session per head: onnxruntime runs every node of a graph
+    if spec is not None:  # one session per head: onnxruntime runs every node of a graph
         parts = [OUTPUT_NAMES, *(head_outputs(p) for p in spec.points)]
         try:
             session, *heads = (ort.InferenceSession(keep_outputs(data, names), sess_options=session_options(
@@ -613,7 +613,7 @@ def load_model(
         except Exception as exc:  # a damaged graph whose parts do not stand alone
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ModelContractError(f"{where}: its early heads do not load on their own: {first}") from exc
-    model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data), heads)
+    model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data), spec, heads)
     if warm_up:
         model.warm_up(budget_fraction=decision_budget)
     return model
