@@ -295,12 +295,19 @@ class StdoutSink(Sink):
             (self.stream or sys.stdout).flush()
 
     def close(self) -> None:
-        """What the reader did not take is dropped (counted); the descriptor's mode is given back."""
+        """What the reader did not take is dropped, counted and said in one line (a reader that
+        never read would otherwise lose the last events without a word); the descriptor's mode is
+        given back."""
         if self._fd is None:
             return
+        with contextlib.suppress(OSError):
+            self._drain()
         if self._backlog:
-            self.dropped += 1
+            lost = max(1, self._backlog.count(b"\n"))
+            self.dropped += lost
             self._backlog.clear()
+            log.warning("sink stdout: %d event lines the reader had not taken were dropped at stop "
+                        "(%d dropped in all); read the daemon's stdout, or turn [sinks] stdout off", lost, self.dropped)
         if self._was_blocking:
             with contextlib.suppress(OSError):
                 os.set_blocking(self._fd, True)

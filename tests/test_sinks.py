@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
 import socket
 
 import pytest
@@ -171,3 +172,21 @@ def test_event_line_is_the_documented_dict_encoded():
                 "model_id": "39f8d4c0dfa9", "frame_first": 179, "frame_last": 193, "device_time_ms": 6091,
                 "missed_deadline": False}
     assert event.to_json() == json.dumps(expected, separators=(",", ":"), allow_nan=False)
+
+
+def test_stdout_lines_the_reader_never_took_are_counted_and_said_at_stop(caplog):
+    """A pipe nobody reads: at close every waiting line is counted as dropped, in one warning."""
+    read_end, write_end = os.pipe()
+    sink = StdoutSink(os.fdopen(write_end, "w"))
+    line = '{"type":"decision","pad":"' + "x" * 90 + '"}'
+    for _ in range(1000):  # 100 KB: more than the pipe takes, less than the backlog
+        sink.send(line, line.encode())
+    assert sink.dropped == 0
+    with caplog.at_level(logging.WARNING, logger="handover.sinks"):
+        sink.close()
+    os.set_blocking(read_end, False)
+    delivered = os.read(read_end, 1 << 20).decode().count("\n")
+    os.close(read_end)
+    assert 0 < delivered < 1000 and delivered + sink.dropped == 1000
+    said = [r.getMessage() for r in caplog.records if "dropped at stop" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith(f"sink stdout: {1000 - delivered} event lines")
