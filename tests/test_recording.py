@@ -273,6 +273,21 @@ def test_header_that_disagrees_with_the_data(saved):
     assert_refused(trials, "trial 0")
 
 
+@pytest.mark.parametrize(("meta", "match"), [
+    ({"sources": ["open", "quiet"], "source_codes": [0] * 5}, "meta.source_codes must hold one code per frame (200)"),
+    ({"sources": ["open", "quiet"], "source_codes": [7] * 200}, "meta.source_codes"),
+    ({"sources": 42, "source_codes": [0] * 200}, "meta.sources must be a list"),
+    ({"arm_marks": "garbage"}, "meta.arm_marks must be a list"),
+    ({"arm_marks": [[10**12, 1]]}, "meta.arm_marks: frame 1000000000000"),
+])
+def test_idle_codes_and_arm_marks_that_do_not_fit_the_frames_are_refused_at_load(saved, meta, match):
+    """Training and replay index frames by these keys: a damaged file is one line naming it, not an
+    IndexError deep in training."""
+    bad = saved.with_name("idle.hrec")
+    _rewrite_header(saved, bad, meta=meta)
+    assert_refused(bad, match)
+
+
 def test_missing_member(saved):
     bad = saved.with_name("partial.hrec")
     with zipfile.ZipFile(saved) as zin, zipfile.ZipFile(bad, "w") as zout:

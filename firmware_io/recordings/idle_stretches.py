@@ -99,6 +99,22 @@ def has_idle(meta: dict) -> bool:
     return isinstance(codes, list) and isinstance(names, list) and any(c >= 0 for c in codes)
 
 
+def codes_problem(meta: dict, n_frames: int) -> str | None:
+    """Why ``meta["sources"]`` / ``meta["source_codes"]`` cannot code ``n_frames`` frames, or None
+    (also when both are absent). Checked when a recording is read, so a damaged file is refused
+    in one line naming it instead of failing deep inside training or replay."""
+    codes, names = meta.get("source_codes"), meta.get("sources")
+    if codes is None and names is None:
+        return None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        return "meta.sources must be a list of idle source names"
+    if (not isinstance(codes, list) or len(codes) != n_frames
+            or not all(isinstance(c, int) and not isinstance(c, bool) and -1 <= c < len(names) for c in codes)):
+        return (f"meta.source_codes must hold one code per frame ({n_frames}), each from -1 (a trial) "
+                f"to {len(names) - 1}")
+    return None
+
+
 def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
     """The metadata keys a recording with these stretches carries (empty without stretches)."""
     if not stretches:
@@ -107,5 +123,5 @@ def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
             "source_codes": stretch_codes(n_frames, stretches).tolist()}
 
 
-__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MIN_STRETCH_S", "PROMPTS", "SOURCES", "IdleSlot", "has_idle",
+__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MIN_STRETCH_S", "PROMPTS", "SOURCES", "IdleSlot", "codes_problem", "has_idle",
            "idle_meta", "idle_plan", "stretch_codes", "stretches_of"]

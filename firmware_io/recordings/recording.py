@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.layout import SensorLayout
+from firmware_io.recordings import arm_marks, idle_stretches
 from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
 
 __all__ = ["ACTIONS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all"]
@@ -220,7 +221,10 @@ class Recording:
             if layout.n_taxels != n_taxels:
                 raise RecordingError(f"layout has {layout.n_taxels} taxels, the header says {n_taxels}")
             trials = [Trial.from_dict(t) for t in header.get("trials", [])]
-            return cls(layout, frames, stamps, trials, dict(header.get("meta", {})))
+            meta = dict(header.get("meta", {}))
+            if why := idle_stretches.codes_problem(meta, n_frames) or arm_marks.problem(meta, n_frames):
+                raise RecordingError(why)
+            return cls(layout, frames, stamps, trials, meta)
         except Exception as exc:  # any shape of nonsense in a header: one line naming the file
             raise RecordingError(f"{path}: inconsistent recording: {_first_line(exc)}") from None
 
