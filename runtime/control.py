@@ -89,6 +89,9 @@ class ControlSocket:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._rebind_failed = False
+        self._bound: tuple[int, int] | None = None
+        """(device, inode) of the socket file this daemon bound: a file put in its place is not ours."""
+        self._replaced_said = False
 
     def start(self) -> ControlSocket:
         """Bind and start reading; OSError (one line naming the socket) when it cannot bind."""
@@ -103,6 +106,7 @@ class ControlSocket:
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
         sock.settimeout(POLL_S)
         self._sock = sock
+        self._bound = self._file_id()
         self._thread = threading.Thread(target=self._loop, name="handover-control", daemon=True)
         self._thread.start()
         log.info("control socket %s: listening (%s)", self.address, " / ".join(MESSAGES))
@@ -147,8 +151,16 @@ class ControlSocket:
 
     def _rebind_if_removed(self) -> None:
         """A socket file deleted while running (tmp cleaner, a careless ``rm``) is bound again:
-        otherwise every later robot message would be lost without a word."""
-        if self.address.startswith("@") or os.path.lexists(self.address):
+        otherwise every later robot message would be lost without a word. Another file put in its place
+        is left alone (it is not ours) and said once; once it is gone, the socket is bound again."""
+        if self.address.startswith("@"):
+            return
+        now = self._file_id()
+        if now is not None:
+            if now != self._bound and not self._replaced_said:
+                self._replaced_said = True
+                log.error("control socket %s was replaced by another file while running; robot messages do not "
+                          "reach the daemon until that file is removed (then the socket is bound again)", self.address)
             return
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
@@ -163,10 +175,19 @@ class ControlSocket:
                           "lost until it can", self.address, exc.strerror or exc)
             return
         sock.settimeout(POLL_S)
-        old, self._sock, self._rebind_failed = self._sock, sock, False
+        old, self._sock, self._rebind_failed, self._replaced_said = self._sock, sock, False, False
+        self._bound = self._file_id()
         if old is not None:
             old.close()
         log.warning("control socket %s was removed while running; bound it again", self.address)
+
+    def _file_id(self) -> tuple[int, int] | None:
+        """(device, inode) of whatever is at the socket's path now, None when nothing is."""
+        try:
+            st = os.lstat(self.address)
+        except OSError:
+            return None
+        return st.st_dev, st.st_ino
 
     def _handle(self, data: bytes) -> None:
         message = parse_message(data)
@@ -193,8 +214,8 @@ class ControlSocket:
             self._sock = None
         if not self.address.startswith("@"):
             with contextlib.suppress(OSError):
-                if stat.S_ISSOCK(os.lstat(self.address).st_mode):
-                    os.unlink(self.address)
+                if stat.S_ISSOCK(os.lstat(self.address).st_mode) and self._file_id() == self._bound:
+                    os.unlink(self.address)  # only our own socket: one put in its place belongs to someone else
 
 
 class MessageLog:

@@ -122,3 +122,26 @@ def test_a_path_with_a_nul_character_is_a_config_error(key):
     table = {section: {name: value}} if section else {name: value}
     with pytest.raises(ConfigError, match=f"{key}: must not contain a NUL"):
         config_from_dict({"device": {"url": "sim://"}, **table})
+
+
+def test_a_file_put_in_the_sockets_place_is_said_once_left_alone_and_the_socket_comes_back_after_it(
+        tmp_path, sender, caplog):
+    got: list[bool] = []
+    path = str(tmp_path / "c.sock")
+    control = ControlSocket(path, lambda closed, source: got.append(closed)).start()
+    try:
+        with caplog.at_level(logging.WARNING, logger="handover.control"):
+            (tmp_path / "other").write_text("not a socket")
+            os.replace(tmp_path / "other", path)  # in one step: the path is never seen missing
+            assert _wait(lambda: any("replaced by another file" in r.getMessage() for r in caplog.records),
+                         timeout=10 * POLL_S)
+            assert Path(path).read_text() == "not a socket"
+            os.unlink(path)
+            assert _wait(lambda: Path(path).is_socket(), timeout=10 * POLL_S)
+        sender.sendto(b"grasp closed", path)
+        assert _wait(lambda: got == [True])
+        said = [r.getMessage() for r in caplog.records if "replaced by another file" in r.getMessage()]
+        assert len(said) == 1 and path in said[0]
+    finally:
+        control.stop()
+    assert not Path(path).exists()
