@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -11,6 +14,24 @@ from trainer.shared_data import default_data_dir
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = default_data_dir()
 SDH2_DATA = SHARED_DATA / "sdh2-dsa"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def own_lock_folder():
+    """The suite's daemons take their instance locks in a folder of their own: a daemon the user (or
+    another run of the suite) has on the same machine holds its device's lock in the shared folder,
+    and the suite's daemons on the README's ports would be refused as second daemons."""
+    saved = {k: os.environ.get(k) for k in ("RUNTIME_DIRECTORY", "XDG_RUNTIME_DIR")}
+    folder = tempfile.mkdtemp(prefix="handover-tests-")
+    os.environ.pop("RUNTIME_DIRECTORY", None)
+    os.environ["XDG_RUNTIME_DIR"] = folder
+    yield Path(folder)
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 def real_data_dir() -> Path:
