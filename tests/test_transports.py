@@ -21,10 +21,12 @@ from firmware_io.layout import SensorLayout
 from firmware_io.transports import (
     DeviceUnavailable,
     MissingDependency,
+    Transport,
     TransportError,
     open_transport,
     register_transport,
 )
+from firmware_io.transports.emulated import EmulatedTransport
 from firmware_io.transports.hid import data_reports, uart_config_report
 from firmware_io.transports.usb import ftdi_baud_divisor, strip_ftdi_status
 
@@ -361,6 +363,47 @@ def test_hid_transport_errors(rec):
     with pytest.raises(DeviceUnavailable, match="unplugged"):
         t.read(10, 0.02)
 
+
+
+def _open_emulated(kind: str, rec):
+    emulator = DeviceEmulator(rec, speed=None)
+    if kind == "hid":
+        return open_transport("hid://10c4:ea80", device=EmulatedCp2110(emulator))
+    if kind == "usb":
+        return open_transport("usb://0403:6001", backend=EmulatedUsbBackend(emulator))
+    return EmulatedTransport(emulator)
+
+
+@pytest.mark.parametrize("kind", ["hid", "usb", "emulated"])
+def test_a_closed_transport_refuses_reads_and_writes_with_one_line_and_closes_twice_harmlessly(kind, rec):
+    t = _open_emulated(kind, rec)
+    t.close()
+    t.close()
+    assert t.closed
+    for call in (lambda: t.read(10, 0.0), lambda: t.write(b"x")):
+        with pytest.raises(TransportError, match=r": transport is closed$"):
+            call()
+
+
+def test_close_releases_the_device_once():
+    class Counting(Transport):
+        released = 0
+        _closed = False
+
+        def write(self, data: bytes) -> None:
+            self._check_open()
+
+        def read(self, max_bytes: int = 4096, timeout: float = 0.1) -> bytes:
+            self._check_open()
+            return b""
+
+        def _release(self) -> None:
+            self.released += 1
+
+    t = Counting()
+    t.close()
+    t.close()
+    assert t.released == 1
 
 _VALID = {"serial": "serial:///dev/ttyUSB0?baud=115200", "tcp": "tcp://192.168.1.42:13000?connect_timeout=3",
           "usb": "usb://0403:6001?serial=A1&baud=115200", "hid": "hid://10c4:ea80?baud=115200",

@@ -75,13 +75,24 @@ class Transport(ABC):
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
         """Up to ``max_bytes`` bytes; ``b""`` if none arrived within ``timeout`` seconds."""
 
-    @abstractmethod
     def close(self) -> None:
-        """Release the device; closing twice is harmless."""
+        """Release the device; closing twice is harmless (``_release`` runs once)."""
+        if self.closed:
+            return
+        self._closed = True
+        self._release()
+
+    def _release(self) -> None:  # noqa: B027 - a hook: an emulated device holds nothing to free
+        """Free what the open transport holds (socket, port, handle); ``close`` calls it once."""
 
     @property
     def closed(self) -> bool:
         return getattr(self, "_closed", False)
+
+    def _check_open(self) -> None:
+        """Every transport refuses reads and writes after ``close`` with the same line."""
+        if self.closed:
+            raise TransportError(f"{self.url}: transport is closed")
 
     def __enter__(self) -> Transport:
         return self

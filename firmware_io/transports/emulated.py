@@ -45,11 +45,11 @@ class EmulatedTransport(Transport):
         emulator.connect()
 
     def write(self, data: bytes) -> None:
-        self._check()
+        self._check_open()
         self.emulator.feed(data)
 
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
-        self._check()
+        self._check_open()
         emu = self.emulator
         deadline = time.monotonic() + max(timeout, 0.0)
         while True:
@@ -66,13 +66,6 @@ class EmulatedTransport(Transport):
                 return b""
             wait = emu.seconds_until_output()
             time.sleep(remaining if wait is None else min(max(wait, 0.0005), remaining))
-
-    def close(self) -> None:
-        self._closed = True
-
-    def _check(self) -> None:
-        if self._closed:
-            raise TransportError(f"{self.url}: transport is closed")
 
 
 def _fault_plan(parsed: ParsedURL, opts: dict):

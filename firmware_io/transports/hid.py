@@ -93,7 +93,7 @@ class HidTransport(Transport):
             self._feature(bytes([PURGE_FIFOS, 3]))
             self._dev.set_nonblocking(1)  # else hidapi's read with timeout 0 waits for the next report
         except BaseException:
-            self._safe_close()
+            self._release()
             raise
         self._closed = False
 
@@ -150,16 +150,6 @@ class HidTransport(Transport):
         del self._buf[:max_bytes]
         return out
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        self._safe_close()
-
-    def _safe_close(self) -> None:
+    def _release(self) -> None:
         with contextlib.suppress(OSError, ValueError):
             self._dev.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise TransportError(f"{self.url}: transport is closed")

@@ -103,16 +103,9 @@ class SerialTransport(Transport):
         except (self._serial_mod.SerialException, OSError) as exc:
             raise DeviceUnavailable(f"{self.url}: read failed (unplugged?): {exc}") from None
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
         with contextlib.suppress(self._serial_mod.SerialException, OSError):
             self._ser.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise TransportError(f"{self.url}: transport is closed")
 
 
 def _ask_low_latency(ser) -> bool:

@@ -84,17 +84,10 @@ class TcpTransport(Transport):
         """The line for a lost connection; closed before the first byte, it says who may hold the device."""
         return f"{self.url}: {what} at once ({HELD_ELSEWHERE})" if not self._received else f"{self.url}: {what}"
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
         with contextlib.suppress(OSError):
             self._sock.shutdown(socket.SHUT_RDWR)
         self._sock.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise TransportError(f"{self.url}: transport is closed")
 
 
 def _split_host_port(url: str, netloc: str) -> tuple[str, int]:

@@ -262,12 +262,6 @@ class UsbTransport(Transport):
         del self._buf[:max_bytes]
         return out
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        self._release()
-
     def _release(self) -> None:
         core, util, dev = self._core, self._util, getattr(self, "_dev", None)
         if dev is None:
@@ -282,10 +276,6 @@ class UsbTransport(Transport):
         self._detached = []
         with contextlib.suppress(core.USBError, NotImplementedError):
             util.dispose_resources(dev)
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise TransportError(f"{self.url}: transport is closed")
 
     def _usb_error(self, what: str, exc: Exception) -> TransportError:
         code = getattr(exc, "errno", None)
