@@ -12,6 +12,7 @@ import pytest
 
 from firmware_io.recordings import arm_marks
 from runtime.arm_motion import ArmMotion, arm_frames
+from tests.clocks import ManualClock
 from tests.datagrams import send_datagram
 from tests.test_onset import _daemon, _frames, grasp_levels
 from tests.waiting import wait_for
@@ -197,16 +198,8 @@ def test_joint_speed_from_positions_when_the_driver_sends_no_velocities():
 
 
 # -- the recorder hears the robot ----------------------------------------------------------------------
-class _Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 def test_the_mark_log_places_the_robots_words_on_the_frames_that_arrived_after_them():
-    clock = _Clock()
+    clock = ManualClock()
     log = arm_marks.ArmMarkLog(clock)
     received = np.arange(10.0, 20.0)  # frames arrive at 10, 11, ... 19
     assert log.marks_for(received) == []  # nothing heard: no marks at all

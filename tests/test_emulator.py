@@ -17,14 +17,7 @@ from firmware_io.wire.errors import DeviceError, DSAErrorCode
 from firmware_io.wire.frames import decode_frame_payload
 from firmware_io.wire.packets import Packet, encode_ack, encode_packet, error_code_of
 from firmware_io.wire.parser import StreamParser
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
+from tests.clocks import ManualClock
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +26,7 @@ def rec():
 
 
 def make(rec, **kw):
-    clock = FakeClock()
+    clock = ManualClock(100.0)
     emu = DeviceEmulator(rec, clock=clock, **kw)
     emu.connect()
     return emu, clock

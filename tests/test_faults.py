@@ -23,6 +23,7 @@ import pytest
 from firmware_io.client import DSAClient
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
+from tests.clocks import ManualClock
 from tests.tiny_models import tiny_model_bytes, write_model
 
 pytest.importorskip("onnx")
@@ -388,24 +389,16 @@ def test_log_lines_carry_a_time_outside_journald():
     assert "%(asctime)s" not in log_format({"JOURNAL_STREAM": "8:12345"})
 
 
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def test_a_failure_that_counts_differently_each_time_is_the_same_failure():
     """A device sending nonsense fails every open with another byte count: one line, then rarely."""
     from runtime.retry_notes import RetryNotes
 
-    clock = FakeClock()
+    clock = ManualClock(1000.0)
     notes = RetryNotes(clock=clock)
     lines = []
     for n in range(7):
         lines.append(notes.failed(f"open did not complete within 10 s although {31088640 - n * 4096} bytes arrived", 10.0))
-        clock.now += 10.0
+        clock.t += 10.0
     assert lines[0].startswith("open did not complete") and lines[1:6] == [None] * 5
     assert lines[6].startswith("still unreachable after 7 attempts in 60 s (last: open did not complete within 10 s "
                                "although 31064064 bytes arrived)")
@@ -419,14 +412,14 @@ def test_a_device_that_alternates_two_ways_of_failing_is_one_outage():
     rhythm (the attacker saw 7 warnings in 80 s)."""
     from runtime.retry_notes import RetryNotes
 
-    clock = FakeClock()
+    clock = ManualClock(1000.0)
     notes = RetryNotes(clock=clock)
     reasons = ("tcp://h:1: the device closed the connection at once", "tcp://h:1: connection lost: "
                "Connection reset by peer at once")
     lines = []
     for n in range(13):
         lines.append(notes.failed(reasons[n % 2], 5.0))
-        clock.now += 5.0
+        clock.t += 5.0
     assert [line is not None for line in lines] == [True, True] + [False] * 11
     # a minute after the latest new reason began
     assert notes.failed(reasons[1], 5.0).startswith("still unreachable after 14 attempts in 65 s")
@@ -447,7 +440,7 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
             return DSAClient(url, auto_reconnect=False)
         raise DeviceUnavailable(f"{url}: {state['reason']}")
 
-    clock = FakeClock()
+    clock = ManualClock(1000.0)
     daemon = Daemon(_config(models, "sim://?events=4&realtime=0"), client_factory=factory)
     daemon.link.retry_notes = RetryNotes(clock=clock)
     caplog.set_level(logging.INFO, logger="handover.daemon")
@@ -457,7 +450,7 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
         for _ in range(n):
             daemon.link.connect()
             assert state["up"] or daemon.health.last_error.endswith(state["reason"])  # current on every attempt
-            clock.now += every_s
+            clock.t += every_s
         return [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
 
     first = attempts(6 * 125)  # two hours and five minutes at the 10 s backoff
