@@ -3,7 +3,6 @@ windows during and after a move, the marks a recording keeps and the simulator w
 
 from __future__ import annotations
 
-import functools
 import logging
 import socket
 
@@ -14,8 +13,7 @@ from firmware_io.recordings import arm_marks
 from runtime.arm_motion import ArmMotion, arm_frames
 from tests.clocks import ManualClock
 from tests.datagrams import send_datagram
-from tests.test_onset import _daemon, _frames, grasp_levels
-from tests.waiting import wait_for
+from tests.test_onset import _daemon, _frames, _listening, _wait, grasp_levels
 
 
 def _feed(arm: ArmMotion, words: dict[int, bool], n: int) -> list[int]:
@@ -101,14 +99,8 @@ def test_without_the_message_the_same_push_is_reported(tmp_path):
     assert len(events) == 1 and daemon.detector.arm.dropped == 0
 
 
-_wait = functools.partial(wait_for, timeout=3.0)
-
-
 def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones_are_one_line(tmp_path, caplog):
-    path = str(tmp_path / "control.sock")
-    daemon, _ = _daemon(tmp_path, control={"socket": path})
-    daemon.start_control()
-    try:
+    with _listening(tmp_path) as (daemon, path):
         frames = _frames(grasp_levels(700))
         daemon.handle_frame(frames[0])
         send_datagram(path, b"arm moving\n")
@@ -127,16 +119,11 @@ def test_arm_datagrams_on_the_control_socket_reach_the_hot_path_and_unknown_ones
         assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
         assert not daemon.detector.arm.moving and daemon.detector.arm.last_motion == 1 + daemon.detector.arm.settle_frames
-    finally:
-        daemon.stop_control()
 
 
 def test_a_flood_of_arm_datagrams_is_a_few_log_lines_and_the_loop_keeps_up(tmp_path, caplog):
-    path = str(tmp_path / "control.sock")
-    daemon, _ = _daemon(tmp_path, control={"socket": path})
-    daemon.start_control()
-    frames = _frames(grasp_levels(400))
-    try:
+    with _listening(tmp_path) as (daemon, path):
+        frames = _frames(grasp_levels(400))
         with caplog.at_level(logging.INFO, logger="handover.daemon"):
             with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
                 for i in range(3000):
@@ -147,8 +134,6 @@ def test_a_flood_of_arm_datagrams_is_a_few_log_lines_and_the_loop_keeps_up(tmp_p
         lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("arm ")]
         assert 1 <= len(lines) <= 10, lines
         assert len(daemon.detector.arm._requests) <= 64  # bounded: the newest words are kept
-    finally:
-        daemon.stop_control()
 
 
 # -- marks with the data ---------------------------------------------------------------------------------

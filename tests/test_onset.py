@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -187,11 +189,20 @@ def test_daemon_serves_a_model_cut_by_the_onset_trigger_with_it(tmp_path):
 _wait = functools.partial(wait_for, timeout=3.0)
 
 
-def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_once(tmp_path, caplog):
+@contextlib.contextmanager
+def _listening(tmp_path) -> Iterator[tuple[Daemon, str]]:
+    """A daemon with its control socket open (and the socket's path), stopped on the way out."""
     path = str(tmp_path / "control.sock")
     daemon, _ = _daemon(tmp_path, control={"socket": path})
     daemon.start_control()
     try:
+        yield daemon, path
+    finally:
+        daemon.stop_control()
+
+
+def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_once(tmp_path, caplog):
+    with _listening(tmp_path) as (daemon, path):
         frames = _frames(grasp_levels(60, close=0))
         daemon.handle_frame(frames[0])
         send_datagram(path, b"grasp closed\n")
@@ -210,8 +221,6 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
         daemon.set_grasp(True, source="ros2")  # what the ROS 2 sink calls
         daemon.handle_frame(frames[3])
         assert daemon.detector.trigger.state == ARMED
-    finally:
-        daemon.stop_control()
     assert not (tmp_path / "control.sock").exists()
 
 
