@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import sys
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -124,20 +125,30 @@ def test_full_short_session_records_every_trial_once(tmp_path, capsys):
     assert_consistent(rec)
 
 
+def on_third_go(subject: ScriptedSubject, act: Callable[[], None]) -> Callable:
+    """The subject's cue, with ``act`` run as the third trial's go is given (the trial is being recorded)."""
+    gos = 0
+
+    def cue(kind, slot):
+        nonlocal gos
+        if kind == "go":
+            gos += 1
+            if gos == 3:
+                act()
+        return subject.cue(kind, slot)
+
+    return cue
+
+
 def test_interrupted_session_resumes_where_it_stopped(tmp_path):
     subject = ScriptedSubject(seed=4, speed=SPEED)
     client, store = open_session(tmp_path, subject)
-    gos = []
 
-    def cue(kind, slot):
-        if kind == "go":
-            gos.append(slot)
-            if len(gos) == 3:
-                raise KeyboardInterrupt  # Ctrl-C while the third trial is being recorded
-        return subject.cue(kind, slot)
+    def ctrl_c() -> None:
+        raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_session(client, store, PLAN, auto_opts(), SessionIO(cue=cue))
+        run_session(client, store, PLAN, auto_opts(), SessionIO(cue=on_third_go(subject, ctrl_c)))
     client.close()
     partial = Recording.load(store.path)
     assert keys(partial) == [("down", "ball", "pull", 1), ("down", "ball", "push", 1)]
@@ -228,17 +239,12 @@ def test_never_triggered_trial_kept_flagged_without_retries(tmp_path):
 def test_link_drop_mid_trial_reconnects_and_records_the_trial_again(tmp_path):
     subject = ScriptedSubject(seed=3, speed=SPEED)
     client, store = open_session(tmp_path, subject)
-    gos = []
 
-    def cue(kind, slot):
-        if kind == "go":
-            gos.append(slot)
-            if len(gos) == 3:
-                subject.drop_at = {subject.emitted + 20}  # the link drops 20 frames into trial 3
-        return subject.cue(kind, slot)
+    def drop_soon() -> None:
+        subject.drop_at = {subject.emitted + 20}  # the link drops 20 frames into trial 3
 
     shown: list[str] = []
-    result = run_session(client, store, PLAN, auto_opts(), SessionIO(show=shown.append, cue=cue))
+    result = run_session(client, store, PLAN, auto_opts(), SessionIO(show=shown.append, cue=on_third_go(subject, drop_soon)))
     assert client.stats["reconnects"] == 1 and subject.connections == 2
     client.close()
     assert result.complete
