@@ -6,6 +6,7 @@ import os
 import socket
 
 from runtime.sdnotify import Notifier
+from tests.datagrams import abstract_listener
 
 
 def _receive_all(sock: socket.socket) -> list[str]:
@@ -37,13 +38,10 @@ def test_ready_status_watchdog_stopping(tmp_path):
 
 
 def test_abstract_namespace_socket():
-    name = f"handover-notify-{os.getpid()}"
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    sock.bind("\0" + name)
-    n = Notifier({"NOTIFY_SOCKET": "@" + name})
-    assert n.ready()
-    assert _receive_all(sock) == ["READY=1"]
-    sock.close()
+    with abstract_listener("handover-notify") as (address, sock):
+        n = Notifier({"NOTIFY_SOCKET": address})
+        assert n.ready()
+        assert _receive_all(sock) == ["READY=1"]
 
 
 def test_without_systemd_everything_is_a_no_op():

@@ -12,6 +12,7 @@ import pytest
 
 from runtime.config import SinksConfig
 from runtime.sinks import Event, SinkSet, StdoutSink, UdpSink, UnixDatagramSink
+from tests.datagrams import abstract_listener
 
 
 def _event() -> Event:
@@ -50,14 +51,10 @@ def test_udp_and_unix_and_stdout_deliver(tmp_path):
 
 
 def test_abstract_unix_socket():
-    name = f"handover-test-{id(object())}"
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    sock.bind("\0" + name)
-    sock.settimeout(2)
-    sink = UnixDatagramSink("@" + name)
-    sink.send("x", b'{"a":1}')
-    assert sock.recv(100) == b'{"a":1}'
-    sock.close()
+    with abstract_listener("handover-test") as (address, sock):
+        sink = UnixDatagramSink(address)
+        sink.send("x", b'{"a":1}')
+        assert sock.recv(100) == b'{"a":1}'
 
 
 def test_a_missing_listener_is_counted_not_fatal(tmp_path, caplog):
