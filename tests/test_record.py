@@ -209,6 +209,33 @@ def test_redo_and_discard_from_the_prompt(tmp_path, monkeypatch, capsys):
     assert_consistent(rec)
 
 
+def test_the_start_prompt_skips_and_quits_trials_and_idle_stretches_in_the_same_words(tmp_path):
+    from firmware_io.recordings.idle_session import run_idle
+    from firmware_io.recordings.idle_stretches import IdleSlot
+
+    asked: list[str] = []
+    answers: list[str] = []
+
+    def ask(question, choices):
+        asked.append(question)
+        return answers.pop(0)
+
+    subject = ScriptedSubject(seed=3, speed=SPEED)
+    client, store = open_session(tmp_path, subject)
+    say = SessionIO(ask=ask, cue=subject.cue, sleep=lambda s: None)
+    opts = auto_opts(auto=False, countdown=0)
+    try:
+        answers[:] = ["s", "q"]
+        trials = run_session(client, store, PLAN, opts, say)
+        answers[:] = ["s", "q"]
+        idle = run_idle(client, store, [IdleSlot(0, "quiet", 1.0), IdleSlot(1, "grasp", 1.0)], opts, say)
+    finally:
+        client.close()
+    assert (trials.stopped, trials.done, trials.recorded, store.n_trials) == ("quit", 0, 0, 0)
+    assert (idle.stopped, idle.done, idle.recorded) == ("quit", 0, 0)
+    assert asked == ["Enter = start, s = skip, q = quit"] * 4
+    assert SessionIO().ask_to_start("skipped") is None  # no prompts (auto): the recording starts
+
 def test_never_triggered_trial_is_flagged_and_repeated(tmp_path, capsys):
     subject = ScriptedSubject(seed=3, speed=SPEED, lazy=[1, 3])  # does nothing on the 1st and 3rd go
     client, store = open_session(tmp_path, subject)

@@ -61,12 +61,8 @@ def _record_stretch(client, store: SessionStore, slot: IdleSlot, opts: SessionOp
         io.say(f"Idle {result.done + 1} of {result.planned}: {slot.describe()}. Next: {slot.prompt}")
         if opts.auto:
             io.sleep(min(opts.gap_seconds, 1.0))
-        else:
-            answer = io.ask("Enter = start, s = skip, q = quit", ("", "s", "q"))
-            if answer == "q":
-                return "quit"
-            if answer == "s":
-                return "skipped"
+        elif (stop := io.ask_to_start("skipped")) is not None:
+            return stop
         drain(client)
         annotations: dict = {}
 

@@ -297,6 +297,12 @@ class SessionIO:
     cue: Callable[[str, TrialSlot], dict | None] = lambda kind, slot: None
     sleep: Callable[[float], None] = time.sleep
 
+    def ask_to_start(self, skipped: str) -> str | None:
+        """Before a recording (a trial or an idle stretch, in the same words): None to start it,
+        ``skipped`` to pass it over, 'quit' to stop the session; no answer (auto) starts it."""
+        answer = self.ask("Enter = start, s = skip, q = quit", ("", "s", "q"))
+        return {"s": skipped, "q": "quit"}.get(answer)
+
 
 @dataclass
 class SessionOptions:
@@ -379,11 +385,8 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
         if opts.auto:
             io.sleep(opts.gap_seconds)
         else:
-            answer = io.ask("Enter = start, s = skip, q = quit", ("", "s", "q"))
-            if answer == "q":
-                return "quit"
-            if answer == "s":
-                return "discarded"
+            if (stop := io.ask_to_start("discarded")) is not None:
+                return stop
             for k in range(opts.countdown, 0, -1):
                 io.say(str(k))
                 io.sleep(1.0)
