@@ -83,13 +83,24 @@ def _fields(buf: bytes) -> Iterator[tuple[int, int, bytes | int]]:
         yield number, wtype, value
 
 
+def _nested(buf: bytes) -> Iterator[tuple[int, bytes]]:
+    """(field number, bytes) of one message's length-delimited fields: the strings, nested messages
+    and packed arrays the walks below look into (varint and fixed-size fields are passed over)."""
+    return ((number, value) for number, wtype, value in _fields(buf) if wtype == 2)
+
+
+def _first_string(buf: bytes, number: int) -> str:
+    """The first string in field ``number`` ("" without one): a ValueInfoProto's name, an opset's domain (1)."""
+    return next((v.decode("utf-8", "replace") for n, v in _nested(buf) if n == number), "")
+
+
 def _tensor_is_external(buf: bytes) -> bool:
     return any(number == 13 or (number == 14 and value == 1) for number, _, value in _fields(buf))
 
 
 def _sparse_is_external(buf: bytes) -> bool:
     """A SparseTensorProto whose values (1) or indices (2) tensor lives in external data."""
-    return any(t == 2 and number in (1, 2) and _tensor_is_external(v) for number, t, v in _fields(buf))
+    return any(number in (1, 2) and _tensor_is_external(v) for number, v in _nested(buf))
 
 
 _FLOAT_TYPES = {1: "<f4", 11: "<f8", 14: "<f4", 15: "<f8"}
@@ -162,7 +173,7 @@ def _constant_has_nan(attribute: bytes) -> bool:
 
 def _sparse_has_nan(buf: bytes) -> bool:
     """A SparseTensorProto whose values tensor (1) holds NaN."""
-    return any(number == 1 and wtype == 2 and _has_nan(value) for number, wtype, value in _fields(buf))
+    return any(number == 1 and _has_nan(value) for number, value in _nested(buf))
 
 
 def _tensor_name_and_dims(buf: bytes) -> tuple[str, tuple[int, ...]]:
@@ -181,9 +192,7 @@ def _tensor_name_and_dims(buf: bytes) -> tuple[str, tuple[int, ...]]:
 
 
 def _walk_graph(buf: bytes, out: WireSummary, main: bool = False) -> None:
-    for number, wtype, value in _fields(buf):
-        if wtype != 2:
-            continue
+    for number, value in _nested(buf):
         if number == 1:
             _walk_node(value, out)
         elif number == 5:
@@ -202,24 +211,22 @@ def _walk_graph(buf: bytes, out: WireSummary, main: bool = False) -> None:
 
 
 def _sparse_name(buf: bytes) -> str:
-    return next((_tensor_name_and_dims(v)[0] for n, t, v in _fields(buf) if n == 1 and t == 2), "")
+    return next((_tensor_name_and_dims(v)[0] for n, v in _nested(buf) if n == 1), "")
 
 
 def _walk_node(buf: bytes, out: WireSummary) -> None:
     out.n_nodes += 1
     domain, op_type, outputs, attributes = "", "", [], []
-    for number, wtype, value in _fields(buf):
-        if number == 7 and wtype == 2:
+    for number, value in _nested(buf):
+        if number == 7:
             domain = value.decode("utf-8", "replace")
-        elif number == 4 and wtype == 2:
+        elif number == 4:
             op_type = value.decode("utf-8", "replace")
-        elif number == 2 and wtype == 2:
+        elif number == 2:
             outputs.append(value.decode("utf-8", "replace"))
-        elif number == 5 and wtype == 2:
+        elif number == 5:
             attributes.append(value)
-            for a_number, a_type, a_value in _fields(value):
-                if a_type != 2:
-                    continue
+            for a_number, a_value in _nested(value):
                 if a_number in (6, 11):
                     _walk_graph(a_value, out)
                 elif (a_number in (5, 10) and _tensor_is_external(a_value)) or (
@@ -231,34 +238,23 @@ def _walk_node(buf: bytes, out: WireSummary) -> None:
         out.nan_initializers.append(outputs[0] if outputs else "Constant")
 
 
-def _opset_domain(buf: bytes) -> str:
-    for number, wtype, value in _fields(buf):
-        if number == 1 and wtype == 2:
-            return value.decode("utf-8", "replace")
-    return ""
-
-
 def summarize(model_bytes: bytes) -> WireSummary:
     """Operator domains (opset imports and every node, subgraphs and functions included) and
     whether any tensor lives in external data. Raises WireError on malformed bytes."""
     out = WireSummary()
     saw_graph = False
-    for number, wtype, value in _fields(model_bytes):
-        if wtype != 2:
-            continue
+    for number, value in _nested(model_bytes):
         if number == 7:
             saw_graph = True
             _walk_graph(value, out, main=True)
         elif number == 8:
-            out.opset_domains.add(_opset_domain(value))
+            out.opset_domains.add(_first_string(value, 1))
         elif number == 25:
-            for f_number, f_type, f_value in _fields(value):
-                if f_type != 2:
-                    continue
+            for f_number, f_value in _nested(value):
                 if f_number == 7:
                     _walk_node(f_value, out)
                 elif f_number == 9:
-                    out.opset_domains.add(_opset_domain(f_value))
+                    out.opset_domains.add(_first_string(f_value, 1))
                 elif f_number == 10:
                     out.node_domains.add(f_value.decode("utf-8", "replace"))
     if not saw_graph:
@@ -289,11 +285,7 @@ def _encode_field(number: int, wtype: int, value: bytes | int) -> bytes:
 
 
 def _strings(buf: bytes, number: int) -> list[str]:
-    return [v.decode("utf-8", "replace") for n, t, v in _fields(buf) if n == number and t == 2]
-
-
-def _value_info_name(buf: bytes) -> str:
-    return next((v.decode("utf-8", "replace") for n, t, v in _fields(buf) if n == 1 and t == 2), "")
+    return [v.decode("utf-8", "replace") for n, v in _nested(buf) if n == number]
 
 
 def keep_outputs(model_bytes: bytes, outputs: tuple[str, ...]) -> bytes:
@@ -301,11 +293,11 @@ def keep_outputs(model_bytes: bytes, outputs: tuple[str, ...]) -> bytes:
     bytes for everything kept). Why: onnxruntime runs every node of a graph whatever outputs are
     asked for, so a file with several heads is opened as one session per head. Raises WireError
     when an output is not in the graph."""
-    graph = next((v for n, t, v in _fields(model_bytes) if n == 7 and t == 2), None)
+    graph = next((v for n, v in _nested(model_bytes) if n == 7), None)
     if graph is None:
         raise WireError("no graph in the model")
     items = list(_fields(graph))
-    names = {_value_info_name(v) for n, t, v in items if n == 12 and t == 2}
+    names = {_first_string(v, 1) for n, v in _nested(graph) if n == 12}
     missing = [o for o in outputs if o not in names]
     if missing:
         raise WireError(f"the graph has no output {missing[0]!r}")
@@ -322,7 +314,7 @@ def keep_outputs(model_bytes: bytes, outputs: tuple[str, ...]) -> bytes:
             continue
         if number == 5 and wtype == 2 and _tensor_name_and_dims(value)[0] not in needed:
             continue
-        if number == 12 and wtype == 2 and _value_info_name(value) not in outputs:
+        if number == 12 and wtype == 2 and _first_string(value, 1) not in outputs:
             continue
         if number == 13:  # intermediate shapes: onnxruntime infers them again
             continue
