@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 from runtime import realtime
+from runtime.background import Background
 
 __all__ = ["DecisionGuard", "log"]
 
@@ -59,8 +59,8 @@ class DecisionGuard:
         self.ended = 0
         """Decisions ended so far."""
         self._ended_at: float | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = Background("decision-guard", lambda: self.check(self.clock()), lambda: self.limit() / 4, log,
+                                "decision guard check failed", on_start=self._enter_priority)
 
     def limit(self) -> float:
         return max(MIN_LIMIT_S, float(self.limit_s()))
@@ -98,22 +98,11 @@ class DecisionGuard:
             self.exit(EXIT_HUNG)
 
     def start(self) -> None:
-        if self._thread is None:
-            self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name="decision-guard", daemon=True)
-            self._thread.start()
+        self._loop.start()
 
-    def _run(self) -> None:
+    def _enter_priority(self) -> None:
         if self.priority > 0:  # above the hot thread, or a hot thread spinning at real-time priority starves it
             realtime.enter_realtime(min(99, self.priority + 1))
-        while not self._stop.wait(self.limit() / 4):
-            try:
-                self.check(self.clock())
-            except Exception:  # the guard must outlive any model
-                log.exception("decision guard check failed")
 
     def stop(self, timeout: float = 0.5) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            self._thread = None
+        self._loop.stop(timeout)

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from runtime.background import Background
 from runtime.model import ModelContractError, ModelUnreadableError
 from runtime.output_check import DEFAULT_BUDGET_FRACTION
 from runtime.quarantine import QuarantineStore, file_key
@@ -166,9 +167,8 @@ class ModelWatcher:
         self.accepted: list[Path] = []
         self._previous: dict[Path, FileState] = {}
         self._tried: set[FileState] = set()
-        self._stop = threading.Event()
         self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
+        self._loop = Background("model-watch", lambda: self.poll(), lambda: self.poll_interval, log, "model watcher poll failed")
         self._folder_error_logged = False
         self._rescan: bool | None = None
         self._listed = False
@@ -358,21 +358,7 @@ class ModelWatcher:
 
     # -- background thread ----------------------------------------------------------------------
     def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="model-watch", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.poll_interval):
-            try:
-                self.poll()
-            except Exception:  # never let the watcher die silently
-                log.exception("model watcher poll failed")
+        self._loop.start()
 
     def stop(self, timeout: float = 1.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            self._thread = None
+        self._loop.stop(timeout)
