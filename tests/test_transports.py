@@ -25,6 +25,7 @@ from firmware_io.transports import (
     TransportError,
     open_transport,
     register_transport,
+    validate_url,
 )
 from firmware_io.transports.emulated import EmulatedTransport
 from firmware_io.transports.hid import data_reports, uart_config_report
@@ -168,6 +169,17 @@ def test_tcp_eof_is_device_unavailable():
         thread.join(2)
         server.close()
 
+
+@pytest.mark.parametrize("scheme", ["serial:///dev/ttyUSB0", "usb://0403:6001", "hid://10c4:ea80"])
+def test_every_bridge_reads_baud_one_way(scheme):
+    from firmware_io.transports.base import DEFAULT_BAUD, ParsedURL, parse_baud
+
+    assert parse_baud(ParsedURL(scheme), {}) == DEFAULT_BAUD == 115200
+    assert parse_baud(ParsedURL(f"{scheme}?baud=9600"), {}) == 9600
+    assert parse_baud(ParsedURL(f"{scheme}?baud=9600"), {"baud": 57600}) == 57600  # a keyword option wins
+    for bad in ("0", "12000001", "fast"):
+        with pytest.raises(TransportError, match=f"option baud='?{bad}'? "):
+            validate_url(f"{scheme}?baud={bad}")
 
 def test_bridge_helpers():
     assert ftdi_baud_divisor(115200) == (26, 0)

@@ -15,8 +15,9 @@ from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 __all__ = [
-    "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "DeviceUnavailable", "EndOfStream", "MissingDependency",
-    "ParsedURL", "Transport", "TransportError", "parse_bool", "parse_number", "parse_speed", "parse_vid_pid"
+    "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "DeviceUnavailable", "EndOfStream",
+    "MissingDependency", "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_number",
+    "parse_speed", "parse_vid_pid"
 ]
 
 DEFAULT_READ_SIZE = 4096
@@ -172,8 +173,15 @@ def parse_number(url: str, name: str, text: object, kind: type = float, minimum:
     return value
 
 
+DEFAULT_BAUD = 115200
+"""The DSACON32m's fixed serial speed (SDHLibrary hard-codes it): serial, usb and hid bridges start there."""
 MAX_BAUD = 12_000_000
 """The fastest USB-serial bridges (FTDI high-speed); the DSACON32m itself runs at 115200."""
+
+
+def parse_baud(parsed: ParsedURL, opts: dict) -> int:
+    """The ``baud=`` option of a bridge's URL (a keyword option wins), 1..MAX_BAUD, DEFAULT_BAUD when left out."""
+    return int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD))
 MAX_EVENTS = 100_000
 """Scripted events of a simulated session (``sim://?events=``): about 28 hours at 1 s each."""
 

@@ -21,20 +21,19 @@ import struct
 import time
 
 from firmware_io.transports.base import (
+    DEFAULT_BAUD,
     DEFAULT_READ_SIZE,
-    MAX_BAUD,
     DeviceUnavailable,
     MissingDependency,
     ParsedURL,
     Transport,
     TransportError,
-    parse_number,
+    parse_baud,
     parse_vid_pid,
 )
 
-__all__ = ["DEFAULT_BAUD", "EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
+__all__ = ["EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
 
-DEFAULT_BAUD = 115200
 MAX_DATA_REPORT = 63
 REPORT_SIZE = 64
 UART_ENABLE = 0x41
@@ -108,7 +107,7 @@ class HidTransport(Transport):
             "vid": vid,
             "pid": pid,
             "serial": parsed.option(opts, "serial") or None,
-            "baud": int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
+            "baud": parse_baud(parsed, opts),
             "device": opts.get("device"),
         }
 

@@ -13,20 +13,18 @@ import time
 from errno import EISDIR, ENOTTY
 
 from firmware_io.transports.base import (
+    DEFAULT_BAUD,
     DEFAULT_READ_SIZE,
-    MAX_BAUD,
     DeviceUnavailable,
     MissingDependency,
     ParsedURL,
     Transport,
     TransportError,
+    parse_baud,
     parse_bool,
-    parse_number,
 )
 
 __all__ = ["SerialTransport"]
-
-DEFAULT_BAUD = 115200
 
 
 class SerialTransport(Transport):
@@ -71,7 +69,7 @@ class SerialTransport(Transport):
         if not parsed.location:
             raise TransportError(f"{parsed.url}: no port; use serial:///dev/ttyUSB0")
         return {"port": parsed.location,
-                "baud": int(parse_number(parsed.url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
+                "baud": parse_baud(parsed, opts),
                 "exclusive": parse_bool(parsed.url, "exclusive", parsed.option(opts, "exclusive", True))}
 
     def write(self, data: bytes) -> None:

@@ -26,20 +26,20 @@ import struct
 import time
 
 from firmware_io.transports.base import (
+    DEFAULT_BAUD,
     DEFAULT_READ_SIZE,
-    MAX_BAUD,
     DeviceUnavailable,
     MissingDependency,
     ParsedURL,
     Transport,
     TransportError,
+    parse_baud,
     parse_number,
     parse_vid_pid,
 )
 
-__all__ = ["DEFAULT_BAUD", "EXTRA_HINT", "FTDI_LATENCY_MS", "UsbTransport", "ftdi_baud_divisor", "strip_ftdi_status"]
+__all__ = ["EXTRA_HINT", "FTDI_LATENCY_MS", "UsbTransport", "ftdi_baud_divisor", "strip_ftdi_status"]
 
-DEFAULT_BAUD = 115200
 CHIPS = ("auto", "cdc", "ftdi", "cp210x", "raw")
 VENDOR_CHIPS = {0x0403: "ftdi", 0x10C4: "cp210x"}
 CDC_COMM_CLASS, CDC_DATA_CLASS = 0x02, 0x0A
@@ -124,7 +124,7 @@ class UsbTransport(Transport):
             "serial": parsed.option(opts, "serial") or None,
             "interface": None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0, 255)),
             "chip": chip,
-            "baud": int(parse_number(url, "baud", parsed.option(opts, "baud", DEFAULT_BAUD), int, 1, MAX_BAUD)),
+            "baud": parse_baud(parsed, opts),
             "latency_ms": int(parse_number(url, "latency", parsed.option(opts, "latency", FTDI_LATENCY_MS), int, 1,
                                            255)),
             "backend": opts.get("backend"),
