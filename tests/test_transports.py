@@ -181,6 +181,17 @@ def test_every_bridge_reads_baud_one_way(scheme):
         with pytest.raises(TransportError, match=f"option baud='?{bad}'? "):
             validate_url(f"{scheme}?baud={bad}")
 
+
+@pytest.mark.parametrize("scheme", ["usb", "hid"])
+def test_usb_bridges_read_vid_pid_serial_and_baud_one_way(scheme):
+    from firmware_io.transports.base import ParsedURL, parse_bridge
+
+    assert parse_bridge(ParsedURL(f"{scheme}://10c4:EA80?serial="), {}) == {
+        "vid": 0x10C4, "pid": 0xEA80, "serial": None, "baud": 115200}
+    assert parse_bridge(ParsedURL(f"{scheme}://0403:6001?serial=A1&baud=9600"), {"serial": "B2"})["serial"] == "B2"
+    with pytest.raises(TransportError, match="expected VID:PID"):
+        validate_url(f"{scheme}://0403")
+
 def test_bridge_helpers():
     assert ftdi_baud_divisor(115200) == (26, 0)
     assert ftdi_baud_divisor(9600) == (0x4138, 0)  # 312.5 -> 312 + 4/8 (code 1 -> bit 14)

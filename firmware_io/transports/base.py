@@ -16,7 +16,7 @@ from urllib.parse import parse_qs, urlsplit
 
 __all__ = [
     "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "DeviceUnavailable", "EndOfStream",
-    "MissingDependency", "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_number",
+    "MissingDependency", "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_bridge", "parse_number",
     "parse_speed", "parse_vid_pid"
 ]
 
@@ -208,6 +208,13 @@ def parse_bool(url: str, name: str, text: object) -> bool:
     if t in ("0", "false", "no", "off", ""):
         return False
     raise TransportError(f"{url}: option {name}={text!r} must be 0 or 1")
+
+
+def parse_bridge(parsed: ParsedURL, opts: dict) -> dict:
+    """What every USB bridge's URL says (``usb://`` and ``hid://``): ``vid`` and ``pid`` from ``VID:PID``,
+    ``serial=`` (None when left out or empty) and ``baud=``."""
+    vid, pid = parse_vid_pid(parsed.url, parsed.location)
+    return {"vid": vid, "pid": pid, "serial": parsed.option(opts, "serial") or None, "baud": parse_baud(parsed, opts)}
 
 
 def parse_vid_pid(url: str, location: str) -> tuple[int, int]:

@@ -28,8 +28,7 @@ from firmware_io.transports.base import (
     ParsedURL,
     Transport,
     TransportError,
-    parse_baud,
-    parse_vid_pid,
+    parse_bridge,
 )
 
 __all__ = ["EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
@@ -101,15 +100,7 @@ class HidTransport(Transport):
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"serial", "baud"})
-        url = parsed.url
-        vid, pid = parse_vid_pid(url, parsed.location)
-        return {
-            "vid": vid,
-            "pid": pid,
-            "serial": parsed.option(opts, "serial") or None,
-            "baud": parse_baud(parsed, opts),
-            "device": opts.get("device"),
-        }
+        return {**parse_bridge(parsed, opts), "device": opts.get("device")}
 
     def _feature(self, report: bytes) -> None:
         try:

@@ -33,9 +33,8 @@ from firmware_io.transports.base import (
     ParsedURL,
     Transport,
     TransportError,
-    parse_baud,
+    parse_bridge,
     parse_number,
-    parse_vid_pid,
 )
 
 __all__ = ["EXTRA_HINT", "FTDI_LATENCY_MS", "UsbTransport", "ftdi_baud_divisor", "strip_ftdi_status"]
@@ -109,22 +108,19 @@ class UsbTransport(Transport):
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"serial", "interface", "chip", "baud", "latency"})
         url = parsed.url
-        vid, pid = parse_vid_pid(url, parsed.location)
+        bridge = parse_bridge(parsed, opts)
         interface = parsed.option(opts, "interface")
         chip = str(parsed.option(opts, "chip", "auto")).lower()
         if chip not in CHIPS:
             raise TransportError(f"{url}: unknown chip {chip!r} (use {', '.join(CHIPS)})")
-        known = VENDOR_CHIPS.get(vid, "") if chip == "auto" else chip
+        known = VENDOR_CHIPS.get(bridge["vid"], "") if chip == "auto" else chip
         if parsed.option(opts, "latency") is not None and known not in ("", "ftdi"):
             raise TransportError(f"{url}: latency= sets an FTDI chip's latency timer and this is a {known} "
                                  "bridge, which has none: leave latency= out")
         return {
-            "vid": vid,
-            "pid": pid,
-            "serial": parsed.option(opts, "serial") or None,
+            **bridge,
             "interface": None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0, 255)),
             "chip": chip,
-            "baud": parse_baud(parsed, opts),
             "latency_ms": int(parse_number(url, "latency", parsed.option(opts, "latency", FTDI_LATENCY_MS), int, 1,
                                            255)),
             "backend": opts.get("backend"),
