@@ -383,8 +383,12 @@ def test_hid_transport_errors(rec):
     t = open_transport("hid://10c4:ea80", device=device)
     assert t.read(10, 0.02) == b""
     device.unplugged = True
-    with pytest.raises(DeviceUnavailable, match="unplugged"):
+    with pytest.raises(DeviceUnavailable, match=r"hid://10c4:ea80: read failed \(unplugged\?\): "):
         t.read(10, 0.02)
+    with pytest.raises(DeviceUnavailable, match=r"hid://10c4:ea80: write failed \(unplugged\?\): "):
+        t.write(b"\x01")
+    with pytest.raises(DeviceUnavailable, match=r"hid://10c4:ea80: feature report 0x41 failed: "):
+        t._feature(bytes([0x41, 1]))
 
 
 

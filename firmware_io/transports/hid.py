@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import struct
 import time
+from collections.abc import Callable
 
 from firmware_io.transports.base import (
     DEFAULT_BAUD,
@@ -102,21 +103,23 @@ class HidTransport(Transport):
         parsed.check_options({"serial", "baud"})
         return {**parse_bridge(parsed, opts), "device": opts.get("device")}
 
-    def _feature(self, report: bytes) -> None:
+    def _hid(self, failed: str, call: Callable, *args: object):
+        """hidapi's ``call``; the OSError or ValueError it raises when the device goes away is one
+        DeviceUnavailable line saying what ``failed``."""
         try:
-            n = self._dev.send_feature_report(list(report))
+            return call(*args)
         except (OSError, ValueError) as exc:
-            raise DeviceUnavailable(f"{self.url}: feature report 0x{report[0]:02X} failed: {exc}") from None
+            raise DeviceUnavailable(f"{self.url}: {failed}: {exc}") from None
+
+    def _feature(self, report: bytes) -> None:
+        n = self._hid(f"feature report 0x{report[0]:02X} failed", self._dev.send_feature_report, list(report))
         if n is not None and n < 0:
             raise TransportError(f"{self.url}: the bridge refused feature report 0x{report[0]:02X}")
 
     def write(self, data: bytes) -> None:
         self._check_open()
         for report in data_reports(bytes(data)):
-            try:
-                n = self._dev.write(list(report))
-            except (OSError, ValueError) as exc:
-                raise DeviceUnavailable(f"{self.url}: write failed (unplugged?): {exc}") from None
+            n = self._hid("write failed (unplugged?)", self._dev.write, list(report))
             if n is not None and n < 0:
                 raise DeviceUnavailable(f"{self.url}: write failed (unplugged?)")
 
@@ -125,10 +128,7 @@ class HidTransport(Transport):
         deadline = time.monotonic() + max(timeout, 0.0)
         while len(self._buf) < max_bytes:
             wait_ms = 0 if self._buf else max(0, int((deadline - time.monotonic()) * 1000))
-            try:
-                report = self._dev.read(REPORT_SIZE, wait_ms)
-            except (OSError, ValueError) as exc:
-                raise DeviceUnavailable(f"{self.url}: read failed (unplugged?): {exc}") from None
+            report = self._hid("read failed (unplugged?)", self._dev.read, REPORT_SIZE, wait_ms)
             if not report:
                 if self._buf or time.monotonic() >= deadline:
                     break
