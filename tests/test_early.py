@@ -276,3 +276,18 @@ def test_a_dormant_answer_is_never_reported_early_and_actions_keep_their_accurac
     choice = choose_rule(lab, margins, truth.copy(), truth, (4,), 15, dormant=0)
     assert choice.mean_frames == 15  # nothing may be reported early: dormant waits for T
     assert choice.accuracy == 1.0
+
+
+def test_the_rule_keeps_the_dormant_cases_accuracy_within_the_target_loss():
+    from trainer.early import TARGET_LOSS, choose_rule
+
+    truth = np.r_[np.ones(300, int), np.zeros(40, int)]  # many actions (1), few dormant (0) windows
+    lab = np.ones((1, len(truth)), int)  # the early head says the action for every window
+    margins = np.r_[np.full(300, 3.0), np.full(34, 0.0), np.full(6, 3.0)][None]  # 6 dormant windows look sure
+    choice = choose_rule(lab, margins, truth.copy(), truth, (4,), 15, dormant=0)
+    assert choice.mean_frames == 15 and choice.accuracy == 1.0
+    # reporting early would lose 6/340 overall (within the loss) but 6/40 of the dormant cases: false events
+    assert any(r["accuracy"] >= 1.0 - TARGET_LOSS and r["actions_accuracy"] == 1.0 and r["mean_frames"] < 15
+               for r in choice.grid)
+    chosen = next(r for r in choice.grid if r["threshold"] == choice.spec.threshold and r["agree"] == choice.spec.agree)
+    assert chosen["dormant_accuracy"] >= 1.0 - TARGET_LOSS

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from trainer.early import RULE
+
 __all__ = ["markdown_lines", "plot_curve"]
 
 
@@ -19,9 +21,8 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
     lines = ["## Early decisions", "",
              f"Heads of the default kind at {', '.join(map(str, points[:-1]))} frames after the window's start, the "
              f"full model at {points[-1]}. The rule in the model file: report when the calibrated confidence reaches "
-             f"{rule['threshold']:g}{' and the head agrees with the previous one' if rule['agree'] else ''} (chosen by "
-             f"leave-one-subject-out inside the training data for an accuracy within {ev['target_loss']:.0%} of the "
-             f"full window's). Nested leave-one-subject-out{tag}: each outer fold's rule was chosen inside its "
+             f"{rule['threshold']:g}{' and the head agrees with the previous one' if rule['agree'] else ''} (chosen as "
+             f"{RULE.replace('TARGET_LOSS', format(ev['target_loss'], '.0%'))}). Nested leave-one-subject-out{tag}: each outer fold's rule was chosen inside its "
              "training part, never on the held-out subject.", "",
              "| class | " + " | ".join(f"{p} frames" for p in points) + " | rule: accuracy | rule: mean frames |",
              "|---|" + "---:|" * (len(points) + 2)]

@@ -44,7 +44,8 @@ CRITERION = ("utility = right first reports - wrong first reports - repeats - re
              "idle stream (seed + 2); every bad report costs what a good one gains (the streams bench's rule); "
              "ties: the cut in code")
 OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events_per_hour_arm_messages",
-            "own_model_idle_false_events_per_hour_full_window",
+            "own_model_idle_false_events_per_hour_full_window", "own_model_arm_move_false_events_per_hour",
+            "own_model_arm_move_false_events_per_hour_arm_messages",
             "own_model_demo_events_correct_fraction", "own_model_demo_events_outside",
             "own_model_real_idle_false_events_per_hour", "own_model_dormant_cut")
 """The headline keys this bench writes into results/streams.json too."""
@@ -129,10 +130,11 @@ def test_streams(model, seed: int, s: dict, say) -> dict:
 
     mode = "onset_dormant" if model.meta.dormant_class else "onset"
     n_parts = max(1, round(3600.0 * s["test_idle_h"] / PART_S))
-    plain, arm, full = [], [], []
+    plain, arm, full, hours = [], [], [], []
     for p in range(n_parts):
         say(f"streams_own: test idle stream part {p + 1}/{n_parts} (synthetic, seed {seed}) ...")
         rec = simulate_idle(3600.0 * s["test_idle_h"] / n_parts, seed=seed, part=p)
+        hours.append(se.source_hours([rec], FRAME_PERIOD_S))
         names = se.source_names(rec, rec.n_frames)
         plain.append(se.score(se.replay(rec, model, mode), [], rec.n_frames, FRAME_PERIOD_S, names))
         arm.append(se.score(se.replay(rec, model, f"{mode}_arm"), [], rec.n_frames, FRAME_PERIOD_S, names))
@@ -143,10 +145,19 @@ def test_streams(model, seed: int, s: dict, say) -> dict:
     mixed = simulate_mixed(demo_script(s["test_events"], seed=seed, gap=(10.0, 20.0)), seed=seed)
     m = se.score(se.replay(mixed, model, mode), se.truths_of(mixed), mixed.n_frames, FRAME_PERIOD_S,
                  se.source_names(mixed, mixed.n_frames))
-    return {"mode": mode, "idle": se.merge_idle(plain), "idle_arm_messages": se.merge_idle(arm),
-            "idle_full_window": se.merge_idle(full) if full else None,
+    source_h = se.sum_counts(hours)
+    return {"mode": mode, "idle_source_hours": source_h, "idle": with_arm_move_rate(se.merge_idle(plain), source_h),
+            "idle_arm_messages": with_arm_move_rate(se.merge_idle(arm), source_h),
+            "idle_full_window": with_arm_move_rate(se.merge_idle(full), source_h) if full else None,
             "mixed": {k: m[k] for k in ("n_events", "correct", "wrong_class", "missed", "duplicates", "false_events",
                                         "correct_rate", "delay_frames", "false_by_source")}}
+
+
+def with_arm_move_rate(idle: dict, source_h: dict) -> dict:
+    """``idle`` with its false events per hour of the stream's arm moves (``arm_move_false_per_hour``)."""
+    arm_h = source_h.get("arm_move", 0.0)
+    return {**idle, "arm_move_hours": arm_h,
+            "arm_move_false_per_hour": idle["false_by_source"].get("arm_move", 0) / arm_h if arm_h else None}
 
 
 def demo_session(model, seed: int) -> dict:
@@ -192,6 +203,8 @@ def run(args) -> dict:
         "own_model_idle_false_events_per_hour": test["idle"]["false_per_hour"],
         "own_model_idle_false_events_per_hour_arm_messages": test["idle_arm_messages"]["false_per_hour"],
         "own_model_idle_false_events_per_hour_full_window": (test["idle_full_window"] or {}).get("false_per_hour"),
+        "own_model_arm_move_false_events_per_hour": test["idle"]["arm_move_false_per_hour"],
+        "own_model_arm_move_false_events_per_hour_arm_messages": test["idle_arm_messages"]["arm_move_false_per_hour"],
         "own_model_demo_events_correct_fraction": demo["correct_fraction"],
         "own_model_demo_events_outside": demo["outside"],
         "own_model_real_idle_false_events_per_hour": real["false_per_hour"] if real else None,
@@ -202,7 +215,10 @@ def run(args) -> dict:
         "sizes": s, "seed": args.seed,
         "model": {"classes": list(model.meta.classes), "dormant_class": model.meta.dormant_class,
                   "families": metrics.get("families"), "n_trials": metrics["n_trials"], "idle": metrics.get("idle"),
-                  "loso_accuracy": metrics.get("loso_accuracy")},
+                  "loso_accuracy": metrics.get("loso_accuracy"),
+                  "early_rule": {k: v for k, v in ((metrics.get("early") or {}).get("rule") or {}).items()
+                                 if k != "calibration"} or None},
+        "early_rule_criterion": early_rule_criterion(),
         "held_out_replay": metrics.get("own_replay"),
         "validation": val, "test": test, "demo": demo, "real": real,
         "demo_model_idle_false_events_per_hour": _demo_model_figure(args.out),
@@ -214,6 +230,13 @@ def run(args) -> dict:
     write_results(args.out, NAME, out, markdown(out))
     carry_into_streams(Path(args.out), out)
     return out
+
+
+def early_rule_criterion() -> str:
+    """How ``handover train`` chose the own model's early report rule (trainer.early.RULE)."""
+    from trainer.early import RULE, TARGET_LOSS
+
+    return RULE.replace("TARGET_LOSS", f"{TARGET_LOSS:.0%}")
 
 
 def _demo_model_figure(out: str) -> float | None:

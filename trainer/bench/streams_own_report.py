@@ -11,6 +11,15 @@ def _pct(x) -> str:
     return "-" if x is None else f"{100 * x:.0f} %"
 
 
+def _early(rule: dict | None) -> str:
+    if not rule:
+        return "(none: the full window only)"
+    if rule["threshold"] > 1:
+        return "never reports early (threshold above every confidence)"
+    return (f"reports at {', '.join(map(str, rule['points']))} frames when the calibrated confidence reaches "
+            f"{rule['threshold']:g}{' and agrees with the previous head' if rule['agree'] else ''}")
+
+
 def markdown(r: dict) -> list[str]:
     real, test, demo, rep = r["real"], r["test"], r["demo"], r.get("held_out_replay") or {}
     m = r["model"]
@@ -37,6 +46,10 @@ def markdown(r: dict) -> list[str]:
         f"{r['seed'] + 1}): **{_rate(r['own_model_idle_false_events_per_hour'])} false events per hour** "
         f"(the demo's simulator-trained model: {_rate(r['demo_model_idle_false_events_per_hour'])}); with the robot's "
         f"`arm moving` / `arm still`: {_rate(r['own_model_idle_false_events_per_hour_arm_messages'])} per hour"
+        + (f"; during the stream's arm moves ({test['idle']['arm_move_hours']:.2f} h): "
+           f"{_rate(r['own_model_arm_move_false_events_per_hour'])} per hour without the robot's messages, "
+           f"**{_rate(r['own_model_arm_move_false_events_per_hour_arm_messages'])} per hour with them**"
+           if r.get("own_model_arm_move_false_events_per_hour_arm_messages") is not None else "")
         + (f"; answering only at the full window (`[scene] early_events = []`, no early heads' reports): "
            f"{_rate(r['own_model_idle_false_events_per_hour_full_window'])} per hour"
            if r.get("own_model_idle_false_events_per_hour_full_window") is not None else ""),
@@ -45,6 +58,9 @@ def markdown(r: dict) -> list[str]:
         "outside any event",
         f"- synthetic mixed test stream: {test['mixed']['correct']} of {test['mixed']['n_events']} right, "
         f"{test['mixed']['wrong_class']} wrong, {test['mixed']['missed']} missed, {test['mixed']['false_events']} false",
+        "",
+        f"Early reports: the model's rule {_early(m.get('early_rule'))}, chosen by `handover train` as "
+        f"{r.get('early_rule_criterion') or '-'}.",
         "",
         "## Held-out replay in `handover train` (each subject replayed through the daemon, model trained without it)",
         "",
