@@ -19,7 +19,8 @@ from firmware_io.transports import DeviceUnavailable
 from runtime.daemon import Daemon
 from runtime.device_link import SHORT_LINK_S
 from runtime.retry_notes import RetryNotes
-from tests.test_faults import FakeClock, _config
+from tests.clocks import ManualClock
+from tests.test_faults import _config
 from tests.tiny_models import tiny_model_bytes, write_model
 
 ANOTHER_CLIENT = "another client, e.g. the daemon, may hold the device"
@@ -82,7 +83,7 @@ class _ConnectingClient:
 
 
 def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, caplog):
-    clock = FakeClock()
+    clock = ManualClock(1000.0)
     daemon = Daemon(_config(models, "sim://?events=4&realtime=0"), client_factory=_ConnectingClient)
     daemon.link.retry_notes = RetryNotes(clock=clock)
     caplog.set_level(logging.INFO, logger="handover.daemon")
@@ -90,10 +91,10 @@ def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, ca
     drops = 2 * 3600 + 300  # every second for two hours and five minutes: up 0.5 s, down 0.5 s
     caplog.clear()
     for _ in range(drops):
-        clock.now += 0.5
+        clock.t += 0.5
         daemon.link.fault("the device closed the connection")
         daemon.link.client = None
-        clock.now += 0.5
+        clock.t += 0.5
         daemon.link.connect()
         daemon.link.link_held()
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
@@ -103,21 +104,21 @@ def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, ca
     assert "still unreachable after 61 attempts in 60 s" in lines[1]
     assert daemon.health.reconnects == drops and daemon.health.device_faults == drops
     caplog.clear()
-    clock.now += SHORT_LINK_S + 0.1
+    clock.t += SHORT_LINK_S + 0.1
     daemon.link.link_held()  # the link holds: said once
     daemon.link.link_held()
     back = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert len(back) == 1 and back[0].startswith(f"device sim://?events=4&realtime=0 reconnected after {drops} failed "
                                                  "attempts in 2.1 h; the link has held"), back
     caplog.clear()
-    clock.now += 60
+    clock.t += 60
     daemon.link.fault("the device closed the connection")  # a drop after a long link: one line as before
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert lines == ["device sim://?events=4&realtime=0: the device closed the connection; reconnecting"]
     caplog.clear()
     daemon.link.client = None
     daemon.link.connect()
-    clock.now += 2.0
+    clock.t += 2.0
     daemon.link.fault("no frame for 2 s (stall)", link_lost=False)  # soon, but a stall: no word of another client
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert lines == ["device sim://?events=4&realtime=0 reconnected (486 taxels, scene model)",
