@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import command_line, machine_info, write_results
+from trainer.bench.common import command_line, load_average, machine_info, write_results
 
 NAME = "early"
 SHOWN = (4, 8, 15)
@@ -133,6 +133,7 @@ def run(args) -> dict:
     seed = args.seed
     t0 = time.perf_counter()
     result: dict = {"benchmark": NAME, "command": command_line(NAME, args), "machine": machine_info(), "tasks": {},
+                    "load_before": load_average(),
                     "notes": []}
     data_dir = default_data_dir()
     tasks, notes = real_tasks(data_dir, seed) if data_dir.is_dir() else ([], [f"{data_dir}: absent, no real task"])
@@ -156,6 +157,7 @@ def run(args) -> dict:
                                                   loso[:2] if args.quick else loso, ds.pad_sizes, shapes, seed, say)}
     result["verdict"] = verdict(result)
     result["seconds"] = round(time.perf_counter() - t0, 1)
+    result["load_after"] = load_average()
     write_results(Path(args.out), NAME, result, markdown(result))
     hm = result["verdict"]
     result["early_default_hm_mean"] = hm["default_hm_mean"]
