@@ -90,6 +90,15 @@ def test_idle_only_with_no_minutes_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and "--idle-only" in err[0]
 
 
+@pytest.mark.parametrize("minutes", ["nan", "inf", "1e12", "-1"])
+def test_idle_minutes_that_plan_nothing_or_forever_are_one_line(tmp_path, capsys, minutes):
+    """NaN recorded nothing and said the session was complete; infinity never started (the plan was endless)."""
+    assert record(tmp_path, "s1", 0, "--idle-only", "--idle-minutes", minutes) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--idle-minutes" in err[0] and "from 0 to" in err[0]
+    assert not list(tmp_path.iterdir())
+
+
 def test_train_on_only_idle_is_one_line(recorded, tmp_path, capsys):
     data = tmp_path / "only"
     data.mkdir()

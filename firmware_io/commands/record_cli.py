@@ -105,6 +105,7 @@ def _ask(question: str, choices) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
+    from firmware_io.recordings.idle_stretches import idle_plan
     from firmware_io.recordings.record_session import SessionError
     from firmware_io.transports.base import TransportError
 
@@ -114,8 +115,10 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     if args.trial_seconds <= 0.3 or min(args.gap, args.countdown, args.retries, args.lead_in) < 0:
         return fail(COMMAND, "--trial-seconds must be > 0.3 and --lead-in, --gap, --countdown, --retries >= 0")
-    if idle_minutes(args) < 0:
-        return fail(COMMAND, f"--idle-minutes must be >= 0, got {args.idle_minutes:g}")
+    try:
+        idle_plan(idle_minutes(args))
+    except ValueError as exc:
+        return fail(COMMAND, f"--idle-minutes: {exc}")
     if args.idle_only and idle_minutes(args) == 0:
         return fail(COMMAND, "--idle-only with --idle-minutes 0 records nothing: give the minutes of idle to record")
     if not is_trigger_level(args.fraction):

@@ -43,6 +43,9 @@ until it has the minutes asked for, so any length keeps the mix."""
 
 DEFAULT_IDLE_MINUTES = 3.0
 """Idle recorded per subject after the trials (``handover record --idle-minutes``)."""
+MAX_IDLE_MINUTES = 24 * 60.0
+"""The longest idle session one command plans: a day (the plan is listed before recording starts, so an
+endless one would never start)."""
 MIN_STRETCH_S = 1.0
 """A shorter stretch is refused by the recorder: it would hold no window of the model."""
 
@@ -64,9 +67,10 @@ class IdleSlot:
 
 
 def idle_plan(minutes: float, cycle: Sequence[tuple[str, float]] = CYCLE) -> list[IdleSlot]:
-    """Stretches of the round ``cycle`` repeated until ``minutes`` are reached (none for 0)."""
-    if minutes < 0:
-        raise ValueError(f"idle minutes must be >= 0, got {minutes:g}")
+    """Stretches of the round ``cycle`` repeated until ``minutes`` are reached (none for 0); ValueError
+    for minutes outside 0..MAX_IDLE_MINUTES (NaN planned nothing without a word, infinity never returned)."""
+    if not 0 <= minutes <= MAX_IDLE_MINUTES:
+        raise ValueError(f"idle minutes must be from 0 to {MAX_IDLE_MINUTES:g} (a day), got {minutes:g}")
     out: list[IdleSlot] = []
     total = 0.0
     while total < 60.0 * minutes - 1e-9:
@@ -123,5 +127,5 @@ def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
             "source_codes": stretch_codes(n_frames, stretches).tolist()}
 
 
-__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MIN_STRETCH_S", "PROMPTS", "SOURCES", "IdleSlot", "codes_problem", "has_idle",
+__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MAX_IDLE_MINUTES", "MIN_STRETCH_S", "PROMPTS", "SOURCES", "IdleSlot", "codes_problem", "has_idle",
            "idle_meta", "idle_plan", "stretch_codes", "stretches_of"]
