@@ -496,3 +496,25 @@ def test_well_formed_urls_still_pass():
                 "/dev/ttyUSB0", "COM3"]:
         with contextlib.suppress(MissingDependency):  # usb:// and hid:// without the extra
             validate_url(url)
+
+
+@pytest.mark.parametrize(("url", "words"), [
+    ("usb://0403:6001?serial=%00", "option 'serial' decodes to the unprintable character '\\x00'"),
+    ("hid://10c4:ea80?serial=A%0A%1B[31m", "option 'serial' decodes to the unprintable character '\\n'"),
+    ("usb://0403:6001?chip=%7F", "option 'chip' decodes to the unprintable character '\\x7f'"),
+    ("usb://-0:6001", "VID:PID must be hexadecimal"),
+    ("usb://0x403:0x6001", "VID:PID must be hexadecimal"),
+    ("hid://04_03:+601", "VID:PID must be hexadecimal"),
+    ("hid://\u0661\u0660c4:ea80", "VID:PID must be hexadecimal"),
+    ("usb://0403:6001?baud=" + "9" * 5000, "a device URL of 5021 characters; write one of at most 4096"),
+    ("serial:///dev/" + "x" * 100_000, "a device URL of 100014 characters"),
+])
+def test_bridge_urls_a_hostile_world_writes_are_one_short_line(url, words):
+    """A serial number decoded from %00 or %0A reached hidapi and pyusb (and the config check passed it);
+    int(..., 16) read -0, 0x403 and Arabic-Indic digits as a VID; a megabyte URL was a megabyte line, twice."""
+    from firmware_io.transports import validate_url
+
+    with pytest.raises(TransportError) as info:
+        validate_url(url)
+    line = str(info.value)
+    assert words in line and "\n" not in line and len(line) < 300

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import string
 from abc import ABC, abstractmethod
 from types import TracebackType
 from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 __all__ = [
-    "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "DeviceUnavailable", "EndOfStream",
+    "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "MAX_URL_CHARS", "DeviceUnavailable", "EndOfStream",
     "MissingDependency", "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_bridge", "parse_number",
     "parse_speed", "parse_vid_pid"
 ]
@@ -107,6 +108,16 @@ class Transport(ABC):
         return f"<{type(self).__name__} {self.url}>"
 
 
+MAX_URL_CHARS = 4096
+"""The longest device URL read: a path can be at most 4096 bytes (Linux PATH_MAX), and every error line
+repeats the URL (a megabyte one made a megabyte log line)."""
+
+
+def _unprintable(text: str) -> int | None:
+    """Where ``text``'s first control or other unprintable character is, None when it has none."""
+    return next((i for i, c in enumerate(text) if not c.isprintable()), None)
+
+
 class ParsedURL:
     """A device URL split into scheme, location (host:port, VID:PID or path) and options.
 
@@ -115,8 +126,11 @@ class ParsedURL:
     naming the URL, never a ValueError."""
 
     def __init__(self, url: str) -> None:
+        if len(url) > MAX_URL_CHARS:
+            raise TransportError(f"{url[:40]!r}...: a device URL of {len(url)} characters; write one of at most "
+                                 f"{MAX_URL_CHARS} (the scheme, the device and its options)")
         self.url = url
-        bad = next((i for i, c in enumerate(url) if not c.isprintable()), None)
+        bad = _unprintable(url)
         if bad is not None:
             raise TransportError(f"{url!r}: unprintable character {url[bad]!r} at position {bad}; "
                                  "write the device URL on one line without control characters")
@@ -136,6 +150,10 @@ class ParsedURL:
         for key, values in query.items():
             if len(values) > 1:
                 raise TransportError(f"{url}: option {key!r} given {len(values)} times; give it once")
+            bad = _unprintable(values[0])
+            if bad is not None:
+                raise TransportError(f"{url}: option {key!r} decodes to the unprintable character {values[0][bad]!r}; "
+                                     "give its value as printable text (no %00..%1F or %7F)")
             self.options[key] = values[0]
 
     @property
@@ -223,10 +241,9 @@ def parse_vid_pid(url: str, location: str) -> tuple[int, int]:
     parts = text.split(":")
     if len(parts) != 2 or not all(parts):
         raise TransportError(f"{url}: expected VID:PID in hex such as 0403:6001, got {text!r}")
-    try:
-        vid, pid = (int(p, 16) for p in parts)
-    except ValueError:
-        raise TransportError(f"{url}: VID:PID must be hexadecimal such as 0403:6001, got {text!r}") from None
+    if not all(p.isascii() and all(c in string.hexdigits for c in p) for p in parts):  # int() also took -0, +4, 4_3
+        raise TransportError(f"{url}: VID:PID must be hexadecimal such as 0403:6001, got {text!r}")
+    vid, pid = (int(p, 16) for p in parts)
     if not (0 <= vid <= 0xFFFF and 0 <= pid <= 0xFFFF):
         raise TransportError(f"{url}: VID and PID are 16-bit hex numbers, got {text!r}")
     return vid, pid
