@@ -518,3 +518,71 @@ def test_bridge_urls_a_hostile_world_writes_are_one_short_line(url, words):
         validate_url(url)
     line = str(info.value)
     assert words in line and "\n" not in line and len(line) < 300
+
+
+def _close_right_after_the_check(t: Transport) -> None:
+    """``close`` from another thread between the closed check and the device call (the race, made certain)."""
+    real = t._check_open
+    first = [True]
+
+    def check() -> None:
+        real()
+        if first[0]:
+            first[0] = False
+            t.close()
+
+    t._check_open = check
+
+
+@contextlib.contextmanager
+def _opened(kind: str, rec):
+    if kind in ("hid", "usb"):
+        with _open_emulated(kind, rec) as t:
+            yield t
+    elif kind == "tcp":
+        with socket.create_server(("127.0.0.1", 0)) as server:
+            t = open_transport(f"tcp://127.0.0.1:{server.getsockname()[1]}")
+            peer, _ = server.accept()
+            with peer, t:
+                yield t
+    else:
+        import os
+
+        leader, follower = os.openpty()
+        try:
+            with open_transport(f"serial://{os.ttyname(follower)}?exclusive=0") as t:
+                yield t
+        finally:
+            os.close(leader)
+            os.close(follower)
+
+
+@pytest.mark.parametrize("call", ["read", "write"])
+@pytest.mark.parametrize("kind", ["tcp", "serial", "hid", "usb"])
+def test_close_from_another_thread_during_a_call_is_the_closed_line(kind, call, rec):
+    """A close while a read waited in select: tcp raised ValueError (select on fd -1) or said the device had
+    hung up, blaming another client; serial and the bridges said the device was unplugged."""
+    with _opened(kind, rec) as t:
+        _close_right_after_the_check(t)
+        with pytest.raises(TransportError, match=r": transport is closed$"):
+            t.read(64, 0.05) if call == "read" else t.write(b"x" * 64)
+
+
+def test_a_tcp_read_waiting_when_another_thread_closes_ends_with_the_closed_line():
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        t = open_transport(f"tcp://127.0.0.1:{server.getsockname()[1]}")
+        peer, _ = server.accept()
+        outcome: list[BaseException] = []
+
+        def read() -> None:
+            try:
+                t.read(64, 30.0)
+            except TransportError as exc:
+                outcome.append(exc)
+
+        reader = threading.Thread(target=read)
+        with peer:
+            reader.start()
+            t.close()
+            reader.join(30.0)
+    assert not reader.is_alive() and str(outcome[0]).endswith(": transport is closed")

@@ -92,7 +92,9 @@ class Transport(ABC):
         return getattr(self, "_closed", False)
 
     def _check_open(self) -> None:
-        """Every transport refuses reads and writes after ``close`` with the same line."""
+        """Every transport refuses reads and writes after ``close`` with the same line; a transport calls it
+        again when a read or write fails, since ``close`` from another thread meanwhile fails it too (a
+        closed socket's select raised ValueError, a shut one read as the device hanging up)."""
         if self.closed:
             raise TransportError(f"{self.url}: transport is closed")
 

@@ -86,15 +86,15 @@ class HidTransport(Transport):
             raise DeviceUnavailable(
                 f"{self.url}: cannot open HID device {vid:04x}:{pid:04x} ({exc}); plugged in? permissions (udev rule)?"
             ) from None
+        self._closed = False  # open: a failing set-up report is the device's line, not the closed one
         try:
             self._feature(uart_config_report(baud))
             self._feature(bytes([UART_ENABLE, 1]))
             self._feature(bytes([PURGE_FIFOS, 3]))
             self._dev.set_nonblocking(1)  # else hidapi's read with timeout 0 waits for the next report
         except BaseException:
-            self._release()
+            self.close()
             raise
-        self._closed = False
 
     requires = ("hid", f"needs the Python package hidapi ({EXTRA_HINT})")
 
@@ -109,6 +109,7 @@ class HidTransport(Transport):
         try:
             return call(*args)
         except (OSError, ValueError) as exc:
+            self._check_open()
             raise DeviceUnavailable(f"{self.url}: {failed}: {exc}") from None
 
     def _feature(self, report: bytes) -> None:

@@ -80,6 +80,7 @@ class SerialTransport(Transport):
         except self._serial_mod.SerialTimeoutException:
             raise TransportError(f"{self.url}: write timed out (port blocked?)") from None
         except (self._serial_mod.SerialException, OSError) as exc:
+            self._check_open()
             raise DeviceUnavailable(f"{self.url}: write failed: {exc}") from None
 
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
@@ -98,7 +99,8 @@ class SerialTransport(Transport):
                     return data
                 time.sleep(0.002)
             return b""
-        except (self._serial_mod.SerialException, OSError) as exc:
+        except (self._serial_mod.SerialException, OSError, ValueError) as exc:  # ValueError: select on fd -1
+            self._check_open()
             raise DeviceUnavailable(f"{self.url}: read failed (unplugged?): {exc}") from None
 
     def _release(self) -> None:

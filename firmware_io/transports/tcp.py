@@ -64,6 +64,7 @@ class TcpTransport(Transport):
         try:
             self._sock.sendall(data)
         except OSError as exc:
+            self._check_open()
             raise DeviceUnavailable(self._lost(f"connection lost while sending: {exc.strerror or exc}")) from None
 
     def read(self, max_bytes: int = DEFAULT_READ_SIZE, timeout: float = 0.1) -> bytes:
@@ -73,9 +74,11 @@ class TcpTransport(Transport):
             if not ready:
                 return b""
             data = self._sock.recv(max_bytes)
-        except OSError as exc:
-            raise DeviceUnavailable(self._lost(f"connection lost: {exc.strerror or exc}")) from None
+        except (OSError, ValueError) as exc:  # ValueError: select on a socket closed meanwhile
+            self._check_open()
+            raise DeviceUnavailable(self._lost(f"connection lost: {getattr(exc, 'strerror', None) or exc}")) from None
         if not data:
+            self._check_open()
             raise DeviceUnavailable(self._lost("the device closed the connection"))
         self._received += len(data)
         return data

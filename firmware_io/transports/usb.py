@@ -229,6 +229,7 @@ class UsbTransport(Transport):
             except self._core.USBTimeoutError:
                 raise TransportError(f"{self.url}: write timed out") from None
             except self._core.USBError as exc:
+                self._check_open()
                 raise self._usb_error("write failed", exc) from None
             view = view[sent:]
 
@@ -248,6 +249,7 @@ class UsbTransport(Transport):
             except self._core.USBError as exc:
                 if getattr(exc, "errno", None) == errno.ETIMEDOUT:
                     return b""
+                self._check_open()
                 raise self._usb_error("read failed", exc) from None
             if self.chip == "ftdi":
                 chunk = strip_ftdi_status(chunk, self._packet)
