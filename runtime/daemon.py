@@ -41,6 +41,7 @@ from runtime.instance_name import instance_of
 from runtime.listeners import FrameListener
 from runtime.model_serving import ModelSlot
 from runtime.realtime import HotThread
+from runtime.rehearsal import RehearsedReads
 from runtime.reporter import Reporter
 from runtime.scene import events_problem, scene_problem
 from runtime.sdnotify import Notifier
@@ -340,6 +341,7 @@ class Daemon:
         log.info("handover daemon ready (device %s, scene %s, mode %s)", self.cfg.device.url,
                  self.cfg.scene.pads, self.cfg.scene.mode)
         link = self.link
+        read = RehearsedReads(link.read, self.detector, READ_TIMEOUT_S)
         try:
             while not self._stop and link.fatal is None:
                 if self._reload and not self.windows_hold(time.monotonic()):  # not inside a window
@@ -352,7 +354,7 @@ class Daemon:
                     else:
                         time.sleep(min(READ_TIMEOUT_S, link.wait_s(now)))
                     continue
-                frame = link.read(READ_TIMEOUT_S)
+                frame = read()
                 if frame is None:
                     continue
                 if not self.hot_thread.applied:

@@ -19,6 +19,7 @@ Settings come as the config's parsed sections (``SceneConfig``, ``TriggerConfig`
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -44,10 +45,13 @@ if TYPE_CHECKING:
     from firmware_io.client import Frame
     from runtime.model import LoadedModel
 
-__all__ = ["DEFAULT_RATE_HZ", "Decision", "Detector", "ReportRule", "Trigger", "Windows"]
+__all__ = ["DEFAULT_RATE_HZ", "REHEARSAL_LEAD_S", "Decision", "Detector", "ReportRule", "Trigger", "Windows"]
 
 DEFAULT_RATE_HZ = 32.0
 """The period assumed until a model says its ``sample_rate_hz`` (the SDH-2's rate)."""
+REHEARSAL_LEAD_S = 0.001
+"""How long before a frame that runs the model the model is rehearsed (``Detector.rehearsal_at``):
+close enough that the caches stay warm, wide enough for the frames' arrival jitter."""
 
 
 class Trigger(Protocol):
@@ -127,6 +131,15 @@ class Windows:
             return -1
         return self.early.index_of(number - self._due[0] + self.T)
 
+    def runs_at(self, number: int) -> int | None:
+        """What decides at frame ``number``: -1 the full window, an early head's index, None nothing."""
+        if not self._due or number > self._due[0]:
+            return None
+        if number == self._due[0]:
+            return -1
+        head = self.head(number)
+        return head if head >= 0 else None
+
     def first(self) -> int:
         """The model frame number of the oldest open window's first frame."""
         return self._due[0] - self.T + 1
@@ -205,6 +218,8 @@ class Detector:
         """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
         self.latest_frame: Frame | None = None
         """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
+        self._number = -1
+        """The model's count of the newest admitted frame."""
         self._key: tuple | None = None
         """What the trigger and report rule were built from: the same key keeps them, and their state."""
         self._grasp: deque[tuple[bool, str]] = deque(maxlen=64)
@@ -299,7 +314,7 @@ class Detector:
         number = self.frame_clock.admit(frame.number, frame.timestamp_ms)  # the model's frame count; -1: skip
         if number < 0:
             return None
-        self.latest_frame = frame
+        self.latest_frame, self._number = frame, number
         ring = self.ring
         if ring is None:  # no layout yet
             return None
@@ -323,6 +338,40 @@ class Detector:
                 and self.arm.last_motion < windows.first():  # an arm move: the window is judged at its end
             return self._decide(model, frame, head)
         return None
+
+    # -- keeping the next decision warm ------------------------------------------------------------
+    def rehearsal_at(self) -> float | None:
+        """When (``time.perf_counter``) to ``rehearse``: ``REHEARSAL_LEAD_S`` before the next frame is
+        due, if that frame runs the model; else None. A decision that follows a whole period asleep
+        finds the graph's code and data cold (results/latency.md says what a rehearsal buys)."""
+        frame = self.latest_frame
+        if frame is None or self._next_run() is None:
+            return None
+        period_ms = self.frame_clock.stream_period_ms or self.frame_clock.model_period_ms
+        return frame.received + period_ms / 1000.0 - REHEARSAL_LEAD_S
+
+    def rehearse(self) -> None:
+        """What the next frame will run (the full window or an early head), once now on the newest
+        window, its answer dropped. Nothing else changes; a failure is left to that decision to report."""
+        run, model = self._next_run(), self.model
+        if run is None or model is None:
+            return
+        window = self.ring.window(model.meta.T)
+        with contextlib.suppress(Exception):  # the decision itself meets it and takes the model out of service
+            model.run_trusted(window) if run < 0 else model.run_head(run, window)
+
+    def _next_run(self) -> int | None:
+        """What the next model frame runs (``Windows.runs_at``; continuous mode: every frame the full
+        window), None when nothing or no model can run."""
+        model, ring = self.model, self.ring
+        if model is None or ring is None or ring.count < model.meta.T:
+            return None
+        if isinstance(self.trigger, ContinuousTrigger):
+            return -1
+        run = self.windows.runs_at(self._number + 1)
+        if run is not None and run >= 0 and self.arm.last_motion >= self.windows.first():
+            return None  # an arm move: that window is judged at its end
+        return run
 
     def _decide(self, model: LoadedModel, frame: Frame, head: int = -1) -> Decision | None:
         """The model (or early head ``head``) on the window ending at ``frame``, checked; each stage

@@ -220,6 +220,13 @@ def test_continuous_mode_over_a_real_link_decides_every_frame_once_the_ring_hold
         daemon = Daemon(config_from_dict({"device": {"url": server.url}, "sinks": {"stdout": False},
                                           "model": {"folder": str(models)}, "scene": {"mode": "continuous"}}))
         daemon.listeners.append(seen)
+        rehearsed, rehearse = [], daemon.detector.rehearse
+
+        def rehearse_once() -> None:  # the loop's rehearsals, each for the frame after the newest
+            rehearsed.append(daemon.detector.latest_frame.number + 1)
+            rehearse()
+
+        daemon.detector.rehearse = rehearse_once
 
         def stop_when_played() -> None:
             _until(lambda: emulator.finished)
@@ -234,6 +241,48 @@ def test_continuous_mode_over_a_real_link_decides_every_frame_once_the_ring_hold
         server.stop()
     assert len(seen.frames) > 30 and daemon.health.frames_received == len(seen.frames)
     assert [n for n, _ in seen.decisions] == seen.frames[14:]
+    # each rehearsal once, for a frame that decided (or the one after the last, which never came)
+    assert len(set(rehearsed)) == len(rehearsed) and set(rehearsed) <= {*seen.frames[14:], seen.frames[-1] + 1}
 
 
 _until = functools.partial(wait_for, timeout=30.0)
+
+
+def test_a_rehearsal_comes_just_before_each_frame_that_runs_the_model_and_changes_no_decision(model_path):
+    """``rehearsal_at`` names a time inside the coming period only before a frame that ends a window;
+    a detector rehearsed there decides exactly what one left alone decides."""
+    rec = _pushes()
+    alone, rehearsed = Detector(trigger=TriggerConfig(kind="threshold")), Detector(trigger=TriggerConfig(kind="threshold"))
+    alone.swap(load_model(model_path), rec.layout)
+    rehearsed.swap(load_model(model_path), rec.layout)
+    assert rehearsed.rehearsal_at() is None  # no frame yet
+    before, got, want = [], [], []
+    for frame in _frames(rec):
+        want.append(alone.feed(frame))
+        got.append(rehearsed.feed(frame))
+        if (at := rehearsed.rehearsal_at()) is not None:
+            assert frame.received < at < frame.received + 1 / 32
+            before.append(frame.number + 1)
+            rehearsed.rehearse()
+    decided = [d.frame.number for d in got if d is not None]
+    assert len(decided) == 2 and before == decided
+    assert [(d.cls, d.frame.number, d.scores.tobytes()) for d in got if d is not None] == \
+        [(d.cls, d.frame.number, d.scores.tobytes()) for d in want if d is not None]
+
+
+def test_a_rehearsal_that_fails_is_left_to_the_decision(model_path):
+    """A model ended from outside (the decision guard) raises on every run: the rehearsal says nothing,
+    the decision after it reports the problem."""
+    rec = _pushes()
+    detector = Detector(trigger=TriggerConfig(kind="threshold"))
+    model = load_model(model_path)
+    detector.swap(model, rec.layout)
+    model.end_decision("ran too long")
+    rehearsals, problems = 0, []
+    for frame in _frames(rec):
+        if (decision := detector.feed(frame)) is not None:
+            problems.append(decision.problem)
+        if detector.rehearsal_at() is not None:
+            detector.rehearse()
+            rehearsals += 1
+    assert rehearsals == 2 and len(problems) == 2 and all("ran too long" in p for p in problems)

@@ -4,6 +4,7 @@ the one graph and the loader's checks, and the daemon reporting before the full 
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -291,3 +292,46 @@ def test_the_rule_keeps_the_dormant_cases_accuracy_within_the_target_loss():
                for r in choice.grid)
     chosen = next(r for r in choice.grid if r["threshold"] == choice.spec.threshold and r["agree"] == choice.spec.agree)
     assert chosen["dormant_accuracy"] >= 1.0 - TARGET_LOSS
+
+
+def test_every_frame_that_runs_a_head_or_the_window_is_rehearsed_and_no_decision_changes(early_model):
+    """On a simulated session with early heads: the detector asks for a rehearsal before exactly the
+    frames at which it runs a head or the full window, and rehearsing there changes no report."""
+    from firmware_io.client import Frame
+    from firmware_io.sim import demo_script, simulate_session
+    from runtime.config import config_from_dict
+    from runtime.detector import Detector
+    from runtime.model import load_model
+    from trainer.streams_eval import TRIGGER_TABLE
+
+    path, *_ = early_model
+    session = simulate_session(demo_script(8, seed=5), seed=5)
+
+    def serve(rehearse: bool) -> tuple[list[int], list[int], list[tuple]]:
+        model = load_model(path)
+        cfg = config_from_dict({"scene": {"pads": ",".join(map(str, model.meta.pads)),
+                                          "events": list(model.meta.classes)},
+                                "trigger": dict(TRIGGER_TABLE["onset"])})
+        detector = Detector.from_config(cfg)
+        detector.swap(model, session.layout)
+        ran, asked, reports = [], [], []
+        def counted(run):
+            def call(*args):
+                ran.append(detector.latest_frame.number)
+                return run(*args)
+            return call
+
+        model.run_trusted, model.run_head = counted(model.run_trusted), counted(model.run_head)
+        for i in range(session.n_frames):
+            decision = detector.feed(Frame(i, round(i * 31.25), time.perf_counter(), session.frames[i]))
+            if decision is not None:
+                reports.append((decision.cls, decision.frame.number, decision.scores.tobytes()))
+            if rehearse and detector.rehearsal_at() is not None:
+                asked.append(i + 1)
+                detector.rehearse()
+        return ran, asked, reports
+
+    ran, _, plain = serve(False)
+    _, asked, rehearsed = serve(True)
+    assert len(ran) > len(plain) > 0  # heads ran that did not report yet
+    assert asked == ran and rehearsed == plain

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime import realtime
+from runtime.detector import REHEARSAL_LEAD_S
 from runtime.realtime import DEFAULT_PRIORITY
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
@@ -331,6 +332,7 @@ def _row(name: str, s: dict) -> str:
 HEAD = ["| what | median (us) | p99 (us) | p99.9 (us) | max (us) | n | deadline / figure (p50 / p99 / p99.9 / max) |",
         "|---|---|---|---|---|---|---|"]
 RHYTHM_TITLES = {"back_to_back": "back to back", "paced_32hz": "paced at 32 Hz",
+                 "paced_32hz_not_rehearsed": "paced at 32 Hz, not rehearsed (for comparison)",
                  "continuous_paced_32hz": "continuous mode, paced at 32 Hz"}
 """Stage tables' headings."""
 
@@ -361,7 +363,7 @@ def _targets_lines(res: dict) -> list[str]:
 
 RHYTHMS = {"solo": "alone, back to back", "back_to_back": "interleaved, back to back",
            "paced_32hz": "interleaved, paced 32 Hz", "paced_asleep": "alone, paced 32 Hz, asleep until the frame",
-           "paced_rehearsed": "alone, paced 32 Hz, warmed just before the frame (not done by the daemon)",
+           "paced_rehearsed": "alone, paced 32 Hz, rehearsed just before the frame (as the daemon does)",
            "back_to_back_load": "interleaved, back to back, under load"}
 """Rows of the implementation table: ``solo`` gives the absolute figures (the headline), the
 interleaved ones the ratios."""
@@ -385,9 +387,9 @@ def _implementation_lines(res: dict) -> list[str]:
               "The graph against scikit-learn: `handover bench inference` (results/inference.md).", "",
               "Alone, paced 32 Hz: the graph by itself, one window each sample period. **Asleep until the frame**: "
               "the thread blocks until the window's last frame arrives, as the daemon waits (and as the stage "
-              "tables above do). **Warmed just before the frame**: the same window decided once "
-              f"{stages.WARM_LEAD_S * 1e3:g} ms before the frame, the core spinning until it arrives: what keeping "
-              "the hot path warm would buy. The daemon does not keep warm (see *Keeping the hot path warm* below)."]
+              "tables above do). **Rehearsed just before the frame**: the graph run once "
+              f"{REHEARSAL_LEAD_S * 1e3:g} ms before the frame, then asleep until it, as the daemon does before a "
+              "frame that runs the model (see *Keeping the hot path warm* below)."]
     return lines
 
 
@@ -401,13 +403,19 @@ def _keep_warm_lines(res: dict) -> list[str]:
              f"{100 * paced['p999'] / period:.2f} % of the {period:.0f} us period. Each row: the mechanism, what it "
              "buys in this run, and whether the daemon keeps it.", "",
              "| mechanism | without (us) | with (us) | buys (us) | share of the period | kept |", "|---|---|---|---|---|---|"]
+    cold = res["stages"].get("paced_32hz_not_rehearsed", {}).get("daemon_internal")
+    if cold:
+        for stat, name in (("p50", "median"), ("p999", "p99.9")):
+            a, w = cold[stat], paced[stat]
+            lines.append(f"| the model rehearsed once {REHEARSAL_LEAD_S * 1e3:g} ms before a frame that runs it "
+                         f"(`runtime/rehearsal.py`; frame parsed -> decision inside the daemon, paced, {name}) | "
+                         f"{fmt_us(a)} | {fmt_us(w)} | {fmt_us(a - w)} | {100 * (a - w) / period:.2f} % | yes |")
     for key, pads in (("implementations", "all pads"), ("implementations_distal", "distal pads")):
         imp = res[key]
         if "paced_asleep" in imp and "paced_rehearsed" in imp:
             a, w = imp["paced_asleep"]["onnxruntime"]["p50"], imp["paced_rehearsed"]["onnxruntime"]["p50"]
-            lines.append(f"| the window decided once just before its frame, the core spinning until it comes "
-                         f"(graph alone, paced, median, {pads}) | {fmt_us(a)} | {fmt_us(w)} | {fmt_us(a - w)} | "
-                         f"{100 * (a - w) / period:.2f} % | no |")
+            lines.append(f"| the same, the graph alone (paced, median, {pads}) | {fmt_us(a)} | {fmt_us(w)} | "
+                         f"{fmt_us(a - w)} | {100 * (a - w) / period:.2f} % | yes |")
         if "binding" in imp:
             plain, staged = imp["binding"]["session_run"]["p50"], imp["binding"]["staged"]["p50"]
             lines.append(f"| the window copied to one aligned array first (`LoadedModel.run_trusted`: one answer bit "
@@ -426,11 +434,14 @@ def _keep_warm_lines(res: dict) -> list[str]:
 
 
 KEEP_WARM_NOTE = (
-    "The rule: a mechanism stays only if what it buys matters against the period. Deciding a window a "
-    "second time just before its frame and spinning until the frame comes (the daemon did that with a "
-    "rehearsal and device polling, plus a collector schedule and a receive-path rehearsal in the client: "
-    "about 1,200 lines across five layers and up to 4 ms of a spinning core per decision) buys about one per "
-    "cent of the period at the median: removed. Buffers bound once to onnxruntime (`runtime/bound_run.py`) "
+    "The rule: a mechanism stays only if what it buys is worth its lines and its CPU. The rehearsal is one "
+    "object (`runtime/rehearsal.py`, read by the daemon's loop) and two detector methods: before a frame that "
+    "will run the model (a window's end, an early head's point, every frame in continuous mode) the loop "
+    "cuts its read short, runs the model once on the newest window and goes back to sleep; one extra model "
+    "run per decision, nothing between events, no spinning: kept. What it replaced (device polling and a "
+    "spinning core until the frame, a collector schedule and a receive-path rehearsal in the client: about "
+    "1,200 lines across five layers and up to 4 ms of a spinning core per decision) bought little more: "
+    "removed. Buffers bound once to onnxruntime (`runtime/bound_run.py`) "
     "bought 5.5 us (distal pads) and 6.8 us (all pads) a decision in the run that decided it (0.02 % of the "
     "period): removed; what was worth keeping from them, one answer bit for bit wherever the ring holds a "
     "window (onnxruntime sums in an order that depends on the input's address), is one copy into an aligned "

@@ -90,14 +90,16 @@ class PacketFeed(Transport):
 
 
 def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset(),
-         mode: str = "trigger") -> dict:
+         mode: str = "trigger", rehearse: bool = True) -> dict:
     """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility), a
     fresh detector and the daemon's reporter to a UDP socket, read the way the daemon's loop reads;
-    the packets in ``pace_frames`` arrive one sample period after the one before. Per-stage
-    microseconds of each decision."""
+    the packets in ``pace_frames`` arrive one sample period after the one before; ``rehearse``: the
+    model rehearsed before them as the daemon does (runtime/rehearsal.py). Per-stage microseconds of
+    each decision."""
     from firmware_io.client import DSAClient
     from runtime.daemon import READ_TIMEOUT_S
     from runtime.heap import settle_heap
+    from runtime.rehearsal import RehearsedReads
     from trainer.bench.throughput import serving_detector, udp_reporter
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -111,11 +113,12 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     recorder = _Decisions()
     reporter.listeners.append(recorder)
     settle_heap()  # as Daemon.run does once started
-    step, report, clock, read = detector.feed, reporter.report, time.perf_counter, client.read_frame
+    step, report, clock = detector.feed, reporter.report, time.perf_counter
+    read = RehearsedReads(client.read_frame, detector, READ_TIMEOUT_S, rehearse)
     marks = np.zeros((len(packets), 3))
     try:
         while not link.done:
-            frame = read(READ_TIMEOUT_S)
+            frame = read()
             if frame is None:
                 continue
             t1 = clock()
@@ -170,7 +173,8 @@ def decision_frames(model, recording) -> frozenset[int]:
 
 
 def stage_tables(model, recording, paced_decisions: int, continuous_model=None) -> dict:
-    """Back to back over the whole stream, and paced at 32 Hz for ``paced_decisions`` windows; with a
+    """Back to back over the whole stream, and paced at 32 Hz for ``paced_decisions`` windows (rehearsed
+    as the daemon does, and not: what the rehearsal buys, in the same process); with a
     ``continuous_model`` (a dormant class), continuous mode paced at 32 Hz for as many frames (every
     frame a decision, each one sample period after the one before)."""
     packets = _encoded(recording)
@@ -179,7 +183,8 @@ def stage_tables(model, recording, paced_decisions: int, continuous_model=None) 
     fast = feed(model, recording, packets)
     last = sorted(due)[min(len(due), paced_decisions) - 1] if due else 0
     paced = feed(model, recording, packets[: last + 1], frozenset(due))
-    out = {"back_to_back": fast, "paced_32hz": paced, "decisions": len(due)}
+    cold = feed(model, recording, packets[: last + 1], frozenset(due), rehearse=False)
+    out = {"back_to_back": fast, "paced_32hz": paced, "paced_32hz_not_rehearsed": cold, "decisions": len(due)}
     if continuous_model is not None:
         n = min(len(packets), paced_decisions + continuous_model.meta.T)
         out["continuous_paced_32hz"] = feed(continuous_model, recording, packets[:n], frozenset(range(1, n)),
@@ -226,27 +231,21 @@ def solo(fns: dict, windows: np.ndarray, rounds: int) -> dict:
     return {name: percentiles(time_calls(cycling(fn, windows), rounds)) for name, fn in fns.items()}
 
 
-WARM_LEAD_S = 0.0003
-"""How long before the frame the warmed rhythm runs its one extra decision (the lead the daemon's
-removed keeping-warm reached for frames on time)."""
-
-
-def paced_alone(fn, windows: np.ndarray, rounds: int, warm: bool) -> dict:
+def paced_alone(fn, windows: np.ndarray, rounds: int, rehearsed: bool) -> dict:
     """One implementation alone, paced at 32 Hz, the thread asleep until the frame arrives (as the daemon
-    waits); ``warm``: the same, but the window decided once ``WARM_LEAD_S`` before the frame and the core
-    kept spinning until it comes, what keeping warm would buy (the daemon does not: results/latency.md)."""
+    waits); ``rehearsed``: the window decided once ``REHEARSAL_LEAD_S`` before the frame, then asleep
+    until it, as the daemon rehearses (runtime/rehearsal.py)."""
+    from runtime.detector import REHEARSAL_LEAD_S
+
     times = np.empty(rounds)
     clock = time.perf_counter_ns
     for i in range(rounds):
         w = windows[i % len(windows)]
         due = time.perf_counter() + PERIOD_S
-        if warm:
-            arrived(due - WARM_LEAD_S, PERIOD_S)
-            fn(w)
-            while not arrived(due, 0.0):
-                pass
-        else:
-            arrived(due, PERIOD_S)
+        if rehearsed:
+            arrived(due - REHEARSAL_LEAD_S, PERIOD_S)
+            fn(windows[(i + 1) % len(windows)])
+        arrived(due, PERIOD_S)
         t0 = clock()
         fn(w)
         times[i] = (clock() - t0) / 1000.0

@@ -50,7 +50,7 @@ def subscriber(namespace: str) -> None:
     for pad in PADS:
         def count(_msg: Image, pad: str = pad) -> None:
             images[pad] += 1
-        node.create_subscription(Image, f"{namespace}/pads/{pad}", count, 100)
+        node.create_subscription(Image, f"{namespace}/pads/{pad}", count, 1000)
     done = threading.Event()
     threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
     udp_events: list[tuple[float, str]] = []
