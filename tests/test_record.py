@@ -357,6 +357,21 @@ def test_file_of_another_subject_is_refused(tmp_path, capsys):
     assert "belongs to subject 's1'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("subject", ["y" * 300, "s1\n", "../s1", "s\x1b[31m"])
+def test_a_subject_id_that_cannot_name_the_file_is_one_line_before_the_device_opens(tmp_path, capsys, subject):
+    """300 characters ended in an OSError traceback (file name too long) after the device had opened;
+    a trailing newline passed the name check ($ matches before it) and named the file with it."""
+    device = "subject://?seed=3&speed=max"
+    assert record(tmp_path / "out", "--auto", device=device, subject=subject) == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if x]
+    assert len(err) == 1 and err[0].startswith("handover record: subject id ")
+    assert not (tmp_path / "out").exists()
+    code = handover(["import", str(tmp_path / "none.dsa"), "--out", str(tmp_path / "o"), "--idle", "quiet",
+                     "--subject", subject])
+    err = [x for x in capsys.readouterr().err.splitlines() if x]
+    assert code == 2 and len(err) == 1 and err[0].startswith("handover import: --subject: subject id ")
+
+
 def test_plot_writes_a_figure_and_lists_trials(tmp_path, capsys):
     assert record(tmp_path, "--auto", "--max-trials", "2", "--no-look") == 0
     path = tmp_path / "subject_s1.hrec"

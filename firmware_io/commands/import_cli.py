@@ -177,6 +177,7 @@ def _report(src: Path, text: str) -> None:
 def main(args: argparse.Namespace) -> int:
     from firmware_io.layout import LayoutError
     from firmware_io.recordings.importers import import_any
+    from firmware_io.recordings.record_session import subject_problem
     from firmware_io.recordings.recording import SUFFIX, RecordingError
 
     if args.pads:
@@ -186,6 +187,9 @@ def main(args: argparse.Namespace) -> int:
             return 2
     if args.subject and not args.idle:
         print(f"{PROG}: --subject names whose idle an imported recording is; give --idle WHAT with it", file=sys.stderr)
+        return 2
+    if args.subject and (problem := subject_problem(args.subject)):  # a recorded subject's id, or one like it
+        print(f"{PROG}: --subject: {problem}", file=sys.stderr)
         return 2
     sources, errors = _expand(args.sources)
     for e in errors:

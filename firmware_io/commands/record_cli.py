@@ -106,7 +106,7 @@ def _ask(question: str, choices) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.recordings.idle_stretches import idle_plan
-    from firmware_io.recordings.record_session import SessionError
+    from firmware_io.recordings.record_session import SessionError, subject_problem
     from firmware_io.transports.base import TransportError
 
     try:
@@ -115,6 +115,8 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     if args.trial_seconds <= 0.3 or min(args.gap, args.countdown, args.retries, args.lead_in) < 0:
         return fail(COMMAND, "--trial-seconds must be > 0.3 and --lead-in, --gap, --countdown, --retries >= 0")
+    if problem := subject_problem(args.subject):  # before the device opens
+        return fail(COMMAND, problem)
     try:
         idle_plan(idle_minutes(args))
     except ValueError as exc:

@@ -32,7 +32,19 @@ OBJECTS = ("ball", "cylinder", "plank")
 DEFAULT_RUNS = 5
 DEFAULT_TRIAL_SECONDS = 3.0
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+"""A pose, object, action or subject name (matched whole: ``$`` let a name end in a newline)."""
+MAX_SUBJECT_CHARS = 64
+"""The longest subject id: it names the file ``subject_ID.hrec`` (a file name holds 255 bytes)."""
+
+
+def subject_problem(subject: str) -> str | None:
+    """Why ``subject`` cannot be a subject id (recorded or imported), None when it can."""
+    if len(subject) > MAX_SUBJECT_CHARS:
+        return f"subject id {subject[:24]!r}... has {len(subject)} characters; use at most {MAX_SUBJECT_CHARS}"
+    if not _NAME.fullmatch(subject):
+        return f"subject id {subject!r}: use letters, digits, '_', '-' or '.'"
+    return None
 
 
 class SessionError(ValueError):
@@ -70,7 +82,7 @@ class ProtocolPlan:
         for kind, names in (("pose", self.poses), ("object", self.objects), ("action", self.actions)):
             if not names:
                 raise SessionError(f"the protocol needs at least one {kind}")
-            bad = [n for n in names if not _NAME.match(n)]
+            bad = [n for n in names if not _NAME.fullmatch(n)]
             if bad:
                 raise SessionError(f"{kind} name {bad[0]!r}: use letters, digits, '_', '-' or '.'")
             if len(set(names)) != len(names):
@@ -164,8 +176,8 @@ class SessionStore:
     def open(cls, path: str | Path, subject: str, layout: SensorLayout) -> SessionStore:
         """Continue the subject's file if it exists (checking subject and sensor), else start one."""
         path = Path(path)
-        if not _NAME.match(subject):
-            raise SessionError(f"subject id {subject!r}: use letters, digits, '_', '-' or '.'")
+        if problem := subject_problem(subject):
+            raise SessionError(problem)
         if not path.exists():
             return cls(path, layout, subject, {"subject": subject, "sessions": []})
         rec = Recording.load(path)  # RecordingError names the file
@@ -458,7 +470,7 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO", "SessionOptions",
-    "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial", "check_trigger",
-    "drain", "flagged_trials", "recording_path", "run_session",
+    "MAX_SUBJECT_CHARS", "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
+    "SessionOptions", "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial",
+    "check_trigger", "drain", "flagged_trials", "recording_path", "run_session", "subject_problem",
 ]
