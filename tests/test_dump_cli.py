@@ -69,6 +69,14 @@ def test_a_refused_device_is_still_a_device_error(capsys):
     assert "cannot connect" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("seconds", ["-1", "0", "nan"])
+def test_dump_refuses_seconds_that_are_not_positive(capsys, seconds):
+    """NaN passed the check, streamed nothing and ended with a summary of 0 frames and exit 0."""
+    assert main(["dump", "sim://?speed=max", "--seconds", seconds]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"handover dump: --seconds must be a positive number of seconds, got {float(seconds)}"]
+
+
 @pytest.mark.parametrize("duration", ["-5", "0", "nan"])
 def test_emulate_refuses_a_duration_that_is_not_positive(capsys, duration):
     assert main(["emulate", "--pty", "--duration", duration]) == 2

@@ -53,8 +53,8 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     if args.frames is not None and args.frames < 1:
         return fail(COMMAND, "--frames must be at least 1")
-    if args.seconds is not None and args.seconds <= 0:
-        return fail(COMMAND, "--seconds must be positive")
+    if args.seconds is not None and not args.seconds > 0:  # also NaN (it streamed nothing and said 0 frames)
+        return fail(COMMAND, f"--seconds must be a positive number of seconds, got {args.seconds}")
     preview = args.frames is None and args.seconds is None
     emit = _json_line if args.json else None
     idle = IdleSkip(enabled=preview and not args.all_frames, emit=emit)
