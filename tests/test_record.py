@@ -357,6 +357,16 @@ def test_file_of_another_subject_is_refused(tmp_path, capsys):
     assert "belongs to subject 's1'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("flag", "value"), [("--trial-seconds", "nan"), ("--trial-seconds", "inf"), ("--lead-in", "nan"),
+                                           ("--lead-in", "inf"), ("--gap", "nan"), ("--gap", "1e9")])
+def test_spans_that_are_not_a_number_of_seconds_are_one_line(tmp_path, capsys, flag, value):
+    """--lead-in nan or inf hung the first trial; --trial-seconds inf ended in an OverflowError traceback,
+    nan in 'cannot convert float NaN to integer'; --gap nan in 'Invalid value NaN'."""
+    assert record(tmp_path, "--auto", flag, value, device="subject://?seed=3&speed=max") == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if x]
+    assert len(err) == 1 and err[0].startswith(f"handover record: {flag}: ") and err[0].endswith(f"got {float(value)}")
+
+
 @pytest.mark.parametrize("subject", ["y" * 300, "s1\n", "../s1", "s\x1b[31m"])
 def test_a_subject_id_that_cannot_name_the_file_is_one_line_before_the_device_opens(tmp_path, capsys, subject):
     """300 characters ended in an OSError traceback (file name too long) after the device had opened;

@@ -113,8 +113,6 @@ def main(args: argparse.Namespace) -> int:
         plan, opts = _plan_and_options(args)
     except SessionError as exc:
         return fail(COMMAND, str(exc))
-    if args.trial_seconds <= 0.3 or min(args.gap, args.countdown, args.retries, args.lead_in) < 0:
-        return fail(COMMAND, "--trial-seconds must be > 0.3 and --lead-in, --gap, --countdown, --retries >= 0")
     if problem := subject_problem(args.subject):  # before the device opens
         return fail(COMMAND, problem)
     try:

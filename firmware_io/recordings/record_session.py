@@ -31,6 +31,10 @@ POSES = ("down", "up", "horizontal")
 OBJECTS = ("ball", "cylinder", "plank")
 DEFAULT_RUNS = 5
 DEFAULT_TRIAL_SECONDS = 3.0
+MIN_TRIAL_SECONDS = 0.3
+"""A trial must be longer: the action needs a window of frames after the go cue."""
+MAX_SPAN_SECONDS = 600.0
+"""The longest trial, lead-in, gap or countdown: ten minutes is already a typo, not a protocol."""
 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 """A pose, object, action or subject name (matched whole: ``$`` let a name end in a newline)."""
@@ -337,6 +341,19 @@ class SessionOptions:
     """what the robot says about its arm (``--control``): its marks are stored with each trial and stretch."""
     quick_look: Callable[[np.ndarray, SensorLayout, TriggerCheck], str] | None = None
 
+    def __post_init__(self) -> None:
+        """Every span a number of seconds a session can wait out: NaN and infinity passed ``<= 0`` checks
+        and hung the first trial (lead-in), or ended in a traceback (trial seconds)."""
+        for name, value, low, flag in (("trial seconds", self.trial_seconds, MIN_TRIAL_SECONDS, "--trial-seconds"),
+                                       ("lead-in", self.lead_in_seconds, 0.0, "--lead-in"),
+                                       ("gap", self.gap_seconds, 0.0, "--gap"), ("countdown", self.countdown, 0, "--countdown")):
+            if not (low < value if name == "trial seconds" else low <= value) or not value <= MAX_SPAN_SECONDS:
+                above = f"more than {low:g}" if name == "trial seconds" else f"at least {low:g}"
+                raise SessionError(f"{flag}: the {name} must be {above} and at most {MAX_SPAN_SECONDS:g} seconds, "
+                                   f"got {value}")
+        if self.retries < 0:
+            raise SessionError(f"--retries must be at least 0, got {self.retries}")
+
 
 @dataclass
 class SessionResult:
@@ -470,7 +487,7 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "MAX_SUBJECT_CHARS", "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
+    "MAX_SPAN_SECONDS", "MAX_SUBJECT_CHARS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
     "SessionOptions", "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial",
     "check_trigger", "drain", "flagged_trials", "recording_path", "run_session", "subject_problem",
 ]
