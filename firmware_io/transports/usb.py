@@ -117,6 +117,11 @@ class UsbTransport(Transport):
         if parsed.option(opts, "latency") is not None and known not in ("", "ftdi"):
             raise TransportError(f"{url}: latency= sets an FTDI chip's latency timer and this is a {known} "
                                  "bridge, which has none: leave latency= out")
+        if known == "ftdi":  # found by the URL check, not at every reconnect of a daemon that cannot use it
+            try:
+                ftdi_baud_divisor(bridge["baud"])
+            except TransportError as exc:
+                raise TransportError(f"{url}: {exc}") from None
         return {
             **bridge,
             "interface": None if interface in (None, "") else int(parse_number(url, "interface", interface, int, 0, 255)),
