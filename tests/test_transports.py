@@ -588,7 +588,7 @@ def test_a_tcp_read_waiting_when_another_thread_closes_ends_with_the_closed_line
     assert not reader.is_alive() and str(outcome[0]).endswith(": transport is closed")
 
 
-def test_a_baud_an_ftdi_bridge_cannot_do_is_the_urls_error():
+def test_a_baud_the_bridge_cannot_do_is_the_urls_error():
     """It passed run --check and failed at every reconnect of the daemon as a device error, retried forever."""
     from firmware_io.transports import validate_url
 
@@ -596,5 +596,9 @@ def test_a_baud_an_ftdi_bridge_cannot_do_is_the_urls_error():
         with pytest.raises(TransportError, match=r"outside what an FTDI bridge can do \(183\.\.3000000\)") as info:
             validate_url(url)
         assert str(info.value).startswith(url + ": ")
-    for url in ("usb://0403:6001?baud=3000000", "usb://0403:6001?chip=cdc&baud=100", "usb://10c4:ea60?baud=100"):
+    for url in ("usb://0403:6001?baud=3000000", "usb://0403:6001?chip=cdc&baud=100", "usb://10c4:ea60?baud=100",
+                "hid://10c4:ea80?baud=300", "hid://10c4:ea80?baud=1000000"):
         validate_url(url)
+    for url in ("hid://10c4:ea80?baud=299", "hid://10c4:ea80?baud=1000001"):
+        with pytest.raises(TransportError, match=r"outside what a CP2110 bridge can do \(300\.\.1000000\)"):
+            validate_url(url)

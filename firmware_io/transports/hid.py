@@ -32,9 +32,12 @@ from firmware_io.transports.base import (
     parse_bridge,
 )
 
-__all__ = ["EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
+__all__ = ["BAUD_RANGE", "EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
 
 MAX_DATA_REPORT = 63
+BAUD_RANGE = (300, 1_000_000)
+"""What the CP2110/CP2114's UART runs at (data sheet): another baud= is the URL's error, found by the check
+rather than as the bridge refusing its set-up report at every reconnect."""
 REPORT_SIZE = 64
 UART_ENABLE = 0x41
 PURGE_FIFOS = 0x43
@@ -101,7 +104,12 @@ class HidTransport(Transport):
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         parsed.check_options({"serial", "baud"})
-        return {**parse_bridge(parsed, opts), "device": opts.get("device")}
+        bridge = parse_bridge(parsed, opts)
+        low, high = BAUD_RANGE
+        if not low <= bridge["baud"] <= high:
+            raise TransportError(f"{parsed.url}: baud={bridge['baud']} is outside what a CP2110 bridge can do "
+                                 f"({low}..{high})")
+        return {**bridge, "device": opts.get("device")}
 
     def _hid(self, failed: str, call: Callable, *args: object):
         """hidapi's ``call``; the OSError or ValueError it raises when the device goes away is one
