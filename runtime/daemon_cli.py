@@ -123,13 +123,13 @@ def _check_quietly(cfg, require_model: bool) -> int:
         watcher = ModelWatcher(cfg.model.folder, loader=slot.load,
                                check=lambda m: scene_problem(m, cfg, None, check_events=check_events),
                                decision_budget=cfg.model.decision_budget, quarantine=slot.quarantine)
-        return watcher.poll(require_stable=False), watcher.rejections
+        return watcher.poll(require_stable=False), watcher.rejections, watcher.unreadable_names
 
-    model, rejections = newest(check_events=True)
+    model, rejections, unreadable = newest(check_events=True)
     if model is None and rejections:
         # A model that fits everything but an event name means a typo in scene.events (a
         # config problem), not a reason to wait for another model.
-        fits_otherwise, _ = newest(check_events=False)
+        fits_otherwise, _, _ = newest(check_events=False)
         if fits_otherwise is not None:
             print(f"{PROG}: {events_problem(fits_otherwise, cfg.scene.events)}", file=sys.stderr)
             return 2
@@ -140,7 +140,9 @@ def _check_quietly(cfg, require_model: bool) -> int:
             print(f"{PROG}: warning: {r.path.name} (dropped later) would be refused: {r.reason}", file=sys.stderr)
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
-    reasons = "; ".join(f"{r.path.name}: {r.reason}" for r in rejections) or "no .onnx file"
+    reasons = "; ".join([*(f"{r.path.name}: {r.reason}" for r in rejections),
+                         *(f"{name!r}: control characters in its name (rename it)" for name in sorted(unreadable))]) \
+        or "no .onnx file"
     what = f"no model in {cfg.model.folder} would serve yet ({reasons})"
     if require_model:
         print(f"{PROG}: config {cfg.source} is valid, but {what}", file=sys.stderr)

@@ -170,6 +170,8 @@ class ModelWatcher:
         self._lock = threading.Lock()
         self._loop = Background("model-watch", lambda: self.poll(), lambda: self.poll_interval, log, "model watcher poll failed")
         self._folder_error_logged = False
+        self.unreadable_names: set[str] = set()
+        """Candidate names with control characters: each said once (in repr) and never read."""
         self._rescan: bool | None = None
         self._listed = False
         """Whether the last scan could list the folder (a folder that cannot be read withdraws nothing)."""
@@ -197,6 +199,12 @@ class ModelWatcher:
         self._listed = True
         for entry in entries:
             if not is_candidate_name(entry.name):
+                continue
+            if not entry.name.isprintable():  # every line about the file would print it: a newline forges lines
+                if entry.name not in self.unreadable_names:
+                    self.unreadable_names.add(entry.name)
+                    log.error("model folder %s: the file %r has control characters in its name and is not read; "
+                              "rename it", self.folder, entry.name)
                 continue
             try:
                 st = entry.stat(follow_symlinks=False)

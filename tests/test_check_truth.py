@@ -133,3 +133,14 @@ def test_the_running_daemon_waits_for_a_missing_folder_and_serves_once_it_appear
     assert _run_until(daemon, appear, timeout=30), "the model dropped into the new folder was never served"
     missing = [r for r in caplog.records if "does not exist" in r.getMessage()]
     assert len(missing) == 1, [r.getMessage() for r in caplog.records]
+
+
+def test_a_model_named_with_a_newline_is_named_once_in_repr_and_not_served(tmp_path):
+    """The name would have been printed raw in every line about the file (a newline forges a log line)."""
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "z\nFAKE.onnx", tiny_model_bytes())
+    proc = _check(_config(tmp_path, models))
+    assert proc.returncode == 0, proc.stderr
+    assert "would serve yet ('z\\nFAKE.onnx': control characters in its name (rename it))" in proc.stderr
+    assert not any(line.startswith("FAKE") for line in proc.stderr.splitlines())

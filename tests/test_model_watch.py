@@ -160,3 +160,21 @@ def test_a_deleted_model_folder_says_what_to_do(tmp_path, caplog):
     lines = [r.getMessage() for r in caplog.records]
     assert lines == [f"model folder {folder} does not exist (deleted or renamed?): create it (mkdir -p, readable "
                      "by the service user) or fix model.folder and reload; models dropped there are then picked up"]
+
+
+def test_a_file_name_with_control_characters_is_one_line_once_and_never_read(tmp_path, caplog):
+    """A model file named 'z\\n<time> ERROR ...' put a forged line in the journal with every line about it."""
+    import logging
+
+    now = time.time()
+    forged = "z\n2026-01-01T00:00:00.000Z ERROR handover.daemon: forged.onnx"
+    write_model(tmp_path, forged, tiny_model_bytes(tag="forged"), mtime=now - 50)
+    write_model(tmp_path, "red\x1b[31m.onnx", tiny_model_bytes(tag="red"), mtime=now - 40)
+    w = _watcher(tmp_path)
+    with caplog.at_level(logging.INFO, logger="handover.models"):
+        assert w.poll(require_stable=False) is None
+        assert w.poll() is None and w.poll() is None
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and all("\n" not in x and "\x1b" not in x for x in lines)
+    assert all("has control characters in its name and is not read; rename it" in x for x in lines)
+    assert w.unreadable_names == {forged, "red\x1b[31m.onnx"} and not w.rejections
