@@ -24,7 +24,7 @@ from firmware_io.layout import LayoutError, SensorLayout
 from firmware_io.transports import TransportError, validate_url
 from firmware_io.trigger_level import is_trigger_level
 from runtime.config_keys import RANGES, SECTIONS, Key, key, section_keys
-from runtime.config_read import ConfigError, no_nul, no_unknown, read_key, read_str, read_str_list
+from runtime.config_read import ConfigError, no_control_chars, no_unknown, read_key, read_str, read_str_list
 from runtime.instance_name import instance_problem
 
 __all__ = ["FOLLOW_MODEL", "KNOWN_EVENTS", "NO_SINK_LEFT", "RANGES", "TRIGGER_KINDS", "Config", "ConfigError",
@@ -159,7 +159,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if not isinstance(data, dict):
         raise ConfigError("config: must be a table")
     no_unknown("", data, set(_SECTION_CLASSES) | {k.short for k in section_keys("")})
-    no_nul(data)
+    no_control_chars(data)
     for name in _SECTION_CLASSES:
         if name in data and not isinstance(data[name], dict):
             raise ConfigError(f"{name}: must be a table ([{name}])")

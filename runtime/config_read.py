@@ -8,7 +8,7 @@ from typing import Any
 
 from runtime.config_keys import RANGES, Key
 
-__all__ = ["ConfigError", "in_range", "no_nul", "no_unknown", "read_bool", "read_int", "read_key", "read_num",
+__all__ = ["ConfigError", "in_range", "no_control_chars", "no_unknown", "read_bool", "read_int", "read_key", "read_num",
            "read_optional_num", "read_str", "read_str_list"]
 
 
@@ -37,13 +37,15 @@ def read_bool(key: str, table: dict, default: bool) -> bool:
     return value
 
 
-def no_nul(value: Any, key: str = "") -> None:
-    """No string may hold a NUL character (TOML's "\u0000"): paths with one raise ValueError deep in the daemon."""
+def no_control_chars(value: Any, key: str = "") -> None:
+    """No string may hold a control character (TOML's "\u0000", "\n", "\u001b"): a path with NUL raised
+    ValueError deep in the daemon, and a newline or escape in a path or name broke every line naming it."""
     items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
     for k, v in items:
-        no_nul(v, (f"{key}.{k}" if key else str(k)) if isinstance(value, dict) else key)
-    if isinstance(value, str) and "\0" in value:
-        raise ConfigError(f"{key}: must not contain a NUL character, got {value!r}")
+        no_control_chars(v, (f"{key}.{k}" if key else str(k)) if isinstance(value, dict) else key)
+    if isinstance(value, str) and not value.isprintable():
+        bad = next(c for c in value if not c.isprintable())
+        raise ConfigError(f"{key}: must not contain a control character ({bad!r}), got {value!r}")
 
 
 def read_num(key: str, table: dict, default: float) -> float:

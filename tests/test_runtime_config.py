@@ -97,6 +97,22 @@ def test_each_error_names_its_key(data, key):
     assert "\n" not in message
 
 
+@pytest.mark.parametrize(("data", "key", "char"), [
+    ({"model": {"folder": "/tmp/mo\ndels"}}, "model.folder", "\n"),
+    ({"control": {"socket": "/run/x\x1b[31m.sock"}}, "control.socket", "\x1b"),
+    ({"sinks": {"unix": ["/run/a.sock", "/run/b\r.sock"]}}, "sinks.unix", "\r"),
+    ({"health_file": "/tmp/s\x00.json"}, "health_file", "\x00"),
+])
+def test_a_control_character_in_any_string_is_one_line_naming_the_key(data, key, char):
+    """A newline in model.folder printed 'model.folder /tmp/mo' and 'dels does not exist' as two lines;
+    only NUL was refused."""
+    with pytest.raises(ConfigError) as info:
+        config_from_dict(data)
+    message = str(info.value)
+    assert message.startswith(f"{key}: must not contain a control character ({char!r})"), message
+    assert message.isprintable()
+
+
 def test_pad_lists_and_indices(tmp_path):
     cfg = config_from_dict({"scene": {"pads": [1, 3]}})
     assert cfg.scene.pads == "1,3"
