@@ -357,6 +357,17 @@ def test_file_of_another_subject_is_refused(tmp_path, capsys):
     assert "belongs to subject 's1'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("flag", "value", "words"), [("--runs", "100000000", "runs must be from 1 to 100, got 100000000"),
+                                                    ("--max-trials", "0", "--max-trials must be at least 1, got 0"),
+                                                    ("--max-trials", "-1", "--max-trials must be at least 1, got -1")])
+def test_counts_that_plan_forever_or_nothing_are_one_line(tmp_path, capsys, flag, value, words):
+    """--runs 100000000 never started (the plan is listed first); --max-trials 0 or -1 recorded nothing and
+    said '0 trials saved in' a file it never wrote."""
+    assert record(tmp_path / "out", "--auto", flag, value, device="subject://?seed=3&speed=max") == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if x]
+    assert err == [f"handover record: {words}"] and not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize(("flag", "value"), [("--trial-seconds", "nan"), ("--trial-seconds", "inf"), ("--lead-in", "nan"),
                                            ("--lead-in", "inf"), ("--gap", "nan"), ("--gap", "1e9")])
 def test_spans_that_are_not_a_number_of_seconds_are_one_line(tmp_path, capsys, flag, value):

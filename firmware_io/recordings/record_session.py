@@ -30,6 +30,9 @@ from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 POSES = ("down", "up", "horizontal")
 OBJECTS = ("ball", "cylinder", "plank")
 DEFAULT_RUNS = 5
+MAX_RUNS = 100
+"""The most runs of each pose, object and action: 3600 trials of the default protocol, days of recording (the
+plan is listed before the first trial, so --runs 100000000 never started)."""
 DEFAULT_TRIAL_SECONDS = 3.0
 MIN_TRIAL_SECONDS = 0.3
 """A trial must be longer: the action needs a window of frames after the go cue."""
@@ -91,8 +94,8 @@ class ProtocolPlan:
                 raise SessionError(f"{kind} name {bad[0]!r}: use letters, digits, '_', '-' or '.'")
             if len(set(names)) != len(names):
                 raise SessionError(f"a {kind} is listed twice: {', '.join(names)}")
-        if self.runs < 1:
-            raise SessionError(f"runs must be at least 1, got {self.runs}")
+        if not 1 <= self.runs <= MAX_RUNS:
+            raise SessionError(f"runs must be from 1 to {MAX_RUNS}, got {self.runs}")
 
     @classmethod
     def from_text(cls, poses: str, objects: str, actions: str, runs: int) -> ProtocolPlan:
@@ -353,6 +356,8 @@ class SessionOptions:
                                    f"got {value}")
         if self.retries < 0:
             raise SessionError(f"--retries must be at least 0, got {self.retries}")
+        if self.max_trials is not None and self.max_trials < 1:  # 0 or less recorded nothing and said "saved in"
+            raise SessionError(f"--max-trials must be at least 1, got {self.max_trials}")
 
 
 @dataclass
@@ -487,7 +492,7 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "MAX_SPAN_SECONDS", "MAX_SUBJECT_CHARS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
+    "MAX_RUNS", "MAX_SPAN_SECONDS", "MAX_SUBJECT_CHARS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
     "SessionOptions", "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial",
     "check_trigger", "drain", "flagged_trials", "recording_path", "run_session", "subject_problem",
 ]
