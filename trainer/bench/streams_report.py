@@ -216,16 +216,15 @@ def _rule_choice(r: dict) -> list[str]:
              f"{st['seed']}: {st['events']} scripted events in {st['mixed_hours']:.2f} h of mixed stream + "
              f"{st['idle_hours']:.2f} h of idle stream, synthetic), before the test streams were generated, over "
              f"the grid {c['grid']}; criterion: {c['criterion']}. The continuous rows of every table above use it. "
-             "The ten best rules, then the shipped and the previous rule (10 in a row, rearm 16) where not among "
-             "them (within: wins counted among the last N frames, 0 = in a row):", "",
-             "| confirm | within | margin | rearm | gap | vote | right | wrong | missed | duplicates | false events "
-             "| hold recall | median onset-to-report | utility |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "The ten best rules, then the shipped and the previous rule (8, 0, 4) where not among them:", "",
+             "| confirm | margin | rearm | gap | vote | right | wrong | missed | duplicates | false events | hold recall "
+             "| median onset-to-report | utility |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     rows = list(c["best"])
     for extra in (c.get("shipped_row"), c.get("previous_row")):
         if extra and extra not in rows:
             rows.append(extra)
     for x in rows:
-        lines.append(f"| {x['confirm_frames']} | {x.get('within_frames', 0)} | {x['min_margin']:g} | {x['rearm_frames']} | {x['gap_frames']} | "
+        lines.append(f"| {x['confirm_frames']} | {x['min_margin']:g} | {x['rearm_frames']} | {x['gap_frames']} | "
                      f"{x['vote']} | {x['correct']} | {x['wrong']} | {x['missed']} | {x['duplicates']} | "
                      f"{x['false_events']} | {_pct(x['hold_recall'])} | {_f(x['delay_median_frames'], '.1f')} | "
                      f"{x['utility']} |")

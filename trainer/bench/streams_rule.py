@@ -11,25 +11,23 @@ from __future__ import annotations
 import itertools
 
 GRID = {"confirm_frames": (4, 6, 8, 10, 12), "min_margin": (0.0, 0.5), "rearm_frames": (0, 4, 16),
-        "gap_frames": (0, 1, 2, 4), "vote": (False, True), "within_frames": (0, 16, 20, 24, 32)}
-"""Rules tried (``vote``, ``gap_frames``, ``within_frames``: runtime/decision.py); ``within_frames`` > 0 only
-with ``gap_frames`` 0 and no ``vote`` (they describe runs in a row)."""
-PREVIOUS = {"confirm_frames": 10, "min_margin": 0.0, "rearm_frames": 16, "gap_frames": 0, "vote": False,
+        "gap_frames": (0, 1, 2, 4), "vote": (False, True), "within_frames": (0,)}
+"""Rules tried (``vote`` and ``gap_frames``: runtime/decision.py): wins in a row. Wins counted within a window
+(``within_frames`` > 0) won on this criterion but were not adopted (docs/DORMANT.md, results/streams_within.md)."""
+PREVIOUS = {"confirm_frames": 8, "min_margin": 0.0, "rearm_frames": 4, "gap_frames": 0, "vote": False,
             "within_frames": 0}
-"""The rule shipped before this choice (wins in a row only): shown for comparison."""
+"""The rule shipped before this choice (chosen for an earlier model, results/dormant.md): shown for comparison."""
 RULE_EVENTS = 200
 """Events in the rule's validation mixed stream: 60 hold too few holds (15) to tell rules apart."""
 CRITERION = ("utility = right first reports - wrong first reports - duplicates - false events, on a validation mixed "
              f"stream of {RULE_EVENTS} events plus the validation idle stream (synthetic, validation seed); ties: the "
-             "shorter median onset-to-report, then the simpler rule (smallest confirm + rearm + gap + 4 x margin + vote + "
-             "within)")
+             "shorter median onset-to-report, then the simpler rule (smallest confirm + rearm + gap + 4 x margin + vote)")
 
 
 def rank(row: dict) -> tuple:
     """CRITERION as a sort key (larger is better)."""
     return (row["utility"], -(row["delay_median_frames"] or 1e9),
-            -(row["confirm_frames"] + row["rearm_frames"] + row["gap_frames"] + 4 * row["min_margin"] + row["vote"]
-              + row["within_frames"]))
+            -(row["confirm_frames"] + row["rearm_frames"] + row["gap_frames"] + 4 * row["min_margin"] + row["vote"]))
 
 
 def choose_rule(model, seed: int, idle_recs: list, say) -> dict:
@@ -50,8 +48,6 @@ def choose_rule(model, seed: int, idle_recs: list, say) -> dict:
     rows = []
     for values in itertools.product(*GRID.values()):
         rule = dict(zip(GRID, values, strict=True))
-        if rule["within_frames"] and (rule["gap_frames"] or rule["vote"] or rule["within_frames"] < rule["confirm_frames"]):
-            continue
         sm = se.score(se.apply_rule(*fd_mixed, model.meta, rule), truths, mixed.n_frames, period)
         false = sm["false_events"] + sum(len(se.apply_rule(*fd, model.meta, rule)) for fd in fd_idle)
         hold = sm["per_action"].get("hold", {"n": 0, "correct": 0})
