@@ -27,7 +27,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "export": ("trainer.export_cli", "export a trained model to one ONNX graph", "train"),
     "verify": ("trainer.verify_cli", "compare an ONNX model with the float64 reference, with stress cases", "train"),
     "inspect": ("runtime.inspect_cli", "print a model card from an ONNX model's metadata", None),
-    "emulate": ("firmware_io.commands.emulate_cli", "serve an emulated DSACON32m over TCP or a pseudo-terminal", None),
+    "emulate": ("firmware_io.commands.emulate_cli", "serve an emulated DSACON32m over TCP or a pseudo-terminal (the demo's unseen session by default)", None),
     "score": ("trainer.score_cli", "score a captured event stream against handover emulate --script-out (the demo's summary)", None),
     "dump": ("firmware_io.commands.dump_cli", "print frames from any device URL (rate, per-pad sums, errors)", None),
     "run": ("runtime.daemon_cli", "the detection daemon (systemd service)", None),

@@ -321,3 +321,29 @@ def test_a_session_played_to_a_late_host_starts_when_it_first_asks(rec):
     _, first = ask(emu, requests.push_request())
     ts, values = decode_frame_payload(first.payload, 486)
     assert np.array_equal(values, rec.frames[0]) and ts == 100 + 12500 == emu.session_clock_ms
+
+
+def test_the_emulators_default_session_is_not_one_the_demo_trains_on():
+    """The README's daemon recipe serves the demo's model against ``handover emulate``: by default it
+    must play people the model never saw, as ``handover demo`` does (the simulator draws its people and
+    hand from the seed, so a session under a training seed replays the trained subjects)."""
+    import importlib
+
+    from firmware_io.sim.scenario import make_subject
+    from firmware_io.sim.session import DEMO_SESSION_SEED, DEMO_TRAIN_SEED
+    from firmware_io.sim.streams import stream
+    from runtime import cli
+    from trainer.demo_cli import scripted_session
+
+    def defaults(name, *argv):
+        return cli.build_parser(name, importlib.import_module(cli.COMMANDS[name][0])).parse_args(list(argv))
+
+    emulated = defaults("emulate", "--pty").seed
+    trained = defaults("demo").seed  # the protocol, the idle stream and the stream model's session (fit_stream_model)
+    assert trained == DEMO_TRAIN_SEED and emulated == DEMO_SESSION_SEED
+    assert emulated not in {trained, defaults("train").seed, defaults("dormant").seed}
+    assert make_subject("s1", stream(emulated, "subject", "s1")) != make_subject("s1", stream(trained, "subject", "s1"))
+    session_seed, _script, _ = scripted_session(trained, events=4)
+    assert session_seed == emulated  # the recipe plays the demo's own session
+    helped = " ".join(cli.build_parser("emulate", importlib.import_module(cli.COMMANDS["emulate"][0])).format_help().split())
+    assert f"(default {DEMO_SESSION_SEED}: the demo's scripted session, by simulated subjects no demo model trains on" in helped

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from firmware_io.commands.errors import fail
+from firmware_io.sim.session import DEMO_TRAIN_SEED, HELD_OUT_SEED_OFFSET
 
 if TYPE_CHECKING:
     from firmware_io.recordings.recording import Recording
@@ -38,8 +39,6 @@ COMMAND = "demo"
 SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
 STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
 """Training data of the 5-class stream model (as ``handover bench streams`` trains it)."""
-SESSION_SEED_OFFSET = 1000
-"""The scripted session's seed = training seed + this: its subjects are not the trained ones."""
 DEMO_EVENTS = 40
 """Scripted events in the demo's session (``--events``); the streams benches replay the same session."""
 
@@ -48,7 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/demo", help="working folder (data, report, models; default out/demo)")
     parser.add_argument("--events", type=int, default=DEMO_EVENTS,
                         help=f"scripted events in the session (default {DEMO_EVENTS})")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the training protocol (default 0)")
+    parser.add_argument("--seed", type=int, default=DEMO_TRAIN_SEED,
+                        help=f"seed of the training data (default {DEMO_TRAIN_SEED}); the session plays seed + "
+                        f"{HELD_OUT_SEED_OFFSET}")
     parser.add_argument("--pads", default="all", help="pads the model and the scene use (default all)")
     parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
                         "as possible (latency figures then include queueing)")
@@ -200,7 +201,7 @@ def scripted_session(seed: int, events: int = DEMO_EVENTS) -> tuple[int, list[Sc
     session); ``handover bench streams`` and ``streams_own`` replay the same one in process."""
     from firmware_io.sim import demo_script, simulate_session
 
-    session_seed = seed + SESSION_SEED_OFFSET
+    session_seed = seed + HELD_OUT_SEED_OFFSET
     script = demo_script(events, seed=session_seed)
     return session_seed, script, simulate_session(script, seed=session_seed)
 

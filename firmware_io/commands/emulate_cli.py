@@ -1,7 +1,7 @@
 """``handover emulate``: serve an emulated DSACON32m on loopback TCP or a pseudo-terminal.
 
-Frames come from the simulated hand's scripted session (synthetic data) or any recording
-(.hrec, .dsa, .bag). Point any client at the printed URL, e.g. ``handover dump tcp://127.0.0.1:13000``.
+Frames come from the simulated hand's scripted session (synthetic data; by default the demo's
+session, whose simulated subjects no demo model trains on) or any recording (.hrec, .dsa, .bag). Point any client at the printed URL, e.g. ``handover dump tcp://127.0.0.1:13000``.
 """
 
 from __future__ import annotations
@@ -22,9 +22,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--listen", metavar="URL", help="tcp://127.0.0.1:PORT (loopback only; port 0 picks one)")
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal and print its path")
+    from firmware_io.sim.session import DEMO_SESSION_SEED, HELD_OUT_SEED_OFFSET
+
     parser.add_argument("--source", default="sim", help="'sim' (simulated hand, default) or a recording file")
     parser.add_argument("--events", type=int, default=40, help="scripted events of the simulated session (default 40)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated session and of fault injection")
+    parser.add_argument("--seed", type=int, default=DEMO_SESSION_SEED,
+                        help=f"seed of the simulated session and of fault injection (default {DEMO_SESSION_SEED}: "
+                        "the demo's scripted session, by simulated subjects no demo model trains on; a model trained "
+                        f"on simulator seed s meets new subjects at s + {HELD_OUT_SEED_OFFSET})")
     parser.add_argument("--speed", default="1.0", help="playback speed: a factor (1.0 = recorded timing) or 'max'")
     parser.add_argument(
         "--fault",

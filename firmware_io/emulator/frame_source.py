@@ -1,7 +1,7 @@
 """Where an emulated controller's frames come from: the simulated hand or a recording file.
 
-``load_source("sim", seed=0, events=40)`` is the simulated hand's scripted session
-(synthetic data); any other text is a recording path (.hrec, .dsa, .bag, ROS 2 bag folder).
+``load_source("sim", seed=DEMO_SESSION_SEED, events=40)`` is the simulated hand's scripted session
+(synthetic data; by default the demo's, which no demo model trains on); any other text is a recording path (.hrec, .dsa, .bag, ROS 2 bag folder).
 Results are cached per (source, seed, events, file mtime) so that reconnecting to a
 ``sim://`` or ``replay://`` transport does not simulate or decode the session again.
 """
@@ -17,13 +17,14 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.importers import import_any
 from firmware_io.recordings.recording import Recording, RecordingError
+from firmware_io.sim.session import DEMO_SESSION_SEED
 
 __all__ = ["load_source", "placeholder_session"]
 
 SIM = "sim"
 
 
-def load_source(source: str | os.PathLike = SIM, *, seed: int = 0, events: int = 40) -> Recording:
+def load_source(source: str | os.PathLike = SIM, *, seed: int = DEMO_SESSION_SEED, events: int = 40) -> Recording:
     """A Recording to serve; raises RecordingError with one line naming the file or the problem."""
     text = os.fspath(source)
     if text == SIM:

@@ -18,7 +18,16 @@ from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS, POSE_MODELS, POSES,
 from firmware_io.sim.streams import stream
 from firmware_io.sim.timing import frame_stamps
 
-__all__ = ["RELEASE_AFTER_S", "ScriptedEvent", "demo_script", "simulate_session"]
+__all__ = ["DEMO_SESSION_SEED", "DEMO_TRAIN_SEED", "HELD_OUT_SEED_OFFSET", "RELEASE_AFTER_S", "ScriptedEvent",
+           "demo_script", "simulate_session"]
+
+DEMO_TRAIN_SEED = 0
+"""Simulator seed the demo's models train on (``handover demo --seed``): its protocol, idle and session."""
+HELD_OUT_SEED_OFFSET = 1000
+"""A session played to a model trained on seed s uses seed s + this. The simulator draws its people
+and hand from the seed, so under the same seed a session replays the trained subjects."""
+DEMO_SESSION_SEED = DEMO_TRAIN_SEED + HELD_OUT_SEED_OFFSET
+"""The demo's scripted session, also what ``handover emulate`` plays by default: no demo model saw it."""
 
 GRASP_BEFORE_S = (0.9, 1.4)
 """the object is placed and grasped this long before the person acts."""
