@@ -15,10 +15,13 @@ from dataclasses import dataclass
 
 from runtime.health import one_line
 
-__all__ = ["PROBE_S", "DeviceProbe", "probe_device"]
+__all__ = ["PROBE_CONNECT_S", "PROBE_S", "DeviceProbe", "probe_device"]
 
 PROBE_S = 3.0
 """How long the device is read: about 100 frames at 32 Hz, enough for a rate to mean something."""
+PROBE_CONNECT_S = 10.0
+"""The longest the check waits for a TCP connection (a URL's shorter connect_timeout is kept): the daemon may
+wait an hour for a hand to power up, a check that says "for 3 s" must not (a silent host held it 2 minutes)."""
 
 
 @dataclass
@@ -54,9 +57,15 @@ def probe_device(url: str, seconds: float = PROBE_S, client_factory=None) -> Dev
     """Open ``url``, stream for ``seconds``, close. Never raises: a failure is ``problem``."""
     if client_factory is None:
         from firmware_io.client import DSAClient
+        from firmware_io.transports import TransportError, validate_url
+
+        asked = None
+        with contextlib.suppress(TransportError):  # a URL that cannot open is said by the open below
+            asked = validate_url(url).options.get("connect_timeout")
+        bound = PROBE_CONNECT_S if asked is None else min(PROBE_CONNECT_S, float(asked))
 
         def client_factory(u: str):
-            return DSAClient(u, auto_reconnect=False)
+            return DSAClient(u, auto_reconnect=False, transport_opts={"connect_timeout": bound})
 
     probe = DeviceProbe(url)
     client = None

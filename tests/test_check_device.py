@@ -66,3 +66,24 @@ def test_check_device_with_nothing_listening_is_one_line_and_exit_1(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"handover run: device tcp://127.0.0.1:{port}: cannot read it"), lines
     assert "Traceback" not in proc.stderr
+
+
+def test_the_device_check_waits_for_a_tcp_connection_at_most_its_bound(monkeypatch):
+    """With connect_timeout=3600 a host that never answered held 'run --check --device' ("for 3 s") until
+    the kernel gave up (2 minutes), and the line said 3600 s; a shorter timeout in the URL is kept."""
+    from firmware_io.transports import tcp
+    from runtime.device_check import PROBE_CONNECT_S, probe_device
+
+    asked: list[float] = []
+
+    def silent_host(address, timeout):
+        asked.append(timeout)
+        raise TimeoutError
+
+    monkeypatch.setattr(tcp.socket, "create_connection", silent_host)
+    probe = probe_device("tcp://192.0.2.7:13000?connect_timeout=3600")
+    assert asked == [PROBE_CONNECT_S] and probe.problem.endswith(f"no answer within {PROBE_CONNECT_S:g} s (hand powered? cable?)")
+    probe_device("tcp://192.0.2.7:13000?connect_timeout=0.5")
+    probe_device("tcp://192.0.2.7:13000")
+    assert asked[1:] == [0.5, PROBE_CONNECT_S]
+    assert probe_device("tcp://192.0.2.7:99999").problem.startswith("cannot read it: ")
