@@ -602,3 +602,26 @@ def test_a_baud_the_bridge_cannot_do_is_the_urls_error():
     for url in ("hid://10c4:ea80?baud=299", "hid://10c4:ea80?baud=1000001"):
         with pytest.raises(TransportError, match=r"outside what a CP2110 bridge can do \(300\.\.1000000\)"):
             validate_url(url)
+
+
+def test_a_connect_the_kernel_gave_up_on_does_not_claim_the_urls_timeout(monkeypatch):
+    """connect_timeout=3600 and a silent host: the kernel's ETIMEDOUT came after about 2 minutes and the line
+    said 'no answer within 3600 s'."""
+    import errno
+
+    from firmware_io.transports import tcp
+
+    def kernel_gave_up(address, timeout):
+        raise TimeoutError(errno.ETIMEDOUT, "Connection timed out")
+
+    monkeypatch.setattr(tcp.socket, "create_connection", kernel_gave_up)
+    with pytest.raises(DeviceUnavailable) as info:
+        open_transport("tcp://192.0.2.7:13000?connect_timeout=3600")
+    assert str(info.value).endswith(": no answer (Connection timed out) (hand powered? cable?)")
+
+    def python_timeout(address, timeout):
+        raise TimeoutError("timed out")
+
+    monkeypatch.setattr(tcp.socket, "create_connection", python_timeout)
+    with pytest.raises(DeviceUnavailable, match=r": no answer within 3 s \(hand powered\? cable\?\)$"):
+        open_transport("tcp://192.0.2.7:13000?connect_timeout=3")

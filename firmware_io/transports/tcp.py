@@ -38,8 +38,9 @@ class TcpTransport(Transport):
             self._sock = socket.create_connection((host, port), timeout=connect_timeout)
         except socket.gaierror as exc:
             raise DeviceUnavailable(f"{self.url}: unknown host {host!r}: {exc.strerror}") from None
-        except TimeoutError:
-            raise DeviceUnavailable(f"{self.url}: no answer within {connect_timeout:g} s (hand powered? cable?)") from None
+        except TimeoutError as exc:  # errno set: the kernel gave up first (its SYN retries, about 2 minutes)
+            within = f"within {connect_timeout:g} s" if exc.errno is None else f"({exc.strerror or exc})"
+            raise DeviceUnavailable(f"{self.url}: no answer {within} (hand powered? cable?)") from None
         except OSError as exc:
             raise DeviceUnavailable(f"{self.url}: cannot connect: {exc.strerror or exc} (hand powered, "
                                     "host and port right? the SDH-2 listens on 13000)") from None
