@@ -24,9 +24,14 @@ import numpy as np
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.recording import Recording
 from trainer import streams_eval as se
+from trainer.rate_interval import rate_interval
 from trainer.recorded_idle import idle_pieces, subject_of
 
-__all__ = ["held_out_replay", "replay_lines"]
+__all__ = ["SHORT_IDLE_MIN", "held_out_replay", "replay_lines"]
+
+SHORT_IDLE_MIN = 30.0
+"""Below this much recorded idle the report says what one false event weighs per hour: there a single
+event moves the rate by more than the gap between a usable model and a nuisance."""
 
 
 def stream_mode(dormant: bool, trigger_kind: str) -> str:
@@ -122,6 +127,7 @@ def summarize(parts: Sequence[dict]) -> dict:
         "right_fraction": count["right"] / len(events) if events else None,
         "per_action": dict(sorted(per_action.items())),
         "idle_hours": total_h, "false_events": n_false, "false_per_hour": n_false / total_h if total_h else None,
+        "false_per_hour_95": rate_interval(n_false, total_h),
         "idle_by_source": {k: {"hours": hours[k], "false_events": false.get(k, 0),
                                "false_per_hour": false.get(k, 0) / hours[k] if hours[k] else None}
                            for k in sorted(hours)},
@@ -191,8 +197,13 @@ def replay_lines(r: dict | None) -> list[str]:
     if r["idle_hours"]:
         by = ", ".join(f"{k} {v['false_events']} in {v['hours'] * 60:.1f} min"
                        for k, v in r["idle_by_source"].items())
+        ci = r.get("false_per_hour_95") or rate_interval(r["false_events"], r["idle_hours"])
         lines.append(f"idle: {r['false_events']} false events in {r['idle_hours'] * 60:.1f} min "
-                     f"({r['false_per_hour']:.1f} per hour; {by})")
+                     f"({r['false_per_hour']:.1f} per hour, 95 % interval {ci[0]:.1f}-{ci[1]:.1f}; {by})")
+        minutes = r["idle_hours"] * 60
+        if minutes < SHORT_IDLE_MIN:
+            lines.append(f"{minutes:.1f} min of idle: one false event is {1 / r['idle_hours']:.1f} per hour; record more "
+                         "idle (`handover record --idle-only ...`) for a tighter figure")
         arm = r.get("with_arm_messages")
         if arm:
             lines.append(f"idle with the robot's 'arm moving' / 'arm still' over the arm_move stretches: "

@@ -1,0 +1,43 @@
+"""False events per hour carry their exact Poisson interval, and a short idle recording says what one
+event weighs (trainer/rate_interval.py, trainer/own_replay.py)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from trainer.own_replay import SHORT_IDLE_MIN, replay_lines
+from trainer.rate_interval import poisson_interval, rate_interval
+
+
+@pytest.mark.parametrize(("count", "lower", "upper"), [
+    (0, 0.0, 3.689), (1, 0.0253, 5.572), (5, 1.623, 11.668), (10, 4.795, 18.390), (100, 81.364, 121.627),
+])
+def test_the_interval_matches_the_tabulated_exact_bounds(count, lower, upper):
+    lo, hi = poisson_interval(count)
+    assert math.isclose(lo, lower, abs_tol=5e-4) and math.isclose(hi, upper, abs_tol=5e-4)
+
+
+def test_a_rate_interval_is_the_count_interval_per_hour_and_none_without_time():
+    lo, hi = rate_interval(5, 0.5)
+    assert math.isclose(lo, 2 * 1.6235, abs_tol=1e-3) and math.isclose(hi, 2 * 11.6683, abs_tol=1e-3)
+    assert rate_interval(0, 0.0) is None
+    with pytest.raises(ValueError):
+        poisson_interval(-1)
+
+
+def _replay(false_events: int, minutes: float) -> dict:
+    hours = minutes / 60
+    return {"folds": [{}], "reference": ["onset"], "events": 0, "idle_hours": hours, "false_events": false_events,
+            "false_per_hour": false_events / hours, "idle_by_source": {"quiet": {"hours": hours, "false_events": false_events}}}
+
+
+def test_replay_lines_give_the_interval_and_say_when_the_idle_is_short():
+    lines = replay_lines(_replay(3, 9.6))
+    lo, hi = rate_interval(3, 9.6 / 60)
+    assert lines[0].startswith(f"idle: 3 false events in 9.6 min (18.8 per hour, 95 % interval {lo:.1f}-{hi:.1f};")
+    assert lines[1] == ("9.6 min of idle: one false event is 6.2 per hour; record more idle "
+                        "(`handover record --idle-only ...`) for a tighter figure")
+    long = replay_lines(_replay(3, SHORT_IDLE_MIN + 1))
+    assert len(long) == 1 and "95 % interval" in long[0]
