@@ -92,6 +92,7 @@ def test_score_of_an_emulated_session_equals_the_demos_summary(tmp_path):
         out = daemon.communicate(timeout=30)[0] if daemon is not None else ""
         emu_out = emu.communicate(timeout=30)[0]
     assert f"session over: all {n_frames} frames sent (--no-loop); stop the daemon; then handover score" in emu_out
+    assert read_script(script).ended  # written again once the whole session was sent: no event is left unplayed
     events = tmp_path / "events.jsonl"
     events.write_text(out)
     lines = [line for line in out.splitlines() if line.startswith("{")]
@@ -194,3 +195,36 @@ def test_a_script_out_naming_a_folder_leaves_no_temporary_file(tmp_path):
     with pytest.raises(IsADirectoryError):
         write_script(folder, rec)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scripts"]
+
+
+def test_a_capture_that_ends_before_the_script_counts_the_rest_as_not_played(tmp_path, capsys):
+    """Scoring while the session still plays: events after the last decision are not played yet (one
+    line says where the capture ends), not missed; once the emulator wrote the script again with the
+    whole session sent (``ended``), the same events are missed."""
+    from runtime.cli import main as handover
+
+    rec = simulate_session(demo_script(4, seed=1), seed=1)
+    first = rec.trials[0]
+    ms = session_script(rec).frame_ms
+    events = tmp_path / "events.jsonl"
+    events.write_text(json.dumps({"type": "decision", "class": first.action,
+                                  "device_time_ms": int(ms[first.extra["onset"] + 10])}) + "\n")
+    playing, over = tmp_path / "playing.script", tmp_path / "over.script"
+    write_script(playing, rec, loop=False, source="sim")
+    write_script(over, rec, loop=False, source="sim", ended=True)
+
+    assert handover(["score", str(events), str(playing), "--json"]) == 0
+    captured = capsys.readouterr()
+    got = json.loads(captured.out)
+    assert (got["events_expected"], got["events_correct"], got["events_missed"], got["events_not_played"]) == (1, 1, 0, 3)
+    line = captured.err.strip()
+    assert len(captured.err.splitlines()) == 1 and line.startswith(f"handover score: {events} ends at frame "
+                                                                   f"{first.extra['onset'] + 10} (its last decision)")
+    assert f"before the script's last event at frame {rec.trials[-1].extra['onset']}: 3 scripted events" in line
+    assert handover(["score", str(events), str(playing)]) == 0
+    assert "3 scripted events after it are counted as not played yet, not missed" in capsys.readouterr().out
+
+    assert handover(["score", str(events), str(over), "--json"]) == 0
+    captured = capsys.readouterr()
+    got = json.loads(captured.out)
+    assert (got["events_expected"], got["events_missed"], got["events_not_played"]) == (4, 3, 0) and not captured.err

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.emulator.script_file import ScriptFileError, read_script
-    from trainer.session_score import decisions_from_lines, outcome_summary, score, summary_lines
+    from trainer.session_score import decisions_from_lines, not_played_line, outcome_summary, score, summary_lines
 
     try:
         script = read_script(args.script)
@@ -56,7 +56,10 @@ def main(args: argparse.Namespace) -> int:
     o = score(decisions, script)
     summary = {"synthetic": script.synthetic, "decisions": len(decisions), "lines_skipped": skipped,
                "passes": o["passes"], **outcome_summary(o)}
+    unplayed = not_played_line(o, args.events)
     if args.json:
+        if unplayed:
+            print(f"handover score: {unplayed}", file=sys.stderr, flush=True)
         print(json.dumps(summary))
         return 0
     kind = "synthetic session" if script.synthetic else "session"
@@ -65,4 +68,6 @@ def main(args: argparse.Namespace) -> int:
           + (f"; {skipped} lines were not event lines" if skipped else "") + ")")
     for line in summary_lines(summary):
         print(line)
+    if unplayed:
+        print(f"  {unplayed}")
     return 0

@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from firmware_io.emulator.script_file import SessionScript
 from trainer.streams_eval import Decision, session_outcomes
 
-__all__ = ["decisions_from_lines", "outcome_summary", "score", "summary_lines"]
+__all__ = ["decisions_from_lines", "not_played_line", "outcome_summary", "score", "summary_lines"]
 
 
 def decisions_from_lines(lines: Iterable[str], script: SessionScript,
@@ -45,7 +45,9 @@ def decisions_from_lines(lines: Iterable[str], script: SessionScript,
 
 def score(decisions: list[tuple[int, Decision]], script: SessionScript) -> dict:
     """``session_outcomes`` over the passes the decisions fall in (a looping session repeats its
-    script; passes before the first and after the last decision were not watched)."""
+    script; passes before the first and after the last decision were not watched). Unless the
+    script says the session was sent whole, events that start after the last decision are
+    ``not_played`` (the capture ended while the session was still playing), not missed."""
     passes = sorted({loop for loop, _ in decisions}) or [0]
     n = len(script.frame_ms)
     first, last = passes[0], passes[-1]
@@ -53,9 +55,25 @@ def score(decisions: list[tuple[int, Decision]], script: SessionScript) -> dict:
                                   extra={**t.extra, "onset": int(t.extra.get("onset", t.first)) + p * n})
               for p in range(first, last + 1) for t in script.trials]
     flat = [dataclasses.replace(d, frame=d.frame + loop * n) for loop, d in decisions]
-    outcomes = session_outcomes(flat, trials)
+    end = max((d.frame for d in flat), default=None)
+    played = trials if end is None or script.ended else [t for t in trials if t.first <= end]
+    outcomes = session_outcomes(flat, played)
     outcomes["passes"] = last - first + 1
+    outcomes["not_played"] = len(trials) - len(played)
+    outcomes["capture_end"] = None if end is None else {"pass": end // n, "frame": end % n,
+                                                         "last_event_frame": int(trials[-1].extra["onset"]) % n}
     return outcomes
+
+
+def not_played_line(o: dict, events: str) -> str | None:
+    """One line when the capture ended before the script did (``score``'s ``not_played``)."""
+    if not o.get("not_played"):
+        return None
+    end = o["capture_end"]
+    where = f"frame {end['frame']}" + (f" of pass {end['pass'] + 1}" if o["passes"] > 1 else "")
+    return (f"{events} ends at {where} (its last decision), before the script's last event at frame "
+            f"{end['last_event_frame']}: {o['not_played']} scripted events after it are counted as not played yet, "
+            "not missed (the session was still playing; score again once it is over)")
 
 
 def outcome_summary(o: dict) -> dict:
@@ -65,6 +83,7 @@ def outcome_summary(o: dict) -> dict:
         "events_detected": o["detected"],
         "events_correct": o["correct"],
         "events_missed": o["missed"],
+        "events_not_played": o.get("not_played", 0),
         "false_events": o["outside"],
         "repeat_events": o["repeats"],
         "missed_events": o["missed_events"],

@@ -49,14 +49,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "its device times, for handover score EVENTS.jsonl FILE")
 
 
-def _write_script(args: argparse.Namespace, recording, emulator) -> None:
+def _write_script(args: argparse.Namespace, recording, emulator, ended: bool = False) -> None:
     """The session's script; until a host asks for frames its device times are not known yet
-    (``started: false``), and the file is written again when they are."""
+    (``started: false``), and the file is written again when they are, and once more when a
+    ``--no-loop`` session has been sent whole (``ended``: unanswered events were missed, not unplayed)."""
     from firmware_io.emulator.script_file import write_script
 
     start = emulator.session_clock_ms
     write_script(args.script_out, recording, args.clock_start if start is None else start, loop=not args.no_loop,
-                 source=str(args.source), started=start is not None)
+                 source=str(args.source), started=start is not None, ended=ended)
 
 
 def _interrupt(*_: object) -> None:
@@ -155,6 +156,11 @@ def main(args: argparse.Namespace) -> int:
                       flush=True)
             if end_due and emulator.finished:  # the host now only sees a stall: say the session is over
                 end_due = False
+                if args.script_out and not script_due:
+                    try:
+                        _write_script(args, recording, emulator, ended=True)
+                    except OSError as exc:
+                        return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
                 score = f"; then handover score EVENTS.jsonl {args.script_out}" if args.script_out else ""
                 print(f"session over: all {recording.n_frames} frames sent (--no-loop); stop the daemon{score}; "
                       "Ctrl-C ends the emulator", flush=True)

@@ -41,6 +41,9 @@ class SessionScript:
     clock_start_ms: int
     loop_ms: int | None
     synthetic: bool
+    ended: bool = False
+    """The emulator sent the whole session (``--no-loop``) before it wrote this: a scripted event no
+    report answers was missed. Otherwise events after the last report may not have been played yet."""
 
     def frame_of(self, device_time_ms: int) -> tuple[int, int]:
         """(pass, frame) of the frame stamped ``device_time_ms``: the first frame at or after it
@@ -62,12 +65,13 @@ def session_script(recording: Recording, clock_start_ms: int = 0, loop: bool = F
 
 
 def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: int = 0, loop: bool = False,
-                 source: str = "", started: bool = True) -> int:
+                 source: str = "", started: bool = True, ended: bool = False) -> int:
     """Write the script of ``recording`` to ``path`` (atomically: a reader never sees half a file);
     returns the number of scripted events. ``started``: ``clock_start_ms`` is known (the device time
-    of the session's first frame); a script written before is refused by ``read_script``."""
+    of the session's first frame); a script written before is refused by ``read_script``. ``ended``:
+    every frame of a non-looping session has been sent."""
     script = session_script(recording, clock_start_ms, loop)
-    header = {"type": "script", "protocol": SCRIPT_VERSION, "started": bool(started), "source": source,
+    header = {"type": "script", "protocol": SCRIPT_VERSION, "started": bool(started), "ended": bool(ended), "source": source,
               "synthetic": script.synthetic,
               "clock_start_ms": script.clock_start_ms, "loop_ms": script.loop_ms, "frames": len(script.frame_ms),
               "frame_ms": script.frame_ms.tolist()}
@@ -112,7 +116,8 @@ def read_script(path: str | os.PathLike) -> SessionScript:
                   for r in rows[1:] if isinstance(r, dict) and r.get("type") == "scripted"]
         frame_ms = np.asarray(head["frame_ms"], dtype=np.int64)
         loop_ms = None if head.get("loop_ms") is None else int(head["loop_ms"])
-        script = SessionScript(trials, frame_ms, int(head["clock_start_ms"]), loop_ms, bool(head.get("synthetic")))
+        script = SessionScript(trials, frame_ms, int(head["clock_start_ms"]), loop_ms, bool(head.get("synthetic")),
+                               ended=head.get("ended") is True)
     except (KeyError, TypeError, ValueError, OverflowError) as exc:  # OverflowError: 1e400, a 30-digit number
         raise ScriptFileError(f"{p}: a script line lacks or garbles {exc}; write it again with handover emulate "
                               "--script-out") from None
