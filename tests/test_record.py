@@ -191,6 +191,26 @@ def test_max_trials_then_rerun_completes(tmp_path, capsys):
     assert sorted(keys(Recording.load(tmp_path / "subject_s1.hrec"))) == sorted(KEYS)
 
 
+def test_resuming_with_another_plan_or_another_simulated_person_is_refused_in_one_line(tmp_path, capsys):
+    """--runs changed or another subject://?seed= under the same subject id would mix two protocols or two
+    people in one file: refused before anything is recorded, naming the difference; the original command resumes."""
+    path = tmp_path / "subject_s1.hrec"
+    assert record(tmp_path, "--auto", "--max-trials", "1") == 0
+    capsys.readouterr()
+    before = path.read_bytes()
+    for extra, device, said in ((["--runs", "2"], f"subject://?seed=3&speed={SPEED}", "recorded with --runs 1, not --runs 2"),
+                                (["--trial-seconds", "2.5"], f"subject://?seed=3&speed={SPEED}",
+                                 "recorded with --trial-seconds 2, not --trial-seconds 2.5"),
+                                ([], f"subject://?seed=4&speed={SPEED}", "recorded with subject://?seed=3, not seed=4")):
+        assert record(tmp_path, "--auto", *extra, device=device) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0] == (f"handover record: {path}: {said}: resume with the original options, "
+                                            "or record under a new --subject id"), err
+        assert path.read_bytes() == before
+    assert record(tmp_path, "--auto", device="subject://?seed=3&speed=max") == 0  # the playback speed is no plan
+    assert sorted(keys(Recording.load(path))) == sorted(KEYS)
+
+
 def test_redo_and_discard_from_the_prompt(tmp_path, monkeypatch, capsys):
     # trial 1: start, keep; trial 2: start, redo, start, keep; trial 3: start, discard; trial 4: start, keep
     answers = "\n\n" + "\nr\n\n\n" + "\nd\n" + "\n\n"

@@ -8,6 +8,7 @@ ends; running the same command again continues where the session stopped.
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import subprocess
 import sys
@@ -220,6 +221,8 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
         store = SessionStore.open(recording_path(args.out, args.subject), args.subject, layout)
     except (RecordingError, SessionError) as exc:
         return fail(COMMAND, str(exc))
+    if problem := _resume_problem(store.meta.get("sessions", []), plan, opts, client.url, args.idle_only):
+        return fail(COMMAND, f"{store.path}: {problem}")
     if subject is not None:
         store.meta["synthetic"] = True
 
@@ -255,6 +258,52 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     else:
         print(f"session complete: {_saved(store)}{flagged}")
     return 0
+
+
+PLAN_OPTIONS = (("poses", "--poses"), ("objects", "--objects"), ("actions", "--actions"), ("runs", "--runs"),
+                ("trial_seconds", "--trial-seconds"), ("lead_in_seconds", "--lead-in"))
+"""What a subject's trials are (the stored session's key, its option): a resumed session must keep them, or
+its trials would mix two protocols (or two simulated people) under one subject id."""
+
+
+def _resume_problem(sessions: list, plan, opts, device: str, idle_only: bool = False) -> str | None:
+    """Why resuming a subject's file with these options would change its session (one line), else None.
+    Idle stretches may be added with other idle options; a real device may move to another port."""
+    stored = next((s for s in sessions if isinstance(s, dict) and isinstance(s.get("protocol"), dict)), None)
+    given = {**plan.to_dict(), "trial_seconds": opts.trial_seconds, "lead_in_seconds": opts.lead_in_seconds}
+    diffs = []
+    if stored is not None and not idle_only:
+        was = {**stored["protocol"], **{k: stored.get(k) for k in ("trial_seconds", "lead_in_seconds")}}
+        for key, option in PLAN_OPTIONS:
+            old, new = was.get(key), given[key]
+            if old is None:
+                continue
+            if isinstance(new, list):
+                same, old_text, new_text = list(old) == new, ",".join(map(str, old)), ",".join(new)
+            else:
+                same, old_text, new_text = math.isclose(float(old), float(new)), f"{old:g}", f"{new:g}"
+            if not same:
+                diffs.append((f"{option} {old_text}", f"{option} {new_text}"))
+    old_seed = next((_subject_seed(s.get("device")) for s in sessions if isinstance(s, dict)
+                     and _subject_seed(s.get("device")) is not None), None)
+    new_seed = _subject_seed(device)
+    if old_seed is not None and new_seed is not None and old_seed != new_seed:
+        diffs.append((f"subject://?seed={old_seed}", f"seed={new_seed}"))
+    if not diffs:
+        return None
+    return ("recorded with " + ", ".join(o for o, _ in diffs) + ", not " + ", ".join(n for _, n in diffs)
+            + ": resume with the original options, or record under a new --subject id")
+
+
+def _subject_seed(url: object) -> str | None:
+    """The simulated person of a ``subject://`` URL (its seed, default 0), None for any other device."""
+    from urllib.parse import parse_qs, urlsplit
+
+    from firmware_io.transports.emulated import SUBJECT_SCHEME
+
+    if not isinstance(url, str) or not url.startswith(f"{SUBJECT_SCHEME}://"):
+        return None
+    return parse_qs(urlsplit(url).query).get("seed", ["0"])[0]
 
 
 def _saved(store) -> str:
