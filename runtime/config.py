@@ -353,19 +353,8 @@ def _early_within_events(v: dict) -> None:
                           f"({', '.join(v['events'])}); list only reported events")
 
 
-def _continuous_window(v: dict) -> None:
-    """The rule's own constraints (runtime/decision.py), said as a config error naming the keys."""
-    if v["within_frames"] and v["within_frames"] < v["confirm_frames"]:
-        raise ConfigError(f"continuous.within_frames: must be 0 (wins in a row) or >= continuous.confirm_frames "
-                          f"({v['confirm_frames']})")
-    if v["within_frames"] and (v["gap_frames"] or v["vote"]):
-        raise ConfigError("continuous.within_frames: counts wins in a window; gap_frames and vote need runs in a "
-                          "row: set within_frames = 0 to use them")
-
-
 _SECTION_CHECKS: dict[str, tuple[Callable[[dict], None], ...]] = {
     "device": (_reconnect_order,), "trigger": (_hysteresis_below_fraction,), "scene": (_early_within_events,),
-    "continuous": (_continuous_window,),
 }
 """Checks of one key against another, after the section's keys were read."""
 

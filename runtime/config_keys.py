@@ -151,8 +151,8 @@ KEYS: tuple[Key, ...] = (
     Key("trigger.settle_change", float, 0.02, "onset: settled = no pad changed by this share of its level from one "
         "frame to the next for settle_s", range=(0.0, 1.0), recorded=True, config=False),
 
-    Key("continuous.confirm_frames", int, 10, "a class is reported after winning this many frames in a row (or "
-        "within within_frames)", range=(1, 1000)),
+    Key("continuous.confirm_frames", int, 10, "a class is reported after winning this many frames in a row",
+        range=(1, 1000)),
     Key("continuous.min_margin", float, 0.0, "... each by this score margin over the runner-up (0 = any win)",
         range=(0.0, 1000.0)),
     Key("continuous.rearm_frames", int, 16, "next report only after dormant won this many frames in a row (0 = report "
@@ -161,8 +161,6 @@ KEYS: tuple[Key, ...] = (
         "dormant)", range=(0, 1000)),
     Key("continuous.vote", bool, False, "true: a run is any non-dormant class; the class that won most of its frames "
         "is reported"),
-    Key("continuous.within_frames", int, 0, "0: confirm_frames wins in a row; N: confirm_frames wins among the last N "
-        "frames (N >= confirm_frames; not with gap_frames or vote)", range=(0, 1000)),
 
     Key("sinks.stdout", bool, True, "JSON lines on stdout (journald)"),
     Key("sinks.udp", tuple, (), "host:port targets, one JSON datagram per event", example=("127.0.0.1:5005",)),

@@ -15,14 +15,7 @@ again on every flicker. The rule here, per frame and in O(n_classes) scalar work
 - ``gap_frames``: up to this many dormant frames in a row do not break a run (a person holding the
   object still reads as dormant now and then: hold flickers with dormant);
 - ``vote``: the run is any non-dormant class, and the class reported is the one that won most of
-  its frames (the latest on a tie): pull and push flicker in the first frames of either;
-- ``within_frames`` (M-of-N confirmation, as radar trackers confirm a track): instead of a run in a
-  row, a class is confirmed when it has won ``confirm_frames`` of the last ``within_frames`` frames
-  (0 = in a row). A run in a row breaks on a single flickered frame, so an action the model reads
-  as itself most of the time, with dormant or a neighbouring class in between (a hold flickering
-  with dormant, a pull with push), may never be confirmed; counting wins in a window still needs
-  ``confirm_frames`` wins, so a short blip is not confirmed either. ``gap_frames`` and ``vote``
-  describe runs in a row and cannot be combined with it.
+  its frames (the latest on a tie): pull and push flicker in the first frames of either.
 """
 
 from __future__ import annotations
@@ -36,7 +29,7 @@ class ContinuousDecision:
     """Per-frame labels and scores in, the class index to report (or -1) out."""
 
     def __init__(self, n_classes: int, dormant: int, confirm_frames: int = 1, min_margin: float = 0.0,
-                 rearm_frames: int = 0, gap_frames: int = 0, vote: bool = False, within_frames: int = 0) -> None:
+                 rearm_frames: int = 0, gap_frames: int = 0, vote: bool = False) -> None:
         if not 0 <= dormant < n_classes:
             raise ValueError(f"dormant class index {dormant} is not one of {n_classes} classes")
         if confirm_frames < 1:
@@ -47,11 +40,6 @@ class ContinuousDecision:
             raise ValueError("rearm_frames must be >= 0")
         if gap_frames < 0:
             raise ValueError("gap_frames must be >= 0")
-        if within_frames and within_frames < confirm_frames:
-            raise ValueError("within_frames must be 0 (in a row) or >= confirm_frames")
-        if within_frames and (gap_frames or vote):
-            raise ValueError("within_frames counts wins in a window; gap_frames and vote need runs in a row "
-                             "(set within_frames = 0 or gap_frames = 0 and vote = false)")
         self.n_classes = int(n_classes)
         self.dormant = int(dormant)
         self.confirm_frames = int(confirm_frames)
@@ -59,10 +47,7 @@ class ContinuousDecision:
         self.rearm_frames = int(rearm_frames)
         self.gap_frames = int(gap_frames)
         self.vote = bool(vote)
-        self.within_frames = int(within_frames)
         self._votes = [0] * self.n_classes
-        self._recent = [-1] * self.within_frames
-        """The last ``within_frames`` frames' winners (-1: below the margin), a ring at ``_pos``."""
         self.reset()
 
     def reset(self) -> None:
@@ -74,9 +59,6 @@ class ContinuousDecision:
         self.last_reported = -1
         self.margin = 0.0
         self._clear_votes()
-        for k in range(self.within_frames):
-            self._recent[k] = -1
-        self._pos = 0
 
     def _clear_votes(self) -> None:
         votes = self._votes
@@ -85,8 +67,6 @@ class ContinuousDecision:
 
     def update(self, label: int, scores: np.ndarray | None = None) -> int:
         """One frame's decision (``scores``: that frame's score per class); the class to report, or -1."""
-        if self.within_frames:
-            return self._update_within(label, scores)
         if label == self.dormant:
             self.dormant_run += 1
             if self.dormant_run > self.gap_frames:
@@ -118,39 +98,6 @@ class ContinuousDecision:
         if self.rearm_frames > 0:
             self.armed = False
         return label
-
-    def _update_within(self, label: int, scores: np.ndarray | None) -> int:
-        """M-of-N: ``_votes`` counts each class's wins among the last ``within_frames`` frames."""
-        won = label
-        if label != self.dormant and self.min_margin > 0.0:
-            self.margin = margin_of(scores, label)
-            if self.margin < self.min_margin:
-                won = -1
-        votes = self._votes
-        before = votes[won] if won >= 0 else 0
-        old = self._recent[self._pos]
-        if old >= 0:
-            votes[old] -= 1
-        self._recent[self._pos] = won
-        self._pos = (self._pos + 1) % self.within_frames
-        if won >= 0:
-            votes[won] += 1
-        if label == self.dormant:
-            self.dormant_run += 1
-            if self.dormant_run >= self.rearm_frames:
-                self.armed = True
-                self.last_reported = -1
-            return -1
-        self.dormant_run = 0
-        # confirmed on the frame its count reaches confirm_frames (not again while it stays there)
-        if won < 0 or before >= self.confirm_frames or votes[won] < self.confirm_frames:
-            return -1
-        if not self.armed or won == self.last_reported:
-            return -1
-        self.last_reported = won
-        if self.rearm_frames > 0:
-            self.armed = False
-        return won
 
     def _break_run(self) -> None:
         if self.run:

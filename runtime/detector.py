@@ -470,8 +470,7 @@ class Detector:
                 cc = self.continuous
                 self._continuous = ContinuousDecision(
                     len(meta.classes), list(meta.classes).index(meta.dormant_class), confirm_frames=cc.confirm_frames,
-                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames, gap_frames=cc.gap_frames, vote=cc.vote,
-                    within_frames=cc.within_frames)
+                    min_margin=cc.min_margin, rearm_frames=cc.rearm_frames, gap_frames=cc.gap_frames, vote=cc.vote)
             return
         self.trigger = build_trigger(*inputs)
         if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:

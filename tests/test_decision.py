@@ -82,8 +82,6 @@ def test_margin_is_winner_minus_runner_up_and_leaves_the_scores_alone():
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"dormant": 5}, "dormant"), ({"confirm_frames": 0}, "confirm_frames"),
     ({"min_margin": -1.0}, "min_margin"), ({"rearm_frames": -1}, "rearm_frames"),
-    ({"confirm_frames": 5, "within_frames": 4}, "within_frames"), ({"within_frames": 8, "gap_frames": 1}, "gap_frames"),
-    ({"within_frames": 8, "vote": True}, "vote"),
 ])
 def test_bad_parameters_are_refused(kwargs, message):
     args = {"n_classes": 5, "dormant": D, **kwargs}
@@ -139,52 +137,3 @@ def test_gap_and_vote_off_is_the_rule_as_documented():
                 last = i
         assert len(expected) > 5
         assert _reports(ContinuousDecision(5, D, confirm, margin, rearm), labels, margins) == expected
-
-
-def test_wins_within_a_window_confirm_a_flickering_hold_but_not_a_blip():
-    flicker = [HOLD, D, HOLD, HOLD, D, HOLD, D, HOLD, HOLD] + [D] * 10
-    assert _reports(ContinuousDecision(5, D, confirm_frames=5, rearm_frames=4), flicker) == []
-    assert _reports(ContinuousDecision(5, D, confirm_frames=5, rearm_frames=4, within_frames=8), flicker) == [(7, HOLD)]
-    blip = [D] * 5 + [HOLD] * 4 + [D] * 5 + [PULL, PUSH, PULL, PUSH, PULL, PUSH] + [D] * 5
-    assert _reports(ContinuousDecision(5, D, confirm_frames=5, within_frames=8), blip) == []
-
-
-def test_a_window_reports_when_the_count_reaches_confirm_not_while_it_stays_there():
-    rule = ContinuousDecision(5, D, confirm_frames=4, within_frames=8)  # rearm 0: only a change re-reports
-    labels = [HOLD] * 8 + [D] + [HOLD] * 8 + [D] * 8 + [HOLD] * 4
-    assert _reports(rule, labels) == [(3, HOLD), (28, HOLD)]
-    rule.reset()
-    assert _reports(rule, [HOLD] * 3) == [] and rule.update(HOLD, _scores(HOLD, 1)) == HOLD
-
-
-def _window_reference(labels, margins, confirm: int, margin: float, rearm: int, within: int) -> list[tuple[int, int]]:
-    """The window rule written out: a class reaches ``confirm`` wins (with the margin) among the last
-    ``within`` frames on this frame, and an interaction ended since the last report (as the run rule)."""
-    won = [k if k == D or margins[i] >= margin else -1 for i, k in enumerate(labels)]
-    out, armed, last, dormant_run = [], True, -1, 0
-    for i, k in enumerate(labels):
-        if k == D:
-            dormant_run += 1
-            if dormant_run >= rearm:
-                armed, last = True, -1
-            continue
-        dormant_run = 0
-        if won[i] < 0:
-            continue
-        now = won[max(0, i - within + 1):i + 1].count(k)
-        before = won[max(0, i - within):i].count(k)
-        if now >= confirm > before and armed and k != last:
-            out.append((i, k))
-            last, armed = k, rearm == 0
-    return out
-
-
-def test_the_window_rule_is_the_rule_as_documented():
-    rng = np.random.default_rng(5)
-    labels = rng.choice([D, D, D, PULL, PUSH, HOLD, HOLD, HOLD, BUMP], size=3000).tolist()
-    margins = rng.uniform(0, 2, size=3000)
-    for confirm, margin, rearm, within in ((3, 0.0, 0, 5), (4, 0.5, 2, 8), (5, 0.0, 4, 12), (2, 1.0, 1, 2)):
-        expected = _window_reference(labels, margins, confirm, margin, rearm, within)
-        assert len(expected) > 5
-        got = _reports(ContinuousDecision(5, D, confirm, margin, rearm, within_frames=within), labels, margins)
-        assert got == expected

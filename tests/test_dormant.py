@@ -213,7 +213,6 @@ def test_continuous_replay_with_the_plain_rule_reports_exactly_the_changes(model
 @pytest.mark.parametrize("rule", [
     {"confirm_frames": 3, "min_margin": 0.0, "rearm_frames": 6},
     {"confirm_frames": 2, "min_margin": 0.5, "rearm_frames": 0},
-    {"confirm_frames": 3, "min_margin": 0.0, "rearm_frames": 6, "within_frames": 5},  # wins within a window
     {},  # the config defaults
 ])
 def test_continuous_replay_matches_the_offline_rule(models, short_mixed, rule):

@@ -192,7 +192,7 @@ def apply_rule(labels: np.ndarray, scores: np.ndarray, model_meta, rule: dict | 
     classes = list(model_meta.classes)
     events = {i for i, c in enumerate(classes) if c != model_meta.dormant_class}
     dec = ContinuousDecision(len(classes), classes.index(model_meta.dormant_class), cc.confirm_frames,
-                             cc.min_margin, cc.rearm_frames, cc.gap_frames, cc.vote, cc.within_frames)
+                             cc.min_margin, cc.rearm_frames, cc.gap_frames, cc.vote)
     start = int(model_meta.T) - 1 if first_frame is None else first_frame
     out = []
     for i in range(len(labels)):

@@ -11,11 +11,9 @@ from __future__ import annotations
 import itertools
 
 GRID = {"confirm_frames": (4, 6, 8, 10, 12), "min_margin": (0.0, 0.5), "rearm_frames": (0, 4, 16),
-        "gap_frames": (0, 1, 2, 4), "vote": (False, True), "within_frames": (0,)}
-"""Rules tried (``vote`` and ``gap_frames``: runtime/decision.py): wins in a row. Wins counted within a window
-(``within_frames`` > 0) won on this criterion but were not adopted (docs/DORMANT.md, results/streams_within.md)."""
-PREVIOUS = {"confirm_frames": 8, "min_margin": 0.0, "rearm_frames": 4, "gap_frames": 0, "vote": False,
-            "within_frames": 0}
+        "gap_frames": (0, 1, 2, 4), "vote": (False, True)}
+"""Rules tried (``vote`` and ``gap_frames``: runtime/decision.py)."""
+PREVIOUS = {"confirm_frames": 8, "min_margin": 0.0, "rearm_frames": 4, "gap_frames": 0, "vote": False}
 """The rule shipped before this choice (chosen for an earlier model, results/dormant.md): shown for comparison."""
 RULE_EVENTS = 200
 """Events in the rule's validation mixed stream: 60 hold too few holds (15) to tell rules apart."""
