@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import signal
 import socket
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -57,15 +55,3 @@ def run_until(daemon: Daemon, condition, timeout: float = 15.0) -> None:
 
     threading.Thread(target=watch, daemon=True).start()
     daemon.run()
-
-
-def sigterm_seconds(proc: subprocess.Popen) -> float:
-    """Send SIGTERM; seconds until the process ended (killed, and the test failed, after 10 s)."""
-    start = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
-    return time.monotonic() - start

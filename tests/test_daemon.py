@@ -28,6 +28,7 @@ from runtime.detector import Detector
 from runtime.listeners import FrameRecorder
 from runtime.sinks import Event
 from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
+from tests.waiting import sigterm_seconds
 
 pytest.importorskip("onnx")
 ROOT = Path(__file__).resolve().parents[1]
@@ -246,14 +247,6 @@ def _notified_run(cfg: Path, notify_socket: str, watchdog_usec: int) -> subproce
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _sigterm_seconds(proc: subprocess.Popen) -> float:
-    """SIGTERM, then how long the daemon took to end (at most 10 s)."""
-    t0 = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    proc.wait(timeout=10)
-    return time.monotonic() - t0
-
-
 def _wait_for(sock: socket.socket, needle: str, timeout: float, seen: list[str]) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -293,7 +286,7 @@ def test_service_notify_reload_and_sigterm(models, tmp_path):
         cfg.write_text(text)
         proc.send_signal(signal.SIGHUP)
         time.sleep(0.5)
-        stop_s = _sigterm_seconds(proc)
+        stop_s = sigterm_seconds(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -404,7 +397,7 @@ def test_sigterm_while_connecting_to_a_silent_device(models, tmp_path):
         during: list[str] = []
         assert _wait_for(sock, "WATCHDOG=1", 1.0, during), during  # fed while the open waits
         time.sleep(0.5)  # well inside the open's stop retries (1 s gap timeout each)
-        stop_s = _sigterm_seconds(proc)
+        stop_s = sigterm_seconds(proc)
     finally:
         if proc.poll() is None:
             proc.kill()

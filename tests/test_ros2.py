@@ -27,7 +27,8 @@ import pytest
 from runtime.config import Ros2Config
 from runtime.daemon import Daemon
 from runtime.sinks import ModelAnnouncement
-from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, sigterm_seconds, udp_socket, wait_for
+from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket, wait_for
+from tests.waiting import sigterm_seconds
 
 pytest.importorskip("onnx")
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not installed: the ros extra (./dev test installs it)")
