@@ -37,9 +37,9 @@ from runtime.early import NEVER, EarlySpec
 from trainer.dormant import DORMANT
 
 __all__ = [
-    "EARLY_POINTS", "RULE", "TARGET_LOSS", "EarlyHeads", "Fits", "RuleChoice", "answers", "cascade", "case_kinds",
+    "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "RuleChoice", "answers", "cascade", "case_kinds",
     "choose_rule", "confidences", "earliness_score", "evaluate", "fit_early", "fit_stream_heads", "head_factory",
-    "platt"
+    "platt", "rule_in_words"
 ]
 
 EARLY_POINTS = (4, 6, 8, 11)
@@ -47,11 +47,6 @@ EARLY_POINTS = (4, 6, 8, 11)
 TARGET_LOSS = 0.02
 """The rule may lose at most this much accuracy against the full window (cross-validated), on every
 kind of case (``case_kinds``)."""
-RULE = ("the early report rule (threshold on the calibrated confidence, agree or not) with the fewest mean frames "
-        "whose leave-one-subject-out accuracy inside the training data stays within TARGET_LOSS of the full "
-        "window's on the action cases and, with a dormant class, on the dormant cases (a dormant window "
-        "answered with an action is a false event)")
-"""The rule in words, for the reports that state it (trainer.early_report, the streams_own bench)."""
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999)
 """The grid of calibrated-confidence thresholds the rule is chosen from (and ``NEVER``: all at T)."""
 
@@ -199,6 +194,14 @@ def case_kinds(truth: np.ndarray, dormant: int = -1) -> dict[str, np.ndarray]:
     if dormant >= 0 and (~actions).any():
         kinds["dormant"] = ~actions
     return kinds
+
+
+def rule_in_words(target_loss: float = TARGET_LOSS) -> str:
+    """The rule in words, for the reports that state it (trainer.early_report, the streams_own bench)."""
+    return ("the early report rule (threshold on the calibrated confidence, agree or not) with the fewest mean "
+            f"frames whose leave-one-subject-out accuracy inside the training data stays within {target_loss:.0%} "
+            "of the full window's on the action cases and, with a dormant class, on the dormant cases (a dormant "
+            "window answered with an action is a false event)")
 
 
 def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth: np.ndarray,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trainer.early import RULE
+from trainer.early import rule_in_words
 
 __all__ = ["markdown_lines", "plot_curve"]
 
@@ -22,7 +22,7 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
              f"Heads of the default kind at {', '.join(map(str, points[:-1]))} frames after the window's start, the "
              f"full model at {points[-1]}. The rule in the model file: report when the calibrated confidence reaches "
              f"{rule['threshold']:g}{' and the head agrees with the previous one' if rule['agree'] else ''} (chosen as "
-             f"{RULE.replace('TARGET_LOSS', format(ev['target_loss'], '.0%'))}). Nested leave-one-subject-out{tag}: each outer fold's rule was chosen inside its "
+             f"{rule_in_words(ev['target_loss'])}). Nested leave-one-subject-out{tag}: each outer fold's rule was chosen inside its "
              "training part, never on the held-out subject.", "",
              "| class | " + " | ".join(f"{p} frames" for p in points) + " | rule: accuracy | rule: mean frames |",
              "|---|" + "---:|" * (len(points) + 2)]

@@ -27,6 +27,7 @@ from pathlib import Path
 from firmware_io.sim.constants import FRAME_PERIOD_S
 from trainer import streams_eval as se
 from trainer.bench.common import command_line, load_average, machine_info, write_results
+from trainer.early import rule_in_words
 
 NAME = "streams_own"
 SUBJECT_SEEDS = (10, 11, 12)
@@ -218,7 +219,7 @@ def run(args) -> dict:
                   "loso_accuracy": metrics.get("loso_accuracy"),
                   "early_rule": {k: v for k, v in ((metrics.get("early") or {}).get("rule") or {}).items()
                                  if k != "calibration"} or None},
-        "early_rule_criterion": early_rule_criterion(),
+        "early_rule_criterion": rule_in_words(),
         "held_out_replay": metrics.get("own_replay"),
         "validation": val, "test": test, "demo": demo, "real": real,
         "demo_model_idle_false_events_per_hour": _demo_model_figure(args.out),
@@ -230,13 +231,6 @@ def run(args) -> dict:
     write_results(args.out, NAME, out, markdown(out))
     carry_into_streams(Path(args.out), out)
     return out
-
-
-def early_rule_criterion() -> str:
-    """How ``handover train`` chose the own model's early report rule (trainer.early.RULE)."""
-    from trainer.early import RULE, TARGET_LOSS
-
-    return RULE.replace("TARGET_LOSS", f"{TARGET_LOSS:.0%}")
 
 
 def _demo_model_figure(out: str) -> float | None:
