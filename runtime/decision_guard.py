@@ -74,7 +74,7 @@ class DecisionGuard:
             return
         if model.ended is None:
             limit = self.limit()
-            cpu = model.decision_cpu_s() if hasattr(model, "decision_cpu_s") else None
+            cpu = model.decision_cpu_s()
             if cpu is not None and cpu > limit:
                 reason = (f"a decision computed for longer than {limit * 1e3:.1f} ms (the stream's period) and was "
                           f"ended from outside (a graph that hangs on real frames?)")
