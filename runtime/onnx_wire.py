@@ -297,7 +297,7 @@ def keep_outputs(model_bytes: bytes, outputs: tuple[str, ...]) -> bytes:
     if graph is None:
         raise WireError("no graph in the model")
     items = list(_fields(graph))
-    names = {_first_string(v, 1) for n, v in _nested(graph) if n == 12}
+    names = {_first_string(v, 1) for n, t, v in items if n == 12 and t == 2}
     missing = [o for o in outputs if o not in names]
     if missing:
         raise WireError(f"the graph has no output {missing[0]!r}")
