@@ -157,7 +157,7 @@ KEYS: tuple[Key, ...] = (
         range=(0.0, 1000.0)),
     Key("continuous.rearm_frames", int, 16, "next report only after dormant won this many frames in a row (0 = report "
         "every change of the confirmed class)", range=(0, 100000)),
-    Key("continuous.gap_frames", int, 0, "dormant frames in a row that do not break a run (a hold flickers with "
+    Key("continuous.gap_frames", int, 1, "dormant frames in a row that do not break a run (a hold flickers with "
         "dormant)", range=(0, 1000)),
     Key("continuous.vote", bool, False, "true: a run is any non-dormant class; the class that won most of its frames "
         "is reported"),

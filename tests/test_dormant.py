@@ -133,6 +133,17 @@ def test_action_window_positions():
     assert len(dormant.action_starts(onset=90, n_frames=95, T=15)) == 0
 
 
+def test_ramp_windows_follow_the_hold_grip_after_the_onset_windows(monkeypatch):
+    monkeypatch.setattr(dormant, "RAMP_WINDOWS", {"hold": (3, 12)})
+    rng = np.random.default_rng(0)
+    starts = dormant.ramp_starts("hold", onset=30, n_frames=95, T=15, rng=rng)
+    assert len(starts) == len(set(starts)) == 3
+    assert all(30 + dormant.ACTION_LATE_MAX < s <= 30 + 12 for s in starts), "after the onset windows, within the ramp"
+    assert dormant.ramp_starts("pull", onset=30, n_frames=95, T=15, rng=rng) == []
+    assert dormant.ramp_starts("hold", onset=30, n_frames=30 + 5 + 15, T=15, rng=rng) == [35], "cut by the trial's end"
+    assert dormant.ramp_starts("hold", onset=90, n_frames=95, T=15, rng=rng) == []
+
+
 def test_dormant_dataset(dds, protocol):
     assert dds.X.shape[1:] == (len(DISTAL), 15) and dds.X.dtype == np.float32
     assert set(dds.y) == {"pull", "push", "hold", "bump", "dormant"}

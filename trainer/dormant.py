@@ -33,9 +33,9 @@ from trainer.dataset import fingerprint
 from trainer.defaults import PAPER_MODEL, paper_classifier
 
 __all__ = [
-    "ACTION_LATE_MAX", "ACTION_VIEW_MIN", "DORMANT", "IDLE_FOLDS", "TRANSITION_VISIBLE", "DormantDataset",
-    "action_starts", "build_dormant_dataset", "export", "fit_stream_model", "idle_windows", "in_view",
-    "leave_one_subject_out", "session_windows", "train", "trigger_windows"
+    "ACTION_LATE_MAX", "ACTION_VIEW_MIN", "DORMANT", "IDLE_FOLDS", "RAMP_WINDOWS", "TRANSITION_VISIBLE",
+    "DormantDataset", "action_starts", "build_dormant_dataset", "export", "fit_stream_model", "idle_windows", "in_view",
+    "leave_one_subject_out", "ramp_starts", "session_windows", "train", "trigger_windows"
 ]
 
 DORMANT = "dormant"
@@ -43,6 +43,11 @@ ACTION_VIEW_MIN = 7
 """An action window shows at least this many frames from the onset (about half of T = 15)."""
 ACTION_LATE_MAX = 4
 """... and starts at most this many frames after the onset."""
+RAMP_WINDOWS: dict[str, tuple[int, int]] = {"hold": (2, 10)}
+"""Per action, (n, last): n more windows per trial starting ACTION_LATE_MAX + 1 .. last frames after
+the onset. A hold's grip ramps for 0.5-0.9 s; without them a continuously classifying model meets
+the ramp's windows unlabelled and reads them as dormant. Chosen on validation streams
+(results/streams.md, "The stream model's ramp windows")."""
 WINDOWS_PER_TRIAL = 3
 IDLE_WINDOWS_PER_SOURCE = 250
 IDLE_FOLDS = 5
@@ -97,6 +102,15 @@ def action_starts(onset: int, n_frames: int, T: int) -> np.ndarray:
     return np.arange(lo, hi + 1) if hi >= lo else np.zeros(0, dtype=np.int64)
 
 
+def ramp_starts(action: str, onset: int, n_frames: int, T: int, rng: np.random.Generator) -> list[int]:
+    """RAMP_WINDOWS' later window starts for one trial of ``action`` (none for an action without them)."""
+    n, last = RAMP_WINDOWS.get(action, (0, 0))
+    lo, hi = onset + ACTION_LATE_MAX + 1, min(n_frames - T, onset + last)
+    if not n or hi < lo:
+        return []
+    return list(rng.choice(np.arange(lo, hi + 1), size=min(n, hi - lo + 1), replace=False))
+
+
 def protocol_windows(recordings: Sequence[Recording], cols: np.ndarray, T: int, rng: np.random.Generator,
                      per_trial: int = WINDOWS_PER_TRIAL) -> tuple[list, list, list, list]:
     """Action windows around each onset and one dormant window ending just before it."""
@@ -108,7 +122,9 @@ def protocol_windows(recordings: Sequence[Recording], cols: np.ndarray, T: int, 
                 continue
             frames = rec.frames[trial.first:trial.last + 1, cols]
             starts = action_starts(onset, len(frames), T)
-            for s in rng.choice(starts, size=min(per_trial, len(starts)), replace=False) if len(starts) else ():
+            picked = list(rng.choice(starts, size=min(per_trial, len(starts)), replace=False)) if len(starts) else []
+            picked += ramp_starts(trial.action, onset, len(frames), T, rng)
+            for s in picked:
                 X.append(frames[s:s + T].T)
                 y.append(trial.action)
                 groups.append(trial.subject)
