@@ -170,6 +170,9 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         "it is reported only if the model has such a class"
         for e in sections["scene"].events if e not in KNOWN_EVENTS
     ]
+    if sections["scene"].mode == "continuous" and sections["scene"].early_events is not None:
+        warnings.append("scene.early_events: has no effect in continuous mode (every frame is classified, "
+                        "no window waits for its full length); remove it or set scene.mode = \"trigger\"")
     return Config(**sections, **top, warnings=tuple(warnings))
 
 

@@ -159,6 +159,9 @@ def test_scene_early_events_keeps_the_others_for_the_full_window(early_model):
 
     with pytest.raises(ConfigError, match=r"scene\.early_events: 'wave' not in scene\.events"):
         config_from_dict({"scene": {"early_events": ["wave"]}})
+    said = config_from_dict({"scene": {"mode": "continuous", "early_events": ["pull"]}}).warnings
+    assert [w for w in said if w.startswith("scene.early_events: has no effect in continuous mode")]
+    assert not config_from_dict({"scene": {"early_events": ["pull"]}}).warnings, "trigger mode uses it"
     path, *_ = early_model
     model = load_model(path)
     session = simulate_session(demo_script(8, seed=5), seed=5)
