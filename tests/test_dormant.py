@@ -150,6 +150,9 @@ def test_dormant_dataset(dds, protocol):
     s = dds.summary()
     assert s["per_origin"]["pre_onset"] > 0 and s["per_origin"]["idle:quiet"] == 30
     assert all(dds.y[dds.origin != "action"] == "dormant")
+    n_hold, extra = s["per_class"]["hold"], dormant.RAMP_WINDOWS["hold"][0]
+    assert n_hold == s["per_class"]["pull"] * (dormant.WINDOWS_PER_TRIAL + extra) // dormant.WINDOWS_PER_TRIAL, \
+        "every hold trial adds its ramp windows"
     idle_groups = set(dds.groups[np.char.startswith(dds.origin, "idle")].tolist())
     assert idle_groups <= {f"idle{i}" for i in range(dormant.IDLE_FOLDS)} and len(idle_groups) > 1
     # a pre-onset window is the grasp alone: it matches frames that end before the onset

@@ -108,7 +108,7 @@ def ramp_starts(action: str, onset: int, n_frames: int, T: int, rng: np.random.G
     lo, hi = onset + ACTION_LATE_MAX + 1, min(n_frames - T, onset + last)
     if not n or hi < lo:
         return []
-    return list(rng.choice(np.arange(lo, hi + 1), size=min(n, hi - lo + 1), replace=False))
+    return [int(s) for s in rng.choice(np.arange(lo, hi + 1), size=min(n, hi - lo + 1), replace=False)]
 
 
 def protocol_windows(recordings: Sequence[Recording], cols: np.ndarray, T: int, rng: np.random.Generator,
