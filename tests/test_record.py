@@ -262,9 +262,8 @@ def test_never_triggered_trial_is_flagged_and_repeated(tmp_path, capsys):
     shown: list[str] = []
     result = run_session(client, store, PLAN, auto_opts(retries=1), SessionIO(show=shown.append, cue=subject.cue))
     client.close()
-    assert any("never reached the trigger level" in s for s in shown)
-    # the level is the paper's threshold; the trainer's default onset trigger may still cut a case there
-    assert any("the default onset trigger may" in s for s in shown)
+    # without a case_check the paper's level decides
+    assert any("training gets no case from this trial (never reached 15% of full scale)" in s for s in shown)
     rec = Recording.load(store.path)
     assert sorted(keys(rec)) == sorted(KEYS)
     assert rec.trials[0].extra["attempt"] == 2 and rec.trials[0].extra["scripted_subject"]["acted"]
@@ -281,6 +280,19 @@ def test_never_triggered_trial_kept_flagged_without_retries(tmp_path):
     assert 1 in flagged_trials(rec) and 1 in result.flagged
     lazy = rec.trials[1].extra  # held the placed object (some pressure), never acted
     assert 0 < lazy["peak_fraction"] < lazy["trigger_fraction"] and not lazy["scripted_subject"]["acted"]
+
+
+def test_with_the_trainers_cut_a_trial_nobody_acted_in_is_flagged_with_its_reason(tmp_path):
+    from trainer.dataset import NEVER, case_check
+
+    subject = ScriptedSubject(seed=3, speed=SPEED, lazy=[2])
+    client, store = open_session(tmp_path, subject)
+    result = run_session(client, store, PLAN, auto_opts(case_check=case_check()), SessionIO(cue=subject.cue))
+    client.close()
+    rec = Recording.load(store.path)
+    assert result.flagged == flagged_trials(rec) == [1], "only the trial nobody acted in"
+    assert rec.trials[1].extra["no_case"].startswith(NEVER)
+    assert all(t.extra["no_case"] is None for i, t in enumerate(rec.trials) if i != 1)
 
 
 def test_link_drop_mid_trial_reconnects_and_records_the_trial_again(tmp_path):
@@ -345,8 +357,10 @@ def test_recorded_files_assemble_into_a_dataset(tmp_path):
     _two_subjects(tmp_path, runs=1)
     ds, recs = load_dataset(tmp_path)
     assert ds.n_trials == 8 and set(ds.groups) <= {"s1", "s2"}
-    assert len(ds.y) == sum(t.extra["triggered"] for r in recs for t in r.trials) - sum(
-        1 for s in ds.untriggered if s.reason.startswith("triggered too late"))
+    # handover record checks each trial with the trainer's own cut: its flags are what training drops, and why
+    no_case = [t.extra["no_case"] for r in recs for t in r.trials if t.extra["no_case"] is not None]
+    assert len(ds.y) == ds.n_trials - len(no_case) and sorted(no_case) == sorted(s.reason for s in ds.untriggered)
+    assert sum(len(flagged_trials(r)) for r in recs) == len(no_case)
     assert ds.X.shape[1:] == (486, 15)
     assert 25 < ds.sample_rate_hz < 40
 

@@ -45,7 +45,7 @@ from runtime.trigger_settings import (
 
 __all__ = [
     "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
-    "dataset_trigger", "fingerprint", "load_dataset", "onset_start", "reason_counts", "rising_trigger",
+    "case_check", "dataset_trigger", "fingerprint", "load_dataset", "onset_start", "reason_counts", "rising_trigger",
     "trigger_frame", "untriggered_lines"
 ]
 
@@ -380,6 +380,24 @@ def build_dataset(
         hysteresis=hysteresis,
         trigger=settings,
     )
+
+
+def case_check(settings: TriggerSettings | None = None, T: int = 15, pads: str | Sequence[int] = "all"):
+    """For the recorder: ``check(frames, stamps, layout)`` -> None when ``build_dataset`` would cut a
+    case from this one trial with ``settings`` (None: ``dataset_trigger()``, what ``handover train``
+    cuts with), else its reason. It runs ``build_dataset`` itself, so the two cannot disagree."""
+    settings = settings if settings is not None else dataset_trigger()
+
+    def check(frames: np.ndarray, stamps: np.ndarray, layout: SensorLayout) -> str | None:
+        if len(frames) == 0:
+            return "no frames"
+        trial = Trial("check", "-", "-", "-", 0, 0, len(frames) - 1)
+        rec = Recording(layout=layout, frames=frames, timestamps=np.asarray(stamps, dtype=np.float64),
+                        trials=[trial])
+        ds = build_dataset([rec], T=T, pads=pads, trigger=settings)
+        return ds.untriggered[0].reason if ds.untriggered else None
+
+    return check
 
 
 def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, settings: TriggerSettings,

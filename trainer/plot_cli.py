@@ -42,8 +42,11 @@ def main(args: argparse.Namespace) -> int:
     except RecordingError as exc:
         return fail(COMMAND, str(exc))
     if args.list:
+        from firmware_io.recordings.record_session import flagged_trials
+
+        flagged = set(flagged_trials(rec))
         for i, t in enumerate(rec.trials, start=1):
-            flag = "  never triggered" if t.extra.get("triggered") is False else ""
+            flag = f"  flagged: {t.extra.get('no_case') or 'never triggered'}" if i - 1 in flagged else ""
             print(f"{i:4d}  {t.subject} {t.pose} {t.object} {t.action} run {t.run}  ({t.n_frames} frames){flag}")
         return 0
     if not rec.trials:

@@ -43,13 +43,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"recorded before the go cue: the held grasp the triggers need (default {LEAD_IN_SECONDS:g} s)")
     parser.add_argument("--gap", type=float, default=2.0, help="--auto: pause before each trial (seconds)")
     parser.add_argument("--countdown", type=int, default=3, help="seconds counted down before go")
-    parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
-                        help=f"trigger level as a fraction of full scale (paper: {PAPER_FRACTION})")
+    parser.add_argument("--fraction", type=float, default=None,
+                        help="check each trial against the paper's threshold trigger at this level (paper: "
+                             f"{PAPER_FRACTION}), as `handover train --fraction` cuts; default: the trigger "
+                             "`handover train` cuts with by default")
     parser.add_argument("--pads", default="all", help="pads watched by the trigger check (all, distal, 1,3,5 ...)")
     parser.add_argument("--auto", action="store_true",
-                        help="no prompts, fixed timing (scripted sessions, tests); a never-triggered trial is "
-                             "recorded again --retries times, then kept flagged")
-    parser.add_argument("--retries", type=int, default=1, help="--auto: repeats of a never-triggered trial")
+                        help="no prompts, fixed timing (scripted sessions, tests); a trial that gives training no "
+                             "case is recorded again --retries times, then kept flagged")
+    parser.add_argument("--retries", type=int, default=1, help="--auto: repeats of a trial that gives no case")
     parser.add_argument("--max-trials", type=int, default=None, help="stop after this many trials")
     parser.add_argument("--idle-minutes", type=float, default=None,
                         help=f"idle recorded after the trials: the object held still, the arm moving, regrasps, the "
@@ -110,6 +112,8 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.recordings.record_session import SessionError, subject_problem
     from firmware_io.transports.base import TransportError
 
+    if args.fraction is not None and not is_trigger_level(args.fraction):
+        return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
     try:
         plan, opts = _plan_and_options(args)
     except SessionError as exc:
@@ -122,8 +126,6 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, f"--idle-minutes: {exc}")
     if args.idle_only and idle_minutes(args) == 0:
         return fail(COMMAND, "--idle-only with --idle-minutes 0 records nothing: give the minutes of idle to record")
-    if not is_trigger_level(args.fraction):
-        return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
     problem = out_folder_problem(args.out)
     if problem:
         return fail(COMMAND, problem)
@@ -173,8 +175,11 @@ def _plan_and_options(args: argparse.Namespace):
 
     plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)
     quick_look = None if args.no_look else lambda f, lay, c: trial_view(f, lay, c.first_frame)
+    from trainer.dataset import case_check, dataset_trigger
+
     opts = SessionOptions(trial_seconds=args.trial_seconds, lead_in_seconds=args.lead_in, gap_seconds=args.gap, countdown=args.countdown,
-                          fraction=args.fraction, pads=args.pads, auto=args.auto, retries=args.retries,
+                          fraction=args.fraction or PAPER_FRACTION, pads=args.pads, auto=args.auto, retries=args.retries,
+                          case_check=case_check(dataset_trigger(fraction=args.fraction), pads=args.pads),
                           max_trials=args.max_trials, quick_look=quick_look)
     return plan, opts
 
@@ -247,8 +252,8 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
         return fail(COMMAND, f"device lost ({_first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
     except KeyboardInterrupt:
         return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
-    flagged = (f", {len(result.flagged)} flagged as never reaching {args.fraction:.0%} of full scale (the threshold "
-               "trigger's level)" if result and result.flagged else "")
+    flagged = (f", {len(result.flagged)} flagged: training gets no case from them (handover plot shows one)"
+               if result and result.flagged else "")
     if result is not None and not result.complete:
         print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
               f"{_saved(store)}{flagged}; run the same command again to continue")

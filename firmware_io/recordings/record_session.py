@@ -334,10 +334,14 @@ class SessionOptions:
     countdown: int = 3
     """interactive mode: seconds counted down aloud before go."""
     fraction: float = PAPER_FRACTION
+    """the paper's trigger level: each trial's peak is stored against it."""
     pads: str = "all"
+    case_check: Callable[[np.ndarray, np.ndarray, SensorLayout], str | None] | None = None
+    """(frames, stamps, layout) -> None if training gets a case from the trial, else why not
+    (``handover record`` passes ``trainer.dataset.case_check``); None: the paper's level decides."""
     auto: bool = False
     retries: int = 1
-    """auto mode: how often a trial that never triggered is recorded again before it is kept flagged."""
+    """auto mode: how often a trial that gives training no case is recorded again before it is kept flagged."""
     max_trials: int | None = None
     """stop after this many trials (scripted partial sessions)."""
     arm_log: arm_marks.ArmMarkLog | None = None
@@ -438,8 +442,10 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             io.show("the device reconnected during this trial; recording it again")
             continue
         check = check_trigger(capture.frames, store.layout, opts.pads, opts.fraction)
+        no_case = (opts.case_check(capture.frames, capture.stamps, store.layout) if opts.case_check is not None
+                   else None if check.triggered else f"never reached {opts.fraction:.0%} of full scale")
         extra = {
-            "triggered": check.triggered, "trigger_frame": check.first_frame, "peak": check.peak,
+            "no_case": no_case, "triggered": check.triggered, "trigger_frame": check.first_frame, "peak": check.peak,
             "peak_fraction": round(check.peak_fraction, 4), "trigger_fraction": opts.fraction,
             "device_ms": int(capture.device_ms[0]), "frame_gaps": capture.gaps, "attempt": attempt,
             "session": session_no, "recorded_at": _now(), **annotations, "go_frame": capture.go_frame,
@@ -455,19 +461,17 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             io.show(opts.quick_look(capture.frames, store.layout, check))
         status = (f"trial {n} saved ({len(capture.frames)} frames, peak {check.peak_fraction:.0%} of full scale)")
         io.show(status)
-        if not check.triggered:
-            io.show(f"!! the pads never reached the trigger level ({opts.fraction:.0%} of full scale): the paper's "
-                    "threshold trigger gets no training case from this trial (the default onset trigger may: "
-                    "handover train lists the trials that give none); redo it if the person did not act")
+        if no_case is not None:
+            io.show(f"!! training gets no case from this trial ({no_case}); redo it if the person did not act")
         if opts.auto:
-            if not check.triggered and attempt <= opts.retries:
+            if no_case is not None and attempt <= opts.retries:
                 store.remove_last()
                 result.redone += 1
                 continue
-            if not check.triggered:
+            if no_case is not None:
                 result.flagged.append(index)
             return "kept"
-        answer = io.ask("Enter = keep, r = redo, d = discard, q = quit" if check.triggered
+        answer = io.ask("Enter = keep, r = redo, d = discard, q = quit" if no_case is None
                         else "r = redo (suggested), Enter = keep anyway, d = discard, q = quit", ("", "r", "d", "q"))
         if answer == "r":
             store.remove_last()
@@ -477,7 +481,7 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             store.remove_last()
             result.discarded += 1
             return "discarded"
-        if not check.triggered:
+        if no_case is not None:
             result.flagged.append(index)
         return "kept_quit" if answer == "q" else "kept"
 
@@ -487,8 +491,10 @@ def _now() -> str:
 
 
 def flagged_trials(rec: Recording) -> list[int]:
-    """Indices of trials the recorder flagged as never triggered."""
-    return [i for i, t in enumerate(rec.trials) if t.extra.get("triggered") is False]
+    """Indices of trials the recorder flagged: training gets no case from them (files written before
+    ``no_case`` was stored: the paper's level was never reached)."""
+    return [i for i, t in enumerate(rec.trials)
+            if (t.extra["no_case"] is not None if "no_case" in t.extra else t.extra.get("triggered") is False)]
 
 
 __all__ = [
