@@ -64,6 +64,19 @@ def test_too_late_trigger_is_not_padded():
     assert len(build_dataset([rec], T=10, pads="distal", fraction=0.15).y) == 1
 
 
+def test_recorders_case_check_cuts_with_the_default_models_T(monkeypatch):
+    """The recorder's check must follow the T `handover train` cuts with, not a copy of it."""
+    from trainer import defaults
+    from trainer.dataset import case_check, dataset_trigger
+
+    rec = _one_trial_recording(peak_at=28, n=40)  # 12 frames from the trigger to the end
+    frames, stamps = rec.trial_frames(rec.trials[0])
+    for T, expected in ((10, None), (20, "triggered too late")):
+        monkeypatch.setitem(defaults.DEFAULT_MODEL, "T", T)
+        why = case_check(dataset_trigger(fraction=0.15), pads="distal")(frames, stamps, rec.layout)
+        assert (why if why is None else why.split(":")[0]) == expected, (T, why)
+
+
 def test_standin_protocol_counts_every_trial():
     recs = standin_recordings(n_subjects=3, runs=2, silent=2, late=1)
     ds = build_dataset(recs, T=15, pads="distal", fraction=0.15)

@@ -382,11 +382,15 @@ def build_dataset(
     )
 
 
-def case_check(settings: TriggerSettings | None = None, T: int = 15, pads: str | Sequence[int] = "all"):
+def case_check(settings: TriggerSettings | None = None, T: int | None = None, pads: str | Sequence[int] = "all"):
     """For the recorder: ``check(frames, stamps, layout)`` -> None when ``build_dataset`` would cut a
-    case from this one trial with ``settings`` (None: ``dataset_trigger()``, what ``handover train``
-    cuts with), else its reason. It runs ``build_dataset`` itself, so the two cannot disagree."""
+    case from this one trial with ``settings`` and ``T`` (None: ``dataset_trigger()`` and the default
+    model's T, what ``handover train`` cuts with), else its reason. It runs ``build_dataset`` itself,
+    so the two cannot disagree."""
+    from trainer.defaults import DEFAULT_MODEL
+
     settings = settings if settings is not None else dataset_trigger()
+    T = int(DEFAULT_MODEL["T"]) if T is None else T
 
     def check(frames: np.ndarray, stamps: np.ndarray, layout: SensorLayout) -> str | None:
         if len(frames) == 0:
