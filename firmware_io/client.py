@@ -111,6 +111,7 @@ class DSAClient:
         self._open_deadline: float | None = None
         self._open_bytes = 0
         self._counts = dict.fromkeys(COUNTERS, 0)
+        self._last_url = "the device"
         self.last_refusal: str | None = None
         """Why the newest frame that arrived whole but was refused (undecodable, implausible) was."""
 
@@ -119,7 +120,9 @@ class DSAClient:
     def url(self) -> str:
         if isinstance(self._source, str):
             return self._source
-        return getattr(self._transport, "url", "") or repr(self._transport)
+        if self._transport is not None:  # a factory's transport: remembered for after it is dropped
+            self._last_url = getattr(self._transport, "url", "") or repr(self._transport)
+        return self._last_url
 
     def open(self, should_stop: Callable[[], bool] | None = None) -> SensorLayout:
         """Stop any running acquisition, flush, query controller/sensor/matrix info -> the layout.
@@ -373,6 +376,7 @@ class DSAClient:
                 self._transport = open_transport(self._source, **self.transport_opts)
             elif callable(self._source):
                 self._transport = self._source()
+                _ = self.url  # remembered for the messages after it is dropped
             else:
                 raise TransportError(f"{self.url}: the transport is closed")
         return self._transport

@@ -275,11 +275,19 @@ def test_reconnect_backs_off_exponentially_and_gives_up() -> None:
         raise DeviceUnavailable("scripted://: no device")
 
     client = DSAClient(factory, reconnect_tries=4, backoff_initial=0.05, backoff_max=1.0, **QUICK)
-    with pytest.raises(TransportError, match="reconnect failed after 4 tries"):
+    with pytest.raises(TransportError, match="^the device: reconnect failed after 4 tries"):
         client.reconnect()
     gaps = np.diff(attempts)
     assert len(attempts) == 4
     assert gaps[0] >= 0.05 and gaps[1] >= 0.1 and gaps[2] >= 0.2
+
+
+def test_a_factorys_device_keeps_its_name_once_its_transport_is_dropped() -> None:
+    dev = ScriptedDevice(good_device)
+    client = DSAClient(lambda: dev, **QUICK)
+    client.open()
+    client._drop_transport()
+    assert client.url == dev.url and client.url != "None", "messages after a drop named the device 'None'"
 
 
 def test_reconnect_through_a_factory_recovers() -> None:
