@@ -275,7 +275,7 @@ def test_reconnect_backs_off_exponentially_and_gives_up() -> None:
         raise DeviceUnavailable("scripted://: no device")
 
     client = DSAClient(factory, reconnect_tries=4, backoff_initial=0.05, backoff_max=1.0, **QUICK)
-    with pytest.raises(TransportError, match="^the device: reconnect failed after 4 tries"):
+    with pytest.raises(TransportError, match=r"^the device: reconnect failed after 4 tries"):
         client.reconnect()
     gaps = np.diff(attempts)
     assert len(attempts) == 4
