@@ -292,6 +292,7 @@ def test_with_the_trainers_cut_a_trial_nobody_acted_in_is_flagged_with_its_reaso
     rec = Recording.load(store.path)
     assert result.flagged == flagged_trials(rec) == [1], "only the trial nobody acted in"
     assert rec.trials[1].extra["no_case"].startswith(NEVER)
+    assert {t.extra["case_cut"] for t in rec.trials} == {str(case_check())} == {"onset trigger, T=15, pads all"}
     assert all(t.extra["no_case"] is None for i, t in enumerate(rec.trials) if i != 1)
 
 

@@ -44,7 +44,7 @@ from runtime.trigger_settings import (
 )
 
 __all__ = [
-    "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
+    "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "CaseCheck", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
     "case_check", "dataset_trigger", "fingerprint", "load_dataset", "onset_start", "reason_counts", "rising_trigger",
     "trigger_frame", "untriggered_lines"
 ]
@@ -382,26 +382,39 @@ def build_dataset(
     )
 
 
-def case_check(settings: TriggerSettings | None = None, T: int | None = None, pads: str | Sequence[int] = "all"):
+@dataclass(frozen=True)
+class CaseCheck:
     """For the recorder: ``check(frames, stamps, layout)`` -> None when ``build_dataset`` would cut a
-    case from this one trial with ``settings`` and ``T`` (None: ``dataset_trigger()`` and the default
-    model's T, what ``handover train`` cuts with), else its reason. It runs ``build_dataset`` itself,
-    so the two cannot disagree."""
-    from trainer.defaults import DEFAULT_MODEL
+    case from this one trial, else its reason. It runs ``build_dataset`` itself, so the two cannot
+    disagree; ``str(check)`` names the cut (stored with each trial it judged)."""
 
-    settings = settings if settings is not None else dataset_trigger()
-    T = int(DEFAULT_MODEL["T"]) if T is None else T
+    settings: TriggerSettings
+    T: int
+    pads: str | tuple[int, ...] = "all"
 
-    def check(frames: np.ndarray, stamps: np.ndarray, layout: SensorLayout) -> str | None:
+    def __call__(self, frames: np.ndarray, stamps: np.ndarray, layout: SensorLayout) -> str | None:
         if len(frames) == 0:
             return "no frames"
         trial = Trial("check", "-", "-", "-", 0, 0, len(frames) - 1)
         rec = Recording(layout=layout, frames=frames, timestamps=np.asarray(stamps, dtype=np.float64),
                         trials=[trial])
-        ds = build_dataset([rec], T=T, pads=pads, trigger=settings)
+        ds = build_dataset([rec], T=self.T, pads=self.pads, trigger=self.settings)
         return ds.untriggered[0].reason if ds.untriggered else None
 
-    return check
+    def __str__(self) -> str:
+        level = f" at {self.settings.fraction:.0%}" if self.settings.kind == "threshold" else ""
+        pads = self.pads if isinstance(self.pads, str) else ",".join(map(str, self.pads))
+        return f"{self.settings.name} trigger{level}, T={self.T}, pads {pads}"
+
+
+def case_check(settings: TriggerSettings | None = None, T: int | None = None,
+               pads: str | Sequence[int] = "all") -> CaseCheck:
+    """The recorder's check with what ``handover train`` cuts with by default: ``dataset_trigger()``
+    and the default model's T, unless given."""
+    from trainer.defaults import DEFAULT_MODEL
+
+    return CaseCheck(settings if settings is not None else dataset_trigger(),
+                     int(DEFAULT_MODEL["T"]) if T is None else int(T), pads if isinstance(pads, str) else tuple(pads))
 
 
 def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, settings: TriggerSettings,

@@ -451,6 +451,8 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             "session": session_no, "recorded_at": _now(), **annotations, "go_frame": capture.go_frame,
             "lead_in_s": opts.lead_in_seconds,
         }
+        if opts.case_check is not None:
+            extra["case_cut"] = str(opts.case_check)  # which cut decided no_case
         if opts.arm_log is not None and (marks := opts.arm_log.marks_for(capture.received)):
             extra[arm_marks.KEY] = marks
         if isinstance(annotations.get("onset"), int) and annotations["onset"] >= 0:
