@@ -120,8 +120,8 @@ class DSAClient:
     def url(self) -> str:
         if isinstance(self._source, str):
             return self._source
-        if self._transport is not None:  # a factory's transport: remembered for after it is dropped
-            self._last_url = getattr(self._transport, "url", "") or repr(self._transport)
+        if self._transport is not None:
+            return getattr(self._transport, "url", "") or repr(self._transport)
         return self._last_url
 
     def open(self, should_stop: Callable[[], bool] | None = None) -> SensorLayout:
@@ -376,7 +376,7 @@ class DSAClient:
                 self._transport = open_transport(self._source, **self.transport_opts)
             elif callable(self._source):
                 self._transport = self._source()
-                _ = self.url  # remembered for the messages after it is dropped
+                self._last_url = self.url  # the factory's device, named in messages after it is dropped
             else:
                 raise TransportError(f"{self.url}: the transport is closed")
         return self._transport
