@@ -362,16 +362,17 @@ class Detector:
 
     def _next_run(self) -> int | None:
         """What the next model frame runs (``Windows.runs_at``; continuous mode: every frame the full
-        window), None when nothing or no model can run."""
+        window), None when nothing or no model can run, also when the arm moved during that window
+        (``feed`` judges it dormant, or waits for its end, without running the model)."""
         model, ring = self.model, self.ring
         if model is None or ring is None or ring.count < model.meta.T:
             return None
-        if isinstance(self.trigger, ContinuousTrigger):
-            return -1
-        run = self.windows.runs_at(self._number + 1)
-        if run is not None and run >= 0 and self.arm.last_motion >= self.windows.first():
-            return None  # an arm move: that window is judged at its end
-        return run
+        number = self._number + 1
+        run = -1 if isinstance(self.trigger, ContinuousTrigger) else self.windows.runs_at(number)
+        if run is None:
+            return None
+        first = number - model.meta.T + 1 if run < 0 else self.windows.first()
+        return None if self.arm.last_motion >= first else run
 
     def _decide(self, model: LoadedModel, frame: Frame, head: int = -1) -> Decision | None:
         """The model (or early head ``head``) on the window ending at ``frame``, checked; each stage
