@@ -338,3 +338,63 @@ def test_every_frame_that_runs_a_head_or_the_window_is_rehearsed_and_no_decision
     _, asked, rehearsed = serve(True)
     assert len(ran) > len(plain) > 0  # heads ran that did not report yet
     assert asked == ran and rehearsed == plain
+
+
+
+def test_what_the_rehearsal_expects_at_each_frame_is_what_feed_then_runs(early_model):
+    """``Detector._next_run`` (what the rehearsal warms) against what ``feed`` runs at the next frame, frame
+    by frame, on a simulated session with early heads: the robot's arm moving between a window's heads,
+    its settle time reaching into the first frame of another, a move across a whole window; and in
+    continuous mode. They may differ only where the next frame brings news the expectation cannot have:
+    the robot's 'arm moving' heard at that frame, and the ring's first full window (the rehearsal runs
+    on the window the ring holds)."""
+    from firmware_io.client import Frame
+    from firmware_io.sim import demo_script, simulate_session
+    from runtime.config import config_from_dict
+    from runtime.detector import Detector
+    from runtime.model import load_model
+    from trainer.streams_eval import TRIGGER_TABLE
+
+    path, *_ = early_model
+    session = simulate_session(demo_script(8, seed=5), seed=5)
+    settle = 16  # [control] arm_settle_s, 0.5 s at 32 Hz
+
+    def serve(mode: str, arm: dict[int, bool]) -> tuple[list[tuple[int, int | None, int | None]], Detector]:
+        model = load_model(path)
+        cfg = config_from_dict({"scene": {"pads": ",".join(map(str, model.meta.pads)), "mode": mode,
+                                          "events": list(model.meta.classes)},
+                                "trigger": dict(TRIGGER_TABLE["onset"])})
+        detector = Detector.from_config(cfg)
+        detector.swap(model, session.layout)
+        ran: list[int] = []
+        trusted, head = model.run_trusted, model.run_head
+        model.run_trusted = lambda window: ran.append(-1) or trusted(window)
+        model.run_head = lambda index, window: ran.append(index) or head(index, window)
+        frames = []  # (frame, what the detector expected it to run, what it ran)
+        for i in range(session.n_frames):
+            expected = detector._next_run()
+            if i in arm:
+                detector.set_arm_moving(arm[i], "test")
+            ran.clear()
+            detector.feed(Frame(i, round(i * 31.25), time.perf_counter(), session.frames[i]))
+            assert len(ran) <= 1
+            frames.append((i, expected, ran[0] if ran else None))
+        return frames, detector
+
+    def runs(frames) -> list[tuple[int, int]]:
+        return [(i, run) for i, _, run in frames if run is not None]
+
+    plain, _ = serve("trigger", {})
+    assert [f for f in plain if f[1] != f[2]] == []
+    firsts = [i - 3 for i, run in runs(plain) if run == 0]  # each window's first frame (its head at 4 frames)
+    assert any(run == -1 for _, run in runs(plain)) and len(firsts) > 5
+    a, b, c = firsts[0], firsts[2], firsts[4]
+    # a: moving between its heads (at frames a+3 and a+7); b: the settle time ends at b's first frame; c: inside a move
+    arm = {a + 5: True, a + 6: False, b - settle - 1: True, b - settle + 1: False, c - 8: True, c + 20: False}
+    moved, detector = serve("trigger", arm)
+    assert [f for f in moved if f[1] != f[2]] == []  # no word here falls on a frame that would run
+    voided = {a + 7, b + 3, b + 7, c + 3, c + 7}  # heads of windows the arm touched; their ends are dormant
+    assert runs(moved) == [r for r in runs(plain) if r[0] not in voided] and detector.arm.dropped == 3
+    continuous, detector = serve("continuous", {100: True, 101: False})
+    assert [f for f in continuous if f[1] != f[2] and f[0] not in (14, 100)] == []
+    assert runs(continuous) == [(i, -1) for i in range(14, session.n_frames) if not 100 <= i <= 101 + settle + 13]
