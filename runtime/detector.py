@@ -97,18 +97,24 @@ class Decision:
 class Windows:
     """The frames at which open windows end, in order (the trigger fixes each one as it fires).
 
-    With ``ArmMotion`` (a window that held a frame of the robot's arm moving is judged dormant, the model
-    not run) the one place that decides when the model runs. With a model's early heads (``early``:
-    runtime.early) a window may be answered before its end: ``head`` names the head that decides at a
-    frame, ``answered_early`` applies the rule to its answer and closes the window when it reports."""
+    The one place that decides when the model runs (``runs_at``): ``Detector.feed`` applies its answer,
+    the rehearsal asks it about the next frame. A window that held a frame of the robot's arm moving
+    (runtime.arm_motion) is judged dormant, the model not run. With a model's early heads (``early``:
+    runtime.early) a window may be answered before its end: ``answered_early`` applies the rule to a
+    head's answer and closes the window when it reports."""
 
-    __slots__ = ("T", "_due", "_previous", "early")
+    __slots__ = ("T", "_due", "_previous", "early", "every_frame")
+
+    DORMANT = -2
+    """``runs_at``: the window ending at that frame held a frame of the arm's motion (judged dormant)."""
 
     def __init__(self) -> None:
         self._due: deque[int] = deque()
         self.early: EarlyRule | None = None
         """The early heads' report rule of the serving model and scene (None: the full window only)."""
         self.T = 0
+        self.every_frame = False
+        """Every frame ends a window (continuous mode: the trigger opens it at that frame)."""
         self._previous = -1
         """The label of the oldest window's last early head (-1: none yet)."""
 
@@ -124,25 +130,22 @@ class Windows:
             return due.popleft() == number
         return False
 
-    def head(self, number: int) -> int:
-        """The early head (index into ``early.points``) that decides the oldest window at frame
-        ``number``, or -1."""
-        if self.early is None or not self._due or number >= self._due[0]:
-            return -1
-        return self.early.index_of(number - self._due[0] + self.T)
-
-    def runs_at(self, number: int) -> int | None:
-        """What decides at frame ``number``: -1 the full window, an early head's index, None nothing."""
-        if not self._due or number > self._due[0]:
+    def runs_at(self, number: int, count: int, last_motion: int) -> int | None:
+        """What runs at frame ``number`` with ``count`` frames in the ring and the arm's motion up to frame
+        ``last_motion`` (``ArmMotion.last_motion``): -1 the full window, an early head's index (into
+        ``early.points``), ``DORMANT``, or None. Asks, changes nothing: ``ends`` then drops the window."""
+        T, due = self.T, self._due
+        if count < T or not (due or self.every_frame):
             return None
-        if number == self._due[0]:
-            return -1
-        head = self.head(number)
-        return head if head >= 0 else None
-
-    def first(self) -> int:
-        """The model frame number of the oldest open window's first frame."""
-        return self._due[0] - self.T + 1
+        end = number if self.every_frame else due[0]
+        if number == end:
+            return -1 if last_motion < number - T + 1 else self.DORMANT
+        if number > end:  # the oldest window's last frame never came: dropped here, the next one's heads may answer
+            end = due[1] if len(due) > 1 else number
+        if self.early is None or number >= end:
+            return None
+        head = self.early.index_of(number - end + T)
+        return head if head >= 0 and last_motion < end - T + 1 else None  # an arm move: judged at its end
 
     def answered_early(self, head: int, label: int, scores: np.ndarray) -> bool:
         """Whether head ``head``'s answer is reported now; if so the window is closed (one report per event)."""
@@ -304,9 +307,8 @@ class Detector:
         """How long one window of the serving model takes to arrive at the stream's rate (0: no model)."""
         if self.model is None:
             return 0.0
-        period_ms = self.frame_clock.stream_period_ms or self.frame_clock.model_period_ms
         step = self.frame_clock.step
-        return self.model.meta.T * period_ms / 1000.0 / (step if step < 1.0 else 1.0)
+        return self.model.meta.T * self.frame_clock.period_ms / 1000.0 / (step if step < 1.0 else 1.0)
 
     # -- the hot path ------------------------------------------------------------------------------
     def feed(self, frame: Frame) -> Decision | None:
@@ -329,15 +331,15 @@ class Detector:
         windows = self.windows
         if due >= 0:
             windows.open(due)
-        if windows.ends(number) and ring.count >= model.meta.T:
-            if self.arm.touches(number - model.meta.T + 1):
-                self.rule.judge_dormant()  # the arm moved during the window: the model does not run
-                return None
-            return self._decide(model, frame)
-        if windows.early is not None and (head := windows.head(number)) >= 0 and ring.count >= model.meta.T \
-                and self.arm.last_motion < windows.first():  # an arm move: the window is judged at its end
-            return self._decide(model, frame, head)
-        return None
+        run = windows.runs_at(number, ring.count, self.arm.last_motion)
+        windows.ends(number)  # a window this frame ends or passed is dropped (an early head's report closes its own)
+        if run is None:
+            return None
+        if run == Windows.DORMANT:  # the arm moved during the window: the model does not run
+            self.arm.dropped += 1
+            self.rule.judge_dormant()
+            return None
+        return self._decide(model, frame, run)
 
     # -- keeping the next decision warm ------------------------------------------------------------
     def rehearsal_at(self) -> float | None:
@@ -347,8 +349,7 @@ class Detector:
         frame = self.latest_frame
         if frame is None or self._next_run() is None:
             return None
-        period_ms = self.frame_clock.stream_period_ms or self.frame_clock.model_period_ms
-        return frame.received + period_ms / 1000.0 - REHEARSAL_LEAD_S
+        return frame.received + self.frame_clock.period_ms / 1000.0 - REHEARSAL_LEAD_S
 
     def rehearse(self) -> None:
         """What the next frame will run (the full window or an early head), once now on the newest
@@ -361,18 +362,13 @@ class Detector:
             model.run_trusted(window) if run < 0 else model.run_head(run, window)
 
     def _next_run(self) -> int | None:
-        """What the next model frame runs (``Windows.runs_at``; continuous mode: every frame the full
-        window), None when nothing or no model can run, also when the arm moved during that window
-        (``feed`` judges it dormant, or waits for its end, without running the model)."""
-        model, ring = self.model, self.ring
-        if model is None or ring is None or ring.count < model.meta.T:
+        """What ``feed`` will run at the next model frame (``Windows.runs_at``), or None. Only the ring as
+        it holds now counts (the rehearsal runs on its newest window); news the next frame brings (a
+        window the trigger opens, the robot's 'arm moving') is not known yet."""
+        if self.model is None or self.ring is None:
             return None
-        number = self._number + 1
-        run = -1 if isinstance(self.trigger, ContinuousTrigger) else self.windows.runs_at(number)
-        if run is None:
-            return None
-        first = number - model.meta.T + 1 if run < 0 else self.windows.first()
-        return None if self.arm.last_motion >= first else run
+        run = self.windows.runs_at(self._number + 1, self.ring.count, self.arm.last_motion)
+        return None if run == Windows.DORMANT else run
 
     def _decide(self, model: LoadedModel, frame: Frame, head: int = -1) -> Decision | None:
         """The model (or early head ``head``) on the window ending at ``frame``, checked; each stage
@@ -445,6 +441,7 @@ class Detector:
         self.arm.configure(*self._arm_frames())
         self.windows.clear()
         self.windows.early, self.windows.T = self._early_rule(), T
+        self.windows.every_frame = isinstance(self.trigger, ContinuousTrigger)
 
     def _early_rule(self) -> EarlyRule | None:
         """The serving model's early heads under the scene's ``early_events`` (trigger mode only). Only a

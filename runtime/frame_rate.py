@@ -131,6 +131,11 @@ class FrameClock:
         self.admitted += 1
         return self.number
 
+    @property
+    def period_ms(self) -> float:
+        """The device's frame period as far as known: the measured one, the model's until it is measured."""
+        return self.stream_period_ms or self.model_period_ms
+
     def deadline_s(self) -> float:
         """How long a decision may take: until the next admitted frame, by the stream's *measured*
         period (the device frames a decimation passes over included); the model's period only until

@@ -19,6 +19,7 @@ from runtime.config import ContinuousConfig, SceneConfig, TriggerConfig, config_
 from runtime.daemon import Daemon
 from runtime.decision import ContinuousDecision
 from runtime.detector import Detector, ReportRule, Windows
+from runtime.early import EarlyRule, EarlySpec
 from runtime.model import load_model
 from runtime.sinks import Event
 from tests.tiny_models import tiny_model_bytes, write_model
@@ -87,6 +88,29 @@ def test_windows_end_in_order_and_a_frame_past_one_drops_it():
     windows.open(30)
     assert windows.clear() == 1 and not windows
 
+
+
+def test_windows_say_what_runs_at_a_frame_without_changing_and_a_frame_past_one_leaves_the_next_ones_heads():
+    """``Windows.runs_at``, the one rule ``feed`` applies and the rehearsal asks ahead: the ring must hold a
+    window, an early head answers only a window the arm has not moved in, a window's end is dormant when
+    it has; a window whose last frame never came is dropped and the next one's heads still answer."""
+    never = -(1 << 62)
+    windows = Windows()
+    windows.T, windows.early = 15, EarlyRule(EarlySpec((4, 8), ((1.0, 0.0), (1.0, 0.0)), 0.5, False))
+    windows.open(20)  # frames 6..20
+    windows.open(28)  # frames 14..28: its heads at frames 17 and 21
+    assert windows.runs_at(9, 15, never) == 0 and windows.runs_at(13, 15, never) == 1
+    assert windows.runs_at(9, 14, never) is None  # the ring does not hold a window yet
+    assert windows.runs_at(9, 15, 6) is None and windows.runs_at(9, 15, 5) == 0  # an arm move in it: wait for its end
+    assert windows.runs_at(20, 15, 5) == -1 and windows.runs_at(20, 15, 6) == Windows.DORMANT
+    assert windows.runs_at(17, 15, never) is None  # the second window's heads wait while the first is open
+    assert windows.runs_at(21, 15, never) == 1 and windows.runs_at(21, 15, 14) is None  # frame 20 never came
+    assert len(windows) == 2  # asking changed nothing
+    assert not windows.ends(21) and len(windows) == 1 and windows.runs_at(28, 15, 13) == -1
+    every = Windows()
+    every.T, every.every_frame = 15, True  # continuous mode: every frame ends a window
+    assert every.runs_at(100, 15, 85) == -1 and every.runs_at(100, 15, 86) == Windows.DORMANT
+    assert every.runs_at(100, 14, never) is None and not every
 
 def test_a_grasp_message_is_applied_at_the_next_frame_and_survives_a_model_of_the_same_kind(model_path):
     detector = Detector(trigger=TriggerConfig(kind="onset"))
