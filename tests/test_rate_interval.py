@@ -8,7 +8,7 @@ import math
 import pytest
 
 from trainer.own_replay import SHORT_IDLE_MIN, replay_lines
-from trainer.rate_interval import poisson_interval, rate_interval
+from trainer.rate_interval import poisson_interval, proportion_interval, rate_interval
 
 
 @pytest.mark.parametrize(("count", "lower", "upper"), [
@@ -25,6 +25,20 @@ def test_a_rate_interval_is_the_count_interval_per_hour_and_none_without_time():
     assert rate_interval(0, 0.0) is None
     with pytest.raises(ValueError):
         poisson_interval(-1)
+
+
+@pytest.mark.parametrize(("count", "n", "lower", "upper"), [
+    (0, 10, 0.0, 0.3085), (22, 25, 0.6878, 0.9745), (45, 50, 0.7819, 0.9667), (10, 10, 0.6915, 1.0),
+])
+def test_a_share_has_the_exact_clopper_pearson_bounds(count, n, lower, upper):
+    lo, hi = proportion_interval(count, n)
+    assert math.isclose(lo, lower, abs_tol=5e-4) and math.isclose(hi, upper, abs_tol=5e-4)
+
+
+@pytest.mark.parametrize(("count", "n"), [(3, 2), (0, 0), (-1, 5), (2.5, 5)])
+def test_a_share_of_an_impossible_count_is_refused(count, n):
+    with pytest.raises(ValueError):
+        proportion_interval(count, n)
 
 
 def _replay(false_events: int, minutes: float) -> dict:

@@ -25,6 +25,14 @@ def _pct(x) -> str:
     return "-" if x is None else f"{100 * x:.0f} %"
 
 
+def _counts(r: dict) -> str:
+    """Continuous mode's holds right of held, and the recall's exact 95 % interval (older files have neither)."""
+    counts, ci = r.get("continuous_hold_counts"), r.get("continuous_hold_recall_95")
+    if not counts or not ci:
+        return ""
+    return f"{counts[0]} of {counts[1]}, 95 % interval {100 * ci[0]:.0f}-{_pct(ci[1])}; "
+
+
 def markdown(r: dict, load_text: str) -> list[str]:
     chosen = r["default_setting"]
     lines = [
@@ -58,8 +66,8 @@ def markdown(r: dict, load_text: str) -> list[str]:
         "- test streams (synthetic, unseen subjects and hand): event F1 (macro over classes) "
         + ", ".join(f"{m} {_f(v)}" for m, v in r["sim_event_f1"].items()),
         f"- continuous mode: {_pct(r['continuous_events_correct_fraction'])} of events right, hold recall "
-        f"{_pct(r['continuous_hold_recall'])} (report rule {_rule(r.get('continuous_rule'))}, chosen on validation "
-        "streams below)",
+        f"{_pct(r['continuous_hold_recall'])} ({_counts(r)}report rule {_rule(r.get('continuous_rule'))}, chosen on "
+        "validation streams below)",
         "- median onset-to-report (frames; T = 15): "
         + ", ".join(f"{m} {_f(v, '.0f')}" for m, v in r["onset_to_report_median_frames"].items()),
         "",
