@@ -25,7 +25,7 @@ enough that a lost message costs half a minute) unless repeated (one warning lin
 counts as still.
 
 Thread use: ``request`` from any thread (the control socket's, a ROS 2 executor's); ``update``
-and ``touches`` from the hot path only.
+from the hot path only, which judges a window by ``last_motion`` (runtime.detector.Windows.runs_at).
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class ArmMotion:
         self.expired = 0
         """``arm moving`` spans ended because no message came for ``max_move_frames``."""
         self.dropped = 0
-        """Windows judged dormant because they held frames of the arm's motion."""
+        """Windows judged dormant because they held frames of the arm's motion (counted by the detector that judges them)."""
         self._last = NEVER
         """The frame number of the previous ``update``."""
 
@@ -101,13 +101,6 @@ class ArmMotion:
                         self.max_move_frames)
             return
         self.last_motion = number
-
-    def touches(self, first: int) -> bool:
-        """Whether the window starting at frame ``first`` (and ending now) holds a frame of the arm's motion."""
-        if self.last_motion >= first:
-            self.dropped += 1
-            return True
-        return False
 
 
 class JointSpeed:
