@@ -51,6 +51,8 @@ class ModelSlot:
         self.announce = announce
         self.quarantine = QuarantineStore(store_path(cfg.model.quarantine_file, cfg.health_file))
         self.watcher: ModelWatcher | None = None
+        self._said_rejections: dict = {}
+        """The watcher's memory of rejections it logged, kept when a reload replaces the watcher."""
         self._fallback: LoadedModel | None = None
         """The model the last swap replaced: it serves again if the new one is taken out of service."""
         self._announced: LoadedModel | None = None
@@ -93,6 +95,7 @@ class ModelSlot:
             on_reject=self._rejected,
             decision_budget=self.cfg.model.decision_budget,
             quarantine=self.quarantine,
+            said=self._said_rejections,
         )
         model = self.watcher.poll(require_stable=False)
         self.watcher.take()
@@ -225,7 +228,9 @@ class ModelSlot:
             self.watcher.reconsider_older()
 
     def _rejected(self, rejection: Rejection) -> None:
-        self.health.models_rejected += 1
+        """Counted once per file version and reason; the health view shows it again each time it is weighed."""
+        if not rejection.repeat:
+            self.health.models_rejected += 1
         self.health.report_error(f"model {rejection.path.name} rejected: {rejection.reason}", "model")
 
     def _windows_by(self, model: LoadedModel) -> str:

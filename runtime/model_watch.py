@@ -8,7 +8,8 @@ root are refused. A candidate is loaded with the model contract, checked against
 warmed up in this background thread and only then offered to the main loop, which swaps it
 in between two windows (one reference assignment). A rejected file is logged with its reason
 and never retried unless it changes (or ``rescan()`` is asked for: the scene it was checked
-against changed); the old model keeps serving.
+against changed; the same version rejected for the same reason is then not logged again); the old
+model keeps serving.
 
 Which model serves when several exist: the valid one that arrived last, by the file's modification
 time (mtime). Not its status change time (ctime): a no-op ``chmod`` or ``chown`` sets that, and
@@ -82,6 +83,9 @@ NEVER: tuple[int, str] = (-1, "")
 class Rejection:
     path: Path
     reason: str
+    repeat: bool = False
+    """This version of the file was rejected for this reason before (a reload or a new device weighed
+    it again): not logged again, nor counted again."""
 
 
 def is_candidate_name(name: str) -> bool:
@@ -142,6 +146,7 @@ class ModelWatcher:
         on_reject: Callable[[Rejection], None] | None = None,
         service_uid: int | None = None,
         quarantine: QuarantineStore | None = None,
+        said: dict[Path, tuple[tuple[int, int, int], str]] | None = None,
     ) -> None:
         self.folder = Path(folder)
         self.loader = loader
@@ -154,6 +159,10 @@ class ModelWatcher:
         self.service_uid = service_uid
         self.quarantined = quarantine if quarantine is not None else QuarantineStore()
         """File versions taken out of service at run time: never loaded again until they change."""
+        self.said = said if said is not None else {}
+        """The rejection last logged per file (its version and reason): a daemon reloaded for months
+        logs a broken file once per version and reason, not once per reload. Pass the same dict to the
+        watcher that replaces this one."""
         self._accepted_states: dict[Path, FileState] = {}
         self._skipped: set[FileState] = set()
         """Files passed over only because a newer one was chosen (candidates again after a quarantine)."""
@@ -227,6 +236,9 @@ class ModelWatcher:
             self._skipped.clear()
             self.current = None
         now = self._list()
+        if self._listed:
+            for path in [p for p in self.said if p not in now]:
+                del self.said[path]
         gone = self._listed and self.current is not None and not self.current.same_file(now.get(self.current.path))
         if gone:
             self._serving_file_left()
@@ -289,28 +301,28 @@ class ModelWatcher:
     def _validate(self, st: FileState) -> Any:
         problem = permission_problem(st, self.service_uid)
         if problem is not None:
-            return self._reject(st.path, problem)
+            return self._reject(st, problem)
         earlier = self.quarantined.reason(file_key(st.path, st.size, st.mtime_ns, st.inode))
         if earlier is not None:
-            return self._reject(st.path, f"taken out of service earlier ({earlier}); replace the file to try again")
+            return self._reject(st, f"taken out of service earlier ({earlier}); replace the file to try again")
         try:
             model = self.loader(st.path)
         except ModelUnreadableError as exc:
             if time.time() - st.mtime_ns / 1e9 < SETTLE_S:
                 return self._settle(st, exc)
-            return self._reject(st.path, str(exc))
+            return self._reject(st, str(exc))
         except Exception as exc:  # the contract's own errors and anything a broken file can raise
-            return self._reject(st.path, str(exc) or type(exc).__name__)
+            return self._reject(st, str(exc) or type(exc).__name__)
         if self.check is not None:
             problem = self.check(model)
             if problem is not None:
-                return self._reject(st.path, problem)
+                return self._reject(st, problem)
         try:
             self._warm_up(model)
         except ModelContractError as exc:  # wrong answers on realistic windows, or too slow
-            return self._reject(st.path, str(exc).removeprefix(f"model {st.path}: "))
+            return self._reject(st, str(exc).removeprefix(f"model {st.path}: "))
         except Exception as exc:
-            return self._reject(st.path, f"warm-up inference failed: {exc}")
+            return self._reject(st, f"warm-up inference failed: {exc}")
         log.info("model %s accepted (id %s)", st.path.name, getattr(model, "model_id", "?"))
         return model
 
@@ -334,12 +346,17 @@ class ModelWatcher:
         for _ in range(self.warmup_runs):
             model.run(x)
 
-    def _reject(self, path: Path, reason: str) -> None:
-        rejection = Rejection(path, reason)
-        self.rejections.append(rejection)
-        serving = ("the model in use keeps serving" if self.current is not None
-                   else "no model serves yet: the newest valid file in the folder will, or the next valid one dropped")
-        log.error("model %s rejected: %s; %s", path.name, reason, serving)
+    def _reject(self, st: FileState, reason: str) -> None:
+        version = (st.inode, st.size, st.mtime_ns)
+        rejection = Rejection(st.path, reason, repeat=self.said.get(st.path) == (version, reason))
+        self.said[st.path] = (version, reason)
+        if rejection.repeat:
+            log.debug("model %s rejected again: %s", st.path.name, reason)
+        else:
+            self.rejections.append(rejection)
+            serving = ("the model in use keeps serving" if self.current is not None
+                       else "no model serves yet: the newest valid file in the folder will, or the next valid one dropped")
+            log.error("model %s rejected: %s; %s", st.path.name, reason, serving)
         if self.on_reject is not None:
             self.on_reject(rejection)
         return None

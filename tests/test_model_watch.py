@@ -178,3 +178,47 @@ def test_a_file_name_with_control_characters_is_one_line_once_and_never_read(tmp
     assert len(lines) == 2 and all("\n" not in x and "\x1b" not in x for x in lines)
     assert all("has control characters in its name and is not read; rename it" in x for x in lines)
     assert w.unreadable_names == {forged, "red\x1b[31m.onnx"} and not w.rejections
+
+
+def test_a_rejected_file_is_logged_once_per_version_across_reloads(tmp_path, caplog):
+    """A daemon reloaded for months (scene, model settings) weighs a broken file again each time: its
+    line is logged and counted once per version and reason; the health view still shows it."""
+    import logging
+
+    from runtime.config import load_config
+    from runtime.daemon import Daemon
+
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "good.onnx", tiny_model_bytes(), mtime=time.time() - 200)
+    broken = write_model(models, "broken.onnx", b"not a model", mtime=time.time() - 100)
+    config = tmp_path / "h.toml"
+    base = f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{models}"\n'
+    config.write_text(base)
+    daemon = Daemon(load_config(config))
+
+    def weigh_again(text: str) -> None:
+        config.write_text(text)
+        daemon.reload()
+        daemon.models.watcher.stop()  # polled here, not by its thread
+        daemon.models.watcher.poll(require_stable=False)
+
+    def said() -> list[str]:
+        return [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR and "broken.onnx" in r.getMessage()]
+
+    try:
+        with caplog.at_level(logging.INFO, logger="handover"):
+            daemon.models.start()
+            daemon.models.watcher.stop()
+            for text in (base + '[scene]\nevents = ["pull", "push"]\n', base, base + "poll_interval_s = 0.5\n", base):
+                weigh_again(text)
+            assert len(said()) == 1, said()
+            assert daemon.health.models_rejected == 1
+            assert "broken.onnx rejected" in daemon.health.snapshot()["recent_errors"][-1]["error"]
+            write_model(models, "broken.onnx", b"still not a model", mtime=time.time() - 50)  # a new version
+            weigh_again(base + '[scene]\nevents = ["pull"]\n')
+            assert len(said()) == 2 and daemon.health.models_rejected == 2, said()
+    finally:
+        daemon.models.stop()
+        daemon.sinks.close()
+    assert broken.exists() and daemon.health.model_id is not None
