@@ -93,3 +93,45 @@ def test_an_output_folder_that_cannot_be_written_is_one_line_before_any_work(cap
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith(f"handover {argv[0]}: --out {out}: {words}"), err
         assert "choose a folder" in err[0]
+
+
+def _pausing_device():
+    """The emulator over TCP, pausing 1.5 s after every frame (a controller between streams)."""
+    from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    faults = FaultPlan(stall=1.0, stall_seconds=1.5)
+    return TcpEmulatorServer(DeviceEmulator(load_source("sim", seed=0, events=2), speed=1.0, faults=faults)).start()
+
+
+def test_a_count_of_frames_waits_through_a_pause_and_says_so_on_stderr(capsys):
+    server = _pausing_device()
+    try:
+        code = main(["dump", server.url, "--frames", "2", "--all-frames", "--json"])
+    finally:
+        server.stop()
+    out, err = capsys.readouterr()
+    assert code == 0 and json.loads(out.splitlines()[-1])["frames"] == 2
+    notes = err.splitlines()
+    assert notes[0].startswith("handover dump: no frame for 1 s") and "waiting up to 10 s" in notes[0], err
+    assert notes[1].startswith("handover dump: frames again after"), err
+
+
+def test_a_pause_longer_than_timeout_stops_with_the_summary_and_one_line(capsys):
+    server = _pausing_device()
+    try:
+        code = main(["dump", server.url, "--frames", "5", "--all-frames", "--timeout", "0.5", "--json"])
+    finally:
+        server.stop()
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert json.loads(out.splitlines()[-1])["frames"] == 1  # what came is still summed up
+    assert len(err.splitlines()) == 1 and err.startswith("handover dump: no frame for 0.5 s, stopped"), err
+    assert "--timeout S" in err
+
+
+@pytest.mark.parametrize("timeout", ["0", "-1", "nan", "inf"])
+def test_dump_refuses_a_timeout_that_is_not_a_positive_number(capsys, timeout):
+    assert main(["dump", "sim://", "--frames", "1", "--timeout", timeout]) == 2
+    assert capsys.readouterr().err.startswith("handover dump: --timeout must be a positive number")

@@ -8,12 +8,17 @@ The preview (no ``--frames``, no ``--seconds``) starts at the first frame with c
 nobody touches sends all-zero frames, and fifty rows of zeros show nothing. The skipped frames
 are counted, said so in one line, and a line every few seconds tells that the link is alive
 while nothing touches the pads. ``--all-frames`` shows every frame from the first.
+
+A device that pauses (a controller between streams, a loose cable) does not end a count of frames:
+one stderr line says it waits, up to ``--timeout`` seconds, and one that frames came again; the
+client restarts push mode after 2 s of silence, so giving up at the first silent second was wrong.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import dataclass
 
@@ -27,6 +32,11 @@ BURST_NOTE = "n/a (as fast as possible: the frames arrived together)"
 PREVIEW_FRAMES = 50
 IDLE_NOTE_EVERY_S = 3.0
 """While the preview skips frames without contact, say so this often (the link is alive)."""
+SILENCE_TIMEOUT_S = 10.0
+"""How long a count of frames waits through a pause by default: longer than the reader's own push
+restart after 2 s of silence and a controller's 8 s power cycle, short enough for a dead link."""
+WAIT_NOTE_AFTER_S = 1.0
+"""A pause this long is said on stderr (once per pause), so a waiting dump never looks hung."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--all-frames", action="store_true",
                         help="the preview shows frames without contact too (it starts at the first contact)")
     parser.add_argument("--seconds", type=float, default=None, help="stop after S seconds of streaming")
+    parser.add_argument("--timeout", type=float, default=SILENCE_TIMEOUT_S, metavar="S",
+                        help="without --seconds: wait this long for a frame when the device pauses (a controller "
+                        "between streams, a loose cable), then stop with exit 1 (default: %(default)g; "
+                        "--seconds always waits to its end)")
     parser.add_argument("--json", action="store_true", help="one JSON object a line: layout, frames, summary")
     parser.add_argument("--raw", action="store_true", help="ask for raw frames instead of RLE")
 
@@ -55,7 +69,10 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, "--frames must be at least 1")
     if args.seconds is not None and not args.seconds > 0:  # also NaN (it streamed nothing and said 0 frames)
         return fail(COMMAND, f"--seconds must be a positive number of seconds, got {args.seconds}")
+    if not 0 < args.timeout < float("inf"):
+        return fail(COMMAND, f"--timeout must be a positive number of seconds, got {args.timeout}")
     preview = args.frames is None and args.seconds is None
+    problem = None
     emit = _json_line if args.json else None
     idle = IdleSkip(enabled=preview and not args.all_frames, emit=emit)
     tally = Tally()
@@ -65,8 +82,6 @@ def main(args: argparse.Namespace) -> int:
         _show_layout(args.url, client, layout, emit)
         client.start()
         problem = _stream(args, client, layout, idle, tally, emit)
-        if problem:
-            return fail(COMMAND, problem, DEVICE_ERROR)
     except (TransportError, DSAError) as exc:
         return fail(COMMAND, str(exc), DEVICE_ERROR)
     except KeyboardInterrupt:
@@ -76,7 +91,7 @@ def main(args: argparse.Namespace) -> int:
         stats["timeouts"] = max(0, stats.get("timeouts", 0) - tally.cut_by_end)
         client.close()
     _show_summary(tally, idle.skipped, stats, emit)
-    return 0
+    return fail(COMMAND, problem, DEVICE_ERROR) if problem else 0
 
 
 @dataclass
@@ -128,15 +143,29 @@ def _stream(args: argparse.Namespace, client, layout, idle: IdleSkip, tally: Tal
     max_frames = args.frames if args.frames is not None else (PREVIEW_FRAMES if preview else None)
     slices = [layout.matrix_slice(m.index) for m in layout.matrices]
     end = None if args.seconds is None else time.monotonic() + args.seconds  # streaming time, not open time
+    heard = time.monotonic()
+    said_waiting = False
     while (max_frames is None or tally.count < max_frames) and (end is None or time.monotonic() < end):
-        wait = 1.0 if end is None else max(0.0, min(1.0, end - time.monotonic()))
+        wait = min(1.0, max(0.01, heard + args.timeout - time.monotonic())) if end is None else \
+            max(0.0, min(1.0, end - time.monotonic()))
         frame = client.read_frame(timeout=wait)
         if frame is None:
             if end is None:
-                return f"no frame for 1 s (errors so far: {_errors(client.stats)})"
-            if time.monotonic() >= end:
+                silent = time.monotonic() - heard
+                if silent >= args.timeout:
+                    return (f"no frame for {args.timeout:g} s, stopped (errors so far: {_errors(client.stats)}); "
+                            "check the link, or wait longer with --timeout S")
+                if not said_waiting and silent >= WAIT_NOTE_AFTER_S:
+                    said_waiting = True
+                    _stderr(f"no frame for {WAIT_NOTE_AFTER_S:g} s (the device paused, or the link is lost); waiting "
+                            f"up to {args.timeout:g} s for the next (--timeout S; Ctrl-C stops)")
+            elif time.monotonic() >= end:
                 tally.cut_by_end += 1
             continue
+        if said_waiting:
+            said_waiting = False
+            _stderr(f"frames again after {time.monotonic() - heard:.1f} s without one")
+        heard = time.monotonic()
         if idle.skip(frame):
             continue
         sums = [int(np.sum(frame.values[s], dtype=np.int64)) for s in slices]
@@ -207,6 +236,10 @@ def _errors(stats: dict) -> str:
     keys = ("crc_errors", "bad_headers", "packets_dropped", "bytes_dropped", "decode_errors", "boot_queries",
             "reconnects", "timeouts")
     return ", ".join(f"{k} {stats.get(k, 0)}" for k in keys)
+
+
+def _stderr(text: str) -> None:
+    print(f"handover {COMMAND}: {text}", file=sys.stderr, flush=True)
 
 
 def _json_line(obj: dict) -> None:
