@@ -20,6 +20,7 @@ Messages (ASCII, case and surrounding white space ignored):
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import socket
@@ -103,6 +104,10 @@ class ControlSocket:
             access.restrict(self.address)
         except OSError as exc:
             sock.close()
+            if exc.errno == errno.EADDRINUSE and self.address.startswith("@"):
+                raise OSError(f"control.socket {self.address}: in use by another process (another daemon? any local "
+                              "user may take an abstract name); stop it, or choose another name or a path such as "
+                              "/run/handover/control.sock") from None
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
         sock.settimeout(POLL_S)
         self._sock = sock

@@ -7,7 +7,7 @@ sender credentials (SCM_CREDENTIALS): a datagram from another user is dropped an
 
 ``socket_path_problem`` says, before anything is bound, why a ``control.socket`` can never work
 (a regular file, a folder or a symlink in the way, a path longer than a Unix socket address,
-no parent folder): ``run --check`` and the running daemon say the same line.
+no parent folder, an abstract name with no name after the @): ``run --check`` and the running daemon say the same line.
 """
 
 from __future__ import annotations
@@ -31,6 +31,9 @@ def socket_path_problem(address: str) -> str | None:
     """Why ``control.socket`` = ``address`` cannot be bound, or None (a stale socket file is fine:
     it is replaced; one another process is reading is found at bind time)."""
     name = address[1:] if address.startswith("@") else address
+    if address.startswith("@") and not name.strip():
+        return (f"control.socket {address!r}: an abstract socket needs a name after the @ (e.g. @handover-control); "
+                "or use a path, e.g. /run/handover/control.sock")
     if len(name.encode()) > MAX_ADDRESS_BYTES:
         return (f"control.socket {address}: {len(name.encode())} bytes, longer than a Unix socket address "
                 f"({MAX_ADDRESS_BYTES}); choose a shorter path, e.g. /run/handover/control.sock")

@@ -146,3 +146,25 @@ def test_a_file_put_in_the_sockets_place_is_said_once_left_alone_and_the_socket_
     finally:
         control.stop()
     assert not Path(path).exists()
+
+
+@pytest.mark.parametrize("address", ["@", "@  "])
+def test_an_abstract_socket_with_no_name_is_refused_in_one_line_by_check_and_daemon(tmp_path, capsys, address):
+    """``@`` alone bound the empty abstract name: a socket no robot is told about, shared by every
+    daemon configured so."""
+    from runtime.cli import main
+
+    config = tmp_path / "h.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{tmp_path}"\n[control]\nsocket = "{address}"\n')
+    assert main(["run", "--check", "--config", str(config)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "an abstract socket needs a name after the @" in err[0], err
+    with pytest.raises(OSError, match=r"needs a name after the @ \(e\.g\. @handover-control\); or use a path"):
+        ControlSocket(address, lambda closed, source: None).start()
+
+
+def test_an_abstract_name_another_process_holds_says_what_to_do(sender):
+    address = f"@handover-test-held-{os.getpid()}"
+    sender.bind(b"\0" + address[1:].encode())  # any local user may take an abstract name first
+    with pytest.raises(OSError, match=r"in use by another process .*choose another name or a path"):
+        ControlSocket(address, lambda closed, source: None).start()
