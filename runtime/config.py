@@ -27,17 +27,13 @@ from runtime.config_keys import RANGES, SECTIONS, Key, key, section_keys
 from runtime.config_read import ConfigError, no_control_chars, no_unknown, read_key, read_str, read_str_list
 from runtime.instance_name import instance_problem
 
-__all__ = ["FOLLOW_MODEL", "KNOWN_EVENTS", "NO_SINK_LEFT", "RANGES", "TRIGGER_KINDS", "Config", "ConfigError",
+__all__ = ["FOLLOW_MODEL", "KNOWN_EVENTS", "NO_SINK_LEFT", "RANGES", "Config", "ConfigError",
            "ContinuousConfig", "ControlConfig", "DeviceConfig", "ModelConfig", "OnnxConfig", "Ros2Config",
            "SceneConfig", "SinksConfig", "TriggerConfig", "config_from_dict", "load_config", "parse_host_port"]
 
 MODES = key("scene.mode").choices
-TRIGGER_KINDS = key("trigger.kind").choices
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")
 """The paper's four actions and the trainer's dormant class; a custom model may have others."""
-LOG_LEVELS = key("log_level").choices
-RELIABILITIES = key("ros2.reliability").choices
-DURABILITIES = key("ros2.durability").choices
 FOLLOW_MODEL = "model"
 """``scene.pads`` value meaning: the pads the serving model was trained on."""
 NO_SINK_LEFT = ("events go nowhere: no other sink is configured (set sinks.stdout = true, or add sinks.udp or "

@@ -46,8 +46,6 @@ DEFAULT_IDLE_MINUTES = 3.0
 MAX_IDLE_MINUTES = 24 * 60.0
 """The longest idle session one command plans: a day (the plan is listed before recording starts, so an
 endless one would never start)."""
-MIN_STRETCH_S = 1.0
-"""A shorter stretch is refused by the recorder: it would hold no window of the model."""
 
 
 @dataclass(frozen=True, order=True)
@@ -127,5 +125,5 @@ def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
             "source_codes": stretch_codes(n_frames, stretches).tolist()}
 
 
-__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MAX_IDLE_MINUTES", "MIN_STRETCH_S", "PROMPTS", "SOURCES", "IdleSlot", "codes_problem", "has_idle",
+__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MAX_IDLE_MINUTES", "PROMPTS", "SOURCES", "IdleSlot", "codes_problem", "has_idle",
            "idle_meta", "idle_plan", "stretch_codes", "stretches_of"]
