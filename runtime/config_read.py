@@ -9,7 +9,7 @@ from typing import Any
 from runtime.config_keys import RANGES, Key
 
 __all__ = ["ConfigError", "in_range", "no_control_chars", "no_unknown", "read_bool", "read_int", "read_key", "read_num",
-           "read_optional_num", "read_str", "read_str_list"]
+           "read_str", "read_str_list"]
 
 
 class ConfigError(ValueError):
@@ -53,12 +53,6 @@ def read_num(key: str, table: dict, default: float) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{key}: must be a number, got {value!r}")
     return float(in_range(key, value))
-
-
-def read_optional_num(key: str, table: dict) -> float | None:
-    """A number in ``RANGES[key]``, or None when the key is absent (the model's or the default value applies)."""
-    name = key.rpartition(".")[2]
-    return None if name not in table else read_num(key, table, 0.0)
 
 
 def read_int(key: str, table: dict, default: int) -> int:

@@ -53,7 +53,7 @@ _CHUNK_ELEMENTS = 4_000_000
 """Windows x words handled at once by the nearest-word search (bounds memory to ~100 MB)."""
 
 
-def as_cases(X, *, reset_dtype: bool = True) -> np.ndarray:
+def as_cases(X) -> np.ndarray:
     """Validate X and return it as float64 ``(n_cases, n_channels, n_timepoints)``.
 
     2-D input is ``(n_cases, n_timepoints)`` with one channel. NaN, infinity, complex, sparse

@@ -58,10 +58,6 @@ class _ServerBase:
             self._thread.join(timeout)
         self._close()
 
-    def serve_forever(self) -> None:
-        """Run in the calling thread until ``stop`` is called from elsewhere (or Ctrl-C)."""
-        self._run_guarded()
-
     def _run_guarded(self) -> None:
         try:
             self._run()
