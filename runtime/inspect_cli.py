@@ -11,6 +11,8 @@ import argparse
 import json
 import sys
 
+from runtime.training_counts import TrainingCounts
+
 __all__ = ["add_arguments", "main"]
 
 
@@ -63,12 +65,6 @@ def card(model) -> dict:
     }
 
 
-def _trials(n) -> str:
-    """``36 windows``: the training cases (one per trial on the paper's protocol, many per stream);
-    a model exported from a bare estimator file does not know them."""
-    return "an unknown number of windows (not recorded)" if n is None else f"{n} windows"
-
-
 def _value(key: str, v) -> str:
     """Rounded for people: accuracies as percentages, other floats to 4 significant digits."""
     if isinstance(v, bool) or v is None:
@@ -112,7 +108,7 @@ def _svm(c: dict) -> str:
     return f"  SVM: {c['kernel']} kernel" + (f", {', '.join(parts)}" if parts else "")
 
 
-SHOWN_TRAINING = ("n_trials", "n_cases", "level_features", "data_fingerprint", "date", "project_version", "C", "gamma")
+SHOWN_TRAINING = ("n_trials", "n_cases", "n_untriggered", "dormant_windows", "level_features", "data_fingerprint", "date", "project_version", "C", "gamma")
 """Training keys the card shows in its own words (C and gamma are on the SVM line)."""
 
 
@@ -138,7 +134,7 @@ def _text(c: dict) -> str:
         + _trigger(trig, c["fullscale"]),
         _features(c),
         _svm(c),
-        f"  trained on: {_trials(tr.get('n_trials'))}, data {str(tr.get('data_fingerprint'))[:16]}, "
+        f"  trained on: {TrainingCounts.from_meta(tr).text()}, data {str(tr.get('data_fingerprint'))[:16]}, "
         f"{tr.get('date')}, project {tr.get('project_version')}"
         + "".join(f", {k}: {_value(k, v)}" for k, v in tr.items() if k not in SHOWN_TRAINING),
         "  accuracy: " + ("; ".join(f"{k}: {_value(k, v)}" for k, v in ev.items()) if ev else "not recorded"),

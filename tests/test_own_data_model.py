@@ -174,6 +174,21 @@ def test_inspect_says_which_stream_settings_the_model_serves(trained, capsys):
     assert "stream settings: onset_dormant" in out and "dormant class: dormant" in out
 
 
+def test_inspect_and_the_train_report_count_the_same_windows(trained, capsys):
+    """The card printed the labelled trials as "windows" (16) while the report counted the trials'
+    windows plus the dormant ones; both now say the trainer's own counts in one wording."""
+    import re
+
+    metrics = json.loads((trained / "metrics.json").read_text())
+    dormant = metrics["dataset"]["per_class"]["dormant"]
+    assert dormant > 0 and metrics["n_cases"] == metrics["n_trials"] + dormant
+    assert handover(["inspect", str(trained / "model.onnx")]) == 0
+    card = re.search(r"trained on: (.*?), data ", capsys.readouterr().out).group(1)
+    assert card == (f"{metrics['n_cases']} windows: {metrics['n_trials']} from {metrics['n_trials']} labelled "
+                    f"trials + {dormant} dormant windows from idle")
+    assert f"- trained on {card}\n" in (trained / "report.md").read_text()
+
+
 def test_demo_scores_a_given_model(trained, tmp_path, capsys):
     code = handover(["demo", "--model", str(trained / "model.onnx"), "--speed", "max", "--json", "--events", "8",
                      "--out", str(tmp_path / "demo")])

@@ -45,7 +45,7 @@ def test_train_writes_the_report_and_json(tiny_data, tmp_path, capsys):
             assert (out / name).stat().st_size < 150_000
     text = (out / "report.md").read_text()
     assert text.splitlines()[5].startswith("handover train --data")
-    assert "synthetic" in text and "untriggered: 1" in text
+    assert "synthetic" in text and "labelled trials that gave no window: 1**" in text
     assert "windows that end before the annotated onset" in text and "SVM margin of the final model" in text
     assert metrics["n_windows_before_onset"] >= 0 and metrics["W"] == 5 and metrics["windows"] == [5]
     margin = metrics["svm_margin"]
@@ -104,7 +104,10 @@ def test_export_of_a_trained_file_needs_no_pads_and_keeps_the_card(tiny_data, tm
     capsys.readouterr()
     assert handover(["inspect", str(out / "exported.onnx")]) == 0
     card = capsys.readouterr().out
-    assert "None windows" not in card and "trained on: 36 windows" in card
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["n_untriggered"] > 0, "the stand-in's silent trials give no window"
+    assert "None windows" not in card and (f"trained on: {metrics['n_cases']} windows from 36 labelled trials "
+                                           f"({metrics['n_untriggered']} gave no window), data") in card
 
 
 def test_failed_onnx_export_fails_the_command(tiny_data, tmp_path, capsys):

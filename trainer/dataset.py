@@ -33,6 +33,7 @@ import numpy as np
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording, RecordingError, Trial, find_recordings, load_all
 from firmware_io.trigger_level import is_trigger_level
+from runtime.training_counts import TrainingCounts
 from runtime.trigger import ThresholdTrigger
 from runtime.trigger_settings import (
     DEFAULT_HYSTERESIS,
@@ -115,6 +116,13 @@ class Dataset:
     def n_untriggered(self) -> int:
         return len(self.untriggered)
 
+    def counts(self) -> TrainingCounts:
+        """Trials and windows as every report of this data set states them (dormant windows are no trials)."""
+        from trainer.dormant import DORMANT
+
+        return TrainingCounts(trials=self.n_trials, windows=len(self.y), untriggered=self.n_untriggered,
+                              dormant=int(np.sum(self.y == DORMANT)))
+
     @property
     def classes(self) -> list[str]:
         return sorted(set(self.y.tolist()))
@@ -153,9 +161,7 @@ class Dataset:
         known = self.onsets >= 0
         delay = (self.trigger_offsets[known] - self.onsets[known]) if known.any() else np.zeros(0)
         return {
-            "n_trials": self.n_trials,
-            "n_cases": len(self.y),
-            "n_untriggered": self.n_untriggered,
+            **self.counts().to_meta(),
             "untriggered_reasons": reasons,
             "per_class": {c: int(np.sum(self.y == c)) for c in self.classes},
             "per_subject": {s: int(np.sum(self.groups == s)) for s in sorted(set(self.groups.tolist()))},

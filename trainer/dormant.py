@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.recordings.recording import Recording
+from runtime.training_counts import TrainingCounts
 from trainer.dataset import fingerprint
 from trainer.defaults import PAPER_MODEL, paper_classifier
 
@@ -74,6 +75,11 @@ class DormantDataset:
     T: int
     fullscale: float
     fingerprint: str
+
+    def counts(self, trials: int | None = None) -> TrainingCounts:
+        """Windows as every report states them; ``trials``: the labelled trials they were cut from
+        (several windows each), which this set does not keep."""
+        return TrainingCounts(trials=trials, windows=len(self.y), dormant=int(np.sum(self.y == DORMANT)))
 
     def summary(self) -> dict:
         kinds, counts = np.unique(self.origin, return_counts=True)
@@ -363,7 +369,8 @@ def fit_stream_model(protocol: Sequence[Recording], seed: int, idle_min: float, 
     return export(model, path, pads=dds.pads, pad_sizes=dds.pad_sizes, fullscale=dds.fullscale,
                   fraction=trigger["fraction"], trigger=trigger, sample_rate_hz=1.0 / protocol[0].sample_interval(),
                   dormant_class=DORMANT, training={
-                      "data_fingerprint": dds.fingerprint, "n_trials": len(dds.y), "n_cases": len(dds.y),
+                      "data_fingerprint": dds.fingerprint,
+                      **dds.counts(trials=sum(len(r.trials) for r in protocol)).to_meta(),
                       "synthetic": True, "seed": seed, "windows": dds.summary(), "level_features": True,
                       "data": f"protocol + {idle_min:g} min simulate_idle(seed={seed}) + "
                               f"simulate_session(demo_script({n_sessions}, seed={seed}))"}, early=heads)

@@ -138,7 +138,7 @@ def train_models(args, s: dict, model_dir: Path) -> dict:
     common = {"pads": ds.pads, "pad_sizes": ds.pad_sizes, "fullscale": ds.fullscale, "fraction": PAPER_FRACTION,
               "sample_rate_hz": rate}
     paper_path = dormant.export(paper, model_dir / "paper.onnx", dormant_class=None, **common, training={
-        "data_fingerprint": ds.fingerprint, "n_trials": ds.n_trials, "n_cases": len(ds.y), "synthetic": True,
+        "data_fingerprint": ds.fingerprint, **ds.counts().to_meta(), "synthetic": True,
         "data": f"simulate_protocol(seed={args.seed}, runs={s['runs']})", "seed": args.seed,
         "C": paper.best_params_.get("C"), "gamma": paper.best_params_.get("gamma")})
 
@@ -146,7 +146,7 @@ def train_models(args, s: dict, model_dir: Path) -> dict:
     dds = dormant.build_dormant_dataset(protocol, idle, T=args.T, pads=args.pads, seed=args.seed, sessions=sessions)
     five = dormant.train(dds.X, dds.y, args.K, args.W, seed=args.seed)
     five_path = dormant.export(five, model_dir / "dormant.onnx", dormant_class=dormant.DORMANT, **common, training={
-        "data_fingerprint": dds.fingerprint, "n_trials": ds.n_trials, "n_cases": len(dds.y), "synthetic": True,
+        "data_fingerprint": dds.fingerprint, **dds.counts(trials=ds.n_trials).to_meta(), "synthetic": True,
         "data": f"simulate_protocol(seed={args.seed}, runs={s['runs']}) + "
                 f"{s['train_idle_min']:g} min simulate_idle(seed={args.seed}) + simulate_session("
                 f"demo_script({s['train_sessions']}, seed={args.seed}))",

@@ -55,8 +55,8 @@ def file_metadata(*, pads: Sequence[int], pad_sizes: Sequence[int], training: di
 def dataset_metadata(ds, training: dict, evaluation: dict | None = None, dormant_class: str | None = None
                      ) -> dict[str, Any]:
     """``file_metadata`` of a model trained on the data set ``ds`` (a ``trainer.dataset.Dataset``
-    or anything with its pads, trigger, rate, fingerprint and counts)."""
+    or anything with its pads, trigger, rate, fingerprint and ``counts()``)."""
     return file_metadata(
         pads=ds.pads, pad_sizes=ds.pad_sizes, fullscale=ds.fullscale, trigger=ds.trigger.to_meta(),
         sample_rate_hz=ds.sample_rate_hz, evaluation=evaluation, dormant_class=dormant_class,
-        training={"data_fingerprint": ds.fingerprint, "n_trials": ds.n_trials, "n_cases": len(ds.y), **training})
+        training={"data_fingerprint": ds.fingerprint, **ds.counts().to_meta(), **training})

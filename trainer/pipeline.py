@@ -111,8 +111,7 @@ def train(options: TrainOptions) -> TrainResult:
     ds = build_dataset(recordings, T=options.T, pads=options.pads,
                        trigger=dataset_trigger(options.trigger, options.fraction))
     summary = ds.summary()
-    say(f"{ds.n_trials} trials, {len(ds.y)} cases, {ds.n_untriggered} untriggered "
-        f"{summary['untriggered_reasons'] or ''}")
+    say(f"{ds.counts().text()} {summary['untriggered_reasons'] or ''}".rstrip())
     for line in untriggered_lines(ds):
         say(f"  {line}")
     problem = too_few_cases(ds)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.training_counts import TrainingCounts
+
 __all__ = [
     "features_label", "model_label", "pct", "plot_confusion", "plot_model_vs_baseline", "plot_sweep", "plot_tsne",
     "pooled_text", "write_markdown", "write_metrics"
@@ -225,9 +227,9 @@ def _data_lines(metrics: dict) -> list[str]:
         f"- pads {ds['pads']} ({metrics['pads']}), {sum(ds['pad_sizes'])} taxel series per case, "
         f"T = {metrics['T']} frames at {ds['sample_rate_hz']:.1f} Hz",
         trigger_line(ds),
-        f"- labelled trials: {metrics['n_trials']}; cases: {ds['n_cases']}; "
-        f"**untriggered: {metrics['n_untriggered']}** {ds['untriggered_reasons'] or ''} (listed in metrics.json, "
-        "not padded, not in any split)",
+        f"- trained on {TrainingCounts.from_meta(ds).text()}",
+        f"- **labelled trials that gave no window: {ds['n_untriggered']}** {ds['untriggered_reasons'] or ''} "
+        "(listed in metrics.json, not padded, not in any split)",
         f"- cases per class: {ds['per_class']}; per subject: {ds['per_subject']}",
         *_idle_lines(metrics.get("idle")),
     ]

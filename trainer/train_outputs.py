@@ -44,7 +44,7 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
         "trigger": ds.trigger.to_meta(), "trigger_hysteresis": ds.hysteresis, "seed": options.seed,
         "best_params": model.best_params_,
         "svm_margin": margin_report(model.svm_),
-        "n_trials": ds.n_trials, "n_cases": len(ds.y), "n_untriggered": ds.n_untriggered,
+        **ds.counts().to_meta(),
         "n_windows_before_onset": ds.windows_before_onset,
         "untriggered": [s.to_dict() for s in ds.untriggered],
         "dataset": ds.summary(),
@@ -88,14 +88,13 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "data": metrics["data"],
             **folder,
             "synthetic": metrics["synthetic"],
-            "n_untriggered": ds.n_untriggered,
             "seed": options.seed,
             "C": metrics["best_params"].get("C"),
             "gamma": metrics["best_params"].get("gamma"),
             "hard_margin": metrics["svm_margin"]["hard_margin"],
             "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
-            **({"idle_seconds": metrics["idle"]["seconds"], "dormant_windows": metrics["idle"]["dormant_windows"],
-                "dormant_cut": metrics["idle"]["cut"]} if metrics.get("idle") else {}),
+            **({"idle_seconds": metrics["idle"]["seconds"], "dormant_cut": metrics["idle"]["cut"]}
+               if metrics.get("idle") else {}),
         },
         evaluation={
             "synthetic": metrics["synthetic"],
@@ -163,21 +162,20 @@ def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> d
 
 def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
+    from runtime.training_counts import TrainingCounts
     from trainer.own_replay import real_idle_line, replay_lines
     from trainer.report import pct, pooled_text
 
-    tag = "synthetic data, " if metrics["synthetic"] else ""
+    tag = "synthetic data" if metrics["synthetic"] else ""
     model = out / "model.onnx"
     # K (words) and W (derivative window) mean something only to the BoW family
     bow = f"K={metrics['K']} W={metrics['W']} " if "bow" in metrics["families"] else ""
     weighting = f" ({metrics['feature_weighting']})" if metrics.get("feature_weighting") else ""
     idle = metrics.get("idle")
-    dormant = (f" + {idle['dormant_windows']} dormant windows from {idle['seconds'] / 60:.1f} min of idle"
-               if idle else "")
-    n_trial_cases = metrics["n_cases"] - (idle["dormant_windows"] if idle else 0)
+    note = "; ".join(([f"{idle['seconds'] / 60:.1f} min recorded"] if idle else []) + ([tag] if tag else []))
     lines = [
-        f"trained on {n_trial_cases} cases of {metrics['n_trials']} trials{dormant} ({tag}{metrics['n_untriggered']} "
-        f"never triggered), pads {metrics['pads']}, features {'+'.join(metrics['families'])}{weighting}, {bow}"
+        f"trained on {TrainingCounts.from_meta(metrics).text()}" + (f" ({note})" if note else "")
+        + f", pads {metrics['pads']}, features {'+'.join(metrics['families'])}{weighting}, {bow}"
         f"T={metrics['T']} {metrics['kernel']} SVM"
         + (f" (--select: {metrics['selection']['winner']})" if metrics.get("selection") else ""),
         f"  leave one subject out: {pct(metrics['loso_accuracy'])} (hand-designed baseline "

@@ -32,7 +32,7 @@ def trained_model(tmp: Path) -> Path:
     model = paper_classifier(ds.pad_sizes, per_pad=True, C=100.0, gamma="scale").fit(ds.X, ds.y)
     src = tmp / "bench.joblib"
     joblib.dump({"model": model, "metadata": {"pads": list(ds.pads), "pad_sizes": list(ds.pad_sizes),
-                 "training": {"data_fingerprint": ds.fingerprint, "n_trials": len(ds.y)}}}, src)
+                 "training": {"data_fingerprint": ds.fingerprint, **ds.counts().to_meta()}}}, src)
     return export_trained(src, tmp / "bench.onnx")
 
 

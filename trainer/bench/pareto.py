@@ -117,8 +117,12 @@ class _DatasetMeta:
     """The few Dataset fields export_metadata reads (picklable, without the cases)."""
 
     def __init__(self, ds) -> None:
-        for name in ("pads", "pad_sizes", "fullscale", "fraction", "trigger", "sample_rate_hz", "fingerprint", "n_trials", "y"):
+        for name in ("pads", "pad_sizes", "fullscale", "fraction", "trigger", "sample_rate_hz", "fingerprint"):
             setattr(self, name, getattr(ds, name))
+        self._counts = ds.counts()
+
+    def counts(self):
+        return self._counts
 
 
 def run(args) -> dict:
