@@ -7,14 +7,24 @@ default exists for simulation and for files that carry no header.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FULL_SCALE_12BIT", "LayoutError", "MatrixInfo", "SensorLayout"]
+__all__ = ["FULL_SCALE_12BIT", "LayoutError", "MatrixInfo", "SensorLayout", "fullscale_problem"]
 
 FULL_SCALE_12BIT = 4095
+
+
+def fullscale_problem(value: object) -> str | None:
+    """Why ``value`` cannot be a pad's full scale, or None. Trigger levels, the onset floor and the
+    level features are fractions of it: 0 or NaN made them divide by zero in the hot path, and 1e308
+    overflowed the controller's float32 reply; a 12-bit pad reports 1 to 4095."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 1 <= value <= FULL_SCALE_12BIT:
+        return f"fullscale {value!r} is not a 12-bit pad's full scale (a number from 1 to {FULL_SCALE_12BIT})"
+    return None
 
 
 class LayoutError(ValueError):
@@ -38,6 +48,8 @@ class MatrixInfo:
     def __post_init__(self) -> None:
         if self.cells_x <= 0 or self.cells_y <= 0:
             raise LayoutError(f"matrix {self.index}: cells must be positive, got {self.cells_x}x{self.cells_y}")
+        if problem := fullscale_problem(self.fullscale):
+            raise LayoutError(f"matrix {self.index}: {problem}")
         if self.static_mask is not None:
             mask = np.asarray(self.static_mask, dtype=bool)
             if mask.shape != (self.cells_y, self.cells_x):

@@ -192,7 +192,10 @@ class ModelMeta:
             problems.append(f"pad_sizes {list(self.pad_sizes)} must give a positive size for each of the pads {list(self.pads)}")
         if sum(self.pad_sizes) != self.n_channels:
             problems.append(f"n_channels={self.n_channels} != sum(pad_sizes)={sum(self.pad_sizes)}")
-        if not self.fullscale <= FULL_SCALE_12BIT:
+        if self.fullscale < 1:
+            problems.append(f"fullscale {self.fullscale:g} is below 1, not a 12-bit pad's full scale (1 to "
+                            f"{FULL_SCALE_12BIT}); trigger levels and the onset floor would be ~0: re-export the model")
+        elif not self.fullscale <= FULL_SCALE_12BIT:
             problems.append(f"fullscale {self.fullscale:g} is more than the pads can report ({FULL_SCALE_12BIT}, "
                             "12-bit); no press would ever reach the trigger: re-export the model")
         fraction = self.trigger.get("fraction")

@@ -118,3 +118,35 @@ def test_matrix_checks():
 def test_from_matrix_infos_sorts_by_index():
     layout = SensorLayout.from_matrix_infos([MatrixInfo(1, 6, 13), MatrixInfo(0, 6, 14)])
     assert layout.offsets == (0, 84)
+
+
+@pytest.mark.parametrize("fullscale", [1e308, -1e308, float("nan"), 0.0, 0.5, 4096.0, float("inf")])
+def test_a_full_scale_no_12bit_pad_has_is_refused_where_it_enters(tmp_path, capsys, fullscale):
+    """A recording's layout and a controller's matrix reply: 0 made the onset floor divide by zero in the
+    daemon's hot path, 1e308 crashed ``handover dump replay://`` and the emulator (float32 overflow)."""
+    import zipfile
+
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.wire.errors import ProtocolError
+    from firmware_io.wire.replies import MatrixInfoReply
+    from runtime.cli import main
+
+    with pytest.raises(LayoutError, match=r"^matrix 0: fullscale .* is not a 12-bit pad's full scale"):
+        MatrixInfo(0, 6, 13, fullscale=fullscale)
+    good = load_source("sim", seed=0, events=1).save(tmp_path / "good.hrec")
+    bad = tmp_path / "bad.hrec"
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "header.json":
+                header = json.loads(data)
+                header["layout"]["matrices"][0]["fullscale"] = fullscale
+                data = json.dumps(header).encode()  # NaN and Infinity as Python's json writes them
+            dst.writestr(item, data)
+    assert main(["dump", f"replay://{bad}", "--frames", "3"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "matrix 0: fullscale" in err[0] and "from 1 to 4095" in err[0], err
+    if abs(fullscale) != 1e308:  # a float32 reply cannot carry 1e308
+        reply = MatrixInfoReply.decode(MatrixInfoReply(fullscale=fullscale).encode())
+        with pytest.raises(ProtocolError, match=r"^matrix 2: controller reports fullscale .* from 1 to 4095"):
+            reply.to_matrix_info(2)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_io.layout import MatrixInfo
+from firmware_io.layout import MatrixInfo, fullscale_problem
 from firmware_io.wire.errors import ProtocolError
 from firmware_io.wire.packets import PacketId, check_reply, encode_packet, expect_size
 
@@ -179,9 +179,12 @@ class MatrixInfoReply:
         return bool(self.feature_flags & 0x02)
 
     def to_matrix_info(self, index: int, static_mask: np.ndarray | None = None) -> MatrixInfo:
-        """The layout's view of this pad. Raises ProtocolError for a pad with no cells."""
+        """The layout's view of this pad. Raises ProtocolError for a pad with no cells or a full scale
+        no 12-bit pad has."""
         if self.cells_x <= 0 or self.cells_y <= 0:
             raise ProtocolError(f"matrix {index}: controller reports {self.cells_x}x{self.cells_y} cells")
+        if problem := fullscale_problem(self.fullscale):
+            raise ProtocolError(f"matrix {index}: controller reports {problem}")
         return MatrixInfo(
             index=index,
             cells_x=self.cells_x,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from firmware_io.layout import fullscale_problem
 from firmware_io.recordings.recording import RecordingError
 
 __all__ = ["MAX_12BIT", "check_allocation", "check_fullscale", "check_range", "describe_timing", "keep_increasing"]
@@ -29,8 +30,8 @@ def check_allocation(n_frames: int, n_taxels: int, source_bytes: int) -> None:
 
 def check_fullscale(value: float, where: str) -> float:
     """A full scale a 12-bit sensor can report (1..4095), else one error naming ``where``."""
-    if not (1 <= value <= MAX_12BIT):  # also NaN
-        raise RecordingError(f"{where}: fullscale {value!r} is not a 12-bit sensor's full scale (1..{MAX_12BIT})")
+    if problem := fullscale_problem(value):
+        raise RecordingError(f"{where}: {problem}")
     return value
 
 
