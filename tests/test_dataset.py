@@ -15,7 +15,6 @@ from trainer.dataset import (
     DatasetError,
     build_dataset,
     fingerprint,
-    load_dataset,
     rising_trigger,
     trigger_frame,
 )
@@ -99,22 +98,12 @@ def test_fingerprint_follows_frames_and_labels():
     assert fingerprint([relabelled]) != a
 
 
-def test_bad_settings_are_clear_errors(tmp_path):
+def test_bad_settings_are_clear_errors():
     recs = standin_recordings(n_subjects=1, runs=1)
     with pytest.raises(DatasetError, match="pad"):
         build_dataset(recs, pads="finger-7", fraction=0.15)
     with pytest.raises(DatasetError, match="fraction"):
         build_dataset(recs, fraction=1.5)
-    with pytest.raises(ValueError, match=r"no \.hrec"):
-        load_dataset(tmp_path)
-
-
-def test_load_dataset_reads_a_folder(tmp_path):
-    from protocol_standin import write_standin
-
-    write_standin(tmp_path, n_subjects=2, runs=1)
-    ds, recs = load_dataset(tmp_path, T=12, pads="distal", fraction=0.15)
-    assert len(recs) == 2 and ds.X.shape[2] == 12 and ds.sources == ["subject_s1.hrec", "subject_s2.hrec"]
 
 
 def _level_recording(levels: list[int], onset: int = 0) -> Recording:

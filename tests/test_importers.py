@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recordings.importers import find_sources, import_any, iter_dsa_files, read_dsa, read_rosbag
+from firmware_io.recordings.importers import find_sources, import_any, read_dsa, read_rosbag
 from firmware_io.recordings.recording import Recording, RecordingError
 from runtime.cli import main as handover
 from tests.conftest import SDH2_DATA, bag_files, dsa_files, real_data_dir
@@ -121,13 +121,10 @@ def test_truncated_real_dsa_file(tmp_path):
         assert str(bad) in str(info.value)
 
 
-def test_iter_dsa_files_and_find_sources():
+def test_find_sources():
     real_data_dir()
-    assert list(iter_dsa_files(SDH2_DATA)) == DSA
     sources = list(find_sources(SDH2_DATA))
     assert set(sources) == set(DSA) | set(BAGS)
-    with pytest.raises(RecordingError, match="no such folder"):
-        list(iter_dsa_files(SDH2_DATA / "does-not-exist"))
 
 
 # -- synthetic .dsa files --------------------------------------------------------------------

@@ -353,10 +353,12 @@ def _two_subjects(tmp_path, runs: int) -> None:
 
 
 def test_recorded_files_assemble_into_a_dataset(tmp_path):
-    from trainer.dataset import load_dataset
+    from firmware_io.recordings.recording import find_recordings, load_all
+    from trainer.dataset import build_dataset
 
     _two_subjects(tmp_path, runs=1)
-    ds, recs = load_dataset(tmp_path)
+    recs = load_all(find_recordings(tmp_path))
+    ds = build_dataset(recs)
     assert ds.n_trials == 8 and set(ds.groups) <= {"s1", "s2"}
     # handover record checks each trial with the trainer's own cut: its flags are what training drops, and why
     no_case = [t.extra["no_case"] for r in recs for t in r.trials if t.extra["no_case"] is not None]

@@ -22,16 +22,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from firmware_io.layout import SensorLayout
-from firmware_io.recordings.recording import Recording, RecordingError, Trial, find_recordings, load_all
+from firmware_io.recordings.recording import Recording, Trial
 from firmware_io.trigger_level import is_trigger_level
 from runtime.training_counts import TrainingCounts
 from runtime.trigger import ThresholdTrigger
@@ -46,7 +44,7 @@ from runtime.trigger_settings import (
 
 __all__ = [
     "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "CaseCheck", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
-    "case_check", "dataset_trigger", "fingerprint", "load_dataset", "onset_start", "reason_counts", "rising_trigger",
+    "case_check", "dataset_trigger", "fingerprint", "onset_start", "reason_counts", "rising_trigger",
     "trigger_frame", "untriggered_lines"
 ]
 
@@ -458,16 +456,3 @@ def _relative_onset(onset, trial: Trial) -> int:
         return onset - trial.first
     return -1
 
-
-def load_dataset(
-    folder: str | os.PathLike,
-    T: int = 15,
-    pads: str | Sequence[int] = "all",
-    fraction: float | None = None,
-) -> tuple[Dataset, list[Recording]]:
-    """Read every ``.hrec`` file of a folder and build the data set (RecordingError/DatasetError on trouble)."""
-    paths = find_recordings(folder)
-    if not paths:
-        raise RecordingError(f"{folder}: no .hrec recordings in this folder")
-    recordings = load_all(paths)
-    return build_dataset(recordings, T=T, pads=pads, fraction=fraction, sources=[Path(p).name for p in paths]), recordings

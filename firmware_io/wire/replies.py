@@ -174,10 +174,6 @@ class MatrixInfoReply:
             error_code=f[0],
         )
 
-    @property
-    def sensitivity_adjustable(self) -> bool:
-        return bool(self.feature_flags & 0x02)
-
     def to_matrix_info(self, index: int, static_mask: np.ndarray | None = None) -> MatrixInfo:
         """The layout's view of this pad. Raises ProtocolError for a pad with no cells or a full scale
         no 12-bit pad has."""
@@ -221,10 +217,6 @@ class SensitivityReply:
 
     PACKET_ID = PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO
     _FORMAT = "<HBff"
-
-    @property
-    def adjustable(self) -> bool:
-        return bool(self.adj_flags & 0x02)
 
     def encode(self) -> bytes:
         return struct.pack(self._FORMAT, self.error_code, self.adj_flags, self.cur_sens, self.fact_sens)

@@ -10,7 +10,7 @@ from firmware_io.wire.packets import PacketId, encode_packet, expect_size
 
 __all__ = [
     "FLAG_PERSISTENT", "AcquisitionConfig", "SetSensitivityRequest", "SetThresholdRequest",
-    "get_sensitivity_request", "get_threshold_request", "matrix_index_of", "push_request",
+    "get_sensitivity_request", "get_threshold_request", "push_request",
     "query_controller_info_request", "query_matrix_info_request", "query_sensor_info_request",
     "read_matrix_mask_request", "single_frame_request", "stop_request"
 ]
@@ -100,12 +100,6 @@ def get_threshold_request(matrix: int) -> bytes:
 
 def read_matrix_mask_request(matrix: int, dynamic: bool = False) -> bytes:
     return encode_packet(PacketId.READ_MATRIX_MASK, bytes([1 if dynamic else 0]) + _matrix_byte(matrix))
-
-
-def matrix_index_of(payload: bytes, what: str) -> int:
-    """The matrix index of a 1-byte request payload (0x0B, 0x12, 0x14), for the emulator."""
-    expect_size(payload, 1, what)
-    return payload[0]
 
 
 @dataclass(frozen=True)

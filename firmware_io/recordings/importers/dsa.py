@@ -25,7 +25,6 @@ import bz2
 import os
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +39,7 @@ from firmware_io.recordings.importers._common import (
 )
 from firmware_io.recordings.recording import Recording, RecordingError
 
-__all__ = ["MAX_XML_BYTES", "SUFFIX", "iter_dsa_files", "read_dsa"]
+__all__ = ["MAX_XML_BYTES", "SUFFIX", "read_dsa"]
 
 SUFFIX = ".dsa"
 
@@ -50,14 +49,6 @@ _FRAME_RE = re.compile(
 _FRAME_OPEN_RE = re.compile(rb"<frame[\s>]")
 _FRAME_COUNT_RE = re.compile(rb"<frame_count>\s*(\d+)\s*</frame_count>")
 _WHITESPACE = b" \t\r\n"
-
-
-def iter_dsa_files(folder: str | os.PathLike) -> Iterator[Path]:
-    """All ``.dsa`` files below a folder, sorted; a missing folder raises RecordingError."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise RecordingError(f"{folder}: no such folder")
-    yield from sorted(p for p in folder.rglob(f"*{SUFFIX}") if p.is_file())
 
 
 def read_dsa(path: str | os.PathLike) -> Recording:
