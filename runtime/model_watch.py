@@ -236,9 +236,10 @@ class ModelWatcher:
             self._skipped.clear()
             self.current = None
         now = self._list()
-        if self._listed:
-            for path in [p for p in self.said if p not in now]:
-                del self.said[path]
+        if self._listed:  # forget files that left (list(): a replaced watcher may still be finishing a poll)
+            for path in list(self.said):
+                if path not in now:
+                    self.said.pop(path, None)
         gone = self._listed and self.current is not None and not self.current.same_file(now.get(self.current.path))
         if gone:
             self._serving_file_left()
