@@ -97,7 +97,6 @@ class Dataset:
     fullscale: float
     sample_rate_hz: float
     fingerprint: str
-    sources: list[str] = field(default_factory=list)
     hysteresis: float = DEFAULT_HYSTERESIS
     """Re-arm below ``(fraction - hysteresis)`` x full scale (the runtime trigger's rule)."""
     trigger: TriggerSettings = field(default_factory=lambda: dataset_trigger(fraction=PAPER_FRACTION))
@@ -142,7 +141,6 @@ class Dataset:
             fullscale=self.fullscale,
             sample_rate_hz=self.sample_rate_hz,
             fingerprint=self.fingerprint,
-            sources=self.sources,
             hysteresis=self.hysteresis,
             trigger=self.trigger,
         )
@@ -308,7 +306,6 @@ def build_dataset(
     T: int = 15,
     pads: str | Sequence[int] = "all",
     fraction: float | None = None,
-    sources: Sequence[str] = (),
     hysteresis: float = DEFAULT_HYSTERESIS,
     trigger: TriggerSettings | None = None,
 ) -> Dataset:
@@ -332,8 +329,7 @@ def build_dataset(
         other = [(rec.layout.matrices[p].cells_y, rec.layout.matrices[p].cells_x)
                  for p in pad_idx if p < rec.layout.n_matrices]
         if other != shapes:
-            name = sources[i] if i < len(sources) else f"recording {i}"
-            raise DatasetError(f"{name}: its pads {list(pad_idx)} differ from the first recording's")
+            raise DatasetError(f"recording {i}: its pads {list(pad_idx)} differ from the first recording's")
     fullscale = max(layout.matrices[p].fullscale for p in pad_idx)
     hysteresis = settings.hysteresis  # capped by resolve_trigger, as the daemon's
     cols = layout.columns(pad_idx)
@@ -380,7 +376,6 @@ def build_dataset(
         fullscale=float(fullscale),
         sample_rate_hz=rate,
         fingerprint=fingerprint(recordings),
-        sources=list(sources),
         hysteresis=hysteresis,
         trigger=settings,
     )

@@ -177,7 +177,7 @@ def with_dormant(ds, idle: IdleWindows):
         onsets=np.concatenate([ds.onsets, np.full(n, -1, dtype=np.int64)]),
         untriggered=ds.untriggered, layout=ds.layout, pads=ds.pads, pad_sizes=ds.pad_sizes, T=ds.T,
         fraction=ds.fraction, fullscale=ds.fullscale, sample_rate_hz=ds.sample_rate_hz, fingerprint=ds.fingerprint,
-        sources=ds.sources, hysteresis=ds.hysteresis, trigger=ds.trigger)
+        hysteresis=ds.hysteresis, trigger=ds.trigger)
 
 
 def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: int, say: Callable[[str], None],
