@@ -142,13 +142,26 @@ def test_a_flood_of_arm_datagrams_is_a_few_log_lines_and_the_loop_keeps_up(tmp_p
 
 
 # -- marks with the data ---------------------------------------------------------------------------------
+def _moving_frames(marks: dict[int, bool], n_frames: int) -> np.ndarray:
+    """Per frame whether the robot's last word before it was ``arm moving`` (no settle time: that is the daemon's)."""
+    out = np.zeros(n_frames, dtype=bool)
+    state, since = False, 0
+    for frame, moving in sorted(marks.items()):
+        if state:
+            out[since:frame] = True
+        state, since = bool(moving), int(frame)
+    if state:
+        out[since:] = True
+    return out
+
+
 def test_the_simulator_marks_its_own_moves_and_they_lie_inside_its_arm_move_frames():
     from firmware_io.sim.idle import simulate_idle
     from trainer.streams_eval import source_names
 
     rec = simulate_idle(120.0, seed=3)
     marks = arm_marks.marks_of(rec.meta, rec.n_frames)
-    moving = arm_marks.moving_frames(marks, rec.n_frames)
+    moving = _moving_frames(marks, rec.n_frames)
     names = source_names(rec, rec.n_frames)
     assert moving.sum() > 0 and np.all(names[moving] == "arm_move")
     assert next(iter(marks.values())) is True and len(marks) % 2 == 0
@@ -234,7 +247,7 @@ def test_a_recorded_session_stores_the_robots_arm_words_heard_on_the_control_soc
     rec = Recording.load(store.path)
     marks = arm_marks.marks_of(rec.meta, rec.n_frames)
     stretches = rec.meta["idle_stretches"]
-    moving = arm_marks.moving_frames(marks, rec.n_frames)
+    moving = _moving_frames(marks, rec.n_frames)
     first, second = stretches[0], stretches[1]
     assert moving[first["first"] + 5:first["last"] + 1].all() and not moving[:first["first"]].any()
     assert moving[second["first"]] and not moving[second["first"] + 5:].any()  # still a few frames in

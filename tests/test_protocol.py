@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_io.layout import MatrixInfo, SensorLayout
-from firmware_io.wire.crc import CRC_TABLE, _crc_loop, crc16
+from firmware_io.wire.crc import CRC_INIT, CRC_TABLE, crc16
 from firmware_io.wire.device_time import TimestampUnwrapper
 from firmware_io.wire.errors import (
     ChecksumError,
@@ -80,6 +80,14 @@ def test_reference_example_packets(name: str, built: bytes, expected: str) -> No
 
 def test_crc_check_value() -> None:
     assert crc16(b"123456789") == 0x6EB4
+
+
+def _crc_loop(data: bytes, crc: int = CRC_INIT) -> int:
+    """One byte a step: the definition (the faster paths are checked against it)."""
+    table = CRC_TABLE
+    for byte in data:
+        crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
+    return crc
 
 
 def test_crc_table_is_msb_first_ccitt() -> None:

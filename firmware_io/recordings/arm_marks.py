@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["KEY", "encode", "marks_of", "moving_frames", "problem"]
+__all__ = ["KEY", "encode", "marks_of", "problem"]
 
 KEY = "arm_marks"
 ARM_SOURCE = "arm_move"
@@ -85,19 +85,6 @@ def stretch_marks(codes: Iterable[int] | None, names: Iterable[str]) -> dict[int
     out = {int(i): True for i in np.flatnonzero(edges == 1)}
     out.update({int(i): False for i in np.flatnonzero(edges == -1) if i < len(moving)})
     return dict(sorted(out.items()))
-
-
-def moving_frames(marks: Mapping[int, bool], n_frames: int) -> np.ndarray:
-    """Per frame whether the robot's last word before it was ``arm moving`` (no settle time: that is the daemon's)."""
-    out = np.zeros(n_frames, dtype=bool)
-    state, since = False, 0
-    for frame, moving in sorted(marks.items()):
-        if state:
-            out[since:frame] = True
-        state, since = bool(moving), int(frame)
-    if state:
-        out[since:] = True
-    return out
 
 
 class ArmMarkLog:
