@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S, NOMINAL_RATE_HZ
 from firmware_io.layout import SensorLayout
 from runtime.arm_motion import ArmMotion, arm_frames
 from runtime.config import Config, ContinuousConfig, ControlConfig, SceneConfig, TriggerConfig
@@ -45,10 +46,8 @@ if TYPE_CHECKING:
     from firmware_io.client import Frame
     from runtime.model import LoadedModel
 
-__all__ = ["DEFAULT_RATE_HZ", "REHEARSAL_LEAD_S", "Decision", "Detector", "ReportRule", "Trigger", "Windows"]
+__all__ = ["REHEARSAL_LEAD_S", "Decision", "Detector", "ReportRule", "Trigger", "Windows"]
 
-DEFAULT_RATE_HZ = 32.0
-"""The period assumed until a model says its ``sample_rate_hz`` (the SDH-2's rate)."""
 REHEARSAL_LEAD_S = 0.001
 """How long before a frame that runs the model the model is rehearsed (``Detector.rehearsal_at``):
 close enough that the caches stay warm, wide enough for the frames' arrival jitter."""
@@ -215,8 +214,8 @@ class Detector:
         self._continuous: ContinuousDecision | None = None
         """Continuous mode's report rule (kept with the trigger: its state survives a reload)."""
         self.windows = Windows()
-        self.period_s = 1.0 / DEFAULT_RATE_HZ
-        """The serving model's sample period."""
+        self.period_s = NOMINAL_PERIOD_S
+        """The serving model's sample period (the nominal one until a model is served)."""
         self.frame_clock = FrameClock(1000.0 * self.period_s, health, on_restart=self.restart)
         """Feeds the model at its trained period: decimates faster streams, warns on slower ones."""
         self.latest_frame: Frame | None = None
@@ -268,7 +267,7 @@ class Detector:
         if model is None:
             self.windows.clear()
             return
-        period_s = 1.0 / float(model.meta.sample_rate_hz or DEFAULT_RATE_HZ)
+        period_s = 1.0 / float(model.meta.sample_rate_hz or NOMINAL_RATE_HZ)
         same_rate = period_s == self.period_s  # frames kept at another rate would splice two time scales
         self.period_s = period_s
         self.frame_clock.set_model_period(1000.0 * period_s)

@@ -36,6 +36,7 @@ CRITERION = ("sum of validation utilities (right first reports - wrong first rep
 def score_variant(variant: tuple[int, int], seed: int, work: str) -> dict:
     """Train the stream model with ``variant`` and score it on the validation data (seed + VAL_OFFSET)."""
     from firmware_io.sim import demo_script, simulate_protocol
+    from firmware_io.sim.constants import FRAME_PERIOD_S
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
     from runtime.model import load_model
     from trainer import dormant
@@ -57,7 +58,7 @@ def score_variant(variant: tuple[int, int], seed: int, work: str) -> dict:
     rule = choose_rule(model, val, idle, lambda _: None)
     best = rule["best"][0]
     mixed = simulate_mixed(demo_script(s["val_events"], seed=val, gap=(10.0, 20.0)), seed=val)
-    sm = se.score(se.replay(mixed, model, "onset_dormant"), se.truths_of(mixed), mixed.n_frames, 1.0 / 32.0)
+    sm = se.score(se.replay(mixed, model, "onset_dormant"), se.truths_of(mixed), mixed.n_frames, FRAME_PERIOD_S)
     idle_false = sum(len(se.replay(rec, model, "onset_dormant")) for rec in idle)
     real_false = 0
     root = default_data_dir()

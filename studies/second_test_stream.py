@@ -23,6 +23,7 @@ BEFORE_RULE = {"confirm_frames": 10, "min_margin": 0.0, "rearm_frames": 16, "gap
 def run_one(which: str, work: str) -> dict:
     """Train the stream model (``which``: "before" without ramp windows, "after" as shipped) and replay."""
     from firmware_io.sim import demo_script, simulate_protocol
+    from firmware_io.sim.constants import FRAME_PERIOD_S
     from firmware_io.sim.idle import simulate_mixed
     from runtime.model import load_model
     from trainer import dormant
@@ -39,7 +40,7 @@ def run_one(which: str, work: str) -> dict:
     truths = se.truths_of(mixed)
     out = {}
     for mode, rule in (("continuous", BEFORE_RULE if which == "before" else None), ("onset_dormant", None)):
-        sm = se.score(se.replay(mixed, model, mode, rule=rule), truths, mixed.n_frames, 1.0 / 32.0)
+        sm = se.score(se.replay(mixed, model, mode, rule=rule), truths, mixed.n_frames, FRAME_PERIOD_S)
         out[mode] = {"right": sm["correct"], "wrong": sm["wrong_class"], "missed": sm["missed"],
                      "duplicates": sm["duplicates"], "false": sm["false_events"],
                      "per_action": {a: [v["correct"], v["n"]] for a, v in sorted(sm["per_action"].items())}}

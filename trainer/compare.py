@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
+from trainer.bench.common import DEADLINE_US
 from trainer.real_tasks import CHUNK_FRAMES, CONTACT_FRACTION, FULLSCALE, STRIDE, RealTask, T, cut_windows  # noqa: F401
 
 __all__ = [
@@ -36,7 +37,7 @@ __all__ = [
 ]
 
 N_JOBS = 2
-LATENCY_BUDGET_US = 1e6 / 32.0 / 10.0
+LATENCY_BUDGET_US = DEADLINE_US / 10.0
 """A tenth of a sample period: the recommended model must answer within it (p99)."""
 
 

@@ -340,7 +340,7 @@ def build_dataset(
     for rec in recordings:
         if rec.n_frames > 1:
             intervals.append(rec.sample_interval())
-        rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
+        rate = 1.0 / rec.period_s()
         for trial in rec.trials:
             window = _cut(rec, trial, cols, rate, settings, (pad_sizes, layout.pad_fingers(pad_idx)), fullscale,
                           hysteresis, T)

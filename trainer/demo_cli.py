@@ -285,6 +285,7 @@ class EventLog:
 
 
 def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
+    from trainer.bench.common import DEADLINE_US
     from trainer.session_score import outcome_summary
     from trainer.streams_eval import session_outcomes
 
@@ -300,7 +301,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
         "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None,
         "latency_p99_us": float(np.percentile(lat, 99)) if lat.size else None,
         "latency_max_us": float(lat.max()) if lat.size else None,
-        "deadline_us": 1e6 / 32.0,
+        "deadline_us": DEADLINE_US,
         "replayed_at": args.speed,
         "missed_deadlines": int(h.missed_deadlines),
         "frames_received": int(h.frames_received),

@@ -199,7 +199,7 @@ def trigger_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, setting
     pre = min(int(settings.pre_frames), T - 1)
     X, origin, groups = [], [], []
     for r, rec in enumerate(idle):
-        rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
+        rate = 1.0 / rec.period_s()
         trig = build_trigger(settings, tuple(pad_sizes), fullscale, T, rate, pad_fingers)
         frames = rec.frames[:, cols].astype(np.float32)
         code = rec.meta.get("source_codes")

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.sim.constants import FRAME_PERIOD_S
 from runtime.trigger_settings import PAPER_FRACTION
 
 __all__ = ["false_by_source", "rule_grid", "timeline", "tradeoff"]
@@ -43,7 +44,7 @@ def _window(truths, n_frames: int, period: float, span_s: float = 75.0) -> tuple
 
 def timeline(path: Path, rec, truths, decisions: dict, pads: Sequence[int]) -> str:
     plt = _plt()
-    period = float(rec.meta.get("frame_period_s", 0.03156))
+    period = float(rec.meta.get("frame_period_s", FRAME_PERIOD_S))
     a, b = _window(truths, rec.n_frames, period)
     cols = rec.layout.columns(list(pads))
     level = rec.frames[a:b, cols].max(axis=1)

@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from runtime.detector import DEFAULT_RATE_HZ
+from firmware_io.frame_timing import NOMINAL_RATE_HZ
 from runtime.trigger_settings import PAPER_FRACTION
 
 __all__ = ["dataset_metadata", "defaults", "file_metadata", "provenance"]
@@ -28,7 +28,7 @@ def defaults() -> dict[str, Any]:
     """What a model file records when its maker did not say: the SDH-2's full scale, the paper's
     threshold trigger, the pads' nominal frame rate, no dormant class, no evaluation."""
     return {"fullscale": DEFAULT_FULLSCALE, "trigger": {"fraction": PAPER_FRACTION},
-            "sample_rate_hz": DEFAULT_RATE_HZ, "dormant_class": None, "evaluation": {}}
+            "sample_rate_hz": NOMINAL_RATE_HZ, "dormant_class": None, "evaluation": {}}
 
 
 def provenance(training: dict | None = None) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.recording import Recording
 from trainer import streams_eval as se
@@ -62,7 +63,7 @@ def _reference(trial) -> tuple[int, str]:
 
 def replay_recording(rec: Recording, model, mode: str) -> dict:
     """Trials and idle pieces of one recording replayed through the daemon (``model``: a loaded model)."""
-    period = rec.sample_interval() if rec.n_frames > 1 else 1 / 32
+    period = rec.period_s()
     events, delays, refs = [], [], set()
     early = 0
     for tr in rec.trials:
@@ -105,7 +106,7 @@ def summarize(parts: Sequence[dict]) -> dict:
     """Pooled figures over replayed recordings."""
     events = [e for p in parts for e in p["events"]]
     count = {k: sum(e["outcome"] == k for e in events) for k in ("right", "wrong", "missed")}
-    period = float(np.median([p["period"] for p in parts])) if parts else 1 / 32
+    period = float(np.median([p["period"] for p in parts])) if parts else NOMINAL_PERIOD_S
     frames = se.sum_counts(p["idle_frames"] for p in parts)
     false = se.sum_counts(p["false_by_source"] for p in parts)
     hours = {k: v * period / 3600.0 for k, v in frames.items()}

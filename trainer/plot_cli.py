@@ -164,7 +164,7 @@ def trial_figure(rec, index: int, trigger: DrawnTrigger | None = None):
         ax.plot(t, sums[:, i], label=pad_name(layout, i))
     ax.axvline(t[peak], color="0.5", linestyle=":", label="peak frame")
     trigger = trigger or model_trigger(rec, None)
-    rate = 1.0 / rec.sample_interval() if rec.n_frames > 1 else 32.0
+    rate = 1.0 / rec.period_s()
     for k, (at, first, last) in enumerate(trigger.fires(frames, layout, rate)):
         ax.axvline(t[at], color="red", linestyle="--", label=trigger.label if k == 0 else None)
         lo, hi = t[max(first, 0)], t[min(last, len(t) - 1)]

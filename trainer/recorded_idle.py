@@ -108,7 +108,7 @@ def recorded_idle_windows(recordings: Sequence[Recording], names: Sequence[str],
     seconds = 0.0
     for rec, name in zip(recordings, names, strict=True):
         subject = subject_of(rec, Path(name).stem)
-        period = rec.sample_interval() if rec.n_frames > 1 else 1 / 32
+        period = rec.period_s()
         for first, last, what in idle_pieces(rec):
             n = last - first + 1
             seconds += n * period

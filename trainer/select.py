@@ -29,7 +29,8 @@ __all__ = [
 ]
 
 LATENCY_BUDGET_US = 1000.0
-"""Default budget: single-case p99 of the exported graph (a thirtieth of the 31.25 ms period)."""
+"""Default budget: single-case p99 of the exported graph (a small share of the nominal frame period,
+``trainer.bench.common.DEADLINE_US``)."""
 TIMING_REPEATS = 300
 ROCKET_SETTINGS = {"C": 1.0}
 """The random-convolution family as MiniRocket uses it: thousands of PPV features and a linear head

@@ -46,6 +46,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.recordings.recording import Recording
 from firmware_io.wire import replies
 from firmware_io.wire.errors import DSAErrorCode, ProtocolError
@@ -242,7 +243,7 @@ class DeviceEmulator:
         self._rel_ms = np.round(rel * 1000.0).astype(np.int64)
         self._rel_s = rel
         step = recording.sample_interval()
-        self._loop_period = float(rel[-1] + (step if np.isfinite(step) else 1 / 32))
+        self._loop_period = float(rel[-1] + (step if np.isfinite(step) else NOMINAL_PERIOD_S))
         self._next = 0  # frame sequence number across loops
         self._pushing = False
         self._rle = True
@@ -551,7 +552,7 @@ class DeviceEmulator:
         if self.speed is None:
             return 0.0
         step = self.recording.sample_interval()
-        return (step if np.isfinite(step) and step > 0 else 1 / 32) / self.speed
+        return (step if np.isfinite(step) and step > 0 else NOMINAL_PERIOD_S) / self.speed
 
     def _on_set_sensitivity(self, payload: bytes, now: float) -> bytes:
         req = SetSensitivityRequest.decode(payload)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_RATE_HZ
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.importers import import_any
 from firmware_io.recordings.recording import Recording, RecordingError
@@ -59,7 +60,7 @@ def _simulated(seed: int, events: int) -> Recording:
     return simulate_session(demo_script(n_events=events, seed=seed), seed=seed)
 
 
-def placeholder_session(seed: int = 0, events: int = 4, rate_hz: float = 32.0) -> Recording:
+def placeholder_session(seed: int = 0, events: int = 4, rate_hz: float = NOMINAL_RATE_HZ) -> Recording:
     """Synthetic stand-in used only while ``firmware_io.sim`` is absent: a noisy blob per event.
 
     Not a model of a hand; it exists so that the emulator has deterministic frames to send.

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.idle_stretches import IdleSlot, idle_meta, stretches_of
@@ -222,7 +223,7 @@ class SessionStore:
         """Seconds of idle recorded (frame count x median frame interval)."""
         frames = sum(len(s.frames) for s in self.segments if IDLE_KEY in s.fields)
         stamps = [s.stamps for s in self.segments if len(s.stamps) > 1]
-        period = float(np.median(np.concatenate([np.diff(t) for t in stamps]))) if stamps else 1 / 32
+        period = float(np.median(np.concatenate([np.diff(t) for t in stamps]))) if stamps else NOMINAL_PERIOD_S
         return frames * period
 
     def done_keys(self) -> set[tuple[str, str, str, int]]:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks, idle_stretches
 from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
@@ -128,6 +129,11 @@ class Recording:
         if self.n_frames < 2:
             return float("nan")
         return float(np.median(np.diff(self.timestamps)))
+
+    def period_s(self) -> float:
+        """``sample_interval``, or the controller's nominal period when fewer than two frames cannot
+        say one (a rate must still be stated for such a recording)."""
+        return self.sample_interval() if self.n_frames > 1 else NOMINAL_PERIOD_S
 
     # -- building -----------------------------------------------------------------------------
     @classmethod

@@ -18,7 +18,9 @@ __all__ = [
 # -- timing -------------------------------------------------------------------------------------
 FRAME_PERIOD_S = 0.03156
 """measured: mean PC time-stamp interval over all ~31 Hz .dsa files (170 903 intervals, gaps
-over 100 ms excluded): 31.56 ms, median 32 ms, std 1.40 ms, p1 28 ms, p99 36 ms."""
+over 100 ms excluded): 31.56 ms, median 32 ms, std 1.40 ms, p1 28 ms, p99 36 ms. The simulator
+writes its recordings at it; the controller's configured rate is another quantity
+(``firmware_io.frame_timing``)."""
 
 SCANS_PER_FRAME = 7
 """paper (Sec. III): taxels are scanned at about 230 Hz and the firmware averages seven scans

@@ -22,6 +22,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
 from firmware_io.sim.idle import idle_rng, plan_stretch, render_hold
@@ -30,8 +31,6 @@ from firmware_io.transports.base import DeviceUnavailable, ParsedURL, Transport,
 from firmware_io.transports.emulated import SUBJECT_SCHEME, EmulatedTransport, SubjectTransport
 
 __all__ = ["ScriptedSubject"]
-
-FRAME_PERIOD_S = 1 / 32
 
 
 class _LiveFrames:
@@ -101,7 +100,7 @@ class ScriptedSubject:
         self._lock = threading.Lock()
         self._idles = 0
         self._sensor = None
-        self.emulator = DeviceEmulator(_LiveSource(self, self.layout, FRAME_PERIOD_S), speed=speed, loop=True,
+        self.emulator = DeviceEmulator(_LiveSource(self, self.layout, NOMINAL_PERIOD_S), speed=speed, loop=True,
                                        faults=faults, seed=self.seed)
 
     @classmethod
@@ -180,7 +179,7 @@ class ScriptedSubject:
                 self.emulator.disconnected = True
         seconds = float(slot.seconds) + 1.0  # the capture starts a frame or two after the cue
         if slot.source == "open":
-            frames = np.zeros((int(np.ceil(seconds / FRAME_PERIOD_S)), self.layout.n_taxels), dtype=np.uint16)
+            frames = np.zeros((int(np.ceil(seconds / NOMINAL_PERIOD_S)), self.layout.n_taxels), dtype=np.uint16)
         else:
             rng = idle_rng(self.seed, "recorded", self._idles)
             if self._sensor is None:

@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S, NOMINAL_RATE_HZ
 from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
 
-DEADLINE_US = 1e6 / 32.0
-"""One sample period at 32 Hz: the hard deadline of a decision."""
+DEADLINE_US = 1e6 * NOMINAL_PERIOD_S
+"""One sample period at the controller's nominal rate: the hard deadline of a decision."""
 
 DEFAULT_PARAMS = {"K": DEFAULT_MODEL["K"], "W": DEFAULT_MODEL["W"], "T": DEFAULT_MODEL["T"], "kernel": BOW_ALONE_KERNEL,
                   "pads": DEFAULT_MODEL["pads"], "per_pad": DEFAULT_MODEL["per_pad"]}
@@ -63,7 +64,7 @@ def percentiles(values_us) -> dict:
 
 
 def deadline_ratio(stats: dict) -> dict:
-    """How many times each figure fits into one sample period (31.25 ms)."""
+    """How many times each figure fits into one sample period (``DEADLINE_US``)."""
     return {k: (DEADLINE_US / stats[k] if stats.get(k) else None) for k in ("p50", "p99", "p999", "max")}
 
 
@@ -304,8 +305,8 @@ def tap_gap(T: int = 15) -> int:
     from runtime.config import TriggerConfig
 
     cfg = TriggerConfig()
-    quiet = math.ceil(float(getattr(cfg, "rearm_quiet_s", 0.0) or 0.0) * 32.0) + 2
-    refractory = math.ceil(float(cfg.refractory_s) * 32.0) + 1 - T
+    quiet = math.ceil(float(getattr(cfg, "rearm_quiet_s", 0.0) or 0.0) * NOMINAL_RATE_HZ) + 2
+    refractory = math.ceil(float(cfg.refractory_s) * NOMINAL_RATE_HZ) + 1 - T
     return max(5, quiet, refractory)
 
 
@@ -330,7 +331,7 @@ def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None,
         start = gap + i * period
         frames[start : start + T, cols] = case.T.astype(np.uint16)
         trials.append(Trial("tap", "stream", "-", str(ds.y[i % len(ds.y)]), i, start, start + T - 1))
-    timestamps = np.arange(len(frames)) / 32.0
+    timestamps = np.arange(len(frames)) * NOMINAL_PERIOD_S
     meta = {"synthetic": True, "source": "handover bench: simulated trial windows back to back"}
     return Recording(layout, frames, timestamps, trials, meta)
 

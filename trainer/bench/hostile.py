@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import nominal_stamp_ms
 from trainer.bench.common import load_average, run_facts, write_results
 from trainer.bench.hostile_models import write_model
 from trainer.shared_data import default_data_dir
@@ -91,7 +92,7 @@ def sleeper_in_daemon(folder: Path, kind: str) -> dict:
     for i in range(120):
         values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
         values[column] = int(H.SLEEPER_PEAK) if i % 60 < 20 else 0
-        daemon.handle_frame(Frame(i, round(i * 31.25), time.perf_counter(), values))
+        daemon.handle_frame(Frame(i, nominal_stamp_ms(i), time.perf_counter(), values))
     restarted = Daemon(cfg)
     restarted.detector.fit(SensorLayout.sdh2())
     restarted.models.start()

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import _npy_bytes as _npy
 
@@ -40,7 +41,7 @@ def _frames() -> np.ndarray:
 
 
 def _stamps() -> np.ndarray:
-    return np.arange(N_FRAMES, dtype=np.float64) / 32.0
+    return np.arange(N_FRAMES, dtype=np.float64) * NOMINAL_PERIOD_S
 
 
 def _write(path: Path, header: bytes | dict, frames: bytes | None = None, stamps: bytes | None = None) -> Path:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S, nominal_stamp_ms
 from trainer.bench.hostile_models import write_model
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -125,7 +126,7 @@ def press_cycles(daemon, cycles: int, first: int = 0, level: int = 3000) -> int:
         for i in range(20):
             values = np.zeros(layout.n_taxels, dtype=np.uint16)
             values[column] = level if i < 10 else 0
-            daemon.handle_frame(Frame(number, round(number * 31.25), time.perf_counter(), values))
+            daemon.handle_frame(Frame(number, nominal_stamp_ms(number), time.perf_counter(), values))
             number += 1
     return number
 
@@ -580,7 +581,7 @@ def model_claims(work: Path) -> dict:
     for number in range(200):  # 32 Hz by the device's time stamps; each frame 50 ms old when handled
         values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
         values[column] = 3000 if 30 <= number % 40 < 35 else 0  # the first press after a block is measured
-        daemon.handle_frame(Frame(number, round(number * 31.25), time.perf_counter() - 0.05, values))
+        daemon.handle_frame(Frame(number, nominal_stamp_ms(number), time.perf_counter() - 0.05, values))
     h = daemon.health
     named = "sample_rate_hz" in h.last_error or any("sample_rate_hz" in e["error"] for e in h.errors)
     refused = {}
@@ -681,7 +682,7 @@ def _frames_pressing(daemon, first: int, n: int, level: int, press: range, recei
     for number in range(first, first + n):
         values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
         values[column] = level if (number - first) in press else 0
-        yield Frame(number, round(number * 31.25), received_at(), values)
+        yield Frame(number, nominal_stamp_ms(number), received_at(), values)
 
 
 def hanging_model(work: Path) -> dict:
@@ -756,7 +757,7 @@ def hanging_model_process(work: Path) -> dict:
     column = int(layout.columns("distal")[40])
     for start in (100, 220):
         frames[start:start + 20, column] = int(H.SLEEPER_PEAK)
-    rec = Recording(layout, frames, np.arange(len(frames)) / 32.0, [], {"source": "hostile"})
+    rec = Recording(layout, frames, np.arange(len(frames)) * NOMINAL_PERIOD_S, [], {"source": "hostile"})
     path = rec.save(work / "presses.hrec")
     config = _run_config(state / "h.toml", f"replay://{path}?speed=1&loop=1", models,
                          '[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\n')

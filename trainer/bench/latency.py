@@ -12,7 +12,7 @@ emulator's socket write of the last byte of the frame that completes a window to
 arrival. The stream holds simulated trial windows back to back, each followed by just enough
 untouched frames for the daemon's trigger to re-arm (``common.tap_gap``). The daemon's resident
 memory is read from /proc at the end of that run.
-The deadline is one sample period (31.25 ms); every figure is also given as the ratio
+The deadline is one sample period (``common.DEADLINE_US``); every figure is also given as the ratio
 deadline / figure (how many times it fits).
 """
 
@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from runtime import realtime
 from runtime.detector import REHEARSAL_LEAD_S
 from runtime.realtime import DEFAULT_PRIORITY
@@ -46,7 +47,6 @@ from trainer.bench.latency_early import markdown_lines as early_lines
 from trainer.bench.latency_floor import interference, per_frame_split
 
 NAME = "latency"
-PERIOD_S = 1.0 / 32.0
 
 
 def end_to_end(model_path: Path, recording, speed: float | None, work: Path, timeout: float,
@@ -199,8 +199,8 @@ def run(args) -> dict:
         result["implementations_distal"] = implementations(distal_path, dense, rounds, False)
         result["heap"] = heap_figures()
         stream = tap_stream(args.seed, args.quick, n_windows=n_windows, gap=tap_gap())
-        say(f"latency: end to end at 32 Hz for {stream.n_frames / 32:.0f} s ({n_windows} windows) ...")
-        result["e2e_32hz"] = end_to_end(model_path, stream, 1.0, work, timeout=stream.n_frames / 32 + 60)
+        say(f"latency: end to end at 32 Hz for {stream.n_frames * NOMINAL_PERIOD_S:.0f} s ({n_windows} windows) ...")
+        result["e2e_32hz"] = end_to_end(model_path, stream, 1.0, work, timeout=stream.n_frames * NOMINAL_PERIOD_S + 60)
         if args.load:
             load_s = max(2.0, duration / 4)
             load_stream = tap_stream(args.seed, args.quick, n_windows=max(4, int(load_s * 32 / (15 + tap_gap()))),
@@ -208,11 +208,11 @@ def run(args) -> dict:
             say(f"latency: end to end under load (two busy-loop processes) for {load_s:.0f} s ...")
             with harness.CpuLoad(2):
                 result["e2e_32hz_load"] = end_to_end(model_path, load_stream, 1.0, work,
-                                                     timeout=load_stream.n_frames / 32 + 60)
+                                                     timeout=load_stream.n_frames * NOMINAL_PERIOD_S + 60)
             say(f"latency: the same under load at normal scheduling (realtime_priority = 0) for {load_s:.0f} s ...")
             with harness.CpuLoad(2):
                 result["e2e_32hz_load_normal"] = end_to_end(model_path, load_stream, 1.0, work,
-                                                            timeout=load_stream.n_frames / 32 + 60, priority=0)
+                                                            timeout=load_stream.n_frames * NOMINAL_PERIOD_S + 60, priority=0)
     result["interference"] = {**gaps.summary(), "steady_job_us": {
         name: {"job_us": round(job), **gaps.steady_job(round(job), seed=args.seed)}
         for name, job in _job_lengths(result).items() if job}}

@@ -10,7 +10,7 @@ Nothing is copied or swapped.
 Two rhythms:
 
 - back to back: frames fed as fast as the hot path takes them (warm caches);
-- paced at 32 Hz: the frame that completes a window arrives one sample period (31.25 ms) after
+- paced at 32 Hz: the frame that completes a window arrives one nominal sample period (``firmware_io.frame_timing``) after
   the frame before it, and the detector waits for it as in service (a blocking read). The frames between
   windows (which only push and test the trigger) are fed back to back, so a run of a minute
   yields enough decisions for a p99.9.
@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.transports.base import Transport
 from runtime.listeners import DecisionTimings, FrameListener
 from trainer.bench.common import cycling, percentiles, time_calls
 
-PERIOD_S = 1.0 / 32.0
 STAGES = ("receive", "ring_trigger", "window", "inference", "output_check", "event_build", "serialise", "sink_send")
 """The stage table's rows, in the order a frame goes through them."""
 
@@ -73,7 +73,7 @@ class PacketFeed(Transport):
             return b""
         if self.next in self.paced:
             if self._due is None:
-                self._due = self._last + PERIOD_S
+                self._due = self._last + NOMINAL_PERIOD_S
             if not arrived(self._due, timeout):
                 return b""
             self._due = None
@@ -218,7 +218,7 @@ def compare(fns: dict, windows: np.ndarray, rounds: int, paced: bool) -> dict:
         w = windows[i % len(windows)]
         for name, fn in fns.items():
             if paced:
-                time.sleep(PERIOD_S / len(fns))
+                time.sleep(NOMINAL_PERIOD_S / len(fns))
             t0 = clock()
             fn(w)
             times[name][i] = (clock() - t0) / 1000.0
@@ -241,11 +241,11 @@ def paced_alone(fn, windows: np.ndarray, rounds: int, rehearsed: bool) -> dict:
     clock = time.perf_counter_ns
     for i in range(rounds):
         w = windows[i % len(windows)]
-        due = time.perf_counter() + PERIOD_S
+        due = time.perf_counter() + NOMINAL_PERIOD_S
         if rehearsed:
-            arrived(due - REHEARSAL_LEAD_S, PERIOD_S)
+            arrived(due - REHEARSAL_LEAD_S, NOMINAL_PERIOD_S)
             fn(windows[(i + 1) % len(windows)])
-        arrived(due, PERIOD_S)
+        arrived(due, NOMINAL_PERIOD_S)
         t0 = clock()
         fn(w)
         times[i] = (clock() - t0) / 1000.0

@@ -31,11 +31,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from firmware_io.frame_timing import NOMINAL_RATE_HZ, nominal_stamp_ms
 from trainer.bench import harness, soak_rig
 from trainer.bench.common import load_average, load_note, machine_info, train_default_model, write_results
 
 NAME = "soak"
-RATE_HZ = 32.0
 WATCHDOG_S = 10.0
 """deploy/handover.service's WatchdogSec."""
 STALL_TIMEOUT_S = 2.0
@@ -100,7 +100,7 @@ def reference_events(model_path: Path, recording, config_text: str, loops: int =
     detector.swap(load_model(model_path), recording.layout)
     n = recording.n_frames
     for k in range(loops * n):
-        decision = detector.feed(Frame(k, round(k * 1000 / RATE_HZ), time.perf_counter(), recording.frames[k % n]))
+        decision = detector.feed(Frame(k, nominal_stamp_ms(k), time.perf_counter(), recording.frames[k % n]))
         if decision is not None and decision.cls is not None:
             ends.append(decision.frame.number)
     return {f % n for f in ends if f >= n}  # the first loop warms the trigger up
@@ -301,7 +301,7 @@ def account(soak: Soak) -> dict:
     out: dict = {}
     out.update(A.frame_figures(sent, received, windows, t0, t_end))
     out.update(A.event_figures(sent, received, windows, soak.listener.events, soak.reference,
-                               soak.recording.n_frames, t0, t_end, history=int(CLEAN_HISTORY_S * RATE_HZ)))
+                               soak.recording.n_frames, t0, t_end, history=int(CLEAN_HISTORY_S * NOMINAL_RATE_HZ)))
     out.update(A.fault_figures(soak.faults, t0))
     out.update(A.watchdog_figures(soak.notify.pings, soak.faults, t0, t_end, WATCHDOG_S))
     out.update(A.rss_figures(soak.rss, soak.plan.seconds))

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.frame_timing import NOMINAL_PERIOD_S, NOMINAL_RATE_HZ
 from runtime.listeners import FrameListener
 from trainer.bench import harness
 from trainer.bench.common import (
@@ -247,7 +248,7 @@ def footprint_and_swap(model_path: Path, second_model: Path, work: Path, duratio
             "cpu_seconds": cpu1 - cpu0, "wall_seconds": t1 - t0, "events": len(listener.events),
             "swap_to_log_s": (swap_log[0] - t_rename) if swap_log else None,
             "swap_to_first_event_s": (new_events[0] - t_rename) if new_events else None,
-            "poll_interval_s": 0.5, "window_every_s": (15 + tap_gap()) / 32}
+            "poll_interval_s": 0.5, "window_every_s": (15 + tap_gap()) * NOMINAL_PERIOD_S}
 
 
 def variant_model(model_path: Path, folder: Path) -> Path:
@@ -309,7 +310,7 @@ def markdown(res: dict) -> list[str]:
         "| figure | value |", "|---|---|",
         f"| replay, hot path (parser + decode + plausibility, then the real Daemon.handle_frame; no socket) | "
         f"{h['frames_per_s']:,.0f} frames/s ({h['frames']} frames, {h['decisions']} inferences, {h['seconds']:.2f} s; "
-        f"{h['frames_per_s'] / 32:,.0f}x real time) |",
+        f"{h['frames_per_s'] / NOMINAL_RATE_HZ:,.0f}x real time) |",
         f"| replay, daemon reading replay://?speed=max (emulator encoding in the same thread) | "
         f"{d['frames_per_s']:,.0f} frames/s ({d['frames']} frames, {d['decisions']} decisions) |",
         f"| `handover run` resident memory at 32 Hz (VmRSS / peak VmHWM) | {_s(f['rss_mb'], 'MB', 1)} / "
