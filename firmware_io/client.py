@@ -342,7 +342,7 @@ class DSAClient:
     def set_sensitivity(self, matrix: int, value: float, persistent: bool = False) -> None:
         """Persistent writes get no reply from the firmware (and wear its memory: ~100,000 writes)."""
         req = R.SetSensitivityRequest(matrix, value, persistent=persistent)
-        self._command(req.to_packet(), 0x0F, expect_reply=not persistent)
+        self._command(req.to_packet(), expect_reply=not persistent)
 
     def get_threshold(self, matrix: int) -> int:
         return ThresholdReply.decode(self._request(R.get_threshold_request(matrix), 0x14)).threshold
@@ -351,7 +351,7 @@ class DSAClient:
         if self.controller is not None and self.controller.sw_version < 268:
             raise DeviceError(DSAErrorCode.FEATURE_NOT_SUPPORTED, 0x13)
         req = R.SetThresholdRequest(matrix, threshold, persistent=persistent)
-        self._command(req.to_packet(), 0x13, expect_reply=not persistent)
+        self._command(req.to_packet(), expect_reply=not persistent)
 
     @property
     def stats(self) -> dict[str, int]:
@@ -556,7 +556,7 @@ class DSAClient:
         payload = self._request(packet, packet[3], frames_limit, timeout)
         check_reply(payload, packet[3])
 
-    def _command(self, packet: bytes, reply_id: int, expect_reply: bool) -> None:
+    def _command(self, packet: bytes, expect_reply: bool) -> None:
         if expect_reply:
             self._ack(packet)
         else:

@@ -262,7 +262,7 @@ class DeviceEmulator:
         self._last_single = -1e9
 
     # -- the link's view ----------------------------------------------------------------------
-    def connect(self, now: float | None = None) -> None:
+    def connect(self) -> None:
         """A host attached (TCP accept, pty opened, transport created): maybe send the boot query."""
         self.stats.connections += 1
         self.disconnected = False

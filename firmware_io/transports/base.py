@@ -169,7 +169,7 @@ class ParsedURL:
             return opts[name]
         return self.options.get(name, default)
 
-    def check_options(self, allowed: set[str], opts: dict | None = None) -> None:
+    def check_options(self, allowed: set[str]) -> None:
         unknown = sorted(set(self.options) - allowed)
         if unknown:
             hint = ", ".join(sorted(allowed)) or "none"

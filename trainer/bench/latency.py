@@ -103,7 +103,7 @@ def implementations(model_path: Path, stream, rounds: int, load: bool) -> dict:
     from runtime.model import load_model
 
     model = load_model(model_path, intra_op_threads=1, allow_spinning=False)
-    fns = stages.comparators(model, model_path)
+    fns = stages.comparators(model)
     windows = case_windows(model, stream)
     out = {"solo": stages.solo(fns, windows, rounds),
            "back_to_back": stages.compare(fns, windows, rounds, paced=False),

@@ -202,7 +202,7 @@ def declared_dormant(model_path: Path, out: Path, dormant: str) -> Path:
 
 
 # -- the graph alone, one window at a time -------------------------------------------------------------
-def comparators(model, model_path: Path) -> dict:
+def comparators(model) -> dict:
     """name -> callable(window [T, C] float32): the graph as the daemon runs it."""
     return {"onnxruntime": lambda w: model.run_trusted(w[None])}
 

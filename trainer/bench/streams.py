@@ -253,7 +253,7 @@ def run(args) -> dict:
         test = evaluate_sim(models, args.seed + TEST_OFFSET, s["test_events"], s["test_idle_h"], say, "test",
                             rule["chosen"])
         demo = demo_session(models, chosen, args.seed)
-    result = summary(test, val, chosen, demo, real)
+    result = summary(test, chosen, demo, real)
     result.update(continuous_rule=rule["chosen"], continuous_rule_in_code=rule["shipped"], continuous_rule_choice=rule)
     from trainer.bench.streams_own import own_keys
 
@@ -272,7 +272,7 @@ def run(args) -> dict:
     return result
 
 
-def summary(test: dict, val: dict, chosen: str, demo: dict, real: dict | None) -> dict:
+def summary(test: dict, chosen: str, demo: dict, real: dict | None) -> dict:
     """The headline figures (keys the issue asks for)."""
     cont = test["continuous"]["mixed"]
     hold = cont["per_action"].get("hold", {"n": 0, "correct": 0})

@@ -52,7 +52,7 @@ class HandGraphFeatures(FeatureFamily):
         batch = PadBatch.of(self.shapes_)
         padded = batch.nodes(g, frames)  # [N, G, S, T]
         peak = peak_nodes(g, padded)  # [N, G]
-        median = median_nodes(g, batch, frames, padded, peak, n_t)  # [N, G]
+        median = median_nodes(g, batch, padded, peak, n_t)  # [N, G]
         series = pad_series_nodes(g, frames, self.shapes_, n_t, SeriesNeed(hand=True, fullscale=None))
         std, std_scale = _std_nodes(g, batch, padded, series.signal_mean, n_t)
         n_rows = n_pads * len(series.columns.series) * series.columns.width

@@ -78,7 +78,7 @@ def magnitude_nodes(g, padded: str) -> str:
     return g.shared(("pad_magnitude", padded), lambda: g.op("Abs", [padded], "magnitude"))
 
 
-def median_nodes(g, batch: PadBatch, frames: str, padded: str, peak: str, n_t: int) -> str:
+def median_nodes(g, batch: PadBatch, padded: str, peak: str, n_t: int) -> str:
     """Median of each pad's values ``[N, G]`` from ``padded`` ``[N, G, S, T]`` (``peak``: ``[N, G]``).
 
     Exact both ways, cheap where it can be: when in every pad of every window fewer than half the
