@@ -71,7 +71,7 @@ class Truth:
     action: str
 
 
-def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict | None = None,
+def replay(rec: Recording, model, mode: str, rule: dict | None = None,
            robot: dict[int, bool] | None = None, arm: dict[int, bool] | None = None,
            scene: dict | None = None) -> list[Decision]:
     """Feed every frame of ``rec`` to a fresh detector in ``mode``; the events it reports.
@@ -122,9 +122,9 @@ def replay(rec: Recording, model, mode: str, first_number: int = 0, rule: dict |
             detector.set_grasp(robot[i], source="replay")
         if i in arm:
             detector.set_arm_moving(arm[i], source="replay")
-        decision = feed(Frame(first_number + i, int(stamps_ms[i]), clock(), frames[i]))
+        decision = feed(Frame(i, int(stamps_ms[i]), clock(), frames[i]))
         if decision is not None and decision.cls is not None:
-            out.append(Decision(decision.frame.number - first_number, decision.cls, decision.latency_us))
+            out.append(Decision(decision.frame.number, decision.cls, decision.latency_us))
     return out
 
 

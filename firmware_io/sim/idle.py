@@ -382,7 +382,7 @@ def _open_frames(n: int, n_taxels: int) -> np.ndarray:
     return np.zeros((n, n_taxels), dtype=np.uint16)
 
 
-def simulate_idle(duration_s: float, seed: int = 0, part: int = 0, sensor: HandSensor | None = None) -> Recording:
+def simulate_idle(duration_s: float, seed: int = 0, part: int = 0) -> Recording:
     """About ``duration_s`` of a hand that holds objects nobody touches (synthetic).
 
     Holds of 20-90 s with open-hand gaps between them. ``meta["source"]`` codes every frame
@@ -391,7 +391,7 @@ def simulate_idle(duration_s: float, seed: int = 0, part: int = 0, sensor: HandS
     """
     if duration_s <= 0:
         raise ValueError(f"duration must be positive, got {duration_s}")
-    sensor = sensor or hand_sensor(seed)
+    sensor = hand_sensor(seed)
     n_taxels = sensor.layout.n_taxels
     frames, codes, elapsed, i = [], [], 0.0, 0
     marks: dict[int, bool] = {}

@@ -44,11 +44,11 @@ def _stamps() -> np.ndarray:
     return np.arange(N_FRAMES, dtype=np.float64) * NOMINAL_PERIOD_S
 
 
-def _write(path: Path, header: bytes | dict, frames: bytes | None = None, stamps: bytes | None = None) -> Path:
+def _write(path: Path, header: bytes | dict, frames: bytes | None = None) -> Path:
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as zf:
         zf.writestr("header.json", header if isinstance(header, bytes) else json.dumps(header))
         zf.writestr("frames.npy", _npy(_frames()) if frames is None else frames)
-        zf.writestr("timestamps.npy", _npy(_stamps()) if stamps is None else stamps)
+        zf.writestr("timestamps.npy", _npy(_stamps()))
     return path
 
 

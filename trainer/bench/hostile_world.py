@@ -552,13 +552,13 @@ def crafted_dsa(work: Path) -> dict:
 
 
 # -- 8: what a model file claims ----------------------------------------------------------------------
-def model_with(folder: Path, name: str, base: bytes | None = None, **meta) -> Path:
+def model_with(folder: Path, name: str, **meta) -> Path:
     """A valid model (always ``pull``) whose metadata says ``meta`` (same graph, another file)."""
     from trainer.bench import hostile_models as H
     from trainer.bench.common import with_metadata
 
     folder.mkdir(parents=True, exist_ok=True)
-    plain = write_model(folder, f".{name}.plain", base or H.valid(bias_class=0))
+    plain = write_model(folder, f".{name}.plain", H.valid(bias_class=0))
     out = with_metadata(plain, folder / f".{name}.tmp", lambda m: m.update(meta))
     plain.unlink()
     os.chmod(out, 0o644)
