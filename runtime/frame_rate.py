@@ -72,7 +72,6 @@ class FrameClock:
         self.health = health
         self.on_restart = on_restart
         """Called when a gap breaks the stream (before the frame after the gap is fed)."""
-        self.restarts = 0
         self._told: set[str] = set()
         """The kinds of rate line already logged for this model period."""
         self.model_period_ms = float(model_period_ms)
@@ -159,7 +158,6 @@ class FrameClock:
         return first if first >= 0 else last_number - length + 1
 
     def _restart(self, gap: int) -> None:
-        self.restarts += 1
         self._phase = 0.0
         what = "back" if gap < 0 else "ahead"
         self._tell("restart", f"device time jumped {abs(gap) / 1000.0:.1f} s {what} (a pause, a stall or a device "

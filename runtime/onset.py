@@ -139,7 +139,6 @@ class OnsetTrigger:
         self.quiet = 0
         self.last_trigger = -(1 << 62)
         self.level = 0.0
-        self.fired = 0
         self.releases = 0
         """Departures in which every pad lost pressure (the hand letting go): not fired."""
         self.point_contacts = 0
@@ -240,5 +239,4 @@ class OnsetTrigger:
             self.not_held += 1
             return -1
         self.last_trigger = number
-        self.fired += 1
         return number + self.window - 1 - self.pre_frames

@@ -111,10 +111,9 @@ class ContinuousTrigger:
         self.window = int(window)
         self.pre_frames = 0
         self.level = 0.0
-        self.fired = 0
 
     def reset(self) -> None:
-        self.fired = 0
+        """Nothing to forget: no state carries from one frame to the next."""
 
     def update(self, row: np.ndarray, number: int) -> int:
         return number

@@ -371,7 +371,6 @@ class SessionResult:
     done: int
     recorded: int = 0
     redone: int = 0
-    discarded: int = 0
     flagged: list[int] = field(default_factory=list)
     stopped: str = "complete"
 
@@ -482,7 +481,6 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             continue
         if answer == "d":
             store.remove_last()
-            result.discarded += 1
             return "discarded"
         if no_case is not None:
             result.flagged.append(index)
