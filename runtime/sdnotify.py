@@ -42,10 +42,6 @@ class Notifier:
         self.sent = 0
         self.errors = 0
 
-    @property
-    def enabled(self) -> bool:
-        return self.sock is not None
-
     def notify(self, *lines: str) -> bool:
         if self.sock is None or self.address is None:
             return False

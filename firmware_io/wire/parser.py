@@ -16,7 +16,7 @@ payloads, the preamble bytes themselves (a taxel word 0xAAAA). The parser theref
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 from firmware_io.wire.crc import crc16
 from firmware_io.wire.frames import FRAME_HEADER_SIZE, max_frame_payload
@@ -46,9 +46,6 @@ class ParserStats:
     crc_errors: int = 0
     bad_headers: int = 0
     boot_queries: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return asdict(self)
 
 
 class StreamParser:
