@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from firmware_io.wire.frames import decode_frame_payload, encode_frame
-from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, encode_ack, encode_packet
+from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, CRC_SIZE, HEADER_SIZE, encode_ack, encode_packet
 from firmware_io.wire.parser import StreamParser
 from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensorInfo, ThresholdReply
 from firmware_io.wire.requests import query_controller_info_request
@@ -47,13 +47,17 @@ def good_stream(seed: int, n: int) -> list[bytes]:
     return out
 
 
+def _largest_packet(parser: StreamParser) -> int:
+    return HEADER_SIZE + parser._max_frame + CRC_SIZE
+
+
 def parse_all(data: bytes, cuts: list[int] | None = None, n_cells: int | None = N_CELLS) -> tuple[list, StreamParser]:
     parser = StreamParser(n_cells)
     packets = []
     bounds = sorted({0, len(data), *[c for c in (cuts or []) if 0 < c < len(data)]})
     for a, b in itertools.pairwise(bounds):
         packets += parser.feed(data[a:b])
-        assert parser.pending <= parser.max_packet_size  # bounded memory
+        assert parser.pending <= _largest_packet(parser)  # bounded memory
     packets += parser.flush_pending()
     return [encode_packet(p.packet_id, p.payload) for p in packets], parser
 
@@ -305,7 +309,7 @@ def test_pending_never_exceeds_one_packet(n_cells: int | None) -> None:
     parser = StreamParser(n_cells)
     header = b"\xaa\xaa\xaa\x00" + struct.pack("<H", parser._max_frame)
     parser.feed(header + b"\x00" * (parser._max_frame - 1))
-    assert parser.pending <= parser.max_packet_size
+    assert parser.pending <= _largest_packet(parser)
     for _ in range(50):
         parser.feed(b"\x55" * 1000)
-        assert parser.pending <= parser.max_packet_size
+        assert parser.pending <= _largest_packet(parser)

@@ -69,10 +69,6 @@ class StreamParser:
         self._max_mask = 3 + -(-cells // 8)
 
     @property
-    def max_packet_size(self) -> int:
-        return HEADER_SIZE + self._max_frame + CRC_SIZE
-
-    @property
     def pending(self) -> int:
         """Bytes held back waiting for the rest of a packet (or of a preamble)."""
         return len(self._buf)
