@@ -5,8 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from trainer.features.base import pad_bounds, slice_nodes
+from trainer.features.base import pad_bounds
 from trainer.features.pad_series import dft_matrices
+
+
+def slice_nodes(g, tensor: str, start: int, stop: int, axis: int, hint: str) -> str:
+    """``tensor[..., start:stop, ...]`` along ``axis`` (a Slice, not a Gather)."""
+    return g.op("Slice", [tensor, g.const("start", [start], np.int64), g.const("stop", [stop], np.int64),
+                          g.const("axis", [axis], np.int64)], hint)
 
 
 def legacy_hand_nodes(family, g, frames: str) -> str:

@@ -23,7 +23,7 @@ from trainer.bow import as_cases, check_case_shape
 from trainer.features.signals import pad_shapes_for
 
 __all__ = [
-    "FeatureFamily", "OnnxParts", "columns_in_order", "join_parts", "pad_bounds", "scale_of_each", "slice_nodes"
+    "FeatureFamily", "OnnxParts", "columns_in_order", "join_parts", "pad_bounds", "scale_of_each"
 ]
 
 
@@ -139,12 +139,6 @@ class FeatureFamily(TransformerMixin, BaseEstimator):
         tags = super().__sklearn_tags__()
         tags.input_tags.three_d_array = True
         return tags
-
-
-def slice_nodes(g, tensor: str, start: int, stop: int, axis: int, hint: str) -> str:
-    """``tensor[..., start:stop, ...]`` along ``axis`` (a Slice, not a Gather)."""
-    return g.op("Slice", [tensor, g.const("start", [start], np.int64), g.const("stop", [stop], np.int64),
-                          g.const("axis", [axis], np.int64)], hint)
 
 
 def pad_bounds(shapes: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
