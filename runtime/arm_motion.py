@@ -57,8 +57,6 @@ class ArmMotion:
         self.last_motion = NEVER
         """The last frame number that counts as moving (the settle time included; may lie ahead)."""
         self._since = NEVER
-        self.expired = 0
-        """``arm moving`` spans ended because no message came for ``max_move_frames``."""
         self.dropped = 0
         """Windows judged dormant because they held frames of the arm's motion (counted by the detector that judges them)."""
         self._last = NEVER
@@ -94,7 +92,6 @@ class ArmMotion:
             return
         if number - self._since >= self.max_move_frames:
             self.moving = False
-            self.expired += 1
             self.last_motion = number - 1 + self.settle_frames
             log.warning("the robot said 'arm moving' %d frames ago and nothing since: taken as still (send 'arm "
                         "still' when it stops, or repeat 'arm moving' while it moves; [arm] max_move_s)",

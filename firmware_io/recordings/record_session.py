@@ -370,7 +370,6 @@ class SessionResult:
     planned: int
     done: int
     recorded: int = 0
-    redone: int = 0
     flagged: list[int] = field(default_factory=list)
     stopped: str = "complete"
 
@@ -468,7 +467,6 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
         if opts.auto:
             if no_case is not None and attempt <= opts.retries:
                 store.remove_last()
-                result.redone += 1
                 continue
             if no_case is not None:
                 result.flagged.append(index)
@@ -477,7 +475,6 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
                         else "r = redo (suggested), Enter = keep anyway, d = discard, q = quit", ("", "r", "d", "q"))
         if answer == "r":
             store.remove_last()
-            result.redone += 1
             continue
         if answer == "d":
             store.remove_last()
