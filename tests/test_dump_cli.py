@@ -135,3 +135,20 @@ def test_a_pause_longer_than_timeout_stops_with_the_summary_and_one_line(capsys)
 def test_dump_refuses_a_timeout_that_is_not_a_positive_number(capsys, timeout):
     assert main(["dump", "sim://", "--frames", "1", "--timeout", timeout]) == 2
     assert capsys.readouterr().err.startswith("handover dump: --timeout must be a positive number")
+
+
+def test_a_device_that_dies_mid_dump_still_gets_the_summary_of_what_came(capsys):
+    from firmware_io.emulator.device import DeviceEmulator, FaultPlan
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    device = DeviceEmulator(load_source("sim", seed=0, events=2), speed=None, faults=FaultPlan(disconnect_after=3))
+    server = TcpEmulatorServer(device).start()
+    try:
+        code = main(["dump", server.url, "--frames", "50", "--all-frames", "--json"])
+    finally:
+        server.stop()
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert json.loads(out.splitlines()[-1])["frames"] == 3  # the frames shown are summed up, not lost
+    assert len(err.splitlines()) == 1 and "closed the connection" in err, err

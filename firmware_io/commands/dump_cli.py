@@ -83,7 +83,9 @@ def main(args: argparse.Namespace) -> int:
         client.start()
         problem = _stream(args, client, layout, idle, tally, emit)
     except (TransportError, DSAError) as exc:
-        return fail(COMMAND, str(exc), DEVICE_ERROR)
+        if not tally.count:
+            return fail(COMMAND, str(exc), DEVICE_ERROR)
+        problem = str(exc)  # a device that dies mid-dump: the frames shown are still summed up
     except KeyboardInterrupt:
         pass
     finally:
