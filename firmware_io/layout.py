@@ -84,6 +84,9 @@ class MatrixInfo:
     @classmethod
     def from_dict(cls, d: dict) -> MatrixInfo:
         mask = d.get("static_mask")
+        fullscale = d.get("fullscale", FULL_SCALE_12BIT)
+        if problem := fullscale_problem(fullscale):  # before float(): null, "abc" or true are no full scale
+            raise LayoutError(f"matrix {d.get('index')}: {problem}")
         return cls(
             index=int(d["index"]),
             cells_x=int(d["cells_x"]),
@@ -91,7 +94,7 @@ class MatrixInfo:
             texel_width=float(d.get("texel_width", 3.4)),
             texel_height=float(d.get("texel_height", 3.4)),
             center=tuple(float(v) for v in d.get("center", (0.0, 0.0, 0.0))),
-            fullscale=float(d.get("fullscale", FULL_SCALE_12BIT)),
+            fullscale=float(fullscale),
             static_mask=None if mask is None else np.asarray(mask, dtype=bool),
         )
 

@@ -150,3 +150,11 @@ def test_a_full_scale_no_12bit_pad_has_is_refused_where_it_enters(tmp_path, caps
         reply = MatrixInfoReply.decode(MatrixInfoReply(fullscale=fullscale).encode())
         with pytest.raises(ProtocolError, match=r"^matrix 2: controller reports fullscale .* from 1 to 4095"):
             reply.to_matrix_info(2)
+
+
+@pytest.mark.parametrize("fullscale", [None, "abc", "4095", True, [1]])
+def test_a_full_scale_that_is_not_a_number_in_a_header_is_named_as_such(fullscale):
+    """A hand-edited header: null or a string said only what float() thinks, ``true`` read as 1."""
+    row = {"index": 0, "cells_x": 6, "cells_y": 13, "fullscale": fullscale}
+    with pytest.raises(LayoutError, match=r"^matrix 0: fullscale .* is not a 12-bit pad's full scale"):
+        MatrixInfo.from_dict(row)
