@@ -266,7 +266,7 @@ class Daemon:
         try:
             self.control = ControlSocket(self.cfg.control.socket, self.set_grasp, self.set_arm_moving).start()
         except OSError as exc:
-            log.error("%s; running without robot messages", exc)
+            log.error("%s; running without robot messages until a reload (SIGHUP) to bind it again", exc)
             self.health.last_error = str(exc)
 
     def stop_control(self) -> None:

@@ -91,6 +91,7 @@ def test_sighup_retries_a_control_socket_that_could_not_bind(tmp_path, caplog):
         with caplog.at_level(logging.ERROR, logger="handover.daemon"):
             daemon.start_control()
         assert daemon.control is None and "cannot bind" in caplog.text
+        assert "reload (SIGHUP) to bind it again" in caplog.text  # the fix alone changes nothing until then
         folder.mkdir()  # the operator fixes it and sends SIGHUP
         daemon.reload()
         assert daemon.control is not None and (folder / "c.sock").is_socket()
