@@ -37,14 +37,23 @@ class TrainingCounts:
 
     @classmethod
     def from_meta(cls, training: Mapping) -> TrainingCounts:
-        """Read back ``to_meta``'s keys; a value that is no count reads as not recorded."""
+        """Read back ``to_meta``'s keys; a value that is no count (3.7, inf, 1e300, "70"), and counts that
+        contradict each other (more dormant windows than windows), read as not recorded: the card
+        words them, and must not print a negative number nor crash on hand-edited metadata."""
 
         def count(key: str) -> int | None:
             v = training.get(key)
-            return int(v) if isinstance(v, int | float) and not isinstance(v, bool) and v == v and v >= 0 else None
+            # a float is a count only when whole and exact (not NaN, inf, or 1e300's 301 digits)
+            whole = isinstance(v, int) or (isinstance(v, float) and v.is_integer() and abs(v) <= 2.0**53)
+            return int(v) if whole and not isinstance(v, bool) and v >= 0 else None
 
-        return cls(trials=count("n_trials"), windows=count("n_cases"), untriggered=count("n_untriggered") or 0,
-                   dormant=count("dormant_windows") or 0)
+        trials, windows = count("n_trials"), count("n_cases")
+        untriggered, dormant = count("n_untriggered") or 0, count("dormant_windows") or 0
+        if windows is not None and dormant > windows:
+            windows, dormant = None, 0
+        if trials is not None and untriggered > trials:
+            trials, untriggered = None, 0
+        return cls(trials=trials, windows=windows, untriggered=untriggered, dormant=dormant)
 
     def text(self) -> str:
         """``70 windows: 48 from 48 labelled trials + 22 dormant windows from idle`` and its shorter forms."""
