@@ -25,6 +25,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import re
 import stat
 import threading
 import time
@@ -77,6 +78,9 @@ class FileState:
 
 
 NEVER: tuple[int, str] = (-1, "")
+MEASURED_MS = re.compile(r"\d+\.\d+ ms")
+"""A duration in a rejection's reason (the warm-up's measured median, the budget it missed): it differs
+on every weighing of one file, so it does not make the reason a new one."""
 
 
 @dataclass(frozen=True)
@@ -348,9 +352,9 @@ class ModelWatcher:
             model.run(x)
 
     def _reject(self, st: FileState, reason: str) -> None:
-        version = (st.inode, st.size, st.mtime_ns)
-        rejection = Rejection(st.path, reason, repeat=self.said.get(st.path) == (version, reason))
-        self.said[st.path] = (version, reason)
+        version, same = (st.inode, st.size, st.mtime_ns), MEASURED_MS.sub("… ms", reason)
+        rejection = Rejection(st.path, reason, repeat=self.said.get(st.path) == (version, same))
+        self.said[st.path] = (version, same)
         if rejection.repeat:
             log.debug("model %s rejected again: %s", st.path.name, reason)
         else:

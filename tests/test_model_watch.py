@@ -222,3 +222,25 @@ def test_a_rejected_file_is_logged_once_per_version_across_reloads(tmp_path, cap
         daemon.models.stop()
         daemon.sinks.close()
     assert broken.exists() and daemon.health.model_id is not None
+
+
+def test_a_model_over_the_time_budget_is_logged_once_though_each_weighing_measures_anew(tmp_path, caplog):
+    """The too-slow line carries the measured median, which differs on every weighing: a reload that
+    weighs the same file again must not log and count it again for that figure alone."""
+    import logging
+    import shutil
+
+    shutil.copy(Path(__file__).resolve().parents[1] / "examples" / "report-simulated" / "model.onnx", tmp_path / "m.onnx")
+    os.utime(tmp_path / "m.onnx", (time.time() - 100, time.time() - 100))
+    rejected = []
+    w = ModelWatcher(tmp_path, loader=lambda p: load_model(p, warm_up=False), decision_budget=1e-9,
+                     on_reject=rejected.append)  # any real decision takes longer than 31 ps
+    with caplog.at_level(logging.DEBUG, logger="handover"):
+        for _ in range(5):
+            w.rescan(keep_current=True)  # what a reload of [scene] or [model] does
+            assert w.poll(require_stable=False) is None
+    reasons = {r.getMessage().split(": ", 1)[1] for r in caplog.records if "m.onnx rejected" in r.getMessage()}
+    errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(reasons) > 1, reasons  # the figure did vary between weighings (else this shows nothing)
+    assert len(errors) == 1 and "over the budget" in errors[0].getMessage(), [e.getMessage() for e in errors]
+    assert [r.repeat for r in rejected] == [False, True, True, True, True]
