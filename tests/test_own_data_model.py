@@ -129,6 +129,31 @@ def test_a_stretch_shorter_than_a_window_is_named_and_the_rest_is_kept(recorded)
     assert set(got.groups.tolist()) == {"s1"}
 
 
+def test_idle_too_short_for_the_class_is_said_in_the_report_not_called_none(recorded, tmp_path):
+    """Every stretch cut below a window: training says what to record and the report does not say
+    "idle recorded: none"; the model has no dormant class and claims no dormant cut."""
+    from runtime.model import load_model
+    from trainer.recorded_idle import too_few_line
+
+    data = tmp_path / "short"
+    data.mkdir()
+    for name in ("s1", "s2"):
+        rec = Recording.load(recorded / f"subject_{name}.hrec")
+        short = [dict(st, last=st["first"] + 5) for st in stretches_of(rec.meta)]
+        Recording(rec.layout, rec.frames, rec.timestamps, rec.trials,
+                  {**rec.meta, "idle_stretches": short}).save(data / f"subject_{name}.hrec")
+    report = tmp_path / "report"
+    assert handover(["train", "--data", str(data), "--out", str(report), "--no-sweep", "--repeats", "2",
+                     "--no-replay", "--quiet"]) == 0
+    idle = json.loads((report / "metrics.json").read_text())["idle"]
+    assert idle["dormant_class"] is False and idle["dormant_windows"] == 0 and idle["seconds"] > 0
+    text = (report / "report.md").read_text()
+    assert "idle recorded: none" not in text
+    assert f"- idle recorded: {too_few_line(idle['seconds'], 0, idle['cut'])}" in text
+    model = load_model(report / "model.onnx")
+    assert model.meta.dormant_class is None and "dormant_cut" not in model.meta.training
+
+
 def test_without_idle_one_line_reads_the_measured_cost(tmp_path):
     """The figure comes from results/streams.json (read, not written into the code)."""
     from trainer.recorded_idle import STREAMS_RESULTS, no_idle_line

@@ -148,7 +148,8 @@ def train(options: TrainOptions) -> TrainResult:
         replay = held_out_replay(ds, estimator, recordings, names, say)
     metrics = metrics_of(options, ds, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
     metrics["idle"] = idle and {"seconds": round(idle.seconds, 1), "dormant_windows": len(idle.X),
-                                "per_origin": idle.per_source, "notes": idle.notes, "cut": idle.cut}
+                                "dormant_class": idle.makes_class, "per_origin": idle.per_source,
+                                "notes": idle.notes, "cut": idle.cut}
     metrics["own_replay"] = replay
     if early_metrics is not None:
         metrics["early"] = early_metrics

@@ -25,7 +25,7 @@ from firmware_io.recordings.idle_stretches import has_idle, stretches_of
 from firmware_io.recordings.recording import Recording
 from trainer.dormant import DORMANT
 
-__all__ = ["IdleWindows", "add_idle", "idle_only_problem", "idle_pieces", "subject_of"]
+__all__ = ["IdleWindows", "add_idle", "idle_only_problem", "idle_pieces", "subject_of", "too_few_line"]
 
 STREAMS_RESULTS = Path(__file__).resolve().parents[1] / "results" / "streams.json"
 """Where ``handover bench streams`` writes the measured stream figures (a source checkout)."""
@@ -56,6 +56,11 @@ class IdleWindows:
     cut: str = DORMANT_CUT
     notes: list[str] = field(default_factory=list)
     """One line per thing the user should know (a stretch too short for a window, ...)."""
+
+    @property
+    def makes_class(self) -> bool:
+        """Whether there are enough windows for a dormant class (``MIN_DORMANT_WINDOWS``)."""
+        return len(self.X) >= MIN_DORMANT_WINDOWS
 
     @property
     def per_source(self) -> dict[str, int]:
@@ -180,10 +185,19 @@ def with_dormant(ds, idle: IdleWindows):
         hysteresis=ds.hysteresis, trigger=ds.trigger)
 
 
+def too_few_line(seconds: float, n_windows: int, cut: str) -> str:
+    """What recorded idle with too few dormant windows costs and what to do (train's warning, report.md)."""
+    return (f"{seconds / 60:.1f} min of recorded idle gave {n_windows} dormant windows (cut: {cut}; at least "
+            f"{MIN_DORMANT_WINDOWS} make the class): the model has no dormant class; record more idle, arm moves "
+            "above all (`handover record --idle-only --idle-minutes 10`)")
+
+
 def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: int, say: Callable[[str], None],
              cut: str = DORMANT_CUT, warn: Callable[[str], None] | None = None):
-    """``(data set with dormant windows, IdleWindows)``, or ``(ds, None)`` and the one line saying what
-    a model without them costs (``say``: progress; ``warn``: lines about the data to see even when quiet)."""
+    """``(data set with dormant windows, IdleWindows)``; ``(ds, None)`` and the one line saying what a
+    model without them costs when nothing holds idle; ``(ds, idle)`` and a line saying to record more
+    when the idle gives too few windows (``idle.makes_class`` is False). ``say``: progress; ``warn``:
+    lines about the data to see even when quiet."""
     warn = warn or say
     idle = recorded_idle_windows(recordings, names, ds, seed, cut)
     if idle is None:
@@ -191,11 +205,9 @@ def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: in
         return ds, None
     for note in idle.notes:
         warn(note)
-    if len(idle.X) < MIN_DORMANT_WINDOWS:
-        warn(f"{idle.seconds / 60:.1f} min of recorded idle gave {len(idle.X)} dormant windows (cut: {cut}; at least "
-            f"{MIN_DORMANT_WINDOWS} make the class): the model has no dormant class; record more idle, arm moves "
-            "above all (`handover record --idle-only --idle-minutes 10`)")
-        return ds, None
+    if not idle.makes_class:
+        warn(too_few_line(idle.seconds, len(idle.X), cut))
+        return ds, idle
     parts = ", ".join(f"{k} {v}" for k, v in sorted(idle.per_source.items()))
     say(f"{idle.seconds / 60:.1f} min of recorded idle: {len(idle.X)} dormant windows ({parts}; cut: {cut})")
     return with_dormant(ds, idle), idle

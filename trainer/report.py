@@ -318,6 +318,11 @@ def _idle_lines(idle: dict | None) -> list[str]:
     if not idle:
         return ["- idle recorded: none, so the model has no dormant class (`handover record` records idle after "
                 "the trials; `handover import --idle` marks a file as idle)"]
+    if idle.get("dormant_class") is False:  # older metrics lack the key: they made the class
+        from trainer.recorded_idle import too_few_line
+
+        lines = [f"- idle recorded: {too_few_line(idle['seconds'], idle['dormant_windows'], idle['cut'])}"]
+        return lines + [f"- {note}" for note in idle.get("notes", [])]
     lines = [f"- idle recorded: {idle['seconds'] / 60:.1f} min; {idle['dormant_windows']} dormant windows "
              f"({', '.join(f'{k} {v}' for k, v in idle['per_origin'].items())}): the class `dormant` "
              "(trainer/recorded_idle.py)"]

@@ -93,8 +93,8 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "gamma": metrics["best_params"].get("gamma"),
             "hard_margin": metrics["svm_margin"]["hard_margin"],
             "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
-            **({"idle_seconds": metrics["idle"]["seconds"], "dormant_cut": metrics["idle"]["cut"]}
-               if metrics.get("idle") else {}),
+            **({"idle_seconds": metrics["idle"]["seconds"]} if metrics.get("idle") else {}),
+            **({"dormant_cut": metrics["idle"]["cut"]} if (metrics.get("idle") or {}).get("dormant_class") else {}),
         },
         evaluation={
             "synthetic": metrics["synthetic"],

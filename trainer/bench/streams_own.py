@@ -91,7 +91,7 @@ def cut_models(folder: Path, work: Path, seed: int, say) -> dict:
         say(f"streams_own: training with dormant windows cut '{cut}' ...")
         ds, idle = add_idle(ds0, recs, [p.name for p in paths], seed, lambda text: None, cut=cut)
         model = build_estimator(options, ds).fit(ds.X, ds.y)
-        meta = dataset_metadata(ds, training={"dormant_cut": cut}, dormant_class=DORMANT if idle else None)
+        meta = dataset_metadata(ds, training={"dormant_cut": cut}, dormant_class=DORMANT if idle and idle.makes_class else None)
         out[cut] = load_model(export_onnx(model, work / f"cut-{cut}.onnx", meta), warm_up=False)
     return out
 
