@@ -31,6 +31,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import expit
 
 from runtime.decision import margin_of
 from runtime.early import NEVER, EarlySpec
@@ -140,7 +141,7 @@ def platt(margins: np.ndarray, correct: np.ndarray, iterations: int = 50) -> tup
     t = np.where(c, (n_pos + 1.0) / (n_pos + 2.0), 1.0 / (n_neg + 2.0))
     a, b = 0.0, float(np.log((n_pos + 1.0) / (n_neg + 1.0)))
     for _ in range(iterations):
-        p = 1.0 / (1.0 + np.exp(-(a * m + b)))
+        p = expit(a * m + b)
         w = p * (1.0 - p) + 1e-12
         g = np.array([np.sum((p - t) * m), np.sum(p - t)])
         h = np.array([[np.sum(w * m * m), np.sum(w * m)], [np.sum(w * m), np.sum(w)]]) + 1e-9 * np.eye(2)
@@ -153,7 +154,7 @@ def platt(margins: np.ndarray, correct: np.ndarray, iterations: int = 50) -> tup
 
 def confidences(margins: np.ndarray, calibration: Sequence[tuple[float, float]]) -> np.ndarray:
     ab = np.asarray(calibration, dtype=np.float64)
-    return 1.0 / (1.0 + np.exp(-(ab[:, :1] * margins + ab[:, 1:])))
+    return expit(ab[:, :1] * margins + ab[:, 1:])  # no overflow warning for a large margin
 
 
 def cascade(labels: np.ndarray, conf: np.ndarray, full: np.ndarray, threshold: float, agree: bool,
