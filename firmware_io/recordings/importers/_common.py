@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmware_io.layout import fullscale_problem
+from firmware_io.layout import FULL_SCALE_12BIT, fullscale_problem
 from firmware_io.recordings.recording import RecordingError
 
 __all__ = ["MAX_12BIT", "check_allocation", "check_fullscale", "check_range", "describe_timing", "keep_increasing"]
 
-MAX_12BIT = 4095
+MAX_12BIT = FULL_SCALE_12BIT
+"""The largest value a 12-bit taxel reports (the layout owns it)."""
 VALUES_PER_BYTE = 16
 """Most taxel values a file may decode to per byte of its (inflated) text. Why: a header may
 declare any matrix size, and zero runs make a few bytes stand for millions of values; the
