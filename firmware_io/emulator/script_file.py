@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.recordings.recording import Recording, Trial
 
 __all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", "write_script"]
@@ -59,8 +58,7 @@ class SessionScript:
 def session_script(recording: Recording, clock_start_ms: int = 0, loop: bool = False) -> SessionScript:
     """The script of ``recording`` served from power-on with the clock starting at ``clock_start_ms``."""
     ms = np.round((recording.timestamps - recording.timestamps[0]) * 1000.0).astype(np.int64)
-    step = recording.sample_interval()
-    loop_ms = int(ms[-1] + round((step if np.isfinite(step) else NOMINAL_PERIOD_S) * 1000)) if loop else None
+    loop_ms = int(ms[-1] + round(recording.period_s() * 1000)) if loop else None
     return SessionScript(list(recording.trials), ms, int(clock_start_ms), loop_ms,
                          bool(recording.meta.get("synthetic", False)))
 
