@@ -34,7 +34,7 @@ def dead_cells(layout: SensorLayout) -> np.ndarray:
 
 
 class FrameCheck:
-    """``problem(values)``: why a decoded frame cannot come from the sensor, or None (~2 us)."""
+    """``problem(values)``: why a decoded frame cannot come from the sensor, or None (cheap: runs per frame)."""
 
     def __init__(self, layout: SensorLayout) -> None:
         self.n_taxels = layout.n_taxels

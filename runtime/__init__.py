@@ -2,9 +2,8 @@
 
 import os
 
-# onnxruntime (1.32 on Linux) collects usage telemetry at import unless told not to: it keeps a
-# device id and a SQLite store that grows with every process (2.4 MB here after a day of tests)
-# under ~/.cache/Microsoft/DeveloperTools, written at each exit. A service that runs for months
+# onnxruntime collects usage telemetry at import unless told not to: it keeps a device id and a
+# SQLite store that grows with every process under ~/.cache/Microsoft/DeveloperTools. A service that runs for months
 # on a lab's robot does not; set here, before any import of it. Setting ORT_DISABLE_TELEMETRY=0
 # in the environment keeps onnxruntime's default.
 os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")

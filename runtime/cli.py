@@ -88,7 +88,7 @@ class OneLineParser(argparse.ArgumentParser):
     def parse_known_args(self, args: Sequence[str] | None = None,
                          namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
         """Also refuses an empty value (``--out ''``, ``--data=``): a slip, and an empty path means the
-        current folder (``simulate --out ''`` wrote 84 MB of recordings there). Options whose default
+        current folder, where the command would write its outputs. Options whose default
         is the empty string (``--fault ''``: no faults) take it."""
         args = list(sys.argv[1:] if args is None else args)
         for i, arg in enumerate(args):

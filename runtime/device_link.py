@@ -29,9 +29,9 @@ __all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceLink", "default_client", "l
 log = logging.getLogger("handover.daemon")
 
 CONNECT_BOUND_S = 30.0
-"""Longest one connection attempt may take while the watchdog is still fed: the client's own
-deadlines end an open within ~15 s (open 10 s, start 3 s), so an attempt still running after this
-is a hang, and systemd's watchdog is left to catch it."""
+"""Longest one connection attempt may take while the watchdog is still fed: well beyond the
+client's own deadlines (``DSAClient.open_timeout`` and, for the start, ``stop_timeout``), so an attempt still
+running after this is a hang, and systemd's watchdog is left to catch it."""
 
 SHORT_LINK_S = 5.0
 """A connection the device ends within this long of connecting counts as a failed attempt for the

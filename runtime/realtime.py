@@ -2,14 +2,11 @@
 scheduler's next slice.
 
 Why: the daemon sleeps on the device and wakes per frame. On a loaded 2-core PC a normal thread
-waits for a slice of the processes already running, several milliseconds; niceness hardly helps
-(measured end to end with both cores busy: p99.9 12 ms at nice 0, 6.3 ms at nice -5, 1.2 ms with
-SCHED_FIFO; results/latency.md has the benchmark's own figures). Under a real-time policy the hot
-thread runs first. The price, measured on this 2-core VM when it is quiet: a FIFO thread waking
-from the 31 ms sleep decides about 100 us later at the median (paced in-process stage table, 300
-decisions, alternated: 410-455 us against 310-360 us; back to back equal), so the paced figure
-moves further from the back-to-back one. Tails under other work matter more to a robot than 0.1 ms
-of a 31 ms period; set ``realtime_priority = 0`` on a PC with nothing else to do. Only the thread that calls :func:`enter_realtime` is raised (the model
+waits for a slice of the processes already running; niceness hardly helps. Under a real-time policy
+the hot thread runs first. The price: on a quiet PC a FIFO thread waking from its sleep decides a
+little later at the median. Tails under other work matter more to a robot than a fraction of a
+period; set ``realtime_priority = 0`` on a PC with nothing else to do (figures:
+results/design_figures.md and results/latency.md). Only the thread that calls :func:`enter_realtime` is raised (the model
 watcher, which loads models, and the control socket keep normal scheduling, so loading a model
 cannot hog a core), and with SCHED_RESET_ON_FORK nothing it starts afterwards inherits the
 policy: neither threads (sinks a reload rebuilds) nor child processes, which at

@@ -1,7 +1,7 @@
 """Render trials into frames: motion -> pressure on each pad -> sensor -> firmware frames.
 
 Trials are rendered in chunks so every numpy operation covers many thousand scans at once
-(fast) while memory stays bounded (~40 MB a chunk).
+(fast) while memory stays bounded by the chunk.
 """
 
 from __future__ import annotations

@@ -46,11 +46,10 @@ FTDI_STATUS_BYTES = 2
 FTDI_LATENCY_MS = 2
 """The FTDI latency timer the transport sets (``latency=`` in the URL, 1..255 ms; refused on a bridge the
 URL names as another chip, ignored on one only found to be another at open): the chip holds a
-packet that is not full until the timer runs out, 16 ms after reset, so a frame's last packet reached
-the host up to 16 ms late (half the sample period). But each timer period ends a transfer (with data or
-the two status bytes), and every transfer costs the hot thread about 40 us: measured over the emulated
-bridge streaming at 32 Hz, the daemon took 2.0 % of a core at 16 ms, 2.7 % at 4 ms, 3.7 % at 2 ms and
-5.5-5.9 % at 1 ms (960 transfers a second). 2 ms keeps a frame's tail within 2 ms for 1.7 % of a core."""
+packet that is not full until the timer runs out (16 ms after reset: half the sample period late).
+But each timer period ends a transfer (with data or the two status bytes), and every transfer costs
+the hot thread CPU, so a shorter timer costs more of a core: 2 ms keeps a frame's tail close for
+little. CPU share per setting: results/design_figures.md."""
 FTDI_FRACTION_CODES = (0, 3, 2, 4, 1, 5, 6, 7)  # eighths of the divisor -> the chip's encoding
 _GONE_ERRNOS = {errno.ENODEV, errno.ENOENT, errno.ESHUTDOWN, errno.EPIPE, errno.EIO}
 EXTRA_HINT = "pip install 'tactile-handover[usb]'"

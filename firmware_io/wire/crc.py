@@ -24,14 +24,11 @@ CRC_TABLE = _ccitt_table()
 CRC_INIT = 0xFFFF
 _CRC_TABLE_NP = np.array(CRC_TABLE, dtype=np.uint16)
 _VECTOR_CRC_MIN = 512
-"""Below this a Python loop is cheaper than NumPy (figures for the byte loop; the word loop now used
-is faster still, see ``_crc_words``). Why so high: in service a frame arrives after
-31 ms of idle, when NumPy's call paths and the table are out of the caches; measured so (one CRC
-after 15 ms asleep, median of 40): 200 bytes 22 us looped, 73 us vectorised; 450 bytes 37 against
-87 us; 980 bytes (a raw SDH-2 frame) 62 against 111 us. Back to back the vectorised CRC wins from
-about 100 bytes (a 450-byte CRC: about 4 us against 28 us), so raw frames, which replays at full
-speed stream back to back, keep it; run-length-encoded SDH-2 frames (the client's default) stay
-well below 512 bytes unless most taxels are pressed."""
+"""Below this a Python loop is cheaper than NumPy. Why so high: in service a frame arrives after a
+period of idle, when NumPy's call paths and the table are out of the caches, so the loop wins for
+frames far longer than back to back; raw frames (replays stream them back to back) keep NumPy, and
+run-length-encoded SDH-2 frames (the client's default) stay below this unless most taxels are
+pressed. Figures: results/design_figures.md."""
 _VECTOR_CRC_MAX = 2048  # positions with a precomputed contribution table (4 MiB would be 8192)
 _crc_contrib: np.ndarray | None = None
 _crc_init_term: np.ndarray | None = None
@@ -54,8 +51,7 @@ _LITTLE_ENDIAN = sys.byteorder == "little"
 
 
 def _crc_words(data: bytes, crc: int = CRC_INIT) -> int:
-    """The byte-at-a-time table loop, two bytes a step: half the Python steps (a 219-byte RLE frame 8.7 -> 5.0 us warm,
-    10.1 -> 6.8 us after 15 ms asleep)."""
+    """The byte-at-a-time table loop, two bytes a step: half the Python steps."""
     view = memoryview(data)
     if len(view) & 1:
         crc = (crc >> 8) ^ CRC_TABLE[(crc ^ view[0]) & 0xFF]
