@@ -70,10 +70,10 @@ def test_recorders_case_check_cuts_with_the_default_models_T(monkeypatch):
 
     rec = _one_trial_recording(peak_at=28, n=40)  # 12 frames from the trigger to the end
     frames, stamps = rec.trial_frames(rec.trials[0])
-    for T, expected in ((10, None), (20, "triggered too late")):
+    for T, expected, at in ((10, None, 28), (20, "triggered too late", -1)):
         monkeypatch.setitem(defaults.DEFAULT_MODEL, "T", T)
-        why = case_check(dataset_trigger(fraction=0.15), pads="distal")(frames, stamps, rec.layout)
-        assert (why if why is None else why.split(":")[0]) == expected, (T, why)
+        frame, why = case_check(dataset_trigger(fraction=0.15), pads="distal")(frames, stamps, rec.layout)
+        assert (why if why is None else why.split(":")[0]) == expected and frame == at, (T, frame, why)
 
 
 def test_standin_protocol_counts_every_trial():

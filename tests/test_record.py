@@ -60,13 +60,27 @@ def auto_opts(**kw) -> SessionOptions:
     return SessionOptions(**base)
 
 
+def training_cuts(rec: Recording) -> dict[tuple, int]:
+    """Each trial's frame ``handover train`` cuts its case at, by (pose, object, action, run)."""
+    from trainer.dataset import build_dataset, dataset_trigger, frames_before_trigger
+    from trainer.defaults import DEFAULT_MODEL
+
+    T, settings = int(DEFAULT_MODEL["T"]), dataset_trigger()
+    ds = build_dataset([rec], T=T, trigger=settings)
+    return {(p, o, a, int(r)): int(s) + frames_before_trigger(settings, T)
+            for p, o, a, r, s in zip(ds.poses, ds.objects, ds.y, ds.runs, ds.trigger_offsets, strict=True)}
+
+
 def assert_consistent(rec: Recording) -> None:
-    """Every stored flag agrees with the frames: what the recorder said is what the file holds."""
+    """Every stored flag agrees with the frames: what the recorder said is what the file holds, and the
+    trigger it marked is the frame training cuts at (the paper's level where no training cut judged)."""
+    cuts = training_cuts(rec) if any("case_cut" in t.extra for t in rec.trials) else {}
     for t in rec.trials:
         frames, stamps = rec.trial_frames(t)
         check = check_trigger(frames, rec.layout)
         assert t.extra["triggered"] == check.triggered
-        assert t.extra["trigger_frame"] == check.first_frame
+        expected = cuts.get((t.pose, t.object, t.action, t.run), -1) if "case_cut" in t.extra else check.first_frame
+        assert t.extra["trigger_frame"] == expected, (t.action, t.extra["trigger_frame"], expected)
         assert 87 <= t.n_frames <= 102  # 1 s held grasp before go + 2 s after, at ~32 Hz
         assert 28 <= t.extra["go_frame"] <= 34 and t.extra["lead_in_s"] == LEAD_IN_SECONDS
         if t.extra.get("onset") is not None:  # the person acts after go, not in the lead-in
@@ -294,6 +308,27 @@ def test_with_the_trainers_cut_a_trial_nobody_acted_in_is_flagged_with_its_reaso
     assert rec.trials[1].extra["no_case"].startswith(NEVER)
     assert {t.extra["case_cut"] for t in rec.trials} == {str(case_check())} == {"onset trigger, T=15, pads all"}
     assert all(t.extra["no_case"] is None for i, t in enumerate(rec.trials) if i != 1)
+
+
+def test_the_quick_look_marks_and_stores_the_cut_training_uses_not_the_papers_crossing(tmp_path):
+    """The paper's 15 % crossing is not where training cuts (a bump may cross it in the held grasp, before
+    the go cue): the recorder marks and stores the onset trigger's frame that ``handover train`` cuts at."""
+    from trainer.dataset import case_check
+
+    subject = ScriptedSubject(seed=3, speed=SPEED)
+    client, store = open_session(tmp_path, subject)
+    shown: list[str] = []
+    run_session(client, store, PLAN, auto_opts(case_check=case_check(), quick_look=trial_view),
+                SessionIO(show=shown.append, cue=subject.cue))
+    client.close()
+    rec = Recording.load(store.path)
+    assert_consistent(rec)
+    marks = [line for s in shown for line in s.splitlines() if line.lstrip().startswith("trigger ")]
+    for t, mark in zip(rec.trials, marks, strict=True):
+        assert t.extra["trigger_frame"] >= t.extra["go_frame"], (t.action, t.extra["trigger_frame"])
+        assert mark.endswith(f"^ frame {t.extra['trigger_frame']}")
+    papers = [check_trigger(rec.trial_frames(t)[0], rec.layout).first_frame for t in rec.trials]
+    assert papers != [t.extra["trigger_frame"] for t in rec.trials], "the two cuts must differ for this to test"
 
 
 def test_link_drop_mid_trial_reconnects_and_records_the_trial_again(tmp_path):

@@ -44,7 +44,7 @@ from runtime.trigger_settings import (
 
 __all__ = [
     "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "CaseCheck", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
-    "case_check", "dataset_trigger", "fingerprint", "onset_start", "reason_counts", "rising_trigger",
+    "case_check", "dataset_trigger", "fingerprint", "frames_before_trigger", "onset_start", "reason_counts", "rising_trigger",
     "trigger_frame", "untriggered_lines"
 ]
 
@@ -383,22 +383,24 @@ def build_dataset(
 
 @dataclass(frozen=True)
 class CaseCheck:
-    """For the recorder: ``check(frames, stamps, layout)`` -> None when ``build_dataset`` would cut a
-    case from this one trial, else its reason. It runs ``build_dataset`` itself, so the two cannot
-    disagree; ``str(check)`` names the cut (stored with each trial it judged)."""
+    """For the recorder: ``check(frames, stamps, layout)`` -> (trigger frame, None) when ``build_dataset``
+    would cut a case from this one trial, else (-1, its reason). It runs ``build_dataset`` itself, so
+    the recorder marks the frame training cuts at; ``str(check)`` names the cut (stored with each trial)."""
 
     settings: TriggerSettings
     T: int
     pads: str | tuple[int, ...] = "all"
 
-    def __call__(self, frames: np.ndarray, stamps: np.ndarray, layout: SensorLayout) -> str | None:
+    def __call__(self, frames: np.ndarray, stamps: np.ndarray, layout: SensorLayout) -> tuple[int, str | None]:
         if len(frames) == 0:
-            return "no frames"
+            return -1, "no frames"
         trial = Trial("check", "-", "-", "-", 0, 0, len(frames) - 1)
         rec = Recording(layout=layout, frames=frames, timestamps=np.asarray(stamps, dtype=np.float64),
                         trials=[trial])
         ds = build_dataset([rec], T=self.T, pads=self.pads, trigger=self.settings)
-        return ds.untriggered[0].reason if ds.untriggered else None
+        if ds.untriggered:
+            return -1, ds.untriggered[0].reason
+        return int(ds.trigger_offsets[0]) + frames_before_trigger(self.settings, self.T), None
 
     def __str__(self) -> str:
         level = f" at {self.settings.fraction:.0%}" if self.settings.kind == "threshold" else ""
@@ -416,6 +418,11 @@ def case_check(settings: TriggerSettings | None = None, T: int | None = None,
                      int(DEFAULT_MODEL["T"]) if T is None else int(T), pads if isinstance(pads, str) else tuple(pads))
 
 
+def frames_before_trigger(settings: TriggerSettings, T: int) -> int:
+    """Where a case's window starts: ``pre_frames`` before the trigger frame, as the daemon cuts, within T."""
+    return min(int(settings.pre_frames), T - 1)
+
+
 def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, settings: TriggerSettings,
          pads: tuple[tuple[int, ...], tuple[int, ...]], fullscale: float, hysteresis: float, T: int
          ) -> tuple[int, np.ndarray] | str:
@@ -429,7 +436,7 @@ def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, setting
         trig, why = rising_trigger(selected, fullscale, settings.fraction, hysteresis)
     if trig < 0:
         return str(why)
-    start = trig - min(int(settings.pre_frames), T - 1)
+    start = trig - frames_before_trigger(settings, T)
     if start < 0:
         return f"{TOO_EARLY}: frame {trig}, {trig - start} frames before it needed"
     if start + T > len(selected):

@@ -30,7 +30,7 @@ import numpy as np
 
 from firmware_io.recordings.recording import Recording
 from runtime.training_counts import TrainingCounts
-from trainer.dataset import fingerprint
+from trainer.dataset import fingerprint, frames_before_trigger
 from trainer.defaults import PAPER_MODEL, paper_classifier
 
 __all__ = [
@@ -196,7 +196,7 @@ def trigger_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, setting
     """
     from runtime.trigger_settings import build_trigger
 
-    pre = min(int(settings.pre_frames), T - 1)
+    pre = frames_before_trigger(settings, T)
     X, origin, groups = [], [], []
     for r, rec in enumerate(idle):
         rate = 1.0 / rec.period_s()

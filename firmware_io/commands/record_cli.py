@@ -174,13 +174,12 @@ def _plan_and_options(args: argparse.Namespace):
     from firmware_io.recordings.terminal_view import trial_view
 
     plan = ProtocolPlan.from_text(args.poses, args.objects, args.actions, args.runs)
-    quick_look = None if args.no_look else lambda f, lay, c: trial_view(f, lay, c.first_frame)
     from trainer.dataset import case_check, dataset_trigger
 
     opts = SessionOptions(trial_seconds=args.trial_seconds, lead_in_seconds=args.lead_in, gap_seconds=args.gap, countdown=args.countdown,
                           fraction=args.fraction or PAPER_FRACTION, pads=args.pads, auto=args.auto, retries=args.retries,
                           case_check=case_check(dataset_trigger(fraction=args.fraction), pads=args.pads),
-                          max_trials=args.max_trials, quick_look=quick_look)
+                          max_trials=args.max_trials, quick_look=None if args.no_look else trial_view)
     return plan, opts
 
 

@@ -337,9 +337,9 @@ class SessionOptions:
     fraction: float = PAPER_FRACTION
     """the paper's trigger level: each trial's peak is stored against it."""
     pads: str = "all"
-    case_check: Callable[[np.ndarray, np.ndarray, SensorLayout], str | None] | None = None
-    """(frames, stamps, layout) -> None if training gets a case from the trial, else why not
-    (``handover record`` passes ``trainer.dataset.case_check``); None: the paper's level decides."""
+    case_check: Callable[[np.ndarray, np.ndarray, SensorLayout], tuple[int, str | None]] | None = None
+    """(frames, stamps, layout) -> (the frame training's trigger cuts at, None), else (-1, why training gets
+    no case) (``handover record`` passes ``trainer.dataset.case_check``); None: the paper's level decides."""
     auto: bool = False
     retries: int = 1
     """auto mode: how often a trial that gives training no case is recorded again before it is kept flagged."""
@@ -347,7 +347,8 @@ class SessionOptions:
     """stop after this many trials (scripted partial sessions)."""
     arm_log: arm_marks.ArmMarkLog | None = None
     """what the robot says about its arm (``--control``): its marks are stored with each trial and stretch."""
-    quick_look: Callable[[np.ndarray, SensorLayout, TriggerCheck], str] | None = None
+    quick_look: Callable[[np.ndarray, SensorLayout, int], str] | None = None
+    """(frames, layout, the stored ``trigger_frame``) -> what the investigator sees after each trial."""
 
     def __post_init__(self) -> None:
         """Every span a number of seconds a session can wait out: NaN and infinity passed ``<= 0`` checks
@@ -441,10 +442,11 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
             io.show("the device reconnected during this trial; recording it again")
             continue
         check = check_trigger(capture.frames, store.layout, opts.pads, opts.fraction)
-        no_case = (opts.case_check(capture.frames, capture.stamps, store.layout) if opts.case_check is not None
-                   else None if check.triggered else f"never reached {opts.fraction:.0%} of full scale")
+        trigger_frame, no_case = (
+            opts.case_check(capture.frames, capture.stamps, store.layout) if opts.case_check is not None
+            else (check.first_frame, None if check.triggered else f"never reached {opts.fraction:.0%} of full scale"))
         extra = {
-            "no_case": no_case, "triggered": check.triggered, "trigger_frame": check.first_frame, "peak": check.peak,
+            "no_case": no_case, "triggered": check.triggered, "trigger_frame": trigger_frame, "peak": check.peak,
             "peak_fraction": round(check.peak_fraction, 4), "trigger_fraction": opts.fraction,
             "device_ms": int(capture.device_ms[0]), "frame_gaps": capture.gaps, "attempt": attempt,
             "session": session_no, "recorded_at": _now(), **annotations, "go_frame": capture.go_frame,
@@ -459,7 +461,7 @@ def _record_slot(client, store: SessionStore, slot: TrialSlot, opts: SessionOpti
         index = store.add(slot, capture.frames, capture.stamps, extra)
         result.recorded += 1
         if opts.quick_look is not None:
-            io.show(opts.quick_look(capture.frames, store.layout, check))
+            io.show(opts.quick_look(capture.frames, store.layout, trigger_frame))
         status = (f"trial {n} saved ({len(capture.frames)} frames, peak {check.peak_fraction:.0%} of full scale)")
         io.show(status)
         if no_case is not None:

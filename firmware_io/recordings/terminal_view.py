@@ -48,7 +48,8 @@ def pad_sums(frames: np.ndarray, layout: SensorLayout) -> np.ndarray:
 def trial_view(frames: np.ndarray, layout: SensorLayout, trigger_frame: int = -1, width: int = 60) -> str:
     """One line per pad: name, sparkline on a shared scale, peak sum and peak taxel.
 
-    A caret line marks the trigger frame (when there is one) on the same time axis.
+    A caret line marks ``trigger_frame`` (when there is one) on the same time axis: the recorder passes
+    the frame training cuts at, so the look shows the case ``handover train`` will get.
     """
     frames = np.asarray(frames)
     if frames.size == 0:
