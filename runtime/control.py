@@ -49,18 +49,6 @@ GRASP_LOG_INTERVAL_S = 1.0
 """At most one log line per this many seconds for each kind of robot message (the rest are counted in the next)."""
 
 
-def _is_live(path: str) -> bool:
-    """Whether a process still reads the socket file at ``path`` (a stale one refuses a connect)."""
-    probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    try:
-        probe.connect(path)
-    except OSError:
-        return False
-    finally:
-        probe.close()
-    return True
-
-
 def parse_message(data: bytes) -> tuple[str, bool] | None:
     """``("grasp", closed)`` or ``("arm", moving)`` for a known message (``MESSAGES``), None for anything
     else (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
@@ -105,9 +93,7 @@ class ControlSocket:
         except OSError as exc:
             sock.close()
             if exc.errno == errno.EADDRINUSE and self.address.startswith("@"):
-                raise OSError(f"control.socket {self.address}: in use by another process (another daemon? any local "
-                              "user may take an abstract name); stop it, or choose another name or a path such as "
-                              "/run/handover/control.sock") from None
+                raise OSError(access.in_use_line(self.address)) from None
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
         sock.settimeout(POLL_S)
         self._sock = sock
@@ -125,9 +111,8 @@ class ControlSocket:
         path = Path(self.address)
         if not path.exists():
             return self.address
-        if _is_live(self.address):
-            raise OSError(f"control.socket {self.address}: in use by another process (another daemon?); "
-                          "stop it or choose another path")
+        if access.held(self.address):
+            raise OSError(access.in_use_line(self.address))
         path.unlink()  # left by an earlier run
         return self.address
 

@@ -8,17 +8,22 @@ sender credentials (SCM_CREDENTIALS): a datagram from another user is dropped an
 ``socket_path_problem`` says, before anything is bound, why a ``control.socket`` can never work
 (a regular file, a folder or a symlink in the way, a path longer than a Unix socket address,
 no parent folder, an abstract name with no name after the @): ``run --check`` and the running daemon say the same line.
+``held``/``in_use_line``: a name another process holds (any local user may take an abstract name
+first) stops the daemon at start and fails ``run --check``: a daemon deaf to the robot's ``grasp open``
+must not run as if all were well.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import stat
 import struct
 from pathlib import Path
 
-__all__ = ["ANCILLARY_BYTES", "allow_credentials", "may_steer", "restrict", "sender_uid", "socket_path_problem"]
+__all__ = ["ANCILLARY_BYTES", "allow_credentials", "held", "in_use_line", "may_steer", "restrict", "sender_uid",
+           "socket_path_problem"]
 
 MAX_ADDRESS_BYTES = 107
 """sun_path holds 108 bytes with the closing NUL (Linux)."""
@@ -53,6 +58,30 @@ def socket_path_problem(address: str) -> str | None:
         return (f"control.socket {address}: cannot bind: folder {path.parent} does not exist; create it (RuntimeDirectory= "
                 "in the unit file) or choose another path")
     return None
+
+
+def in_use_line(address: str) -> str:
+    """What to say about a control socket another process holds."""
+    if address.startswith("@"):
+        return (f"control.socket {address}: in use by another process (another daemon? any local user may take an "
+                "abstract name); stop it, or choose another name or a path such as /run/handover/control.sock")
+    return f"control.socket {address}: in use by another process (another daemon?); stop it or choose another path"
+
+
+def held(address: str) -> bool:
+    """Whether another process holds ``address`` now: a socket file it reads (a stale one refuses a
+    connect), or an abstract name (tried by binding it and letting go at once)."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        if address.startswith("@"):
+            probe.bind(b"\0" + address[1:].encode())
+            return False
+        probe.connect(address)
+    except OSError as exc:
+        return address.startswith("@") and exc.errno == errno.EADDRINUSE
+    finally:
+        probe.close()
+    return True
 
 
 def allow_credentials(sock: socket.socket) -> None:

@@ -260,14 +260,19 @@ class Daemon:
 
     # -- control socket ---------------------------------------------------------------------------
     def start_control(self) -> None:
-        """Open ``[control] socket`` if configured; a socket that cannot bind is one error line, not fatal."""
-        if self.control is not None or not self.cfg.control.socket:
-            return
-        try:
-            self.control = ControlSocket(self.cfg.control.socket, self.set_grasp, self.set_arm_moving).start()
-        except OSError as exc:
-            log.error("%s; running without robot messages until a reload (SIGHUP) to bind it again", exc)
-            self.health.last_error = str(exc)
+        """Bind ``[control] socket`` if configured; OSError (one line) when it cannot: a daemon deaf to the
+        robot's ``grasp open`` must not run as if all were well, so ``handover run`` exits 2."""
+        if self.control is None:
+            self.control = self._control_for(self.cfg)
+
+    def _control_for(self, cfg) -> ControlSocket | None:
+        """The control socket ``cfg`` names: the running one when the address is unchanged, else a new one
+        bound while the running one still holds its name (a process looping on bind never gets it between)."""
+        if self.control is not None and self.control.address == cfg.control.socket:
+            return self.control
+        if not cfg.control.socket:
+            return None
+        return ControlSocket(cfg.control.socket, self.set_grasp, self.set_arm_moving).start()
 
     def stop_control(self) -> None:
         if self.control is not None:
@@ -286,17 +291,14 @@ class Daemon:
         self.notifier.reloading()
         try:
             new = load_config(source)
-        except Exception as exc:  # a ConfigError, or any bug in a check: never fatal to a running daemon
-            reason = one_line(exc) if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {one_line(exc)}"
-            log.error("SIGHUP: %s; keeping the running configuration", reason)
-            self.health.report_error(f"reload refused: {reason}", "config")
-            self.notifier.ready(self.health.status_line())
-            return
+            control = self._control_for(new)
+        except Exception as exc:  # a ConfigError, a socket, or any bug in a check: never fatal to a running daemon
+            reason = one_line(exc) if isinstance(exc, (ConfigError, OSError)) else f"{type(exc).__name__}: {one_line(exc)}"
+            return self._refuse_reload(reason)
         if self.locks is not None and (held := self.locks.retarget(new)):
-            log.error("SIGHUP: %s; keeping the running configuration", held)
-            self.health.report_error(f"reload refused: {held}", "config")
-            self.notifier.ready(self.health.status_line())
-            return
+            if control not in (None, self.control):
+                control.stop()
+            return self._refuse_reload(held)
         old, self.cfg = self.cfg, new
         set_log_level(new.log_level)
         for warning in new.warnings:
@@ -305,9 +307,9 @@ class Daemon:
         self.health.instance = instance_of(new)
         self.reporter.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self,
                                                   instance=self.health.instance)
-        if new.control != old.control or self.control is None:  # also retries one that could not bind
+        if control is not self.control:
             self.stop_control()
-            self.start_control()
+            self.control = control
         if new.realtime_priority != old.realtime_priority and self.hot_thread.applied:
             self.hot_thread.lower()  # taken at once while streaming, else with the next frame
             self._hot_thread_raise()
@@ -326,6 +328,11 @@ class Daemon:
         log.info("configuration reloaded from %s (%s)", source, changed_sections(old, new))
         self.notifier.ready(self.health.status_line())
 
+    def _refuse_reload(self, reason: str) -> None:
+        log.error("SIGHUP: %s; keeping the running configuration", reason)
+        self.health.report_error(f"reload refused: {reason}", "config")
+        self.notifier.ready(self.health.status_line())
+
     # -- main loop ------------------------------------------------------------------------------
     def run(self) -> int:
         """Serve until SIGTERM / request_stop(); returns 0, or 2 when the device URL can never
@@ -333,8 +340,8 @@ class Daemon:
         set_log_level(self.cfg.log_level)
         for warning in self.cfg.warnings:
             log.warning("%s", warning)
+        self.start_control()  # handover run binds it first (refused: exit 2); a bare run raises here, before starting
         self.models.start()
-        self.start_control()
         self.guard.start()
         settle_heap()
         self.notifier.ready(self.health.status_line())

@@ -8,7 +8,7 @@ model folder is only a warning, because the daemon is built to start without a m
 ``--require-model`` it exits 1 instead (for scripts that need a model in place).
 
 The daemon itself exits 0 after SIGTERM and 2 when the device URL turns out to be unusable
-(e.g. a transport's package is missing): retrying would never help; 3 when a model's decision did
+(e.g. a transport's package is missing) or its control socket cannot be bound: retrying would never help; 3 when a model's decision did
 not stop when ended (runtime.decision_guard): the model is quarantined first, so a restart helps.
 """
 
@@ -74,6 +74,11 @@ def main(args: argparse.Namespace) -> int:
     try:
         daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
         daemon.locks = locks  # a reload to another device or health file moves them
+        try:
+            daemon.start_control()
+        except OSError as exc:
+            print(f"{PROG}: {exc}", file=sys.stderr)
+            return 2
         daemon.install_signal_handlers()
         code = daemon.run()
         if daemon.fatal:
@@ -184,8 +189,8 @@ def _warn_about_udp_hosts(cfg) -> None:
 
 CHECKED = ("checked: config keys and values; the device URL's form; the model folder and the model that would "
            "serve (its contract, pads, classes against scene.events, a warm-up decision); scene.pads; the packages "
-           "the sinks need; that the UDP sinks' host names resolve; the control socket's path; that no other daemon "
-           "holds this device or health file")
+           "the sinks need; that the UDP sinks' host names resolve; the control socket's path and that no other "
+           "process holds it; that no other daemon holds this device or health file")
 NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
                "destinations listen; who sends on the control socket; the real-time priority")
 NOT_CHECKED_WITH_DEVICE = ("not checked: whether the UDP and Unix destinations listen; who sends on the control socket; "
@@ -230,10 +235,17 @@ def _lock_problem(cfg) -> str | None:
 
 
 def _control_problem(cfg) -> str | None:
-    """A ``control.socket`` that can never be bound: the daemon would run deaf to the robot."""
-    from runtime.control_access import socket_path_problem
+    """A ``control.socket`` that can never be bound, or that another process holds while no daemon of
+    this config runs (the running service holds its own): the daemon would refuse to start."""
+    from runtime import control_access, instance_lock
 
-    return socket_path_problem(cfg.control.socket) if cfg.control.socket else None
+    address = cfg.control.socket
+    if not address:
+        return None
+    if problem := control_access.socket_path_problem(address):
+        return problem
+    ours = any(instance_lock.held_by_other(what, path) for what, path in instance_lock.targets(cfg))
+    return control_access.in_use_line(address) if not ours and control_access.held(address) else None
 
 
 def _missing_folder(cfg) -> str | None:

@@ -8,6 +8,7 @@ import logging
 import os
 import re
 import socket
+import threading
 from pathlib import Path
 
 import pytest
@@ -78,23 +79,93 @@ def test_a_path_that_is_a_file_or_folder_is_left_alone_with_one_line_saying_so(t
     assert path.is_dir() if kind == "folder" else path.read_text() == "keep me"
 
 
-def test_sighup_retries_a_control_socket_that_could_not_bind(tmp_path, caplog):
+def _abstract(tag: str) -> str:
+    return f"@handover-test-{tag}-{os.getpid()}"
+
+
+def _write_config(config: Path, tmp_path: Path, address: str, settle: float = 0.5) -> Path:
+    config.write_text(f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{tmp_path}"\n'
+                      f'[control]\nsocket = "{address}"\narm_settle_s = {settle}\n')
+    return config
+
+
+def test_an_abstract_name_another_process_holds_fails_check_and_run_in_one_line(tmp_path, sender, capsys):
+    """Another local user bound the name first: --check said rc 0 and the daemon ran deaf to ``grasp open``."""
+    from runtime.cli import main
+
+    address = _abstract("squatted")
+    sender.bind(b"\0" + address[1:].encode())
+    config = _write_config(tmp_path / "h.toml", tmp_path, address)
+    for args in (["--check"], []):
+        assert main(["run", *args, "--config", str(config)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"control.socket {address}: in use by another process" in err[0], err
+
+
+def _daemon(config: Path):
     from runtime.config import load_config
     from runtime.daemon import Daemon
 
-    folder = tmp_path / "run"
-    config = tmp_path / "handover.toml"
-    config.write_text(f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{tmp_path}"\n'
-                      f'[control]\nsocket = "{folder / "c.sock"}"\n')
     daemon = Daemon(load_config(config))
+    daemon.start_control()
+    return daemon
+
+
+def test_a_reload_that_keeps_the_address_never_lets_go_of_the_name(tmp_path):
+    """A SIGHUP changing another [control] key closed the socket and bound it again: a process looping
+    on bind won the name."""
+    address = _abstract("kept")
+    config = _write_config(tmp_path / "h.toml", tmp_path, address)
+    daemon = _daemon(config)
+    running, won, done = daemon.control, [], threading.Event()
+
+    def squat() -> None:
+        while not done.is_set():
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+            try:
+                sock.bind(b"\0" + address[1:].encode())
+                won.append(True)
+                return
+            except OSError:
+                pass
+            finally:
+                sock.close()
+
+    thread = threading.Thread(target=squat)
+    thread.start()
     try:
-        with caplog.at_level(logging.ERROR, logger="handover.daemon"):
-            daemon.start_control()
-        assert daemon.control is None and "cannot bind" in caplog.text
-        assert "reload (SIGHUP) to bind it again" in caplog.text  # the fix alone changes nothing until then
-        folder.mkdir()  # the operator fixes it and sends SIGHUP
+        _write_config(config, tmp_path, address, settle=1.0)
         daemon.reload()
-        assert daemon.control is not None and (folder / "c.sock").is_socket()
+        assert daemon.cfg.control.arm_settle_s == 1.0 and daemon.control is running
+    finally:
+        done.set()
+        thread.join()
+        daemon.stop_control()
+        daemon.sinks.close()
+    assert not won
+
+
+def test_a_reload_binds_the_new_socket_before_it_closes_the_old_and_a_held_one_keeps_the_running(
+        tmp_path, sender, caplog):
+    from runtime import control_access
+
+    old, new, held = _abstract("old"), _abstract("new"), _abstract("held")
+    config = _write_config(tmp_path / "h.toml", tmp_path, old)
+    daemon = _daemon(config)
+    running = daemon.control
+    try:
+        sender.bind(b"\0" + held[1:].encode())
+        _write_config(config, tmp_path, held)
+        with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+            daemon.reload()
+        assert daemon.control is running and daemon.cfg.control.socket == old
+        assert f"SIGHUP: control.socket {held}: in use by another process" in caplog.text
+        seen: list[bool] = []
+        stop = running.stop
+        running.stop = lambda *a: (seen.append(control_access.held(new)), stop(*a))
+        _write_config(config, tmp_path, new)
+        daemon.reload()
+        assert seen == [True] and daemon.control.address == new and not control_access.held(old)
     finally:
         daemon.stop_control()
         daemon.sinks.close()
