@@ -338,3 +338,33 @@ def test_concatenate_builds_trials():
     assert rec.n_frames == 20
     assert [(t.first, t.last) for t in rec.trials] == [(0, 9)]
     assert rec.sample_interval() == pytest.approx(1 / 32)
+
+
+def test_a_compressed_recording_is_refused_before_it_inflates(tmp_path):
+    """2.6 MB deflated inflated to 1.07 GB of frames (within the per-file limit); six of them killed a
+    training run. Our writer never compresses, so a compressed member is refused by name, quickly, in a
+    child whose peak memory stays far below the frames it declares (256 MiB here)."""
+    layout = SensorLayout.sdh2()
+    n = (256 << 20) // (2 * layout.n_taxels)
+    header = {"format": "handover-recording", "version": 1, "n_frames": n, "n_taxels": layout.n_taxels,
+              "layout": layout.to_dict(), "trials": [], "meta": {}}
+    path = tmp_path / "subject_zip.hrec"
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("header.json", json.dumps(header))
+        with zf.open("frames.npy", "w", force_zip64=True) as fh:
+            np.lib.format.write_array_header_1_0(fh, {"descr": "<u2", "fortran_order": False,
+                                                      "shape": (n, layout.n_taxels)})
+            for at in range(0, n * layout.n_taxels * 2, 1 << 20):
+                fh.write(bytes(min(1 << 20, n * layout.n_taxels * 2 - at)))
+        zf.writestr("timestamps.npy", recording_module._npy_bytes(np.arange(n, dtype=np.float64)))
+    assert path.stat().st_size < 8 << 20
+    code = ("import json, resource, sys, time\nfrom firmware_io.recordings.recording import Recording, RecordingError\n"
+            "t = time.monotonic()\ntry:\n    Recording.load(sys.argv[1]); said = 'loaded'\n"
+            "except RecordingError as exc:\n    said = str(exc)\n"
+            "print(json.dumps({'said': said, 's': time.monotonic() - t,"
+            " 'mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))")
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, cwd=ROOT,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60, check=True)
+    got = json.loads(done.stdout)
+    assert got["said"].startswith(f"{path}: refused: member ") and " is compressed; " in got["said"], got
+    assert got["s"] < 5 and got["mb"] < 500, got

@@ -228,3 +228,61 @@ def test_a_capture_that_ends_before_the_script_counts_the_rest_as_not_played(tmp
     captured = capsys.readouterr()
     got = json.loads(captured.out)
     assert (got["events_expected"], got["events_missed"], got["events_not_played"]) == (4, 3, 0) and not captured.err
+
+
+def _measured_score(events: Path | str, script: Path | str) -> tuple[subprocess.CompletedProcess, dict]:
+    """``handover score`` in a child that reports its own peak memory (MB) and seconds on its last stdout line."""
+    code = ("import json, resource, sys, time\nfrom runtime.cli import main\nt = time.monotonic()\n"
+            "rc = main(['score', sys.argv[1], sys.argv[2]])\n"
+            "print(json.dumps({'rc': rc, 's': time.monotonic() - t,"
+            " 'mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))")
+    done = subprocess.run([sys.executable, "-c", code, str(events), str(script)], capture_output=True, text=True,
+                          cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
+    return done, json.loads(done.stdout.strip().splitlines()[-1]) if done.returncode == 0 else {}
+
+
+def _script_lines(head: dict, events: list[dict]) -> str:
+    return "\n".join(json.dumps(r) for r in [head, *events]) + "\n"
+
+
+def test_hostile_scripts_are_refused_in_one_line_quickly_and_in_little_memory(tmp_path):
+    """What write_script never writes, and files that ate the machine: a 1 ms loop with 500 events and two
+    decisions 99,998 ms apart (50 million scripted events, 2.8 GB), 100,000 nested brackets (RecursionError),
+    /dev/zero (MemoryError), frames that descend, go negative, are fractional or past the end, a 1 MB name."""
+    head = {"type": "script", "protocol": 1, "started": True, "ended": False, "source": "", "synthetic": True,
+            "clock_start_ms": 0, "loop_ms": 1, "frames": 1, "frame_ms": [0]}
+    one = {"type": "scripted", "event": 1, "onset_frame": 0, "action": "pull", "subject": "s1", "object": "ball",
+           "pose": "up", "first_frame": 0, "last_frame": 0, "time_s": None}
+    events = tmp_path / "events.jsonl"
+    events.write_text("".join(json.dumps({"type": "decision", "class": "pull", "device_time_ms": t}) + "\n"
+                              for t in (0, 99_998)))
+    wide = {**head, "loop_ms": None, "frames": 3, "frame_ms": [0, 31, 62]}
+    cases = {
+        "bomb": (_script_lines(head, [{**one, "event": k} for k in range(1, 501)]), "passes of the script"),
+        "nested": ("[" * 100_000 + "]" * 100_000 + "\n", "not JSON lines"),
+        "descending": (_script_lines({**wide, "frame_ms": [0, 62, 31]}, [one]), "goes back in time"),
+        "first_after_last": (_script_lines(wide, [{**one, "first_frame": 2, "last_frame": 1}]), "after its last"),
+        "negative": (_script_lines(wide, [{**one, "first_frame": -1}]), "whole frames of the session"),
+        "onset_past_end": (_script_lines(wide, [{**one, "onset_frame": 3}]), "whole frames of the session"),
+        "fractional": (_script_lines(wide, [{**one, "last_frame": 1.5}]), "whole frames of the session"),
+        "huge_name": (_script_lines(wide, [{**one, "action": "x" * (1 << 20)}]), "action must be a name"),
+    }
+    for name, (text, says) in {**cases, "dev_zero": (None, "not a regular file")}.items():
+        script = "/dev/zero" if text is None else tmp_path / f"{name}.script"
+        if text is not None:
+            script.write_text(text)
+        done, took = _measured_score(events, script)
+        lines = done.stderr.strip().splitlines()
+        assert took["rc"] == 2 and len(lines) == 1 and says in lines[0] and len(lines[0]) < 400, (name, done.stderr[-500:])
+        assert took["s"] < 5 and took["mb"] < 500, (name, took)
+
+
+def test_a_log_given_as_the_events_is_said_not_scored(tmp_path):
+    """The daemon's log instead of its stdout printed a 0-of-N scorecard with exit 0."""
+    rec = simulate_session(demo_script(2, seed=1), seed=1)
+    script = tmp_path / "s.script"
+    write_script(script, rec, source="sim")
+    log = tmp_path / "daemon.log"
+    log.write_text("2026-01-01 12:00:00 handover: connected to tcp://127.0.0.1:1\nframes at 31.2 Hz\n")
+    done = _score(log, script)
+    assert done.returncode == 2 and "none of its 2 lines is an event line" in done.stderr and not done.stdout, done

@@ -17,9 +17,6 @@ from firmware_io.commands.errors import fail
 __all__ = ["add_arguments", "main"]
 
 COMMAND = "score"
-MAX_PASSES = 100_000
-"""Passes of a looping script one score covers (each is expanded): days of a session; a stamp of 1e18 ms
-would be 10^14 passes, hours of work and memory."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.emulator.script_file import ScriptFileError, read_script
-    from trainer.session_score import decisions_from_lines, not_played_line, outcome_summary, score, summary_lines
+    from trainer.session_score import (
+        decisions_from_lines,
+        not_played_line,
+        outcome_summary,
+        score,
+        span_problem,
+        summary_lines,
+    )
 
     try:
         script = read_script(args.script)
@@ -48,11 +52,11 @@ def main(args: argparse.Namespace) -> int:
     decisions, skipped = decisions_from_lines(lines, script, args.instance)
     if not script.trials:
         return fail(COMMAND, f"{args.script}: the session has no scripted events to score against")
-    passes = {loop for loop, _ in decisions}
-    if passes and max(passes) - min(passes) >= MAX_PASSES:  # each pass between is scored: a garbled time
-        return fail(COMMAND, f"{args.events}: its decisions span {max(passes) - min(passes) + 1} passes of the "
-                    f"script (at most {MAX_PASSES} are scored); a line's device_time_ms is garbled, or the events "
-                    "are not from this session")
+    if skipped == (given := sum(bool(line.strip()) for line in lines)):  # e.g. the daemon's log, not its stdout
+        return fail(COMMAND, f"{args.events}: none of its {given} lines is an event line (a JSON object); give the "
+                    "daemon's event lines (its stdout or a UDP listener's), not its log")
+    if problem := span_problem(decisions, script):
+        return fail(COMMAND, f"{args.events}: {problem}")
     o = score(decisions, script)
     summary = {"synthetic": script.synthetic, "decisions": len(decisions), "lines_skipped": skipped,
                "passes": o["passes"], **outcome_summary(o)}

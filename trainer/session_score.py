@@ -16,7 +16,11 @@ from collections.abc import Iterable
 from firmware_io.emulator.script_file import SessionScript
 from trainer.streams_eval import Decision, session_outcomes
 
-__all__ = ["decisions_from_lines", "not_played_line", "outcome_summary", "score", "summary_lines"]
+__all__ = ["decisions_from_lines", "not_played_line", "outcome_summary", "score", "span_problem", "summary_lines"]
+
+MAX_SCORED_EVENTS = 200_000
+"""Scripted events one score covers (each pass between the first and last decision repeats the script's
+events): a week of a looping 180-trial session; a garbled stamp or a 1 ms loop would be billions."""
 
 
 def decisions_from_lines(lines: Iterable[str], script: SessionScript,
@@ -41,6 +45,16 @@ def decisions_from_lines(lines: Iterable[str], script: SessionScript,
         except (KeyError, TypeError, ValueError, OverflowError):  # OverflowError: a time of 1e400
             skipped += 1
     return out, skipped
+
+
+def span_problem(decisions: list[tuple[int, Decision]], script: SessionScript) -> str | None:
+    """Why ``score`` would expand too many scripted events (passes x events), or None."""
+    passes = {loop for loop, _ in decisions}
+    n = (max(passes) - min(passes) + 1) if passes else 1
+    if n * len(script.trials) <= MAX_SCORED_EVENTS:
+        return None
+    return (f"its decisions span {n} passes of the script's {len(script.trials)} events (at most {MAX_SCORED_EVENTS} "
+            "scripted events are scored); a line's device_time_ms is garbled, or the events are not from this session")
 
 
 def score(decisions: list[tuple[int, Decision]], script: SessionScript) -> dict:

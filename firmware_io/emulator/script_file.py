@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -91,45 +93,84 @@ def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: 
     return len(script.trials)
 
 
+MAX_SCRIPT_BYTES = 16 << 20
+"""A script's size: a 9-hour session's frame times take about 10 MB; more is no script we wrote."""
+MAX_TEXT_CHARS = 64
+"""An action, subject, object or pose name: a recorder's name is at most 64 characters."""
+
+
 def read_script(path: str | os.PathLike) -> SessionScript:
-    """The script ``write_script`` wrote; ScriptFileError with one line when it is not one."""
+    """The script ``write_script`` wrote; ScriptFileError with one line when it is not one (checked against
+    what ``write_script`` writes: a hand-edited or hostile file is refused, never scored or echoed)."""
     p = Path(path)
+    again = "; write it again with handover emulate --script-out"
     try:
-        rows = [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+        with open(p, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise ScriptFileError(f"{p}: not a regular file; give the file handover emulate --script-out wrote")
+            data = fh.read(MAX_SCRIPT_BYTES + 1)
     except OSError as exc:
         raise ScriptFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise ScriptFileError(f"{p}: not JSON lines ({exc}); give the file handover emulate --script-out wrote") from None
+    if len(data) > MAX_SCRIPT_BYTES:
+        raise ScriptFileError(f"{p}: over {MAX_SCRIPT_BYTES >> 20} MiB, larger than any script handover writes")
+    try:
+        rows = [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]
+    except (ValueError, RecursionError) as exc:  # RecursionError: brackets nested 100,000 deep
+        raise ScriptFileError(f"{p}: not JSON lines ({_clip(exc)}); give the file handover emulate --script-out "
+                              "wrote") from None
     if not rows or not isinstance(rows[0], dict) or rows[0].get("type") != "script":
         raise ScriptFileError(f"{p}: no script header; give the file handover emulate --script-out wrote")
     head = rows[0]
     if head.get("protocol") != SCRIPT_VERSION:
-        raise ScriptFileError(f"{p}: script version {head.get('protocol')!r}, this handover reads {SCRIPT_VERSION}")
+        raise ScriptFileError(f"{p}: script version {_clip(head.get('protocol'))}, this handover reads {SCRIPT_VERSION}")
     if head.get("started") is False:
         raise ScriptFileError(f"{p}: no host asked the emulator for frames yet, so the session's device times are "
                               "not known; score once the daemon has read the session")
-    try:
-        trials = [Trial(subject=str(r["subject"]), object=str(r["object"]), pose=str(r["pose"]), action=str(r["action"]),
-                        run=int(r["event"]), first=int(r["first_frame"]), last=int(r["last_frame"]),
-                        extra={"onset": int(r["onset_frame"])})
-                  for r in rows[1:] if isinstance(r, dict) and r.get("type") == "scripted"]
-        frame_ms = np.asarray(head["frame_ms"], dtype=np.int64)
-        loop_ms = None if head.get("loop_ms") is None else int(head["loop_ms"])
-        script = SessionScript(trials, frame_ms, int(head["clock_start_ms"]), loop_ms, bool(head.get("synthetic")),
-                               ended=head.get("ended") is True)
-    except (KeyError, TypeError, ValueError, OverflowError) as exc:  # OverflowError: 1e400, a 30-digit number
-        raise ScriptFileError(f"{p}: a script line lacks or garbles {exc}; write it again with handover emulate "
-                              "--script-out") from None
-    if problem := _script_problem(script):
-        raise ScriptFileError(f"{p}: {problem}; write it again with handover emulate --script-out")
-    return script
+    events = [r for r in rows[1:] if isinstance(r, dict) and r.get("type") == "scripted"]
+    if problem := _header_problem(head) or next(filter(None, (_event_problem(r, head) for r in events)), None):
+        raise ScriptFileError(f"{p}: {problem}{again}")
+    trials = [Trial(subject=r["subject"], object=r["object"], pose=r["pose"], action=r["action"], run=r["event"],
+                    first=r["first_frame"], last=r["last_frame"], extra={"onset": r["onset_frame"]}) for r in events]
+    return SessionScript(trials, np.asarray(head["frame_ms"], dtype=np.int64), head["clock_start_ms"],
+                         head.get("loop_ms"), bool(head.get("synthetic")), ended=head.get("ended") is True)
 
 
-def _script_problem(script: SessionScript) -> str | None:
-    """What no ``write_script`` writes (a hand-edited or damaged file), or None."""
-    ms = script.frame_ms
-    if ms.ndim != 1 or not len(ms):
-        return "frame_ms must list the frames' times in ms from the first"
-    if script.loop_ms is not None and script.loop_ms <= int(ms[-1]):  # else each ms would be a pass
-        return f"loop_ms {script.loop_ms} must be longer than the session ({int(ms[-1])} ms)"
+def _count(value: object, low: int = 0) -> bool:
+    """An integer ``write_script`` could have written: not a bool, a float or beyond int64."""
+    return type(value) is int and low <= value < 2**62
+
+
+def _header_problem(head: dict) -> str | None:
+    ms = head.get("frame_ms")
+    if not isinstance(ms, list) or not ms or not all(_count(m) for m in ms) or ms[0] != 0:
+        return "frame_ms must list the frames' times: whole ms from the first frame (0)"
+    if any(b < a for a, b in pairwise(ms)):
+        return "frame_ms goes back in time; a script's frame times never descend"
+    if not _count(head.get("clock_start_ms")):
+        return f"clock_start_ms {_clip(head.get('clock_start_ms'))} is not a device time in whole ms"
+    loop_ms = head.get("loop_ms")
+    if loop_ms is not None and (not _count(loop_ms) or loop_ms <= ms[-1]):  # else each ms would be a pass
+        return f"loop_ms {_clip(loop_ms)} must be whole ms longer than the session ({ms[-1]} ms)"
     return None
+
+
+def _event_problem(row: dict, head: dict) -> str | None:
+    n = len(head["frame_ms"])
+    where = f"scripted event {_clip(row.get('event'))}"
+    for key in ("action", "subject", "object", "pose"):
+        if not isinstance(row.get(key), str) or not 0 < len(row[key]) <= MAX_TEXT_CHARS:
+            return f"{where}: {key} must be a name of 1 to {MAX_TEXT_CHARS} characters, got {_clip(row.get(key))}"
+    if not _count(row.get("event"), 1):
+        return f"{where}: its number must be a whole number from 1"
+    frames = [row.get(k) for k in ("first_frame", "onset_frame", "last_frame")]
+    if not all(_count(f) and f < n for f in frames):
+        return f"{where}: first, onset and last frame must be whole frames of the session (0..{n - 1})"
+    if frames[0] > frames[2]:
+        return f"{where}: its first frame {frames[0]} is after its last {frames[2]}"
+    return None
+
+
+def _clip(value: object) -> str:
+    """What a refusal quotes of the file: never more than a line's worth."""
+    text = repr(value) if not isinstance(value, BaseException) else str(value)
+    return text if len(text) <= 40 else text[:36] + "..."

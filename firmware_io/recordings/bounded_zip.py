@@ -29,6 +29,9 @@ class LimitError(ValueError):
 
 def _info(zf: zipfile.ZipFile, name: str, cap: int) -> zipfile.ZipInfo:
     info = zf.getinfo(name)
+    if info.compress_type != zipfile.ZIP_STORED:
+        raise LimitError(f"member {name} is compressed; handover reads only the uncompressed files it writes "
+                         "(save it again with handover, or unzip and zip it with -0)")
     if info.file_size > cap:
         raise LimitError(f"member {name} declares {info.file_size} bytes, over the limit of {cap}")
     return info
