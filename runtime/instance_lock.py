@@ -9,7 +9,9 @@ a crashed holder leaves no stale lock, because the kernel drops a dead process's
 
 The device lock lives in ``$RUNTIME_DIRECTORY`` (systemd's ``RuntimeDirectory=``, /run/handover),
 else ``$XDG_RUNTIME_DIR/handover``, else a per-user folder in the temp folder: daemons started
-the same way share it. A serial port is also opened exclusively by the transport itself.
+the same way share it. Another user can make that folder first, so a device lock is taken only in
+a folder this user owns and no one else may write. One device is one lock however its URL is
+spelled (firmware_io.transports.device_key). A serial port is also opened exclusively by the transport itself.
 """
 
 from __future__ import annotations
@@ -41,22 +43,16 @@ def lock_folder(environ: dict | None = None) -> Path:
     return Path(tempfile.gettempdir()) / f"handover-{os.getuid()}"
 
 
-def device_identity(url: str) -> str:
-    """Which device a URL reaches: query options ignored (they change how it is read, not which one it
-    is); a serial port by its real path (``/dev/dsacon32m``, ``serial:///dev/dsacon32m`` and the
-    ``/dev/ttyUSB0`` the udev symlink points at are one device)."""
-    where = url.strip().split("?")[0].rstrip("/")
-    path = where[len("serial://"):] if where.lower().startswith("serial://") else where
-    if path.startswith("/"):
-        return "serial://" + os.path.realpath(path)
-    return where
-
-
 def device_lock_path(url: str, environ: dict | None = None) -> Path:
-    """The lock file of a device URL: the same device, the same file (``device_identity``)."""
-    where = device_identity(url)
-    digest = hashlib.sha256(where.encode()).hexdigest()[:16]
-    return lock_folder(environ) / f"device-{digest}.lock"
+    """The lock file of a device URL: one file for every spelling of one device (transports.device_key)."""
+    from firmware_io.transports import device_key
+
+    digest = hashlib.sha256(device_key(url).encode()).hexdigest()[:16]
+    return lock_folder(environ) / f"{DEVICE_PREFIX}{digest}.lock"
+
+
+DEVICE_PREFIX = "device-"
+"""A device lock's name begins so: its folder (``lock_folder``) must be this user's alone."""
 
 
 def health_lock_path(health_file: str | os.PathLike) -> Path:
@@ -73,27 +69,54 @@ class Held:
     fd: int
 
 
-def _holder(path: Path) -> str:
-    try:
-        text = path.read_text().strip()
-    except OSError:
-        return "unknown pid"
+def _holder(fd: int) -> str:
+    """The pid an open lock file names, believed only from a file of this user (another's says anything)."""
+    info = os.fstat(fd)
+    if info.st_uid != os.geteuid():
+        return f"a lock file of uid {info.st_uid}"
+    text = os.pread(fd, 32, 0).decode(errors="replace").strip()
     return f"pid {text}" if text.isdigit() else "unknown pid"
+
+
+def _open_folder(folder: Path) -> int:
+    """A device lock's folder, opened without following a symbolic link and refused unless this user owns
+    it and no one else may write there: another user who made ``$TMPDIR/handover-<uid>`` first would hold
+    our locks or have us write into a folder of theirs. OSError with the line to print otherwise."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.ENOTDIR):
+            raise OSError(f"lock folder {folder} is a symbolic link or not a folder: remove it (locks are never "
+                          "written elsewhere)") from None
+        raise
+    info = os.fstat(fd)
+    if info.st_uid != os.geteuid() or info.st_mode & 0o022:
+        os.close(fd)
+        whose = f"owned by uid {info.st_uid}" if info.st_uid != os.geteuid() else "writable by others"
+        raise OSError(f"lock folder {folder} is {whose}, not this user's (uid {os.geteuid()}) alone: remove it, or set "
+                      "XDG_RUNTIME_DIR to a folder of this user's")
+    return fd
 
 
 def _open(path: Path, flags: int) -> int:
     """Open a lock file that is a plain file of its own: never through a symbolic link (another user
     may plant one in a shared temp folder), nor a second hard link (the pid written into it would
-    overwrite whatever file the name leads to), nor a FIFO (it would block the opener).
+    overwrite whatever file the name leads to), nor a FIFO (it would block the opener); a device
+    lock only inside a folder of this user's alone (``_open_folder``, the name opened in it).
     OSError with the line to print otherwise."""
+    folder = _open_folder(path.parent) if path.name.startswith(DEVICE_PREFIX) else None
     try:
-        fd = os.open(path, flags | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+        fd = os.open(path.name if folder is not None else path, flags | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK,
+                     0o644, dir_fd=folder)
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise OSError(f"{path} is a symbolic link: remove it (a lock is never followed elsewhere)") from None
         if exc.errno == errno.EISDIR:
             raise OSError(f"{path} is a folder: remove it (the lock is a file there)") from None
         raise
+    finally:
+        if folder is not None:
+            os.close(folder)
     info = os.fstat(fd)
     if not stat.S_ISREG(info.st_mode) or info.st_nlink != 1:
         os.close(fd)
@@ -112,9 +135,10 @@ def take(what: str, path: Path) -> Held:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError as exc:
+        holder = _holder(fd)
         os.close(fd)
         if exc.errno in (errno.EWOULDBLOCK, errno.EACCES):
-            raise InstanceLockError(f"{what} is in use by another handover daemon ({_holder(path)}, lock {path}); "
+            raise InstanceLockError(f"{what} is in use by another handover daemon ({holder}, lock {path}); "
                                     "stop that one first, or give this one another device and health_file") from None
         raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}") from None
     os.ftruncate(fd, 0)
@@ -133,7 +157,7 @@ def held_by_other(what: str, path: Path) -> str | None:
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except OSError:
-        return f"{what} is in use by a running handover daemon ({_holder(path)}, lock {path})"
+        return f"{what} is in use by a running handover daemon ({_holder(fd)}, lock {path})"
     finally:
         os.close(fd)
     return None
@@ -141,11 +165,13 @@ def held_by_other(what: str, path: Path) -> str | None:
 
 def problem(what: str, path: Path) -> str | None:
     """Why no daemon could take the lock at ``path`` (a symbolic link, a FIFO, a folder, a second
-    hard link), or None; ``run --check`` says it rather than leave it to ``run``'s exit 2."""
-    if not os.path.lexists(path):
-        return None
+    hard link, a device lock folder not this user's alone), or None; ``run --check`` says it rather
+    than leave it to ``run``'s exit 2."""
     try:
-        os.close(_open(path, os.O_RDONLY))
+        if path.name.startswith(DEVICE_PREFIX) and os.path.lexists(path.parent):
+            os.close(_open_folder(path.parent))
+        if os.path.lexists(path):
+            os.close(_open(path, os.O_RDONLY))
     except OSError as exc:
         return f"cannot take the lock of {what} at {path}: {exc.strerror or exc}"
     return None

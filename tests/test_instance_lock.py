@@ -214,3 +214,55 @@ def test_a_reload_onto_another_daemons_health_file_is_refused_and_a_reload_away_
         _, err = a.communicate(timeout=20)
         b.communicate(timeout=20)
     assert a.returncode == 0 and sum("SIGHUP" in line and "in use" in line for line in err.splitlines()) == 1, err
+
+
+def test_one_lock_per_device_however_its_url_is_spelled(tmp_path):
+    env = _env(tmp_path)
+    spellings = ["tcp://127.0.0.1:13000", "tcp://localhost:13000", "TCP://127.0.0.1:13000", "tcp://127.1:13000",
+                 "tcp://127.0.0.1", "tcp://[::ffff:127.0.0.1]:13000/"]
+    assert len({instance_lock.device_lock_path(u, env) for u in spellings}) == 1
+    assert instance_lock.device_lock_path("tcp://127.0.0.2:13000", env) != instance_lock.device_lock_path(
+        spellings[0], env)
+
+
+@pytest.mark.parametrize("planted", ["others_may_write", "symlink", "owned_by_another_user"])
+def test_a_device_lock_folder_not_ours_alone_is_refused_and_nothing_is_written_there(tmp_path, planted):
+    """Outside systemd the folder is $TMPDIR/handover-<uid>, which another user can make first: they
+    held our lock (the daemon named 'pid 1', their text), or a symlink had root write its lock there."""
+    if planted == "owned_by_another_user" and os.geteuid() != 0:
+        pytest.skip("giving a folder to another user needs root")
+    env = _env(tmp_path)
+    path = instance_lock.device_lock_path("tcp://127.0.0.1:13000", env)
+    theirs = tmp_path / "theirs"
+    theirs.mkdir(mode=0o777)
+    theirs.chmod(0o777)
+    if planted == "symlink":
+        path.parent.symlink_to(theirs)
+    else:
+        path.parent.mkdir()
+        path.parent.chmod(0o777) if planted == "others_may_write" else os.chown(path.parent, 65534, 65534)
+    why = {"others_may_write": "writable by others", "symlink": "is a symbolic link",
+           "owned_by_another_user": "owned by uid 65534"}[planted]
+    assert why in instance_lock.problem("device x", path)  # run --check says it (rc 2)
+    with pytest.raises(instance_lock.InstanceLockError, match=f"lock folder {path.parent} .*{why}.*: remove it"):
+        instance_lock.take("device x", path)
+    assert not os.listdir(theirs) and not os.listdir(path.parent)
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a lock file of another user needs root to make")
+def test_a_lock_held_in_a_file_of_another_user_is_not_named_by_the_pid_they_wrote(tmp_path):
+    path = tmp_path / ".status.json.lock"
+    path.write_text("1\n")
+    os.chown(path, 65534, 65534)
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time\nfd = os.open(sys.argv[1], os.O_RDONLY)\n"
+                               "fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); time.sleep(60)", str(path)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(instance_lock.InstanceLockError, match="a lock file of uid 65534") as caught:
+            instance_lock.take("health_file x", path)
+        assert "pid 1" not in str(caught.value)
+        assert "pid 1" not in instance_lock.held_by_other("health_file x", path)
+    finally:
+        holder.kill()
+        holder.wait()

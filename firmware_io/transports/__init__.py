@@ -20,7 +20,10 @@ Every scheme goes through this one table, and each transport class checks its ow
 from __future__ import annotations
 
 import importlib
+import ipaddress
+import os
 import re
+import socket
 
 from firmware_io.transports.base import (
     DeviceUnavailable,
@@ -38,6 +41,7 @@ __all__ = [
     "MissingDependency",
     "Transport",
     "TransportError",
+    "device_key",
     "open_transport",
     "register_transport",
     "validate_url",
@@ -106,6 +110,34 @@ def validate_url(url: str) -> ParsedURL:
     if callable(check):
         check(parsed)
     return parsed
+
+
+def device_key(url: str) -> str:
+    """Which device a URL reaches, one spelling for every way of writing it (the daemon's instance lock):
+    options ignored, the scheme's case too; a serial port by its real path (a udev symlink is the port
+    it names); a tcp host by the address it resolves to, IPv4 first (``localhost``, ``127.1`` and
+    ``127.0.0.1`` are one host), with the default port filled in. A URL that cannot be read is itself."""
+    try:
+        parsed = _parse(url.split("?", 1)[0])
+        if parsed.scheme == "serial":
+            return "serial://" + os.path.realpath(parsed.location)
+        if parsed.scheme != "tcp":
+            return f"{parsed.scheme}://{parsed.location.rstrip('/').lower()}"
+        settings = _load("tcp", parsed.url).url_settings(parsed, {})
+    except TransportError:
+        return url.strip()
+    host, port = settings["host"], settings["port"]
+    try:
+        found = [info[4][0] for info in socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)]
+    except (OSError, UnicodeError):
+        found = []
+    address = min(found, key=lambda a: ":" in a, default=host.lower())
+    try:
+        ip = ipaddress.ip_address(address)
+    except ValueError:  # a name that does not resolve (yet): by its name
+        return f"tcp://{address}:{port}"
+    ip = getattr(ip, "ipv4_mapped", None) or ip
+    return f"tcp://[{ip}]:{port}" if ip.version == 6 else f"tcp://{ip}:{port}"
 
 
 def _parse(url: str) -> ParsedURL:
