@@ -228,7 +228,7 @@ def _note_held_locks(cfg) -> None:
 
 
 def _lock_problem(cfg) -> str | None:
-    """A lock path no daemon could take (a symbolic link, a FIFO, a folder): ``run`` would exit 2."""
+    """A lock ``run`` could not take (a symbolic link, a FIFO, a read-only folder): ``run`` would exit 2."""
     from runtime import instance_lock
 
     return next((line for what, path in instance_lock.targets(cfg) if (line := instance_lock.problem(what, path))), None)

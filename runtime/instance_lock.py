@@ -131,7 +131,9 @@ def take(what: str, path: Path) -> Held:
         path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
         fd = _open(path, os.O_RDWR | os.O_CREAT)
     except OSError as exc:
-        raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}") from None
+        hint = ("; make its folder writable for the daemon's user or choose another path"
+                if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else "")
+        raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}{hint}") from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError as exc:
@@ -164,16 +166,14 @@ def held_by_other(what: str, path: Path) -> str | None:
 
 
 def problem(what: str, path: Path) -> str | None:
-    """Why no daemon could take the lock at ``path`` (a symbolic link, a FIFO, a folder, a second
-    hard link, a device lock folder not this user's alone), or None; ``run --check`` says it rather
-    than leave it to ``run``'s exit 2."""
+    """Why ``run`` could not take the lock at ``path`` (a symbolic link, a FIFO, a read-only folder, a
+    device lock folder not this user's alone), found by taking it as ``run`` does and letting go; None
+    also when another daemon holds it (``held_by_other`` says so). ``run --check`` exits 2 on it, so
+    systemd's ExecStartPre stops a service that would exit 2 at every restart."""
     try:
-        if path.name.startswith(DEVICE_PREFIX) and os.path.lexists(path.parent):
-            os.close(_open_folder(path.parent))
-        if os.path.lexists(path):
-            os.close(_open(path, os.O_RDONLY))
-    except OSError as exc:
-        return f"cannot take the lock of {what} at {path}: {exc.strerror or exc}"
+        release([take(what, path)])
+    except InstanceLockError as exc:
+        return None if held_by_other(what, path) else str(exc)
     return None
 
 

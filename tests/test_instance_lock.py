@@ -4,6 +4,7 @@ changes hands. Real processes, real locks (the kernel drops them when the holder
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -266,3 +267,32 @@ def test_a_lock_held_in_a_file_of_another_user_is_not_named_by_the_pid_they_wrot
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_check_fails_on_a_health_folder_the_daemon_cannot_write(tmp_path):
+    """--check said rc 0 and ``run`` exited 2 (cannot take the health file's lock): under systemd the
+    service restarted in a loop. The check takes the lock as ``run`` would. Root writes anywhere, so the
+    check runs in a child as uid 65534 (modules imported before, the clone may be private)."""
+    from runtime import daemon_cli
+    from runtime.config import load_config
+
+    cfg = load_config(_config(tmp_path))
+    folder = tmp_path / "readonly"
+    folder.mkdir(mode=0o555)
+    cfg = dataclasses.replace(cfg, health_file=str(folder / "status.json"))
+    read, write = os.pipe()
+    child = os.fork()
+    if child == 0:
+        os.close(read)
+        try:
+            if os.geteuid() == 0:
+                os.setgid(65534)
+                os.setuid(65534)
+            os.write(write, (daemon_cli._lock_problem(cfg) or "None").encode())
+        finally:
+            os._exit(0)
+    os.close(write)
+    with os.fdopen(read) as answer:
+        line = answer.read()
+    os.waitpid(child, 0)
+    assert f"cannot take the lock of health_file {folder / 'status.json'}" in line and "writable" in line, line
