@@ -8,6 +8,7 @@ short protocol plus the default idle and holds the trained model to the demo's b
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -287,3 +288,14 @@ def test_real_idle_recordings_are_scored_for_real_data_or_when_asked(tmp_path, m
     assert not scores_real_idle(None, synthetic=True) and not scores_real_idle(False, synthetic=False)
     monkeypatch.setenv("HANDOVER_SHARED_DATA", str(tmp_path / "absent"))
     assert not scores_real_idle(True, synthetic=False)
+
+
+def test_the_docs_quote_the_one_figure_train_prints_for_a_model_without_dormant_class():
+    """One comparison, one figure (results/streams.json), the same in train's line, the README and the docs."""
+    from trainer.recorded_idle import no_dormant_cost, no_idle_line
+
+    cost = no_dormant_cost()
+    assert cost is not None and cost in no_idle_line()
+    root = Path(__file__).resolve().parents[1]
+    for doc in ("README.md", "docs/OWN_MODEL.md", "docs/GUIDE.md"):
+        assert cost in " ".join((root / doc).read_text().split()), doc

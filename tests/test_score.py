@@ -286,3 +286,15 @@ def test_a_log_given_as_the_events_is_said_not_scored(tmp_path):
     log.write_text("2026-01-01 12:00:00 handover: connected to tcp://127.0.0.1:1\nframes at 31.2 Hz\n")
     done = _score(log, script)
     assert done.returncode == 2 and "none of its 2 lines is an event line" in done.stderr and not done.stdout, done
+
+
+def test_the_guides_sample_summary_is_what_the_program_prints_for_the_stored_session():
+    """docs/GUIDE.md shows the demo's summary lines for the session in results/streams.json, for people
+    (``per class correct: bump 9/10, ...``, not a Python dict)."""
+    from trainer.session_score import outcome_summary, summary_lines
+
+    blocks = (ROOT / "docs" / "GUIDE.md").read_text().split("```")[1::2]
+    sample = next(b for b in blocks if "per class correct:" in b).strip("\n").splitlines()
+    demo = json.loads((ROOT / "results" / "streams.json").read_text())["demo"]
+    assert sample == summary_lines(outcome_summary(demo[demo["mode"]]), demo["mode"])
+    assert "  per class correct: bump 9/10, hold 10/10, pull 9/10, push 10/10" in sample

@@ -116,7 +116,7 @@ def summary_lines(s: dict, setting: str | None = None) -> list[str]:
         f"  events: {s['events_expected']} scripted, {s['events_detected']} detected, "
         f"{s['events_correct']} correct ({s['events_correct'] / max(1, s['events_expected']):.0%}), "
         f"{s['events_missed']} missed, {s['false_events']} outside any scripted event",
-        f"  per class correct: {s['per_class_correct']}",
+        "  per class correct: " + (", ".join(f"{c} {v}" for c, v in s["per_class_correct"].items()) or "-"),
         "  per class precision / recall: " + ", ".join(
             f"{c} {_share(p)} / {_share(s['per_class_recall'][c])}" for c, p in s["per_class_precision"].items()),
         "  missed: " + (", ".join(f"#{e['event']} {e['action']} (onset frame {e['onset']})"
