@@ -363,6 +363,54 @@ def test_unplugged_device_saves_exits_with_one_line_and_resumes(tmp_path, capsys
     assert_consistent(rec)
 
 
+def test_a_full_disk_says_what_was_saved_and_running_again_resumes(tmp_path, capsys, monkeypatch):
+    """ENOSPC while saving the third trial (injected in the zip writer, half the member written) was two
+    chained OSError tracebacks; now one line says the trial in progress is lost, which trials the file
+    holds and to run again, no temporary file stays, and once space returns the same command completes."""
+    import errno
+    import zipfile
+
+    real, saves = zipfile.ZipFile.writestr, []
+
+    def writestr(self, info, data, *a, **kw):
+        if getattr(info, "filename", info) == "header.json":
+            saves.append(1)
+        if len(saves) > 2 and getattr(info, "filename", info) == "frames.npy":
+            real(self, info, data[: len(data) // 2], *a, **kw)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, info, data, *a, **kw)
+
+    monkeypatch.setattr(zipfile.ZipFile, "writestr", writestr)
+    assert record(tmp_path, "--auto", "--no-look") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    path = tmp_path / "subject_s1.hrec"
+    assert len(err) == 1 and err[0] == (f"handover record: the recording just made could not be saved and is lost (No "
+                                        f"space left on device); 2 trials saved in {path}; free disk space, then run "
+                                        "the same command again to resume"), err
+    assert len(Recording.load(path).trials) == 2 and sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+    monkeypatch.setattr(zipfile.ZipFile, "writestr", real)  # space again
+    assert record(tmp_path, "--auto", "--no-look") == 0
+    assert sorted(keys(Recording.load(path))) == sorted(KEYS)
+
+
+def test_resuming_removes_the_temporary_files_a_killed_save_left_and_nothing_else(tmp_path):
+    """kill -9 during a save left ``.subject_s1.hrec.XXXXXXXX.tmp`` for ever: the resumed session removes
+    save's own pattern for its file, and keeps every other name, a symlink and another subject's temp."""
+    assert record(tmp_path, "--auto", "--no-look", "--max-trials", "1") == 0
+    stale = tmp_path / ".subject_s1.hrec.k2_9xq0a.tmp"
+    stale.write_bytes(b"PK half a recording")
+    kept = [tmp_path / n for n in (".subject_s2.hrec.k2_9xq0a.tmp", ".subject_s1.hrec.short.tmp", "notes.tmp",
+                                   ".subject_s1.hrec.k2_9xq0a.tmp.keep")]
+    for p in kept:
+        p.write_text("not ours")
+    outside = tmp_path.parent / f"{tmp_path.name}-target"
+    outside.write_text("someone else's")
+    link = tmp_path / ".subject_s1.hrec.abcdefgh.tmp"
+    link.symlink_to(outside)
+    assert record(tmp_path, "--auto", "--no-look") == 0
+    assert not stale.exists() and all(p.exists() for p in kept) and link.is_symlink() and outside.exists()
+
+
 def test_session_over_tcp(tmp_path):
     from firmware_io.emulator.server import TcpEmulatorServer
 

@@ -206,6 +206,7 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     from firmware_io.recordings.idle_stretches import idle_plan
     from firmware_io.recordings.record_session import (
         DeviceLost,
+        NotSaved,
         SessionError,
         SessionIO,
         SessionStore,
@@ -245,6 +246,8 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
             result = run_session(client, store, plan, opts, io, session_info=info)
         if args.idle_only or (result.complete and idle_plan_):
             idle = run_idle(client, store, idle_plan_, opts, io, session_info=info)
+    except NotSaved as exc:  # a full disk: what the file holds, and how to go on
+        return fail(COMMAND, f"{exc}; {_saved(store)}; free disk space, then {resume}")
     except (SessionError, ValueError) as exc:
         return fail(COMMAND, str(exc))
     except (DeviceLost, TransportError, DSAError) as exc:

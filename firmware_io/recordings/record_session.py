@@ -1,30 +1,34 @@
-"""Recording a subject session the paper's way: the plan, the file as the session state, capture, trigger check.
+"""Recording a subject session the paper's way: the plan, capture, trigger check (the file: ``session_store``).
 
 The protocol is poses x objects x actions x runs (paper: 3 x 3 x 4 x 5 = 180 trials a
 subject, 3 s each). A trial is the held grasp before the go cue (``LEAD_IN_SECONDS``) and the
-trial seconds after it (``trial_capture``), so every trigger the trainer may use finds it. The subject's recording file is the only state: a trial is written
-(atomically) the moment it ends, so a session stopped by Ctrl-C, a crash or an unplugged
-device resumes by reading the file and recording the (pose, object, action, run) slots it
-lacks. Prompting is left to the caller through small callbacks (``SessionIO``), so the same
+trial seconds after it (``trial_capture``), so every trigger the trainer may use finds it. A trial
+is written (atomically) the moment it ends; a resumed session records the (pose, object, action,
+run) slots the file lacks. Prompting is left to the caller through small callbacks (``SessionIO``), so the same
 loop runs from a terminal, from a script (``--auto``) and from tests. numpy only.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks
-from firmware_io.recordings.idle_stretches import IdleSlot, idle_meta, stretches_of
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
+from firmware_io.recordings.session_store import (
+    MAX_SUBJECT_CHARS,
+    NAME_PATTERN,
+    NotSaved,
+    SessionError,
+    SessionStore,
+    recording_path,
+    subject_problem,
+)
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS, Capture, DeviceLost, capture_trial, drain
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
@@ -39,25 +43,6 @@ MIN_TRIAL_SECONDS = 0.3
 """A trial must be longer: the action needs a window of frames after the go cue."""
 MAX_SPAN_SECONDS = 600.0
 """The longest trial, lead-in, gap or countdown: ten minutes is already a typo, not a protocol."""
-
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
-"""A pose, object, action or subject name (matched whole: ``$`` let a name end in a newline)."""
-MAX_SUBJECT_CHARS = 64
-"""The longest subject id: it names the file ``subject_ID.hrec`` (a file name holds 255 bytes)."""
-
-
-def subject_problem(subject: str) -> str | None:
-    """Why ``subject`` cannot be a subject id (recorded or imported), None when it can."""
-    if len(subject) > MAX_SUBJECT_CHARS:
-        return f"subject id {subject[:24]!r}... has {len(subject)} characters; use at most {MAX_SUBJECT_CHARS}"
-    if not _NAME.fullmatch(subject):
-        return f"subject id {subject!r}: use letters, digits, '_', '-' or '.'"
-    return None
-
-
-class SessionError(ValueError):
-    """A session that cannot start or continue (bad plan, foreign file, other sensor)."""
-
 
 # -- the plan ---------------------------------------------------------------------------------
 @dataclass(frozen=True, order=True)
@@ -90,7 +75,7 @@ class ProtocolPlan:
         for kind, names in (("pose", self.poses), ("object", self.objects), ("action", self.actions)):
             if not names:
                 raise SessionError(f"the protocol needs at least one {kind}")
-            bad = [n for n in names if not _NAME.fullmatch(n)]
+            bad = [n for n in names if not NAME_PATTERN.fullmatch(n)]
             if bad:
                 raise SessionError(f"{kind} name {bad[0]!r}: use letters, digits, '_', '-' or '.'")
             if len(set(names)) != len(names):
@@ -149,154 +134,6 @@ def check_trigger(frames: np.ndarray, layout: SensorLayout, pads: str | Sequence
     row_max = sel.max(axis=1)
     hits = np.flatnonzero(row_max >= level)
     return TriggerCheck(bool(len(hits)), int(hits[0]) if len(hits) else -1, int(row_max.max()), level, fullscale)
-
-
-# -- the file as the session state -------------------------------------------------------------
-def recording_path(out_dir: str | Path, subject: str) -> Path:
-    return Path(out_dir) / f"subject_{subject}.hrec"
-
-
-IDLE_KEY = "idle"
-"""A segment's fields under this key make it an idle stretch (source, plan index, annotations), not a trial."""
-DERIVED_META = ("idle_stretches", "sources", "source_codes", arm_marks.KEY)
-"""Metadata written from the segments on every save, never carried over from the file read."""
-
-
-@dataclass
-class _Segment:
-    frames: np.ndarray
-    stamps: np.ndarray
-    fields: dict
-
-
-class SessionStore:
-    """A subject's recording held as one segment per trial; every change is saved at once."""
-
-    def __init__(self, path: Path, layout: SensorLayout, subject: str, meta: dict,
-                 segments: list[_Segment] | None = None) -> None:
-        self.path = Path(path)
-        self.layout = layout
-        self.subject = subject
-        self.meta = meta
-        self.segments: list[_Segment] = segments or []
-
-    @classmethod
-    def open(cls, path: str | Path, subject: str, layout: SensorLayout) -> SessionStore:
-        """Continue the subject's file if it exists (checking subject and sensor), else start one."""
-        path = Path(path)
-        if problem := subject_problem(subject):
-            raise SessionError(problem)
-        if not path.exists():
-            return cls(path, layout, subject, {"subject": subject, "sessions": []})
-        rec = Recording.load(path)  # RecordingError names the file
-        if str(rec.meta.get("subject", subject)) != subject:
-            raise SessionError(f"{path}: belongs to subject {rec.meta.get('subject')!r}, not {subject!r}")
-        if rec.layout.to_dict() != layout.to_dict():
-            raise SessionError(
-                f"{path}: recorded with another sensor layout ({rec.layout.n_taxels} taxels in "
-                f"{rec.layout.n_matrices} pads; the device has {layout.n_taxels} in {layout.n_matrices})"
-            )
-        placed = []
-        for t in rec.trials:
-            fields = {k: v for k, v in t.to_dict().items() if k not in ("first", "last")}
-            placed.append((t.first, t.last, fields))
-        for st in stretches_of(rec.meta):
-            placed.append((st["first"], st["last"], {IDLE_KEY: {k: v for k, v in st.items()
-                                                                if k not in ("first", "last")}}))
-        segments = [_Segment(rec.frames[a:b + 1].copy(), rec.timestamps[a:b + 1].copy(), fields)
-                    for a, b, fields in sorted(placed, key=lambda p: p[0])]
-        meta = {k: v for k, v in rec.meta.items() if k not in DERIVED_META}
-        meta.setdefault("subject", subject)
-        meta.setdefault("sessions", [])
-        return cls(path, layout, subject, meta, segments)
-
-    @property
-    def n_trials(self) -> int:
-        return sum(IDLE_KEY not in s.fields for s in self.segments)
-
-    @property
-    def n_idle(self) -> int:
-        """Idle stretches recorded."""
-        return sum(IDLE_KEY in s.fields for s in self.segments)
-
-    def idle_seconds(self) -> float:
-        """Seconds of idle recorded (frame count x median frame interval)."""
-        frames = sum(len(s.frames) for s in self.segments if IDLE_KEY in s.fields)
-        stamps = [s.stamps for s in self.segments if len(s.stamps) > 1]
-        period = float(np.median(np.concatenate([np.diff(t) for t in stamps]))) if stamps else NOMINAL_PERIOD_S
-        return frames * period
-
-    def done_keys(self) -> set[tuple[str, str, str, int]]:
-        return {(s.fields["pose"], s.fields["object"], s.fields["action"], int(s.fields["run"]))
-                for s in self.segments if IDLE_KEY not in s.fields}
-
-    def done_idle(self) -> set[int]:
-        """Plan indices of the idle stretches recorded."""
-        return {int(s.fields[IDLE_KEY]["index"]) for s in self.segments if IDLE_KEY in s.fields}
-
-    def remaining_idle(self, plan: Sequence[IdleSlot]) -> list[IdleSlot]:
-        done = self.done_idle()
-        return [s for s in plan if s.index not in done]
-
-    def remaining(self, plan: ProtocolPlan) -> list[TrialSlot]:
-        done = self.done_keys()
-        return [s for s in plan.slots() if s.key not in done]
-
-    def add(self, slot: TrialSlot, frames: np.ndarray, stamps: np.ndarray, extra: dict) -> int:
-        """Append a trial and save; returns its index. Timestamps stay strictly increasing."""
-        fields = {"subject": self.subject, "object": slot.object, "pose": slot.pose, "action": slot.action,
-                  "run": slot.run, "extra": dict(extra)}
-        self._append(frames, stamps, fields)
-        return self.n_trials - 1
-
-    def add_idle(self, slot: IdleSlot, frames: np.ndarray, stamps: np.ndarray, extra: dict) -> None:
-        """Append an idle stretch and save."""
-        self._append(frames, stamps, {IDLE_KEY: {"source": slot.source, "index": slot.index,
-                                                 "seconds": slot.seconds, "extra": dict(extra)}})
-
-    def _append(self, frames: np.ndarray, stamps: np.ndarray, fields: dict) -> None:
-        """A segment after the last one, timestamps kept strictly increasing; saved at once."""
-        stamps = np.asarray(stamps, dtype=np.float64)
-        if self.segments:
-            last = float(self.segments[-1].stamps[-1])
-            if stamps[0] <= last:  # the PC clock went back (or a foreign file): keep the order
-                stamps = stamps + (last - stamps[0] + 1e-3)
-        self.segments.append(_Segment(np.asarray(frames, dtype=np.uint16), stamps, fields))
-        self.save()
-
-    def remove_last(self) -> None:
-        """Drop the newest trial (redo or discard) and save."""
-        if self.segments:
-            self.segments.pop()
-            self.save()
-
-    def to_recording(self) -> Recording:
-        rec = Recording.concatenate(self.layout, ((s.frames, s.stamps, None if IDLE_KEY in s.fields else s.fields)
-                                                  for s in self.segments), self.meta)
-        stretches, pos = [], 0
-        for s in self.segments:
-            if IDLE_KEY in s.fields and len(s.frames):
-                stretches.append({"first": pos, "last": pos + len(s.frames) - 1, **s.fields[IDLE_KEY]})
-            pos += len(s.frames)
-        rec.meta.update(idle_meta(rec.n_frames, stretches))
-        marks = self._arm_marks()
-        if marks:
-            rec.meta[arm_marks.KEY] = arm_marks.encode(marks)
-        return rec
-
-    def _arm_marks(self) -> dict[int, bool]:
-        """The robot's arm marks of every segment (``extra["arm_marks"]``, segment frames) on the file's frames."""
-        out: dict[int, bool] = {}
-        pos = 0
-        for s in self.segments:
-            extra = s.fields.get(IDLE_KEY, s.fields).get("extra", {})
-            for frame, moving in extra.get(arm_marks.KEY, ()):
-                out[pos + int(frame)] = bool(moving)
-            pos += len(s.frames)
-        return out
-
-    def save(self) -> Path:
-        return self.to_recording().save(self.path)
 
 
 # -- the session loop -------------------------------------------------------------------------
@@ -498,7 +335,8 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "MAX_RUNS", "MAX_SPAN_SECONDS", "MAX_SUBJECT_CHARS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
+    "MAX_RUNS", "MAX_SPAN_SECONDS", "MAX_SUBJECT_CHARS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "NotSaved",
+    "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
     "SessionOptions", "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial",
     "check_trigger", "drain", "flagged_trials", "recording_path", "run_session", "subject_problem",
 ]

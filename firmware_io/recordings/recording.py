@@ -18,6 +18,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import tempfile
 import zipfile
 from collections.abc import Iterable, Sequence
@@ -31,7 +32,8 @@ from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks, idle_stretches
 from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
 
-__all__ = ["ACTIONS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all"]
+__all__ = ["ACTIONS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
+           "remove_stale_temps"]
 
 FORMAT_NAME = "handover-recording"
 FORMAT_VERSION = 1
@@ -179,7 +181,7 @@ class Recording:
             "meta": self.meta,
         }
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # remove_stale_temps' pattern
         try:
             os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; a recording is shared like any file
             with os.fdopen(fd, "wb") as fh:
@@ -317,6 +319,20 @@ def _fsync_dir(folder: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def remove_stale_temps(path: str | os.PathLike) -> None:
+    """Delete the temporary files a killed ``save`` of ``path`` left (kill -9, power loss mid-write): only
+    ``save``'s own pattern for that name (mkstemp's 8 characters), only in its folder, only regular files
+    this user owns. Call it where no other ``save`` of that file runs (a session resuming its own file)."""
+    path = Path(path)
+    ours = re.compile(re.escape(f".{path.name}.") + r"[a-z0-9_]{8}\.tmp")
+    with contextlib.suppress(OSError), os.scandir(path.parent) as entries:
+        for entry in entries:
+            if (ours.fullmatch(entry.name) and entry.is_file(follow_symlinks=False)
+                    and entry.stat(follow_symlinks=False).st_uid == os.geteuid()):
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(entry.path)
 
 
 def find_recordings(folder: str | os.PathLike) -> list[Path]:
