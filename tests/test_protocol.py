@@ -54,7 +54,7 @@ from firmware_io.wire.requests import (
     stop_request,
 )
 
-# Section 1 of ../shared/reference/dsacon32m-protocol.md, byte for byte.
+# The requests SDHLibrary-CPP's sdh/dsa.cpp sends, byte for byte.
 EXAMPLES = [
     ("query controller info", query_controller_info_request(), "AA AA AA 01 00 00"),
     ("query sensor info", query_sensor_info_request(), "AA AA AA 02 00 00"),

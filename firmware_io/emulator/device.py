@@ -7,7 +7,7 @@ core sits behind the in-process ``sim://``/``replay://`` transports, the TCP and
 servers (``firmware_io.emulator.server``) and the pyusb/hidapi test doubles, so a client sees
 the same device whichever way it connects.
 
-Behaviour (see ``../shared/reference/dsacon32m-protocol.md``):
+Behaviour (as SCHUNK's SDHLibrary-CPP ``sdh/dsa.cpp`` reads it):
 
 - 0x01 controller info (18 bytes; sw_version 2.9.0.0, or R288 in old-firmware mode),
   0x02 sensor info, 0x0B matrix info (E_INDEX_OUT_OF_BOUNDS for a matrix it lacks),

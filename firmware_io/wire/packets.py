@@ -1,6 +1,6 @@
 """DSACON32m packet framing: ids, preamble, length, CRC, and the error code every reply starts with.
 
-Facts from ``../shared/reference/dsacon32m-protocol.md``. A packet is
+Facts from SCHUNK's SDHLibrary-CPP (``sdh/dsa.cpp``, ``sdh/dsa.h``). A packet is
 ``AA AA AA | id | len u16 LE | payload | CRC16 LE``; the CRC is present only when
 ``len > 0`` and covers id, length and payload (not the preamble). Every field is
 little-endian. Both directions are encoded and decoded in this package: the client decodes
