@@ -474,3 +474,40 @@ def test_importing_another_file_of_the_same_name_into_a_folder_keeps_the_first(t
     assert handover(["import", str(tmp_path / "room" / "A.dsa"), "--out", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["A-2.hrec", "A.hrec"]
     assert "idle_stretches" not in Recording.load(out / "A.hrec").meta
+
+
+def test_a_frame_bomb_is_refused_before_its_frames_are_cut_out(tmp_path):
+    """A million frames of one zero run each (75 MB of XML, 486 million values) was refused only after
+    every frame was cut out into a list: 1.26 GB peak for a 6.9 MB bzip2 file. Counted in place now:
+    the child's peak is the file's text and the interpreter, not a multiple of it."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    path = write_dsa(tmp_path / "bomb.dsa", np.zeros((1, 486), np.int64), [0], compress=False)
+    text = path.read_bytes()
+    frame = b"<frame><time_stamp>1</time_stamp><frame_data>C3F30000</frame_data></frame>\n"
+    path.write_bytes(text[: text.index(b"<frame_count>")] + frame * 1_000_000 + b"</data></root>\n")
+    code = ("import json, resource, sys\nfrom firmware_io.recordings.importers import import_any\n"
+            "from firmware_io.recordings.recording import RecordingError\n"
+            "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\ntry:\n    import_any(sys.argv[1]); said = ''\n"
+            "except RecordingError as exc:\n    said = str(exc)\n"
+            "print(json.dumps({'said': said, 'mb': (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024}))")
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, cwd=root,
+                          env=dict(os.environ, PYTHONPATH=str(root)), timeout=60, check=True)
+    got = json.loads(done.stdout)
+    assert got["said"].startswith(f"{path}: declares 1000000 frames of 486 taxels"), got
+    assert got["mb"] < path.stat().st_size / 2**20 + 40, got
+
+
+def test_more_frames_than_a_recording_holds_are_refused_whatever_the_taxels(tmp_path, monkeypatch):
+    """A layout of few taxels keeps the values small while millions of frames fill the memory: frames have
+    their own bound (``MAX_FRAMES``, lowered here to keep the file small)."""
+    from firmware_io.recordings.importers import _common
+
+    monkeypatch.setattr(_common, "MAX_FRAMES", 30)
+    path = write_dsa(tmp_path / "long.dsa", synthetic_frames(40), 1_400_000_000_000 + np.arange(40) * 31)
+    with pytest.raises(RecordingError, match=r"declares 40 frames; refused \(at most 30"):
+        read_dsa(path)

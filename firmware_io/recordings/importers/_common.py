@@ -18,12 +18,16 @@ real SDH-2 recordings decode to at most 3.3 values a byte, so a file asking for 
 refused before anything that size is allocated."""
 MAX_VALUES = 128 << 20
 """Most taxel values one recording may hold at all (the largest real file holds 8.9 million)."""
+MAX_FRAMES = 1 << 20
+"""Most frames one recording may hold: about 9 hours at 32 Hz, as many as a ``.hrec`` of 486 taxels holds."""
 
 
 def check_allocation(n_frames: int, n_taxels: int, source_bytes: int) -> None:
     """Refuse a recording that would decode to more values than its size can hold honestly."""
     values = int(n_frames) * int(n_taxels)
     bound = min(MAX_VALUES, VALUES_PER_BYTE * int(source_bytes))
+    if n_frames > MAX_FRAMES:
+        raise RecordingError(f"declares {n_frames} frames; refused (at most {MAX_FRAMES}, about 9 hours at 32 Hz)")
     if values > bound:
         raise RecordingError(f"declares {n_frames} frames of {n_taxels} taxels ({values} values) from {source_bytes} "
                              f"bytes of frame data; refused (at most {VALUES_PER_BYTE} values a byte, {MAX_VALUES} in all)")

@@ -46,7 +46,6 @@ SUFFIX = ".dsa"
 _FRAME_RE = re.compile(
     rb"<frame\b[^>]*>\s*<time_stamp>\s*(\d+)\s*</time_stamp>\s*<frame_data>([^<]*)</frame_data>\s*</frame>"
 )
-_FRAME_OPEN_RE = re.compile(rb"<frame[\s>]")
 _FRAME_COUNT_RE = re.compile(rb"<frame_count>\s*(\d+)\s*</frame_count>")
 _WHITESPACE = b" \t\r\n"
 
@@ -66,11 +65,10 @@ def _read(path: Path) -> Recording:
     data_start = text.find(b"<data>")
     if data_start < 0:
         raise RecordingError("not a DSA-Konqueror recording (no <data> section)")
-    layout, header_meta = _parse_header(text[:data_start])
-    body = text[data_start:]
-    if b"</data>" not in body:
+    layout, header_meta = _parse_header(bytes(text[:data_start]))
+    if text.find(b"</data>", data_start) < 0:
         raise RecordingError("truncated: the <data> section has no end tag")
-    stamps_ms, frames = _parse_frames(body, layout)
+    stamps_ms, frames = _parse_frames(text, data_start, layout)
     stamps = (stamps_ms - stamps_ms[0]).astype(np.float64) / 1000.0
     frames, stamps, dropped = keep_increasing(frames, stamps)
     meta = {
@@ -84,7 +82,7 @@ def _read(path: Path) -> Recording:
     return Recording(layout, frames, stamps, [], meta)
 
 
-def _decompress(path: Path) -> bytes:
+def _decompress(path: Path) -> bytes | bytearray:
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
@@ -110,7 +108,7 @@ MAX_XML_BYTES = 256 << 20
 real files of ../shared/data inflate to a few MB)."""
 
 
-def _bunzip(raw: bytes, cap: int) -> bytes:
+def _bunzip(raw: bytes, cap: int) -> bytearray:
     """bzip2 (one or more concatenated streams) inflated to at most ``cap`` bytes: a bomb is
     refused while inflating, not after it filled the memory."""
     out = bytearray()
@@ -124,7 +122,7 @@ def _bunzip(raw: bytes, cap: int) -> bytes:
         if not d.eof:
             raise EOFError
         raw = d.unused_data
-    return bytes(out)
+    return out
 
 
 def _parse_header(head: bytes) -> tuple[SensorLayout, dict]:
@@ -199,18 +197,20 @@ def _int_or_none(text: str | None) -> int | None:
         return None
 
 
-def _parse_frames(body: bytes, layout: SensorLayout) -> tuple[np.ndarray, np.ndarray]:
-    """Time stamps (int64 ms) and frames (uint16 [N, C]) from the <data> section."""
-    matches = _FRAME_RE.findall(body)
-    n_open = len(_FRAME_OPEN_RE.findall(body))
+def _parse_frames(text: bytes | bytearray, start: int, layout: SensorLayout) -> tuple[np.ndarray, np.ndarray]:
+    """Time stamps (int64 ms) and frames (uint16 [N, C]) from the <data> section at ``start``. The frame
+    tags are counted in place and the size checked before any frame is cut out: the list of millions of
+    cut-out frames was the memory a frame bomb took."""
+    n_open = text.count(b"<frame", start) - text.count(b"<frame_", start)
+    check_allocation(n_open, layout.n_taxels, len(text) - start)
+    matches = _FRAME_RE.findall(text, start)
     if n_open != len(matches):
         raise RecordingError(f"{n_open - len(matches)} of {n_open} <frame> elements are malformed")
-    declared = _FRAME_COUNT_RE.search(body)
+    declared = _FRAME_COUNT_RE.search(text, start)
     if declared is not None and int(declared.group(1)) != len(matches):
         raise RecordingError(f"header says {int(declared.group(1))} frames, the file holds {len(matches)}")
     if not matches:
         raise RecordingError("holds no frames")
-    check_allocation(len(matches), layout.n_taxels, len(body))
     try:
         stamps_ms = np.array([int(t) for t, _ in matches], dtype=np.int64)
     except OverflowError:
