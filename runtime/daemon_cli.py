@@ -143,6 +143,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
     if model is not None:
         for r in rejections:  # tried first, so dropped after the one that would serve: say why it would not
             print(f"{PROG}: warning: {r.path.name} (dropped later) would be refused: {r.reason}", file=sys.stderr)
+        if model.early_note:
+            print(f"{PROG}: warning: {model.early_note}", file=sys.stderr)
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
     reasons = "; ".join([*(f"{r.path.name}: {r.reason}" for r in rejections),

@@ -62,6 +62,7 @@ def card(model) -> dict:
         "graph": {**optional_table(meta.extra.get("graph")), "n_nodes": model.n_nodes, "n_bytes": model.n_bytes},
         "reference": meta.extra.get("reference"),
         "early": model.early.to_meta() if getattr(model, "early", None) is not None else None,
+        "early_disabled": getattr(model, "early_note", None),
     }
 
 
@@ -146,6 +147,8 @@ def _text(c: dict) -> str:
         rule = ("never before T" if e["threshold"] > 1 else f"when the calibrated confidence reaches {e['threshold']:g}"
                 + (" and the head agrees with the previous one" if e["agree"] else ""))
         lines.insert(4, f"  early heads: at {', '.join(map(str, e['points']))} frames, reported {rule} (docs/EARLY.md)")
+    if c.get("early_disabled"):
+        lines.insert(4, f"  warning: {c['early_disabled']}")
     return "\n".join(lines)
 
 

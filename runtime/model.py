@@ -36,7 +36,7 @@ from runtime.model_meta import (
     other_file_kind,
 )
 from runtime.onnx_wire import WireError, keep_outputs, summarize
-from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe
+from runtime.output_check import DEFAULT_BUDGET_FRACTION, probe, probe_windows
 
 __all__ = [
     "CODEWORD_KERNEL", "INPUT_NAME", "METADATA_KEY", "OUTPUT_NAMES", "SCHEMA_VERSION", "LoadedModel",
@@ -112,6 +112,8 @@ class LoadedModel:
         """Why ``end_decision`` ended this model's decisions (it then runs no more), or None."""
         self._options: Any = None
         """onnxruntime RunOptions of every run, made on the first one (``end_decision`` ends it)."""
+        self.early_note: str | None = None
+        """Why the warm-up disabled early heads the file carries (``_drop_contradicting_heads``), or None."""
 
     def __repr__(self) -> str:
         return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
@@ -250,6 +252,34 @@ class LoadedModel:
                             1.0 / meta.sample_rate_hz, budget_fraction)
             if problem:
                 raise ModelContractError(f"model {self.path}: early head at {point} frames {problem}")
+        self._drop_contradicting_heads()
+
+    def _drop_contradicting_heads(self) -> None:
+        """An early head decides an event alone, so one that would report a class the full model does not
+        give, on more than two in three warm-up windows, is disabled (a head that always says bump with
+        certainty against a full model that says pull decided every event after a few frames; honest
+        heads differ on two or three of these synthetic windows); the full model still serves and
+        ``early_note`` says why."""
+        if self.early is None:
+            return
+        windows = probe_windows(self.meta.T, self.meta.n_channels, self.meta.fullscale)
+        full = self.run_trusted(windows)[0]
+        spec, keep, against = self.early, [], []
+        for index in range(len(spec.points)):
+            labels, scores = self.run_head(index, windows)
+            contradicts = sum(int(label) != int(want) and spec.confidence(index, row, int(label)) >= spec.threshold
+                              for label, row, want in zip(labels, scores, full, strict=True))
+            (against if 3 * contradicts > 2 * len(windows) else keep).append(index)
+        if not against:
+            return
+        self.early_note = (f"model {self.model_id}: early heads at {', '.join(str(spec.points[i]) for i in against)} "
+                           f"frames disabled: they would report another class than the full model, with the certainty "
+                           f"to report, on more than two in three of {len(windows)} warm-up windows; the full model decides "
+                           "those events")
+        self._head_sessions = [self._head_sessions[i] for i in keep]
+        self._head_outputs = [self._head_outputs[i] for i in keep]
+        self.early = EarlySpec(tuple(spec.points[i] for i in keep), tuple(spec.calibration[i] for i in keep),
+                               spec.threshold, spec.agree) if keep else None
 
 
 def _aligned(shape: tuple[int, ...]) -> np.ndarray:

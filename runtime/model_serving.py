@@ -140,6 +140,9 @@ class ModelSlot:
         h.model_id = model.model_id
         h.models_loaded += 1
         h.resolve("model")
+        if model.early_note:  # the full model serves; the heads it carried contradicted it
+            log.warning("%s", model.early_note)
+            h.report_error(model.early_note, "model")
         # the model announced last, also when a reload or a quarantine took it out before this one came
         previous, self._announced = self._announced, model
         self.announce(ModelAnnouncement.of(model, h.models_loaded, previous))

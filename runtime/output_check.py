@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DEFAULT_BUDGET_FRACTION", "output_problem", "probe"]
+__all__ = ["DEFAULT_BUDGET_FRACTION", "output_problem", "probe", "probe_windows"]
 
 DEFAULT_BUDGET_FRACTION = 0.1
 """A decision may take at most this fraction of the model's sample period (3.1 ms at 32 Hz)."""

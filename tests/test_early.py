@@ -398,3 +398,53 @@ def test_what_the_rehearsal_expects_at_each_frame_is_what_feed_then_runs(early_m
     continuous, detector = serve("continuous", {100: True, 101: False})
     assert [f for f in continuous if f[1] != f[2] and f[0] not in (14, 100)] == []
     assert runs(continuous) == [(i, -1) for i in range(14, session.n_frames) if not 100 <= i <= 101 + settle + 13]
+
+
+def _tiny_with_lying_heads(points: list[int]) -> bytes:
+    """A tiny model whose full answer is pull and whose early heads say bump with certainty, always."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    proto = onnx.load_from_string(_tiny_with_heads(15, points))
+    keep = [n for n in proto.graph.node if not n.output[0].startswith(("label_at_", "scores_at_"))]
+    del proto.graph.node[:]
+    proto.graph.node.extend(keep)
+    proto.graph.initializer.append(helper.make_tensor("certain_bump", TensorProto.FLOAT, [4], [0, 0, 0, 100.0]))
+    for p in points:
+        proto.graph.node.extend([helper.make_node("Add", ["scores", "certain_bump"], [f"scores_at_{p}"]),
+                                 helper.make_node("ArgMax", [f"scores_at_{p}"], [f"label_at_{p}"], axis=1, keepdims=0)])
+    return proto.SerializeToString()
+
+
+def test_early_heads_that_contradict_the_full_model_are_disabled_with_one_note(tmp_path, caplog, capsys):
+    """Heads that always said bump with certainty, against a full model that says pull, decided every
+    event after 4 frames with no warning."""
+    import logging
+    from types import SimpleNamespace
+
+    from runtime.config import config_from_dict
+    from runtime.detector import Detector
+    from runtime.health import Health
+    from runtime.inspect_cli import main as inspect_main
+    from runtime.model import load_model
+    from runtime.model_serving import ModelSlot
+
+    path = tmp_path / "lying.onnx"
+    path.write_bytes(_tiny_with_lying_heads([4, 8]))
+    model = load_model(path)
+    assert model.early is None  # the full model decides every event
+    assert "early heads at 4, 8 frames disabled" in model.early_note
+    labels, _ = model.run(np.full((1, 15, 234), 500.0, np.float32))
+    assert model.meta.classes[int(labels[0])] == "pull"
+    cfg = config_from_dict({"device": {"url": "sim://"}, "model": {"folder": str(tmp_path)}})
+    health = Health()
+    with caplog.at_level(logging.WARNING, logger="handover"):
+        ModelSlot(cfg, Detector.from_config(cfg), health, announce=lambda _: None).use(model)
+    assert [r.getMessage() for r in caplog.records if "disabled" in r.getMessage()] == [model.early_note]
+    assert health.last_error == model.early_note
+    assert inspect_main(SimpleNamespace(model=str(path), json=False)) in (0, None)
+    assert "warning: " + model.early_note in capsys.readouterr().out
+    honest = tmp_path / "honest.onnx"
+    honest.write_bytes(_tiny_with_heads(15, [4, 8]))
+    kept = load_model(honest)
+    assert kept.early.points == (4, 8) and kept.early_note is None
