@@ -131,8 +131,8 @@ class Health:
         now = time.monotonic() if now is None else now
         dt = now - self._rate_t
         if dt >= 1.0:
-            # the device's rate: frames it sent that the client dropped as implausible count too (30 % of frames
-            # above 4095 made the device look 30 % slower, and the rate check blame the stream)
+            # the device's rate: frames it sent that the client dropped as implausible count too, else dropped
+            # frames would make the device look slower and the rate check blame the stream
             sent = self.frames_received + self.frames_implausible
             self.frame_rate = max(0, sent - self._rate_frames) / dt
             self._rate_t, self._rate_frames = now, sent

@@ -28,7 +28,7 @@ FOLD_LIMIT = 60.0
 coefficient, and the exponent (at most ``gamma ||sv_m||^2``) stays far below float32's exp overflow (88)."""
 THIRD = 1.0 / 3.0
 WIN_SLOPE = float(np.finfo(np.float32).max)
-"""``HardSigmoid(dec) = clip(WIN_SLOPE dec, 0, 1)``: a one-vs-one win as one node (was Greater, Cast).
+"""``HardSigmoid(dec) = clip(WIN_SLOPE dec, 0, 1)``: a one-vs-one win as one node (not two: Greater, Cast).
 It is 1 for every decision > 0 down to 2.9e-39 and 0 for every decision <= 0, libsvm's rule; only a
 subnormal decision (below 1.2e-38) could give part of a vote, and such a decision is within float32
 rounding of 0 anyway: a near tie that no float32 graph decides reliably (``trainer.numerics``)."""
