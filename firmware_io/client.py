@@ -14,6 +14,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from firmware_io.client_recovery import RESTART_STALLED_S, PushRecovery
 from firmware_io.client_types import Cancelled, DSATimeout, Frame
 from firmware_io.layout import SensorLayout
 from firmware_io.plausibility import FrameCheck
@@ -29,11 +30,6 @@ from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, Sensitivit
 __all__ = ["Cancelled", "DSAClient", "DSATimeout", "Frame"]
 
 READ_SIZE = 4096
-RESTART_STALLED_S = 2.0
-"""Push mode silent this long on an open link: start it again (a power-cycled controller comes back
-with acquisition stopped; its host has to ask again, as the vendor's client does)."""
-BOOT_READY_S = 1.2
-"""After the controller's power-up terminal query ESC[5n, it takes commands about a second later."""
 CANCEL_POLL_S = 0.05
 """While a cancel predicate is set, no single read waits longer than this."""
 MAX_QUEUED_REPLIES = 64
@@ -87,8 +83,8 @@ class DSAClient:
         self.backoff_initial = backoff_initial
         self.backoff_max = backoff_max
         self.auto_reconnect = auto_reconnect
-        self.restart_stalled_s = restart_stalled_s
-        """Push mode silent this long with the link open: send the push start again (None: never)."""
+        self._recovery = PushRecovery(restart_stalled_s)
+        """When to send the push start again on an open link gone silent (``client_recovery``)."""
         self.transport_opts = dict(transport_opts or {})
 
         self.parser = StreamParser()
@@ -101,9 +97,6 @@ class DSAClient:
         self._frames: deque[Frame] = deque()
         self._replies: deque[Packet] = deque(maxlen=MAX_QUEUED_REPLIES)
         self._last_rx = 0.0
-        self._last_frame_at = 0.0  # monotonic time of the last frame queued, or of the last (re)start
-        self._boots_seen = 0
-        self._boot_at: float | None = None  # a power-up query came while streaming
         self._max_queued = max_queued_frames
         self._unwrap = TimestampUnwrapper()
         self._number = 0
@@ -179,32 +172,21 @@ class DSAClient:
         with self._cancellable(should_stop):
             self._ack(R.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.stop_timeout)
         self.streaming = True
-        self._last_frame_at = time.monotonic()
-        self._boots_seen, self._boot_at = self.parser.stats.boot_queries, None
+        self._recovery.started(time.monotonic(), self.parser.stats.boot_queries)
 
     def _restart_if_stalled(self) -> None:
-        """Push mode that went silent with the link still open (the controller was power-cycled: a
-        boot query came, or just nothing): send the push start again, at most once per
-        ``restart_stalled_s``; while it is still booting the try times out and is made again later."""
-        if not self.streaming or self.restart_stalled_s is None or self._frames:
-            return
+        """Push mode that went silent with the link still open (the controller was power-cycled):
+        send the push start again when ``PushRecovery`` says so."""
         now = time.monotonic()
-        boots = self.parser.stats.boot_queries
-        if boots != self._boots_seen:
-            self._boots_seen, self._boot_at = boots, now
-        booted = self._boot_at is not None and now - self._boot_at >= BOOT_READY_S
-        if not booted and now - self._last_frame_at < self.restart_stalled_s:
+        if not self.streaming or self._frames or not self._recovery.due(now, self.parser.stats.boot_queries):
             return
-        rebooted = self._boot_at is not None
-        self._last_frame_at, self._boot_at = now, None
         try:
             self._ack(R.push_request(rle=self.rle, rate=1), frames_limit=None, timeout=self.gap_timeout)
         except DSAError:
-            self._boot_at = now if rebooted else None
-            return  # still booting (or not a DSACON32m any more): tried again after restart_stalled_s
+            self._recovery.tried(now, ok=False)
+            return  # still booting (or not a DSACON32m any more): tried again later
         self._counts["restarts"] += 1
-        self._last_frame_at = time.monotonic()
-        if rebooted:
+        if self._recovery.tried(time.monotonic(), ok=True):
             self._unwrap.reset()  # its clock restarted at power-on
 
     @contextlib.contextmanager
@@ -454,7 +436,7 @@ class DSAClient:
             self.last_refusal = problem
             return
         frame = Frame(self._number, self._unwrap(raw_ts), packet.received, values)
-        self._last_frame_at = time.monotonic()
+        self._recovery.last_frame_at = time.monotonic()
         self._number += 1
         self._counts["frames"] += 1
         if len(self._frames) >= self._max_queued:

@@ -16,8 +16,9 @@ Behaviour (as SCHUNK's SDHLibrary-CPP ``sdh/dsa.cpp`` reads it):
   0x04 static mask. Anything else: a 2-byte E_CMD_UNKNOWN reply under the command's ID.
   A payload of the wrong size gets E_CMD_NOT_ENOUGH_PARAMS or E_CMD_FORMAT_ERROR.
 - Old-firmware mode: a single-frame request starts push mode (firmware <= R288).
-- Frames carry the recording's values unchanged (thresholds and sensitivity are stored and
-  reported, not applied), so a client's frames can be compared bit for bit with the source.
+- Frames carry the recording's values under the matrices' sensitivity and threshold
+  (``matrix_settings``): unchanged at the factory settings, so a client's frames can be compared
+  bit for bit with the source.
 - The recording is the world the sensor looks at: it plays from the emulator's creation on
   (``session_starts="first_acquisition"``: from the host's first request for frames), whether
   or not the host acquires (frames not asked for go by unseen; a single frame is the one
@@ -31,8 +32,9 @@ Behaviour (as SCHUNK's SDHLibrary-CPP ``sdh/dsa.cpp`` reads it):
   the newest frame once the previous one is out (raw frames at 115200 baud: about 11.7 per
   second), as the real one does. Not applied at ``speed=None``.
 - ``power_cycle``: the controller is silent and deaf for ``boot_s`` (about 8 s on the real one),
-  sends the terminal query ESC[5n at ``boot_query_s``, restarts its clock, forgets push mode and
-  the settings that were not stored persistently.
+  sends the terminal query ESC[5n three times within 0.82 s from ``boot_query_s`` on, restarts its
+  clock, forgets push mode and the settings that were not stored persistently. A pseudo-terminal's
+  ``disconnect`` fault and a TCP host leaving are power cycles (an SDH-2 resets behind Ethernet).
 - Host packets with a bad CRC are dropped silently (what the real firmware does is not known).
 """
 
@@ -46,6 +48,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from firmware_io.emulator.faults import FaultPlan, FaultSpecError, inject
+from firmware_io.emulator.identity import recorded_controller, recorded_sensor
+from firmware_io.emulator.matrix_settings import MatrixSettings
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.recordings.recording import Recording
 from firmware_io.wire import replies
@@ -53,18 +58,17 @@ from firmware_io.wire.errors import DSAErrorCode, ProtocolError
 from firmware_io.wire.frames import MAX_TEXEL_VALUE, encode_frame
 from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, PacketId, encode_ack
 from firmware_io.wire.parser import StreamParser
-from firmware_io.wire.requests import FLAG_PERSISTENT, AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
+from firmware_io.wire.requests import AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
 
 __all__ = ["DeviceEmulator", "EmulatorStats", "FaultPlan", "FaultSpecError", "HostCommandParser"]
 
-NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
-OLD_FIRMWARE = 288  # R288: a single-frame request starts push mode
-FACTORY_SENSITIVITY = 0.5
 MAX_COMMAND_PAYLOAD = 64
 BOOT_S = 8.0
 """A power-cycled DSACON32m answers again after about this long."""
 BOOT_QUERY_S = 7.0
-"""... and sends its terminal query ESC[5n about this long after power-on."""
+"""... and sends its terminal query ESC[5n about this long after power-on ..."""
+BOOT_QUERY_REPEATS = (0.0, 0.41, 0.82)
+"""... three times within 0.82 s (SDHLibrary-Python ``dsa.py``, ``cDSA.__init__``)."""
 LINE_BURST_S = 0.005
 """Bytes a paced line may owe and then send at once (a UART's FIFO, a scheduler's slice)."""
 
@@ -75,90 +79,6 @@ class HostCommandParser(StreamParser):
 
     def plausible(self, packet_id: int, length: int) -> bool:
         return length <= MAX_COMMAND_PAYLOAD
-
-
-class FaultSpecError(ValueError):
-    """A fault description that cannot be read."""
-
-
-@dataclass
-class FaultPlan:
-    """Which faults to inject and how often. Probabilities are per frame packet sent.
-
-    Text form (``--fault``): ``crc=0.01,garbage=0.01,drop=0.01,stall=0.005:0.5,disconnect=300,boot``
-    (``stall=P:SECONDS``; ``disconnect=N`` drops the link after N frames of each connection, which on
-    a pseudo-terminal is a power cycle (``DeviceEmulator.power_cycle``);
-    ``boot`` sends the power-up terminal query ESC[5n three times when a host connects).
-    """
-
-    crc: float = 0.0
-    garbage: float = 0.0
-    drop: float = 0.0
-    stall: float = 0.0
-    stall_seconds: float = 0.5
-    disconnect_after: int | None = None
-    boot_query: bool = False
-
-    @classmethod
-    def parse(cls, text: str | None) -> FaultPlan:
-        plan = cls()
-        if not text:
-            return plan
-        for item in text.split(","):
-            item = item.strip()
-            if not item:
-                continue
-            key, _, value = item.partition("=")
-            key = key.strip().lower()
-            try:
-                if key == "boot":
-                    switch = value.strip().lower()
-                    if switch not in _SWITCHES:
-                        raise ValueError
-                    plan.boot_query = _SWITCHES[switch]
-                elif key == "disconnect":
-                    plan.disconnect_after = int(value)
-                    if plan.disconnect_after < 1:
-                        raise ValueError
-                elif key == "stall":
-                    p, _, secs = value.partition(":")
-                    plan.stall = _probability(p)
-                    if secs:
-                        plan.stall_seconds = float(secs)
-                        if not 0 < plan.stall_seconds <= 60:
-                            raise ValueError
-                elif key in ("crc", "garbage", "drop"):
-                    setattr(plan, key, _probability(value))
-                else:
-                    raise FaultSpecError(
-                        f"unknown fault {key!r} (known: crc, garbage, drop, stall=P:SECONDS, disconnect=N, boot)"
-                    )
-            except ValueError as exc:
-                if isinstance(exc, FaultSpecError):
-                    raise
-                raise FaultSpecError(f"{item!r}: bad value ({_FAULT_VALUES.get(key, 'see --help')})") from None
-        return plan
-
-    @property
-    def any(self) -> bool:
-        return bool(self.crc or self.garbage or self.drop or self.stall or self.disconnect_after or self.boot_query)
-
-
-_SWITCHES = {"": True, "1": True, "true": True, "yes": True, "on": True,
-             "0": False, "false": False, "no": False, "off": False}
-"""What ``boot`` may be set to (nothing: on)."""
-
-_FAULT_VALUES = {"boot": "nothing (on), or on/off", "crc": "a probability from 0 to 1, e.g. crc=0.02", "garbage": "a probability from 0 to 1",
-                 "drop": "a probability from 0 to 1", "disconnect": "a whole number of frames, at least 1",
-                 "stall": "P:SECONDS, a probability from 0 to 1 and 0 < SECONDS <= 60, e.g. stall=0.01:2"}
-"""What each fault's value must be, for the line that refuses a bad one."""
-
-
-def _probability(text: str) -> float:
-    p = float(text)
-    if not 0.0 <= p <= 1.0:
-        raise ValueError(text)
-    return p
 
 
 @dataclass
@@ -200,7 +120,7 @@ class DeviceEmulator:
         faults: FaultPlan | None = None,
         seed: int = 0,
         start_ms: int = 0,
-        serial_no: int = 12345,
+        serial_no: int | None = None,
         clock: Callable[[], float] = time.monotonic,
         boot_s: float = BOOT_S,
         boot_query_s: float = BOOT_QUERY_S,
@@ -230,15 +150,10 @@ class DeviceEmulator:
         self._rng = np.random.default_rng(seed)
         self._parser = HostCommandParser()
         self._out = bytearray()
-        n = self.layout.n_matrices
-        self._thresholds = [0] * n
-        self._sensitivity = [FACTORY_SENSITIVITY] * n
-        self._stored_thresholds = [0] * n  # what a power cycle returns to (persistent writes)
-        self._stored_sensitivity = [FACTORY_SENSITIVITY] * n
-        self.controller = replies.ControllerInfo(
-            serial_no=serial_no, hw_version=1, sw_version=OLD_FIRMWARE if old_firmware else NEW_FIRMWARE
-        )
-        self.sensor = recorded_sensor(getattr(recording, "meta", None) or {}, self.layout.n_matrices, serial_no)
+        self.settings = MatrixSettings(self.layout)
+        meta = getattr(recording, "meta", None) or {}
+        self.controller = recorded_controller(meta, serial_no, old_firmware)
+        self.sensor = recorded_sensor(meta, self.layout.n_matrices, self.controller.serial_no)
         rel = recording.timestamps - recording.timestamps[0]
         self._rel_ms = np.round(rel * 1000.0).astype(np.int64)
         self._rel_s = rel
@@ -251,7 +166,7 @@ class DeviceEmulator:
         self._origin = created  # wall time at which frame sequence 0 is due (the world started)
         self._power_on = created  # wall time of the last power-on: the device clock's zero
         self._booting_until = 0.0
-        self._boot_query_at: float | None = None
+        self._boot_queries_due: list[float] = []  # when the booting controller sends ESC[5n
         self._line_bps: float | None = None  # bytes per second the line carries; None: unlimited
         self._line_t = created
         self._line_credit = 0.0
@@ -265,29 +180,32 @@ class DeviceEmulator:
     def connect(self) -> None:
         """A host attached (TCP accept, pty opened, transport created): maybe send the boot query."""
         self.stats.connections += 1
+        self._new_link()
+        if self.faults.boot_query:
+            self._out += BOOT_TERMINAL_QUERY * 3
+            self.stats.boot_queries += 1
+
+    def _new_link(self) -> None:
         self.disconnected = False
         self._frames_this_connection = 0
         self._parser = HostCommandParser()
         self._out.clear()  # bytes in flight on a dropped link are lost
         self._stall_until = 0.0
-        if self.faults.boot_query:
-            self._out += BOOT_TERMINAL_QUERY * 3
-            self.stats.boot_queries += 1
 
     def power_cycle(self, now: float | None = None) -> None:
         """What an unplugged and replugged controller does: the bytes in flight are lost, it is
-        silent and ignores commands for ``boot_s``, sends ESC[5n at ``boot_query_s``, and comes back
-        with its clock restarted, push mode off and only the persistently stored settings."""
+        silent and ignores commands for ``boot_s``, sends ESC[5n three times from ``boot_query_s`` on,
+        and comes back with its clock restarted, push mode off and only the persistently stored settings."""
         now = self.clock() if now is None else now
-        self.connect()
+        self._new_link()
         self.stats.power_cycles += 1
         self._pushing = False
         self._single_at = None
         self._power_on = now
         self._booting_until = now + self.boot_s
-        self._boot_query_at = now + self.boot_query_s
-        self._sensitivity = list(self._stored_sensitivity)
-        self._thresholds = list(self._stored_thresholds)
+        first = now + self.boot_query_s
+        self._boot_queries_due = [t for t in (first + d for d in BOOT_QUERY_REPEATS) if t <= now + self.boot_s] or [first]
+        self.settings.power_on()
 
     @property
     def booting(self) -> bool:
@@ -321,8 +239,8 @@ class DeviceEmulator:
         now = self.clock() if now is None else now
         if self.disconnected or now < self._stall_until:
             return b""
-        if self._boot_query_at is not None and now >= self._boot_query_at:
-            self._boot_query_at = None
+        while self._boot_queries_due and now >= self._boot_queries_due[0]:
+            self._boot_queries_due.pop(0)
             self._out += BOOT_TERMINAL_QUERY
             self.stats.boot_queries += 1
         if now < self._booting_until:
@@ -352,8 +270,8 @@ class DeviceEmulator:
             return None
         if now < self._stall_until:
             return self._stall_until - now
-        if self._boot_query_at is not None:
-            return max(0.0, self._boot_query_at - now)
+        if self._boot_queries_due:
+            return max(0.0, self._boot_queries_due[0] - now)
         if self._out:
             if self._paced() and self._line_credit < 1.0:
                 return min(LINE_BURST_S, (1.0 - self._line_credit) / self._line_bps)
@@ -426,10 +344,12 @@ class DeviceEmulator:
         self._next += 1
         i = seq % self.recording.n_frames
         stamp = self.stamp_of(seq)
-        values = self.recording.frames[i]
+        values = self.settings.apply(self.recording.frames[i])
         rle = self._rle and int(values.max(initial=0)) <= MAX_TEXEL_VALUE
         packet = bytearray(encode_frame(values, stamp % 2**32, rle=rle))
-        self._inject(packet, now)
+        if inject(self.faults, self._rng, self.stats, packet, self._out):
+            self._stall_until = now + self.faults.stall_seconds
+            self._origin += self.faults.stall_seconds
         self.stats.frames_sent += 1
         self._frames_this_connection += 1
         if self.faults.disconnect_after and self._frames_this_connection >= self.faults.disconnect_after:
@@ -453,28 +373,6 @@ class DeviceEmulator:
         if self.speed is None:
             return self.start_ms
         return self.start_ms + round((self._origin - self._power_on) * self.speed * 1000.0)
-
-    def _inject(self, packet: bytearray, now: float) -> None:
-        f, rng = self.faults, self._rng
-        if f.garbage and rng.random() < f.garbage:
-            junk = rng.integers(0, 256, size=int(rng.integers(1, 33)), dtype=np.uint8).tobytes()
-            self._out += junk
-            self.stats.garbage_inserted += 1
-            self.stats.garbage_bytes += len(junk)
-        if f.crc and rng.random() < f.crc:
-            packet[-1] ^= 1 << int(rng.integers(0, 8))
-            self.stats.crc_corrupted += 1
-        if f.drop and rng.random() < f.drop:
-            k = int(rng.integers(1, 9))
-            at = int(rng.integers(0, max(1, len(packet) - k)))
-            del packet[at : at + k]
-            self.stats.packets_truncated += 1
-            self.stats.bytes_dropped += k
-        self._out += packet
-        if f.stall and rng.random() < f.stall:
-            self._stall_until = now + f.stall_seconds
-            self._origin += f.stall_seconds
-            self.stats.stalls += 1
 
     # -- commands -----------------------------------------------------------------------------
     def _handle(self, pid: int, payload: bytes, now: float) -> None:
@@ -542,9 +440,9 @@ class DeviceEmulator:
                     self._origin = now
                 else:  # the first frame sent is the one the sensor sees now
                     self._skip_to(self._seq_at(now))
-        elif not self._exhausted():  # single frame: the next one the sensor acquires, not at once
-            self._pushing = False
-            self._single_at = max(now, self._last_single + self._frame_period())
+        elif not self._exhausted():  # single frame: the next one the sensor acquires, not at once,
+            self._pushing = False  # and never one stamped after the moment it is sent
+            self._single_at = max(now, self._last_single + self._frame_period(), self._due(self._next))
         return b""
 
     def _frame_period(self) -> float:
@@ -555,44 +453,18 @@ class DeviceEmulator:
         return (step if np.isfinite(step) and step > 0 else NOMINAL_PERIOD_S) / self.speed
 
     def _on_set_sensitivity(self, payload: bytes, now: float) -> bytes:
-        req = SetSensitivityRequest.decode(payload)
-        pid = PacketId.ADJUST_MATRIX_SENSITIVITY
-        targets = range(self.layout.n_matrices) if req.all_matrices else [req.matrix]
-        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
-        if not req.factory_reset and not 0.0 <= req.sensitivity <= 1.0:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
-        for m in targets:
-            self._sensitivity[m] = FACTORY_SENSITIVITY if req.factory_reset else float(req.sensitivity)
-            if req.persistent:
-                self._stored_sensitivity[m] = self._sensitivity[m]
-        return b"" if payload[0] & FLAG_PERSISTENT else encode_ack(pid)
+        return self.settings.set_sensitivity(SetSensitivityRequest.decode(payload))
 
     def _on_get_sensitivity(self, payload: bytes, now: float) -> bytes:
         m = self._matrix(PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO, payload)
-        if isinstance(m, bytes):
-            return m
-        return replies.SensitivityReply(0x02, self._sensitivity[m], FACTORY_SENSITIVITY).to_packet()
+        return m if isinstance(m, bytes) else self.settings.sensitivity_reply(m)
 
     def _on_set_threshold(self, payload: bytes, now: float) -> bytes:
-        req = SetThresholdRequest.decode(payload)
-        pid = PacketId.SET_MATRIX_THRESHOLD
-        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
-        if req.threshold > MAX_TEXEL_VALUE:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
-        targets = range(self.layout.n_matrices) if req.all_matrices else [req.matrix]
-        for m in targets:
-            self._thresholds[m] = 0 if req.factory_reset else int(req.threshold)
-            if req.persistent:
-                self._stored_thresholds[m] = self._thresholds[m]
-        return b"" if req.persistent else encode_ack(pid)
+        return self.settings.set_threshold(SetThresholdRequest.decode(payload))
 
     def _on_get_threshold(self, payload: bytes, now: float) -> bytes:
         m = self._matrix(PacketId.GET_MATRIX_THRESHOLD, payload)
-        if isinstance(m, bytes):
-            return m
-        return replies.ThresholdReply(self._thresholds[m]).to_packet()
+        return m if isinstance(m, bytes) else self.settings.threshold_reply(m)
 
     _HANDLERS: ClassVar[dict[int, Callable[[DeviceEmulator, bytes, float], bytes]]] = {
         PacketId.QUERY_CONTROLLER_CONFIGURATION: _on_controller,
@@ -616,26 +488,3 @@ _MIN_SIZE = {
     PacketId.SET_MATRIX_THRESHOLD: 4,
     PacketId.GET_MATRIX_THRESHOLD: 1,
 }
-
-
-def recorded_sensor(meta: dict, n_matrices: int, default_serial: int) -> replies.SensorInfo:
-    """The sensor a recording was made with (serial number, generator, hardware revision), as
-    DSA-Konqueror files (serial in hex) and ``handover record`` sessions (an int) store them;
-    defaults where absent."""
-    fields = {"serial_no": default_serial, "generated_by": replies.SensorInfo.generated_by, "hw_revision": replies.SensorInfo.hw_revision}
-    sessions = meta.get("sessions") or []
-    controller = (sessions[-1].get("controller") or {}) if sessions and isinstance(sessions[-1], dict) else {}
-    candidates = {"serial_no": ((meta.get("dsa_serial_nr"), 16), (meta.get("sensor_serial_no"), 0),
-                                (controller.get("sensor_serial_no"), 0)),
-                  "generated_by": ((meta.get("dsa_generated_by"), 0),), "hw_revision": ((meta.get("dsa_hw_revision"), 0),)}
-    limits = {"serial_no": 0xFFFFFFFF, "generated_by": 0xFFFF, "hw_revision": 0xFF}
-    for key, values in candidates.items():
-        for value, base in values:
-            try:  # DSA-Konqueror writes <serial_nr> in hex without 0x (1D9B0057); the rest in decimal
-                number = value if isinstance(value, int) else int(str(value).strip(), base)
-            except (TypeError, ValueError):
-                continue
-            if 0 <= number <= limits[key]:
-                fields[key] = number
-                break
-    return replies.SensorInfo(nb_matrices=n_matrices, **fields)

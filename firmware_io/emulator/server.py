@@ -85,7 +85,9 @@ class _ServerBase:
 
 class TcpEmulatorServer(_ServerBase):
     """One host at a time on ``tcp://127.0.0.1:PORT``, like a controller serving one host: while a host
-    is connected, another connection is closed at once (and logged, naming the refused peer)."""
+    is connected, another connection is closed at once (and logged, naming the refused peer). When the
+    host's connection ends, the controller power-cycles (``DeviceEmulator.power_cycle``), as an SDH-2
+    resets behind Ethernet: push mode off, only persistent settings kept, booting again."""
 
     def __init__(self, emulator: DeviceEmulator, host: str = "127.0.0.1", port: int = 0) -> None:
         super().__init__(emulator)
@@ -175,6 +177,8 @@ class TcpEmulatorServer(_ServerBase):
             with contextlib.suppress(OSError):
                 self._conn.close()
             self._conn = None
+            self._pending = b""
+            self.emulator.power_cycle()
 
     def _session_step(self) -> None:
         conn = self._conn

@@ -1,0 +1,91 @@
+"""The emulated controller's per-matrix threshold and sensitivity, and what they do to a frame.
+
+``dsa.h`` (SDHLibrary ``SetMatrixSensitivity``/``SetMatrixThreshold``): a write lasts until the
+next power cycle; a persistent one is stored and "will become the new factory default value", so a
+power cycle and a factory reset both return to the stored value. How the firmware applies them is
+not published; the emulator's model (docs/EMULATOR.md): sensitivity is a gain, 1 at the factory
+0.5 the recording was made with (0.1: a fifth, 1.0: double, saturating at 4095), and a texel
+below the threshold reads 0, so a lab tuning either sees the effect.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_io.layout import SensorLayout
+from firmware_io.wire import replies
+from firmware_io.wire.errors import DSAErrorCode
+from firmware_io.wire.frames import MAX_TEXEL_VALUE
+from firmware_io.wire.packets import PacketId, encode_ack
+from firmware_io.wire.requests import SetSensitivityRequest, SetThresholdRequest
+
+__all__ = ["FACTORY_SENSITIVITY", "MatrixSettings"]
+
+FACTORY_SENSITIVITY = 0.5
+"""The sensitivity a controller leaves the factory with, and the one recordings are taken at."""
+
+
+class MatrixSettings:
+    """Current and stored (persistent) threshold and sensitivity of each matrix."""
+
+    def __init__(self, layout: SensorLayout) -> None:
+        self.layout = layout
+        n = layout.n_matrices
+        self.stored_thresholds = [0] * n
+        self.stored_sensitivity = [FACTORY_SENSITIVITY] * n
+        self.thresholds = [0] * n
+        self.sensitivity = [FACTORY_SENSITIVITY] * n
+
+    def power_on(self) -> None:
+        """What a power cycle leaves: the stored values."""
+        self.thresholds = list(self.stored_thresholds)
+        self.sensitivity = list(self.stored_sensitivity)
+
+    def apply(self, values: np.ndarray) -> np.ndarray:
+        """The frame as the controller reports it under the current settings (unchanged at the factory's)."""
+        if not any(self.thresholds) and all(s == FACTORY_SENSITIVITY for s in self.sensitivity):
+            return values
+        out = values.astype(np.float64)
+        for m in range(self.layout.n_matrices):
+            cells = self.layout.matrix_slice(m)
+            pad = np.minimum(np.rint(out[cells] * (self.sensitivity[m] / FACTORY_SENSITIVITY)), MAX_TEXEL_VALUE)
+            pad[pad < self.thresholds[m]] = 0
+            out[cells] = pad
+        return out.astype(values.dtype)
+
+    def set_sensitivity(self, req: SetSensitivityRequest) -> bytes:
+        """Reply to 0x0F (none to a persistent write, as the firmware sends none)."""
+        pid = PacketId.ADJUST_MATRIX_SENSITIVITY
+        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
+        if not req.factory_reset and not 0.0 <= req.sensitivity <= 1.0:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
+        for m in self._targets(req.all_matrices, req.matrix):
+            value = self.stored_sensitivity[m] if req.factory_reset else float(req.sensitivity)
+            self.sensitivity[m] = value
+            if req.persistent:
+                self.stored_sensitivity[m] = value
+        return b"" if req.persistent else encode_ack(pid)
+
+    def set_threshold(self, req: SetThresholdRequest) -> bytes:
+        """Reply to 0x13 (none to a persistent write)."""
+        pid = PacketId.SET_MATRIX_THRESHOLD
+        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
+        if req.threshold > MAX_TEXEL_VALUE:
+            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
+        for m in self._targets(req.all_matrices, req.matrix):
+            value = self.stored_thresholds[m] if req.factory_reset else int(req.threshold)
+            self.thresholds[m] = value
+            if req.persistent:
+                self.stored_thresholds[m] = value
+        return b"" if req.persistent else encode_ack(pid)
+
+    def sensitivity_reply(self, m: int) -> bytes:
+        return replies.SensitivityReply(0x02, self.sensitivity[m], self.stored_sensitivity[m]).to_packet()
+
+    def threshold_reply(self, m: int) -> bytes:
+        return replies.ThresholdReply(self.thresholds[m]).to_packet()
+
+    def _targets(self, all_matrices: bool, matrix: int) -> range | list[int]:
+        return range(self.layout.n_matrices) if all_matrices else [matrix]

@@ -1,0 +1,175 @@
+"""The emulated DSACON32m as SDHLibrary's cDSA sees it (issue 40): settings that act on frames, a
+persistent write that becomes the default, the boot codes' timing, no frame stamped in the future,
+the controller info, a TCP disconnect as a power cycle, and a reader that resumes soon after a boot."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from firmware_io.client_recovery import BOOT_READY_S, PushRecovery
+from firmware_io.emulator.device import DeviceEmulator
+from firmware_io.emulator.frame_source import placeholder_session
+from firmware_io.emulator.server import TcpEmulatorServer
+from firmware_io.wire import replies, requests
+from firmware_io.wire.frames import decode_frame_payload
+from firmware_io.wire.parser import StreamParser
+from tests.clocks import ManualClock
+
+
+@pytest.fixture(scope="module")
+def rec():
+    return placeholder_session(seed=1, events=1)
+
+
+def make(rec, **kw):
+    clock = ManualClock(100.0)
+    emu = DeviceEmulator(rec, clock=clock, speed=1.0, **kw)
+    emu.connect()
+    return emu, clock
+
+
+def ask(emu, packet: bytes):
+    emu.feed(packet)
+    return StreamParser(emu.layout.n_taxels).feed(emu.read(1 << 20))
+
+
+def first_frame(emu, clock) -> tuple[int, np.ndarray]:
+    parser = StreamParser(emu.layout.n_taxels)
+    for _ in range(100):
+        frames = [p for p in parser.feed(emu.read(1 << 20)) if p.packet_id == 0]
+        if frames:
+            return decode_frame_payload(frames[0].payload, emu.layout.n_taxels)
+        clock.t += 0.01
+    raise AssertionError("no frame")
+
+
+def single(emu, clock) -> tuple[int, np.ndarray]:
+    emu.feed(requests.single_frame_request())
+    return first_frame(emu, clock)
+
+
+def test_threshold_and_sensitivity_act_on_the_frames(rec):
+    busiest = int(np.argmax(rec.frames.max(axis=1)))
+    plain, plain_clock = make(rec)
+    tuned, tuned_clock = make(rec)
+    ask(tuned, requests.SetSensitivityRequest(0, 0.1, all_matrices=True).to_packet())
+    ask(tuned, requests.SetThresholdRequest(2, 40).to_packet())
+    for clock in (plain_clock, tuned_clock):
+        clock.t += float(rec.timestamps[busiest] - rec.timestamps[0])
+    _, original = single(plain, plain_clock)
+    _, values = single(tuned, tuned_clock)
+    expected = np.rint(original * 0.2)
+    pad2 = rec.layout.matrix_slice(2)
+    expected[pad2][expected[pad2] < 40] = 0
+    assert original.max() > 0 and np.array_equal(values, expected.astype(values.dtype))
+    ask(tuned, requests.SetThresholdRequest(0, 4000, all_matrices=True).to_packet())
+    tuned_clock.t += 0.1
+    assert not single(tuned, tuned_clock)[1].any()  # nothing reaches 4000
+
+
+def test_a_persistent_write_becomes_the_factory_default(rec):
+    emu, _ = make(rec, boot_s=0.0, boot_query_s=0.0)
+
+    def sensitivity(m):
+        return replies.SensitivityReply.decode(ask(emu, requests.get_sensitivity_request(m))[0].payload)
+
+    def threshold(m):
+        return replies.ThresholdReply.decode(ask(emu, requests.get_threshold_request(m))[0].payload).threshold
+
+    ask(emu, requests.SetSensitivityRequest(4, 0.75, persistent=True).to_packet())
+    ask(emu, requests.SetThresholdRequest(3, 99, persistent=True).to_packet())
+    assert sensitivity(4).fact_sens == pytest.approx(0.75)
+    ask(emu, requests.SetSensitivityRequest(4, 0.2).to_packet())
+    ask(emu, requests.SetThresholdRequest(3, 7).to_packet())
+    ask(emu, requests.SetSensitivityRequest(4, 0.0, factory_reset=True).to_packet())
+    ask(emu, requests.SetThresholdRequest(3, 0, factory_reset=True).to_packet())
+    assert sensitivity(4).cur_sens == pytest.approx(0.75) and threshold(3) == 99  # the factory reset's value
+    emu.power_cycle()
+    assert sensitivity(4).cur_sens == pytest.approx(0.75) and threshold(3) == 99
+
+
+def test_the_boot_codes_come_three_times_within_082_s_at_7_s(rec):
+    emu, clock = make(rec)
+    emu.power_cycle()
+    start, parser, seen = clock.t, StreamParser(486), []
+    while clock.t - start < 9.0:
+        clock.t += 0.01
+        before = parser.stats.boot_queries
+        parser.feed(emu.read(1 << 16))
+        seen += [clock.t - start] * (parser.stats.boot_queries - before)
+    assert len(seen) == 3
+    assert seen[0] == pytest.approx(7.0, abs=0.02) and seen[-1] - seen[0] == pytest.approx(0.82, abs=0.02)
+
+
+def test_a_single_frame_after_push_is_never_stamped_in_the_future(rec):
+    emu, clock = make(rec)
+    ask(emu, requests.push_request())
+    for _ in range(30):
+        clock.t += 0.005
+        emu.read(1 << 20)
+    ask(emu, requests.stop_request())
+    sent_at = emu.device_ms()
+    ts, _ = single(emu, clock)
+    assert ts <= emu.device_ms(), f"stamped {ts - emu.device_ms()} ms in the future (asked at {sent_at})"
+
+
+def test_the_controller_info_is_the_recorded_controllers(rec):
+    session = {"controller": {"serial_no": 4711, "sw_version": 0x2900, "sensor_serial_no": 77}}
+    recorded = dataclasses.replace(rec, meta={"sessions": [session]})
+    emu, _ = make(recorded)
+    info = replies.ControllerInfo.decode(ask(emu, requests.query_controller_info_request())[0].payload)
+    assert (info.serial_no, info.hw_version, info.firmware) == (4711, 0x10, "2.9.0.0")  # hw_version is BCD 1.0
+    assert replies.SensorInfo.decode(ask(emu, requests.query_sensor_info_request())[0].payload).serial_no == 77
+
+
+def _exchange(sock: socket.socket, packet: bytes, wait: float = 1.0) -> list:
+    sock.sendall(packet)
+    parser, got, end = StreamParser(486), [], time.monotonic() + wait
+    while not got and time.monotonic() < end:
+        with contextlib.suppress(TimeoutError):
+            got = [p for p in parser.feed(sock.recv(65536)) if p.packet_id != 0]
+    return got
+
+
+def test_a_tcp_disconnect_power_cycles_the_controller(rec):
+    emulator = DeviceEmulator(rec, speed=1.0, boot_s=0.3, boot_query_s=0.2)
+    server = TcpEmulatorServer(emulator).start()
+    try:
+        with socket.create_connection((server.host, server.port), timeout=0.2) as sock:
+            assert _exchange(sock, requests.SetThresholdRequest(2, 150).to_packet())
+            sock.sendall(requests.push_request())
+            time.sleep(0.2)
+        deadline = time.monotonic() + 2.0
+        while emulator.stats.power_cycles == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert emulator.stats.power_cycles == 1 and not emulator.pushing
+        time.sleep(0.4)  # the boot
+        with socket.create_connection((server.host, server.port), timeout=0.2) as sock:
+            (reply,) = _exchange(sock, requests.get_threshold_request(2))
+        assert replies.ThresholdReply.decode(reply.payload).threshold == 0
+    finally:
+        server.stop()
+
+
+def test_the_reader_resumes_push_once_the_boot_ends_not_a_retry_step_later():
+    """Power cycle at 0 (last frame), deaf until 8.0, ESC[5n at 7.0, 7.41, 7.82; a try sent while deaf
+    is lost and takes the reader's 1 s gap timeout. Push used to resume at +10 s."""
+    recovery = PushRecovery()
+    recovery.started(0.0, boots=0)
+    now, resumed = 0.0, None
+    while resumed is None and now < 20.0:
+        boots = sum(now >= t for t in (7.0, 7.41, 7.82))
+        if recovery.due(now, boots):
+            ok = now >= 8.0
+            recovery.tried(now, ok)
+            now += 0.01 if ok else 1.0
+            resumed = now if ok else None
+        else:
+            now += 0.05
+    assert resumed is not None and resumed <= 7.0 + BOOT_READY_S + 0.2  # was 10 s
