@@ -105,7 +105,7 @@ def test_faults_are_counted_and_the_client_recovers(rec):
 
 
 def test_disconnect_then_reconnect(rec):
-    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=40))
+    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=40), boot_s=1.0, boot_query_s=0.5)
     with TcpEmulatorServer(emulator) as server:
         client = client_for(server.url, auto_reconnect=False)
         client.open()
@@ -123,7 +123,7 @@ def test_disconnect_then_reconnect(rec):
 
 
 def test_auto_reconnect_keeps_frames_coming(rec):
-    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=30))
+    emulator = DeviceEmulator(rec, speed=None, faults=FaultPlan(disconnect_after=30), boot_s=1.0, boot_query_s=0.5)
     with TcpEmulatorServer(emulator) as server:
         client = client_for(server.url)
         client.open()

@@ -125,3 +125,17 @@ def test_dump_reads_on_across_a_controller_power_cycle(tmp_path):
     assert len([f for t, f in frames if t < back]) >= 100
     print(f"\nfirst frame {after[0] if after else None} s after the controller came back")
     assert after and after[0] <= RECOVER_S, f"first frame {after[:1]} s after the controller's return; {err[-1500:]}"
+
+
+def test_dump_frames_survives_a_power_cycle_with_its_default_timeout(tmp_path):
+    """Push used to resume 10 s after the power cycle (a retry landing just before the boot ended), and
+    ``dump --frames 300`` with its default ``--timeout 10`` gave up."""
+    _, server, returns = _pty_emulator()
+    try:
+        done = subprocess.run([sys.executable, "-m", "runtime.cli", "dump", server.url, "--frames", "300", "--json"],
+                              capture_output=True, text=True, env=_env(tmp_path), cwd=ROOT, timeout=90)
+    finally:
+        server.stop()
+    assert returns, "the emulator did not power-cycle"
+    frames = [line for line in done.stdout.splitlines() if line.startswith('{"type": "frame"')]
+    assert done.returncode == 0 and len(frames) == 300, done.stderr[-1500:]

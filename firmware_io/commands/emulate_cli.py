@@ -64,29 +64,56 @@ def _interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
 
+def _option_problem(args: argparse.Namespace) -> str | None:
+    """The line that refuses an option out of range, or None."""
+    from firmware_io.transports.base import MAX_EVENTS
+
+    if args.duration is not None and not args.duration > 0:  # also NaN
+        return f"--duration must be a positive number of seconds, got {args.duration}; leave it out to serve until Ctrl-C"
+    if not 1 <= args.events <= MAX_EVENTS:
+        return f"--events must be in 1..{MAX_EVENTS}, got {args.events}"
+    if not 0 <= args.clock_start < 2**32:
+        return f"--clock-start must be in 0..4294967295 ms, got {args.clock_start}"
+    if args.boot_seconds is not None and not 0 <= args.boot_seconds <= 600:  # also NaN
+        return f"--boot-seconds must be within 0..600, got {args.boot_seconds}"
+    return None
+
+
+def _server(args: argparse.Namespace, emulator):
+    """The pty or TCP server ``args`` ask for, or the line that refuses ``--listen``."""
+    from firmware_io.emulator.server import PtyEmulatorServer, TcpEmulatorServer
+    from firmware_io.transports.base import ParsedURL, TransportError
+
+    if args.pty:
+        return PtyEmulatorServer(emulator)
+    try:
+        parsed = ParsedURL(args.listen)
+    except TransportError as exc:
+        return str(exc)
+    if parsed.scheme != "tcp" or not parsed.netloc or parsed.path not in ("", "/") or parsed.options:
+        return f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT (or --pty for a pseudo-terminal to open as serial://)"
+    host, _, port = parsed.netloc.rpartition(":")
+    if not host or not port.isdigit() or int(port) > 65535:
+        return f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)"
+    return TcpEmulatorServer(emulator, host=host, port=int(port))
+
+
 def main(args: argparse.Namespace) -> int:
     from firmware_io.commands.playback import playback_options
     from firmware_io.emulator.device import DeviceEmulator
     from firmware_io.emulator.frame_source import load_source
-    from firmware_io.emulator.server import EmulatorServerError, PtyEmulatorServer, TcpEmulatorServer
+    from firmware_io.emulator.server import EmulatorServerError
     from firmware_io.recordings.recording import RecordingError
-    from firmware_io.transports.base import MAX_EVENTS, ParsedURL, TransportError
 
     try:
         speed, faults = playback_options(args.speed, args.fault)
     except ValueError as exc:
         return fail(COMMAND, str(exc))
-    if args.duration is not None and not args.duration > 0:  # also NaN
-        return fail(COMMAND, f"--duration must be a positive number of seconds, got {args.duration}; "
-                    "leave it out to serve until Ctrl-C")
-    if not 1 <= args.events <= MAX_EVENTS:
-        return fail(COMMAND, f"--events must be in 1..{MAX_EVENTS}, got {args.events}")
-    if not 0 <= args.clock_start < 2**32:
-        return fail(COMMAND, f"--clock-start must be in 0..4294967295 ms, got {args.clock_start}")
+    problem = _option_problem(args)
+    if problem:
+        return fail(COMMAND, problem)
     boot = {}
     if args.boot_seconds is not None:
-        if not 0 <= args.boot_seconds <= 600:  # also NaN
-            return fail(COMMAND, f"--boot-seconds must be within 0..600, got {args.boot_seconds}")
         boot = {"boot_s": args.boot_seconds, "boot_query_s": max(0.0, args.boot_seconds - 1.0)}
     try:
         recording = load_source(args.source, seed=args.seed, events=args.events)
@@ -105,22 +132,11 @@ def main(args: argparse.Namespace) -> int:
             print(f"handover emulate: warning: {args.source} has no scripted events; {args.script_out} holds none",
                   file=sys.stderr, flush=True)
     try:
-        if args.pty:
-            server = PtyEmulatorServer(emulator)
-        else:
-            try:
-                parsed = ParsedURL(args.listen)
-            except TransportError as exc:
-                return fail(COMMAND, str(exc))
-            if parsed.scheme != "tcp" or not parsed.netloc or parsed.path not in ("", "/") or parsed.options:
-                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT (or --pty for a "
-                                     "pseudo-terminal to open as serial://)")
-            host, _, port = parsed.netloc.rpartition(":")
-            if not host or not port.isdigit() or int(port) > 65535:
-                return fail(COMMAND, f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
-            server = TcpEmulatorServer(emulator, host=host, port=int(port))
+        server = _server(args, emulator)
     except EmulatorServerError as exc:
         return fail(COMMAND, str(exc))
+    if isinstance(server, str):
+        return fail(COMMAND, server)
 
     signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop ends like Ctrl-C: summary, clean close
     synthetic = " (synthetic)" if recording.meta.get("synthetic", args.source == "sim") else ""
@@ -135,13 +151,31 @@ def main(args: argparse.Namespace) -> int:
     )
     server.start()
     try:
+        status = _serve(args, server, emulator, recording)
+    finally:
+        server.stop()
+    if status:
+        return status
+    s = emulator.stats
+    print(
+        f"served {s.connections} connection(s), {s.commands} commands, {s.frames_sent} frames; "
+        f"faults: crc {s.crc_corrupted}, garbage {s.garbage_inserted}, truncated {s.packets_truncated}, "
+        f"stalls {s.stalls}, disconnects {s.disconnects}",
+        flush=True,
+    )
+    return 0
+
+
+def _serve(args: argparse.Namespace, server, emulator, recording) -> int:
+    """Serve until ``--duration`` or Ctrl-C, saying when the session starts and ends; 0, or a failure's code."""
+    end = None if args.duration is None else time.monotonic() + args.duration
+    script_due = bool(args.script_out)
+    end_due = bool(args.no_loop)
+    try:  # a SIGTERM right after the first line is a clean stop too
         if args.pty:
             print(f"pty: {server.path}  (open serial://{server.path})", flush=True)
         else:
             print(f"listening: {server.url}", flush=True)
-        end = None if args.duration is None else time.monotonic() + args.duration
-        script_due = bool(args.script_out)
-        end_due = bool(args.no_loop)
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
             if server.error is not None:
@@ -166,13 +200,4 @@ def main(args: argparse.Namespace) -> int:
                       "Ctrl-C ends the emulator", flush=True)
     except KeyboardInterrupt:
         pass
-    finally:
-        server.stop()
-    s = emulator.stats
-    print(
-        f"served {s.connections} connection(s), {s.commands} commands, {s.frames_sent} frames; "
-        f"faults: crc {s.crc_corrupted}, garbage {s.garbage_inserted}, truncated {s.packets_truncated}, "
-        f"stalls {s.stalls}, disconnects {s.disconnects}",
-        flush=True,
-    )
     return 0

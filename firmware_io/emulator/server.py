@@ -178,7 +178,8 @@ class TcpEmulatorServer(_ServerBase):
                 self._conn.close()
             self._conn = None
             self._pending = b""
-            self.emulator.power_cycle()
+            if not self.emulator.booting:  # a host that gives up on a booting controller does not restart its boot
+                self.emulator.power_cycle()
 
     def _session_step(self) -> None:
         conn = self._conn
