@@ -42,8 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clock-start", type=int, default=0, metavar="MS",
                         help="the device clock's value at power-on, in ms (0..4294967295; it wraps there)")
     parser.add_argument("--boot-seconds", type=float, default=None, metavar="S",
-                        help="how long a power cycle (--fault disconnect=N on --pty) keeps the controller silent; "
-                             "ESC[5n comes 1 s before it ends (default 8, as the real one)")
+                        help="how long a power cycle (--fault disconnect=N, or a TCP host leaving) keeps the controller "
+                             "silent; ESC[5n comes from 1 s before it ends (default 8, as the real one)")
     parser.add_argument("--script-out", metavar="FILE",
                         help="write the session's scripted events (onset frame, action, subject, frame span) and "
                              "its device times, for handover score EVENTS.jsonl FILE")

@@ -19,7 +19,7 @@ class FaultPlan:
 
     Text form (``--fault``): ``crc=0.01,garbage=0.01,drop=0.01,stall=0.005:0.5,disconnect=300,boot``
     (``stall=P:SECONDS``; ``disconnect=N`` drops the link after N frames of each connection, which on
-    a pseudo-terminal is a power cycle (``DeviceEmulator.power_cycle``);
+    a pseudo-terminal and over TCP is a power cycle (``DeviceEmulator.power_cycle``);
     ``boot`` sends the power-up terminal query ESC[5n three times when a host connects).
     """
 
