@@ -45,3 +45,22 @@ def test_the_readme_is_read_in_five_minutes():
     assert len(lines) <= 150, f"README.md has {len(lines)} lines; move details to docs/GUIDE.md"
     for target in ("docs/GUIDE.md", "docs/CONFIG.md", "docs/INTERFACES.md", "deploy/INSTALL.md"):
         assert (ROOT / target).exists() and target in "\n".join(lines), target
+
+
+def test_nothing_points_outside_the_repository():
+    """The design, the protocol and the docs a stranger reads are in the repository; only the real
+    recordings are read from ``../shared/data`` (skipped where absent)."""
+    outside = re.compile(r"\.\./shared/(?!data\b)")
+    found = [f"{path.relative_to(ROOT)}:{n}" for path in sorted(ROOT.rglob("*"))
+             if path.suffix in (".py", ".md", ".toml") and not {".venv", ".git"} & set(path.relative_to(ROOT).parts)
+             for n, line in enumerate(path.read_text().splitlines(), 1) if outside.search(line)]
+    assert not found, found
+
+
+def test_the_terms_of_the_readmes_results_are_explained_in_the_glossary():
+    readme, design = (ROOT / "README.md").read_text(), (ROOT / "docs" / "DESIGN.md").read_text()
+    glossary = design[design.index("## Glossary"):]
+    for term in ("onset_dormant", "leave-one-subject-out", "TEASER", "ProbabilityThreshold",
+                 "harmonic mean of accuracy and earliness", "MiniRocket", "F1", "p99.9", "synthetic"):
+        assert term in " ".join(glossary.split()), term
+    assert "docs/DESIGN.md#glossary" in readme
