@@ -273,6 +273,19 @@ def test_header_that_disagrees_with_the_data(saved):
     assert_refused(trials, "trial 0")
 
 
+@pytest.mark.parametrize(("change", "match"), [
+    ({"run": 10**30}, "trial 0: run 1000000000000000000000000000000 outside 0..2147483647"),
+    ({"subject": "s" * (4 << 20)}, "... is longer than 64 characters"),
+    ({"action": "x" * 65}, "trial 0: action 'xxxxxxxxx"),
+])
+def test_trial_numbers_and_names_training_cannot_hold_are_refused_at_load(saved, change, match):
+    """A run of 10**30 ended training in an OverflowError; a 4 MB subject id multiplied its peak memory by 4.5."""
+    bad = saved.with_name("names.hrec")
+    trial = {"subject": "s1", "object": "ball", "pose": "up", "action": "pull", "run": 1, "first": 0, "last": 10}
+    _rewrite_header(saved, bad, trials=[{**trial, **change}])
+    assert_refused(bad, match)
+
+
 @pytest.mark.parametrize(("meta", "match"), [
     ({"sources": ["open", "quiet"], "source_codes": [0] * 5}, "meta.source_codes must hold one code per frame (200)"),
     ({"sources": ["open", "quiet"], "source_codes": [7] * 200}, "meta.source_codes"),

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.recordings.recording import Recording, Trial
+from firmware_io.recordings.recording import MAX_NAME_CHARS, Recording, Trial
 
 __all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", "write_script"]
 
@@ -95,8 +95,6 @@ def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: 
 
 MAX_SCRIPT_BYTES = 16 << 20
 """A script's size: a 9-hour session's frame times take about 10 MB; more is no script we wrote."""
-MAX_TEXT_CHARS = 64
-"""An action, subject, object or pose name: a recorder's name is at most 64 characters."""
 
 
 def read_script(path: str | os.PathLike) -> SessionScript:
@@ -158,8 +156,8 @@ def _event_problem(row: dict, head: dict) -> str | None:
     n = len(head["frame_ms"])
     where = f"scripted event {_clip(row.get('event'))}"
     for key in ("action", "subject", "object", "pose"):
-        if not isinstance(row.get(key), str) or not 0 < len(row[key]) <= MAX_TEXT_CHARS:
-            return f"{where}: {key} must be a name of 1 to {MAX_TEXT_CHARS} characters, got {_clip(row.get(key))}"
+        if not isinstance(row.get(key), str) or not 0 < len(row[key]) <= MAX_NAME_CHARS:
+            return f"{where}: {key} must be a name of 1 to {MAX_NAME_CHARS} characters, got {_clip(row.get(key))}"
     if not _count(row.get("event"), 1):
         return f"{where}: its number must be a whole number from 1"
     frames = [row.get(k) for k in ("first_frame", "onset_frame", "last_frame")]

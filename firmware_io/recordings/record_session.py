@@ -21,7 +21,6 @@ from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
 from firmware_io.recordings.session_store import (
-    MAX_SUBJECT_CHARS,
     NAME_PATTERN,
     NotSaved,
     SessionError,
@@ -335,7 +334,7 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "MAX_RUNS", "MAX_SPAN_SECONDS", "MAX_SUBJECT_CHARS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "NotSaved",
+    "MAX_RUNS", "MAX_SPAN_SECONDS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "NotSaved",
     "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
     "SessionOptions", "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial",
     "check_trigger", "drain", "flagged_trials", "recording_path", "run_session", "subject_problem",

@@ -32,7 +32,7 @@ from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks, idle_stretches
 from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
 
-__all__ = ["ACTIONS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
+__all__ = ["ACTIONS", "MAX_NAME_CHARS", "MAX_RUN", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
            "remove_stale_temps"]
 
 FORMAT_NAME = "handover-recording"
@@ -41,6 +41,11 @@ SUFFIX = ".hrec"
 
 ACTIONS = ("pull", "push", "hold", "bump")
 """The paper's four interaction events, in the order used for class indices."""
+MAX_NAME_CHARS = 64
+"""The longest subject, object, pose or action of a trial: a subject id names its file (``subject_ID.hrec``),
+and training keeps each name once per case (a 4 MB id multiplied a run's peak memory by 4.5)."""
+MAX_RUN = 2**31 - 1
+"""The largest run number: training keeps runs as 64-bit integers (10**30 was an OverflowError)."""
 
 
 class RecordingError(ValueError):
@@ -115,6 +120,10 @@ class Recording:
         for i, tr in enumerate(self.trials):
             if not 0 <= tr.first <= tr.last < f.shape[0]:
                 return f"trial {i} spans frames {tr.first}..{tr.last}, outside 0..{f.shape[0] - 1}"
+            if not 0 <= tr.run <= MAX_RUN:
+                return f"trial {i}: run {_short(tr.run)} outside 0..{MAX_RUN}"
+            if long := next((k for k in ("subject", "object", "pose", "action") if len(getattr(tr, k)) > MAX_NAME_CHARS), None):
+                return f"trial {i}: {long} {_short(getattr(tr, long))} is longer than {MAX_NAME_CHARS} characters"
         return None
 
     @property

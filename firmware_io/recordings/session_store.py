@@ -19,23 +19,21 @@ from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.idle_stretches import IdleSlot, idle_meta, stretches_of
-from firmware_io.recordings.recording import Recording, remove_stale_temps
+from firmware_io.recordings.recording import MAX_NAME_CHARS, Recording, remove_stale_temps
 
 if TYPE_CHECKING:
     from firmware_io.recordings.record_session import ProtocolPlan, TrialSlot
 
-__all__ = ["MAX_SUBJECT_CHARS", "NotSaved", "SessionError", "SessionStore", "recording_path", "subject_problem"]
+__all__ = ["NotSaved", "SessionError", "SessionStore", "recording_path", "subject_problem"]
 
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 """A pose, object, action or subject name (matched whole: ``$`` let a name end in a newline)."""
-MAX_SUBJECT_CHARS = 64
-"""The longest subject id: it names the file ``subject_ID.hrec`` (a file name holds 255 bytes)."""
 
 
 def subject_problem(subject: str) -> str | None:
     """Why ``subject`` cannot be a subject id (recorded or imported), None when it can."""
-    if len(subject) > MAX_SUBJECT_CHARS:
-        return f"subject id {subject[:24]!r}... has {len(subject)} characters; use at most {MAX_SUBJECT_CHARS}"
+    if len(subject) > MAX_NAME_CHARS:
+        return f"subject id {subject[:24]!r}... has {len(subject)} characters; use at most {MAX_NAME_CHARS}"
     if not NAME_PATTERN.fullmatch(subject):
         return f"subject id {subject!r}: use letters, digits, '_', '-' or '.'"
     return None
