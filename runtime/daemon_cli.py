@@ -121,7 +121,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return 2
     _warn_about_sinks(cfg)
-    _note_held_locks(cfg)
+    for line in _held(cfg):
+        print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
     slot = ModelSlot(cfg, Detector.from_config(cfg), Health(), announce=lambda _: None)
 
     def newest(check_events: bool):
@@ -203,13 +204,11 @@ NOT_CHECKED_WITH_DEVICE = ("not checked: whether the UDP and Unix destinations l
 def _check_device(cfg) -> int:
     """Open the device for a few seconds (``runtime.device_check``): 0 when frames came, else 1 (one line).
     A device another daemon holds is not opened: reading it would take it from that daemon."""
-    from runtime import instance_lock
     from runtime.device_check import PROBE_S, probe_device
 
-    for what, path in instance_lock.targets(cfg):
-        if what.startswith("device ") and (held := instance_lock.held_by_other(what, path)):
-            print(f"{PROG}: {held}; not opened (stop that daemon to check the device)", file=sys.stderr)
-            return 1
+    if held := next((line for line in _held(cfg) if line.startswith("device ")), None):
+        print(f"{PROG}: {held}; not opened (stop that daemon to check the device)", file=sys.stderr)
+        return 1
     print(f"opening {cfg.device.url} for {PROBE_S:g} s ...", flush=True)
     probe = probe_device(cfg.device.url)
     if probe.problem:
@@ -219,14 +218,11 @@ def _check_device(cfg) -> int:
     return 0
 
 
-def _note_held_locks(cfg) -> None:
-    """A daemon already serving this device or health file: the config may be fine, but another
-    daemon of it would exit 2 (checking the config of the running service is a normal step)."""
+def _held(cfg) -> list[str]:
+    """A line for each lock of ``cfg`` another daemon holds (checking the running service's config is normal)."""
     from runtime import instance_lock
 
-    for what, path in instance_lock.targets(cfg):
-        if line := instance_lock.held_by_other(what, path):
-            print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
+    return [line for what, path in instance_lock.targets(cfg) if (line := instance_lock.held_by_other(what, path))]
 
 
 def _lock_problem(cfg) -> str | None:
@@ -239,15 +235,14 @@ def _lock_problem(cfg) -> str | None:
 def _control_problem(cfg) -> str | None:
     """A ``control.socket`` that can never be bound, or that another process holds while no daemon of
     this config runs (the running service holds its own): the daemon would refuse to start."""
-    from runtime import control_access, instance_lock
+    from runtime import control_access
 
     address = cfg.control.socket
     if not address:
         return None
     if problem := control_access.socket_path_problem(address):
         return problem
-    ours = any(instance_lock.held_by_other(what, path) for what, path in instance_lock.targets(cfg))
-    return control_access.in_use_line(address) if not ours and control_access.held(address) else None
+    return control_access.in_use_line(address) if control_access.held(address) and not _held(cfg) else None
 
 
 def _missing_folder(cfg) -> str | None:

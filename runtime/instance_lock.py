@@ -26,7 +26,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Held", "InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "take_all", "targets"]
+__all__ = ["Held", "InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets"]
 
 
 class InstanceLockError(RuntimeError):
@@ -64,7 +64,6 @@ def health_lock_path(health_file: str | os.PathLike) -> Path:
 class Held:
     """A lock this process holds (the open file keeps it)."""
 
-    what: str
     path: Path
     fd: int
 
@@ -145,7 +144,7 @@ def take(what: str, path: Path) -> Held:
         raise InstanceLockError(f"cannot take the lock of {what} at {path}: {exc.strerror or exc}") from None
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
-    return Held(what, path, fd)
+    return Held(path, fd)
 
 
 def held_by_other(what: str, path: Path) -> str | None:
@@ -192,18 +191,6 @@ def targets(cfg) -> list[tuple[str, Path]]:
     return out
 
 
-def take_all(cfg) -> list[Held]:
-    """Every lock of ``cfg``, or none (InstanceLockError for the first one held elsewhere)."""
-    held: list[Held] = []
-    try:
-        for what, path in targets(cfg):
-            held.append(take(what, path))
-    except InstanceLockError:
-        release(held)
-        raise
-    return held
-
-
 def release(held: list[Held]) -> None:
     for h in held:
         with contextlib.suppress(OSError):
@@ -222,7 +209,11 @@ class Locks:
 
     @classmethod
     def take(cls, cfg) -> Locks:
-        return cls(take_all(cfg))
+        """Every lock of ``cfg``, or none (InstanceLockError for the first one held elsewhere)."""
+        locks = cls([])
+        if line := locks.retarget(cfg):
+            raise InstanceLockError(line)
+        return locks
 
     def retarget(self, cfg) -> str | None:
         """Hold ``cfg``'s locks instead of the current ones; the line saying why not (nothing changed), or None."""

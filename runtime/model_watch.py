@@ -34,8 +34,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from runtime.background import Background
 from runtime.model import ModelContractError, ModelUnreadableError
 from runtime.output_check import DEFAULT_BUDGET_FRACTION
@@ -145,7 +143,6 @@ class ModelWatcher:
         loader: Callable[[Path], Any],
         check: Callable[[Any], str | None] | None = None,
         poll_interval: float = 1.0,
-        warmup_runs: int = 3,
         decision_budget: float | None = DEFAULT_BUDGET_FRACTION,
         on_reject: Callable[[Rejection], None] | None = None,
         service_uid: int | None = None,
@@ -156,7 +153,6 @@ class ModelWatcher:
         self.loader = loader
         self.check = check
         self.poll_interval = float(poll_interval)
-        self.warmup_runs = int(warmup_runs)
         self.decision_budget = decision_budget
         """Fraction of the sample period one warm-up decision may take (None: not timed)."""
         self.on_reject = on_reject
@@ -323,7 +319,7 @@ class ModelWatcher:
             if problem is not None:
                 return self._reject(st, problem)
         try:
-            self._warm_up(model)
+            model.warm_up(budget_fraction=self.decision_budget)
         except ModelContractError as exc:  # wrong answers on realistic windows, or too slow
             return self._reject(st, str(exc).removeprefix(f"model {st.path}: "))
         except Exception as exc:
@@ -339,17 +335,6 @@ class ModelWatcher:
             log.info("model %s: not a whole model yet (%s); taken as still being copied, retried until it has "
                      "been unchanged %.0f s", st.path.name, str(exc).removeprefix(f"model {st.path}: "), SETTLE_S)
         return None
-
-    def _warm_up(self, model: Any) -> None:
-        if hasattr(model, "warm_up"):
-            model.warm_up(budget_fraction=self.decision_budget)
-            return
-        meta = model.meta
-        T = int(meta["T"]) if isinstance(meta, dict) else int(meta.T)
-        C = int(meta["n_channels"]) if isinstance(meta, dict) else int(meta.n_channels)
-        x = np.zeros((1, T, C), dtype=np.float32)
-        for _ in range(self.warmup_runs):
-            model.run(x)
 
     def _reject(self, st: FileState, reason: str) -> None:
         version, same = (st.inode, st.size, st.mtime_ns), MEASURED_MS.sub("… ms", reason)
