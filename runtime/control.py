@@ -84,24 +84,30 @@ class ControlSocket:
 
     def start(self) -> ControlSocket:
         """Bind and start reading; OSError (one line naming the socket) when it cannot bind."""
-        address = self._bind_address()
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            access.allow_credentials(sock)
-            sock.bind(address)
-            access.restrict(self.address)
+            self._sock = self._bound_socket(self._bind_address())
         except OSError as exc:
-            sock.close()
             if exc.errno == errno.EADDRINUSE and self.address.startswith("@"):
                 raise OSError(access.in_use_line(self.address)) from None
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
-        sock.settimeout(POLL_S)
-        self._sock = sock
         self._bound = self._file_id()
         self._thread = threading.Thread(target=self._loop, name="handover-control", daemon=True)
         self._thread.start()
         log.info("control socket %s: listening (%s)", self.address, " / ".join(MESSAGES))
         return self
+
+    def _bound_socket(self, address: str | bytes) -> socket.socket:
+        """A datagram socket bound to ``address`` that receives senders' credentials (OSError if not)."""
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            access.allow_credentials(sock)
+            sock.bind(address)
+            access.restrict(self.address)
+        except OSError:
+            sock.close()
+            raise
+        sock.settimeout(POLL_S)
+        return sock
 
     def _bind_address(self) -> str | bytes:
         if problem := access.socket_path_problem(self.address):
@@ -152,19 +158,14 @@ class ControlSocket:
                 log.error("control socket %s was replaced by another file while running; robot messages do not "
                           "reach the daemon until that file is removed (then the socket is bound again)", self.address)
             return
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            access.allow_credentials(sock)
-            sock.bind(self.address)
-            access.restrict(self.address)
+            sock = self._bound_socket(self.address)
         except OSError as exc:
-            sock.close()
             if not self._rebind_failed:
                 self._rebind_failed = True
                 log.error("control socket %s was removed and cannot be bound again (%s); robot messages are "
                           "lost until it can", self.address, exc.strerror or exc)
             return
-        sock.settimeout(POLL_S)
         old, self._sock, self._rebind_failed, self._replaced_said = self._sock, sock, False, False
         self._bound = self._file_id()
         if old is not None:

@@ -196,8 +196,7 @@ CHECKED = ("checked: config keys and values; the device URL's form; the model fo
            "process holds it; that no other daemon holds this device or health file")
 NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
                "destinations listen; who sends on the control socket; the real-time priority")
-NOT_CHECKED_WITH_DEVICE = ("not checked: whether the UDP and Unix destinations listen; who sends on the control socket; "
-                           "the real-time priority")
+NOT_CHECKED_WITH_DEVICE = NOT_CHECKED.replace("the device itself (add --device to open it for a few seconds); ", "")
 """What ``--check`` looked at and what it did not, said after its verdict (a valid config is not a working daemon)."""
 
 
