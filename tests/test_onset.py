@@ -224,11 +224,12 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
     assert not (tmp_path / "control.sock").exists()
 
 
-def test_a_control_socket_that_cannot_bind_is_one_error_not_fatal(tmp_path, caplog):
+def test_a_control_socket_that_cannot_bind_stops_the_daemon_in_one_line(tmp_path):
+    """A daemon deaf to the robot's ``grasp open`` must not run as if all were well (handover run exits 2)."""
     daemon, _ = _daemon(tmp_path, control={"socket": str(tmp_path / "missing" / "c.sock")})
-    with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+    with pytest.raises(OSError, match="cannot bind") as info:
         daemon.start_control()
-    assert daemon.control is None and "cannot bind" in caplog.text
+    assert daemon.control is None and "\n" not in str(info.value)
 
 
 # -- continuous mode: a hold is a change of level, which the level features see -----------------------
