@@ -448,3 +448,20 @@ def test_early_heads_that_contradict_the_full_model_are_disabled_with_one_note(t
     honest.write_bytes(_tiny_with_heads(15, [4, 8]))
     kept = load_model(honest)
     assert kept.early.points == (4, 8) and kept.early_note is None
+
+
+def test_a_subject_too_small_for_a_training_part_skips_early_decisions_naming_it():
+    """One trial naming another subject (s9: a trial's subject is its own) made train fail with 'need
+    samples of at least 2 classes', naming no one: leaving out s1 and s2 trains on s9's one pull alone.
+    The early decisions are skipped with a line naming the subjects; the model still trains."""
+    from types import SimpleNamespace
+
+    from trainer.pipeline import fit_early_heads
+
+    y = np.asarray(["pull", "push", "hold", "bump"] * 4 + ["pull"])
+    groups = np.asarray(["s1"] * 8 + ["s2"] * 8 + ["s9"])
+    said = []
+    heads, ev = fit_early_heads(SimpleNamespace(early="on", T=15), SimpleNamespace(groups=groups, y=y), None,
+                                said.append)
+    assert heads is None and ev["skipped"].startswith("leaving out s1 and s2 would train on s9 alone (1 case, all pull)")
+    assert said == [f"early decisions skipped: {ev['skipped']}"]

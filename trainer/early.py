@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from itertools import combinations
 
 import numpy as np
 from scipy.special import expit
@@ -40,7 +41,7 @@ from trainer.dormant import DORMANT
 __all__ = [
     "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "RuleChoice", "answers", "cascade", "case_kinds",
     "choose_rule", "confidences", "earliness_score", "evaluate", "fit_early", "fit_stream_heads", "head_factory",
-    "platt", "rule_in_words"
+    "part_problem", "platt", "rule_in_words"
 ]
 
 EARLY_POINTS = (4, 6, 8, 11)
@@ -233,6 +234,21 @@ def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth
     assert best is not None  # NEVER reproduces the full window's accuracy
     spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]))
     return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
+
+
+def part_problem(groups: np.ndarray, y: np.ndarray) -> str | None:
+    """Why the nested evaluation cannot fit every head: a training part (all groups but two) holding fewer
+    than two classes, e.g. a subject of one trial (a trial names its own subject), named with its cases;
+    None when every part can be fitted."""
+    groups, y = np.asarray(groups).astype(str), np.asarray(y)
+    for pair in combinations(sorted(set(groups.tolist())), 2):
+        rest = ~np.isin(groups, pair)
+        if len(have := sorted(set(y[rest].tolist()))) < 2:
+            who, n = ", ".join(sorted(set(groups[rest].tolist()))), int(rest.sum())
+            return (f"leaving out {pair[0]} and {pair[1]} would train on {who} alone ({n} case{'s' * (n != 1)}, all "
+                    f"{have[0] if have else 'none'}); record every class for each subject (or check the trials' "
+                    "subject ids)")
+    return None
 
 
 def fit_rule(fits: Fits, excluded: frozenset = frozenset(), target_loss: float = TARGET_LOSS) -> RuleChoice:

@@ -219,9 +219,10 @@ def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], N
     from trainer import early
 
     points = [p for p in early.EARLY_POINTS if p < options.T]
-    if len(set(ds.groups.tolist())) < 3 or not points:
-        why = (f"T={options.T} leaves no early point" if not points else
-               "early heads need at least three subjects (a rule chosen inside each training part)")
+    why = (f"T={options.T} leaves no early point" if not points else
+           "early heads need at least three subjects (a rule chosen inside each training part)"
+           if len(set(ds.groups.tolist())) < 3 else early.part_problem(ds.groups, ds.y))
+    if why:
         say(f"early decisions skipped: {why}")
         return None, {"skipped": why}
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
