@@ -275,6 +275,12 @@ def test_hostile_scripts_are_refused_in_one_line_quickly_and_in_little_memory(tm
         lines = done.stderr.strip().splitlines()
         assert took["rc"] == 2 and len(lines) == 1 and says in lines[0] and len(lines[0]) < 400, (name, done.stderr[-500:])
         assert took["s"] < 5 and took["mb"] < 500, (name, took)
+    good = tmp_path / "first_after_last.script"
+    good.write_text(cases["descending"][0].replace("[0, 62, 31]", "[0, 31, 62]"))
+    done, took = _measured_score("/dev/zero", good)  # as the events: endless, without a line end
+    lines = done.stderr.strip().splitlines()
+    assert took["rc"] == 2 and len(lines) == 1 and "MiB of event lines" in lines[0], done.stderr[-300:]
+    assert took["s"] < 5 and took["mb"] < 500, took
 
 
 def test_a_log_given_as_the_events_is_said_not_scored(tmp_path):

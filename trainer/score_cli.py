@@ -17,6 +17,8 @@ from firmware_io.commands.errors import fail
 __all__ = ["add_arguments", "main"]
 
 COMMAND = "score"
+MAX_EVENTS_CHARS = 128 << 20
+"""The most event text one score reads: weeks of a daemon's lines; beyond it the memory, not the score, runs out."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,12 +45,16 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, str(exc))
     try:
         if args.events == "-":
-            lines = sys.stdin.read().splitlines()
+            text = sys.stdin.read(MAX_EVENTS_CHARS + 1)
         else:
             with open(args.events, encoding="utf-8", errors="replace") as f:
-                lines = f.read().splitlines()
+                text = f.read(MAX_EVENTS_CHARS + 1)
     except OSError as exc:
         return fail(COMMAND, f"{args.events}: cannot read ({exc.strerror or exc})")
+    if len(text) > MAX_EVENTS_CHARS:  # /dev/zero filled the memory
+        return fail(COMMAND, f"{args.events}: over {MAX_EVENTS_CHARS >> 20} MiB of event lines; score a part of the "
+                    "capture (e.g. the lines of one session)")
+    lines = text.splitlines()
     decisions, skipped = decisions_from_lines(lines, script, args.instance)
     if not script.trials:
         return fail(COMMAND, f"{args.script}: the session has no scripted events to score against")
