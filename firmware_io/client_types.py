@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from firmware_io.wire.errors import DSAError
 
 __all__ = ["Cancelled", "DSATimeout", "Frame"]
@@ -19,7 +20,7 @@ class DSATimeout(DSAError):
     """The controller did not answer in time."""
 
 
-class Cancelled(Exception):
+class Cancelled(HandoverError):
     """The caller's ``should_stop`` predicate asked to give up (e.g. SIGTERM while opening).
 
     Deliberately not a DSAError or TransportError, so no retry loop swallows it."""

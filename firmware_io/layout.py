@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["FULL_SCALE_12BIT", "LayoutError", "MatrixInfo", "SensorLayout", "fullscale_problem"]
 
 FULL_SCALE_12BIT = 4095
@@ -27,7 +29,7 @@ def fullscale_problem(value: object) -> str | None:
     return None
 
 
-class LayoutError(ValueError):
+class LayoutError(HandoverError, ValueError):
     """A layout or a pad selection that does not fit the sensor."""
 
 

@@ -15,6 +15,8 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["COMMANDS", "HelpFormatter", "OneLineParser", "build_parser", "main", "shows_default"]
 
 # name -> (module, one-line help, extra it needs beyond the daemon's install or None)
@@ -166,6 +168,9 @@ def main(argv: list[str] | None = None) -> int:
             raise  # a broken checkout, not a missing extra
         print(_missing_module_line(name, exc), file=sys.stderr)
         return 2
+    except HandoverError as exc:  # the one place an error of the three packages becomes a line and a code
+        print(f"handover {name}: {exc}", file=sys.stderr)
+        return exc.exit_code
     except KeyboardInterrupt:
         print(f"handover {name}: interrupted", file=sys.stderr)
         return 130

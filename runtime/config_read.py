@@ -6,13 +6,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from firmware_io.errors import HandoverError
 from runtime.config_keys import RANGES, Key
 
 __all__ = ["ConfigError", "in_range", "no_control_chars", "no_unknown", "read_bool", "read_int", "read_key", "read_num",
            "read_str", "read_str_list"]
 
 
-class ConfigError(ValueError):
+class ConfigError(HandoverError, ValueError):
     """A configuration that cannot be used; the message names the key."""
 
 

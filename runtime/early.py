@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from runtime.decision import margin_of
 
 __all__ = [
@@ -53,7 +54,7 @@ def is_head_output(name: str) -> bool:
     return name.startswith((LABEL_PREFIX, SCORES_PREFIX))
 
 
-class EarlySpecError(ValueError):
+class EarlySpecError(HandoverError, ValueError):
     """Early-head metadata that is inconsistent; the message says what and what to do."""
 
 

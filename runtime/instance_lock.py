@@ -26,10 +26,12 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["Held", "InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets"]
 
 
-class InstanceLockError(RuntimeError):
+class InstanceLockError(HandoverError, RuntimeError):
     """A lock is held by another daemon, or cannot be taken (one line saying which and what to do)."""
 
 

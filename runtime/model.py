@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from runtime.early import EarlySpec, head_outputs
 from runtime.model_meta import (
     ALLOWED_DOMAINS,
@@ -49,11 +50,11 @@ WARM_UP_BOUND_S = 10.0
 through takes well under a second)."""
 
 
-class DecisionEnded(RuntimeError):
+class DecisionEnded(HandoverError, RuntimeError):
     """A decision was ended from outside (``LoadedModel.end_decision``): the model ran too long."""
 
 
-class ModelInputError(ValueError):
+class ModelInputError(HandoverError, ValueError):
     """Input frames the model refuses (wrong shape, non-finite values)."""
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from firmware_io.errors import HandoverError
 from firmware_io.layout import FULL_SCALE_12BIT
 from firmware_io.trigger_level import is_trigger_level
 from runtime.early import EARLY_KEY, EarlySpec, EarlySpecError, head_outputs, is_head_output
@@ -62,7 +63,7 @@ REQUIRED_KEYS = (
 TRAINING_KEYS = ("data_fingerprint", "n_trials", "project_version", "date")
 
 
-class ModelContractError(ValueError):
+class ModelContractError(HandoverError, ValueError):
     """A model file that breaks the contract; the message names the file and the problem."""
 
 

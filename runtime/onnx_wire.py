@@ -21,10 +21,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["WireError", "WireSummary", "summarize"]
 
 
-class WireError(ValueError):
+class WireError(HandoverError, ValueError):
     """Bytes that are not a well-formed protobuf message."""
 
 

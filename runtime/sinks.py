@@ -22,6 +22,7 @@ from math import isfinite
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
+from firmware_io.errors import HandoverError
 from runtime.config import parse_host_port
 from runtime.name_resolver import ResolvedTarget
 
@@ -206,7 +207,7 @@ STDOUT_BACKLOG_BYTES = 256 * 1024
 750 lines. Beyond it lines are dropped and counted; the thread that reads the pads never waits."""
 
 
-class SinkFull(OSError):
+class SinkFull(HandoverError, OSError):
     """A line dropped because its reader is too slow (counted like any failed send)."""
 
 

@@ -6,7 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from firmware_io.commands.errors import DEVICE_ERROR, USER_ERROR, fail
+import pytest
+
+from firmware_io.errors import DEVICE_ERROR, USER_ERROR, fail
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -20,7 +22,7 @@ def test_fail_prints_one_line_and_returns_the_code(capsys):
 
 
 def test_no_command_defines_its_own_fail():
-    """Every command calls firmware_io.commands.errors.fail; a private copy would drift in format or code."""
+    """Every command calls firmware_io.errors.fail; a private copy would drift in format or code."""
     copies = [str(p.relative_to(ROOT)) for pkg in ("firmware_io", "runtime", "trainer")
               for p in (ROOT / pkg).rglob("*.py") if "def _fail(" in p.read_text()]
     assert copies == []
@@ -29,4 +31,77 @@ def test_no_command_defines_its_own_fail():
 def test_a_command_error_through_the_entry_point():
     proc = subprocess.run([sys.executable, "-m", "runtime.cli", "dump", "sim://", "--frames", "0"], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2 and proc.stderr.strip() == "handover dump: --frames must be at least 1"
+    assert proc.returncode == 2 and proc.stderr.startswith("handover dump: argument --frames: must be at least 1, got 0")
+
+
+def _own_modules():
+    import importlib
+    import pkgutil
+
+    for pkg in ("firmware_io", "runtime", "trainer"):
+        for info in pkgutil.walk_packages([str(ROOT / pkg)], prefix=f"{pkg}."):
+            if ".bench" in info.name or info.name.endswith("__main__"):
+                continue
+            try:
+                yield importlib.import_module(info.name)
+            except ImportError:  # an optional extra (ROS 2, usb) not installed here
+                continue
+
+
+def test_every_error_class_of_the_packages_derives_from_the_one_root():
+    """main catches HandoverError once; an error class outside it would end in a traceback."""
+    from firmware_io.errors import HandoverError
+
+    outside = sorted(f"{m.__name__}.{name}" for m in _own_modules() for name, obj in vars(m).items()
+                     if isinstance(obj, type) and issubclass(obj, BaseException) and obj.__module__ == m.__name__
+                     and not issubclass(obj, HandoverError))
+    assert outside == []
+
+
+def test_a_raised_error_is_one_line_with_its_exit_code(monkeypatch, capsys):
+    import types
+
+    from firmware_io.errors import DeviceFailure, HandoverError
+    from runtime import cli
+
+    for error, code in ((HandoverError("--x: give a folder"), 2), (DeviceFailure("--x: give a folder"), 1)):
+        def main(args, error=error):
+            raise error
+        module = types.SimpleNamespace(add_arguments=lambda parser: None, main=main)
+        monkeypatch.setattr(cli.importlib, "import_module", lambda name, module=module: module)
+        assert cli.main(["dump"]) == code
+        assert capsys.readouterr().err == "handover dump: --x: give a folder\n"
+
+
+def test_builtin_bases_are_kept():
+    """`except ValueError` written before the root still catches a recording error."""
+    from firmware_io.recordings.recording import RecordingError
+    from firmware_io.transports import DeviceUnavailable, TransportError
+
+    assert issubclass(RecordingError, ValueError) and issubclass(TransportError, OSError)
+    assert TransportError("bad URL").exit_code == 2 and DeviceUnavailable("unplugged").exit_code == 1
+
+
+@pytest.mark.parametrize(("kind", "text", "words"), [("float", "nan", "must be a positive number, got nan"),
+                                                     ("float", "0", "must be a positive number, got 0"),
+                                                     ("float", "x", "expected a positive number, got 'x'"),
+                                                     ("int", "0", "must be in 1..3, got 0"),
+                                                     ("int", "4", "must be in 1..3, got 4")])
+def test_range_types_refuse_with_one_message(kind, text, words):
+    import argparse
+
+    from firmware_io.commands.options import int_in, positive_float
+
+    read = positive_float if kind == "float" else int_in(1, 3)
+    with pytest.raises(argparse.ArgumentTypeError, match=words.replace("(", r"\(").replace(".", r"\.")):
+        read(text)
+
+
+def test_out_folder_refuses_a_file_in_one_line(tmp_path):
+    from firmware_io.commands.options import out_folder
+    from firmware_io.errors import HandoverError
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(HandoverError, match="is a file, not a folder"):
+        out_folder(tmp_path / "file")
+    assert out_folder(tmp_path / "new" / "deep") == tmp_path / "new" / "deep"

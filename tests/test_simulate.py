@@ -165,6 +165,7 @@ def test_cli_writes_protocol_and_session(tmp_path, capsys):
     import argparse
 
     from firmware_io.commands import simulate_cli
+    from runtime import cli
 
     parser = argparse.ArgumentParser()
     simulate_cli.add_arguments(parser)
@@ -173,6 +174,7 @@ def test_cli_writes_protocol_and_session(tmp_path, capsys):
     assert "36 trials" in capsys.readouterr().out
     assert simulate_cli.main(parser.parse_args(["--out", str(tmp_path), "--session", "4", "--seed", "1"])) == 0
     assert (tmp_path / "session_seed1.hrec").exists() and (tmp_path / "session_seed1.json").exists()
-    bad = parser.parse_args(["--out", str(tmp_path / "f" / "x"), "--runs", "0"])
-    assert simulate_cli.main(bad) == 1
-    assert capsys.readouterr().err.startswith("handover simulate: ")
+    with pytest.raises(SystemExit) as stop:  # a count of 0 is refused as it is read, before any work
+        cli.main(["simulate", "--out", str(tmp_path / "f" / "x"), "--runs", "0"])
+    assert stop.value.code == 2 and not (tmp_path / "f").exists()
+    assert capsys.readouterr().err.startswith("handover simulate: argument --runs: must be at least 1, got 0")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 
 __all__ = ["add_arguments", "main"]
 

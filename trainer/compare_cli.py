@@ -11,7 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 from trainer.shared_data import default_data_dir
 
 __all__ = ["add_arguments", "main"]

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import Recording, Trial
 from firmware_io.trigger_level import is_trigger_level
@@ -54,7 +55,7 @@ TOO_LATE = "triggered too late"
 TOO_EARLY = "triggered too early"
 
 
-class DatasetError(ValueError):
+class DatasetError(HandoverError, ValueError):
     """Recordings that cannot make a data set (no trials, different sensors, bad settings)."""
 
 

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 from firmware_io.sim.session import DEMO_TRAIN_SEED, HELD_OUT_SEED_OFFSET
 
 if TYPE_CHECKING:

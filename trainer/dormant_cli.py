@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 from trainer.defaults import PAPER_MODEL
 
 __all__ = ["add_arguments", "main"]

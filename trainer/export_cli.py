@@ -15,10 +15,12 @@ import hashlib
 import os
 from pathlib import Path
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["add_arguments", "main"]
 
 
-class ExportError(ValueError):
+class ExportError(HandoverError, ValueError):
     """A trained-model file or option that cannot be exported."""
 
 
@@ -106,7 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.commands.errors import fail
+    from firmware_io.errors import fail
     from runtime.inspect_cli import feature_summary
     from runtime.model import ModelContractError, load_model
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 from runtime.trigger_settings import PAPER_FRACTION
 
 __all__ = ["add_arguments", "main"]

@@ -12,7 +12,7 @@ import argparse
 import json
 import sys
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 
 __all__ = ["add_arguments", "main"]
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 from runtime.trigger_settings import PAPER_FRACTION
 from trainer.train_options import (
     ASSIGNMENTS,
@@ -116,11 +116,9 @@ def main(args: argparse.Namespace) -> int:
         options.check()
     except OptionsError as exc:
         return fail(COMMAND, str(exc))
-    from firmware_io.commands.out_folder import out_folder_problem
+    from firmware_io.commands.options import out_folder
 
-    problem = out_folder_problem(options.out)  # before minutes of training, not after
-    if problem:
-        return fail(COMMAND, problem)
+    out_folder(options.out)  # before minutes of training, not after
     return run(options)
 
 

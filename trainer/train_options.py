@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from firmware_io.errors import HandoverError
 from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
 from trainer.feature_weighting import FEATURE_WEIGHTINGS
 
@@ -25,7 +26,7 @@ EARLY = ("on", "off")
 FEATURE_WEIGHTING_CHOICES = (*(w for w in FEATURE_WEIGHTINGS if w is not None), "none")
 
 
-class OptionsError(ValueError):
+class OptionsError(HandoverError, ValueError):
     """Options that cannot train; the message names the option as the command spells it."""
 
 

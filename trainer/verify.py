@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from trainer.numerics import SAFETY, reference
 
 __all__ = [
@@ -36,7 +37,7 @@ HIST_TOLERANCE = 1e-6
 """Histogram entries are counts / windows in [0, 1]; float32 division is within 6e-8 of float64."""
 
 
-class VerifyError(ValueError):
+class VerifyError(HandoverError, ValueError):
     """A model, reference or data set that cannot be verified; the message says why."""
 
 

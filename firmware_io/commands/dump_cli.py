@@ -22,7 +22,8 @@ import sys
 import time
 from dataclasses import dataclass
 
-from firmware_io.commands.errors import DEVICE_ERROR, fail
+from firmware_io.commands.options import add_json, positive_float, positive_int
+from firmware_io.errors import DeviceFailure, HandoverError
 
 __all__ = ["add_arguments", "main"]
 
@@ -42,17 +43,17 @@ WAIT_NOTE_AFTER_S = 1.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("url", help="device URL: serial:///dev/ttyUSB0, tcp://192.168.1.42:13000, usb://VID:PID, "
                         "hid://VID:PID, sim://, replay://FILE, or a /dev path")
-    parser.add_argument("--frames", type=int, default=None,
+    parser.add_argument("--frames", type=positive_int, default=None,
                         help=f"stop after N frames (default: a preview of {PREVIEW_FRAMES} frames from the first "
                         "contact, unless --seconds)")
     parser.add_argument("--all-frames", action="store_true",
                         help="the preview shows frames without contact too (it starts at the first contact)")
-    parser.add_argument("--seconds", type=float, default=None, help="stop after S seconds of streaming")
-    parser.add_argument("--timeout", type=float, default=SILENCE_TIMEOUT_S, metavar="S",
+    parser.add_argument("--seconds", type=positive_float, default=None, help="stop after S seconds of streaming")
+    parser.add_argument("--timeout", type=positive_float, default=SILENCE_TIMEOUT_S, metavar="S",
                         help="without --seconds: wait this long for a frame when the device pauses (a controller "
                         "between streams, a loose cable), then stop with exit 1 (default: %(default)g; "
                         "--seconds always waits to its end)")
-    parser.add_argument("--json", action="store_true", help="one JSON object a line: layout, frames, summary")
+    add_json(parser, "layout, frames and summary, one object a line,")
     parser.add_argument("--raw", action="store_true", help="ask for raw frames instead of RLE")
 
 
@@ -64,13 +65,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         validate_url(args.url)  # a URL that can never open is the user's to fix (exit 2), not the device's
     except TransportError as exc:
-        return fail(COMMAND, str(exc))
-    if args.frames is not None and args.frames < 1:
-        return fail(COMMAND, "--frames must be at least 1")
-    if args.seconds is not None and not args.seconds > 0:  # also NaN (it streamed nothing and said 0 frames)
-        return fail(COMMAND, f"--seconds must be a positive number of seconds, got {args.seconds}")
-    if not 0 < args.timeout < float("inf"):
-        return fail(COMMAND, f"--timeout must be a positive number of seconds, got {args.timeout}")
+        raise HandoverError(str(exc)) from None
     preview = args.frames is None and args.seconds is None
     problem = None
     emit = _json_line if args.json else None
@@ -84,7 +79,7 @@ def main(args: argparse.Namespace) -> int:
         problem = _stream(args, client, layout, idle, tally, emit)
     except (TransportError, DSAError) as exc:
         if not tally.count:
-            return fail(COMMAND, str(exc), DEVICE_ERROR)
+            raise DeviceFailure(str(exc)) from exc
         problem = str(exc)  # a device that dies mid-dump: the frames shown are still summed up
     except KeyboardInterrupt:
         pass
@@ -93,7 +88,9 @@ def main(args: argparse.Namespace) -> int:
         stats["timeouts"] = max(0, stats.get("timeouts", 0) - tally.cut_by_end)
         client.close()
     _show_summary(tally, idle.skipped, stats, emit)
-    return fail(COMMAND, problem, DEVICE_ERROR) if problem else 0
+    if problem:
+        raise DeviceFailure(problem)
+    return 0
 
 
 @dataclass

@@ -11,7 +11,7 @@ import signal
 import sys
 import time
 
-from firmware_io.commands.errors import fail
+from firmware_io.errors import fail
 
 __all__ = ["add_arguments", "main"]
 

@@ -13,8 +13,8 @@ import shutil
 import subprocess
 import sys
 
-from firmware_io.commands.errors import DEVICE_ERROR, INTERRUPTED, fail
-from firmware_io.commands.out_folder import out_folder_problem
+from firmware_io.commands.options import out_folder
+from firmware_io.errors import DEVICE_ERROR, INTERRUPTED, fail
 from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
@@ -126,9 +126,7 @@ def main(args: argparse.Namespace) -> int:
         return fail(COMMAND, f"--idle-minutes: {exc}")
     if args.idle_only and idle_minutes(args) == 0:
         return fail(COMMAND, "--idle-only with --idle-minutes 0 records nothing: give the minutes of idle to record")
-    problem = out_folder_problem(args.out)
-    if problem:
-        return fail(COMMAND, problem)
+    out_folder(args.out)
     try:
         client, subject = _connect(args.device, args.trial_seconds)
     except TransportError as exc:

@@ -7,30 +7,25 @@ import json
 import time
 from pathlib import Path
 
-from firmware_io.commands.errors import DEVICE_ERROR, fail
-from firmware_io.commands.out_folder import out_folder_problem
+from firmware_io.commands.options import add_out, add_seed, out_folder, positive_int
+from firmware_io.errors import DeviceFailure
 
 __all__ = ["add_arguments", "main"]
 
-COMMAND = "simulate"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, type=Path, help="folder to write recordings into")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
-    parser.add_argument("--subjects", type=int, default=5, help="number of subjects (protocol)")
-    parser.add_argument("--runs", type=int, default=5, help="runs per pose/object/action (protocol)")
+    add_out(parser, "folder to write recordings into", required=True, type=Path)
+    add_seed(parser, help="random seed (same seed, same bytes)")
+    parser.add_argument("--subjects", type=positive_int, default=5, help="number of subjects (protocol)")
+    parser.add_argument("--runs", type=positive_int, default=5, help="runs per pose/object/action (protocol)")
     parser.add_argument("--session", type=int, metavar="N_EVENTS", default=None,
                         help="write a free-running session of N scripted events instead (plus its script as JSON)")
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.recordings.recording import RecordingError
     from firmware_io.sim import demo_script, simulate_session, trial_counts, write_protocol
 
-    problem = out_folder_problem(args.out)
-    if problem:
-        return fail(COMMAND, problem)
+    out_folder(args.out)
     start = time.perf_counter()
     try:
         if args.session is not None:
@@ -44,8 +39,8 @@ def main(args: argparse.Namespace) -> int:
                   f"{rec.timestamps[-1]:.1f} s) and {script_path} in {time.perf_counter() - start:.1f} s")
             return 0
         paths = write_protocol(args.out, seed=args.seed, n_subjects=args.subjects, runs=args.runs)
-    except (ValueError, OSError, RecordingError) as exc:
-        return fail(COMMAND, str(exc), DEVICE_ERROR)
+    except (ValueError, OSError) as exc:  # a recording error too: the simulator wrote what it cannot read
+        raise DeviceFailure(str(exc)) from exc
     from firmware_io.recordings.recording import Recording
 
     recs = [Recording.load(p) for p in paths]

@@ -6,10 +6,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["FaultPlan", "FaultSpecError", "inject"]
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(HandoverError, ValueError):
     """A fault description that cannot be read."""
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from firmware_io.recordings.recording import MAX_NAME_CHARS, Recording, Trial
 
 __all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", "write_script"]
@@ -30,7 +31,7 @@ __all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", 
 SCRIPT_VERSION = 1
 
 
-class ScriptFileError(ValueError):
+class ScriptFileError(HandoverError, ValueError):
     """A script file that cannot be read (one line naming the file and the problem)."""
 
 

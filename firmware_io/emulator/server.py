@@ -21,6 +21,7 @@ import time
 import tty
 
 from firmware_io.emulator.device import DeviceEmulator
+from firmware_io.errors import HandoverError
 
 __all__ = ["EmulatorServerError", "PtyEmulatorServer", "TcpEmulatorServer", "log"]
 
@@ -34,7 +35,7 @@ REFUSAL_NOTE_S = 10.0
 log = logging.getLogger("handover.emulator")
 
 
-class EmulatorServerError(OSError):
+class EmulatorServerError(HandoverError, OSError):
     """The server cannot start (address in use, not loopback, no pty support)."""
 
 

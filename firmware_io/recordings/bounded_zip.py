@@ -16,6 +16,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["LimitError", "read_json", "read_npy"]
 
 CHUNK = 1 << 20
@@ -23,7 +25,7 @@ MAX_JSON_DEPTH = 32
 """A recording header nests four levels (header, layout, matrices, mask rows)."""
 
 
-class LimitError(ValueError):
+class LimitError(HandoverError, ValueError):
     """A member over its size, shape or nesting limit, or not what it says it is."""
 
 

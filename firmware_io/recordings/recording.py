@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks, idle_stretches
@@ -48,7 +49,7 @@ MAX_RUN = 2**31 - 1
 """The largest run number: training keeps runs as 64-bit integers (10**30 was an OverflowError)."""
 
 
-class RecordingError(ValueError):
+class RecordingError(HandoverError, ValueError):
     """A recording file that cannot be read or written; the message names the file."""
 
 

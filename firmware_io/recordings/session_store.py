@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from firmware_io.errors import HandoverError
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks
@@ -39,7 +40,7 @@ def subject_problem(subject: str) -> str | None:
     return None
 
 
-class SessionError(ValueError):
+class SessionError(HandoverError, ValueError):
     """A session that cannot start or continue (bad plan, foreign file, other sensor)."""
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_io.errors import DeviceFailure
+
 __all__ = ["LEAD_IN_SECONDS", "Capture", "DeviceLost", "capture_trial", "drain"]
 
 LEAD_IN_SECONDS = 1.0
@@ -25,7 +27,7 @@ change (``trigger.settle_s`` in runtime/config_keys.py); 1 s leaves room for a g
 when go is said, and for the window's pre_frames."""
 
 
-class DeviceLost(RuntimeError):
+class DeviceLost(DeviceFailure, RuntimeError):
     """The device went away and did not come back; everything recorded so far is saved."""
 
 

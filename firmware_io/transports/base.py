@@ -15,6 +15,8 @@ from types import TracebackType
 from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
+from firmware_io.errors import DEVICE_ERROR, HandoverError
+
 __all__ = [
     "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "MAX_URL_CHARS", "DeviceUnavailable", "EndOfStream",
     "MissingDependency", "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_bridge", "parse_number",
@@ -24,12 +26,14 @@ __all__ = [
 DEFAULT_READ_SIZE = 4096
 
 
-class TransportError(OSError):
+class TransportError(HandoverError, OSError):
     """A transport that cannot be opened or used; the message names the URL and the cause."""
 
 
 class DeviceUnavailable(TransportError):
     """The device is not there: unplugged, refused, closed the connection, or never existed."""
+
+    exit_code = DEVICE_ERROR
 
 
 class EndOfStream(DeviceUnavailable):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+from firmware_io.errors import DeviceFailure
+
 __all__ = [
     "ChecksumError", "DSAError", "DSAErrorCode", "DeviceError", "FrameDecodeError", "ProtocolError",
     "RLECountError", "RLETooLongError", "RawLengthError"
@@ -41,7 +43,7 @@ class DSAErrorCode(IntEnum):
     RANGE_ERROR = 27
 
 
-class DSAError(Exception):
+class DSAError(DeviceFailure):
     """Base of everything the DSACON32m protocol layer raises."""
 
 

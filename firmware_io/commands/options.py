@@ -1,0 +1,87 @@
+"""The options every ``handover`` command shares, and argparse types that check a value as it is read.
+
+One spelling and one message per option: ``--out``, ``--json``, ``--seed``, ``--quiet`` are added
+here, and a range check is a ``type=`` so a wrong value is argparse's one line before any work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+from firmware_io.errors import HandoverError
+
+__all__ = ["add_json", "add_out", "add_quiet", "add_seed", "int_in", "out_folder", "positive_float", "positive_int"]
+
+
+def add_out(parser: argparse.ArgumentParser, help: str, **kwargs) -> None:
+    """``--out``: where the command writes (a folder or file, as ``help`` says)."""
+    parser.add_argument("--out", help=help, **kwargs)
+
+
+def add_json(parser: argparse.ArgumentParser, what: str = "the summary") -> None:
+    """``--json``: the result as JSON on stdout, for a script to read."""
+    parser.add_argument("--json", action="store_true", help=f"print {what} as JSON on stdout")
+
+
+def add_seed(parser: argparse.ArgumentParser, default: int = 0, help: str = "random seed (same seed, same result)") -> None:
+    """``--seed``: every random choice of the command follows from it."""
+    parser.add_argument("--seed", type=int, default=default, help=help)
+
+
+def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress messages on stderr") -> None:
+    """``--quiet``: the result only."""
+    parser.add_argument("--quiet", action="store_true", help=help)
+
+
+def positive_float(text: str) -> float:
+    """A finite number above 0 (also refuses nan and inf, which compare false)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not 0 < value < math.inf:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    """A type for an integer in ``low..high`` (no upper bound when ``high`` is None)."""
+    span = f"at least {low}" if high is None else f"in {low}..{high}"
+
+    def read(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer {span}, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"must be {span}, got {value}")
+        return value
+
+    read.__name__ = "integer"  # argparse names the type in its message for an unparsable value
+    return read
+
+
+positive_int = int_in(1)
+"""An integer of at least 1 (a count)."""
+
+
+def out_folder(folder: str | Path, option: str = "--out") -> Path:
+    """Create ``folder`` (and its parents) and check it takes files, before any work; HandoverError if not."""
+    if not str(folder).strip():  # Path("") is the current folder: an empty option is a slip, not a choice
+        raise HandoverError(f"{option} is empty; give a folder (it is created if missing), e.g. {option} ./out")
+    path = Path(folder)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+            pass
+    except FileExistsError:
+        raise HandoverError(f"{option} {path}: is a file, not a folder; choose a folder (it is created if missing)") from None
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise HandoverError(f"{option} {path}: cannot create or write this folder ({reason}); choose a folder you can "
+                            f"write (it is created if missing), e.g. {option} ./out") from None
+    return path
