@@ -189,6 +189,9 @@ KEYS: tuple[Key, ...] = (
     Key("ros2.joint_states", str, None, "sensor_msgs/JointState topic: the arm counts as moving while a joint's speed "
         "exceeds joint_speed (runtime/arm_motion.py)", optional=True, example="/joint_states"),
     Key("ros2.joint_speed", float, 0.05, "rad/s (or m/s): a joint faster than this moves the arm", range=(1e-6, 100.0)),
+    Key("ros2.trust", str, "sros2", "who may send grasp, arm and joint_states: sros2 = only with SROS2 enforced; "
+        "local_users = also without SROS2 with discovery kept to this PC (every user of this PC); network = any ROS 2 "
+        "node in the domain", choices=("sros2", "local_users", "network")),
 
     Key("control.socket", str, None, "Unix datagram socket (absolute path or @abstract name) for robot messages",
         optional=True, example="/run/handover/control.sock"),

@@ -45,7 +45,7 @@ from runtime.rehearsal import RehearsedReads
 from runtime.reporter import Reporter
 from runtime.scene import events_problem, scene_problem
 from runtime.sdnotify import Notifier
-from runtime.sinks import Event, ModelAnnouncement, SinkSet
+from runtime.sinks import DaemonSide, Event, ModelAnnouncement, SinkSet
 
 if TYPE_CHECKING:
     from firmware_io.client import Frame
@@ -63,6 +63,24 @@ HOLD_LIMIT_S = 10.0
 for a stream so slow that two windows take longer."""
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
+
+
+class RobotInputs:
+    """The robot's grasp and arm words, from the control socket's or the ROS 2 node's thread: queued in the
+    detector for its next frame (no lock on the hot path), each kind logged at most every few seconds."""
+
+    def __init__(self, detector: Detector, messages: MessageLog) -> None:
+        self._detector, self._messages = detector, messages
+
+    def set_grasp(self, closed: bool, source: str = "") -> None:
+        """The grasp has settled (``closed``) or is released; ``source`` names the caller in the log."""
+        self._detector.set_grasp(closed, source)
+        self._messages.note("grasp", "closed" if closed else "open", source)
+
+    def set_arm_moving(self, moving: bool, source: str = "") -> None:
+        """The arm moves or has stopped (runtime.arm_motion: no window is reported meanwhile and while it settles)."""
+        self._detector.set_arm_moving(moving, source)
+        self._messages.note("arm", "moving" if moving else "still", source)
 
 
 class Daemon:
@@ -86,9 +104,10 @@ class Daemon:
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
-        self.reporter = Reporter(SinkSet.from_config(cfg.sinks, stream, ros2=cfg.ros2, daemon=self,
-                                                     instance=self.health.instance), self.health,
-                                 on_event, self.listeners)
+        self.messages = MessageLog()
+        self.robot = RobotInputs(self.detector, self.messages)
+        """The grasp and arm commands the control socket and the ROS 2 node may give, from their threads."""
+        self.reporter = Reporter(self._sinks(cfg), self.health, on_event, self.listeners)
         self.models = ModelSlot(cfg, self.detector, self.health, self._announce)
         self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory, on_stream=self._stream_began,
                                while_connecting=self._swap_and_report, should_stop=lambda: self._stop,
@@ -97,7 +116,6 @@ class Daemon:
         self.control: ControlSocket | None = None
         self.locks: Any = None
         """The instance locks ``handover run`` took (runtime.instance_lock.Locks): a reload moves them."""
-        self.messages = MessageLog()
         self.hot_thread = HotThread()
         self.guard = DecisionGuard(lambda: self.detector.model, self.detector.frame_clock.deadline_s,
                                    on_stuck=self._stuck, priority=cfg.realtime_priority)
@@ -131,20 +149,6 @@ class Daemon:
     def fatal(self) -> str | None:
         """Why the daemon gave up (a device URL that can never open, a missing package), or None."""
         return self.link.fatal
-
-    def set_grasp(self, closed: bool, source: str = "") -> None:
-        """The robot says its grasp has settled (``closed``) or is released; thread-safe (the control
-        socket and the ROS 2 bridge call it; ``source`` names the caller in the log). The detector
-        applies it at the next frame."""
-        self.detector.set_grasp(closed, source)
-        self.messages.note("grasp", "closed" if closed else "open", source)
-
-    def set_arm_moving(self, moving: bool, source: str = "") -> None:
-        """The robot says its arm moves (``True``) or has stopped; thread-safe (the control socket, the ROS 2
-        bridge). The detector applies it at the next frame (runtime.arm_motion: no window is reported while
-        the arm moves and for the settle time after it stops)."""
-        self.detector.set_arm_moving(moving, source)
-        self.messages.note("arm", "moving" if moving else "still", source)
 
     def serve(self, model: LoadedModel, layout: SensorLayout) -> None:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame`` (no
@@ -229,6 +233,7 @@ class Daemon:
         h.update_rate(now)
         self.link.update_health(time.monotonic() if now is None else now, HEALTH_PERIOD_S)
         h.sink_errors = self.sinks.errors
+        h.hold("sinks", self.sinks.problem)
         h.events_invalid = self.sinks.invalid
         arm = self.detector.arm
         h.arm_moving, h.arm_windows = arm.moving, arm.dropped
@@ -239,6 +244,10 @@ class Daemon:
         if self.status_file is not None:
             self.status_file.write(snapshot)
         self.sinks.health(snapshot)
+
+    def _sinks(self, cfg: Config) -> SinkSet:
+        side = DaemonSide(self.robot, self.detector, str(cfg.device.url))
+        return SinkSet.from_config(cfg.sinks, self.stream, ros2=cfg.ros2, side=side, instance=self.health.instance)
 
     def _announce(self, announcement: ModelAnnouncement) -> None:
         self.sinks.emit(announcement)
@@ -272,7 +281,7 @@ class Daemon:
             return self.control
         if not cfg.control.socket:
             return None
-        return ControlSocket(cfg.control.socket, self.set_grasp, self.set_arm_moving).start()
+        return ControlSocket(cfg.control.socket, self.robot.set_grasp, self.robot.set_arm_moving).start()
 
     def stop_control(self) -> None:
         if self.control is not None:
@@ -305,8 +314,7 @@ class Daemon:
             log.warning("%s", warning)
         self.sinks.close()
         self.health.instance = instance_of(new)
-        self.reporter.sinks = SinkSet.from_config(new.sinks, self.stream, ros2=new.ros2, daemon=self,
-                                                  instance=self.health.instance)
+        self.reporter.sinks = self._sinks(new)
         if control is not self.control:
             self.stop_control()
             self.control = control

@@ -166,13 +166,13 @@ def _warn_about_sinks(cfg) -> None:
 
     others = cfg.sinks.n_without_ros2
     if cfg.sinks.ros2:
-        from runtime.ros2 import availability_problem, grasp_exposure
+        from runtime.ros2 import availability_problem, robot_inputs
 
         if problem := availability_problem():
             then = "events will go to the other sinks only" if others else NO_SINK_LEFT
             print(f"{PROG}: warning: sinks.ros2: {problem}; {then}", file=sys.stderr)
-        if exposure := grasp_exposure(cfg.ros2):
-            print(f"{PROG}: warning: {exposure}", file=sys.stderr)
+        if line := robot_inputs(cfg.ros2)[1]:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
     elif not others:
         print(f"{PROG}: warning: sinks: {NO_SINK_LEFT.replace('other ', '')}", file=sys.stderr)
     _warn_about_udp_hosts(cfg)

@@ -76,6 +76,7 @@ class Health:
         self.errors: deque[dict] = deque(maxlen=ERROR_HISTORY)
         """The last few problems with their time, including resolved ones."""
         self._error_source = ""
+        self._held: dict[str, str | None] = {}
         self._last_frame_error_log = -FRAME_ERROR_LOG_S
         self._lat = np.zeros(latency_window, dtype=np.float64)
         self._lat_n = 0
@@ -97,6 +98,14 @@ class Health:
             newest["last_at"] = round(now, 3)
             return
         self.errors.append({"at": round(now, 3), "source": source, "error": text})
+
+    def hold(self, source: str, text: str | None) -> None:
+        """``text`` is ``source``'s problem now, or None: reported or resolved only when it changes."""
+        if text and text != self._held.get(source):
+            self.report_error(text, source)
+        elif not text and self._held.get(source):
+            self.resolve(source)
+        self._held[source] = text
 
     def resolve(self, source: str) -> None:
         """``source`` works again: its error stops being the current one (it stays in ``errors``)."""

@@ -13,13 +13,13 @@ import os
 import re
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 from runtime.config import NO_SINK_LEFT, Ros2Config
-from runtime.sinks import Sink
+from runtime.sinks import DaemonSide, Sink
 
-__all__ = ["availability_problem", "grasp_exposure", "log", "middleware_problem", "open_ros2_sink"]
+__all__ = ["availability_problem", "log", "middleware_problem", "open_ros2_sink", "robot_inputs"]
 
 log = logging.getLogger("handover.ros2")
 
@@ -53,31 +53,35 @@ def middleware_problem(env: dict[str, str] | None = None) -> str | None:
 
 CONFINED_RANGES = ("LOCALHOST", "OFF")
 """``ROS_AUTOMATIC_DISCOVERY_RANGE`` values that keep other machines' nodes away (ROS 2 Iron and later)."""
+TRUST_HINT = ('enable SROS2 (ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce), or accept it with ros2.trust = '
+              '"local_users" or "network", or use the control socket (deploy/INSTALL.md, section ROS 2)')
 
 
-def grasp_exposure(cfg: Ros2Config, env: dict[str, str] | None = None) -> str | None:
-    """Why the ROS 2 robot inputs (grasp, arm, joint states) can be steered from elsewhere, or None.
+def robot_inputs(cfg: Ros2Config, env: dict[str, str] | None = None) -> tuple[bool, str | None]:
+    """Whether the ROS 2 inputs that steer detection (grasp, arm, joint states) are subscribed, and the
+    one line to say about them (None: nothing to say). The one owner of this rule (start-up, ``--check``).
 
-    Why: ``<namespace>/grasp`` takes ``open`` from any node that discovers the daemon, and ``open``
-    silences the trigger; so does ``moving`` on ``<namespace>/arm`` or a fast joint on the joint
-    states topic (no window is reported while the arm moves). Without SROS2 (enforced) or discovery
-    kept to this PC, that is any machine on the robot's network with the same domain id."""
+    Why: ROS 2 without SROS2 asks no one who publishes; ``open`` on the grasp topic, ``moving`` on the arm
+    topic or a fast joint silences the trigger. Discovery kept to this PC still trusts every local user,
+    so without SROS2 (enforced) only ``ros2.trust`` naming that scope subscribes them, with a warning."""
     inputs = [text for on, text in ((cfg.grasp, f"'open' on {cfg.namespace}/grasp"),
                                     (cfg.arm, f"'moving' on {cfg.namespace}/arm"),
                                     (bool(cfg.joint_states), f"fast joints on {cfg.joint_states}")) if on]
     if not inputs:
-        return None
+        return False, None
     env = os.environ if env is None else env
     if env.get("ROS_SECURITY_ENABLE", "").lower() == "true" and env.get("ROS_SECURITY_STRATEGY") == "Enforce":
-        return None
-    if env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in CONFINED_RANGES or env.get("ROS_LOCALHOST_ONLY") == "1":
-        return None
+        return True, None
+    confined = (env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in CONFINED_RANGES
+                or env.get("ROS_LOCALHOST_ONLY") == "1")
     domain = env.get("ROS_DOMAIN_ID", "").strip() or "0"
-    keys = "/".join(name for name, on in (("grasp", cfg.grasp), ("arm", cfg.arm), ("joint_states", cfg.joint_states)) if on)
-    return (f"ros2.{keys}: any ROS 2 node on the network in domain {domain} can send {' or '.join(inputs)} "
-            "and silence the trigger; set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (or ROS_LOCALHOST_ONLY=1), or "
-            "SROS2 (ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce), or use the control socket "
-            "(deploy/INSTALL.md, section ROS 2)")
+    who = "every user of this PC" if confined else f"any ROS 2 node on the network in domain {domain}"
+    keys = "/".join(k for k, on in (("grasp", cfg.grasp), ("arm", cfg.arm), ("joint_states", cfg.joint_states)) if on)
+    can = f"{who} can send {' or '.join(inputs)} and silence the trigger"
+    if cfg.trust == "network" or (cfg.trust == "local_users" and confined):
+        return True, f'ros2.{keys}: subscribed without SROS2 (ros2.trust = "{cfg.trust}"): {can}'
+    why = "no SROS2" if cfg.trust == "sros2" else 'ros2.trust = "local_users" but discovery is not kept to this PC'
+    return False, f"ros2.{keys}: not subscribed ({why}): {can}; {TRUST_HINT}"
 
 
 def namespace_clash(publishers: int, namespace: str) -> str | None:
@@ -101,12 +105,15 @@ def availability_problem() -> str | None:
     return middleware_problem()
 
 
-def open_ros2_sink(cfg: Ros2Config, daemon: Any, others: int = 1) -> Sink | None:
+def open_ros2_sink(cfg: Ros2Config, side: DaemonSide | None, others: int = 1) -> Sink | None:
     """The ROS 2 sink, or None after one error line saying why and what to do (and, when ``others``
-    is 0, that events go nowhere)."""
+    is 0, that events go nowhere). The robot's inputs are subscribed only as ``robot_inputs`` says."""
     problem = middleware_problem()
-    if exposure := grasp_exposure(cfg):
-        log.warning("%s", exposure)
+    listen, line = robot_inputs(cfg)
+    if line:
+        log.warning("%s", line)
+    if not listen:
+        cfg = replace(cfg, grasp=False, arm=False, joint_states=None)
     if problem is None:
         try:
             from runtime.ros2_node import Ros2Sink
@@ -116,7 +123,7 @@ def open_ros2_sink(cfg: Ros2Config, daemon: Any, others: int = 1) -> Sink | None
         try:
             with warnings.catch_warnings():  # rclpy warns (several lines) while it drops a node it refused
                 warnings.simplefilter("ignore", RuntimeWarning)
-                return Ros2Sink(cfg, daemon)
+                return Ros2Sink(cfg, side)
         except Exception as exc:  # rclpy raises its own types (RCLError, InvalidHandle, ...)
             text = str(exc).strip().splitlines()
             problem = f"cannot start the ROS 2 node: {text[0] if text else type(exc).__name__}"

@@ -6,10 +6,13 @@ Topics (``ns`` = ``[ros2] namespace``, default ``/handover``):
 - ``ns/model``   std_msgs/String, latched (transient local, depth 1): the last ``"type": "model"`` line;
 - ``/diagnostics`` diagnostic_msgs/DiagnosticArray: the health view, about once a second;
 - ``ns/pads/<pad>`` sensor_msgs/Image mono16, one per pad, rows x columns as on the pad (optional);
-- ``ns/grasp``   std_msgs/String ``closed`` / ``open`` -> ``daemon.set_grasp`` (optional);
-- ``ns/arm``     std_msgs/String ``moving`` / ``still`` -> ``daemon.set_arm_moving`` (optional);
+- ``ns/grasp``   std_msgs/String ``closed`` / ``open`` -> ``commands.set_grasp`` (optional);
+- ``ns/arm``     std_msgs/String ``moving`` / ``still`` -> ``commands.set_arm_moving`` (optional);
 - ``[ros2] joint_states`` sensor_msgs/JointState: the arm moves while a joint is faster than
-  ``joint_speed`` (runtime.arm_motion.JointSpeed) -> ``daemon.set_arm_moving`` (optional).
+  ``joint_speed`` (runtime.arm_motion.JointSpeed) -> ``commands.set_arm_moving`` (optional).
+
+The node sees only a ``DaemonSide`` (runtime.sinks): the robot's commands, queued for the hot path's next
+frame, and the frames it publishes; the inputs are subscribed only as ``runtime.ros2.robot_inputs`` says.
 
 Events are published on the daemon's thread (a String publish costs a few microseconds).
 Everything else runs on one executor thread: the health snapshot is handed over by a guard
@@ -38,7 +41,7 @@ from std_msgs.msg import String
 from runtime.arm_motion import JointSpeed
 from runtime.config import Ros2Config
 from runtime.ros2 import namespace_clash
-from runtime.sinks import Sink
+from runtime.sinks import DaemonSide, Sink
 
 __all__ = ["Ros2Sink", "log", "pad_image", "pad_topic"]
 
@@ -98,11 +101,11 @@ class Ros2Sink(Sink):
 
     failures = (Exception,)  # rclpy raises its own types; none may reach the hot path
 
-    def __init__(self, cfg: Ros2Config, daemon: Any) -> None:
+    def __init__(self, cfg: Ros2Config, side: DaemonSide | None) -> None:
         super().__init__()
         self.name = f"ros2:{cfg.namespace}"
         self.cfg = cfg
-        self.daemon = daemon
+        self.side = side
         self.pad_images = 0
         """Images published on the pad topics so far (to at least one subscriber)."""
         self._snapshot: dict | None = None
@@ -110,8 +113,6 @@ class Ros2Sink(Sink):
         self._pad_layout: Any = None
         self._pad_publishers: list[tuple[int, Any]] = []
         self._last_warning = 0.0
-        self.clash: str | None = None
-        """Why the events topic is not ours alone (runtime.ros2.namespace_clash), or None."""
         self._context = Context()
         rclpy.init(context=self._context, args=["--ros-args", "--disable-external-lib-logs"],
                    signal_handler_options=SignalHandlerOptions.NO)
@@ -199,29 +200,26 @@ class Ros2Sink(Sink):
             msg = DiagnosticArray()
             msg.header.stamp = self.node.get_clock().now().to_msg()
             name = f"{self.cfg.node_name}: tactile handover"
-            msg.status = [diagnostic_status(snapshot, name, str(self.daemon.cfg.device.url))]
+            msg.status = [diagnostic_status(snapshot, name, self.side.hardware_id if self.side else "")]
             self._diagnostics.publish(msg)
         except Exception as exc:
             self._warn(f"ros2: diagnostics not published ({exc})")
 
     def _check_namespace(self) -> None:
-        """Another publisher on our events topic: one warning line and the health view's error while it lasts."""
+        """Another publisher on our events topic: one warning line, and ``problem`` while it lasts (the daemon
+        shows it in the health view)."""
         try:
             clash = namespace_clash(self.node.count_publishers(self._events.topic_name), self.cfg.namespace)
         except Exception:  # a node being shut down
             return
-        health = getattr(self.daemon, "health", None)
-        if clash is not None and clash != self.clash:
+        if clash is not None and clash != self.problem:
             log.warning("%s", clash)
-            if health is not None:
-                health.report_error(clash, "ros2")
-        elif clash is None and self.clash is not None and health is not None:
-            health.resolve("ros2")
-        self.clash = clash
+        self.problem = clash
 
     def _publish_pads(self) -> None:
-        # read with getattr: the timer may fire before the daemon has finished making itself
-        frame, layout = getattr(self.daemon, "latest_frame", None), getattr(self.daemon, "layout", None)
+        if self.side is None:
+            return
+        frame, layout = self.side.frames.latest_frame, self.side.frames.layout
         if frame is None or layout is None or frame is self._pad_frame:
             return  # nothing new: publish nothing rather than the same image again
         self._pad_frame = frame
@@ -254,7 +252,7 @@ class Ros2Sink(Sink):
         if word is None:
             return
         try:
-            self.daemon.set_grasp(GRASP_WORDS[word], source="ros2")
+            self.side.commands.set_grasp(GRASP_WORDS[word], source="ros2")
         except Exception as exc:
             self._warn(f"ros2: grasp {word!r} not taken ({exc})")
 
@@ -275,7 +273,7 @@ class Ros2Sink(Sink):
 
     def _set_arm(self, moving: bool) -> None:
         try:
-            self.daemon.set_arm_moving(moving, source="ros2")
+            self.side.commands.set_arm_moving(moving, source="ros2")
         except Exception as exc:
             self._warn(f"ros2: arm {'moving' if moving else 'still'} not taken ({exc})")
 

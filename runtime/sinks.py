@@ -20,14 +20,14 @@ from dataclasses import asdict, dataclass
 from json.encoder import encode_basestring_ascii as _ascii  # the encoder's own string writer (ensure_ascii)
 from math import isfinite
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from firmware_io.errors import HandoverError
 from runtime.config import parse_host_port
 from runtime.name_resolver import ResolvedTarget
 
 __all__ = [
-    "PROTOCOL_VERSION", "ClosedStdout", "Event", "ModelAnnouncement", "Sink", "SinkFull", "SinkSet", "StdoutSink",
+    "PROTOCOL_VERSION", "ClosedStdout", "DaemonSide", "Event", "ModelAnnouncement", "Sink", "SinkFull", "SinkSet", "StdoutSink",
     "UdpSink", "UnixDatagramSink", "claim_stdout_for_events", "log"
 ]
 
@@ -142,6 +142,8 @@ class Sink:
     def __init__(self) -> None:
         self.sent = 0
         self.errors = 0
+        self.problem: str | None = None
+        """Why this sink does not work as meant while it still sends (the health view shows it), or None."""
         self._last_log = 0.0
 
     def send(self, line: str, data: bytes) -> None:
@@ -364,6 +366,30 @@ class UnixDatagramSink(Sink):
         self.sock.close()
 
 
+class RobotCommands(Protocol):
+    """What the robot may tell the daemon from another thread; queued for the hot path's next frame."""
+
+    def set_grasp(self, closed: bool, source: str = "") -> None: ...
+
+    def set_arm_moving(self, moving: bool, source: str = "") -> None: ...
+
+
+class PadFrames(Protocol):
+    """The frames the ROS 2 node publishes as pad images (read from its own thread)."""
+
+    latest_frame: Any
+    layout: Any
+
+
+@dataclass(frozen=True)
+class DaemonSide:
+    """All the ROS 2 node sees of the daemon: commands in, frames out, the device's name for diagnostics."""
+
+    commands: RobotCommands
+    frames: PadFrames
+    hardware_id: str = ""
+
+
 class SinkSet:
     """All configured sinks; ``emit(event)`` serialises once and sends to each."""
 
@@ -377,11 +403,11 @@ class SinkSet:
 
     @classmethod
     def from_config(cls, cfg: SinksConfig, stream: IO[str] | None = None, ros2: Ros2Config | None = None,
-                    daemon: Any = None, instance: str = "") -> SinkSet:
+                    side: Any = None, instance: str = "") -> SinkSet:
         """Build from a SinksConfig; a UDP host name is looked up in the background (never waited for).
 
-        ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and the daemon it reads
-        frames and health from are then needed); rclpy is imported only then."""
+        ROS 2 comes last, only when ``cfg.ros2`` (its ``[ros2]`` section and ``side``, the daemon's
+        ``runtime.ros2.DaemonSide``, are then needed); rclpy is imported only then."""
 
         sinks: list[Sink] = []
         if cfg.stdout and isinstance(stream, ClosedStdout):
@@ -398,7 +424,7 @@ class SinkSet:
             from runtime.config import Ros2Config
             from runtime.ros2 import open_ros2_sink
 
-            ros = open_ros2_sink(ros2 or Ros2Config(), daemon, others=len(sinks))
+            ros = open_ros2_sink(ros2 or Ros2Config(), side, others=len(sinks))
             if ros is not None:
                 sinks.append(ros)
         return cls(sinks, instance)
@@ -439,6 +465,11 @@ class SinkSet:
     @property
     def errors(self) -> int:
         return sum(s.errors for s in self.sinks)
+
+    @property
+    def problem(self) -> str | None:
+        """The first sink's ``problem``, or None."""
+        return next((s.problem for s in self.sinks if s.problem), None)
 
     def flush(self) -> None:
         for sink in self.sinks:

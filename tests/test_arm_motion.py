@@ -85,9 +85,9 @@ def test_a_push_while_the_arm_moves_is_not_reported_and_one_after_the_settle_tim
     _push(levels, 500)  # well after the arm stopped: a person
     for frame in _frames(levels):
         if frame.number == 190:
-            daemon.set_arm_moving(True, source="test")
+            daemon.robot.set_arm_moving(True, source="test")
         if frame.number == 230:
-            daemon.set_arm_moving(False, source="test")
+            daemon.robot.set_arm_moving(False, source="test")
         daemon.handle_frame(frame)
     assert len(events) == 1 and 500 <= events[0].frame_first <= 502
     assert daemon.detector.arm.dropped == 1 and daemon.detector.arm_request == (False, "test")
@@ -261,18 +261,6 @@ def test_record_with_a_control_socket_that_cannot_bind_is_one_line(tmp_path, cap
     assert code != 0 and len(err) == 1 and "robot.sock" in err[0], err
 
 
-def test_ros2_arm_inputs_open_to_the_network_are_named_in_one_line():
-    from runtime.config import config_from_dict
-    from runtime.ros2 import grasp_exposure
-
-    ros2 = config_from_dict({"ros2": {"arm": True, "joint_states": "/joint_states"}}).ros2
-    line = grasp_exposure(ros2, env={"ROS_DOMAIN_ID": "7"})
-    assert line.startswith("ros2.arm/joint_states: any ROS 2 node") and "'moving' on /handover/arm" in line
-    assert "fast joints on /joint_states" in line and "\n" not in line
-    assert grasp_exposure(ros2, env={"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}) is None
-    assert grasp_exposure(config_from_dict({}).ros2, env={}) is None
-
-
 def test_a_piece_of_a_recording_keeps_its_marks_and_the_state_it_starts_in():
     meta = {arm_marks.KEY: [[2, 1], [6, 0], [8, 1]]}
     assert arm_marks.piece_marks(meta, 10, 4, 9) == [[0, 1], [2, 0], [4, 1]]
@@ -291,7 +279,7 @@ def test_a_device_count_that_starts_afresh_does_not_leave_the_daemon_deaf_to_a_p
     for frame in _frames(grasp_levels(300)):
         frame = dataclasses.replace(frame, number=frame.number + 100_000)
         if frame.number in (100_190, 100_230):
-            daemon.set_arm_moving(frame.number == 100_190, source="test")
+            daemon.robot.set_arm_moving(frame.number == 100_190, source="test")
         daemon.handle_frame(frame)
     daemon.detector.fit(LAYOUT)
     levels = grasp_levels(700)

@@ -179,7 +179,7 @@ def test_a_flood_of_grasp_messages_is_a_few_log_lines_not_one_per_message(tmp_pa
                                       "model": {"folder": str(tmp_path)}}))
     with caplog.at_level(logging.INFO, logger="handover.daemon"):
         for i in range(5000):
-            daemon.set_grasp(i % 3 != 0, source="control")
+            daemon.robot.set_grasp(i % 3 != 0, source="control")
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("grasp ")]
     assert 1 <= len(lines) <= 3, len(lines)
     assert daemon.detector.grasp_request == (True, "control") and len(daemon.detector._grasp) > 0

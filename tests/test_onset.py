@@ -218,7 +218,7 @@ def test_control_datagram_arms_the_trigger_and_garbage_is_counted_and_logged_onc
         assert _wait(lambda: daemon.control.received == 2)
         daemon.handle_frame(frames[2])
         assert daemon.detector.grasp_closed is False and daemon.detector.trigger.state == OPEN and daemon.detector.trigger.robot_open
-        daemon.set_grasp(True, source="ros2")  # what the ROS 2 sink calls
+        daemon.robot.set_grasp(True, source="ros2")  # what the ROS 2 sink calls
         daemon.handle_frame(frames[3])
         assert daemon.detector.trigger.state == ARMED
     assert not (tmp_path / "control.sock").exists()

@@ -154,7 +154,7 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
 
 
 def test_the_grasp_topic_reaches_the_daemon(tmp_path, caplog):
-    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"grasp": True, "namespace": "/lab/hand"})
+    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"grasp": True, "namespace": "/lab/hand", "trust": "local_users"})
     daemon = Daemon(cfg)
     listener = Listener("/lab/hand")
     try:
@@ -175,7 +175,7 @@ def test_the_grasp_topic_reaches_the_daemon(tmp_path, caplog):
 def test_the_arm_topic_and_joint_states_reach_the_daemon(tmp_path, caplog):
     from sensor_msgs.msg import JointState
 
-    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"arm": True, "namespace": "/lab/hand",
+    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"arm": True, "namespace": "/lab/hand", "trust": "local_users",
                                                          "joint_states": "/robot/joint_states", "joint_speed": 0.1})
     daemon = Daemon(cfg)
     listener = Listener("/lab/hand")
@@ -209,11 +209,36 @@ def test_the_arm_topic_and_joint_states_reach_the_daemon(tmp_path, caplog):
         listener.close()
 
 
+def test_without_sros2_or_a_trust_the_steering_inputs_are_not_subscribed(tmp_path, caplog):
+    """LOCALHOST discovery (this module's environment) still trusts every local user: by default grasp, arm
+    and joint states are not subscribed (one warning says so), nothing another node sends reaches the
+    detector, and the events topic still publishes."""
+    with caplog.at_level(logging.WARNING, logger="handover.ros2"):
+        daemon = Daemon(daemon_config(tmp_path, "sim://?realtime=0", {"grasp": True, "arm": True,
+                                                                     "joint_states": "/robot/joint_states"}))
+    listener = Listener()
+    arm = listener.node.create_publisher(String, "/handover/arm", 10)
+    try:
+        ros = ros_sink(daemon)
+        assert wait_for(lambda: ros._events.get_subscription_count() >= 1), "the events topic was never matched"
+        assert listener.grasp.get_subscription_count() == 0 and arm.get_subscription_count() == 0
+        assert ros.node.count_subscribers("/robot/joint_states") == 0
+        listener.grasp.publish(String(data="open"))
+        arm.publish(String(data="moving"))
+        time.sleep(0.3)
+        assert daemon.detector.grasp_request is None and daemon.detector.arm_request is None
+    finally:
+        daemon.sinks.close()
+        listener.close()
+    lines = [r.getMessage() for r in caplog.records if "not subscribed" in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith("ros2.grasp/arm/joint_states: not subscribed (no SROS2)"), lines
+
+
 def test_a_node_rclpy_refuses_is_one_line(caplog):
     from runtime.ros2 import open_ros2_sink
 
     with caplog.at_level(logging.ERROR, logger="handover.ros2"):
-        assert open_ros2_sink(Ros2Config(namespace="/bad-name"), daemon=None) is None
+        assert open_ros2_sink(Ros2Config(namespace="/bad-name"), side=None) is None
     assert len(caplog.records) == 1 and "cannot start the ROS 2 node" in caplog.text
 
 
@@ -308,11 +333,11 @@ def test_two_daemons_on_one_namespace_are_told_and_the_health_view_says_so(tmp_p
             def told() -> bool:
                 for d in (first, second, alone):
                     d.write_health()
-                return all(ros_sink(d).clash is not None for d in (first, second))
+                return all(ros_sink(d).problem is not None for d in (first, second))
             assert wait_for(told, 20.0), "the other daemon on /handover was never seen"
         assert "/handover/events (another daemon on this namespace?)" in first.health.last_error
         assert caplog.text.count("other publisher(s) on /handover/events") == 2
-        assert ros_sink(alone).clash is None and "ros2" not in alone.health.last_error
+        assert ros_sink(alone).problem is None and "ros2" not in alone.health.last_error
     finally:
         for d in (first, second, alone):
             d.sinks.close()

@@ -139,7 +139,7 @@ def test_ros2_as_the_only_sink_says_events_go_nowhere(tmp_path, caplog, monkeypa
     cfg = config_from_dict({"device": {"url": "sim://"}, "model": {"folder": str(tmp_path)},
                             "sinks": {"stdout": False, "ros2": True}})
     with caplog.at_level(logging.ERROR, logger="handover"):
-        sinks = SinkSet.from_config(cfg.sinks, ros2=cfg.ros2, daemon=None)
+        sinks = SinkSet.from_config(cfg.sinks, ros2=cfg.ros2, side=None)
     assert sinks.sinks == []
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.ros2"]
     assert len(lines) == 1 and lines[0].endswith("; events go nowhere: no other sink is configured (set "
@@ -158,3 +158,45 @@ def test_check_warns_when_no_sink_would_be_left(tmp_path, sinks, says):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and says in lines[0] and "events go nowhere" in lines[0], proc.stderr
+
+
+SROS2 = {"ROS_SECURITY_ENABLE": "true", "ROS_SECURITY_STRATEGY": "Enforce"}
+LOCAL = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": "7"}
+
+
+@pytest.mark.parametrize("trust, env, listen, says", [
+    ("sros2", SROS2, True, None),
+    ("sros2", LOCAL, False, "not subscribed (no SROS2): every user of this PC can send"),
+    ("sros2", {"ROS_DOMAIN_ID": "7"}, False, "not subscribed (no SROS2): any ROS 2 node on the network in domain 7"),
+    ("local_users", LOCAL, True, 'subscribed without SROS2 (ros2.trust = "local_users"): every user of this PC'),
+    ("local_users", {}, False, 'not subscribed (ros2.trust = "local_users" but discovery is not kept to this PC)'),
+    ("network", {}, True, 'subscribed without SROS2 (ros2.trust = "network"): any ROS 2 node on the network in '
+                          "domain 0"),
+])
+def test_ros2_inputs_that_steer_detection_need_sros2_or_a_trust_that_names_who(trust, env, listen, says):
+    """LOCALHOST discovery still lets every local user (uid 65534 too) send 'moving' or fast joints: without
+    SROS2 the inputs are subscribed only when ros2.trust names that scope, and either way one line says so."""
+    from runtime.ros2 import robot_inputs
+
+    ros2 = config_from_dict({"ros2": {"arm": True, "joint_states": "/joint_states", "trust": trust}}).ros2
+    subscribed, line = robot_inputs(ros2, env)
+    assert subscribed is listen
+    if says is None:
+        assert line is None
+    else:
+        assert line.startswith("ros2.arm/joint_states: ") and says in line and "\n" not in line, line
+        assert "'moving' on /handover/arm or fast joints on /joint_states" in line
+    assert robot_inputs(config_from_dict({}).ros2, env) == (False, None)  # no input configured: nothing to say
+
+
+@pytest.mark.parametrize("trust, says", [("", "not subscribed (no SROS2)"),
+                                         ('trust = "local_users"\n', "subscribed without SROS2")])
+def test_check_says_in_one_line_whether_the_ros2_inputs_are_subscribed(tmp_path, trust, says):
+    cfg = _config_with_model(tmp_path, "ros2 = true\n")
+    cfg.write_text(cfg.read_text() + f"[ros2]\ngrasp = true\n{trust}")
+    env = {**os.environ, **LOCAL}
+    env.pop("ROS_SECURITY_ENABLE", None)
+    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60, env=env)
+    lines = [line for line in proc.stderr.splitlines() if "ros2.grasp" in line]
+    assert proc.returncode == 0 and len(lines) == 1 and says in lines[0], proc.stderr

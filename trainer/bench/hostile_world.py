@@ -359,9 +359,9 @@ def _send_as(uid: int | None, address: str) -> str:
 def foreign_grasp(work: Path) -> dict:
     """``grasp open`` from another user, to an abstract and a filesystem control socket, is dropped and
     counted; from the daemon's user it is heard. The ROS 2 grasp input is off by default, and turned on
-    without a confining environment it is named in one line."""
+    without SROS2 it is not subscribed (also with LOCALHOST discovery: every local user), in one line."""
     from runtime.config import Ros2Config
-    from runtime.ros2 import grasp_exposure
+    from runtime.ros2 import robot_inputs
 
     if os.geteuid() != 0:
         return {"held": False, "tried": False, "detail": "needs root to send as another user; not tried"}
@@ -382,11 +382,11 @@ def foreign_grasp(work: Path) -> dict:
                               "own_heard": daemon.detector.grasp_request == (False, "control"), "mode": mode}
         finally:
             daemon.stop_control()
-    open_net = grasp_exposure(Ros2Config(grasp=True), {"ROS_DOMAIN_ID": "7"})
-    local = grasp_exposure(Ros2Config(grasp=True), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
+    listens, open_net = robot_inputs(Ros2Config(grasp=True), {"ROS_DOMAIN_ID": "7"})
+    local = robot_inputs(Ros2Config(grasp=True), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     held = (all(not o["heard_foreign"] and o["own_heard"] for o in outcomes.values())
             and outcomes["path"]["mode"] == "0o600" and not Ros2Config().grasp and open_net is not None
-            and one_line(open_net, "ros2.grasp", "domain 7") and local is None)
+            and one_line(open_net, "ros2.grasp", "domain 7") and not listens and local[0] is False)
     return {"held": held, "tried": True, "outcomes": outcomes,
             "detail": "; ".join(f"{k}: from uid {NOBODY} {'heard' if o['heard_foreign'] else 'dropped'} "
                                 f"({o['refused']} counted), own user heard: {o['own_heard']}, mode {o['mode']}"
