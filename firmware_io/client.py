@@ -24,7 +24,7 @@ from firmware_io.wire import requests as R
 from firmware_io.wire.device_time import TimestampUnwrapper
 from firmware_io.wire.errors import DeviceError, DSAError, DSAErrorCode, FrameDecodeError, ProtocolError
 from firmware_io.wire.frames import decode_frame_payload
-from firmware_io.wire.packets import Packet, PacketId
+from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, Packet, PacketId
 from firmware_io.wire.parser import StreamParser
 from firmware_io.wire.replies import ControllerInfo, MatrixInfoReply, SensitivityReply, SensorInfo, ThresholdReply
 
@@ -103,7 +103,7 @@ class DSAClient(CommandExchange):
         self._number = 0
         self._should_stop: Callable[[], bool] | None = None
         self._open_deadline: float | None = None
-        self._open_bytes = 0
+        self._open_bytes = self._open_boots = 0
         self._counts = dict.fromkeys(COUNTERS, 0)
         self._last_url = "the device"
         self.last_refusal: str | None = None
@@ -121,7 +121,7 @@ class DSAClient(CommandExchange):
     def open(self, should_stop: Callable[[], bool] | None = None) -> SensorLayout:
         """Stop any running acquisition, flush, query controller/sensor/matrix info -> the layout.
 
-        Against a silent device this takes several seconds (bounded retries). Every query has a
+        Against a silent device this takes ``open_timeout``: it may be a controller still booting. Every query has a
         total deadline (``reply_timeout``) and the whole open one too (``open_timeout``): bytes
         that keep arriving without forming a reply (a wrong baud rate, another device on the line)
         do not extend them. ``should_stop`` is called at least every 50 ms meanwhile; once it
@@ -129,7 +129,7 @@ class DSAClient(CommandExchange):
         """
         with self._cancellable(should_stop):
             self._open_deadline = time.monotonic() + self.open_timeout
-            self._open_bytes = self.parser.stats.bytes_in
+            self._open_bytes, self._open_boots = self.parser.stats.bytes_in, self.parser.stats.boot_queries
             try:
                 return self._open()
             finally:
@@ -139,6 +139,8 @@ class DSAClient(CommandExchange):
         self._ensure_transport()
         self.streaming = False
         acked = self._send_stop(self.stop_tries)
+        while not acked and self._booting_maybe() and self._open_deadline - time.monotonic() > self.gap_timeout:
+            acked = self._send_stop(1)
         self._flush(first_wait=self.flush_quiet if acked else self.flush_max)
         self._frames.clear()
         self.controller = ControllerInfo.decode(self._request(R.query_controller_info_request(), 0x01))
@@ -150,6 +152,13 @@ class DSAClient(CommandExchange):
             for m in range(self.sensor.nb_matrices)
         ]
         return self._use_layout(SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices)))
+
+    def _booting_maybe(self) -> bool:
+        """Nothing but power-up queries came since the open began: a controller that was just powered
+        on (or reset by a host leaving its Ethernet link) is deaf for about 8 s, so the open keeps asking
+        within its deadline, as SDHLibrary's does; bytes of anything else go on to the queries' diagnosis."""
+        p = self.parser.stats
+        return p.bytes_in - self._open_bytes == len(BOOT_TERMINAL_QUERY) * (p.boot_queries - self._open_boots)
 
     def _use_layout(self, layout: SensorLayout) -> SensorLayout:
         self.layout = layout

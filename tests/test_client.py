@@ -225,13 +225,13 @@ def test_scripted_open_and_error_code_checked_in_every_reply() -> None:
 
 def test_silent_device_open_is_bounded_and_close_never_hangs() -> None:
     dev = ScriptedDevice(lambda p: b"")
-    client = DSAClient(dev, **QUICK)
+    client = DSAClient(dev, open_timeout=2.0, **QUICK)
     t0 = time.monotonic()
     with pytest.raises(DSATimeout):
         client.open()
-    # 3 stop tries + flush + one query, each bounded
-    assert time.monotonic() - t0 < 3 * 0.3 + 0.3 + 0.3 + 1.0
-    assert sum(p.packet_id == 0x03 for p in dev.written) == 3  # stop tried three times, then goes on
+    # stop tried until the open's deadline (a booting controller is deaf for 8 s), then one bounded query
+    assert time.monotonic() - t0 < 2.0 + 0.3 + 0.5
+    assert sum(p.packet_id == 0x03 for p in dev.written) >= 5
     assert client.stats["timeouts"] >= 4
     t0 = time.monotonic()
     client.close()

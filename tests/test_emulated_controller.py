@@ -195,3 +195,22 @@ class DeadLink(Transport):
 
     def close(self) -> None:
         pass
+
+
+def test_a_host_opens_a_controller_its_predecessor_left_booting(rec):
+    """A TCP host leaving resets the controller: the next host's open must wait the boot out (SDHLibrary
+    allows 9 s), not give up after three stop tries; a second ``handover dump`` used to fail."""
+    emulator = DeviceEmulator(rec, speed=1.0, boot_s=2.0, boot_query_s=1.5)
+    server = TcpEmulatorServer(emulator).start()
+    quick = {"gap_timeout": 0.3, "stop_timeout": 0.3, "flush_max": 0.3, "flush_quiet": 0.05}
+    try:
+        first = DSAClient(server.url, **quick)
+        first.open()
+        first.close()
+        t0 = time.monotonic()
+        second = DSAClient(server.url, open_timeout=4.0, **quick)
+        assert second.open().n_taxels == rec.layout.n_taxels
+        assert 1.5 < time.monotonic() - t0 < 4.0 and emulator.stats.power_cycles == 1
+        second.close()
+    finally:
+        server.stop()
