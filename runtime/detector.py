@@ -23,6 +23,7 @@ import contextlib
 import time
 from collections import deque
 from dataclasses import dataclass
+from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -46,7 +47,7 @@ if TYPE_CHECKING:
     from firmware_io.client import Frame
     from runtime.model import LoadedModel
 
-__all__ = ["REHEARSAL_LEAD_S", "Decision", "Detector", "ReportRule", "Trigger", "Windows"]
+__all__ = ["REHEARSAL_LEAD_S", "Decision", "Detector", "ReportRule", "Run", "Trigger", "Windows"]
 
 REHEARSAL_LEAD_S = 0.001
 """How long before a frame that runs the model the model is rehearsed (``Detector.rehearsal_at``):
@@ -62,6 +63,20 @@ class Trigger(Protocol):
     def update(self, row: np.ndarray, number: int) -> int: ...
 
     def reset(self) -> None: ...
+
+    def set_grasp(self, closed: bool) -> None: ...
+
+
+class Run(IntEnum):
+    """What ``Windows.runs_at`` answers when no early head runs (a head answers with its index, 0 and up)."""
+
+    FULL = -1
+    """The full model on the window ending at this frame."""
+    DORMANT = -2
+    """The window ending at this frame held a frame of the arm's motion: judged dormant, the model not run."""
+
+
+FULL, DORMANT = Run.FULL, Run.DORMANT  # module constants: no enum lookup per frame
 
 
 @dataclass(slots=True)
@@ -104,9 +119,6 @@ class Windows:
 
     __slots__ = ("T", "_due", "_previous", "early", "every_frame")
 
-    DORMANT = -2
-    """``runs_at``: the window ending at that frame held a frame of the arm's motion (judged dormant)."""
-
     def __init__(self) -> None:
         self._due: deque[int] = deque()
         self.early: EarlyRule | None = None
@@ -129,16 +141,16 @@ class Windows:
             return due.popleft() == number
         return False
 
-    def runs_at(self, number: int, count: int, last_motion: int) -> int | None:
+    def runs_at(self, number: int, count: int, last_motion: int) -> Run | int | None:
         """What runs at frame ``number`` with ``count`` frames in the ring and the arm's motion up to frame
-        ``last_motion`` (``ArmMotion.last_motion``): -1 the full window, an early head's index (into
-        ``early.points``), ``DORMANT``, or None. Asks, changes nothing: ``ends`` then drops the window."""
+        ``last_motion`` (``ArmMotion.last_motion``): ``Run.FULL``, an early head's index (into
+        ``early.points``), ``Run.DORMANT``, or None. Asks, changes nothing: ``ends`` then drops the window."""
         T, due = self.T, self._due
         if count < T or not (due or self.every_frame):
             return None
         end = number if self.every_frame else due[0]
         if number == end:
-            return -1 if last_motion < number - T + 1 else self.DORMANT
+            return FULL if last_motion < number - T + 1 else DORMANT
         if number > end:  # the oldest window's last frame never came: dropped here, the next one's heads may answer
             end = due[1] if len(due) > 1 else number
         if self.early is None or number >= end:
@@ -334,7 +346,7 @@ class Detector:
         windows.ends(number)  # a window this frame ends or passed is dropped (an early head's report closes its own)
         if run is None:
             return None
-        if run == Windows.DORMANT:  # the arm moved during the window: the model does not run
+        if run is DORMANT:  # the arm moved during the window: the model does not run
             self.arm.dropped += 1
             self.rule.judge_dormant()
             return None
@@ -358,18 +370,18 @@ class Detector:
             return
         window = self.ring.window(model.meta.T)
         with contextlib.suppress(Exception):  # the decision itself meets it and takes the model out of service
-            model.run_trusted(window) if run < 0 else model.run_head(run, window)
+            model.run_trusted(window) if run is FULL else model.run_head(run, window)
 
-    def _next_run(self) -> int | None:
+    def _next_run(self) -> Run | int | None:
         """What ``feed`` will run at the next model frame (``Windows.runs_at``), or None. Only the ring as
         it holds now counts (the rehearsal runs on its newest window); news the next frame brings (a
         window the trigger opens, the robot's 'arm moving') is not known yet."""
         if self.model is None or self.ring is None:
             return None
         run = self.windows.runs_at(self._number + 1, self.ring.count, self.arm.last_motion)
-        return None if run == Windows.DORMANT else run
+        return None if run is DORMANT else run
 
-    def _decide(self, model: LoadedModel, frame: Frame, head: int = -1) -> Decision | None:
+    def _decide(self, model: LoadedModel, frame: Frame, head: Run | int = FULL) -> Decision | None:
         """The model (or early head ``head``) on the window ending at ``frame``, checked; each stage
         stamped. None when an early head's answer is not safe yet (``Windows.answered_early``)."""
         clock = time.perf_counter
@@ -377,11 +389,11 @@ class Detector:
         meta = model.meta
         window = self.ring.window(meta.T)  # a float32 [1, T, C] view of the ring: no copy
         windowed = clock()
-        seen = meta.T if head < 0 else model.early.points[head]
+        seen = meta.T if head is FULL else model.early.points[head]
         first = self.frame_clock.window_first(frame.number, seen)
         problem = None
         try:
-            labels, scores = model.run_trusted(window) if head < 0 else model.run_head(head, window)
+            labels, scores = model.run_trusted(window) if head is FULL else model.run_head(head, window)
         except Exception as exc:  # a graph that fails on real frames only
             labels, scores = np.zeros(1, np.int64), np.zeros((1, meta.n_classes), np.float32)
             problem = f"inference failed on frames {frame.number - seen + 1}..{frame.number}: {one_line(exc)}"
@@ -393,7 +405,7 @@ class Detector:
         if problem is not None:
             return Decision(frame, model, first, -1, scores, -1, stamps, latency_us, False, problem)
         label = int(labels[0])
-        if head >= 0 and not self.windows.answered_early(head, label, scores[0]):
+        if head is not FULL and not self.windows.answered_early(head, label, scores[0]):
             return None
         report = self.rule.judge(label, scores[0])
         return Decision(frame, model, first, label, scores, report, stamps, latency_us,
@@ -403,9 +415,7 @@ class Detector:
         while self._grasp:
             closed, _source = self._grasp.popleft()
             self.grasp_closed = closed
-            set_grasp = getattr(self.trigger, "set_grasp", None)
-            if set_grasp is not None:
-                set_grasp(closed)
+            self.trigger.set_grasp(closed)
 
     # -- fitting the hot path (never per frame) ----------------------------------------------------
     def rebuild(self, keep_history: bool) -> None:
@@ -472,5 +482,5 @@ class Detector:
         self.trigger = build_trigger(*inputs)
         if isinstance(old, ThresholdTrigger) and isinstance(self.trigger, ThresholdTrigger) and keep_history:
             self.trigger.armed, self.trigger.last_trigger, self.trigger.quiet = old.armed, old.last_trigger, old.quiet
-        elif keep_history and self.grasp_closed and hasattr(self.trigger, "set_grasp"):
+        elif keep_history and self.grasp_closed:
             self.trigger.set_grasp(True)  # a new trigger on the same settled grasp

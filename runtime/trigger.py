@@ -71,6 +71,9 @@ class ThresholdTrigger:
         self._baseline_ready = False
         self.fired = 0
 
+    def set_grasp(self, closed: bool) -> None:
+        """The robot's grasp does not move a fixed level: ignored."""
+
     def update(self, row: np.ndarray, number: int) -> int:
         """Feed one frame's scene columns; return the frame number a window ends at, or -1."""
         if self.baseline_mode:
@@ -114,6 +117,9 @@ class ContinuousTrigger:
 
     def reset(self) -> None:
         """Nothing to forget: no state carries from one frame to the next."""
+
+    def set_grasp(self, closed: bool) -> None:
+        """Every frame is classified whatever the grasp: ignored."""
 
     def update(self, row: np.ndarray, number: int) -> int:
         return number

@@ -18,7 +18,7 @@ from firmware_io.recordings.recording import Recording
 from runtime.config import ContinuousConfig, SceneConfig, TriggerConfig, config_from_dict
 from runtime.daemon import Daemon
 from runtime.decision import ContinuousDecision
-from runtime.detector import Detector, ReportRule, Windows
+from runtime.detector import Detector, ReportRule, Run, Windows
 from runtime.early import EarlyRule, EarlySpec
 from runtime.model import load_model
 from runtime.sinks import Event
@@ -102,14 +102,14 @@ def test_windows_say_what_runs_at_a_frame_without_changing_and_a_frame_past_one_
     assert windows.runs_at(9, 15, never) == 0 and windows.runs_at(13, 15, never) == 1
     assert windows.runs_at(9, 14, never) is None  # the ring does not hold a window yet
     assert windows.runs_at(9, 15, 6) is None and windows.runs_at(9, 15, 5) == 0  # an arm move in it: wait for its end
-    assert windows.runs_at(20, 15, 5) == -1 and windows.runs_at(20, 15, 6) == Windows.DORMANT
+    assert windows.runs_at(20, 15, 5) is Run.FULL and windows.runs_at(20, 15, 6) is Run.DORMANT
     assert windows.runs_at(17, 15, never) is None  # the second window's heads wait while the first is open
     assert windows.runs_at(21, 15, never) == 1 and windows.runs_at(21, 15, 14) is None  # frame 20 never came
     assert len(windows) == 2  # asking changed nothing
-    assert not windows.ends(21) and len(windows) == 1 and windows.runs_at(28, 15, 13) == -1
+    assert not windows.ends(21) and len(windows) == 1 and windows.runs_at(28, 15, 13) is Run.FULL
     every = Windows()
     every.T, every.every_frame = 15, True  # continuous mode: every frame ends a window
-    assert every.runs_at(100, 15, 85) == -1 and every.runs_at(100, 15, 86) == Windows.DORMANT
+    assert every.runs_at(100, 15, 85) is Run.FULL and every.runs_at(100, 15, 86) is Run.DORMANT
     assert every.runs_at(100, 14, never) is None and not every
 
 def test_a_grasp_message_is_applied_at_the_next_frame_and_survives_a_model_of_the_same_kind(model_path):
@@ -310,3 +310,18 @@ def test_a_rehearsal_that_fails_is_left_to_the_decision(model_path):
             detector.rehearse()
             rehearsals += 1
     assert rehearsals == 2 and len(problems) == 2 and all("ran too long" in p for p in problems)
+
+
+def test_every_trigger_has_every_method_the_detector_calls_on_it():
+    """The detector calls ``set_grasp`` on whatever trigger serves: the ``Trigger`` protocol declares it and
+    each trigger has it (no ``getattr`` probe on the hot path)."""
+    from runtime.detector import Trigger
+    from runtime.onset import OnsetTrigger
+    from runtime.trigger import ContinuousTrigger, ThresholdTrigger
+
+    declared = {name for name in vars(Trigger) if not name.startswith("_")} | set(Trigger.__annotations__)
+    assert {"update", "reset", "set_grasp", "window", "pre_frames"} <= declared
+    for trigger in (ThresholdTrigger(4, 4095.0), ContinuousTrigger(15),
+                    OnsetTrigger((2, 2), 4095.0, 0.1, 0.01, 0.01, 4.0, 3, 0.02)):
+        assert all(hasattr(trigger, name) for name in declared), type(trigger).__name__
+        trigger.set_grasp(True)
