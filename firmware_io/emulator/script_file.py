@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.errors import HandoverError
+from firmware_io.recordings.bounded_zip import first_line, quote
 from firmware_io.recordings.recording import MAX_NAME_CHARS, Recording, Trial
 
 __all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", "write_script"]
@@ -115,13 +116,13 @@ def read_script(path: str | os.PathLike) -> SessionScript:
     try:
         rows = [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]
     except (ValueError, RecursionError) as exc:  # RecursionError: brackets nested 100,000 deep
-        raise ScriptFileError(f"{p}: not JSON lines ({_clip(exc)}); give the file handover emulate --script-out "
+        raise ScriptFileError(f"{p}: not JSON lines ({first_line(exc)}); give the file handover emulate --script-out "
                               "wrote") from None
     if not rows or not isinstance(rows[0], dict) or rows[0].get("type") != "script":
         raise ScriptFileError(f"{p}: no script header; give the file handover emulate --script-out wrote")
     head = rows[0]
     if head.get("protocol") != SCRIPT_VERSION:
-        raise ScriptFileError(f"{p}: script version {_clip(head.get('protocol'))}, this handover reads {SCRIPT_VERSION}")
+        raise ScriptFileError(f"{p}: script version {quote(head.get('protocol'))}, this handover reads {SCRIPT_VERSION}")
     if head.get("started") is False:
         raise ScriptFileError(f"{p}: no host asked the emulator for frames yet, so the session's device times are "
                               "not known; score once the daemon has read the session")
@@ -146,19 +147,19 @@ def _header_problem(head: dict) -> str | None:
     if any(b < a for a, b in pairwise(ms)):
         return "frame_ms goes back in time; a script's frame times never descend"
     if not _count(head.get("clock_start_ms")):
-        return f"clock_start_ms {_clip(head.get('clock_start_ms'))} is not a device time in whole ms"
+        return f"clock_start_ms {quote(head.get('clock_start_ms'))} is not a device time in whole ms"
     loop_ms = head.get("loop_ms")
     if loop_ms is not None and (not _count(loop_ms) or loop_ms <= ms[-1]):  # else each ms would be a pass
-        return f"loop_ms {_clip(loop_ms)} must be whole ms longer than the session ({ms[-1]} ms)"
+        return f"loop_ms {quote(loop_ms)} must be whole ms longer than the session ({ms[-1]} ms)"
     return None
 
 
 def _event_problem(row: dict, head: dict) -> str | None:
     n = len(head["frame_ms"])
-    where = f"scripted event {_clip(row.get('event'))}"
+    where = f"scripted event {quote(row.get('event'))}"
     for key in ("action", "subject", "object", "pose"):
         if not isinstance(row.get(key), str) or not 0 < len(row[key]) <= MAX_NAME_CHARS:
-            return f"{where}: {key} must be a name of 1 to {MAX_NAME_CHARS} characters, got {_clip(row.get(key))}"
+            return f"{where}: {key} must be a name of 1 to {MAX_NAME_CHARS} characters, got {quote(row.get(key))}"
     if not _count(row.get("event"), 1):
         return f"{where}: its number must be a whole number from 1"
     frames = [row.get(k) for k in ("first_frame", "onset_frame", "last_frame")]
@@ -167,9 +168,3 @@ def _event_problem(row: dict, head: dict) -> str | None:
     if frames[0] > frames[2]:
         return f"{where}: its first frame {frames[0]} is after its last {frames[2]}"
     return None
-
-
-def _clip(value: object) -> str:
-    """What a refusal quotes of the file: never more than a line's worth."""
-    text = repr(value) if not isinstance(value, BaseException) else str(value)
-    return text if len(text) <= 40 else text[:36] + "..."

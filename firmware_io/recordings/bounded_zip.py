@@ -18,11 +18,9 @@ import numpy as np
 
 from firmware_io.errors import HandoverError
 
-__all__ = ["LimitError", "read_json", "read_npy"]
+__all__ = ["LimitError", "first_line", "quote", "read_json", "read_npy"]
 
 CHUNK = 1 << 20
-MAX_JSON_DEPTH = 32
-"""A recording header nests four levels (header, layout, matrices, mask rows)."""
 
 
 class LimitError(HandoverError, ValueError):
@@ -52,36 +50,11 @@ def read_member(zf: zipfile.ZipFile, name: str, cap: int) -> bytes:
 
 
 def read_json(zf: zipfile.ZipFile, name: str, cap: int) -> object:
-    """A JSON member of at most ``cap`` bytes and ``MAX_JSON_DEPTH`` levels of nesting."""
-    text = read_member(zf, name, cap)
-    if _nesting(text) > MAX_JSON_DEPTH:
-        raise LimitError(f"member {name} nests deeper than {MAX_JSON_DEPTH} levels")
+    """A JSON member of at most ``cap`` bytes, nested no deeper than the JSON parser's recursion limit."""
     try:
-        return json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        raise LimitError(f"member {name} is not valid JSON ({_first_line(exc)})") from None
-
-
-def _nesting(text: bytes) -> int:
-    """Deepest bracket nesting outside strings (a linear scan: no recursion, no allocation)."""
-    depth = deepest = 0
-    in_string = escaped = False
-    for byte in text:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif byte == 0x5C:  # backslash
-                escaped = True
-            elif byte == 0x22:
-                in_string = False
-        elif byte == 0x22:
-            in_string = True
-        elif byte in (0x5B, 0x7B):
-            depth += 1
-            deepest = max(deepest, depth)
-        elif byte in (0x5D, 0x7D):
-            depth -= 1
-    return deepest
+        return json.loads(read_member(zf, name, cap))
+    except (ValueError, RecursionError) as exc:  # RecursionError: nested deeper than the parser's limit
+        raise LimitError(f"member {name} is not valid JSON ({first_line(exc)})") from None
 
 
 def read_npy(zf: zipfile.ZipFile, name: str, dtype: np.dtype | str, shape: Sequence[int]) -> np.ndarray:
@@ -100,7 +73,7 @@ def read_npy(zf: zipfile.ZipFile, name: str, dtype: np.dtype | str, shape: Seque
             else:
                 raise LimitError(f"member {name}: .npy format version {version} is not supported")
         except (ValueError, SyntaxError, EOFError, OSError) as exc:
-            raise LimitError(f"member {name} is not an .npy array ({_first_line(exc)})") from None
+            raise LimitError(f"member {name} is not an .npy array ({first_line(exc)})") from None
         if got_dtype != want_dtype or tuple(got_shape) != want_shape or fortran:
             raise LimitError(f"member {name} holds {got_dtype} {list(got_shape)}{' (Fortran order)' if fortran else ''}, "
                              f"expected {want_dtype} {list(want_shape)}")
@@ -117,6 +90,13 @@ def read_npy(zf: zipfile.ZipFile, name: str, dtype: np.dtype | str, shape: Seque
     return out
 
 
-def _first_line(exc: BaseException) -> str:
+def first_line(exc: BaseException) -> str:
+    """What a refusal quotes of an exception: its first line, at most 200 characters."""
     text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
+    return text[0][:200] if text else type(exc).__name__
+
+
+def quote(value: object) -> str:
+    """What a refusal quotes of a value from a file: its repr, never more than a line's worth."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:36] + "..."

@@ -37,13 +37,8 @@ DEFAULT_RUNS = 5
 MAX_RUNS = 100
 """The most runs of each pose, object and action: 3600 trials of the default protocol, days of recording (the
 plan is listed before the first trial, so --runs 100000000 never started)."""
-DEFAULT_TRIAL_SECONDS = 3.0
-MIN_TRIAL_SECONDS = 0.3
-"""A trial must be longer: the action needs a window of frames after the go cue."""
-MAX_SPAN_SECONDS = 600.0
-"""The longest trial, lead-in, gap or countdown: ten minutes is already a typo, not a protocol."""
 
-# -- the plan ---------------------------------------------------------------------------------
+
 @dataclass(frozen=True, order=True)
 class TrialSlot:
     """One cell of the protocol: what the subject does in one trial."""
@@ -158,6 +153,13 @@ class SessionIO:
         ``skipped`` to pass it over, 'quit' to stop the session; no answer (auto) starts it."""
         answer = self.ask("Enter = start, s = skip, q = quit", ("", "s", "q"))
         return {"s": skipped, "q": "quit"}.get(answer)
+
+
+DEFAULT_TRIAL_SECONDS = 3.0
+MIN_TRIAL_SECONDS = 0.3
+"""A trial must be longer: the action needs a window of frames after the go cue."""
+MAX_SPAN_SECONDS = 600.0
+"""The longest trial, lead-in, gap or countdown: ten minutes is already a typo, not a protocol."""
 
 
 @dataclass

@@ -31,7 +31,7 @@ from firmware_io.errors import HandoverError
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks, idle_stretches
-from firmware_io.recordings.bounded_zip import LimitError, read_json, read_npy
+from firmware_io.recordings.bounded_zip import LimitError, first_line, quote, read_json, read_npy
 
 __all__ = ["ACTIONS", "MAX_NAME_CHARS", "MAX_RUN", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
            "remove_stale_temps"]
@@ -122,9 +122,9 @@ class Recording:
             if not 0 <= tr.first <= tr.last < f.shape[0]:
                 return f"trial {i} spans frames {tr.first}..{tr.last}, outside 0..{f.shape[0] - 1}"
             if not 0 <= tr.run <= MAX_RUN:
-                return f"trial {i}: run {_short(tr.run)} outside 0..{MAX_RUN}"
+                return f"trial {i}: run {quote(tr.run)} outside 0..{MAX_RUN}"
             if long := next((k for k in ("subject", "object", "pose", "action") if len(getattr(tr, k)) > MAX_NAME_CHARS), None):
-                return f"trial {i}: {long} {_short(getattr(tr, long))} is longer than {MAX_NAME_CHARS} characters"
+                return f"trial {i}: {long} {quote(getattr(tr, long))} is longer than {MAX_NAME_CHARS} characters"
         return None
 
     @property
@@ -233,7 +233,7 @@ class Recording:
         except zipfile.BadZipFile as exc:
             raise RecordingError(f"{path}: not a handover recording or truncated ({exc})") from None
         except (OSError, EOFError, ValueError, KeyError, NotImplementedError, RuntimeError) as exc:
-            raise RecordingError(f"{path}: damaged recording ({type(exc).__name__}: {_first_line(exc)})") from None
+            raise RecordingError(f"{path}: damaged recording ({type(exc).__name__}: {first_line(exc)})") from None
         try:
             layout = SensorLayout.from_dict(header["layout"])
             if layout.n_taxels != n_taxels:
@@ -244,7 +244,7 @@ class Recording:
                 raise RecordingError(why)
             return cls(layout, frames, stamps, trials, meta)
         except Exception as exc:  # any shape of nonsense in a header: one line naming the file
-            raise RecordingError(f"{path}: inconsistent recording: {_first_line(exc)}") from None
+            raise RecordingError(f"{path}: inconsistent recording: {first_line(exc)}") from None
 
 
 MAX_HEADER_BYTES = 16 << 20
@@ -270,10 +270,10 @@ def _read_header(zf: zipfile.ZipFile, path: Path) -> dict:
     if not isinstance(header, dict):
         raise RecordingError(f"{path}: not a handover recording (header is a {type(header).__name__})")
     if header.get("format") != FORMAT_NAME:
-        raise RecordingError(f"{path}: not a handover recording (format {_short(header.get('format'))})")
+        raise RecordingError(f"{path}: not a handover recording (format {quote(header.get('format'))})")
     if header.get("version") != FORMAT_VERSION:
         raise RecordingError(
-            f"{path}: recording format version {_short(header.get('version'))} is not supported "
+            f"{path}: recording format version {quote(header.get('version'))} is not supported "
             f"(this software reads version {FORMAT_VERSION})"
         )
     missing = {"frames.npy", "timestamps.npy"} - names
@@ -294,16 +294,6 @@ def _declared_size(header: dict, path: Path) -> tuple[int, int]:
         raise RecordingError(f"{path}: header says {n_frames} frames x {n_taxels} taxels, over the limit of "
                              f"{MAX_FRAME_BYTES >> 20} MiB of frames")
     return n_frames, n_taxels
-
-
-def _short(value: object) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else text[:36] + "..."
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0][:200] if text else type(exc).__name__
 
 
 def _umask() -> int:
