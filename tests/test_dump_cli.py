@@ -81,8 +81,10 @@ def test_dump_refuses_seconds_that_are_not_positive(capsys, seconds):
 
 @pytest.mark.parametrize("duration", ["-5", "0", "nan"])
 def test_emulate_refuses_a_duration_that_is_not_positive(capsys, duration):
-    assert main(["emulate", "--pty", "--duration", duration]) == 2
-    assert "--duration must be a positive number of seconds" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # argparse's type refuses it, before anything is served
+        main(["emulate", "--pty", "--duration", duration])
+    assert stop.value.code == 2
+    assert "argument --duration: must be a positive number" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv", [["simulate", "--subjects", "1", "--runs", "1"],

@@ -280,7 +280,7 @@ def test_tcp_server_on_ipv6_loopback(rec):
 
 
 def test_emulate_cli_bad_options_are_one_line(capsys):
-    from firmware_io.commands import emulate_cli
+    from runtime.cli import main
 
     for argv, words in [
         (["--listen", "tcp://10.1.2.3:5000"], "loopback only"),
@@ -290,7 +290,7 @@ def test_emulate_cli_bad_options_are_one_line(capsys):
         (["--pty", "--speed", "fast"], "--speed"),
         (["--pty", "--source", "/no/such.hrec"], "no such file"),
     ]:
-        assert emulate_cli.main(_args(emulate_cli, argv)) == 2
+        assert main(["emulate", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("handover emulate: ") and words in err and "\n" not in err
 

@@ -11,11 +11,10 @@ import signal
 import sys
 import time
 
-from firmware_io.errors import fail
+from firmware_io.commands.options import add_seed, int_in, positive_float
+from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
-
-COMMAND = "emulate"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,13 +22,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--listen", metavar="URL", help="tcp://127.0.0.1:PORT (loopback only; port 0 picks one)")
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal and print its path")
     from firmware_io.sim.session import DEMO_SESSION_SEED, HELD_OUT_SEED_OFFSET
+    from firmware_io.transports.base import MAX_EVENTS
 
     parser.add_argument("--source", default="sim", help="'sim' (simulated hand, default) or a recording file")
-    parser.add_argument("--events", type=int, default=40, help="scripted events of the simulated session (default 40)")
-    parser.add_argument("--seed", type=int, default=DEMO_SESSION_SEED,
-                        help=f"seed of the simulated session and of fault injection (default {DEMO_SESSION_SEED}: "
-                        "the demo's scripted session, by simulated subjects no demo model trains on; a model trained "
-                        f"on simulator seed s meets new subjects at s + {HELD_OUT_SEED_OFFSET})")
+    parser.add_argument("--events", type=int_in(1, MAX_EVENTS), default=40,
+                        help="scripted events of the simulated session (default 40)")
+    add_seed(parser, DEMO_SESSION_SEED,
+             help=f"seed of the simulated session and of fault injection (default {DEMO_SESSION_SEED}: "
+             "the demo's scripted session, by simulated subjects no demo model trains on; a model trained "
+             f"on simulator seed s meets new subjects at s + {HELD_OUT_SEED_OFFSET})")
     parser.add_argument("--speed", default="1.0", help="playback speed: a factor (1.0 = recorded timing) or 'max'")
     parser.add_argument(
         "--fault",
@@ -38,8 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--old-firmware", action="store_true", help="behave like firmware <= R288 (single frame pushes)")
     parser.add_argument("--no-loop", action="store_true", help="stop sending at the end of the recording")
-    parser.add_argument("--duration", type=float, default=None, help="exit after this many seconds (default: Ctrl-C)")
-    parser.add_argument("--clock-start", type=int, default=0, metavar="MS",
+    parser.add_argument("--duration", type=positive_float, default=None,
+                        help="exit after this many seconds (default: Ctrl-C)")
+    parser.add_argument("--clock-start", type=int_in(0, 2**32 - 1), default=0, metavar="MS",
                         help="the device clock's value at power-on, in ms (0..4294967295; it wraps there)")
     parser.add_argument("--boot-seconds", type=float, default=None, metavar="S",
                         help="how long a power cycle (--fault disconnect=N, or a TCP host leaving) keeps the controller "
@@ -56,45 +58,31 @@ def _write_script(args: argparse.Namespace, recording, emulator, ended: bool = F
     from firmware_io.emulator.script_file import write_script
 
     start = emulator.session_clock_ms
-    write_script(args.script_out, recording, args.clock_start if start is None else start, loop=not args.no_loop,
-                 source=str(args.source), started=start is not None, ended=ended)
+    try:
+        write_script(args.script_out, recording, args.clock_start if start is None else start, loop=not args.no_loop,
+                     source=str(args.source), started=start is not None, ended=ended)
+    except OSError as exc:
+        raise HandoverError(f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})") from None
 
 
 def _interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
 
-def _option_problem(args: argparse.Namespace) -> str | None:
-    """The line that refuses an option out of range, or None."""
-    from firmware_io.transports.base import MAX_EVENTS
-
-    if args.duration is not None and not args.duration > 0:  # also NaN
-        return f"--duration must be a positive number of seconds, got {args.duration}; leave it out to serve until Ctrl-C"
-    if not 1 <= args.events <= MAX_EVENTS:
-        return f"--events must be in 1..{MAX_EVENTS}, got {args.events}"
-    if not 0 <= args.clock_start < 2**32:
-        return f"--clock-start must be in 0..4294967295 ms, got {args.clock_start}"
-    if args.boot_seconds is not None and not 0 <= args.boot_seconds <= 600:  # also NaN
-        return f"--boot-seconds must be within 0..600, got {args.boot_seconds}"
-    return None
-
-
 def _server(args: argparse.Namespace, emulator):
-    """The pty or TCP server ``args`` ask for, or the line that refuses ``--listen``."""
+    """The pty or TCP server ``args`` ask for."""
     from firmware_io.emulator.server import PtyEmulatorServer, TcpEmulatorServer
-    from firmware_io.transports.base import ParsedURL, TransportError
+    from firmware_io.transports.base import ParsedURL
 
     if args.pty:
         return PtyEmulatorServer(emulator)
-    try:
-        parsed = ParsedURL(args.listen)
-    except TransportError as exc:
-        return str(exc)
+    parsed = ParsedURL(args.listen)
     if parsed.scheme != "tcp" or not parsed.netloc or parsed.path not in ("", "/") or parsed.options:
-        return f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT (or --pty for a pseudo-terminal to open as serial://)"
+        raise HandoverError(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT (or --pty for a pseudo-terminal "
+                            "to open as serial://)")
     host, _, port = parsed.netloc.rpartition(":")
     if not host or not port.isdigit() or int(port) > 65535:
-        return f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)"
+        raise HandoverError(f"--listen {args.listen!r}: use tcp://127.0.0.1:PORT with a port 0..65535 (0 picks one)")
     return TcpEmulatorServer(emulator, host=host, port=int(port))
 
 
@@ -102,41 +90,27 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.commands.playback import playback_options
     from firmware_io.emulator.device import DeviceEmulator
     from firmware_io.emulator.frame_source import load_source
-    from firmware_io.emulator.server import EmulatorServerError
-    from firmware_io.recordings.recording import RecordingError
 
     try:
         speed, faults = playback_options(args.speed, args.fault)
     except ValueError as exc:
-        return fail(COMMAND, str(exc))
-    problem = _option_problem(args)
-    if problem:
-        return fail(COMMAND, problem)
+        raise HandoverError(str(exc)) from None
     boot = {}
     if args.boot_seconds is not None:
+        if not 0 <= args.boot_seconds <= 600:  # also NaN
+            raise HandoverError(f"--boot-seconds must be within 0..600, got {args.boot_seconds}")
         boot = {"boot_s": args.boot_seconds, "boot_query_s": max(0.0, args.boot_seconds - 1.0)}
-    try:
-        recording = load_source(args.source, seed=args.seed, events=args.events)
-    except RecordingError as exc:
-        return fail(COMMAND, str(exc))
+    recording = load_source(args.source, seed=args.seed, events=args.events)
     emulator = DeviceEmulator(
         recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed,
         start_ms=args.clock_start, session_starts="first_acquisition", **boot,
     )
     if args.script_out:
-        try:  # written again, with the device time the session starts at, once a host asks for frames
-            _write_script(args, recording, emulator)
-        except OSError as exc:
-            return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
+        _write_script(args, recording, emulator)  # again, with the device time the session starts at, once asked
         if not recording.trials:
             print(f"handover emulate: warning: {args.source} has no scripted events; {args.script_out} holds none",
                   file=sys.stderr, flush=True)
-    try:
-        server = _server(args, emulator)
-    except EmulatorServerError as exc:
-        return fail(COMMAND, str(exc))
-    if isinstance(server, str):
-        return fail(COMMAND, server)
+    server = _server(args, emulator)
 
     signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop ends like Ctrl-C: summary, clean close
     synthetic = " (synthetic)" if recording.meta.get("synthetic", args.source == "sim") else ""
@@ -151,11 +125,9 @@ def main(args: argparse.Namespace) -> int:
     )
     server.start()
     try:
-        status = _serve(args, server, emulator, recording)
+        _serve(args, server, emulator, recording)
     finally:
         server.stop()
-    if status:
-        return status
     s = emulator.stats
     print(
         f"served {s.connections} connection(s), {s.commands} commands, {s.frames_sent} frames; "
@@ -166,8 +138,8 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _serve(args: argparse.Namespace, server, emulator, recording) -> int:
-    """Serve until ``--duration`` or Ctrl-C, saying when the session starts and ends; 0, or a failure's code."""
+def _serve(args: argparse.Namespace, server, emulator, recording) -> None:
+    """Serve until ``--duration`` or Ctrl-C, saying when the session starts and ends."""
     end = None if args.duration is None else time.monotonic() + args.duration
     script_due = bool(args.script_out)
     end_due = bool(args.no_loop)
@@ -179,25 +151,18 @@ def _serve(args: argparse.Namespace, server, emulator, recording) -> int:
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
             if server.error is not None:
-                return fail(COMMAND, f"server stopped: {server.error}")
+                raise HandoverError(f"server stopped: {server.error}")
             if script_due and emulator.session_clock_ms is not None:
                 script_due = False
-                try:
-                    _write_script(args, recording, emulator)
-                except OSError as exc:
-                    return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
+                _write_script(args, recording, emulator)
                 print(f"session started at device time {emulator.session_clock_ms} ms; script: {args.script_out}",
                       flush=True)
             if end_due and emulator.finished:  # the host now only sees a stall: say the session is over
                 end_due = False
                 if args.script_out and not script_due:
-                    try:
-                        _write_script(args, recording, emulator, ended=True)
-                    except OSError as exc:
-                        return fail(COMMAND, f"--script-out {args.script_out}: cannot write ({exc.strerror or exc})")
+                    _write_script(args, recording, emulator, ended=True)
                 score = f"; then handover score EVENTS.jsonl {args.script_out}" if args.script_out else ""
                 print(f"session over: all {recording.n_frames} frames sent (--no-loop); stop the daemon{score}; "
                       "Ctrl-C ends the emulator", flush=True)
     except KeyboardInterrupt:
         pass
-    return 0
