@@ -16,7 +16,6 @@ from trainer.dataset import (
     build_dataset,
     fingerprint,
     rising_trigger,
-    trigger_frame,
 )
 
 
@@ -28,12 +27,6 @@ def _one_trial_recording(peak_at: int, value: int = 1000, n: int = 40) -> Record
     frames[:, int(layout.columns("proximal")[3])] = 4000  # a proximal pad far above the threshold
     fields = dict(subject="s1", object="ball", pose="up", action="push", run=0, extra={"onset": peak_at})
     return Recording.concatenate(layout, [(frames, np.arange(n) / 32.0, fields)])
-
-
-def test_trigger_frame_is_the_first_reaching_the_level():
-    frames = np.array([[0, 10], [0, 600], [700, 0]])
-    assert trigger_frame(frames, 600) == 1
-    assert trigger_frame(frames, 701) == -1
 
 
 def test_window_starts_at_the_trigger_of_the_chosen_pads_only():

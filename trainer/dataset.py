@@ -46,7 +46,7 @@ from runtime.trigger_settings import (
 __all__ = [
     "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "CaseCheck", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
     "case_check", "dataset_trigger", "fingerprint", "frames_before_trigger", "onset_start", "reason_counts", "rising_trigger",
-    "trigger_frame", "untriggered_lines"
+    "untriggered_lines"
 ]
 
 ABOVE_FROM_START = "above the level from the first frame"
@@ -255,14 +255,6 @@ def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, 
         if trig.update(rows[i], i) >= 0:
             return i, None
     return -1, f"{NEVER}: no pad departed by {settings.change:.0%} from the settled grasp"
-
-
-def trigger_frame(frames: np.ndarray, level: float) -> int:
-    """First row whose maximum reaches ``level``, or -1 (no edge rule; see ``rising_trigger``)."""
-    if frames.size == 0:
-        return -1
-    hits = np.flatnonzero(frames.max(axis=1) >= level)
-    return int(hits[0]) if len(hits) else -1
 
 
 def rising_trigger(frames: np.ndarray, fullscale: float, fraction: float, hysteresis: float = DEFAULT_HYSTERESIS

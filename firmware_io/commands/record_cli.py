@@ -200,6 +200,7 @@ def _connect(device: str, trial_seconds: float):
 
 def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice) -> int:
     """Open the device and the session file, walk the protocol; the exit code."""
+    from firmware_io.recordings.bounded_zip import first_line
     from firmware_io.recordings.idle_session import run_idle
     from firmware_io.recordings.idle_stretches import idle_plan
     from firmware_io.recordings.record_session import (
@@ -249,7 +250,7 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     except (SessionError, ValueError) as exc:
         return fail(COMMAND, str(exc))
     except (DeviceLost, TransportError, DSAError) as exc:
-        return fail(COMMAND, f"device lost ({_first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
+        return fail(COMMAND, f"device lost ({first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
     except KeyboardInterrupt:
         return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
     flagged = (f", {len(result.flagged)} flagged: training gets no case from them (handover plot shows one)"
@@ -314,11 +315,6 @@ def _subject_seed(url: object) -> str | None:
 def _saved(store) -> str:
     idle = f" and {store.n_idle} idle stretches ({store.idle_seconds() / 60:.1f} min)" if store.n_idle else ""
     return f"{store.n_trials} trials{idle} saved in {store.path}"
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
 
 def _controller_info(client) -> dict:

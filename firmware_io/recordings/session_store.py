@@ -123,20 +123,13 @@ class SessionStore:
         period = float(np.median(np.concatenate([np.diff(t) for t in stamps]))) if stamps else NOMINAL_PERIOD_S
         return frames * period
 
-    def done_keys(self) -> set[tuple[str, str, str, int]]:
-        return {(s.fields["pose"], s.fields["object"], s.fields["action"], int(s.fields["run"]))
-                for s in self.segments if IDLE_KEY not in s.fields}
-
-    def done_idle(self) -> set[int]:
-        """Plan indices of the idle stretches recorded."""
-        return {int(s.fields[IDLE_KEY]["index"]) for s in self.segments if IDLE_KEY in s.fields}
-
     def remaining_idle(self, plan: Sequence[IdleSlot]) -> list[IdleSlot]:
-        done = self.done_idle()
+        done = {int(s.fields[IDLE_KEY]["index"]) for s in self.segments if IDLE_KEY in s.fields}
         return [s for s in plan if s.index not in done]
 
     def remaining(self, plan: ProtocolPlan) -> list[TrialSlot]:
-        done = self.done_keys()
+        done = {(s.fields["pose"], s.fields["object"], s.fields["action"], int(s.fields["run"]))
+                for s in self.segments if IDLE_KEY not in s.fields}
         return [s for s in plan.slots() if s.key not in done]
 
     def add(self, slot: TrialSlot, frames: np.ndarray, stamps: np.ndarray, extra: dict) -> int:
