@@ -34,7 +34,7 @@ from runtime.config_reload import changed_sections, set_log_level
 from runtime.control import ControlSocket, MessageLog
 from runtime.decision_guard import DecisionGuard
 from runtime.detector import Decision, Detector
-from runtime.device_link import DeviceLink
+from runtime.device_link import DeviceLink, Linked
 from runtime.health import Health, StatusFile, one_line
 from runtime.heap import settle_heap
 from runtime.instance_name import instance_of
@@ -61,6 +61,8 @@ HEALTH_PERIOD_S = 1.0
 HOLD_LIMIT_S = 10.0
 """How long open windows may hold back a model swap or a reload (``Daemon.windows_hold``); longer
 for a stream so slow that two windows take longer."""
+_KEEP: Any = object()
+"""``Daemon._apply``'s model when the serving model stays."""
 SHUTDOWN_STOP_S = 0.3
 """Longest the stop handshake may take at shutdown (SIGTERM must end the process within 1 s)."""
 
@@ -108,10 +110,8 @@ class Daemon:
         self.robot = RobotInputs(self.detector, self.messages)
         """The grasp and arm commands the control socket and the ROS 2 node may give, from their threads."""
         self.reporter = Reporter(self._sinks(cfg), self.health, on_event, self.listeners)
-        self.models = ModelSlot(cfg, self.detector, self.health, self._announce)
-        self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory, on_stream=self._stream_began,
-                               while_connecting=self._swap_and_report, should_stop=lambda: self._stop,
-                               on_fault=self.hot_thread_lower)
+        self.models = ModelSlot(cfg, self.health, self._apply, self._announce)
+        self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory)
         self.link.scene = cfg.scene.pads
         self.control: ControlSocket | None = None
         self.locks: Any = None
@@ -154,6 +154,7 @@ class Daemon:
         """Serve ``model`` for a device with ``layout``, fed by the caller through ``handle_frame`` (no
         device, no watcher). Raises ValueError when the model cannot serve the configured scene."""
         self.models.serve(model, layout)
+        self._apply(layout=layout)
 
     def request_stop(self, *_: Any) -> None:
         self._stop = True
@@ -252,13 +253,28 @@ class Daemon:
     def _announce(self, announcement: ModelAnnouncement) -> None:
         self.sinks.emit(announcement)
 
-    def _stream_began(self, layout: SensorLayout) -> None:
-        """The link (re)connected: a model that does not fit a new layout stops serving; the history is new."""
-        self.models.fit_layout(layout)
-        self.detector.fit(layout)
+    def _apply(self, model: Any = _KEEP, layout: SensorLayout | None = None, cfg: Config | None = None) -> None:
+        """The one place the detector changes: the model the slot chose (or None), the layout of a device
+        that began to stream (the history is new), the settings of a reloaded config. Between frames only."""
+        if model is not _KEEP:
+            self.detector.swap(model)
+        if layout is not None:
+            self.detector.fit(layout)
+        if cfg is not None:
+            self.detector.configure(cfg.scene, cfg.trigger, cfg.continuous, cfg.control)
 
-    def hot_thread_lower(self) -> None:
-        self.hot_thread.lower()
+    def _connect(self) -> None:
+        """A connection attempt; a device that began to stream is fitted (a model that does not fit its
+        layout stops serving). During a slow open the link asks ``_connecting`` between its reads."""
+        if self.link.connect(self._connecting) is Linked.STREAMING:
+            self.models.fit_layout(self.link.layout)
+            self._apply(layout=self.link.layout)
+
+    def _connecting(self) -> bool:
+        """Whether to cancel a slow open (SIGTERM); meanwhile the health file is written and a model dropped
+        meanwhile serves at once."""
+        self._swap_and_report(time.monotonic())
+        return self._stop
 
     def _hot_thread_raise(self) -> None:
         """The config's ``realtime_priority`` for this (the hot) thread, once the link delivers a valid
@@ -325,13 +341,8 @@ class Daemon:
             self.status_file = StatusFile(new.health_file) if new.health_file else None
         self.link.retarget(new.device)
         self.link.scene = new.scene.pads
-        if new.device.url != old.device.url:
-            self.detector.layout = None  # the next device may have another layout: fitted afresh
-        if new.scene != old.scene or new.model != old.model or new.onnxruntime != old.onnxruntime:
-            self.models.refit(old, new)
-        else:
-            self.models.cfg = new
-        self.detector.configure(new.scene, new.trigger, new.continuous, new.control)
+        self.models.refit(old, new)
+        self._apply(cfg=new)
         self.health.resolve("config")
         log.info("configuration reloaded from %s (%s)", source, changed_sections(old, new))
         self.notifier.ready(self.health.status_line())
@@ -365,12 +376,14 @@ class Daemon:
                 self._housekeeping(now)
                 if not link.connected:
                     if link.due(now):
-                        link.connect()
+                        self._connect()
                     else:
                         time.sleep(min(READ_TIMEOUT_S, link.wait_s(now)))
                     continue
                 frame = read()
                 if frame is None:
+                    if not link.connected:  # the link failed: no real-time priority until frames flow again
+                        self.hot_thread.lower()
                     continue
                 if not self.hot_thread.applied:
                     self._hot_thread_raise()

@@ -4,8 +4,9 @@ An unplugged, refused or silent device is reported and retried with doubling bac
 fatal (the health file hears of every attempt, the log of the first and then rarely:
 runtime.retry_notes); only a URL that can never work (or a missing package) ends the daemon, with
 one line.
-While a slow open runs, the client asks ``_still_connecting``, which answers SIGTERM, feeds the
-watchdog for a bounded time and lets the owner keep the health file and model swaps current.
+The owner hears what happened from return values (``connect`` says whether a stream began, ``read``
+returns None with ``connected`` False after a fault); the link calls nothing of its owner but the
+``should_stop`` predicate it is given for a slow open (the owner answers SIGTERM there).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
+from enum import Enum
 from typing import Any
 
 from firmware_io.client import Cancelled, DSAClient
@@ -24,7 +26,7 @@ from runtime.health import Health, one_line
 from runtime.retry_notes import RetryNotes
 from runtime.sdnotify import Notifier
 
-__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceLink", "default_client", "log"]
+__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceLink", "Linked", "default_client", "log"]
 
 log = logging.getLogger("handover.daemon")
 
@@ -44,30 +46,32 @@ SHORT_LINK_HINT = (f"within {SHORT_LINK_S:g} s of connecting (the device may be 
 """Said of a link the device ends soon after connecting; a stall that soon is only said to be that soon."""
 
 
+class Linked(Enum):
+    """What a connection attempt came to."""
+
+    STREAMING = "streaming"
+    """A stream began (``DeviceLink.layout`` is the device's)."""
+    RETRY = "retry"
+    """Failed (the next attempt scheduled) or cancelled: closed."""
+    FATAL = "fatal"
+    """The link can never work (``DeviceLink.fatal`` says why)."""
+
+
 class DeviceLink:
     """Opening, watching and closing the device client (module docstring).
 
     ``read(timeout)`` is the loop's one call while streaming: a frame, or None (nothing yet, or the
-    link failed: it is closed and a reconnect scheduled). ``connect()`` when ``due(now)``. The owner
-    hears of a new stream through ``on_stream(layout)``, and ``while_connecting(now)`` keeps its
-    housekeeping going during a slow open; ``should_stop()`` cancels an open.
+    link failed: then ``connected`` is False, it is closed and a reconnect scheduled). ``connect()``
+    when ``due(now)`` says what came of it (``Linked``).
     """
 
     def __init__(self, device: DeviceConfig, health: Health, notifier: Notifier,
-                 client_factory: Callable[[str], Any] | None = None, *,
-                 on_stream: Callable[[SensorLayout], None] = lambda layout: None,
-                 while_connecting: Callable[[float], None] = lambda now: None,
-                 should_stop: Callable[[], bool] = lambda: False,
-                 on_fault: Callable[[], None] = lambda: None) -> None:
+                 client_factory: Callable[[str], Any] | None = None) -> None:
         self.device = device
         self.health = health
         self.notifier = notifier
         self.client_factory = client_factory or default_client
-        self.on_stream = on_stream
-        self.while_connecting = while_connecting
-        self.should_stop = should_stop
-        self.on_fault = on_fault
-        """Called when a streaming link fails (the daemon lowers its thread's priority)."""
+        self._should_stop: Callable[[], bool] = lambda: False
         self.scene = ""
         """The scene's pads, for the log lines (the owner keeps it current)."""
         self.client: Any = None
@@ -143,11 +147,12 @@ class DeviceLink:
                                      f"{self.connect_bound_s:g} s", "device")
             log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
                       "(systemd restarts the service)", self.device.url, self.connect_bound_s)
-        self.while_connecting(now)  # a model dropped while a slow connect runs serves at once
-        return self.should_stop()
+        return self._should_stop()
 
-    def connect(self) -> None:
-
+    def connect(self, should_stop: Callable[[], bool] = lambda: False) -> Linked:
+        """One attempt to open the device; ``should_stop()`` is asked between reads of a slow open (True
+        cancels it)."""
+        self._should_stop = should_stop
         h = self.health
         url = self.device.url
         self._connect_started, self._hang_logged = time.monotonic(), False
@@ -161,15 +166,14 @@ class DeviceLink:
         except Cancelled:
             self._connect_started = None
             self.close()
-            return
+            return Linked.RETRY
         except Exception as exc:  # unplugged, refused, wrong device: report and retry, never die
             self._connect_failed(url, exc)
-            return
+            return Linked.FATAL if self.fatal else Linked.RETRY
         self._connect_started = None
         self.connected = True
         first = self.layout is None
         self.layout = layout
-        self.on_stream(layout)
         self._last_frame_t = time.monotonic()
         h.device_state = "streaming"
         h.resolve("device")
@@ -179,6 +183,7 @@ class DeviceLink:
             log.info("device %s %s%s (%d taxels, scene %s)", url, "connected" if first else "reconnected",
                      self.retry_notes.connected(), layout.n_taxels, self.scene)
             self._flapping = False
+        return Linked.STREAMING
 
     def link_held(self) -> None:
         """After an outage of short links: the line that says the device is back, once the link has
@@ -218,7 +223,6 @@ class DeviceLink:
         """The link failed while streaming (``link_lost``: closed or lost, else a stall): counted, reconnected."""
         url = self.device.url
         reason = reason.removeprefix(f"{url}: ")
-        self.on_fault()  # a failed link earns no real-time priority until it streams valid frames again
         h = self.health
         h.device_faults += 1
         h.reconnects += 1

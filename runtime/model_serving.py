@@ -1,9 +1,10 @@
-"""Which model serves: the model folder's watcher with its quarantine, swaps into the detector, and
+"""Which model serves: the model folder's watcher with its quarantine, swaps, and
 the fallback when a model breaks at run time.
 
 A model reaches the hot path in one reference assignment between two windows: the watcher
-thread loads, validates and warms up model files; ``take_pending`` swaps one into the detector
-(``Detector.swap`` fits the ring and trigger to it); a model that breaks the output contract at run
+thread loads, validates and warms up model files; ``take_pending`` chooses one and hands it to the
+owner's ``serve`` (the daemon, the one that changes its detector: ``Detector.swap`` fits the ring and
+trigger to it); a model that breaks the output contract at run
 time is taken out of service (``take_out_of_service``) and the one it replaced serves again. Every
 model that starts serving is announced to the sinks. Nothing here runs per frame.
 """
@@ -17,7 +18,6 @@ from typing import TYPE_CHECKING
 
 from firmware_io.layout import SensorLayout
 from runtime.config import Config
-from runtime.detector import Detector
 from runtime.health import Health
 from runtime.model import load_model
 from runtime.model_change import served, swap_warning, trigger_text
@@ -36,18 +36,22 @@ log = logging.getLogger("handover.daemon")
 
 
 class ModelSlot:
-    """The detector's model: watched for in ``cfg.model.folder``, swapped in, taken out of service.
+    """Which model serves: watched for in ``cfg.model.folder``, swapped in, taken out of service.
 
-    ``announce`` receives a ``ModelAnnouncement`` for every model that starts serving (the daemon hands
-    it to its sinks)."""
+    ``serve`` receives every change of the serving model (a model, or None) and ``announce`` a
+    ``ModelAnnouncement`` for every model that starts serving (the daemon hands it to its sinks)."""
 
-    def __init__(self, cfg: Config, detector: Detector, health: Health,
+    def __init__(self, cfg: Config, health: Health, serve: Callable[[LoadedModel | None], None],
                  announce: Callable[[ModelAnnouncement], None]) -> None:
         self.cfg = cfg
         """The running config (the model, onnxruntime, scene and trigger sections are read; the owner
         sets a reloaded one with ``refit``)."""
-        self.detector = detector
+        self.serve_model = serve
         self.health = health
+        self.model: LoadedModel | None = None
+        """The model that serves now (the one last handed to ``serve``)."""
+        self.layout: SensorLayout | None = None
+        """The device's layout models are weighed against (``fit_layout``; None until a device streams)."""
         self.announce = announce
         self.quarantine = QuarantineStore(store_path(cfg.model.quarantine_file, cfg.health_file))
         self.watcher: ModelWatcher | None = None
@@ -60,13 +64,9 @@ class ModelSlot:
         self._served: dict | None = None
         """What the model that served last meant to the stream (runtime.model_change.served)."""
 
-    @property
-    def model(self) -> LoadedModel | None:
-        return self.detector.model
-
     def problem(self, model: LoadedModel, layout: SensorLayout | None = None) -> str | None:
-        """Why ``model`` cannot serve the configured scene on ``layout`` (default: the detector's), or None."""
-        return scene_problem(model, self.cfg, layout or self.detector.layout)
+        """Why ``model`` cannot serve the configured scene on ``layout`` (default: the device's), or None."""
+        return scene_problem(model, self.cfg, layout or self.layout)
 
     def load(self, path: Path) -> LoadedModel:
         """Load a model file as the daemon does (validated, not yet warmed up: the watcher does that)."""
@@ -81,7 +81,8 @@ class ModelSlot:
         problem = self.problem(model, layout)
         if problem:
             raise ValueError(f"model {model.model_id}: {problem}")
-        self.use(model, layout)
+        self.layout = layout
+        self.use(model)
 
     def start(self) -> None:
         """(Re)start the watcher on ``cfg.model.folder``; the newest valid model there serves at once."""
@@ -130,13 +131,14 @@ class ModelSlot:
                                          "can serve", "model")
                 self.drop()
 
-    def use(self, model: LoadedModel, layout: SensorLayout | None = None) -> None:
+    def use(self, model: LoadedModel) -> None:
         """Swap the serving model, announce it, say what starts its windows."""
         old = self.model
         if old is not None and old is not model:
             self._fallback = old
         h = self.health
-        self.detector.swap(model, layout)
+        self.model = model
+        self.serve_model(model)
         h.model_id = model.model_id
         h.models_loaded += 1
         h.resolve("model")
@@ -170,7 +172,8 @@ class ModelSlot:
 
     def drop(self) -> None:
         """No model serves (it does not fit a new scene or device); the watcher may bring another."""
-        self.detector.swap(None)
+        self.model = None
+        self.serve_model(None)
         self.health.model_id = None
         self.show_trigger()
 
@@ -179,8 +182,9 @@ class ModelSlot:
         health view's error until a model serves), and the folder's files are weighed again for it. Why
         again: a controller that comes back with another layout and then the original one must get the
         model that fits it back without a reload."""
-        if layout == self.detector.layout:
+        if layout == self.layout:
             return
+        self.layout = layout
         model = self.model
         if model is not None and (problem := self.problem(model, layout)):
             log.error("model %s does not fit the device: %s; waiting for another model", model.model_id, problem)
@@ -190,9 +194,13 @@ class ModelSlot:
             self.watcher.rescan(keep_current=False)
 
     def refit(self, old: Config, new: Config) -> None:
-        """A reloaded config: the new scene may not fit the model in use; new model settings restart
-        the watcher."""
+        """A reloaded config: another device is weighed afresh when it streams; the new scene may not fit
+        the model in use; new model settings restart the watcher."""
         self.cfg = new
+        if new.device.url != old.device.url:
+            self.layout = None  # the next device may have another layout
+        if new.scene == old.scene and new.model == old.model and new.onnxruntime == old.onnxruntime:
+            return
         self.show_trigger()  # a [trigger] or scene.mode the config now sets
         if self.model is not None and (problem := self.problem(self.model)):
             log.warning("the model in use does not fit the new scene; waiting for one that does")

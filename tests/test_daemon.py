@@ -455,3 +455,19 @@ def test_an_absent_device_is_retried_not_fatal(models):
     daemon = Daemon(_config(models, "serial:///dev/ttyNOPE"), client_factory=factory)
     _serve(daemon, lambda d: len(tries) >= 3, timeout=10)
     assert daemon.fatal is None and daemon.health.device_state != "failed"
+
+
+def test_only_the_daemon_changes_its_detector():
+    """The model slot swapped models into the detector, the link fitted it through the daemon's callback
+    and a reload set ``detector.layout = None``: now ``Daemon._apply`` is the one place in the service."""
+    import inspect
+    import re
+
+    from runtime.model_serving import ModelSlot
+
+    assert "detector" not in inspect.signature(ModelSlot).parameters
+    changes = re.compile(r"detector\.(?:swap|fit|configure)\(|detector\.layout\s*=(?!=)")
+    found = {p.name: len(changes.findall(p.read_text())) for p in (ROOT / "runtime").glob("*.py")}
+    assert {name: n for name, n in found.items() if n} == {"daemon.py": 3}
+    source = inspect.getsource(Daemon._apply)
+    assert all(f"detector.{verb}(" in source for verb in ("swap", "fit", "configure"))

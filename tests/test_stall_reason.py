@@ -50,3 +50,56 @@ def test_a_client_replaced_on_reconnect_counts_from_zero():
     link._use_new_client("x://")
     new.stats["decode_errors"] = 5  # as many as the old one had: all of them this stall's
     assert "5 arrived" in link._stall_reason()
+
+
+def test_a_connection_attempt_says_what_came_of_it_and_calls_nothing_of_its_owner():
+    """The link took four callbacks from the daemon (a new stream, housekeeping while connecting, stop,
+    a fault); now ``connect`` returns what happened and a fault leaves ``connected`` False."""
+    import inspect
+
+    from firmware_io.client import Cancelled
+    from firmware_io.transports import DeviceUnavailable, TransportError
+    from runtime.device_link import Linked
+
+    assert list(inspect.signature(DeviceLink).parameters) == ["device", "health", "notifier", "client_factory"]
+
+    class Opening(Client):
+        def __init__(self, opens) -> None:
+            super().__init__()
+            self.opens = opens
+
+        def open(self, should_stop):
+            should_stop()
+            return self.opens()
+
+        def start(self, should_stop) -> None:
+            pass
+
+        def read_frame(self, timeout):
+            raise OSError("unplugged")
+
+        def close(self, **_) -> None:
+            pass
+
+    from types import SimpleNamespace
+
+    layout = SimpleNamespace(n_taxels=486)
+    link = DeviceLink(DeviceConfig(), Health(), Notifier({}), client_factory=lambda url: Opening(lambda: layout))
+    asked = []
+    assert link.connect(lambda: asked.append(1) or False) is Linked.STREAMING and link.layout is layout and asked
+    assert link.read(0.01) is None and not link.connected  # a fault: closed, reconnect scheduled
+
+    def unplugged():
+        raise DeviceUnavailable("x: no such device")
+
+    def cancelled():
+        raise Cancelled()
+
+    for opens, came in ((unplugged, Linked.RETRY), (cancelled, Linked.RETRY)):
+        link = DeviceLink(DeviceConfig(), Health(), Notifier({}), client_factory=lambda url, o=opens: Opening(o))
+        assert link.connect() is came and not link.connected
+    def bad_url():
+        raise TransportError("bad scheme")
+
+    bad = DeviceLink(DeviceConfig(url="nowhere://x"), Health(), Notifier({}), client_factory=lambda url: Opening(bad_url))
+    assert bad.connect() is Linked.FATAL and bad.fatal
