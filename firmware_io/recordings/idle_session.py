@@ -9,31 +9,18 @@ and cues a listener (a scripted subject) with ``cue("idle", slot)``. numpy only.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.idle_stretches import IdleSlot
-from firmware_io.recordings.record_session import SessionIO, SessionOptions, SessionStore, _now
+from firmware_io.recordings.record_session import SessionIO, SessionOptions, SessionResult, SessionStore, _now
 from firmware_io.recordings.trial_capture import capture_trial, drain
 
 
-@dataclass
-class IdleResult:
-    planned: int
-    done: int
-    recorded: int = 0
-    stopped: str = "complete"
-
-    @property
-    def complete(self) -> bool:
-        return self.done >= self.planned
-
-
 def run_idle(client, store: SessionStore, plan: Sequence[IdleSlot], opts: SessionOptions, io: SessionIO,
-             session_info: dict | None = None) -> IdleResult:
+             session_info: dict | None = None) -> SessionResult:
     """Record every stretch of ``plan`` the store lacks. The client must be open and streaming."""
     todo = store.remaining_idle(plan)
-    result = IdleResult(planned=len(plan), done=len(plan) - len(todo))
+    result = SessionResult(planned=len(plan), done=len(plan) - len(todo))
     if not todo:
         return result
     store.meta.setdefault("sessions", []).append(
@@ -53,7 +40,7 @@ def run_idle(client, store: SessionStore, plan: Sequence[IdleSlot], opts: Sessio
 
 
 def _record_stretch(client, store: SessionStore, slot: IdleSlot, opts: SessionOptions, io: SessionIO,
-                    result: IdleResult, session_no: int) -> str:
+                    result: SessionResult, session_no: int) -> str:
     """One stretch until it is kept, skipped or the investigator quits: 'kept', 'skipped' or 'quit'."""
     attempt = 0
     while True:
@@ -93,4 +80,4 @@ def _record_stretch(client, store: SessionStore, slot: IdleSlot, opts: SessionOp
         return "quit" if answer == "q" else "kept"
 
 
-__all__ = ["IdleResult", "run_idle"]
+__all__ = ["run_idle"]

@@ -206,6 +206,8 @@ class SessionOptions:
 
 @dataclass
 class SessionResult:
+    """What a session of trials or of idle stretches did (``planned``, ``done``: slots; ``recorded``: this run)."""
+
     planned: int
     done: int
     recorded: int = 0
