@@ -24,7 +24,7 @@ import hashlib
 import json
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -71,7 +71,7 @@ class SkippedTrial:
     reason: str
 
     def to_dict(self) -> dict:
-        return {k: getattr(self, k) for k in ("subject", "object", "pose", "action", "run", "reason")}
+        return asdict(self)
 
 
 @dataclass
@@ -127,24 +127,8 @@ class Dataset:
 
     def subset(self, index: np.ndarray) -> Dataset:
         """The same data set restricted to some cases (skipped trials kept for the record)."""
-        pick = {
-            name: getattr(self, name)[index]
-            for name in ("X", "y", "groups", "objects", "poses", "runs", "trigger_offsets", "onsets")
-        }
-        return Dataset(
-            **pick,
-            untriggered=self.untriggered,
-            layout=self.layout,
-            pads=self.pads,
-            pad_sizes=self.pad_sizes,
-            T=self.T,
-            fraction=self.fraction,
-            fullscale=self.fullscale,
-            sample_rate_hz=self.sample_rate_hz,
-            fingerprint=self.fingerprint,
-            hysteresis=self.hysteresis,
-            trigger=self.trigger,
-        )
+        return replace(self, **{name: getattr(self, name)[index] for name in
+                                 ("X", "y", "groups", "objects", "poses", "runs", "trigger_offsets", "onsets")})
 
     @property
     def windows_before_onset(self) -> int:
@@ -162,15 +146,8 @@ class Dataset:
             "untriggered_reasons": reasons,
             "per_class": {c: int(np.sum(self.y == c)) for c in self.classes},
             "per_subject": {s: int(np.sum(self.groups == s)) for s in sorted(set(self.groups.tolist()))},
-            "trigger_minus_onset_frames": (
-                {
-                    "median": float(np.median(delay)),
-                    "min": int(delay.min()),
-                    "max": int(delay.max()),
-                }
-                if len(delay)
-                else None
-            ),
+            "trigger_minus_onset_frames": ({"median": float(np.median(delay)), "min": int(delay.min()),
+                                           "max": int(delay.max())} if len(delay) else None),
             "n_cases_with_onset": int(np.sum(known)),
             "windows_before_onset": self.windows_before_onset,
             "pads": list(self.pads),

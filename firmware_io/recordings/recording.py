@@ -309,16 +309,13 @@ def _npy_bytes(arr: np.ndarray) -> bytes:
 
 
 def _fsync_dir(folder: Path) -> None:
-    try:
+    """The rename made durable where the file system allows it (some refuse a folder's fsync)."""
+    with contextlib.suppress(OSError):
         fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def remove_stale_temps(path: str | os.PathLike) -> None:
