@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 
 import numpy as np
 
@@ -20,8 +20,27 @@ def _reply_prologue(payload: bytes, packet_id: int, sizes: int | tuple[int, ...]
     expect_size(payload, sizes, what)
 
 
+class _Reply:
+    """A reply whose payload is its error code, then its fields in order (``_FORMAT``; the dataclass
+    lists ``error_code`` last, as a default)."""
+
+    PACKET_ID: int
+    _FORMAT: str
+
+    def encode(self) -> bytes:
+        return struct.pack(self._FORMAT, self.error_code, *astuple(self)[:-1])
+
+    def to_packet(self) -> bytes:
+        return encode_packet(self.PACKET_ID, self.encode())
+
+    @classmethod
+    def _unpack(cls, payload: bytes):
+        code, *fields = struct.unpack(cls._FORMAT, payload)
+        return cls(*fields, error_code=code)
+
+
 @dataclass(frozen=True)
-class ControllerInfo:
+class ControllerInfo(_Reply):
     """Reply to 0x01. The controller sends 18 bytes (only can_id's low byte); 19 is accepted too."""
 
     serial_no: int = 0
@@ -40,19 +59,7 @@ class ControllerInfo:
 
     def encode(self, full: bool = False) -> bytes:
         """18 bytes like the real controller; ``full=True`` gives the 19-byte struct."""
-        data = struct.pack(
-            self._FORMAT,
-            self.error_code,
-            self.serial_no,
-            self.hw_version,
-            self.sw_version,
-            self.status_flags,
-            self.feature_flags,
-            self.senscon_type,
-            self.active_interface,
-            self.can_baudrate,
-            self.can_id,
-        )
+        data = super().encode()
         return data if full else data[:18]
 
     def to_packet(self, full: bool = False) -> bytes:
@@ -61,9 +68,7 @@ class ControllerInfo:
     @classmethod
     def decode(cls, payload: bytes) -> ControllerInfo:
         _reply_prologue(payload, cls.PACKET_ID, (18, 19), "controller info (0x01)")
-        data = bytes(payload) + (b"\x00" if len(payload) == 18 else b"")
-        fields = struct.unpack(cls._FORMAT, data)
-        return cls(*fields[1:], error_code=fields[0])
+        return cls._unpack(bytes(payload) + (b"\x00" if len(payload) == 18 else b""))
 
     @property
     def firmware(self) -> str:
@@ -81,7 +86,7 @@ class ControllerInfo:
 
 
 @dataclass(frozen=True)
-class SensorInfo:
+class SensorInfo(_Reply):
     """Reply to 0x02 (12 bytes)."""
 
     nb_matrices: int = 6
@@ -94,29 +99,14 @@ class SensorInfo:
     PACKET_ID = PacketId.QUERY_SENSOR_CONFIGURATION
     _FORMAT = "<HHHBIB"
 
-    def encode(self) -> bytes:
-        return struct.pack(
-            self._FORMAT,
-            self.error_code,
-            self.nb_matrices,
-            self.generated_by,
-            self.hw_revision,
-            self.serial_no,
-            self.feature_flags,
-        )
-
-    def to_packet(self) -> bytes:
-        return encode_packet(self.PACKET_ID, self.encode())
-
     @classmethod
     def decode(cls, payload: bytes) -> SensorInfo:
         _reply_prologue(payload, cls.PACKET_ID, 12, "sensor info (0x02)")
-        code, nb, gen, hw, serial, feat = struct.unpack(cls._FORMAT, payload)
-        return cls(nb, gen, hw, serial, feat, error_code=code)
+        return cls._unpack(payload)
 
 
 @dataclass(frozen=True)
-class MatrixInfoReply:
+class MatrixInfoReply(_Reply):
     """Reply to 0x0B (52 bytes): one pad's geometry."""
 
     texel_width: float = 3.4
@@ -152,9 +142,6 @@ class MatrixInfoReply:
             self.fullscale,
             self.feature_flags,
         )
-
-    def to_packet(self) -> bytes:
-        return encode_packet(self.PACKET_ID, self.encode())
 
     @classmethod
     def decode(cls, payload: bytes) -> MatrixInfoReply:
@@ -207,7 +194,7 @@ class MatrixInfoReply:
 
 
 @dataclass(frozen=True)
-class SensitivityReply:
+class SensitivityReply(_Reply):
     """Reply to 0x12 (11 bytes). Correct only from firmware R268 on."""
 
     adj_flags: int = 0x02
@@ -218,21 +205,14 @@ class SensitivityReply:
     PACKET_ID = PacketId.GET_SENSITIVITY_ADJUSTMENT_INFO
     _FORMAT = "<HBff"
 
-    def encode(self) -> bytes:
-        return struct.pack(self._FORMAT, self.error_code, self.adj_flags, self.cur_sens, self.fact_sens)
-
-    def to_packet(self) -> bytes:
-        return encode_packet(self.PACKET_ID, self.encode())
-
     @classmethod
     def decode(cls, payload: bytes) -> SensitivityReply:
         _reply_prologue(payload, cls.PACKET_ID, 11, "sensitivity (0x12)")
-        code, flags, cur, fact = struct.unpack(cls._FORMAT, payload)
-        return cls(flags, cur, fact, error_code=code)
+        return cls._unpack(payload)
 
 
 @dataclass(frozen=True)
-class ThresholdReply:
+class ThresholdReply(_Reply):
     """Reply to 0x14 (4 bytes)."""
 
     threshold: int = 0
@@ -241,21 +221,14 @@ class ThresholdReply:
     PACKET_ID = PacketId.GET_MATRIX_THRESHOLD
     _FORMAT = "<HH"
 
-    def encode(self) -> bytes:
-        return struct.pack(self._FORMAT, self.error_code, self.threshold)
-
-    def to_packet(self) -> bytes:
-        return encode_packet(self.PACKET_ID, self.encode())
-
     @classmethod
     def decode(cls, payload: bytes) -> ThresholdReply:
         _reply_prologue(payload, cls.PACKET_ID, 4, "threshold (0x14)")
-        code, value = struct.unpack(cls._FORMAT, payload)
-        return cls(value, error_code=code)
+        return cls._unpack(payload)
 
 
 @dataclass(frozen=True)
-class MatrixMaskReply:
+class MatrixMaskReply(_Reply):
     """Reply to 0x04: one bit per cell, cell index y*cells_x + x, bit (i % 8) of byte (i // 8)."""
 
     bits: bytes
@@ -265,9 +238,6 @@ class MatrixMaskReply:
 
     def encode(self) -> bytes:
         return struct.pack("<H", self.error_code) + bytes(self.bits)
-
-    def to_packet(self) -> bytes:
-        return encode_packet(self.PACKET_ID, self.encode())
 
     @classmethod
     def decode(cls, payload: bytes) -> MatrixMaskReply:
