@@ -35,10 +35,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "run": ("runtime.daemon_cli", "the detection daemon (systemd service)", None),
     "record": ("firmware_io.commands.record_cli", "record a subject session following the paper's protocol", None),
     "plot": ("trainer.plot_cli", "plot a trial of a recording", "train"),
-    "bench": ("trainer.bench_cli", ("benchmarks: pareto, latency, throughput, hostile, streams, soak, decode, inference, ros2, early, "
-              "streams_own (MiniRocket and early need [bench])"), "train"),
-    "compare": ("trainer.compare_cli", "side by side: paper BoW, richer options, baseline, flattened SVM, MiniRocket (accuracy + latency; MiniRocket needs [bench])", "train"),
-    "dormant": ("trainer.dormant_cli", "dormant class + continuous mode vs the threshold trigger on long simulated streams", "train"),
+    "bench": ("trainer.bench_cli", "measure this machine: latency, throughput, inference (the studies behind results/ are a checkout's ./dev bench)", "train"),
 }
 
 EXTRA_PACKAGES: dict[str, tuple[str, ...]] = {

@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.__main__ import main as bench
+from benchmarks.pareto import grid, is_default, pareto_front
 from trainer import bench_cli
-from trainer.bench.common import deadline_ratio, percentiles, tap_stream
 from trainer.bench.latency_stages import STAGES
-from trainer.bench.pareto import grid, is_default, pareto_front
+from trainer.measure import deadline_ratio, percentiles, tap_stream
 
 
 def _args(which: str, out, *extra: str) -> argparse.Namespace:
@@ -24,11 +25,13 @@ def _args(which: str, out, *extra: str) -> argparse.Namespace:
 
 
 def _run(which: str, tmp_path, capsys, *extra: str) -> tuple[dict, dict]:
-    assert bench_cli.main(_args(which, tmp_path, *extra)) == 0
+    """Run one benchmark as ``./dev bench`` does; the product's three also as ``handover bench``."""
+    assert bench([which, "--quick", "--quiet", "--json", "--out", str(tmp_path), *extra]) == 0
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     result = json.loads((tmp_path / f"{which}.json").read_text())
     md = (tmp_path / f"{which}.md").read_text()
-    assert result["command"].startswith(f"handover bench {which} --quick")
+    runner = "handover" if which in bench_cli.BENCHMARKS else "./dev"
+    assert result["command"].startswith(f"{runner} bench {which} --quick")
     assert result["command"] in md and "Machine:" in md
     for key in ("cpu", "cores", "python", "numpy", "onnxruntime", "load_average"):
         assert key in result["machine"]
@@ -139,7 +142,7 @@ def test_the_quick_folder_is_one_per_user(tmp_path, monkeypatch):
     import getpass
     import tempfile
 
-    from trainer.bench.common import default_out
+    from trainer.measure import default_out
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     monkeypatch.setattr(getpass, "getuser", lambda: "alice")
@@ -167,13 +170,11 @@ def test_a_quick_run_never_overwrites_the_committed_results(tmp_path, monkeypatc
     rewritten results/latency.*, and its table then read like a measurement), and says it is one."""
     import tempfile
 
-    from trainer.bench.common import default_out
+    from trainer.measure import default_out
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     monkeypatch.chdir(tmp_path)
-    parser = argparse.ArgumentParser()
-    bench_cli.add_arguments(parser)
-    assert bench_cli.main(parser.parse_args(["decode", "--quick", "--quiet", "--synthetic"])) == 0
+    assert bench(["decode", "--quick", "--quiet", "--synthetic"]) == 0
     out = Path(default_out(True))
     assert out.parent == tmp_path and out.name.startswith("handover-bench-quick-") and default_out(False) == "results"
     assert not (tmp_path / "results").exists()
@@ -203,9 +204,8 @@ def test_bench_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsy
     from runtime.cli import main as handover
 
     (tmp_path / "file").write_text("")
-    monkeypatch.setattr(bench_cli, "BENCHMARKS", ())
     for out in (tmp_path / "file", tmp_path / "file" / "below"):
-        assert handover(["bench", "all", "--quick", "--quiet", "--out", str(out)]) == 2
+        assert handover(["bench", "latency", "--quick", "--quiet", "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"handover bench: --out {out}: {tmp_path / 'file'} is a file, not a folder; give a "
                               "folder") and err.count("\n") == 1, err  # was "cannot make that folder (File exists)"
@@ -215,17 +215,17 @@ def test_compare_records_its_out_folder_only_when_it_is_not_the_default(tmp_path
     """A ``--quick`` compare recorded its temp folder in its Reproduce line, a path of one machine."""
     import tempfile
 
-    from trainer import compare_cli
-    from trainer.bench.common import default_out
+    from benchmarks import compare_cli
+    from trainer.measure import default_out
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     parser = argparse.ArgumentParser()
     compare_cli.add_arguments(parser)
     quick = parser.parse_args(["--quick"])
     quick.out = default_out(True)
-    assert compare_cli.command_line(quick) == "handover compare --quick --seed 0 --n-jobs 2"
+    assert compare_cli.command_line(quick) == "./dev bench compare --quick --seed 0 --n-jobs 2"
     measured = parser.parse_args([])
     measured.out = "results"
-    assert compare_cli.command_line(measured) == "handover compare --seed 0 --n-jobs 2"
+    assert compare_cli.command_line(measured) == "./dev bench compare --seed 0 --n-jobs 2"
     elsewhere = parser.parse_args(["--out", str(tmp_path / "mine")])
     assert compare_cli.command_line(elsewhere).endswith(f"--out {tmp_path / 'mine'}")

@@ -40,7 +40,7 @@ def test_an_empty_value_is_refused_by_every_command(capsys):
     import pytest
 
     for argv, said in ((["train", "--features", "", "--out", "/nonexistent/never-written"], "--features is empty"),
-                       (["simulate", "--out", ""], "--out is empty"), (["dormant", "--out", ""], "--out is empty"),
+                       (["simulate", "--out", ""], "--out is empty"), (["bench", "latency", "--out", ""], "--out is empty"),
                        (["train", "--data="], "--data is empty"), (["inspect", " "], "an argument is empty")):
         with pytest.raises(SystemExit) as stop:
             cli.main(argv)
@@ -69,7 +69,7 @@ def test_cli_import_is_light():
 
 def test_bench_summary_names_every_benchmark():
     """`handover --help` is where a user first looks for what `handover bench` can run."""
-    from trainer.bench_cli import BENCHMARKS, SINGLE
+    from trainer.bench_cli import BENCHMARKS
 
     summary = cli.COMMANDS["bench"][1]
-    assert [name for name in (*BENCHMARKS, *SINGLE) if name not in summary] == [], summary
+    assert [name for name in BENCHMARKS if name not in summary] == [], summary

@@ -1,4 +1,4 @@
-"""handover compare: the window rule on real recordings, the Pareto/recommendation rule, and the
+"""./dev bench compare: the window rule on real recordings, the Pareto/recommendation rule, and the
 CLI in --quick mode on the simulated protocol (synthetic)."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from runtime.cli import main as handover
+from benchmarks.__main__ import main as bench
+from benchmarks.compare import CONTACT_FRACTION, FULLSCALE, T, cut_windows, pareto_front
 from tests.conftest import real_data_dir
-from trainer.compare import CONTACT_FRACTION, FULLSCALE, T, cut_windows, pareto_front
 
 
 def test_pareto_front():
@@ -73,7 +73,7 @@ def test_real_windows_stay_inside_contact_chunks():
 @pytest.mark.slow  # about 25 s alone, a minute on the shared machine
 def test_compare_cli_quick(tmp_path, capsys):
     out = tmp_path / "res"
-    assert handover(["compare", "--quick", "--no-real", "--no-minirocket", "--quiet", "--json", "--out", str(out)]) == 0
+    assert bench(["compare", "--quick", "--no-real", "--no-minirocket", "--quiet", "--json", "--out", str(out)]) == 0
     res = json.loads(capsys.readouterr().out)
     assert {p.name for p in out.iterdir()} >= {"compare.json", "compare.md", "compare.png"}
     names = [m["name"] for m in res["models"]]
@@ -84,20 +84,20 @@ def test_compare_cli_quick(tmp_path, capsys):
     assert res["recommendation"]["chosen"] in {"stats rbf", "hand rbf"} and res["synthetic_simulated"] is True
     assert all(res["latency"][n]["cpu_p99_us"] > 0 for n in names)
     md = (out / "compare.md").read_text()
-    assert "synthetic" in md and "Reproduce: `handover compare --quick" in md and "## Choosing the default" in md
+    assert "synthetic" in md and "Reproduce: `./dev bench compare --quick" in md and "## Choosing the default" in md
     assert "real recordings not evaluated" in md
     assert res["load_before"] and res["load_after"] and "at the start [" in md
 
 
 def test_compare_cli_bad_options(capsys):
-    assert handover(["compare", "--n-jobs", "5"]) == 2
+    assert bench(["compare", "--n-jobs", "5"]) == 2
     assert capsys.readouterr().err.startswith("handover compare: --n-jobs")
-    assert handover(["compare", "--data", "/nonexistent/folder", "--no-minirocket"]) == 2
+    assert bench(["compare", "--data", "/nonexistent/folder", "--no-minirocket"]) == 2
     assert "no such folder" in capsys.readouterr().err
 
 
 def test_done_check_reads_the_spread_of_the_best_reference():
-    from trainer.compare import done_check
+    from benchmarks.compare import done_check
 
     def entry(acc, folds):
         return {"accuracy": acc, "per_split": {f"f{i}": v for i, v in enumerate(folds)}}
@@ -113,7 +113,7 @@ def test_done_check_reads_the_spread_of_the_best_reference():
 def test_compare_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsys, monkeypatch):
     """--out naming a file raised FileExistsError with a traceback, and only after the whole run (a
     real compare takes an hour): the folder is checked first, its error is one line."""
-    from trainer import compare
+    from benchmarks import compare
 
     def run(*_a, **_k):
         raise AssertionError("ran before checking --out")
@@ -121,6 +121,6 @@ def test_compare_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, cap
     monkeypatch.setattr(compare, "run", run)
     (tmp_path / "file").write_text("")
     for out in (tmp_path / "file", tmp_path / "file" / "below"):
-        assert handover(["compare", "--quick", "--no-real", "--no-minirocket", "--quiet", "--out", str(out)]) == 2
+        assert bench(["compare", "--quick", "--no-real", "--no-minirocket", "--quiet", "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err.startswith("handover compare: --out") and err.count("\n") == 1, err

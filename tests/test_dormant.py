@@ -1,5 +1,5 @@
 """Dormant class and continuous mode: idle streams, the 5-class data set and model, replay
-through the daemon's hot path, the stream metrics, and ``handover dormant``. Synthetic data."""
+through the daemon's hot path, the stream metrics, and ``./dev bench dormant``. Synthetic data."""
 
 from __future__ import annotations
 
@@ -293,7 +293,7 @@ def test_score_without_events_counts_every_decision_false():
 
 # -- CLI -------------------------------------------------------------------------------------------------
 def _args(*argv: str) -> argparse.Namespace:
-    from trainer import dormant_cli
+    from benchmarks import dormant_cli
 
     parser = argparse.ArgumentParser()
     dormant_cli.add_arguments(parser)
@@ -307,7 +307,7 @@ def _args(*argv: str) -> argparse.Namespace:
     (["--events", "0"], "must be positive"),
 ])
 def test_cli_refuses_bad_options_in_one_line(argv, message, capsys, tmp_path):
-    from trainer import dormant_cli
+    from benchmarks import dormant_cli
 
     assert dormant_cli.main(_args("--out", str(tmp_path), *argv)) == 2
     err = capsys.readouterr().err.strip()
@@ -318,7 +318,7 @@ def test_cli_refuses_bad_options_in_one_line(argv, message, capsys, tmp_path):
 def test_cli_quick_run_writes_results(tmp_path, capsys):
     import json
 
-    from trainer import dormant_cli
+    from benchmarks import dormant_cli
 
     code = dormant_cli.main(_args("--quick", "--json", "--quiet", "--out", str(tmp_path), "--idle-hours", "0.05",
                                   "--events", "6", "--train-idle-min", "2"))
@@ -333,4 +333,4 @@ def test_cli_quick_run_writes_results(tmp_path, capsys):
     assert set(full["rule"]["chosen"]) == {"confirm_frames", "min_margin", "rearm_frames"}
     assert full["offline_rule_matches_daemon"] is True
     text = (tmp_path / "dormant.md").read_text()
-    assert "synthetic" in text and "handover dormant" in text
+    assert "synthetic" in text and "./dev bench dormant" in text

@@ -69,8 +69,8 @@ def early_model(tmp_path_factory):
     """A 4-class default model with early heads at 4 and 8 frames, on a small simulated protocol (synthetic)."""
     from firmware_io.sim import simulate_protocol
     from trainer import early
-    from trainer.bench.common import export_metadata
     from trainer.dataset import build_dataset
+    from trainer.measure import export_metadata
     from trainer.onnx_export import export_onnx
 
     ds = build_dataset(simulate_protocol(seed=0, n_subjects=3, runs=1), T=15, pads="distal")

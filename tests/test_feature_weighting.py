@@ -111,7 +111,7 @@ def _check_result() -> dict:
 
 
 def test_check_section_ranks_by_the_rule_and_survives_a_rewrite(tmp_path):
-    from studies.weighting_check import kept_section, markdown, upsert_section
+    from benchmarks.studies.weighting_check import kept_section, markdown, upsert_section
 
     lines = markdown(_check_result())
     table = [line for line in lines if line.startswith("| hand+stats")]

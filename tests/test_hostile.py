@@ -1,5 +1,5 @@
 """Hostile models, corrupt frames and bad numbers (issue #19): the daemon never crashes and never
-emits invalid output. The fast subset of ``handover bench hostile`` (trainer/bench/hostile.py),
+emits invalid output. The fast subset of ``./dev bench hostile`` (trainer/bench/hostile.py),
 whose full run is marked slow here and writes results/hostile.json."""
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from runtime.sinks import Event
 from tests.tiny_models import write_model
 
 pytest.importorskip("onnx")
-H = pytest.importorskip("trainer.bench.hostile_models")
+H = pytest.importorskip("benchmarks.hostile_models")
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -256,7 +256,7 @@ def test_the_model_a_sleeper_replaced_serves_again_at_once(folders, caplog):
 
 
 # -- recordings -------------------------------------------------------------------------------------
-R = pytest.importorskip("trainer.bench.hostile_recordings")
+R = pytest.importorskip("benchmarks.hostile_recordings")
 
 
 @pytest.fixture(scope="module")
@@ -360,15 +360,15 @@ def test_only_event_lines_reach_stdout_even_from_c_code_or_a_library_print():
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_the_full_hostile_set_has_no_failures(tmp_path, capsys):
-    """``handover bench hostile``: every attack above at full size (3,000 mutated models, 100,000
+    """``./dev bench hostile``: every attack above at full size (3,000 mutated models, 100,000
     frames with 2-bit errors, a 2 GiB deflate bomb, ...) and the daemon as a real process while
     hostile models are dropped into its folder (stdout only JSON events, no traceback, exit 0);
     counted, results/hostile.md has a run."""
-    from runtime.cli import main
+    from benchmarks.__main__ import main
 
-    assert main(["bench", "hostile", "--out", str(tmp_path), "--quiet"]) == 0
+    assert main(["hostile", "--out", str(tmp_path), "--quiet"]) == 0
     result = json.loads((tmp_path / "hostile.json").read_text())
-    from trainer.bench.hostile import summary
+    from benchmarks.hostile import summary
 
     print(json.dumps(summary(result)))
     assert result["hostile_failures"] == 0
@@ -376,10 +376,10 @@ def test_the_full_hostile_set_has_no_failures(tmp_path, capsys):
 
 
 def test_every_config_number_is_attacked_top_level_keys_too(tmp_path):
-    """`handover bench hostile` sets every ranged number (also `realtime_priority`, which has no section)
+    """`./dev bench hostile` sets every ranged number (also `realtime_priority`, which has no section)
     to NaN, infinities, huge and negative values: each is refused in one line naming the key."""
+    from benchmarks.hostile_io import BAD_NUMBERS, attack_config
     from runtime.config import RANGES
-    from trainer.bench.hostile_io import BAD_NUMBERS, attack_config
 
     res = attack_config(tmp_path)
     assert "realtime_priority" in RANGES and res["tried"] == len(RANGES) * len(BAD_NUMBERS)

@@ -1,6 +1,6 @@
 """The daemon in a hostile world: nothing it writes blocks the thread that reads the pads, nothing
 outside its user steers it, nothing a file claims is taken on trust. Each case of
-trainer/bench/hostile_world.py runs here with real parts; ``handover bench hostile`` counts them."""
+trainer/bench/hostile_world.py runs here with real parts; ``./dev bench hostile`` counts them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import threading
 import pytest
 
 pytest.importorskip("onnx")
-W = pytest.importorskip("trainer.bench.hostile_world")
+W = pytest.importorskip("benchmarks.hostile_world")
 
 
 def _held(result: dict) -> None:
@@ -120,9 +120,9 @@ def test_a_model_that_hangs_on_real_windows_is_ended_from_outside_and_stays_out(
 def test_the_guard_ends_a_real_hanging_decision_when_its_clock_says_so(tmp_path):
     import numpy as np
 
+    from benchmarks import hostile_models as H
     from runtime.decision_guard import DecisionGuard
     from runtime.model import DecisionEnded, load_model
-    from trainer.bench import hostile_models as H
 
     path = tmp_path / "hang.onnx"
     path.write_bytes(H.hang())
@@ -195,8 +195,8 @@ def test_no_model_serving_is_the_health_views_error(tmp_path):
 
 
 def test_a_model_that_hangs_at_warm_up_is_refused_in_one_line(tmp_path):
+    from benchmarks import hostile_models as H
     from runtime.model import ModelContractError, load_model
-    from trainer.bench import hostile_models as H
 
     path = tmp_path / "hangs-on-any-press.onnx"
     path.write_bytes(H.hang(peak=None))

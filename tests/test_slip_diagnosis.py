@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from studies.slip_diagnosis import VARIANTS, chunk_map, leave_one_chunk_out, markdown, search_variants
+from benchmarks.studies.slip_diagnosis import VARIANTS, chunk_map, leave_one_chunk_out, markdown, search_variants
 from trainer.evaluation import Split
 from trainer.features.signals import pad_shapes_for
 from trainer.real_tasks import RealTask

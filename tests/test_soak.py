@@ -5,15 +5,13 @@ emulator with every fault kind injected; speed is not asserted, losses and recov
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import pytest
 
-from trainer import bench_cli
-from trainer.bench import soak_account as A
-from trainer.bench.soak import Fault, Plan
-from trainer.bench.soak_rig import watchdog_gaps
+from benchmarks import soak_account as A
+from benchmarks.soak import Fault, Plan
+from benchmarks.soak_rig import watchdog_gaps
 
 
 def test_watchdog_gaps_count_only_silences_longer_than_the_limit():
@@ -53,10 +51,9 @@ def test_the_plan_scales_to_the_run():
 def test_soak_smoke(tmp_path):
     """72 s of soak with every fault kind but hangs: nothing lost outside a fault, every
     fault recovered, the watchdog never silent while healthy, the files written."""
-    parser = argparse.ArgumentParser()
-    bench_cli.add_arguments(parser)
-    args = parser.parse_args(["soak", "--hours", "0.02", "--out", str(tmp_path), "--quiet"])
-    assert bench_cli.main(args) == 0
+    from benchmarks.__main__ import main as bench
+
+    assert bench(["soak", "--hours", "0.02", "--out", str(tmp_path), "--quiet"]) == 0
     r = json.loads((tmp_path / "soak.json").read_text())
     for key in ("hours", "frames_expected", "frames_lost_outside_injected_faults", "faults_injected",
                 "faults_recovered", "max_recovery_s", "events_lost", "rss_growth_mb", "watchdog_would_fire",

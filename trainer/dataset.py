@@ -323,7 +323,7 @@ def build_dataset(
             labels.append((trial, start, _relative_onset(onset, trial)))
     if not cases and not skipped:
         raise DatasetError("the recordings hold no labelled trials (imported .dsa files and bags have none): "
-                           "record subjects with `handover record`, or run `handover compare` to train "
+                           "record subjects with `handover record`, or run `./dev bench compare` to train "
                            "and evaluate on the real SDH-2 recordings, which are labelled by file")
     n_ch = len(cols)
     X = np.asarray(cases, dtype=np.float32).reshape(len(cases), n_ch, T)

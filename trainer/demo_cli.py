@@ -38,7 +38,7 @@ __all__ = ["add_arguments", "main"]
 COMMAND = "demo"
 SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
 STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
-"""Training data of the 5-class stream model (as ``handover bench streams`` trains it)."""
+"""Training data of the 5-class stream model (as ``./dev bench streams`` trains it)."""
 DEMO_EVENTS = 40
 """Scripted events in the demo's session (``--events``); the streams benches replay the same session."""
 
@@ -198,7 +198,7 @@ def main(args: argparse.Namespace) -> int:
 
 def scripted_session(seed: int, events: int = DEMO_EVENTS) -> tuple[int, list[ScriptedEvent], Recording]:
     """The demo's scripted session for training seed ``seed``: (its own seed, the script, the simulated
-    session); ``handover bench streams`` and ``streams_own`` replay the same one in process."""
+    session); ``./dev bench streams`` and ``streams_own`` replay the same one in process."""
     from firmware_io.sim import demo_script, simulate_session
 
     session_seed = seed + HELD_OUT_SEED_OFFSET
@@ -285,7 +285,7 @@ class EventLog:
 
 
 def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
-    from trainer.bench.common import DEADLINE_US
+    from trainer.measure import DEADLINE_US
     from trainer.session_score import outcome_summary
     from trainer.streams_eval import session_outcomes
 

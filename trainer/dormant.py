@@ -333,7 +333,7 @@ def train(X: np.ndarray, y: np.ndarray, K: int = PAPER_MODEL["K"], W: int = PAPE
 
 
 STREAM_KERNEL, STREAM_C = "rbf", 1000.0
-"""The stream model's SVM: RBF with C = 1000, what ``handover dormant``'s grid chose for the 5-class
+"""The stream model's SVM: RBF with C = 1000, what ``./dev bench dormant``'s grid chose for the 5-class
 model (results/dormant.md); gamma by the usual inner cross-validation. With standardised level
 features the grid's large C (1e4, 1e6) did not converge within many minutes."""
 

@@ -1,6 +1,6 @@
 """The metadata a model file carries besides what its estimator determines, built in one place.
 
-Every exporter (``handover train``, ``handover dormant``, the benchmarks, the hostile test
+Every exporter (``handover train``, ``./dev bench dormant``, the benchmarks, the hostile test
 files) states the same keys: the pads the model reads, the trigger that cut its training
 windows, its frame rate, its provenance and evaluation. ``file_metadata`` builds them;
 ``trainer.onnx_export`` adds what the estimator determines (classes, T, W, K, features, SVM)

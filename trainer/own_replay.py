@@ -219,7 +219,7 @@ def replay_lines(r: dict | None) -> list[str]:
 def real_idle(model, root: Path, say) -> dict | None:
     """False events of the model on every real SDH-2 recording (none holds a handover)."""
     from firmware_io.recordings.importers import import_any
-    from trainer.bench.streams import real_files
+    from trainer.shared_data import real_files
 
     if not root.is_dir():
         return None

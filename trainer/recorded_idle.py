@@ -28,16 +28,16 @@ from trainer.dormant import DORMANT
 __all__ = ["IdleWindows", "add_idle", "idle_only_problem", "idle_pieces", "subject_of", "too_few_line"]
 
 STREAMS_RESULTS = Path(__file__).resolve().parents[1] / "results" / "streams.json"
-"""Where ``handover bench streams`` writes the measured stream figures (a source checkout)."""
+"""Where ``./dev bench streams`` writes the measured stream figures (a source checkout)."""
 
 
 DORMANT_CUTS = ("trigger", "in_view", "both")
 """How dormant windows are cut from recorded idle (both ways owned by ``trainer.dormant``): where the
 model's own trigger fires on the idle stretches (``trigger_windows``: the windows a trigger-mode
 model is asked about while nobody interacts), every window stratified by the idle source in view
-(``idle_windows``, as ``handover dormant`` trains for continuous mode), or both."""
+(``idle_windows``, as ``./dev bench dormant`` trains for continuous mode), or both."""
 DORMANT_CUT = "trigger"
-"""The cut ``handover train`` uses; chosen by the rule of ``trainer.bench.streams_own`` on validation
+"""The cut ``handover train`` uses; chosen by the rule of ``benchmarks.streams_own`` on validation
 streams (results/streams_own.md), never on the demo's session or the test streams."""
 MIN_DORMANT_WINDOWS = 10
 """Fewer dormant windows than this make no class (the same floor as any training: trainer.pipeline.MIN_CASES)."""

@@ -30,7 +30,7 @@ __all__ = [
 
 LATENCY_BUDGET_US = 1000.0
 """Default budget: single-case p99 of the exported graph (a small share of the nominal frame period,
-``trainer.bench.common.DEADLINE_US``)."""
+``trainer.measure.DEADLINE_US``)."""
 TIMING_REPEATS = 300
 ROCKET_SETTINGS = {"C": 1.0}
 """The random-convolution family as MiniRocket uses it: thousands of PPV features and a linear head
@@ -109,7 +109,7 @@ def _estimator(options: TrainOptions, ds, families: tuple[str, ...], kernel: str
 def graph_latency(model, ds, folder: Path, name: str, seed: int) -> dict:
     """Single-case p50/p99 (us) of the exported graph through the runtime's loader (1 thread)."""
     from runtime.model import load_model
-    from trainer.bench.common import cycling, export_metadata, percentiles, time_calls
+    from trainer.measure import cycling, export_metadata, percentiles, time_calls
     from trainer.onnx_export import export_onnx
 
     path = export_onnx(model, folder / f"{name.replace(' ', '_')}.onnx", export_metadata(ds, model, seed=seed))

@@ -44,7 +44,7 @@ TRIGGER_TABLE = {"threshold": {"kind": "threshold"}, "baseline": {"kind": "thres
                  "continuous_arm": {}}
 """The ``[trigger]`` config table of each mode (unset keys: the model's recorded settings, else the defaults)."""
 DEFAULT_SETTING = "onset_dormant"
-"""The stream setting ``handover demo`` runs by default: the one ``handover bench streams`` chose
+"""The stream setting ``handover demo`` runs by default: the one ``./dev bench streams`` chose
 by its rule on validation streams (results/streams.md, "How the default was chosen")."""
 ROBOT_SETTLE_S = 0.3
 """The simulated robot says ``grasp closed`` this long after its 0.3 s closing ramp has ended."""

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import command_line, load_average, machine_info, time_calls, write_results
+from trainer.measure import command_line, load_average, machine_info, time_calls, write_results
 
 REPEATS, QUICK_REPEATS = 5000, 200
 

@@ -30,7 +30,10 @@ from runtime.detector import REHEARSAL_LEAD_S
 from runtime.realtime import DEFAULT_PRIORITY
 from trainer.bench import harness
 from trainer.bench import latency_stages as stages
-from trainer.bench.common import (
+from trainer.bench.latency_early import early_frames, early_model
+from trainer.bench.latency_early import markdown_lines as early_lines
+from trainer.bench.latency_floor import interference, per_frame_split
+from trainer.measure import (
     DEADLINE_US,
     deadline_ratio,
     fmt_us,
@@ -42,9 +45,6 @@ from trainer.bench.common import (
     train_default_model,
     write_results,
 )
-from trainer.bench.latency_early import early_frames, early_model
-from trainer.bench.latency_early import markdown_lines as early_lines
-from trainer.bench.latency_floor import interference, per_frame_split
 
 NAME = "latency"
 

@@ -17,14 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import percentiles
+from trainer.measure import percentiles
 
 
 def early_model(work: Path, seed: int, quick: bool) -> tuple[Path, Path]:
     """The default model on onset-cut windows, exported with and without early heads."""
     from trainer import early
-    from trainer.bench.common import export_metadata, simulated_protocol
     from trainer.dataset import build_dataset
+    from trainer.measure import export_metadata, simulated_protocol
     from trainer.onnx_export import export_onnx
 
     ds = build_dataset(list(simulated_protocol(seed, quick)), T=15, pads="all")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import percentiles, time_calls
+from trainer.measure import percentiles, time_calls
 
 GAP_S = 5e-6
 """A clock reading later than this after the one before counts as time taken from the thread."""

@@ -31,7 +31,7 @@ import numpy as np
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.transports.base import Transport
 from runtime.listeners import DecisionTimings, FrameListener
-from trainer.bench.common import cycling, percentiles, time_calls
+from trainer.measure import cycling, percentiles, time_calls
 
 STAGES = ("receive", "ring_trigger", "window", "inference", "output_check", "event_build", "serialise", "sink_send")
 """The stage table's rows, in the order a frame goes through them."""
@@ -196,7 +196,7 @@ def declared_dormant(model_path: Path, out: Path, dormant: str) -> Path:
     """A copy of ``model_path`` whose metadata names ``dormant`` its dormant class, so that continuous
     mode serves it. For timing only: the graph is the same, and what the classes mean does not change
     how long a decision takes."""
-    from trainer.bench.common import with_metadata
+    from trainer.measure import with_metadata
 
     return with_metadata(model_path, out, lambda meta: meta.update(dormant_class=dormant))
 

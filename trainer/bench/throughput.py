@@ -28,7 +28,8 @@ import numpy as np
 from firmware_io.frame_timing import NOMINAL_PERIOD_S, NOMINAL_RATE_HZ
 from runtime.listeners import FrameListener
 from trainer.bench import harness
-from trainer.bench.common import (
+from trainer.defaults import describe_default
+from trainer.measure import (
     load_average,
     run_facts,
     tap_gap,
@@ -37,7 +38,6 @@ from trainer.bench.common import (
     with_metadata,
     write_results,
 )
-from trainer.defaults import describe_default
 
 NAME = "throughput"
 

@@ -1,4 +1,4 @@
-"""``handover bench streams``: events in a live stream: the right one, once, from the person's onset.
+"""``./dev bench streams``: events in a live stream: the right one, once, from the person's onset.
 
 Every stream is replayed frame by frame through the real daemon (``trainer.streams_eval.replay``:
 ``Daemon.serve`` + ``handle_frame``), in every mode (``streams_eval.MODES``):
@@ -22,7 +22,8 @@ import time
 from pathlib import Path
 
 from trainer import streams_eval as se
-from trainer.bench.common import command_line, load_average, load_note, machine_info, write_results
+from trainer.measure import command_line, load_average, load_note, machine_info, write_results
+from trainer.shared_data import real_files
 
 NAME = "streams"
 VAL_OFFSET, TEST_OFFSET = 2, 1
@@ -46,13 +47,14 @@ interval of about +/- 0.14 (``trainer.rate_interval.proportion_interval``), too 
 
 def train_models(work: Path, seed: int, s: dict, say) -> dict:
     """Export and load the three models every mode needs (synthetic training data, ``seed``)."""
+    from benchmarks.pareto import DEFAULT_PARAMS
     from firmware_io.sim import simulate_protocol
     from runtime.model import load_model
     from runtime.trigger_settings import PAPER_FRACTION
     from trainer import dormant
-    from trainer.bench.common import DEFAULT_PARAMS, export_metadata
     from trainer.classifier import BowSVC
     from trainer.dataset import build_dataset
+    from trainer.measure import export_metadata
     from trainer.onnx_export import export_onnx
 
     protocol = simulate_protocol(seed=seed, runs=s["runs"])
@@ -74,8 +76,8 @@ def train_models(work: Path, seed: int, s: dict, say) -> dict:
 
 
 def _default_estimator(cls, pad_sizes, seed: int, **options):
-    """The product's default estimator (trainer.bench.common.DEFAULT_PARAMS), plus ``options``."""
-    from trainer.bench.common import DEFAULT_PARAMS as P
+    """The product's default estimator (benchmarks.pareto.DEFAULT_PARAMS), plus ``options``."""
+    from benchmarks.pareto import DEFAULT_PARAMS as P
 
     return cls(n_words=P["K"], window=P["W"], kernel=P["kernel"], per_pad=P["per_pad"], pad_sizes=pad_sizes,
                random_state=seed, **options)
@@ -127,9 +129,9 @@ def evaluate_sim(models: dict, seed: int, n_events: int, idle_h: float, say, lab
 
 
 def choose_continuous_rule(model, seed: int, s: dict, say) -> dict:
-    """Continuous mode's report rule on validation streams (trainer.bench.streams_rule)."""
+    """Continuous mode's report rule on validation streams (benchmarks.streams_rule)."""
+    from benchmarks.streams_rule import choose_rule
     from firmware_io.sim.idle import simulate_idle
-    from trainer.bench.streams_rule import choose_rule
 
     n_parts = max(1, round(3600.0 * s["val_idle_h"] / PART_S))
     idle = [simulate_idle(3600.0 * s["val_idle_h"] / n_parts, seed=seed, part=p) for p in range(n_parts)]
@@ -158,29 +160,6 @@ def demo_session(models: dict, mode: str, seed: int) -> dict:
     out = {"mode": mode, "seed": session_seed}
     for m in dict.fromkeys((mode, "threshold", "onset", "onset_robot")):
         out[m] = se.session_outcomes(se.replay(session, models[m], m), session.trials)
-    return out
-
-
-def real_files(root: Path) -> list[tuple[Path, str, str]]:
-    """(file, category, why it holds no human handover) for every recording under ``root``."""
-    from firmware_io.recordings.importers import find_sources
-
-    reasons = {
-        "calibration": "calibration: noise, sensitivity, weights at three temperatures put on the pads; no hand-over",
-        "grasps": "the hand grasping objects on its own; nobody takes them",
-        "slip": "slip experiments: objects slipping in (or pulled through) the grasp; no hand-over",
-        "objects": "the hand grasping test objects for classification; nobody takes them",
-        "misc": "sensor tests (ghosting, masked matrices, reactive grasping, sensitivity)",
-        "fast": "recorded at ~70 Hz for frequency analysis (slip and roughness tests); the daemon decimates them to "
-                "the model's 32 Hz (runtime/frame_rate.py), so 15-frame windows span 0.47 s as in training",
-    }
-    out = []
-    for path in sorted(find_sources(root)):
-        text = str(path).lower()
-        cat = ("fast" if "frequency_analysis" in text else "calibration" if "calibration" in text
-               else "grasps" if "grasps" in text or "/bin/" in text else "slip" if "slip" in text else
-               "objects" if "classification" in text or "/video/" in text else "misc")
-        out.append((path, cat, reasons[cat]))
     return out
 
 
@@ -255,7 +234,7 @@ def run(args) -> dict:
         demo = demo_session(models, chosen, args.seed)
     result = summary(test, chosen, demo, real)
     result.update(continuous_rule=rule["chosen"], continuous_rule_in_code=rule["shipped"], continuous_rule_choice=rule)
-    from trainer.bench.streams_own import own_keys
+    from benchmarks.streams_own import own_keys
 
     result.update(own_keys(args.out))  # the own-data model's figures (bench streams_own) stay in this file
     from runtime.trigger_settings import resolve_trigger
@@ -265,7 +244,7 @@ def run(args) -> dict:
                   command=command_line(NAME, args), load_before=load_before, load_after=load_average(),
                   seconds=round(time.perf_counter() - t0, 1), criterion=CRITERION, candidates=list(CANDIDATES),
                   validation=val, test=test, demo=demo, real=real)
-    from trainer.bench.streams_report import markdown
+    from benchmarks.streams_report import markdown
 
     write_results(args.out, NAME, result, markdown(result, load_note(load_before, result["load_after"],
                                                                      result["machine"]["cores"])))

@@ -22,13 +22,13 @@ BEFORE_RULE = {"confirm_frames": 10, "min_margin": 0.0, "rearm_frames": 16, "gap
 
 def run_one(which: str, work: str) -> dict:
     """Train the stream model (``which``: "before" without ramp windows, "after" as shipped) and replay."""
+    from benchmarks.streams import SIZES
     from firmware_io.sim import demo_script, simulate_protocol
     from firmware_io.sim.constants import FRAME_PERIOD_S
     from firmware_io.sim.idle import simulate_mixed
     from runtime.model import load_model
     from trainer import dormant
     from trainer import streams_eval as se
-    from trainer.bench.streams import SIZES
 
     s = SIZES["full"]
     if which == "before":
@@ -48,12 +48,12 @@ def run_one(which: str, work: str) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m studies.second_test_stream", description=__doc__.split("\n", 1)[0])
+    ap = argparse.ArgumentParser(prog="./dev bench second_test_stream", description=__doc__.split("\n", 1)[0])
     ap.add_argument("--out", type=Path, default=Path("results"))
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="second-test-") as work, ProcessPoolExecutor(2) as pool:
         before, after = pool.map(run_one, ("before", "after"), (work, work))
-    result = {"command": "python -m studies.second_test_stream", "seed": SEED, "events": EVENTS, "synthetic": True,
+    result = {"command": "./dev bench second_test_stream", "seed": SEED, "events": EVENTS, "synthetic": True,
               "before": before, "after": after}
     rows = ["| model and rule | mode | right / wrong / missed of 200 | false | bump | hold | pull | push |",
             "|---|---|---|---|---|---|---|---|"]

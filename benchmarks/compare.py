@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from trainer.bench.common import DEADLINE_US
+from trainer.measure import DEADLINE_US
 from trainer.real_tasks import CHUNK_FRAMES, CONTACT_FRACTION, FULLSCALE, STRIDE, RealTask, T, cut_windows  # noqa: F401
 
 __all__ = [
@@ -57,7 +57,7 @@ ONNX_KINDS = ("bow", "flat", "features", "default")
 DIAGNOSES = {"real_slip": "its former single split (first 60 % of each file's chunks train, the rest test), where the "
                           "default lost on one test chunk, and why, judged on the training part only: "
                           "results/slip_diagnosis.md"}
-"""Where a task's verdict is examined (``python -m studies.slip_diagnosis``)."""
+"""Where a task's verdict is examined (``./dev bench slip_diagnosis``)."""
 
 
 def model_specs(quick: bool, minirocket: bool = True) -> list[ModelSpec]:
@@ -197,7 +197,7 @@ def time_single_case(specs, ds, folder: Path, repeats: int, seed: int, say) -> d
     from threadpoolctl import threadpool_limits
 
     from runtime.model import load_model
-    from trainer.bench.common import cycling, export_metadata, percentiles, time_calls
+    from trainer.measure import cycling, export_metadata, percentiles, time_calls
     from trainer.onnx_export import export_onnx
 
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
@@ -256,7 +256,7 @@ def recommend(specs, tasks, ds, latency: dict, n_jobs: int, say) -> dict:
 
 
 def machine_info() -> dict:
-    from trainer.bench.common import machine_info as bench_machine
+    from trainer.measure import machine_info as bench_machine
 
     info = bench_machine()
     info["node"] = platform.node()
@@ -264,8 +264,8 @@ def machine_info() -> dict:
 
 
 def run(quick: bool, seed: int, n_jobs: int, data_dir: Path | None, minirocket: bool, say) -> dict:
-    from trainer.bench.common import simulated_protocol
     from trainer.dataset import build_dataset
+    from trainer.measure import simulated_protocol
 
     t0 = time.perf_counter()
     load_before = [round(v, 2) for v in os.getloadavg()]  # machine_info() below is taken at the end

@@ -92,7 +92,7 @@ def fault_figures(faults, t0: float) -> dict:
 
 def watchdog_figures(pings: list[float], faults, t0: float, t_end: float, limit_s: float) -> dict:
     """Would systemd's watchdog have fired, and was each injected hang caught?"""
-    from trainer.bench.soak_rig import ping_intervals, watchdog_gaps
+    from benchmarks.soak_rig import ping_intervals, watchdog_gaps
 
     gaps = watchdog_gaps(pings, t0, t_end, limit_s)
     hangs = [f for f in faults if f.kind == "hang"]

@@ -1,7 +1,7 @@
 """A hostile world around the daemon: the cases where it could be stalled or steered, each tried
 with real parts (pipes, sockets, subprocess daemons, ONNX files) and judged held or not.
 
-``handover bench hostile`` counts them (results/hostile.md, "The world around the daemon"); the
+``./dev bench hostile`` counts them (results/hostile.md, "The world around the daemon"); the
 tests in tests/test_hostile_world.py run each case and name what did not hold. A case returns
 ``{"held": bool, "detail": str, ...}``; a case that raises counts as not held.
 """
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.hostile_models import write_model
 from firmware_io.frame_timing import NOMINAL_PERIOD_S, nominal_stamp_ms
-from trainer.bench.hostile_models import write_model
 
 ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD_S = 30.0
@@ -100,11 +100,11 @@ def served_config(work: Path, sinks: str = "stdout = false", more: str = "") -> 
 
 def served_daemon(work: Path, sinks: str = "stdout = false", stream=None, events: list | None = None, more: str = ""):
     """A Daemon serving a valid model (always ``pull``) for the SDH-2 layout, frames fed by the caller."""
+    from benchmarks import hostile_models as H
     from firmware_io.layout import SensorLayout
     from runtime.config import load_config
     from runtime.daemon import Daemon
     from runtime.model import load_model
-    from trainer.bench import hostile_models as H
 
     models = work / "models"
     models.mkdir(parents=True, exist_ok=True)
@@ -202,7 +202,7 @@ def blocked_stdout_process(work: Path) -> dict:
     """``handover run | nobody-reads``: UDP keeps receiving after the pipe is full; SIGTERM ends it (exit 0)."""
     import fcntl
 
-    from trainer.bench import hostile_models as H
+    from benchmarks import hostile_models as H
 
     models, state = _daemon_folders(work)
     write_model(models, "good.onnx", H.valid(bias_class=0))
@@ -237,7 +237,7 @@ def blocked_stdout_process(work: Path) -> dict:
 
 def closed_stdout(work: Path) -> dict:
     """``handover run ... >&-``: one line (sinks.stdout) or no stdout sink, never a crash."""
-    from trainer.bench import hostile_models as H
+    from benchmarks import hostile_models as H
 
     models, state = _daemon_folders(work)
     write_model(models, "good.onnx", H.valid(bias_class=0))
@@ -556,8 +556,8 @@ def crafted_dsa(work: Path) -> dict:
 # -- 8: what a model file claims ----------------------------------------------------------------------
 def model_with(folder: Path, name: str, **meta) -> Path:
     """A valid model (always ``pull``) whose metadata says ``meta`` (same graph, another file)."""
-    from trainer.bench import hostile_models as H
-    from trainer.bench.common import with_metadata
+    from benchmarks import hostile_models as H
+    from trainer.measure import with_metadata
 
     folder.mkdir(parents=True, exist_ok=True)
     plain = write_model(folder, f".{name}.plain", H.valid(bias_class=0))
@@ -640,7 +640,7 @@ def _check_names(config: Path) -> str | None:
 def folder_rollbacks(work: Path) -> dict:
     """A no-op ``chmod`` on an older model, removing the newest file, switching a symlinked folder:
     the daemon serves the file the folder now names, and ``--check`` names the same."""
-    from trainer.bench import hostile_models as H
+    from benchmarks import hostile_models as H
 
     state = work / "state"
     state.mkdir(parents=True)
@@ -691,10 +691,10 @@ def hanging_model(work: Path) -> dict:
     """A model that passes load and warm-up and runs a 2e9-step Loop on its first real window: the
     decision is ended from outside the hot thread, the model is out of service (the one it replaced
     serves) within two sample periods of that window, and stays out after a restart."""
+    from benchmarks import hostile_models as H
     from firmware_io.layout import SensorLayout
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
-    from trainer.bench import hostile_models as H
 
     models, state = _daemon_folders(work)
     write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
@@ -747,9 +747,9 @@ def hanging_model(work: Path) -> dict:
 def hanging_model_process(work: Path) -> dict:
     """``handover run`` replaying real-looking frames into a model that hangs on them: the model is
     quarantined, the old one serves, SIGTERM ends the daemon (exit 0), and ``--check`` keeps it out."""
+    from benchmarks import hostile_models as H
     from firmware_io.layout import SensorLayout
     from firmware_io.recordings.recording import Recording
-    from trainer.bench import hostile_models as H
 
     models, state = _daemon_folders(work)
     write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
@@ -791,10 +791,10 @@ def hanging_model_process(work: Path) -> dict:
 def layout_comes_back(work: Path) -> dict:
     """The controller reconnects reporting 3 pads, then 6 again: meanwhile the health file names the
     error; then the model that fits serves again, without SIGHUP or a new drop."""
+    from benchmarks import hostile_models as H
     from firmware_io.layout import SensorLayout
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
-    from trainer.bench import hostile_models as H
 
     models, state = _daemon_folders(work)
     write_model(models, "six-pads.onnx", H.valid(bias_class=0))
@@ -856,7 +856,7 @@ def two_daemons_one_namespace(work: Path) -> dict:
                                                    f"in both health views: {in_health}"}
 
 
-# -- the cases, as ``handover bench hostile`` counts them ----------------------------------------------------
+# -- the cases, as ``./dev bench hostile`` counts them ----------------------------------------------------
 CASES: tuple[tuple[int, str, tuple[Callable[[Path], dict], ...]], ...] = (
     (1, "a stdout nobody reads", (blocked_stdout, blocked_stdout_process)),
     (2, "stdout closed at start", (closed_stdout,)),

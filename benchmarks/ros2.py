@@ -1,4 +1,4 @@
-"""``handover bench ros2``: the ROS 2 sink. Event latency from the decision to an rclpy subscriber in
+"""``./dev bench ros2``: the ROS 2 sink. Event latency from the decision to an rclpy subscriber in
 another process (median, p99, p99.9), and pad images delivered per second with none lost.
 
 The daemon reads the simulated hand (sim://, synthetic, sped up so that a minute holds enough
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.frame_timing import NOMINAL_RATE_HZ
-from trainer.bench.common import command_line, load_average, machine_info, train_default_model, write_results
+from trainer.measure import command_line, load_average, machine_info, train_default_model, write_results
 
 ROOT = Path(__file__).resolve().parents[2]
 PADS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal", "finger_2_proximal", "finger_2_distal")
@@ -87,7 +87,7 @@ def measure(seconds: float, speed: float, pad_rate: float) -> dict:
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    child = subprocess.Popen([sys.executable, "-m", "trainer.bench.ros2", "--subscriber"], stdin=subprocess.PIPE,
+    child = subprocess.Popen([sys.executable, "-m", "benchmarks.ros2", "--subscriber"], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, text=True, cwd=ROOT)
     ready, udp_port = [*child.stdout.readline().split(), "", ""][:2]
     if ready != "ready":
@@ -204,6 +204,6 @@ With n = {lat['n']} events the p99.9 is the largest few values, not a stable tai
 Run on {result['date']}.""".splitlines()
 
 
-if __name__ == "__main__":  # the subscriber process (python -m trainer.bench.ros2 --subscriber)
+if __name__ == "__main__":  # the subscriber process (python -m benchmarks.ros2 --subscriber)
     if sys.argv[1:] == ["--subscriber"]:
         subscriber("/handover")

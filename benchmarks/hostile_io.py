@@ -1,4 +1,4 @@
-"""The file, config and process attacks of ``handover bench hostile`` (see trainer/bench/hostile.py)."""
+"""The file, config and process attacks of ``./dev bench hostile`` (see trainer/bench/hostile.py)."""
 
 from __future__ import annotations
 
@@ -26,9 +26,9 @@ def _ends_in_one_line(done: subprocess.CompletedProcess, command: str, name: str
 
 def attack_recordings(work: Path, quick: bool) -> dict:
     """Each hostile recording through the reader, ``plot``, ``train`` and ``emulate`` (a .dsa: emulate)."""
+    from benchmarks.hostile_recordings import write_all
     from firmware_io.recordings.importers import import_any
     from firmware_io.recordings.recording import RecordingError
-    from trainer.bench.hostile_recordings import write_all
 
     bomb = (64 << 20) if quick else (2 << 30)
     files = write_all(work / "recordings", bomb_bytes=bomb)
@@ -112,8 +112,8 @@ def attack_daemon(work: Path) -> dict:
     """``handover run`` over the simulated hand while hostile models are dropped into its folder."""
     import onnx
 
-    from trainer.bench import hostile_models as H
-    from trainer.bench.hostile_models import write_model
+    from benchmarks import hostile_models as H
+    from benchmarks.hostile_models import write_model
 
     models, state = work / "daemon-models", work / "daemon-state"
     models.mkdir()

@@ -1,8 +1,8 @@
-"""``handover bench soak --hours H``: the daemon for H hours at 32 Hz against the emulator, with
+"""``./dev bench soak --hours H``: the daemon for H hours at 32 Hz against the emulator, with
 faults of every kind injected on a schedule, model swaps (good, broken and a rollback) and SIGHUP
 reloads; writes ``results/soak.json`` and ``.md``.
 
-The daemon is ``handover run`` in its own process (``trainer.bench.soak_daemon`` adds only a log
+The daemon is ``handover run`` in its own process (``benchmarks.soak_daemon`` adds only a log
 of the frames it handled); the emulator serves the simulated hand's session (synthetic data) in a
 loop over TCP. Accounting:
 
@@ -31,9 +31,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmarks import soak_rig
 from firmware_io.frame_timing import NOMINAL_RATE_HZ, nominal_stamp_ms
-from trainer.bench import harness, soak_rig
-from trainer.bench.common import load_average, load_note, machine_info, train_default_model, write_results
+from trainer.bench import harness
+from trainer.measure import load_average, load_note, machine_info, train_default_model, write_results
 
 NAME = "soak"
 WATCHDOG_S = 10.0
@@ -150,7 +151,7 @@ class Soak:
         self.stderr_path = self.work / "daemon.log"
         self.stderr = open(self.stderr_path, "w")  # noqa: SIM115 - closed in finish()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "trainer.bench.soak_daemon", "--frame-log", str(self.frame_log),
+            [sys.executable, "-m", "benchmarks.soak_daemon", "--frame-log", str(self.frame_log),
              "run", "--config", str(self.config)], cwd=str(harness.ROOT), env=env,
             stdout=subprocess.DEVNULL, stderr=self.stderr)
         deadline = time.monotonic() + 60
@@ -290,8 +291,8 @@ class Soak:
 
 
 def account(soak: Soak) -> dict:
-    from trainer.bench import soak_account as A
-    from trainer.bench.soak_daemon import read_frame_log
+    from benchmarks import soak_account as A
+    from benchmarks.soak_daemon import read_frame_log
 
     stamps, times = read_frame_log(soak.frame_log)
     received = dict(zip(stamps, times, strict=True))
@@ -346,7 +347,7 @@ def run(args) -> dict:
               "hostile_inputs": hostile_counts(args.out),
               "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
               "commit": _commit(), "machine": machine_info(), "load_before": load_before,
-              "load_after": load_average(), "command": f"handover bench soak --hours {hours:g} --seed {args.seed}"
+              "load_after": load_average(), "command": f"./dev bench soak --hours {hours:g} --seed {args.seed}"
               + ("" if args.out == "results" else f" --out {args.out}")}
     result["note"] = load_note(result["load_before"], result["load_after"], result["machine"]["cores"])
     write_results(args.out, NAME, result, markdown(result))
@@ -354,12 +355,12 @@ def run(args) -> dict:
 
 
 def hostile_counts(out: str | Path) -> dict:
-    """The hostile-input benchmark's counts (``handover bench hostile``, results/hostile.json) that a
+    """The hostile-input benchmark's counts (``./dev bench hostile``, results/hostile.json) that a
     soak cites beside its own figures; None where that benchmark has not been run into ``out``."""
     path = Path(out) / "hostile.json"
     if not path.is_file():
         return {"source": None, "counts": None}
-    from trainer.bench.hostile import summary
+    from benchmarks.hostile import summary
 
     return {"source": str(path), "counts": summary(json.loads(path.read_text()))}
 
@@ -410,6 +411,6 @@ def markdown(r: dict) -> list[str]:
            "expected)."]
     hostile = (r.get("hostile_inputs") or {}).get("counts")
     if hostile:
-        md += ["", "Hostile inputs (`handover bench hostile`, results/hostile.md): "
+        md += ["", "Hostile inputs (`./dev bench hostile`, results/hostile.md): "
                + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in hostile.items()) + "."]
     return md

@@ -1,4 +1,4 @@
-"""``handover bench decode``: DSACON32m full-frame decoding, RLE and raw, in frames per second on one core.
+"""``./dev bench decode``: DSACON32m full-frame decoding, RLE and raw, in frames per second on one core.
 
 Frames come from the real SDH-2 recordings in ../shared/data (via the .dsa importer) when
 present, else from simulated frames (then labelled synthetic). Each frame is encoded as the
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import command_line, load_average, machine_info, write_results
+from trainer.measure import command_line, load_average, machine_info, write_results
 from trainer.shared_data import default_data_dir
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,4 +1,4 @@
-"""``python -m trainer.bench.soak_daemon --frame-log FILE run --config CONFIG``: ``handover run``
+"""``python -m benchmarks.soak_daemon --frame-log FILE run --config CONFIG``: ``handover run``
 (the real CLI path, signals, sd_notify, sinks) with one observation added for the soak benchmark:
 the device timestamp and arrival time (CLOCK_MONOTONIC, the same clock in every process on Linux)
 of every frame the daemon handles are appended to FILE, 16 bytes a frame. Nothing else changes.
@@ -16,7 +16,7 @@ FLUSH_S = 0.5
 
 def main(argv: list[str]) -> int:
     if len(argv) < 3 or argv[0] != "--frame-log":
-        print("usage: python -m trainer.bench.soak_daemon --frame-log FILE run --config CONFIG", file=sys.stderr)
+        print("usage: python -m benchmarks.soak_daemon --frame-log FILE run --config CONFIG", file=sys.stderr)
         return 2
     log_path, rest = argv[1], argv[2:]
     import runtime.daemon as daemon_module

@@ -8,7 +8,7 @@ training seed) and is scored on the bench's validation data (validation seed; th
 never generated here):
 
 - ``continuous``: the report rule chosen by the bench's own grid and criterion
-  (``trainer.bench.streams_rule.choose_rule``: 200 events + 0.25 h idle), its utility;
+  (``benchmarks.streams_rule.choose_rule``: 200 events + 0.25 h idle), its utility;
 - ``onset_dormant``: the bench's validation mixed stream (60 events) and idle stream (0.25 h), plus
   the real validation recordings (every other file of ../shared/data; every event there is false).
 
@@ -35,15 +35,15 @@ CRITERION = ("sum of validation utilities (right first reports - wrong first rep
 
 def score_variant(variant: tuple[int, int], seed: int, work: str) -> dict:
     """Train the stream model with ``variant`` and score it on the validation data (seed + VAL_OFFSET)."""
+    from benchmarks.streams import PART_S, SIZES, VAL_OFFSET
+    from benchmarks.streams_rule import choose_rule
     from firmware_io.sim import demo_script, simulate_protocol
     from firmware_io.sim.constants import FRAME_PERIOD_S
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
     from runtime.model import load_model
     from trainer import dormant
     from trainer import streams_eval as se
-    from trainer.bench.streams import PART_S, SIZES, VAL_OFFSET, real_files
-    from trainer.bench.streams_rule import choose_rule
-    from trainer.shared_data import default_data_dir
+    from trainer.shared_data import default_data_dir, real_files
 
     s = SIZES["full"]
     n, last = variant
@@ -105,19 +105,19 @@ def markdown(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m studies.ramp_windows", description=__doc__.split("\n", 1)[0])
+    ap = argparse.ArgumentParser(prog="./dev bench ramp_windows", description=__doc__.split("\n", 1)[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("results"))
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args(argv)
-    from trainer.bench.common import machine_info
+    from trainer.measure import machine_info
 
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="ramp-windows-") as work, ProcessPoolExecutor(args.jobs) as pool:
         variants = list(pool.map(score_variant, VARIANTS, [args.seed] * len(VARIANTS), [work] * len(VARIANTS)))
     best = max(variants, key=lambda r: (r["utility"], -r["n"]))
     info = machine_info()
-    result = {"command": f"python -m studies.ramp_windows --seed {args.seed}", "criterion": CRITERION,
+    result = {"command": f"./dev bench ramp_windows --seed {args.seed}", "criterion": CRITERION,
               "seconds": time.perf_counter() - t0, "machine": f"{info.get('cpu', '?')}, {info.get('cores', '?')} cores",
               "variants": variants, "chosen": [best["n"], best["last"]]}
     args.out.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""``handover compare``: the paper's BoW + SVM against richer options and reference classifiers,
+"""``./dev bench compare``: the paper's BoW + SVM against richer options and reference classifiers,
 side by side on the simulated protocol (synthetic) and the real recordings; writes
 ``results/compare.{json,md,png}`` with the machine and the reproducing command."""
 
@@ -35,11 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command_line(args: argparse.Namespace) -> str:
-    parts = ["handover", "compare"]
+    parts = ["./dev", "bench", "compare"]
     for flag, on in (("--quick", args.quick), ("--no-real", args.no_real), ("--no-minirocket", args.no_minirocket)):
         if on:
             parts.append(flag)
-    from trainer.bench.common import out_option
+    from trainer.measure import out_option
 
     parts += ["--seed", str(args.seed), "--n-jobs", str(args.n_jobs), *out_option(args.out, args.quick)]
     if args.data:
@@ -48,7 +48,7 @@ def command_line(args: argparse.Namespace) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from trainer.bench.common import default_out, out_problem
+    from trainer.measure import default_out, out_problem
 
     if args.out is None:
         args.out = default_out(args.quick)
@@ -64,8 +64,8 @@ def main(args: argparse.Namespace) -> int:
             return fail(COMMAND, "MiniRocket needs the Python package 'aeon': in a checkout `./dev bench --help` "
                          "installs it into .venv (elsewhere pip install 'tactile-handover[bench]'), or pass "
                          "--no-minirocket")
-    from trainer import compare
-    from trainer.bench.common import write_results
+    from benchmarks import compare
+    from trainer.measure import write_results
 
     def say(text: str) -> None:
         if not args.quiet:

@@ -1,4 +1,4 @@
-"""``handover dormant``: train a 5-class model with a dormant class, and compare continuous
+"""``./dev bench dormant``: train a 5-class model with a dormant class, and compare continuous
 detection with the paper's threshold trigger on long simulated idle and mixed streams.
 
 Steps: simulate the paper's protocol, idle streams and handover sessions (seed ``--seed``);
@@ -78,7 +78,7 @@ def settings(args) -> dict:
 
 
 def command_line(args) -> str:
-    parts = ["handover", COMMAND, "--out", str(args.out), "--seed", str(args.seed), "--eval-seed", str(args.eval_seed),
+    parts = ["./dev", "bench", COMMAND, "--out", str(args.out), "--seed", str(args.seed), "--eval-seed", str(args.eval_seed),
              "--val-seed", str(args.val_seed), "--pads", args.pads, "--K", str(args.K), "--W", str(args.W), "--T", str(args.T)]
     for flag in ("idle_hours", "events", "train_idle_min", "val_events", "val_idle_hours"):
         if getattr(args, flag) is not None:
@@ -434,7 +434,7 @@ def markdown(r: dict) -> str:
               f"- dormant (5 classes {d['classes']}): {d['n_cases']} windows, per class {d['per_class']}, "
               f"per origin {d['per_origin']}, SVM {d['best_params']}.",
               "", "Both exported as one ONNX graph each (`dormant-model/paper.onnx`, `dormant-model/dormant.onnx`, "
-              "not committed: `handover dormant` rewrites them).", ""]
+              "not committed: `./dev bench dormant` rewrites them).", ""]
     for title, name in r.get("figures", {}).items():
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
@@ -481,7 +481,7 @@ def loso_section(r: dict) -> list[str]:
 
 
 def write_figures(out: Path, ev: dict, models: dict, rule: dict) -> dict[str, str]:
-    from trainer import dormant_plots
+    from benchmarks import dormant_plots
 
     return {
         "Report rules on the validation streams (synthetic)": dormant_plots.rule_grid(

@@ -24,7 +24,7 @@ def markdown(r: dict) -> list[str]:
     real, test, demo, rep = r["real"], r["test"], r["demo"], r.get("held_out_replay") or {}
     m = r["model"]
     lines = [
-        "# A lab's own model on live streams (`handover bench streams_own`)",
+        "# A lab's own model on live streams (`./dev bench streams_own`)",
         "",
         f"Three scripted simulated subjects ({', '.join(r['subjects'])}; **synthetic**) recorded with `handover "
         f"record` (every pose, object and action, {r['sizes']['runs']} run(s), plus the recorder's idle stretches), "
@@ -42,7 +42,7 @@ def markdown(r: dict) -> list[str]:
     else:
         lines.append("- real SDH-2 recordings: not present on this machine (../shared/data), not measured")
     lines += [
-        f"- synthetic idle test stream of `handover bench streams` ({test['idle']['idle_hours']:.2f} h, seed "
+        f"- synthetic idle test stream of `./dev bench streams` ({test['idle']['idle_hours']:.2f} h, seed "
         f"{r['seed'] + 1}): **{_rate(r['own_model_idle_false_events_per_hour'])} false events per hour** "
         f"(the demo's simulator-trained model: {_rate(r['demo_model_idle_false_events_per_hour'])}); with the robot's "
         f"`arm moving` / `arm still`: {_rate(r['own_model_idle_false_events_per_hour_arm_messages'])} per hour"

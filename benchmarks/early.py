@@ -1,4 +1,4 @@
-"""``handover bench early``: how early a decision can be, against aeon's early classifiers.
+"""``./dev bench early``: how early a decision can be, against aeon's early classifiers.
 
 Real SDH-2 recordings first (``trainer.real_tasks``: every task found in ../shared/data, its own
 grouped splits; a decision after ``p`` frames reads the first ``p`` frames of a case), then the
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.bench.common import command_line, load_average, machine_info, write_results
+from trainer.measure import command_line, load_average, machine_info, write_results
 
 NAME = "early"
 SHOWN = (4, 8, 15)

@@ -1,6 +1,6 @@
 """Figure: synthetic frames against the real SDH-2 recordings (docs/simulator_vs_real.png).
 
-    .venv/bin/python -m studies.realism_plot --out docs/simulator_vs_real.png
+    .venv/bin/./dev bench realism_plot --out docs/simulator_vs_real.png
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def make_figure(real, sim, out: Path, seed: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m studies.realism_plot", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="./dev bench realism_plot", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("docs/simulator_vs_real.png"))
     parser.add_argument("--real", type=Path, default=Path(__file__).resolve().parents[2] / "shared/data/sdh2-dsa")
     parser.add_argument("--seed", type=int, default=0)

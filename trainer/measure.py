@@ -1,5 +1,6 @@
-"""What every benchmark shares: machine info, percentiles, timing loops, the simulated data and
-a model trained on it, and writing ``results/<name>.{json,md,png}`` with the reproducing command.
+"""What ``handover bench`` and the checkout's benchmarks/ share (one owner, so both measure and
+report alike): machine info, percentiles, timing loops, the deadline, the simulated data and a
+model trained on it, and writing ``results/<name>.{json,md,png}`` with the reproducing command.
 
 Everything trained here is trained on the simulated hand (synthetic data) and says so.
 """
@@ -20,15 +21,17 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.frame_timing import NOMINAL_PERIOD_S, NOMINAL_RATE_HZ
-from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
+from trainer.defaults import DEFAULT_MODEL
+
+__all__ = [
+    "DEADLINE_US", "PRODUCT_BENCHES", "command_line", "cycling", "deadline_ratio", "default_out", "export_metadata",
+    "fmt_us", "load_average", "load_note", "machine_info", "out_option", "out_problem", "percentiles", "progress",
+    "run_facts", "simulated_protocol", "tap_gap", "tap_stream", "time_calls", "train_default_model", "with_metadata",
+    "write_results",
+]
 
 DEADLINE_US = 1e6 * NOMINAL_PERIOD_S
 """One sample period at the controller's nominal rate: the hard deadline of a decision."""
-
-DEFAULT_PARAMS = {"K": DEFAULT_MODEL["K"], "W": DEFAULT_MODEL["W"], "T": DEFAULT_MODEL["T"], "kernel": BOW_ALONE_KERNEL,
-                  "pads": DEFAULT_MODEL["pads"], "per_pad": DEFAULT_MODEL["per_pad"]}
-"""The BoW family alone with the product default's settings (``handover train --features bow``): the
-point the pareto sweep of BoW settings marks. The product default itself is ``trainer.defaults``."""
 
 
 def machine_info() -> dict:
@@ -140,10 +143,15 @@ def out_problem(out: str) -> str | None:
     return None
 
 
+PRODUCT_BENCHES = ("latency", "throughput", "inference")
+"""What ``handover bench`` runs (trainer/bench/); the rest are the checkout's benchmarks/."""
+
+
 def command_line(name: str, args) -> str:
-    """The command that reproduces a result (``args``: handover bench's own options; a benchmark
-    called from Python may pass a namespace with only some of them)."""
-    parts = ["handover", "bench", name]
+    """The command that reproduces a result (``args``: the bench options; a benchmark called from
+    Python may pass a namespace with only some of them): the product's ``handover bench`` for what
+    it has, else the checkout's ``./dev bench``."""
+    parts = ["handover" if name in PRODUCT_BENCHES else "./dev", "bench", name]
     if getattr(args, "quick", False):
         parts.append("--quick")
     if name == "latency" and getattr(args, "load", False):

@@ -1,4 +1,4 @@
-"""Figures of ``handover dormant``: a stream timeline with each mode's decisions, the trade-off
+"""Figures of ``./dev bench dormant``: a stream timeline with each mode's decisions, the trade-off
 between false events and delay, false events by idle source. All data synthetic, titled so."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``handover bench hostile``: the daemon and the tools under attack, with counts.
+"""``./dev bench hostile``: the daemon and the tools under attack, with counts.
 
 Four kinds of hostile input, each counted by outcome; a *failure* is any outcome the house
 rules forbid (a crash, a traceback, more than one line, a non-JSON line on stdout, a frame the
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.hostile_models import write_model
 from firmware_io.frame_timing import nominal_stamp_ms
-from trainer.bench.common import load_average, run_facts, write_results
-from trainer.bench.hostile_models import write_model
+from trainer.measure import load_average, run_facts, write_results
 from trainer.shared_data import default_data_dir
 
 NAME = "hostile"
@@ -40,9 +40,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 # -- models -------------------------------------------------------------------------------------
 def attack_models(work: Path, quick: bool) -> dict:
+    from benchmarks import hostile_models as H
     from runtime.model import ModelContractError, load_model
     from runtime.output_check import DEFAULT_BUDGET_FRACTION
-    from trainer.bench import hostile_models as H
 
     out: dict = {"warm_up": {}, "sleepers": {}}
     for name, build in H.RUNTIME_ATTACKS.items():
@@ -70,11 +70,11 @@ def attack_models(work: Path, quick: bool) -> dict:
 
 def sleeper_in_daemon(folder: Path, kind: str) -> dict:
     """A sleeper dropped over a serving model: taken out of service at its first real press?"""
+    from benchmarks import hostile_models as H
     from firmware_io.client import Frame
     from firmware_io.layout import SensorLayout
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
-    from trainer.bench import hostile_models as H
 
     (folder / "models").mkdir(parents=True)
     write_model(folder / "models", "old.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
@@ -110,8 +110,8 @@ def sleeper_in_daemon(folder: Path, kind: str) -> dict:
 def mutated_models(work: Path, base: bytes, n: int) -> dict:
     """Byte-mutated copies of a valid model through the loader: refused with one line naming the
     file, or accepted (a mutation in a harmless byte); anything else is a failure."""
+    from benchmarks.hostile_models import mutations
     from runtime.model import ModelContractError, load_model
-    from trainer.bench.hostile_models import mutations
 
     path = work / "mutant.onnx"
     outcome: Counter = Counter()
@@ -199,8 +199,8 @@ def attack_frames(n: int, seed: int = 0) -> dict:
 
 # -- the run --------------------------------------------------------------------------------------
 def run(args) -> dict:
-    from trainer.bench.hostile_io import attack_config, attack_daemon, attack_recordings
-    from trainer.bench.hostile_world import attack_world
+    from benchmarks.hostile_io import attack_config, attack_daemon, attack_recordings
+    from benchmarks.hostile_world import attack_world
 
     say = args.say
     load_before = load_average()

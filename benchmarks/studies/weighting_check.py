@@ -36,8 +36,8 @@ NOISE_SEEDS = (1, 2)
 NOISE_ROWS = tuple(dict.fromkeys(("hand+stats rbf", WEIGHTED, default_candidate_name(), "stats rbf", "rocket+stats linear",
                                   *(v[0] for v in VARIANTS))))
 SECTION_END = "<!-- /weighting_check -->"
-SECTION_START = "<!-- weighting_check: python -m studies.weighting_check writes this section; " \
-                "python -m studies.slip_diagnosis keeps it -->"
+SECTION_START = "<!-- weighting_check: ./dev bench weighting_check writes this section; " \
+                "./dev bench slip_diagnosis keeps it -->"
 
 
 def family_sizes(task) -> dict:
@@ -60,10 +60,10 @@ def family_sizes(task) -> dict:
 
 
 def run(data_dir: Path, n_jobs: int, say) -> dict:
-    from trainer.bench.common import simulated_protocol
-    from trainer.compare import machine_info
+    from benchmarks.compare import machine_info
     from trainer.dataset import build_dataset
     from trainer.default_choice import apply_rule, inner_real_score, inner_sim_score
+    from trainer.measure import simulated_protocol
     from trainer.real_tasks import T, real_tasks
     from trainer.select import CANDIDATES
 
@@ -142,7 +142,7 @@ def markdown(res: dict) -> list[str]:
                           for seed, by in res["noise_seeds"].items()) + ".", "",
               f"Verdict by the rule: **{res['chosen']}** is first"
               + (" (the shipped default's candidate)." if res["chosen"] == default_candidate_name() else
-                 " (not what trainer/defaults.py ships; a full `handover compare` would confirm)."), *_margin(res)]
+                 " (not what trainer/defaults.py ships; a full `./dev bench compare` would confirm)."), *_margin(res)]
     return lines
 
 
@@ -173,10 +173,10 @@ def kept_section(md_path: Path) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from trainer.bench.common import write_results
+    from trainer.measure import write_results
     from trainer.shared_data import default_data_dir
 
-    parser = argparse.ArgumentParser(prog="python -m studies.weighting_check", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="./dev bench weighting_check", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results")
     parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default ../shared/data)")
     parser.add_argument("--n-jobs", type=int, default=2)
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"weighting_check: {exc}", file=sys.stderr)
         return 2
     if not args.rewrite:
-        res["command"] = shlex.join(["python", "-m", "studies.weighting_check", "--out", args.out]
+        res["command"] = shlex.join(["./dev", "bench", "weighting_check", "--out", args.out]
                                     + (["--data", args.data] if args.data else []))
     lines = markdown(res)
     write_results(args.out, "weighting_check", res, ["# Feature weighting check (issue 12)", "", *lines[2:], "",

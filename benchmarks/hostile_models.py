@@ -1,7 +1,7 @@
 """Hostile model files: valid by every static check of the contract, wrong or slow at run time.
 
 Built with the ``onnx`` helper API from a toy classifier (scores = mean(frames) * w + b) so
-that tests and ``handover bench hostile`` attack the daemon with the same files:
+that tests and ``./dev bench hostile`` attack the daemon with the same files:
 
 - ``label_out_of_range``: label + 100 whenever any taxel is non-zero (right on all-zero input);
 - ``nan_scores`` / ``inf_scores``: NaN / infinite scores whenever any taxel is non-zero;

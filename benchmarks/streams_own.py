@@ -1,4 +1,4 @@
-"""``handover bench streams_own``: the model a lab trains from its own recordings, measured on live streams.
+"""``./dev bench streams_own``: the model a lab trains from its own recordings, measured on live streams.
 
 1. three scripted simulated subjects (``subject://``, synthetic, their own seeds) are recorded with
    ``handover record`` (a short protocol: every pose, object and action, ``runs`` runs, plus the
@@ -7,12 +7,12 @@
    on validation streams (seed + 2): each cut's model replayed through the daemon;
 3. ``handover train`` on the recordings (the product path, with the cut in code) exports the model;
    its held-out replay is taken from the training metrics;
-4. that model on the test streams of ``handover bench streams`` (seed + 1: the same synthetic idle
+4. that model on the test streams of ``./dev bench streams`` (seed + 1: the same synthetic idle
    stream the demo model's 20 false events per hour come from; a mixed stream), on the demo's
    scripted session, and on every real SDH-2 recording in ../shared/data (none holds a handover).
 
 Writes results/streams_own.json/.md and its headline keys into results/streams.json (``OWN_KEYS``;
-``handover bench streams`` carries them over when it rewrites that file).
+``./dev bench streams`` carries them over when it rewrites that file).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from pathlib import Path
 
 from firmware_io.sim.constants import FRAME_PERIOD_S
 from trainer import streams_eval as se
-from trainer.bench.common import command_line, load_average, machine_info, write_results
 from trainer.early import rule_in_words
+from trainer.measure import command_line, load_average, machine_info, write_results
 
 NAME = "streams_own"
 SUBJECT_SEEDS = (10, 11, 12)
@@ -125,9 +125,9 @@ def choose(val: dict) -> str:
 
 def test_streams(model, seed: int, s: dict, say) -> dict:
     """The streams bench's test idle stream (parts of its length, its seed) and a mixed stream."""
+    from benchmarks.streams import PART_S
     from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
-    from trainer.bench.streams import PART_S
 
     mode = "onset_dormant" if model.meta.dormant_class else "onset"
     n_parts = max(1, round(3600.0 * s["test_idle_h"] / PART_S))
@@ -173,8 +173,8 @@ def demo_session(model, seed: int) -> dict:
 
 
 def run(args) -> dict:
+    from benchmarks.streams import TEST_OFFSET, VAL_OFFSET
     from runtime.model import load_model
-    from trainer.bench.streams import TEST_OFFSET, VAL_OFFSET
     from trainer.own_replay import real_idle
     from trainer.pipeline import train
     from trainer.recorded_idle import DORMANT_CUT
@@ -226,7 +226,7 @@ def run(args) -> dict:
         "synthetic_streams": True, "machine": machine_info(), "command": command_line(NAME, args),
         "load_before": load_before, "load_after": load_average(), "seconds": round(time.perf_counter() - t0, 1),
     }
-    from trainer.bench.streams_own_report import markdown
+    from benchmarks.streams_own_report import markdown
 
     write_results(args.out, NAME, out, markdown(out))
     carry_into_streams(Path(args.out), out)

@@ -6,7 +6,7 @@ lists the test chunks' windows and levels only to describe what the split asks; 
 of methods runs inside outer training parts (real_slip's first 60 % of each file's chunks, and the
 rule's nested grouped 3-fold on every real task).
 
-Run: ``python -m studies.slip_diagnosis --out results``.
+Run: ``./dev bench slip_diagnosis --out results``.
 """
 
 from __future__ import annotations
@@ -166,7 +166,7 @@ def search_variants(tasks) -> dict:
 
 
 def run(data_dir: Path, say) -> dict:
-    from trainer.compare import machine_info
+    from benchmarks.compare import machine_info
     from trainer.default_choice import inner_real_score
     from trainer.defaults import default_classifier
     from trainer.feature_svc import FeatureSVC
@@ -262,10 +262,10 @@ FINDINGS = [
 
 
 def main(argv: list[str] | None = None) -> int:
-    from trainer.bench.common import write_results
+    from trainer.measure import write_results
     from trainer.shared_data import default_data_dir
 
-    parser = argparse.ArgumentParser(prog="python -m studies.slip_diagnosis", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="./dev bench slip_diagnosis", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results")
     parser.add_argument("--data", help="shared data folder holding sdh2-dsa/ (default ../shared/data)")
     args = parser.parse_args(argv)
@@ -274,9 +274,9 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"slip_diagnosis: {exc}", file=sys.stderr)
         return 2
-    res["command"] = shlex.join(["python", "-m", "studies.slip_diagnosis", "--out", args.out]
+    res["command"] = shlex.join(["./dev", "bench", "slip_diagnosis", "--out", args.out]
                                 + (["--data", args.data] if args.data else []))
-    from studies.weighting_check import kept_section, upsert_section
+    from benchmarks.studies.weighting_check import kept_section, upsert_section
 
     kept = kept_section(Path(args.out) / "slip_diagnosis.md")
     write_results(args.out, "slip_diagnosis", res, markdown(res))

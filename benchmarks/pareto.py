@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 
-from trainer.bench.common import (
-    DEFAULT_PARAMS,
+from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
+from trainer.measure import (
     export_metadata,
     fmt_us,
     load_average,
@@ -31,6 +31,11 @@ from trainer.bench.common import (
 )
 
 NAME = "pareto"
+
+DEFAULT_PARAMS = {"K": DEFAULT_MODEL["K"], "W": DEFAULT_MODEL["W"], "T": DEFAULT_MODEL["T"], "kernel": BOW_ALONE_KERNEL,
+                  "pads": DEFAULT_MODEL["pads"], "per_pad": DEFAULT_MODEL["per_pad"]}
+"""The BoW family alone with the product default's settings (``handover train --features bow``): the
+point the pareto sweep of BoW settings marks. The product default itself is ``trainer.defaults``."""
 
 
 def grid(quick: bool) -> list[dict]:
@@ -219,7 +224,7 @@ def rerender(out: str | Path) -> dict:
     if d is None:
         raise ValueError(f"{path}: the default {label(DEFAULT_PARAMS)} is not among the measured points")
     res.update(default_on_front=bool(d["on_front"]), onnx_p50_us=d["time_p50_us"], onnx_p99_us=d["time_p99_us"])
-    res["notes"].append(f"Re-rendered from this run's measurements (`handover bench pareto --rerender`), the default "
+    res["notes"].append(f"Re-rendered from this run's measurements (`./dev bench pareto --rerender`), the default "
                         f"being {label(DEFAULT_PARAMS)}; nothing was measured again.")
     plot(rows, Path(out) / f"{NAME}.png")
     write_results(out, NAME, res, markdown(res))
