@@ -13,7 +13,7 @@ import argparse
 import importlib
 import sys
 
-from firmware_io.errors import fail
+from firmware_io.errors import HandoverError, fail
 from runtime.cli import HelpFormatter, OneLineParser
 from trainer import bench_cli
 
@@ -61,6 +61,9 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     try:
         return _run(argv)
+    except HandoverError as exc:  # as handover's main does for its commands
+        print(f"./dev bench {argv[0] if argv else 'all'}: {exc}", file=sys.stderr)
+        return exc.exit_code
     except KeyboardInterrupt:
         return fail(bench_cli.COMMAND, "interrupted", 130)
 

@@ -1,6 +1,6 @@
 """The frame rate has owners: the controller's nominal rate in ``firmware_io.frame_timing``, the
 measured mean interval of the real recordings in ``firmware_io.sim.constants``. No other module of
-the packages or the studies restates either as a number (it was written as 32.0, 1 / 32, 31.25 ms,
+the packages or the benchmarks restates either as a number (it was written as 32.0, 1 / 32, 31.25 ms,
 1e6 / 32.0 and 0.03156 in a dozen places, two of them a different quantity under the same name)."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ RATE_NUMBERS = {32.0, 31.25, 0.03125, 0.03156, 31.56, 0.0316}
 NOT_A_RATE = {
     ("firmware_io/layout.py", 32.0): "pad centres in mm",
     ("firmware_io/sim/actions.py", 32.0): "a push depth in mm",
-    ("studies/realism_plot.py", 0.0316): "the committed realism figure's time axis, kept as it was drawn",
+    ("benchmarks/studies/realism_plot.py", 0.0316): "the committed realism figure's time axis, kept as it was drawn",
 }
 
 
@@ -36,9 +36,10 @@ def rate_literals(text: str, rel: str) -> list[str]:
     return [f"{rel}:{line} {value}" for line, value in found if (rel, value) not in NOT_A_RATE]
 
 
-@pytest.mark.parametrize("package", ["firmware_io", "runtime", "trainer", "studies"])
+@pytest.mark.parametrize("package", ["firmware_io", "runtime", "trainer", "benchmarks"])
 def test_no_module_restates_the_frame_rate(package):
     files = {str(p.relative_to(ROOT)): p for p in sorted((ROOT / package).rglob("*.py"))}
+    assert files, f"{package}/ holds no module: a moved folder must be named here"
     stray = [hit for rel, path in files.items() if rel not in OWNERS for hit in rate_literals(path.read_text(), rel)]
     assert not stray, f"import the rate from firmware_io.frame_timing or firmware_io.sim.constants: {stray}"
 
