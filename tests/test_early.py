@@ -423,7 +423,6 @@ def test_early_heads_that_contradict_the_full_model_are_disabled_with_one_note(t
     from types import SimpleNamespace
 
     from runtime.config import config_from_dict
-    from runtime.detector import Detector
     from runtime.health import Health
     from runtime.inspect_cli import main as inspect_main
     from runtime.model import load_model
@@ -439,7 +438,7 @@ def test_early_heads_that_contradict_the_full_model_are_disabled_with_one_note(t
     cfg = config_from_dict({"device": {"url": "sim://"}, "model": {"folder": str(tmp_path)}})
     health = Health()
     with caplog.at_level(logging.WARNING, logger="handover"):
-        ModelSlot(cfg, Detector.from_config(cfg), health, announce=lambda _: None).use(model)
+        ModelSlot(cfg, health, serve=lambda _: None, announce=lambda _: None).use(model)
     assert [r.getMessage() for r in caplog.records if "disabled" in r.getMessage()] == [model.early_note]
     assert health.last_error == model.early_note
     assert inspect_main(SimpleNamespace(model=str(path), json=False)) in (0, None)
