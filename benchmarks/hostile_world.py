@@ -857,6 +857,37 @@ def two_daemons_one_namespace(work: Path) -> dict:
 
 
 # -- the cases, as ``./dev bench hostile`` counts them ----------------------------------------------------
+# -- 14: the controller as SDHLibrary's client sees it -------------------------------------------------------
+def controller_reset_behind_tcp(work: Path) -> dict:
+    """The emulated DSACON32m over TCP: a threshold acts on the frames; a host leaving resets it (push off,
+    a plain write lost, a persistent one kept as the default) and the next host's open waits out its boot."""
+    from firmware_io.client import DSAClient
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    emulator = DeviceEmulator(load_source("sim", seed=0, events=2), speed=1.0, boot_s=2.0, boot_query_s=1.5)
+    with TcpEmulatorServer(emulator) as server:
+        first = DSAClient(server.url)
+        layout = first.open()
+        for m in range(layout.n_matrices):
+            first.set_threshold(m, 4095)
+        first.set_sensitivity(0, 0.25, persistent=True)
+        first.start()
+        frame = first.read_frame(2.0)
+        first.close()
+        t0 = time.monotonic()
+        second = DSAClient(server.url)
+        second.open()
+        waited = time.monotonic() - t0
+        threshold, sensitivity = second.get_threshold(0), second.get_sensitivity(0).cur_sens
+        second.close()
+    silenced = frame is not None and not frame.values.any()
+    held = silenced and threshold == 0 and abs(sensitivity - 0.25) < 1e-6 and waited >= 1.5
+    return {"held": held, "detail": f"threshold 4095 silenced the frames: {silenced}; after the host left: threshold "
+                                    f"{threshold}, sensitivity {sensitivity:.2f} (0.25 stored), open waited {waited:.1f} s"}
+
+
 CASES: tuple[tuple[int, str, tuple[Callable[[Path], dict], ...]], ...] = (
     (1, "a stdout nobody reads", (blocked_stdout, blocked_stdout_process)),
     (2, "stdout closed at start", (closed_stdout,)),
@@ -871,6 +902,7 @@ CASES: tuple[tuple[int, str, tuple[Callable[[Path], dict], ...]], ...] = (
     (11, "health_file / quarantine_file naming a folder", (state_file_paths,)),
     (12, "SIGHUP with an empty, cut or FIFO config", (partial_config,)),
     (13, "crafted .dsa files", (crafted_dsa,)),
+    (14, "a controller reset behind TCP, tuned by its host", (controller_reset_behind_tcp,)),
 )
 """The world's attacks: number, what, and the probes whose results all must hold."""
 

@@ -31,6 +31,7 @@ def _held(result: dict) -> None:
     pytest.param("folder_rollbacks", id="what_the_model_folder_holds_is_what_is_served_and_check_agrees"),
     pytest.param("hanging_model_process", id="handover_run_with_a_hanging_model_serves_the_old_one_and_ends_on_sigterm", marks=pytest.mark.slow),
     pytest.param("layout_comes_back", id="a_controller_back_with_another_layout_then_the_original_gets_its_model_back"),
+    pytest.param("controller_reset_behind_tcp", id="a_controller_applies_its_threshold_resets_behind_tcp_and_keeps_a_persistent_write"),
 ])
 def test_the_case_holds(case, tmp_path):
     _held(getattr(W, case)(tmp_path))
