@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 
 from firmware_io.wire.frames import MAX_TEXEL_VALUE, RLE_FLAG
 from firmware_io.wire.packets import PacketId, encode_packet, expect_size
@@ -102,9 +102,37 @@ def read_matrix_mask_request(matrix: int, dynamic: bool = False) -> bytes:
     return encode_packet(PacketId.READ_MATRIX_MASK, bytes([1 if dynamic else 0]) + _matrix_byte(matrix))
 
 
+class _SetRequest:
+    """0x0F and 0x13: flags (persistent, all matrices, factory reset), matrix, value (``_FORMAT``).
+    With ``persistent`` the firmware sends no reply at all."""
+
+    PACKET_ID: int
+    _FORMAT: str
+    _WHAT: str
+    _HIGH: float
+
+    def encode(self) -> bytes:
+        value = astuple(self)[1]
+        if not 0 <= value <= self._HIGH:
+            raise ValueError(f"{self._WHAT} {value} outside 0..{self._HIGH:g}")
+        flags = ((FLAG_PERSISTENT if self.persistent else 0) | (FLAG_ALL_MATRICES if self.all_matrices else 0)
+                 | (FLAG_FACTORY_RESET if self.factory_reset else 0))
+        return struct.pack(self._FORMAT, flags, self.matrix, value)
+
+    def to_packet(self) -> bytes:
+        return encode_packet(self.PACKET_ID, self.encode())
+
+    @classmethod
+    def decode(cls, payload: bytes):
+        expect_size(payload, struct.calcsize(cls._FORMAT), f"set {cls._WHAT} (0x{cls.PACKET_ID:02X})")
+        flags, matrix, value = struct.unpack(cls._FORMAT, payload)
+        return cls(matrix, value, bool(flags & FLAG_PERSISTENT), bool(flags & FLAG_ALL_MATRICES),
+                   bool(flags & FLAG_FACTORY_RESET))
+
+
 @dataclass(frozen=True)
-class SetSensitivityRequest:
-    """Payload of 0x0F. With ``persistent`` the firmware sends no reply at all."""
+class SetSensitivityRequest(_SetRequest):
+    """Payload of 0x0F (sensitivity 0..1)."""
 
     matrix: int
     sensitivity: float
@@ -112,24 +140,13 @@ class SetSensitivityRequest:
     all_matrices: bool = False
     factory_reset: bool = False
 
-    def encode(self) -> bytes:
-        if not 0.0 <= self.sensitivity <= 1.0:
-            raise ValueError(f"sensitivity {self.sensitivity} outside 0..1")
-        return struct.pack("<BBf", _set_flags(self), self.matrix, self.sensitivity)
-
-    def to_packet(self) -> bytes:
-        return encode_packet(PacketId.ADJUST_MATRIX_SENSITIVITY, self.encode())
-
-    @classmethod
-    def decode(cls, payload: bytes) -> SetSensitivityRequest:
-        expect_size(payload, 6, "set sensitivity (0x0F)")
-        flags, matrix, value = struct.unpack("<BBf", payload)
-        return cls(matrix, value, *_unpack_set_flags(flags))
+    PACKET_ID = PacketId.ADJUST_MATRIX_SENSITIVITY
+    _FORMAT, _WHAT, _HIGH = "<BBf", "sensitivity", 1.0
 
 
 @dataclass(frozen=True)
-class SetThresholdRequest:
-    """Payload of 0x13 (threshold 0..4095). With ``persistent`` the firmware sends no reply."""
+class SetThresholdRequest(_SetRequest):
+    """Payload of 0x13 (threshold 0..4095)."""
 
     matrix: int
     threshold: int
@@ -137,28 +154,5 @@ class SetThresholdRequest:
     all_matrices: bool = False
     factory_reset: bool = False
 
-    def encode(self) -> bytes:
-        if not 0 <= self.threshold <= MAX_TEXEL_VALUE:
-            raise ValueError(f"threshold {self.threshold} outside 0..4095")
-        return struct.pack("<BBH", _set_flags(self), self.matrix, self.threshold)
-
-    def to_packet(self) -> bytes:
-        return encode_packet(PacketId.SET_MATRIX_THRESHOLD, self.encode())
-
-    @classmethod
-    def decode(cls, payload: bytes) -> SetThresholdRequest:
-        expect_size(payload, 4, "set threshold (0x13)")
-        flags, matrix, value = struct.unpack("<BBH", payload)
-        return cls(matrix, value, *_unpack_set_flags(flags))
-
-
-def _set_flags(req: SetSensitivityRequest | SetThresholdRequest) -> int:
-    return (
-        (FLAG_PERSISTENT if req.persistent else 0)
-        | (FLAG_ALL_MATRICES if req.all_matrices else 0)
-        | (FLAG_FACTORY_RESET if req.factory_reset else 0)
-    )
-
-
-def _unpack_set_flags(flags: int) -> tuple[bool, bool, bool]:
-    return bool(flags & FLAG_PERSISTENT), bool(flags & FLAG_ALL_MATRICES), bool(flags & FLAG_FACTORY_RESET)
+    PACKET_ID = PacketId.SET_MATRIX_THRESHOLD
+    _FORMAT, _WHAT, _HIGH = "<BBH", "threshold", MAX_TEXEL_VALUE
