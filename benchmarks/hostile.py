@@ -13,7 +13,7 @@ sensor cannot send reaching the classifier, an out-of-range number accepted):
   ``Recording.load`` and the ``plot``/``train`` commands;
 - config: NaN, infinities and huge values for every number of the config;
 - the daemon as a process, with hostile models dropped into its folder while it serves;
-- the world around it (trainer/bench/hostile_world.py): a stdout nobody reads, silent DNS, other users
+- the world around it (benchmarks/hostile_world.py): a stdout nobody reads, silent DNS, other users
   on the control socket, a hanging model, rollbacks, half-written configs, crafted files, and more.
 
 Writes results/hostile.json and .md.
@@ -288,7 +288,7 @@ def markdown(res: dict) -> list[str]:
 
 
 def world_markdown(w: dict) -> list[str]:
-    """The world's cases (trainer/bench/hostile_world.py): one row each, what was tried and what came of it."""
+    """The world's cases (benchmarks/hostile_world.py): one row each, what was tried and what came of it."""
     untried = [str(r["case"]) for r in w["cases"] if not r["tried"]]
     return [
         "## The world around the daemon", "",

@@ -1,4 +1,4 @@
-"""The file, config and process attacks of ``./dev bench hostile`` (see trainer/bench/hostile.py)."""
+"""The file, config and process attacks of ``./dev bench hostile`` (see benchmarks/hostile.py)."""
 
 from __future__ import annotations
 

@@ -407,7 +407,7 @@ def markdown(r: dict) -> list[str]:
     md += ["", "| figure | value | goal met |", "|---|---|---|"]
     md += [f"| {a} | {b} | {c} |" for a, b, c in rows]
     md += ["", f"Commit {r['commit']}, started {r['started_utc']}. {r['note']}",
-           "Rules: see the docstring of trainer/bench/soak.py (what counts as inside a fault, which events are "
+           "Rules: see the docstring of benchmarks/soak.py (what counts as inside a fault, which events are "
            "expected)."]
     hostile = (r.get("hostile_inputs") or {}).get("counts")
     if hostile:

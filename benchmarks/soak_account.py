@@ -1,6 +1,6 @@
 """The soak benchmark's bookkeeping: what was sent, what the daemon handled, which losses fall
 inside an injected fault, which events were expected and arrived, and when the watchdog would
-have fired. Pure functions over the run's logs (see trainer/bench/soak.py for the rules)."""
+have fired. Pure functions over the run's logs (see benchmarks/soak.py for the rules)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""results/streams_own.md from the streams_own bench's result (trainer/bench/streams_own.py)."""
+"""results/streams_own.md from the streams_own bench's result (benchmarks/streams_own.py)."""
 
 from __future__ import annotations
 

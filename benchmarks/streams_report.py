@@ -1,4 +1,4 @@
-"""results/streams.md from the result of ``./dev bench streams`` (trainer/bench/streams.py)."""
+"""results/streams.md from the result of ``./dev bench streams`` (benchmarks/streams.py)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Hostile models, corrupt frames and bad numbers (issue #19): the daemon never crashes and never
-emits invalid output. The fast subset of ``./dev bench hostile`` (trainer/bench/hostile.py),
+emits invalid output. The fast subset of ``./dev bench hostile`` (benchmarks/hostile.py),
 whose full run is marked slow here and writes results/hostile.json."""
 
 from __future__ import annotations

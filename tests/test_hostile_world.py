@@ -1,6 +1,6 @@
 """The daemon in a hostile world: nothing it writes blocks the thread that reads the pads, nothing
 outside its user steers it, nothing a file claims is taken on trust. Each case of
-trainer/bench/hostile_world.py runs here with real parts; ``./dev bench hostile`` counts them."""
+benchmarks/hostile_world.py runs here with real parts; ``./dev bench hostile`` counts them."""
 
 from __future__ import annotations
 

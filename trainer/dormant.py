@@ -48,7 +48,7 @@ RAMP_WINDOWS: dict[str, tuple[int, int]] = {"hold": (2, 10)}
 """Per action, (n, last): n more windows per trial starting ACTION_LATE_MAX + 1 .. last frames after
 the onset. A hold's grip ramps for 0.5-0.9 s; without them a continuously classifying model meets
 the ramp's windows unlabelled and reads them as dormant. Chosen on validation streams
-(studies/ramp_windows.py, results/ramp_windows.md)."""
+(benchmarks/studies/ramp_windows.py, results/ramp_windows.md)."""
 WINDOWS_PER_TRIAL = 3
 IDLE_WINDOWS_PER_SOURCE = 250
 IDLE_FOLDS = 5

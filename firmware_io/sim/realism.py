@@ -5,7 +5,7 @@
   change of loaded taxels (contact noise);
 - frame timing: interval mean, spread, tails and lag-1 autocorrelation;
 - contact area: non-zero taxels of a pad in contact.
-numpy only, so the emulator side can use it too; the figure is studies/realism_plot.py.
+numpy only, so the emulator side can use it too; the figure is benchmarks/studies/realism_plot.py.
 """
 
 from __future__ import annotations
