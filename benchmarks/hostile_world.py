@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.hostile_files import files_that_eat, full_disk_record
 from benchmarks.hostile_models import write_model
 from firmware_io.frame_timing import NOMINAL_PERIOD_S, nominal_stamp_ms
 
@@ -903,6 +904,8 @@ CASES: tuple[tuple[int, str, tuple[Callable[[Path], dict], ...]], ...] = (
     (12, "SIGHUP with an empty, cut or FIFO config", (partial_config,)),
     (13, "crafted .dsa files", (crafted_dsa,)),
     (14, "a controller reset behind TCP, tuned by its host", (controller_reset_behind_tcp,)),
+    (15, "files that eat the machine: deflated .hrec, score bombs, malformed scripts, frame bomb", (files_that_eat,)),
+    (16, "a full disk during record, a killed save's temp file", (full_disk_record,)),
 )
 """The world's attacks: number, what, and the probes whose results all must hold."""
 

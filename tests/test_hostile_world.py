@@ -32,6 +32,9 @@ def _held(result: dict) -> None:
     pytest.param("hanging_model_process", id="handover_run_with_a_hanging_model_serves_the_old_one_and_ends_on_sigterm", marks=pytest.mark.slow),
     pytest.param("layout_comes_back", id="a_controller_back_with_another_layout_then_the_original_gets_its_model_back"),
     pytest.param("controller_reset_behind_tcp", id="a_controller_applies_its_threshold_resets_behind_tcp_and_keeps_a_persistent_write"),
+    pytest.param("files_that_eat", id="files_that_eat_the_machine_are_one_line_within_5_s_and_500_mb", marks=pytest.mark.slow),
+    pytest.param("full_disk_record", id="record_on_a_full_disk_says_what_was_saved_resumes_and_leaves_no_temp_file",
+                 marks=pytest.mark.slow),
 ])
 def test_the_case_holds(case, tmp_path):
     _held(getattr(W, case)(tmp_path))
