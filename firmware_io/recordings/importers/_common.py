@@ -7,10 +7,8 @@ import numpy as np
 from firmware_io.layout import FULL_SCALE_12BIT, fullscale_problem
 from firmware_io.recordings.recording import RecordingError
 
-__all__ = ["MAX_12BIT", "check_allocation", "check_fullscale", "check_range", "describe_timing", "keep_increasing"]
+__all__ = ["check_allocation", "check_fullscale", "check_range", "describe_timing", "keep_increasing"]
 
-MAX_12BIT = FULL_SCALE_12BIT
-"""The largest value a 12-bit taxel reports (the layout owns it)."""
 VALUES_PER_BYTE = 16
 """Most taxel values a file may decode to per byte of its (inflated) text. Why: a header may
 declare any matrix size, and zero runs make a few bytes stand for millions of values; the
@@ -71,7 +69,7 @@ def check_range(values: np.ndarray, fullscale: float, unit: str = "frame") -> No
     """Refuse values that cannot be raw 12-bit taxel readings; names the first bad frame and taxel."""
     if values.size == 0:
         return
-    top = min(float(fullscale), MAX_12BIT)
+    top = min(float(fullscale), FULL_SCALE_12BIT)
     bad = (values < 0) | (values > top)
     if bad.any():
         f, c = np.argwhere(bad)[0]

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.layout import LayoutError, MatrixInfo, SensorLayout
-from firmware_io.recordings.importers._common import MAX_12BIT, check_range, describe_timing, keep_increasing
+from firmware_io.layout import FULL_SCALE_12BIT, LayoutError, MatrixInfo, SensorLayout
+from firmware_io.recordings.importers._common import check_range, describe_timing, keep_increasing
 from firmware_io.recordings.recording import Recording, RecordingError
 
 __all__ = ["MATRIX_MSGTYPE", "MSGTYPE", "read_rosbag", "typestore"]
@@ -155,7 +155,7 @@ def _layout(first: list) -> SensorLayout:
                     cells_x=cx,
                     cells_y=cy,
                     center=ref.center if same else (0.0, 0.0, 0.0),
-                    fullscale=float(MAX_12BIT),
+                    fullscale=float(FULL_SCALE_12BIT),
                     static_mask=_DISTAL_MASK if (cx, cy) == (6, 13) else None,
                 )
             )
