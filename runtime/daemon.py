@@ -109,9 +109,14 @@ class Daemon:
         self.messages = MessageLog()
         self.robot = RobotInputs(self.detector, self.messages)
         """The grasp and arm commands the control socket and the ROS 2 node may give, from their threads."""
-        self.reporter = Reporter(self._sinks(cfg), self.health, on_event, self.listeners)
+        self.reporter = Reporter(self._sinks(cfg), on_event, self.listeners)
         self.models = ModelSlot(cfg, self.health, self._apply, self._announce)
         self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory)
+        self.frames_received = 0
+        self._control_ignored = 0
+        self.health.parts = [self._counters, self.link.counters, self.detector.counters, self.models.counters,
+                             self.reporter.counters]
+        """Each part keeps its own counters; the health view composes them (runtime.health.SNAPSHOT)."""
         self.link.scene = cfg.scene.pads
         self.control: ControlSocket | None = None
         self.locks: Any = None
@@ -170,7 +175,7 @@ class Daemon:
     # -- the hot path ---------------------------------------------------------------------------------
     def handle_frame(self, frame: Frame) -> None:
         """One frame: the detector, and the decision it returns reported."""
-        self.health.frames_received += 1
+        self.frames_received += 1
         for listener in self.listeners:
             listener.on_frame(frame)
         decision = self.detector.feed(frame)
@@ -229,19 +234,21 @@ class Daemon:
             self._next_health = now + HEALTH_PERIOD_S
             self.write_health(now)
 
+    def _counters(self) -> dict[str, int]:
+        """The daemon's own counts: frames handled, sink failures and events refused as invalid JSON, control
+        datagrams ignored (not a known message, or from a sender not heard)."""
+        if self.control is not None:
+            self._control_ignored = self.control.garbage + self.control.refused
+        return {"frames_received": self.frames_received, "sink_errors": self.sinks.errors,
+                "events_invalid": self.sinks.invalid, "control_ignored": self._control_ignored}
+
     def write_health(self, now: float | None = None) -> None:
         h = self.health
         h.update_rate(now)
         self.link.update_health(time.monotonic() if now is None else now, HEALTH_PERIOD_S)
-        h.sink_errors = self.sinks.errors
         h.hold("sinks", self.sinks.problem)
-        h.events_invalid = self.sinks.invalid
-        arm = self.detector.arm
-        h.arm_moving, h.arm_windows = arm.moving, arm.dropped
-        if self.control is not None:
-            h.control_ignored = self.control.garbage + self.control.refused
-        self.notifier.status(h.status_line())
         snapshot = h.snapshot()
+        self.notifier.status(h.status_line(snapshot))
         if self.status_file is not None:
             self.status_file.write(snapshot)
         self.sinks.health(snapshot)
@@ -267,8 +274,11 @@ class Daemon:
         """A connection attempt; a device that began to stream is fitted (a model that does not fit its
         layout stops serving). During a slow open the link asks ``_connecting`` between its reads."""
         if self.link.connect(self._connecting) is Linked.STREAMING:
-            self.models.fit_layout(self.link.layout)
-            self._apply(layout=self.link.layout)
+            self._stream_began(self.link.layout)
+
+    def _stream_began(self, layout: SensorLayout) -> None:
+        self.models.fit_layout(layout)
+        self._apply(layout=layout)
 
     def _connecting(self) -> bool:
         """Whether to cancel a slow open (SIGTERM); meanwhile the health file is written and a model dropped
@@ -402,11 +412,10 @@ class Daemon:
         self.guard.stop()
         self.models.stop(timeout=0.5)
         self.stop_control()
-        self.link.close(stop_timeout=SHUTDOWN_STOP_S)
-        self.health.device_state = "stopped" if not self.fatal else "failed"
+        self.link.shutdown(SHUTDOWN_STOP_S)
         if self.fatal:
             self.health.report_error(self.fatal, "device")
         self.write_health()
         self.sinks.close()
-        log.info("stopped: %d frames, %d events, %d missed deadlines", self.health.frames_received,
-                 self.health.events, self.health.missed_deadlines)
+        log.info("stopped: %d frames, %d events, %d missed deadlines", self.frames_received,
+                 self.reporter.events, self.reporter.missed_deadlines)

@@ -308,6 +308,10 @@ class Detector:
             self.rule.reset()
         self.windows.clear()
 
+    def counters(self) -> dict[str, int | bool]:
+        """The frame clock's counts, the robot's last word on its arm and the windows its motion judged dormant."""
+        return {**self.frame_clock.counters(), "arm_moving": self.arm.moving, "arm_windows": self.arm.dropped}
+
     @property
     def window_open(self) -> bool:
         """Whether a trigger has fired and its window's last frame is still to come."""

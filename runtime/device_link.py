@@ -78,6 +78,15 @@ class DeviceLink:
         self.layout: SensorLayout | None = None
         """The layout of the device the client last opened."""
         self.connected = False
+        self.state = "starting"
+        """The health view's ``device_state``: starting, connecting, streaming, disconnected, reconnecting,
+        stopped or failed."""
+        self.faults = 0
+        """Streaming links that failed (each one a reconnect)."""
+        self.stalls = 0
+        """Faults that were a stall (no frame for ``device.stall_timeout_s``)."""
+        self._client_counts: dict[str, int] = {}
+        """The client's error counts at the last ``update_health`` (cumulative over its reconnects)."""
         self.fatal: str | None = None
         """Why the link can never work (a device URL that can never open, a missing package), or None."""
         self.connect_bound_s = CONNECT_BOUND_S
@@ -124,7 +133,7 @@ class DeviceLink:
         now = time.monotonic()
         if frame is None:
             if now - self._last_frame_t > self.device.stall_timeout_s:
-                self.health.stalls += 1
+                self.stalls += 1
                 self.fault(self._stall_reason(), link_lost=False)
             return None
         self._last_frame_t = now
@@ -156,8 +165,8 @@ class DeviceLink:
         h = self.health
         url = self.device.url
         self._connect_started, self._hang_logged = time.monotonic(), False
-        if h.device_state in ("starting", "stopped"):
-            h.device_state = "connecting"
+        if self.state in ("starting", "stopped"):
+            self.state = "connecting"
         try:
             if self.client is None:
                 self._use_new_client(url)
@@ -175,7 +184,7 @@ class DeviceLink:
         first = self.layout is None
         self.layout = layout
         self._last_frame_t = time.monotonic()
-        h.device_state = "streaming"
+        self.state = "streaming"
         h.resolve("device")
         self._link_up_at = self.retry_notes.clock()
         self._back_note_due = self.retry_notes.attempts > 0 and self._flapping
@@ -202,7 +211,7 @@ class DeviceLink:
             self.close()
             return
         self._connect_started = None
-        self.health.device_state = "disconnected"
+        self.state = "disconnected"
         reason = one_line(exc).removeprefix(f"{url}: ")
         self.health.report_error(f"{url}: {reason}", "device")  # every attempt: the health file stays current
         self._note_failed_attempt(url, reason)
@@ -223,11 +232,9 @@ class DeviceLink:
         """The link failed while streaming (``link_lost``: closed or lost, else a stall): counted, reconnected."""
         url = self.device.url
         reason = reason.removeprefix(f"{url}: ")
-        h = self.health
-        h.device_faults += 1
-        h.reconnects += 1
-        h.device_state = "reconnecting"
-        h.report_error(f"{url}: {reason}", "device")  # every drop: the health file stays current
+        self.faults += 1
+        self.state = "reconnecting"
+        self.health.report_error(f"{url}: {reason}", "device")  # every drop: the health file stays current
         up = self._link_up_at
         self._link_up_at = None
         if up is not None and self.retry_notes.clock() - up < SHORT_LINK_S:  # a flapping link: logged as a failed attempt
@@ -264,13 +271,22 @@ class DeviceLink:
         whose every frame was refused)."""
         stats = getattr(self.client, "stats", None)
         if isinstance(stats, dict):
-            h = self.health
-            h.crc_errors = int(stats.get("crc_errors", 0))
-            h.protocol_errors = int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0))
-            h.frames_implausible = int(stats.get("frames_implausible", 0))
-            h.frames_stale = int(stats.get("frames_stale", 0))
+            self._client_counts = {
+                "crc_errors": int(stats.get("crc_errors", 0)),
+                "protocol_errors": int(stats.get("bad_headers", 0)) + int(stats.get("decode_errors", 0)),
+                "frames_implausible": int(stats.get("frames_implausible", 0)),
+                "frames_stale": int(stats.get("frames_stale", 0))}
         if self.connected and now - self._last_frame_t <= period_s:
             self._refused_mark = self._refusals()
+
+    def counters(self) -> dict[str, int | str]:
+        return {"device_state": self.state, "reconnects": self.faults, "device_faults": self.faults,
+                "stalls": self.stalls, **self._client_counts}
+
+    def shutdown(self, stop_timeout: float) -> None:
+        """The daemon stops: the device closed, the state ``stopped`` (``failed`` when the link can never work)."""
+        self.close(stop_timeout=stop_timeout)
+        self.state = "failed" if self.fatal else "stopped"
 
     def _stall_reason(self) -> str:
         """The stall's line. Frames that arrived whole but were all refused (CRC, undecodable,

@@ -78,6 +78,10 @@ class FrameClock:
         self._gaps = [0.0] * BLOCK
         self._breaks = [False] * BLOCK
         self._numbers = np.zeros(HISTORY, dtype=np.int64)
+        self.dropped = 0
+        """Frames the device sent but we never saw (gaps in device time), over the daemon's life."""
+        self.decimated = 0
+        """Frames of a stream faster than the model's rate left out to feed it at its period."""
         self.reset()
 
     def reset(self) -> None:
@@ -118,8 +122,7 @@ class FrameClock:
         if self.step < 1.0:
             self._phase += self.step
             if self._phase < 1.0:
-                if self.health is not None:
-                    self.health.frames_decimated += 1
+                self.decimated += 1
                 return -1
             self._phase -= 1.0
         if self.renumber:
@@ -129,6 +132,9 @@ class FrameClock:
         self._numbers[self.admitted % HISTORY] = number
         self.admitted += 1
         return self.number
+
+    def counters(self) -> dict[str, int]:
+        return {"frames_dropped": self.dropped, "frames_decimated": self.decimated}
 
     @property
     def period_ms(self) -> float:
@@ -185,9 +191,9 @@ class FrameClock:
             return  # repeated stamps: no rate to measure
         # stamps jitter up to ~0.8 period; a lost frame adds one
         lost = [g for g, broken in zip(gaps, self._breaks, strict=True) if g > 1.9 * period and not broken]
-        if lost and self.health is not None:
+        if lost:
             room = max(0, round(ends[-1] / period) - BLOCK)
-            self.health.frames_dropped += min(room, sum(round(g / period) for g in lost) - len(lost))
+            self.dropped += min(room, sum(round(g / period) for g in lost) - len(lost))
         self._decide(period)
 
     def _decide(self, period_ms: float) -> None:

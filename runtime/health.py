@@ -1,7 +1,5 @@
-"""Health view: counters, latency median/p99 over a sliding window, a JSON status file at ~1 Hz.
-
-The same numbers make the systemd STATUS line. Recording a latency is one store into a
-preallocated array; percentiles are computed only when the status is written.
+"""Health view: the counters each part of the daemon keeps, composed; latency median/p99 over a
+sliding window; a JSON status file at ~1 Hz. The same numbers make the systemd STATUS line.
 """
 
 from __future__ import annotations
@@ -12,11 +10,13 @@ import logging
 import os
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-__all__ = ["Health", "StatusFile", "log", "one_line", "write_json_atomically"]
+__all__ = ["SNAPSHOT", "Health", "Latency", "StatusFile", "log", "one_line", "write_json_atomically"]
 
 log = logging.getLogger("handover.health")
 ERROR_HISTORY = 8
@@ -25,51 +25,30 @@ FRAME_ERROR_LOG_S = 10.0
 """At most one log line this often for exceptions while handling frames (all are counted)."""
 
 
-class Health:
-    """All counters the daemon reports."""
+SNAPSHOT: dict[str, Any] = {
+    "time": None, "instance": "", "uptime_s": 0.0, "device_state": "starting", "frame_rate_hz": 0.0,
+    "frames_received": 0, "frames_dropped": 0, "frames_stale": 0, "frames_decimated": 0, "crc_errors": 0,
+    "protocol_errors": 0, "reconnects": 0, "device_faults": 0, "stalls": 0, "decisions": 0, "events": 0,
+    "missed_deadlines": 0, "latency_p50_us": None, "latency_p99_us": None, "latency_max_us": 0.0, "sink_errors": 0,
+    "models_loaded": 0, "models_rejected": 0, "models_quarantined": 0, "frames_implausible": 0, "frame_errors": 0,
+    "events_invalid": 0, "arm_moving": False, "arm_windows": 0, "control_ignored": 0, "model_id": None,
+    "trigger": None, "last_error": "", "last_error_at": None, "recent_errors": [],
+}
+"""The health file's keys in order, each with its value before its part reports."""
 
-    def __init__(self, latency_window: int = 2048) -> None:
+
+class Health:
+    """The health view: the problem log (``report_error``, ``resolve``, ``hold``) and a snapshot composed of
+    the counters each part keeps and reports itself (``parts``: the daemon's link, detector, model slot,
+    reporter and its own). Why: one writer per counter; a counter is read here as ``health.<key>``."""
+
+    def __init__(self) -> None:
         self.started = time.time()
-        self.frames_received = 0
-        self.frames_dropped = 0
-        """Frames the device sent but we never saw (gaps in device time)."""
-        self.frames_stale = 0
-        """Frames received but discarded because the loop fell behind (client queue overflow)."""
-        self.frames_decimated = 0
-        """Frames of a stream faster than the model's rate left out to feed it at its period (runtime/frame_rate.py)."""
-        self.crc_errors = 0
-        self.protocol_errors = 0
-        self.reconnects = 0
-        self.device_faults = 0
-        self.stalls = 0
-        """Device faults that were a stall (no frame for ``device.stall_timeout_s``)."""
-        self.decisions = 0
-        self.events = 0
-        self.missed_deadlines = 0
-        self.sink_errors = 0
-        self.models_loaded = 0
-        self.models_rejected = 0
-        self.models_quarantined = 0
-        """Models taken out of service at run time (a label out of range, NaN scores, a failed run)."""
-        self.frames_implausible = 0
-        """Frames the sensor cannot have sent (above 12 bits, pressure on a cell that does not exist):
-        dropped by the client, never classified."""
+        self.parts: list[Callable[[], dict[str, Any]]] = []
         self.frame_errors = 0
         """Exceptions while handling a frame (the loop went on)."""
-        self.events_invalid = 0
-        """Events not sent because they were not valid JSON (NaN/inf)."""
-        self.arm_moving = False
-        """The robot's last word on its arm (runtime.arm_motion)."""
-        self.arm_windows = 0
-        """Windows judged dormant because the arm moved during them (the model did not run)."""
-        self.control_ignored = 0
-        """Control datagrams that were not a known message, or from a sender not heard (counted, logged once)."""
-        self.model_id: str | None = None
         self.instance = ""
         """Which daemon this is (runtime.instance_name), as in its event lines."""
-        self.trigger: str | None = None
-        """The trigger serving now, with its settings (e.g. ``onset (change 0.12, ...)``), or None without a model."""
-        self.device_state = "starting"
         self.last_error = ""
         """The problem that holds now ("" once it is resolved: streaming again, a model serving)."""
         self.last_error_at: float | None = None
@@ -78,12 +57,25 @@ class Health:
         self._error_source = ""
         self._held: dict[str, str | None] = {}
         self._last_frame_error_log = -FRAME_ERROR_LOG_S
-        self._lat = np.zeros(latency_window, dtype=np.float64)
-        self._lat_n = 0
-        self.latency_max_us = 0.0
         self._rate_t = time.monotonic()
         self._rate_frames = 0
         self.frame_rate = 0.0
+
+    def counters(self) -> dict[str, Any]:
+        """Every part's counters now, merged."""
+        merged: dict[str, Any] = {"frame_errors": self.frame_errors}
+        for part in self.parts:
+            merged.update(part())
+        return merged
+
+    def __getattr__(self, name: str) -> Any:
+        """A part's counter by its health key (``health.events``); read-only."""
+        if name.startswith("_") or name == "parts":
+            raise AttributeError(name)
+        counters = self.counters()
+        if name in counters or name in SNAPSHOT:
+            return counters.get(name, SNAPSHOT[name])
+        raise AttributeError(name)
 
     def report_error(self, text: str, source: str) -> None:
         """A problem from ``source`` (``device``, ``model``, ``config``, ``quarantine``, ``frame``) that
@@ -123,78 +115,57 @@ class Health:
         self.report_error(f"frame handling failed: {message}", "frame")  # in the history once per log line
         return True
 
-    def record_latency(self, latency_us: float) -> None:
-        self._lat[self._lat_n % self._lat.size] = latency_us
-        self._lat_n += 1
-        if latency_us > self.latency_max_us:
-            self.latency_max_us = latency_us
-
-    def latency_percentiles(self) -> tuple[float | None, float | None]:
-        n = min(self._lat_n, self._lat.size)
-        if n == 0:
-            return None, None
-        p50, p99 = np.percentile(self._lat[:n], [50, 99])
-        return float(p50), float(p99)
-
     def update_rate(self, now: float | None = None) -> None:
         now = time.monotonic() if now is None else now
         dt = now - self._rate_t
         if dt >= 1.0:
-            # the device's rate: frames it sent that the client dropped as implausible count too, else dropped
-            # frames would make the device look slower and the rate check blame the stream
-            sent = self.frames_received + self.frames_implausible
+            # the device's rate: frames it sent that the client dropped as implausible count too (30 % of frames
+            # above 4095 made the device look 30 % slower, and the rate check blame the stream)
+            counters = self.counters()
+            sent = counters.get("frames_received", 0) + counters.get("frames_implausible", 0)
             self.frame_rate = max(0, sent - self._rate_frames) / dt
             self._rate_t, self._rate_frames = now, sent
 
     def snapshot(self) -> dict:
-        p50, p99 = self.latency_percentiles()
-        return {
-            "time": time.time(),
-            "instance": self.instance,
-            "uptime_s": round(time.time() - self.started, 3),
-            "device_state": self.device_state,
-            "frame_rate_hz": round(self.frame_rate, 2),
-            "frames_received": self.frames_received,
-            "frames_dropped": self.frames_dropped,
-            "frames_stale": self.frames_stale,
-            "frames_decimated": self.frames_decimated,
-            "crc_errors": self.crc_errors,
-            "protocol_errors": self.protocol_errors,
-            "reconnects": self.reconnects,
-            "device_faults": self.device_faults,
-            "stalls": self.stalls,
-            "decisions": self.decisions,
-            "events": self.events,
-            "missed_deadlines": self.missed_deadlines,
-            "latency_p50_us": None if p50 is None else round(p50, 1),
-            "latency_p99_us": None if p99 is None else round(p99, 1),
-            "latency_max_us": round(self.latency_max_us, 1),
-            "sink_errors": self.sink_errors,
-            "models_loaded": self.models_loaded,
-            "models_rejected": self.models_rejected,
-            "models_quarantined": self.models_quarantined,
-            "frames_implausible": self.frames_implausible,
-            "frame_errors": self.frame_errors,
-            "events_invalid": self.events_invalid,
-            "arm_moving": self.arm_moving,
-            "arm_windows": self.arm_windows,
-            "control_ignored": self.control_ignored,
-            "model_id": self.model_id,
-            "trigger": self.trigger,
-            "last_error": self.last_error,
-            "last_error_at": None if self.last_error_at is None else round(self.last_error_at, 3),
-            "recent_errors": list(self.errors),
-        }
+        now = time.time()
+        data = {**self.counters(), "time": now, "instance": self.instance, "uptime_s": round(now - self.started, 3),
+                "frame_rate_hz": round(self.frame_rate, 2), "last_error": self.last_error,
+                "last_error_at": None if self.last_error_at is None else round(self.last_error_at, 3),
+                "recent_errors": list(self.errors)}
+        return {key: data.get(key, default) for key, default in SNAPSHOT.items()}
 
-    def status_line(self) -> str:
+    def status_line(self, snapshot: dict | None = None) -> str:
         """One line for ``systemctl status``: rates, latency, model in use."""
-        p50, p99 = self.latency_percentiles()
+        h = snapshot or self.snapshot()
+        p50, p99 = h["latency_p50_us"], h["latency_p99_us"]
         lat = "latency -" if p50 is None else f"latency p50 {p50:.0f}us p99 {p99:.0f}us"
         return (
-            f"{self.device_state}; {self.frame_rate:.1f} frames/s; {self.events} events; {lat}; "
-            f"missed {self.missed_deadlines}; dropped {self.frames_dropped}; crc {self.crc_errors}; "
-            f"model {self.model_id or 'none'}"
+            f"{h['device_state']}; {h['frame_rate_hz']:.1f} frames/s; {h['events']} events; {lat}; "
+            f"missed {h['missed_deadlines']}; dropped {h['frames_dropped']}; crc {h['crc_errors']}; "
+            f"model {h['model_id'] or 'none'}"
         )
+
+
+class Latency:
+    """Decision latencies over a sliding window: recording one is one store into a preallocated array;
+    the percentiles are computed only when the health view is written."""
+
+    def __init__(self, window: int = 2048) -> None:
+        self._lat = np.zeros(window, dtype=np.float64)
+        self._n = 0
+        self.max_us = 0.0
+
+    def record(self, latency_us: float) -> None:
+        self._lat[self._n % self._lat.size] = latency_us
+        self._n += 1
+        if latency_us > self.max_us:
+            self.max_us = latency_us
+
+    def counters(self) -> dict[str, float | None]:
+        n = min(self._n, self._lat.size)
+        p50, p99 = np.percentile(self._lat[:n], [50, 99]) if n else (None, None)
+        return {"latency_p50_us": None if p50 is None else round(float(p50), 1),
+                "latency_p99_us": None if p99 is None else round(float(p99), 1), "latency_max_us": round(self.max_us, 1)}
 
 
 class StatusFile:

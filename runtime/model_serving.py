@@ -63,6 +63,18 @@ class ModelSlot:
         """The model of the last announcement: the next one's ``previous_model_id``."""
         self._served: dict | None = None
         """What the model that served last meant to the stream (runtime.model_change.served)."""
+        self.loaded = 0
+        """Models that started serving (the first and every swap)."""
+        self.rejected = 0
+        """Model files rejected, once per file version and reason."""
+        self.quarantined = 0
+        """Models taken out of service at run time (a label out of range, NaN scores, a failed run)."""
+        self.trigger: str | None = None
+        """The trigger serving now, with its settings (e.g. ``onset (change 0.12, ...)``), or None without a model."""
+
+    def counters(self) -> dict[str, int | str | None]:
+        return {"models_loaded": self.loaded, "models_rejected": self.rejected, "models_quarantined": self.quarantined,
+                "model_id": self.model.model_id if self.model is not None else None, "trigger": self.trigger}
 
     def problem(self, model: LoadedModel, layout: SensorLayout | None = None) -> str | None:
         """Why ``model`` cannot serve the configured scene on ``layout`` (default: the device's), or None."""
@@ -136,18 +148,16 @@ class ModelSlot:
         old = self.model
         if old is not None and old is not model:
             self._fallback = old
-        h = self.health
         self.model = model
         self.serve_model(model)
-        h.model_id = model.model_id
-        h.models_loaded += 1
-        h.resolve("model")
+        self.loaded += 1
+        self.health.resolve("model")
         if model.early_note:  # the full model serves; the heads it carried contradicted it
             log.warning("%s", model.early_note)
-            h.report_error(model.early_note, "model")
+            self.health.report_error(model.early_note, "model")
         # the model announced last, also when a reload or a quarantine took it out before this one came
         previous, self._announced = self._announced, model
-        self.announce(ModelAnnouncement.of(model, h.models_loaded, previous))
+        self.announce(ModelAnnouncement.of(model, self.loaded, previous))
         what = "swapped in" if old is not None else "serving"
         log.info("model %s %s (%s, T=%d, classes %s; %s)", model.model_id, what, Path(model.path).name,
                  model.meta.T, ",".join(model.meta.classes), self._windows_by(model))
@@ -166,15 +176,14 @@ class ModelSlot:
     def show_trigger(self) -> None:
         """The health view's ``trigger``: what starts a window now, with its main settings."""
         if self.cfg.scene.mode == "continuous":
-            self.health.trigger = "continuous (a decision every frame)"
+            self.trigger = "continuous (a decision every frame)"
         else:
-            self.health.trigger = trigger_text(self._settings(self.model))
+            self.trigger = trigger_text(self._settings(self.model))
 
     def drop(self) -> None:
         """No model serves (it does not fit a new scene or device); the watcher may bring another."""
         self.model = None
         self.serve_model(None)
-        self.health.model_id = None
         self.show_trigger()
 
     def fit_layout(self, layout: SensorLayout) -> None:
@@ -221,7 +230,7 @@ class ModelSlot:
         """A model broke the output contract at run time: one line, never load this file version
         again (also after a restart), and serve the model it replaced, or none."""
         h = self.health
-        h.models_quarantined += 1
+        self.quarantined += 1
         self.quarantine_now(model, reason)
         fallback, self._fallback = self._fallback, None
         if fallback is not None and self.problem(fallback):
@@ -241,7 +250,7 @@ class ModelSlot:
     def _rejected(self, rejection: Rejection) -> None:
         """Counted once per file version and reason; the health view shows it again each time it is weighed."""
         if not rejection.repeat:
-            self.health.models_rejected += 1
+            self.rejected += 1
         self.health.report_error(f"model {rejection.path.name} rejected: {rejection.reason}", "model")
 
     def _windows_by(self, model: LoadedModel) -> str:

@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 
 from runtime.detector import Decision
-from runtime.health import Health
+from runtime.health import Latency
 from runtime.listeners import FrameListener
 from runtime.sinks import Event, SinkSet
 
@@ -29,30 +29,32 @@ def event_of(decision: Decision) -> Event:
 
 
 class Reporter:
-    """``report(decision)``: counted in ``health``; a reported class sent to ``sinks`` as an event (and
+    """``report(decision)``: counted here (``counters``); a reported class sent to ``sinks`` as an event (and
     to ``on_event``); every listener told. ``sinks`` may be replaced between frames (a reload)."""
 
-    def __init__(self, sinks: SinkSet, health: Health, on_event: Callable[[Event], None] | None = None,
+    def __init__(self, sinks: SinkSet, on_event: Callable[[Event], None] | None = None,
                  listeners: list[FrameListener] | None = None) -> None:
         self.sinks = sinks
-        self.health = health
+        self.decisions = 0
+        self.events = 0
+        self.missed_deadlines = 0
+        self.latency = Latency()
         self.on_event = on_event
         self.listeners: list[FrameListener] = listeners if listeners is not None else []
 
     def report(self, decision: Decision) -> None:
         clock = time.perf_counter
-        h = self.health
-        h.decisions += 1
-        h.record_latency(decision.latency_us)
+        self.decisions += 1
+        self.latency.record(decision.latency_us)
         if decision.missed:
-            h.missed_deadlines += 1
+            self.missed_deadlines += 1
         stamps = decision.timings
         if decision.report >= 0:
             event = event_of(decision)
             stamps.built = clock()
             encoded = self.sinks.encode(event)
             stamps.serialised = clock()
-            h.events += 1
+            self.events += 1
             if encoded is not None:
                 self.sinks.send(*encoded)
             stamps.sent = clock()
@@ -60,3 +62,7 @@ class Reporter:
                 self.on_event(event)
         for listener in self.listeners:
             listener.on_decision(decision.frame, stamps)
+
+    def counters(self) -> dict[str, int | float | None]:
+        return {"decisions": self.decisions, "events": self.events, "missed_deadlines": self.missed_deadlines,
+                **self.latency.counters()}

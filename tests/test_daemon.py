@@ -100,7 +100,7 @@ def test_one_decision_per_scripted_event_over_sim(models):
     n = len(seen.frames)
     assert seen.frames == list(range(n))  # no frame lost
     assert daemon.health.frames_dropped == 0 and daemon.health.decisions == len(trials)
-    p50, p99 = daemon.health.latency_percentiles()
+    p50, p99 = daemon.health.latency_p50_us, daemon.health.latency_p99_us
     print(f"\nsim:// synthetic session: {len(events)} events, latency p50 {p50:.0f} us p99 {p99:.0f} us")
 
 

@@ -35,7 +35,7 @@ def test_a_stream_at_the_model_rate_passes_untouched_despite_jitter():
     clock = FrameClock(MODEL_MS, health)
     numbers = admit_all(clock, stamps(RATE, 400, jitter_ms=0.4 * MODEL_MS))
     assert numbers == list(range(400)) and not clock.renumber
-    assert health.frames_dropped == 0 and health.frames_decimated == 0 and health.last_error == ""
+    assert clock.dropped == 0 and clock.decimated == 0 and health.last_error == ""
 
 
 def test_a_70hz_stream_is_decimated_to_the_model_period():
@@ -49,7 +49,7 @@ def test_a_70hz_stream_is_decimated_to_the_model_period():
     assert spacing_ms == pytest.approx(MODEL_MS, rel=0.03)
     kept = [n for n in numbers if n >= 0]
     assert kept == list(range(len(kept)))  # consecutive model frames for the trigger
-    assert health.frames_decimated == 2000 - len(kept) and health.frames_dropped == 0
+    assert clock.decimated == 2000 - len(kept) and clock.dropped == 0
     first = clock.window_first(admitted[-1], 15)  # a window of 15 model frames spans 0.44 s of device time
     assert (ts[admitted[-1]] - ts[first]) == pytest.approx(14 * MODEL_MS, rel=0.1)
 
@@ -59,7 +59,7 @@ def test_lost_frames_count_against_the_stream_period():
     clock = FrameClock(MODEL_MS, health)
     ts = np.delete(stamps(70.0, 400), [100, 101, 102, 250])  # 4 frames lost in a 70 Hz stream
     admit_all(clock, ts)
-    assert health.frames_dropped == 4
+    assert clock.dropped == 4
 
 
 def test_a_slower_stream_is_one_health_line_and_resolves(caplog):
@@ -69,7 +69,7 @@ def test_a_slower_stream_is_one_health_line_and_resolves(caplog):
         admit_all(clock, stamps(16.0, 200))
     lines = [r.getMessage() for r in caplog.records if "slower" in r.getMessage()]
     assert len(lines) == 1 and "16 Hz" in lines[0] and "than the 32 Hz" in lines[0]
-    assert health.last_error == lines[0] and health.frames_dropped == 0  # 16 Hz gaps are not lost frames
+    assert health.last_error == lines[0] and clock.dropped == 0  # 16 Hz gaps are not lost frames
     last = 200 * 1000 // 16
     for i in range(200, 300):  # back at the model's rate
         clock.admit(i, int(last + (i - 199) * MODEL_MS))
@@ -164,7 +164,7 @@ def test_breaks_in_device_time_are_neither_lost_frames_nor_rate_estimates(caplog
     ts[300:] -= 1000
     with caplog.at_level(logging.WARNING, logger="handover.daemon"):
         assert admit_all(clock, ts) == list(range(400))
-    assert len(restarts) == 3 and health.frames_dropped == 0 and clock.stream_period_ms == pytest.approx(MODEL_MS)
+    assert len(restarts) == 3 and clock.dropped == 0 and clock.stream_period_ms == pytest.approx(MODEL_MS)
     assert len(caplog.records) == 1 and "device time jumped 3600.0 s ahead" in caplog.records[0].getMessage()
 
 
@@ -175,13 +175,13 @@ def test_alternating_jitter_is_read_as_its_mean_period(gaps):
     clock = FrameClock(MODEL_MS, health)
     ts = np.cumsum(np.tile(gaps, 400 // len(gaps)))
     assert admit_all(clock, ts) == list(range(len(ts)))
-    assert health.frames_dropped == 0 and health.frames_decimated == 0 and health.last_error == ""
+    assert clock.dropped == 0 and clock.decimated == 0 and health.last_error == ""
 
 
 def test_repeated_stamps_lose_no_frames():
-    health = Health()
-    admit_all(FrameClock(MODEL_MS, health), np.repeat(stamps(RATE, 200), 2))
-    assert health.frames_dropped == 0
+    clock = FrameClock(MODEL_MS, Health())
+    admit_all(clock, np.repeat(stamps(RATE, 200), 2))
+    assert clock.dropped == 0
 
 
 def test_a_stream_flapping_between_rates_logs_each_kind_once(caplog):
@@ -230,5 +230,5 @@ def test_a_stream_far_slower_than_the_model_is_measured_and_warned_about(model_h
     clock = FrameClock(1000.0 / model_hz, health, on_restart=lambda: restarts.append(1))
     admit_all(clock, stamps(device_hz, 200))
     assert clock.stream_period_ms == pytest.approx(1000.0 / device_hz, rel=0.01)
-    assert len(restarts) <= BLOCK and "slower" in health.last_error and health.frames_dropped == 0
+    assert len(restarts) <= BLOCK and "slower" in health.last_error and clock.dropped == 0
 

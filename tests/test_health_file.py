@@ -43,3 +43,22 @@ def test_a_repeated_error_is_counted_so_the_history_keeps_what_came_before():
                                             "tcp://h:1: no reply within 10 s"]
     assert errors[1]["repeats"] == 500 and errors[1]["last_at"] >= errors[1]["at"]
     assert "repeats" not in errors[2] and health.last_error == "tcp://h:1: no reply within 10 s"
+
+
+def test_each_part_keeps_its_counters_and_the_health_view_composes_them():
+    """Health was written by five parts (the daemon, the link copying the client's stats, the frame clock,
+    the model slot, the reporter); now each keeps its own and the view composes them, keys unchanged."""
+    import re
+    from pathlib import Path
+
+    from runtime.health import SNAPSHOT
+
+    health = Health()
+    health.parts = [lambda: {"events": 3, "device_state": "streaming"}, lambda: {"crc_errors": 2}]
+    snapshot = health.snapshot()
+    assert list(snapshot) == list(SNAPSHOT) and (snapshot["events"], snapshot["crc_errors"]) == (3, 2)
+    assert health.events == 3 and health.decisions == 0 and "streaming; 0.0 frames/s; 3 events" in health.status_line()
+    own = {"frame_errors", "instance", "last_error", "last_error_at"}
+    written = re.compile(r"\b(?:health|h)\.(" + "|".join(sorted(set(SNAPSHOT) - own)) + r")\s*(?:\+?=)(?!=)")
+    root = Path(__file__).resolve().parents[1] / "runtime"
+    assert {p.name: written.findall(p.read_text()) for p in root.glob("*.py") if written.search(p.read_text())} == {}

@@ -181,8 +181,10 @@ def test_the_device_rate_counts_frames_dropped_as_implausible():
     from runtime.health import Health
 
     h = Health()
+    counts = {"frames_received": 0, "frames_implausible": 0}
+    h.parts = [lambda: counts]
     h.update_rate(now=h._rate_t)
-    h.frames_received, h.frames_implausible = 22, 10  # 32 frames a second, 10 of them above 4095
+    counts.update(frames_received=22, frames_implausible=10)  # 32 frames a second, 10 of them above 4095
     h.update_rate(now=h._rate_t + 1.0)
     assert h.frame_rate == 32.0
 

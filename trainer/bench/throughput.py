@@ -56,12 +56,11 @@ def serving_detector(model, layout, mode: str = "trigger"):
 def udp_reporter(udp_port: int | None = None):
     """The daemon's ``Reporter`` sending each reported decision to a UDP port (None: to no sink)."""
     from runtime.config import SinksConfig
-    from runtime.health import Health
     from runtime.reporter import Reporter
     from runtime.sinks import SinkSet
 
     udp = (f"127.0.0.1:{udp_port}",) if udp_port else ()
-    return Reporter(SinkSet.from_config(SinksConfig(stdout=False, udp=udp)), Health())
+    return Reporter(SinkSet.from_config(SinksConfig(stdout=False, udp=udp)))
 
 
 def replay_hot_path(model, recording, repeats: int = 1) -> dict:
