@@ -48,12 +48,12 @@ def command_line(args: argparse.Namespace) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from trainer.measure import default_out, out_problem
+    from firmware_io.commands.options import out_folder
+    from trainer.measure import default_out
 
     if args.out is None:
         args.out = default_out(args.quick)
-    if problem := out_problem(args.out):
-        return fail(COMMAND, problem)
+    out_folder(args.out)
     if not 1 <= args.n_jobs <= 2:
         return fail(COMMAND, f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
     minirocket = not args.no_minirocket

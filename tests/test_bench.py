@@ -207,7 +207,7 @@ def test_bench_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, capsy
     for out in (tmp_path / "file", tmp_path / "file" / "below"):
         assert handover(["bench", "latency", "--quick", "--quiet", "--out", str(out)]) == 2
         err = capsys.readouterr().err
-        assert err.startswith(f"handover bench: --out {out}: {tmp_path / 'file'} is a file, not a folder; give a "
+        assert err.startswith(f"handover bench: --out {out}: {tmp_path / 'file'} is a file, not a folder; choose a "
                               "folder") and err.count("\n") == 1, err  # was "cannot make that folder (File exists)"
 
 

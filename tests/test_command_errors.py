@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -104,4 +105,6 @@ def test_out_folder_refuses_a_file_in_one_line(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(HandoverError, match="is a file, not a folder"):
         out_folder(tmp_path / "file")
+    with pytest.raises(HandoverError, match=re.escape(f"{tmp_path / 'file'} is a file, not a folder")):  # a folder inside it
+        out_folder(tmp_path / "file" / "below")
     assert out_folder(tmp_path / "new" / "deep") == tmp_path / "new" / "deep"

@@ -123,4 +123,4 @@ def test_compare_an_unusable_out_folder_is_one_line_before_the_run(tmp_path, cap
     for out in (tmp_path / "file", tmp_path / "file" / "below"):
         assert bench(["compare", "--quick", "--no-real", "--no-minirocket", "--quiet", "--out", str(out)]) == 2
         err = capsys.readouterr().err
-        assert err.startswith("handover compare: --out") and err.count("\n") == 1, err
+        assert err.startswith(f"./dev bench compare: --out {out}: {tmp_path / 'file'} is a file") and err.count("\n") == 1, err

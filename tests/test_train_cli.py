@@ -128,7 +128,7 @@ def test_failed_onnx_export_fails_the_command(tiny_data, tmp_path, capsys):
         (["--pads", "finger-9"], "finger-9"),
         (["--W", "20", "--T", "15", "--features", "bow"], "needs T >= 21"),
         (["--features", "bow", "--feature-weighting", "distinct"], "not to bow alone"),
-        (["--out", "/dev/null/x"], "--out /dev/null/x: cannot create or write this folder"),  # before training
+        (["--out", "/dev/null/x"], "--out /dev/null/x: /dev/null is a file, not a folder"),  # before training
         # W is the BoW window: a model without BoW is not refused for it (the data error comes first)
         (["--data", "/nonexistent/folder", "--W", "20", "--T", "15", "--features", "stats"], "no such folder"),
     ],

@@ -53,7 +53,8 @@ def main(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace, modules: dict[str, str], headline: Sequence[str]) -> int:
     """Run ``args.which`` (a list of names, or one) from ``modules`` (name -> module with ``run(args)``)."""
-    from trainer.measure import default_out, out_problem, progress
+    from firmware_io.commands.options import out_folder
+    from trainer.measure import default_out, progress
 
     if args.duration is not None and args.duration <= 0:
         return fail(COMMAND, f"--duration must be positive, got {args.duration}")
@@ -61,8 +62,7 @@ def run(args: argparse.Namespace, modules: dict[str, str], headline: Sequence[st
         return fail(COMMAND, f"--repeats must be positive, got {args.repeats}")
     if args.out is None:
         args.out = default_out(args.quick)
-    if problem := out_problem(args.out):
-        return fail(COMMAND, problem)
+    out_folder(args.out)
     args.say = progress(args.quiet)
     which = (args.which,) if isinstance(args.which, str) else args.which
     figures: dict = {}

@@ -25,7 +25,7 @@ from trainer.defaults import DEFAULT_MODEL
 
 __all__ = [
     "DEADLINE_US", "PRODUCT_BENCHES", "command_line", "cycling", "deadline_ratio", "default_out", "export_metadata",
-    "fmt_us", "load_average", "load_note", "machine_info", "out_option", "out_problem", "percentiles", "progress",
+    "fmt_us", "load_average", "load_note", "machine_info", "out_option", "percentiles", "progress",
     "run_facts", "simulated_protocol", "tap_gap", "tap_stream", "time_calls", "train_default_model", "with_metadata",
     "write_results",
 ]
@@ -126,21 +126,6 @@ def _user() -> str:
         name = ""
     safe = "".join(c for c in name if c.isalnum() or c in "-_.")
     return safe or str(os.getuid())
-
-
-def out_problem(out: str) -> str | None:
-    """What is wrong with ``--out`` as a results folder (made if missing), or None: checked before a
-    run, so a long benchmark never ends in a folder it cannot write."""
-    blocker = next((p for p in (Path(out), *Path(out).parents) if p.exists()), None)
-    if blocker is not None and not blocker.is_dir():
-        return f"--out {out}: {blocker} is a file, not a folder; give a folder (it is made if missing)"
-    try:
-        Path(out).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        return f"--out {out}: cannot make that folder ({exc.strerror or exc}); give a writable folder"
-    if not os.access(out, os.W_OK | os.X_OK):
-        return f"--out {out}: the folder is not writable; give a writable folder"
-    return None
 
 
 PRODUCT_BENCHES = ("latency", "throughput", "inference")

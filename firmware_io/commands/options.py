@@ -74,12 +74,14 @@ def out_folder(folder: str | Path, option: str = "--out") -> Path:
     if not str(folder).strip():  # Path("") is the current folder: an empty option is a slip, not a choice
         raise HandoverError(f"{option} is empty; give a folder (it is created if missing), e.g. {option} ./out")
     path = Path(folder)
+    blocker = next((p for p in (path, *path.parents) if p.exists()), None)
+    if blocker is not None and not blocker.is_dir():  # the folder itself or one it would be made in
+        raise HandoverError(f"{option} {path}: {blocker} is a file, not a folder; choose a folder (it is created if "
+                            "missing)")
     try:
         path.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
             pass
-    except FileExistsError:
-        raise HandoverError(f"{option} {path}: is a file, not a folder; choose a folder (it is created if missing)") from None
     except OSError as exc:
         reason = exc.strerror or str(exc)
         raise HandoverError(f"{option} {path}: cannot create or write this folder ({reason}); choose a folder you can "
