@@ -292,6 +292,12 @@ def test_a_log_given_as_the_events_is_said_not_scored(tmp_path):
     log.write_text("2026-01-01 12:00:00 handover: connected to tcp://127.0.0.1:1\nframes at 31.2 Hz\n")
     done = _score(log, script)
     assert done.returncode == 2 and "none of its 2 lines is an event line" in done.stderr and not done.stdout, done
+    huge = tmp_path / "huge_class.jsonl"  # a class name the summary would print verbatim
+    t = int(session_script(rec).frame_ms[rec.trials[0].extra["onset"] + 5])
+    huge.write_text("".join(json.dumps({"type": "decision", "class": c, "device_time_ms": t}) + "\n"
+                            for c in ("x" * (1 << 20), rec.trials[0].action)))
+    done = _score(huge, script)
+    assert done.returncode == 0 and len(done.stdout) < 2000 and "1 lines were not event lines" in done.stdout, done
 
 
 def test_the_guides_sample_summary_is_what_the_program_prints_for_the_stored_session():

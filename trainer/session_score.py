@@ -14,6 +14,7 @@ import json
 from collections.abc import Iterable
 
 from firmware_io.emulator.script_file import SessionScript
+from firmware_io.recordings.recording import MAX_NAME_CHARS
 from trainer.streams_eval import Decision, session_outcomes
 
 __all__ = ["decisions_from_lines", "not_played_line", "outcome_summary", "score", "span_problem", "summary_lines"]
@@ -40,8 +41,10 @@ def decisions_from_lines(lines: Iterable[str], script: SessionScript,
         if instance is not None and obj.get("instance") != instance:
             continue
         try:
+            if not isinstance(obj.get("class"), str) or len(obj["class"]) > MAX_NAME_CHARS:  # echoed in the summary
+                raise ValueError("not a class name")
             loop, frame = script.frame_of(int(obj["device_time_ms"]))
-            out.append((loop, Decision(frame, str(obj["class"]), float(obj.get("latency_us", 0.0)))))
+            out.append((loop, Decision(frame, obj["class"], float(obj.get("latency_us", 0.0)))))
         except (KeyError, TypeError, ValueError, OverflowError):  # OverflowError: a time of 1e400
             skipped += 1
     return out, skipped
