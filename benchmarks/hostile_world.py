@@ -23,6 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.hostile_files import files_that_eat, full_disk_record
+from benchmarks.hostile_locals import (
+    device_spellings,
+    lying_early_heads,
+    squatted_control_name,
+    squatted_lock_folder,
+    unwritable_health_folder,
+)
 from benchmarks.hostile_models import write_model
 from firmware_io.frame_timing import NOMINAL_PERIOD_S, nominal_stamp_ms
 
@@ -906,6 +913,10 @@ CASES: tuple[tuple[int, str, tuple[Callable[[Path], dict], ...]], ...] = (
     (14, "a controller reset behind TCP, tuned by its host", (controller_reset_behind_tcp,)),
     (15, "files that eat the machine: deflated .hrec, score bombs, malformed scripts, frame bomb", (files_that_eat,)),
     (16, "a full disk during record, a killed save's temp file", (full_disk_record,)),
+    (17, "another user holds the control name first, loops on bind during a reload", (squatted_control_name,)),
+    (18, "another user's device-lock folder; a device spelled otherwise", (squatted_lock_folder, device_spellings)),
+    (19, "a health folder the daemon cannot write", (unwritable_health_folder,)),
+    (20, "early heads that contradict the full model", (lying_early_heads,)),
 )
 """The world's attacks: number, what, and the probes whose results all must hold."""
 

@@ -35,6 +35,11 @@ def _held(result: dict) -> None:
     pytest.param("files_that_eat", id="files_that_eat_the_machine_are_one_line_within_5_s_and_500_mb", marks=pytest.mark.slow),
     pytest.param("full_disk_record", id="record_on_a_full_disk_says_what_was_saved_resumes_and_leaves_no_temp_file",
                  marks=pytest.mark.slow),
+    pytest.param("squatted_control_name", id="a_control_name_another_user_holds_is_exit_2_and_a_reload_never_lets_go_of_it"),
+    pytest.param("squatted_lock_folder", id="another_users_lock_folder_is_refused_in_one_line_and_nothing_is_written_there"),
+    pytest.param("device_spellings", id="one_device_however_spelled_is_one_lock"),
+    pytest.param("unwritable_health_folder", id="a_health_folder_the_daemon_cannot_write_fails_check_as_it_fails_run"),
+    pytest.param("lying_early_heads", id="early_heads_that_contradict_the_full_model_are_disabled_with_a_note"),
 ])
 def test_the_case_holds(case, tmp_path):
     _held(getattr(W, case)(tmp_path))
