@@ -13,6 +13,7 @@ import argparse
 import importlib
 import sys
 
+from firmware_io.commands.options import positive_float, positive_int
 from firmware_io.errors import HandoverError, fail
 from runtime.cli import HelpFormatter, OneLineParser
 from trainer import bench_cli
@@ -46,13 +47,13 @@ def parser() -> argparse.ArgumentParser:
                                 epilog=f"also: {', '.join(COMMANDS)} and the studies {', '.join(STUDIES)}, each "
                                 "with its own options")
     bench_cli.add_arguments(p, (*ALL, "all", *SINGLE))
-    p.add_argument("--hours", type=float, default=None,
+    p.add_argument("--hours", type=positive_float, default=None,
                    help="soak: hours against the emulator with faults injected (default 1, --quick 0.01)")
-    p.add_argument("--frames", type=int, default=None, help="decode: frames to encode and decode (default 4000)")
+    p.add_argument("--frames", type=positive_int, default=None, help="decode: frames to encode and decode (default 4000)")
     p.add_argument("--synthetic", action="store_true", help="decode: skip the real recordings")
-    p.add_argument("--seconds", type=float, default=None, help="ros2: seconds of streaming (default 60)")
-    p.add_argument("--speed", type=float, default=None, help="ros2: sim:// speed-up (default 16)")
-    p.add_argument("--pad-rate", type=float, default=None, help="ros2: [ros2] pad_rate_hz (default 32)")
+    p.add_argument("--seconds", type=positive_float, default=None, help="ros2: seconds of streaming (default 60)")
+    p.add_argument("--speed", type=positive_float, default=None, help="ros2: sim:// speed-up (default 16)")
+    p.add_argument("--pad-rate", type=positive_float, default=None, help="ros2: [ros2] pad_rate_hz (default 32)")
     p.add_argument("--rerender", action="store_true",
                    help="pareto: re-mark the default and rewrite .md/.png from OUT/pareto.json (no measuring)")
     return p
@@ -79,12 +80,8 @@ def _run(argv: list[str]) -> int:
     if name in STUDIES:
         return importlib.import_module(f"benchmarks.studies.{name}").main(argv[1:])
     args = parser().parse_args(argv or ["all"])
-    if args.hours is not None and not 0 < args.hours <= 168:
-        return fail(bench_cli.COMMAND, f"--hours must be in (0, 168], got {args.hours}")
-    for flag, value in (("--frames", args.frames), ("--seconds", args.seconds), ("--speed", args.speed),
-                        ("--pad-rate", args.pad_rate)):
-        if value is not None and not value > 0:
-            return fail(bench_cli.COMMAND, f"{flag} must be positive, got {value}")
+    if args.hours is not None and not args.hours <= 168:
+        raise HandoverError(f"--hours must be in (0, 168], got {args.hours}")
     args.which = ALL if args.which == "all" else args.which
     return bench_cli.run(args, MODULES, HEADLINE)
 

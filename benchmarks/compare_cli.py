@@ -11,7 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from firmware_io.errors import fail
+from firmware_io.errors import HandoverError
 from trainer.shared_data import default_data_dir
 
 __all__ = ["add_arguments", "main"]
@@ -55,13 +55,13 @@ def main(args: argparse.Namespace) -> int:
         args.out = default_out(args.quick)
     out_folder(args.out)
     if not 1 <= args.n_jobs <= 2:
-        return fail(COMMAND, f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
+        raise HandoverError(f"--n-jobs must be 1 or 2 (the machine has 2 cores), got {args.n_jobs}")
     minirocket = not args.no_minirocket
     if minirocket:
         import importlib.util
 
         if importlib.util.find_spec("aeon") is None:
-            return fail(COMMAND, "MiniRocket needs the Python package 'aeon': in a checkout `./dev bench --help` "
+            raise HandoverError("MiniRocket needs the Python package 'aeon': in a checkout `./dev bench --help` "
                          "installs it into .venv (elsewhere pip install 'tactile-handover[bench]'), or pass "
                          "--no-minirocket")
     from benchmarks import compare
@@ -73,11 +73,11 @@ def main(args: argparse.Namespace) -> int:
 
     data_dir = None if args.no_real else Path(args.data) if args.data else default_data_dir()
     if args.data and not Path(args.data).is_dir():
-        return fail(COMMAND, f"--data {args.data}: no such folder")
+        raise HandoverError(f"--data {args.data}: no such folder")
     try:
         res = compare.run(args.quick, args.seed, args.n_jobs, data_dir, minirocket, say)
     except (OSError, ValueError) as exc:
-        return fail(COMMAND, f"{type(exc).__name__}: {exc}")
+        raise HandoverError(f"{type(exc).__name__}: {exc}") from exc
     res["command"] = command_line(args)
     res["load_after"] = [round(v, 2) for v in os.getloadavg()]
     out = Path(args.out)
@@ -85,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
         compare.plot(res, out / "compare.png")
         path = write_results(out, "compare", res, compare.markdown(res))
     except OSError as exc:
-        return fail(COMMAND, f"--out {out}: cannot write the results ({exc.strerror or exc})")
+        raise HandoverError(f"--out {out}: cannot write the results ({exc.strerror or exc})") from exc
     say(f"written {path}, {out / 'compare.md'}, {out / 'compare.png'}")
     if args.json:
         print(json.dumps(res, default=str))

@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from firmware_io.errors import fail
+from firmware_io.errors import HandoverError
 from trainer.defaults import PAPER_MODEL
 
 __all__ = ["add_arguments", "main"]
@@ -92,24 +92,24 @@ def command_line(args) -> str:
 
 def main(args: argparse.Namespace) -> int:
     if args.K < 1 or args.W < 1 or args.T - 1 < args.W:
-        return fail(COMMAND, f"need K >= 1, W >= 1 and T >= W + 1 (got K={args.K}, W={args.W}, T={args.T})")
+        raise HandoverError(f"need K >= 1, W >= 1 and T >= W + 1 (got K={args.K}, W={args.W}, T={args.T})")
     s = settings(args)
     if min(s["idle_hours"], s["events"], s["train_idle_min"], s["val_events"], s["val_idle_hours"]) <= 0:
-        return fail(COMMAND, "--idle-hours, --events, --train-idle-min, --val-events and --val-idle-hours must be positive")
+        raise HandoverError("--idle-hours, --events, --train-idle-min, --val-events and --val-idle-hours must be positive")
     if args.seed == args.eval_seed:
-        return fail(COMMAND, "--eval-seed must differ from --seed (the evaluation streams must be unseen)")
+        raise HandoverError("--eval-seed must differ from --seed (the evaluation streams must be unseen)")
     if args.val_seed in (args.seed, args.eval_seed):
-        return fail(COMMAND, "--val-seed must differ from --seed and --eval-seed (the rule is chosen on streams of its own)")
+        raise HandoverError("--val-seed must differ from --seed and --eval-seed (the rule is chosen on streams of its own)")
     try:
         from firmware_io.layout import SensorLayout
 
         SensorLayout.sdh2().pads(args.pads)
     except ValueError as exc:
-        return fail(COMMAND, f"--pads: {exc}")
+        raise HandoverError(f"--pads: {exc}") from exc
     try:
         result = run(args, s)
     except OSError as exc:
-        return fail(COMMAND, str(exc))
+        raise HandoverError(str(exc)) from exc
     if args.json:
         print(json.dumps(result["summary"], indent=1))
     return 0

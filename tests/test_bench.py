@@ -132,9 +132,15 @@ def test_throughput_quick(tmp_path, capsys):
 
 
 def test_bad_duration_is_one_line(tmp_path, capsys):
-    assert bench_cli.main(_args("latency", tmp_path, "--duration", "-1")) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("handover bench: --duration")
+    from runtime.cli import main as handover
+
+    for argv in (["bench", "latency", "--duration", "-1"], ["bench", "inference", "--repeats", "0"]):
+        with pytest.raises(SystemExit) as stop:
+            handover([*argv, "--out", str(tmp_path)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert stop.value.code == 2 and len(err) == 1 and err[0].startswith(f"handover bench: argument {argv[2]}"), err
+    assert bench(["soak", "--hours", "200", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("./dev bench soak: --hours must be in (0, 168]")
 
 
 def test_the_quick_folder_is_one_per_user(tmp_path, monkeypatch):

@@ -91,7 +91,7 @@ def test_compare_cli_quick(tmp_path, capsys):
 
 def test_compare_cli_bad_options(capsys):
     assert bench(["compare", "--n-jobs", "5"]) == 2
-    assert capsys.readouterr().err.startswith("handover compare: --n-jobs")
+    assert capsys.readouterr().err.startswith("./dev bench compare: --n-jobs")
     assert bench(["compare", "--data", "/nonexistent/folder", "--no-minirocket"]) == 2
     assert "no such folder" in capsys.readouterr().err
 

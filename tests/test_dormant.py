@@ -307,11 +307,11 @@ def _args(*argv: str) -> argparse.Namespace:
     (["--events", "0"], "must be positive"),
 ])
 def test_cli_refuses_bad_options_in_one_line(argv, message, capsys, tmp_path):
-    from benchmarks import dormant_cli
+    from benchmarks.__main__ import main as bench
 
-    assert dormant_cli.main(_args("--out", str(tmp_path), *argv)) == 2
+    assert bench(["dormant", "--out", str(tmp_path), *argv]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("handover dormant: ") and message in err and "\n" not in err
+    assert err.startswith("./dev bench dormant: ") and message in err and "\n" not in err
 
 
 @pytest.mark.slow

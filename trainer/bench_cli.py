@@ -14,7 +14,8 @@ import importlib
 import json
 from collections.abc import Sequence
 
-from firmware_io.errors import fail
+from firmware_io.commands.options import positive_float, positive_int
+from firmware_io.errors import HandoverError
 from trainer.measure import PRODUCT_BENCHES
 
 __all__ = ["add_arguments", "main", "run"]
@@ -38,11 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser, choices: Sequence[str] = BENC
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
     parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
     parser.add_argument("--load", action="store_true", help="latency: also measure with two busy-loop processes")
-    parser.add_argument("--duration", type=float, default=None,
+    parser.add_argument("--duration", type=positive_float, default=None,
                         help="latency: seconds of the 32 Hz end-to-end run (default 120, --quick 3)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
-    parser.add_argument("--repeats", type=int, default=None,
+    parser.add_argument("--repeats", type=positive_int, default=None,
                         help="decode: timed runs (default 7); inference: graph calls (default 5000)")
     parser.add_argument("--model", help="inference: an exported .onnx with its .joblib beside it (default: train one)")
 
@@ -56,10 +57,6 @@ def run(args: argparse.Namespace, modules: dict[str, str], headline: Sequence[st
     from firmware_io.commands.options import out_folder
     from trainer.measure import default_out, progress
 
-    if args.duration is not None and args.duration <= 0:
-        return fail(COMMAND, f"--duration must be positive, got {args.duration}")
-    if args.repeats is not None and args.repeats <= 0:
-        return fail(COMMAND, f"--repeats must be positive, got {args.repeats}")
     if args.out is None:
         args.out = default_out(args.quick)
     out_folder(args.out)
@@ -72,7 +69,7 @@ def run(args: argparse.Namespace, modules: dict[str, str], headline: Sequence[st
             rerender = getattr(args, "rerender", False) and hasattr(module, "rerender")
             result = module.rerender(args.out) if rerender else module.run(args)
         except (OSError, ValueError, RuntimeError) as exc:
-            return fail(COMMAND, f"{name}: {exc}")
+            raise HandoverError(f"{name}: {exc}") from exc
         figures[name] = {k: result[k] for k in headline if k in result}
         args.say(f"{name}: wrote {args.out}/{name}.json and .md " + json.dumps(figures[name]))
     if args.json:
