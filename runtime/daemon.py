@@ -142,15 +142,6 @@ class Daemon:
         return self.detector.model
 
     @property
-    def latest_frame(self) -> Frame | None:
-        """The newest frame (the ROS 2 sink's pad images read it from their own thread)."""
-        return self.detector.latest_frame
-
-    @property
-    def layout(self) -> SensorLayout | None:
-        return self.detector.layout
-
-    @property
     def fatal(self) -> str | None:
         """Why the daemon gave up (a device URL that can never open, a missing package), or None."""
         return self.link.fatal

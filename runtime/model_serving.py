@@ -158,10 +158,11 @@ class ModelSlot:
         # the model announced last, also when a reload or a quarantine took it out before this one came
         previous, self._announced = self._announced, model
         self.announce(ModelAnnouncement.of(model, self.loaded, previous))
-        what = "swapped in" if old is not None else "serving"
-        log.info("model %s %s (%s, T=%d, classes %s; %s)", model.model_id, what, Path(model.path).name,
-                 model.meta.T, ",".join(model.meta.classes), self._windows_by(model))
-        view = served(self._settings(model), model.meta.pads, model.meta.classes)
+        what, settings = "swapped in" if old is not None else "serving", self._settings(model)
+        log.info("model %s %s (%s, T=%d, classes %s; %s)", model.model_id, what, Path(model.path).name, model.meta.T,
+                 ",".join(model.meta.classes), f"{settings.name} trigger" if settings else "continuous mode: a decision "
+                 "every frame")  # settings come from the config, else the model: a swap may change the trigger
+        view = served(settings, model.meta.pads, model.meta.classes)
         if line := swap_warning(Path(model.path).name, self._served, view):
             log.warning("%s", line)
         self._served = view
@@ -252,10 +253,3 @@ class ModelSlot:
         if not rejection.repeat:
             self.rejected += 1
         self.health.report_error(f"model {rejection.path.name} rejected: {rejection.reason}", "model")
-
-    def _windows_by(self, model: LoadedModel) -> str:
-        """What starts a window with ``model`` (settings come from the config, else the model: a swap may
-        change the trigger, and the operator should read that)."""
-        if self.cfg.scene.mode == "continuous":
-            return "continuous mode: a decision every frame"
-        return f"{resolve_trigger(self.cfg.trigger, model.meta.trigger).name} trigger"

@@ -40,7 +40,7 @@ def _press(daemon: Daemon, level: int, first: int = 0, n: int = 40) -> None:
     """A pressed distal taxel at ``level`` for 20 frames, then 20 quiet frames, through the hot path."""
     from firmware_io.client import Frame
 
-    layout = daemon.layout
+    layout = daemon.detector.layout
     column = int(layout.columns("distal")[40])
     for i in range(first, first + n):
         values = np.zeros(layout.n_taxels, dtype=np.uint16)

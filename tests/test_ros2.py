@@ -142,7 +142,7 @@ def test_events_diagnostics_and_pads_reach_an_rclpy_subscriber(tmp_path):
     assert values["trigger"].split(" ")[0] in ("onset", "threshold", "baseline")
     # pads: mono16, rows x columns as on the pad, the values of a frame the simulated hand sent
     frames = load_source("sim", seed=0, events=4).frames
-    layout = daemon.layout
+    layout = daemon.detector.layout
     for index, topic in enumerate(PAD_TOPICS):
         sent = {row.tobytes() for row in frames[:, layout.matrix_slice(index)]}
         for img in listener.images[topic]:
