@@ -16,7 +16,7 @@ import logging
 import time
 from collections.abc import Callable
 from enum import Enum
-from typing import Any
+from typing import Any, Protocol
 
 from firmware_io.client import Cancelled, DSAClient
 from firmware_io.layout import SensorLayout
@@ -26,7 +26,7 @@ from runtime.health import Health, one_line
 from runtime.retry_notes import RetryNotes
 from runtime.sdnotify import Notifier
 
-__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceLink", "Linked", "default_client", "log"]
+__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceClient", "DeviceLink", "Linked", "default_client", "log"]
 
 log = logging.getLogger("handover.daemon")
 
@@ -44,6 +44,19 @@ of every drop."""
 SHORT_LINK_HINT = (f"within {SHORT_LINK_S:g} s of connecting (the device may be serving another client, "
                    "e.g. a second daemon or handover dump: it serves one host at a time)")
 """Said of a link the device ends soon after connecting; a stall that soon is only said to be that soon."""
+
+
+class DeviceClient(Protocol):
+    """What the link calls on its client (``DSAClient``; tests and replays pass their own). A client may
+    also count refusals in a ``stats`` dict and name the last in ``last_refusal``: read where present."""
+
+    def open(self, should_stop: Callable[[], bool]) -> SensorLayout: ...
+
+    def start(self, should_stop: Callable[[], bool]) -> None: ...
+
+    def read_frame(self, timeout: float) -> Any: ...
+
+    def close(self, stop_timeout: float | None = None) -> None: ...
 
 
 class Linked(Enum):
@@ -66,7 +79,7 @@ class DeviceLink:
     """
 
     def __init__(self, device: DeviceConfig, health: Health, notifier: Notifier,
-                 client_factory: Callable[[str], Any] | None = None) -> None:
+                 client_factory: Callable[[str], DeviceClient] | None = None) -> None:
         self.device = device
         self.health = health
         self.notifier = notifier
@@ -74,7 +87,7 @@ class DeviceLink:
         self._should_stop: Callable[[], bool] = lambda: False
         self.scene = ""
         """The scene's pads, for the log lines (the owner keeps it current)."""
-        self.client: Any = None
+        self.client: DeviceClient | None = None
         self.layout: SensorLayout | None = None
         """The layout of the device the client last opened."""
         self.connected = False
@@ -250,10 +263,7 @@ class DeviceLink:
         self.connected = False
         if self.client is not None:
             with contextlib.suppress(Exception):
-                if stop_timeout is None:
-                    self.client.close()
-                else:
-                    self.client.close(stop_timeout=stop_timeout)
+                self.client.close(stop_timeout=stop_timeout)
 
     def _use_new_client(self, url: str) -> None:
         """A new client counts its refusals from 0 (the mark was the old one's)."""
@@ -307,8 +317,7 @@ REFUSALS = ("crc_errors", "decode_errors", "frames_implausible")
 """The client's counts of frames that arrived whole but were not used."""
 
 
-def default_client(url: str) -> Any:
-
+def default_client(url: str) -> DeviceClient:
     # The daemon reconnects itself (with backoff, answering SIGTERM and the watchdog meanwhile).
     return DSAClient(url, auto_reconnect=False)
 

@@ -103,3 +103,14 @@ def test_a_connection_attempt_says_what_came_of_it_and_calls_nothing_of_its_owne
 
     bad = DeviceLink(DeviceConfig(url="nowhere://x"), Health(), Notifier({}), client_factory=lambda url: Opening(bad_url))
     assert bad.connect() is Linked.FATAL and bad.fatal
+
+
+def test_every_call_the_link_makes_on_its_client_is_declared_in_its_protocol():
+    import inspect
+    import re
+
+    import runtime.device_link as module
+    from runtime.device_link import DeviceClient
+
+    called = set(re.findall(r"self\.client\.(\w+)\(", inspect.getsource(module)))
+    assert called and called <= {name for name in vars(DeviceClient) if not name.startswith("_")}, called
