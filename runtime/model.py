@@ -19,6 +19,7 @@ import numpy as np
 
 from firmware_io.errors import HandoverError
 from runtime.early import EarlySpec, head_outputs
+from runtime.health import one_line
 from runtime.model_meta import (
     ALLOWED_DOMAINS,
     CODEWORD_KERNEL,
@@ -333,10 +334,6 @@ def _session(data: bytes, options: Any) -> Any:
     return ort.InferenceSession(data, sess_options=options, providers=["CPUExecutionProvider"], enable_fallback=0)
 
 
-def _first_line(exc: BaseException) -> str:
-    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-
-
 def _meta(session: Any, wire: Any, where: str) -> tuple[ModelMeta, EarlySpec | None]:
     """The metadata the graph carries, checked against the graph."""
     try:
@@ -381,7 +378,7 @@ def load_model(
     try:
         session = _session(data, options)
     except Exception as exc:  # onnxruntime raises several unrelated types for a bad graph
-        raise ModelUnreadableError(f"{where}: onnxruntime cannot load it: {_first_line(exc)}") from exc
+        raise ModelUnreadableError(f"{where}: onnxruntime cannot load it: {one_line(exc)}") from exc
     meta, spec = _meta(session, wire, where)
     heads: list = []
     if spec is not None:  # one session per head: onnxruntime runs every node of a graph
@@ -389,7 +386,7 @@ def load_model(
         try:
             session, *heads = (_session(keep_outputs(data, names), options) for names in parts)
         except Exception as exc:  # a damaged graph whose parts do not stand alone
-            raise ModelContractError(f"{where}: its early heads do not load on their own: {_first_line(exc)}") from exc
+            raise ModelContractError(f"{where}: its early heads do not load on their own: {one_line(exc)}") from exc
     model_id = hashlib.sha256(data).hexdigest()[:12]
     model = LoadedModel(path, session, meta, model_id, wire.n_nodes, len(data), spec, heads)
     if warm_up:

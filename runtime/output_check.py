@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime.health import one_line
+
 __all__ = ["DEFAULT_BUDGET_FRACTION", "output_problem", "probe", "probe_windows"]
 
 DEFAULT_BUDGET_FRACTION = 0.1
@@ -98,7 +100,7 @@ def probe(run: Any, T: int, n_channels: int, n_classes: int, fullscale: float, p
         try:
             labels, scores = run(window[None])
         except Exception as exc:  # onnxruntime raises several unrelated types
-            return f"fails on warm-up window {i}: {_first_line(exc)}"
+            return f"fails on warm-up window {i}: {one_line(exc)}"
         problem = output_problem(labels, scores, n_classes)
         if problem:
             return f"breaks the output contract on warm-up window {i} of {len(windows)}: {problem}"
@@ -123,8 +125,3 @@ def _median_decision(run: Any, windows: np.ndarray) -> float:
         run(window)
         times.append(time.thread_time() - start)
     return float(np.median(times))
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
