@@ -26,7 +26,7 @@ from runtime.health import Health, one_line
 from runtime.retry_notes import RetryNotes
 from runtime.sdnotify import Notifier
 
-__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceClient", "DeviceLink", "Linked", "default_client", "log"]
+__all__ = ["CONNECT_BOUND_S", "SHORT_LINK_S", "DeviceLink", "Linked", "default_client", "log"]
 
 log = logging.getLogger("handover.daemon")
 

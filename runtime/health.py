@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SNAPSHOT", "Health", "Latency", "StatusFile", "log", "one_line", "write_json_atomically"]
+__all__ = ["Health", "Latency", "StatusFile", "log", "one_line", "write_json_atomically"]
 
 log = logging.getLogger("handover.health")
 ERROR_HISTORY = 8
