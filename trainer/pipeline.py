@@ -93,10 +93,8 @@ def train(options: TrainOptions) -> TrainResult:
     """Train, evaluate and export as ``options`` say; raises OptionsError for options that cannot
     train, and RecordingError, DatasetError, LayoutError, OSError or ValueError for data that cannot."""
     from trainer import report
-    from trainer.dataset import DatasetError, build_dataset, dataset_trigger, untriggered_lines
     from trainer.evaluation import tsne_embedding
-    from trainer.recorded_idle import add_idle, idle_only_problem
-    from trainer.train_outputs import figures, headline, metrics_of, write_model
+    from trainer.train_outputs import headline, metrics_of, write_model
 
     options.check()
     t0 = time.perf_counter()
@@ -105,21 +103,7 @@ def train(options: TrainOptions) -> TrainResult:
     out.mkdir(parents=True, exist_ok=True)
     recordings, source, synthetic = load_or_simulate(options.data, options.seed, say)
     names = recording_names(options.data, recordings)
-    problem = idle_only_problem(recordings, names)
-    if problem:
-        raise DatasetError(problem)
-    ds = build_dataset(recordings, T=options.T, pads=options.pads,
-                       trigger=dataset_trigger(options.trigger, options.fraction))
-    summary = ds.summary()
-    say(f"{ds.counts().text()} {summary['untriggered_reasons'] or ''}".rstrip())
-    for line in untriggered_lines(ds):
-        say(f"  {line}")
-    problem = too_few_cases(ds)
-    if problem:
-        raise DatasetError(problem)
-    idle = None
-    if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
-        ds, idle = add_idle(ds, recordings, names, options.seed, say, warn=say_to(False))
+    ds, idle = _cases(options, recordings, names, say)
     selection = None
     if options.select:
         from trainer.select import select_model
@@ -162,13 +146,48 @@ def train(options: TrainOptions) -> TrainResult:
         say(f"replaying the real recordings without a handover in {default_data_dir()} through the daemon ...")
         metrics["real_idle"] = real_idle(load_model(out / "model.onnx", warm_up=False), default_data_dir(), say)
     say("writing figures and the report ...")
+    metrics["seconds"] = round(time.perf_counter() - t0, 1)
+    _write_report(options, out, ds, embedding, metrics, selection, synthetic)
+    if not options.quiet:
+        print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
+              file=sys.stderr if options.json else sys.stdout)
+    return TrainResult(out, metrics, onnx_ok)
+
+
+def _cases(options: TrainOptions, recordings: list, names: list[str], say: Callable[[str], None]):
+    """The dataset training cuts from the recordings (with the recorded idle as the dormant class when asked),
+    or DatasetError for recordings that give too few cases."""
+    from trainer.dataset import DatasetError, build_dataset, dataset_trigger, untriggered_lines
+    from trainer.recorded_idle import add_idle, idle_only_problem
+
+    problem = idle_only_problem(recordings, names)
+    if problem:
+        raise DatasetError(problem)
+    ds = build_dataset(recordings, T=options.T, pads=options.pads,
+                       trigger=dataset_trigger(options.trigger, options.fraction))
+    say(f"{ds.counts().text()} {ds.summary()['untriggered_reasons'] or ''}".rstrip())
+    for line in untriggered_lines(ds):
+        say(f"  {line}")
+    problem = too_few_cases(ds)
+    if problem:
+        raise DatasetError(problem)
+    if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
+        return add_idle(ds, recordings, names, options.seed, say, warn=say_to(False))
+    return ds, None
+
+
+def _write_report(options: TrainOptions, out: Path, ds, embedding, metrics: dict, selection, synthetic: bool) -> None:
+    """Figures, metrics.json and report.md (with the selection's and the early heads' sections when there)."""
+    from trainer import report
+    from trainer.train_outputs import figures
+
+    early_metrics = metrics.get("early")
     shown = figures(options, ds, embedding, metrics, out)
     if early_metrics and not early_metrics.get("skipped"):
         from trainer.early_report import plot_curve
 
         shown["Early decisions: accuracy against frames, per class, the rule's operating point starred"] = \
             plot_curve(early_metrics, out / "early_curve.png", synthetic).name
-    metrics["seconds"] = round(time.perf_counter() - t0, 1)
     metrics["command"] = options.command_line()
     report.write_metrics(out, metrics)
     md_path = report.write_markdown(out, metrics, metrics["command"], shown)
@@ -180,10 +199,6 @@ def train(options: TrainOptions) -> TrainResult:
         from trainer.early_report import markdown_lines as early_lines
 
         md_path.write_text(md_path.read_text() + "\n" + "\n".join(early_lines(early_metrics, synthetic)) + "\n")
-    if not options.quiet:
-        print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
-              file=sys.stderr if options.json else sys.stdout)
-    return TrainResult(out, metrics, onnx_ok)
 
 
 def scores_real_idle(asked: bool | None, synthetic: bool) -> bool:
