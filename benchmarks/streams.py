@@ -154,7 +154,7 @@ def choose(val: dict, real: dict | None) -> str:
 
 def demo_session(models: dict, mode: str, seed: int) -> dict:
     """``handover demo``'s scripted session (its seed, 40 events), in-process through the daemon."""
-    from trainer.demo_cli import scripted_session
+    from trainer.commands.demo_cli import scripted_session
 
     session_seed, _, session = scripted_session(seed)
     out = {"mode": mode, "seed": session_seed}

@@ -162,7 +162,7 @@ def with_arm_move_rate(idle: dict, source_h: dict) -> dict:
 
 
 def demo_session(model, seed: int) -> dict:
-    from trainer.demo_cli import scripted_session
+    from trainer.commands.demo_cli import scripted_session
 
     mode = "onset_dormant" if model.meta.dormant_class else "onset"
     session_seed, _, session = scripted_session(seed)

@@ -45,7 +45,7 @@ def test_demo_ends_with_where_it_wrote_the_model(demo_summary, capsys):
     """The README's next section copies out/demo/report/stream-model.onnx: the demo says where it is."""
     import argparse
 
-    from trainer import demo_cli
+    from trainer.commands import demo_cli
 
     assert demo_summary["model"].endswith("report/stream-model.onnx")
     demo_cli._print_summary(demo_summary)
@@ -68,7 +68,7 @@ def test_demo_refuses_bad_options():
 def test_demo_summary_says_when_the_model_was_taken_out_of_service(capsys):
     """A session whose model the daemon took out (say a decision ran past the period on a busy machine)
     otherwise reads as a model that misses every later event."""
-    from trainer import demo_cli
+    from trainer.commands import demo_cli
     from trainer.session_score import outcome_summary
     from trainer.streams_eval import session_outcomes
 

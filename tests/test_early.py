@@ -208,7 +208,7 @@ def test_export_from_the_joblib_keeps_the_early_heads(early_model, tmp_path):
     import joblib
 
     from runtime.model import load_model
-    from trainer.export_cli import export_trained
+    from trainer.commands.export_cli import export_trained
 
     path, _, heads, full = early_model
     import onnx
@@ -422,9 +422,9 @@ def test_early_heads_that_contradict_the_full_model_are_disabled_with_one_note(t
     import logging
     from types import SimpleNamespace
 
+    from runtime.commands.inspect_cli import main as inspect_main
     from runtime.config import config_from_dict
     from runtime.health import Health
-    from runtime.inspect_cli import main as inspect_main
     from runtime.model import load_model
     from runtime.model_serving import ModelSlot
 

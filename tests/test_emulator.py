@@ -333,7 +333,7 @@ def test_the_emulators_default_session_is_not_one_the_demo_trains_on():
     from firmware_io.sim.session import DEMO_SESSION_SEED, DEMO_TRAIN_SEED
     from firmware_io.sim.streams import stream
     from runtime import cli
-    from trainer.demo_cli import scripted_session
+    from trainer.commands.demo_cli import scripted_session
 
     def defaults(name, *argv):
         return cli.build_parser(name, importlib.import_module(cli.COMMANDS[name][0])).parse_args(list(argv))

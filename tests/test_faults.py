@@ -383,7 +383,7 @@ def test_sighup_between_a_trigger_and_its_window_loses_no_event(tmp_path, models
 
 
 def test_log_lines_carry_a_time_outside_journald():
-    from runtime.daemon_cli import log_format
+    from runtime.commands.daemon_cli import log_format
 
     assert "%(asctime)s" in log_format({})
     assert "%(asctime)s" not in log_format({"JOURNAL_STREAM": "8:12345"})

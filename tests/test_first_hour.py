@@ -250,7 +250,7 @@ def test_every_help_shows_the_defaults():
 
 
 def test_demo_says_the_real_playback_time_and_a_truthful_spread():
-    from trainer.demo_cli import playback_text
+    from trainer.commands.demo_cli import playback_text
     from trainer.report import pooled_text
 
     assert "as fast as possible" in playback_text(167.0, None) and "about" not in playback_text(167.0, None)

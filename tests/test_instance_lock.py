@@ -273,7 +273,7 @@ def test_check_fails_on_a_health_folder_the_daemon_cannot_write(tmp_path):
     """--check said rc 0 and ``run`` exited 2 (cannot take the health file's lock): under systemd the
     service restarted in a loop. The check takes the lock as ``run`` would. Root writes anywhere, so the
     check runs in a child as uid 65534 (modules imported before, the clone may be private)."""
-    from runtime import daemon_cli
+    from runtime.commands import daemon_cli
     from runtime.config import load_config
 
     cfg = load_config(_config(tmp_path))

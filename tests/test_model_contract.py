@@ -257,7 +257,7 @@ def test_inspect_card(good_path, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "detects: bump, hold, pull, push" in out and "nodes" in out and "synthetic-test" in out
     assert "threshold trigger at " in out  # no recorded kind: cut by the threshold, served with it
-    from runtime.inspect_cli import _features
+    from runtime.commands.inspect_cli import _features
 
     level = _features({"K": 10, "W": 7, "per_pad": True, "pads": [1, 3], "level_features": True})
     assert level.endswith("one histogram per pad (2), plus each pad's mean level and slope")  # not hidden

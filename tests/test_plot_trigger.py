@@ -26,7 +26,7 @@ def _model(tmp_path, trigger: dict, pads=(1, 3, 5)):
 
 
 def test_the_models_trigger_is_drawn_not_the_papers(rec, tmp_path):
-    from trainer.plot_cli import model_trigger, trial_figure
+    from trainer.commands.plot_cli import model_trigger, trial_figure
 
     recording, _ = rec
     onset = model_trigger(recording, str(_model(tmp_path, {"kind": "onset", "fraction": 0.15})))
@@ -49,8 +49,8 @@ def test_the_models_trigger_is_drawn_not_the_papers(rec, tmp_path):
 
 def test_where_it_fires_is_where_the_training_windows_are_cut(rec, tmp_path):
     """The same trigger object as the data set's (trainer.dataset.onset_start) on the same pads."""
+    from trainer.commands.plot_cli import model_trigger
     from trainer.dataset import onset_start
-    from trainer.plot_cli import model_trigger
 
     recording, _ = rec
     drawn = model_trigger(recording, str(_model(tmp_path, {"kind": "onset"})))
@@ -64,7 +64,7 @@ def test_where_it_fires_is_where_the_training_windows_are_cut(rec, tmp_path):
 
 
 def test_the_legend_does_not_cover_the_curves(rec, tmp_path):
-    from trainer.plot_cli import model_trigger, trial_figure
+    from trainer.commands.plot_cli import model_trigger, trial_figure
 
     recording, path = rec
     fig = trial_figure(recording, 0, model_trigger(recording, None))

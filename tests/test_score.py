@@ -33,8 +33,8 @@ def _handover(*argv: str, **kw) -> subprocess.Popen:
 
 def _demo_counts(lines: list[str], session_ms: int) -> dict:
     """The demo's own path for the same lines: its EventLog maps each event to the session's frames
-    and session_outcomes scores them (trainer/demo_cli.py)."""
-    from trainer.demo_cli import EventLog
+    and session_outcomes scores them (trainer/commands/demo_cli.py)."""
+    from trainer.commands.demo_cli import EventLog
     from trainer.session_score import outcome_summary
     from trainer.streams_eval import session_outcomes
 

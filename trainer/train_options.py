@@ -1,7 +1,7 @@
 """What ``handover train`` can be asked for, as one frozen dataclass, and the estimator it names.
 
 Parameters apart from fitted state (as scikit-learn separates them): ``handover train`` turns its
-arguments into :class:`TrainOptions` once (``trainer.train_cli``); the demo and library users build
+arguments into :class:`TrainOptions` once (``trainer.commands.train_cli``); the demo and library users build
 one directly and call ``trainer.pipeline.train``. The model's defaults come from the product
 default (``trainer.defaults.DEFAULT_MODEL``); the argparse defaults come from here.
 """

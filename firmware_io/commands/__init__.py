@@ -1,5 +1,5 @@
-"""The ``handover`` subcommands of this package (``dump``, ``emulate``, ``import``, ``record``,
-``simulate``), one ``*_cli`` module each; ``errors``: how every command reports a user error;
+"""The ``handover`` subcommands of this package (``dump``, ``emulate``, ``import``,
+``simulate``), one ``*_cli`` module each; ``options``: the options and checks every command shares;
 ``playback``: the --speed and --fault options of commands that play frames through an emulator."""
 
 __all__: list[str] = []

@@ -109,7 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.errors import fail
-    from runtime.inspect_cli import feature_summary
+    from runtime.commands.inspect_cli import feature_summary
     from runtime.model import ModelContractError, load_model
 
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")

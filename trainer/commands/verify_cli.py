@@ -130,7 +130,7 @@ def _run_stream(args, stream, compare_batch) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from runtime.model import ModelContractError, load_model
-    from trainer.export_cli import ExportError
+    from trainer.commands.export_cli import ExportError
     from trainer.verify import GraphRunner, VerifyError, VerifyReport, check_nonfinite_refused, compare, load_reference
     from trainer.verify_windows import stress_windows
 
