@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from firmware_io.errors import HandoverError
+
 __all__ = ["add_arguments", "main"]
 
 PROG = "handover run"
@@ -37,37 +39,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from runtime.config import ConfigError, load_config
+    from runtime.config import load_config
 
-    try:
-        cfg = load_config(args.config)
-    except ConfigError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
+    if args.device and not args.check:
+        raise HandoverError("--device goes with --check (handover run --config FILE --check --device)")
+    cfg = load_config(args.config)  # a ConfigError, like every refusal below, is handover's one line and exit 2
     handler = logging.StreamHandler(sys.stderr)
     formatter = logging.Formatter(log_format(), datefmt="%Y-%m-%dT%H:%M:%S")
     formatter.converter = time.gmtime
     handler.setFormatter(formatter)
     logging.basicConfig(handlers=[handler])
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
-    if args.device and not args.check:
-        print(f"{PROG}: --device goes with --check (handover run --config FILE --check --device)", file=sys.stderr)
-        return 2
     if args.check:
         code = _check(cfg, require_model=args.require_model)
-        if code == 2:
-            return code
         device_code = _check_device(cfg) if args.device else 0
         print(CHECKED)
         print(NOT_CHECKED_WITH_DEVICE if args.device else NOT_CHECKED)
         return code or device_code
     from runtime import instance_lock
 
-    try:  # before anything is opened or written: a second daemon leaves the first one's files alone
-        locks = instance_lock.Locks.take(cfg)
-    except instance_lock.InstanceLockError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
+    locks = instance_lock.Locks.take(cfg)  # before anything is opened or written: a second daemon leaves the first one's files alone
     from runtime.daemon import Daemon
     from runtime.sinks import claim_stdout_for_events
 
@@ -77,8 +68,7 @@ def main(args: argparse.Namespace) -> int:
         try:
             daemon.start_control()
         except OSError as exc:
-            print(f"{PROG}: {exc}", file=sys.stderr)
-            return 2
+            raise HandoverError(str(exc)) from None
         daemon.install_signal_handlers()
         code = daemon.run()
         if daemon.fatal:
@@ -118,8 +108,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
     problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
                or _control_problem(cfg) or _lock_problem(cfg))
     if problem:
-        print(f"{PROG}: {problem}", file=sys.stderr)
-        return 2
+        raise HandoverError(problem)
     _warn_about_sinks(cfg)
     for line in _held(cfg):
         print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
@@ -137,8 +126,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
         # config problem), not a reason to wait for another model.
         fits_otherwise, _, _ = newest(check_events=False)
         if fits_otherwise is not None:
-            print(f"{PROG}: {events_problem(fits_otherwise, cfg.scene.events)}", file=sys.stderr)
-            return 2
+            raise HandoverError(events_problem(fits_otherwise, cfg.scene.events))
     for warning in cfg.warnings:
         print(f"{PROG}: warning: {warning}", file=sys.stderr)
     if model is not None:

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
+
+from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, out_folder, positive_int
+from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
-
-COMMAND = "sweep"
 
 
 def _ints(text: str) -> tuple[int, ...]:
@@ -33,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from trainer.sweeps import FULL_K, FULL_T, FULL_W
 
     parser.add_argument("--data", help="folder of .hrec recordings (default: simulate the paper's protocol)")
-    parser.add_argument("--out", default="report", help="folder for sweep.json and the figures")
+    add_out(parser, "folder for sweep.json and the figures", default="report")
     parser.add_argument("--pads", default="all")
     parser.add_argument("--K", type=int, default=PAPER_MODEL["K"], help="K kept fixed while W and T vary")
     parser.add_argument("--W", type=int, default=PAPER_MODEL["W"], help="W kept fixed while K and T vary")
@@ -44,34 +43,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kernels", default="rbf,linear", help="comma-separated: rbf, linear")
     parser.add_argument("--mode", choices=("config1", "loso"), default="config1",
                         help="config1: pooled 80/20 over --repeats seeds; loso: leave one subject out")
-    parser.add_argument("--repeats", type=int, default=3, help="seeds per point in config1 mode")
+    parser.add_argument("--repeats", type=positive_int, default=3, help="seeds per point in config1 mode")
     parser.add_argument("--per-pad", action="store_true")
     parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
                         help=f"threshold trigger level, fraction of full scale (default: the paper's {PAPER_FRACTION})")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", action="store_true", help="print the sweep rows as JSON on stdout")
-    parser.add_argument("--quiet", action="store_true")
+    add_seed(parser)
+    add_json(parser, "the sweep rows")
+    add_quiet(parser)
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.layout import LayoutError
-    from firmware_io.recordings.recording import RecordingError
-    from trainer.dataset import DatasetError
-
     kernels = [k.strip() for k in args.kernels.split(",") if k.strip()]
     bad = [k for k in kernels if k not in ("rbf", "linear")]
     if bad or not kernels:
-        print(f"handover {COMMAND}: unknown kernel {bad[0] if bad else '(none)'!r}; use rbf and/or linear",
-              file=sys.stderr)
-        return 2
-    if args.repeats < 1:
-        print(f"handover {COMMAND}: --repeats must be >= 1", file=sys.stderr)
-        return 2
+        raise HandoverError(f"unknown kernel {bad[0] if bad else '(none)'!r}; use rbf and/or linear")
     try:
         return _run(args, kernels)
-    except (RecordingError, DatasetError, LayoutError, OSError, ValueError) as exc:
-        print(f"handover {COMMAND}: {exc}", file=sys.stderr)
-        return 2
+    except (OSError, ValueError) as exc:  # an unreadable folder or data that cannot sweep: the user's to fix
+        raise HandoverError(str(exc)) from exc
 
 
 def _run(args, kernels: list[str]) -> int:
@@ -80,8 +69,7 @@ def _run(args, kernels: list[str]) -> int:
     from trainer.sweeps import run_sweeps
 
     t0 = time.perf_counter()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_folder(args.out)
     say = say_to(args.quiet)
     recordings, source, synthetic = load_or_simulate(args.data, args.seed, say)
     base = {"K": args.K, "W": args.W, "T": args.T, "seed": args.seed, "per_pad": args.per_pad}

@@ -17,6 +17,9 @@ import sys
 import time
 from pathlib import Path
 
+from firmware_io.commands.options import add_json, add_quiet, add_seed, positive_int
+from firmware_io.errors import HandoverError
+
 __all__ = ["add_arguments", "main"]
 
 STRIDE = 8
@@ -30,13 +33,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reference", help="the trained .joblib (default: as named in the model's metadata)")
     parser.add_argument("--data", help="folder of .hrec recordings (default: the folder the model was trained on, "
                         "if recorded and present; else a held-out simulated protocol)")
-    parser.add_argument("--seed", type=int, default=1000, help="simulator seed of the held-out trials (default 1000)")
-    parser.add_argument("--subjects", type=int, default=SUBJECTS, help="simulated held-out subjects")
-    parser.add_argument("--stride", type=int, default=STRIDE, help="frames between verified window starts")
+    add_seed(parser, 1000, "simulator seed of the held-out trials")
+    parser.add_argument("--subjects", type=positive_int, default=SUBJECTS, help="simulated held-out subjects")
+    parser.add_argument("--stride", type=positive_int, default=STRIDE, help="frames between verified window starts")
     parser.add_argument("--stress", action="store_true", help="add the stress cases")
     parser.add_argument("--no-trials", action="store_true", help="stress cases only (implies --stress)")
-    parser.add_argument("--json", action="store_true", help="print the report as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_json(parser, "the report")
+    add_quiet(parser)
 
 
 def verdict(report) -> str:
@@ -129,14 +132,10 @@ def _run_stream(args, stream, compare_batch) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from runtime.model import ModelContractError, load_model
-    from trainer.commands.export_cli import ExportError
-    from trainer.verify import GraphRunner, VerifyError, VerifyReport, check_nonfinite_refused, compare, load_reference
+    from runtime.model import load_model
+    from trainer.verify import GraphRunner, VerifyReport, check_nonfinite_refused, compare, load_reference
     from trainer.verify_windows import stress_windows
 
-    if args.stride < 1 or args.subjects < 1:
-        print("handover verify: --stride and --subjects must be at least 1", file=sys.stderr)
-        return 2
     path = Path(args.model)
     try:
         loaded = load_model(path)
@@ -154,9 +153,8 @@ def main(args: argparse.Namespace) -> int:
         if args.stress or args.no_trials:
             compare_batch(*stress_windows(model, meta))
         report.nonfinite_input_refused = check_nonfinite_refused(path)
-    except (ModelContractError, VerifyError, ExportError, OSError, ValueError) as exc:
-        print(f"handover verify: {exc}", file=sys.stderr)
-        return 2
+    except (OSError, ValueError) as exc:  # every error of the model, reference and data is one of these
+        raise HandoverError(str(exc)) from exc
     if args.json:
         print(json.dumps(report.to_dict(), indent=2))
     else:
