@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
+from firmware_io.commands.options import add_json
 from runtime.training_counts import TrainingCounts
 
 __all__ = ["add_arguments", "main"]
@@ -18,7 +18,7 @@ __all__ = ["add_arguments", "main"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", help="model file (.onnx)")
-    parser.add_argument("--json", action="store_true", help="print the card as JSON")
+    add_json(parser, "the card")
 
 
 def card(model) -> dict:
@@ -153,15 +153,12 @@ def _text(c: dict) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from runtime.model import ModelContractError, load_model
+    from runtime.model import load_model
     from runtime.output_check import DEFAULT_BUDGET_FRACTION
 
-    try:
-        # the daemon's warm-up: realistic windows, the output contract, the default time budget
-        model = load_model(args.model, decision_budget=DEFAULT_BUDGET_FRACTION)
-    except ModelContractError as exc:  # a missing, unreadable or broken file: the user's to fix
-        print(f"handover inspect: {exc}", file=sys.stderr)
-        return 2
+    # the daemon's warm-up: realistic windows, the output contract, the default time budget; a missing,
+    # unreadable or broken file is a ModelContractError, the user's to fix (handover's one line, exit 2)
+    model = load_model(args.model, decision_budget=DEFAULT_BUDGET_FRACTION)
     c = card(model)
     print(json.dumps(c, indent=2, default=str) if args.json else _text(c))
     return 0

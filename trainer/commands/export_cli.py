@@ -108,19 +108,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.errors import fail
+    from firmware_io.errors import DeviceFailure
     from runtime.commands.inspect_cli import feature_summary
     from runtime.model import ModelContractError, load_model
 
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
     try:
         path = export_trained(args.model, out, args.pads, args.fold_derivative)
-    except (ExportError, OSError) as exc:  # the file or options given: the user's to fix
-        return fail("export", str(exc))
+    except OSError as exc:  # the file given: the user's to fix (an ExportError says so itself)
+        raise HandoverError(str(exc)) from exc
     try:
         model = load_model(path)
     except ModelContractError as exc:  # the export itself broke the contract: not the user's input
-        return fail("export", f"{path}: the exported graph breaks the model contract ({exc})", 1)
+        raise DeviceFailure(f"{path}: the exported graph breaks the model contract ({exc})") from exc
     print(f"wrote {path}: id {model.model_id}, {model.n_nodes} nodes, {model.n_bytes} bytes, "
           f"classes {', '.join(model.meta.classes)}, T={model.meta.T}, {feature_summary(model)}")
     return 0

@@ -12,12 +12,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from firmware_io.errors import fail
+from firmware_io.errors import HandoverError
 from runtime.trigger_settings import PAPER_FRACTION
 
 __all__ = ["add_arguments", "main"]
 
-COMMAND = "plot"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,12 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.recordings.recording import Recording, RecordingError
+    from firmware_io.recordings.recording import Recording
 
-    try:
-        rec = Recording.load(args.recording)
-    except RecordingError as exc:
-        return fail(COMMAND, str(exc))
+    rec = Recording.load(args.recording)
     if args.list:
         from firmware_io.recordings.record_session import flagged_trials
 
@@ -50,18 +46,18 @@ def main(args: argparse.Namespace) -> int:
             print(f"{i:4d}  {t.subject} {t.pose} {t.object} {t.action} run {t.run}  ({t.n_frames} frames){flag}")
         return 0
     if not rec.trials:
-        return fail(COMMAND, f"{args.recording}: the recording holds no trials")
+        raise HandoverError(f"{args.recording}: the recording holds no trials")
     if not 1 <= args.trial <= len(rec.trials):
-        return fail(COMMAND, f"--trial {args.trial}: the recording has trials 1..{len(rec.trials)}")
+        raise HandoverError(f"--trial {args.trial}: the recording has trials 1..{len(rec.trials)}")
     out = Path(args.out) if args.out else Path(f"{Path(args.recording).stem}_trial{args.trial}.png")
     try:
         drawn = model_trigger(rec, args.model, args.trigger, args.fraction)
-    except ValueError as exc:
-        return fail(COMMAND, str(exc))
+    except ValueError as exc:  # a model or trigger option that cannot draw
+        raise HandoverError(str(exc)) from exc
     try:
         path = plot_trial(rec, args.trial - 1, out, trigger=drawn)
     except OSError as exc:
-        return fail(COMMAND, f"{out}: cannot write ({exc.strerror or exc})")
+        raise HandoverError(f"{out}: cannot write ({exc.strerror or exc})") from None
     print(path)
     return 0
 

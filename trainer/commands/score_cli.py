@@ -12,11 +12,11 @@ import argparse
 import json
 import sys
 
-from firmware_io.errors import fail
+from firmware_io.commands.options import add_json
+from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
 
-COMMAND = "score"
 MAX_EVENTS_CHARS = 128 << 20
 """The most event text one score reads: weeks of a daemon's lines; beyond it the memory, not the score, runs out."""
 
@@ -25,11 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("events", metavar="EVENTS.jsonl", help="the daemon's event lines ('-': stdin)")
     parser.add_argument("script", metavar="SCRIPT", help="the file handover emulate --script-out wrote")
     parser.add_argument("--instance", default=None, help="score only the lines of this daemon instance")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_json(parser)
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.emulator.script_file import ScriptFileError, read_script
+    from firmware_io.emulator.script_file import read_script
     from trainer.session_score import (
         decisions_from_lines,
         not_played_line,
@@ -39,10 +39,7 @@ def main(args: argparse.Namespace) -> int:
         summary_lines,
     )
 
-    try:
-        script = read_script(args.script)
-    except ScriptFileError as exc:
-        return fail(COMMAND, str(exc))
+    script = read_script(args.script)
     try:
         if args.events == "-":
             text = sys.stdin.read(MAX_EVENTS_CHARS + 1)
@@ -50,19 +47,19 @@ def main(args: argparse.Namespace) -> int:
             with open(args.events, encoding="utf-8", errors="replace") as f:
                 text = f.read(MAX_EVENTS_CHARS + 1)
     except OSError as exc:
-        return fail(COMMAND, f"{args.events}: cannot read ({exc.strerror or exc})")
+        raise HandoverError(f"{args.events}: cannot read ({exc.strerror or exc})") from None
     if len(text) > MAX_EVENTS_CHARS:  # /dev/zero filled the memory
-        return fail(COMMAND, f"{args.events}: over {MAX_EVENTS_CHARS >> 20} MiB of event lines; score a part of the "
-                    "capture (e.g. the lines of one session)")
+        raise HandoverError(f"{args.events}: over {MAX_EVENTS_CHARS >> 20} MiB of event lines; score a part of the "
+                            "capture (e.g. the lines of one session)")
     lines = text.splitlines()
     decisions, skipped = decisions_from_lines(lines, script, args.instance)
     if not script.trials:
-        return fail(COMMAND, f"{args.script}: the session has no scripted events to score against")
+        raise HandoverError(f"{args.script}: the session has no scripted events to score against")
     if skipped == (given := sum(bool(line.strip()) for line in lines)):  # e.g. the daemon's log, not its stdout
-        return fail(COMMAND, f"{args.events}: none of its {given} lines is an event line (a JSON object); give the "
-                    "daemon's event lines (its stdout or a UDP listener's), not its log")
+        raise HandoverError(f"{args.events}: none of its {given} lines is an event line (a JSON object); give the "
+                            "daemon's event lines (its stdout or a UDP listener's), not its log")
     if problem := span_problem(decisions, script):
-        return fail(COMMAND, f"{args.events}: {problem}")
+        raise HandoverError(f"{args.events}: {problem}")
     o = score(decisions, script)
     summary = {"synthetic": script.synthetic, "decisions": len(decisions), "lines_skipped": skipped,
                "passes": o["passes"], **outcome_summary(o)}

@@ -12,7 +12,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from firmware_io.errors import fail
+from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed
+from firmware_io.errors import HandoverError
 from runtime.trigger_settings import PAPER_FRACTION
 from trainer.train_options import (
     ASSIGNMENTS,
@@ -20,7 +21,6 @@ from trainer.train_options import (
     FEATURE_WEIGHTING_CHOICES,
     KERNELS,
     TRIGGERS,
-    OptionsError,
     TrainOptions,
     parse_features,
     parse_windows,
@@ -28,13 +28,12 @@ from trainer.train_options import (
 
 __all__ = ["add_arguments", "main"]
 
-COMMAND = "train"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     D = TrainOptions  # the defaults, from their one owner
     parser.add_argument("--data", help="folder of .hrec recordings (default: simulate the paper's protocol)")
-    parser.add_argument("--out", default=D.out, help="report folder (created; default ./report)")
+    add_out(parser, "report folder (created; default ./report)", default=D.out)
     parser.add_argument("--pads", default=D.pads, help="pad selection: all, distal, proximal, thumb, 1,3,5 ...")
     parser.add_argument("--K", type=int, default=D.K, help="number of words (k-means centres)")
     parser.add_argument("--W", type=int, default=D.W, help="sliding window length (frames)")
@@ -76,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fraction", type=float, default=None,
                         help=f"threshold trigger level as a fraction of full scale (the paper: {PAPER_FRACTION}; implies "
                         "--trigger threshold)")
-    parser.add_argument("--seed", type=int, default=D.seed, help="seed of the simulation, k-means and the splits")
+    add_seed(parser, D.seed, "seed of the simulation, k-means and the splits")
     parser.add_argument("--repeats", type=int, default=D.repeats, help="seeds of configuration 1 (80/20 splits)")
     parser.add_argument("--sweep", dest="sweep_file", help="sweep.json from `handover sweep` (default: OUT/sweep.json "
                         "if present, else a small built-in sweep)")
@@ -98,8 +97,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replay the real SDH-2 recordings without a handover (../shared/data, "
                         "HANDOVER_SHARED_DATA) through the model: false events per hour (default: for real "
                         "recordings, where the folder is present; about a minute)")
-    parser.add_argument("--json", action="store_true", help="print the metrics as JSON on stdout")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars or messages on stderr")
+    add_json(parser, "the metrics")
+    add_quiet(parser, "no progress bars or messages on stderr")
 
 
 def options_from_args(args: argparse.Namespace) -> TrainOptions:
@@ -111,11 +110,8 @@ def options_from_args(args: argparse.Namespace) -> TrainOptions:
 
 
 def main(args: argparse.Namespace) -> int:
-    try:
-        options = options_from_args(args)
-        options.check()
-    except OptionsError as exc:
-        return fail(COMMAND, str(exc))
+    options = options_from_args(args)
+    options.check()
     from firmware_io.commands.options import out_folder
 
     out_folder(options.out)  # before minutes of training, not after
@@ -124,20 +120,17 @@ def main(args: argparse.Namespace) -> int:
 
 def run(options: TrainOptions) -> int:
     """Train; one line and exit 2 for data that cannot train, exit 1 when model.onnx was not written."""
-    from firmware_io.layout import LayoutError
-    from firmware_io.recordings.recording import RecordingError
     from trainer import report
-    from trainer.dataset import DatasetError
     from trainer.pipeline import train
 
     try:
         result = train(options)
-    except OptionsError as exc:
-        return fail(COMMAND, str(exc))
-    except (RecordingError, DatasetError, LayoutError, OSError) as exc:
-        return fail(COMMAND, str(exc))
-    except ValueError as exc:
-        return fail(COMMAND, f"cannot train: {exc}")
+    except HandoverError:
+        raise  # options, recordings, layout, data set: each says what is wrong itself
+    except OSError as exc:
+        raise HandoverError(str(exc)) from exc
+    except ValueError as exc:  # from the estimators: data they cannot fit
+        raise HandoverError(f"cannot train: {exc}") from exc
     if options.json:
         metrics = result.metrics
         print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (
