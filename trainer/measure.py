@@ -330,7 +330,7 @@ def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None,
 
 
 def progress(quiet: bool) -> Callable[[str], None]:
-    """Progress messages on stderr, unless quiet (training's own, ``trainer.pipeline.say_to``)."""
-    from trainer.pipeline import say_to
+    """Progress messages on stderr, unless quiet (every command's, ``firmware_io.commands.options.progress_to``)."""
+    from firmware_io.commands.options import progress_to
 
-    return say_to(quiet)
+    return progress_to(quiet)

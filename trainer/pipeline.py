@@ -16,9 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from firmware_io.commands.options import PROGRESS, progress_to
 from trainer.train_options import TrainOptions, build_estimator
 
-__all__ = ["TrainResult", "evaluate", "load_or_simulate", "progress_bar", "say_to", "train"]
+__all__ = ["TrainResult", "evaluate", "load_or_simulate", "progress_bar", "train"]
 
 
 @dataclass
@@ -33,16 +34,6 @@ class TrainResult:
     @property
     def exit_code(self) -> int:
         return 0 if self.onnx_written else 1
-
-
-def say_to(quiet: bool) -> Callable[[str], None]:
-    """Progress messages on stderr, unless quiet."""
-
-    def say(text: str) -> None:
-        if not quiet:
-            print(text, file=sys.stderr, flush=True)
-
-    return say
 
 
 def progress_bar(quiet: bool, desc: str, total: int):
@@ -98,7 +89,7 @@ def train(options: TrainOptions) -> TrainResult:
 
     options.check()
     t0 = time.perf_counter()
-    say = say_to(options.quiet)
+    say = progress_to(options.quiet)
     out = Path(options.out)
     out.mkdir(parents=True, exist_ok=True)
     recordings, source, synthetic = load_or_simulate(options.data, options.seed, say)
@@ -172,7 +163,7 @@ def _cases(options: TrainOptions, recordings: list, names: list[str], say: Calla
     if problem:
         raise DatasetError(problem)
     if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
-        return add_idle(ds, recordings, names, options.seed, say, warn=say_to(False))
+        return add_idle(ds, recordings, names, options.seed, say, warn=PROGRESS.warning)
     return ds, None
 
 

@@ -7,14 +7,37 @@ here, and a range check is a ``type=`` so a wrong value is argparse's one line b
 from __future__ import annotations
 
 import argparse
+import logging
 import math
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 from firmware_io.errors import HandoverError
 
-__all__ = ["add_json", "add_out", "add_quiet", "add_seed", "int_in", "out_folder", "positive_float", "positive_int"]
+__all__ = ["PROGRESS", "add_json", "add_out", "add_quiet", "add_seed", "int_in", "out_folder", "positive_float",
+           "positive_int", "progress_to"]
+
+PROGRESS = logging.getLogger("handover.progress")
+"""The one progress path of every command: plain lines on stderr (the daemon's log keeps its own format)."""
+
+
+class _Stderr(logging.StreamHandler):
+    """stderr as it is when a line is written: a caller (a test, a notebook) may have swapped it since."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value) -> None:
+        pass
+
+
+PROGRESS.addHandler(_Stderr())
+PROGRESS.setLevel(logging.INFO)
+PROGRESS.propagate = False
 
 
 def add_out(parser: argparse.ArgumentParser, help: str, **kwargs) -> None:
@@ -35,6 +58,11 @@ def add_seed(parser: argparse.ArgumentParser, default: int = 0, help: str = "ran
 def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress messages on stderr") -> None:
     """``--quiet``: the result only."""
     parser.add_argument("--quiet", action="store_true", help=help)
+
+
+def progress_to(quiet: bool) -> Callable[[str], None]:
+    """Where a command's progress lines go: the progress logger, or nowhere with ``--quiet``."""
+    return (lambda _text: None) if quiet else PROGRESS.info
 
 
 def positive_float(text: str) -> float:

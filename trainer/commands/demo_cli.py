@@ -26,7 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmware_io.errors import fail
+from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed
+from firmware_io.errors import HandoverError
 from firmware_io.sim.session import DEMO_TRAIN_SEED, HELD_OUT_SEED_OFFSET
 
 if TYPE_CHECKING:
@@ -35,7 +36,6 @@ if TYPE_CHECKING:
 
 __all__ = ["add_arguments", "main"]
 
-COMMAND = "demo"
 SETTINGS = ("onset", "onset_dormant", "continuous", "threshold")
 STREAM_MODEL_IDLE_MIN, STREAM_MODEL_SESSIONS = 10.0, 60
 """Training data of the 5-class stream model (as ``./dev bench streams`` trains it)."""
@@ -44,12 +44,11 @@ DEMO_EVENTS = 40
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="out/demo", help="working folder (data, report, models; default out/demo)")
+    add_out(parser, "working folder (data, report, models; default out/demo)", default="out/demo")
     parser.add_argument("--events", type=int, default=DEMO_EVENTS,
                         help=f"scripted events in the session (default {DEMO_EVENTS})")
-    parser.add_argument("--seed", type=int, default=DEMO_TRAIN_SEED,
-                        help=f"seed of the training data (default {DEMO_TRAIN_SEED}); the session plays seed + "
-                        f"{HELD_OUT_SEED_OFFSET}")
+    add_seed(parser, DEMO_TRAIN_SEED, f"seed of the training data (default {DEMO_TRAIN_SEED}); the session plays "
+             f"seed + {HELD_OUT_SEED_OFFSET}")
     parser.add_argument("--pads", default="all", help="pads the model and the scene use (default all)")
     parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
                         "as possible (latency figures then include queueing)")
@@ -65,8 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "same scripted session instead of training one: compare your model with the demo's on the "
                         "same events (the stream setting follows the model: onset_dormant with a dormant class, "
                         "else its recorded trigger; --setting continuous classifies every frame)")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
-    parser.add_argument("--quiet", action="store_true", help="only the summary")
+    add_json(parser)
+    add_quiet(parser, "only the summary")
 
 
 def _say(args: argparse.Namespace, text: str) -> None:
@@ -175,17 +174,17 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.commands.playback import playback_options
 
     if args.events < 4:
-        return fail(COMMAND, "--events must be at least 4 (one of each class)")
+        raise HandoverError("--events must be at least 4 (one of each class)")
     try:
         speed, faults = playback_options(args.speed, args.fault)
     except ValueError as exc:
-        return fail(COMMAND, str(exc))
+        raise HandoverError(str(exc)) from None
     out = Path(args.out)
     t_start = time.perf_counter()
     try:
         model_path = given_model(args) if args.model else train_model(args, out)
     except (OSError, ValueError, RuntimeError) as exc:
-        return fail(COMMAND, str(exc))
+        raise HandoverError(str(exc)) from exc
     model_dir = drop_model(model_path, out / "models").parent
     summary = run_session(args, model_dir, speed, faults)
     summary.update(model=str(model_path), seconds=round(time.perf_counter() - t_start, 1))

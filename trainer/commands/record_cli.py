@@ -14,7 +14,7 @@ import subprocess
 import sys
 
 from firmware_io.commands.options import out_folder
-from firmware_io.errors import DEVICE_ERROR, INTERRUPTED, fail
+from firmware_io.errors import INTERRUPTED, DeviceFailure, HandoverError, fail
 from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
@@ -109,34 +109,31 @@ def _ask(question: str, choices) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from firmware_io.recordings.idle_stretches import idle_plan
-    from firmware_io.recordings.record_session import SessionError, subject_problem
+    from firmware_io.recordings.record_session import subject_problem
     from firmware_io.transports.base import TransportError
 
     if args.fraction is not None and not is_trigger_level(args.fraction):
-        return fail(COMMAND, f"--fraction must be in (0, 1), got {args.fraction}")
-    try:
-        plan, opts = _plan_and_options(args)
-    except SessionError as exc:
-        return fail(COMMAND, str(exc))
+        raise HandoverError(f"--fraction must be in (0, 1), got {args.fraction}")
+    plan, opts = _plan_and_options(args)  # a SessionError for a bad pose, object or action list
     if problem := subject_problem(args.subject):  # before the device opens
-        return fail(COMMAND, problem)
+        raise HandoverError(problem)
     try:
         idle_plan(idle_minutes(args))
     except ValueError as exc:
-        return fail(COMMAND, f"--idle-minutes: {exc}")
+        raise HandoverError(f"--idle-minutes: {exc}") from None
     if args.idle_only and idle_minutes(args) == 0:
-        return fail(COMMAND, "--idle-only with --idle-minutes 0 records nothing: give the minutes of idle to record")
+        raise HandoverError("--idle-only with --idle-minutes 0 records nothing: give the minutes of idle to record")
     out_folder(args.out)
     try:
         client, subject = _connect(args.device, args.trial_seconds)
-    except TransportError as exc:
-        return fail(COMMAND, str(exc))
+    except TransportError as exc:  # a URL that can never open: the user's (exit 2), even an absent device's
+        raise HandoverError(str(exc)) from None
     voice = Voice(enabled=not args.quiet)
     try:
         control = _listen(args.control, opts)
     except OSError as exc:
         client.close()
-        return fail(COMMAND, str(exc))
+        raise HandoverError(str(exc)) from None
     try:
         return _record(args, client, subject, plan, opts, voice)
     finally:
@@ -206,13 +203,11 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     from firmware_io.recordings.record_session import (
         DeviceLost,
         NotSaved,
-        SessionError,
         SessionIO,
         SessionStore,
         recording_path,
         run_session,
     )
-    from firmware_io.recordings.recording import RecordingError
     from firmware_io.transports.base import TransportError
     from firmware_io.wire.errors import DSAError
 
@@ -220,13 +215,10 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
         layout = client.open()
         client.start()
     except (TransportError, DSAError, OSError) as exc:
-        return fail(COMMAND, f"cannot open the device: {exc}", DEVICE_ERROR)
-    try:
-        store = SessionStore.open(recording_path(args.out, args.subject), args.subject, layout)
-    except (RecordingError, SessionError) as exc:
-        return fail(COMMAND, str(exc))
+        raise DeviceFailure(f"cannot open the device: {exc}") from None
+    store = SessionStore.open(recording_path(args.out, args.subject), args.subject, layout)
     if problem := _resume_problem(store.meta.get("sessions", []), plan, opts, client.url, args.idle_only):
-        return fail(COMMAND, f"{store.path}: {problem}")
+        raise HandoverError(f"{store.path}: {problem}")
     if subject is not None:
         store.meta["synthetic"] = True
 
@@ -246,11 +238,11 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
         if args.idle_only or (result.complete and idle_plan_):
             idle = run_idle(client, store, idle_plan_, opts, io, session_info=info)
     except NotSaved as exc:  # a full disk: what the file holds, and how to go on
-        return fail(COMMAND, f"{exc}; {_saved(store)}; free disk space, then {resume}")
-    except (SessionError, ValueError) as exc:
-        return fail(COMMAND, str(exc))
+        raise HandoverError(f"{exc}; {_saved(store)}; free disk space, then {resume}") from None
     except (DeviceLost, TransportError, DSAError) as exc:
-        return fail(COMMAND, f"device lost ({first_line(exc)}); {_saved(store)}; {resume}", DEVICE_ERROR)
+        raise DeviceFailure(f"device lost ({first_line(exc)}); {_saved(store)}; {resume}") from None
+    except ValueError as exc:  # a SessionError too
+        raise HandoverError(str(exc)) from None
     except KeyboardInterrupt:
         return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
     flagged = (f", {len(result.flagged)} flagged: training gets no case from them (handover plot shows one)"

@@ -64,13 +64,14 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _run(args, kernels: list[str]) -> int:
+    from firmware_io.commands.options import progress_to
     from trainer import report
-    from trainer.pipeline import load_or_simulate, progress_bar, say_to
+    from trainer.pipeline import load_or_simulate, progress_bar
     from trainer.sweeps import run_sweeps
 
     t0 = time.perf_counter()
     out = out_folder(args.out)
-    say = say_to(args.quiet)
+    say = progress_to(args.quiet)
     recordings, source, synthetic = load_or_simulate(args.data, args.seed, say)
     base = {"K": args.K, "W": args.W, "T": args.T, "seed": args.seed, "per_pad": args.per_pad}
     n = len(kernels) * (len(args.K_values) + len(args.W_values) + len(args.T_values))

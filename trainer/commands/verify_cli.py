@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-from firmware_io.commands.options import add_json, add_quiet, add_seed, positive_int
+from firmware_io.commands.options import add_json, add_quiet, add_seed, positive_int, progress_to
 from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
@@ -115,8 +114,7 @@ def _trial_stream(args, meta):
 
 
 def _note(args, text: str) -> None:
-    if not args.quiet:
-        print(f"handover verify: {text}", file=sys.stderr, flush=True)
+    progress_to(args.quiet)(f"handover verify: {text}")
 
 
 def _run_stream(args, stream, compare_batch) -> None:
