@@ -1,7 +1,6 @@
 """Layers one way: firmware_io imports nothing from runtime or trainer, runtime nothing from trainer, and no
 module of the three imports the test suite or the benchmarks (neither is installed; such an import breaks in a
-wheel). A new rule is one line of
-FORBIDDEN."""
+wheel). A new rule is one line of FORBIDDEN."""
 
 from __future__ import annotations
 

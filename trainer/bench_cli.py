@@ -54,13 +54,13 @@ def main(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace, modules: dict[str, str], headline: Sequence[str]) -> int:
     """Run ``args.which`` (a list of names, or one) from ``modules`` (name -> module with ``run(args)``)."""
-    from firmware_io.commands.options import out_folder
-    from trainer.measure import default_out, progress
+    from firmware_io.commands.options import out_folder, progress_to
+    from trainer.measure import default_out
 
     if args.out is None:
         args.out = default_out(args.quick)
     out_folder(args.out)
-    args.say = progress(args.quiet)
+    args.say = progress_to(args.quiet)
     which = (args.which,) if isinstance(args.which, str) else args.which
     figures: dict = {}
     for name in which:

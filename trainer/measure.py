@@ -25,7 +25,7 @@ from trainer.defaults import DEFAULT_MODEL
 
 __all__ = [
     "DEADLINE_US", "PRODUCT_BENCHES", "command_line", "cycling", "deadline_ratio", "default_out", "export_metadata",
-    "fmt_us", "load_average", "load_note", "machine_info", "out_option", "percentiles", "progress",
+    "fmt_us", "load_average", "load_note", "machine_info", "out_option", "percentiles",
     "run_facts", "simulated_protocol", "tap_gap", "tap_stream", "time_calls", "train_default_model", "with_metadata",
     "write_results",
 ]
@@ -329,8 +329,3 @@ def tap_stream(seed: int = 0, quick: bool = False, n_windows: int | None = None,
     return Recording(layout, frames, timestamps, trials, meta)
 
 
-def progress(quiet: bool) -> Callable[[str], None]:
-    """Progress messages on stderr, unless quiet (every command's, ``firmware_io.commands.options.progress_to``)."""
-    from firmware_io.commands.options import progress_to
-
-    return progress_to(quiet)
