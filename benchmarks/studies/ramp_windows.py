@@ -126,7 +126,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"chosen: hold {best['n']} windows up to {best['last']} frames after the onset (sum of utilities "
           f"{best['utility']}); wrote {args.out}/ramp_windows.md")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

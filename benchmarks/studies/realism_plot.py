@@ -82,7 +82,3 @@ def main(argv: list[str] | None = None) -> int:
     make_figure(real, sim, args.out, args.seed)
     print(f"wrote {args.out}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -71,7 +71,3 @@ def main(argv: list[str] | None = None) -> int:
     h = after["continuous"]["per_action"]["hold"]
     print(f"continuous hold recall on the second test stream: {h[0]}/{h[1]}; wrote {args.out}/second_test_stream.md")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

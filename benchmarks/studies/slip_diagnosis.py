@@ -283,7 +283,3 @@ def main(argv: list[str] | None = None) -> int:
     if kept:  # the feature-weighting check's dated section outlives a rerun of this diagnosis
         upsert_section(Path(args.out) / "slip_diagnosis.md", kept)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -200,7 +200,3 @@ def main(argv: list[str] | None = None) -> int:
     upsert_section(Path(args.out) / "slip_diagnosis.md", [*lines, "", f"Reproduce: `{res['command']}` "
                    f"({res['seconds']:.0f} s; details in results/weighting_check.md)."])
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
