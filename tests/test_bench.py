@@ -235,3 +235,14 @@ def test_compare_records_its_out_folder_only_when_it_is_not_the_default(tmp_path
     assert compare_cli.command_line(measured) == "./dev bench compare --seed 0 --n-jobs 2"
     elsewhere = parser.parse_args(["--out", str(tmp_path / "mine")])
     assert compare_cli.command_line(elsewhere).endswith(f"--out {tmp_path / 'mine'}")
+
+
+def test_every_name_dev_bench_takes_is_a_module_and_every_study_has_a_name():
+    import importlib.util
+
+    from benchmarks import __main__ as suite
+
+    names = [*suite.MODULES.values(), *suite.COMMANDS.values(), *(f"benchmarks.studies.{n}" for n in suite.STUDIES)]
+    assert [n for n in names if importlib.util.find_spec(n) is None] == []
+    studies = {p.stem for p in (Path(suite.__file__).parent / "studies").glob("*.py")} - {"__init__"}
+    assert studies == set(suite.STUDIES)
