@@ -71,8 +71,8 @@ class RobotInputs:
     """The robot's grasp and arm words, from the control socket's or the ROS 2 node's thread: queued in the
     detector for its next frame (no lock on the hot path), each kind logged at most every few seconds."""
 
-    def __init__(self, detector: Detector, messages: MessageLog) -> None:
-        self._detector, self._messages = detector, messages
+    def __init__(self, detector: Detector) -> None:
+        self._detector, self._messages = detector, MessageLog()
 
     def set_grasp(self, closed: bool, source: str = "") -> None:
         """The grasp has settled (``closed``) or is released; ``source`` names the caller in the log."""
@@ -106,8 +106,7 @@ class Daemon:
         self.listeners: list[FrameListener] = []
         """Called with every frame handled and every decision's stage timings (runtime.listeners);
         benchmarks and tests observe the real hot path through them. Empty: one list check per frame."""
-        self.messages = MessageLog()
-        self.robot = RobotInputs(self.detector, self.messages)
+        self.robot = RobotInputs(self.detector)
         """The grasp and arm commands the control socket and the ROS 2 node may give, from their threads."""
         self.reporter = Reporter(self._sinks(cfg), on_event, self.listeners)
         self.models = ModelSlot(cfg, self.health, self._apply, self._announce)
@@ -116,7 +115,6 @@ class Daemon:
         self._control_ignored = 0
         self.health.parts = [self._counters, self.link.counters, self.detector.counters, self.models.counters,
                              self.reporter.counters]
-        """Each part keeps its own counters; the health view composes them (runtime.health.SNAPSHOT)."""
         self.link.scene = cfg.scene.pads
         self.control: ControlSocket | None = None
         self.locks: Any = None
@@ -140,6 +138,11 @@ class Daemon:
     def model(self) -> LoadedModel | None:
         """The serving model (the detector's), or None."""
         return self.detector.model
+
+    @property
+    def layout(self) -> SensorLayout | None:
+        """The device's layout as the detector has it (None before a device streams)."""
+        return self.detector.layout
 
     @property
     def fatal(self) -> str | None:

@@ -99,7 +99,6 @@ def _check(cfg, require_model: bool = False) -> int:
 
 
 def _check_quietly(cfg, require_model: bool) -> int:
-    from runtime.detector import Detector
     from runtime.health import Health
     from runtime.model_serving import ModelSlot
     from runtime.model_watch import ModelWatcher, folder_problem
@@ -112,7 +111,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
     _warn_about_sinks(cfg)
     for line in _held(cfg):
         print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
-    slot = ModelSlot(cfg, Detector.from_config(cfg), Health(), announce=lambda _: None)
+    slot = ModelSlot(cfg, Health(), serve=lambda _: None, announce=lambda _: None)
 
     def newest(check_events: bool):
         watcher = ModelWatcher(cfg.model.folder, loader=slot.load,
