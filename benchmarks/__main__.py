@@ -14,7 +14,7 @@ import importlib
 import sys
 
 from firmware_io.commands.options import positive_float, positive_int
-from firmware_io.errors import HandoverError, fail
+from firmware_io.errors import INTERRUPTED, HandoverError
 from runtime.cli import HelpFormatter, OneLineParser
 from trainer import bench_cli
 
@@ -66,7 +66,8 @@ def main(argv: list[str]) -> int:
         print(f"./dev bench {argv[0] if argv else 'all'}: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
-        return fail(bench_cli.COMMAND, "interrupted", 130)
+        print(f"handover {bench_cli.COMMAND}: interrupted", file=sys.stderr)
+        return INTERRUPTED
 
 
 def _run(argv: list[str]) -> int:

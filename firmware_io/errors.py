@@ -8,9 +8,7 @@ firmware_io, the lowest package, so every package can derive from it.
 
 from __future__ import annotations
 
-import sys
-
-__all__ = ["DEVICE_ERROR", "INTERRUPTED", "USER_ERROR", "DeviceFailure", "HandoverError", "fail"]
+__all__ = ["DEVICE_ERROR", "INTERRUPTED", "USER_ERROR", "DeviceFailure", "HandoverError", "Interrupted"]
 
 USER_ERROR = 2
 """Bad option, bad file, bad URL: what the user can fix."""
@@ -35,7 +33,7 @@ class DeviceFailure(HandoverError):
     exit_code = DEVICE_ERROR
 
 
-def fail(command: str, message: str, code: int = USER_ERROR) -> int:
-    """Print ``handover <command>: <message>`` to stderr and return ``code`` (the command's exit code)."""
-    print(f"handover {command}: {message}", file=sys.stderr)
-    return code
+class Interrupted(HandoverError):
+    """Ctrl-C, said with what was kept (exit 130)."""
+
+    exit_code = INTERRUPTED

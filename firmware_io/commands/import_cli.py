@@ -13,6 +13,9 @@ import re
 import sys
 from pathlib import Path
 
+from firmware_io.commands.options import add_out, out_folder
+from firmware_io.errors import HandoverError
+
 __all__ = ["add_arguments", "main"]
 
 PROG = "handover import"
@@ -27,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SRC",
         help=".dsa file, ROS 1 .bag, ROS 2 bag folder, or a folder to search for them",
     )
-    parser.add_argument("--out", required=True, type=Path, help="folder for the .hrec files")
+    add_out(parser, "folder for the .hrec files", required=True, type=Path)
     parser.add_argument(
         "--pads", default=None, help="keep only these pads (all, distal, proximal, thumb-distal, 1,3,5, ...)"
     )
@@ -175,22 +178,17 @@ def _report(src: Path, text: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from firmware_io.layout import LayoutError
     from firmware_io.recordings.importers import import_any
     from firmware_io.recordings.record_session import subject_problem
-    from firmware_io.recordings.recording import SUFFIX, RecordingError
+    from firmware_io.recordings.recording import SUFFIX
 
-    if args.pads:
-        problem = _bad_pad_name(args.pads)
-        if problem:
-            print(f"{PROG}: {problem}", file=sys.stderr)
-            return 2
+    if args.pads and (problem := _bad_pad_name(args.pads)):
+        raise HandoverError(problem)
     if args.subject and not args.idle:
-        print(f"{PROG}: --subject names whose idle an imported recording is; give --idle WHAT with it", file=sys.stderr)
-        return 2
+        raise HandoverError("--subject names whose idle an imported recording is; give --idle WHAT with it")
     if args.subject and (problem := subject_problem(args.subject)):  # a recorded subject's id, or one like it
-        print(f"{PROG}: --subject: {problem}", file=sys.stderr)
-        return 2
+        raise HandoverError(f"--subject: {problem}")
+    out_folder(args.out)
     sources, errors = _expand(args.sources)
     for e in errors:
         print(f"{PROG}: {e}", file=sys.stderr)
@@ -206,7 +204,7 @@ def main(args: argparse.Namespace) -> int:
                 recording = _as_idle(recording, args.idle, args.subject, src)
             target = _free_target(args.out, name, recording)
             recording.save(target)
-        except (RecordingError, LayoutError, OSError) as exc:
+        except (HandoverError, OSError) as exc:
             _report(src, str(exc))
         except Exception as exc:  # one bad source must not stop the batch; say what broke
             _report(src, f"unexpected {type(exc).__name__}: {exc}")

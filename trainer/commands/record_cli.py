@@ -14,7 +14,7 @@ import subprocess
 import sys
 
 from firmware_io.commands.options import out_folder
-from firmware_io.errors import INTERRUPTED, DeviceFailure, HandoverError, fail
+from firmware_io.errors import DeviceFailure, HandoverError, Interrupted
 from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
@@ -23,7 +23,6 @@ from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 __all__ = ["add_arguments", "main"]
 
-COMMAND = "record"
 IDLE_ONLY_MINUTES = 20.0
 """``--idle-only`` without ``--idle-minutes``: a long idle session."""
 
@@ -244,7 +243,7 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     except ValueError as exc:  # a SessionError too
         raise HandoverError(str(exc)) from None
     except KeyboardInterrupt:
-        return fail(COMMAND, f"interrupted; {_saved(store)}; {resume}", INTERRUPTED)
+        raise Interrupted(f"interrupted; {_saved(store)}; {resume}") from None
     flagged = (f", {len(result.flagged)} flagged: training gets no case from them (handover plot shows one)"
                if result and result.flagged else "")
     if result is not None and not result.complete:
