@@ -44,35 +44,21 @@ TREND_GAIN = 0.25
 """The trend takes this share of the level's correction (Holt's beta)."""
 RELEASE_RISE = 1.0
 """A departure whose largest rise is below this share of ``change`` counts as a release: the hand
-letting go or re-seating its grasp (one pad losing 20 % while another wobbles up 4 %, the frame
-before the hand opens), not a person. Chosen by the rule of results/streams.md (utility on the
-validation streams, synthetic, plus the real validation files) over 0.25 / 0.5 / 1.0: utility 37 /
-39 / 40 (the same 53 right events each; fewer false events in the idle stream and on the real
-validation files: a cup and a pen the hand let go)."""
+letting go or re-seating its grasp (one pad losing pressure while another wobbles up), not a person.
+Chosen by the rule of results/streams.md, which gives the candidates and their scores."""
 MIN_CONTACT_TAXELS = 3
-"""A departure on a pad touched by fewer loaded taxels than this is a point contact (an edge of
-the object rolling or slipping on a pad), not a person acting through the object the hand holds:
-it goes back to settling without firing. Physical grounds: a hand-over grasp loads a pad over an
-area (the simulated grasps load 6 taxels or more at every fire); the rule was indifferent on the
-validation streams and the real validation files (no fire there is on fewer than 4 taxels), so it
-was not chosen by them; it was set after seeing a real slip test on a 2-taxel contact (a test file,
-results/streams.md says so)."""
+"""A departure on a pad touched by fewer loaded taxels than this is a point contact (an edge of the
+object rolling or slipping on a pad), not a person acting through the object the hand holds: it goes
+back to settling without firing. Physical grounds: a hand-over grasp loads a pad over an area; the
+validation rule was indifferent to it (results/streams.md)."""
 MIN_GRASP_FINGERS = 2
-"""A departure fires only if, when the trigger armed, the settled grasp touched pads of at least
-this many fingers (a pad with ``MIN_CONTACT_TAXELS`` loaded taxels or more; at most the number of
-fingers the scene's pads cover). Physical grounds: a hand-over starts from an object *held* by the
-hand, and the SDH-2 holds an object between opposing fingers (the thumb against one or both
-fingers, or the two fingers turned to face each other), so a held object loads pads of two fingers
-or more; a load on one finger's pads alone is something pressing on that finger (a calibration rig
-putting weights on a pad, a probe pressing a masked matrix), not an object in the hand. Counted on
-the settled grasp, not at the departure: a tap pushes the object into the fingers on one side and
-off the others in the very frame it fires (simulated bumps leave one finger loaded there).
-Limitation: an object hanging from one finger (a hook grasp on a handle) never fires. Seen on the
-real validation files (a calibration rig loading one distal pad, a masked matrix pressed on one
-pad: 3 of their 4 false events); chosen by the rule of results/streams.md over 1 (off) / 2:
-utility 40 / 43 (the same synthetic reports: every simulated grasp loads the three fingers; real
-validation false events 4 / 1). 3 was not a candidate: the hand holds objects between two
-fingers (the xmas ball of the validation files is held so)."""
+"""A departure fires only if, when the trigger armed, the settled grasp touched pads of at least this
+many fingers (a pad with ``MIN_CONTACT_TAXELS`` loaded taxels or more; at most the scene's fingers).
+Why: a hand-over starts from an object *held* between opposing fingers; a load on one finger's pads
+alone is something pressing on it (a calibration rig, a probe), not an object in the hand. Counted on
+the settled grasp, not at the departure: a tap pushes the object off the fingers on one side in the very
+frame it fires. Limitation: an object hanging from one finger (a hook grasp) never fires. How it was
+chosen: results/streams.md."""
 
 
 class OnsetTrigger:
