@@ -7,10 +7,14 @@ and its Listeners):
   serving model and the report rule; no I/O;
 - ``DeviceLink`` (runtime.device_link): the device client, connect with backoff, faults, stalls;
 - ``ModelSlot`` (runtime.model_serving): the model folder's watcher and quarantine, swaps, fallback;
-- ``Reporter`` (runtime.reporter): decisions to health counters, event lines and the sinks;
-- ``ControlSocket`` (runtime.control): the robot's grasp messages, read by its own thread;
+- ``Reporter`` (runtime.reporter): decisions counted, event lines to the sinks;
+- ``ControlSocket`` (runtime.control) and the ROS 2 node: the robot's words, from their own threads,
+  through ``RobotInputs`` (queued for the next frame);
 - ``Health`` and ``StatusFile`` (runtime.health), ``Notifier`` (runtime.sdnotify), ``HotThread``
   (runtime.realtime).
+
+Each part keeps its own state and counters (``Health`` composes them) and says what happened by its
+return values; only the daemon changes the detector (``_apply``).
 
 One thread does the hot path: read a frame, ``Detector.feed``, and when it returns a decision,
 ``Reporter.report``. Everything slow happens elsewhere or between frames: model files are validated
