@@ -311,10 +311,10 @@ def evaluate(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -
     n_subjects = len(set(ds.groups.tolist()))
     missing = loso_unavailable(ds.groups, ds.y)
     if missing:  # a warning the user must see even with --quiet: the model is trained, LOSO is not measured
-        print(f"handover train: {missing}", file=sys.stderr, flush=True)
+        PROGRESS.warning(f"handover train: {missing}")
     else:  # folds whose training part has one class are skipped, never silently
         for why in loso_skipped(ds.groups, ds.y).values():
-            print(f"handover train: {why}; that fold is skipped", file=sys.stderr, flush=True)
+            PROGRESS.warning(f"handover train: {why}; that fold is skipped")
     say(f"evaluating (configuration 1, {'' if missing else 'leave one subject out, '}baseline) ...")
     q = options.quiet
     name = "+".join(options.families) if options.families != ("bow",) else "BoW"

@@ -23,16 +23,11 @@ PROGRESS = logging.getLogger("handover.progress")
 """The one progress path of every command: plain lines on stderr (the daemon's log keeps its own format)."""
 
 
-class _Stderr(logging.StreamHandler):
+class _Stderr(logging.Handler):
     """stderr as it is when a line is written: a caller (a test, a notebook) may have swapped it since."""
 
-    @property
-    def stream(self):
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, _value) -> None:
-        pass
+    def emit(self, record: logging.LogRecord) -> None:
+        print(self.format(record), file=sys.stderr, flush=True)
 
 
 PROGRESS.addHandler(_Stderr())
