@@ -8,9 +8,9 @@ import argparse
 import json
 import os
 import shlex
-import sys
 from pathlib import Path
 
+from firmware_io.commands.options import add_quiet, progress_to
 from firmware_io.errors import HandoverError
 from trainer.shared_data import default_data_dir
 
@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "../shared/data)")
     parser.add_argument("--no-real", action="store_true", help="simulated protocol only")
     parser.add_argument("--no-minirocket", action="store_true", help="leave out aeon's MiniRocket")
-    parser.add_argument("--quiet", action="store_true")
+    add_quiet(parser)
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -67,10 +67,7 @@ def main(args: argparse.Namespace) -> int:
     from benchmarks import compare
     from trainer.measure import write_results
 
-    def say(text: str) -> None:
-        if not args.quiet:
-            print(text, file=sys.stderr, flush=True)
-
+    say = progress_to(args.quiet)
     data_dir = None if args.no_real else Path(args.data) if args.data else default_data_dir()
     if args.data and not Path(args.data).is_dir():
         raise HandoverError(f"--data {args.data}: no such folder")

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
+from firmware_io.commands.options import add_quiet, progress_to
 from firmware_io.errors import HandoverError
 from trainer.defaults import PAPER_MODEL
 
@@ -56,12 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--T", type=int, default=15)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    parser.add_argument("--quiet", action="store_true")
+    add_quiet(parser)
 
 
 def _say(args, text: str) -> None:
-    if not args.quiet:
-        print(text, file=sys.stderr, flush=True)
+    progress_to(args.quiet)(text)
 
 
 def settings(args) -> dict:
