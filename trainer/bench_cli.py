@@ -14,7 +14,7 @@ import importlib
 import json
 from collections.abc import Sequence
 
-from firmware_io.commands.options import positive_float, positive_int
+from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, positive_float, positive_int
 from firmware_io.errors import HandoverError
 from trainer.measure import PRODUCT_BENCHES
 
@@ -33,18 +33,17 @@ def add_arguments(parser: argparse.ArgumentParser, choices: Sequence[str] = BENC
     """The options every benchmark runner shares (``./dev bench`` adds its own on top)."""
     parser.add_argument("which", metavar="BENCHMARK", choices=choices, help="which benchmark to run: "
                         + ", ".join(choices))
-    parser.add_argument("--out", default=None, help="folder for <name>.json/.md/.png (default results; with "
-                        "--quick handover-bench-quick-USER in the system's temp folder, so a smoke test never "
-                        "overwrites the committed results)")
+    add_out(parser, "folder for <name>.json/.md/.png (default results; with --quick handover-bench-quick-USER in "
+            "the system's temp folder, so a smoke test never overwrites the committed results)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes and short runs (smoke test, not a measurement)")
-    parser.add_argument("--json", action="store_true", help="print the headline figures as JSON on stdout")
+    add_json(parser, "the headline figures")
     parser.add_argument("--load", action="store_true", help="latency: also measure with two busy-loop processes")
     parser.add_argument("--duration", type=positive_float, default=None,
                         help="latency: seconds of the 32 Hz end-to-end run (default 120, --quick 3)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated protocol (default 0)")
-    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    add_seed(parser, help="seed of the simulated protocol")
+    add_quiet(parser)
     parser.add_argument("--repeats", type=positive_int, default=None,
-                        help="decode: timed runs (default 7); inference: graph calls (default 5000)")
+                        help="inference: graph calls (default 5000); decode (./dev bench): timed runs (default 7)")
     parser.add_argument("--model", help="inference: an exported .onnx with its .joblib beside it (default: train one)")
 
 
