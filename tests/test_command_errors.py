@@ -99,3 +99,17 @@ def test_out_folder_refuses_a_file_in_one_line(tmp_path):
     with pytest.raises(HandoverError, match=re.escape(f"{tmp_path / 'file'} is a file, not a folder")):  # a folder inside it
         out_folder(tmp_path / "file" / "below")
     assert out_folder(tmp_path / "new" / "deep") == tmp_path / "new" / "deep"
+
+
+@pytest.mark.parametrize("argv", [["record", "--device", "sim://", "--subject", "s1"], ["train"], ["sweep"],
+                                  ["plot", "x.hrec"]])
+@pytest.mark.parametrize("level", ["0", "1.5", "nan", "abc"])
+def test_a_trigger_level_outside_0_1_is_refused_as_it_is_read(argv, level, capsys):
+    """record checked --fraction by hand after parsing; train, sweep and plot went on with it."""
+    from runtime.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main([*argv, "--fraction", level])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1
+    assert f"argument --fraction: must be a fraction of full scale in (0, 1), e.g. 0.15, got '{level}'" in err

@@ -15,9 +15,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from firmware_io.errors import HandoverError
+from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 __all__ = ["PROGRESS", "add_json", "add_out", "add_quiet", "add_seed", "int_in", "out_folder", "positive_float",
-           "positive_int", "progress_to"]
+           "positive_int", "progress_to", "trigger_level"]
 
 PROGRESS = logging.getLogger("handover.progress")
 """The one progress path of every command: plain lines on stderr (the daemon's log keeps its own format)."""
@@ -90,6 +91,17 @@ def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
 
 positive_int = int_in(1)
 """An integer of at least 1 (a count)."""
+
+
+def trigger_level(text: str) -> float:
+    """A threshold trigger's level (``--fraction``): a fraction of full scale strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not is_trigger_level(value):
+        raise argparse.ArgumentTypeError(f"must be a fraction of full scale in (0, 1), e.g. {PAPER_FRACTION}, got {text!r}")
+    return value
 
 
 def out_folder(folder: str | Path, option: str = "--out") -> Path:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from firmware_io.commands.options import trigger_level
 from firmware_io.errors import HandoverError
 from runtime.trigger_settings import PAPER_FRACTION
 
@@ -29,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "default: the daemon's default trigger on all pads")
     parser.add_argument("--trigger", choices=("onset", "threshold"), default=None,
                         help="another trigger kind than the model's (as [trigger] kind in the daemon's config)")
-    parser.add_argument("--fraction", type=float, default=None,
+    parser.add_argument("--fraction", type=trigger_level, default=None,
                         help=f"threshold trigger's level, fraction of full scale (default: the model's, else {PAPER_FRACTION})")
 
 

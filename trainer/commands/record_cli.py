@@ -13,13 +13,13 @@ import shutil
 import subprocess
 import sys
 
-from firmware_io.commands.options import out_folder
+from firmware_io.commands.options import out_folder, trigger_level
 from firmware_io.errors import DeviceFailure, HandoverError, Interrupted
 from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
 from firmware_io.recordings.recording import ACTIONS
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
-from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
+from firmware_io.trigger_level import PAPER_FRACTION
 
 __all__ = ["add_arguments", "main"]
 
@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"recorded before the go cue: the held grasp the triggers need (default {LEAD_IN_SECONDS:g} s)")
     parser.add_argument("--gap", type=float, default=2.0, help="--auto: pause before each trial (seconds)")
     parser.add_argument("--countdown", type=int, default=3, help="seconds counted down before go")
-    parser.add_argument("--fraction", type=float, default=None,
+    parser.add_argument("--fraction", type=trigger_level, default=None,
                         help="check each trial against the paper's threshold trigger at this level (paper: "
                              f"{PAPER_FRACTION}), as `handover train --fraction` cuts; default: the trigger "
                              "`handover train` cuts with by default")
@@ -111,8 +111,6 @@ def main(args: argparse.Namespace) -> int:
     from firmware_io.recordings.record_session import subject_problem
     from firmware_io.transports.base import TransportError
 
-    if args.fraction is not None and not is_trigger_level(args.fraction):
-        raise HandoverError(f"--fraction must be in (0, 1), got {args.fraction}")
     plan, opts = _plan_and_options(args)  # a SessionError for a bad pose, object or action list
     if problem := subject_problem(args.subject):  # before the device opens
         raise HandoverError(problem)

@@ -10,7 +10,7 @@ import argparse
 import json
 import time
 
-from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, out_folder, positive_int
+from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, out_folder, positive_int, trigger_level
 from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="config1: pooled 80/20 over --repeats seeds; loso: leave one subject out")
     parser.add_argument("--repeats", type=positive_int, default=3, help="seeds per point in config1 mode")
     parser.add_argument("--per-pad", action="store_true")
-    parser.add_argument("--fraction", type=float, default=PAPER_FRACTION,
+    parser.add_argument("--fraction", type=trigger_level, default=PAPER_FRACTION,
                         help=f"threshold trigger level, fraction of full scale (default: the paper's {PAPER_FRACTION})")
     add_seed(parser)
     add_json(parser, "the sweep rows")

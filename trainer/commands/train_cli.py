@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed
+from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, trigger_level
 from firmware_io.errors import HandoverError
 from runtime.trigger_settings import PAPER_FRACTION
 from trainer.train_options import (
@@ -72,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trigger", choices=TRIGGERS, default=None,
                         help="what cuts the training windows (default: the daemon's default, the onset trigger; "
                         "threshold = the paper's fixed level, see --fraction); recorded in the model")
-    parser.add_argument("--fraction", type=float, default=None,
+    parser.add_argument("--fraction", type=trigger_level, default=None,
                         help=f"threshold trigger level as a fraction of full scale (the paper: {PAPER_FRACTION}; implies "
                         "--trigger threshold)")
     add_seed(parser, D.seed, "seed of the simulation, k-means and the splits")
