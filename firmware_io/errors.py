@@ -8,7 +8,7 @@ firmware_io, the lowest package, so every package can derive from it.
 
 from __future__ import annotations
 
-__all__ = ["DEVICE_ERROR", "INTERRUPTED", "USER_ERROR", "DeviceFailure", "HandoverError", "Interrupted"]
+__all__ = ["DEVICE_ERROR", "INTERRUPTED", "DeviceFailure", "HandoverError", "Interrupted"]
 
 USER_ERROR = 2
 """Bad option, bad file, bad URL: what the user can fix."""

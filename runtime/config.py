@@ -27,9 +27,11 @@ from runtime.config_keys import RANGES, SECTIONS, Key, key, section_keys
 from runtime.config_read import ConfigError, no_control_chars, no_unknown, read_key, read_str, read_str_list
 from runtime.instance_name import instance_problem
 
-__all__ = ["FOLLOW_MODEL", "KNOWN_EVENTS", "NO_SINK_LEFT", "RANGES", "Config", "ConfigError",
-           "ContinuousConfig", "ControlConfig", "DeviceConfig", "ModelConfig", "OnnxConfig", "Ros2Config",
-           "SceneConfig", "SinksConfig", "TriggerConfig", "config_from_dict", "load_config", "parse_host_port"]
+__all__ = [
+    "FOLLOW_MODEL", "NO_SINK_LEFT", "RANGES", "Config", "ConfigError", "ContinuousConfig", "ControlConfig",
+    "DeviceConfig", "ModelConfig", "Ros2Config", "SceneConfig", "SinksConfig", "TriggerConfig", "config_from_dict",
+    "load_config", "parse_host_port"
+]
 
 MODES = key("scene.mode").choices
 KNOWN_EVENTS = ("pull", "push", "hold", "bump", "dormant")

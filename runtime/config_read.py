@@ -9,8 +9,7 @@ from typing import Any
 from firmware_io.errors import HandoverError
 from runtime.config_keys import RANGES, Key
 
-__all__ = ["ConfigError", "in_range", "no_control_chars", "no_unknown", "read_bool", "read_int", "read_key", "read_num",
-           "read_str", "read_str_list"]
+__all__ = ["ConfigError", "no_control_chars", "no_unknown", "read_key", "read_str", "read_str_list"]
 
 
 class ConfigError(HandoverError, ValueError):

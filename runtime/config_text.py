@@ -14,7 +14,7 @@ from typing import Any
 
 from runtime.config_keys import SECTIONS, Key, section_keys
 
-__all__ = ["DEPLOY_FILE", "DOCS_FILE", "deploy_toml", "docs_markdown", "main"]
+__all__ = ["DEPLOY_FILE", "DOCS_FILE", "deploy_toml", "docs_markdown"]
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY_FILE = ROOT / "deploy" / "handover.toml"

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from runtime.health import one_line
 
-__all__ = ["PROBE_CONNECT_S", "PROBE_S", "DeviceProbe", "probe_device"]
+__all__ = ["PROBE_CONNECT_S", "PROBE_S", "probe_device"]
 
 PROBE_S = 3.0
 """How long the device is read: about 100 frames at 32 Hz, enough for a rate to mean something."""

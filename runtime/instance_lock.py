@@ -28,7 +28,7 @@ from pathlib import Path
 
 from firmware_io.errors import HandoverError
 
-__all__ = ["Held", "InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets"]
+__all__ = ["InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets"]
 
 
 class InstanceLockError(HandoverError, RuntimeError):

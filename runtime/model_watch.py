@@ -39,7 +39,7 @@ from runtime.model import ModelContractError, ModelUnreadableError
 from runtime.output_check import DEFAULT_BUDGET_FRACTION
 from runtime.quarantine import QuarantineStore, file_key
 
-__all__ = ["FileState", "ModelWatcher", "Rejection", "folder_problem", "is_candidate_name", "log"]
+__all__ = ["ModelWatcher", "Rejection", "folder_problem", "is_candidate_name", "log"]
 
 log = logging.getLogger("handover.models")
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from firmware_io.errors import HandoverError
 
-__all__ = ["WireError", "WireSummary", "summarize"]
+__all__ = ["WireError", "summarize"]
 
 
 class WireError(HandoverError, ValueError):

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_CONTACT_TAXELS", "MIN_GRASP_FINGERS", "RELEASE_RISE", "OnsetTrigger"]
+__all__ = ["MIN_GRASP_FINGERS", "OnsetTrigger"]
 
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
 TREND_GAIN = 0.25

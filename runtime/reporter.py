@@ -16,7 +16,7 @@ from runtime.health import Latency
 from runtime.listeners import FrameListener
 from runtime.sinks import Event, SinkSet
 
-__all__ = ["Reporter", "event_of"]
+__all__ = ["Reporter"]
 
 
 def event_of(decision: Decision) -> Event:

@@ -27,8 +27,8 @@ from runtime.config import parse_host_port
 from runtime.name_resolver import ResolvedTarget
 
 __all__ = [
-    "PROTOCOL_VERSION", "ClosedStdout", "DaemonSide", "Event", "ModelAnnouncement", "Sink", "SinkFull", "SinkSet", "StdoutSink",
-    "UdpSink", "UnixDatagramSink", "claim_stdout_for_events", "log"
+    "PROTOCOL_VERSION", "DaemonSide", "Event", "ModelAnnouncement", "Sink", "SinkSet", "StdoutSink", "UdpSink",
+    "UnixDatagramSink", "claim_stdout_for_events", "log"
 ]
 
 if TYPE_CHECKING:

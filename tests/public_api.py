@@ -7,6 +7,7 @@ tests/test_public_api.py fails when the list and the modules differ.
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from pathlib import Path
 
@@ -37,11 +38,31 @@ def declared_all(path: Path) -> list[str] | None:
     return None
 
 
+def _code_texts() -> dict[Path, str]:
+    return {p: p.read_text() for p in ROOT.rglob("*.py") if not {".venv", ".git"} & set(p.relative_to(ROOT).parts)}
+
+
+def unused_names() -> dict[str, list[str]]:
+    """Per module, the names of its ``__all__`` that no other file naming the module mentions
+    (``a.b.c``, ``from a.b import c``, ``from .c import``): the list says what other modules use."""
+    texts = _code_texts()
+    found = {}
+    for path in stated_modules():
+        module = module_name(path)
+        parent, _, leaf = module.rpartition(".")
+        naming = re.compile(rf"{re.escape(module)}\b|from {re.escape(parent)} import [^\n]*\b{leaf}\b|from \.{leaf} import")
+        users = [t for p, t in texts.items() if p != path and naming.search(t)]
+        unused = [n for n in declared_all(path) or [] if not any(re.search(rf"\b{re.escape(n)}\b", t) for t in users)]
+        if unused:
+            found[module] = unused
+    return found
+
+
 def listing() -> str:
     """The section of docs/INTERFACES.md: one line a module that exports names."""
     lines = [BEGIN, "## Public names of every module", "",
-             "Each module's `__all__`, what other code may import from it (the rest are its own details;",
-             "a package whose list is empty exports its modules only). The benchmarks' parts (trainer/bench/)",
+             "Each module's `__all__`: the names other modules use (the rest are its own details; a package",
+             "whose list is empty exports its modules only; tests/test_public_api.py keeps the lists so). The benchmarks' parts (trainer/bench/)",
              "are reached through `handover bench` and state none.", ""]
     for path in stated_modules():
         names = declared_all(path)

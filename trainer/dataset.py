@@ -44,8 +44,8 @@ from runtime.trigger_settings import (
 )
 
 __all__ = [
-    "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "CaseCheck", "Dataset", "DatasetError", "SkippedTrial", "build_dataset",
-    "case_check", "dataset_trigger", "fingerprint", "frames_before_trigger", "onset_start", "reason_counts", "rising_trigger",
+    "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "Dataset", "DatasetError", "build_dataset", "case_check",
+    "dataset_trigger", "fingerprint", "frames_before_trigger", "onset_start", "reason_counts", "rising_trigger",
     "untriggered_lines"
 ]
 

@@ -39,9 +39,9 @@ from runtime.early import NEVER, EarlySpec
 from trainer.dormant import DORMANT
 
 __all__ = [
-    "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "RuleChoice", "answers", "cascade", "case_kinds",
-    "choose_rule", "confidences", "earliness_score", "evaluate", "fit_early", "fit_stream_heads", "head_factory",
-    "part_problem", "platt", "rule_in_words"
+    "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "answers", "cascade", "choose_rule", "confidences",
+    "earliness_score", "evaluate", "fit_early", "fit_stream_heads", "head_factory", "part_problem", "platt",
+    "rule_in_words"
 ]
 
 EARLY_POINTS = (4, 6, 8, 11)

@@ -19,7 +19,7 @@ from typing import Any
 from firmware_io.commands.options import PROGRESS, progress_to
 from trainer.train_options import TrainOptions, build_estimator
 
-__all__ = ["TrainResult", "evaluate", "load_or_simulate", "progress_bar", "train"]
+__all__ = ["evaluate", "load_or_simulate", "progress_bar", "train"]
 
 
 @dataclass

@@ -25,7 +25,7 @@ from firmware_io.recordings.idle_stretches import has_idle, stretches_of
 from firmware_io.recordings.recording import Recording
 from trainer.dormant import DORMANT
 
-__all__ = ["IdleWindows", "add_idle", "idle_only_problem", "idle_pieces", "subject_of", "too_few_line"]
+__all__ = ["add_idle", "idle_only_problem", "idle_pieces", "subject_of", "too_few_line"]
 
 STREAMS_RESULTS = Path(__file__).resolve().parents[1] / "results" / "streams.json"
 """Where ``./dev bench streams`` writes the measured stream figures (a source checkout)."""

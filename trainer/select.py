@@ -24,8 +24,8 @@ import numpy as np
 from trainer.train_options import TrainOptions, build_estimator
 
 __all__ = [
-    "CANDIDATES", "LATENCY_BUDGET_US", "ROCKET_SETTINGS", "Row", "Selection", "graph_latency", "markdown_lines",
-    "rank", "select_model"
+    "CANDIDATES", "LATENCY_BUDGET_US", "ROCKET_SETTINGS", "Row", "graph_latency", "markdown_lines", "rank",
+    "select_model"
 ]
 
 LATENCY_BUDGET_US = 1000.0

@@ -27,8 +27,7 @@ from firmware_io.errors import HandoverError
 from trainer.numerics import SAFETY, reference
 
 __all__ = [
-    "BATCH", "Disagreement", "GraphRunner", "VerifyError", "VerifyReport", "WindowCheck",
-    "check_nonfinite_refused", "compare", "load_reference"
+    "BATCH", "GraphRunner", "VerifyError", "VerifyReport", "check_nonfinite_refused", "compare", "load_reference"
 ]
 
 BATCH = 64

@@ -16,7 +16,7 @@ import numpy as np
 
 from trainer.verify import BATCH, VerifyError
 
-__all__ = ["WindowStream", "recording_stream", "simulated_stream", "stress_windows", "trained_data_folder"]
+__all__ = ["recording_stream", "simulated_stream", "stress_windows", "trained_data_folder"]
 
 
 @dataclass

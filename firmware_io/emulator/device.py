@@ -60,7 +60,7 @@ from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, PacketId, encode_ack
 from firmware_io.wire.parser import StreamParser
 from firmware_io.wire.requests import AcquisitionConfig, SetSensitivityRequest, SetThresholdRequest
 
-__all__ = ["DeviceEmulator", "EmulatorStats", "FaultPlan", "FaultSpecError", "HostCommandParser"]
+__all__ = ["DeviceEmulator", "FaultPlan", "FaultSpecError"]
 
 MAX_COMMAND_PAYLOAD = 64
 BOOT_S = 8.0

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from firmware_io.wire import replies
 
-__all__ = ["NEW_FIRMWARE", "OLD_FIRMWARE", "recorded_controller", "recorded_sensor"]
+__all__ = ["recorded_controller", "recorded_sensor"]
 
 NEW_FIRMWARE = 0x2900  # 2.9.0.0: single frames work
 OLD_FIRMWARE = 288  # R288: a single-frame request starts push mode

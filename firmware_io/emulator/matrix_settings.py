@@ -19,7 +19,7 @@ from firmware_io.wire.frames import MAX_TEXEL_VALUE
 from firmware_io.wire.packets import PacketId, encode_ack
 from firmware_io.wire.requests import SetSensitivityRequest, SetThresholdRequest
 
-__all__ = ["FACTORY_SENSITIVITY", "MatrixSettings"]
+__all__ = ["MatrixSettings"]
 
 FACTORY_SENSITIVITY = 0.5
 """The sensitivity a controller leaves the factory with, and the one recordings are taken at."""

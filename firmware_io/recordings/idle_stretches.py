@@ -125,5 +125,7 @@ def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
             "source_codes": stretch_codes(n_frames, stretches).tolist()}
 
 
-__all__ = ["CYCLE", "DEFAULT_IDLE_MINUTES", "MAX_IDLE_MINUTES", "PROMPTS", "SOURCES", "IdleSlot", "codes_problem", "has_idle",
-           "idle_meta", "idle_plan", "stretch_codes", "stretches_of"]
+__all__ = [
+    "CYCLE", "DEFAULT_IDLE_MINUTES", "SOURCES", "IdleSlot", "codes_problem", "has_idle", "idle_meta", "idle_plan",
+    "stretches_of"
+]

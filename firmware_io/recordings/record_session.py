@@ -19,7 +19,7 @@ import numpy as np
 
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks
-from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial
+from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError
 from firmware_io.recordings.session_store import (
     NAME_PATTERN,
     NotSaved,
@@ -28,7 +28,7 @@ from firmware_io.recordings.session_store import (
     recording_path,
     subject_problem,
 )
-from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS, Capture, DeviceLost, capture_trial, drain
+from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS, DeviceLost, capture_trial, drain
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 POSES = ("down", "up", "horizontal")
@@ -338,8 +338,7 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "MAX_RUNS", "MAX_SPAN_SECONDS", "MIN_TRIAL_SECONDS", "Capture", "DeviceLost", "NotSaved",
-    "ProtocolPlan", "RecordingError", "SessionError", "SessionIO",
-    "SessionOptions", "SessionResult", "SessionStore", "Trial", "TrialSlot", "TriggerCheck", "capture_trial",
-    "check_trigger", "drain", "flagged_trials", "recording_path", "run_session", "subject_problem",
+    "DeviceLost", "NotSaved", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO", "SessionOptions",
+    "SessionResult", "SessionStore", "TrialSlot", "capture_trial", "check_trigger", "drain", "flagged_trials",
+    "recording_path", "run_session", "subject_problem"
 ]

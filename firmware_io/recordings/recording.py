@@ -33,8 +33,10 @@ from firmware_io.layout import SensorLayout
 from firmware_io.recordings import arm_marks, idle_stretches
 from firmware_io.recordings.bounded_zip import LimitError, first_line, quote, read_json, read_npy
 
-__all__ = ["ACTIONS", "MAX_NAME_CHARS", "MAX_RUN", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
-           "remove_stale_temps"]
+__all__ = [
+    "ACTIONS", "MAX_NAME_CHARS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
+    "remove_stale_temps"
+]
 
 FORMAT_NAME = "handover-recording"
 FORMAT_VERSION = 1

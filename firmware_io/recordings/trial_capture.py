@@ -19,7 +19,7 @@ import numpy as np
 
 from firmware_io.errors import DeviceFailure
 
-__all__ = ["LEAD_IN_SECONDS", "Capture", "DeviceLost", "capture_trial", "drain"]
+__all__ = ["LEAD_IN_SECONDS", "DeviceLost", "capture_trial", "drain"]
 
 LEAD_IN_SECONDS = 1.0
 """Stream kept before the go cue: the held grasp. The onset trigger arms after 0.2 s without

@@ -15,7 +15,7 @@ import numpy as np
 
 from firmware_io.sim.scenario import FINGER_ANGLES, TrialSetup, pose_load
 
-__all__ = ["Motion", "baseline", "bump", "hold", "pull", "push", "smooth", "trial_motion"]
+__all__ = ["Motion", "baseline", "bump", "hold", "smooth", "trial_motion"]
 
 PROXIMAL_ENTRY_MM = 5.0
 """Where on a proximal pad (from its distal end) an object pushed into the hand first lands."""

@@ -13,7 +13,7 @@ import numpy as np
 
 from firmware_io.sim import constants as K
 
-__all__ = ["blur_width", "erf", "pad_pressure"]
+__all__ = ["blur_width", "pad_pressure"]
 
 
 def erf(x: np.ndarray) -> np.ndarray:

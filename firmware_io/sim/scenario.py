@@ -13,8 +13,8 @@ import numpy as np
 from firmware_io.sim import constants as K
 
 __all__ = [
-    "FINGER_ANGLES", "OBJECTS", "OBJECT_MODELS", "POSES", "POSE_MODELS", "ObjectModel", "PoseModel", "Subject",
-    "TrialSetup", "grasp_force", "half_widths", "make_subject", "make_trial", "pose_load"
+    "FINGER_ANGLES", "OBJECTS", "OBJECT_MODELS", "POSES", "POSE_MODELS", "TrialSetup", "grasp_force", "half_widths",
+    "make_subject", "make_trial", "pose_load"
 ]
 
 OBJECTS = ("ball", "cylinder", "plank")

@@ -18,9 +18,9 @@ from urllib.parse import parse_qs, urlsplit
 from firmware_io.errors import DEVICE_ERROR, HandoverError
 
 __all__ = [
-    "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_BAUD", "MAX_EVENTS", "MAX_URL_CHARS", "DeviceUnavailable", "EndOfStream",
-    "MissingDependency", "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_bridge", "parse_number",
-    "parse_speed", "parse_vid_pid"
+    "DEFAULT_BAUD", "DEFAULT_READ_SIZE", "MAX_EVENTS", "DeviceUnavailable", "EndOfStream", "MissingDependency",
+    "ParsedURL", "Transport", "TransportError", "parse_baud", "parse_bool", "parse_bridge", "parse_number",
+    "parse_speed"
 ]
 
 DEFAULT_READ_SIZE = 4096

@@ -32,7 +32,7 @@ from firmware_io.transports.base import (
     parse_bridge,
 )
 
-__all__ = ["BAUD_RANGE", "EXTRA_HINT", "HidTransport", "data_reports", "uart_config_report"]
+__all__ = ["HidTransport", "data_reports", "uart_config_report"]
 
 MAX_DATA_REPORT = 63
 BAUD_RANGE = (300, 1_000_000)

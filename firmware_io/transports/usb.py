@@ -37,7 +37,7 @@ from firmware_io.transports.base import (
     parse_number,
 )
 
-__all__ = ["EXTRA_HINT", "FTDI_LATENCY_MS", "UsbTransport", "ftdi_baud_divisor", "strip_ftdi_status"]
+__all__ = ["FTDI_LATENCY_MS", "UsbTransport", "ftdi_baud_divisor", "strip_ftdi_status"]
 
 CHIPS = ("auto", "cdc", "ftdi", "cp210x", "raw")
 VENDOR_CHIPS = {0x0403: "ftdi", 0x10C4: "cp210x"}

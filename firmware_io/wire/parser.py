@@ -22,7 +22,7 @@ from firmware_io.wire.crc import crc16
 from firmware_io.wire.frames import FRAME_HEADER_SIZE, max_frame_payload
 from firmware_io.wire.packets import BOOT_TERMINAL_QUERY, CRC_SIZE, HEADER_SIZE, PREAMBLE, Packet, PacketId
 
-__all__ = ["DEFAULT_MAX_CELLS", "Packet", "ParserStats", "StreamParser"]
+__all__ = ["Packet", "StreamParser"]
 
 DEFAULT_MAX_CELLS = 1024
 """Cells assumed before the layout is known (the SDH-2 has 486)."""

@@ -9,10 +9,9 @@ from firmware_io.wire.frames import MAX_TEXEL_VALUE, RLE_FLAG
 from firmware_io.wire.packets import PacketId, encode_packet, expect_size
 
 __all__ = [
-    "FLAG_PERSISTENT", "AcquisitionConfig", "SetSensitivityRequest", "SetThresholdRequest",
-    "get_sensitivity_request", "get_threshold_request", "push_request",
-    "query_controller_info_request", "query_matrix_info_request", "query_sensor_info_request",
-    "read_matrix_mask_request", "single_frame_request", "stop_request"
+    "AcquisitionConfig", "SetSensitivityRequest", "SetThresholdRequest", "get_sensitivity_request",
+    "get_threshold_request", "push_request", "query_controller_info_request", "query_matrix_info_request",
+    "query_sensor_info_request", "read_matrix_mask_request", "single_frame_request", "stop_request"
 ]
 
 ACQ_ENABLE = 0x80

@@ -26,9 +26,7 @@ import numpy as np
 from trainer.features.pad_batch import PadBatch, magnitude_nodes
 from trainer.features.signals import CONTACT_FRACTION
 
-__all__ = [
-    "STATS_SERIES", "PadSeries", "SeriesColumns", "SeriesNeed", "dft_matrices", "pad_series_nodes", "time_rows"
-]
+__all__ = ["STATS_SERIES", "SeriesColumns", "SeriesNeed", "dft_matrices", "pad_series_nodes"]
 
 HAND_SERIES = ("signal", "cop_x", "cop_y")
 STATS_SERIES = ("pressure", "area", "cx", "cy")

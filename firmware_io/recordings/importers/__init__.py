@@ -15,7 +15,7 @@ from firmware_io.recordings.importers.dsa import read_dsa
 from firmware_io.recordings.recording import SUFFIX as HREC_SUFFIX
 from firmware_io.recordings.recording import Recording, RecordingError
 
-__all__ = ["KNOWN_FORMATS", "find_sources", "import_any", "read_dsa", "read_rosbag"]
+__all__ = ["find_sources", "import_any", "read_dsa", "read_rosbag"]
 
 KNOWN_FORMATS = ".dsa (DSA-Konqueror), .bag (ROS 1), ROS 2 bag folder (metadata.yaml), .hrec"
 
