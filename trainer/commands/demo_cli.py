@@ -289,7 +289,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
     from trainer.streams_eval import session_outcomes
 
     h = daemon.health
-    lat = h._lat[: min(h._lat_n, h._lat.size)]
+    latency = daemon.reporter.latency.counters()  # the reporter owns the latencies (p50, p99, max)
     o = session_outcomes(decisions, trials)
     return {
         "synthetic": True,
@@ -297,9 +297,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
         "trigger": daemon.detector.trigger_settings.name if daemon.detector.trigger_settings else None,
         **outcome_summary(o),
         "decisions": int(h.decisions),
-        "latency_p50_us": float(np.percentile(lat, 50)) if lat.size else None,
-        "latency_p99_us": float(np.percentile(lat, 99)) if lat.size else None,
-        "latency_max_us": float(lat.max()) if lat.size else None,
+        **latency, "latency_max_us": latency["latency_max_us"] if h.decisions else None,
         "deadline_us": DEADLINE_US,
         "replayed_at": args.speed,
         "missed_deadlines": int(h.missed_deadlines),
