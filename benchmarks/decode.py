@@ -17,14 +17,12 @@ import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from trainer.measure import command_line, load_average, machine_info, write_results
 from trainer.shared_data import default_data_dir
 
-ROOT = Path(__file__).resolve().parents[2]
 DATA = default_data_dir() / "sdh2-dsa"
 FRAMES, REPEATS = 4000, 7
 QUICK_FRAMES, QUICK_REPEATS = 400, 2

@@ -35,7 +35,6 @@ from trainer.measure import load_average, run_facts, write_results
 from trainer.shared_data import default_data_dir
 
 NAME = "hostile"
-ROOT = Path(__file__).resolve().parents[2]
 
 
 # -- models -------------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cli(argv: list[str], timeout: float = 300) -> subprocess.CompletedProcess:

@@ -33,7 +33,7 @@ from benchmarks.hostile_locals import (
 from benchmarks.hostile_models import write_model
 from firmware_io.frame_timing import NOMINAL_PERIOD_S, nominal_stamp_ms
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 HANG_GUARD_S = 30.0
 """How long a case waits for a part that should never block before calling it blocked."""
 SMALL_PIPE = 4096

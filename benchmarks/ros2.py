@@ -29,7 +29,7 @@ import numpy as np
 from firmware_io.frame_timing import NOMINAL_RATE_HZ
 from trainer.measure import command_line, load_average, machine_info, train_default_model, write_results
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 PADS = ("finger_0_proximal", "finger_0_distal", "thumb_proximal", "thumb_distal", "finger_2_proximal", "finger_2_distal")
 SECONDS, QUICK_SECONDS, SPEED = 60.0, 5.0, 16.0
 PAD_RATE_HZ = NOMINAL_RATE_HZ

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import itertools
 import re
@@ -341,7 +342,11 @@ def test_the_emulators_default_session_is_not_one_the_demo_trains_on():
     emulated = defaults("emulate", "--pty").seed
     trained = defaults("demo").seed  # the protocol, the idle stream and the stream model's session (fit_stream_model)
     assert trained == DEMO_TRAIN_SEED and emulated == DEMO_SESSION_SEED
-    assert emulated not in {trained, defaults("train").seed, defaults("dormant").seed}
+    from benchmarks import dormant_cli
+
+    dormant = argparse.ArgumentParser()
+    dormant_cli.add_arguments(dormant)
+    assert emulated not in {trained, defaults("train").seed, dormant.parse_args([]).seed}
     assert make_subject("s1", stream(emulated, "subject", "s1")) != make_subject("s1", stream(trained, "subject", "s1"))
     session_seed, _script, _ = scripted_session(trained, events=4)
     assert session_seed == emulated  # the recipe plays the demo's own session

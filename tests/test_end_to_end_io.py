@@ -219,9 +219,9 @@ def test_dump_cli_prints_layout_frames_and_summary(capsys):
 
 
 def test_dump_cli_errors_are_one_line(capsys):
-    from firmware_io.commands import dump_cli
+    from runtime import cli
 
-    assert dump_cli.main(_args(dump_cli, ["bogus://x"])) == 2  # a URL that can never open: the user's to fix
+    assert cli.main(["dump", "bogus://x"]) == 2  # a URL that can never open: the user's to fix
     err = capsys.readouterr().err.strip()
     assert err.startswith("handover dump: bogus://x: unknown scheme 'bogus://'") and "\n" not in err
 

@@ -6,7 +6,6 @@ device; and a daemon whose link keeps dropping soon after connecting logs it as 
 
 from __future__ import annotations
 
-import argparse
 import logging
 
 import pytest
@@ -31,7 +30,7 @@ def _client(url: str) -> DSAClient:
 
 
 def test_the_connected_host_keeps_the_device_and_a_second_is_refused_at_once(caplog, capsys):
-    from firmware_io.commands import dump_cli
+    from runtime import cli
 
     caplog.set_level(logging.WARNING, logger="handover.emulator")
     with TcpEmulatorServer(DeviceEmulator(placeholder_session(seed=4, events=2), speed=20.0)) as server:
@@ -43,9 +42,7 @@ def test_the_connected_host_keeps_the_device_and_a_second_is_refused_at_once(cap
         with pytest.raises(DeviceUnavailable, match=ANOTHER_CLIENT):
             second.open()
         second.close()
-        parser = argparse.ArgumentParser()
-        dump_cli.add_arguments(parser)
-        assert dump_cli.main(parser.parse_args([server.url, "--frames", "2"])) != 0
+        assert cli.main(["dump", server.url, "--frames", "2"]) == 1  # the device's fault, not the user's
         err = capsys.readouterr().err.strip()
         assert err.startswith("handover dump: ") and ANOTHER_CLIENT in err and "\n" not in err
         for _ in range(20):  # the first host was never kicked off

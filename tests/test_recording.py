@@ -17,6 +17,7 @@ import pytest
 import firmware_io.recordings.recording as recording_module
 from firmware_io.layout import SensorLayout
 from firmware_io.recordings.recording import ACTIONS, Recording, RecordingError, Trial, find_recordings
+from tests.memory import PEAK_MB
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -371,11 +372,11 @@ def test_a_compressed_recording_is_refused_before_it_inflates(tmp_path):
                 fh.write(bytes(min(1 << 20, n * layout.n_taxels * 2 - at)))
         zf.writestr("timestamps.npy", recording_module._npy_bytes(np.arange(n, dtype=np.float64)))
     assert path.stat().st_size < 8 << 20
-    code = ("import json, resource, sys, time\nfrom firmware_io.recordings.recording import Recording, RecordingError\n"
+    code = ("import json, sys, time\nfrom firmware_io.recordings.recording import Recording, RecordingError\n"
             "t = time.monotonic()\ntry:\n    Recording.load(sys.argv[1]); said = 'loaded'\n"
             "except RecordingError as exc:\n    said = str(exc)\n"
             "print(json.dumps({'said': said, 's': time.monotonic() - t,"
-            " 'mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))")
+            " 'mb': " + PEAK_MB + "}))")
     done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, cwd=ROOT,
                           env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60, check=True)
     got = json.loads(done.stdout)

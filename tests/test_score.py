@@ -18,6 +18,7 @@ import pytest
 
 from firmware_io.emulator.script_file import ScriptFileError, read_script, session_script, write_script
 from firmware_io.sim import demo_script, simulate_session
+from tests.memory import PEAK_MB
 from tests.ros2_helpers import TRIGGER
 from tests.tiny_models import tiny_model_bytes, write_model
 
@@ -232,10 +233,10 @@ def test_a_capture_that_ends_before_the_script_counts_the_rest_as_not_played(tmp
 
 def _measured_score(events: Path | str, script: Path | str) -> tuple[subprocess.CompletedProcess, dict]:
     """``handover score`` in a child that reports its own peak memory (MB) and seconds on its last stdout line."""
-    code = ("import json, resource, sys, time\nfrom runtime.cli import main\nt = time.monotonic()\n"
+    code = ("import json, sys, time\nfrom runtime.cli import main\nt = time.monotonic()\n"
             "rc = main(['score', sys.argv[1], sys.argv[2]])\n"
             "print(json.dumps({'rc': rc, 's': time.monotonic() - t,"
-            " 'mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))")
+            " 'mb': " + PEAK_MB + "}))")
     done = subprocess.run([sys.executable, "-c", code, str(events), str(script)], capture_output=True, text=True,
                           cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
     return done, json.loads(done.stdout.strip().splitlines()[-1]) if done.returncode == 0 else {}
