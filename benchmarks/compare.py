@@ -57,7 +57,7 @@ ONNX_KINDS = ("bow", "flat", "features", "default")
 DIAGNOSES = {"real_slip": "its former single split (first 60 % of each file's chunks train, the rest test), where the "
                           "default lost on one test chunk, and why, judged on the training part only: "
                           "results/slip_diagnosis.md"}
-"""Where a task's verdict is examined (``./dev bench slip_diagnosis``)."""
+"""Where a task's verdict is examined."""
 
 
 def model_specs(quick: bool, minirocket: bool = True) -> list[ModelSpec]:

@@ -95,35 +95,3 @@ def test_weights_fold_into_the_scaler_and_the_graph_agrees(weighting, cases, tmp
     assert report.ok and report.unexplained_disagreements == 0, report.to_dict()
     labels, _, _ = runner.run(frames_of(X))
     assert np.array_equal(model.classes_[labels], model.predict(X))
-
-
-def _check_result() -> dict:
-    rows = {"hand+stats rbf": {"real_inner": {"a": 0.70, "b": 0.60}, "real_score": 0.65, "p50_us": 300.0, "p99_us": 450.0},
-            "hand+stats rbf distinct": {"real_inner": {"a": 0.72, "b": 0.60}, "real_score": 0.66, "p50_us": 310.0,
-                                        "p99_us": 460.0, "sim_inner": 0.98},
-            "hand+stats rbf block_mfa": {"real_inner": {"a": 0.69, "b": 0.60}, "real_score": 0.645, "p50_us": 310.0,
-                                         "p99_us": 460.0}}
-    sizes = {"pads": 3, "hand": {"features": 42, "varying": 40}, "stats": {"features": 39, "varying": 36}, "duplicated": 18}
-    return {"tasks": ["a", "b"], "family_sizes": {"a": sizes, "b": sizes}, "rows": rows, "date": "2026-11-24",
-            "order": ["hand+stats rbf distinct", "hand+stats rbf", "hand+stats rbf block_mfa"],
-            "chosen": "hand+stats rbf distinct", "candidates": ["hand+stats rbf", "hand+stats rbf distinct"],
-            "noise_seeds": {1: {"hand+stats rbf": 0.64, "hand+stats rbf distinct": 0.64}}}
-
-
-def test_check_section_ranks_by_the_rule_and_survives_a_rewrite(tmp_path):
-    from benchmarks.studies.weighting_check import kept_section, markdown, upsert_section
-
-    lines = markdown(_check_result())
-    table = [line for line in lines if line.startswith("| hand+stats")]
-    assert table[0].startswith("| hand+stats rbf distinct | 1 | 66.0 | 72.0 | 60.0 | 460 | 98.0 |")
-    assert table[2].startswith("| hand+stats rbf block_mfa (not a candidate) | 3 |")
-    assert "| a | 3 | 42 (40) | 39 (36) | 18 |" in lines and any("**hand+stats rbf distinct** is first" in x for x in lines)
-    md = tmp_path / "slip_diagnosis.md"
-    md.write_text("# diagnosis\n\nbody\n")
-    upsert_section(md, lines)
-    upsert_section(md, lines)  # a rerun replaces its section, it does not add a second
-    assert md.read_text().count("## Feature weighting") == 1 and md.read_text().startswith("# diagnosis\n\nbody\n")
-    kept = kept_section(md)
-    md.write_text("# diagnosis, rerun\n")  # what slip_diagnosis does, then it puts the section back
-    upsert_section(md, kept)
-    assert kept_section(md) == kept == lines

@@ -26,7 +26,7 @@ from sklearn.utils.validation import assert_all_finite, check_is_fitted, column_
 from trainer.bow import BagOfWords, as_cases
 from trainer.defaults import PAPER_MODEL
 
-__all__ = ["C_GRID", "GAMMA_FACTORS", "BowSVC", "SVMHead", "check_training_data", "margin_report"]
+__all__ = ["C_GRID", "BowSVC", "SVMHead", "check_training_data", "margin_report"]
 
 C_GRID = (1e6, 1e4, 1000.0, 100.0, 10.0, 1.0)
 """Candidate C, largest first, up to 1e6 (a hard margin in practice when the training cases are

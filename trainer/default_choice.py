@@ -26,10 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = [
-    "LATENCY_BUDGET_US", "apply_rule", "candidate_estimator", "choose_default", "inner_real_score",
-    "inner_sim_score", "rank_with_ties", "score_order", "ties"
-]
+__all__ = ["LATENCY_BUDGET_US", "apply_rule", "choose_default", "rank_with_ties", "score_order", "ties"]
 
 SIM_GATE = 0.95
 LATENCY_BUDGET_US = 1000.0

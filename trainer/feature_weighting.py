@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["FEATURE_WEIGHTINGS", "check_feature_weighting", "distinct_weights", "feature_weights"]
+__all__ = ["FEATURE_WEIGHTINGS", "check_feature_weighting", "feature_weights"]
 
 FEATURE_WEIGHTINGS = (None, "block_count", "block_mfa", "distinct")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
-    "ALL_PADS", "CHUNK_FRAMES", "CONTACT_FRACTION", "FULLSCALE", "SLIP_SPLIT", "STRIDE", "RealTask", "T",
+    "CHUNK_FRAMES", "CONTACT_FRACTION", "FULLSCALE", "STRIDE", "RealTask", "T",
     "cut_windows", "first_part_split", "grouped_task", "real_tasks", "temporal_blocks"
 ]
 

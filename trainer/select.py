@@ -24,7 +24,7 @@ import numpy as np
 from trainer.train_options import TrainOptions, build_estimator
 
 __all__ = [
-    "CANDIDATES", "LATENCY_BUDGET_US", "ROCKET_SETTINGS", "Row", "graph_latency", "markdown_lines", "rank",
+    "CANDIDATES", "LATENCY_BUDGET_US", "ROCKET_SETTINGS", "Row", "markdown_lines", "rank",
     "select_model"
 ]
 
