@@ -1,15 +1,8 @@
 """The SDH-2 controller's nominal frame rate: the one place it is stated.
 
-The rate the tactile controller is set to stream at. Whatever must assume a rate before (or
-without) measuring one takes it from here: the daemon before a model says its rate, a model file
-whose maker did not say, a recording too short to measure, emulated devices and scripted subjects,
-benchmarks that pace frames, and a decision's deadline (one period).
-
-Two other quantities look alike and are not this one. The mean interval of the real recordings
-(``firmware_io.sim.constants.FRAME_PERIOD_S``) is a measurement, a little longer than the nominal
-period because the PC reads some frames late; the simulator writes its recordings at it so that
-their intervals look real. A recording's or a model's own rate (``Recording.sample_interval``,
-``sample_rate_hz`` in a model's metadata) is what that data says and wins over both.
+Whatever must assume a rate before (or without) measuring one takes it from here. Not to be confused
+with ``firmware_io.sim.constants.FRAME_PERIOD_S`` (the real recordings' measured mean interval, a
+little longer) or a recording's or model's own rate, which wins over both.
 """
 
 from __future__ import annotations

@@ -1,31 +1,15 @@
 """The robot's word on its arm: while the arm moves, and a settle time after it stops, nothing is reported.
 
-A moving arm loads the held object with inertia, vibration and a changing pose: the pads see
-what looks like a person pulling or pushing. The robot knows when it moves, so it may say so
-(``arm moving`` / ``arm still`` on the control socket, the ROS 2 ``<ns>/arm`` topic or joint
-velocities, ``set_arm_moving`` from code). The one rule, kept here:
+A moving arm loads the held object like a person pulling or pushing, and the robot knows when it moves
+(``arm moving``/``arm still`` on the control socket, ROS 2 ``<ns>/arm`` or joint velocities,
+``set_arm_moving``). The one rule: the arm counts as moving from the frame of ``arm moving`` until
+``settle_frames`` after ``arm still``; a window holding any of those frames is judged dormant (the model
+does not run; continuous mode's rule sees an idle hand). Dormant rather than a stricter score test: it
+needs no dormant class and costs nothing. The settle time (``arm_settle_s``) covers the object ringing
+after the stop (docs/DORMANT.md, results/streams.md). A lost ``arm still`` must not deafen the daemon:
+``arm moving`` holds at most ``max_move_frames`` (``arm_max_move_s``) unless repeated.
 
-    The arm counts as moving from the frame at which the robot says ``arm moving`` until
-    ``settle_frames`` frames after the frame at which it says ``arm still``. A window that holds
-    any frame of that span is judged dormant: a trigger's window is dropped without running the
-    model, and in continuous mode the window's decision is the dormant class (the report rule
-    sees an idle hand, which also re-arms it).
-
-Why dormant rather than a stricter test of the model's scores: it does not depend on the model
-having a dormant class (a lab's four-class model gets the same rule), it costs nothing (the model
-does not run), and a person acting while the robot moves the object is not a hand-over anyway
-(the robot moves the object *to* the person, then stops). The settle time (``[control]
-arm_settle_s``, 0.5 s) covers the object ringing on the compliant fingers after the stop: the
-simulator's arm stops ring at 7-13 Hz with damping ratio 0.15-0.3 (docs/DORMANT.md), whose
-slowest case decays to 5 % in about 0.45 s; physical grounds, results/streams.md measures it.
-
-A lost ``arm still`` must not deafen the daemon: ``arm moving`` holds for at most
-``max_move_frames`` (``[control] arm_max_move_s``, 30 s: longer than a service arm's moves, short
-enough that a lost message costs half a minute) unless repeated (one warning line), then the arm
-counts as still.
-
-Thread use: ``request`` from any thread (the control socket's, a ROS 2 executor's); ``update``
-from the hot path only, which judges a window by ``last_motion`` (runtime.detector.Windows.runs_at).
+Thread use: ``request`` from any thread; ``update`` from the hot path only.
 """
 
 from __future__ import annotations

@@ -1,20 +1,13 @@
 """The daemon's control socket: short text datagrams from the robot, e.g. ``grasp closed``.
 
-A Unix datagram socket (``[control] socket``, a path or ``@abstract`` name) read by its own
-thread, so the hot path never blocks on it. Known messages call back into the daemon
-(``Daemon.set_grasp``, ``Daemon.set_arm_moving``: only queued; the detector applies them at the
-next frame). Anything else is counted and logged once (the first one, with what arrived); it never
-stops the thread or the daemon. A stale socket file left by an earlier run is replaced; a live
-one (another daemon) is not; a socket file deleted while running is bound again. Only the
-daemon's own user and root may send (runtime.control_access, which also says where a socket
-cannot live).
+A Unix datagram socket (``[control] socket``, a path or ``@abstract`` name) read by its own thread, so
+the hot path never blocks on it; messages are only queued for the next frame. Anything unknown is
+counted and logged once. A stale socket file is replaced, a live one (another daemon) is not. Only
+the daemon's own user and root may send (runtime.control_access).
 
-Messages (ASCII, case and surrounding white space ignored):
-
-- ``grasp closed``: the robot's grasp has settled on the object (arm the onset trigger now);
-- ``grasp open``: the robot releases the object (no event until the hand is empty or closed again);
-- ``arm moving``: the robot's arm starts moving (no window is reported while it moves: runtime.arm_motion);
-- ``arm still``: the arm has stopped (windows are reported again after the settle time).
+Messages (ASCII, case and surrounding white space ignored): ``grasp closed`` (arm the onset trigger
+now), ``grasp open`` (no event until the hand is empty or closed again), ``arm moving`` and
+``arm still`` (runtime.arm_motion).
 """
 
 from __future__ import annotations

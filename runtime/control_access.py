@@ -1,16 +1,9 @@
 """Who may talk to the control socket, and where it can live.
 
-Why: a robot message ``grasp open`` silences the trigger, so only the daemon's own user (or
-root) may send one. A filesystem socket is made mode 600 once bound, and on every socket,
-abstract ones included (they have no permissions at all), the kernel hands each datagram's
-sender credentials (SCM_CREDENTIALS): a datagram from another user is dropped and counted.
-
-``socket_path_problem`` says, before anything is bound, why a ``control.socket`` can never work
-(a regular file, a folder or a symlink in the way, a path longer than a Unix socket address,
-no parent folder, an abstract name with no name after the @): ``run --check`` and the running daemon say the same line.
-``held``/``in_use_line``: a name another process holds (any local user may take an abstract name
-first) stops the daemon at start and fails ``run --check``: a daemon deaf to the robot's ``grasp open``
-must not run as if all were well.
+Why: ``grasp open`` silences the trigger, so only the daemon's user (or root) may send: a filesystem
+socket is mode 600, and every datagram's sender credentials (SCM_CREDENTIALS) are checked, abstract
+sockets included. ``socket_path_problem`` says before binding why a ``control.socket`` can never work;
+``held``/``in_use_line``: a name another process holds stops the daemon and fails ``run --check``.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """The detection service: one ``Detector`` and the narrow parts around it.
 
-The parts, each with its own module (composed here the way python-can composes a Bus, a Notifier
-and its Listeners):
+The parts, each with its own module (composed as python-can composes a Bus, a Notifier and Listeners):
 
-- ``Detector`` (runtime.detector): frames in, decisions out; the ring, frame clock, trigger, the
-  serving model and the report rule; no I/O;
+- ``Detector`` (runtime.detector): frames in, decisions out; no I/O;
 - ``DeviceLink`` (runtime.device_link): the device client, connect with backoff, faults, stalls;
 - ``ModelSlot`` (runtime.model_serving): the model folder's watcher and quarantine, swaps, fallback;
 - ``Reporter`` (runtime.reporter): decisions counted, event lines to the sinks;
@@ -13,15 +11,10 @@ and its Listeners):
 - ``Health`` and ``StatusFile`` (runtime.health), ``Notifier`` (runtime.sdnotify), ``HotThread``
   (runtime.realtime).
 
-Each part keeps its own state and counters (``Health`` composes them) and says what happened by its
-return values; only the daemon changes the detector (``_apply``).
-
-One thread does the hot path: read a frame, ``Detector.feed``, and when it returns a decision,
-``Reporter.report``. Everything slow happens elsewhere or between frames: model files are validated
-and warmed up by the watcher thread and swapped in between two windows; the health file is written
-about once a second; the device is reopened with backoff after an unplug or a stall; SIGTERM ends
-the loop within a read timeout (0.1 s); SIGHUP reloads the config and keeps the old one if the new
-one is invalid.
+Each part keeps its own state and counters (``Health`` composes them) and reports by return values;
+only the daemon changes the detector (``_apply``). One thread runs the hot path (read a frame,
+``Detector.feed``, ``Reporter.report``); everything slow (model loading, the health file, reconnects,
+SIGHUP reloads) happens on other threads or between frames.
 """
 
 from __future__ import annotations

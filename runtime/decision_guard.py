@@ -1,22 +1,11 @@
 """Ends a decision that runs too long, from a thread of its own: the hot thread cannot.
 
-Why: a model may pass load and warm-up and hang on real windows only (an ONNX ``Loop`` whose trip
-count explodes when the pads are pressed). The hot thread is then inside onnxruntime for good:
-no frame is read, SIGTERM waits (Python runs its handler between bytecodes), and at real-time
-priority a core spins. This guard looks at the serving model every quarter of the limit; a
-decision whose thread has spent more CPU time in it than the limit (the stream's period: it was due
-before the next frame) is ended with onnxruntime's ``RunOptions.terminate``. CPU time, not the
-clock on the wall: on a busy machine a decision may wait for a core far longer than it computes,
-and a good model must not be quarantined for the machine's load. A decision that has not ended
-``WALL_LIMIT_S`` after it began is ended too (a platform without thread CPU clocks, or a graph
-whose work runs on onnxruntime's other threads while the deciding one waits). The hot thread then gets an error
-from the run and takes the model out of service (quarantined across restarts), so it is out
-within about two periods of its first real window.
-
-A graph that does not stop when told (one huge operator: onnxruntime checks the flag between
-nodes and loop steps) is still running ``ESCALATE_S`` later: the file is quarantined, one line
-says so, and the process exits with ``EXIT_HUNG`` (systemd restarts it; the quarantine keeps
-the model out).
+Why: a model may pass load and warm-up and hang on real windows only (an ONNX ``Loop`` whose trip count
+explodes), leaving the hot thread inside onnxruntime: no frame is read and SIGTERM waits. A decision that
+spent more thread CPU time than the limit (one period; CPU time, so a busy machine does not quarantine a
+good model), or ``WALL_LIMIT_S`` on the wall clock, is ended with ``RunOptions.terminate``; the hot thread
+then takes the model out of service. A graph that does not stop when told is still running ``ESCALATE_S``
+later: it is quarantined and the process exits with ``EXIT_HUNG`` (systemd restarts it).
 """
 
 from __future__ import annotations

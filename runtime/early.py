@@ -1,22 +1,11 @@
 """Early decisions: what a model file says about its early heads, and the rule that reports from them.
 
-Why: the full window (T frames after the trigger) makes the robot wait about half a second, while
-a firm pull is plain after a few frames. A model may carry *early heads*: extra outputs of the
-same graph, ``label_at_<p>`` and ``scores_at_<p>``, each a classifier trained on the first ``p``
-frames of the window (the graph reads them as the LAST ``p`` rows of its ``frames`` input, so the
-ring's newest T frames are the input at every point, no copy). The metadata key ``early`` (owned
-here; the trainer writes it with :meth:`EarlySpec.to_meta`) lists the points and the report rule
-chosen in training:
-
-- ``points``: frames after the window's start at which a head decides, ascending, each < T;
-- ``calibration``: per point ``[a, b]``, the probability that the head is right given its score
-  margin ``m`` (top score minus runner-up) is ``1 / (1 + exp(-(a m + b)))`` (Platt scaling on
-  cross-validated predictions);
-- ``threshold``: report at a point when that probability reaches it (``NEVER``: never early);
-- ``agree``: and, if true, when the head agrees with the previous point's head;
-- at T the full model answers, always.
-
-The rule is per event (one report per window) and costs a few scalar operations per point.
+Why: the full window makes the robot wait about half a second, while a firm pull is plain after a few
+frames. Early heads are extra outputs of the same graph (``label_at_<p>``, ``scores_at_<p>``), each
+trained on the first ``p`` frames of the window (the LAST ``p`` rows of its input, so the ring's newest
+T frames serve every point). The metadata key ``early`` (``EarlySpec``; docs/EARLY.md) holds the points,
+each head's Platt calibration of its score margin, the probability ``threshold`` to report at and
+whether a head must ``agree`` with the previous one; at T the full model answers, always.
 """
 
 from __future__ import annotations

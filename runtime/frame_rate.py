@@ -1,35 +1,17 @@
 """The device's frame rate against the model's: one owner for how a stream is fed to a model.
 
-A model is trained on windows of T frames at its ``sample_rate_hz`` (metadata); T frames at the
-wrong rate span another stretch of time (15 frames of a ~70 Hz stream are 0.2 s, not the 0.47 s
-the model learnt) and the same motion looks twice as slow. So the daemon measures the stream's
-period from the frames' device time stamps and:
+Why: T frames at the wrong rate span another stretch of time than the model learnt. The stream's period
+is measured from the device time stamps (the median over ``BLOCK`` gaps of ``SPAN`` frames, which
+alternating jitter does not throw), and:
 
-- a stream faster than the model's rate (period below ``FASTER`` x the model's) is decimated to
-  the model's period: frames are admitted by a phase accumulator stepping by the measured period
-  over the model's, so on average one frame per model period passes (a 70 Hz stream: about every
-  2.2nd frame). The accumulator works on the *measured* period, not on each frame's stamp,
-  because device stamps jitter by up to ~0.8 period; admitted frames are numbered consecutively
-  (the trigger and the window's end count model frames), the events still name device frames;
-- a stream slower than the model's rate (period above ``SLOWER`` x the model's) cannot be made
-  faster: it is fed as it comes and a one-line health problem says so (windows span too long);
-- within those bounds the stream is fed untouched (frame numbers as the device sent them);
-- a gap in device time of more than ``RESTART_PERIODS`` stream periods (the recording paused,
-  the device stalled and resumed, a stamp hours ahead) or a step back by more than one period
-  (the controller rebooted and its counter restarted at 0; the client's unwrapper reads a small
-  backwards step of the u32 counter as going back) breaks the stream: ``on_restart`` is called
-  before the frame after it, and the daemon forgets the history as after a reconnect (a window
-  across the break would join two unrelated moments, and the trigger would take the jump for a
-  person's action). A break is neither a gap of the period estimate nor lost frames.
+- a faster stream (below ``FASTER`` x the model's period) is decimated by a phase accumulator on the
+  *measured* period (stamps jitter too much to use one by one); admitted frames are numbered
+  consecutively, events still name device frames;
+- a slower one (above ``SLOWER`` x) is fed as it comes, with a one-line health problem;
+- a gap of more than ``RESTART_PERIODS`` or a step back of more than one period (a reboot) breaks the
+  stream: ``on_restart`` is called and the history is forgotten, as after a reconnect.
 
-The period is the median over the last ``BLOCK`` gaps of the time ``SPAN`` frames took, over
-``SPAN`` (re-estimated once per block: one store per frame; the median once a block): a median of
-single gaps is thrown by jitter that alternates (10, 50, 10, 50, 10 ms reads as 10 ms, a
-100 Hz stream). Frames lost on the way are counted here too, once per block, against the stream's
-period: gaps of about twice the period or more, but never more than the block's time span has
-room for (a device that repeats each stamp has gaps of 0 and two periods and loses nothing).
-Each kind of rate line is logged once per model period (a stream flapping between two rates
-would otherwise log each flap); the health problem follows every change.
+Lost frames are counted once per block; each kind of rate line is logged once per model period.
 """
 
 from __future__ import annotations

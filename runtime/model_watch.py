@@ -1,23 +1,11 @@
 """Model hot-swap: watch the model folder, validate new ``.onnx`` files off the hot path.
 
-A file is considered only when it is complete: dotfiles and ``*.tmp`` / ``*.part`` are
-ignored and its size, times and inode must be the same on two consecutive polls (the safe
-way to drop a model is to copy it to a temporary name in the folder and rename it). Files
-that are symlinks, writable by group or others, or owned by anyone but the service user or
-root are refused. A candidate is loaded with the model contract, checked against the scene,
-warmed up in this background thread and only then offered to the main loop, which swaps it
-in between two windows (one reference assignment). A rejected file is logged with its reason
-and never retried unless it changes (or ``rescan()`` is asked for: the scene it was checked
-against changed; the same version rejected for the same reason is then not logged again); the old
-model keeps serving.
-
-Which model serves when several exist: the valid one that arrived last, by the file's modification
-time (mtime). Not its status change time (ctime): a no-op ``chmod`` or ``chown`` sets that, and
-swapped an old model back in. What the folder holds is what is served: when the serving file
-leaves the folder (removed, replaced, or a symlinked folder switched to another), the newest valid
-file the folder holds now serves, or none when it holds none (``withdrawn``), as ``run --check``
-would say. To roll back: remove the newer file, switch the folder, or ``touch`` the older file
-(``cp -p`` and ``rsync -a`` keep a copy's old mtime: it arrives as old as it was).
+A file is considered once it is complete (not a dotfile, ``*.tmp`` or ``*.part``; the same size, times
+and inode on two polls) and refused when a symlink, writable by others or owned by another user. It is
+checked, warmed up in this thread and only then offered for a swap; a rejected file is not retried
+until it changes (or ``rescan()``). The valid file that arrived last by mtime serves (not ctime: a no-op
+``chmod`` sets that); when it leaves the folder the newest remaining one serves, or none. To roll back:
+remove the newer file, or ``touch`` the older one.
 """
 
 from __future__ import annotations

@@ -1,36 +1,20 @@
 """The onset trigger: start the window when the *person* acts on a settled grasp, not when the hand closes.
 
-The paper's trigger fires when any taxel crosses 15 % of full scale; on a live robot the hand's
-own grasp crosses it first (the object is placed, the fingers close), so the window shows the
-grasp, not the person. This trigger watches each pad's summed pressure instead and measures it
-against a baseline that follows the *settled* grasp:
+Why: on a live robot the hand's own grasp crosses the paper's 15 % threshold before the person acts.
+This trigger measures each pad's summed pressure against a baseline that follows the settled grasp:
 
-- ``open``: the scene reads (almost) nothing; nothing can happen.
-- ``settling``: there is contact but the grasp is still moving (the hand closing, a person's
-  action still going on, a regrasp). The baseline is the current pressure; once every pad has
-  changed by less than ``settle_change`` of its level from frame to frame for ``settle_frames``
-  frames in a row (and ``refractory_frames`` have passed since the last trigger), it arms.
-- ``armed``: the baseline follows slow changes (creep of the rubber, drift of the force control):
-  a level and a trend per pad (Holt's linear tracker: the prediction is level + trend, the level
-  takes ``1 / tau_frames`` of each frame's error and the trend ``1 / (4 tau_frames)``), the trend
-  starting from zero when the trigger arms. Real pads creep far more than the simulator's: a
-  static weight keeps rising by about 1 % of its level per frame for seconds, which a plain
-  tracked level lags behind by tens of per cent. The trigger fires when any pad's pressure
-  departs from the prediction by ``change`` of the level (at least ``change x floor``, so an
-  unloaded pad needs a real contact). A departure in which no pad rose (every pad lost pressure) is the hand
-  letting go or re-seating its grasp, not a person: it goes back to ``settling`` without firing.
-  Neither does a departure on a point contact (``MIN_CONTACT_TAXELS``) nor one while the settled
-  grasp touched a single finger (``MIN_GRASP_FINGERS``: no object is held).
+- ``open``: the scene reads (almost) nothing;
+- ``settling``: contact, but still moving; arms once every pad changed by less than ``settle_change``
+  for ``settle_frames`` frames in a row (and ``refractory_frames`` after the last trigger);
+- ``armed``: Holt's linear tracker (level + trend per pad, ``tau_frames``) follows creep and drift (real
+  pads creep far more than the simulator's); fires when a pad departs from the prediction by ``change``
+  of its level (at least ``change x floor``). A departure where no pad rose (letting go, re-seating),
+  on a point contact (``MIN_CONTACT_TAXELS``) or with the grasp on one finger (``MIN_GRASP_FINGERS``)
+  goes back to ``settling`` without firing.
 
-The robot may say when its grasp has settled or is released (``set_grasp``): ``closed`` arms
-at once with the current pressure as the baseline (an armed trigger keeps its baseline, and
-within the refractory time after a fire it settles first: one interaction, one event); ``open`` disarms until the hand is seen
-empty (then self-arming resumes, so a lost message never deafens the trigger). Without these
-messages the trigger finds the settled grasp by itself.
-
-Per frame: one ``reduceat`` over the scene's columns and a few operations on a vector of one
-number per pad. ``update(row, number)`` returns the frame number at which a window is due
-(trigger frame + T - 1 - pre_frames), or -1, like ``ThresholdTrigger``.
+``set_grasp`` (the robot's word): ``closed`` arms at once, ``open`` disarms until the hand is seen empty,
+so a lost message never deafens the trigger. ``update(row, number)`` returns the frame at which a window
+is due, or -1, like ``ThresholdTrigger``.
 """
 
 from __future__ import annotations

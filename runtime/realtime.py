@@ -1,25 +1,11 @@
-"""Real-time scheduling of the hot path: a frame is handled the moment it arrives, not at the
-scheduler's next slice.
+"""Real-time scheduling of the hot path: a frame is handled the moment it arrives, not at the next slice.
 
-Why: the daemon sleeps on the device and wakes per frame. On a loaded 2-core PC a normal thread
-waits for a slice of the processes already running; niceness hardly helps. Under a real-time policy
-the hot thread runs first. The price: on a quiet PC a FIFO thread waking from its sleep decides a
-little later at the median. Tails under other work matter more to a robot than a fraction of a
-period; set ``realtime_priority = 0`` on a PC with nothing else to do (figures:
-results/design_figures.md and results/latency.md). Only the thread that calls :func:`enter_realtime` is raised (the model
-watcher, which loads models, and the control socket keep normal scheduling, so loading a model
-cannot hog a core), and with SCHED_RESET_ON_FORK nothing it starts afterwards inherits the
-policy: neither threads (sinks a reload rebuilds) nor child processes, which at
-the same priority would never yield the core back (a busy child of a real-time thread starves it).
-
-The daemon raises its thread with a link's first valid frame and lowers it when the link fails,
-so a device that floods the link with nonsense is parsed at normal priority.
-
-Priority :data:`DEFAULT_PRIORITY` (1-99, 0 = normal scheduling): above every normal process and
-below the kernel's interrupt threads (50 on PREEMPT_RT kernels) and a robot's control loops, which
-are usually given more. The kernel's real-time throttling keeps 5 % of each second for the others
-even if the thread never slept. Not permitted (neither root, CAP_SYS_NICE nor an RLIMIT_RTPRIO
-that high: systemd's ``LimitRTPRIO=``, deploy/handover.service) or not available (not Linux): one
+Why: on a loaded 2-core PC a normal thread waits for the processes already running; under a real-time
+policy the hot thread runs first, at a small cost to the median on a quiet PC (results/latency.md; set
+``realtime_priority = 0`` there). Only the calling thread is raised, with SCHED_RESET_ON_FORK so no
+thread or child it starts inherits the policy (a real-time child would starve it). The daemon raises
+it with a link's first valid frame and lowers it when the link fails. :data:`DEFAULT_PRIORITY` is
+above normal processes and below interrupt threads and control loops. Not permitted or not Linux: one
 line says so and the daemon runs at normal priority.
 """
 

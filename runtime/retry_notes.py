@@ -1,13 +1,8 @@
 """Which failed connection attempts are worth a log line (used by runtime.device_link).
 
-A refused or unplugged device is retried every few seconds for as long as it takes; a warning per
-attempt (six a minute, forever) would bury everything else in the journal. So the first failure is
-logged, the same failure (the same words: counts and durations in it may differ, e.g. how many
-bytes of nonsense arrived) again only once ``REPEAT_NOTES_S`` have passed since it began (1, 10 and
-60 minutes, then every hour), a reason not yet seen in this outage at once (a device that
-alternates between two ways of failing, e.g. a port that accepts and then closes or resets, is
-one outage with two reasons, not a line per attempt), and the connection that ends the outage
-says how long it lasted. The health file is told on every attempt (by the caller), not through here.
+Why: a warning per retry (six a minute, forever) would bury the journal. The first failure is logged,
+the same words again only after each of ``REPEAT_NOTES_S``, a new reason at once, and the connection
+that ends the outage says how long it lasted. The health file hears of every attempt (from the caller).
 """
 
 from __future__ import annotations

@@ -5,19 +5,13 @@ Topics (``ns`` = ``[ros2] namespace``, default ``/handover``):
 - ``ns/events``  std_msgs/String: exactly the JSON line the other sinks send (docs/EVENTS.md);
 - ``ns/model``   std_msgs/String, latched (transient local, depth 1): the last ``"type": "model"`` line;
 - ``/diagnostics`` diagnostic_msgs/DiagnosticArray: the health view, about once a second;
-- ``ns/pads/<pad>`` sensor_msgs/Image mono16, one per pad, rows x columns as on the pad (optional);
+- ``ns/pads/<pad>`` sensor_msgs/Image mono16, one per pad (optional);
 - ``ns/grasp``   std_msgs/String ``closed`` / ``open`` -> ``commands.set_grasp`` (optional);
 - ``ns/arm``     std_msgs/String ``moving`` / ``still`` -> ``commands.set_arm_moving`` (optional);
-- ``[ros2] joint_states`` sensor_msgs/JointState: the arm moves while a joint is faster than
-  ``joint_speed`` (runtime.arm_motion.JointSpeed) -> ``commands.set_arm_moving`` (optional).
+- ``[ros2] joint_states`` sensor_msgs/JointState: moving while a joint is faster than ``joint_speed``.
 
-The node sees only a ``DaemonSide`` (runtime.sinks): the robot's commands, queued for the hot path's next
-frame, and the frames it publishes; the inputs are subscribed only as ``runtime.ros2.robot_inputs`` says.
-
-Events are published on the daemon's thread (a String publish costs a few microseconds).
-Everything else runs on one executor thread: the health snapshot is handed over by a guard
-condition, the pads are read from the newest frame by a timer, so the hot path never waits
-and a slow subscriber loses old pad images instead of queueing them.
+The node sees only a ``DaemonSide`` (runtime.sinks). Events are published on the daemon's thread;
+everything else runs on one executor thread, so the hot path never waits on a subscriber.
 """
 
 from __future__ import annotations

@@ -1,17 +1,8 @@
 """``handover dump URL``: open a controller, print its layout and then frames as they arrive.
 
-The first thing to run when the hand is plugged in: it shows whether the link works, what
-the controller reports, the frame rate, per-pad sums (press a pad and watch its column) and
-every parser error.
-
-The preview (no ``--frames``, no ``--seconds``) starts at the first frame with contact: a hand
-nobody touches sends all-zero frames, and fifty rows of zeros show nothing. The skipped frames
-are counted, said so in one line, and a line every few seconds tells that the link is alive
-while nothing touches the pads. ``--all-frames`` shows every frame from the first.
-
-A device that pauses (a controller between streams, a loose cable) does not end a count of frames:
-one stderr line says it waits, up to ``--timeout`` seconds, and one that frames came again; the
-client restarts push mode after 2 s of silence, so giving up at the first silent second was wrong.
+The first thing to run when the hand is plugged in. The preview starts at the first frame with contact
+(``--all-frames``: from the first frame), since an untouched hand sends only zeros. A pause in a count
+of frames is waited out up to ``--timeout`` (the client restarts push mode after 2 s of silence).
 """
 
 from __future__ import annotations

@@ -1,41 +1,10 @@
 """An emulated DSACON32m: host bytes in, device bytes out, with optional faults.
 
-The core (``DeviceEmulator``) has no threads and no sockets. A link feeds it what the host
-wrote and asks it for the bytes due now; frames are scheduled by the source recording's own
-timing (divided by ``speed``) or produced as fast as they are read (``speed=None``). The same
-core sits behind the in-process ``sim://``/``replay://`` transports, the TCP and pseudo-terminal
-servers (``firmware_io.emulator.server``) and the pyusb/hidapi test doubles, so a client sees
-the same device whichever way it connects.
-
-Behaviour (as SCHUNK's SDHLibrary-CPP ``sdh/dsa.cpp`` reads it):
-
-- 0x01 controller info (18 bytes; sw_version 2.9.0.0, or R288 in old-firmware mode),
-  0x02 sensor info, 0x0B matrix info (E_INDEX_OUT_OF_BOUNDS for a matrix it lacks),
-  0x03 stop / single frame / push (ack first, then frames; raw or RLE as the flags ask),
-  0x0F / 0x12 sensitivity, 0x13 / 0x14 threshold (no reply when the persistent flag is set),
-  0x04 static mask. Anything else: a 2-byte E_CMD_UNKNOWN reply under the command's ID.
-  A payload of the wrong size gets E_CMD_NOT_ENOUGH_PARAMS or E_CMD_FORMAT_ERROR.
-- Old-firmware mode: a single-frame request starts push mode (firmware <= R288).
-- Frames carry the recording's values under the matrices' sensitivity and threshold
-  (``matrix_settings``): unchanged at the factory settings, so a client's frames can be compared
-  bit for bit with the source.
-- The recording is the world the sensor looks at: it plays from the emulator's creation on
-  (``session_starts="first_acquisition"``: from the host's first request for frames), whether
-  or not the host acquires (frames not asked for go by unseen; a single frame is the one
-  the sensor sees when asked), and repeats when ``loop`` is set. The device clock runs from
-  power-on at the same pace, starting at ``start_ms`` and wrapping at 2**32; a frame's
-  timestamp is the clock when it was acquired. Until a power cycle or a stall fault, that is the
-  recording's own time from its first frame plus ``start_ms``. At ``speed=None`` (as fast as
-  possible) nothing goes by: frames follow each other and carry the recording's times.
-- A line rate (``set_line_rate``; the pseudo-terminal server passes the baud rate the host set)
-  lets bytes out no faster than the line carries them, and in push mode the controller sends
-  the newest frame once the previous one is out (raw frames at 115200 baud: about 11.7 per
-  second), as the real one does. Not applied at ``speed=None``.
-- ``power_cycle``: the controller is silent and deaf for ``boot_s`` (about 8 s on the real one),
-  sends the terminal query ESC[5n three times within 0.82 s from ``boot_query_s`` on, restarts its
-  clock, forgets push mode and the settings that were not stored persistently. A pseudo-terminal's
-  ``disconnect`` fault and a TCP host leaving are power cycles (an SDH-2 resets behind Ethernet).
-- Host packets with a bad CRC are dropped silently (what the real firmware does is not known).
+``DeviceEmulator`` has no threads and no sockets: a link feeds it what the host wrote and asks for the
+bytes due now. The same core sits behind ``sim://``/``replay://``, the TCP and pseudo-terminal servers
+and the pyusb/hidapi test doubles, so a client sees one device whichever way it connects. Where it
+behaves like the real controller (clock, session, line rate, power cycle, settings): docs/EMULATOR.md.
+Commands it does not know get E_CMD_UNKNOWN; host packets with a bad CRC are dropped silently.
 """
 
 from __future__ import annotations

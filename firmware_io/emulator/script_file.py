@@ -1,15 +1,9 @@
 """The ground truth of an emulated session, as a file: what the person did, and when on the device clock.
 
-``handover emulate --script-out FILE`` writes it (again when a host first asks for frames: the
-session starts then); ``handover score EVENTS SCRIPT`` reads it to score a captured event stream. JSON lines: a header (``type: "script"``) with each frame's time
-in ms from the first (device time = ``clock_start_ms`` + that, plus one ``loop_ms`` per pass
-when the session repeats), then one ``type: "scripted"`` line per event: the frame span the
-event can be answered in (``first_frame`` .. ``last_frame``, the object placed .. taken away),
-its ``onset_frame``, the ``action`` and who did it (``subject``, ``object``, ``pose``).
-
-The device clock matches the recording's own time until the controller is power-cycled or a
-stall fault shifts the two (the emulator's ``disconnect`` and ``stall`` faults): score a
-session served without those.
+``handover emulate --script-out FILE`` writes it; ``handover score EVENTS SCRIPT`` reads it. JSON lines:
+a header (``type: "script"``, frame times from the first) and one ``type: "scripted"`` line per event
+(its frame span, onset frame, action, subject, object, pose). A power cycle or stall fault shifts the
+device clock off the recording's time: score sessions served without them.
 """
 
 from __future__ import annotations

@@ -1,16 +1,8 @@
 """When the robot's arm moved, stored with a recording: the marks a replay sends as the robot would.
 
-The daemon judges every window that holds frames of the arm's motion as dormant (runtime.arm_motion);
-training and evaluation must see the same spans, so a recording keeps them with its frames:
-
-- ``meta["arm_marks"]``: ``[[frame, moving], ...]``, frame indices ascending, ``moving`` 1 at the
-  first frame after the robot said ``arm moving`` and 0 at the first frame after ``arm still``
-  (written by the simulator, which knows its moves, and by ``handover record --control SOCKET``,
-  which hears the robot as the daemon does: ``ArmMarkLog``);
-- without it, a recorded idle stretch labelled ``arm_move`` (``meta["source_codes"]``) counts as
-  the arm moving from its first frame to its last: the investigator moved the arm when prompted.
-
-numpy only.
+The daemon judges windows holding the arm's motion dormant (runtime.arm_motion), so training sees the
+same spans: ``meta["arm_marks"]`` is ``[[frame, moving], ...]`` (1 from the frame after "arm moving",
+0 after "arm still"); without it an idle stretch labelled ``arm_move`` counts as moving throughout.
 """
 
 from __future__ import annotations

@@ -1,11 +1,7 @@
 """Reading ZIP members (JSON and ``.npy``) with limits: sizes, shapes, nesting depth.
 
-Why: a recording is a file from elsewhere. Read naively, a 4 MB deflate bomb inflates to
-gigabytes (``MemoryError``), an ``.npy`` header declaring a huge shape allocates terabytes, and
-a deeply nested JSON header ends in ``RecursionError``. Here every member is stream-read with
-a byte cap, an array's shape and dtype are checked against what the caller expects before a
-single data byte is read, and JSON deeper than ``MAX_JSON_DEPTH`` is refused. Every refusal is
-a ``LimitError`` with one line; the caller adds the file name.
+Why: a recording is a file from elsewhere, and a deflate bomb, a huge declared ``.npy`` shape or deeply
+nested JSON would exhaust memory or the stack. Every refusal is a one-line ``LimitError``.
 """
 
 from __future__ import annotations

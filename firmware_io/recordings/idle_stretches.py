@@ -1,16 +1,9 @@
 """Idle stretches of a recorded session: the hand's time with nobody interacting, labelled by what went on.
 
-A deployed hand spends most of its time holding an object nobody touches while the arm moves,
-the hand re-seats its grasp, closes on and lets go of objects. A model that has never seen
-those stretches reads some of them as a person's action, so the recorder records them as part
-of each subject's session, each stretch with the name of what the investigator asked for. The
-names are the simulator's idle sources (``firmware_io.sim.idle`` takes them from here), so
-recorded and simulated idle data are cut and scored by the same code.
-
-In a ``.hrec`` file a stretch is kept in ``meta["idle_stretches"]`` (first and last frame,
-source, its place in the plan); ``meta["sources"]`` / ``meta["source_codes"]`` code every frame
-as the simulator's idle streams do (``-1``: a trial's frames), derived from the stretches on
-every save. numpy only.
+A model that never saw the hand held while the arm moves, regrasps, closes or opens reads some of that
+as a person's action, so each session records such stretches under the simulator's idle source names
+(recorded and simulated idle data are cut and scored by the same code). ``meta["idle_stretches"]``
+keeps them; ``meta["sources"]``/``meta["source_codes"]`` are derived from them on every save. numpy only.
 """
 
 from __future__ import annotations

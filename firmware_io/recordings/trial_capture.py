@@ -1,12 +1,8 @@
 """Cutting one trial out of the live stream: the held grasp before the go cue, then the action after it.
 
-A trial must give a training case with every trigger the trainer may cut with: the onset
-trigger needs the settled grasp before the person acts (its baseline), the threshold trigger
-needs the level before the action's rising edge, and both need T frames after the action. So
-a trial is ``LEAD_IN_SECONDS`` of the stream before the go cue plus ``seconds`` after it, and
-the split is made by when each frame arrived, not by how many were read: frames already queued
-when go is said (a link that buffers, an emulator at full speed) belong to the lead-in, never
-to the action. numpy only.
+Every trigger the trainer may cut with needs the level before the action (the onset trigger its settled
+grasp) and T frames after it: a trial is ``LEAD_IN_SECONDS`` before go plus ``seconds`` after, split by
+when each frame arrived (frames queued when go is said belong to the lead-in). numpy only.
 """
 
 from __future__ import annotations

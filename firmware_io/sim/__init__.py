@@ -1,19 +1,7 @@
-"""The simulated hand: synthetic DSA 9205 frames of a person pulling, pushing, holding or
-bumping an object the SDH-2 holds out (a virtual device, like python-can's virtual bus).
+"""The simulated hand: synthetic DSA 9205 frames of a person acting on an object the SDH-2 holds out.
 
-Physically motivated and calibrated against real SDH-2 recordings where they can measure
-something (noise floor, value ranges, saturation, frame timing); see docs/SIMULATOR.md.
-Everything it writes is synthetic data and says so in its meta. numpy only.
-
-This package's names below are its public face; its modules are the parts, one per physical
-effect: ``constants`` (measured figures), ``streams`` (seeded substreams), ``contact``
-(pressure patches on the pads), ``sensor`` (DSA 9205 transduction and the DSACON32m
-firmware), ``timing`` (PC time stamps), ``scenario`` (objects, poses, subjects, trial
-parameters), ``actions`` (what the person does), ``hand`` (renders trials into frames),
-``paper_protocol`` (the paper's recording protocol) and ``session`` (a free-running session),
-``idle`` (streams nobody touches). Beside them: ``scripted_subject`` (a simulated person
-behind an emulated controller, for ``handover record``) and ``realism`` (statistics that
-compare the simulator's output with real recordings).
+Calibrated against real SDH-2 recordings where they can measure something (docs/SIMULATOR.md); its
+output says it is synthetic in its meta. One module per physical effect; numpy only.
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """Streams in which nobody touches the held object: what a dormant class has to learn to ignore.
 
-A deployed hand spends most of its time holding an object that no person touches, and the
-pads are not quiet meanwhile: the grasp itself presses them (the baseline), the sensor
-reads with noise, the rubber creeps and the hand's force control drifts, the robot's arm
-accelerates, vibrates and reorients the hand (inertial and gravity load moving between the
-fingers), the hand re-seats its grasp now and then, and it closes on and releases objects.
-Each effect is one function that changes a :class:`~firmware_io.sim.actions.Motion`; the
-same contact, sensor and firmware chain as the protocol renders the frames.
-
-All magnitudes are assumed physical values (robot-arm accelerations, vibration bands,
-regrasp depths), documented in docs/DORMANT.md; none was chosen by looking at a detector's
-result. Every frame carries its *source* (what is going on), so false events can be
-attributed. numpy only, deterministic for a seed.
+Grasp baseline, noise, creep, force-control drift, arm motion, regrasps, closing and releasing: each
+effect is one function that changes a ``Motion``, rendered by the protocol's contact and sensor chain.
+Magnitudes are assumed physical values (docs/DORMANT.md), none chosen by a detector's result. Every
+frame carries its *source*, so false events can be attributed. numpy only, deterministic for a seed.
 """
 
 from __future__ import annotations

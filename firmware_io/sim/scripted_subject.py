@@ -1,16 +1,8 @@
 """A scripted simulated subject behind an emulated controller: it does whatever the recorder prompts.
 
-The recorder cues ``go`` with a trial slot (pose, object, action, run); the subject then plays a
-trial of the simulated hand (``firmware_io.sim``, synthetic data) for that slot through a
-DeviceEmulator, frame by frame. On ``prepare`` ("place the object") the hand holds that trial's
-grasp until go; after ``stop`` it is empty (all zeros). Its frame clock is
-the emulator's, so sessions run in real time or as fast as they are read (``speed=None``).
-
-It also plays the faults a lab meets: a link that drops once at a given frame and comes back
-(``drop_at``), a device unplugged for good (``unplug_at``), a subject who does nothing on some
-go cues (``lazy``, to exercise the never-triggered flag).
-
-URL form for ``handover record --device``:
+On ``go`` with a trial slot it plays that simulated trial through a DeviceEmulator (after ``prepare``
+it holds the grasp, after ``stop`` the hand is empty). It can also drop the link once (``drop_at``),
+be unplugged for good (``unplug_at``) or ignore some cues (``lazy``). URL form for ``handover record``:
 ``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&lazy=2&fault=crc=0.01``
 """
 

@@ -1,15 +1,8 @@
 """In-process transports wired to the emulator core: ``sim://``, ``replay://`` and ``subject://``.
 
-The client talks to them exactly as to a serial port or a socket (bytes in, bytes out),
-so the code path it exercises is the one it uses with a real controller; only the
-byte link is missing.
-
-- ``sim://?seed=0&events=40&realtime=1&loop=1&fault=...&old_firmware=0``: the simulated hand's
-  scripted session (synthetic data). ``realtime=0`` sends frames as fast as they are read.
-- ``replay://PATH?speed=1.0|max&loop=0&fault=...``: any recording (.hrec, .dsa, .bag).
-  Without ``loop`` the transport raises EndOfStream once the last frame has been read.
-- ``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&unplug_idle=2&lazy=2&fault=...&seconds=3``: a scripted
-  simulated subject (``firmware_io.sim.scripted_subject``) who does what ``handover record`` prompts.
+The client talks to them as to a serial port, so it exercises the code path of a real controller;
+URL options: ``firmware_io.transports`` and docs/EMULATOR.md. A ``replay://`` without ``loop`` raises
+EndOfStream after the last frame.
 """
 
 from __future__ import annotations

@@ -1,17 +1,8 @@
 """HID-to-UART bridges through hidapi: ``hid://VID:PID?serial=..&baud=115200`` (e.g. the CP2110).
 
-What is implemented is the Silicon Labs CP2110/CP2114 report format (AN434):
-
-- UART data travels in interrupt reports whose report ID (1..63) is the number of data bytes
-  that follow. The host writes ``[n, b1..bn]``; the device sends the same form.
-- Feature report 0x41 (Get/Set UART Enable): ``[0x41, 1]`` enables the UART.
-- Feature report 0x50 (Get/Set UART Config): ``[0x50, baud u32 big-endian, parity (0 none),
-  flow control (0 none), data bits (3 = 8 bits), stop bits (0 = 1 stop bit)]``.
-- Feature report 0x43 (Purge FIFOs): ``[0x43, 3]`` empties both FIFOs at open.
-
-So open sends 0x50 (115200 8N1, no flow control), 0x41 and 0x43, then reads and writes data
-reports. hidapi is imported only here; ``device=`` (keyword) supplies an object with
-``hid.device``'s methods instead, which is how the tests drive it against an emulated bridge.
+Implements the Silicon Labs CP2110/CP2114 report format (AN434): data reports whose ID is the byte
+count, and feature reports 0x50 (UART config), 0x41 (UART enable) and 0x43 (purge FIFOs) at open.
+``device=`` supplies an object with ``hid.device``'s methods: the tests drive it against an emulated bridge.
 """
 
 from __future__ import annotations

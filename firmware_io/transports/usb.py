@@ -1,21 +1,9 @@
 """A USB-serial bridge driven directly through pyusb: ``usb://VID:PID?serial=..&interface=..&chip=..&latency=..``.
 
-For machines where the bridge has no kernel driver (or it must not be used): the transport
-finds the device, detaches a bound kernel driver, claims the interface with a bulk IN and a
-bulk OUT endpoint, sets 115200 8N1 without flow control with the bridge's own requests and then
-moves bytes over the bulk endpoints.
-
-Bridges (``chip=auto`` picks by vendor id and interface class):
-
-- ``cdc``: CDC-ACM. SET_LINE_CODING and SET_CONTROL_LINE_STATE (DTR|RTS) on the
-  communication interface.
-- ``ftdi`` (VID 0403): reset, baud divisor (3 MHz base clock, eighths), 8N1, no flow control, latency
-  timer 2 ms (``latency=`` ms; ``FTDI_LATENCY_MS`` says why). Every IN packet starts with two modem-status bytes, which are removed.
-- ``cp210x`` (VID 10C4, bulk models such as the CP2102): IFC_ENABLE, SET_BAUDRATE, SET_LINE_CTL.
-- ``raw``: no set-up; the bytes of the bulk endpoints are the UART's bytes.
-
-pyusb is imported only here; ``backend=`` (keyword) is passed on to ``usb.core.find``, which
-is also how the tests drive this code against an emulated bridge.
+For machines where the bridge has no kernel driver (or it must not be used): find the device, detach
+a bound kernel driver, claim the bulk interface, set 115200 8N1 with the bridge's own requests
+(``cdc``, ``ftdi``, ``cp210x`` or ``raw``; ``chip=auto`` picks by vendor id and interface class).
+``backend=`` is passed to ``usb.core.find``: the tests drive this code against an emulated bridge.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Incremental DSACON32m stream parser: bytes in any chunks -> whole, CRC-checked packets.
 
-Why a parser of its own: the controller's byte stream can hold garbage (line noise, a
-half-sent packet after a reconnect), its boot-time terminal query, flipped bits and, inside
-payloads, the preamble bytes themselves (a taxel word 0xAAAA). The parser therefore
-
-- checks each header for plausibility (a known id, a length that id can have) before
-  waiting for its payload, so a corrupt length cannot stall the stream for long;
-- after any failure restarts the search ONE byte after the failed preamble, so a stray 0xAA
-  before a preamble (a run of four or more 0xAA) or a packet hidden behind a corrupt one is
-  still found;
-- keeps at most one packet's worth of bytes between calls (bounded memory);
-- accounts for every byte: it ends up in a packet, in a boot query, or in ``bytes_dropped``.
+The stream can hold garbage, a boot-time terminal query, flipped bits and preamble bytes inside
+payloads: headers are checked for plausibility before waiting for a payload, a failure restarts the
+search one byte after the failed preamble, memory is bounded to one packet, and every byte ends in a
+packet, a boot query or ``bytes_dropped``.
 """
 
 from __future__ import annotations

@@ -1,22 +1,10 @@
 """DSA-Konqueror ``.dsa`` files -> Recording.
 
-A ``.dsa`` file is bzip2-compressed XML (plain XML is accepted too): a ``<sensor>`` header
-with one ``<matrix>`` per pad, then ``<data>`` with ``<frame>`` elements, each holding a PC
-``<time_stamp>`` in ms and ``<frame_data>``: hex text of big-endian float32 tokens, where a
-negative token -n stands for n zeros and any other token is one taxel value.
-
-Why regular expressions and not a full XML parse for the frames: files hold up to ~20 000
-frames and a whole folder must import in seconds. The small header is parsed as XML; the
-frames are cut out with one pattern, all hex is decoded in a single ``bytes.fromhex`` and the
-zero runs are expanded with ``np.repeat``. Anything the pattern does not account for (a
-frame it cannot read, a count that disagrees with ``<frame_count>``, a missing end tag) is
-an error, never silently skipped.
-
-Values must be integral and within 0..fullscale (raw 12-bit ADC counts); nothing is clipped
-or rounded, since a value outside that range means the file is not what we think it is.
-Time stamps become seconds from the first frame (``meta["time_origin_unix"]`` keeps the
-origin). Frames whose time stamp does not advance are dropped and counted in meta (see
-``keep_increasing``); no real file in the shared data set has any.
+A ``.dsa`` file is bzip2-compressed (or plain) XML: a ``<sensor>`` header, then ``<frame>`` elements with
+a PC ``<time_stamp>`` in ms and hex ``<frame_data>`` (big-endian float32 tokens; -n stands for n zeros).
+Why regular expressions for the frames: a folder of ~20 000-frame files must import in seconds. What
+the pattern does not account for is an error, never skipped; values must be raw 12-bit counts (nothing
+is clipped), and frames whose time stamp does not advance are dropped and counted in meta.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """ROS 1 / ROS 2 bags of ``schunk_sdh/TactileSensor`` -> Recording (via ``rosbags``, no ROS needed).
 
-ROS 1 bags embed the message definition. ROS 2 bags (a folder with ``metadata.yaml`` and
-``.db3`` or ``.mcap`` files) may not, so the definitions below are registered before
-reading. Matrices are put in ``matrix_id`` order, which is wire order. The layout takes
-``cells_x``/``cells_y`` from the messages; the rest (texel size, centres, the distal pads'
-static mask where a pad is 6 x 13) comes from the SDH-2 default.
-
-Time stamps come from the message headers; when those are unset (all zero) the bag's
-receive time is used (``meta["time_source"]`` says which). Like the DSA importer, frames
-whose time does not advance are dropped and counted in meta, and values must be raw
-12-bit counts (0..4095): nothing is clipped.
+ROS 2 bags may lack the message definition, so it is registered here. Matrices go in ``matrix_id``
+(wire) order; what the messages lack of the layout comes from the SDH-2 default. Time stamps come from
+the headers, else the receive time (``meta["time_source"]``); as in the DSA importer, frames whose time
+does not advance are dropped and counted, and values must be raw 12-bit counts.
 """
 
 from __future__ import annotations
