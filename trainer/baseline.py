@@ -1,20 +1,9 @@
 """The paper's hand-designed baseline: summary features per pad, standardised, with an SVM.
 
-The paper reports that max, mean, median, standard deviation, FFT, mean derivative, first
-moment and optical flow reached only about 60 %. Per pad (a ``rows x cols`` taxel grid, row-major
-with x fastest) this computes, over the T-frame window:
-
-- ``max``, ``mean``, ``median``, ``std`` of all taxel values;
-- FFT content of the pad's mean-pressure signal (mean removed): the share of spectral energy in
-  the low, middle and high third of the non-DC bins, and log(1 + total energy);
-- ``mean_derivative``: the mean frame-to-frame change of the pad's mean pressure;
-- first moment: the time-averaged centre of pressure (x, y in taxel units, pad centre when
-  nothing presses);
-- optical-flow stand-in (documented substitute; 6 x 13 taxels are too coarse for real optical
-  flow): the centre of pressure's net displacement (dx, dy) over the window and its mean speed.
-
-That is 14 features per pad, then StandardScaler and an SVC whose C/gamma come from the same
-cross-validated search as the BoW classifier.
+The paper reports about 60 % for these. Per pad over the window: max, mean, median, std; the FFT
+energy share in three bands and log total energy of the mean-pressure signal; its mean derivative;
+the centre of pressure; and, as a documented stand-in for optical flow (6 x 13 taxels are too
+coarse), the centre of pressure's net displacement and mean speed: 14 features per pad.
 """
 
 from __future__ import annotations

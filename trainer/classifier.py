@@ -1,14 +1,9 @@
 """The paper's classifier: Bag-of-Words histograms fed to a one-vs-one SVM.
 
-The paper trains a hard-margin SVM (Gaussian kernel; a linear one does as well once K, W, T
-are tuned). A hard margin is a large C: the limit in which no training case may sit inside the
-margin. When ``C`` or ``gamma`` is None, it is chosen by a small stratified cross-validated grid
-search on the training histograms only (the codebook is unsupervised and fitted once on the
-training cases; the labels of the inner folds are never seen by it). The grid reaches C = 1e6,
-so the search can pick a (practically) hard margin when it generalises best; whether the fitted
-SVM *is* hard-margin is a fact of the fit, not of C: ``margin_report`` counts the support vectors
-whose dual coefficient sits at the bound C (a hard-margin solution has none). The chosen values
-are in ``best_params_``.
+The paper trains a hard-margin SVM (Gaussian kernel). ``C`` or ``gamma`` left None is chosen by a small
+stratified cross-validated grid search on the training histograms only; the grid reaches C = 1e6, so
+a (practically) hard margin can win. Whether the fit *is* hard-margin is a fact of the fit, counted by
+``margin_report``; the chosen values are in ``best_params_``.
 """
 
 from __future__ import annotations

@@ -1,21 +1,11 @@
 """From recordings to classifier input: the daemon's trigger finds each trial's start, T frames follow.
 
 Train and serve must cut the same windows, so the trigger's settings come from the runtime's
-``resolve_trigger`` (the daemon's default unless told otherwise) and each labelled trial is fed
-frame by frame to the runtime's own trigger object. The window is the T frames from
-``pre_frames`` before the trigger frame, as in the daemon.
-
-The default is the onset trigger (runtime/onset.py): a protocol trial starts on a settled grasp
-(the robot holds the object out, as in the paper), so the trigger is told so at the trial's
-first frame and fires when a pad departs from it. With ``fraction`` (or ``kind = "threshold"``)
-the paper's trigger is used: ``runtime.trigger.ThresholdTrigger`` (fires when the max of the chosen pads
-reaches ``fraction`` x full scale, paper: about 15 %; re-arms only below ``fraction -
-hysteresis``, the runtime's default hysteresis). It fires on a rising edge: a trial whose first
-frame is already at or above the level (the resting grip presses that hard) starts disarmed and
-triggers only if the level drops below the re-arm level and rises again. The T frames from the
-trigger (the trigger frame included, as in the runtime) form one case. A trial that never
-triggers, or that ends before T frames after its trigger, is listed in ``Dataset.untriggered``
-with the reason: never dropped silently, never padded.
+``resolve_trigger`` and each labelled trial is fed frame by frame to the runtime's own trigger object;
+a case is the T frames from ``pre_frames`` before the trigger frame, as in the daemon. The onset trigger
+(the default) is told at a trial's first frame that the grasp has settled; the threshold trigger fires
+on a rising edge only. A trial that never triggers, or ends before T frames after its trigger, is
+listed in ``Dataset.untriggered`` with the reason: never dropped silently, never padded.
 """
 
 from __future__ import annotations

@@ -1,23 +1,16 @@
 """How the shipped default is chosen, never on a test fold: nested grouped cross-validation.
 
-The candidates are ``trainer.select.CANDIDATES`` (what ``handover train --select`` chooses from).
-For every real task and every outer split of the compare, each candidate is scored by a grouped
-3-fold cross-validation *inside the outer training part only* (StratifiedGroupKFold over contact
-chunks: related windows never straddle inner folds either). A candidate's real score is the mean
-over tasks of its mean inner accuracy. The simulated protocol (synthetic) is a gate, scored the same
-way: inside each outer leave-one-subject-out training part, leave one of the remaining subjects
-out. The rule, fixed here:
+Each candidate of ``trainer.select.CANDIDATES`` is scored, for every real task and outer split of the
+compare, by grouped 3-fold cross-validation inside the outer training part only; its real score is
+the mean over tasks. The simulated protocol is a gate, scored the same way (leave one more subject
+out). The rule:
 
 1. only candidates whose exported graph answers one case with p99 <= ``LATENCY_BUDGET_US``;
-2. rank by real score (3 decimals); the best and every candidate that *ties* with it come first,
-   the fastest median first, then the rest by score. A tie is the one-standard-error rule on
-   paired per-task differences (``ties``): the inner scores move by about half a point with the
-   inner split's seed (results/weighting_check.md), so a gap smaller than that noise is no reason to
-   ship a slower graph. (Until 2026-11-24 only equal scores at 3 decimals tied: see results/compare.md.)
-3. the first in that order whose simulated inner score is >= ``SIM_GATE`` is the default (a
-   simulation of fewer than 3 subjects, ``--quick``, cannot be nested and does not gate).
-
-The outer test folds only report how the chosen default does; they never enter the choice.
+2. rank by real score (3 decimals); the best and every candidate that *ties* with it (the
+   one-standard-error rule on paired per-task differences, ``ties``: a gap within the inner split's
+   noise is no reason to ship a slower graph) come first, fastest median first;
+3. the first in that order whose simulated inner score is >= ``SIM_GATE`` is the default (fewer than
+   3 simulated subjects cannot be nested and do not gate).
 """
 
 from __future__ import annotations

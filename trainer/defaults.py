@@ -1,14 +1,9 @@
-"""The product's default classifier, defined once: what ``handover train`` exports without
-options, what the demo and the benchmarks train, and what ``trainer.default_classifier`` returns.
+"""The product's default classifier, defined once: what ``handover train`` exports without options.
 
-The default: the paper's hand-designed features plus per-pad level statistics (``hand``, ``stats``),
-standardised, a quantity both families compute counted once (``feature_weighting = "distinct"``,
-trainer/feature_weighting.py), linear SVM (C searched). Chosen by the rule of
-``trainer.default_choice`` (results/compare.md, "Choosing the default"): nested grouped
-cross-validation on the real SDH-2 tasks inside the outer training folds, ties by the
-one-standard-error rule going to the faster graph, a 1 ms latency budget and a 95 % nested
-leave-one-subject-out gate on the simulated protocol; the outer test folds never enter. The paper's configuration stays reachable:
-``handover train --no-per-pad`` (one derivative histogram, ``--features bow``).
+The paper's hand-designed features plus per-pad level statistics (``hand``, ``stats``), standardised,
+a quantity both families compute counted once (``feature_weighting = "distinct"``), linear SVM (C
+searched); chosen by ``trainer.default_choice`` (results/compare.md, "Choosing the default"). The
+paper's configuration stays reachable: ``handover train --no-per-pad --features bow``.
 """
 
 from __future__ import annotations

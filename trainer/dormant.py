@@ -1,23 +1,11 @@
 """A fifth class, "dormant": windows in which nobody interacts, so the runtime can classify every frame.
 
-The paper suggests it to get rid of the manual threshold. A continuously classifying model
-sees every T-frame window of the stream, so its training windows are cut the way the stream
-will present them:
-
-- *action* windows from the protocol's trials, at several positions around the annotated onset
-  (from half a window of the action in view to a few frames after the onset), labelled with
-  the action;
-- *dormant* windows from the protocol's frames before the onset (the grasp baseline of every
-  subject, object and pose) and from idle streams of the simulated hand (noise, creep, drift,
-  the arm's motion, regrasps, the hand closing and opening, the open hand), stratified by the
-  rarest thing *in view* so transitions are represented however the window is placed over them;
-- *dormant* windows of handover sessions (the scripted-session renderer, training seed): the
-  hand closing on the object before the person acts (``place``) and the hand opening when the
-  object is taken away after the action (``take_away``). Neither is one of the four
-  interactions; a continuously classifying model sees every window over them.
-
-Models are the unchanged BowSVC and the unchanged ONNX exporter; the 5-class model's metadata
-names ``dormant_class`` so the daemon accepts it for ``scene.mode = "continuous"``.
+A continuously classifying model sees every T-frame window, so its training windows are cut the way
+the stream presents them: *action* windows at several positions around the annotated onset; *dormant*
+windows from the protocol's frames before the onset, from the simulated hand's idle streams
+(stratified by the rarest thing in view) and from handover sessions' placing and taking away. Models
+are the unchanged classifiers and exporter; the metadata names ``dormant_class`` so the daemon accepts
+the model for ``scene.mode = "continuous"``.
 """
 
 from __future__ import annotations

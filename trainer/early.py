@@ -1,28 +1,13 @@
 """Early heads and their report rule, fitted on training data only.
 
-Why: a decision at T frames after the person's onset answers about half a second late; many
-events are plain after a few frames. Here, for each point ``p`` of ``EARLY_POINTS`` a head of the
-default kind (``trainer.defaults.default_classifier``: same features, same selection of C) is
-trained on the first ``p`` frames of the training windows, and the report rule
-(``runtime.early``: a calibrated confidence above a threshold, optionally agreement with the
-previous point) is chosen by cross-validation inside the training data, grouped by subject:
-
-1. out-of-fold answers of every head and of the full model (leave one group out);
-2. per point, Platt scaling of the score margin to the probability of being right;
-3. the rule (threshold, agree) with the fewest mean frames whose cascade accuracy stays within
-   ``target_loss`` of the full window's on every kind of case (``case_kinds``: the action cases and,
-   for a stream model, the dormant cases), over a fixed grid; ties go to the more accurate, then the
-   stricter rule (so heads that never help give the rule that always waits for T).
-
-Why per kind: the kinds fail differently. An action case answered wrongly is a wrong event; a
-dormant window answered with an action is a false event, which the full window would have
-withheld. Dormant windows are few or many depending on how much idle a lab recorded, so a loss
-allowed over all cases together could all fall on one kind (every early report of an action
-inside an arm move, say) and still pass.
-
-``evaluate`` nests the whole choice inside leave-one-group-out for an honest curve and operating
-point (``handover train``'s report): the rule of outer fold i is chosen from answers of models
-trained without i and one more group; ``Fits`` fits each leave-groups-out model once.
+Why: a decision at T frames answers about half a second late, while many events are plain after a few
+frames. For each point of ``EARLY_POINTS`` a head of the default kind is trained on the first ``p``
+frames, and the report rule (``runtime.early``) is chosen by grouped cross-validation inside the
+training data: out-of-fold answers, Platt scaling of each head's score margin, then the rule with the
+fewest mean frames whose accuracy stays within ``target_loss`` of the full window's on *every* kind of
+case (``case_kinds``: a wrong action and a false event on a dormant window fail differently, and a loss
+allowed over all cases could fall on one kind). ``evaluate`` nests the whole choice inside
+leave-one-group-out for an honest report; ``Fits`` fits each leave-groups-out model once.
 """
 
 from __future__ import annotations

@@ -1,16 +1,11 @@
 """Stream figures from a lab's own recordings: each held-out subject replayed through the daemon.
 
-Accuracy on cut windows says little about a live stream: what a robot meets is events right,
-wrong or missed, and events nobody made while the arm moves. So for every subject (and every
-recording that holds only idle) a model is trained without it, exported as the one ONNX graph
-the daemon serves, and that subject's recording is replayed frame by frame through the daemon's
-own code (``trainer.streams_eval.replay``) in the stream setting the model serves: each trial
-from its held grasp, each idle stretch on its own (the recorder's segments are not one
-continuous stream). A trial's event is right when the first report inside it (from
-``EARLY_FRAMES`` before the reference on) names its action; reports before that are early;
-reports in idle stretches are false events, counted per hour of what was going on. The
-reference is the annotated onset where the recording has one (a scripted subject's), else the
-go cue (a person's reaction time is then part of onset-to-report).
+Why: what a robot meets is events right, wrong or missed, and false events, not window accuracy. For
+every subject (and idle-only recording) a model trained without it is exported and that recording is
+replayed through the daemon's code (``trainer.streams_eval.replay``): each trial from its held grasp,
+each idle stretch on its own. A trial's event is right when its first report (from ``EARLY_FRAMES``
+before the reference) names its action; reports in idle are false events per hour. The reference is
+the annotated onset where there is one, else the go cue.
 """
 
 from __future__ import annotations

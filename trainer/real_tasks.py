@@ -1,19 +1,11 @@
 """Labelled tasks built from the real SDH-2 recordings in ``../shared/data`` (other projects',
 GPL-3.0; labels by file), each with its split written down.
 
-Window rule (documented, not tuned): frames of the task's pads; a frame is *in contact* when some
-taxel reaches ``CONTACT_FRACTION`` (5 %) of full scale; the contact frames of a file form runs,
-each cut into chunks of at most ``CHUNK_FRAMES``; a case is T = 15 consecutive frames inside one
-chunk, starting every ``STRIDE`` frames. Windows never cross a chunk, and a chunk is all train or
-all test (grouped splits), so overlapping windows never straddle train and test. Where one file
-holds one class, keeping files apart would leave a class out of training: those splits keep
-*chunks* apart (nearer in time than a new recording); ``real_objects_across_folders`` is the task
-that keeps files apart.
-
-Tasks: ``real_objects`` (7 objects, distal pads), ``real_objects_all_pads`` (the same files, all six
-pads), ``real_grasps`` (grasps/ by object, all pads), ``real_slip_scenes`` (kiechle slip-detection/
-by recording, distal pads), ``real_objects_across_folders``, ``real_objects_long`` (the objects of both
-folders, distal pads, cases of 30 frames, 5-fold), ``real_slip`` (mas-group bags).
+Window rule (documented, not tuned): a frame is *in contact* when a taxel of the task's pads reaches
+``CONTACT_FRACTION`` of full scale; contact runs are cut into chunks of at most ``CHUNK_FRAMES``, and a
+case is T consecutive frames inside one chunk, every ``STRIDE`` frames. A chunk is all train or all
+test, so overlapping windows never straddle the split; where one file holds one class, splits keep
+chunks apart (``real_objects_across_folders`` keeps files apart). The tasks: ``real_tasks``.
 """
 
 from __future__ import annotations

@@ -1,15 +1,10 @@
 """A lab's own idle recordings in training: dormant windows from recorded idle stretches.
 
-``handover record`` stores, besides the trials, stretches in which nobody touches the object
-(``firmware_io.recordings.idle_stretches``), and ``handover import --idle`` marks whole files so.
-With them ``handover train`` adds the fifth class, "dormant", to the cases the trigger cut from
-the trials, so the exported model is the one the default stream setting serves (the onset
-trigger, a window read as dormant is not reported). How dormant windows are cut has one owner,
-``trainer.dormant`` (``idle_windows``: stratified by the rarest idle source in view); this module
-only splits a recording into its continuous idle pieces (a recorded stretch, or the coded part
-of a simulated or imported stream) and names each window's subject. Without idle data the
-four-class model is trained and one line says what that costs, from the measured figure in
-results/streams.json.
+With idle stretches (``handover record``, ``handover import --idle``) ``handover train`` adds the class
+"dormant", so the exported model is the one the default stream setting serves. ``trainer.dormant``
+owns how dormant windows are cut; this module only splits a recording into its continuous idle pieces
+and names each window's subject. Without idle data one line says what that costs
+(results/streams.json).
 """
 
 from __future__ import annotations

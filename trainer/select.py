@@ -1,15 +1,10 @@
 """``handover train --select``: choose the feature family and its settings on the user's own data.
 
-Grouped cross-validation on the training data only: leave one subject out where there are at
-least two subjects, else folds grouped by recording run, else stratified folds over trials (each
-case is one trial). Each candidate is also fitted on all the data, exported as ONE ONNX graph and
-timed one case at a time through the runtime's loader; candidates whose single-case p99 exceeds
-the latency budget are out (CPU time of the calling thread: onnxruntime runs one intra-op thread
-there, and other work on a shared machine must not decide the choice; ``handover bench latency``
-measures wall time end to end). The best is the highest mean fold accuracy (3 decimals); candidates
-within one standard error of it (paired per-fold differences, ``trainer.default_choice.ties``) tie,
-and the fastest of the ties wins; the runners-up are reported with their fold spread. Nothing here sees a test
-set: the user's held-out data, if any, is never passed in.
+Grouped cross-validation on the training data only (leave one subject out, else folds by run, else
+stratified). Each candidate is exported and timed one case at a time (thread CPU time, so a shared
+machine's load does not decide); those over the latency budget are out. The best mean fold accuracy
+wins, and among candidates within one standard error of it (``trainer.default_choice.ties``) the
+fastest. A user's held-out data is never passed in.
 """
 
 from __future__ import annotations

@@ -1,21 +1,11 @@
 """What matters on a deployed robot, measured on long streams: false events per hour of idle,
 detection delay from the person's onset, events missed, wrong class.
 
-The stream is replayed frame by frame through the daemon's own detector
-(``runtime.detector.Detector.feed``: ring buffer, trigger, ONNX model, report rule), fed
-in-process with the recorded frames, so what is measured is what the service would do. The modes, the same streams for all:
-
-- ``threshold``: the paper's trigger (15 % of full scale, hysteresis, refractory) + a 4-class model;
-- ``baseline``: the same trigger measured against a slowly tracked per-taxel baseline + a 4-class model;
-- ``onset``: the onset trigger (runtime/onset.py: per-pad change against the settled grasp) + a 4-class model;
-- ``onset_robot``: the same, and the robot says when its grasp has settled and when it lets go
-  (``Detector.set_grasp``, as the control socket or the ROS 2 topic would; ``robot_messages``);
-- ``onset_dormant``: the onset trigger + the 5-class model with a dormant class (a window it reads
-  as dormant is not reported);
-- ``continuous``: every frame classified by the 5-class model with a dormant class;
-- ``onset_arm``, ``onset_dormant_arm``, ``continuous_arm``: the same three, and the robot says when
-  its arm moves (``Detector.set_arm_moving`` from the recording's marks, ``firmware_io.recordings.arm_marks``:
-  the simulator's own moves, a recorder's robot messages or prompted ``arm_move`` stretches).
+Streams are replayed frame by frame through the daemon's own ``Detector.feed``, so what is measured is
+what the service would do. Modes (``MODES``): ``threshold`` and ``baseline`` (the paper's trigger, plain or
+over a tracked baseline), ``onset``, ``onset_robot`` (the robot says when its grasp settles and lets go),
+``onset_dormant`` and ``continuous`` (the 5-class model), and ``*_arm`` variants in which the robot
+also says when its arm moves (the recording's marks, ``firmware_io.recordings.arm_marks``).
 """
 
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """Compare an exported graph with the float64 reference on the same windows.
 
-The reference is the fitted scikit-learn model the graph was exported from (``model.joblib``
-kept next to ``model.onnx``; its sha256 is in the ONNX metadata under ``reference``), run in
-float64: ``BagOfWords.transform`` + ``SVC.predict``/decision function. The graph is run with
-its BoW histogram and its per-window word choices (every ``ArgMin`` over codewords) exposed as
-extra outputs, so every label disagreement can be traced to either codeword choices or an SVM
-decision, each with its margin in units of the float32 error bound (``trainer.numerics``).
-
-Word choices are compared window by window: a window whose word differs from the float64 one is
-excused only when *that window's* margin is below ``SAFETY`` (a near tie); any other differing
-window is a bug, whatever the label. A histogram difference is explained only when every
-differing window is a near tie and each entry moves by at most (near-tie windows / active
-windows) of its pad group, the most those windows can move it. A label disagreement is
-accepted only as a near tie.
+The reference is the scikit-learn model the graph was exported from (``model.joblib``, its sha256 in
+the ONNX metadata), run in float64. The graph runs with its histogram and per-window word choices
+exposed, so every label disagreement traces to word choices or an SVM decision, each with its margin
+in units of the float32 error bound (``trainer.numerics``). A differing word is excused only as a near
+tie of that window; a histogram or label difference only when explained by near ties.
 """
 
 from __future__ import annotations

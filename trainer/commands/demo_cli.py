@@ -1,15 +1,9 @@
 """``handover demo``: the whole product end to end on the simulated hand (synthetic data).
 
-1. simulate the paper's protocol (5 subjects x 180 trials),
-2. train BoW + SVM, evaluate it (report) and export one ONNX graph,
-3. serve an emulated DSACON32m on loopback TCP that plays a scripted session of new,
-   unseen simulated subjects (a different seed: other strengths, speeds and styles),
-4. run the real daemon against it with the exported model, print every event as it
-   happens and compare the events with the script (``trainer.streams_eval.session_outcomes``:
-   missed and wrong events listed, per-class precision and recall).
-
-The model is trained with the daemon's default stream setting (``--trigger``; the onset trigger,
-chosen by the rule in results/streams.md), which the model records and the daemon then uses.
+Simulates the paper's protocol, trains, evaluates and exports the default model, serves an emulated
+controller playing a session of unseen simulated subjects, runs the real daemon against it and
+compares its events with the script (``trainer.streams_eval.session_outcomes``). The model is trained
+with the daemon's default stream setting (``--trigger``), which it records and the daemon then uses.
 """
 
 from __future__ import annotations

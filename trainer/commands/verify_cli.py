@@ -1,12 +1,9 @@
 """``handover verify MODEL.onnx [--data DIR] [--stress] [--json]``: the graph against float64.
 
-Runs the exported graph and the float64 scikit-learn reference (the ``.joblib`` next to the
-``.onnx``) on the same windows: the recordings in ``--data``, else the folder the model was
-trained on (``handover train --data`` records it in the model), else held-out simulated
-trials; and, with ``--stress``, the stress families of ``trainer.stress``. Windows stream in
-batches (bounded memory) with a progress line on stderr about every 10 %. Exit status 0 when every
-disagreement is a near tie, every window whose word differs from the float64 word is a near
-tie, and no output is NaN/inf; 1 otherwise; 2 when it cannot run.
+Runs the exported graph and its float64 reference (the ``.joblib`` next to it) on the same windows:
+``--data``, else the folder the model was trained on, else held-out simulated trials; ``--stress`` adds
+``trainer.stress``'s families. Exit 0 when every disagreement is a near tie and no output is NaN/inf,
+1 otherwise, 2 when it cannot run.
 """
 
 from __future__ import annotations
