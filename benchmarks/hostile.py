@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.hostile_models import write_model
-from firmware_io.frame_timing import nominal_stamp_ms
+from benchmarks.hostile_parts import folder_daemon, pressed_frames, serving
 from trainer.measure import load_average, run_facts, write_results
 from trainer.shared_data import default_data_dir
 
@@ -70,39 +70,24 @@ def attack_models(work: Path, quick: bool) -> dict:
 def sleeper_in_daemon(folder: Path, kind: str) -> dict:
     """A sleeper dropped over a serving model: taken out of service at its first real press?"""
     from benchmarks import hostile_models as H
-    from firmware_io.client import Frame
-    from firmware_io.layout import SensorLayout
-    from runtime.config import config_from_dict
-    from runtime.daemon import Daemon
 
-    (folder / "models").mkdir(parents=True)
-    write_model(folder / "models", "old.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
+    models = folder / "models"
+    models.mkdir(parents=True)
+    write_model(models, "old.onnx", H.valid(bias_class=1), mtime=time.time() - 100)
     events: list = []
-    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
-                            "model": {"folder": str(folder / "models")}, "health_file": str(folder / "status.json")})
-    daemon = Daemon(cfg, on_event=events.append)
-    daemon.detector.fit(SensorLayout.sdh2())
-    daemon.models.start()
-    daemon.models.watcher.stop()
-    write_model(folder / "models", "new.onnx", H.sleeper(kind))
+    daemon = folder_daemon(models, folder / "status.json", on_event=events.append)
+    write_model(models, "new.onnx", H.sleeper(kind))
     daemon.models.watcher.poll(require_stable=False)
     daemon._housekeeping(time.monotonic())
-    column = int(daemon.layout.columns("distal")[40])
-    for i in range(120):
-        values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
-        values[column] = int(H.SLEEPER_PEAK) if i % 60 < 20 else 0
-        daemon.handle_frame(Frame(i, nominal_stamp_ms(i), time.perf_counter(), values))
-    restarted = Daemon(cfg)
-    restarted.detector.fit(SensorLayout.sdh2())
-    restarted.models.start()
-    restarted.models.watcher.stop()
+    for frame in pressed_frames(daemon.layout, range(120), lambda i: i % 60 < 20, int(H.SLEEPER_PEAK)):
+        daemon.handle_frame(frame)
+    after_restart = serving(folder_daemon(models, folder / "status.json"))
     h = daemon.health
-    serving = Path(daemon.model.path).name if daemon.model is not None else None
-    after_restart = Path(restarted.model.path).name if restarted.model is not None else None
+    serves = serving(daemon)
     invalid = sum(not all(np.isfinite(list(e.scores.values()))) for e in events)
-    return {"taken_out_of_service": h.models_quarantined, "serving_after": serving,
+    return {"taken_out_of_service": h.models_quarantined, "serving_after": serves,
             "serving_after_restart": after_restart, "events": len(events), "invalid_events": invalid,
-            "handled": h.models_quarantined == 1 and serving == "old.onnx" and after_restart == "old.onnx"
+            "handled": h.models_quarantined == 1 and serves == "old.onnx" and after_restart == "old.onnx"
             and invalid == 0}
 
 

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.hostile_parts import ROOT, one_line
+
 __all__ = ["files_that_eat", "full_disk_record"]
 
 LIMIT_S, LIMIT_MB = 5.0, 500.0
@@ -37,11 +38,6 @@ def writestr(self, info, data, *a, **kw):
         raise OSError(errno.ENOSPC, "No space left on device")
     return real(self, info, data, *a, **kw)
 zipfile.ZipFile.writestr = writestr"""
-
-
-def one_line(text: str, *needles: str) -> bool:
-    lines = text.strip().splitlines()
-    return len(lines) == 1 and all(n in lines[0] for n in needles)
 
 
 def _measured(argv: list[str], prelude: str = "") -> tuple[dict, str]:

@@ -4,19 +4,12 @@ from __future__ import annotations
 
 import json
 import resource
-import signal
 import subprocess
-import sys
 import time
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _cli(argv: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "runtime.cli", *argv], capture_output=True, text=True, cwd=ROOT,
-                          timeout=timeout)
+from benchmarks.hostile_parts import cli, run_daemon, sigterm, status_when
 
 
 def _ends_in_one_line(done: subprocess.CompletedProcess, command: str, name: str) -> bool:
@@ -48,15 +41,15 @@ def attack_recordings(work: Path, quick: bool) -> dict:
             commands = ()
         for command in commands:
             if command == "emulate":
-                done = _cli(["emulate", "--pty", "--source", str(path), "--duration", "0.1"])
+                argv = ["emulate", "--pty", "--source", str(path), "--duration", "0.1"]
             elif command == "plot":
-                done = _cli(["plot", str(path), "--out", str(work / "x.png")])
+                argv = ["plot", str(path), "--out", str(work / "x.png")]
             else:
                 data = work / f"train-{name}"
                 data.mkdir()
                 (data / path.name).symlink_to(path)
-                done = _cli(["train", "--data", str(data), "--out", str(work / "report")])
-            row[f"{command}_exit2_one_line"] = _ends_in_one_line(done, command, path.name)
+                argv = ["train", "--data", str(data), "--out", str(work / "report")]
+            row[f"{command}_exit2_one_line"] = _ends_in_one_line(cli(argv, timeout=300), command, path.name)
         rows[name] = row
     grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss_before) / 1024
     failures = sum(not v for row in rows.values() for k, v in row.items() if k.endswith(("one_line",)))
@@ -128,16 +121,14 @@ def attack_daemon(work: Path) -> dict:
     hostile = {"ort-refuses.onnx": unknown_op.SerializeToString(), "ort-banner.onnx": H.ort_banner(), "nan.onnx": H.nan_scores(),
                "inf.onnx": H.inf_scores(), "label.onnx": H.label_out_of_range(), "slow.onnx": H.slow(40_000),
                **{f"mutant{i}.onnx": m for i, m in enumerate(H.mutations(H.valid(), 5, seed=5, max_flips=40))}}
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = run_daemon(config, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         time.sleep(1.0)
         for i, (name, data) in enumerate(hostile.items()):
             write_model(models, name, data, mtime=time.time() - 50 + i)
             time.sleep(0.3)
-        status = _wait_for_rejections(state / "status.json", len(hostile), proc)
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
+        status = status_when(state / "status.json", proc, lambda s: s.get("models_rejected", 0) >= len(hostile), 60.0)
+        sigterm(proc, 10)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -152,20 +143,6 @@ def attack_daemon(work: Path) -> dict:
     result["failures"] = (non_json + result["tracebacks"] + int(proc.returncode != 0) + int(not result["still_serving"])
                           + int(result["models_rejected"] != len(hostile)))
     return result
-
-
-def _wait_for_rejections(path: Path, n: int, proc: subprocess.Popen, timeout: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout
-    status: dict = {}
-    while time.monotonic() < deadline and proc.poll() is None:
-        try:
-            status = json.loads(path.read_text())
-        except (OSError, ValueError):
-            status = {}
-        if status.get("models_rejected", 0) >= n:
-            break
-        time.sleep(0.2)
-    return status
 
 
 def _is_event(line: str) -> bool:

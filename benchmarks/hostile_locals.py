@@ -10,27 +10,13 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.hostile_parts import HANG_GUARD_S, NOBODY, cli, one_line, run_daemon, sim_config, wait_until
+
 __all__ = ["device_spellings", "lying_early_heads", "squatted_control_name", "squatted_lock_folder",
            "unwritable_health_folder"]
-HANG_GUARD_S, NOBODY = 30.0, 65534
-
-
-def cli(argv: list[str], **kw) -> subprocess.CompletedProcess:
-    from benchmarks.hostile_world import cli as world_cli  # it imports this module
-
-    return world_cli(argv, **kw)
-
-
-def one_line(text: str, *needles: str) -> bool:
-    from benchmarks.hostile_world import one_line as world_one_line
-
-    return world_one_line(text, *needles)
-
 SQUAT = ("import socket, sys, time\ns = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)\n"
          "s.bind(b'\\0' + sys.argv[1][1:].encode()); print('bound', flush=True); time.sleep(60)")
 LOOP = ("import socket, sys\nname = b'\\0' + sys.argv[1][1:].encode()\nwhile True:\n"
@@ -48,9 +34,7 @@ def _as_nobody(code: str, *args: str) -> subprocess.Popen:
 def _config(path: Path, rest: str, url: str = "sim://") -> Path:
     models = path.parent / "models"
     models.mkdir(parents=True, exist_ok=True)
-    path.write_text(f'realtime_priority = 0\n[device]\nurl = "{url}"\n[model]\nfolder = "{models}"\n'
-                    f'[sinks]\nstdout = false\n{rest}')
-    return path
+    return sim_config(path, models, f"[sinks]\nstdout = false\n{rest}", "realtime_priority = 0\n", url)
 
 
 def squatted_control_name(work: Path) -> dict:
@@ -136,16 +120,13 @@ def device_spellings(work: Path) -> dict:
     env = dict(os.environ, XDG_RUNTIME_DIR=str(work / "run"))
     (work / "run").mkdir()
     config = _config(work / "a" / "c.toml", "", url=f"tcp://127.0.0.1:{port}")
-    first = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=ROOT)
+    first = run_daemon(config, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     rows = {}
     try:
         from runtime import instance_lock
 
         lock = instance_lock.device_lock_path(f"tcp://127.0.0.1:{port}", env)
-        deadline = time.monotonic() + HANG_GUARD_S
-        while not instance_lock.held_by_other("device", lock) and time.monotonic() < deadline:
-            time.sleep(0.1)
+        wait_until(lambda: instance_lock.held_by_other("device", lock))
         for i, url in enumerate((f"tcp://localhost:{port}", f"TCP://127.0.0.1:{port}", f"tcp://127.1:{port}")):
             config = _config(work / f"b{i}" / "c.toml", "", url=url)
             done = cli(["run", "--config", str(config)], timeout=HANG_GUARD_S, env=env)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -31,25 +30,26 @@ from benchmarks.hostile_locals import (
     unwritable_health_folder,
 )
 from benchmarks.hostile_models import write_model
-from firmware_io.frame_timing import NOMINAL_PERIOD_S, nominal_stamp_ms
+from benchmarks.hostile_parts import (
+    HANG_GUARD_S,
+    NOBODY,
+    ROOT,
+    cli,
+    folder_daemon,
+    one_line,
+    pressed_frames,
+    read_json,
+    run_daemon,
+    serving,
+    sigterm,
+    sim_config,
+    status_when,
+    wait_until,
+)
+from firmware_io.frame_timing import NOMINAL_PERIOD_S
 
-ROOT = Path(__file__).resolve().parents[1]
-HANG_GUARD_S = 30.0
-"""How long a case waits for a part that should never block before calling it blocked."""
 SMALL_PIPE = 4096
 """A pipe this small fills after about a dozen event lines (a pipe nobody reads, sooner)."""
-
-
-def cli(argv: list[str], timeout: float = 120, **kw) -> subprocess.CompletedProcess:
-    """``handover ARGV`` as a process (stdout and stderr captured as text)."""
-    return subprocess.run([sys.executable, "-m", "runtime.cli", *argv], capture_output=True, text=True, cwd=ROOT,
-                          timeout=timeout, **kw)
-
-
-def one_line(text: str, *needles: str) -> bool:
-    """Whether ``text`` is exactly one line that names every needle."""
-    lines = text.strip().splitlines()
-    return len(lines) == 1 and all(n in lines[0] for n in needles)
 
 
 def _daemon_folders(work: Path) -> tuple[Path, Path]:
@@ -62,19 +62,8 @@ def _daemon_folders(work: Path) -> tuple[Path, Path]:
 
 def _run_config(config: Path, url: str, models: Path, rest: str) -> Path:
     """A ``handover run`` config: the health file beside it, no realtime priority, ``url``, ``models``; then ``rest``."""
-    config.write_text(f'health_file = "{config.parent / "status.json"}"\nrealtime_priority = 0\n'
-                      f'[device]\nurl = "{url}"\n[model]\nfolder = "{models}"\n{rest}')
-    return config
-
-
-def _sigterm(proc: subprocess.Popen) -> int | None:
-    """SIGTERM, then the exit code; None (and killed) when it does not end within the hang guard."""
-    proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(timeout=HANG_GUARD_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return None
+    return sim_config(config, models, rest, f'health_file = "{config.parent / "status.json"}"\nrealtime_priority = 0\n',
+                      url)
 
 
 def udp_listener() -> tuple[socket.socket, int]:
@@ -98,16 +87,9 @@ SERVED_TRIGGER = ('[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0
 """A trigger that fires at each press of ``press_cycles``."""
 
 
-def served_config(work: Path, sinks: str = "stdout = false", more: str = "") -> Path:
-    """A config file for ``served_daemon`` (a SIGHUP reads it again); ``sinks``: the [sinks] lines."""
-    path = work / "served.toml"
-    path.write_text(f'realtime_priority = 0\n[device]\nurl = "sim://"\n[model]\nfolder = "{work / "models"}"\n'
-                    f'[sinks]\n{sinks}\n{SERVED_TRIGGER}{more}')
-    return path
-
-
-def served_daemon(work: Path, sinks: str = "stdout = false", stream=None, events: list | None = None, more: str = ""):
-    """A Daemon serving a valid model (always ``pull``) for the SDH-2 layout, frames fed by the caller."""
+def served_daemon(work: Path, sinks: str = "stdout = false", stream=None, more: str = ""):
+    """A Daemon serving a valid model (always ``pull``) for the SDH-2 layout, frames fed by the caller; its
+    config is work/served.toml (a SIGHUP reads it again), ``sinks`` its [sinks] lines."""
     from benchmarks import hostile_models as H
     from firmware_io.layout import SensorLayout
     from runtime.config import load_config
@@ -117,26 +99,18 @@ def served_daemon(work: Path, sinks: str = "stdout = false", stream=None, events
     models = work / "models"
     models.mkdir(parents=True, exist_ok=True)
     path = write_model(models, "good.onnx", H.valid(bias_class=0))
-    cfg = load_config(served_config(work, sinks, more))
-    daemon = Daemon(cfg, stream=stream, on_event=None if events is None else events.append)
+    config = sim_config(work / "served.toml", models, f"[sinks]\n{sinks}\n{SERVED_TRIGGER}{more}", "realtime_priority = 0\n")
+    daemon = Daemon(load_config(config), stream=stream)
     daemon.serve(load_model(path), SensorLayout.sdh2())
     return daemon
 
 
 def press_cycles(daemon, cycles: int, first: int = 0, level: int = 3000) -> int:
     """``cycles`` presses of a distal taxel (10 frames on, 10 off) through the hot path; the next frame number."""
-    from firmware_io.client import Frame
-
-    layout = daemon.layout
-    column = int(layout.columns("distal")[40])
-    number = first
-    for _ in range(cycles):
-        for i in range(20):
-            values = np.zeros(layout.n_taxels, dtype=np.uint16)
-            values[column] = level if i < 10 else 0
-            daemon.handle_frame(Frame(number, nominal_stamp_ms(number), time.perf_counter(), values))
-            number += 1
-    return number
+    end = first + 20 * cycles
+    for frame in pressed_frames(daemon.layout, range(first, end), lambda n: (n - first) % 20 < 10, level):
+        daemon.handle_frame(frame)
+    return end
 
 
 class LogLines(logging.Handler):
@@ -220,8 +194,7 @@ def blocked_stdout_process(work: Path) -> dict:
                          '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\nrefractory_s = 0.3\n')
     read_end, write_end = os.pipe()
     fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, SMALL_PIPE)
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
-                            stdout=write_end, stderr=subprocess.PIPE, text=True)
+    proc = run_daemon(config, stdout=write_end, stderr=subprocess.PIPE)
     os.close(write_end)
     try:
         got: list[bytes] = []
@@ -230,7 +203,7 @@ def blocked_stdout_process(work: Path) -> dict:
             got += [d for d in drain(listener) if b'"decision"' in d]
             time.sleep(0.1)
         pipe_full = len(os.read(read_end, 1 << 20)) >= SMALL_PIPE - 512  # read only now: it was full
-        code = _sigterm(proc)
+        code = sigterm(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -262,7 +235,7 @@ def closed_stdout(work: Path) -> dict:
         while time.monotonic() < deadline and proc.poll() is None and got < 1:
             got += len(drain(listener))
             time.sleep(0.1)
-        code = _sigterm(proc)
+        code = sigterm(proc)
         err = proc.communicate()[1]
         said = [line for line in err.splitlines() if "sinks.stdout" in line]
         outcomes[stdout_on] = {"exit_code": code, "udp_datagrams": got, "traceback": "Traceback" in err,
@@ -274,13 +247,6 @@ def closed_stdout(work: Path) -> dict:
             "detail": "; ".join(f"sinks.stdout = {str(k).lower()}: exit {v['exit_code']}, "
                                 f"{v['udp_datagrams']} datagrams, {v['stdout_lines']} line(s) about stdout"
                                 f"{', a traceback' if v['traceback'] else ''}" for k, v in outcomes.items())}
-
-
-def read_json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
 
 
 # -- 3: DNS ------------------------------------------------------------------------------------------
@@ -316,7 +282,7 @@ def silent_dns(work: Path) -> dict:
         sink = next((s for s in daemon.sinks.sinks if isinstance(s, UdpSink)), None) if built else None
         unsent = sink.errors if sink is not None else 0
         answer.set()
-        resolved = sink is not None and _wait(lambda: sink.address is not None)
+        resolved = sink is not None and wait_until(lambda: sink.address is not None)
         if built and resolved:
             press_cycles(daemon, 3, first=before)
         got = len([d for d in drain(listener) if b'"decision"' in d])
@@ -325,7 +291,8 @@ def silent_dns(work: Path) -> dict:
         answer.set()
         listener.close()
     check = R.resolve_problem("no-such-host.invalid", 9, bound_s=HANG_GUARD_S / 3)
-    done = cli(["run", "--config", str(_unresolvable_config(work)), "--check"])
+    unresolvable = sim_config(work / "unresolvable.toml", work, '[sinks]\nudp = ["no-such-host.invalid:9999"]\n')
+    done = cli(["run", "--config", str(unresolvable), "--check"])
     check_says = "no-such-host.invalid" in done.stderr and "sinks.udp" in done.stderr
     held = built and resolved and unsent == 3 and got == 3 and check is not None and check_says
     return {"held": held, "detail": f"built and reloaded while DNS was silent: {built}; {unsent} events counted "
@@ -333,27 +300,10 @@ def silent_dns(work: Path) -> dict:
                                     f"unresolvable host: {check_says}"}
 
 
-def _unresolvable_config(work: Path) -> Path:
-    path = work / "unresolvable.toml"
-    path.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{work}"\n'
-                    '[sinks]\nudp = ["no-such-host.invalid:9999"]\n')
-    return path
-
-
-def _wait(condition: Callable[[], bool], guard_s: float = HANG_GUARD_S) -> bool:
-    deadline = time.monotonic() + guard_s
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
-
-
 # -- 4, 6: the control socket, the ROS 2 grasp input ------------------------------------------------
 SENDER = ("import socket, sys; s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM); a = sys.argv[1]\n"
           "try:\n    s.sendto(b'grasp open', a.encode().replace(b'@', b'\\0', 1) if a.startswith('@') else a)\n"
           "except OSError as e:\n    print(e.errno)")
-NOBODY = 65534
 
 
 def _send_as(uid: int | None, address: str) -> str:
@@ -381,10 +331,10 @@ def foreign_grasp(work: Path) -> dict:
         try:
             foreign = _send_as(NOBODY, address)  # "sent", or the errno the kernel refused it with
             if foreign == "sent":
-                _wait(lambda c=control: c.refused + c.received >= 1, HANG_GUARD_S / 3)
+                wait_until(lambda c=control: c.refused + c.received >= 1, HANG_GUARD_S / 3)
             heard_foreign = daemon.detector.grasp_request is not None
             _send_as(None, address)
-            _wait(lambda c=control: c.received >= 1, HANG_GUARD_S / 3)
+            wait_until(lambda c=control: c.received >= 1, HANG_GUARD_S / 3)
             mode = oct(os.stat(address).st_mode & 0o777) if kind == "path" else "-"
             outcomes[kind] = {"foreign": foreign, "refused": control.refused, "heard_foreign": heard_foreign,
                               "own_heard": daemon.detector.grasp_request == (False, "control"), "mode": mode}
@@ -417,8 +367,7 @@ def control_paths(work: Path) -> dict:
     models.mkdir(parents=True, exist_ok=True)
     rows = {}
     for name, path in cases.items():
-        config = work / "c.toml"
-        config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[control]\nsocket = "{path}"\n')
+        config = sim_config(work / "c.toml", models, f'[control]\nsocket = "{path}"\n')
         done = cli(["run", "--config", str(config), "--check"])
         check_ok = done.returncode == 2 and one_line(done.stderr, "control.socket", str(path))
         daemon = served_daemon(work / "run" / name.replace(" ", "-"), more=f'[control]\nsocket = "{path}"\n')
@@ -446,8 +395,7 @@ def state_file_paths(work: Path) -> dict:
     for name, key, top, in_model in (("health_file = /", "health_file", 'health_file = "/"\n', ""),
                                      ("health_file = .", "health_file", 'health_file = "."\n', ""),
                                      ("quarantine_file = /", "model.quarantine_file", "", 'quarantine_file = "/"\n')):
-        config = work / "bad.toml"
-        config.write_text(f'{top}[device]\nurl = "sim://"\n[model]\n{in_model}folder = "{models}"\n')
+        config = sim_config(work / "bad.toml", models, in_model, top)
         check = cli(["run", "--config", str(config), "--check"])
         run = cli(["run", "--config", str(config)], timeout=HANG_GUARD_S)
         daemon = served_daemon(work / "served")
@@ -580,18 +528,15 @@ def model_claims(work: Path) -> dict:
     """A model saying ``sample_rate_hz = 1`` on a 32 Hz stream: a decision later than the stream's period
     is a missed deadline (not one of a second), and the health line names the model's claim; a
     ``fullscale`` above the 12-bit pads' 4095 is refused with one line at load and at ``--check``."""
-    from firmware_io.client import Frame
     from firmware_io.layout import SensorLayout
     from runtime.model import ModelContractError, load_model
 
     daemon = served_daemon(work / "rate")
     slow_claim = load_model(model_with(work / "claims", "one-hertz.onnx", sample_rate_hz=1.0))
     daemon.serve(slow_claim, SensorLayout.sdh2())
-    column = int(daemon.layout.columns("distal")[40])
-    for number in range(200):  # 32 Hz by the device's time stamps; each frame 50 ms old when handled
-        values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
-        values[column] = 3000 if 30 <= number % 40 < 35 else 0  # the first press after a block is measured
-        daemon.handle_frame(Frame(number, nominal_stamp_ms(number), time.perf_counter() - 0.05, values))
+    # 32 Hz by the device's time stamps; each frame 50 ms old when handled; the first press after a block is measured
+    for frame in pressed_frames(daemon.layout, range(200), lambda n: 30 <= n % 40 < 35, 3000, late_s=0.05):
+        daemon.handle_frame(frame)
     h = daemon.health
     named = "sample_rate_hz" in h.last_error or any("sample_rate_hz" in e["error"] for e in h.errors)
     refused = {}
@@ -602,8 +547,7 @@ def model_claims(work: Path) -> dict:
             refused[f"{value:g}"] = "accepted"
         except ModelContractError as exc:
             refused[f"{value:g}"] = "one line" if one_line(str(exc), str(path), "fullscale") else str(exc)[:100]
-        config = work / "fs.toml"
-        config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{path.parent}"\n')
+        config = sim_config(work / "fs.toml", path.parent)
         done = cli(["run", "--config", str(config), "--check", "--require-model"])
         if done.returncode != 1 or "fullscale" not in done.stderr:
             refused[f"{value:g}"] += "; --check did not name it"
@@ -615,26 +559,12 @@ def model_claims(work: Path) -> dict:
 
 
 # -- 9: what the folder holds is what is served ---------------------------------------------------------
-def _folder_daemon(models: Path, state: Path):
-    from firmware_io.layout import SensorLayout
-    from runtime.config import config_from_dict
-    from runtime.daemon import Daemon
-
-    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False},
-                            "model": {"folder": str(models)}, "health_file": str(state / "status.json")})
-    daemon = Daemon(cfg)
-    daemon.detector.fit(SensorLayout.sdh2())
-    daemon.models.start()
-    daemon.models.watcher.stop()
-    return daemon
-
-
 def _settle(daemon) -> str | None:
     """Two polls (a file must look the same twice) and the loop's swap: the file that serves now."""
     for _ in range(2):
         daemon.models.watcher.poll()
     daemon._housekeeping(time.monotonic())
-    return Path(daemon.model.path).name if daemon.model is not None else None
+    return serving(daemon)
 
 
 def _check_names(config: Path) -> str | None:
@@ -658,9 +588,8 @@ def folder_rollbacks(work: Path) -> dict:
     models.mkdir()
     write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
     write_model(models, "new.onnx", H.valid(bias_class=2, tag="new"), mtime=time.time() - 50)
-    daemon = _folder_daemon(models, state)
-    config = state / "h.toml"
-    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n')
+    daemon = folder_daemon(models, state / "status.json")
+    config = sim_config(state / "h.toml", models)
     os.chmod(models / "old.onnx", 0o644)  # a no-op, that changes the ctime
     rows["chmod 644 on the older file"] = (_settle(daemon), _check_names(config), "new.onnx")
     (models / "new.onnx").unlink()
@@ -673,8 +602,8 @@ def folder_rollbacks(work: Path) -> dict:
         write_model(work / name, f"{name}.onnx", H.valid(bias_class=3, tag=tag), mtime=time.time() - age)
     link = work / "current"
     link.symlink_to(work / "a")
-    switched = _folder_daemon(link, state)
-    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{link}"\n')
+    switched = folder_daemon(link, state / "status.json")
+    sim_config(config, link)
     tmp_link = work / ".current.tmp"
     tmp_link.symlink_to(work / "b")
     os.replace(tmp_link, link)  # the atomic switch of a deploy tool
@@ -685,43 +614,25 @@ def folder_rollbacks(work: Path) -> dict:
 
 
 # -- 7: a model that hangs on real windows --------------------------------------------------------------
-def _frames_pressing(daemon, first: int, n: int, level: int, press: range, received_at=time.perf_counter):
-    from firmware_io.client import Frame
-
-    column = int(daemon.layout.columns("distal")[40])
-    for number in range(first, first + n):
-        values = np.zeros(daemon.layout.n_taxels, dtype=np.uint16)
-        values[column] = level if (number - first) in press else 0
-        yield Frame(number, nominal_stamp_ms(number), received_at(), values)
-
-
 def hanging_model(work: Path) -> dict:
     """A model that passes load and warm-up and runs a 2e9-step Loop on its first real window: the
     decision is ended from outside the hot thread, the model is out of service (the one it replaced
     serves) within two sample periods of that window, and stays out after a restart."""
     from benchmarks import hostile_models as H
-    from firmware_io.layout import SensorLayout
-    from runtime.config import config_from_dict
-    from runtime.daemon import Daemon
 
     models, state = _daemon_folders(work)
     write_model(models, "old.onnx", H.valid(bias_class=1, tag="old"), mtime=time.time() - 100)
     write_model(models, "hang.onnx", H.hang(), mtime=time.time() - 10)
-    cfg = config_from_dict({"device": {"url": "sim://"}, "sinks": {"stdout": False}, "realtime_priority": 0,
-                            "model": {"folder": str(models)}, "health_file": str(state / "status.json"),
-                            "trigger": {"kind": "threshold", "fraction": 0.2, "hysteresis": 0.1}})
-    daemon = Daemon(cfg)
-    daemon.detector.fit(SensorLayout.sdh2())
-    daemon.models.start()
-    daemon.models.watcher.stop()
-    served_first = Path(daemon.model.path).name if daemon.model is not None else None
+    settings = {"realtime_priority": 0, "trigger": {"kind": "threshold", "fraction": 0.2, "hysteresis": 0.1}}
+    daemon = folder_daemon(models, state / "status.json", **settings)
+    served_first = serving(daemon)
     daemon.guard.start()
     took = None
     try:
-        for frame in _frames_pressing(daemon, 0, 40, 0, range(0)):  # the stream's period is measured
+        for frame in pressed_frames(daemon.layout, range(40), lambda n: False, 0):  # the stream's period is measured
             daemon.handle_frame(frame)
         period = daemon.detector.frame_clock.deadline_s()
-        frames = list(_frames_pressing(daemon, 40, 40, int(H.SLEEPER_PEAK), range(0, 20)))
+        frames = list(pressed_frames(daemon.layout, range(40, 80), lambda n: n < 60, int(H.SLEEPER_PEAK)))
 
         def feed() -> float | None:
             slowest = 0.0
@@ -736,20 +647,16 @@ def hanging_model(work: Path) -> dict:
         daemon.guard.stop()
     daemon.models.watcher.poll(require_stable=False)  # the watcher's next poll: the newest file left serves
     daemon._housekeeping(time.monotonic())
-    serving = Path(daemon.model.path).name if daemon.model is not None else None
-    restarted = Daemon(cfg)
-    restarted.detector.fit(SensorLayout.sdh2())
-    restarted.models.start()
-    restarted.models.watcher.stop()
-    after_restart = Path(restarted.model.path).name if restarted.model is not None else None
-    out = (finished and served_first == "hang.onnx" and daemon.guard.ended == 1 and serving == "old.onnx"
+    serves = serving(daemon)
+    after_restart = serving(folder_daemon(models, state / "status.json", **settings))
+    out = (finished and served_first == "hang.onnx" and daemon.guard.ended == 1 and serves == "old.onnx"
            and after_restart == "old.onnx" and daemon.health.models_quarantined == 1)
     in_time = isinstance(took, float) and took < 2 * period
     took_ms = f"{took * 1e3:.1f} ms" if isinstance(took, float) else "never"
     return {"held": out and in_time, "held_untimed": out, "took_ms": None if not isinstance(took, float) else took * 1e3,
             "detail": f"served first: {served_first}; its first real window took {took_ms} (two periods: "
                       f"{2 * period * 1e3:.1f} ms) until it was out of service; {daemon.guard.ended} decision(s) "
-                      f"ended; serving then: {serving}; after a restart: {after_restart}"}
+                      f"ended; serving then: {serves}; after a restart: {after_restart}"}
 
 
 def hanging_model_process(work: Path) -> dict:
@@ -771,17 +678,11 @@ def hanging_model_process(work: Path) -> dict:
     path = rec.save(work / "presses.hrec")
     config = _run_config(state / "h.toml", f"replay://{path}?speed=1&loop=1", models,
                          '[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\n')
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = run_daemon(config, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        status = {}
-        deadline = time.monotonic() + 4 * HANG_GUARD_S
-        while time.monotonic() < deadline and proc.poll() is None:
-            status = read_json(state / "status.json")
-            if status.get("models_quarantined", 0) >= 1 and status.get("events", 0) >= 1:
-                break
-            time.sleep(0.2)
-        code = _sigterm(proc)
+        status = status_when(state / "status.json", proc, lambda s: s.get("models_quarantined", 0) >= 1
+                             and s.get("events", 0) >= 1, 4 * HANG_GUARD_S)
+        code = sigterm(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -848,7 +749,7 @@ def two_daemons_one_namespace(work: Path) -> dict:
             return all(getattr(s, "clash", None) for d in daemons for s in d.sinks.sinks if s.name.startswith("ros2:"))
 
         with LogLines() as said:
-            told = _wait(each_saw_the_other, HANG_GUARD_S)
+            told = wait_until(each_saw_the_other)
         lines = [s for s in said if "another daemon on this namespace" in s]
         in_health = all("another daemon on this namespace" in d.health.last_error for d in daemons)
     finally:
