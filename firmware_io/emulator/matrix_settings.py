@@ -1,11 +1,7 @@
 """The emulated controller's per-matrix threshold and sensitivity, and what they do to a frame.
 
-``dsa.h`` (SDHLibrary ``SetMatrixSensitivity``/``SetMatrixThreshold``): a write lasts until the
-next power cycle; a persistent one is stored and "will become the new factory default value", so a
-power cycle and a factory reset both return to the stored value. How the firmware applies them is
-not published; the emulator's model (docs/EMULATOR.md): sensitivity is a gain, 1 at the factory
-0.5 the recording was made with (0.1: a fifth, 1.0: double, saturating at 4095), and a texel
-below the threshold reads 0, so a lab tuning either sees the effect.
+A write lasts until the next power cycle; a persistent one becomes the new factory default (``dsa.h``).
+How the firmware applies them is not published: the emulator's model is in docs/EMULATOR.md.
 """
 
 from __future__ import annotations
@@ -16,7 +12,7 @@ from firmware_io.layout import SensorLayout
 from firmware_io.wire import replies
 from firmware_io.wire.errors import DSAErrorCode
 from firmware_io.wire.frames import MAX_TEXEL_VALUE
-from firmware_io.wire.packets import PacketId, encode_ack
+from firmware_io.wire.packets import encode_ack
 from firmware_io.wire.requests import SetSensitivityRequest, SetThresholdRequest
 
 __all__ = ["MatrixSettings"]
@@ -55,31 +51,27 @@ class MatrixSettings:
 
     def set_sensitivity(self, req: SetSensitivityRequest) -> bytes:
         """Reply to 0x0F (none to a persistent write, as the firmware sends none)."""
-        pid = PacketId.ADJUST_MATRIX_SENSITIVITY
-        if not req.all_matrices and req.matrix >= self.layout.n_matrices:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
-        if not req.factory_reset and not 0.0 <= req.sensitivity <= 1.0:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
-        for m in self._targets(req.all_matrices, req.matrix):
-            value = self.stored_sensitivity[m] if req.factory_reset else float(req.sensitivity)
-            self.sensitivity[m] = value
-            if req.persistent:
-                self.stored_sensitivity[m] = value
-        return b"" if req.persistent else encode_ack(pid)
+        in_range = req.factory_reset or 0.0 <= req.sensitivity <= 1.0
+        return self._write(req, in_range, float(req.sensitivity), self.sensitivity, self.stored_sensitivity)
 
     def set_threshold(self, req: SetThresholdRequest) -> bytes:
         """Reply to 0x13 (none to a persistent write)."""
-        pid = PacketId.SET_MATRIX_THRESHOLD
+        in_range = req.threshold <= MAX_TEXEL_VALUE
+        return self._write(req, in_range, int(req.threshold), self.thresholds, self.stored_thresholds)
+
+    def _write(self, req: SetSensitivityRequest | SetThresholdRequest, in_range: bool, value: float,
+               current: list, stored: list) -> bytes:
+        error = DSAErrorCode.SUCCESS
         if not req.all_matrices and req.matrix >= self.layout.n_matrices:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.INDEX_OUT_OF_BOUNDS)
-        if req.threshold > MAX_TEXEL_VALUE:
-            return b"" if req.persistent else encode_ack(pid, DSAErrorCode.RANGE_ERROR)
-        for m in self._targets(req.all_matrices, req.matrix):
-            value = self.stored_thresholds[m] if req.factory_reset else int(req.threshold)
-            self.thresholds[m] = value
-            if req.persistent:
-                self.stored_thresholds[m] = value
-        return b"" if req.persistent else encode_ack(pid)
+            error = DSAErrorCode.INDEX_OUT_OF_BOUNDS
+        elif not in_range:
+            error = DSAErrorCode.RANGE_ERROR
+        else:
+            for m in self._targets(req.all_matrices, req.matrix):
+                current[m] = stored[m] if req.factory_reset else value
+                if req.persistent:
+                    stored[m] = current[m]
+        return b"" if req.persistent else encode_ack(req.PACKET_ID, error)
 
     def sensitivity_reply(self, m: int) -> bytes:
         return replies.SensitivityReply(0x02, self.sensitivity[m], self.stored_sensitivity[m]).to_packet()
