@@ -1,12 +1,9 @@
 """The daemon's TOML configuration: section classes built from the declared keys, and one clear
 message per error.
 
-The keys (name, type, range, default, help) are declared once, in ``runtime.config_keys``; this
-module builds the frozen section classes from them and reads every key by its declared type. It
-adds the checks a type and a range cannot say (a URL, a pad selection, one key against another).
-Every key is checked (unknown keys too, since a typo would otherwise be silently ignored), and a
-problem raises :class:`ConfigError` whose message names the key, e.g.
-``trigger.fraction: must be a number in (0, 1), got 1.5``.
+The keys are declared once, in ``runtime.config_keys``; this module builds the frozen section classes,
+reads every key by its type and adds the checks a type and range cannot say. Unknown keys are errors
+(a typo would otherwise be ignored); a problem raises :class:`ConfigError` naming the key.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """When continuous mode reports: from one decision per frame to one report per interaction.
 
-A model with a dormant class decides every frame. Reporting every change of that decision
-makes a poor event stream: the first windows of an action show only part of it (often read
-as another class), the decision flickers while the action goes on, and a report would fire
-again on every flicker. The rule here, per frame and in O(n_classes) scalar work:
-
-- a non-dormant class is *confirmed* when it has won ``confirm_frames`` frames in a row, each
-  with a score margin over the runner-up of at least ``min_margin`` (a frame below the margin,
-  another class or dormant breaks the run);
-- a confirmed class is reported only while the rule is *armed*; a report disarms it, and it
-  re-arms once dormant has won ``rearm_frames`` frames in a row (the interaction is over);
-- ``rearm_frames = 0`` never disarms: every change of the confirmed class is reported (with
-  ``confirm_frames = 1`` and ``min_margin = 0`` this is the plain report-on-change rule);
-- ``gap_frames``: up to this many dormant frames in a row do not break a run (a person holding the
-  object still reads as dormant now and then: hold flickers with dormant);
-- ``vote``: the run is any non-dormant class, and the class reported is the one that won most of
-  its frames (the latest on a tie): pull and push flicker in the first frames of either.
+Why: reporting every change of a per-frame decision fires on partial first windows and on every
+flicker. A non-dormant class is *confirmed* after winning ``confirm_frames`` frames in a row with a
+margin of at least ``min_margin`` (``gap_frames`` dormant frames do not break the run; with ``vote``
+the run is any non-dormant class and its most frequent one is reported). A report disarms the rule
+until dormant has won ``rearm_frames`` in a row (0: never disarms). O(n_classes) per frame.
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """One daemon per device and per health file: advisory locks the kernel releases when the holder dies.
 
-Two daemons on one device fight over it (each retrying while the other holds it) and two on one
-health file overwrite each other's status every second, so monitoring sees the health flap. The
-daemon therefore takes an exclusive ``flock`` on two lock files before it writes or opens
-anything: one per device (named by the device URL, in the runtime folder) and one beside the
-health file. A second daemon finds a lock held and exits with one line naming the holder's pid;
-a crashed holder leaves no stale lock, because the kernel drops a dead process's locks.
-
-The device lock lives in ``$RUNTIME_DIRECTORY`` (systemd's ``RuntimeDirectory=``, /run/handover),
-else ``$XDG_RUNTIME_DIR/handover``, else a per-user folder in the temp folder: daemons started
-the same way share it. Another user can make that folder first, so a device lock is taken only in
-a folder this user owns and no one else may write. One device is one lock however its URL is
-spelled (firmware_io.transports.device_key). A serial port is also opened exclusively by the transport itself.
+Two daemons on one device fight over it, and two on one health file make the health flap. So the
+daemon takes an exclusive ``flock`` on one lock file per device (named by ``device_key``, in
+``$RUNTIME_DIRECTORY``, else ``$XDG_RUNTIME_DIR/handover``, else a per-user temp folder it owns) and one
+beside the health file; a second daemon exits with one line naming the holder's pid.
 """
 
 from __future__ import annotations

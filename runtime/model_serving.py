@@ -1,12 +1,9 @@
-"""Which model serves: the model folder's watcher with its quarantine, swaps, and
-the fallback when a model breaks at run time.
+"""Which model serves: the model folder's watcher with its quarantine, swaps, and the fallback when a
+model breaks at run time.
 
-A model reaches the hot path in one reference assignment between two windows: the watcher
-thread loads, validates and warms up model files; ``take_pending`` chooses one and hands it to the
-owner's ``serve`` (the daemon, the one that changes its detector: ``Detector.swap`` fits the ring and
-trigger to it); a model that breaks the output contract at run
-time is taken out of service (``take_out_of_service``) and the one it replaced serves again. Every
-model that starts serving is announced to the sinks. Nothing here runs per frame.
+The watcher thread loads, validates and warms up files; ``take_pending`` hands one to the owner's
+``serve`` (the daemon swaps it into its detector between two windows); a model that breaks the output
+contract is taken out of service and the one it replaced serves again. Nothing here runs per frame.
 """
 
 from __future__ import annotations

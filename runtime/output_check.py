@@ -1,15 +1,9 @@
 """The output half of the model contract, checked where a model is warmed up and at run time.
 
-Why: a graph can honour every static check (names, types, shapes, metadata) and still answer
-a label outside ``classes`` or NaN scores, perhaps only on real, non-zero frames. The daemon
-must never index ``classes`` with such a label nor serialise such a score. Two owners here:
-
-- ``output_problem``: one decision's outputs against the contract (a few microseconds, so the
-  hot path checks every decision);
-- ``probe``: the warm-up. It runs the model on deterministic, realistic windows (an empty pad,
-  a press building up and releasing, full scale, sensor noise, random readings), checks every
-  answer with ``output_problem`` and measures one decision against a time budget, so that a model
-  that misbehaves on real data or misses the deadline is refused before it serves.
+Why: a graph can pass every static check and still answer a label outside ``classes`` or NaN scores,
+perhaps only on real frames. ``output_problem`` checks one decision (microseconds: every decision is
+checked); ``probe`` runs the model on realistic windows at warm-up, checks each answer and times one
+decision against a budget, so a bad or slow model is refused before it serves.
 """
 
 from __future__ import annotations

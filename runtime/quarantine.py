@@ -1,12 +1,8 @@
 """Models taken out of service at run time, remembered by file identity across restarts.
 
-Why: a model that passes every check at load time can still break the output contract on
-real frames (a label outside its classes, NaN scores). The daemon then stops using it, and
-must not load the same file again: not on the next poll, and not after systemd restarts the
-service, when the file would otherwise again be "the newest valid model". A file is named by
-path, size, mtime and inode, so replacing or touching it (a new copy) makes it a candidate
-again. The list lives in a small JSON file in the service's state folder (the model folder is
-read-only to the service), written atomically; without a file it is kept in memory only.
+Why: a model that broke the output contract on real frames must not come back on the next poll or
+after a restart. A file is named by path, size, mtime and inode, so a new copy is a candidate again.
+The list is a small JSON file in the state folder, written atomically (in memory only without one).
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
 """How much a model was trained on: labelled trials, the windows cut from them, dormant windows from idle.
 
-A trial is what a person did once; a window (a case) is T frames the model learnt from. A trial that
-never triggers gives no window, idle gives dormant windows that are no trial, and stream training cuts
-several windows per trial, so the two numbers differ and must never be printed under each other's
-name. The trainer counts them once (``trainer.dataset.Dataset.counts``); the model carries them in its
-``training`` metadata under the keys below; train's progress line, its headline, report.md and
-``handover inspect`` all word them with ``TrainingCounts.text``. Lives in the runtime because
-``inspect`` must read it on the lean daemon install.
+Trials and windows differ (a trial may give no window or several; idle gives windows that are no
+trial), so they must never be printed under each other's name: every place words them with
+``TrainingCounts.text``. In the runtime because ``inspect`` reads it on the lean daemon install.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """When to classify: a threshold trigger with hysteresis and refractory time, or continuously.
 
-The paper starts a trial when any taxel of the used pads exceeds about 15 % of full scale and
-classifies the T frames from there. Per frame the trigger costs one max over the scene's
-columns (plus one subtraction in baseline mode); while nothing touches, nothing else runs.
-
-One interaction is one trigger: a pull or push makes the pressure wobble for a second or two
-(it dips below the off level for a few frames and rises again), so the trigger re-arms only
-after the level has stayed below the off level for ``rearm_frames`` frames in a row, and never
-within ``refractory_frames`` of the last trigger.
-
-``update(row, number)`` returns the frame number at which a window is due (the trigger frame
-+ T - 1 - pre_frames), or -1. The caller runs the model when that frame has arrived.
+The paper starts a window when any taxel of the used pads exceeds about 15 % of full scale. One
+interaction is one trigger: the trigger re-arms only after the level stayed below the off level for
+``rearm_frames`` frames, never within ``refractory_frames`` of the last one. ``update(row, number)``
+returns the frame at which a window is due (trigger frame + T - 1 - pre_frames), or -1.
 """
 
 from __future__ import annotations

@@ -1,20 +1,10 @@
 """Which trigger starts a window, with which settings: decided in one place.
 
-``resolve_trigger(config, model_trigger)`` takes each setting from the ``[trigger]`` config
-table when set there, else from the settings the model was trained with (its metadata's
-``trigger`` object), else from the one default below. The daemon, the data set that cuts the
-training windows and the stream benchmark all call it, so training and serving cut the same
-windows. ``build_trigger`` makes the trigger object for a scene.
-
-Kinds:
-
-- ``onset`` (default): the person's onset on a settled grasp, per-pad change against a
-  baseline that follows the grasp (runtime/onset.py); chosen by the rule in results/streams.md;
-- ``threshold``: the paper's fixed level (``fraction`` of full scale, 15 %), optionally
-  measured above a tracked per-taxel baseline (``baseline = true``).
-
-A model whose metadata records no ``kind`` was cut by the threshold (models trained before
-the onset trigger existed): it is served with the threshold unless the config says otherwise.
+``resolve_trigger(config, model_trigger)`` takes each setting from the ``[trigger]`` table, else from
+the model's metadata, else from the default below; the daemon, the training data set and the stream
+benchmark all call it, so training and serving cut the same windows. Kinds: ``onset`` (default,
+runtime/onset.py; chosen in results/streams.md) and ``threshold`` (the paper's fixed level, optionally
+over a tracked baseline). A model that records no ``kind`` was cut by the threshold and is served so.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """``handover run --config FILE [--check [--require-model]]``: the detection daemon (systemd service).
 
-``--check`` validates the config and the model folder (the model the daemon would serve: the
-valid one dropped last, by the watcher's own rule) without opening the device, and exits 2 for
-a config error (a bad key, a device URL that can never open, pads the SDH-2 does not have, an
-event the serving model lacks, a model folder that is missing, a file or unreadable) and 0 otherwise. An empty
-model folder is only a warning, because the daemon is built to start without a model and wait for one; with
-``--require-model`` it exits 1 instead (for scripts that need a model in place).
-
-The daemon itself exits 0 after SIGTERM and 2 when the device URL turns out to be unusable
-(e.g. a transport's package is missing) or its control socket cannot be bound: retrying would never help; 3 when a model's decision did
-not stop when ended (runtime.decision_guard): the model is quarantined first, so a restart helps.
+``--check`` validates the config and the model the daemon would serve without opening the device:
+exit 2 for a config error, 0 otherwise (an empty model folder is only a warning, as the daemon waits
+for a model; ``--require-model`` makes it exit 1). The daemon exits 0 after SIGTERM, 2 when the device
+URL or the control socket can never work, 3 when a model's decision did not stop (runtime.decision_guard).
 """
 
 from __future__ import annotations
