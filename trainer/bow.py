@@ -10,23 +10,11 @@ The float64 arithmetic here is the reference the exported ONNX graph must reprod
 5. a case's histogram counts the words of its active series' windows, divided by the number of
    those windows (all zeros when none), one histogram per case or one per pad group.
 
-Options beyond the paper (each off by default, so the defaults are the paper's method):
-
-- ``window=(5, 7, 9)``: several window lengths at once, one codebook of K words per length
-  (multi-scale), the histograms concatenated in the order of the lengths;
-- ``assignment="soft"``: each window adds ``softmax_k(-(d_k - min_j d_j) / tau)`` instead of a
-  one-hot word (``d_k`` its squared distance to word k). ``tau = temperature * s2`` with ``s2``
-  the mean squared distance of the k-means sample to its nearest word (fitted per scale, in
-  ``temperatures_``), so ``temperature`` is unit-free; subtracting the minimum keeps every
-  exponent <= 0 (no overflow, no NaN in float32);
-- ``level_features=True``: per pad (``pad_sizes``, or all channels as one pad) two numbers that
-  keep the static information the derivative removes: the window's mean level over the pad's
-  taxels and frames, and its mean slope ``(x[T-1] - x[0]) / (T - 1)`` averaged over the taxels,
-  both divided by ``fullscale``. They come last: ``[level_pad0 .. level_padG, slope_pad0 ..]``.
-
-Input is ``(n_cases, n_channels, n_timepoints)`` (aeon/sktime convention). A 2-D ``X`` is read as
-``(n_cases, n_timepoints)`` with a single channel, which is how scikit-learn's estimator checks
-feed it.
+Options beyond the paper, each off by default: several window lengths (one codebook each, histograms
+concatenated); ``assignment="soft"`` (``softmax_k(-(d_k - min_j d_j) / tau)`` with ``tau`` the unit-free
+``temperature`` times the k-means sample's mean squared distance; subtracting the minimum keeps float32
+finite); ``level_features`` (per pad the mean level and mean slope over the window, over ``fullscale``,
+appended last). Input is ``(n_cases, n_channels, n_timepoints)``; a 2-D ``X`` is one channel.
 """
 
 from __future__ import annotations

@@ -1,34 +1,20 @@
 """Export a fitted BowSVC (or FlatSVC) as ONE ONNX graph: raw frames ``[N, T, C]`` -> ``label``, ``scores``.
 
-Options beyond the paper (see ``trainer.bow``) live in the same graph: one convolution per
-window length (multi-scale codebooks, derivative computed once), soft assignment as
-``Softmax(-(f - min f) / tau)`` over the words, level features (ReduceMean over time and a
-Gather of the first and last frames, each followed by a per-pad MatMul), all joined by one Concat
-into the ``histogram`` tensor, then the SVM (with the optional StandardScaler folded in).
-
-Graph (standard ``ai.onnx`` domain only, opset 17, IR 8):
+Graph (standard ``ai.onnx`` domain only, opset 17, IR 8), the float64 reference being ``trainer.bow``:
 
 1. active series: ``ReduceMax(|X|, time) > 0`` -> mask ``[N, C]``;
 2. derivative: a ``[-1, +1]`` convolution along time (exact for 12-bit integers), or, with
    ``fold_derivative=True``, folded into the codeword kernel;
-3. one 2-D convolution over (time, taxel) with kernel ``-2 * codebook`` (``[K, 1, W, 1]``) and
-   bias ``||c_k||^2`` gives ``f_k = ||c_k||^2 - 2 w.c_k`` for every window and codeword at once
-   (``||w - c_k||^2 = ||w||^2 + f_k``; ``||w||^2`` does not change the argmin);
-4. ``ArgMin`` over codewords (first index on ties, like the reference), one ``Equal`` per word
-   plane (a one-hot without OneHot), sum over windows, mask, per-pad-group sums (one MatMul with
-   a group indicator), divide by the number of active windows (at least 1, so no NaN for an
-   all-zero case);
-5. SVM (``trainer.svm_head``): the scaler folded into the RBF kernel, whose exponent is one Gemm
-   (its float32 error bounded by ``trainer.numerics``), one Gemm for all one-vs-one decisions and
-   summed confidences, one for the votes, scikit-learn's ovr transform as Softsign.
-   ``label`` = first class with the most votes (libsvm's ``predict``).
+3. one 2-D convolution with kernel ``-2 * codebook`` and bias ``||c_k||^2`` gives
+   ``f_k = ||c_k||^2 - 2 w.c_k`` for every window and codeword at once (``||w||^2`` does not change the argmin);
+4. ``ArgMin`` over codewords (first index on ties, like the reference), one ``Equal`` per word, sums over
+   windows and pad groups (one MatMul), divided by the active windows (at least 1: no NaN); soft assignment
+   and level features join through one Concat into ``histogram``;
+5. the SVM (``trainer.svm_head``), the scaler folded in; ``label`` = first class with the most votes.
 
-This replaces skl2onnx's ``SVMClassifier`` + the long node chain it emits to mimic the ovr
-scores of a multi-class SVC without probabilities. The BoW part is also registered with
-skl2onnx (``register_skl2onnx``) so a ``BagOfWords`` inside a scikit-learn pipeline converts.
-Why explicit derivative by default: with the derivative folded, the dot products run on raw
-values (up to 4095) instead of differences, and float32 rounding error scales with the raw
-offset; see ``trainer.numerics`` for the bounds.
+This replaces skl2onnx's ``SVMClassifier`` and its long node chain; ``register_skl2onnx`` lets a
+``BagOfWords`` in a scikit-learn pipeline convert. The derivative is explicit by default: folded, the
+dot products run on raw values up to 4095 and float32 error grows with them (``trainer.numerics``).
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
 """Per-pad series over time and what both the hand-designed and the level-statistics features take
 from them, built once per graph for every pad at once.
 
-Why one pipeline: both families reduce per-frame pad quantities over time (means, centred values,
-products with fixed time rows), and onnxruntime pays per node, not per row: seven series through
-one chain of nodes cost what three did. The series of pad ``p`` (rows of ``[N, G, K, T]``):
-
-- hand (``trainer.features.hand``): the mean value (``signal``), the centre of pressure x, y (taxel
-  units; the pad centre where nothing presses);
-- stats (``trainer.features.signals``): pressure, contact area, centroid x, y.
-
-Per series, over time (columns of ``[N, G, K, width]``): mean, root of the sum of squares about it
-(the std times sqrt(T)), three FFT band shares, log energy, ``time_rows``' products (DFT, steps,
-mean derivative, last - first), mean speed of the centre (on the signal's row). Columns a series
-does not use are computed and ignored (cheaper than slicing them away).
+Why one pipeline: onnxruntime pays per node, not per row, so seven series through one chain of nodes
+cost what three did. The series (rows of ``[N, G, K, T]``): the hand family's mean value and centre of
+pressure, the stats family's pressure, contact area and centroid. Per series over time: mean, root sum
+of squares about it, FFT band shares, log energy, ``time_rows``' products and the centre's mean speed;
+columns a series does not use are computed and ignored (cheaper than slicing them away).
 """
 
 from __future__ import annotations

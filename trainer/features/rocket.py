@@ -1,17 +1,10 @@
 """Random-convolution features in the MiniRocket spirit, as standard ONNX Conv ops.
 
-MiniRocket (Dempster et al. 2021) convolves each series with 84 fixed length-9 kernels (three
-weights 2, six weights -1, so every kernel sums to zero), at several dilations, and pools each
-output by the *proportion of positive values* (PPV) above a bias drawn from quantiles of the
-training outputs; a linear head classifies. Here the series are the per-pad signals of
-``trainer.features.signals`` (pressure, contact area, centre of pressure: ``S = 4G`` series, not
-hundreds of taxels), so the whole extraction is one MatMul, one Conv per dilation ("same" zero
-padding, output length T), a Sub of the biases, Greater, and a ReduceMean over time: no window
-cutting, no Gather.
-
-Biases: for every (kernel, dilation, series) ``n_biases`` quantiles of that output over the
-training cases, at low-discrepancy quantile levels ``frac(i * golden ratio)`` (as MiniRocket).
-Features: ``[dilation][kernel][bias][series]``, each in [0, 1].
+MiniRocket (Dempster et al. 2021): 84 fixed zero-sum length-9 kernels at several dilations, each output
+pooled by the proportion of positive values (PPV) above biases from quantiles of the training outputs
+(levels ``frac(i * golden ratio)``). Here the series are the per-pad signals of ``trainer.features.signals``
+(4 per pad, not hundreds of taxels), so extraction is one MatMul, one Conv per dilation, Sub, Greater
+and ReduceMean: no window cutting. Features: ``[dilation][kernel][bias][series]``, each in [0, 1].
 """
 
 from __future__ import annotations
