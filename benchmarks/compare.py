@@ -28,17 +28,9 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from trainer.measure import DEADLINE_US
 from trainer.real_tasks import CHUNK_FRAMES, CONTACT_FRACTION, FULLSCALE, STRIDE, RealTask, T, cut_windows  # noqa: F401
 
-__all__ = [
-    "LATENCY_BUDGET_US", "MiniRocketCases", "ModelSpec", "done_check", "machine_info", "markdown", "pareto_front",
-    "plot", "run"
-]
-
-N_JOBS = 2
-LATENCY_BUDGET_US = DEADLINE_US / 10.0
-"""A tenth of a sample period: the recommended model must answer within it (p99)."""
+__all__ = ["done_check", "markdown", "pareto_front", "plot", "run"]
 
 
 @dataclass(frozen=True)
@@ -255,20 +247,12 @@ def recommend(specs, tasks, ds, latency: dict, n_jobs: int, say) -> dict:
     return choice
 
 
-def machine_info() -> dict:
-    from trainer.measure import machine_info as bench_machine
-
-    info = bench_machine()
-    info["node"] = platform.node()
-    return info
-
-
 def run(quick: bool, seed: int, n_jobs: int, data_dir: Path | None, minirocket: bool, say) -> dict:
     from trainer.dataset import build_dataset
-    from trainer.measure import simulated_protocol
+    from trainer.measure import load_average, machine_info, simulated_protocol
 
     t0 = time.perf_counter()
-    load_before = [round(v, 2) for v in os.getloadavg()]  # machine_info() below is taken at the end
+    load_before = load_average()  # machine_info() below is taken at the end
     specs = model_specs(quick, minirocket)
     say("simulated protocol (synthetic) ...")
     ds = build_dataset(list(simulated_protocol(seed=seed, quick=quick)), T=T, pads="all")
@@ -309,7 +293,7 @@ def run(quick: bool, seed: int, n_jobs: int, data_dir: Path | None, minirocket: 
         "latency": latency,
         "recommendation": recommend(specs, tasks, ds, latency, n_jobs, say),
         "seconds": round(time.perf_counter() - t0, 1),
-        "machine": machine_info(),
+        "machine": {**machine_info(), "node": platform.node()},
         "cpu_count": os.cpu_count(),
     }
 

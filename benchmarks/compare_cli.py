@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shlex
 from pathlib import Path
 
@@ -65,7 +64,7 @@ def main(args: argparse.Namespace) -> int:
                          "installs it into .venv (elsewhere pip install 'tactile-handover[bench]'), or pass "
                          "--no-minirocket")
     from benchmarks import compare
-    from trainer.measure import write_results
+    from trainer.measure import load_average, write_results
 
     say = progress_to(args.quiet)
     data_dir = None if args.no_real else Path(args.data) if args.data else default_data_dir()
@@ -76,7 +75,7 @@ def main(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         raise HandoverError(f"{type(exc).__name__}: {exc}") from exc
     res["command"] = command_line(args)
-    res["load_after"] = [round(v, 2) for v in os.getloadavg()]
+    res["load_after"] = load_average()
     out = Path(args.out)
     try:
         compare.plot(res, out / "compare.png")
