@@ -30,7 +30,7 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 
 from trainer.real_tasks import CHUNK_FRAMES, CONTACT_FRACTION, FULLSCALE, STRIDE, RealTask, T, cut_windows  # noqa: F401
 
-__all__ = ["done_check", "markdown", "pareto_front", "plot", "run"]
+__all__ = ["MiniRocketCases", "done_check", "markdown", "pareto_front", "plot", "run"]
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from sklearn.base import BaseEstimator, ClassifierMixin, clone
 
 from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
 from trainer.measure import (
@@ -98,24 +97,9 @@ def _estimator(kind: str, params: dict, extra: dict):
         from trainer.baseline import BaselineSVC
 
         return BaselineSVC(pad_shapes=extra["pad_shapes"], kernel="rbf")
-    from aeon.classification.convolution_based import MiniRocketClassifier
+    from benchmarks.compare import MiniRocketCases
 
-    return Float64Cases(MiniRocketClassifier(n_kernels=extra["n_kernels"], random_state=0, n_jobs=1))
-
-
-class Float64Cases(ClassifierMixin, BaseEstimator):
-    """aeon wants float64 cases: a thin scikit-learn wrapper that converts."""
-
-    def __init__(self, inner=None):
-        self.inner = inner
-
-    def fit(self, X, y):
-        self.inner_ = clone(self.inner).fit(np.asarray(X, dtype=np.float64), y)
-        self.classes_ = self.inner_.classes_
-        return self
-
-    def predict(self, X):
-        return self.inner_.predict(np.asarray(X, dtype=np.float64))
+    return MiniRocketCases(n_kernels=extra["n_kernels"], random_state=0)
 
 
 class _DatasetMeta:
@@ -202,11 +186,8 @@ def run(args) -> dict:
 
 
 def rerender(out: str | Path) -> dict:
-    """Re-mark the default and rewrite pareto.md/.png from an earlier run's pareto.json: no new measurement.
-
-    For when the default changes to another point of the same grid. A scikit-learn row of an older
-    run is dropped (``handover bench inference`` measures the graph against scikit-learn).
-    """
+    """Re-mark the default and rewrite pareto.md/.png from an earlier run's pareto.json: no new measurement
+    (for when the default changes to another point of the same grid)."""
     import json
 
     path = Path(out) / f"{NAME}.json"
@@ -215,9 +196,6 @@ def rerender(out: str | Path) -> dict:
         rows = res["rows"]
     except (OSError, ValueError, KeyError) as exc:
         raise ValueError(f"{path}: no earlier pareto result to re-render ({exc})") from None
-    rows = res["rows"] = [r for r in rows if r["kind"] != "sklearn"]
-    for key in ("sklearn_p50_us", "sklearn_model", "speedup_vs_sklearn"):
-        res.pop(key, None)
     for r in rows:
         r["default"] = r["kind"] == "bow" and is_default(r["params"])
     d = next((r for r in rows if r["default"]), None)
