@@ -1,13 +1,9 @@
 """Frames a DSA 9205 sensor cannot have sent: dropped where frames are decoded, never classified.
 
-Why: the DSACON32m's CRC16 lets a small share of multi-bit errors through, and such a frame
-decodes into wrong taxels, in raw mode up to 65535 from a 12-bit sensor, far above any trigger
-level. Two rules the sensor and its layout guarantee:
-
-- every value fits the 12-bit converter (0..4095; RLE cannot carry more, raw frames can);
-- cells outside a pad's static mask do not exist and read 0 (no real SDH-2 recording has a
-  non-zero masked cell). The controller does not report masks in its matrix info, so a 6 x 13 pad without a mask of
-  its own gets the DSA 9205 distal pad's (rows 0..4 lack columns 0 and 5: its rounded tip).
+Why: the CRC16 lets a small share of multi-bit errors through, decoding into wrong taxels (up to 65535
+in raw mode) far above any trigger level. Two rules the sensor guarantees: every value fits 12 bits,
+and cells outside a pad's static mask read 0 (a 6 x 13 pad without its own mask gets the DSA 9205
+distal pad's: rows 0..4 lack columns 0 and 5).
 """
 
 from __future__ import annotations

@@ -87,11 +87,9 @@ class ArmMotion:
 class JointSpeed:
     """The arm's motion read from joint states (``sensor_msgs/JointState`` on ``[ros2] joint_states``).
 
-    The arm moves while any joint is faster than ``threshold``: the message's velocities when it has
-    them, else the position change since the previous message over their time stamps (many drivers
-    publish positions only). It answers only on a change, and repeats ``moving`` every ``renew_s``
-    while the arm moves, so a long move is never taken for a lost ``arm still`` and a 100 Hz topic
-    is not 100 messages a second to the daemon. Non-finite values are ignored.
+    Moving while any joint is faster than ``threshold`` (the velocities, else the position change over
+    time: many drivers publish positions only). Answers only on a change, repeating ``moving`` every
+    ``renew_s`` so a long move is not taken for a lost ``arm still``. Non-finite values are ignored.
     """
 
     def __init__(self, threshold: float, renew_s: float = 1.0) -> None:

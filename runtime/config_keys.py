@@ -1,11 +1,8 @@
 """Every key of the daemon's TOML config, declared once: name, type, range, default, one-line help.
 
-This table is the one owner of the config's keys. ``runtime.config`` builds its section classes and
-reads every key from it; ``runtime.trigger_settings`` builds the settings a model records from the
-``trigger`` keys (those marked ``recorded``, and the recorded-only ones, which no config sets);
-``runtime.config_text`` writes deploy/handover.toml and docs/CONFIG.md from it (a test keeps both
-equal to what it writes). Checks that need more than a type and a range (a URL, a pad selection,
-one key against another) are the parser's, in ``runtime.config``.
+``runtime.config`` reads every key from this table, ``runtime.trigger_settings`` takes the ``recorded``
+trigger keys from it, and ``runtime.config_text`` writes deploy/handover.toml and docs/CONFIG.md from
+it. Checks beyond a type and a range are ``runtime.config``'s.
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
 """The detector: frames in, decisions out. The daemon's hot path with nothing of the service around it.
 
-One ``Detector`` holds the ring of the scene's columns, the frame clock (the model's period), the
-trigger, the model it serves and the report rule; ``feed(frame)`` returns a ``Decision`` when the
-frame ends a window, else None. It does no I/O, starts no thread, reads no config file and knows no
-sink: the daemon (runtime/daemon.py) turns decisions into events, and replays, benchmarks and tests
-feed recorded frames to a Detector directly, so what they measure is what the service decides.
-
-Two narrow objects decide around the model and are the places to change what and when it reports:
-
-- ``Windows`` says which frames end a window (the trigger's due frames, in order), and at which
-  frames a model's early heads may answer it sooner (runtime/early.py);
-- ``ReportRule`` says which decided class is reported: continuous mode's ``ContinuousDecision``
-  (runtime/decision.py), and only classes in ``scene.events`` (a dormant class is never one).
-
-Settings come as the config's parsed sections (``SceneConfig``, ``TriggerConfig``,
-``ContinuousConfig``); which trigger they make is ``runtime.trigger_settings``' decision.
+``feed(frame)`` returns a ``Decision`` when the frame ends a window, else None. No I/O, no thread, no
+config file, no sink: the daemon turns decisions into events, and replays, benchmarks and tests feed
+recorded frames to a Detector directly, so what they measure is what the service decides. Around the
+model, ``Windows`` says which frames end a window (and where early heads may answer sooner) and
+``ReportRule`` which decided class is reported; which trigger the settings make is
+``runtime.trigger_settings``' decision.
 """
 
 from __future__ import annotations

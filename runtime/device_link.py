@@ -1,12 +1,8 @@
 """The daemon's link to the device: connect, report faults, reconnect with backoff.
 
-An unplugged, refused or silent device is reported and retried with doubling backoff, never
-fatal (the health file hears of every attempt, the log of the first and then rarely:
-runtime.retry_notes); only a URL that can never work (or a missing package) ends the daemon, with
-one line.
-The owner hears what happened from return values (``connect`` says whether a stream began, ``read``
-returns None with ``connected`` False after a fault); the link calls nothing of its owner but the
-``should_stop`` predicate it is given for a slow open (the owner answers SIGTERM there).
+A failing device is retried with doubling backoff, never fatal (logged rarely: runtime.retry_notes);
+only a URL that can never work ends the daemon, with one line. The owner hears what happened from
+return values; the link calls nothing of its owner but the ``should_stop`` predicate of a slow open.
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
 """Observing the daemon's hot path: listeners called with each frame and each decision.
 
-In the style of python-can's Notifier/Listener: ``Daemon.listeners`` is a plain list; every
-frame ``handle_frame`` takes is passed to ``on_frame`` of each listener, and every decision to
-``on_decision`` with the stage stamps of that decision. Why: benchmarks and tests drive the real
-``Daemon.handle_frame`` (no copy of the hot path, no methods swapped on the instance), and a
-daemon without listeners pays one empty-list check per frame.
-
-Listeners run on the hot path, in the daemon's thread: they must be quick and must not raise.
+As python-can's Notifier/Listener: ``Daemon.listeners`` is a plain list, so benchmarks and tests drive
+the real ``Daemon.handle_frame`` and a daemon without listeners pays one empty-list check per frame.
+Listeners run in the daemon's thread: they must be quick and must not raise.
 """
 
 from __future__ import annotations

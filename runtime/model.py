@@ -145,15 +145,13 @@ class LoadedModel:
         return labels, scores
 
     def run_trusted(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``run`` without ``check_input``: for the daemon's hot path, whose windows are float32
-        ``[N, T, C]`` copies of uint16 frames (always finite, right shape by construction). No
-        finiteness scan; onnxruntime still refuses a wrong dtype or shape (with its own error).
+        """``run`` without ``check_input``, for the hot path's windows (float32 copies of uint16 frames: finite,
+        right shape by construction; onnxruntime still refuses a wrong dtype or shape).
 
-        One ``[1, T, C]`` float32 window is first copied to one 64-byte aligned array: onnxruntime's
-        kernels sum in an order that depends on where the input starts in memory, so a ring window's
-        offset changed the scores' last bits; this way one window gives one answer, bit for bit,
-        wherever the ring holds it (a replay and the service agree). A second caller at the same
-        time, a batch or another dtype run as given."""
+        One ``[1, T, C]`` window is first copied to a 64-byte aligned array: onnxruntime's summation order
+        depends on the input's alignment, so this way one window gives one answer, bit for bit, wherever the
+        ring holds it (a replay and the service agree).
+        """
         return self._run(self._session, OUTPUT_NAMES, x)
 
     def end_decision(self, reason: str) -> None:

@@ -1,11 +1,8 @@
 """Host names of the UDP sinks, resolved in a background thread: never on the daemon's loop.
 
-Why: ``getaddrinfo`` on a name whose DNS does not answer takes seconds (10 s and more), and it
-cannot be interrupted. Done where the sinks are built, it held READY back and stalled every
-SIGHUP past the watchdog. Here an address literal is taken at once; a name is looked up by a
-thread of its own, again every ``RETRY_S`` while it fails (one line the first time, one when
-it resolves), and until then a send to it is counted as failed. ``run --check`` asks the same
-lookup, waiting at most ``CHECK_BOUND_S``.
+Why: ``getaddrinfo`` on a name whose DNS does not answer blocks for seconds and cannot be interrupted;
+done where the sinks are built it held READY back and stalled SIGHUP past the watchdog. A name is
+looked up again every ``RETRY_S`` while it fails; until then sends to it count as failed.
 """
 
 from __future__ import annotations

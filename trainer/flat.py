@@ -1,11 +1,8 @@
 """The flattened-series SVM: a reference classifier that sees every raw value of the window.
 
-The whole ``C x T`` window, flattened channel-major (``X.reshape(n, C * T)``), standardised
-(StandardScaler fitted on the training cases) and fed to an SVC whose C/gamma come from the same
-cross-validated search as the BoW classifier. No derivative, no codebook: static pressure,
-position and timing all reach the SVM. It exports to one ONNX graph as well
-(``trainer.onnx_export.build_graph``: Transpose, Reshape, Sub, Div, the SVM nodes), so its
-latency is measured the same way as the BoW models'.
+The whole ``C x T`` window flattened channel-major, standardised, and fed to an SVC searched like the
+BoW classifier: static pressure, position and timing all reach the SVM. It exports to one ONNX graph
+too, so its latency is measured the same way.
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
 """The metadata a model file carries besides what its estimator determines, built in one place.
 
-Every exporter (``handover train``, ``./dev bench dormant``, the benchmarks, the hostile test
-files) states the same keys: the pads the model reads, the trigger that cut its training
-windows, its frame rate, its provenance and evaluation. ``file_metadata`` builds them;
-``trainer.onnx_export`` adds what the estimator determines (classes, T, W, K, features, SVM)
-and fills a key the caller left out from ``defaults()`` (an old trained-model file exported by
-``handover export`` may carry none).
+Every exporter states the same keys (pads, trigger, frame rate, provenance, evaluation) through
+``file_metadata``; ``trainer.onnx_export`` adds what the estimator determines and fills a key the
+caller left out from ``defaults()``.
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
 """Emulated USB bridges: the DeviceEmulator behind a pyusb backend or a hidapi-like device object.
 
-They let the ``usb://`` and ``hid://`` transports run their real code (device search, kernel
-driver handling, interface claim, bridge set-up requests, bulk or report framing) on a machine
-without the hardware or even libusb: pass ``backend=EmulatedUsbBackend(emulator)`` or
-``device=EmulatedCp2110(emulator)`` to ``open_transport``. The bridges record the set-up
-requests they received so a test can check the UART was configured 115200 8N1.
-
-pyusb is imported lazily (only for its exception classes); nothing here needs libusb.
+They let the ``usb://`` and ``hid://`` transports run their real code without the hardware or libusb
+(``backend=EmulatedUsbBackend(emulator)`` or ``device=EmulatedCp2110(emulator)`` to ``open_transport``),
+and record the set-up requests so a test can check the UART was configured 115200 8N1.
 """
 
 from __future__ import annotations

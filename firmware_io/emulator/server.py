@@ -222,13 +222,8 @@ class TcpEmulatorServer(_ServerBase):
 class PtyEmulatorServer(_ServerBase):
     """The emulator behind a pseudo-terminal; ``path`` is what a client opens (``/dev/pts/N``).
 
-    A pty cannot be unplugged, so the ``disconnect`` fault acts as a controller power cycle
-    (``DeviceEmulator.power_cycle``): the bytes in flight are lost, the controller is silent while
-    it boots (ESC[5n near the end), push mode ends (no frame comes until the host starts it again:
-    the host sees a stall) and settings not stored persistently are lost.
-
-    Bytes go out at the baud rate the host set on its end (8N1: baud / 10 bytes per second), as a
-    serial line carries them; a pty itself would pass them at memory speed.
+    A pty cannot be unplugged, so the ``disconnect`` fault is a power cycle (``DeviceEmulator.power_cycle``).
+    Bytes go out at the baud rate the host set, as a serial line carries them, not at memory speed.
     """
 
     def __init__(self, emulator: DeviceEmulator) -> None:

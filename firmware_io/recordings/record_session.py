@@ -1,11 +1,9 @@
 """Recording a subject session the paper's way: the plan, capture, trigger check (the file: ``session_store``).
 
-The protocol is poses x objects x actions x runs (paper: 3 x 3 x 4 x 5 = 180 trials a
-subject, 3 s each). A trial is the held grasp before the go cue (``LEAD_IN_SECONDS``) and the
-trial seconds after it (``trial_capture``), so every trigger the trainer may use finds it. A trial
-is written (atomically) the moment it ends; a resumed session records the (pose, object, action,
-run) slots the file lacks. Prompting is left to the caller through small callbacks (``SessionIO``), so the same
-loop runs from a terminal, from a script (``--auto``) and from tests. numpy only.
+Poses x objects x actions x runs (paper: 3 x 3 x 4 x 5 = 180 trials of 3 s). Each trial is the held
+grasp before the go cue plus the trial after it (``trial_capture``), written the moment it ends; a
+resumed session records the slots the file lacks. Prompting goes through ``SessionIO``, so the same
+loop runs from a terminal, a script (``--auto``) and tests. numpy only.
 """
 
 from __future__ import annotations

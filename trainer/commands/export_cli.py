@@ -1,11 +1,8 @@
 """``handover export MODEL.joblib --out model.onnx``: one ONNX graph from a trained model.
 
-A trained model file is a joblib of ``{"model": estimator, "metadata": {...}}`` (what
-``handover train`` keeps next to the ``.onnx``: pads, trigger, provenance, evaluation) or of a
-bare fitted estimator (``BowSVC``, ``FlatSVC``: anything with ``svm_`` and ``classes_``); a bare
-one carries no pads, so ``--pads`` (default distal) says which it reads. The ``.joblib``
-stays next to the ``.onnx``: it is the float64 reference ``handover verify`` compares with, and
-its sha256 is written into the graph's metadata (``reference``) so the pair cannot be mixed up.
+The joblib holds ``{"model": estimator, "metadata": {...}}`` (as ``handover train`` keeps it) or a bare
+fitted estimator, which carries no pads (``--pads``, default distal). The ``.joblib`` stays next to the
+``.onnx`` as ``handover verify``'s float64 reference; its sha256 in the graph ties the pair.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """The paper's hand-designed baseline features (``trainer.baseline.pad_features``: 14 per pad) as
 ONNX nodes, so the baseline ships as one graph like every other family.
 
-Per pad: max and standard deviation of all taxel values (ReduceMax, ReduceL2 about the mean), the
-median (an exact If for a zero median, else TopK of the largest half, then the middle one or two);
-from the pad's mean-pressure signal and centre of pressure over time (``trainer.features.pad_series``,
-shared with the level statistics): the mean, the FFT band shares and log energy (a DFT as a MatMul,
-not an FFT op), the mean derivative ((last - first) / (T - 1), the telescoped mean of the
-differences), the centre's mean, net displacement and mean speed.
+Per pad: max, standard deviation and an exact median (TopK of the largest half) of all taxel values;
+the rest from the mean-pressure signal and centre of pressure over time (``trainer.features.pad_series``,
+shared with the level statistics; the FFT is a DFT MatMul).
 """
 
 from __future__ import annotations
@@ -97,14 +94,10 @@ def _std_nodes(g, batch: PadBatch, padded: str, mean: str, n_t: int) -> tuple[st
 def pad_error_bounds(P: np.ndarray, rows: int, cols: int) -> np.ndarray:
     """Bound ``(n, 14)`` on |float32 graph - float64| of one pad's features ``P`` ``(n, S, T)``.
 
-    Each feature's rounding follows the graph's own sums (``trainer.numerics``: a float32 sum of m
-    terms is within ``gamma(m) * sum |terms|``): the whole-pad mean and spread carry gamma(S T);
-    the mean-pressure signal only gamma(S) per frame, so the FFT features, the mean derivative and
-    the centre of pressure (a ratio of two pad sums: scale-free) are bounded at the size of their
-    own values, not of the pad's largest taxel. Only genuinely ill-conditioned features get their
-    whole range: FFT shares of a signal whose energy is within ``SAFETY`` x its error of zero, the
-    centre of pressure of a frame whose summed pressure is within ``SAFETY`` x its error of zero
-    (only possible with negative input).
+    Each feature's rounding follows the graph's own sums (``trainer.numerics``), so features of the
+    mean-pressure signal are bounded at the size of their own values, not of the pad's largest taxel.
+    Only ill-conditioned features (energy or summed pressure within ``SAFETY`` x its error of zero) get
+    their whole range.
     """
     P = np.asarray(P, dtype=np.float64)
     n, size, n_t = P.shape

@@ -41,11 +41,8 @@ def check_fullscale(value: float, where: str) -> float:
 def keep_increasing(frames: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
     """Drop frames whose time stamp does not advance, so a Recording can hold the rest.
 
-    Why: a recording needs strictly increasing time. A frame stamped at or before the last
-    kept frame is either an exact duplicate (same time, same values: logged twice) or out of
-    order (PC clock stepped back, or two frames stamped within one clock tick). Both are
-    dropped rather than re-timed, since inventing a time stamp would hide the fault; the counts
-    go into the recording's meta so that nobody mistakes a cleaned file for a clean one.
+    Duplicates and out-of-order frames are dropped rather than re-timed (an invented stamp would hide the
+    fault), and counted in the recording's meta so nobody mistakes a cleaned file for a clean one.
     """
     n = len(stamps)
     info = {"duplicate_frames_dropped": 0, "out_of_order_frames_dropped": 0}
