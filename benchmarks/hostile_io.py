@@ -9,7 +9,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from benchmarks.hostile_parts import cli, run_daemon, sigterm, status_when
+from benchmarks.hostile_parts import cli, status_when
+from trainer.bench.harness import spawn_daemon, stop_daemon
 
 
 def _ends_in_one_line(done: subprocess.CompletedProcess, command: str, name: str) -> bool:
@@ -121,14 +122,14 @@ def attack_daemon(work: Path) -> dict:
     hostile = {"ort-refuses.onnx": unknown_op.SerializeToString(), "ort-banner.onnx": H.ort_banner(), "nan.onnx": H.nan_scores(),
                "inf.onnx": H.inf_scores(), "label.onnx": H.label_out_of_range(), "slow.onnx": H.slow(40_000),
                **{f"mutant{i}.onnx": m for i, m in enumerate(H.mutations(H.valid(), 5, seed=5, max_flips=40))}}
-    proc = run_daemon(config, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = spawn_daemon(config, stdout=subprocess.PIPE)
     try:
         time.sleep(1.0)
         for i, (name, data) in enumerate(hostile.items()):
             write_model(models, name, data, mtime=time.time() - 50 + i)
             time.sleep(0.3)
         status = status_when(state / "status.json", proc, lambda s: s.get("models_rejected", 0) >= len(hostile), 60.0)
-        sigterm(proc, 10)
+        stop_daemon(proc, 10)
     finally:
         if proc.poll() is None:
             proc.kill()

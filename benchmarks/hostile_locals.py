@@ -13,7 +13,8 @@ import subprocess
 import time
 from pathlib import Path
 
-from benchmarks.hostile_parts import HANG_GUARD_S, NOBODY, cli, one_line, run_daemon, sim_config, wait_until
+from benchmarks.hostile_parts import HANG_GUARD_S, NOBODY, cli, one_line, sim_config, wait_until
+from trainer.bench.harness import spawn_daemon, stop_daemon
 
 __all__ = ["device_spellings", "lying_early_heads", "squatted_control_name", "squatted_lock_folder",
            "unwritable_health_folder"]
@@ -120,7 +121,7 @@ def device_spellings(work: Path) -> dict:
     env = dict(os.environ, XDG_RUNTIME_DIR=str(work / "run"))
     (work / "run").mkdir()
     config = _config(work / "a" / "c.toml", "", url=f"tcp://127.0.0.1:{port}")
-    first = run_daemon(config, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    first = spawn_daemon(config, env, stderr=subprocess.DEVNULL)
     rows = {}
     try:
         from runtime import instance_lock
@@ -132,8 +133,7 @@ def device_spellings(work: Path) -> dict:
             done = cli(["run", "--config", str(config)], timeout=HANG_GUARD_S, env=env)
             rows[url] = done.returncode == 2 and one_line(done.stderr, "in use by another handover daemon")
     finally:
-        first.terminate()
-        first.wait(timeout=HANG_GUARD_S)
+        stop_daemon(first, HANG_GUARD_S)
     return {"held": all(rows.values()), "tried": True,
             "detail": "; ".join(f"{u}: {'refused' if ok else 'RAN BESIDE IT'}" for u, ok in rows.items())}
 

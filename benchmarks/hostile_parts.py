@@ -1,10 +1,9 @@
 """What the hostile cases share: ``handover`` as a child, its config, an in-process daemon over a model
-folder, pressed frames, and the one-line check."""
+folder, pressed frames, and the one-line check (a ``handover run`` child: trainer.bench.harness)."""
 
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import time
@@ -26,22 +25,6 @@ def cli(argv: list[str], timeout: float = 120, **kw) -> subprocess.CompletedProc
     """``handover ARGV`` as a process (stdout and stderr captured as text)."""
     return subprocess.run([sys.executable, "-m", "runtime.cli", *argv], capture_output=True, text=True, cwd=ROOT,
                           timeout=timeout, **kw)
-
-
-def run_daemon(config: Path, **kw) -> subprocess.Popen:
-    """``handover run --config CONFIG`` as a child, in text mode."""
-    return subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=ROOT,
-                            text=True, **kw)
-
-
-def sigterm(proc: subprocess.Popen, guard_s: float = HANG_GUARD_S) -> int | None:
-    """SIGTERM, then the exit code; None (and killed) when it does not end within ``guard_s``."""
-    proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(timeout=guard_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return None
 
 
 def one_line(text: str, *needles: str) -> bool:

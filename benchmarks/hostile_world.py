@@ -39,14 +39,13 @@ from benchmarks.hostile_parts import (
     one_line,
     pressed_frames,
     read_json,
-    run_daemon,
     serving,
-    sigterm,
     sim_config,
     status_when,
     wait_until,
 )
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
+from trainer.bench.harness import spawn_daemon, stop_daemon
 
 SMALL_PIPE = 4096
 """A pipe this small fills after about a dozen event lines (a pipe nobody reads, sooner)."""
@@ -194,7 +193,7 @@ def blocked_stdout_process(work: Path) -> dict:
                          '[trigger]\nkind = "threshold"\nfraction = 0.02\nhysteresis = 0.01\nrefractory_s = 0.3\n')
     read_end, write_end = os.pipe()
     fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, SMALL_PIPE)
-    proc = run_daemon(config, stdout=write_end, stderr=subprocess.PIPE)
+    proc = spawn_daemon(config, stdout=write_end)
     os.close(write_end)
     try:
         got: list[bytes] = []
@@ -203,7 +202,7 @@ def blocked_stdout_process(work: Path) -> dict:
             got += [d for d in drain(listener) if b'"decision"' in d]
             time.sleep(0.1)
         pipe_full = len(os.read(read_end, 1 << 20)) >= SMALL_PIPE - 512  # read only now: it was full
-        code = sigterm(proc)
+        code = stop_daemon(proc, HANG_GUARD_S)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -235,7 +234,7 @@ def closed_stdout(work: Path) -> dict:
         while time.monotonic() < deadline and proc.poll() is None and got < 1:
             got += len(drain(listener))
             time.sleep(0.1)
-        code = sigterm(proc)
+        code = stop_daemon(proc, HANG_GUARD_S)
         err = proc.communicate()[1]
         said = [line for line in err.splitlines() if "sinks.stdout" in line]
         outcomes[stdout_on] = {"exit_code": code, "udp_datagrams": got, "traceback": "Traceback" in err,
@@ -678,11 +677,11 @@ def hanging_model_process(work: Path) -> dict:
     path = rec.save(work / "presses.hrec")
     config = _run_config(state / "h.toml", f"replay://{path}?speed=1&loop=1", models,
                          '[trigger]\nkind = "threshold"\nfraction = 0.2\nhysteresis = 0.1\n')
-    proc = run_daemon(config, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = spawn_daemon(config, stdout=subprocess.PIPE)
     try:
         status = status_when(state / "status.json", proc, lambda s: s.get("models_quarantined", 0) >= 1
                              and s.get("events", 0) >= 1, 4 * HANG_GUARD_S)
-        code = sigterm(proc)
+        code = stop_daemon(proc, HANG_GUARD_S)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -203,12 +203,13 @@ def write_config(folder: Path, device_url: str, model_dir: Path, udp_port: int |
     return path
 
 
-def spawn_daemon(config: Path, env: dict | None = None) -> subprocess.Popen:
-    """``handover run --config FILE`` as a child process (stderr piped: its log)."""
+def spawn_daemon(config: Path, env: dict | None = None, stdout=subprocess.DEVNULL,
+                 stderr=subprocess.PIPE) -> subprocess.Popen:
+    """``handover run --config FILE`` as a child process (stderr piped by default: its log)."""
     full_env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
                 **(env or {})}
     return subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(config)], cwd=str(ROOT),
-                            env=full_env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            env=full_env, stdout=stdout, stderr=stderr, text=True)
 
 
 def stop_daemon(proc: subprocess.Popen, timeout: float = 5.0) -> int:
