@@ -399,7 +399,7 @@ class DeviceEmulator:
         self._rle = cfg.rle
         mode = cfg.mode
         if mode == "single" and self.old_firmware:
-            mode = "push"
+            mode = "push"  # firmware <= R288 starts push mode on a single-frame request (its known bug)
         if mode == "stop":
             self._pushing = False
         elif mode == "push":
