@@ -6,9 +6,6 @@ controller would send it, then timed two ways:
 
 - ``payload``: ``decode_frame_payload`` alone (what the issue's 20,000 frames/s aim is about);
 - ``stream``: ``StreamParser.feed`` on the byte stream (preamble search, CRC) plus decoding.
-
-Options: ``--frames`` (default 4000), ``--repeats`` (default 7), ``--synthetic`` (skip the real
-recordings). Writes results/decode.json and results/decode.md.
 """
 
 from __future__ import annotations

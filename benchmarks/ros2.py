@@ -6,10 +6,7 @@ events) with the product's default model, trained on the simulated protocol (qui
 does not depend on what the model computes), publishes events and all six pads; a subscriber process records when each line
 arrives and counts the images. Latency = subscriber's wall clock at the callback minus the
 event's ``time`` (stamped right after the decision, before any sink), same machine and clock.
-
-Options: ``--seconds`` (default 60, --quick 5), ``--speed`` (sim:// speed-up, default 16),
-``--pad-rate`` ([ros2] pad_rate_hz, default 32). Needs the ros and train extras and a sourced ROS 2.
-Writes results/ros2.json and results/ros2.md.
+Needs the ros and train extras and a sourced ROS 2 (options: ``./dev bench --help``).
 """
 
 from __future__ import annotations
