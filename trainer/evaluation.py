@@ -19,7 +19,7 @@ from sklearn.model_selection import train_test_split
 from threadpoolctl import threadpool_limits
 
 __all__ = [
-    "LOSO_NEEDS_A_SECOND_SUBJECT", "N_JOBS", "POOLED_TEST_SIZE", "Split", "config1", "config2", "loso_skipped", "loso_splits",
+    "LOSO_NEEDS_A_SECOND_SUBJECT", "POOLED_TEST_SIZE", "Split", "config1", "config2", "loso_skipped", "loso_splits",
     "loso_unavailable", "per_class", "pooled_splits", "run_splits", "sweep", "tsne_embedding"
 ]
 
