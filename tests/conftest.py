@@ -52,3 +52,12 @@ def dsa_files() -> list[Path]:
 
 def bag_files() -> list[Path]:
     return sorted(SDH2_DATA.rglob("*.bag")) if SDH2_DATA.is_dir() else []
+
+
+LONGEST_FIRST = ("tests/test_demo.py",)
+"""Modules that take minutes (the demo trains a model): started first, so that with two workers
+(./dev test) the rest of the suite runs beside them instead of after them."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: not item.nodeid.startswith(LONGEST_FIRST))
