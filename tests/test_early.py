@@ -208,7 +208,7 @@ def test_export_from_the_joblib_keeps_the_early_heads(early_model, tmp_path):
     import joblib
 
     from runtime.model import load_model
-    from trainer.commands.export_cli import export_trained
+    from trainer.trained_file import export_trained
 
     path, _, heads, full = early_model
     import onnx

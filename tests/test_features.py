@@ -208,7 +208,7 @@ def test_verify_accepts_a_flat_svm_reference(tmp_path, capsys):
     import joblib
 
     from runtime.cli import main as handover
-    from trainer.commands.export_cli import export_trained, load_trained
+    from trainer.trained_file import export_trained, load_trained
 
     X, y = synthetic_cases(seed=0)
     model = FlatSVC(kernel="linear", C=10.0).fit(X, y)

@@ -163,7 +163,7 @@ def rbf_loaded(rbf):
 def _exported_with_reference(tmp_path):
     import joblib
 
-    from trainer.commands.export_cli import export_trained
+    from trainer.trained_file import export_trained
 
     src = tmp_path / "model.joblib"
     joblib.dump({"model": fit_model("rbf"), "metadata": {"pads": [1, 3], "pad_sizes": list(PAD_SIZES),
@@ -199,8 +199,8 @@ def test_verify_cli_on_held_out_simulated_trials(tmp_path, capsys):
     from firmware_io.sim import simulate_protocol
     from runtime.cli import main as handover
     from trainer.classifier import BowSVC
-    from trainer.commands.export_cli import export_trained
     from trainer.dataset import build_dataset
+    from trainer.trained_file import export_trained
 
     ds = build_dataset(simulate_protocol(seed=0, n_subjects=1), T=15, pads="distal")
     model = BowSVC(C=100.0, gamma="scale", per_pad=True, pad_sizes=ds.pad_sizes).fit(ds.X, ds.y)

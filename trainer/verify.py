@@ -213,7 +213,7 @@ def load_reference(onnx_path: Path, meta_extra: dict, explicit: str | Path | Non
                    frames_shape: tuple[int, int] | None = None):
     """The fitted scikit-learn model behind a graph; refuses a file whose sha256 does not match, or
     (``frames_shape``: the graph's ``(T, C)``) one fitted on windows of another size."""
-    from trainer.commands.export_cli import load_trained
+    from trainer.trained_file import load_trained
 
     path = reference_path_for(onnx_path, meta_extra, explicit)
     if not path.is_file():

@@ -24,9 +24,9 @@ def trained_model(tmp: Path) -> Path:
     import joblib
 
     from firmware_io.sim import simulate_protocol
-    from trainer.commands.export_cli import export_trained
     from trainer.dataset import build_dataset
     from trainer.defaults import paper_classifier
+    from trainer.trained_file import export_trained
 
     ds = build_dataset(simulate_protocol(seed=0, n_subjects=2), T=15, pads="distal")
     model = paper_classifier(ds.pad_sizes, per_pad=True, C=100.0, gamma="scale").fit(ds.X, ds.y)
