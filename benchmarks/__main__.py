@@ -16,7 +16,7 @@ import sys
 from firmware_io.commands.options import positive_float, positive_int
 from firmware_io.errors import INTERRUPTED, HandoverError
 from runtime.cli import HelpFormatter, OneLineParser
-from trainer import bench_cli
+from trainer.commands import bench_cli
 
 ALL = ("pareto", "latency", "throughput", "hostile", "streams")
 """What ``all`` (``./dev bench``) runs."""

@@ -35,7 +35,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "run": ("runtime.commands.daemon_cli", "the detection daemon (systemd service)", None),
     "record": ("trainer.commands.record_cli", "record a subject session following the paper's protocol", None),
     "plot": ("trainer.commands.plot_cli", "plot a trial of a recording", "train"),
-    "bench": ("trainer.bench_cli", "measure this machine: latency, throughput, inference (the studies behind results/ are a checkout's ./dev bench)", "train"),
+    "bench": ("trainer.commands.bench_cli", "measure this machine: latency, throughput, inference (the studies behind results/ are a checkout's ./dev bench)", "train"),
 }
 
 EXTRA_PACKAGES: dict[str, tuple[str, ...]] = {

@@ -13,8 +13,8 @@ import pytest
 
 from benchmarks.__main__ import main as bench
 from benchmarks.pareto import grid, is_default, pareto_front
-from trainer import bench_cli
 from trainer.bench.latency_stages import STAGES
+from trainer.commands import bench_cli
 from trainer.measure import deadline_ratio, percentiles, tap_stream
 
 

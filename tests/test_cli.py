@@ -69,7 +69,7 @@ def test_cli_import_is_light():
 
 def test_bench_summary_names_every_benchmark():
     """`handover --help` is where a user first looks for what `handover bench` can run."""
-    from trainer.bench_cli import BENCHMARKS
+    from trainer.commands.bench_cli import BENCHMARKS
 
     summary = cli.COMMANDS["bench"][1]
     assert [name for name in BENCHMARKS if name not in summary] == [], summary
