@@ -206,9 +206,9 @@ class ModelSlot:
         self.cfg = new
         if new.device.url != old.device.url:
             self.layout = None  # the next device may have another layout
+        self.show_trigger()  # a [trigger] or scene.mode the config now sets
         if new.scene == old.scene and new.model == old.model and new.onnxruntime == old.onnxruntime:
             return
-        self.show_trigger()  # a [trigger] or scene.mode the config now sets
         if self.model is not None and (problem := self.problem(self.model)):
             log.warning("the model in use does not fit the new scene; waiting for one that does")
             self.health.report_error(f"no model serves: the model in use does not fit the new scene ({problem})",

@@ -352,10 +352,14 @@ def test_a_reload_says_which_sections_changed(tmp_path, caplog):
     try:
         with caplog.at_level(logging.INFO, logger="handover.daemon"):
             daemon.reload()
-            config.write_text(base + '[sinks]\nstdout = false\nudp = ["127.0.0.1:9"]\n[trigger]\nfraction = 0.2\n')
+            before = daemon.models.counters()["trigger"]
+            config.write_text(base + '[sinks]\nstdout = false\nudp = ["127.0.0.1:9"]\n[trigger]\nkind = "threshold"\n'
+                                    'fraction = 0.2\n')
             daemon.reload()
         lines = [r.getMessage() for r in caplog.records if "configuration reloaded" in r.getMessage()]
         assert lines[0].endswith("(nothing changed)") and lines[1].endswith("(changed: trigger, sinks)"), lines
+        after = daemon.models.counters()["trigger"]  # the health view says the trigger that now starts a window
+        assert before.startswith("onset (") and after.startswith("threshold (fraction 0.2,"), (before, after)
     finally:
         daemon.sinks.close()
 
