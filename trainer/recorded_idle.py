@@ -155,7 +155,8 @@ def no_dormant_cost(streams_json: Path = STREAMS_RESULTS) -> str | None:
         four, five = float(fph["onset"]), float(fph["onset_dormant"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    return f"raises {four:.0f} false events per hour on the synthetic idle stream against {five:.0f} with a dormant class"
+    return (f"raises {four:.0f} false events per hour of synthetic idle (the test streams' idle stream and the idle "
+            f"between events) against {five:.0f} with a dormant class")
 
 
 def no_idle_line(streams_json: Path = STREAMS_RESULTS) -> str:
