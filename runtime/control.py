@@ -80,6 +80,8 @@ class ControlSocket:
         try:
             self._sock = self._bound_socket(self._bind_address())
         except OSError as exc:
+            if exc.errno is None:  # already our one line (control_access)
+                raise
             if exc.errno == errno.EADDRINUSE and self.address.startswith("@"):
                 raise OSError(access.in_use_line(self.address)) from None
             raise OSError(f"control.socket {self.address}: cannot bind ({exc.strerror or exc})") from None
@@ -151,8 +153,8 @@ class ControlSocket:
                 log.error("control socket %s was replaced by another file while running; robot messages do not "
                           "reach the daemon until that file is removed (then the socket is bound again)", self.address)
             return
-        try:
-            sock = self._bound_socket(self.address)
+        try:  # the folder checked again: its owner may have changed since
+            sock = self._bound_socket(self._bind_address())
         except OSError as exc:
             if not self._rebind_failed:
                 self._rebind_failed = True

@@ -2,7 +2,8 @@
 
 Why: ``grasp open`` silences the trigger, so only the daemon's user (or root) may send: a filesystem
 socket is mode 600, and every datagram's sender credentials (SCM_CREDENTIALS) are checked, abstract
-sockets included. ``socket_path_problem`` says before binding why a ``control.socket`` can never work;
+sockets included. ``socket_path_problem`` says before binding why a ``control.socket`` can never work
+or could be taken over (a folder another user may swap it in);
 ``held``/``in_use_line``: a name another process holds stops the daemon and fails ``run --check``.
 """
 
@@ -14,6 +15,8 @@ import socket
 import stat
 import struct
 from pathlib import Path
+
+from runtime.instance_lock import untrusted
 
 __all__ = ["ANCILLARY_BYTES", "allow_credentials", "held", "in_use_line", "may_steer", "restrict", "sender_uid",
            "socket_path_problem"]
@@ -50,6 +53,28 @@ def socket_path_problem(address: str) -> str | None:
     if not path.parent.is_dir():
         return (f"control.socket {address}: cannot bind: folder {path.parent} does not exist; create it (RuntimeDirectory= "
                 "in the unit file) or choose another path")
+    if why := _folder_problem(path.parent):
+        return (f"control.socket {address}: {why}: another user could replace the socket and get the robot's messages; "
+                "choose a folder of this user's or root's, e.g. /run/handover (RuntimeDirectory= in the unit file)")
+    return None
+
+
+def _folder_problem(folder: Path) -> str | None:
+    """A folder on the way to the socket, as named or as resolved, that another user owns or may write
+    to (``instance_lock.untrusted``, shared: root's and sticky ones are fine), or a symbolic link of
+    another user's (re-pointed, it leads elsewhere)."""
+    named, real = Path(os.path.abspath(folder)), Path(os.path.realpath(folder))
+    for each in dict.fromkeys([named, *named.parents, real, *real.parents]):
+        try:
+            info = each.lstat()
+        except OSError as exc:
+            return f"cannot look at folder {each} ({exc.strerror or exc})"
+        if stat.S_ISLNK(info.st_mode):
+            why = None if info.st_uid in (os.geteuid(), 0) else f"a symbolic link of uid {info.st_uid}"
+        else:
+            why = untrusted(info, shared=True)
+        if why:
+            return f"folder {each} is {why}"
     return None
 
 

@@ -20,7 +20,8 @@ from pathlib import Path
 
 from firmware_io.errors import HandoverError
 
-__all__ = ["InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets"]
+__all__ = ["InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets",
+           "untrusted"]
 
 
 class InstanceLockError(HandoverError, RuntimeError):
@@ -82,13 +83,22 @@ def _open_folder(folder: Path) -> int:
             raise OSError(f"lock folder {folder} is a symbolic link or not a folder: remove it (locks are never "
                           "written elsewhere)") from None
         raise
-    info = os.fstat(fd)
-    if info.st_uid != os.geteuid() or info.st_mode & 0o022:
+    if whose := untrusted(os.fstat(fd)):
         os.close(fd)
-        whose = f"owned by uid {info.st_uid}" if info.st_uid != os.geteuid() else "writable by others"
         raise OSError(f"lock folder {folder} is {whose}, not this user's (uid {os.geteuid()}) alone: remove it, or set "
                       "XDG_RUNTIME_DIR to a folder of this user's")
     return fd
+
+
+def untrusted(info: os.stat_result, shared: bool = False) -> str | None:
+    """Why a folder (its ``stat``) is not safe for our files, or None: a user who owns it or may write
+    there can remove what we put there and put theirs in its place. ``shared`` also trusts root's
+    folders, and others' writing in a sticky one (like /tmp: only a file's owner may remove it)."""
+    if info.st_uid != os.geteuid() and not (shared and info.st_uid == 0):
+        return f"owned by uid {info.st_uid}"
+    if info.st_mode & 0o022 and not (shared and info.st_mode & stat.S_ISVTX):
+        return "writable by others"
+    return None
 
 
 def _open(path: Path, flags: int) -> int:

@@ -171,6 +171,42 @@ def test_a_reload_binds_the_new_socket_before_it_closes_the_old_and_a_held_one_k
         daemon.sinks.close()
 
 
+@pytest.mark.parametrize("planted", ["owned_by_another_user", "others_may_write"])
+def test_a_socket_folder_another_user_could_swap_it_in_is_refused_by_check_run_and_reload(
+        tmp_path, capsys, caplog, planted):
+    """uid 65534 owned the socket's folder: --check said 0, the daemon ran, and they unlinked its socket
+    and bound their own, so the robot's ``arm moving`` reached them; a SIGHUP onto it was taken too."""
+    from runtime.cli import main
+
+    if planted == "owned_by_another_user" and os.geteuid() != 0:
+        pytest.skip("giving a folder to another user needs root")
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    os.chown(theirs, 65534, 65534) if planted == "owned_by_another_user" else theirs.chmod(0o777)
+    why = "owned by uid 65534" if planted == "owned_by_another_user" else "writable by others"
+    address = str(theirs / "ctl.sock")
+    config = _write_config(tmp_path / "h.toml", tmp_path, address)
+    for args in (["--check"], []):
+        assert main(["run", *args, "--config", str(config)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"control.socket {address}: folder {theirs} is {why}" in err[0], err
+    assert not os.path.lexists(address)
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)  # like /tmp: sticky, so only the socket's owner may remove it
+    daemon = _daemon(_write_config(config, tmp_path, str(shared / "ctl.sock")))
+    running = daemon.control
+    try:
+        _write_config(config, tmp_path, address)
+        with caplog.at_level(logging.ERROR, logger="handover.daemon"):
+            daemon.reload()
+        assert daemon.control is running and daemon.cfg.control.socket == str(shared / "ctl.sock")
+        assert f"SIGHUP: control.socket {address}: folder {theirs} is {why}" in caplog.text
+    finally:
+        daemon.stop_control()
+        daemon.sinks.close()
+
+
 def test_a_flood_of_grasp_messages_is_a_few_log_lines_not_one_per_message(tmp_path, caplog):
     from runtime.config import config_from_dict
     from runtime.daemon import Daemon
