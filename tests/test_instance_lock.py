@@ -220,7 +220,7 @@ def test_a_reload_onto_another_daemons_health_file_is_refused_and_a_reload_away_
 def test_one_lock_per_device_however_its_url_is_spelled(tmp_path):
     env = _env(tmp_path)
     spellings = ["tcp://127.0.0.1:13000", "tcp://localhost:13000", "TCP://127.0.0.1:13000", "tcp://127.1:13000",
-                 "tcp://127.0.0.1", "tcp://[::ffff:127.0.0.1]:13000/"]
+                 "tcp://127.0.0.1", "tcp://[::ffff:127.0.0.1]:13000/", "tcp://0.0.0.0:13000", "tcp://0:13000"]
     assert len({instance_lock.device_lock_path(u, env) for u in spellings}) == 1
     assert instance_lock.device_lock_path("tcp://127.0.0.2:13000", env) != instance_lock.device_lock_path(
         spellings[0], env)

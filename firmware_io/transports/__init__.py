@@ -115,8 +115,8 @@ def validate_url(url: str) -> ParsedURL:
 def device_key(url: str) -> str:
     """Which device a URL reaches, one spelling for every way of writing it (the daemon's instance lock):
     options ignored, the scheme's case too; a serial port by its real path (a udev symlink is the port
-    it names); a tcp host by the address it resolves to, IPv4 first (``localhost``, ``127.1`` and
-    ``127.0.0.1`` are one host), with the default port filled in. A URL that cannot be read is itself."""
+    it names); a tcp host by the address it resolves to, IPv4 first (``localhost``, ``127.1``, ``0.0.0.0``
+    and ``127.0.0.1`` are one host), with the default port filled in. A URL that cannot be read is itself."""
     try:
         parsed = _parse(url.split("?", 1)[0])
         if parsed.scheme == "serial":
@@ -137,6 +137,8 @@ def device_key(url: str) -> str:
     except ValueError:  # a name that does not resolve (yet): by its name
         return f"tcp://{address}:{port}"
     ip = getattr(ip, "ipv4_mapped", None) or ip
+    if ip.is_unspecified:  # connecting to 0.0.0.0 (or ::) reaches this host
+        ip = ipaddress.ip_address("127.0.0.1" if ip.version == 4 else "::1")
     return f"tcp://[{ip}]:{port}" if ip.version == 6 else f"tcp://{ip}:{port}"
 
 
