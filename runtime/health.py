@@ -8,6 +8,7 @@ import contextlib
 import json
 import logging
 import os
+import stat
 import time
 from collections import deque
 from collections.abc import Callable
@@ -16,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Health", "Latency", "StatusFile", "log", "one_line", "write_json_atomically"]
+__all__ = ["Health", "Latency", "StatusFile", "log", "one_line", "write_json_atomically",
+           "write_problem"]
 
 log = logging.getLogger("handover.health")
 ERROR_HISTORY = 8
@@ -214,6 +216,21 @@ def write_json_atomically(p: Path, data: dict) -> None:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         raise
+
+
+def write_problem(path: str | os.PathLike) -> str | None:
+    """Why this process could not write the health file at ``path``, or None. It is replaced by a temp
+    file renamed in its folder (``write_json_atomically``), so the folder must be writable (a lock file
+    there that is, or the file itself, proves nothing); in a sticky folder the file, if there, must be ours."""
+    p, uid = Path(path), os.geteuid()
+    if not os.access(p.parent, os.W_OK | os.X_OK, effective_ids=os.access in os.supports_effective_ids):
+        return (f"health_file {p}: its folder {p.parent} is not writable for uid {uid} (the file is replaced by a new "
+                "one there); make the folder writable for the daemon's user or choose another path")
+    with contextlib.suppress(OSError):
+        if os.stat(p.parent).st_mode & stat.S_ISVTX and uid not in (0, os.lstat(p).st_uid):
+            return (f"health_file {p}: belongs to uid {os.lstat(p).st_uid} in a sticky folder, so uid {uid} cannot "
+                    "replace it; remove it or choose another path")
+    return None
 
 
 def one_line(exc: BaseException) -> str:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from firmware_io.errors import HandoverError
+from runtime.health import write_problem
 
 __all__ = ["InstanceLockError", "device_lock_path", "held_by_other", "release", "take", "targets",
            "untrusted"]
@@ -230,6 +231,9 @@ class Locks:
         except InstanceLockError as exc:
             release(new)
             return str(exc)
+        if cfg.health_file and (line := write_problem(cfg.health_file)):  # its folder exists now (take made it)
+            release(new)
+            return line
         wanted = {path for _, path in targets(cfg)}
         release([h for h in self.held if h.path not in wanted])
         self.held = [h for h in self.held if h.path in wanted] + new

@@ -296,3 +296,47 @@ def test_check_fails_on_a_health_folder_the_daemon_cannot_write(tmp_path):
         line = answer.read()
     os.waitpid(child, 0)
     assert f"cannot take the lock of health_file {folder / 'status.json'}" in line and "writable" in line, line
+
+
+def test_a_health_folder_the_daemon_cannot_write_is_refused_though_a_lock_file_there_is_writable(tmp_path):
+    """A root folder (755) with a pre-made ``.status.json.lock`` of mode 666: as uid 65534 ``--check`` said
+    0 and ``run`` went on logging "Permission denied", the health file never written (it is renamed into
+    place, so the folder must be writable, not the lock)."""
+    import shutil
+    import tempfile
+
+    from runtime.commands import daemon_cli
+    from runtime.config import load_config
+
+    if os.geteuid() != 0:
+        pytest.skip("acting as another user needs root")
+    cfg = load_config(_config(tmp_path))
+    folder = Path(tempfile.mkdtemp(prefix="handover-roh-"))  # not under tmp_path: uid 65534 must reach it
+    try:
+        folder.chmod(0o755)
+        lock = instance_lock.health_lock_path(folder / "status.json")
+        lock.touch()
+        lock.chmod(0o666)
+        cfg = dataclasses.replace(cfg, health_file=str(folder / "status.json"))
+        read, write = os.pipe()
+        if (child := os.fork()) == 0:
+            os.close(read)
+            try:
+                os.setgid(65534)
+                os.setuid(65534)
+                try:
+                    instance_lock.Locks.take(cfg)
+                    took = "taken"
+                except instance_lock.InstanceLockError as exc:
+                    took = str(exc)
+                os.write(write, f"{daemon_cli._lock_problem(cfg)}\n{took}".encode())
+            finally:
+                os._exit(0)
+        os.close(write)
+        with os.fdopen(read) as answer:
+            lines = answer.read().splitlines()
+        os.waitpid(child, 0)
+    finally:
+        shutil.rmtree(folder)
+    want = f"health_file {folder / 'status.json'}: its folder {folder} is not writable for uid 65534"
+    assert len(lines) == 2 and all(line.startswith(want) for line in lines), lines

@@ -206,10 +206,13 @@ def _held(cfg) -> list[str]:
 
 
 def _lock_problem(cfg) -> str | None:
-    """A lock ``run`` could not take (a symbolic link, a FIFO, a read-only folder): ``run`` would exit 2."""
+    """A lock ``run`` could not take (a symbolic link, a FIFO, a read-only folder), or a health file it
+    could not write (runtime.health.write_problem, as ``Locks.take`` asks): ``run`` would exit 2."""
     from runtime import instance_lock
+    from runtime.health import write_problem
 
-    return next((line for what, path in instance_lock.targets(cfg) if (line := instance_lock.problem(what, path))), None)
+    return next((line for what, path in instance_lock.targets(cfg) if (line := instance_lock.problem(what, path))),
+                None) or (write_problem(cfg.health_file) if cfg.health_file else None)
 
 
 def _control_problem(cfg) -> str | None:
