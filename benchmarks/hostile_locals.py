@@ -40,8 +40,8 @@ def _config(path: Path, rest: str, url: str = "sim://") -> Path:
 
 def squatted_control_name(work: Path) -> dict:
     """N1: another user binds the daemon's abstract control name first: ``--check`` and ``run`` exit 2
-    in one line; a SIGHUP that changes ``[control]`` never lets go of the name while that user loops on
-    bind (it won 5 of 5 times)."""
+    in one line, as for a socket path in a folder of theirs; a SIGHUP that changes ``[control]`` never lets
+    go of the name while that user loops on bind (it won 5 of 5 times)."""
     from runtime.config import load_config
     from runtime.daemon import Daemon
 
@@ -58,6 +58,12 @@ def squatted_control_name(work: Path) -> dict:
         squatter.kill()
         squatter.wait()
     refused = [p.returncode == 2 and one_line(p.stderr, address, "in use by another process") for p in (check, run)]
+    theirs = work / "theirs"
+    theirs.mkdir()
+    os.chown(theirs, NOBODY, NOBODY)  # a path socket there: they could unlink it and bind their own
+    path = _config(work / "path" / "c.toml", f'[control]\nsocket = "{theirs / "ctl.sock"}"\n')
+    refused += [p.returncode == 2 and one_line(p.stderr, f"folder {theirs} is owned by uid {NOBODY}")
+                for p in (cli(["run", "--config", str(path), *more], timeout=HANG_GUARD_S) for more in (["--check"], []))]
     settle = _config(work / "reload" / "c.toml", f'[control]\nsocket = "{address}"\narm_settle_s = 0.5\n')
     daemon = Daemon(load_config(settle))
     daemon.start_control()
@@ -77,7 +83,8 @@ def squatted_control_name(work: Path) -> dict:
         daemon.sinks.close()
     held = all(refused) and not won and applied
     return {"held": held, "tried": True,
-            "detail": f"--check exit 2 in one line: {refused[0]}; run exit 2 in one line: {refused[1]}; "
+            "detail": f"--check exit 2 in one line: {refused[0]}; run exit 2 in one line: {refused[1]}; a socket path "
+                      f"in a folder of theirs: both exit 2 in one line: {refused[2] and refused[3]}; "
                       f"5 reloads under a uid {NOBODY} bind loop: name won by it: {won}, reload applied: {applied}"}
 
 
@@ -113,7 +120,7 @@ def squatted_lock_folder(work: Path) -> dict:
 
 def device_spellings(work: Path) -> dict:
     """N8: a daemon on ``tcp://127.0.0.1:P``; a second one on ``tcp://localhost:P``, ``TCP://127.0.0.1:P``
-    or ``tcp://127.1:P`` (each with its own health file) exits 2 naming the device."""
+    ``tcp://127.1:P``, ``tcp://0.0.0.0:P`` or ``tcp://0:P`` (each with its own health file) exits 2 naming the device."""
     probe = socket.socket()
     probe.bind(("127.0.0.1", 0))
     port = probe.getsockname()[1]
@@ -128,7 +135,8 @@ def device_spellings(work: Path) -> dict:
 
         lock = instance_lock.device_lock_path(f"tcp://127.0.0.1:{port}", env)
         wait_until(lambda: instance_lock.held_by_other("device", lock))
-        for i, url in enumerate((f"tcp://localhost:{port}", f"TCP://127.0.0.1:{port}", f"tcp://127.1:{port}")):
+        for i, url in enumerate((f"tcp://localhost:{port}", f"TCP://127.0.0.1:{port}", f"tcp://127.1:{port}",
+                                 f"tcp://0.0.0.0:{port}", f"tcp://0:{port}")):
             config = _config(work / f"b{i}" / "c.toml", "", url=url)
             done = cli(["run", "--config", str(config)], timeout=HANG_GUARD_S, env=env)
             rows[url] = done.returncode == 2 and one_line(done.stderr, "in use by another handover daemon")
