@@ -296,11 +296,14 @@ def test_the_service_with_ros2_stops_on_sigterm_within_a_second(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     err_lines: list[str] = []
-    while not any("ros2: node" in line for line in err_lines) and proc.poll() is None:
-        err_lines.append(proc.stderr.readline())
-    time.sleep(1.0)
+
+    def read_until(text: str) -> None:  # a busy machine takes its time: wait for the line, not a fixed delay
+        while not any(text in line for line in err_lines) and proc.poll() is None:
+            err_lines.append(proc.stderr.readline())
+
+    read_until("handover daemon ready")  # the signal handlers are installed before this line
     proc.send_signal(signal.SIGHUP)
-    time.sleep(0.5)
+    read_until("configuration reloaded")
     stop_s = sigterm_seconds(proc)
     out, err = proc.communicate()
     err = "".join(err_lines) + err
