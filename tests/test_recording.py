@@ -382,3 +382,17 @@ def test_a_compressed_recording_is_refused_before_it_inflates(tmp_path):
     got = json.loads(done.stdout)
     assert got["said"].startswith(f"{path}: refused: member ") and " is compressed; " in got["said"], got
     assert got["s"] < 5 and got["mb"] < 500, got
+
+
+def test_a_compressed_header_is_said_to_be_compressed_not_invalid_json(tmp_path):
+    """It read "member header.json is not valid JSON (member header.json is compressed...)"."""
+    path = tmp_path / "subject_s1.hrec"
+    make_recording().save(path)
+    with zipfile.ZipFile(path) as zf:
+        members = {name: zf.read(name) for name in zf.namelist()}
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data, compress_type=zipfile.ZIP_DEFLATED if name == "header.json" else None)
+    with pytest.raises(RecordingError) as err:
+        Recording.load(path)
+    assert "member header.json is compressed; " in str(err.value) and "JSON" not in str(err.value), err.value

@@ -14,7 +14,7 @@ import numpy as np
 
 from firmware_io.errors import HandoverError
 
-__all__ = ["LimitError", "first_line", "quote", "read_json", "read_npy"]
+__all__ = ["LimitError", "first_line", "loads", "quote", "read_json", "read_npy"]
 
 CHUNK = 1 << 20
 
@@ -47,10 +47,20 @@ def read_member(zf: zipfile.ZipFile, name: str, cap: int) -> bytes:
 
 def read_json(zf: zipfile.ZipFile, name: str, cap: int) -> object:
     """A JSON member of at most ``cap`` bytes, nested no deeper than the JSON parser's recursion limit."""
+    data = read_member(zf, name, cap)  # its LimitError (compressed, too large) is not a JSON problem
     try:
-        return json.loads(read_member(zf, name, cap))
-    except (ValueError, RecursionError) as exc:  # RecursionError: nested deeper than the parser's limit
+        return loads(data)
+    except ValueError as exc:
         raise LimitError(f"member {name} is not valid JSON ({first_line(exc)})") from None
+
+
+def loads(text: str | bytes) -> object:
+    """``json.loads`` where nesting deeper than the parser's recursion limit (100,000 brackets) is a
+    ValueError like any other malformed JSON, not a RecursionError that escapes as a traceback."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("nested deeper than any JSON handover writes") from None
 
 
 def read_npy(zf: zipfile.ZipFile, name: str, dtype: np.dtype | str, shape: Sequence[int]) -> np.ndarray:
