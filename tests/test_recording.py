@@ -276,11 +276,13 @@ def test_header_that_disagrees_with_the_data(saved):
 
 @pytest.mark.parametrize(("change", "match"), [
     ({"run": 10**30}, "trial 0: run 1000000000000000000000000000000 outside 0..2147483647"),
-    ({"subject": "s" * (4 << 20)}, "... is longer than 64 characters"),
-    ({"action": "x" * 65}, "trial 0: action 'xxxxxxxxx"),
+    ({"subject": "s" * (4 << 20)}, "trial 0: subject must be a name of 1 to 64 printable characters, got 'sss"),
+    ({"action": "x" * 65}, "trial 0: action must be a name"),
+    ({"subject": "s1\x1b[2J"}, "trial 0: subject must be a name of 1 to 64 printable characters, got 's1\\x1b[2J'"),
 ])
 def test_trial_numbers_and_names_training_cannot_hold_are_refused_at_load(saved, change, match):
-    """A run of 10**30 ended training in an OverflowError; a 4 MB subject id multiplied its peak memory by 4.5."""
+    """A run of 10**30 ended training in an OverflowError; a 4 MB subject id multiplied its peak memory by 4.5;
+    an ESC in a subject id went raw into train's report.md and the terminal."""
     bad = saved.with_name("names.hrec")
     trial = {"subject": "s1", "object": "ball", "pose": "up", "action": "pull", "run": 1, "first": 0, "last": 10}
     _rewrite_header(saved, bad, trials=[{**trial, **change}])

@@ -243,13 +243,15 @@ def _measured_score(events: Path | str, script: Path | str) -> tuple[subprocess.
 
 
 def _script_lines(head: dict, events: list[dict]) -> str:
-    return "\n".join(json.dumps(r) for r in [head, *events]) + "\n"
+    return "\n".join(json.dumps(r, separators=(",", ":")) for r in [head, *events]) + "\n"
 
 
 def test_hostile_scripts_are_refused_in_one_line_quickly_and_in_little_memory(tmp_path):
-    """What write_script never writes, and files that ate the machine: a 1 ms loop with 500 events and two
-    decisions 99,998 ms apart (50 million scripted events, 2.8 GB), 100,000 nested brackets (RecursionError),
-    /dev/zero (MemoryError), frames that descend, go negative, are fractional or past the end, a 1 MB name."""
+    """What write_script never writes, and files that ate the machine: 500 events on a 500 ms loop and two
+    decisions 99,998 ms apart (a 1 ms loop was 50 million scripted events, 2.8 GB), 101,091 events under the
+    size cap (11 s, 645 MB), 100,000 nested brackets (RecursionError) in the script or the events, /dev/zero
+    (MemoryError), frames that descend, go negative, are fractional or past the end, overlapping or repeated
+    events, a 1 MB name or one with an ESC (printed raw); the script as the events (a 0-decision scorecard)."""
     head = {"type": "script", "protocol": 1, "started": True, "ended": False, "source": "", "synthetic": True,
             "clock_start_ms": 0, "loop_ms": 1, "frames": 1, "frame_ms": [0]}
     one = {"type": "scripted", "event": 1, "onset_frame": 0, "action": "pull", "subject": "s1", "object": "ball",
@@ -258,8 +260,19 @@ def test_hostile_scripts_are_refused_in_one_line_quickly_and_in_little_memory(tm
     events.write_text("".join(json.dumps({"type": "decision", "class": "pull", "device_time_ms": t}) + "\n"
                               for t in (0, 99_998)))
     wide = {**head, "loop_ms": None, "frames": 3, "frame_ms": [0, 31, 62]}
+    many = {**head, "loop_ms": 500, "frames": 500, "frame_ms": list(range(500))}
+    spans = {**head, "loop_ms": None, "frames": 853, "frame_ms": list(range(0, 853 * 32, 32))}
     cases = {
-        "bomb": (_script_lines(head, [{**one, "event": k} for k in range(1, 501)]), "passes of the script"),
+        "bomb": (_script_lines(many, [{**one, "event": k, "first_frame": k - 1, "onset_frame": k - 1,
+                                       "last_frame": k - 1} for k in range(1, 501)]), "passes of the script"),
+        "events_bomb": (_script_lines(spans, [{**one, "event": k, "last_frame": 852} for k in range(1, 101_092)]),
+                        "101091 scripted events, more than any session handover scripts"),
+        "overlapping": (_script_lines(wide, [{**one, "last_frame": 1}, {**one, "event": 2, "first_frame": 1, "last_frame": 2}]),
+                        "scripted event 2 (frames 1..2) starts before event 1 ends"),
+        "duplicate": (_script_lines(wide, [one, {**one, "first_frame": 2, "last_frame": 2}]),
+                      "scripted event 1 appears twice"),
+        "escape_in_name": (_script_lines(wide, [{**one, "action": "pu\u001b[2Jll\nX"}]),
+                           r"action must be a name of 1 to 64 printable characters, got 'pu\x1b[2Jll\nX'"),
         "nested": ("[" * 100_000 + "]" * 100_000 + "\n", "not JSON lines"),
         "descending": (_script_lines({**wide, "frame_ms": [0, 62, 31]}, [one]), "goes back in time"),
         "first_after_last": (_script_lines(wide, [{**one, "first_frame": 2, "last_frame": 1}]), "after its last"),
@@ -268,6 +281,7 @@ def test_hostile_scripts_are_refused_in_one_line_quickly_and_in_little_memory(tm
         "fractional": (_script_lines(wide, [{**one, "last_frame": 1.5}]), "whole frames of the session"),
         "huge_name": (_script_lines(wide, [{**one, "action": "x" * (1 << 20)}]), "action must be a name"),
     }
+    assert len(cases["events_bomb"][0]) < 16 << 20  # under the size cap, as the attacker's was
     for name, (text, says) in {**cases, "dev_zero": (None, "not a regular file")}.items():
         script = "/dev/zero" if text is None else tmp_path / f"{name}.script"
         if text is not None:
@@ -277,11 +291,23 @@ def test_hostile_scripts_are_refused_in_one_line_quickly_and_in_little_memory(tm
         assert took["rc"] == 2 and len(lines) == 1 and says in lines[0] and len(lines[0]) < 400, (name, done.stderr[-500:])
         assert took["s"] < 5 and took["mb"] < 500, (name, took)
     good = tmp_path / "first_after_last.script"
-    good.write_text(cases["descending"][0].replace("[0, 62, 31]", "[0, 31, 62]"))
+    good.write_text(cases["descending"][0].replace("[0,62,31]", "[0,31,62]"))
     done, took = _measured_score("/dev/zero", good)  # as the events: endless, without a line end
     lines = done.stderr.strip().splitlines()
     assert took["rc"] == 2 and len(lines) == 1 and "MiB of event lines" in lines[0], done.stderr[-300:]
     assert took["s"] < 5 and took["mb"] < 500, took
+    decision = json.dumps({"type": "decision", "class": "pull", "device_time_ms": 31}) + "\n"
+    given = {"nested": ("[" * 100_000 + "]" * 100_000 + "\n", "none of its 1 lines is an event line"),
+             "script": (good.read_text(), "a script (what handover emulate --script-out writes), not event lines"),
+             "too_many": (decision * 50_001, "more than 50000 lines"),
+             "one_huge_line": ("[" + "{}," * (1 << 20) + "{}]\n", "none of its 1 lines is an event line")}
+    for name, (text, says) in given.items():
+        path = tmp_path / f"{name}.jsonl"
+        path.write_text(text)
+        done, took = _measured_score(path, good)
+        lines = done.stderr.strip().splitlines()
+        assert took["rc"] == 2 and len(lines) == 1 and says in lines[0], (name, done.stderr[-300:])
+        assert took["s"] < 5 and took["mb"] < 500 and not done.stdout.strip().splitlines()[:-1], (name, took)
 
 
 def test_a_log_given_as_the_events_is_said_not_scored(tmp_path):

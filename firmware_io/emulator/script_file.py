@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from firmware_io.errors import HandoverError
-from firmware_io.recordings.bounded_zip import first_line, quote
-from firmware_io.recordings.recording import MAX_NAME_CHARS, Recording, Trial
+from firmware_io.recordings.bounded_zip import first_line, loads, quote
+from firmware_io.recordings.recording import Recording, Trial, name_problem
 
 __all__ = ["ScriptFileError", "SessionScript", "read_script", "session_script", "write_script"]
 
@@ -91,6 +91,10 @@ def write_script(path: str | os.PathLike, recording: Recording, clock_start_ms: 
 
 MAX_SCRIPT_BYTES = 16 << 20
 """A script's size: a 9-hour session's frame times take about 10 MB; more is no script we wrote."""
+MAX_SCRIPT_EVENTS = 10_000
+"""Scripted events in one script: the demo has 40, a recorded session a few hundred, and a 9-hour session
+(the size cap's) with a handover every 4 s about 8,000. Each is scored once per pass; 100,000 under the size
+cap took 11 s and 645 MB to score."""
 
 
 def read_script(path: str | os.PathLike) -> SessionScript:
@@ -108,8 +112,8 @@ def read_script(path: str | os.PathLike) -> SessionScript:
     if len(data) > MAX_SCRIPT_BYTES:
         raise ScriptFileError(f"{p}: over {MAX_SCRIPT_BYTES >> 20} MiB, larger than any script handover writes")
     try:
-        rows = [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]
-    except (ValueError, RecursionError) as exc:  # RecursionError: brackets nested 100,000 deep
+        rows = [loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]
+    except ValueError as exc:
         raise ScriptFileError(f"{p}: not JSON lines ({first_line(exc)}); give the file handover emulate --script-out "
                               "wrote") from None
     if not rows or not isinstance(rows[0], dict) or rows[0].get("type") != "script":
@@ -121,7 +125,11 @@ def read_script(path: str | os.PathLike) -> SessionScript:
         raise ScriptFileError(f"{p}: no host asked the emulator for frames yet, so the session's device times are "
                               "not known; score once the daemon has read the session")
     events = [r for r in rows[1:] if isinstance(r, dict) and r.get("type") == "scripted"]
-    if problem := _header_problem(head) or next(filter(None, (_event_problem(r, head) for r in events)), None):
+    if len(events) > MAX_SCRIPT_EVENTS:
+        raise ScriptFileError(f"{p}: {len(events)} scripted events, more than any session handover scripts "
+                              f"(at most {MAX_SCRIPT_EVENTS}){again}")
+    if problem := (_header_problem(head) or next(filter(None, (_event_problem(r, head) for r in events)), None)
+                   or _order_problem(events)):
         raise ScriptFileError(f"{p}: {problem}{again}")
     trials = [Trial(subject=r["subject"], object=r["object"], pose=r["pose"], action=r["action"], run=r["event"],
                     first=r["first_frame"], last=r["last_frame"], extra={"onset": r["onset_frame"]}) for r in events]
@@ -151,9 +159,8 @@ def _header_problem(head: dict) -> str | None:
 def _event_problem(row: dict, head: dict) -> str | None:
     n = len(head["frame_ms"])
     where = f"scripted event {quote(row.get('event'))}"
-    for key in ("action", "subject", "object", "pose"):
-        if not isinstance(row.get(key), str) or not 0 < len(row[key]) <= MAX_NAME_CHARS:
-            return f"{where}: {key} must be a name of 1 to {MAX_NAME_CHARS} characters, got {quote(row.get(key))}"
+    if bad := next(filter(None, (name_problem(k, row.get(k)) for k in ("action", "subject", "object", "pose"))), None):
+        return f"{where}: {bad}"
     if not _count(row.get("event"), 1):
         return f"{where}: its number must be a whole number from 1"
     frames = [row.get(k) for k in ("first_frame", "onset_frame", "last_frame")]
@@ -161,4 +168,18 @@ def _event_problem(row: dict, head: dict) -> str | None:
         return f"{where}: first, onset and last frame must be whole frames of the session (0..{n - 1})"
     if frames[0] > frames[2]:
         return f"{where}: its first frame {frames[0]} is after its last {frames[2]}"
+    return None
+
+
+def _order_problem(events: list[dict]) -> str | None:
+    """``write_script`` numbers a recording's trials 1, 2, ... in time order, and the scoring rule gives
+    each report to the one event whose span holds it: numbers repeat or spans overlap only in a made-up file."""
+    seen: set[int] = set()
+    if twice := next((r["event"] for r in events if r["event"] in seen or seen.add(r["event"])), None):
+        return f"scripted event {twice} appears twice"
+    for a, b in pairwise(events):
+        if b["first_frame"] <= a["last_frame"]:
+            return (f"scripted event {b['event']} (frames {b['first_frame']}..{b['last_frame']}) starts before event "
+                    f"{a['event']} ends (frames {a['first_frame']}..{a['last_frame']}); a session's events follow "
+                    "one another")
     return None

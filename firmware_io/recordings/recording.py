@@ -34,7 +34,7 @@ from firmware_io.recordings import arm_marks, idle_stretches
 from firmware_io.recordings.bounded_zip import LimitError, first_line, quote, read_json, read_npy
 
 __all__ = [
-    "ACTIONS", "MAX_NAME_CHARS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all",
+    "ACTIONS", "MAX_NAME_CHARS", "SUFFIX", "Recording", "RecordingError", "Trial", "find_recordings", "load_all", "name_problem",
     "remove_stale_temps"
 ]
 
@@ -47,6 +47,16 @@ ACTIONS = ("pull", "push", "hold", "bump")
 MAX_NAME_CHARS = 64
 """The longest subject, object, pose or action of a trial: a subject id names its file (``subject_ID.hrec``),
 and training keeps each name once per case (a 4 MB id multiplied a run's peak memory by 4.5)."""
+
+
+def name_problem(kind: str, value: object) -> str | None:
+    """Why ``value`` cannot be a subject, object, pose or action name, or None. Printable, because names
+    are printed and written into reports (an ESC in one cleared a terminal)."""
+    if not isinstance(value, str) or not 0 < len(value) <= MAX_NAME_CHARS or not value.isprintable():
+        return f"{kind} must be a name of 1 to {MAX_NAME_CHARS} printable characters, got {quote(value)}"
+    return None
+
+
 MAX_RUN = 2**31 - 1
 """The largest run number: training keeps runs as 64-bit integers (10**30 was an OverflowError)."""
 
@@ -125,8 +135,8 @@ class Recording:
                 return f"trial {i} spans frames {tr.first}..{tr.last}, outside 0..{f.shape[0] - 1}"
             if not 0 <= tr.run <= MAX_RUN:
                 return f"trial {i}: run {quote(tr.run)} outside 0..{MAX_RUN}"
-            if long := next((k for k in ("subject", "object", "pose", "action") if len(getattr(tr, k)) > MAX_NAME_CHARS), None):
-                return f"trial {i}: {long} {quote(getattr(tr, long))} is longer than {MAX_NAME_CHARS} characters"
+            if bad := next(filter(None, (name_problem(k, getattr(tr, k)) for k in ("subject", "object", "pose", "action"))), None):
+                return f"trial {i}: {bad}"
         return None
 
     @property

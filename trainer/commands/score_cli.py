@@ -17,8 +17,8 @@ from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
 
-MAX_EVENTS_CHARS = 128 << 20
-"""The most event text one score reads: weeks of a daemon's lines; beyond it the memory, not the score, runs out."""
+MAX_EVENTS_CHARS = 32 << 20
+"""The most event text one score reads: ``MAX_EVENT_LINES`` decision lines take about 20 MiB."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,11 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from firmware_io.emulator.script_file import read_script
     from trainer.session_score import (
+        capture_problem,
         decisions_from_lines,
+        lines_of,
         not_played_line,
         outcome_summary,
         score,
-        span_problem,
         summary_lines,
     )
 
@@ -51,15 +52,12 @@ def main(args: argparse.Namespace) -> int:
     if len(text) > MAX_EVENTS_CHARS:  # /dev/zero filled the memory
         raise HandoverError(f"{args.events}: over {MAX_EVENTS_CHARS >> 20} MiB of event lines; score a part of the "
                             "capture (e.g. the lines of one session)")
-    lines = text.splitlines()
-    decisions, skipped = decisions_from_lines(lines, script, args.instance)
+    capture = decisions_from_lines(lines_of(text), script, args.instance)
     if not script.trials:
         raise HandoverError(f"{args.script}: the session has no scripted events to score against")
-    if skipped == (given := sum(bool(line.strip()) for line in lines)):  # e.g. the daemon's log, not its stdout
-        raise HandoverError(f"{args.events}: none of its {given} lines is an event line (a JSON object); give the "
-                            "daemon's event lines (its stdout or a UDP listener's), not its log")
-    if problem := span_problem(decisions, script):
+    if problem := capture_problem(capture, script):
         raise HandoverError(f"{args.events}: {problem}")
+    decisions, skipped = capture.decisions, capture.skipped
     o = score(decisions, script)
     summary = {"synthetic": script.synthetic, "decisions": len(decisions), "lines_skipped": skipped,
                "passes": o["passes"], **outcome_summary(o)}
