@@ -220,3 +220,18 @@ def test_enough_cases_to_train_but_not_to_split_say_so_in_the_trainers_words(tmp
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("handover train: only 12 triggered cases of 4 classes"), err
     assert "record more runs of each action (handover record --runs)" in err[0] and "test_size" not in err[0]
+
+
+def test_train_without_data_names_the_recordings_record_wrote(tmp_path, monkeypatch, capsys):
+    """record writes ./recordings by default; train without --data simulates: it says so, naming the folder."""
+    from trainer.commands import train_cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(train_cli, "run", lambda options: 0)  # the line comes before any training
+    assert handover(["train", "--out", "report"]) == 0
+    assert "--data recordings" not in capsys.readouterr().err
+    (tmp_path / "recordings").mkdir()
+    (tmp_path / "recordings" / "subject_s1.hrec").write_bytes(b"")
+    assert handover(["train", "--out", "report"]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "--data recordings" in line]
+    assert len(said) == 1 and "simulated protocol (synthetic)" in said[0], said

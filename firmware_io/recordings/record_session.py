@@ -31,6 +31,8 @@ from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 POSES = ("down", "up", "horizontal")
 OBJECTS = ("ball", "cylinder", "plank")
+RECORD_OUT = "recordings"
+"""Where ``handover record`` writes by default (train names it when it is not given as --data)."""
 DEFAULT_RUNS = 5
 MAX_RUNS = 100
 """The most runs of each pose, object and action: 3600 trials of the default protocol, days of recording (the
@@ -336,7 +338,7 @@ def flagged_trials(rec: Recording) -> list[int]:
 
 
 __all__ = [
-    "DeviceLost", "NotSaved", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO", "SessionOptions",
+    "RECORD_OUT", "DeviceLost", "NotSaved", "ProtocolPlan", "RecordingError", "SessionError", "SessionIO", "SessionOptions",
     "SessionResult", "SessionStore", "TrialSlot", "capture_trial", "check_trigger", "drain", "flagged_trials",
     "recording_path", "run_session", "subject_problem"
 ]

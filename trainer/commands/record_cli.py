@@ -16,7 +16,7 @@ import sys
 from firmware_io.commands.options import out_folder, trigger_level
 from firmware_io.errors import DeviceFailure, HandoverError, Interrupted
 from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
-from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES
+from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES, RECORD_OUT
 from firmware_io.recordings.recording import ACTIONS
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
 from firmware_io.trigger_level import PAPER_FRACTION
@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="device URL: serial:///dev/ttyUSB0, tcp://HOST:13000, ... or subject://?seed=0 "
                              "(emulated controller with a scripted simulated subject; synthetic data)")
     parser.add_argument("--subject", required=True, help="subject id (the file is OUT/subject_ID.hrec)")
-    parser.add_argument("--out", default="recordings", help="folder of the recordings (default ./recordings)")
+    parser.add_argument("--out", default=RECORD_OUT, help=f"folder of the recordings (default ./{RECORD_OUT})")
     parser.add_argument("--poses", default=",".join(POSES), help="comma-separated hand poses")
     parser.add_argument("--objects", default=",".join(OBJECTS), help="comma-separated objects")
     parser.add_argument("--actions", default=",".join(ACTIONS), help="comma-separated actions")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, trigger_level
 from firmware_io.errors import HandoverError
@@ -112,9 +113,13 @@ def options_from_args(args: argparse.Namespace) -> TrainOptions:
 def main(args: argparse.Namespace) -> int:
     options = options_from_args(args)
     options.check()
-    from firmware_io.commands.options import out_folder
+    from firmware_io.commands.options import PROGRESS, out_folder
+    from firmware_io.recordings.record_session import RECORD_OUT
 
     out_folder(options.out)  # before minutes of training, not after
+    if options.data is None and any(Path(RECORD_OUT).glob("*.hrec")):  # record's default folder, not read unasked
+        PROGRESS.warning(f"handover train: no --data, so the simulated protocol (synthetic) trains; the recordings "
+                         f"in ./{RECORD_OUT} are read with --data {RECORD_OUT}")
     return run(options)
 
 
