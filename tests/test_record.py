@@ -393,6 +393,22 @@ def test_a_full_disk_says_what_was_saved_and_running_again_resumes(tmp_path, cap
     assert sorted(keys(Recording.load(path))) == sorted(KEYS)
 
 
+def test_a_full_disk_before_the_first_save_says_nothing_was_saved(tmp_path, capsys, monkeypatch):
+    """It said "0 trials saved in .../subject_s1.hrec", a file that does not exist."""
+    import errno
+    import zipfile
+
+    def writestr(self, info, data, *a, **kw):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(zipfile.ZipFile, "writestr", writestr)
+    assert record(tmp_path, "--auto", "--no-look") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    path = tmp_path / "subject_s1.hrec"
+    assert len(err) == 1 and f"; nothing saved yet ({path} was not written); free disk space, then run" in err[0], err
+    assert not path.exists()
+
+
 def test_resuming_removes_the_temporary_files_a_killed_save_left_and_nothing_else(tmp_path):
     """kill -9 during a save left ``.subject_s1.hrec.XXXXXXXX.tmp`` for ever: the resumed session removes
     save's own pattern for its file, and keeps every other name, a symlink and another subject's temp."""
