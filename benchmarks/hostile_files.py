@@ -1,4 +1,4 @@
-"""Files that eat the machine (issue 40: N4, N5, N6, N9, N10, N12, N13, D17), as cases of the hostile world.
+"""Files that eat the machine (issue 40: N4, N5, N6, N9, N10, N12, N13, D17 and their reruns), as cases of the hostile world.
 
 Each attack runs ``handover`` in a child that reports its own peak memory and seconds; it holds when
 the command ends in one line with exit 2 within ``LIMIT_S`` using less than ``LIMIT_MB``. A full disk
@@ -52,7 +52,7 @@ def _measured(argv: list[str], prelude: str = "") -> tuple[dict, str]:
 
 
 def _script(head: dict, events: list[dict]) -> str:
-    return "\n".join(json.dumps(r) for r in [head, *events]) + "\n"
+    return "\n".join(json.dumps(r, separators=(",", ":")) for r in [head, *events]) + "\n"
 
 
 def _hostile_files(work: Path) -> dict[str, tuple[list[str], str]]:
@@ -66,8 +66,17 @@ def _hostile_files(work: Path) -> dict[str, tuple[list[str], str]]:
     one = {"type": "scripted", "event": 1, "onset_frame": 0, "action": "pull", "subject": "s1", "object": "ball",
            "pose": "up", "first_frame": 0, "last_frame": 0, "time_s": None}
     wide = {**head, "loop_ms": None, "frames": 3, "frame_ms": [0, 31, 62]}
-    scripts = {"score bomb (1 ms loop, 500 events, decisions 99,998 ms apart)":
-               (_script(head, [{**one, "event": k} for k in range(1, 501)]), "passes of the script"),
+    loop = {**head, "loop_ms": 500, "frames": 500, "frame_ms": list(range(500))}
+    spans = {**head, "loop_ms": None, "frames": 853, "frame_ms": list(range(0, 853 * 32, 32))}
+    scripts = {"score bomb (500 ms loop, 500 events, decisions 99,998 ms apart)":
+               (_script(loop, [{**one, "event": k, "first_frame": k - 1, "onset_frame": k - 1, "last_frame": k - 1}
+                               for k in range(1, 501)]), "passes of the script"),
+               "101,091 events on the same frames, under 16 MiB":
+               (_script(spans, [{**one, "event": k, "last_frame": 852} for k in range(1, 101_092)]),
+                "more than any session handover scripts"),
+               "overlapping events": (_script(wide, [{**one, "last_frame": 1}, {**one, "event": 2, "last_frame": 2}]),
+                                      "starts before event 1 ends"),
+               "an ESC in an action": (_script(wide, [{**one, "action": "pu\u001b[2Jll"}]), "printable characters"),
                "100,000 nested brackets": ("[" * 100_000 + "]" * 100_000 + "\n", "not JSON lines"),
                "descending frame_ms": (_script({**wide, "frame_ms": [0, 62, 31]}, [one]), "goes back in time"),
                "first frame after last": (_script(wide, [{**one, "first_frame": 2, "last_frame": 1}]), "after its last"),
@@ -84,10 +93,13 @@ def _hostile_files(work: Path) -> dict[str, tuple[list[str], str]]:
         out[name] = (["score", str(events), str(work / f"s{i}.script")], says)
     out["/dev/zero as the script"] = (["score", str(events), "/dev/zero"], "not a regular file")
     good = work / "good.script"
-    good.write_text(scripts["descending frame_ms"][0].replace("[0, 62, 31]", "[0, 31, 62]"))
+    good.write_text(scripts["descending frame_ms"][0].replace("[0,62,31]", "[0,31,62]"))
     out["/dev/zero as the events"] = (["score", "/dev/zero", str(good)], "MiB of event")
     (work / "daemon.log").write_text("12:00:00 handover: connected\nframes at 31.2 Hz\n")
     out["the daemon's log as the events"] = (["score", str(work / "daemon.log"), str(good)], "is an event line")
+    (work / "nested.jsonl").write_text("[" * 100_000 + "]" * 100_000 + "\n")
+    out["100,000 nested brackets as the events"] = (["score", str(work / "nested.jsonl"), str(good)], "is an event line")
+    out["the script as the events"] = (["score", str(good), str(good)], "not event lines")
 
     layout = SensorLayout.sdh2()
     n = (1 << 30) // (2 * layout.n_taxels)  # 1 GiB of frames, within the per-file limit, deflated to a few MB
@@ -106,7 +118,8 @@ def _hostile_files(work: Path) -> dict[str, tuple[list[str], str]]:
                                                    str(work / "r0")], "is compressed")
     rec = simulate_protocol(seed=0, n_subjects=1, runs=1)[0]
     for name, change, says in (("a trial with run 10**30", {"run": 10**30}, "outside 0.."),
-                               ("a 4 MB subject id", {"subject": "s" * (4 << 20)}, "longer than 64 characters")):
+                               ("a 4 MB subject id", {"subject": "s" * (4 << 20)}, "1 to 64 printable characters"),
+                               ("an ESC in a subject id", {"subject": "s1\x1b[2J"}, "printable characters")):
         folder = work / f"data{len(out)}"
         bad = Recording(rec.layout, rec.frames, rec.timestamps, list(rec.trials), rec.meta)
         bad.trials[0] = Trial(**{**rec.trials[0].to_dict(), **change})  # refused by save: written as load sees it
