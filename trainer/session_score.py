@@ -17,7 +17,7 @@ from firmware_io.recordings.bounded_zip import loads
 from firmware_io.recordings.recording import Trial, name_problem
 from trainer.streams_eval import Decision, session_outcomes
 
-__all__ = ["Capture", "capture_problem", "decisions_from_lines", "lines_of", "not_played_line", "outcome_summary",
+__all__ = ["capture_problem", "decisions_from_lines", "lines_of", "not_played_line", "outcome_summary",
            "score", "summary_lines"]
 
 MAX_SCORED_EVENTS = 50_000
