@@ -227,8 +227,8 @@ def write_problem(path: str | os.PathLike) -> str | None:
         return (f"health_file {p}: its folder {p.parent} is not writable for uid {uid} (the file is replaced by a new "
                 "one there); make the folder writable for the daemon's user or choose another path")
     with contextlib.suppress(OSError):
-        if os.stat(p.parent).st_mode & stat.S_ISVTX and uid not in (0, os.lstat(p).st_uid):
-            return (f"health_file {p}: belongs to uid {os.lstat(p).st_uid} in a sticky folder, so uid {uid} cannot "
+        if os.stat(p.parent).st_mode & stat.S_ISVTX and uid not in (0, owner := os.lstat(p).st_uid):
+            return (f"health_file {p}: belongs to uid {owner} in a sticky folder, so uid {uid} cannot "
                     "replace it; remove it or choose another path")
     return None
 

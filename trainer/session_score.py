@@ -26,7 +26,7 @@ events): over a day of a looping 180-trial session (29,000), as long as ``MAX_EV
 stamp or a 1 ms loop would be billions."""
 MAX_EVENT_LINES = 50_000
 """Lines one score reads: the daemon writes one per decision (and one per model swap), decisions 1.5 s apart
-by default, so this is 21 hours of non-stop handovers; 469,511 decision lines took 11 s and 645 MB."""
+by default, so this is 21 hours of non-stop handovers (a bomb beyond it: ./dev bench hostile, case 15)."""
 MAX_LINE_CHARS = 16 << 10
 """The longest line parsed: a decision line with the scores of 100 classes is under 4,000 characters; one
 line of 10 million ``{}`` would take gigabytes."""
@@ -120,7 +120,7 @@ def score(decisions: list[tuple[int, Decision]], script: SessionScript) -> dict:
     n = len(script.frame_ms)
     first, last = passes[0], passes[-1]
     trials = [Trial(t.subject, t.object, t.pose, t.action, t.run, t.first + p * n, t.last + p * n,
-                    {**t.extra, "onset": int(t.extra.get("onset", t.first)) + p * n})  # dataclasses.replace: 4x slower
+                    {**t.extra, "onset": int(t.extra.get("onset", t.first)) + p * n})
               for p in range(first, last + 1) for t in script.trials]
     flat = [Decision(d.frame + loop * n, d.cls, d.latency_us) for loop, d in decisions]
     end = max((d.frame for d in flat), default=None)
