@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "score": ("trainer.commands.score_cli", "score a captured event stream against handover emulate --script-out (the demo's summary)", None),
     "dump": ("firmware_io.commands.dump_cli", "print frames from any device URL (rate, per-pad sums, errors)", None),
     "run": ("runtime.commands.daemon_cli", "the detection daemon (systemd service)", None),
+    "review": ("trainer.commands.review_cli", "label a daemon's captured events, one keystroke each (labels.json beside the capture)", None),
     "record": ("trainer.commands.record_cli", "record a subject session following the paper's protocol", None),
     "plot": ("trainer.commands.plot_cli", "plot a trial of a recording", "train"),
     "bench": ("trainer.commands.bench_cli", "measure this machine: latency, throughput, inference (the studies behind results/ are a checkout's ./dev bench)", "train"),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,33 +46,41 @@ def progress_bar(quiet: bool, desc: str, total: int):
     return wrap
 
 
-def load_or_simulate(data: str | None, seed: int, say: Callable[[str], None]) -> tuple[list, str, bool]:
-    """Recordings, a description of where they came from, and whether they are synthetic."""
-    from firmware_io.recordings.recording import find_recordings, load_all
-
+def load_or_simulate(data: Sequence[str] | None, seed: int, say: Callable[[str], None]
+                     ) -> tuple[list, list[str], str, bool]:
+    """Recordings, their names (for lines about one of them), where they came from, and whether they are
+    synthetic. ``data``: folders of recordings or capture folders (``trainer.field_folder``); None: simulate."""
     if data:
-        paths = find_recordings(data)
-        if not paths:
-            raise FileNotFoundError(f"{data}: no .hrec recordings in this folder")
-        recs = load_all(paths)
+        recs, names, sources = [], [], []
+        for folder in data:
+            got, got_names = _read_folder(folder)
+            recs += got
+            names += got_names if len(data) == 1 else [str(Path(folder) / n) for n in got_names]
+            sources.append(f"{len(got)} recordings in {folder}")
         synthetic = any(_looks_simulated(r.meta) for r in recs)
-        return recs, f"{len(paths)} recordings in {data}", synthetic
+        return recs, names, ", ".join(sources), synthetic
     try:
         from firmware_io.sim import simulate_protocol
     except ImportError as exc:
         raise FileNotFoundError(f"no --data given and the simulator is not available ({exc})") from None
     say(f"simulating the paper's protocol (seed {seed}) ...")
     recs = simulate_protocol(seed=seed)
-    return recs, f"simulated protocol, firmware_io.sim.simulate_protocol(seed={seed})", True
+    names = [f"simulated recording {i + 1}" for i in range(len(recs))]
+    return recs, names, f"simulated protocol, firmware_io.sim.simulate_protocol(seed={seed})", True
 
 
-def recording_names(data: str | None, recordings: list) -> list[str]:
-    """File names of the recordings (as ``load_or_simulate`` read them), for lines about one of them."""
-    from firmware_io.recordings.recording import find_recordings
+def _read_folder(folder: str) -> tuple[list, list[str]]:
+    """A capture folder's confirmed events and idle (its lines seen even with --quiet), else every
+    recording of the folder."""
+    from firmware_io.recordings.recording import find_recordings, load_all
+    from trainer.field_folder import field_recordings, is_capture_folder
 
-    if data:
-        return [p.name for p in find_recordings(data)]
-    return [f"simulated recording {i + 1}" for i in range(len(recordings))]
+    if is_capture_folder(folder):
+        return field_recordings(folder, PROGRESS.warning)
+    paths = find_recordings(folder)
+    if not paths:
+        raise FileNotFoundError(f"{folder}: no .hrec recordings in this folder")
+    return load_all(paths), [p.name for p in paths]
 
 
 def _looks_simulated(meta: dict) -> bool:
@@ -92,8 +100,7 @@ def train(options: TrainOptions) -> TrainResult:
     say = progress_to(options.quiet)
     out = Path(options.out)
     out.mkdir(parents=True, exist_ok=True)
-    recordings, source, synthetic = load_or_simulate(options.data, options.seed, say)
-    names = recording_names(options.data, recordings)
+    recordings, names, source, synthetic = load_or_simulate(options.data, options.seed, say)
     ds, idle = _cases(options, recordings, names, say)
     selection = None
     if options.select:

@@ -8,6 +8,7 @@ default (``trainer.defaults.DEFAULT_MODEL``); the argparse defaults come from he
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, fields
 
 from firmware_io.errors import HandoverError
@@ -36,7 +37,8 @@ class TrainOptions:
     ``per_pad=False``). ``quiet`` silences progress on stderr; ``json`` sends the headline to stderr
     (the command prints the metrics as JSON on stdout)."""
 
-    data: str | None = None
+    data: tuple[str, ...] | None = None
+    """Folders of recordings or capture folders (``--data`` given once per folder); None: simulate."""
     out: str = "report"
     pads: str = str(DEFAULT_MODEL["pads"])
     K: int = int(DEFAULT_MODEL["K"])
@@ -80,7 +82,12 @@ class TrainOptions:
     quiet: bool = False
 
     def __post_init__(self) -> None:
-        """Library users may write lists as the command does: ``features="stats,bow"``, ``windows="5,7"``."""
+        """Library users may write lists as the command does: ``features="stats,bow"``, ``windows="5,7"``,
+        and one folder as ``data="rec"``."""
+        if isinstance(self.data, str | os.PathLike):
+            object.__setattr__(self, "data", (str(self.data),))
+        elif self.data is not None:
+            object.__setattr__(self, "data", tuple(str(d) for d in self.data) or None)
         if isinstance(self.features, str):
             object.__setattr__(self, "features", tuple(p.strip() for p in self.features.split(",") if p.strip()))
         if isinstance(self.windows, str):
@@ -137,6 +144,8 @@ class TrainOptions:
         if self.features is not None:
             check_families(self.features, ",".join(self.features))
         check_pads(self.pads, simulated=not self.data)
+        if self.data and len({os.path.realpath(d) for d in self.data}) != len(self.data):
+            raise OptionsError(f"--data {' '.join(self.data)}: a folder given twice (its recordings would count twice)")
         uses_bow = "bow" in self.families
         if uses_bow and self.T - 1 < self.W:  # W is the BoW window: other families do not read it
             raise OptionsError(f"W={self.W} needs T >= {self.W + 1} (got T={self.T})")
@@ -162,8 +171,8 @@ class TrainOptions:
     def command_line(self) -> str:
         """The exact command that reproduces this run (written at the top of the report)."""
         parts = ["handover", "train"]
-        if self.data:
-            parts += ["--data", str(self.data)]
+        for folder in self.data or ():
+            parts += ["--data", folder]
         parts += ["--out", str(self.out), "--pads", self.pads, "--K", str(self.K), "--W", str(self.W),
                   "--T", str(self.T), "--features", ",".join(self.families), "--kernel", self.svm_kernel,
                   "--seed", str(self.seed), "--repeats", str(self.repeats)]

@@ -78,7 +78,7 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
     from trainer.model_meta import dataset_metadata
 
     # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
-    folder = {"data_folder": str(Path(options.data).resolve())} if options.data else {}
+    folder = {"data_folder": str(Path(options.data[0]).resolve())} if options.data else {}
     from trainer.dormant import DORMANT
 
     return dataset_metadata(

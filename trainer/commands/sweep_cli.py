@@ -72,7 +72,7 @@ def _run(args, kernels: list[str]) -> int:
     t0 = time.perf_counter()
     out = out_folder(args.out)
     say = progress_to(args.quiet)
-    recordings, source, synthetic = load_or_simulate(args.data, args.seed, say)
+    recordings, _names, source, synthetic = load_or_simulate([args.data] if args.data else None, args.seed, say)
     base = {"K": args.K, "W": args.W, "T": args.T, "seed": args.seed, "per_pad": args.per_pad}
     n = len(kernels) * (len(args.K_values) + len(args.W_values) + len(args.T_values))
     seeds = tuple(range(args.seed, args.seed + args.repeats))

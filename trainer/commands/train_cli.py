@@ -33,7 +33,9 @@ __all__ = ["add_arguments", "main"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     D = TrainOptions  # the defaults, from their one owner
-    parser.add_argument("--data", help="folder of .hrec recordings (default: simulate the paper's protocol)")
+    parser.add_argument("--data", action="append", help="folder of .hrec recordings, or a daemon's capture folder "
+                        "(its events labelled by `handover review`); once per folder (default: simulate the paper's "
+                        "protocol)")
     add_out(parser, "report folder (created; default ./report)", default=D.out)
     parser.add_argument("--pads", default=D.pads, help="pad selection: all, distal, proximal, thumb, 1,3,5 ...")
     parser.add_argument("--K", type=int, default=D.K, help="number of words (k-means centres)")

@@ -1,0 +1,107 @@
+"""``handover review``: one keystroke confirms or corrects a captured event's label, labels.json is
+written after each answer, bad folders and files are one line each (synthetic capture folders)."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import pytest
+
+from firmware_io.recordings.field_capture import LABELS_FILE
+from firmware_io.sim import simulate_protocol
+from runtime.cli import main as handover
+from tests.capture_folder import make_capture
+from trainer.commands.review_cli import review
+from trainer.field_folder import FieldFolderError, read_labels
+
+
+@pytest.fixture(scope="module")
+def protocol():
+    return simulate_protocol(seed=3, n_subjects=1, runs=1, poses=("down",), objects=("ball",))[0]
+
+
+@pytest.fixture
+def capture(tmp_path, protocol):
+    folder = tmp_path / "field"
+    stems = make_capture(folder, protocol, ["pull", "push", "hold", "bump"], ["taken", None, "kept", "dropped"])
+    return folder, stems
+
+
+def keys(text: str):
+    """A fake keyboard: one character per call, then the end of input."""
+    it = iter(text)
+    return lambda: next(it, "")
+
+
+def run_review(folder, typed: str, **kw) -> tuple[dict, str, list[str]]:
+    out, said = io.StringIO(), []
+    labels = review(folder, keys(typed), out, said.append, **kw)
+    return labels, out.getvalue(), said
+
+
+def test_one_key_confirms_another_corrects_and_q_keeps_what_was_answered(capture):
+    folder, stems = capture
+    # event 1 proposes pull (taken): Enter confirms; event 2 proposes nothing: 3 says hold; then q
+    labels, shown, _ = run_review(folder, "\n3q")
+    assert labels == {stems[0]: "pull", stems[1]: "hold"}
+    assert read_labels(folder) == labels  # written, not only returned
+    assert "Enter: pull" in shown and "decided push" in shown and "f1 dist" in shown  # the quick look
+    # a second review asks only the unlabelled: event 3 proposes hold (kept), d corrects it to dormant; s skips 4
+    labels, shown, _ = run_review(folder, "ds")
+    assert labels[stems[2]] == "dormant" and stems[3] not in labels
+    assert shown.startswith("2 of 4 captured events")
+
+
+def test_enter_without_a_proposal_and_unknown_keys_ask_again(capture):
+    folder, stems = capture
+    labels, shown, _ = run_review(folder, "s\nx2")  # event 2 (no outcome): Enter and x refused, 2 = push
+    assert labels == {stems[1]: "push"}
+    assert "no label shown" in shown and "key 'x'" in shown
+
+
+def test_ctrl_c_loses_no_answer_given(capture):
+    folder, stems = capture
+    typed = iter("\n1")
+
+    def key() -> str:  # Enter, 1, then Ctrl-C at the third event
+        if (k := next(typed, None)) is None:
+            raise KeyboardInterrupt
+        return k
+
+    with pytest.raises(KeyboardInterrupt):
+        review(folder, key, io.StringIO(), print)
+    assert read_labels(folder) == {stems[0]: "pull", stems[1]: "pull"}
+
+
+def test_accept_outcomes_labels_every_proposal_and_keeps_given_labels(capture, capsys):
+    folder, stems = capture
+    (folder / LABELS_FILE).write_text(json.dumps({stems[2]: "push"}))
+    assert handover(["review", str(folder), "--accept-outcomes"]) == 0
+    # taken -> pull; nothing said -> none; kept after hold -> hold, but a person said push; dropped -> none
+    assert read_labels(folder) == {stems[0]: "pull", stems[2]: "push"}
+    assert "1 events labelled from their outcomes" in capsys.readouterr().out
+    assert handover(["review", str(folder), "--list"]) == 0
+    listed = capsys.readouterr().out.splitlines()
+    assert len(listed) == 4 and "outcome taken" in listed[0] and listed[0].endswith("label pull")
+
+
+def test_bad_input_is_one_line_each(capture, tmp_path, capsys):
+    folder, stems = capture
+    assert handover(["review", str(tmp_path / "nowhere", ), "--list"]) == 2
+    (tmp_path / "lab").mkdir()
+    assert handover(["review", str(tmp_path / "lab"), "--list"]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 2 and "no such folder" in errors[0] and "not a capture folder" in errors[1]
+    (folder / f"{stems[1]}.hrec").write_bytes(b"PK\x03\x04 not a zip")
+    assert handover(["review", str(folder), "--list"]) == 0
+    out = capsys.readouterr()
+    assert len(out.out.splitlines()) == 3 and out.err.count("\n") == 1 and stems[1] in out.err
+    (folder / LABELS_FILE).write_text("{not json")
+    assert handover(["review", str(folder), "--accept-outcomes"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "labels.json" in err and "not overwritten" in err
+    assert (folder / LABELS_FILE).read_text() == "{not json"
+    (folder / LABELS_FILE).write_text(json.dumps({stems[0]: "wave"}))
+    with pytest.raises(FieldFolderError, match="one of pull, push, hold, bump, dormant"):
+        read_labels(folder)
