@@ -102,6 +102,11 @@ def train(options: TrainOptions) -> TrainResult:
     out.mkdir(parents=True, exist_ok=True)
     recordings, names, source, synthetic = load_or_simulate(options.data, options.seed, say)
     ds, idle = _cases(options, recordings, names, say)
+    from trainer.data_warnings import data_notes
+
+    notes = data_notes(recordings, names, idle)
+    for line in notes.lines:  # what the data can carry: seen even with --quiet
+        PROGRESS.warning(f"handover train: {line}")
     selection = None
     if options.select:
         from trainer.select import select_model
@@ -133,6 +138,7 @@ def train(options: TrainOptions) -> TrainResult:
                                 "dormant_class": idle.makes_class, "per_origin": idle.per_source,
                                 "notes": idle.notes, "cut": idle.cut}
     metrics["own_replay"] = replay
+    metrics["data_notes"], metrics["partial_subjects"] = notes.lines, notes.partial
     if early_metrics is not None:
         metrics["early"] = early_metrics
     onnx_ok = write_model(options, ds, model, metrics, out, early=heads)

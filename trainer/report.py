@@ -232,6 +232,7 @@ def _data_lines(metrics: dict) -> list[str]:
         "(listed in metrics.json, not padded, not in any split)",
         f"- cases per class: {ds['per_class']}; per subject: {ds['per_subject']}",
         *_idle_lines(metrics.get("idle")),
+        *(f"- **{line}** (trainer/data_warnings.py)" for line in metrics.get("data_notes", [])),
     ]
     if ds.get("trigger_minus_onset_frames"):
         d = ds["trigger_minus_onset_frames"]
@@ -306,7 +307,14 @@ def _loso_lines(metrics: dict, split1: str) -> list[str]:
         f"| subject | {model_label(metrics.get('families'))} | baseline |",
         "|---|---|---|",
     ]
+    partial = metrics.get("partial_subjects") or {}
+    cases = metrics["dataset"].get("per_subject", {})
     for s, acc in c2["per_subject"].items():
+        if s in partial:  # a handful of trials scored 100 % says nothing: say what the row rests on
+            n = cases.get(s, 0)
+            lines.append(f"| {s} | partial recording ({partial[s]}): {round(acc * n)} of {n} cases right | "
+                         f"{round(b2['per_subject'][s] * n)} of {n} |")
+            continue
         lines.append(f"| {s} | {pct(acc)} | {pct(b2['per_subject'][s])} |")
     for s, why in (c2.get("skipped") or {}).items():
         lines.append(f"| {s} | not measured: {why} | not measured |")
@@ -351,9 +359,11 @@ def _replay_lines(metrics: dict, label: str) -> list[str]:
         lines.append(f"- {real_idle_line(metrics['real_idle']).strip()} (the final model)")
     lines += ["", "| held out | trials | right | wrong | missed | idle (min) | false events | per hour |",
               "|---|---|---|---|---|---|---|---|"]
+    partial = metrics.get("partial_subjects") or {}
     for f in r["folds"]:
         fph = "-" if f["false_per_hour"] is None else f"{f['false_per_hour']:.1f}"
-        lines.append(f"| {f['held_out']} | {f['events']} | {f['right']} | {f['wrong']} | {f['missed']} | "
+        held = f["held_out"] + (f" (partial: {partial[f['held_out']]})" if f["held_out"] in partial else "")
+        lines.append(f"| {held} | {f['events']} | {f['right']} | {f['wrong']} | {f['missed']} | "
                      f"{f['idle_hours'] * 60:.1f} | {f['false_events']} | {fph} |")
     if r.get("idle_by_source"):
         lines += ["", "| idle source | minutes | false events | per hour |", "|---|---|---|---|"]

@@ -1,0 +1,78 @@
+"""What the data can carry (trainer/data_warnings.py): a thin dormant class, one idle kind only and a
+partial subject are said on train's console and in report.md (synthetic scripted subjects)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from runtime.cli import main as handover
+from trainer.data_warnings import FEW_DORMANT_WINDOWS, dormant_lines, planned_trials
+
+TINY = ["--poses", "down", "--objects", "ball", "--auto", "--retries", "0", "--gap", "0", "--quiet", "--no-look"]
+
+
+def record(out, subject: str, seed: int, *extra: str) -> int:
+    return handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", subject,
+                     "--out", str(out), *TINY, *extra])
+
+
+def test_few_windows_state_the_number_and_why():
+    lines = dormant_lines({"trigger:arm_move": 30, "trigger:regrasp": 17}, ["arm_move", "regrasp"])
+    assert len(lines) == 1 and "rests on 47 windows" in lines[0] and f"fewer than {FEW_DORMANT_WINDOWS}" in lines[0]
+    assert "6%" in lines[0] and "rule of three" in lines[0] and "--idle-only" in lines[0]
+    assert dormant_lines({"trigger:arm_move": 80, "trigger:quiet": FEW_DORMANT_WINDOWS}, []) == []
+
+
+def test_one_idle_kind_names_present_missing_and_how_to_record():
+    (line,) = dormant_lines({"trigger:arm_move": 200}, ["arm_move", "quiet", "regrasp"])
+    assert "one idle kind only" in line and "all arm_move" in line
+    assert "quiet, regrasp recorded but the trigger fired on none" in line
+    assert "open, grasp, release not recorded" in line and "handover record --idle-only" in line
+
+
+def test_planned_trials_read_from_the_last_session():
+    meta = {"sessions": [{"protocol": {"poses": ["a"], "objects": ["b"], "actions": ["pull", "push"], "runs": 2}},
+                         {"idle_plan": []}]}
+    assert planned_trials(meta) == 4
+    assert planned_trials({}) is None and planned_trials({"sessions": [{"protocol": "junk"}]}) is None
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """Two complete subjects with 3 min of idle, a third stopped after 3 of 8 trials (no idle)."""
+    root = tmp_path_factory.mktemp("warn")
+    data = root / "data"
+    for name, seed in (("s1", 0), ("s2", 1)):
+        assert record(data, name, seed, "--runs", "2", "--idle-minutes", "3") == 0
+    assert record(data, "s3", 2, "--runs", "2", "--max-trials", "3") == 0
+    report = root / "report"
+    code = handover(["train", "--data", str(data), "--out", str(report), "--no-sweep", "--repeats", "2",
+                     "--no-replay", "--early", "off", "--quiet"])
+    assert code == 0
+    return report
+
+
+def test_train_says_thin_dormant_class_and_partial_subject(trained, capsys):
+    metrics = json.loads((trained / "metrics.json").read_text())
+    assert metrics["partial_subjects"] == {"s3": "3 of 8 planned trials, no idle"}
+    notes = metrics["data_notes"]
+    assert any("dormant class rests on" in n and "windows (fewer than" in n for n in notes), notes
+    assert any(n.startswith("s3 is a partial recording (3 of 8 planned trials, no idle)") for n in notes)
+    text = (trained / "report.md").read_text()
+    for n in notes:
+        assert n in text
+    row = next(line for line in text.splitlines() if line.startswith("| s3 |"))
+    assert "partial recording (3 of 8 planned trials, no idle)" in row and "of 3 cases right" in row
+    assert "%" not in row
+
+
+def test_console_names_them_even_when_quiet(tmp_path, capsys, trained):
+    data = trained.parent / "data"
+    code = handover(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--no-sweep", "--repeats", "2",
+                     "--no-replay", "--early", "off", "--no-onnx", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert "handover train: s3 is a partial recording (3 of 8 planned trials, no idle)" in err
+    assert "handover train: the dormant class rests on" in err

@@ -1,0 +1,131 @@
+"""What a lab's recordings can carry, said once: how thin the dormant class is and which subjects are partial.
+
+Why: a dormant class cut from a few windows of one idle kind, or a subject who recorded 12 of 180
+trials, gives report rows that look as good as those of enough data. ``handover train`` prints each
+line here on the console (seen even with --quiet) and report.md repeats it; the report marks a partial
+subject's rows instead of showing its 100 %.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from firmware_io.recordings.idle_stretches import SOURCES, has_idle
+
+__all__ = ["FEW_DORMANT_WINDOWS", "DataNotes", "data_notes", "dormant_lines", "partial_subjects"]
+
+FEW_DORMANT_WINDOWS = 100
+"""Fewer dormant windows than this and the class is called thin. The rule of three: with n windows and
+every one read right, the data cannot exclude (95 %) that 3 in n idle windows are read as an action;
+at 100 that is 3 %. The recorder's default (3 min of idle a subject) gives 12-16 windows a subject."""
+MORE_IDLE = "`handover record --idle-only --idle-minutes 20 --subject ID` (every idle kind, in rounds of 81 s)"
+"""The command that records more idle of every kind, as the lines say it."""
+
+
+@dataclass
+class DataNotes:
+    """The lines about the data (console and report) and the partial subjects (subject -> what it lacks)."""
+
+    lines: list[str] = field(default_factory=list)
+    partial: dict[str, str] = field(default_factory=dict)
+
+
+def _kind(origin: str) -> str:
+    """The idle kind of a dormant window's origin (``trigger:arm_move`` -> ``arm_move``)."""
+    return origin.rsplit(":", 1)[-1]
+
+
+def dormant_lines(per_origin: dict[str, int], recorded: Sequence[str]) -> list[str]:
+    """Lines when the dormant class rests on few windows or on one idle kind (``per_origin``: windows per
+    origin; ``recorded``: the idle kinds the recordings hold)."""
+    kinds: dict[str, int] = {}
+    for origin, n in per_origin.items():
+        kinds[_kind(origin)] = kinds.get(_kind(origin), 0) + int(n)
+    total = sum(kinds.values())
+    lines = []
+    if total < FEW_DORMANT_WINDOWS:
+        lines.append(f"the dormant class rests on {total} windows (fewer than {FEW_DORMANT_WINDOWS}): even with every "
+                     f"one read right, the data cannot exclude that {min(1.0, 3 / max(total, 1)):.0%} of idle windows "
+                     f"are read as an action (95 %, rule of three); record more idle: {MORE_IDLE}")
+    if len(kinds) == 1:
+        (only,) = kinds
+        missing = [k for k in SOURCES if k != only]
+        quiet = [k for k in missing if k in recorded]
+        absent = [k for k in missing if k not in recorded]
+        why = []
+        if quiet:
+            why.append(f"{', '.join(quiet)} recorded but the trigger fired on none of them (a model served in "
+                       "continuous mode meets them untrained)")
+        if absent:
+            why.append(f"{', '.join(absent)} not recorded ({MORE_IDLE} records them)")
+        lines.append(f"the dormant class rests on one idle kind only: its {total} windows are all {only}; "
+                     + "; ".join(why))
+    return lines
+
+
+def recorded_kinds(recordings: Sequence) -> list[str]:
+    """The idle kinds (``SOURCES``) any recording holds frames of."""
+    seen: set[str] = set()
+    for rec in recordings:
+        if has_idle(rec.meta):
+            names = rec.meta["sources"]
+            codes = np.unique(np.asarray(rec.meta["source_codes"], dtype=np.int64))
+            seen |= {str(names[c]) for c in codes if 0 <= c < len(names)}
+    return [k for k in SOURCES if k in seen]
+
+
+def planned_trials(meta: dict) -> int | None:
+    """The trials the recording's last recording session planned (``handover record``'s protocol), or None."""
+    sessions = meta.get("sessions") if isinstance(meta, dict) else None
+    plans = [s["protocol"] for s in sessions if isinstance(s, dict) and isinstance(s.get("protocol"), dict)] \
+        if isinstance(sessions, list) else []
+    if not plans:
+        return None
+    p = plans[-1]
+    try:
+        return len(p["poses"]) * len(p["objects"]) * len(p["actions"]) * int(p["runs"])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def partial_subjects(recordings: Sequence, names: Sequence[str]) -> dict[str, str]:
+    """Subject -> what its recordings lack: fewer trials than planned, or no idle while others have idle."""
+    from trainer.recorded_idle import idle_pieces, subject_of
+
+    trials: dict[str, int] = {}
+    planned: dict[str, int] = {}
+    idle: dict[str, bool] = {}
+    for rec, name in zip(recordings, names, strict=True):
+        subject = subject_of(rec, Path(name).stem)
+        idle[subject] = idle.get(subject, False) or bool(idle_pieces(rec))
+        if rec.trials:
+            trials[subject] = trials.get(subject, 0) + len(rec.trials)
+            if (n := planned_trials(rec.meta)) is not None:
+                planned[subject] = planned.get(subject, 0) + n
+    others_idle = any(idle[s] for s in trials)
+    out = {}
+    for subject, n in sorted(trials.items()):
+        lacks = []
+        if subject in planned and n < planned[subject]:
+            lacks.append(f"{n} of {planned[subject]} planned trials")
+        if others_idle and not idle[subject]:
+            lacks.append("no idle")
+        if lacks:
+            out[subject] = ", ".join(lacks)
+    return out
+
+
+def data_notes(recordings: Sequence, names: Sequence[str], idle) -> DataNotes:
+    """Everything above for one training run (``idle``: ``trainer.recorded_idle.IdleWindows`` or None)."""
+    notes = DataNotes(partial=partial_subjects(recordings, names))
+    if idle is not None and idle.makes_class:
+        notes.lines += dormant_lines(idle.per_source, recorded_kinds(recordings))
+    for subject, lacks in notes.partial.items():
+        notes.lines.append(f"{subject} is a partial recording ({lacks}): its rows in the report say partial, not "
+                           f"their accuracy; the same `handover record ... --subject {subject}` command records "
+                           "what it lacks")
+    return notes
