@@ -351,8 +351,21 @@ def _early_within_events(v: dict) -> None:
                           f"({', '.join(v['events'])}); list only reported events")
 
 
+def _shadow_apart(v: dict) -> None:
+    """A shadow folder that is the model folder would serve its candidate; one that is a file never holds one."""
+    if v["shadow"] is None:
+        return
+    shadow, folder = Path(v["shadow"]).expanduser(), Path(v["folder"]).expanduser()
+    if shadow.resolve() == folder.resolve():
+        raise ConfigError(f"model.shadow: {v['shadow']} is model.folder: a candidate dropped there would serve, not "
+                          "run in shadow; name another folder (e.g. /var/lib/handover/shadow)")
+    if shadow.exists() and not shadow.is_dir():
+        raise ConfigError(f"model.shadow: {v['shadow']} is not a folder; name the folder candidates are dropped in")
+
+
 _SECTION_CHECKS: dict[str, tuple[Callable[[dict], None], ...]] = {
     "device": (_reconnect_order,), "trigger": (_hysteresis_below_fraction,), "scene": (_early_within_events,),
+    "model": (_shadow_apart,),
 }
 """Checks of one key against another, after the section's keys were read."""
 

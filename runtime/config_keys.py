@@ -118,6 +118,9 @@ KEYS: tuple[Key, ...] = (
     Key("model.quarantine_file", str, None, "models taken out of service, remembered across restarts (unset: beside "
         "health_file, or in memory only without one)", optional=True,
         example="/var/lib/handover/quarantined-models.json"),
+    Key("model.shadow", str, None, "a folder for a candidate model: it runs on the serving model's windows off the hot "
+        "path, its decisions go out as shadow lines, the health view compares the two (docs/GUIDE.md, A candidate in "
+        "shadow); never model.folder", optional=True, example="/var/lib/handover/shadow"),
 
     Key("trigger.kind", str, "onset", "onset: the person acts on the settled grasp (chosen in results/streams.md); "
         "threshold: the paper's fixed level", choices=("onset", "threshold"), optional=True, recorded=True),

@@ -42,6 +42,7 @@ from runtime.rehearsal import RehearsedReads
 from runtime.reporter import Reporter
 from runtime.scene import events_problem, scene_problem
 from runtime.sdnotify import Notifier
+from runtime.shadow import Shadow
 from runtime.sinks import DaemonSide, Event, ModelAnnouncement, SinkSet
 
 if TYPE_CHECKING:
@@ -107,11 +108,14 @@ class Daemon:
         """The grasp and arm commands the control socket and the ROS 2 node may give, from their threads."""
         self.reporter = Reporter(self._sinks(cfg), on_event, self.listeners)
         self.models = ModelSlot(cfg, self.health, self._apply, self._announce)
+        self.shadow = Shadow(cfg, self.health, self.models.load, self.models.problem, self.models.quarantine,
+                             lambda: self.detector.model, lambda line: self.sinks.emit(line))
+        """A candidate model in shadow (``[model] shadow``): fed each decided window, off the hot thread."""
         self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory)
         self.frames_received = 0
         self._control_ignored = 0
         self.health.parts = [self._counters, self.link.counters, self.detector.counters, self.models.counters,
-                             self.reporter.counters]
+                             self.reporter.counters, self.shadow.counters]
         self.link.scene = cfg.scene.pads
         self.control: ControlSocket | None = None
         self.locks: Any = None
@@ -178,6 +182,7 @@ class Daemon:
             self.models.take_out_of_service(decision.model, decision.problem)
         else:
             self.reporter.report(decision)
+            self.shadow.offer(decision, self.detector.ring)
 
     def _stuck(self, model: LoadedModel, reason: str) -> None:
         """A decision that did not stop when ended: its file is quarantined before the process exits."""
@@ -343,6 +348,7 @@ class Daemon:
         self.link.retarget(new.device)
         self.link.scene = new.scene.pads
         self.models.refit(old, new)
+        self.shadow.refit(new)
         self._apply(cfg=new)
         self.health.resolve("config")
         log.info("configuration reloaded from %s (%s)", source, changed_sections(old, new))
@@ -362,6 +368,7 @@ class Daemon:
             log.warning("%s", warning)
         self.start_control()  # handover run binds it first (refused: exit 2); a bare run raises here, before starting
         self.models.start()
+        self.shadow.start()
         self.guard.start()
         settle_heap()
         self.notifier.ready(self.health.status_line())
@@ -402,6 +409,7 @@ class Daemon:
         self.notifier.stopping()
         self.guard.stop()
         self.models.stop(timeout=0.5)
+        self.shadow.stop()
         self.stop_control()
         self.link.shutdown(SHUTDOWN_STOP_S)
         if self.fatal:

@@ -34,7 +34,7 @@ SNAPSHOT: dict[str, Any] = {
     "missed_deadlines": 0, "latency_p50_us": None, "latency_p99_us": None, "latency_max_us": 0.0, "sink_errors": 0,
     "models_loaded": 0, "models_rejected": 0, "models_quarantined": 0, "frames_implausible": 0, "frame_errors": 0,
     "events_invalid": 0, "arm_moving": False, "arm_windows": 0, "control_ignored": 0, "model_id": None,
-    "trigger": None, "last_error": "", "last_error_at": None, "recent_errors": [],
+    "trigger": None, "shadow": None, "last_error": "", "last_error_at": None, "recent_errors": [],
 }
 """The health file's keys in order, each with its value before its part reports."""
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -207,14 +208,15 @@ class ModelSlot:
         if new.device.url != old.device.url:
             self.layout = None  # the next device may have another layout
         self.show_trigger()  # a [trigger] or scene.mode the config now sets
-        if new.scene == old.scene and new.model == old.model and new.onnxruntime == old.onnxruntime:
+        same_model = replace(new.model, shadow=old.model.shadow) == old.model  # the shadow folder is runtime.shadow's
+        if new.scene == old.scene and same_model and new.onnxruntime == old.onnxruntime:
             return
         if self.model is not None and (problem := self.problem(self.model)):
             log.warning("the model in use does not fit the new scene; waiting for one that does")
             self.health.report_error(f"no model serves: the model in use does not fit the new scene ({problem})",
                                      "model")
             self.drop()
-        if new.model != old.model or new.onnxruntime != old.onnxruntime:
+        if not same_model or new.onnxruntime != old.onnxruntime:
             self.start()
         elif self.watcher is not None:  # a file rejected under the old scene may fit the new one
             self.watcher.rescan(keep_current=self.model is not None)

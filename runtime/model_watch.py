@@ -136,8 +136,11 @@ class ModelWatcher:
         service_uid: int | None = None,
         quarantine: QuarantineStore | None = None,
         said: dict[Path, tuple[tuple[int, int, int], str]] | None = None,
+        after_reject: str | None = None,
     ) -> None:
         self.folder = Path(folder)
+        self.after_reject = after_reject
+        """What a rejection line says happens next (None: the model folder's words on what serves)."""
         self.loader = loader
         self.check = check
         self.poll_interval = float(poll_interval)
@@ -332,8 +335,9 @@ class ModelWatcher:
             log.debug("model %s rejected again: %s", st.path.name, reason)
         else:
             self.rejections.append(rejection)
-            serving = ("the model in use keeps serving" if self.current is not None
-                       else "no model serves yet: the newest valid file in the folder will, or the next valid one dropped")
+            serving = self.after_reject or (
+                "the model in use keeps serving" if self.current is not None
+                else "no model serves yet: the newest valid file in the folder will, or the next valid one dropped")
             log.error("model %s rejected: %s; %s", st.path.name, reason, serving)
         if self.on_reject is not None:
             self.on_reject(rejection)

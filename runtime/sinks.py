@@ -14,6 +14,7 @@ import logging
 import os
 import socket
 import sys
+import threading
 import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
@@ -130,6 +131,15 @@ class ModelAnnouncement:
         d = {"type": "model", "protocol": PROTOCOL_VERSION, "instance": self.instance,
              **{k: v for k, v in asdict(self).items() if k != "instance"}}
         return json.dumps(d, separators=(",", ":"), allow_nan=False)
+
+
+class Line(Protocol):
+    """What ``SinkSet`` sends: an ``Event``, a ``ModelAnnouncement``, a shadow line (runtime.shadow)."""
+
+    instance: str
+    model_id: str
+
+    def to_json(self) -> str: ...
 
 
 class Sink:
@@ -395,6 +405,8 @@ class SinkSet:
 
     def __init__(self, sinks: Iterable[Sink], instance: str = "") -> None:
         self.sinks = list(sinks)
+        self._lock = threading.Lock()
+        """Held while a line goes out: the shadow thread sends its lines through the same sinks."""
         self.instance = instance
         """Stamped on every line that has none (runtime.instance_name: which daemon sent it)."""
         self.invalid = 0
@@ -429,7 +441,7 @@ class SinkSet:
                 sinks.append(ros)
         return cls(sinks, instance)
 
-    def emit(self, message: Event | ModelAnnouncement) -> bool:
+    def emit(self, message: Line) -> bool:
         """Serialise once and send to every sink; False (counted, logged rate-limited) when the
         message is not valid JSON (NaN or infinite numbers) and nothing was sent."""
         encoded = self.encode(message)
@@ -438,7 +450,7 @@ class SinkSet:
         self.send(*encoded)
         return True
 
-    def encode(self, message: Event | ModelAnnouncement) -> tuple[str, bytes] | None:
+    def encode(self, message: Line) -> tuple[str, bytes] | None:
         """The line and its bytes, or None (counted, logged rate-limited) when it is not valid JSON."""
         if not message.instance:
             message.instance = self.instance
@@ -455,12 +467,14 @@ class SinkSet:
 
     def send(self, line: str, data: bytes) -> None:
         """An encoded line to every sink (``emit`` = ``encode`` + ``send``; the daemon times them apart)."""
-        for sink in self.sinks:
-            sink.send(line, data)
+        with self._lock:
+            for sink in self.sinks:
+                sink.send(line, data)
 
     def health(self, snapshot: dict) -> None:
-        for sink in self.sinks:
-            sink.health(snapshot)
+        with self._lock:
+            for sink in self.sinks:
+                sink.health(snapshot)
 
     @property
     def errors(self) -> int:
@@ -472,12 +486,14 @@ class SinkSet:
         return next((s.problem for s in self.sinks if s.problem), None)
 
     def flush(self) -> None:
-        for sink in self.sinks:
-            sink.flush()
+        with self._lock:
+            for sink in self.sinks:
+                sink.flush()
 
     def close(self) -> None:
-        for sink in self.sinks:
-            sink.flush()
-            sink.close()
+        with self._lock:
+            for sink in self.sinks:
+                sink.flush()
+                sink.close()
 
 

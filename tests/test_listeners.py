@@ -21,6 +21,7 @@ import pytest
 
 from runtime.daemon import Daemon
 from tests.ros2_helpers import daemon_config, drain, ros_sink, run_until, udp_socket, wait_for
+from tests.tiny_models import tiny_model_bytes, write_model
 
 pytest.importorskip("onnx")
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,19 +55,26 @@ def _printed(proc: subprocess.Popen) -> list[str]:
 
 
 def _send_real_events(tmp_path: Path, ports: list[int], ros2: bool) -> list[str]:
-    """Run the daemon until it sent N_LINES lines to every port (and ROS 2); the test socket's copy."""
+    """Run the daemon until it sent N_LINES lines to every port (and ROS 2), besides the shadow lines of a
+    candidate in ``[model] shadow`` (the listeners must skip them); the test socket's copy of the lines the
+    listeners print, after checking that shadow lines were among them."""
     mine = udp_socket()
     cfg = daemon_config(tmp_path, "sim://?seed=0&events=4&realtime=0&loop=0", {}, mine.getsockname()[1])
     targets = (*cfg.sinks.udp, *(f"127.0.0.1:{p}" for p in ports))
-    cfg = replace(cfg, sinks=replace(cfg.sinks, udp=targets, ros2=ros2))
-    daemon = Daemon(cfg)
+    shadow = tmp_path / "shadow"
+    shadow.mkdir()
+    write_model(shadow, "candidate.onnx", tiny_model_bytes(bias=(0.0, 1.0, 0.0, 0.0)))
+    cfg = replace(cfg, sinks=replace(cfg.sinks, udp=targets, ros2=ros2), model=replace(cfg.model, shadow=str(shadow)))
+    daemon = Daemon(cfg, on_event=lambda _e: wait_for(lambda: daemon.shadow.candidate is not None))
     if ros2:
         sink = ros_sink(daemon)
         assert sink is not None and wait_for(lambda: sink._events.get_subscription_count() >= 1), "rclpy listener not matched"
-    run_until(daemon, lambda d: d.health.events >= N_LINES - 1)
+    run_until(daemon, lambda d: d.health.events >= N_LINES - 1 and (c := d.shadow.comparison) is not None
+              and c.compared >= N_LINES - 1)
     lines = drain(mine)
     mine.close()
-    return lines
+    assert "shadow" in {json.loads(line)["type"] for line in lines}
+    return [line for line in lines if json.loads(line)["type"] != "shadow"]
 
 
 def test_c_and_python_udp_listeners_print_the_real_events(tmp_path):
