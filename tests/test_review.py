@@ -53,11 +53,15 @@ def test_one_key_confirms_another_corrects_and_q_keeps_what_was_answered(capture
     assert shown.startswith("2 of 4 captured events")
 
 
-def test_enter_without_a_proposal_and_unknown_keys_ask_again(capture):
+def test_enter_confirms_the_decision_without_a_proposal_and_unknown_keys_ask_again(capture, tmp_path, protocol):
     folder, stems = capture
-    labels, shown, _ = run_review(folder, "s\nx2")  # event 2 (no outcome): Enter and x refused, 2 = push
-    assert labels == {stems[1]: "push"}
-    assert "no label shown" in shown and "key 'x'" in shown
+    labels, shown, _ = run_review(folder, "s\nsx2")  # 2 (nothing said): Enter = its decision; 4: x refused, 2
+    assert labels == {stems[1]: "push", stems[3]: "push"}
+    assert "Enter: push (decided)" in shown and "Enter: bump (decided)" in shown and "key 'x'" in shown
+    other = tmp_path / "other"  # a decision no class key names (another model's class): Enter is not enough
+    make_capture(other, protocol, ["wave"], [None])
+    labels, shown, _ = run_review(other, "\nd")
+    assert list(labels.values()) == ["dormant"] and "no label shown" in shown
 
 
 def test_ctrl_c_loses_no_answer_given(capture):

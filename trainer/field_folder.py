@@ -59,6 +59,12 @@ class CapturedEvent:
         return meta if isinstance(meta, dict) else {}
 
     @property
+    def reported(self) -> bool:
+        """False for a window the daemon decided but did not report (kind "unreported": dormant, or a class
+        not in ``scene.events``): the robot says no outcome about it."""
+        return self.meta.get("kind") != "unreported"
+
+    @property
     def proposed(self) -> str | None:
         """The label the robot's outcome proposes (``field_capture.proposed_label``)."""
         return proposed_label(self.decision, self.outcome, CLASSES)

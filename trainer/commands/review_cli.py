@@ -1,7 +1,8 @@
 """``handover review FOLDER``: label a daemon's captured events, one keystroke each.
 
 Lists each captured event (time, decision, the robot's outcome, the label it proposes, the label
-given) with the recorder's ASCII look at the pads, and takes one key: Enter confirms the label shown,
+given) with the recorder's ASCII look at the pads, and takes one key: Enter confirms the label shown
+(the one given before, else the outcome's proposal, else the decision),
 1-4 or d gives a class, s skips, q quits. labels.json (beside the capture) is replaced atomically
 after every answer, so Ctrl-C loses nothing. ``--accept-outcomes`` takes every proposal without asking
 (the end-to-end bench). numpy only; ``--plot`` needs matplotlib.
@@ -41,27 +42,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def event_line(index: int, ev: CapturedEvent, label: str | None) -> str:
     """One row of the listing: number, time, decision, outcome, proposed and given label."""
     when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ev.time)) if ev.time is not None else "?"
-    return (f"{index:4d}  {when}  decided {ev.decision:<8} outcome {ev.outcome or '-':<8} "
+    decided = "decided" if ev.reported else "unreported"
+    return (f"{index:4d}  {when}  {decided:>10} {ev.decision:<8} outcome {ev.outcome or '-':<8} "
             f"proposes {ev.proposed or '-':<8} label {label or '-'}")
 
 
-def _prompt(default: str | None) -> str:
-    keys = "  ".join(f"{k} {c}" for k, c in KEYS.items())
-    enter = f"Enter: {default}  " if default else ""
-    return f"  {enter}{keys}  s skip  q quit > "
+def default_label(ev: CapturedEvent, given: str | None) -> tuple[str, str]:
+    """What Enter confirms, and why: the label given before, else the outcome's proposal, else the decision."""
+    for label, why in ((given, "given"), (ev.proposed, "proposed"), (ev.decision, "decided")):
+        if label in CLASSES:
+            return label, why
+    return "", ""
 
 
-def _answer(default: str | None, read_key: Callable[[], str], out: TextIO) -> str | None:
+def _answer(default: tuple[str, str], read_key: Callable[[], str], out: TextIO) -> str | None:
     """A class, "s" (skip) or None (quit: q, or the end of input)."""
+    keys = "  ".join(f"{k} {c}" for k, c in KEYS.items())
+    enter = f"Enter: {default[0]} ({default[1]})  " if default[0] else ""
     while True:
-        out.write(_prompt(default))
+        out.write(f"  {enter}{keys}  s skip  q quit > ")
         out.flush()
         key = read_key()
         out.write("\n" if key in ENTER or not key else f"{key}\n")
         if not key or key == "q":
             return None
-        if key in ENTER and default:
-            return default
+        if key in ENTER and default[0]:
+            return default[0]
         if key == "s" or key in KEYS:
             return KEYS.get(key, key)
         out.write("  no label shown: press a class key, s or q\n" if key in ENTER else
@@ -85,7 +91,7 @@ def review(folder: Path, read_key: Callable[[], str], out: TextIO, say: Callable
             from trainer.commands.plot_cli import plot_trial
 
             out.write(f"  {plot_trial(ev.recording, 0, plot / f'{ev.stem}.png')}\n")
-        answer = _answer(labels.get(ev.stem) or ev.proposed, read_key, out)
+        answer = _answer(default_label(ev, labels.get(ev.stem)), read_key, out)
         if answer is None:
             break
         if answer != "s":
