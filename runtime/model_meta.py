@@ -27,8 +27,8 @@ from runtime.trigger_settings import recorded_problems
 
 __all__ = [
     "ALLOWED_DOMAINS", "CODEWORD_KERNEL", "DEFAULT_MAX_BYTES", "INPUT_NAME", "METADATA_KEY", "OUTPUT_NAMES",
-    "SCHEMA_VERSION", "ModelContractError", "ModelMeta", "ModelUnreadableError", "check_bow_params", "check_io",
-    "early_spec", "optional_table", "other_file_kind",
+    "REAL_FALSE_KEY", "SCHEMA_VERSION", "ModelContractError", "ModelMeta", "ModelUnreadableError", "check_bow_params",
+    "check_io", "early_spec", "optional_table", "other_file_kind", "real_false_events",
 ]
 
 SCHEMA_VERSION = 1
@@ -292,6 +292,29 @@ def check_bow_params(meta: ModelMeta, initializer_dims: dict[str, tuple[int, ...
     listed = optional_table(meta.extra.get("features")).get("windows")
     if isinstance(listed, list) and sorted(listed) != windows:
         raise ModelContractError(f"metadata features.windows {listed}, but the graph's codeword windows are {windows}")
+
+
+REAL_FALSE_KEY = "real_false_events"
+"""Metadata key: per stream setting (runtime.stream_settings.SETTINGS) the false events per hour the model
+raised on REAL idle signals, ``{"onset_dormant": {"per_hour": 0.4, "events": 1, "hours": 2.5, "data": "..."}}``
+(``data``: what was replayed and how). A setting not listed is unmeasured: synthetic idle never counts."""
+REAL_FALSE_FIELDS = ("per_hour", "events", "hours")
+
+
+def real_false_events(meta: ModelMeta) -> dict[str, dict]:
+    """The settings with a real false-event rate, each ``{per_hour, events, hours, data}``; an entry that is
+    not one (hand-edited, older file) is left out, so it reads as unmeasured and never stops a load."""
+    table = optional_table(meta.extra.get(REAL_FALSE_KEY))
+    out = {}
+    for setting, entry in table.items():
+        if not isinstance(entry, dict):
+            continue
+        values = [entry.get(k) for k in REAL_FALSE_FIELDS]
+        if all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0 for v in values) \
+                and values[2] > 0:
+            out[str(setting)] = {"per_hour": float(values[0]), "events": int(values[1]), "hours": float(values[2]),
+                                 "data": str(entry.get("data", ""))}
+    return out
 
 
 def other_file_kind(data: bytes) -> str | None:

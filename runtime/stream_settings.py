@@ -10,7 +10,7 @@ first setting is the one the daemon runs it in by default (``[scene] mode = "tri
 
 from __future__ import annotations
 
-__all__ = ["SETTINGS", "describe", "served_settings"]
+__all__ = ["MAX_REAL_FALSE_PER_HOUR", "SETTINGS", "cost_lines", "describe", "served_setting", "served_settings"]
 
 SETTINGS = {
     "onset": "onset trigger; every window it starts is reported",
@@ -19,6 +19,44 @@ SETTINGS = {
     "threshold_dormant": "the paper's threshold trigger; a window read as dormant is not reported",
     "continuous": "every frame classified ([scene] mode = \"continuous\"), one report per interaction",
 }
+
+
+MAX_REAL_FALSE_PER_HOUR = 1.0
+"""A setting raising more false events per hour than this on real idle signals is said to cost too much
+(issue #37's bar; the default onset_dormant raised 0.67 on 2.97 h of real recordings, results/streams.json)."""
+RECORD_IDLE = ("record idle on the robot (`handover record --idle-only`) and train again (`handover train` measures "
+               "it on that idle)")
+
+
+def served_setting(dormant_class: str | None, trigger_kind: str, scene_mode: str = "trigger") -> str:
+    """The setting the daemon serves a model in: ``[scene] mode`` and the trigger kind in force
+    (``runtime.trigger_settings.resolve_trigger``: the config's, else the model's)."""
+    if scene_mode == "continuous":
+        return "continuous"
+    first = "onset" if trigger_kind == "onset" else "threshold"
+    return f"{first}_dormant" if dormant_class else first
+
+
+def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
+    """One line per setting (default: every one the model serves) whose false events per hour on real idle
+    signals are unmeasured or above ``MAX_REAL_FALSE_PER_HOUR``, with what to do; none for one below."""
+    from runtime.model_meta import real_false_events
+
+    measured = real_false_events(meta)
+    fine = {k: v["per_hour"] for k, v in measured.items() if v["per_hour"] <= MAX_REAL_FALSE_PER_HOUR}
+    lines = []
+    for name in settings or served_settings(meta.dormant_class, meta.trigger):
+        others = [f"serve {k} ({v:.2f} per hour)" for k, v in fine.items() if k != name]
+        if name not in measured:
+            why = ("trained on synthetic data" if meta.training.get("synthetic") else
+                   "trained without idle" if not meta.training.get("idle_seconds") else "its idle did not measure it")
+            lines.append(f"stream setting {name}: false events on real idle signals unmeasured for this model ({why}); "
+                         + "; or ".join([RECORD_IDLE, *others]))
+        elif (m := measured[name])["per_hour"] > MAX_REAL_FALSE_PER_HOUR:
+            lines.append(f"stream setting {name}: {m['per_hour']:.2f} false events per hour on real idle signals "
+                         f"({m['events']} in {m['hours']:.2f} h: {m['data']}), above {MAX_REAL_FALSE_PER_HOUR:g} per "
+                         "hour; " + "; or ".join([*others, RECORD_IDLE.replace("record idle", "record more idle")]))
+    return lines
 
 
 def served_settings(dormant_class: str | None, trigger: dict | None) -> list[str]:

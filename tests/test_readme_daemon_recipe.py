@@ -33,7 +33,8 @@ def test_recipe_installs_the_model_mode_644_under_umask_002(tmp_path, capsys):
     assert stat.S_IMODE(copied.stat().st_mode) == 0o644
     assert handover(["run", "--config", str(tmp_path / "try" / "handover.toml"), "--check"]) == 0
     out = capsys.readouterr()
-    assert "would serve model" in out.out and "warning" not in out.err, out.err
+    others = [line for line in out.err.splitlines() if "warning: stream setting" not in line]  # a tiny model: unmeasured
+    assert "would serve model" in out.out and not others, out.err
 
 
 def test_check_says_exactly_how_to_fix_a_group_writable_model(tmp_path, capsys):

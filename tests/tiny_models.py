@@ -27,6 +27,7 @@ def tiny_model_bytes(
     trigger_fraction: float = 0.15,
     tag: str = "",
     trigger: dict | None = None,
+    extra: dict | None = None,
 ) -> bytes:
     import onnx
     from onnx import TensorProto, helper
@@ -76,6 +77,7 @@ def tiny_model_bytes(
         "training": {"data_fingerprint": "synthetic-test" + tag, "n_trials": 0, "project_version": "test",
                      "date": "2026-01-01"},
         "evaluation": {},
+        **(extra or {}),
     }
     helper.set_model_props(model, {"handover": json.dumps(meta)})
     onnx.checker.check_model(model)

@@ -23,7 +23,7 @@ from trainer import streams_eval as se
 from trainer.rate_interval import rate_interval
 from trainer.recorded_idle import idle_pieces, subject_of
 
-__all__ = ["SHORT_IDLE_MIN", "held_out_replay", "replay_lines"]
+__all__ = ["SHORT_IDLE_MIN", "held_out_replay", "real_false_meta", "replay_lines"]
 
 SHORT_IDLE_MIN = 30.0
 """Below this much recorded idle the report says what one false event weighs per hour: there a single
@@ -147,6 +147,7 @@ def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Seque
     from trainer.dormant import DORMANT
     from trainer.model_meta import dataset_metadata
     from trainer.onnx_export import export_onnx
+    from trainer.pipeline import looks_simulated
 
     dormant = DORMANT in ds.classes
     mode = stream_mode(dormant, ds.trigger.kind)
@@ -168,14 +169,40 @@ def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Seque
             meta = dataset_metadata(ds, training={"held_out": group}, dormant_class=DORMANT if dormant else None)
             path = export_onnx(model, Path(tmp) / f"fold{k}.onnx", meta)
             loaded = load_model(path, warm_up=False)
-            mine = [replay_recording(r, loaded, mode) for r, g in zip(recordings, owners, strict=True) if g == group]
+            mine = [{**replay_recording(r, loaded, mode), "synthetic": looks_simulated(r.meta)}
+                    for r, g in zip(recordings, owners, strict=True) if g == group]
             fold = summarize(mine)
             folds.append({"held_out": group, **{key: fold[key] for key in (
                 "events", "right", "wrong", "missed", "idle_hours", "false_events", "false_per_hour")}})
             parts += mine
     if not parts:
         return {"mode": mode, "skipped": skipped, "folds": []}
-    return {"mode": mode, "dormant_class": dormant, **summarize(parts), "folds": folds, "skipped": skipped}
+    return {"mode": mode, "dormant_class": dormant, **summarize(parts), "folds": folds, "skipped": skipped,
+            "real_idle": _real_part(parts, mode)}
+
+
+def _real_part(parts: Sequence[dict], mode: str) -> dict | None:
+    """The idle of the recordings that are not synthetic (a real hand's signals), pooled; None without any."""
+    real = [p for p in parts if not p["synthetic"]]
+    r = summarize(real) if real else None
+    if not r or not r["idle_hours"]:
+        return None
+    return {"mode": mode, "recordings": len(real), "hours": r["idle_hours"], "events": r["false_events"],
+            "per_hour": r["false_per_hour"]}
+
+
+def real_false_meta(replay: dict | None) -> dict:
+    """The model file's ``runtime.model_meta.REAL_FALSE_KEY`` entry from the held-out replay's real idle
+    ({} when none was replayed: the model then carries no figure, which reads as unmeasured)."""
+    from runtime.model_meta import REAL_FALSE_KEY
+
+    r = (replay or {}).get("real_idle")
+    if not r:
+        return {}
+    data = (f"handover train's held-out replay of {r['recordings']} real recording(s)' idle, each through a model "
+            "trained without its subject")
+    return {REAL_FALSE_KEY: {r["mode"]: {"per_hour": r["per_hour"], "events": r["events"], "hours": r["hours"],
+                                         "data": data}}}
 
 
 def replay_lines(r: dict | None) -> list[str]:
@@ -211,16 +238,19 @@ def replay_lines(r: dict | None) -> list[str]:
     return lines
 
 
-def real_idle(model, root: Path, say) -> dict | None:
-    """False events of the model on every real SDH-2 recording (none holds a handover)."""
+def real_idle(model, root: Path, say, files: Sequence[Path] | None = None, mode: str | None = None) -> dict | None:
+    """False events of the model on every real SDH-2 recording (none holds a handover), or on ``files`` of them,
+    in ``mode`` (default: the setting the model serves by default)."""
     from firmware_io.recordings.importers import import_any
     from trainer.shared_data import real_files
 
     if not root.is_dir():
         return None
-    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    mode = mode or ("onset_dormant" if model.meta.dormant_class else "onset")
     rows, hours, events = [], 0.0, 0
     for path, cat, _ in real_files(root):
+        if files is not None and path not in files:
+            continue
         try:
             rec = import_any(path)
             found = se.replay(rec, model, mode)

@@ -57,7 +57,7 @@ def load_or_simulate(data: Sequence[str] | None, seed: int, say: Callable[[str],
             recs += got
             names += got_names if len(data) == 1 else [str(Path(folder) / n) for n in got_names]
             sources.append(f"{len(got)} recordings in {folder}")
-        synthetic = any(_looks_simulated(r.meta) for r in recs)
+        synthetic = any(looks_simulated(r.meta) for r in recs)
         return recs, names, ", ".join(sources), synthetic
     try:
         from firmware_io.sim import simulate_protocol
@@ -83,7 +83,8 @@ def _read_folder(folder: str) -> tuple[list, list[str]]:
     return load_all(paths), [p.name for p in paths]
 
 
-def _looks_simulated(meta: dict) -> bool:
+def looks_simulated(meta: dict) -> bool:
+    """Whether a recording's metadata says it came from the simulator (anything but a real hand's signals)."""
     text = json.dumps(meta, default=str).lower()
     return bool(meta.get("synthetic")) or "simulat" in text or "synthetic" in text
 

@@ -76,12 +76,13 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
     file writes the same model card as ``train``.
     """
     from trainer.model_meta import dataset_metadata
+    from trainer.own_replay import real_false_meta
 
     # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
     folder = {"data_folder": str(Path(options.data[0]).resolve())} if options.data else {}
     from trainer.dormant import DORMANT
 
-    return dataset_metadata(
+    return real_false_meta(metrics.get("own_replay")) | dataset_metadata(
         ds,
         dormant_class=DORMANT if DORMANT in ds.classes else None,
         training={

@@ -127,6 +127,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
             print(f"{PROG}: warning: {r.path.name} (dropped later) would be refused: {r.reason}", file=sys.stderr)
         if model.early_note:
             print(f"{PROG}: warning: {model.early_note}", file=sys.stderr)
+        for line in _cost_lines(cfg, model):
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
         print(f"config {cfg.source} is valid; would serve model {model.model_id} ({model.path.name})")
         return 0
     reasons = "; ".join([*(f"{r.path.name}: {r.reason}" for r in rejections),
@@ -139,6 +141,16 @@ def _check_quietly(cfg, require_model: bool) -> int:
     print(f"{PROG}: warning: {what}; the daemon will wait for one", file=sys.stderr)
     print(f"config {cfg.source} is valid")
     return 0
+
+
+def _cost_lines(cfg, model) -> list[str]:
+    """The served setting's line when its false events on real idle signals are unmeasured or too many
+    (runtime.stream_settings.cost_lines); the setting is the config's scene mode and trigger in force."""
+    from runtime.stream_settings import cost_lines, served_setting
+    from runtime.trigger_settings import resolve_trigger
+
+    kind = resolve_trigger(cfg.trigger, model.meta.trigger).kind
+    return cost_lines(model.meta, [served_setting(model.meta.dormant_class, kind, cfg.scene.mode)])
 
 
 def _warn_about_sinks(cfg) -> None:

@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def card(model) -> dict:
     from runtime.model import optional_table
-    from runtime.stream_settings import describe, served_settings
+    from runtime.model_meta import real_false_events
+    from runtime.stream_settings import cost_lines, describe, served_settings
 
     meta = model.meta
     kernel = meta.extra.get("kernel")
@@ -40,6 +41,8 @@ def card(model) -> dict:
         "dormant_class": meta.dormant_class,
         "stream_settings": served_settings(meta.dormant_class, meta.trigger),
         "stream_settings_text": describe(meta.dormant_class, meta.trigger, meta.training.get("dormant_cut")),
+        "real_false_events": real_false_events(meta),
+        "stream_setting_warnings": cost_lines(meta),
         "pads": list(meta.pads),
         "pad_sizes": list(meta.pad_sizes),
         "n_channels": meta.n_channels,
@@ -129,6 +132,9 @@ def _text(c: dict) -> str:
         f"model {c['path']} (id {c['model_id']})",
         f"  detects: {', '.join(c['detects'])}" + (f" (dormant class: {c['dormant_class']})" if c["dormant_class"] else ""),
         f"  stream settings: {c['stream_settings_text']}",
+        *(f"  real idle: {k} {v['per_hour']:.2f} false events per hour ({v['events']} in {v['hours']:.2f} h: "
+          f"{v['data']})" for k, v in c["real_false_events"].items()),
+        *(f"  warning: {line}" for line in c["stream_setting_warnings"]),
         f"  pads: {','.join(str(p) for p in c['pads'])}{_pad_name(c['pads'])} ({c['n_channels']} taxels: "
         f"{', '.join(str(s) for s in c['pad_sizes'])}); serves with scene.pads = \"model\" or this selection",
         f"  window: T={c['T']} frames ({c['window_seconds']:.2f} s at {c['sample_rate_hz']:.2f} Hz), "

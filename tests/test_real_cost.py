@@ -1,0 +1,83 @@
+"""Every stream setting says what it costs on real signals: the model's ``real_false_events`` metadata
+(runtime/model_meta.py) round-trips, and ``handover inspect`` / ``handover run --check`` say when the model is
+served in a setting whose false events per hour on real idle are unmeasured or above 1 per hour, not below."""
+
+from __future__ import annotations
+
+import pytest
+
+from runtime.cli import main as handover
+from runtime.model_meta import REAL_FALSE_KEY
+from tests.tiny_models import CLASSES, tiny_model_bytes, write_model
+
+pytest.importorskip("onnx")
+
+BELOW = {"per_hour": 0.4, "events": 1, "hours": 2.5, "data": "held-out real idle"}
+ABOVE = {"per_hour": 155.7, "events": 463, "hours": 2.97, "data": "the real recordings"}
+
+
+def _model(folder, measured: dict | None, name: str = "m.onnx"):
+    folder.mkdir(exist_ok=True)
+    extra = {REAL_FALSE_KEY: measured} if measured is not None else {}
+    data = tiny_model_bytes(classes=(*CLASSES, "dormant"), dormant_class="dormant", trigger={"kind": "onset"},
+                            extra=extra)
+    return write_model(folder, name, data)
+
+
+def test_the_key_round_trips_and_a_broken_entry_reads_unmeasured(tmp_path):
+    from runtime.model import load_model
+    from runtime.model_meta import real_false_events
+
+    table = {"onset_dormant": BELOW, "continuous": ABOVE, "onset": {"per_hour": "many"}, "threshold": 3}
+    meta = load_model(_model(tmp_path / "m", table), warm_up=False).meta
+    assert real_false_events(meta) == {"onset_dormant": BELOW, "continuous": ABOVE}
+    junk = load_model(_model(tmp_path / "j", "not a table"), warm_up=False).meta  # loads; reads as unmeasured
+    assert real_false_events(junk) == {}
+
+
+def test_the_trainer_writes_the_key_only_from_real_idle():
+    from trainer.own_replay import _real_part, real_false_meta
+
+    part = {"events": [], "delays": [], "early": 0, "references": [], "period": 0.03125, "false_by_class": {},
+            "idle_frames": {"quiet": 115200}, "false_by_source": {"quiet": 1}, "false_by_source_arm_messages": None}
+    assert _real_part([{**part, "synthetic": True}], "onset_dormant") is None
+    real = _real_part([{**part, "synthetic": False}, {**part, "synthetic": True}], "onset_dormant")
+    assert real["recordings"] == 1 and real["hours"] == pytest.approx(1.0) and real["per_hour"] == pytest.approx(1.0)
+    entry = real_false_meta({"real_idle": real})[REAL_FALSE_KEY]["onset_dormant"]
+    assert entry["events"] == 1 and "held-out replay" in entry["data"]
+    assert real_false_meta({"real_idle": None}) == {} == real_false_meta(None)
+
+
+def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
+    assert handover(["inspect", str(_model(tmp_path / "a", {"onset_dormant": BELOW, "continuous": ABOVE}))]) == 0
+    out = capsys.readouterr().out
+    warnings = [line for line in out.splitlines() if line.startswith("  warning: stream setting")]
+    assert len(warnings) == 1 and "continuous: 155.70 false events per hour" in warnings[0], out
+    assert "above 1 per hour" in warnings[0] and "serve onset_dormant (0.40 per hour)" in warnings[0]
+    assert "  real idle: onset_dormant 0.40 false events per hour (1 in 2.50 h: held-out real idle)" in out
+    assert handover(["inspect", str(_model(tmp_path / "b", None))]) == 0
+    out = capsys.readouterr().out
+    warnings = [line for line in out.splitlines() if line.startswith("  warning: stream setting")]
+    assert [w.split(":")[1].split()[-1] for w in warnings] == ["onset_dormant", "continuous"]
+    assert all("unmeasured" in w and "handover record --idle-only" in w for w in warnings)
+
+
+@pytest.mark.parametrize(("mode", "measured", "said"), [
+    ("trigger", {"onset_dormant": BELOW, "continuous": ABOVE}, None),
+    ("continuous", {"onset_dormant": BELOW, "continuous": ABOVE}, "continuous: 155.70 false events per hour"),
+    ("trigger", None, "onset_dormant: false events on real idle signals unmeasured"),
+    ("trigger", {"onset_dormant": {**BELOW, "per_hour": 1.6, "events": 4}}, "onset_dormant: 1.60 false events"),
+])
+def test_check_says_it_for_the_served_setting(tmp_path, capsys, mode, measured, said):
+    models = tmp_path / "models"
+    _model(models, measured)
+    config = tmp_path / "handover.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n[scene]\nmode = "{mode}"\n')
+    assert handover(["run", "--config", str(config), "--check"]) == 0
+    out = capsys.readouterr()
+    assert "would serve model" in out.out
+    lines = [line for line in out.err.splitlines() if "stream setting" in line]
+    if said is None:
+        assert lines == [], out.err
+    else:
+        assert len(lines) == 1 and lines[0].startswith(f"handover run: warning: stream setting {said}"), out.err
