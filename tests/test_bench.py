@@ -109,6 +109,11 @@ def test_latency_quick(tmp_path, capsys):
     assert printed["onnx_p50_us_all_pads"] == imps["solo"]["onnxruntime"]["p50"]
     assert "numpy_over_onnx_p50" not in printed and "sklearn_over_onnx_p50" not in printed
     assert "onnxruntime, distal pads" in (tmp_path / "latency.md").read_text()
+    # serving with a candidate in shadow against serving alone, alternating blocks of the same process
+    shadow = result["shadow"]
+    assert shadow["serving"]["n"] == shadow["shadow"]["n"] > 0 and printed["shadow_p999_ratio"] > 0
+    assert shadow["shadow_counts"]["shadow"]["windows_compared"] + shadow["shadow_counts"]["shadow"]["windows_dropped"] > 0
+    assert "## Serving with a candidate in shadow" in md and "`shadow_p999_ratio`" in md
     # the limits: a steady job can only be slowed by the machine; the split's scores are the whole graph's
     assert result["floor_p999_us"] >= result["daemon_p50_us"] * 0.99 and result["e2e_floor_p999_us"] > 0
     split = result["implementations_distal"]["per_frame_split"]

@@ -32,6 +32,7 @@ from trainer.bench import latency_stages as stages
 from trainer.bench.latency_early import early_frames, early_model
 from trainer.bench.latency_floor import interference, per_frame_split
 from trainer.bench.latency_report import headline, job_lengths, markdown, plot
+from trainer.bench.latency_shadow import shadow_cases
 from trainer.measure import (
     DEADLINE_US,
     deadline_ratio,
@@ -183,6 +184,8 @@ def run(args) -> dict:
             continuous = load_model(stages.declared_dormant(model_path, work / "continuous.onnx", dormant),
                                     intra_op_threads=1, allow_spinning=False)
             result["stages"] = stages.stage_tables(model, dense, paced_decisions, continuous)
+            say("latency: serving with a candidate in shadow, against serving alone (alternating blocks) ...")
+            result["shadow"] = shadow_cases(model, dense, paced_decisions, work)
             result["early_frames"] = early_frames(early_paths, args.seed, args.quick, say)  # at the hot thread's priority
             say("latency: the machine's interference (a spinning thread) ...")
             gaps = interference(0.5 if args.quick else 10.0)

@@ -11,10 +11,12 @@ from runtime.detector import REHEARSAL_LEAD_S
 from runtime.realtime import DEFAULT_PRIORITY
 from trainer.bench import latency_stages as stages
 from trainer.bench.latency_early import markdown_lines as early_lines
+from trainer.bench.latency_shadow import TARGET_RATIO
+from trainer.bench.latency_shadow import markdown_lines as shadow_lines
 from trainer.measure import DEADLINE_US, deadline_ratio, fmt_us
 
 TARGETS = {"onnx_p50_us": 30.0, "onnx_p50_us_all_pads": 60.0, "daemon_p999_us": 200.0, "e2e_p999_us": 500.0,
-           "e2e_p999_us_load": 1000.0, "paced_over_back_to_back": 1.5, "rss_mb": 80.0}
+           "e2e_p999_us_load": 1000.0, "paced_over_back_to_back": 1.5, "shadow_p999_ratio": TARGET_RATIO, "rss_mb": 80.0}
 """The latency targets (at most), each key as written to latency.json."""
 
 
@@ -48,6 +50,8 @@ def headline(res: dict) -> dict:
         # early heads: every frame from the trigger to the report (trainer/bench/latency_early.py)
         "early_inside_window_p99_us": ((res.get("early_frames") or {}).get("early") or {}).get(
             "inside_window", {}).get("p99"),
+        # the serving decision's p99.9 with a candidate in shadow over that without (trainer/bench/latency_shadow.py)
+        "shadow_p999_ratio": (res.get("shadow") or {}).get("p999_ratio", {}).get("shadow"),
     }
 
 
@@ -140,7 +144,7 @@ def _targets_lines(res: dict) -> list[str]:
     lines = ["| key | this run | target (at most) | met |", "|---|---|---|---|"]
     for key, target in TARGETS.items():
         value = res.get(key)
-        shown = "-" if value is None else f"{value:.2f}" if key == "paced_over_back_to_back" else f"{value:,.1f}"
+        shown = "-" if value is None else f"{value:.2f}" if key in ("paced_over_back_to_back", "shadow_p999_ratio") else f"{value:,.1f}"
         met = "-" if value is None else "yes" if value <= target else "no"
         lines.append(f"| `{key}` | {shown} | {target:g} | {met} |")
     return lines
@@ -276,7 +280,7 @@ def markdown(res: dict) -> list[str]:
               "that won `confirm_frames` frames in a row; docs/DORMANT.md), so their n is small; its "
               "`frames without a decision` are the first T - 1 frames, before the first window is full. "
               "Under load: two busy-loop processes, one per core.", "",
-              "## The graph alone (one window)", "",
+              *shadow_lines(res.get("shadow")), "## The graph alone (one window)", "",
               *_implementation_lines(res), "", *_keep_warm_lines(res), *_limit_lines(res),
               "## End to end (emulator process -> loopback TCP -> `handover run` -> UDP -> listener)", "", *HEAD]
     for key, title in (("e2e_32hz", "end to end at 32 Hz"), ("e2e_32hz_load", "end to end at 32 Hz, under load"),

@@ -90,12 +90,14 @@ class PacketFeed(Transport):
 
 
 def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset(),
-         mode: str = "trigger", rehearse: bool = True) -> dict:
+         mode: str = "trigger", rehearse: bool = True, shadow: Path | None = None, raw: list | None = None) -> dict:
     """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility), a
     fresh detector and the daemon's reporter to a UDP socket, read the way the daemon's loop reads;
     the packets in ``pace_frames`` arrive one sample period after the one before; ``rehearse``: the
-    model rehearsed before them as the daemon does (runtime/rehearsal.py). Per-stage microseconds of
-    each decision."""
+    model rehearsed before them as the daemon does (runtime/rehearsal.py). Each decision is offered to
+    the daemon's ``Shadow`` as ``Daemon._decided`` does: with ``shadow`` (a folder holding a candidate)
+    the candidate runs in its thread, else none is configured. Per-stage microseconds of each decision
+    (and the shadow's counts under ``shadow``); ``raw`` gets each decision's frame parsed -> decision."""
     from firmware_io.client import DSAClient
     from runtime.daemon import READ_TIMEOUT_S
     from runtime.heap import settle_heap
@@ -112,8 +114,9 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     client = DSAClient.already_streaming(link, recording.layout)
     recorder = _Decisions()
     reporter.listeners.append(recorder)
+    beside = shadow_beside(detector, reporter, shadow)
     settle_heap()  # as Daemon.run does once started
-    step, report, clock = detector.feed, reporter.report, time.perf_counter
+    step, report, offer, clock = detector.feed, reporter.report, beside.offer, time.perf_counter
     read = RehearsedReads(client.read_frame, detector, READ_TIMEOUT_S, rehearse)
     marks = np.zeros((len(packets), 3))
     try:
@@ -125,15 +128,44 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
             decision = step(frame)
             if decision is not None:
                 report(decision)
+                offer(decision, detector.ring)
             marks[frame.number] = frame.received, t1, clock()
             if frame.number % 64 == 0:
                 _drain(sink)
     finally:
         gc.unfreeze()
+        beside.stop()
         reporter.sinks.close()
     _drain(sink)
     sink.close()
-    return _stage_table(marks, recorder.timings)
+    if raw is not None:
+        raw.extend((t.decided - t.received) * 1e6 for _, t in recorder.timings)
+    table = _stage_table(marks, recorder.timings)
+    if shadow is not None:
+        view = beside.counters()["shadow"]
+        table["shadow"] = {k: view[k] for k in ("windows_compared", "windows_dropped", "latency_p50_us", "latency_p99_us")}
+    return table
+
+
+def shadow_beside(detector, reporter, folder: Path | None):
+    """The daemon's ``Shadow`` for a fed detector: the candidate in ``folder`` running (None: no shadow
+    configured, ``offer`` returns at once, as in a daemon without ``[model] shadow``)."""
+    from runtime.config import config_from_dict
+    from runtime.health import Health
+    from runtime.model import load_model
+    from runtime.quarantine import QuarantineStore
+    from runtime.shadow import Shadow
+
+    cfg = config_from_dict({"model": {"shadow": str(folder), "poll_interval_s": 0.05}} if folder else {})
+    shadow = Shadow(cfg, Health(), lambda p: load_model(p, warm_up=False), lambda m: None, QuarantineStore(),
+                    lambda: detector.model, reporter.sinks.emit)
+    shadow.start()
+    deadline = time.monotonic() + 60
+    while folder is not None and shadow.candidate is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    if folder is not None and shadow.candidate is None:
+        raise RuntimeError(f"the candidate in {folder} did not start in shadow within 60 s")
+    return shadow
 
 
 def _drain(sock: socket.socket) -> None:
