@@ -69,11 +69,12 @@ SinksConfig = _section_class("SinksConfig", "sinks", "``[sinks]``: where events 
 OnnxConfig = _section_class("OnnxConfig", "onnxruntime", "``[onnxruntime]``: the session's threads.")
 Ros2Config = _section_class("Ros2Config", "ros2", "``[ros2]``: the ROS 2 sink (runtime/ros2_node.py).")
 ControlConfig = _section_class("ControlConfig", "control", "``[control]``: the robot's grasp and arm messages.")
+CaptureConfig = _section_class("CaptureConfig", "capture", "``[capture]``: field capture (runtime/capture.py).")
 
 _SECTION_CLASSES: dict[str, type] = {
     "device": DeviceConfig, "scene": SceneConfig, "model": ModelConfig, "trigger": TriggerConfig,
     "continuous": ContinuousConfig, "sinks": SinksConfig, "onnxruntime": OnnxConfig, "ros2": Ros2Config,
-    "control": ControlConfig,
+    "control": ControlConfig, "capture": CaptureConfig,
 }
 assert set(_SECTION_CLASSES) == set(SECTIONS) - {""}, "every declared section has its class"
 
@@ -263,6 +264,13 @@ def _control_socket(k: Key, table: dict) -> str | None:
     return sock
 
 
+def _capture_folder(k: Key, table: dict) -> str | None:
+    folder = table.get(k.short)
+    if folder is not None and (not isinstance(folder, str) or not folder.startswith("/")):
+        raise ConfigError(f"capture.folder: must be an absolute path, e.g. /var/lib/handover/field, got {folder!r}")
+    return folder
+
+
 def _log_level(k: Key, table: dict) -> str:
     log_level = read_str(k.name, table, k.default).lower()
     if log_level not in k.choices:
@@ -337,7 +345,7 @@ def _ros2_joint_states(k: Key, table: dict) -> str | None:
 _READERS: dict[str, Callable[[Key, dict], Any]] = {
     "device.url": _device_url, "scene.pads": _scene_pads, "scene.events": _scene_events,
     "trigger.fraction": _trigger_fraction, "sinks.udp": _sinks_udp, "sinks.unix": _sinks_unix,
-    "control.socket": _control_socket, "log_level": _log_level, "health_file": _state_file,
+    "control.socket": _control_socket, "capture.folder": _capture_folder, "log_level": _log_level, "health_file": _state_file,
     "model.quarantine_file": _state_file,
     "instance": _instance,
     "ros2.namespace": _ros2_namespace, "ros2.node_name": _ros2_node_name, "ros2.joint_states": _ros2_joint_states,

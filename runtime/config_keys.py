@@ -77,6 +77,9 @@ SECTIONS: dict[str, str] = {
                'Send one with: echo -n "grasp closed" | socat - UNIX-SENDTO:/run/handover/control.sock\n'
                "or, without socat: python3 -c 'import socket; socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)"
                '.sendto(b"arm moving", "/run/handover/control.sock")\'',
+    "capture": "Field capture (docs/GUIDE.md#field-capture): every decided window and a sample of idle stretches kept\n"
+               "as recordings `handover train` reads, with the robot's outcomes (\"outcome taken\" on the control\n"
+               "socket or <namespace>/outcome); the folder must be this user's (or root's) alone.",
 }
 """The sections in the order they are read (the first bad key reported is the first in this order),
 each with the note deploy/handover.toml and docs/CONFIG.md put above its keys."""
@@ -186,6 +189,8 @@ KEYS: tuple[Key, ...] = (
         range=(1, 16)),
     Key("ros2.grasp", bool, False, 'true: listen on <namespace>/grasp ("closed" / "open") from the robot'),
     Key("ros2.arm", bool, False, 'true: listen on <namespace>/arm ("moving" / "still") from the robot'),
+    Key("ros2.outcome", bool, False, 'true: listen on <namespace>/outcome ("taken" / "kept" / "dropped" / a class '
+        "name) from the robot ([capture])"),
     Key("ros2.joint_states", str, None, "sensor_msgs/JointState topic: the arm counts as moving while a joint's speed "
         "exceeds joint_speed (runtime/arm_motion.py)", optional=True, example="/joint_states"),
     Key("ros2.joint_speed", float, 0.05, "rad/s (or m/s): a joint faster than this moves the arm", range=(1e-6, 100.0)),
@@ -199,6 +204,13 @@ KEYS: tuple[Key, ...] = (
         "on the fingers after the stop; runtime/arm_motion.py)", range=(0.0, 60.0)),
     Key("control.arm_max_move_s", float, 30.0, "'arm moving' holds this long unless repeated (a lost 'arm still' "
         "must not deafen the daemon)", range=(0.1, _S)),
+
+    Key("capture.folder", str, None, "absolute path of the capture folder (unset: nothing is kept); created if "
+        "missing", optional=True, example="/var/lib/handover/field"),
+    Key("capture.max_mb", float, 1024.0, "the folder's recordings, outcomes and labels stay below this many MB (the "
+        "oldest recordings are removed first)", range=(1.0, 1e7)),
+    Key("capture.idle_every_s", float, 600.0, "at most one idle stretch kept per this many seconds of device time "
+        "with no decided window (0: none)", range=(0.0, 86400.0)),
 )
 """Every key, section by section in the order of ``SECTIONS``."""
 

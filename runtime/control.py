@@ -7,7 +7,8 @@ the daemon's own user and root may send (runtime.control_access).
 
 Messages (ASCII, case and surrounding white space ignored): ``grasp closed`` (arm the onset trigger
 now), ``grasp open`` (no event until the hand is empty or closed again), ``arm moving`` and
-``arm still`` (runtime.arm_motion).
+``arm still`` (runtime.arm_motion), ``outcome WORD`` (what happened after the last event: taken, kept,
+dropped or a class name; runtime.capture).
 """
 
 from __future__ import annotations
@@ -37,31 +38,41 @@ MESSAGES: dict[str, tuple[str, bool]] = {
     "grasp closed": ("grasp", True), "grasp open": ("grasp", False),
     "arm moving": ("arm", True), "arm still": ("arm", False),
 }
-"""Every control datagram the daemon knows: text -> (topic, value)."""
+"""Every control datagram the daemon knows: text -> (topic, value); and ``outcome WORD`` (``OUTCOME``)."""
+OUTCOME = "outcome"
+MAX_WORD = 64
+"""The longest outcome word (a class name is at most that long: firmware_io.recordings.recording)."""
 GRASP_LOG_INTERVAL_S = 1.0
 """At most one log line per this many seconds for each kind of robot message (the rest are counted in the next)."""
 
 
-def parse_message(data: bytes) -> tuple[str, bool] | None:
-    """``("grasp", closed)`` or ``("arm", moving)`` for a known message (``MESSAGES``), None for anything
-    else (also for a datagram over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
+def parse_message(data: bytes) -> tuple[str, bool | str] | None:
+    """``("grasp", closed)`` or ``("arm", moving)`` for a known message (``MESSAGES``), ``("outcome", word)``
+    for ``outcome WORD`` (the word is checked by field capture), None for anything else (also for a datagram
+    over ``MAX_DATAGRAM`` bytes, whose start may look like a message)."""
     if len(data) > MAX_DATAGRAM:
         return None
     try:
         text = data.decode("ascii").strip().lower()
     except UnicodeDecodeError:
         return None
-    return MESSAGES.get(" ".join(text.split()))
+    words = text.split()
+    if len(words) == 2 and words[0] == OUTCOME and len(words[1]) <= MAX_WORD and words[1].isprintable():
+        return OUTCOME, words[1]
+    return MESSAGES.get(" ".join(words))
 
 
 class ControlSocket:
-    """Reads control datagrams on ``address``; calls ``on_grasp(closed, "control")`` or ``on_arm(moving, "control")``."""
+    """Reads control datagrams on ``address``; calls ``on_grasp(closed, "control")``, ``on_arm(moving, "control")``
+    or ``on_outcome(word, "control")``."""
 
     def __init__(self, address: str, on_grasp: Callable[[bool, str], None],
-                 on_arm: Callable[[bool, str], None] | None = None) -> None:
+                 on_arm: Callable[[bool, str], None] | None = None,
+                 on_outcome: Callable[[str, str], None] | None = None) -> None:
         self.address = address
         self.on_grasp = on_grasp
         self.on_arm = on_arm
+        self.on_outcome = on_outcome
         self.received = 0
         self.garbage = 0
         """Datagrams that were not a known message (the first is logged, all are counted)."""
@@ -88,7 +99,7 @@ class ControlSocket:
         self._bound = self._file_id()
         self._thread = threading.Thread(target=self._loop, name="handover-control", daemon=True)
         self._thread.start()
-        log.info("control socket %s: listening (%s)", self.address, " / ".join(MESSAGES))
+        log.info("control socket %s: listening (%s)", self.address, " / ".join((*MESSAGES, "outcome WORD")))
         return self
 
     def _bound_socket(self, address: str | bytes) -> socket.socket:
@@ -177,12 +188,14 @@ class ControlSocket:
 
     def _handle(self, data: bytes) -> None:
         message = parse_message(data)
-        callback = None if message is None else self.on_grasp if message[0] == "grasp" else self.on_arm
+        callbacks = {"grasp": self.on_grasp, "arm": self.on_arm, OUTCOME: self.on_outcome}
+        callback = None if message is None else callbacks[message[0]]
         if message is None or callback is None:
             self.garbage += 1
             if self.garbage == 1:
-                log.warning("control socket %s: ignored a datagram that is not one of %s (%r); further ones are "
-                            "only counted", self.address, ", ".join(repr(m) for m in MESSAGES), data[:64])
+                log.warning("control socket %s: ignored a datagram that is not one of %s or 'outcome WORD' (%r); "
+                            "further ones are only counted", self.address, ", ".join(repr(m) for m in MESSAGES),
+                            data[:64])
             return
         self.received += 1
         try:

@@ -19,7 +19,7 @@ from pathlib import Path
 from runtime.instance_lock import untrusted
 
 __all__ = ["ANCILLARY_BYTES", "allow_credentials", "held", "in_use_line", "may_steer", "restrict", "sender_uid",
-           "socket_path_problem"]
+           "socket_path_problem", "untrusted_folder"]
 
 MAX_ADDRESS_BYTES = 107
 """sun_path holds 108 bytes with the closing NUL (Linux)."""
@@ -53,14 +53,14 @@ def socket_path_problem(address: str) -> str | None:
     if not path.parent.is_dir():
         return (f"control.socket {address}: cannot bind: folder {path.parent} does not exist; create it (RuntimeDirectory= "
                 "in the unit file) or choose another path")
-    if why := _folder_problem(path.parent):
+    if why := untrusted_folder(path.parent):
         return (f"control.socket {address}: {why}: another user could replace the socket and get the robot's messages; "
                 "choose a folder of this user's or root's, e.g. /run/handover (RuntimeDirectory= in the unit file)")
     return None
 
 
-def _folder_problem(folder: Path) -> str | None:
-    """A folder on the way to the socket, as named or as resolved, that another user owns or may write
+def untrusted_folder(folder: Path) -> str | None:
+    """A folder on the way to a file of ours (the socket, the capture folder's), as named or as resolved, that another user owns or may write
     to (``instance_lock.untrusted``, shared: root's and sticky ones are fine), or a symbolic link of
     another user's (re-pointed, it leads elsewhere)."""
     named, real = Path(os.path.abspath(folder)), Path(os.path.realpath(folder))

@@ -7,7 +7,8 @@ The parts, each with its own module (composed as python-can composes a Bus, a No
 - ``ModelSlot`` (runtime.model_serving): the model folder's watcher and quarantine, swaps, fallback;
 - ``Reporter`` (runtime.reporter): decisions counted, event lines to the sinks;
 - ``ControlSocket`` (runtime.control) and the ROS 2 node: the robot's words, from their own threads,
-  through ``RobotInputs`` (queued for the next frame);
+  through ``RobotInputs`` (queued for the next frame; an outcome goes to field capture);
+- ``FieldCapture`` (runtime.capture): a listener keeping decided windows and idle, written by its own thread;
 - ``Health`` and ``StatusFile`` (runtime.health), ``Notifier`` (runtime.sdnotify), ``HotThread``
   (runtime.realtime).
 
@@ -26,6 +27,8 @@ from collections.abc import Callable
 from typing import IO, TYPE_CHECKING, Any
 
 from firmware_io.layout import SensorLayout
+from runtime.capture import FieldCapture
+from runtime.capture_writer import CaptureError, CaptureWriter
 from runtime.config import Config, ConfigError, load_config
 from runtime.config_reload import changed_sections, set_log_level
 from runtime.control import ControlSocket, MessageLog
@@ -67,10 +70,25 @@ SHUTDOWN_STOP_S = 0.3
 
 class RobotInputs:
     """The robot's grasp and arm words, from the control socket's or the ROS 2 node's thread: queued in the
-    detector for its next frame (no lock on the hot path), each kind logged at most every few seconds."""
+    detector for its next frame (no lock on the hot path), each kind logged at most every few seconds; its
+    outcomes go to field capture (``capture``, set by the daemon)."""
 
     def __init__(self, detector: Detector) -> None:
         self._detector, self._messages = detector, MessageLog()
+        self.capture: FieldCapture | None = None
+        self.outcomes_ignored = 0
+        """Outcomes heard while capture is off (the first is logged)."""
+
+    def outcome(self, word: str, source: str = "") -> None:
+        """The robot's word about its last event (``outcome taken``): kept by field capture, if on."""
+        capture = self.capture
+        if capture is not None:
+            capture.outcome(word, source)
+            return
+        self.outcomes_ignored += 1
+        if self.outcomes_ignored == 1:
+            log.warning("outcome %r from %s ignored: [capture] folder is not set (further ones are only counted)",
+                        word[:40], source or "the robot")
 
     def set_grasp(self, closed: bool, source: str = "") -> None:
         """The grasp has settled (``closed``) or is released; ``source`` names the caller in the log."""
@@ -118,6 +136,9 @@ class Daemon:
                              self.reporter.counters, self.shadow.counters]
         self.link.scene = cfg.scene.pads
         self.control: ControlSocket | None = None
+        self.capture: FieldCapture | None = None
+        """Field capture (``[capture] folder``), started with the daemon (``start_capture``)."""
+        self.health.parts.append(lambda: self.capture.counters() if self.capture is not None else {})
         self.locks: Any = None
         """The instance locks ``handover run`` took (runtime.instance_lock.Locks): a reload moves them."""
         self.hot_thread = HotThread()
@@ -243,6 +264,7 @@ class Daemon:
         h.update_rate(now)
         self.link.update_health(time.monotonic() if now is None else now, HEALTH_PERIOD_S)
         h.hold("sinks", self.sinks.problem)
+        h.hold("capture", self.capture.writer.problem if self.capture is not None else None)
         snapshot = h.snapshot()
         self.notifier.status(h.status_line(snapshot))
         if self.status_file is not None:
@@ -303,7 +325,36 @@ class Daemon:
             return self.control
         if not cfg.control.socket:
             return None
-        return ControlSocket(cfg.control.socket, self.robot.set_grasp, self.robot.set_arm_moving).start()
+        return ControlSocket(cfg.control.socket, self.robot.set_grasp, self.robot.set_arm_moving,
+                             self.robot.outcome).start()
+
+    # -- field capture ------------------------------------------------------------------------------
+    def start_capture(self) -> None:
+        """Start field capture if ``[capture] folder`` is set; CaptureError (one line) for a folder another
+        user owns or may write to: ``handover run`` exits 2."""
+        if self.capture is None:
+            self._set_capture(self._capture_for(self.cfg))
+
+    def _capture_for(self, cfg) -> FieldCapture | None:
+        """The capture ``cfg`` asks for: the running one when its section is unchanged, else a new one started."""
+        if self.capture is not None and cfg.capture == self.cfg.capture:
+            return self.capture
+        if not cfg.capture.folder:
+            return None
+        writer = CaptureWriter(cfg.capture.folder, cfg.capture.max_mb).start()
+        return FieldCapture(writer, self.detector, self.health.instance, cfg.capture.idle_every_s)
+
+    def _set_capture(self, capture: FieldCapture | None) -> None:
+        """Between frames: the listener replaced (the old writer writes what it holds, then ends)."""
+        old = self.capture
+        if capture is old:
+            return
+        if old is not None:
+            self.listeners.remove(old)
+            old.close()
+        if capture is not None:
+            self.listeners.append(capture)
+        self.capture = self.robot.capture = capture
 
     def stop_control(self) -> None:
         if self.control is not None:
@@ -320,15 +371,21 @@ class Daemon:
             log.warning("SIGHUP: no config file to reload")
             return
         self.notifier.reloading()
+        control = None
         try:
             new = load_config(source)
             control = self._control_for(new)
+            capture = self._capture_for(new)
         except Exception as exc:  # a ConfigError, a socket, or any bug in a check: never fatal to a running daemon
-            reason = one_line(exc) if isinstance(exc, (ConfigError, OSError)) else f"{type(exc).__name__}: {one_line(exc)}"
-            return self._refuse_reload(reason)
+            if control not in (None, self.control):
+                control.stop()
+            known = isinstance(exc, (ConfigError, OSError, CaptureError))
+            return self._refuse_reload(one_line(exc) if known else f"{type(exc).__name__}: {one_line(exc)}")
         if self.locks is not None and (held := self.locks.retarget(new)):
             if control not in (None, self.control):
                 control.stop()
+            if capture not in (None, self.capture):
+                capture.writer.stop()
             return self._refuse_reload(held)
         old, self.cfg = self.cfg, new
         set_log_level(new.log_level)
@@ -340,6 +397,7 @@ class Daemon:
         if control is not self.control:
             self.stop_control()
             self.control = control
+        self._set_capture(capture)
         if new.realtime_priority != old.realtime_priority and self.hot_thread.applied:
             self.hot_thread.lower()  # taken at once while streaming, else with the next frame
             self._hot_thread_raise()
@@ -367,6 +425,7 @@ class Daemon:
         for warning in self.cfg.warnings:
             log.warning("%s", warning)
         self.start_control()  # handover run binds it first (refused: exit 2); a bare run raises here, before starting
+        self.start_capture()
         self.models.start()
         self.shadow.start()
         self.guard.start()
@@ -411,6 +470,8 @@ class Daemon:
         self.models.stop(timeout=0.5)
         self.shadow.stop()
         self.stop_control()
+        if self.capture is not None:  # its counts stay in the final health view
+            self.capture.close()
         self.link.shutdown(SHUTDOWN_STOP_S)
         if self.fatal:
             self.health.report_error(self.fatal, "device")

@@ -33,8 +33,9 @@ SNAPSHOT: dict[str, Any] = {
     "protocol_errors": 0, "reconnects": 0, "device_faults": 0, "stalls": 0, "decisions": 0, "events": 0,
     "missed_deadlines": 0, "latency_p50_us": None, "latency_p99_us": None, "latency_max_us": 0.0, "sink_errors": 0,
     "models_loaded": 0, "models_rejected": 0, "models_quarantined": 0, "frames_implausible": 0, "frame_errors": 0,
-    "events_invalid": 0, "arm_moving": False, "arm_windows": 0, "control_ignored": 0, "model_id": None,
-    "trigger": None, "shadow": None, "last_error": "", "last_error_at": None, "recent_errors": [],
+    "events_invalid": 0, "arm_moving": False, "arm_windows": 0, "control_ignored": 0, "capture_events": 0, "capture_idle": 0,
+    "capture_outcomes": 0, "capture_outcomes_refused": 0, "capture_dropped": 0, "capture_errors": 0, "capture_bytes": 0,
+    "model_id": None, "trigger": None, "shadow": None, "last_error": "", "last_error_at": None, "recent_errors": [],
 }
 """The health file's keys in order, each with its value before its part reports."""
 

@@ -8,7 +8,10 @@ Listeners run in the daemon's thread: they must be quick and must not raise.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from runtime.detector import Decision
 
 __all__ = ["DecisionTimings", "FrameListener", "FrameRecorder"]
 
@@ -53,8 +56,9 @@ class FrameListener:
     def on_frame(self, frame: Any) -> None:
         """A frame ``Daemon.handle_frame`` is about to handle (before ring, trigger and model)."""
 
-    def on_decision(self, frame: Any, timings: DecisionTimings) -> None:
-        """The model decided on the window ending at ``frame`` (after the event, if any, was sent)."""
+    def on_decision(self, decision: Decision) -> None:
+        """The model decided (``decision.frame`` ends the window, ``decision.timings`` stamps its stages,
+        ``decision.report`` says whether an event went out): called after the event, if any, was sent."""
 
 
 class FrameRecorder(FrameListener):
@@ -67,5 +71,5 @@ class FrameRecorder(FrameListener):
     def on_frame(self, frame: Any) -> None:
         self.frames.append(frame.number)
 
-    def on_decision(self, frame: Any, timings: DecisionTimings) -> None:
-        self.decisions.append((frame.number, timings))
+    def on_decision(self, decision: Decision) -> None:
+        self.decisions.append((decision.frame.number, decision.timings))

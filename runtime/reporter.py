@@ -61,7 +61,7 @@ class Reporter:
             if self.on_event is not None:
                 self.on_event(event)
         for listener in self.listeners:
-            listener.on_decision(decision.frame, stamps)
+            listener.on_decision(decision)
 
     def counters(self) -> dict[str, int | float | None]:
         return {"decisions": self.decisions, "events": self.events, "missed_deadlines": self.missed_deadlines,

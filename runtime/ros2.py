@@ -66,7 +66,8 @@ def robot_inputs(cfg: Ros2Config, env: dict[str, str] | None = None) -> tuple[bo
     so without SROS2 (enforced) only ``ros2.trust`` naming that scope subscribes them, with a warning."""
     inputs = [text for on, text in ((cfg.grasp, f"'open' on {cfg.namespace}/grasp"),
                                     (cfg.arm, f"'moving' on {cfg.namespace}/arm"),
-                                    (bool(cfg.joint_states), f"fast joints on {cfg.joint_states}")) if on]
+                                    (bool(cfg.joint_states), f"fast joints on {cfg.joint_states}"),
+                                    (cfg.outcome, f"outcomes on {cfg.namespace}/outcome")) if on]
     if not inputs:
         return False, None
     env = os.environ if env is None else env
@@ -76,8 +77,11 @@ def robot_inputs(cfg: Ros2Config, env: dict[str, str] | None = None) -> tuple[bo
                 or env.get("ROS_LOCALHOST_ONLY") == "1")
     domain = env.get("ROS_DOMAIN_ID", "").strip() or "0"
     who = "every user of this PC" if confined else f"any ROS 2 node on the network in domain {domain}"
-    keys = "/".join(k for k, on in (("grasp", cfg.grasp), ("arm", cfg.arm), ("joint_states", cfg.joint_states)) if on)
-    can = f"{who} can send {' or '.join(inputs)} and silence the trigger"
+    keys = "/".join(k for k, on in (("grasp", cfg.grasp), ("arm", cfg.arm), ("joint_states", cfg.joint_states),
+                                    ("outcome", cfg.outcome)) if on)
+    harm = " and ".join(h for h, on in (("silence the trigger", cfg.grasp or cfg.arm or cfg.joint_states),
+                                        ("label the field capture", cfg.outcome)) if on)
+    can = f"{who} can send {' or '.join(inputs)} and {harm}"
     if cfg.trust == "network" or (cfg.trust == "local_users" and confined):
         return True, f'ros2.{keys}: subscribed without SROS2 (ros2.trust = "{cfg.trust}"): {can}'
     why = "no SROS2" if cfg.trust == "sros2" else 'ros2.trust = "local_users" but discovery is not kept to this PC'
@@ -113,7 +117,7 @@ def open_ros2_sink(cfg: Ros2Config, side: DaemonSide | None, others: int = 1) ->
     if line:
         log.warning("%s", line)
     if not listen:
-        cfg = replace(cfg, grasp=False, arm=False, joint_states=None)
+        cfg = replace(cfg, grasp=False, arm=False, joint_states=None, outcome=False)
     if problem is None:
         try:
             from runtime.ros2_node import Ros2Sink

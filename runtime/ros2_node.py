@@ -8,6 +8,7 @@ Topics (``ns`` = ``[ros2] namespace``, default ``/handover``):
 - ``ns/pads/<pad>`` sensor_msgs/Image mono16, one per pad (optional);
 - ``ns/grasp``   std_msgs/String ``closed`` / ``open`` -> ``commands.set_grasp`` (optional);
 - ``ns/arm``     std_msgs/String ``moving`` / ``still`` -> ``commands.set_arm_moving`` (optional);
+- ``ns/outcome`` std_msgs/String ``taken`` / ``kept`` / ``dropped`` / a class -> ``commands.outcome`` (optional);
 - ``[ros2] joint_states`` sensor_msgs/JointState: moving while a joint is faster than ``joint_speed``.
 
 The node sees only a ``DaemonSide`` (runtime.sinks). Events are published on the daemon's thread;
@@ -123,7 +124,8 @@ class Ros2Sink(Sink):
 
     def _listens(self) -> str:
         cfg = self.cfg
-        topics = [f"{cfg.namespace}/{t}" for t, on in (("grasp", cfg.grasp), ("arm", cfg.arm)) if on]
+        topics = [f"{cfg.namespace}/{t}" for t, on in (("grasp", cfg.grasp), ("arm", cfg.arm), ("outcome", cfg.outcome))
+                  if on]
         if cfg.joint_states:
             topics.append(f"{cfg.joint_states} (joint speed > {cfg.joint_speed:g})")
         return f"; listens on {', '.join(topics)}" if topics else ""
@@ -146,6 +148,8 @@ class Ros2Sink(Sink):
             node.create_subscription(String, "grasp", self._on_grasp, 10)
         if cfg.arm:
             node.create_subscription(String, "arm", self._on_arm, 10)
+        if cfg.outcome:
+            node.create_subscription(String, "outcome", self._on_outcome, 10)
         if cfg.joint_states:
             self._joints = JointSpeed(cfg.joint_speed)
             node.create_subscription(JointState, cfg.joint_states, self._on_joints, 10)
@@ -254,6 +258,13 @@ class Ros2Sink(Sink):
         word = self._word(msg, "arm", ARM_WORDS)
         if word is not None:
             self._set_arm(ARM_WORDS[word])
+
+    def _on_outcome(self, msg: String) -> None:
+        """The word is checked by field capture (runtime.capture: one line for an unknown one)."""
+        try:
+            self.side.commands.outcome(msg.data.strip().lower()[:64], source="ros2")
+        except Exception as exc:
+            self._warn(f"ros2: outcome {msg.data[:40]!r} not taken ({exc})")
 
     def _on_joints(self, msg: JointState) -> None:
         try:

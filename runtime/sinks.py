@@ -383,6 +383,8 @@ class RobotCommands(Protocol):
 
     def set_arm_moving(self, moving: bool, source: str = "") -> None: ...
 
+    def outcome(self, word: str, source: str = "") -> None: ...
+
 
 class PadFrames(Protocol):
     """The frames the ROS 2 node publishes as pad images (read from its own thread)."""

@@ -59,6 +59,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         daemon = Daemon(cfg, stream=claim_stdout_for_events())  # only event lines reach stdout
         daemon.locks = locks  # a reload to another device or health file moves them
+        daemon.start_capture()  # a capture folder another user could write to: one line, exit 2
         try:
             daemon.start_control()
         except OSError as exc:
@@ -99,7 +100,7 @@ def _check_quietly(cfg, require_model: bool) -> int:
     from runtime.scene import events_problem, scene_problem
 
     problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
-               or _control_problem(cfg) or _lock_problem(cfg))
+               or _control_problem(cfg) or _lock_problem(cfg) or _capture_problem(cfg))
     if problem:
         raise HandoverError(problem)
     _warn_about_sinks(cfg)
@@ -186,7 +187,7 @@ def _warn_about_udp_hosts(cfg) -> None:
 CHECKED = ("checked: config keys and values; the device URL's form; the model folder and the model that would "
            "serve (its contract, pads, classes against scene.events, a warm-up decision); scene.pads; the packages "
            "the sinks need; that the UDP sinks' host names resolve; the control socket's path and that no other "
-           "process holds it; that no other daemon holds this device or health file")
+           "process holds it; that the capture folder is this user's alone; that no other daemon holds this device or health file")
 NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
                "destinations listen; who sends on the control socket; the real-time priority")
 NOT_CHECKED_WITH_DEVICE = NOT_CHECKED.replace("the device itself (add --device to open it for a few seconds); ", "")
@@ -238,6 +239,13 @@ def _control_problem(cfg) -> str | None:
     if problem := control_access.socket_path_problem(address):
         return problem
     return control_access.in_use_line(address) if control_access.held(address) and not _held(cfg) else None
+
+
+def _capture_problem(cfg) -> str | None:
+    """A capture folder the daemon would refuse (another user's, not a folder): ``run`` would exit 2."""
+    from runtime.capture_writer import folder_problem
+
+    return folder_problem(cfg.capture.folder) if cfg.capture.folder else None
 
 
 def _missing_folder(cfg) -> str | None:

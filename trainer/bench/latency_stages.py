@@ -41,8 +41,8 @@ class _Decisions(FrameListener):
     def __init__(self) -> None:
         self.timings: list[tuple[int, DecisionTimings]] = []
 
-    def on_decision(self, frame, timings: DecisionTimings) -> None:
-        self.timings.append((frame.number, timings))
+    def on_decision(self, decision) -> None:
+        self.timings.append((decision.frame.number, decision.timings))
 
 
 def _encoded(recording) -> list[bytes]:
