@@ -184,7 +184,7 @@ class FieldCapture(FrameListener):
         source = "arm_move" if moving else "open" if grasp is False else "quiet"
         first = int(self._numbers[rows[0]])
         self.writer.put(Capture(idle_name(first, time.time()), self._frames[rows], self._stamps[rows] / 1000.0, layout,
-                                {"subject": SUBJECT, "instance": self.instance},
+                                {"subject": SUBJECT, META_KEY: {"kind": "idle", "instance": self.instance}},
                                 stretch={"source": source, "arm_moving": moving, "grasp_closed": grasp,
                                          "frame_first": first}))
 

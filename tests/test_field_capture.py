@@ -50,7 +50,7 @@ def _daemon(tmp_path: Path, on_event=None, **extra) -> Daemon:
             "model": {"folder": str(models), "poll_interval_s": 0.05}, "sinks": {"stdout": False}, "trigger": TRIGGER,
             "capture": {"folder": str(tmp_path / "field")}}
     for key, value in extra.items():
-        data.setdefault(key, {}).update(value)
+        data.setdefault(key, {}).update(value) if isinstance(value, dict) else data.update({key: value})
     return Daemon(config_from_dict(data), on_event=on_event)
 
 
@@ -88,6 +88,24 @@ def test_every_event_line_has_its_captured_window(tmp_path):
     h = daemon.health.snapshot()
     assert h["capture_events"] == N_EVENTS and h["capture_dropped"] == h["capture_errors"] == 0
     assert h["capture_bytes"] == sum(p.stat().st_size for p in (tmp_path / "field").iterdir())
+
+
+def test_train_reads_the_events_a_person_confirmed(tmp_path):
+    """The captured idle's side: test_idle_is_sampled_by_device_time_and_read_by_train_as_its_source (the
+    simulated session has no 10 s without an event)."""
+    from firmware_io.recordings.field_capture import LABELS_FILE
+    from trainer.field_folder import field_recordings
+
+    daemon = _daemon(tmp_path, instance="robot1")
+    _serve(daemon)
+    folder = tmp_path / "field"
+    stems = sorted(p.stem for p in find_recordings(folder) if p.name.startswith("event-"))
+    (folder / LABELS_FILE).write_text(json.dumps({stems[0]: "pull", stems[1]: "push"}))  # as review writes it
+    lines: list[str] = []
+    recs, _names = field_recordings(folder, lines.append)
+    trials = [t for r in recs for t in r.trials]
+    assert [t.action for t in trials] == ["pull", "push"] and {t.subject for t in trials} == {"field-robot1"}
+    assert any(f"{N_EVENTS - 2} of {N_EVENTS} captured events have no confirmed label" in line for line in lines)
 
 
 def test_windows_decided_but_not_reported_are_kept_as_such(tmp_path):
@@ -309,6 +327,10 @@ def test_idle_is_sampled_by_device_time_and_read_by_train_as_its_source(tmp_path
     for rec in recs:
         assert rec.trials == [] and abs(rec.n_frames - stretch) <= 1
         assert [(a, b) for a, b, _ in idle_pieces(rec)] == [(0, rec.n_frames - 1)]
+    from trainer.field_folder import field_recordings
+
+    read, _names = field_recordings(tmp_path / "field", lambda _line: None)  # train --data on the folder
+    assert [r.meta["subject"] for r in read] == ["field-test"] * 2 and all(idle_pieces(r) for r in read)
     assert writer.idle == 2
 
 
