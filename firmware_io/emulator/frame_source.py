@@ -25,11 +25,13 @@ __all__ = ["load_source", "placeholder_session"]
 SIM = "sim"
 
 
-def load_source(source: str | os.PathLike = SIM, *, seed: int = DEMO_SESSION_SEED, events: int = 40) -> Recording:
-    """A Recording to serve; raises RecordingError with one line naming the file or the problem."""
+def load_source(source: str | os.PathLike = SIM, *, seed: int = DEMO_SESSION_SEED, events: int = 40,
+                lab: str | None = None) -> Recording:
+    """A Recording to serve (``lab``: the simulated lab, ``firmware_io.sim.lab``); raises RecordingError
+    with one line naming the file or the problem."""
     text = os.fspath(source)
     if text == SIM:
-        return _simulated(int(seed), int(events))
+        return _simulated(int(seed), int(events), lab)
     path = Path(text).expanduser()
     try:
         mtime = path.stat().st_mtime_ns
@@ -50,14 +52,16 @@ def _from_file(path: str, mtime_ns: int) -> Recording:
 
 
 @lru_cache(maxsize=4)
-def _simulated(seed: int, events: int) -> Recording:
+def _simulated(seed: int, events: int, lab: str | None = None) -> Recording:
     if events < 1:
         raise RecordingError(f"the simulated session needs at least one event, got {events}")
     try:
         from firmware_io.sim import demo_script, simulate_session
+        from firmware_io.sim.lab import get_lab
     except ImportError:
         return placeholder_session(seed, events)
-    return simulate_session(demo_script(n_events=events, seed=seed), seed=seed)
+    lab_ = get_lab(lab)
+    return simulate_session(demo_script(n_events=events, seed=seed, objects=lab_.objects), seed=seed, lab=lab_)
 
 
 def placeholder_session(seed: int = 0, events: int = 4, rate_hz: float = NOMINAL_RATE_HZ) -> Recording:

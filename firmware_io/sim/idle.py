@@ -21,11 +21,11 @@ from firmware_io.sim import constants as K
 from firmware_io.sim.actions import Motion, baseline, smooth
 from firmware_io.sim.contact import blur_width, pad_pressure
 from firmware_io.sim.hand import CREEP_GAIN, CREEP_TAU_S, SCAN_PERIOD_S, shear_tilt
+from firmware_io.sim.lab import Lab, get_lab
 from firmware_io.sim.paper_protocol import hand_sensor
 from firmware_io.sim.scenario import (
     FINGER_ANGLES,
     OBJECT_MODELS,
-    OBJECTS,
     POSE_MODELS,
     POSES,
     TrialSetup,
@@ -134,13 +134,16 @@ def _poisson_times(rng: np.random.Generator, every_s: float, lo: float, hi: floa
         times.append(t)
 
 
-def plan_hold(rng: np.random.Generator, duration_s: float, obj: str | None = None, pose: str | None = None) -> HoldPlan:
-    """Draw one hold: object, pose, placement, and when the arm moves and the hand regrasps."""
-    obj = obj or str(rng.choice(OBJECTS))
+def plan_hold(rng: np.random.Generator, duration_s: float, obj: str | None = None, pose: str | None = None,
+              lab: Lab | None = None) -> HoldPlan:
+    """Draw one hold: object (one of ``lab``'s), pose, placement, and when the arm moves and the hand regrasps."""
+    lab = get_lab(lab)
+    obj = obj or str(rng.choice(lab.objects))
     pose = pose or str(rng.choice(POSES))
     n_frames = max(1, math.ceil(duration_s / K.FRAME_PERIOD_S))
     nobody = make_subject("idle", rng)  # only the trial machinery needs one; it never acts
-    setup = make_trial(nobody, OBJECT_MODELS[obj], POSE_MODELS[pose], "hold", duration_s, rng, onset_s=duration_s + 1.0)
+    setup = make_trial(nobody, OBJECT_MODELS[obj], POSE_MODELS[pose], "hold", duration_s, rng, onset_s=duration_s + 1.0,
+                       grip=lab.grip)
     close_s, release_s = 0.3, duration_s - 0.5
     moves = []
     t = close_s + 1.0
@@ -172,7 +175,7 @@ def plan_hold(rng: np.random.Generator, duration_s: float, obj: str | None = Non
 
 
 def plan_stretch(rng: np.random.Generator, source: str, duration_s: float, obj: str | None = None,
-                 pose: str | None = None) -> HoldPlan:
+                 pose: str | None = None, lab: Lab | None = None) -> HoldPlan:
     """One recorded idle stretch of ``source`` (the recorder's prompt acted out by the simulated hand).
 
     ``quiet``: held from before the stretch to after it; ``arm_move``: point-to-point moves one
@@ -180,7 +183,7 @@ def plan_stretch(rng: np.random.Generator, source: str, duration_s: float, obj: 
     3-5 s; ``grasp``: the hand closes on the object 1 s in; ``release``: it opens 1 s in. Drift and
     creep as in a hold; the draws are this function's own, so ``plan_hold``'s streams are unchanged.
     """
-    base = plan_hold(rng, duration_s, obj, pose)
+    base = plan_hold(rng, duration_s, obj, pose, lab)
     held_from, held_to = -60.0, duration_s + 60.0  # the grasp closed well before, opened well after
     moves: list[ArmMove] = []
     regrasps: list[Regrasp] = []

@@ -46,6 +46,10 @@ OBJECT_MODELS = {
     "cylinder": ObjectModel("cylinder", 0.10, 0.6, 1.5, 8.0, 1 / 2, 0.9, False),
     # wooden plank: flat face, but the rounded finger pad limits the patch; torque bias
     "plank": ObjectModel("plank", 0.15, 0.4, 8.0, 6.5, 0.0, 0.8, False),
+    # lab B's objects (firmware_io.sim.lab): a half-full 0.5 l plastic bottle, line contact on a
+    # smooth wall; a kitchen sponge, light, very soft edges, a broad flat patch, grippy
+    "bottle": ObjectModel("bottle", 0.30, 0.5, 1.8, 9.0, 1 / 2, 0.8, False),
+    "sponge": ObjectModel("sponge", 0.02, 3.0, 9.0, 7.0, 0.0, 1.2, False),
 }
 
 
@@ -117,11 +121,12 @@ class Subject:
     bump_angle: float  # preferred side to tap from (rad)
 
 
-def make_subject(name: str, rng: np.random.Generator) -> Subject:
+def make_subject(name: str, rng: np.random.Generator, strength: float = 1.0, speed: float = 1.0) -> Subject:
+    """One person; ``strength`` and ``speed`` scale the draws (a lab's people, ``sim.lab``)."""
     return Subject(
         name=name,
-        strength=float(rng.lognormal(0.0, 0.25)),
-        speed=float(rng.lognormal(0.0, 0.2)),
+        strength=float(rng.lognormal(0.0, 0.25)) * strength,
+        speed=float(rng.lognormal(0.0, 0.2)) * speed,
         reaction_s=float(rng.uniform(0.5, 1.2)),
         takes_out=float(rng.uniform(0.3, 0.9)),
         tremor_hz=float(rng.uniform(8.0, 12.0)),
@@ -151,11 +156,13 @@ class TrialSetup:
 
 
 def make_trial(subject: Subject, obj: ObjectModel, pose: PoseModel, action: str, duration: float,
-               rng: np.random.Generator, taped: bool = True, onset_s: float | None = None) -> TrialSetup:
-    """Draw one trial: the object's placement, this trial's variation, the onset."""
+               rng: np.random.Generator, taped: bool = True, onset_s: float | None = None,
+               grip: float = 1.0) -> TrialSetup:
+    """Draw one trial: the object's placement, this trial's variation, the onset; ``grip`` scales
+    the hand's grasp force (a lab's controller setting, ``sim.lab``)."""
     d_n, shift = pose_load(pose, obj)
     friction = K.FRICTION_BARE * obj.friction_mult * (K.TAPE_FRICTION_FACTOR if taped else 1.0)
-    grasp = grasp_force(obj, friction) * rng.lognormal(0.0, 0.12, 3) + d_n
+    grasp = grasp_force(obj, friction) * grip * rng.lognormal(0.0, 0.12, 3) + d_n
     if onset_s is None:
         onset_s = float(np.clip(subject.reaction_s + rng.normal(0.0, 0.15), 0.25, duration - 1.2))
     # the investigator places the object a little differently every run

@@ -3,7 +3,8 @@
 On ``go`` with a trial slot it plays that simulated trial through a DeviceEmulator (after ``prepare``
 it holds the grasp, after ``stop`` the hand is empty). It can also drop the link once (``drop_at``),
 be unplugged for good (``unplug_at``) or ignore some cues (``lazy``). URL form for ``handover record``:
-``subject://?seed=0&speed=1.0|max&drop=300,900&unplug=2000&lazy=2&fault=crc=0.01``
+``subject://?seed=0&lab=B&speed=1.0|max&drop=300,900&unplug=2000&lazy=2&fault=crc=0.01`` (``lab``: whose hand
+and people, ``firmware_io.sim.lab``; a recording says it in its meta, ``ScriptedSubject.meta``)
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ import numpy as np
 from firmware_io.emulator.device import DeviceEmulator, FaultPlan
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.layout import SensorLayout
-from firmware_io.sim import ACTIONS, OBJECTS, POSES, simulate_protocol
+from firmware_io.sim import ACTIONS, POSES, simulate_protocol
 from firmware_io.sim.idle import idle_rng, plan_stretch, render_hold
+from firmware_io.sim.lab import Lab, get_lab
 from firmware_io.sim.paper_protocol import hand_sensor
 from firmware_io.transports.base import DeviceUnavailable, ParsedURL, Transport, TransportError
 from firmware_io.transports.emulated import SUBJECT_SCHEME, EmulatedTransport, SubjectTransport
@@ -65,8 +67,10 @@ class ScriptedSubject:
         lazy: Iterable[int] = (),
         trial_seconds: float = 3.0,
         layout: SensorLayout | None = None,
+        lab: Lab | str | None = None,
     ) -> None:
         self.seed = int(seed)
+        self.lab = get_lab(lab)
         self.layout = layout or SensorLayout.sdh2()
         self.trial_seconds = max(float(trial_seconds), 1.5)
         self.drop_at = set(int(k) for k in drop_at)
@@ -103,6 +107,11 @@ class ScriptedSubject:
         if parsed.scheme != SUBJECT_SCHEME:
             raise TransportError(f"{parsed.url}: not a {SUBJECT_SCHEME}:// URL")
         return cls(**SubjectTransport.url_settings(parsed, {}))
+
+    @property
+    def meta(self) -> dict:
+        """What a recording of this subject says about its source (the recorder copies it into its meta)."""
+        return {"synthetic": True, **self.lab.meta}
 
     # -- the device side ---------------------------------------------------------------------------
     def connect(self) -> Transport:
@@ -175,8 +184,8 @@ class ScriptedSubject:
         else:
             rng = idle_rng(self.seed, "recorded", self._idles)
             if self._sensor is None:
-                self._sensor = hand_sensor(self.seed)
-            frames = render_hold(plan_stretch(rng, slot.source, seconds), self._sensor, rng)
+                self._sensor = hand_sensor(self.seed, lab=self.lab)
+            frames = render_hold(plan_stretch(rng, slot.source, seconds, lab=self.lab), self._sensor, rng)
         if frames.shape[1] != self.layout.n_taxels:
             raise ValueError("the simulated hand's layout differs from the subject's")
         with self._lock:
@@ -199,11 +208,11 @@ class ScriptedSubject:
         """One simulated trial of this slot; every attempt is a new draw (a person never repeats exactly)."""
 
         pose = slot.pose if slot.pose in POSES else POSES[0]
-        obj = slot.object if slot.object in OBJECTS else OBJECTS[0]
+        obj = self.lab.object_for(slot.object)
         action = slot.action if slot.action in ACTIONS else "hold"
         rec = simulate_protocol(seed=self.seed + 1000 * (attempt - 1), n_subjects=1, runs=int(slot.run),
                                 poses=[pose], objects=[obj], actions=[action],
-                                duration=self.trial_seconds + 0.5)[0]
+                                duration=self.trial_seconds + 0.5, lab=self.lab)[0]
         trial = rec.trials[-1]
         frames, _ = rec.trial_frames(trial)
         if rec.layout.n_taxels != self.layout.n_taxels:

@@ -13,8 +13,9 @@ import numpy as np
 from firmware_io.recordings.recording import ACTIONS, Recording, Trial
 from firmware_io.sim import constants as K
 from firmware_io.sim.hand import Job, render
-from firmware_io.sim.paper_protocol import check_names, hand_sensor, subject_names
-from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS, POSE_MODELS, POSES, make_subject, make_trial
+from firmware_io.sim.lab import Lab, get_lab
+from firmware_io.sim.paper_protocol import check_names, hand_sensor, lab_subject, subject_names
+from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS, POSE_MODELS, POSES, make_trial
 from firmware_io.sim.streams import stream
 from firmware_io.sim.timing import frame_stamps
 
@@ -51,8 +52,9 @@ class ScriptedEvent:
                 "object": self.object, "pose": self.pose}
 
 
-def demo_script(n_events: int = 40, seed: int = 0, gap: tuple[float, float] = (3.0, 5.0)) -> list[ScriptedEvent]:
-    """A mix of the four actions (balanced, shuffled), subjects s1..s5, objects and poses."""
+def demo_script(n_events: int = 40, seed: int = 0, gap: tuple[float, float] = (3.0, 5.0),
+                objects: Sequence[str] = OBJECTS) -> list[ScriptedEvent]:
+    """A mix of the four actions (balanced, shuffled), subjects s1..s5, ``objects`` (a lab's) and poses."""
     if n_events < 0:
         raise ValueError("n_events must be >= 0")
     if gap[0] < MIN_SPACING_S or gap[1] < gap[0]:
@@ -65,13 +67,13 @@ def demo_script(n_events: int = 40, seed: int = 0, gap: tuple[float, float] = (3
     for action in actions:
         t += float(rng.uniform(*gap))
         events.append(ScriptedEvent(round(t, 3), str(action), str(rng.choice(subjects)),
-                                    str(rng.choice(OBJECTS)), str(rng.choice(POSES))))
+                                    str(rng.choice(objects)), str(rng.choice(POSES))))
     return events
 
 
-def _check(events: Sequence[ScriptedEvent]) -> None:
+def _check(events: Sequence[ScriptedEvent], lab: Lab) -> None:
     check_names("action", [e.action for e in events], ACTIONS)
-    check_names("object", [e.object for e in events], OBJECTS)
+    check_names("object", [e.object for e in events], lab.objects)
     check_names("pose", [e.pose for e in events], POSES)
     for a, b in itertools.pairwise(events):
         if b.time - a.time < MIN_SPACING_S:
@@ -82,14 +84,16 @@ def _check(events: Sequence[ScriptedEvent]) -> None:
 
 
 def simulate_session(events: Sequence[ScriptedEvent], seed: int = 0, lead_in: float = 2.0,
-                     tail: float = 3.0) -> Recording:
-    """Continuous synthetic stream; one Trial per event, ``extra["onset"]`` = absolute frame."""
+                     tail: float = 3.0, lab: Lab | str | None = None) -> Recording:
+    """Continuous synthetic stream of ``lab``'s hand and people (default A); one Trial per event,
+    ``extra["onset"]`` = absolute frame."""
+    lab = get_lab(lab)
     events = sorted(events, key=lambda e: e.time)
-    _check(events)
+    _check(events, lab)
     period = K.FRAME_PERIOD_S
     end_s = max([lead_in] + [e.time + RELEASE_AFTER_S + 0.5 for e in events]) + tail
     n_total = math.ceil(end_s / period)
-    sensor = hand_sensor(seed)
+    sensor = hand_sensor(seed, lab=lab)
     jobs, spans, fields = [], [], []
     prev_end = 0
     for i, ev in enumerate(events):
@@ -98,10 +102,10 @@ def simulate_session(events: Sequence[ScriptedEvent], seed: int = 0, lead_in: fl
         first = max(int(close_s // period), prev_end)
         last = min(math.ceil((ev.time + RELEASE_AFTER_S + 0.4) / period), n_total - 1)
         seg_t0 = first * period
-        subject = make_subject(ev.subject, stream(seed, "subject", ev.subject))
+        subject = lab_subject(ev.subject, seed, lab)
         n = last - first + 1
         setup = make_trial(subject, OBJECT_MODELS[ev.object], POSE_MODELS[ev.pose], ev.action, n * period, rng,
-                           onset_s=ev.time - seg_t0)
+                           onset_s=ev.time - seg_t0, grip=lab.grip)
         window = (close_s - seg_t0, ev.time + RELEASE_AFTER_S - seg_t0)
         jobs.append(Job(setup, n, rng, window))
         spans.append((first, last))
@@ -116,5 +120,5 @@ def simulate_session(events: Sequence[ScriptedEvent], seed: int = 0, lead_in: fl
     trials = [Trial(first=a, last=b, **fld) for (a, b), fld in zip(spans, fields, strict=True)]
     meta = {"source": "synthetic session (firmware_io.sim)", "synthetic": True, "seed": int(seed),
             "script": [e.to_dict() for e in events], "lead_in": lead_in, "tail": tail,
-            "frame_period_s": period}
+            "frame_period_s": period, **lab.meta}
     return Recording(sensor.layout, frames, stamps, trials, meta)

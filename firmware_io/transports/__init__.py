@@ -6,9 +6,9 @@
 ``tcp://192.168.1.42:13000``           SDH-2 Ethernet (port 13000 by default)
 ``usb://0403:6001?serial=..``          USB-serial bridge driven directly by pyusb (extra ``usb``)
 ``hid://10c4:ea80``                    HID-to-UART bridge such as the CP2110 (hidapi, extra ``usb``)
-``sim://?seed=0&events=40``            the simulated hand behind an emulated controller, in process
+``sim://?seed=0&events=40&lab=A``      the simulated hand (of lab A or B) behind an emulated controller
 ``replay://PATH?speed=1.0|max``        a recording (.hrec, .dsa, .bag) behind an emulated controller
-``subject://?seed=0&speed=max``        a scripted simulated subject behind an emulated controller
+``subject://?seed=0&lab=B``            a scripted simulated subject (of lab A or B) behind an emulated controller
 =====================================  =============================================================
 
 Each scheme maps to ``"module:Class"``; the module is imported only when the scheme is used,

@@ -81,6 +81,16 @@ def _seed(parsed: ParsedURL, opts: dict) -> int:
     return int(parse_number(parsed.url, "seed", parsed.option(opts, "seed", 0), int, 0, 2**63 - 1))
 
 
+def _lab(parsed: ParsedURL, opts: dict):
+    """The ``lab=`` option: which simulated lab's hand and people (``firmware_io.sim.lab``), default A."""
+    from firmware_io.sim.lab import UnknownLab, get_lab
+
+    try:
+        return get_lab(parsed.option(opts, "lab"))
+    except UnknownLab as exc:
+        raise TransportError(f"{parsed.url}: {exc}") from None
+
+
 def _emulator_settings(parsed: ParsedURL, opts: dict, allowed: set[str], loop: bool) -> dict:
     """The options every emulated controller takes: the DeviceEmulator's keyword arguments."""
     parsed.check_options(_COMMON | allowed)
@@ -107,11 +117,11 @@ class SimTransport(EmulatedTransport):
     @classmethod
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         _no_location(parsed)
-        emulator = _emulator_settings(parsed, opts, {"seed", "events", "realtime", "speed"}, loop=True)
+        emulator = _emulator_settings(parsed, opts, {"seed", "events", "realtime", "speed", "lab"}, loop=True)
         events = int(parse_number(parsed.url, "events", parsed.option(opts, "events", 40), int, 1, MAX_EVENTS))
         if not parse_bool(parsed.url, "realtime", parsed.option(opts, "realtime", True)):
             emulator["speed"] = None
-        return {"events": events, "emulator": emulator}
+        return {"events": events, "lab": _lab(parsed, opts).name, "emulator": emulator}
 
     @classmethod
     def from_url(cls, parsed: ParsedURL, **opts: object) -> EmulatedTransport:
@@ -120,7 +130,8 @@ class SimTransport(EmulatedTransport):
 
         settings = cls.url_settings(parsed, opts)
         try:
-            recording = load_source("sim", seed=settings["emulator"]["seed"], events=settings["events"])
+            recording = load_source("sim", seed=settings["emulator"]["seed"], events=settings["events"],
+                                    lab=settings["lab"])
         except RecordingError as exc:
             raise TransportError(f"{parsed.url}: {exc}") from None
         return _build(parsed, recording, settings["emulator"])
@@ -160,11 +171,12 @@ class SubjectTransport(EmulatedTransport):
     def url_settings(cls, parsed: ParsedURL, opts: dict) -> dict:
         """The ScriptedSubject's keyword arguments."""
         _no_location(parsed)
-        parsed.check_options({"seed", "speed", "drop", "unplug", "unplug_idle", "lazy", "fault", "seconds"})
+        parsed.check_options({"seed", "lab", "speed", "drop", "unplug", "unplug_idle", "lazy", "fault", "seconds"})
         url = parsed.url
         unplug = _frame_numbers(parsed, opts, "unplug")
         return {
             "seed": _seed(parsed, opts),
+            "lab": _lab(parsed, opts),
             "speed": parse_speed(url, parsed.option(opts, "speed", 1.0)),
             "faults": _fault_plan(parsed, opts),
             "drop_at": _frame_numbers(parsed, opts, "drop"),

@@ -217,7 +217,7 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     if problem := _resume_problem(store.meta.get("sessions", []), plan, opts, client.url, args.idle_only):
         raise HandoverError(f"{store.path}: {problem}")
     if subject is not None:
-        store.meta["synthetic"] = True
+        store.meta.update(subject.meta)
 
     def say(text: str) -> None:
         print(text, flush=True)

@@ -1,0 +1,126 @@
+"""Simulated labs: lab A is the simulator as it was (bytes pinned); lab B differs in each documented way."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from firmware_io.sim import constants as K
+from firmware_io.sim import demo_script, simulate_protocol, simulate_session
+from firmware_io.sim.idle import idle_rng, plan_stretch, render_hold, simulate_idle
+from firmware_io.sim.lab import LABS, UnknownLab, get_lab, lab_of
+from firmware_io.sim.paper_protocol import hand_sensor
+from firmware_io.sim.scripted_subject import ScriptedSubject
+from firmware_io.sim.streams import stream
+from firmware_io.transports.base import ParsedURL, TransportError
+from firmware_io.transports.emulated import SimTransport, SubjectTransport
+
+B = LABS["B"]
+
+
+def test_lab_a_bytes_are_the_simulators_before_labs():
+    """Hashes taken on the simulator before labs existed (seed 7): protocol, session, idle stretch, idle stream."""
+    h = hashlib.sha256()
+    for r in simulate_protocol(seed=7, n_subjects=2, runs=1, poses=["down"]):
+        h.update(r.frames.tobytes())
+        h.update(r.timestamps.tobytes())
+    s = simulate_session(demo_script(4, seed=7), seed=7)
+    h.update(s.frames.tobytes())
+    h.update(s.timestamps.tobytes())
+    assert h.hexdigest() == "9ab235903e3fdf68fe784d7f8e5d234be60392c0712c958041a116103d999c9e"
+    h = hashlib.sha256()
+    rng = idle_rng(7, "recorded", 1)
+    h.update(render_hold(plan_stretch(rng, "arm_move", 6.0), hand_sensor(7), rng).tobytes())
+    h.update(simulate_idle(30.0, seed=7).frames.tobytes())
+    assert h.hexdigest() == "aa34113209a762a7d8b6a9dba6976556397bd30219ce076896c85ff4df9da388"
+    assert "lab" not in s.meta  # A's files say what they said before
+
+
+def test_lab_b_hand_gain_noise_dead_and_hot_taxels():
+    a, b = hand_sensor(3), hand_sensor(3, lab="B")
+    layout = a.layout
+    for pad in range(layout.n_matrices):
+        cols = layout.matrix_slice(pad)
+        assert np.mean(b.gain[cols]) / np.mean(a.gain[cols]) == pytest.approx(B.pad_gain[pad], rel=0.05)
+    assert b.noise_sd == B.noise_sd > a.noise_sd == K.IDLE_NOISE_SD
+    assert (~b.mask).sum() - (~a.mask).sum() == B.dead_taxels
+    assert (b.idle >= K.THRESHOLD).sum() == B.hot_taxels and (a.idle >= K.THRESHOLD).sum() == 0
+    assert np.median(b.idle[b.idle < K.THRESHOLD]) > np.median(a.idle) + 5  # the higher floor
+
+
+@pytest.fixture(scope="module")
+def lab_b() -> list:
+    return simulate_protocol(seed=2, n_subjects=1, runs=1, poses=["down"], lab="B")
+
+
+def test_lab_b_dead_taxels_are_dead_and_hot_ones_flicker(lab_b):
+    sensor = hand_sensor(2, lab="B")
+    dead = ~sensor.mask & sensor.layout.static_mask()
+    frames = np.concatenate([r.frames for r in lab_b])
+    assert dead.sum() == B.dead_taxels and not frames[:, dead].any()
+    hot = sensor.idle >= K.THRESHOLD
+    assert 0.1 < np.mean(frames[:, hot] > 0) < 0.9
+
+
+def test_lab_b_has_its_objects_its_people_and_says_its_lab(lab_b):
+    rec = lab_b[0]
+    assert {t.object for t in rec.trials} == set(B.objects) and {"bottle", "sponge"} <= set(B.objects)
+    assert rec.meta["lab"] == "B" and lab_of(rec.meta) == "B"
+    # another lab's person: its own stream, times the lab's strength and speed
+    rng = stream(2, "subject", "s1", "lab", "B")
+    assert rec.meta["subject_profile"]["strength"] == round(float(rng.lognormal(0.0, 0.25)) * B.strength, 4)
+    assert rec.meta["subject_profile"]["speed"] == round(float(rng.lognormal(0.0, 0.2)) * B.speed, 4)
+    with pytest.raises(ValueError, match="bottle"):
+        simulate_protocol(seed=2, n_subjects=1, runs=1, objects=["bottle"])  # not lab A's
+
+
+def test_lab_b_grips_firmer():
+    from firmware_io.sim.scenario import OBJECT_MODELS, POSE_MODELS, make_subject, make_trial
+
+    person = make_subject("x", np.random.default_rng(0))
+    setups = [make_trial(person, OBJECT_MODELS["ball"], POSE_MODELS["up"], "hold", 3.0, np.random.default_rng(1),
+                         grip=g) for g in (1.0, B.grip)]
+    d_n = -0.2 * OBJECT_MODELS["ball"].mass_kg * K.GRAVITY  # the "up" pose's share, the same in both
+    np.testing.assert_allclose((setups[1].grasp_force - d_n) / (setups[0].grasp_force - d_n), B.grip)
+
+
+def test_lab_b_session_plays_lab_b():
+    script = demo_script(6, seed=1, objects=B.objects)
+    a = simulate_session(demo_script(6, seed=1), seed=1)
+    b = simulate_session(script, seed=1, lab="B")
+    assert b.meta["lab"] == "B" and {e.object for e in script} <= set(B.objects)
+    assert np.percentile(b.frames[b.frames > 0], 95) > 2 * np.percentile(a.frames[a.frames > 0], 95)
+
+
+def test_url_option_lab():
+    assert SubjectTransport.url_settings(ParsedURL("subject://?seed=3&lab=B"), {})["lab"] is B
+    assert SubjectTransport.url_settings(ParsedURL("subject://?seed=3&lab=b"), {})["lab"] is B
+    assert SubjectTransport.url_settings(ParsedURL("subject://?seed=3"), {})["lab"] is LABS["A"]
+    assert SimTransport.url_settings(ParsedURL("sim://?lab=B&events=2"), {})["lab"] == "B"
+    for url in ("subject://?lab=C", "sim://?lab=Z"):
+        with pytest.raises(TransportError, match=r"unknown lab 'C'|unknown lab 'Z'") as err:
+            (SubjectTransport if url.startswith("subject") else SimTransport).url_settings(ParsedURL(url), {})
+        assert "A (" in str(err.value) and "B (" in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(UnknownLab):
+        get_lab("default")
+
+
+def test_scripted_subject_of_lab_b_plays_its_objects_and_says_its_lab():
+    subject = ScriptedSubject.from_url("subject://?seed=1&lab=B&speed=max")
+    assert subject.meta == {"synthetic": True, "lab": "B"}
+    assert ScriptedSubject(seed=1).meta == {"synthetic": True}
+    assert [B.object_for(o) for o in ("ball", "cylinder", "plank", "sponge")] == ["ball", "bottle", "sponge", "sponge"]
+
+
+def test_a_recording_of_a_lab_b_subject_says_its_lab(tmp_path):
+    from firmware_io.recordings.recording import Recording
+    from runtime.cli import main as handover
+
+    code = handover(["record", "--device", "subject://?seed=3&lab=B&speed=max", "--subject", "s1", "--out", str(tmp_path),
+                     "--poses", "down", "--objects", "cylinder", "--actions", "bump", "--runs", "1", "--trial-seconds",
+                     "2", "--gap", "0", "--countdown", "0", "--quiet", "--idle-minutes", "0", "--auto"])
+    assert code == 0
+    meta = Recording.load(tmp_path / "subject_s1.hrec").meta
+    assert meta["lab"] == "B" and meta["synthetic"] is True
