@@ -11,6 +11,7 @@ when it takes them again, and keeps trying with every later item. The layout is
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
@@ -178,6 +179,11 @@ class CaptureWriter:
                 self._worked()
 
     def _write(self, item: Capture | Outcome) -> None:
+        if not self.folder.is_dir():  # never made again here: an unmounted disk's mount point would fill the root
+            raise FileNotFoundError(errno.ENOENT, "the folder is gone (removed, or its disk unmounted); make it again")
+        if self.problem is not None:  # it failed until now: count again what it holds
+            self._files.clear()
+            self._scan()
         if isinstance(item, Outcome):
             data = (json.dumps(item.line, allow_nan=False) + "\n").encode()
             self._make_room(len(data))

@@ -42,11 +42,11 @@ TRIGGER = {"fraction": 0.02, "hysteresis": 0.01, "refractory_s": 1.0}
 """The simulated hand presses lightly (synthetic): a low threshold makes every scripted event trigger."""
 
 
-def _daemon(tmp_path: Path, on_event=None, **extra) -> Daemon:
+def _daemon(tmp_path: Path, on_event=None, url: str = f"sim://?events={N_EVENTS}&realtime=0&loop=0", **extra) -> Daemon:
     models = tmp_path / "models"
     models.mkdir(exist_ok=True)
     write_model(models, "m.onnx", tiny_model_bytes(), mtime=time.time() - 100)
-    data = {"device": {"url": f"sim://?events={N_EVENTS}&realtime=0&loop=0", "reconnect_min_s": 0.05},
+    data = {"device": {"url": url, "reconnect_min_s": 0.05},
             "model": {"folder": str(models), "poll_interval_s": 0.05}, "sinks": {"stdout": False}, "trigger": TRIGGER,
             "capture": {"folder": str(tmp_path / "field")}}
     for key, value in extra.items():
@@ -70,9 +70,17 @@ def _events(folder: Path) -> dict[int, Recording]:
 
 
 def test_every_event_line_has_its_captured_window(tmp_path):
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    server = TcpEmulatorServer(DeviceEmulator(load_source("sim", seed=0, events=N_EVENTS), speed=None, loop=False))
     events: list[Event] = []
-    daemon = _daemon(tmp_path, events.append)
-    _serve(daemon)
+    daemon = _daemon(tmp_path, events.append, url=server.start().url)
+    try:
+        _serve(daemon)
+    finally:
+        server.stop()
     captured = _events(tmp_path / "field")
     assert len(events) == N_EVENTS and sorted(captured) == [e.frame_last for e in events]
     for event in events:
@@ -233,6 +241,29 @@ def test_the_writer_keeps_trying_and_says_when_it_works_again(tmp_path, caplog, 
     said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(said) == 2 and "No space left" in said[0] and "takes files again" in said[1], said
     assert writer.errors == 3 and writer.events == 1 and writer.problem is None
+
+
+def test_a_vanished_folder_is_not_made_again_and_is_used_when_it_is_back(tmp_path, caplog):
+    folder = tmp_path / "field"
+    writer = CaptureWriter(folder, max_mb=10).start()
+    with caplog.at_level(logging.INFO, "handover.capture"):
+        writer.put(_capture("event-000000001-0000000000001"))
+        _written(writer, 1)
+        for p in folder.iterdir():
+            p.unlink()
+        folder.rmdir()  # removed, or its disk unmounted
+        for k in range(2, 5):
+            writer.put(_capture(f"event-{k:09d}-{k:013d}"))
+        _written(writer, 4)
+        assert not folder.exists() and writer.errors == 3 and "gone" in writer.problem
+        folder.mkdir()
+        writer.put(_capture("event-000000009-0000000000009"))
+        _written(writer, 5)
+        writer.stop()
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(said) == 2 and "gone" in said[0] and "takes files again" in said[1], said
+    assert [p.name for p in folder.iterdir()] == ["event-000000009-0000000000009.hrec"]
+    assert writer.bytes == (folder / "event-000000009-0000000000009.hrec").stat().st_size
 
 
 def test_a_full_queue_drops_and_never_blocks(tmp_path):
