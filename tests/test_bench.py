@@ -114,6 +114,9 @@ def test_latency_quick(tmp_path, capsys):
     assert shadow["serving"]["n"] == shadow["shadow"]["n"] > 0 and printed["shadow_p999_ratio"] > 0
     assert shadow["shadow_counts"]["shadow"]["windows_compared"] + shadow["shadow_counts"]["shadow"]["windows_dropped"] > 0
     assert "## Serving with a candidate in shadow" in md and "`shadow_p999_ratio`" in md
+    # and with field capture on top: every paced decision's window captured, none dropped
+    assert shadow["shadow + capture"]["n"] == shadow["serving"]["n"] and printed["shadow_capture_p999_ratio"] > 0
+    assert shadow["capture_counts"]["capture_events"] > 0 and shadow["capture_counts"]["capture_dropped"] == 0
     # the limits: a steady job can only be slowed by the machine; the split's scores are the whole graph's
     assert result["floor_p999_us"] >= result["daemon_p50_us"] * 0.99 and result["e2e_floor_p999_us"] > 0
     split = result["implementations_distal"]["per_frame_split"]

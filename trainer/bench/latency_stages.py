@@ -90,14 +90,17 @@ class PacketFeed(Transport):
 
 
 def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = frozenset(),
-         mode: str = "trigger", rehearse: bool = True, shadow: Path | None = None, raw: list | None = None) -> dict:
+         mode: str = "trigger", rehearse: bool = True, shadow: Path | None = None, raw: list | None = None,
+         capture: Path | None = None) -> dict:
     """Feed every packet through the real client (``DSAClient``: parse, CRC, decode, plausibility), a
     fresh detector and the daemon's reporter to a UDP socket, read the way the daemon's loop reads;
     the packets in ``pace_frames`` arrive one sample period after the one before; ``rehearse``: the
     model rehearsed before them as the daemon does (runtime/rehearsal.py). Each decision is offered to
     the daemon's ``Shadow`` as ``Daemon._decided`` does: with ``shadow`` (a folder holding a candidate)
-    the candidate runs in its thread, else none is configured. Per-stage microseconds of each decision
-    (and the shadow's counts under ``shadow``); ``raw`` gets each decision's frame parsed -> decision."""
+    the candidate runs in its thread, else none is configured; with ``capture`` (a folder) the daemon's field
+    capture sees every frame and decision, as ``Daemon.handle_frame`` calls its listeners. Per-stage
+    microseconds of each decision (and the shadow's and capture's counts); ``raw`` gets each decision's
+    frame parsed -> decision."""
     from firmware_io.client import DSAClient
     from runtime.daemon import READ_TIMEOUT_S
     from runtime.heap import settle_heap
@@ -115,6 +118,7 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     recorder = _Decisions()
     reporter.listeners.append(recorder)
     beside = shadow_beside(detector, reporter, shadow)
+    listeners = capture_beside(detector, reporter, capture)
     settle_heap()  # as Daemon.run does once started
     step, report, offer, clock = detector.feed, reporter.report, beside.offer, time.perf_counter
     read = RehearsedReads(client.read_frame, detector, READ_TIMEOUT_S, rehearse)
@@ -125,6 +129,8 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
             if frame is None:
                 continue
             t1 = clock()
+            for listener in listeners:
+                listener.on_frame(frame)
             decision = step(frame)
             if decision is not None:
                 report(decision)
@@ -135,6 +141,8 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     finally:
         gc.unfreeze()
         beside.stop()
+        for listener in listeners:
+            listener.close()
         reporter.sinks.close()
     _drain(sink)
     sink.close()
@@ -144,7 +152,21 @@ def feed(model, recording, packets: list[bytes], pace_frames: frozenset[int] = f
     if shadow is not None:
         view = beside.counters()["shadow"]
         table["shadow"] = {k: view[k] for k in ("windows_compared", "windows_dropped", "latency_p50_us", "latency_p99_us")}
+    if listeners:
+        table["capture"] = listeners[0].counters()
     return table
+
+
+def capture_beside(detector, reporter, folder: Path | None) -> list:
+    """The daemon's field capture on a fed detector, writing into ``folder`` (None: no capture, no listener)."""
+    if folder is None:
+        return []
+    from runtime.capture import FieldCapture
+    from runtime.capture_writer import CaptureWriter
+
+    capture = FieldCapture(CaptureWriter(folder, max_mb=64).start(), detector, "bench")
+    reporter.listeners.append(capture)
+    return [capture]
 
 
 def shadow_beside(detector, reporter, folder: Path | None):

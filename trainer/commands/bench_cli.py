@@ -24,6 +24,7 @@ COMMAND = "bench"
 BENCHMARKS = PRODUCT_BENCHES
 HEADLINE = ("onnx_p50_us", "onnx_p99_us", "sklearn_p50_us", "speedup_vs_sklearn", "onnx_p50_us_all_pads",
             "numpy_over_onnx_p50", "sklearn_over_onnx_p50", "daemon_p999_us", "paced_over_back_to_back", "shadow_p999_ratio",
+            "shadow_capture_p999_ratio",
             "e2e_p50_us", "e2e_p99_us", "e2e_p999_us", "e2e_max_us", "e2e_p999_us_load", "e2e_load_p99_us",
             "replay_frames_per_s", "rss_mb", "cpu_share", "startup_to_ready_s", "swap_s", "speedup_median")
 """The figures ``--json`` prints, where a benchmark has them."""
