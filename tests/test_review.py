@@ -109,3 +109,10 @@ def test_bad_input_is_one_line_each(capture, tmp_path, capsys):
     (folder / LABELS_FILE).write_text(json.dumps({stems[0]: "wave"}))
     with pytest.raises(FieldFolderError, match="one of pull, push, hold, bump, dormant"):
         read_labels(folder)
+
+
+def test_plot_writes_a_figure_of_each_event_asked_about(capture, tmp_path):
+    folder, stems = capture
+    _labels, shown, _ = run_review(folder, "sq", plot=tmp_path / "figs")
+    assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [f"{stems[0]}.png", f"{stems[1]}.png"]
+    assert str(tmp_path / "figs" / f"{stems[0]}.png") in shown
