@@ -129,7 +129,7 @@ class FieldCapture(FrameListener):
                 "time": now, "trigger": None if det.windows.every_frame or settings is None else asdict(settings),
                 "arm_moving": bool(det.arm.moving), "grasp_closed": det.grasp_closed}
         if len(self._pending) >= PENDING:
-            self.writer.dropped += 1
+            self.writer.full += 1
         else:
             self._pending.append(_Pending(stem, decision.first - PRE_FRAMES, frame.number, frame.number + POST_FRAMES,
                                           meta, {"subject": SUBJECT, "object": "-", "pose": "-", "action": cls, "run": 0}))

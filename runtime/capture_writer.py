@@ -94,8 +94,10 @@ class CaptureWriter:
         self.events = 0
         self.idle = 0
         self.outcomes = 0
-        self.dropped = 0
-        """Items lost: the queue was full, or the folder refused them."""
+        self.full = 0
+        """Items the hot thread dropped: the queue was full, or too many windows waited (counted there only)."""
+        self.lost = 0
+        """Items the folder refused (counted on the writer's thread only)."""
         self.errors = 0
         self.bytes = 0
         self.removed = 0
@@ -114,11 +116,16 @@ class CaptureWriter:
             self._queue.put_nowait(item)
             return True
         except queue.Full:
-            self.dropped += 1
-            if self.dropped % DROP_LOG_EVERY == 1:
+            self.full += 1
+            if self.full % DROP_LOG_EVERY == 1:
                 log.warning("capture: the writer is behind (%d waiting); %d capture(s) dropped so far, events are "
-                            "served as usual", QUEUE_ITEMS, self.dropped)
+                            "served as usual", QUEUE_ITEMS, self.full)
             return False
+
+    @property
+    def dropped(self) -> int:
+        """Captures lost: dropped on the hot thread or refused by the folder."""
+        return self.full + self.lost
 
     def counters(self) -> dict[str, int]:
         return {"capture_events": self.events, "capture_idle": self.idle, "capture_outcomes": self.outcomes,
@@ -172,7 +179,7 @@ class CaptureWriter:
                 self._failed(exc)
             except Exception as exc:  # a bug or a capture the format refuses: counted, never the end of the thread
                 self.errors += 1
-                self.dropped += 1
+                self.lost += 1
                 log.error("capture: %s not kept (%s: %s)", getattr(item, "stem", "outcome"), type(exc).__name__,
                           one_line(exc))
             else:
@@ -222,7 +229,7 @@ class CaptureWriter:
 
     def _failed(self, exc: OSError) -> None:
         self.errors += 1
-        self.dropped += 1
+        self.lost += 1
         if self.problem is None:
             self.problem = f"capture folder {self.folder}: {exc.strerror or one_line(exc)}; captures are lost until it takes files again"
             log.error("%s (events are served as usual; this is said once)", self.problem)
@@ -230,7 +237,7 @@ class CaptureWriter:
     def _worked(self) -> None:
         if self.problem is not None:
             self.problem = None
-            log.warning("capture folder %s takes files again (%d capture(s) lost meanwhile)", self.folder, self.dropped)
+            log.warning("capture folder %s takes files again (%d capture(s) lost so far)", self.folder, self.lost)
 
 
 def _recording(item: Capture) -> Recording:

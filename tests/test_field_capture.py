@@ -376,3 +376,37 @@ def test_each_outcome_word_is_heard_on_the_control_socket_and_kept(tmp_path, wor
     capture = FieldCapture(writer, det)
     capture.last_event = "event-000000193-0000000000001"
     assert capture.outcome(word, "control") and capture.refused == 0
+
+
+def test_a_reload_moves_capture_to_another_folder_and_refuses_an_unsafe_one(tmp_path, caplog):
+    from runtime.config import load_config
+
+    (tmp_path / "models").mkdir()
+    config = tmp_path / "h.toml"
+
+    def write(folder: Path | None) -> None:
+        capture = f'[capture]\nfolder = "{folder}"\n' if folder else ""
+        config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{tmp_path / "models"}"\n[sinks]\nstdout = false\n'
+                          + capture)
+
+    write(tmp_path / "a")
+    daemon = Daemon(load_config(config))
+    daemon.start_capture()
+    first = daemon.capture
+    assert first.writer.folder == tmp_path / "a" and daemon.listeners == [first]
+    write(tmp_path / "b")
+    daemon.reload()
+    assert daemon.capture is not first and daemon.capture.writer.folder == tmp_path / "b"
+    assert daemon.listeners == [daemon.capture] and daemon.robot.capture is daemon.capture
+    assert first.writer._thread is None  # the old writer wrote what it held and ended
+    unsafe = tmp_path / "c"
+    unsafe.mkdir(mode=0o777)
+    unsafe.chmod(0o777)
+    write(unsafe)
+    with caplog.at_level(logging.ERROR, "handover.daemon"):
+        daemon.reload()
+    kept = daemon.capture
+    assert kept.writer.folder == tmp_path / "b" and "writable by others" in caplog.text
+    write(None)
+    daemon.reload()
+    assert daemon.capture is None and daemon.listeners == [] and kept.writer._thread is None
