@@ -28,7 +28,7 @@ field plays three emulated days to daemons and trains three models (minutes)."""
 COMMANDS = {"compare": "benchmarks.compare_cli", "dormant": "benchmarks.dormant_cli"}
 """Studies with a command of their own (``add_arguments``/``main``): they compare methods on the
 simulated hand and the project's recordings for results/, not what a lab runs on its robot."""
-STUDIES = ("ramp_windows", "realism_plot")
+STUDIES = ("lab_shift", "ramp_windows", "realism_plot")
 """benchmarks/studies/: questions of past work, each with its own ``main(argv)``."""
 HEADLINE = (*bench_cli.HEADLINE, "hours", "frames_expected", "frames_lost_outside_injected_faults",
             "faults_injected", "faults_recovered", "max_recovery_s", "events_lost", "rss_growth_mb",

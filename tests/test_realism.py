@@ -74,3 +74,20 @@ def test_statistics_on_a_known_input():
     assert iv["n"] == 4 and abs(iv["mean_ms"] - 31.5) < 0.01
     area = realism.contact_area(frames, layout)
     assert area["area_median"] == 3
+    level = realism.contact_level(frames, layout)
+    assert level["peak_median"] == 500 and level["pad_frames_in_contact"] == 4
+    a = {"noise": {"untouched_nonzero_fraction": 1e-4}, "level": {"peak_median": 400.0}}
+    b = {"noise": {"untouched_nonzero_fraction": 2e-4}, "level": {"peak_median": 100.0}}
+    s = realism.shift(a, b)
+    assert s["noise_floor_factor"] == 2.0 and s["contact_level_ratio"] == 0.25 and s["contact_level_factor"] == 4.0
+
+
+@pytest.mark.slow
+def test_lab_b_sits_at_least_as_far_from_lab_a_as_the_real_sources_from_each_other():
+    """docs/SIMULATOR.md's rule for lab B, on the real recordings (both sources) and seed 0."""
+    from benchmarks.studies.lab_shift import measure
+
+    result = measure(0, real_data_dir())
+    if "real_shift" not in result:
+        pytest.skip("one of the two real sources is absent")
+    assert result["lab_b_at_least_real"], (result["lab_shift"], result["real_shift"])

@@ -4,7 +4,9 @@
 - contact values: quantiles of non-zero readings, the saturation ceiling, frame-to-frame
   change of loaded taxels (contact noise);
 - frame timing: interval mean, spread, tails and lag-1 autocorrelation;
-- contact area: non-zero taxels of a pad in contact.
+- contact area: non-zero taxels of a pad in contact;
+- contact level: the peak reading of a pad in contact (how hard a hand's grasps read);
+- ``shift``: how far two sources differ in noise floor and contact level (sizes lab B, ``sim.lab``).
 numpy only, so the emulator side can use it too; the figure is benchmarks/studies/realism_plot.py.
 """
 
@@ -19,7 +21,8 @@ from firmware_io.layout import SensorLayout
 from firmware_io.recordings.importers.dsa import read_dsa
 from firmware_io.recordings.recording import Recording
 
-__all__ = ["contact_area", "frame_intervals", "load_real", "noise_floor", "real_dsa_files", "summarise"]
+__all__ = ["contact_area", "contact_level", "frame_intervals", "load_real", "load_sources", "noise_floor",
+           "real_dsa_files", "shift", "summarise"]
 
 MAX_INTERVAL_S = 0.1
 """Intervals longer than this are recording pauses, not jitter."""
@@ -116,6 +119,27 @@ def contact_area(frames: np.ndarray, layout: SensorLayout) -> dict:
             "area_p10": float(np.percentile(a, 10)), "area_p90": float(np.percentile(a, 90))}
 
 
+def contact_level(frames: np.ndarray, layout: SensorLayout) -> dict:
+    """Peak reading of each pad in each frame it is in contact (max >= CONTACT_PAD_MIN): median and p75.
+    A peak, not the non-zero readings' median: a more sensitive pad lights more edge taxels with low
+    values, which holds that median down however hard the grasp reads."""
+    peaks = np.concatenate([frames[:, layout.matrix_slice(p)].max(axis=1) for p in range(layout.n_matrices)])
+    peaks = peaks[peaks >= CONTACT_PAD_MIN]
+    if not peaks.size:
+        return {"pad_frames_in_contact": 0}
+    return {"pad_frames_in_contact": int(peaks.size), "peak_median": float(np.median(peaks)),
+            "peak_p75": float(np.percentile(peaks, 75))}
+
+
+def shift(a: dict, b: dict) -> dict:
+    """How far summary ``b`` sits from ``a``: ratios (b / a) of the noise floor (untouched taxels read
+    non-zero) and of the contact level (pad peak median); ``*_factor`` is the ratio's size either way."""
+    noise = b["noise"]["untouched_nonzero_fraction"] / a["noise"]["untouched_nonzero_fraction"]
+    level = b["level"]["peak_median"] / a["level"]["peak_median"]
+    return {"noise_floor_ratio": noise, "noise_floor_factor": max(noise, 1 / noise),
+            "contact_level_ratio": level, "contact_level_factor": max(level, 1 / level)}
+
+
 def summarise(recordings: Iterable[Recording]) -> dict:
     """All statistics over recordings pooled (intervals within each recording only)."""
     recs = list(recordings)
@@ -127,6 +151,7 @@ def summarise(recordings: Iterable[Recording]) -> dict:
         "values": contact_values(frames),
         "intervals": frame_intervals(*(r.timestamps for r in recs)),
         "area": contact_area(frames, layout),
+        "level": contact_level(frames, layout),
     }
 
 
@@ -140,3 +165,16 @@ def load_real(folder: str | Path, names: Sequence[str] = REAL_31HZ_FOLDERS) -> l
     """Read the real reference recordings with the project's .dsa importer."""
 
     return [read_dsa(p) for p in real_dsa_files(folder, names)]
+
+
+REAL_SOURCES = {"kiechle": "kiechle", "mas-group": "mas-group/slip_detection/bag"}
+"""The two real SDH-2 sources under ``sdh2-dsa/`` (two labs, two hands): where their recordings are."""
+
+
+def load_sources(sdh2_dsa: str | Path) -> dict[str, list[Recording]]:
+    """Each real source's recordings (Kiechle's ~31 Hz .dsa files, mas-group's bags); empty when absent."""
+    from firmware_io.recordings.importers import import_any
+
+    root = Path(sdh2_dsa)
+    return {"kiechle": load_real(root / REAL_SOURCES["kiechle"]),
+            "mas-group": [import_any(p) for p in sorted((root / REAL_SOURCES["mas-group"]).glob("*.bag"))]}
