@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 
 import numpy as np
 import pytest
@@ -124,3 +125,40 @@ def test_a_recording_of_a_lab_b_subject_says_its_lab(tmp_path):
     assert code == 0
     meta = Recording.load(tmp_path / "subject_s1.hrec").meta
     assert meta["lab"] == "B" and meta["synthetic"] is True
+
+
+def test_demo_plays_lab_bs_session_to_a_given_model(tmp_path, capsys):
+    from runtime.cli import main as handover
+    from tests.tiny_models import tiny_model_bytes
+    from trainer.commands.demo_cli import scripted_session
+
+    _, script, session = scripted_session(0, 4, "B")
+    assert session.meta["lab"] == "B" and {e.object for e in script} <= set(B.objects)
+    model = tmp_path / "tiny.onnx"
+    model.write_bytes(tiny_model_bytes())
+    code = handover(["demo", "--lab", "B", "--model", str(model), "--events", "4", "--speed", "max", "--json",
+                     "--out", str(tmp_path / "demo")])
+    out = capsys.readouterr().out
+    assert code == 0
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["lab"] == "B" and summary["events_expected"] == 4 and summary["synthetic"] is True
+
+
+@pytest.mark.parametrize("command", [["demo"], ["simulate", "--out", "x"], ["emulate", "--pty"]])
+def test_an_unknown_lab_is_one_line_naming_the_labs(command, capsys):
+    from runtime.cli import main as handover
+
+    with pytest.raises(SystemExit) as exit_:
+        handover([*command, "--lab", "C"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "unknown lab 'C'" in err and "A (" in err and "B (" in err
+
+
+def test_simulate_writes_lab_bs_protocol(tmp_path):
+    from firmware_io.recordings.recording import Recording
+    from runtime.cli import main as handover
+
+    assert handover(["simulate", "--out", str(tmp_path), "--lab", "b", "--subjects", "1", "--runs", "1"]) == 0
+    rec = Recording.load(tmp_path / "subject_s1.hrec")
+    assert rec.meta["lab"] == "B" and {t.object for t in rec.trials} == set(B.objects)

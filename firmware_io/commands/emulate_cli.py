@@ -11,7 +11,7 @@ import signal
 import sys
 import time
 
-from firmware_io.commands.options import add_seed, int_in, positive_float
+from firmware_io.commands.options import add_lab, add_seed, int_in, positive_float
 from firmware_io.errors import HandoverError
 
 __all__ = ["add_arguments", "main"]
@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              help=f"seed of the simulated session and of fault injection (default {DEMO_SESSION_SEED}: "
              "the demo's scripted session, by simulated subjects no demo model trains on; a model trained "
              f"on simulator seed s meets new subjects at s + {HELD_OUT_SEED_OFFSET})")
+    add_lab(parser, "the simulated session")
     parser.add_argument("--speed", default="1.0", help="playback speed: a factor (1.0 = recorded timing) or 'max'")
     parser.add_argument(
         "--fault",
@@ -100,7 +101,7 @@ def main(args: argparse.Namespace) -> int:
         if not 0 <= args.boot_seconds <= 600:  # also NaN
             raise HandoverError(f"--boot-seconds must be within 0..600, got {args.boot_seconds}")
         boot = {"boot_s": args.boot_seconds, "boot_query_s": max(0.0, args.boot_seconds - 1.0)}
-    recording = load_source(args.source, seed=args.seed, events=args.events)
+    recording = load_source(args.source, seed=args.seed, events=args.events, lab=args.lab)
     emulator = DeviceEmulator(
         recording, speed=speed, loop=not args.no_loop, old_firmware=args.old_firmware, faults=faults, seed=args.seed,
         start_ms=args.clock_start, session_starts="first_acquisition", **boot,

@@ -51,6 +51,21 @@ def add_seed(parser: argparse.ArgumentParser, default: int = 0, help: str = "ran
     parser.add_argument("--seed", type=int, default=default, help=help)
 
 
+def add_lab(parser: argparse.ArgumentParser, what: str = "the simulated hand and people") -> None:
+    """``--lab A|B``: which simulated lab (``firmware_io.sim.lab``) plays ``what``; an unknown one is one line."""
+    parser.add_argument("--lab", type=lab_name, default="A", help=f"simulated lab of {what}: A (default) or B, "
+                        "another hand and other people (docs/SIMULATOR.md)")
+
+
+def lab_name(text: str) -> str:
+    from firmware_io.sim.lab import UnknownLab, get_lab
+
+    try:
+        return get_lab(text).name
+    except UnknownLab as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress messages on stderr") -> None:
     """``--quiet``: the result only."""
     parser.add_argument("--quiet", action="store_true", help=help)

@@ -57,7 +57,7 @@ class Lab:
 DEFAULT_LAB = "A"
 
 LABS = {
-    "A": Lab("A", "the default simulator (Kiechle's hand, calibrated)", (1.0,) * 6, K.IDLE_READING_MEAN,
+    "A": Lab("A", "the default simulator, calibrated on Kiechle's hand", (1.0,) * 6, K.IDLE_READING_MEAN,
              K.IDLE_NOISE_SD, 0, 0, 1.0, 1.0, 1.0, OBJECTS),
     "B": Lab("B", "another hand and other people: more sensitive pads, a noisier floor, dead taxels, firmer grip, "
                   "stronger and slower people, a bottle and a sponge",
@@ -75,7 +75,7 @@ def get_lab(name: str | Lab | None = None) -> Lab:
     key = DEFAULT_LAB if name is None or str(name).strip() == "" else str(name).strip().upper()
     if key not in LABS:
         raise UnknownLab(f"unknown lab {str(name)[:20]!r}; the labs are "
-                         + ", ".join(f"{n} ({lab.summary.split(':')[0]})" for n, lab in LABS.items()))
+                         + ", ".join(f"{n} ({lab.summary.split(':')[0].split(',')[0]})" for n, lab in LABS.items()))
     return LABS[key]
 
 

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed
+from firmware_io.commands.options import add_json, add_lab, add_out, add_quiet, add_seed
 from firmware_io.errors import HandoverError
 from firmware_io.sim.session import DEMO_TRAIN_SEED, HELD_OUT_SEED_OFFSET
 
@@ -43,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"scripted events in the session (default {DEMO_EVENTS})")
     add_seed(parser, DEMO_TRAIN_SEED, f"seed of the training data (default {DEMO_TRAIN_SEED}); the session plays "
              f"seed + {HELD_OUT_SEED_OFFSET}")
+    add_lab(parser, "the session's hand and people (the demo's model trains on lab A's either way; B's with --model "
+            "trained on B's recordings)")
     parser.add_argument("--pads", default="all", help="pads the model and the scene use (default all)")
     parser.add_argument("--speed", default="1.0", help="session playback: 1.0 = real time at 32 Hz, 'max' = as fast "
                         "as possible (latency figures then include queueing)")
@@ -189,14 +191,17 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def scripted_session(seed: int, events: int = DEMO_EVENTS) -> tuple[int, list[ScriptedEvent], Recording]:
-    """The demo's scripted session for training seed ``seed``: (its own seed, the script, the simulated
-    session); ``./dev bench streams`` and ``streams_own`` replay the same one in process."""
+def scripted_session(seed: int, events: int = DEMO_EVENTS, lab: str | None = None
+                     ) -> tuple[int, list[ScriptedEvent], Recording]:
+    """The demo's scripted session for training seed ``seed`` played by ``lab``'s hand and people (default
+    A): (its own seed, the script, the simulated session); ``./dev bench streams`` and ``streams_own``
+    replay the same one in process."""
     from firmware_io.sim import demo_script, simulate_session
+    from firmware_io.sim.lab import get_lab
 
-    session_seed = seed + HELD_OUT_SEED_OFFSET
-    script = demo_script(events, seed=session_seed)
-    return session_seed, script, simulate_session(script, seed=session_seed)
+    session_seed, lab_ = seed + HELD_OUT_SEED_OFFSET, get_lab(lab)
+    script = demo_script(events, seed=session_seed, objects=lab_.objects)
+    return session_seed, script, simulate_session(script, seed=session_seed, lab=lab_)
 
 
 def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, faults) -> dict:
@@ -207,13 +212,13 @@ def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, 
     from runtime.daemon import Daemon
     from runtime.sdnotify import Notifier
 
-    session_seed, script, session = scripted_session(args.seed, args.events)
+    session_seed, script, session = scripted_session(args.seed, args.events, args.lab)
     emulator = DeviceEmulator(session, speed=speed, loop=False, faults=faults, seed=session_seed,
                               session_starts="first_acquisition")  # the whole session, however long the daemon takes to start
     server = TcpEmulatorServer(emulator, host="127.0.0.1", port=0).start()
     duration = session.timestamps[-1] - session.timestamps[0]
     _say(args, f"[3/4] emulated DSACON32m on {server.url}: scripted session of {len(script)} events by unseen "
-               f"simulated subjects (synthetic, seed {session_seed}), {playback_text(duration, speed)}")
+               f"simulated subjects (synthetic, seed {session_seed}, lab {args.lab}), {playback_text(duration, speed)}")
     events = EventLog(args, session, script, emulator)
     daemon = Daemon(_daemon_config(args, server.url, model_dir), notifier=Notifier({}), on_event=events.on_event)
     _say(args, "[4/4] daemon running with the exported model; events as they happen:")
@@ -287,6 +292,7 @@ def _summary(args: argparse.Namespace, daemon, decisions: list, trials) -> dict:
     o = session_outcomes(decisions, trials)
     return {
         "synthetic": True,
+        "lab": args.lab,
         "setting": setting_of(args),
         "trigger": daemon.detector.trigger_settings.name if daemon.detector.trigger_settings else None,
         **outcome_summary(o),
@@ -310,7 +316,7 @@ def _print_summary(s: dict) -> None:
         return "-" if v is None else f"{v:.0f} us"
 
     print()
-    print("summary (synthetic session, unseen simulated subjects)")
+    print(f"summary (synthetic session, unseen simulated subjects of lab {s.get('lab', 'A')})")
     for line in summary_lines(s, s["setting"]):
         print(line)
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
