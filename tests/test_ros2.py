@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -204,6 +205,22 @@ def test_the_arm_topic_and_joint_states_reach_the_daemon(tmp_path, caplog):
         joints.publish(state(101.0, [0.0, 0.05], []))  # positions only: speed from the change
         joints.publish(state(101.1, [0.0, 0.10], []))  # 0.5 rad/s
         assert wait_for(lambda: daemon.detector.arm_request == (True, "ros2"))
+    finally:
+        daemon.sinks.close()
+        listener.close()
+
+
+def test_the_outcome_topic_reaches_field_capture(tmp_path):
+    cfg = daemon_config(tmp_path, "sim://?realtime=0", {"outcome": True, "namespace": "/lab/hand", "trust": "local_users"})
+    daemon = Daemon(cfg)
+    heard: list[tuple[str, str]] = []
+    daemon.robot.capture = SimpleNamespace(outcome=lambda word, source: heard.append((word, source)))
+    listener = Listener("/lab/hand")
+    outcome = listener.node.create_publisher(String, "/lab/hand/outcome", 10)
+    try:
+        assert wait_for(lambda: outcome.get_subscription_count() >= 1), "outcome subscription never matched"
+        outcome.publish(String(data=" Taken\n"))
+        assert wait_for(lambda: heard == [("taken", "ros2")])  # field capture checks the word (tests/test_field_capture.py)
     finally:
         daemon.sinks.close()
         listener.close()

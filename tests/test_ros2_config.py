@@ -189,6 +189,19 @@ def test_ros2_inputs_that_steer_detection_need_sros2_or_a_trust_that_names_who(t
     assert robot_inputs(config_from_dict({}).ros2, env) == (False, None)  # no input configured: nothing to say
 
 
+def test_the_outcome_topic_is_subscribed_under_the_same_trust_and_says_what_it_could_do():
+    """An outcome does not steer detection but labels the field capture (what training may learn)."""
+    from runtime.ros2 import robot_inputs
+
+    ros2 = config_from_dict({"ros2": {"outcome": True}}).ros2
+    subscribed, line = robot_inputs(ros2, LOCAL)
+    assert not subscribed and line.startswith("ros2.outcome: not subscribed (no SROS2)"), line
+    assert "outcomes on /handover/outcome and label the field capture" in line and "trigger" not in line
+    both = config_from_dict({"ros2": {"outcome": True, "grasp": True, "trust": "local_users"}}).ros2
+    subscribed, line = robot_inputs(both, LOCAL)
+    assert subscribed and "silence the trigger and label the field capture" in line, line
+
+
 @pytest.mark.parametrize("trust, says", [("", "not subscribed (no SROS2)"),
                                          ('trust = "local_users"\n', "subscribed without SROS2")])
 def test_check_says_in_one_line_whether_the_ros2_inputs_are_subscribed(tmp_path, trust, says):
