@@ -19,7 +19,7 @@ from trainer.measure import percentiles, with_metadata
 CASES = ("serving", "shadow", "shadow + capture")
 """The cases measured, the first the reference (``_case_options`` says what each adds)."""
 TARGET_RATIO = 1.2
-"""The serving decision's p99.9 with a shadow may be at most this times that without (issue #39)."""
+"""The serving decision's p99.9 with a shadow (and capture) may be at most this times that without."""
 
 
 def candidate_folder(model_path: Path, work: Path) -> Path:
