@@ -162,3 +162,38 @@ def test_simulate_writes_lab_bs_protocol(tmp_path):
     assert handover(["simulate", "--out", str(tmp_path), "--lab", "b", "--subjects", "1", "--runs", "1"]) == 0
     rec = Recording.load(tmp_path / "subject_s1.hrec")
     assert rec.meta["lab"] == "B" and {t.object for t in rec.trials} == set(B.objects)
+
+
+def test_the_mixed_labs_line_names_each_labs_files():
+    from types import SimpleNamespace as R
+
+    from trainer.data_warnings import lab_line
+
+    recs = [R(meta={"synthetic": True}), R(meta={"synthetic": True, "lab": "B"}), R(meta={"source": "real"})]
+    names = ["d/subject_s1.hrec", "d/subject_s2.hrec", "d/real.dsa"]
+    assert lab_line(recs, names).startswith("the recordings come from 2 simulated labs (lab A: subject_s1.hrec; "
+                                            "lab B: subject_s2.hrec): ")
+    assert lab_line(recs[:1] + recs[2:], names[:1] + names[2:]) is None  # a real recording is no lab
+    many = [R(meta={"synthetic": True})] * 5 + recs[1:2]
+    assert "lab A: a0, a1, a2 and 2 more; lab B: b" in lab_line(many, [f"a{i}" for i in range(5)] + ["b"])
+
+
+@pytest.mark.slow
+def test_train_says_which_labs_its_recordings_come_from_and_trains(tmp_path, capsys):
+    """A lab-B recording among lab-A ones: one line naming the files' labs; the model is still trained."""
+    from runtime.cli import main as handover
+    from trainer.data_warnings import lab_line
+
+    data = tmp_path / "data"
+    for name, seed, lab in (("s1", 0, "A"), ("s2", 1, "A"), ("s3", 2, "B")):
+        rec = simulate_protocol(seed=seed, n_subjects=1, runs=1, poses=["down"], lab=lab)[0]
+        rec.meta["subject"] = name
+        rec.save(data / f"subject_{name}.hrec")
+    code = handover(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--no-sweep", "--repeats", "2",
+                     "--no-replay", "--early", "off", "--no-onnx", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    line = next(x for x in err.splitlines() if "simulated labs" in x)
+    assert "lab A: subject_s1.hrec, subject_s2.hrec; lab B: subject_s3.hrec" in line
+    one_lab = simulate_protocol(seed=0, n_subjects=2, runs=1, poses=["down"], objects=["ball"])
+    assert lab_line(one_lab, ["a", "b"]) is None

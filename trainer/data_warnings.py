@@ -1,4 +1,5 @@
-"""What a lab's recordings can carry, said once: how thin the dormant class is and which subjects are partial.
+"""What a lab's recordings can carry, said once: how thin the dormant class is, which subjects are partial,
+and whether the recordings come from more than one simulated lab.
 
 Why: a dormant class cut from a few windows of one idle kind, or a subject who recorded 12 of 180
 trials, gives report rows that look as good as those of enough data. ``handover train`` prints each
@@ -16,7 +17,7 @@ import numpy as np
 
 from firmware_io.recordings.idle_stretches import SOURCES, has_idle
 
-__all__ = ["FEW_DORMANT_WINDOWS", "DataNotes", "data_notes", "dormant_lines", "partial_subjects"]
+__all__ = ["FEW_DORMANT_WINDOWS", "DataNotes", "data_notes", "dormant_lines", "lab_line", "partial_subjects"]
 
 FEW_DORMANT_WINDOWS = 100
 """Fewer dormant windows than this and the class is called thin. The rule of three: with n windows and
@@ -119,9 +120,28 @@ def partial_subjects(recordings: Sequence, names: Sequence[str]) -> dict[str, st
     return out
 
 
+def lab_line(recordings: Sequence, names: Sequence[str]) -> str | None:
+    """One line when the synthetic recordings come from more than one simulated lab (``firmware_io.sim.lab``):
+    said, not refused (a lab may mean to mix them), naming each lab's files."""
+    from firmware_io.sim.lab import lab_of
+
+    files: dict[str, list[str]] = {}
+    for rec, name in zip(recordings, names, strict=True):
+        if (lab := lab_of(rec.meta)) is not None:
+            files.setdefault(lab, []).append(Path(name).name)
+    if len(files) < 2:
+        return None
+    said = "; ".join(f"lab {lab}: {', '.join(f[:3])}" + (f" and {len(f) - 3} more" if len(f) > 3 else "")
+                     for lab, f in sorted(files.items()))
+    return (f"the recordings come from {len(files)} simulated labs ({said}): one model learns both hands and both "
+            "sets of people; train on one lab's files for a model of that lab")
+
+
 def data_notes(recordings: Sequence, names: Sequence[str], idle) -> DataNotes:
     """Everything above for one training run (``idle``: ``trainer.recorded_idle.IdleWindows`` or None)."""
     notes = DataNotes(partial=partial_subjects(recordings, names))
+    if line := lab_line(recordings, names):
+        notes.lines.append(line)
     if idle is not None and idle.makes_class:
         notes.lines += dormant_lines(idle.per_source, recorded_kinds(recordings))
     for subject, lacks in notes.partial.items():

@@ -79,7 +79,9 @@ def get_lab(name: str | Lab | None = None) -> Lab:
     return LABS[key]
 
 
-def lab_of(meta: dict) -> str:
-    """The lab a recording's meta names (recordings from before labs, and real ones, are A's or none)."""
-    lab = meta.get("lab")
-    return str(lab) if lab else (DEFAULT_LAB if meta.get("synthetic") else "real")
+def lab_of(meta: dict) -> str | None:
+    """The simulated lab a recording's meta names: A for a synthetic one that names none (written before
+    labs, or by lab A), None for a real recording."""
+    if not meta.get("synthetic"):
+        return None
+    return str(meta.get("lab") or DEFAULT_LAB)
