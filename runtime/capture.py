@@ -86,13 +86,40 @@ class FieldCapture(FrameListener):
         self._idle_start: float | None = None
         """Device ms since which no window was decided and the robot's words stayed the same (None: not idle)."""
         self._idle_state: tuple = ()
+        self.failures = 0
+        """Exceptions inside capture on the hot thread (a bug): the frame and its decision go on without it."""
+        self._failure_logged = float("-inf")
         self._next_idle = float("-inf")
 
     def counters(self) -> dict[str, int]:
-        return {**self.writer.counters(), "capture_outcomes_refused": self.refused}
+        counts = self.writer.counters()
+        counts["capture_errors"] += self.failures
+        return {**counts, "capture_outcomes_refused": self.refused}
 
     # -- the hot thread -----------------------------------------------------------------------
     def on_frame(self, frame: Any) -> None:
+        """The frame into the ring (before the detector sees it: a failure here must never cost its decision)."""
+        try:
+            self._on_frame(frame)
+        except Exception as exc:
+            self._failed(exc)
+
+    def on_decision(self, decision: Decision) -> None:
+        try:
+            self._on_decision(decision)
+        except Exception as exc:
+            self._failed(exc)
+
+    def _failed(self, exc: Exception) -> None:
+        """A bug of capture's own: counted as a capture error, logged at most every ``REFUSED_LOG_S``."""
+        self.writer.full += 1
+        self.failures += 1
+        now = time.monotonic()
+        if now - self._failure_logged >= REFUSED_LOG_S:
+            self._failure_logged = now
+            log.error("capture: %s: %s (%d so far; detection goes on)", type(exc).__name__, exc, self.failures)
+
+    def _on_frame(self, frame: Any) -> None:
         values, t = frame.values, float(frame.timestamp_ms)
         if self._frames.shape[1] != values.shape[0]:
             self._frames = np.zeros((self.capacity, values.shape[0]), np.uint16)
@@ -110,7 +137,7 @@ class FieldCapture(FrameListener):
         if self.idle_every_ms > 0:
             self._idle(t)
 
-    def on_decision(self, decision: Decision) -> None:
+    def _on_decision(self, decision: Decision) -> None:
         det = self.detector
         reported = decision.report >= 0
         if not reported and det.windows.every_frame:  # continuous mode: a decision every frame, reports only

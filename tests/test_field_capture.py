@@ -410,3 +410,15 @@ def test_a_reload_moves_capture_to_another_folder_and_refuses_an_unsafe_one(tmp_
     write(None)
     daemon.reload()
     assert daemon.capture is None and daemon.listeners == [] and kept.writer._thread is None
+
+
+def test_a_failure_inside_capture_never_costs_a_decision(tmp_path, caplog):
+    events: list[Event] = []
+    daemon = _daemon(tmp_path, events.append)
+    daemon.start_capture()
+    daemon.capture._rows = None  # a bug of capture's own: every window's copy fails
+    with caplog.at_level(logging.ERROR, "handover.capture"):
+        _serve(daemon)
+    assert len(events) == N_EVENTS and daemon.health.frame_errors == 0
+    assert daemon.health.capture_errors == N_EVENTS and daemon.health.capture_events == 0
+    assert len([r for r in caplog.records if r.name == "handover.capture" and r.levelno >= logging.ERROR]) == 1
