@@ -32,8 +32,8 @@ from trainer.measure import command_line, load_average, machine_info, write_resu
 
 NAME = "field"
 SIZES = {
-    "full": {"runs": 2, "idle_s": 600.0, "day1_events": 160, "day2_events": 60, "gap": (6.0, 14.0), "speed": 16.0},
-    "quick": {"runs": 1, "idle_s": 240.0, "day1_events": 40, "day2_events": 20, "gap": (6.0, 14.0), "speed": 16.0},
+    "full": {"runs": 2, "idle_s": 1200.0, "day1_events": 160, "day2_events": 60, "gap": (6.0, 14.0), "speed": 16.0},
+    "quick": {"runs": 1, "idle_s": 600.0, "day1_events": 40, "day2_events": 20, "gap": (6.0, 14.0), "speed": 16.0},
 }
 IDLE_EVERY_S = 60.0
 """``[capture] idle_every_s`` of the bench: a compressed day needs more than the default's one per 10 min."""
@@ -131,14 +131,15 @@ def missing_parts() -> list[str]:
     return [k for k in ("model.shadow", "capture.folder", "capture.idle_every_s") if k not in have]
 
 
-def run(args) -> dict:
+def run(args, keep: Path | None = None) -> dict:
+    """The bench (module docstring); ``keep``: work there and keep the folders (to look at a run)."""
     if missing := missing_parts():
         raise RuntimeError(f"the daemon of this checkout has no {', '.join(missing)}: the bench needs them")
     say = args.say
     s = SIZES["quick" if args.quick else "full"]
     load_before, t0 = load_average(), time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="handover-field-") as tmp:
-        work = Path(tmp)
+        work = Path(keep or tmp)
         lab, field, field2 = work / "lab", work / "field", work / "field2"
         say("field: the lab's data and models A (serving) and B (candidate, no dormant class) ...")
         lab_data(lab, s, args.seed)
