@@ -42,6 +42,10 @@ log = logging.getLogger("handover.shadow")
 
 QUEUE_WINDOWS = 32
 """Windows waiting for the candidate at most (a second of continuous mode); more are dropped and counted."""
+RATE_DECIMALS = 6
+"""Sample rates are compared to this many decimals: a rate estimated from other recordings differs in its
+last digits (a candidate trained on captured field recordings, 31.25000000001732 Hz, was refused beside a
+serving 31.250000000003443 Hz)."""
 WAIT_S = 0.1
 """Longest the shadow thread waits for a window before it looks at the folder and the serving model again."""
 
@@ -202,7 +206,8 @@ class Shadow:
         if problem := self.scene_check(candidate):
             return problem
         ms, mc = serving.meta, candidate.meta
-        for what, a, b in (("window", mc.T, ms.T), ("sample rate", mc.sample_rate_hz, ms.sample_rate_hz),
+        rates = round(mc.sample_rate_hz, RATE_DECIMALS), round(ms.sample_rate_hz, RATE_DECIMALS)
+        for what, a, b in (("window", mc.T, ms.T), ("sample rate", *rates),
                            ("pads", list(mc.pads), list(ms.pads)), ("taxel columns", mc.n_channels, ms.n_channels)):
             if a != b:
                 return (f"its {what} is {a}, the serving model's {b}: it cannot be fed the serving model's windows; "

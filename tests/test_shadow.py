@@ -312,3 +312,13 @@ def test_promotion_is_the_documented_file_move(tmp_path):
     run_until(daemon, lambda d: d.health.device_faults >= 1 and d.shadow.candidate is None, timeout=30)
     assert [e.cls for e in events] == ["pull", "pull"] + ["push"] * (len(events) - 2) and len(events) > 2
     assert daemon.health.models_loaded == 2 and daemon.shadow.comparison.compared >= 1
+
+
+def test_a_candidate_whose_rate_differs_in_its_last_digits_runs_beside_the_serving_model(tmp_path):
+    """A rate estimated from other recordings (lab + field) is the same rate, not a reason to refuse."""
+    serving, candidate = _Fake(Path("serving.onnx")), _Fake(Path("c.onnx"))
+    serving.meta.sample_rate_hz, candidate.meta.sample_rate_hz = 31.250000000003443, 31.25000000001732
+    shadow, _ = _shadow(tmp_path, candidate, serving)
+    assert shadow.fit_problem(candidate) is None
+    candidate.meta.sample_rate_hz = 32.0
+    assert "its sample rate is 32.0, the serving model's 31.25" in shadow.fit_problem(candidate)
