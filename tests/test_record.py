@@ -215,13 +215,15 @@ def test_resuming_with_another_plan_or_another_simulated_person_is_refused_in_on
     for extra, device, said in ((["--runs", "2"], f"subject://?seed=3&speed={SPEED}", "recorded with --runs 1, not --runs 2"),
                                 (["--trial-seconds", "2.5"], f"subject://?seed=3&speed={SPEED}",
                                  "recorded with --trial-seconds 2, not --trial-seconds 2.5"),
-                                ([], f"subject://?seed=4&speed={SPEED}", "recorded with subject://?seed=3, not seed=4")):
+                                ([], f"subject://?seed=4&speed={SPEED}", "recorded with subject://?seed=3, not seed=4"),
+                                ([], f"subject://?seed=3&lab=B&speed={SPEED}",
+                                 "recorded with subject://?seed=3, not seed=3&lab=B")):
         assert record(tmp_path, "--auto", *extra, device=device) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0] == (f"handover record: {path}: {said}: resume with the original options, "
                                             "or record under a new --subject id"), err
         assert path.read_bytes() == before
-    assert record(tmp_path, "--auto", device="subject://?seed=3&speed=max") == 0  # the playback speed is no plan
+    assert record(tmp_path, "--auto", device="subject://?seed=3&lab=a&speed=max") == 0  # the playback speed is no plan
     assert sorted(keys(Recording.load(path))) == sorted(KEYS)
 
 

@@ -119,7 +119,8 @@ class ScriptedSubject:
         if self.unplugged:
             raise DeviceUnavailable(f"{SUBJECT_SCHEME}://: the device is unplugged")
         self.connections += 1
-        return EmulatedTransport(self.emulator, f"{SUBJECT_SCHEME}://?seed={self.seed}")
+        lab = f"&lab={self.lab.name}" if self.lab.key else ""  # a recording's sessions say whose hand it was
+        return EmulatedTransport(self.emulator, f"{SUBJECT_SCHEME}://?seed={self.seed}{lab}")
 
     def next_frame(self) -> np.ndarray:
         """The frame the controller sends now (called by the emulator once per frame)."""

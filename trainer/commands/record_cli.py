@@ -279,26 +279,33 @@ def _resume_problem(sessions: list, plan, opts, device: str, idle_only: bool = F
                 same, old_text, new_text = math.isclose(float(old), float(new)), f"{old:g}", f"{new:g}"
             if not same:
                 diffs.append((f"{option} {old_text}", f"{option} {new_text}"))
-    old_seed = next((_subject_seed(s.get("device")) for s in sessions if isinstance(s, dict)
-                     and _subject_seed(s.get("device")) is not None), None)
-    new_seed = _subject_seed(device)
-    if old_seed is not None and new_seed is not None and old_seed != new_seed:
-        diffs.append((f"subject://?seed={old_seed}", f"seed={new_seed}"))
+    old_person = next((_subject_person(s.get("device")) for s in sessions if isinstance(s, dict)
+                       and _subject_person(s.get("device")) is not None), None)
+    new_person = _subject_person(device)
+    if old_person is not None and new_person is not None and old_person != new_person:
+        diffs.append((f"subject://?{old_person}", new_person))
     if not diffs:
         return None
     return ("recorded with " + ", ".join(o for o, _ in diffs) + ", not " + ", ".join(n for _, n in diffs)
             + ": resume with the original options, or record under a new --subject id")
 
 
-def _subject_seed(url: object) -> str | None:
-    """The simulated person of a ``subject://`` URL (its seed, default 0), None for any other device."""
+def _subject_person(url: object) -> str | None:
+    """The simulated person of a ``subject://`` URL: ``seed=S`` (default 0), ``&lab=L`` unless lab A; None for
+    any other device."""
     from urllib.parse import parse_qs, urlsplit
 
+    from firmware_io.sim.lab import DEFAULT_LAB, UnknownLab, get_lab
     from firmware_io.transports.emulated import SUBJECT_SCHEME
 
     if not isinstance(url, str) or not url.startswith(f"{SUBJECT_SCHEME}://"):
         return None
-    return parse_qs(urlsplit(url).query).get("seed", ["0"])[0]
+    query = parse_qs(urlsplit(url).query)
+    try:
+        lab = get_lab(query.get("lab", [None])[0]).name
+    except UnknownLab:  # a stored URL from elsewhere: compared as written
+        lab = query["lab"][0]
+    return f"seed={query.get('seed', ['0'])[0]}" + ("" if lab == DEFAULT_LAB else f"&lab={lab}")
 
 
 def _saved(store) -> str:
