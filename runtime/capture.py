@@ -176,6 +176,7 @@ class FieldCapture(FrameListener):
             self._send(self._pending.popleft())
         self._pos = self._count = 0
         self._idle_start = None
+        self._next_idle = float("-inf")  # device time starts afresh: a limit in the old one would stop idle for long
 
     def _rows(self, first: int, last: int) -> np.ndarray:
         """Ring rows (chronological) of the frames numbered ``first`` .. ``last`` that it still holds."""
