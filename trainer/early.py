@@ -13,7 +13,7 @@ leave-one-group-out for an honest report; ``Fits`` fits each leave-groups-out mo
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import combinations
 
 import numpy as np
@@ -24,8 +24,22 @@ from runtime.early import NEVER, EarlySpec
 from trainer.dormant import DORMANT
 
 __all__ = [
-    "EARLY_POINTS", "TARGET_LOSS", "EarlyHeads", "Fits", "answers", "cascade", "choose_rule", "confidences",
-    "earliness_score", "evaluate", "fit_early", "fit_stream_heads", "head_factory", "part_problem", "platt",
+    "EARLY_POINTS",
+    "TARGET_LOSS",
+    "EarlyHeads",
+    "Fits",
+    "answers",
+    "cascade",
+    "choose_rule",
+    "confidences",
+    "earliness_score",
+    "evaluate",
+    "fit_early",
+    "fit_stream_heads",
+    "fold_heads",
+    "head_factory",
+    "part_problem",
+    "platt",
     "rule_in_words"
 ]
 
@@ -294,6 +308,16 @@ class EarlyHeads:
     models: list
     spec: EarlySpec
     choice: RuleChoice | None = None
+    folds: dict[str, EarlyHeads] = field(default_factory=dict)
+    """Per held-out group, the heads and rule chosen without it (``fold_heads``): the held-out replay's."""
+
+
+def fold_heads(fits: Fits, rules: Sequence[dict]) -> dict[str, EarlyHeads]:
+    """The nested evaluation's heads and rule for each held-out group (``evaluate``'s ``rules``): fitted
+    already, so the held-out replay scores early reports without new fits."""
+    keys = ("points", "calibration", "threshold", "agree")
+    return {r["held_out"]: EarlyHeads(fits.models(frozenset({r["held_out"]}), full=False),
+                                      EarlySpec.from_meta({k: r[k] for k in keys}, fits.T)) for r in rules}
 
 
 def fit_early(X: np.ndarray, y: np.ndarray, groups: np.ndarray, make: Factory, make_full: Factory,

@@ -132,15 +132,17 @@ def summarize(parts: Sequence[dict]) -> dict:
             "false_events": sum(arm.values()), "false_per_hour": sum(arm.values()) / total_h if total_h else None,
             "arm_move_false_events": arm.get("arm_move", 0),
             "arm_move_false_per_hour": arm.get("arm_move", 0) / arm_h if arm_h else None},
-        "onset_to_report_frames": se._stats(delays),
+        "onset_to_report_frames": se._stats(delays), "period": period,
         "reference": sorted({r for p in parts for r in p["references"]}),
     }
 
 
 def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Sequence[str],
-                    say: Callable[[str], None]) -> dict | None:
+                    say: Callable[[str], None], heads_of: dict | None = None) -> dict | None:
     """Every subject (or idle-only recording) held out in turn: a model trained without it, exported,
-    its recording replayed through the daemon. None when there is nothing to hold out against."""
+    its recording replayed through the daemon. None when there is nothing to hold out against.
+    ``heads_of``: per held-out group, early heads and rule chosen without it (``trainer.early.fold_heads``),
+    exported with that fold's model so its early reports are scored too."""
     from sklearn.base import clone
 
     from runtime.model import load_model
@@ -167,18 +169,21 @@ def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Seque
                 f"({k + 1}/{len(groups)}) ...")
             model = clone(estimator).fit(ds.X[train], ds.y[train])
             meta = dataset_metadata(ds, training={"held_out": group}, dormant_class=DORMANT if dormant else None)
-            path = export_onnx(model, Path(tmp) / f"fold{k}.onnx", meta)
+            heads = (heads_of or {}).get(group)
+            path = export_onnx(model, Path(tmp) / f"fold{k}.onnx", meta, early=heads)
             loaded = load_model(path, warm_up=False)
             mine = [{**replay_recording(r, loaded, mode), "synthetic": looks_simulated(r.meta)}
                     for r, g in zip(recordings, owners, strict=True) if g == group]
             fold = summarize(mine)
-            folds.append({"held_out": group, **{key: fold[key] for key in (
+            folds.append({"held_out": group, "early_heads": heads is not None, **{key: fold[key] for key in (
                 "events", "right", "wrong", "missed", "idle_hours", "false_events", "false_per_hour")}})
             parts += mine
     if not parts:
         return {"mode": mode, "skipped": skipped, "folds": []}
+    early = sum(f["early_heads"] for f in folds)
     return {"mode": mode, "dormant_class": dormant, **summarize(parts), "folds": folds, "skipped": skipped,
-            "real_idle": _real_part(parts, mode)}
+            "real_idle": _real_part(parts, mode),
+            "early_heads": f"{early} of {len(folds)} folds" if early else "none (the full window only)"}
 
 
 def _real_part(parts: Sequence[dict], mode: str) -> dict | None:
@@ -214,9 +219,11 @@ def replay_lines(r: dict | None) -> list[str]:
     lines = []
     if r["events"]:
         d = r["onset_to_report_frames"]
+        ms = 1000.0 * r.get("period", NOMINAL_PERIOD_S)
         lines.append(f"events: {r['events']} trials, {r['right']} right ({r['right_fraction']:.0%}), {r['wrong']} wrong, "
                      f"{r['missed']} missed, {r['early_reports']} reports before the action; onset to report: "
-                     + (f"median {d['median']:.0f} frames from {refs}" if d else "-"))
+                     + (f"median {d['median']:.0f} frames ({d['median'] * ms:.0f} ms), p90 {d['p90']:.0f} frames "
+                        f"({d['p90'] * ms:.0f} ms) from {refs}; early heads: {r.get('early_heads', 'none')}" if d else "-"))
     if r["idle_hours"]:
         by = ", ".join(f"{k} {v['false_events']} in {v['hours'] * 60:.1f} min"
                        for k, v in r["idle_by_source"].items())

@@ -116,10 +116,17 @@ def train(options: TrainOptions) -> TrainResult:
         estimator = selection.estimator
     else:
         estimator = build_estimator(options, ds)
+    lab, prior = ds, None
+    if options.prior and options.data:
+        from trainer.prior import use_prior
+
+        prior = use_prior(estimator, ds, say)
+        estimator, ds = prior.estimator, prior.ds  # the lab's cases (+ the evidence windows) and the prior
     say("training the final model on all cases ...")
     model = estimator.fit(ds.X, ds.y)
-    evaluation = evaluate(options, ds, estimator, say)
-    heads, early_metrics = fit_early_heads(options, with_actions(ds), estimator, say)
+    evaluation = evaluate(options, lab, estimator, say)  # scored on the lab's own cases only
+    heads, early_metrics = fit_early_heads(options, with_actions(ds), estimator, say,
+                                           wrap=prior.wrap if prior else None)
     sweep = None
     if not options.no_sweep and "bow" in options.families:
         sweep = _sweeps(options, recordings, out, say)
@@ -133,8 +140,9 @@ def train(options: TrainOptions) -> TrainResult:
         from trainer.own_replay import held_out_replay
 
         say("replaying each held-out subject's recording through the daemon ...")
-        replay = held_out_replay(ds, estimator, recordings, names, say)
-    metrics = metrics_of(options, ds, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
+        replay = held_out_replay(ds, estimator, recordings, names, say, heads_of=heads.folds if heads else None)
+    metrics = metrics_of(options, lab, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
+    metrics["prior"] = prior.report if prior else None
     metrics["idle"] = idle and {"seconds": round(idle.seconds, 1), "dormant_windows": len(idle.X),
                                 "dormant_class": idle.makes_class, "per_origin": idle.per_source,
                                 "notes": idle.notes, "cut": idle.cut}
@@ -142,7 +150,7 @@ def train(options: TrainOptions) -> TrainResult:
     metrics["data_notes"], metrics["partial_subjects"] = notes.lines, notes.partial
     if early_metrics is not None:
         metrics["early"] = early_metrics
-    onnx_ok = write_model(options, ds, model, metrics, out, early=heads)
+    onnx_ok = write_model(options, lab, model, metrics, out, early=heads)
     if onnx_ok and not options.no_onnx and options.replay and scores_real_idle(options.real_idle, synthetic):
         from runtime.model import load_model
         from trainer.own_replay import real_idle
@@ -200,6 +208,10 @@ def _write_report(options: TrainOptions, out: Path, ds, embedding, metrics: dict
         from trainer.select import markdown_lines
 
         md_path.write_text(md_path.read_text() + "\n".join(markdown_lines(selection)) + "\n")
+    if metrics.get("prior"):
+        from trainer.prior import markdown_lines as prior_lines
+
+        md_path.write_text(md_path.read_text() + "\n" + "\n".join(prior_lines(metrics["prior"], synthetic)) + "\n")
     if early_metrics is not None:
         from trainer.early_report import markdown_lines as early_lines
 
@@ -228,9 +240,12 @@ def with_actions(ds):
     return ds if keep.all() else ds.subset(np.flatnonzero(keep))
 
 
-def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], None]) -> tuple[Any, dict | None]:
+def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], None],
+                    wrap: Callable | None = None) -> tuple[Any, dict | None]:
     """Early heads and their rule (trainer.early) with the nested evaluation for the report, or
-    (None, None) with ``--early off``; (None, {"skipped": why}) when the data cannot choose a rule."""
+    (None, None) with ``--early off``; (None, {"skipped": why}) when the data cannot choose a rule.
+    ``wrap``: turns a head into one trained with the prior (trainer.prior). The heads' ``folds`` are the
+    nested evaluation's heads and rule without each subject, for the held-out replay."""
     if options.early == "off":
         return None, None
     import numpy as np
@@ -246,7 +261,10 @@ def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], N
         say(f"early decisions skipped: {why}")
         return None, {"skipped": why}
     shapes = [(ds.layout.matrices[p].cells_y, ds.layout.matrices[p].cells_x) for p in ds.pads]
-    make = early.head_factory(ds.pad_sizes, shapes, options.seed, ds.fullscale)
+    base = early.head_factory(ds.pad_sizes, shapes, options.seed, ds.fullscale)
+
+    def make(p: int):
+        return wrap(base(p)) if wrap else base(p)
 
     def make_full(_frames: int):
         return clone(estimator)
@@ -259,6 +277,7 @@ def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], N
     ev["rule_inner"] = {"accuracy": heads.choice.accuracy, "full_accuracy": heads.choice.full_accuracy,
                         "mean_frames": heads.choice.mean_frames}
     ev["n_subjects"] = len(np.unique(ds.groups))
+    heads.folds = early.fold_heads(fits, ev["rules"])
     return heads, ev
 
 

@@ -348,7 +348,7 @@ def _replay_lines(metrics: dict, label: str) -> list[str]:
     lines = ["", f"## Stream replay of held-out subjects ({label})", "",
              f"Each subject's recording (trials and idle stretches) replayed frame by frame through the daemon "
              f"in the stream setting `{r['mode']}`, with a model trained without that subject (trainer/own_replay.py; "
-             "the full-window model: early heads are not refitted per held-out subject).",
+             f"early heads and rule chosen without that subject: {r.get('early_heads', 'none')}).",
              ""]
     if not r.get("folds"):
         return [*lines, f"Not measured: {'; '.join(f'{k}: {v}' for k, v in r.get('skipped', {}).items()) or '-'}", ""]

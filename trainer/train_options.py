@@ -76,6 +76,9 @@ class TrainOptions:
     models trained on real recordings, where the folder is present."""
     """Add the dormant class from the recordings' idle stretches (when they hold any)."""
     no_onnx: bool = False
+    prior: bool = True
+    """With recordings (``data``): add the product's prior (trainer.prior), its weight chosen by grouped
+    cross-validation on the lab's subjects; False: the lab's data alone."""
     early: str = "on"
     """``on``: early heads and their report rule in the model (trainer.early); ``off``: the full window only."""
     json: bool = False
@@ -199,6 +202,7 @@ class TrainOptions:
         for flag, on in (("--level-features", self.level_features), ("--scale-features", self.scale_features),
                          ("--no-sweep", self.no_sweep), ("--no-onnx", self.no_onnx),
                          ("--no-dormant", not self.dormant), ("--no-replay", not self.replay),
+                         ("--no-prior", not self.prior and bool(self.data)),
                          ("--real-idle", self.real_idle is True), ("--no-real-idle", self.real_idle is False)):
             if on:
                 parts.append(flag)

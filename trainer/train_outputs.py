@@ -96,6 +96,8 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
             **({"idle_seconds": metrics["idle"]["seconds"]} if metrics.get("idle") else {}),
             **({"dormant_cut": metrics["idle"]["cut"]} if (metrics.get("idle") or {}).get("dormant_class") else {}),
+            **({"prior": {k: metrics["prior"][k] for k in ("weight", "recipe", "prior_cases")}}
+               if (metrics.get("prior") or {}).get("recipe") else {}),
         },
         evaluation={
             "synthetic": metrics["synthetic"],
@@ -165,6 +167,7 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
     from runtime.training_counts import TrainingCounts
     from trainer.own_replay import real_idle_line, replay_lines
+    from trainer.prior import choice_lines
     from trainer.report import pct, pooled_text
 
     tag = "synthetic data" if metrics["synthetic"] else ""
@@ -186,6 +189,7 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
         else f"  leave one subject out: not measured ({metrics['loso_unavailable']})",
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
         f"{pct(metrics['baseline_config1_accuracy_mean'])})",
+        *(f"  {line}" for line in choice_lines(metrics.get("prior"))),
         *(f"  held-out replay through the daemon: {line}" for line in replay_lines(metrics.get("own_replay"))),
         *([real_idle_line(metrics["real_idle"])] if metrics.get("real_idle") else []),
         f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",

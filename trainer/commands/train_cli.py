@@ -92,6 +92,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replay each held-out subject's recording (trials and idle) through the daemon with a "
                         "model trained without it: events right, wrong, missed, false events per hour of idle "
                         "(default: on)")
+    parser.add_argument("--prior", action=argparse.BooleanOptionalAction, default=D.prior,
+                        help="with --data: train on the recordings plus what the simulator teaches (the paper's "
+                        "protocol and idle of the default simulator, fixed seed), its weight chosen by leave one "
+                        "lab subject out (docs/OWN_MODEL.md); --no-prior: the recordings alone (default: on)")
     parser.add_argument("--early", choices=EARLY, default=D.early,
                         help="on: early heads decide 4 to 11 frames after the window's start when their calibrated "
                         "confidence allows, rule chosen by grouped cross-validation (docs/EARLY.md); off: the full "
