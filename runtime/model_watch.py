@@ -85,28 +85,29 @@ def is_candidate_name(name: str) -> bool:
     return not any(name.endswith(s) for s in IGNORED_SUFFIXES)
 
 
-def folder_problem(folder: str | Path) -> str | None:
-    """Why a model folder can never be read (a file, no permission), or None. A folder that does
-    not exist yet is not a problem here: the daemon waits for it to appear."""
+def folder_problem(folder: str | Path, key: str = "model.folder") -> str | None:
+    """Why a model folder (the config's ``key``) can never be read (a file, no permission), or None. A
+    folder that does not exist yet is not a problem here: the daemon waits for it to appear."""
     path = Path(folder)
     if not path.exists():
         return None
     if not path.is_dir():
-        return f"model.folder: {path} is not a folder (point model.folder at the folder the models are dropped in)"
+        return f"{key}: {path} is not a folder (point {key} at the folder the models are dropped in)"
     try:
         with os.scandir(path):
             pass
     except OSError as exc:
-        return f"model.folder: cannot read {path} ({exc.strerror or exc}); give the service user read access"
+        return f"{key}: cannot read {path} ({exc.strerror or exc}); give the service user read access"
     return None
 
 
-def folder_error(folder: Path, exc: OSError) -> str:
+def folder_error(folder: Path, exc: OSError, key: str = "model.folder") -> str:
     """The line for a model folder the watcher cannot list: what is wrong and what to do."""
+    what = "shadow folder" if key == "model.shadow" else "model folder"
     if exc.errno == errno.ENOENT:
-        return (f"model folder {folder} does not exist (deleted or renamed?): create it (mkdir -p, readable by "
-                "the service user) or fix model.folder and reload; models dropped there are then picked up")
-    return folder_problem(folder) or f"model folder {folder}: {exc.strerror or exc}; check model.folder"
+        return (f"{what} {folder} does not exist (deleted or renamed?): create it (mkdir -p, readable by "
+                f"the service user) or fix {key} and reload; models dropped there are then picked up")
+    return folder_problem(folder, key) or f"{what} {folder}: {exc.strerror or exc}; check {key}"
 
 
 def permission_problem(st: FileState, service_uid: int | None = None) -> str | None:
@@ -137,8 +138,10 @@ class ModelWatcher:
         quarantine: QuarantineStore | None = None,
         said: dict[Path, tuple[tuple[int, int, int], str]] | None = None,
         after_reject: str | None = None,
+        key: str = "model.folder",
     ) -> None:
-        self.folder = Path(folder)
+        self.folder, self.key = Path(folder), key
+        """The folder and the config key that names it (in the lines about the folder)."""
         self.after_reject = after_reject
         """What a rejection line says happens next (None: the model folder's words on what serves)."""
         self.loader = loader
@@ -191,7 +194,7 @@ class ModelWatcher:
             entries = list(os.scandir(self.folder))
         except OSError as exc:
             if not self._folder_error_logged:
-                log.error("%s", folder_error(self.folder, exc))
+                log.error("%s", folder_error(self.folder, exc, self.key))
                 self._folder_error_logged = True
             self._listed = False
             return out

@@ -155,7 +155,7 @@ class Shadow:
         self.watcher = ModelWatcher(
             self.folder, loader=self.loader, check=self.fit_problem, poll_interval=self.cfg.model.poll_interval_s,
             decision_budget=self.cfg.model.decision_budget, on_reject=self._rejected, quarantine=self.quarantine,
-            said=self._said, after_reject="it does not run in shadow (model.shadow); serving goes on")
+            said=self._said, after_reject="it does not run in shadow (model.shadow); serving goes on", key="model.shadow")
         self._first_poll, self._next_poll = True, 0.0
         return True
 

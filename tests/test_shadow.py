@@ -322,3 +322,38 @@ def test_a_candidate_whose_rate_differs_in_its_last_digits_runs_beside_the_servi
     assert shadow.fit_problem(candidate) is None
     candidate.meta.sample_rate_hz = 32.0
     assert "its sample rate is 32.0, the serving model's 31.25" in shadow.fit_problem(candidate)
+
+
+def test_sighup_starts_the_shadow_without_restarting_the_serving_watcher(tmp_path):
+    from runtime.config import load_config
+
+    models, shadow = _folders(tmp_path)
+    write_model(shadow, "candidate.onnx", tiny_model_bytes(bias=_bias("push")))
+    path = tmp_path / "handover.toml"
+    base = f'[device]\nurl = "sim://"\n[sinks]\nstdout = false\n[model]\nfolder = "{models}"\npoll_interval_s = 0.05\n'
+    path.write_text(base)
+    daemon = Daemon(load_config(path))
+    daemon.models.start()
+    serving_watcher = daemon.models.watcher
+    try:
+        path.write_text(base + f'shadow = "{shadow}"\n')
+        daemon.reload()
+        assert daemon.cfg.model.shadow == str(shadow) and daemon.models.watcher is serving_watcher
+        assert wait_for(lambda: daemon.shadow.candidate is not None, 10)
+        path.write_text(base)
+        daemon.reload()
+        assert daemon.shadow.candidate is None and daemon.shadow.counters() == {}
+    finally:
+        daemon.shadow.stop()
+        daemon.models.stop()
+
+
+def test_check_names_a_missing_shadow_folder_in_one_line(tmp_path):
+    models, _ = _folders(tmp_path)
+    cfg = tmp_path / "h.toml"
+    cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\nshadow = "{tmp_path}/nowhere"\n')
+    out = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(cfg), "--check"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].endswith(f"model.shadow {tmp_path}/nowhere does not exist: create it "
+                                                        f"(mkdir -p {tmp_path}/nowhere) or fix the path in {cfg}")

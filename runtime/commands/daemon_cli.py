@@ -99,7 +99,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
     from runtime.model_watch import ModelWatcher, folder_problem
     from runtime.scene import events_problem, scene_problem
 
-    problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder) or _pads_problem(cfg.scene.pads)
+    problem = (_missing_folder(cfg) or folder_problem(cfg.model.folder)
+               or (cfg.model.shadow and folder_problem(cfg.model.shadow, "model.shadow")) or _pads_problem(cfg.scene.pads)
                or _control_problem(cfg) or _lock_problem(cfg) or _capture_problem(cfg))
     if problem:
         raise HandoverError(problem)
@@ -251,10 +252,11 @@ def _capture_problem(cfg) -> str | None:
 def _missing_folder(cfg) -> str | None:
     """A model folder that does not exist is a typo or a missed install step, so --check calls it an
     error (an existing empty folder is only a warning; the running daemon waits for either)."""
-    folder = Path(cfg.model.folder)
-    if folder.exists() or folder.is_symlink():
-        return None
-    return f"model.folder {folder} does not exist: create it (mkdir -p {folder}) or fix the path in {cfg.source}"
+    for key, value in (("model.folder", cfg.model.folder), ("model.shadow", cfg.model.shadow)):
+        folder = Path(value or ".")
+        if not (folder.exists() or folder.is_symlink()):
+            return f"{key} {folder} does not exist: create it (mkdir -p {folder}) or fix the path in {cfg.source}"
+    return None
 
 
 def _pads_problem(pads: str) -> str | None:
