@@ -123,8 +123,10 @@ def test_a_recording_of_a_lab_b_subject_says_its_lab(tmp_path):
                      "--poses", "down", "--objects", "cylinder", "--actions", "bump", "--runs", "1", "--trial-seconds",
                      "2", "--gap", "0", "--countdown", "0", "--quiet", "--idle-minutes", "0", "--auto"])
     assert code == 0
-    meta = Recording.load(tmp_path / "subject_s1.hrec").meta
-    assert meta["lab"] == "B" and meta["synthetic"] is True
+    rec = Recording.load(tmp_path / "subject_s1.hrec")
+    assert rec.meta["lab"] == "B" and rec.meta["synthetic"] is True
+    played = rec.trials[0].extra["scripted_subject"]
+    assert rec.trials[0].object == "cylinder" and played["object"] == "bottle" and played["lab"] == "B"
 
 
 def test_demo_plays_lab_bs_session_to_a_given_model(tmp_path, capsys):

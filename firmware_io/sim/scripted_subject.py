@@ -167,7 +167,8 @@ class ScriptedSubject:
         with self._lock:
             self._segment, self._pos = frames, 0
         self.performed.append({"slot": key, "attempt": attempt, "acted": True, "onset": onset})
-        return {"synthetic": True, "onset": onset, "scripted_subject": {"seed": self.seed, "acted": True}}
+        played = {"lab": self.lab.name, "object": self.lab.object_for(slot.object)} if self.lab.key else {}
+        return {"synthetic": True, "onset": onset, "scripted_subject": {"seed": self.seed, "acted": True, **played}}
 
     def _idle_stretch(self, slot) -> dict:
         """Act out an idle stretch (``firmware_io.recordings.idle_stretches.IdleSlot``): the simulated
