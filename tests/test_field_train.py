@@ -57,7 +57,11 @@ def test_lab_and_field_folders_make_one_data_set_with_the_captured_idle_as_dorma
     ds, idle = _cases(TrainOptions(data=data), recs, names, print)
     field = ds.groups == "field-robot1"
     assert set(ds.groups) >= {"s1", "s2", "field-robot1"}
-    assert sorted(ds.y[field & (ds.y != "dormant")]) == sorted(truth[:6])
+    events = field & (ds.y != "dormant")
+    assert sorted(ds.y[events]) == sorted(truth[:6])
+    # each case is the window the daemon decided on (tests/capture_folder.py: report frame n // 2, T = 15)
+    decided = [r.n_frames // 2 - 14 for r in recs if r.trials and r.trials[0].subject == "field-robot1"]
+    assert ds.trigger_offsets[events].tolist() == decided
     assert idle is not None and set(idle.groups) == {"field-robot1"} and idle.seconds == pytest.approx(90, abs=2)
 
 

@@ -34,11 +34,16 @@ from runtime.trigger_settings import (
 )
 
 __all__ = [
-    "ABOVE_FROM_START", "TOO_EARLY", "TOO_LATE", "Dataset", "DatasetError", "build_dataset", "case_check",
+    "ABOVE_FROM_START", "DECIDED_START", "TOO_EARLY", "TOO_LATE", "Dataset", "DatasetError", "build_dataset", "case_check",
     "dataset_trigger", "fingerprint", "frames_before_trigger", "onset_start", "reason_counts", "rising_trigger",
     "untriggered_lines"
 ]
 
+DECIDED_START = "decided_start"
+"""``trial.extra`` key of a trial whose case is the window a daemon decided on (a captured event,
+trainer.field_folder): its first frame within the trial. Its label is about that window, so it is cut
+there, not where the trigger fires on the shorter captured stretch (a third of them fired at their first
+frames, without the grasp the daemon had seen settle)."""
 ABOVE_FROM_START = "above the level from the first frame"
 NEVER = "never triggered"
 TOO_LATE = "triggered too late"
@@ -390,6 +395,11 @@ def _cut(rec: Recording, trial: Trial, cols: np.ndarray, rate_hz: float, setting
     (``pads``: the selected pads' column counts and fingers)."""
     frames, _ = rec.trial_frames(trial)
     selected = frames[:, cols]
+    decided = trial.extra.get(DECIDED_START) if isinstance(trial.extra, dict) else None
+    if isinstance(decided, int) and not isinstance(decided, bool):
+        if not 0 <= decided <= len(selected) - T:
+            return f"{TOO_LATE}: the decided window starts at frame {decided} of {len(selected)}, {T} frames needed"
+        return decided, selected[decided : decided + T]
     if settings.kind == "onset":
         trig, why = onset_start(selected, pads[0], fullscale, settings, T, rate_hz, pads[1])
     else:

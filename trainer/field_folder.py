@@ -27,6 +27,7 @@ from firmware_io.recordings.field_capture import (
 from firmware_io.recordings.recording import SUFFIX, Recording, RecordingError
 from runtime.config import KNOWN_EVENTS
 from runtime.health import write_json_atomically
+from trainer.dataset import DECIDED_START
 
 __all__ = [
     "CLASSES", "CapturedEvent", "FieldFolderError", "field_recordings", "is_capture_folder", "read_events",
@@ -68,6 +69,14 @@ class CapturedEvent:
     def proposed(self) -> str | None:
         """The label the robot's outcome proposes (``field_capture.proposed_label``)."""
         return proposed_label(self.decision, self.outcome, CLASSES)
+
+    @property
+    def window_first(self) -> int:
+        """The first frame (within the recording) of the window the daemon decided on (-1: unknown)."""
+        first, last = self.meta.get("frame_first"), self.meta.get("frame_last")
+        if self.report_frame < 0 or not isinstance(first, int) or not isinstance(last, int):
+            return -1
+        return max(-1, self.report_frame - (last - first))
 
     @property
     def report_frame(self) -> int:
@@ -184,7 +193,8 @@ def field_subject(meta: dict) -> str:
 
 def field_recordings(folder: str | os.PathLike, say: Callable[[str], None]) -> tuple[list[Recording], list[str]]:
     """Recordings ``handover train`` reads from a capture folder, with their file names: each event with
-    a label in labels.json as one trial of that class, each idle file as idle (dormant data). Events
+    a label in labels.json as one trial of that class, cut at the window the daemon decided on
+    (``trainer.dataset.DECIDED_START``), each idle file as idle (dormant data). Events
     without a label are skipped with one line."""
     folder = Path(folder)
     labels = read_labels(folder)
@@ -196,8 +206,9 @@ def field_recordings(folder: str | os.PathLike, say: Callable[[str], None]) -> t
             unlabelled += 1
             continue
         trial = ev.recording.trials[0]
-        subject = field_subject(ev.meta)
-        recs.append(replace(ev.recording, trials=[replace(trial, subject=subject, action=label)]))
+        extra = {**trial.extra, DECIDED_START: ev.window_first - trial.first} if ev.window_first >= trial.first else {}
+        trial = replace(trial, subject=field_subject(ev.meta), action=label, extra=extra or trial.extra)
+        recs.append(replace(ev.recording, trials=[trial]))
         names.append(f"{ev.stem}{SUFFIX}")
     if unlabelled:
         say(f"{folder}: {unlabelled} of {len(events)} captured events have no confirmed label and are skipped "
