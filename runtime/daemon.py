@@ -76,6 +76,8 @@ class RobotInputs:
     def __init__(self, detector: Detector) -> None:
         self._detector, self._messages = detector, MessageLog()
         self.capture: FieldCapture | None = None
+        self.shadow: Shadow | None = None
+        """Judges its candidate and the serving model by each outcome field capture takes (set by the daemon)."""
         self.outcomes_ignored = 0
         """Outcomes heard while capture is off (the first is logged)."""
 
@@ -83,7 +85,8 @@ class RobotInputs:
         """The robot's word about its last event (``outcome taken``): kept by field capture, if on."""
         capture = self.capture
         if capture is not None:
-            capture.outcome(word, source)
+            if capture.outcome(word, source) and self.shadow is not None:
+                self.shadow.outcome(word)  # the same event: both are about the newest reported window
             return
         self.outcomes_ignored += 1
         if self.outcomes_ignored == 1:
@@ -129,6 +132,7 @@ class Daemon:
         self.shadow = Shadow(cfg, self.health, self.models.load, self.models.problem, self.models.quarantine,
                              lambda: self.detector.model, lambda line: self.sinks.emit(line))
         """A candidate model in shadow (``[model] shadow``): fed each decided window, off the hot thread."""
+        self.robot.shadow = self.shadow
         self.link = DeviceLink(cfg.device, self.health, self.notifier, client_factory)
         self.frames_received = 0
         self._control_ignored = 0

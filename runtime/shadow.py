@@ -15,6 +15,7 @@ import json
 import logging
 import queue
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +28,7 @@ from runtime.health import Health, one_line
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore
-from runtime.shadow_stats import Comparison
+from runtime.shadow_stats import Comparison, judged_right
 from runtime.sinks import PROTOCOL_VERSION
 
 if TYPE_CHECKING:
@@ -46,6 +47,8 @@ RATE_DECIMALS = 6
 """Sample rates are compared to this many decimals: a rate estimated from other recordings differs in its
 last digits (a candidate trained on captured field recordings, 31.25000000001732 Hz, was refused beside a
 serving 31.250000000003443 Hz)."""
+EVENTS_KEPT = 64
+"""Reported windows remembered for the robot's outcome on them (it comes seconds after the event)."""
 WAIT_S = 0.1
 """Longest the shadow thread waits for a window before it looks at the folder and the serving model again."""
 
@@ -122,6 +125,13 @@ class Shadow:
         """The serving model the candidate was last weighed against."""
         self._next_poll = 0.0
         self._first_poll = True
+        self._last_event: int | None = None
+        """The last frame of the newest window the serving model reported (the hot thread writes it)."""
+        self._outcomes: deque[tuple[int, str]] = deque(maxlen=64)
+        """(event's last frame, the robot's word), from the control socket's or ROS 2's thread."""
+        self._events: dict[int, tuple[str, str, tuple[str, ...]]] = {}
+        """The last ``EVENTS_KEPT`` reported windows compared: last frame -> (serving class, candidate class, the
+        serving model's classes)."""
 
     # -- the hot thread's side ------------------------------------------------------------------------
     def offer(self, decision: Decision, ring: RingBuffer) -> None:
@@ -129,12 +139,21 @@ class Shadow:
         if self.candidate is None:
             return
         model, frame = decision.model, decision.frame
+        if decision.report >= 0:
+            self._last_event = frame.number
         item = Offered(ring.window(model.meta.T).copy(), model, model.meta.classes[decision.label],
                        decision.report >= 0, decision.first, frame.number, int(frame.timestamp_ms), time.time())
         try:
             self._queue.put_nowait(item)
         except queue.Full:
             self.dropped += 1
+
+    # -- the control socket's and the ROS 2 node's threads -----------------------------------------------
+    def outcome(self, word: str) -> None:
+        """The robot's word on its last event (field capture took it): both models judged by it in the shadow
+        thread (runtime.shadow_stats.judged_right)."""
+        if self.candidate is not None and self._last_event is not None:
+            self._outcomes.append((self._last_event, word))
 
     # -- between frames: start, stop, reload, health -----------------------------------------------------
     @property
@@ -195,8 +214,23 @@ class Shadow:
         try:
             item = self._queue.get(timeout=WAIT_S)
         except queue.Empty:
-            return
-        self.compare(item)
+            item = None
+        if item is not None:
+            self.compare(item)
+        self._judge()
+
+    def _judge(self) -> None:
+        """The robot's outcomes heard since the last turn, on the events both models decided."""
+        candidate, comparison = self.candidate, self.comparison
+        while self._outcomes:
+            frame_last, word = self._outcomes.popleft()
+            pair = self._events.get(frame_last)
+            if candidate is None or comparison is None or pair is None:
+                continue  # the window was dropped, or came before this candidate
+            classes = (*pair[2], *candidate.meta.classes)  # a class name of either model is a person's label
+            serving, mine = judged_right(pair[0], word, classes), judged_right(pair[1], word, classes)
+            if serving is not None and mine is not None:
+                comparison.judge(frame_last, serving, mine)
 
     def fit_problem(self, candidate: Any) -> str | None:
         """Why ``candidate`` cannot run beside the serving model on its windows, or None."""
@@ -265,6 +299,10 @@ class Shadow:
         cls = model.meta.classes[int(labels[0])]
         reported = cls in self.cfg.scene.events
         comparison.add(item.serving_class, item.serving_reported, cls, reported, latency_us)
+        if item.serving_reported:
+            self._events[item.frame_last] = (item.serving_class, cls, tuple(item.model.meta.classes))
+            while len(self._events) > EVENTS_KEPT:
+                del self._events[next(iter(self._events))]
         if reported or item.serving_reported:
             self.emit(ShadowLine(item.time, cls, dict(zip(model.meta.classes, scores[0].tolist(), strict=True)),
                                  reported, latency_us, model.model_id, item.serving_class, item.serving_reported,

@@ -109,7 +109,7 @@ def test_shadow_lines_validate_and_health_compares_the_candidate(tmp_path):
     assert view["windows_compared"] == n and view["agreement"] == 0.0 and view["confusion"] == {"pull": {"push": n}}
     assert view["false_events_on_serving_dormant"] == 0 and view["serving_events_on_candidate_dormant"] == 0
     assert view["latency_p50_us"] > 0 and view["windows_dropped"] == 0 and view["candidate_file"] == "candidate.onnx"
-    assert view["verdict"].endswith(f"not judged yet, {n} of {MIN_WINDOWS} windows compared")
+    assert f"not judged yet, {n} of {MIN_WINDOWS} windows compared, 0 of 20 events judged" in view["verdict"]
 
 
 def test_a_broken_candidate_is_refused_and_serving_goes_on(tmp_path):
@@ -286,7 +286,7 @@ def test_the_shadow_rule(agreed, candidate_extra, serving_extra, word):
     assert f" {word} the shadow rule: agrees on {agreed / 100:.1%} of 100 windows" in line
     early = Comparison("c" * 12, "c.onnx", 0)
     early.add("pull", True, "pull", True, 1.0)
-    assert verdict(early).endswith(f"not judged yet, 1 of {MIN_WINDOWS} windows compared")
+    assert f"not judged yet, 1 of {MIN_WINDOWS} windows compared, 0 of 20 events judged" in verdict(early)
 
 
 def test_promotion_is_the_documented_file_move(tmp_path):
@@ -357,3 +357,49 @@ def test_check_names_a_missing_shadow_folder_in_one_line(tmp_path):
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert out.stderr.strip().splitlines()[-1].endswith(f"model.shadow {tmp_path}/nowhere does not exist: create it "
                                                         f"(mkdir -p {tmp_path}/nowhere) or fix the path in {cfg}")
+
+
+def test_the_robots_outcome_judges_both_models_on_the_last_event(tmp_path):
+    serving = _Fake(Path("serving.onnx"), label=0)  # pull, reported
+    shadow, _ = _shadow(tmp_path, _Fake(Path("c.onnx"), label=1), serving)  # the candidate says push
+    shadow.watch()
+    shadow.step()
+    for i in range(3):
+        shadow.offer(_decision(serving, 40 + 50 * i), _Ring())
+        shadow.step()
+
+    def judged() -> tuple[int, int, int]:
+        shadow.step()
+        view = shadow.counters()["shadow"]
+        return view["events_with_outcome"], view["serving_right"], view["candidate_right"]
+
+    shadow.outcome("taken")  # the person took it: a pull, as served
+    assert judged() == (1, 1, 0)
+    shadow.outcome("push")  # a person's label on the same event replaces the robot's word
+    assert judged() == (1, 0, 1)
+    shadow.outcome("dropped")  # tells neither
+    assert judged() == (1, 0, 1) and "1 of 20 events judged by the robot's outcome" in shadow.counters()["shadow"]["verdict"]
+
+
+def test_outcomes_reach_the_shadow_only_through_field_capture(tmp_path):
+    models, shadow_folder = _folders(tmp_path)
+    daemon = Daemon(_config(models, shadow_folder, "sim://"))
+    heard: list[str] = []
+    daemon.shadow.outcome = heard.append
+    daemon.robot.outcome("taken", "control")  # capture off: ignored (one warning), not judged
+    daemon.robot.capture = SimpleNamespace(outcome=lambda word, source: word != "bogus")
+    daemon.robot.outcome("bogus", "control")  # refused by capture
+    daemon.robot.outcome("kept", "control")
+    assert heard == ["kept"]
+
+
+def test_the_shadow_rule_with_outcomes():
+    c = Comparison("c" * 12, "c.onnx", 0)
+    for i in range(100):
+        c.add("pull", True, "pull" if i < 50 else "push", True, 10.0)  # agrees on half only
+    for frame in range(25):
+        c.judge(frame, serving_right=frame < 10, candidate_right=frame < 20)
+    assert " passes the shadow rule: right on 20 of 25 events the robot's outcome judges, the serving model on 10" \
+        in verdict(c)
+    c.candidate_extra = 1
+    assert " fails the shadow rule" in verdict(c)
