@@ -94,6 +94,11 @@ def markdown_lines(res: dict | None) -> list[str]:
                      f"{c['windows_dropped']} dropped (a full queue).")
     verdicts = [f"{case} {r:.2f}x, {'met' if r <= res['target_ratio'] else 'not met'}"
                 for case, r in res["p999_ratio"].items()]
+    alone = res["serving"]
+    spread = "; ".join(f"{case}: median {res[case]['p50'] / alone['p50']:.2f}x, p99 {res[case]['p99'] / alone['p99']:.2f}x"
+                       for case in CASES[1:])
     lines += ["", f"Target: serving p99.9 with a shadow (and capture) at most {res['target_ratio']:g}x without: "
-              f"{'; '.join(verdicts)}.", ""]
+              f"{'; '.join(verdicts)} ({spread}). A p99.9 of {alone['n']} decisions is their few slowest, which the "
+              "machine's other work decides (the load average above): a ratio below 1 says the case did not measurably "
+              "slow the serving decision, not that it sped it up.", ""]
     return lines
