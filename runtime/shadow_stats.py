@@ -12,7 +12,7 @@ import time
 
 from runtime.health import Latency
 
-__all__ = ["MIN_OUTCOMES", "MIN_WINDOWS", "Comparison", "judged_right", "verdict"]
+__all__ = ["MIN_WINDOWS", "Comparison", "judged_right", "verdict"]
 
 MIN_WINDOWS = 100
 """Windows compared before the rule judges (fewer say little about a day's handovers)."""
