@@ -20,11 +20,12 @@ from trainer.commands import bench_cli
 
 ALL = ("pareto", "latency", "throughput", "hostile", "streams")
 """What ``all`` (``./dev bench``) runs."""
-SINGLE = ("soak", "decode", "inference", "ros2", "early", "streams_own", "field")
+SINGLE = ("soak", "decode", "inference", "ros2", "early", "streams_own", "field", "own_prior")
 """Run only by name: soak runs for hours; decode pins itself to one core; inference compares with
 scikit-learn on a small BoW model; ros2 needs a sourced ROS 2; early needs aeon (the bench extra);
 streams_own records scripted subjects and trains on them (after streams, whose results it adds to);
-field plays three emulated days to daemons and trains three models (minutes)."""
+field plays three emulated days to daemons and trains three models (minutes); own_prior records and trains
+as a lab does, with and without the product's prior (about half an hour)."""
 COMMANDS = {"compare": "benchmarks.compare_cli", "dormant": "benchmarks.dormant_cli"}
 """Studies with a command of their own (``add_arguments``/``main``): they compare methods on the
 simulated hand and the project's recordings for results/, not what a lab runs on its robot."""

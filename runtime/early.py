@@ -55,6 +55,8 @@ class EarlySpec:
     calibration: tuple[tuple[float, float], ...]
     threshold: float
     agree: bool
+    classes: tuple[str, ...] | None = None
+    """The classes training allows to be reported early (None: every reported class); the others wait for T."""
 
     @classmethod
     def from_meta(cls, value: object, T: int) -> EarlySpec:
@@ -80,11 +82,16 @@ class EarlySpec:
                                  f"got {threshold!r}")
         if not isinstance(agree, bool):
             raise EarlySpecError(f"{EARLY_KEY}.agree must be true or false, got {agree!r}")
-        return cls(tuple(points), tuple((float(a), float(b)) for a, b in calib), float(threshold), agree)
+        classes = value.get("classes")
+        if classes is not None and (not isinstance(classes, list) or not all(isinstance(c, str) for c in classes)):
+            raise EarlySpecError(f"{EARLY_KEY}.classes must be a list of class names (or absent), got {classes!r}")
+        return cls(tuple(points), tuple((float(a), float(b)) for a, b in calib), float(threshold), agree,
+                   None if classes is None else tuple(classes))
 
     def to_meta(self) -> dict:
         return {"points": list(self.points), "calibration": [list(c) for c in self.calibration],
-                "threshold": self.threshold, "agree": self.agree}
+                "threshold": self.threshold, "agree": self.agree,
+                **({} if self.classes is None else {"classes": list(self.classes)})}
 
     def confidence(self, index: int, scores: np.ndarray, label: int) -> float:
         """Calibrated probability that head ``index`` (of ``points``) is right, from one row of scores."""

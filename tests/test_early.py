@@ -172,6 +172,43 @@ def test_scene_early_events_keeps_the_others_for_the_full_window(early_model):
     assert sum(d.frame for d in early) < sum(d.frame for d in never)
 
 
+def test_the_classes_training_allows_early_are_the_only_ones_the_daemon_reports_early(early_model, tmp_path):
+    import dataclasses
+
+    from firmware_io.sim import demo_script, simulate_session
+    from runtime.model import load_model
+    from trainer import early
+    from trainer.measure import export_metadata
+    from trainer.onnx_export import export_onnx
+    from trainer.streams_eval import replay
+
+    path, ds, heads, full = early_model
+    session = simulate_session(demo_script(8, seed=5), seed=5)
+    kept = early.EarlyHeads(heads.models, dataclasses.replace(heads.spec, classes=()))
+    none_early = export_onnx(full, tmp_path / "none.onnx", export_metadata(ds, full, seed=0), early=kept)
+    assert load_model(none_early).early.classes == ()
+    never = replay(session, load_model(path), "onset", scene={"early_events": []})
+    assert [(d.frame, d.cls) for d in replay(session, load_model(none_early), "onset")] == \
+        [(d.frame, d.cls) for d in never]
+    assert EarlySpec.from_meta({**SPEC, "classes": ["pull"]}, T=15).to_meta()["classes"] == ["pull"]
+    with pytest.raises(EarlySpecError, match="classes must be a list"):
+        EarlySpec.from_meta({**SPEC, "classes": "pull"}, T=15)
+
+
+def test_the_rule_keeps_a_class_that_costs_false_events_for_the_full_window():
+    from trainer.early import choose_rule
+
+    truth = np.r_[np.zeros(100, int), np.ones(50, int), np.full(50, 2)]  # dormant 0, hold 1, pull 2
+    lab = truth.copy()[None]
+    lab[0, :10] = 1  # the head reads 10 dormant windows (arm moves) as holds, sure of it
+    margins = np.full((1, len(truth)), 3.0)
+    alone = choose_rule(lab, margins, truth.copy(), truth, (4,), 15, dormant=0)
+    assert alone.mean_frames == 15 and alone.spec.classes is None, "one rule for all: nothing may come early"
+    per = choose_rule(lab, margins, truth.copy(), truth, (4,), 15, dormant=0, classes=["dormant", "hold", "pull"])
+    assert per.spec.classes == ("pull",) and per.accuracy == 1.0
+    assert per.mean_frames == pytest.approx((150 * 15 + 50 * 4) / 200)
+
+
 def test_nested_evaluation_fits_each_leave_groups_out_model_once(early_model):
     from trainer import early
 

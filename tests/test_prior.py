@@ -173,3 +173,13 @@ def test_prior_and_evidence_join_training_and_the_replay_scores_early_reports(re
     assert dormant_cases is None or dormant_cases >= lab_dormant
     assert metrics["own_replay"]["early_heads"] == "3 of 3 folds"
     assert "## The product's prior" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_console_says_the_early_rule_and_where_it_reported():
+    from trainer.early_report import console_line
+
+    ev = {"rule": {"threshold": 0.95, "classes": ["pull", "push"]}, "full_accuracy": 0.98,
+          "operating_point": {"reported_at": {"4": 50, "15": 20}, "accuracy": 0.97}}
+    line = console_line(ev)
+    assert "0.95 (pull, push early)" in line and "4: 50, 15: 20" in line
+    assert console_line(None) is None and "not fitted (why)" in console_line({"skipped": "why"})

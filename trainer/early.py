@@ -104,6 +104,8 @@ class Fits:
         self.dormant = self.classes.index(DORMANT) if DORMANT in self.classes else -1
         """The dormant class's index (-1: none): never reported early (``choose_rule``)."""
         self._models: dict[frozenset, list] = {}
+        self.per_class = False
+        """Whether the rule also chooses which actions may come early (``choose_rule``'s ``classes``)."""
 
     def models(self, excluded: frozenset, full: bool = True) -> list:
         """The heads (and with ``full`` the full model) trained on every group but ``excluded``."""
@@ -205,33 +207,47 @@ def rule_in_words(target_loss: float = TARGET_LOSS) -> str:
             "window answered with an action is a false event)")
 
 
+def early_class_sets(n_classes: int, dormant: int, per_class: bool) -> list[tuple[int, ...] | None]:
+    """The sets of classes the rule may let come early: all reported classes (None), and with ``per_class``
+    every non-empty subset of the actions (a class whose early answers cost false events can wait for T)."""
+    actions = [c for c in range(n_classes) if c != dormant]
+    subsets = [s for n in range(len(actions) - 1, 0, -1) for s in combinations(actions, n)] if per_class else []
+    return [None, *subsets]
+
+
 def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth: np.ndarray,
-                points: Sequence[int], T: int, target_loss: float = TARGET_LOSS, dormant: int = -1) -> RuleChoice:
+                points: Sequence[int], T: int, target_loss: float = TARGET_LOSS, dormant: int = -1,
+                classes: Sequence[str] | None = None) -> RuleChoice:
     """The calibration and the rule (see the module docstring) from out-of-fold answers.
 
     ``dormant``: index of the dormant class (-1: none). A dormant answer is never reported early (the
     window waits for a later head or T, as the daemon does); the accuracy on the dormant cases is the
-    false-event side of the rule, kept like the actions' (``case_kinds``)."""
+    false-event side of the rule, kept like the actions' (``case_kinds``). ``classes`` (the class names,
+    by index): also choose which actions may come early (``early_class_sets``; ties: the most classes)."""
     calibration = [platt(margins[k], labels[k] == truth) for k in range(len(points))]
     conf = confidences(margins, calibration)
     frames = np.asarray([*points, T], dtype=np.float64)
-    allowed = None if dormant < 0 else np.arange(max(int(labels.max(initial=0)), int(truth.max()), dormant) + 1) != dormant
+    n = max(int(labels.max(initial=0)), int(truth.max()), dormant, len(classes or ()) - 1) + 1
     kinds = {k: m for k, m in case_kinds(truth, dormant).items() if m.any()}
     full_acc = float(np.mean(full == truth))
     full_kinds = {k: float(np.mean(full[m] == truth[m])) for k, m in kinds.items()}
     grid = []
-    for agree in (False, True):
-        for threshold in (*THRESHOLDS, NEVER):
-            where, said = cascade(labels, conf, full, threshold, agree, allowed)
-            grid.append({"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
-                         **{f"{k}_accuracy": float(np.mean(said[m] == truth[m])) for k, m in kinds.items()},
-                         "mean_frames": float(frames[where].mean())})
+    for subset in early_class_sets(n, dormant, classes is not None):
+        allowed = (None if dormant < 0 else np.arange(n) != dormant) if subset is None else np.isin(np.arange(n), subset)
+        for agree in (False, True):
+            for threshold in (*THRESHOLDS, NEVER):
+                where, said = cascade(labels, conf, full, threshold, agree, allowed)
+                grid.append({"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
+                             **{f"{k}_accuracy": float(np.mean(said[m] == truth[m])) for k, m in kinds.items()},
+                             "mean_frames": float(frames[where].mean()),
+                             "classes": None if subset is None else [classes[c] for c in subset]})
     feasible = [r for r in grid if r["accuracy"] >= full_acc - target_loss - 1e-12
                 and all(r[f"{k}_accuracy"] >= full_kinds[k] - target_loss - 1e-12 for k in kinds)]
-    best = min(feasible, key=lambda r: (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"]),
-               default=None)
+    best = min(feasible, key=lambda r: (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"],
+                                        -len(r["classes"] if r["classes"] is not None else range(n))), default=None)
     assert best is not None  # NEVER reproduces the full window's accuracy
-    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]))
+    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]),
+                     None if best["classes"] is None else tuple(best["classes"]))
     return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
 
 
@@ -254,7 +270,7 @@ def fit_rule(fits: Fits, excluded: frozenset = frozenset(), target_loss: float =
     """The rule chosen by leave-one-group-out among the groups outside ``excluded`` (the training data)."""
     labels, margins, index = fits.out_of_fold(excluded)
     return choose_rule(labels[:-1], margins[:-1], labels[-1], fits.truth[index], fits.points, fits.T, target_loss,
-                       fits.dormant)
+                       fits.dormant, fits.classes if fits.per_class else None)
 
 
 def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], None] | None = None) -> dict:
@@ -276,6 +292,8 @@ def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], 
         labels[:, test] = lab
         conf = confidences(mar[:-1], choice.spec.calibration)
         allowed = None if fits.dormant < 0 else np.arange(len(classes)) != fits.dormant
+        if choice.spec.classes is not None:
+            allowed = np.isin(classes, choice.spec.classes)
         w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.threshold, choice.spec.agree, allowed)
         where[test], said[test] = w, s
         rules.append({"held_out": str(g), **choice.spec.to_meta(), "inner_accuracy": choice.accuracy,
@@ -315,9 +333,9 @@ class EarlyHeads:
 def fold_heads(fits: Fits, rules: Sequence[dict]) -> dict[str, EarlyHeads]:
     """The nested evaluation's heads and rule for each held-out group (``evaluate``'s ``rules``): fitted
     already, so the held-out replay scores early reports without new fits."""
-    keys = ("points", "calibration", "threshold", "agree")
+    keys = ("points", "calibration", "threshold", "agree", "classes")
     return {r["held_out"]: EarlyHeads(fits.models(frozenset({r["held_out"]}), full=False),
-                                      EarlySpec.from_meta({k: r[k] for k in keys}, fits.T)) for r in rules}
+                                      EarlySpec.from_meta({k: r[k] for k in keys if k in r}, fits.T)) for r in rules}
 
 
 def fit_early(X: np.ndarray, y: np.ndarray, groups: np.ndarray, make: Factory, make_full: Factory,

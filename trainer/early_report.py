@@ -7,7 +7,7 @@ from pathlib import Path
 
 from trainer.early import rule_in_words
 
-__all__ = ["markdown_lines", "plot_curve"]
+__all__ = ["console_line", "markdown_lines", "plot_curve"]
 
 
 def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
@@ -18,10 +18,11 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
     points = ev["points"]
     op = ev["operating_point"]
     rule = ev["rule"]
+    early = "" if rule.get("classes") is None else f" for {', '.join(rule['classes']) or 'no class'} (the others wait for T)"
     lines = ["## Early decisions", "",
              f"Heads of the default kind at {', '.join(map(str, points[:-1]))} frames after the window's start, the "
              f"full model at {points[-1]}. The rule in the model file: report when the calibrated confidence reaches "
-             f"{rule['threshold']:g}{' and the head agrees with the previous one' if rule['agree'] else ''} (chosen as "
+             f"{rule['threshold']:g}{' and the head agrees with the previous one' if rule['agree'] else ''}{early} (chosen as "
              f"{rule_in_words(ev['target_loss'])}). Nested leave-one-subject-out{tag}: each outer fold's rule was chosen inside its "
              "training part, never on the held-out subject.", "",
              "| class | " + " | ".join(f"{p} frames" for p in points) + " | rule: accuracy | rule: mean frames |",
@@ -33,6 +34,17 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
     lines += ["", f"Reported at each point: {', '.join(f'{p}: {n}' for p, n in op['reported_at'].items())} "
                   f"(median {op['median_frames']:.0f} frames).", ""]
     return lines
+
+
+def console_line(ev: dict | None) -> str | None:
+    """The early rule and where the nested evaluation reported, in one line for train's console."""
+    if not ev or ev.get("skipped"):
+        return None if not ev else f"early decisions: not fitted ({ev['skipped']})"
+    rule, op = ev["rule"], ev["operating_point"]
+    who = ", ".join(rule["classes"]) if rule.get("classes") is not None else "every class"
+    at = ", ".join(f"{p}: {n}" for p, n in op["reported_at"].items())
+    return (f"early decisions: report at confidence {rule['threshold']:g} ({who} early); nested leave one subject "
+            f"out reported at frames {at} (accuracy {op['accuracy']:.1%}, full window {ev['full_accuracy']:.1%})")
 
 
 def plot_curve(ev: dict, path: Path, synthetic: bool) -> Path:

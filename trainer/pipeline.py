@@ -270,6 +270,7 @@ def fit_early_heads(options: TrainOptions, ds, estimator, say: Callable[[str], N
         return clone(estimator)
 
     fits = early.Fits(ds.X, ds.y, ds.groups, points, make, make_full)
+    fits.per_class = True  # a lab's model: the rule may keep a class whose early answers cost false events for T
     ev = early.evaluate(fits, say=say)
     say("early decisions: heads and rule on all training cases ...")
     heads = early.fit_early(ds.X, ds.y, ds.groups, make, make_full, points, fits=fits)

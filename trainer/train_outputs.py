@@ -166,6 +166,7 @@ def figures(options: TrainOptions, ds, embedding, metrics: dict, out: Path) -> d
 def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
     """The result on the terminal: data, the two accuracies against the baseline, where the files went."""
     from runtime.training_counts import TrainingCounts
+    from trainer.early_report import console_line
     from trainer.own_replay import real_idle_line, replay_lines
     from trainer.prior import choice_lines
     from trainer.report import pct, pooled_text
@@ -190,6 +191,7 @@ def headline(metrics: dict, out: Path, onnx_written: bool) -> str:
         f"  pooled 80/20: {pooled_text(metrics['config1'])} (baseline "
         f"{pct(metrics['baseline_config1_accuracy_mean'])})",
         *(f"  {line}" for line in choice_lines(metrics.get("prior"))),
+        *([f"  {early}"] if (early := console_line(metrics.get("early"))) else []),
         *(f"  held-out replay through the daemon: {line}" for line in replay_lines(metrics.get("own_replay"))),
         *([real_idle_line(metrics["real_idle"])] if metrics.get("real_idle") else []),
         f"  report: {out / 'report.md'} ({metrics['seconds']:.0f} s)",
