@@ -54,4 +54,4 @@ def test_replay_lines_give_the_interval_and_say_when_the_idle_is_short():
     assert lines[1] == ("9.6 min of idle: one false event is 6.2 per hour; record more idle "
                         "(`handover record --idle-only ...`) for a tighter figure")
     long = replay_lines(_replay(3, SHORT_IDLE_MIN + 1))
-    assert len(long) == 1 and "95 % interval" in long[0]
+    assert len(long) == 2 and "95 % interval" in long[0] and long[1].startswith("real idle signals: none")

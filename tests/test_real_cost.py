@@ -81,3 +81,15 @@ def test_check_says_it_for_the_served_setting(tmp_path, capsys, mode, measured, 
         assert lines == [], out.err
     else:
         assert len(lines) == 1 and lines[0].startswith(f"handover run: warning: stream setting {said}"), out.err
+
+
+def test_train_console_says_whether_real_idle_was_measured():
+    from trainer.own_replay import replay_lines
+
+    hours = 0.2
+    base = {"folds": [{}], "reference": ["onset"], "events": 0, "idle_hours": hours, "false_events": 1,
+            "false_per_hour": 1 / hours, "idle_by_source": {"quiet": {"hours": hours, "false_events": 1}}}
+    assert "real idle signals: none (every idle recording is synthetic)" in replay_lines(base)[-1]
+    real = {"mode": "onset_dormant", "recordings": 2, "hours": hours, "events": 1, "per_hour": 5.0}
+    line = replay_lines({**base, "real_idle": real})[-1]
+    assert line.startswith("real idle signals (2 recordings not synthetic, 12.0 min): 1 false events, 5.00 per hour")

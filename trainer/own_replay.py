@@ -242,6 +242,14 @@ def replay_lines(r: dict | None) -> list[str]:
     else:
         lines.append("idle: none recorded, so false events per hour are not measured (handover record records idle "
                      "after the trials)")
+    real = r.get("real_idle")
+    if not real and not r["idle_hours"]:
+        return lines
+    lines.append(f"real idle signals ({real['recordings']} recordings not synthetic, {real['hours'] * 60:.1f} min): "
+                 f"{real['events']} false events, {real['per_hour']:.2f} per hour in {real['mode']}, written into the "
+                 "model (handover inspect)" if real else
+                 "real idle signals: none (every idle recording is synthetic), so the model's real false events per "
+                 "hour are unmeasured (handover inspect says so)")
     return lines
 
 
