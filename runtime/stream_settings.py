@@ -39,11 +39,14 @@ def served_setting(dormant_class: str | None, trigger_kind: str, scene_mode: str
 
 def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
     """One line per setting (default: every one the model serves) whose false events per hour on real idle
-    signals are unmeasured or above ``MAX_REAL_FALSE_PER_HOUR``, with what to do; none for one below."""
+    signals are unmeasured, above ``MAX_REAL_FALSE_PER_HOUR``, or measured on too few hours to show it is
+    below (fewer than one event at the bar), with what to do; none for one below."""
     from runtime.model_meta import real_false_events
 
     measured = real_false_events(meta)
-    fine = {k: v["per_hour"] for k, v in measured.items() if v["per_hour"] <= MAX_REAL_FALSE_PER_HOUR}
+    enough = 1.0 / MAX_REAL_FALSE_PER_HOUR  # hours in which one false event is the bar itself
+    fine = {k: v["per_hour"] for k, v in measured.items()
+            if v["per_hour"] <= MAX_REAL_FALSE_PER_HOUR and v["hours"] >= enough}
     lines = []
     for name in settings or served_settings(meta.dormant_class, meta.trigger):
         others = [f"serve {k} ({v:.2f} per hour)" for k, v in fine.items() if k != name]
@@ -56,6 +59,12 @@ def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
             lines.append(f"stream setting {name}: {m['per_hour']:.2f} false events per hour on real idle signals "
                          f"({m['events']} in {m['hours']:.2f} h: {m['data']}), above {MAX_REAL_FALSE_PER_HOUR:g} per "
                          "hour; " + "; or ".join([*others, RECORD_IDLE.replace("record idle", "record more idle")]))
+        elif m["hours"] < enough:
+            lines.append(f"stream setting {name}: {m['events']} false events in only {m['hours']:.2f} h of real idle "
+                         f"({m['data']}): one event there is {1 / m['hours']:.1f} per hour, so it cannot show the "
+                         f"setting stays below {MAX_REAL_FALSE_PER_HOUR:g} per hour; "
+                         + "; or ".join([*others, RECORD_IDLE.replace("record idle", f"record at least {enough:g} h "
+                                                                      "of idle")]))
     return lines
 
 

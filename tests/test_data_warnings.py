@@ -76,3 +76,15 @@ def test_console_names_them_even_when_quiet(tmp_path, capsys, trained):
     assert code == 0
     assert "handover train: s3 is a partial recording (3 of 8 planned trials, no idle)" in err
     assert "handover train: the dormant class rests on" in err
+
+
+def test_idle_imported_at_another_rate_does_not_set_the_models_rate(trained):
+    """70 Hz idle (the real recordings' frequency-analysis files) beside 32 Hz trials: the data set keeps 32 Hz."""
+    from firmware_io.recordings.recording import Recording
+    from trainer.dataset import build_dataset
+
+    rec = Recording.load(trained.parent / "data" / "subject_s1.hrec")
+    fast = Recording(rec.layout, rec.frames, rec.timestamps[0] + (rec.timestamps - rec.timestamps[0]) * 32 / 70, [],
+                     {"subject": "idle70"})
+    ds = build_dataset([rec, fast, fast, fast])
+    assert abs(ds.sample_rate_hz - 1 / rec.sample_interval()) < 0.5

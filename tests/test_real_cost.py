@@ -67,6 +67,8 @@ def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
     ("continuous", {"onset_dormant": BELOW, "continuous": ABOVE}, "continuous: 155.70 false events per hour"),
     ("trigger", None, "onset_dormant: false events on real idle signals unmeasured"),
     ("trigger", {"onset_dormant": {**BELOW, "per_hour": 1.6, "events": 4}}, "onset_dormant: 1.60 false events"),
+    ("trigger", {"onset_dormant": {**BELOW, "per_hour": 0.0, "events": 0, "hours": 0.15}},
+     "onset_dormant: 0 false events in only 0.15 h of real idle"),
 ])
 def test_check_says_it_for_the_served_setting(tmp_path, capsys, mode, measured, said):
     models = tmp_path / "models"

@@ -302,8 +302,9 @@ def build_dataset(
 
     cases, labels, skipped = [], [], []
     intervals = []
-    for rec in recordings:
-        if rec.n_frames > 1:
+    acting = any(rec.trials for rec in recordings)
+    for rec in recordings:  # the rate of the trials' recordings: imported idle at another rate must not set it
+        if rec.n_frames > 1 and (rec.trials or not acting):
             intervals.append(rec.sample_interval())
         rate = 1.0 / rec.period_s()
         for trial in rec.trials:
