@@ -48,7 +48,8 @@ OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events
             "own_model_idle_false_events_per_hour_full_window", "own_model_arm_move_false_events_per_hour",
             "own_model_arm_move_false_events_per_hour_arm_messages",
             "own_model_demo_events_correct_fraction", "own_model_demo_events_outside",
-            "own_model_real_idle_false_events_per_hour", "own_model_dormant_cut")
+            "own_model_real_idle_false_events_per_hour", "own_model_dormant_cut",
+            "own_model_real_idle_trained_false_events_per_hour")
 """The headline keys this bench writes into results/streams.json too."""
 
 
@@ -63,8 +64,8 @@ def record_subjects(folder: Path, s: dict, say) -> list[str]:
         idle = [] if s["idle_min"] is None else ["--idle-minutes", str(s["idle_min"])]
         with contextlib.redirect_stdout(io.StringIO()):
             code = handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name,
-                             "--out", str(folder), "--runs", str(s["runs"]), "--auto", "--retries", "0", "--gap",
-                             "0", "--quiet", "--no-look", *idle])
+                             "--out", str(folder), "--runs", str(s["runs"]), "--auto", "--gap", "0", "--countdown", "0",
+                             "--quiet", "--no-look", *idle])  # README step 2's command (--quiet, --no-look: no voice)
         if code != 0:
             raise RuntimeError(f"recording scripted subject {name} failed (exit {code})")
         names.append(name)
@@ -188,7 +189,7 @@ def run(args) -> dict:
     with tempfile.TemporaryDirectory(prefix="handover-streams-own-") as tmp:
         work = Path(tmp)
         data = work / "data"
-        record_subjects(data, s, say)
+        subjects = record_subjects(data, s, say)
         val = validation(cut_models(data, work, args.seed, say), args.seed + VAL_OFFSET, s, say)
         chosen = choose(val)
         say(f"streams_own: chosen dormant cut on validation: {chosen} (in code: {DORMANT_CUT})")
@@ -200,6 +201,9 @@ def run(args) -> dict:
         test = test_streams(model, args.seed + TEST_OFFSET, s, say)
         demo = demo_session(model, args.seed)
         real = real_idle(model, default_data_dir(), say)  # trainer.own_replay: the one way real idle is scored
+        from benchmarks.streams_own_real import on_half, run_real
+
+        lab = run_real(data, work, subjects, args.seed, args.quick, say)
     out = {
         "own_model_idle_false_events_per_hour": test["idle"]["false_per_hour"],
         "own_model_idle_false_events_per_hour_arm_messages": test["idle_arm_messages"]["false_per_hour"],
@@ -210,6 +214,10 @@ def run(args) -> dict:
         "own_model_demo_events_outside": demo["outside"],
         "own_model_real_idle_false_events_per_hour": real["false_per_hour"] if real else None,
         "own_model_dormant_cut": DORMANT_CUT,
+        "own_model_real_idle_trained_false_events_per_hour":
+            ((lab or {}).get("held_out", {}).get("onset_dormant") or {}).get("false_per_hour"),
+        "real_idle_lab": lab, "synthetic_idle_model_on_held_out_half": on_half(real, lab),
+        "demo_model_on_held_out_half": _streams_key(args.out, "real_test_half_false_events_per_hour"),
         "dormant_cut_chosen": chosen,
         "criterion": CRITERION,
         "subjects": [f"subject://?seed={k}" for k in SUBJECT_SEEDS],
@@ -231,6 +239,14 @@ def run(args) -> dict:
     write_results(args.out, NAME, out, markdown(out))
     carry_into_streams(Path(args.out), out)
     return out
+
+
+def _streams_key(out: str, key: str):
+    """A headline figure of results/streams.json (the streams bench), or None."""
+    try:
+        return json.loads((Path(out) / "streams.json").read_text())[key]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def _demo_model_figure(out: str) -> float | None:

@@ -89,4 +89,7 @@ def markdown(r: dict) -> list[str]:
     lines += ["", f"Chosen: `{r['dormant_cut_chosen']}`; `handover train` uses `{r['own_model_dormant_cut']}` "
               f"(trainer/recorded_idle.py DORMANT_CUT){'' if same else ' -- they differ: change the code or the rule'}.",
               ""]
-    return lines
+    from benchmarks.streams_own_real import markdown as real_lines
+
+    return lines + real_lines(r.get("real_idle_lab"), r.get("synthetic_idle_model_on_held_out_half"),
+                              r.get("demo_model_on_held_out_half"))
