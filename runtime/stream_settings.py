@@ -10,7 +10,7 @@ first setting is the one the daemon runs it in by default (``[scene] mode = "tri
 
 from __future__ import annotations
 
-__all__ = ["MAX_REAL_FALSE_PER_HOUR", "SETTINGS", "cost_lines", "describe", "served_setting", "served_settings"]
+__all__ = ["SETTINGS", "cost_lines", "describe", "served_setting", "served_settings"]
 
 SETTINGS = {
     "onset": "onset trigger; every window it starts is reported",

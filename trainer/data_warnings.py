@@ -17,7 +17,7 @@ import numpy as np
 
 from firmware_io.recordings.idle_stretches import SOURCES, has_idle
 
-__all__ = ["FEW_DORMANT_WINDOWS", "DataNotes", "data_notes", "dormant_lines", "lab_line", "partial_subjects"]
+__all__ = ["FEW_DORMANT_WINDOWS", "data_notes", "dormant_lines", "lab_line", "partial_subjects"]
 
 FEW_DORMANT_WINDOWS = 100
 """Fewer dormant windows than this and the class is called thin. The rule of three: with n windows and
