@@ -88,3 +88,16 @@ def test_idle_imported_at_another_rate_does_not_set_the_models_rate(trained):
                      {"subject": "idle70"})
     ds = build_dataset([rec, fast, fast, fast])
     assert abs(ds.sample_rate_hz - 1 / rec.sample_interval()) < 0.5
+
+
+def test_the_replay_table_marks_a_partial_subject():
+    from trainer.report import _replay_lines
+
+    fold = {"events": 3, "right": 3, "wrong": 0, "missed": 0, "idle_hours": 0.0, "false_events": 0,
+            "false_per_hour": None}
+    replay = {"mode": "onset_dormant", "folds": [{"held_out": "s1", **fold}, {"held_out": "s3", **fold}],
+              "events": 6, "right": 6, "wrong": 0, "missed": 0, "right_fraction": 1.0, "early_reports": 0,
+              "onset_to_report_frames": None, "reference": ["onset"], "idle_hours": 0.0, "idle_by_source": {}}
+    lines = _replay_lines({"own_replay": replay, "partial_subjects": {"s3": "3 of 8 planned trials, no idle"}}, "x")
+    assert any(line.startswith("| s3 (partial: 3 of 8 planned trials, no idle) | 3 |") for line in lines)
+    assert any(line.startswith("| s1 | 3 |") for line in lines)

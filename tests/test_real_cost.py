@@ -95,3 +95,29 @@ def test_train_console_says_whether_real_idle_was_measured():
     real = {"mode": "onset_dormant", "recordings": 2, "hours": hours, "events": 1, "per_hour": 5.0}
     line = replay_lines({**base, "real_idle": real})[-1]
     assert line.startswith("real idle signals (2 recordings not synthetic, 12.0 min): 1 false events, 5.00 per hour")
+
+
+@pytest.mark.realdata
+def test_train_writes_the_figure_from_real_idle_and_inspect_shows_it(tmp_path, capsys):
+    """A real recording imported as idle beside scripted subjects: the model file carries its held-out replay on
+    those real signals (the subjects' own idle is synthetic and does not count)."""
+    from runtime.model import load_model
+    from runtime.model_meta import real_false_events
+    from tests.conftest import real_data_dir
+
+    real = real_data_dir() / "kiechle" / "pressure_profiles" / "calibration_noise" / "temperature-noise.dsa"
+    data = tmp_path / "data"
+    for name, seed in (("s1", 0), ("s2", 1)):
+        assert handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name, "--out",
+                         str(data), "--poses", "down", "--objects", "ball", "--runs", "2", "--auto", "--gap", "0",
+                         "--countdown", "0", "--quiet", "--no-look", "--idle-minutes", "0"]) == 0
+    assert handover(["import", str(real), "--out", str(data), "--idle", "quiet", "--subject", "s1"]) == 0
+    report = tmp_path / "report"
+    assert handover(["train", "--data", str(data), "--out", str(report), "--no-sweep", "--repeats", "2",
+                     "--early", "off", "--no-real-idle", "--quiet"]) == 0
+    carried = real_false_events(load_model(report / "model.onnx", warm_up=False).meta)
+    (setting,) = carried
+    assert carried[setting]["hours"] > 0 and "held-out replay of 1 real recording" in carried[setting]["data"]
+    capsys.readouterr()
+    assert handover(["inspect", str(report / "model.onnx")]) == 0
+    assert f"  real idle: {setting} " in capsys.readouterr().out
