@@ -38,7 +38,7 @@ def _case_options(case: str, folder: Path) -> dict:
     return {"shadow": folder, **({"capture": folder.parent / "field"} if "capture" in case else {})}
 
 
-def shadow_cases(model, recording, paced_decisions: int, work: Path, blocks: int = 4) -> dict:
+def shadow_cases(model, recording, paced_decisions: int, work: Path, blocks: int = 8) -> dict:
     """Frame parsed -> decision for each of ``CASES`` over ``paced_decisions`` paced decisions each, in
     ``blocks`` alternating blocks; the p99.9 ratio of each case against the first, and the shadow's counts."""
     folder = candidate_folder(Path(model.path), work)
@@ -46,18 +46,20 @@ def shadow_cases(model, recording, paced_decisions: int, work: Path, blocks: int
     due = stages.decision_frames(model, recording)
     per_block = max(1, paced_decisions // blocks)
     last = sorted(due)[min(len(due), per_block) - 1] if due else 0
-    raw: dict[str, list[float]] = {case: [] for case in CASES}
+    raw: dict[str, list[list[float]]] = {case: [] for case in CASES}
     counts: dict[str, list[dict]] = {case: [] for case in CASES}
     captured: list[dict] = []
     for block in range(blocks):
         for case in (CASES if block % 2 == 0 else CASES[::-1]):
-            table = stages.feed(model, recording, packets[: last + 1], frozenset(due), raw=raw[case],
+            block_raw: list[float] = []
+            table = stages.feed(model, recording, packets[: last + 1], frozenset(due), raw=block_raw,
                                 **_case_options(case, folder))
+            raw[case].append(block_raw)
             if "shadow" in table:
                 counts[case].append(table["shadow"])
             if "capture" in table:
                 captured.append(table["capture"])
-    out: dict = {case: percentiles(raw[case]) for case in CASES}
+    out: dict = {case: percentiles([x for b in raw[case] for x in b]) for case in CASES}
     reference = out[CASES[0]]["p999"]
     out["p999_ratio"] = {case: out[case]["p999"] / reference for case in CASES[1:]}
     out["shadow_counts"] = {case: {k: sum(c[k] for c in counts[case]) for k in ("windows_compared", "windows_dropped")}
@@ -65,6 +67,9 @@ def shadow_cases(model, recording, paced_decisions: int, work: Path, blocks: int
     out["capture_counts"] = {**{k: sum(c[k] for c in captured) for k in ("capture_events", "capture_dropped",
                                                                          "capture_errors")},
                              "capture_bytes": captured[-1]["capture_bytes"] if captured else 0}
+    alone = raw[CASES[0]]  # the reference against itself: its odd blocks over its even ones, the figure's noise
+    halves = [percentiles([x for b in alone[i::2] for x in b])["p999"] for i in (0, 1)]
+    out["null_p999_ratio"] = halves[1] / halves[0] if blocks > 1 and halves[0] else None
     out["blocks"], out["target_ratio"] = blocks, TARGET_RATIO
     return out
 
@@ -100,5 +105,14 @@ def markdown_lines(res: dict | None) -> list[str]:
     lines += ["", f"Target: serving p99.9 with a shadow (and capture) at most {res['target_ratio']:g}x without: "
               f"{'; '.join(verdicts)} ({spread}). A p99.9 of {alone['n']} decisions is their few slowest, which the "
               "machine's other work decides (the load average above): a ratio below 1 says the case did not measurably "
-              "slow the serving decision, not that it sped it up.", ""]
+              "slow the serving decision, not that it sped it up." + _null_sentence(res), ""]
     return lines
+
+
+def _null_sentence(res: dict) -> str:
+    """How far the reference's p99.9 moves against itself in the same run (its odd blocks over its even ones)."""
+    null = res.get("null_p999_ratio")
+    if null is None:
+        return ""
+    return (f" The same measure of serving alone against itself in this run (its odd blocks over its even ones, "
+            f"{res[CASES[0]]['n'] // 2} decisions each): {null:.2f}x, the noise any ratio above carries.")
