@@ -472,7 +472,7 @@ class Daemon:
         self.notifier.stopping()
         self.guard.stop()
         self.models.stop(timeout=0.5)
-        self.shadow.stop()
+        self.shadow.stop(timeout=0.1)  # a candidate still warming up must not hold SIGTERM past 1 s (daemon thread)
         self.stop_control()
         if self.capture is not None:  # its counts stay in the final health view
             self.capture.close()

@@ -161,8 +161,9 @@ class Shadow:
         return self.cfg.model.shadow
 
     def start(self) -> None:
-        """Watch ``cfg.model.shadow`` from the shadow thread (nothing when unset)."""
-        self.stop()
+        """Watch ``cfg.model.shadow`` from the shadow thread (nothing when unset). A thread still warming up a
+        candidate is not waited for beyond 0.1 s (a reload runs between frames): it ends after that step."""
+        self.stop(timeout=0.1)
         if self.watch():
             self._loop = Background("shadow", self.step, lambda: 0.0, log, "shadow step failed")
             self._loop.start()
