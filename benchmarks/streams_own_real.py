@@ -122,11 +122,11 @@ def markdown(r: dict | None, synthetic_half: dict | None, demo_half: float | Non
         "| measured on | setting | hours | false events | per hour |",
         "|---|---|---|---|---|",
     ]
-    rep = (r.get("held_out_replay") or {}).get("real_idle")
-    if rep:
+    rep = (r.get("held_out_replay") or {}).get("real_idle") or {}
+    for name, v in (rep.get("settings") or {}).items():
         lines.append(f"| `handover train`'s held-out replay of the real idle (each file through a model trained "
-                     f"without its subject; what the model file carries) | {rep['mode']} | {rep['hours']:.2f} | "
-                     f"{rep['events']} | {rate(rep['per_hour'])} |")
+                     f"without its subject; what the model file carries) | {name} | {v['hours']:.2f} | "
+                     f"{v['events']} | {rate(v['per_hour'])} |")
     for name, x in (("onset_dormant", od), ("continuous", cont)):
         if x:
             lines.append(f"| the other half ({r['held_out_files']} files, never trained on) | {name} | "

@@ -46,6 +46,10 @@ def test_the_trainer_writes_the_key_only_from_real_idle():
     entry = real_false_meta({"real_idle": real})[REAL_FALSE_KEY]["onset_dormant"]
     assert entry["events"] == 1 and "held-out replay" in entry["data"]
     assert real_false_meta({"real_idle": None}) == {} == real_false_meta(None)
+    both = _real_part([{**part, "synthetic": False}], "onset_dormant", [(2.0, 280), (0.5, 0)])
+    table = real_false_meta({"real_idle": both})[REAL_FALSE_KEY]
+    assert set(table) == {"onset_dormant", "continuous"} and table["continuous"]["per_hour"] == pytest.approx(112.0)
+    assert table["continuous"]["hours"] == pytest.approx(2.5) and table["continuous"]["events"] == 280
 
 
 def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
@@ -116,8 +120,10 @@ def test_train_writes_the_figure_from_real_idle_and_inspect_shows_it(tmp_path, c
     assert handover(["train", "--data", str(data), "--out", str(report), "--no-sweep", "--repeats", "2",
                      "--early", "off", "--no-real-idle", "--quiet"]) == 0
     carried = real_false_events(load_model(report / "model.onnx", warm_up=False).meta)
-    (setting,) = carried
-    assert carried[setting]["hours"] > 0 and "held-out replay of 1 real recording" in carried[setting]["data"]
+    assert carried, "the real idle's figure is written into the model"
+    for entry in carried.values():
+        assert entry["hours"] > 0 and "held-out replay of 1 real recording" in entry["data"]
     capsys.readouterr()
     assert handover(["inspect", str(report / "model.onnx")]) == 0
-    assert f"  real idle: {setting} " in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert all(f"  real idle: {setting} " in out for setting in carried)

@@ -157,7 +157,7 @@ def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Seque
     groups = sorted({g for g, r in zip(owners, recordings, strict=True) if r.trials or idle_pieces(r)})
     if len(groups) < 2:
         return None
-    folds, parts, skipped = [], [], {}
+    folds, parts, skipped, cont = [], [], {}, []
     with tempfile.TemporaryDirectory(prefix="handover-replay-") as tmp:
         for k, group in enumerate(groups):
             train = ds.groups != group
@@ -174,6 +174,9 @@ def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Seque
             loaded = load_model(path, warm_up=False)
             mine = [{**replay_recording(r, loaded, mode), "synthetic": looks_simulated(r.meta)}
                     for r, g in zip(recordings, owners, strict=True) if g == group]
+            if dormant:  # the real idle in continuous mode too: every setting the model serves gets its figure
+                cont += [idle_reports(r, loaded, "continuous") for r, g in zip(recordings, owners, strict=True)
+                         if g == group and not looks_simulated(r.meta)]
             fold = summarize(mine)
             folds.append({"held_out": group, "early_heads": heads is not None, **{key: fold[key] for key in (
                 "events", "right", "wrong", "missed", "idle_hours", "false_events", "false_per_hour")}})
@@ -182,18 +185,33 @@ def held_out_replay(ds, estimator, recordings: Sequence[Recording], names: Seque
         return {"mode": mode, "skipped": skipped, "folds": []}
     early = sum(f["early_heads"] for f in folds)
     return {"mode": mode, "dormant_class": dormant, **summarize(parts), "folds": folds, "skipped": skipped,
-            "real_idle": _real_part(parts, mode),
+            "real_idle": _real_part(parts, mode, cont),
             "early_heads": f"{early} of {len(folds)} folds" if early else "none (the full window only)"}
 
 
-def _real_part(parts: Sequence[dict], mode: str) -> dict | None:
-    """The idle of the recordings that are not synthetic (a real hand's signals), pooled; None without any."""
+def idle_reports(rec: Recording, model, mode: str) -> tuple[float, int]:
+    """(hours, reports) of a recording's idle pieces replayed through the daemon in ``mode``."""
+    hours, reports = 0.0, 0
+    for first, last, _ in idle_pieces(rec):
+        hours += (last - first + 1) * rec.period_s() / 3600.0
+        reports += len(se.replay(_segment(rec, first, last), model, mode))
+    return hours, reports
+
+
+def _real_part(parts: Sequence[dict], mode: str, continuous: Sequence[tuple[float, int]] = ()) -> dict | None:
+    """The idle of the recordings that are not synthetic (a real hand's signals), pooled, per stream setting
+    (``mode``, and ``continuous`` when replayed: (hours, reports) per recording); None without any."""
     real = [p for p in parts if not p["synthetic"]]
     r = summarize(real) if real else None
     if not r or not r["idle_hours"]:
         return None
-    return {"mode": mode, "recordings": len(real), "hours": r["idle_hours"], "events": r["false_events"],
-            "per_hour": r["false_per_hour"]}
+    out = {"mode": mode, "recordings": len(real), "hours": r["idle_hours"], "events": r["false_events"],
+           "per_hour": r["false_per_hour"]}
+    settings = {mode: {k: out[k] for k in ("hours", "events", "per_hour")}}
+    hours, events = sum(h for h, _ in continuous), sum(n for _, n in continuous)
+    if hours:
+        settings["continuous"] = {"hours": hours, "events": events, "per_hour": events / hours}
+    return {**out, "settings": settings}
 
 
 def real_false_meta(replay: dict | None) -> dict:
@@ -206,8 +224,9 @@ def real_false_meta(replay: dict | None) -> dict:
         return {}
     data = (f"handover train's held-out replay of {r['recordings']} real recording(s)' idle, each through a model "
             "trained without its subject")
-    return {REAL_FALSE_KEY: {r["mode"]: {"per_hour": r["per_hour"], "events": r["events"], "hours": r["hours"],
-                                         "data": data}}}
+    settings = r.get("settings") or {r["mode"]: r}
+    return {REAL_FALSE_KEY: {name: {"per_hour": v["per_hour"], "events": v["events"], "hours": v["hours"], "data": data}
+                             for name, v in settings.items()}}
 
 
 def replay_lines(r: dict | None) -> list[str]:
@@ -246,8 +265,9 @@ def replay_lines(r: dict | None) -> list[str]:
     if not real and not r["idle_hours"]:
         return lines
     lines.append(f"real idle signals ({real['recordings']} recordings not synthetic, {real['hours'] * 60:.1f} min): "
-                 f"{real['events']} false events, {real['per_hour']:.2f} per hour in {real['mode']}, written into the "
-                 "model (handover inspect)" if real else
+                 + ", ".join(f"{v['events']} false events, {v['per_hour']:.2f} per hour in {k}"
+                             for k, v in (real.get("settings") or {real["mode"]: real}).items())
+                 + ", written into the model (handover inspect)" if real else
                  "real idle signals: none (every idle recording is synthetic), so the model's real false events per "
                  "hour are unmeasured (handover inspect says so)")
     return lines
