@@ -50,6 +50,9 @@ def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
     lines = []
     for name in settings or served_settings(meta.dormant_class, meta.trigger):
         others = [f"serve {k} ({v:.2f} per hour)" for k, v in fine.items() if k != name]
+        if name == "continuous" and not others:  # the trigger asks the model far less often (results/streams.json)
+            others = ['serve it with the trigger ([scene] mode = "trigger"): on the real recordings continuous mode '
+                      "raised far more false events than onset_dormant (results/streams.md)"]
         if name not in measured:
             why = ("trained on synthetic data" if meta.training.get("synthetic") else
                    "trained without idle" if not meta.training.get("idle_seconds") else "its idle did not measure it")

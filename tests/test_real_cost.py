@@ -70,6 +70,8 @@ def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
     ("trigger", {"onset_dormant": BELOW, "continuous": ABOVE}, None),
     ("continuous", {"onset_dormant": BELOW, "continuous": ABOVE}, "continuous: 155.70 false events per hour"),
     ("trigger", None, "onset_dormant: false events on real idle signals unmeasured"),
+    ("continuous", {"continuous": ABOVE}, 'continuous: 155.70 false events per hour on real idle signals (463 in 2.97 h: '
+     'the real recordings), above 1 per hour; serve it with the trigger ([scene] mode = "trigger")'),
     ("trigger", {"onset_dormant": {**BELOW, "per_hour": 1.6, "events": 4}}, "onset_dormant: 1.60 false events"),
     ("trigger", {"onset_dormant": {**BELOW, "per_hour": 0.0, "events": 0, "hours": 0.15}},
      "onset_dormant: 0 false events in only 0.15 h of real idle"),
