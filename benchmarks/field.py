@@ -8,8 +8,8 @@ A day compressed into minutes, every step a product command in its own process:
    serving A, B in ``[model] shadow``, ``[capture] folder`` on; a robot that knows the truth (the
    emulator's ``--script-out``) says ``outcome <true class>`` after each event (benchmarks/field_run.py);
 3. ``handover review field/ --accept-outcomes``, then ``handover train --data lab/ --data field/``: C;
-4. day 2 (another session): A serving, C in shadow (capture on); then C is promoted (its file moved into
-   the model folder) and day 2 is played again to C.
+4. day 2 (another session): A serving, C in shadow (capture on); then C is promoted (docs/GUIDE.md: touch,
+   then one move into the model folder) and day 2 is played again to C.
 
 Written to results/field.{json,md}: the shadow's agreement (health view), what C in shadow predicted
 against what C did once promoted on the same session, events captured against events decided, bytes
@@ -32,7 +32,7 @@ from trainer.measure import command_line, load_average, machine_info, write_resu
 
 NAME = "field"
 SIZES = {
-    "full": {"runs": 2, "idle_s": 1200.0, "day1_events": 160, "day2_events": 60, "gap": (6.0, 14.0), "speed": 16.0},
+    "full": {"runs": 2, "idle_s": 1200.0, "day1_events": 160, "day2_events": 110, "gap": (6.0, 14.0), "speed": 16.0},
     "quick": {"runs": 1, "idle_s": 600.0, "day1_events": 40, "day2_events": 20, "gap": (6.0, 14.0), "speed": 16.0},
 }
 IDLE_EVERY_S = 60.0
@@ -192,6 +192,8 @@ def results(s: dict, day1: Day, day2a: Day, day2b: Day, capture1: dict, capture2
     return {
         "day1": {"serving_A": a1, "shadow_B": b1, "shadow_health": day1.health.get("shadow"), "capture": capture1,
                  "outcomes_said": dict(day1.said), "wall_s": day1.wall_s},
+        "frames_lost": {name: {k: d.health.get(k) for k in ("frames_received", "frames_dropped", "frames_stale")}
+                        for name, d in (("day1", day1), ("day2_shadow", day2a), ("day2_promoted", day2b))},
         "review": {"line": review, "labels": len(labels), "labels_per_class": dict(Counter(labels.values()))},
         "trained_C": {"n_trials": trained.get("n_trials"), "loso_accuracy": trained.get("loso_accuracy"),
                       "data": trained.get("data"), "idle": trained.get("idle")},

@@ -46,7 +46,8 @@ def markdown(r: dict) -> list[str]:
         f"Shadow in the health view: {_shadow(d1['shadow_health'])}.", "",
         "Capture:", *_capture(d1["capture"]), "",
         f"The robot said {d1['outcomes_said']}. Review: {r['review']['line']} "
-        f"({r['review']['labels_per_class']}).", "",
+        f"({r['review']['labels_per_class']}). The robot says nothing about a window the daemon decided dormant "
+        "(a missed event is one): those wait for a person in `handover review`.", "",
         f"## C: trained on lab/ + field/ ({r['trained_C']['n_trials']} trials, leave-one-subject-out "
         f"{r['trained_C']['loso_accuracy']})", "",
         f"## Day 2: {d2['serving_A']['events']} scripted events, other simulated subjects", "",
@@ -60,5 +61,9 @@ def markdown(r: dict) -> list[str]:
         f"{sv['false_events_promoted']} serving. In shadow C decides on the windows A's trigger cut; serving, on "
         "its own.", "",
         "Capture on day 2:", *_capture(d2["capture"]), "",
+        "Frames (health view): " + "; ".join(f"{k} {v['frames_received']} received, {v['frames_dropped']} dropped, "
+                                             f"{v['frames_stale']} stale" for k, v in r["frames_lost"].items())
+        + ". The sessions are sent at a multiple of the device's rate on a shared 2-core machine; dropped or "
+        "stale frames change a run's decisions.", "",
     ]
     return lines
