@@ -103,6 +103,16 @@ def scored(firsts: dict[int, str], outside: int, day: Day) -> dict:
             "false_events": outside, "right_fraction": round(right / len(truth), 4) if truth else None}
 
 
+def candidate_only(day: Day) -> dict:
+    """The candidate's reports where the serving model reported none (the shadow rule counts them against it),
+    and how many of them the script says were right."""
+    from benchmarks.field_run import truth_of
+
+    only = [x for x in day.of_type("shadow") if x.get("reported") and not x.get("serving_reported")]
+    right = sum(truth_of(day.script, int(x["device_time_ms"])) == x["class"] for x in only)
+    return {"events": len(only), "right": right}
+
+
 def capture_figures(folder: Path, day: Day, decided: int) -> dict:
     """What the capture folder holds against what the daemon decided, and its size per hour of stream."""
     from firmware_io.recordings.field_capture import EVENT_PREFIX, IDLE_PREFIX
@@ -152,7 +162,7 @@ def run(args, keep: Path | None = None) -> dict:
         day2_file = session(work / "day2.hrec", s["day2_events"], DAY2_SEED, s["gap"])
         say(f"field: day 1, {s['day1_events']} events at speed {s['speed']:g}: A serving, B in shadow, capture on ...")
         day1 = run_day(work / "run1", day1_file, models, s["speed"], shadow, field, IDLE_EVERY_S, say)
-        review = handover("review", field, "--accept-outcomes").strip()
+        review = handover("review", field, "--accept-outcomes").strip().replace(str(field), "field/")
         labels = json.loads((field / "labels.json").read_text()) if (field / "labels.json").is_file() else {}
         say(f"field: review: {review}; training C on lab/ + field/ ...")
         handover("train", "--data", lab, "--data", field, "--out", work / "C", "--seed", args.seed, *TRAIN)
@@ -190,15 +200,17 @@ def results(s: dict, day1: Day, day2a: Day, day2b: Day, capture1: dict, capture2
     n = len(day2a.script.trials)
     same = sum(shadow_c.get(k) == promoted_c.get(k) for k in range(n))
     return {
-        "day1": {"serving_A": a1, "shadow_B": b1, "shadow_health": day1.health.get("shadow"), "capture": capture1,
+        "day1": {"serving_A": a1, "shadow_B": b1, "shadow_health": day1.health.get("shadow"),
+                 "shadow_only_events": candidate_only(day1), "capture": capture1,
                  "outcomes_said": dict(day1.said), "wall_s": day1.wall_s},
         "frames_lost": {name: {k: d.health.get(k) for k in ("frames_received", "frames_dropped", "frames_stale")}
                         for name, d in (("day1", day1), ("day2_shadow", day2a), ("day2_promoted", day2b))},
         "review": {"line": review, "labels": len(labels), "labels_per_class": dict(Counter(labels.values()))},
         "trained_C": {"n_trials": trained.get("n_trials"), "loso_accuracy": trained.get("loso_accuracy"),
-                      "data": trained.get("data"), "idle": trained.get("idle")},
+                      "idle": trained.get("idle")},
         "day2": {"serving_A": a2, "shadow_C": scored(shadow_c, shadow_out, day2a),
                  "promoted_C": scored(promoted_c, promoted_out, day2b), "shadow_health": day2a.health.get("shadow"),
+                 "shadow_only_events": candidate_only(day2a),
                  "capture": capture2, "wall_s": [day2a.wall_s, day2b.wall_s]},
         "shadow_vs_promoted": {"events": n, "same_first_report": same, "share": round(same / n, 4) if n else None,
                                "false_events_shadow": shadow_out, "false_events_promoted": promoted_out},

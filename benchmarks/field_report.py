@@ -9,11 +9,12 @@ def _score(name: str, s: dict) -> str:
     return (f"| {name} | {s['right']}/{s['events']} | {s['wrong']} | {s['missed']} | {s['false_events']} |")
 
 
-def _shadow(h: dict | None) -> str:
+def _shadow(h: dict | None, only: dict) -> str:
     if not h:
         return "no shadow figures in the health view (the daemon had no `[model] shadow`)"
     return (f"agreement {h.get('agreement')} on {h.get('windows_compared')} windows; the candidate's events on "
-            f"windows the serving model called dormant: {h.get('false_events_on_serving_dormant')}; the verdict: "
+            f"windows the serving model called dormant: {h.get('false_events_on_serving_dormant')} (by the script: "
+            f"{only['right']} of {only['events']} right, the serving model's misses); the verdict: "
             f"\"{h.get('verdict')}\"")
 
 
@@ -43,18 +44,21 @@ def markdown(r: dict) -> list[str]:
         f"## Day 1: {d1['serving_A']['events']} scripted events, A serving, B (no dormant class) in shadow", "",
         "| model | right | wrong | missed | false events |", "|---|---|---|---|---|",
         _score("A, serving", d1["serving_A"]), _score("B, in shadow (its reports)", d1["shadow_B"]), "",
-        f"Shadow in the health view: {_shadow(d1['shadow_health'])}.", "",
+        f"Shadow in the health view: {_shadow(d1['shadow_health'], d1['shadow_only_events'])}.", "",
         "Capture:", *_capture(d1["capture"]), "",
         f"The robot said {d1['outcomes_said']}. Review: {r['review']['line']} "
         f"({r['review']['labels_per_class']}). The robot says nothing about a window the daemon decided dormant "
         "(a missed event is one): those wait for a person in `handover review`.", "",
-        f"## C: trained on lab/ + field/ ({r['trained_C']['n_trials']} trials, leave-one-subject-out "
-        f"{r['trained_C']['loso_accuracy']})", "",
+        f"## C: `handover train --data lab/ --data field/` ({r['trained_C']['n_trials']} trials, leave-one-subject-"
+        f"out {r['trained_C']['loso_accuracy']:.3f}; the field's events are one subject)", "",
+        "The shadow rule cannot tell a candidate's right answer where the serving model missed from a false event: "
+        "it judges agreement only. With the robot's outcomes captured, the shadow lines can be scored against them "
+        "as above.", "",
         f"## Day 2: {d2['serving_A']['events']} scripted events, other simulated subjects", "",
         "| model | right | wrong | missed | false events |", "|---|---|---|---|---|",
         _score("A, serving", d2["serving_A"]), _score("C, in shadow (its reports on A's windows)", d2["shadow_C"]),
         _score("C, promoted (serving, the same session again)", d2["promoted_C"]), "",
-        f"Shadow in the health view: {_shadow(d2['shadow_health'])}.", "",
+        f"Shadow in the health view: {_shadow(d2['shadow_health'], d2['shadow_only_events'])}.", "",
         f"**What shadow predicted against what the promoted model did**: on {sv['same_first_report']} of "
         f"{sv['events']} scripted events ({sv['share']}) C's first report in shadow was the class it reported once "
         f"serving (or neither reported); false events {sv['false_events_shadow']} in shadow against "
