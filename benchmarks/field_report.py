@@ -59,6 +59,10 @@ def markdown(r: dict) -> list[str]:
         _score("A, serving", d2["serving_A"]), _score("C, in shadow (its reports on A's windows)", d2["shadow_C"]),
         _score("C, promoted (serving, the same session again)", d2["promoted_C"]), "",
         f"Shadow in the health view: {_shadow(d2['shadow_health'], d2['shadow_only_events'])}.", "",
+        f"C promoted against A on day 2: {d2['promoted_C']['right']} against {d2['serving_A']['right']} right, "
+        f"{d2['promoted_C']['false_events']} against {d2['serving_A']['false_events']} false events. The simulated "
+        "sessions leave A little to learn: this run shows the loop working end to end, not what a day of field "
+        "data is worth to a model.", "",
         f"**What shadow predicted against what the promoted model did**: on {sv['same_first_report']} of "
         f"{sv['events']} scripted events ({sv['share']}) C's first report in shadow was the class it reported once "
         f"serving (or neither reported); false events {sv['false_events_shadow']} in shadow against "
