@@ -116,3 +116,15 @@ def test_plot_writes_a_figure_of_each_event_asked_about(capture, tmp_path):
     _labels, shown, _ = run_review(folder, "sq", plot=tmp_path / "figs")
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [f"{stems[0]}.png", f"{stems[1]}.png"]
     assert str(tmp_path / "figs" / f"{stems[0]}.png") in shown
+
+
+def test_a_window_decided_dormant_is_listed_as_unreported_and_waits_for_a_person(tmp_path, protocol, capsys):
+    folder = tmp_path / "field"
+    stems = make_capture(folder, protocol, ["pull", "dormant"], ["taken", None], unreported=(1,))
+    assert handover(["review", str(folder), "--accept-outcomes"]) == 0
+    assert read_labels(folder) == {stems[0]: "pull"}  # the robot said nothing about the dormant window
+    assert handover(["review", str(folder), "--list"]) == 0
+    listed = capsys.readouterr().out.splitlines()[-2:]
+    assert "   decided pull" in listed[0] and "unreported dormant" in listed[1]
+    labels, shown, _ = run_review(folder, "3")  # a person: it was a hold the serving model missed
+    assert labels[stems[1]] == "hold" and "Enter: dormant (decided)" in shown
