@@ -109,17 +109,21 @@ def run(args) -> dict:
     t0 = time.perf_counter()
     rows = []
     demo_model_b = None
+    def written(done: bool) -> dict:  # after every case: a run stopped late keeps what it measured
+        out = {"synthetic": True, "complete": done, "cases": rows, "demo_model_on_lab_b": demo_model_b,
+               "targets": TARGETS, "machine": machine_info(), "command": command_line(NAME, args),
+               "load_before": load_before, "load_after": load_average(), "seconds": round(time.perf_counter() - t0, 1)}
+        write_results(args.out, NAME, out, markdown(out))
+        return out
+
     with tempfile.TemporaryDirectory(prefix="handover-own-prior-") as tmp:
         for k, case in enumerate(QUICK if args.quick else CASES):
             rows.append(run_case(case, Path(tmp) / f"case{k}", say))
+            written(False)
         if not args.quick:
             say("own_prior: the demo's simulator-trained model on lab B's session ...")
             demo_model_b = demo(None, "B", Path(tmp))
-    out = {"synthetic": True, "cases": rows, "demo_model_on_lab_b": demo_model_b, "targets": TARGETS,
-           "machine": machine_info(), "command": command_line(NAME, args), "load_before": load_before,
-           "load_after": load_average(), "seconds": round(time.perf_counter() - t0, 1)}
-    write_results(args.out, NAME, out, markdown(out))
-    return out
+    return written(True)
 
 
 def _demo_cells(d: dict | None) -> str:
@@ -129,6 +133,10 @@ def _demo_cells(d: dict | None) -> str:
     med, p90 = f.get("median"), f.get("p90")
     return (f"{d['events_correct']}/{d['events_expected']} | {d['false_events']} | "
             f"{'-' if med is None else f'{med:.0f}'} | {'-' if p90 is None else f'{p90:.0f}'}")
+
+
+def _early_classes(rule: dict) -> str:
+    return "" if rule.get("classes") is None else f" ({', '.join(rule['classes']) or 'none'} early)"
 
 
 def markdown(r: dict) -> list[str]:
@@ -155,10 +163,11 @@ def markdown(r: dict) -> list[str]:
             lines.append(f"| {row['name']} | {'prior + own' if key == 'prior' else 'own only (--no-prior)'} | "
                          f"{_demo_cells(t['demo'])} | {p.get('weight', '-')} | "
                          f"{'-' if loso is None else f'{loso:.1%}'} | "
-                         f"{rule.get('threshold', '-')} | {rep.get('right')}/{rep.get('events')} | "
+                         f"{rule.get('threshold', '-')}{_early_classes(rule)} | {rep.get('right')}/{rep.get('events')} | "
                          f"{'-' if fph is None else f'{fph:.1f}'} |")
     if r.get("demo_model_on_lab_b"):
         lines.append(f"| lab B session | the demo's simulator-trained model | {_demo_cells(r['demo_model_on_lab_b'])} "
                      "| - | - | - | - | - |")
-    lines += ["", "Targets (issue #37): " + "; ".join(f"{k}: {v}" for k, v in r["targets"].items()) + ".", ""]
+    lines += ["", "Targets (issue #37): " + "; ".join(f"{k}: {v}" for k, v in r["targets"].items()) + "."
+              + ("" if r.get("complete") else " **Partial: the run stopped before every row was measured.**"), ""]
     return lines
