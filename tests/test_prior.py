@@ -183,3 +183,20 @@ def test_console_says_the_early_rule_and_where_it_reported():
     line = console_line(ev)
     assert "0.95 (pull, push early)" in line and "4: 50, 15: 20" in line
     assert console_line(None) is None and "not fitted (why)" in console_line({"skipped": "why"})
+
+
+def test_another_sensor_trains_alone_and_says_so():
+    from types import SimpleNamespace
+
+    from firmware_io.layout import SensorLayout
+
+    sdh2 = SensorLayout.sdh2()
+    same = SimpleNamespace(pads=(0, 1), pad_sizes=tuple(len(sdh2.columns([p])) for p in (0, 1)), layout=sdh2)
+    assert P.prior_problem(same) is None
+    other = SimpleNamespace(pads=(0,), pad_sizes=(12,), layout=SimpleNamespace(n_taxels=12))
+    why = P.prior_problem(other)
+    assert "not the simulated SDH-2" in why and "\n" not in why
+    said = []
+    use = P.use_prior("estimator", other, said.append)
+    assert use.estimator == "estimator" and use.ds is other and use.report == {"off": why} and len(said) == 1
+    assert use.wrap("head") == "head"
