@@ -28,6 +28,15 @@ def _capture(c: dict) -> list[str]:
             "stretches per hour x the second)"]
 
 
+def _idle(idle: dict | None) -> str:
+    if not idle:
+        return "C has no dormant class (no idle read)."
+    return (f"Its dormant class: {idle['dormant_windows']} windows ({idle['per_origin']}) from {idle['seconds'] / 60:.1f} "
+            "min of idle, the lab's and the day's captured stretches; the emulated day's idle is a still held object "
+            f"(source quiet), where the onset trigger rarely fires: the quiet source gave "
+            f"{idle['per_origin'].get('trigger:quiet', 0)} of the trigger cut's windows, lab and field together.")
+
+
 def markdown(r: dict) -> list[str]:
     d1, d2, sv = r["day1"], r["day2"], r["shadow_vs_promoted"]
     s = r["sizes"]
@@ -51,6 +60,7 @@ def markdown(r: dict) -> list[str]:
         "(a missed event is one): those wait for a person in `handover review`.", "",
         f"## C: `handover train --data lab/ --data field/` ({r['trained_C']['n_trials']} trials, leave-one-subject-"
         f"out {r['trained_C']['loso_accuracy']:.3f}; the field's events are one subject)", "",
+        _idle(r["trained_C"].get("idle")), "",
         "The shadow rule cannot tell a candidate's right answer where the serving model missed from a false event: "
         "it judges agreement only. With the robot's outcomes captured, the shadow lines can be scored against them "
         "as above.", "",
