@@ -252,6 +252,7 @@ def test_three_recorded_subjects_train_a_model_that_passes_the_demo(tmp_path, ca
     assert summary["events_expected"] == 40
     assert summary["events_correct"] >= 38, summary
     assert summary["false_events"] == 0
+    assert summary["report_minus_onset_frames"]["median"] <= 7, "early decisions fire on a lab's model"
     assert json.loads((report / "metrics.json").read_text())["own_replay"]["events"] == 324
 
 
