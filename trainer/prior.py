@@ -22,8 +22,8 @@ from sklearn.base import BaseEstimator, clone
 
 from trainer.dormant import DORMANT
 
-__all__ = ["PRIOR", "RULE", "PriorCases", "PriorChoice", "PriorRecipe", "PriorUse", "WithPrior", "build_prior", "choice_lines",
-           "choose_weight", "evidence", "markdown_lines", "prior_problem", "use_prior"]
+__all__ = ["PRIOR", "PriorCases", "PriorRecipe", "WithPrior", "choice_lines", "choose_weight", "evidence",
+           "markdown_lines", "prior_problem", "use_prior"]
 
 
 @dataclass(frozen=True)
