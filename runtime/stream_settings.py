@@ -23,7 +23,7 @@ SETTINGS = {
 
 MAX_REAL_FALSE_PER_HOUR = 1.0
 """A setting raising more false events per hour than this on real idle signals is said to cost too much
-(issue #37's bar; the default onset_dormant raised 0.67 on 2.97 h of real recordings, results/streams.json)."""
+(the product's bar: the default onset_dormant stays below it on the real recordings, results/streams.json)."""
 RECORD_IDLE = ("record idle on the robot (`handover record --idle-only`) and train again (`handover train` measures "
                "it on that idle)")
 
