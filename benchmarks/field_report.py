@@ -12,9 +12,11 @@ def _score(name: str, s: dict) -> str:
 def _shadow(h: dict | None, only: dict) -> str:
     if not h:
         return "no shadow figures in the health view (the daemon had no `[model] shadow`)"
+    judged = (f"; judged by the robot's outcomes on {h['events_with_outcome']} events: serving right on "
+              f"{h.get('serving_right')}, the candidate on {h.get('candidate_right')}") if "events_with_outcome" in h else ""
     return (f"agreement {h.get('agreement')} on {h.get('windows_compared')} windows; the candidate's events on "
             f"windows the serving model called dormant: {h.get('false_events_on_serving_dormant')} (by the script: "
-            f"{only['right']} of {only['events']} right, the serving model's misses); the verdict: "
+            f"{only['right']} of {only['events']} right, the serving model's misses){judged}; the verdict: "
             f"\"{h.get('verdict')}\"")
 
 
@@ -61,9 +63,9 @@ def markdown(r: dict) -> list[str]:
         f"## C: `handover train --data lab/ --data field/` ({r['trained_C']['n_trials']} trials, leave-one-subject-"
         f"out {r['trained_C']['loso_accuracy']:.3f}; the field's events are one subject)", "",
         _idle(r["trained_C"].get("idle")), "",
-        "The shadow rule cannot tell a candidate's right answer where the serving model missed from a false event: "
-        "it judges agreement only. With the robot's outcomes captured, the shadow lines can be scored against them "
-        "as above.", "",
+        "An event only the candidate reported is a false event to the shadow rule unless an outcome says otherwise: "
+        "the robot says outcomes only about the serving model's events, so a candidate's right answer where the "
+        "serving model missed stays counted against it (the script's count above says how many were right).", "",
         f"## Day 2: {d2['serving_A']['events']} scripted events, other simulated subjects", "",
         "| model | right | wrong | missed | false events |", "|---|---|---|---|---|",
         _score("A, serving", d2["serving_A"]), _score("C, in shadow (its reports on A's windows)", d2["shadow_C"]),
