@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from firmware_io.errors import HandoverError
 from firmware_io.sim import constants as K
 from firmware_io.sim.scenario import OBJECT_MODELS, OBJECTS
 
 __all__ = ["DEFAULT_LAB", "LABS", "Lab", "UnknownLab", "get_lab", "lab_of"]
 
 
-class UnknownLab(ValueError):
+class UnknownLab(HandoverError, ValueError):
     """A lab name no row has."""
 
 
