@@ -25,7 +25,7 @@ import numpy as np
 
 from firmware_io.errors import HandoverError
 from firmware_io.layout import SensorLayout
-from firmware_io.recordings.field_capture import EVENT_PREFIX, IDLE_PREFIX, LABELS_FILE, OUTCOMES_FILE
+from firmware_io.recordings.field_capture import CAPTURED_NAME, EVENT_PREFIX, IDLE_PREFIX, LABELS_FILE, OUTCOMES_FILE
 from firmware_io.recordings.idle_stretches import idle_meta
 from firmware_io.recordings.recording import SUFFIX, Recording, Trial
 from runtime.control_access import untrusted_folder
@@ -40,7 +40,6 @@ QUEUE_ITEMS = 16
 on a slow disk holds at most a few MB; the rest is dropped and counted."""
 DROP_LOG_EVERY = 100
 """One log line for the first item dropped, then one per this many."""
-_OURS = re.compile(rf"({re.escape(EVENT_PREFIX)}|{re.escape(IDLE_PREFIX)})[0-9]+-([0-9]+){re.escape(SUFFIX)}")
 _STALE = re.compile(rf"\.({re.escape(EVENT_PREFIX)}|{re.escape(IDLE_PREFIX)})[0-9-]+{re.escape(SUFFIX)}\.[a-z0-9_]{{8}}\.tmp")
 _STOP = object()
 
@@ -166,7 +165,7 @@ class CaptureWriter:
                 if _STALE.fullmatch(entry.name) and info.st_uid == os.geteuid():
                     with contextlib.suppress(FileNotFoundError):
                         os.unlink(entry.path)
-                elif _OURS.fullmatch(entry.name) or entry.name in (OUTCOMES_FILE, LABELS_FILE):
+                elif CAPTURED_NAME.fullmatch(entry.name) or entry.name in (OUTCOMES_FILE, LABELS_FILE):
                     self._files[entry.name] = info.st_size
         self.bytes = sum(self._files.values())
 
@@ -194,7 +193,8 @@ class CaptureWriter:
         if isinstance(item, Outcome):
             data = (json.dumps(item.line, allow_nan=False) + "\n").encode()
             self._make_room(len(data))
-            fd = os.open(self.folder / OUTCOMES_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+            fd = os.open(self.folder / OUTCOMES_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW
+                         | os.O_NONBLOCK, 0o644)  # a FIFO there: ENXIO, one line, never a stuck writer
             try:
                 os.write(fd, data)  # one write of one line: a kill -9 leaves whole lines or one cut last line
             finally:
@@ -216,7 +216,7 @@ class CaptureWriter:
     def _make_room(self, incoming: int) -> None:
         """Remove the oldest recordings until ``incoming`` more bytes fit below ``max_bytes``; OSError (ENOSPC)
         when even an empty folder would not hold them."""
-        oldest = sorted((n for n in self._files if _OURS.fullmatch(n)), key=lambda n: _OURS.fullmatch(n).group(2))
+        oldest = sorted((n for n in self._files if CAPTURED_NAME.fullmatch(n)), key=lambda n: CAPTURED_NAME.fullmatch(n).group(2))
         while sum(self._files.values()) + incoming > self.max_bytes:
             if not oldest:
                 raise OSError(28, f"a capture of {incoming / 1e6:.2f} MB does not fit in capture.max_mb "

@@ -128,3 +128,31 @@ def test_a_window_decided_dormant_is_listed_as_unreported_and_waits_for_a_person
     assert "   decided pull" in listed[0] and "unreported dormant" in listed[1]
     labels, shown, _ = run_review(folder, "3")  # a person: it was a hold the serving model missed
     assert labels[stems[1]] == "hold" and "Enter: dormant (decided)" in shown
+
+
+def test_a_hostile_capture_never_reaches_the_terminal_nor_crashes_nor_hangs(capture, capsys):
+    """A capture's metadata, outcomes and file names are data, not text for the terminal: junk is shown as
+    unknown, a FIFO is refused in one line (it hung review), a far time is "?" (it was a traceback)."""
+    import os
+    import shutil
+
+    from firmware_io.recordings.field_capture import META_KEY, OUTCOMES_FILE
+    from firmware_io.recordings.recording import Recording
+
+    folder, stems = capture
+    path = folder / f"{stems[0]}.hrec"
+    rec = Recording.load(path)
+    rec.meta = {**rec.meta, META_KEY: {**rec.meta[META_KEY], "class": "\x1b[2Jpwned", "time": 1e300}}
+    rec.save(path)
+    shutil.copy(path, folder / "event-\x1b[31m.hrec")
+    with open(folder / OUTCOMES_FILE, "a") as fh:
+        fh.write(json.dumps({"event": stems[1], "outcome": "\x1b[2J" + "x" * 100}) + "\n")
+    os.mkfifo(folder / "event-000000001-1800000000000.hrec")
+    assert handover(["review", str(folder), "--list"]) == 0
+    out = capsys.readouterr()
+    assert "\x1b" not in out.out + out.err and len(out.out.splitlines()) == 4
+    assert out.out.splitlines()[0].split()[1:3] == ["?", "decided"] and "pull" in out.out.splitlines()[0]
+    assert "1 unreadable line" in out.err
+    os.mkfifo(folder / LABELS_FILE)
+    assert handover(["review", str(folder), "--list"]) == 2
+    assert "not a regular file" in capsys.readouterr().err

@@ -10,6 +10,7 @@ the training extra).
 from __future__ import annotations
 
 import os
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -17,6 +18,7 @@ from pathlib import Path
 from firmware_io.errors import HandoverError
 from firmware_io.recordings.bounded_zip import first_line, loads
 from firmware_io.recordings.field_capture import (
+    CAPTURED_NAME,
     EVENT_PREFIX,
     IDLE_PREFIX,
     LABELS_FILE,
@@ -24,7 +26,7 @@ from firmware_io.recordings.field_capture import (
     OUTCOMES_FILE,
     proposed_label,
 )
-from firmware_io.recordings.recording import SUFFIX, Recording, RecordingError
+from firmware_io.recordings.recording import SUFFIX, Recording, RecordingError, name_problem
 from runtime.config import KNOWN_EVENTS
 from runtime.health import write_json_atomically
 from trainer.dataset import DECIDED_START
@@ -38,6 +40,8 @@ CLASSES = tuple(KNOWN_EVENTS)
 """The labels a person may give a captured event: the four actions and dormant (a false event)."""
 MAX_TEXT_BYTES = 64 << 20
 """The most outcomes.jsonl or labels.json read (a day of outcomes is a few hundred kB)."""
+LATEST_TIME_S = 1e11
+"""A captured event's unix time beyond this (year 5138) is junk: shown as unknown (time.localtime overflows)."""
 
 
 class FieldFolderError(HandoverError, ValueError):
@@ -86,7 +90,11 @@ class CapturedEvent:
 
 
 def _files(folder: Path, prefix: str) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.name.startswith(prefix) and p.suffix == SUFFIX)
+    """The daemon's recordings of one kind (``CAPTURED_NAME``): any other name is no capture's, and is
+    never read nor printed (a name can hold a terminal's escape sequences); nor is
+    what is not a regular file (a FIFO would hang the reader)."""
+    return sorted(p for p in folder.iterdir() if p.name.startswith(prefix) and CAPTURED_NAME.fullmatch(p.name)
+                  and p.is_file())
 
 
 def is_capture_folder(folder: str | os.PathLike) -> bool:
@@ -99,7 +107,9 @@ def is_capture_folder(folder: str | os.PathLike) -> bool:
 def _read_text(path: Path) -> str | None:
     """The file's text, None when it is absent; a file over ``MAX_TEXT_BYTES`` is refused."""
     try:
-        with open(path, "rb") as fh:
+        with open(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb") as fh:  # a FIFO must not hang review
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise FieldFolderError(f"{path}: not a regular file (a FIFO, a device?); move it away")
             data = fh.read(MAX_TEXT_BYTES + 1)
     except FileNotFoundError:
         return None
@@ -119,7 +129,9 @@ def read_outcomes(folder: str | os.PathLike, say: Callable[[str], None] = lambda
     for line in text.splitlines():
         try:
             entry = loads(line)
-            outcomes[str(entry["event"])] = str(entry["outcome"])
+            if name_problem("outcome", entry["outcome"]):  # printed by review: the daemon writes only such words
+                raise ValueError(entry["outcome"])
+            outcomes[str(entry["event"])] = entry["outcome"]
         except (ValueError, KeyError, TypeError):
             bad += line.strip() != ""
     if bad:
@@ -159,10 +171,12 @@ def _event(path: Path, outcomes: dict[str, str]) -> CapturedEvent:
     meta = rec.meta.get(META_KEY)
     if len(rec.trials) != 1 or not isinstance(meta, dict):
         raise RecordingError(f"{path}: not a captured event (one trial and meta[{META_KEY!r}] expected)")
-    decision = meta.get("class", rec.trials[0].action)
+    decision = meta.get("class")
+    if name_problem("class", decision):  # printed by review: junk (an escape sequence) is the trial's action
+        decision = rec.trials[0].action
     when = meta.get("time")
-    return CapturedEvent(path.stem, rec, str(decision), float(when) if isinstance(when, int | float) else None,
-                         outcomes.get(path.stem))
+    when = float(when) if isinstance(when, int | float) and 0 <= when < LATEST_TIME_S else None
+    return CapturedEvent(path.stem, rec, decision, when, outcomes.get(path.stem))
 
 
 def read_events(folder: str | os.PathLike, say: Callable[[str], None]) -> list[CapturedEvent]:

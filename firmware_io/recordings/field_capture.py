@@ -16,10 +16,13 @@ person's labels sit beside them as small text files, so nothing rewrites a recor
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
+from firmware_io.recordings.recording import SUFFIX
+
 __all__ = [
-    "EVENT_FIELDS", "EVENT_PREFIX", "IDLE_PREFIX", "LABELS_FILE", "META_KEY", "OUTCOMES_FILE", "OUTCOME_WORDS",
+    "CAPTURED_NAME", "EVENT_FIELDS", "EVENT_PREFIX", "IDLE_PREFIX", "LABELS_FILE", "META_KEY", "OUTCOMES_FILE", "OUTCOME_WORDS",
     "event_name", "idle_name", "outcome_problem", "proposed_label",
 ]
 
@@ -28,6 +31,8 @@ EVENT_PREFIX = "event-"
 IDLE_PREFIX = "idle-"
 OUTCOMES_FILE = "outcomes.jsonl"
 LABELS_FILE = "labels.json"
+CAPTURED_NAME = re.compile(rf"({re.escape(EVENT_PREFIX)}|{re.escape(IDLE_PREFIX)})[0-9]+-([0-9]+){re.escape(SUFFIX)}")
+"""The name of a recording the daemon wrote (group 2: its unix ms); any other file is not the capture's."""
 EVENT_FIELDS = ("kind", "class", "scores", "model_id", "instance", "frame_first", "frame_last", "report_frame",
                 "device_time_ms", "time", "trigger", "arm_moving", "grasp_closed")
 """``meta[META_KEY]`` of an event recording; ``report_frame`` is the frame (in the recording) the
