@@ -8,7 +8,8 @@ This trigger measures each pad's summed pressure against a baseline that follows
   for ``settle_frames`` frames in a row (and ``refractory_frames`` after the last trigger);
 - ``armed``: Holt's linear tracker (level + trend per pad, ``tau_frames``) follows creep and drift (real
   pads creep far more than the simulator's); fires when a pad departs from the prediction by ``change``
-  of its level (at least ``change x floor``). A departure where no pad rose (letting go, re-seating),
+  of its level (at least ``change x floor``), read as a change of force where the grasp compresses the
+  rubber (``RUBBER_HILL_N``). A departure where no pad rose (letting go, re-seating),
   on a point contact (``MIN_CONTACT_TAXELS``) or with the grasp on one finger (``MIN_GRASP_FINGERS``)
   goes back to ``settling`` without firing.
 
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_GRASP_FINGERS", "OnsetTrigger"]
+__all__ = ["COMPRESSION_CAP", "MIN_GRASP_FINGERS", "RUBBER_HILL_N", "OnsetTrigger", "compression"]
 
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
 TREND_GAIN = 0.25
@@ -43,6 +44,32 @@ alone is something pressing on it (a calibration rig, a probe), not an object in
 the settled grasp, not at the departure: a tap pushes the object off the fingers on one side in the very
 frame it fires. Limitation: an object hanging from one finger (a hook grasp) never fires. How it was
 chosen: results/streams.md."""
+
+
+RUBBER_CEILING = 3553.0 / 4095.0
+"""Share of full scale where the DSA 9205's rubber saturates (measured: saturated taxels top out at
+3505-3567 counts, median 3553; firmware_io/sim/constants.py)."""
+RUBBER_HILL_N = 1.7
+"""The rubber's Hill exponent (fitted to calibration weights, ibid.). A reading r responds to a relative
+change of force by ``n (1 - r / ceiling)`` times it: expansive for a light grasp, compressive above
+``1 - 1/n`` of the ceiling, where a person's added force moves the counts little (a firm grasp on a
+sensitive pad: a hold barely moves a pad already near saturation). There a departure is scaled back to
+a change of force; below, the trigger reads counts as before (factor 1, the defaults' calibration)."""
+COMPRESSION_CAP = 2510.0 / 3553.0
+"""The grasp's level is read as at most this share of the ceiling: the highest calibration weight's
+peak (2510 counts), the end of the range the curve was fitted on (the factor stays <= 2.0, so the
+noise of a saturated pad is not blown up past what the fit can vouch for)."""
+
+
+def compression(row: np.ndarray, starts: np.ndarray, fullscale: float) -> np.ndarray:
+    """Per pad, how much the rubber compresses a relative change of force at this grasp (>= 1).
+
+    The pad's level is its reading-weighted mean taxel (the taxels that carry its sum)."""
+    r = np.asarray(row, dtype=np.float64)
+    total = np.add.reduceat(r, starts)
+    mean = np.add.reduceat(r * r, starts) / np.maximum(total, 1.0)
+    share = np.minimum(mean / (RUBBER_CEILING * fullscale), COMPRESSION_CAP)
+    return np.maximum(1.0, 1.0 / (RUBBER_HILL_N * (1.0 - share)))
 
 
 class OnsetTrigger:
@@ -82,6 +109,7 @@ class OnsetTrigger:
         self.change = float(change)
         self.floor = float(floor * fullscale)
         """Pad pressure (summed counts) below which a pad's change is measured against this instead."""
+        self.fullscale = float(fullscale)
         self.contact = float(contact * fullscale)
         """Summed scene pressure below which the hand counts as empty."""
         self.alpha = 1.0 / float(tau_frames)
@@ -98,6 +126,8 @@ class OnsetTrigger:
         self._dev = np.zeros(n, dtype=np.float64)
         self._error = np.zeros(n, dtype=np.float64)
         self._scale = np.zeros(n, dtype=np.float64)
+        self._gain = np.ones(n, dtype=np.float64)
+        """Per pad, ``compression`` of the settled grasp: a departure in counts times this is one in force."""
         self._request: bool | None = None
         self.reset()
 
@@ -176,6 +206,7 @@ class OnsetTrigger:
         self.state = ARMED
         self._base[:] = p
         self._trend[:] = 0.0
+        self._gain[:] = compression(row, self._starts, self.fullscale)
         loaded = np.add.reduceat(row > 0, self._starts) >= MIN_CONTACT_TAXELS
         self.grasp_fingers = len(np.unique(self._fingers[loaded]))
 
@@ -192,6 +223,7 @@ class OnsetTrigger:
         error = self._error
         np.subtract(p, base, out=error)
         np.divide(error, self._scale, out=self._dev)
+        self._dev *= self._gain
         rise = float(self._dev.max())
         self.level = max(rise, -float(self._dev.min()))
         if self.level < self.change:

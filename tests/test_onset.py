@@ -17,7 +17,7 @@ from runtime.config import ConfigError, TriggerConfig, config_from_dict
 from runtime.control import parse_message
 from runtime.daemon import Daemon
 from runtime.detector import Detector
-from runtime.onset import ARMED, OPEN, OnsetTrigger
+from runtime.onset import ARMED, COMPRESSION_CAP, OPEN, RUBBER_HILL_N, OnsetTrigger, compression
 from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, resolve_trigger
 from tests.datagrams import send_datagram
 from tests.waiting import wait_for
@@ -286,3 +286,21 @@ def test_a_reload_that_changes_no_trigger_setting_keeps_the_settled_grasp(tmp_pa
     assert len(events) == 1 and 200 <= events[0].frame_first <= 202
     daemon.detector.rebuild(keep_history=False)  # a reconnect forgets the history: a new trigger
     assert daemon.detector.trigger is not trigger
+
+
+@pytest.mark.parametrize("level, fired", [(500.0, False), (2700.0, True)])
+def test_a_hold_on_a_grasp_that_compresses_the_rubber_is_read_as_force(level, fired):
+    """7 % more counts is ~25 % more force where the grasp sits high on the rubber's curve (a firm grasp
+    on a sensitive pad), but only ~5 % on a light grasp, which stays below the change as before."""
+    levels = grasp_levels(300, level=level)
+    levels[200:, 0] *= 1.07  # a person holds: pad 0's readings rise by 7 %
+    trig = _trigger()
+    assert bool(fires(trig, rows_of(levels))) == fired
+
+
+def test_the_compression_factor_leaves_a_light_grasp_alone_and_is_capped():
+    starts = np.array([0, 78, 156])
+    row = np.zeros(234, dtype=np.float32)
+    row[20:40], row[98:118], row[176:196] = 500.0, 2000.0, 4095.0
+    g = compression(row, starts, 4095.0)
+    assert g[0] == 1.0 and 1.0 < g[1] < g[2] <= 1.0 / (RUBBER_HILL_N * (1.0 - COMPRESSION_CAP)) + 1e-9
