@@ -56,7 +56,10 @@ def folder_problem(folder: str | os.PathLike) -> str | None:
     existing = next(p for p in (path, *path.parents) if p.exists() or p.is_symlink())
     if existing == path and not path.is_dir():
         return f"capture.folder {path} is not a folder; point it at a folder (it is created if missing)"
-    if why := untrusted_folder(existing):
+    why = untrusted_folder(existing)
+    if not why and existing == path and os.stat(path).st_mode & 0o022:  # a sticky one too (/tmp): files planted
+        why = f"folder {path} is writable by others"
+    if why:
         return (f"capture.folder {path}: {why}: another user could change what `handover train` learns; choose a "
                 "folder of this user's, e.g. /var/lib/handover/field (StateDirectory= in the unit file)")
     return None

@@ -169,7 +169,16 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     if sections["scene"].mode == "continuous" and sections["scene"].early_events is not None:
         warnings.append("scene.early_events: has no effect in continuous mode (every frame is classified, "
                         "no window waits for its full length); remove it or set scene.mode = \"trigger\"")
+    _capture_apart(sections["capture"].folder, sections["model"])
     return Config(**sections, **top, warnings=tuple(warnings))
+
+
+def _capture_apart(capture: str | None, model: Any) -> None:
+    """A capture folder that is a model folder mixes a GB of recordings with the models a deploy replaces."""
+    for name, folder in (("model.folder", model.folder), ("model.shadow", model.shadow)):
+        if capture and folder and os.path.realpath(capture) == os.path.realpath(Path(folder).expanduser()):
+            raise ConfigError(f"capture.folder: {capture} is {name}: recordings would mix with the models; name a "
+                              "folder of its own (e.g. /var/lib/handover/field)")
 
 
 def _read_values(section: str, table: dict) -> dict[str, Any]:
@@ -364,7 +373,7 @@ def _shadow_apart(v: dict) -> None:
     if v["shadow"] is None:
         return
     shadow, folder = Path(v["shadow"]).expanduser(), Path(v["folder"]).expanduser()
-    if shadow.resolve() == folder.resolve():
+    if os.path.realpath(shadow) == os.path.realpath(folder):  # Path.resolve raises on a symlink loop
         raise ConfigError(f"model.shadow: {v['shadow']} is model.folder: a candidate dropped there would serve, not "
                           "run in shadow; name another folder (e.g. /var/lib/handover/shadow)")
     if shadow.exists() and not shadow.is_dir():

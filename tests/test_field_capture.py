@@ -272,7 +272,7 @@ def test_a_full_queue_drops_and_never_blocks(tmp_path):
     assert taken.count(True) == 16 and writer.dropped == 24
 
 
-@pytest.mark.parametrize("mode, owner", [(0o777, None), (0o755, 4321)])
+@pytest.mark.parametrize("mode, owner", [(0o777, None), (0o755, 4321), (0o1777, None)])
 def test_a_folder_another_user_may_write_is_refused(tmp_path, mode, owner):
     folder = tmp_path / "field"
     folder.mkdir()
@@ -290,6 +290,23 @@ def test_a_folder_another_user_may_write_is_refused(tmp_path, mode, owner):
     run = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--config", str(config), "--check"], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and "capture.folder" in run.stderr, run.stderr
+
+
+def test_a_capture_folder_that_is_a_model_folder_or_a_symlink_loop_is_one_line(tmp_path):
+    """Through a symlink or ``..`` too; a loop once raised RuntimeError from Path.resolve (a traceback)."""
+    from runtime.config import ConfigError
+
+    models, shadow = tmp_path / "models", tmp_path / "shadow"
+    models.mkdir(), shadow.mkdir()
+    (tmp_path / "link").symlink_to(models)
+    for capture, key in ((tmp_path / "link", "model.folder"), (models / ".." / "shadow", "model.shadow")):
+        with pytest.raises(ConfigError, match=rf"^capture.folder: .* is {key}: recordings would mix with the models"):
+            config_from_dict({"model": {"folder": str(models), "shadow": str(shadow)}, "capture": {"folder": str(capture)}})
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    config_from_dict({"model": {"folder": str(models), "shadow": str(tmp_path / "a")}, "capture": {"folder": str(tmp_path / "b")}})
+    with pytest.raises(CaptureError, match="is not a folder"):
+        CaptureWriter(tmp_path / "b", 10).start()
 
 
 KILLED_MID_WRITE = """
