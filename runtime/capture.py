@@ -49,6 +49,9 @@ PENDING = 8
 """Decided windows waiting for their post-report frames at most (continuous mode reports at most a few)."""
 REFUSED_LOG_S = 10.0
 """At most one log line per this many seconds for each kind of refused outcome (all are counted)."""
+OUTCOMES_PER_EVENT = 4
+"""Outcomes kept per event at most (a word, then a person's correction or two): a robot repeating its word
+at 1 kHz filled a 1 MB folder with outcomes.jsonl in 6 s, and max_mb then removed every captured event."""
 SUBJECT = "field"
 """The subject of every captured recording (the trial's and the idle's): the working day, not a person."""
 
@@ -80,9 +83,11 @@ class FieldCapture(FrameListener):
         self.last_event: str | None = None
         """The stem of the newest reported event: the robot's next outcome is about it."""
         self.refused = 0
-        """Outcomes refused (an unknown word, no event to attach to)."""
-        self._refused_logged: dict[bool, float] = {}
-        """When a refusal of each kind (no event yet: True; an unknown word: False) was last logged."""
+        """Outcomes refused (an unknown word, no event to attach to, over ``OUTCOMES_PER_EVENT``)."""
+        self._refused_logged: dict[str, float] = {}
+        """When a refusal of each kind (no event yet, an unknown word, too many) was last logged."""
+        self._said: tuple[str | None, int] = (None, 0)
+        """The event outcomes were last kept for, and how many."""
         self._idle_start: float | None = None
         """Device ms since which no window was decided and the robot's words stayed the same (None: not idle)."""
         self._idle_state: tuple = ()
@@ -227,12 +232,17 @@ class FieldCapture(FrameListener):
         no_event = problem is None and stem is None
         if no_event:
             problem = f"outcome {word!r}: no event captured yet to attach it to; send it after an event"
+        kind = "no event" if no_event else "unknown"
+        said = self._said[1] + 1 if self._said[0] == stem else 1
+        if problem is None and said > OUTCOMES_PER_EVENT:
+            problem, kind = f"outcome {word!r}: {OUTCOMES_PER_EVENT} already said of {stem}; say one per event", "many"
         if problem is not None:
-            self._refuse(f"{problem} (from {source}; not kept)", no_event)
+            self._refuse(f"{problem} (from {source}; not kept)", kind)
             return False
+        self._said = (stem, said)
         return self.writer.put(Outcome({"event": stem, "outcome": word, "source": source, "time": time.time()}))
 
-    def _refuse(self, line: str, kind: bool) -> None:
+    def _refuse(self, line: str, kind: str) -> None:
         self.refused += 1
         now = time.monotonic()
         if now - self._refused_logged.get(kind, float("-inf")) >= REFUSED_LOG_S:

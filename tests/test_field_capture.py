@@ -397,6 +397,25 @@ def test_each_outcome_word_is_heard_on_the_control_socket_and_kept(tmp_path, wor
     assert capture.outcome(word, "control") and capture.refused == 0
 
 
+def test_a_robot_repeating_its_outcome_keeps_a_few_per_event_and_never_evicts_the_events(tmp_path, caplog):
+    """A robot saying ``outcome taken`` in a loop once filled max_mb with outcomes.jsonl and removed every event."""
+    from runtime.capture import OUTCOMES_PER_EVENT
+
+    writer = CaptureWriter(tmp_path / "field", 10).start()
+    det = _stand_in()
+    det.model = SimpleNamespace(meta=SimpleNamespace(classes=("pull", "push", "hold", "bump")))
+    capture = FieldCapture(writer, det)
+    with caplog.at_level(logging.WARNING, "handover.capture"):
+        for stem in ("event-000000193-0000000000001", "event-000000400-0000000000002"):
+            capture.last_event = stem
+            kept = [capture.outcome("taken", "control") for _ in range(1000)]
+            assert kept.count(True) == OUTCOMES_PER_EVENT
+    writer.stop()
+    assert capture.refused == 2 * (1000 - OUTCOMES_PER_EVENT) and writer.outcomes == 2 * OUTCOMES_PER_EVENT
+    assert len((tmp_path / "field" / OUTCOMES_FILE).read_text().splitlines()) == 2 * OUTCOMES_PER_EVENT
+    assert len([r for r in caplog.records if "say one per event" in r.getMessage()]) == 1
+
+
 def test_a_reload_moves_capture_to_another_folder_and_refuses_an_unsafe_one(tmp_path, caplog):
     from runtime.config import load_config
 
