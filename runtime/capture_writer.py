@@ -40,6 +40,9 @@ QUEUE_ITEMS = 16
 on a slow disk holds at most a few MB; the rest is dropped and counted."""
 DROP_LOG_EVERY = 100
 """One log line for the first item dropped, then one per this many."""
+OUTCOMES_SHARE = 0.05
+"""Once outcomes.jsonl holds this share of max_mb it is rewritten without the lines of removed events:
+they outlive their recordings, and over months would fill the folder (then no capture fits)."""
 _STALE = re.compile(rf"\.({re.escape(EVENT_PREFIX)}|{re.escape(IDLE_PREFIX)})[0-9-]+{re.escape(SUFFIX)}\.[a-z0-9_]{{8}}\.tmp")
 _STOP = object()
 
@@ -204,6 +207,8 @@ class CaptureWriter:
                 os.close(fd)
             self._files[OUTCOMES_FILE] = self._files.get(OUTCOMES_FILE, 0) + len(data)
             self.outcomes += 1
+            if self._files[OUTCOMES_FILE] > OUTCOMES_SHARE * self.max_bytes:
+                self._compact_outcomes()
         else:
             rec = _recording(item)
             name = item.stem + SUFFIX
@@ -215,6 +220,18 @@ class CaptureWriter:
             else:
                 self.events += 1
         self.bytes = sum(self._files.values())
+
+    def _compact_outcomes(self) -> None:
+        """outcomes.jsonl keeps the lines of events still in the folder (a temp file renamed: never cut)."""
+        path, temp = self.folder / OUTCOMES_FILE, self.folder / f".{OUTCOMES_FILE}.tmp"
+        with open(path, "rb") as fh:
+            kept = [line for line in fh if _event_of(line) + SUFFIX in self._files]
+        with open(temp, "wb") as fh:
+            fh.writelines(kept)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(temp, path)
+        self._files[OUTCOMES_FILE] = sum(map(len, kept))
 
     def _make_room(self, incoming: int) -> None:
         """Remove the oldest recordings until ``incoming`` more bytes fit below ``max_bytes``; OSError (ENOSPC)
@@ -241,6 +258,15 @@ class CaptureWriter:
         if self.problem is not None:
             self.problem = None
             log.warning("capture folder %s takes files again (%d capture(s) lost so far)", self.folder, self.lost)
+
+
+def _event_of(line: bytes) -> str:
+    """The event stem an outcomes.jsonl line is about ("" for a line that is none)."""
+    try:
+        event = json.loads(line)["event"]
+    except (ValueError, KeyError, TypeError):
+        return ""
+    return event if isinstance(event, str) else ""
 
 
 def _recording(item: Capture) -> Recording:

@@ -216,6 +216,28 @@ def test_max_mb_holds_the_oldest_going_first(tmp_path):
     assert writer.removed == 30 - len(names) > 0 and writer.bytes == sum(p.stat().st_size for p in folder.iterdir())
 
 
+def test_outcomes_of_removed_events_are_dropped_so_outcomes_jsonl_never_fills_the_folder(tmp_path):
+    """Outcome lines outlive their events; once outcomes.jsonl held max_mb no capture fitted again."""
+    from runtime.capture_writer import OUTCOMES_SHARE
+
+    folder = tmp_path / "field"
+    writer = CaptureWriter(folder, max_mb=1.0).start()
+    try:
+        for k in range(150):  # 150 events of 4 outcomes: 66 kB of lines, over 5 % of 1 MB
+            stem = f"event-{k:09d}-{1000 + k:013d}"
+            writer.put(_capture(stem, n=8))
+            for word in ("taken", "kept", "dropped", "pull"):
+                writer.put(Outcome({"event": stem, "outcome": word, "source": "control", "time": 1.0}))
+            _written(writer, 5 * (k + 1))
+    finally:
+        writer.stop()
+    lines = [json.loads(line) for line in (folder / OUTCOMES_FILE).read_text().splitlines()]
+    assert (folder / OUTCOMES_FILE).stat().st_size <= OUTCOMES_SHARE * 1e6 and writer.errors == 0
+    assert lines[-1]["event"] == stem and writer.outcomes == 600 and len(lines) < 600
+    assert not (folder / "event-000000000-0000000001000.hrec").exists()
+    assert lines[0]["event"] != "event-000000000-0000000001000" and writer.removed > 0  # its lines went with it
+
+
 def test_the_writer_keeps_trying_and_says_when_it_works_again(tmp_path, caplog, monkeypatch):
     import firmware_io.recordings.recording as recording
 
