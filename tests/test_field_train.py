@@ -89,3 +89,18 @@ def test_a_capture_folder_without_labels_or_idle_says_to_review(folders, tmp_pat
                    str(tmp_path / "r"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and "handover review" in err[-1] and "no confirmed event" in err[-1]
+
+
+def test_labels_of_events_no_longer_in_the_folder_are_named_in_one_line(folders, tmp_path):
+    """An event max_mb removed (or a person moved) keeps its label: said, never silently dropped."""
+    import shutil
+
+    root, stems, truth = folders
+    field = tmp_path / "field"
+    shutil.copytree(root / "field", field)
+    (field / f"{stems[0]}.hrec").unlink()
+    said = []
+    recs, _names = field_recordings(field, said.append)
+    assert [r.trials[0].action for r in recs if r.trials] == truth[1:6]
+    assert said[0] == f"{field / LABELS_FILE}: 1 label name no readable event here (removed by capture.max_mb, " \
+                      "moved, or corrupt); not trained on"

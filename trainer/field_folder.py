@@ -224,6 +224,9 @@ def field_recordings(folder: str | os.PathLike, say: Callable[[str], None]) -> t
         trial = replace(trial, subject=field_subject(ev.meta), action=label, extra=extra or trial.extra)
         recs.append(replace(ev.recording, trials=[trial]))
         names.append(f"{ev.stem}{SUFFIX}")
+    if missing := len(labels.keys() - {ev.stem for ev in events}):
+        say(f"{folder / LABELS_FILE}: {missing} label{'s' if missing != 1 else ''} name no readable event here "
+            "(removed by capture.max_mb, moved, or corrupt); not trained on")
     if unlabelled:
         say(f"{folder}: {unlabelled} of {len(events)} captured events have no confirmed label and are skipped "
             f"(run `handover review {folder}`)")
