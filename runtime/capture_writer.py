@@ -31,7 +31,7 @@ from firmware_io.recordings.recording import SUFFIX, Recording, Trial
 from runtime.control_access import untrusted_folder
 from runtime.health import one_line
 
-__all__ = ["Capture", "CaptureError", "CaptureWriter", "Outcome", "folder_problem"]
+__all__ = ["Capture", "CaptureError", "CaptureWriter", "Outcome", "folder_problem", "folder_unwritable"]
 
 log = logging.getLogger("handover.capture")
 
@@ -66,6 +66,18 @@ def folder_problem(folder: str | os.PathLike) -> str | None:
         return (f"capture.folder {path}: {why}: another user could change what `handover train` learns; choose a "
                 "folder of this user's, e.g. /var/lib/handover/field (StateDirectory= in the unit file)")
     return None
+
+
+def folder_unwritable(folder: str | os.PathLike) -> str | None:
+    """Why this user cannot write ``capture.folder`` now (a read-only file system, no permission), or None:
+    ``run --check`` warns; the daemon serves anyway (one line, then every capture is tried again)."""
+    path = Path(folder)
+    existing = next(p for p in (path, *path.parents) if p.exists())
+    if os.access(existing, os.W_OK | os.X_OK):
+        return None
+    why = "is on a read-only file system" if os.statvfs(existing).f_flag & os.ST_RDONLY else "is not writable by this user"
+    return (f"capture.folder {path}: {existing} {why}; captures would be lost while events are served (give the "
+            "service user a folder, e.g. StateDirectory= in the unit file)")
 
 
 @dataclass

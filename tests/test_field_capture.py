@@ -482,3 +482,21 @@ def test_a_failure_inside_capture_never_costs_a_decision(tmp_path, caplog):
     assert len(events) == N_EVENTS and daemon.health.frame_errors == 0
     assert daemon.health.capture_errors == N_EVENTS and daemon.health.capture_events == 0
     assert len([r for r in caplog.records if r.name == "handover.capture" and r.levelno >= logging.ERROR]) == 1
+
+
+def test_check_warns_in_one_line_when_the_capture_folder_cannot_be_written(tmp_path, monkeypatch, capsys):
+    """A read-only file system or another user's folder (root writes anywhere: os.access injected)."""
+    from runtime.cli import main as handover
+
+    (tmp_path / "models").mkdir()
+    write_model(tmp_path / "models", "m.onnx", tiny_model_bytes(), mtime=time.time() - 100)
+    config = tmp_path / "h.toml"
+    config.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{tmp_path / "models"}"\n'
+                      f'[capture]\nfolder = "{tmp_path / "field" / "new"}"\n')
+    assert handover(["run", "--config", str(config), "--check"]) == 0
+    assert "capture" not in capsys.readouterr().err
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == tmp_path else real(p, mode))
+    assert handover(["run", "--config", str(config), "--check"]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "capture.folder" in line]
+    assert len(lines) == 1 and f"{tmp_path} is not writable by this user; captures would be lost" in lines[0]

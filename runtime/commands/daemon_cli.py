@@ -94,6 +94,7 @@ def _check(cfg, require_model: bool = False) -> int:
 
 
 def _check_quietly(cfg, require_model: bool) -> int:
+    from runtime.capture_writer import folder_unwritable
     from runtime.health import Health
     from runtime.model_serving import ModelSlot
     from runtime.model_watch import ModelWatcher, folder_problem
@@ -107,6 +108,8 @@ def _check_quietly(cfg, require_model: bool) -> int:
     _warn_about_sinks(cfg)
     for line in _held(cfg):
         print(f"{PROG}: warning: {line}; a second daemon on it would exit 2", file=sys.stderr)
+    if cfg.capture.folder and (line := folder_unwritable(cfg.capture.folder)):
+        print(f"{PROG}: warning: {line}", file=sys.stderr)
     slot = ModelSlot(cfg, Health(), serve=lambda _: None, announce=lambda _: None)
 
     def newest(check_events: bool):
@@ -188,7 +191,7 @@ def _warn_about_udp_hosts(cfg) -> None:
 CHECKED = ("checked: config keys and values; the device URL's form; the model folder and the model that would "
            "serve (its contract, pads, classes against scene.events, a warm-up decision); scene.pads; the packages "
            "the sinks need; that the UDP sinks' host names resolve; the control socket's path and that no other "
-           "process holds it; that the capture folder is this user's alone; that no other daemon holds this device or health file")
+           "process holds it; that the capture folder is this user's alone and writable; that no other daemon holds this device or health file")
 NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
                "destinations listen; who sends on the control socket; the real-time priority")
 NOT_CHECKED_WITH_DEVICE = NOT_CHECKED.replace("the device itself (add --device to open it for a few seconds); ", "")
