@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["BLOCK", "FrameClock", "log"]
+__all__ = ["BLOCK", "FrameClock", "fed_as_it_comes", "log"]
 
 log = logging.getLogger("handover.daemon")
 
@@ -35,6 +35,14 @@ FASTEST = 0.125
 """Stamps that say the stream is more than 8x faster than the model's rate are not believed (a
 broken device clock would otherwise leave out nearly every frame): a health warning, frames fed
 as they come."""
+
+
+def fed_as_it_comes(stream_rate_hz: float, model_rate_hz: float) -> bool:
+    """Whether a stream at ``stream_rate_hz`` reaches a model trained at ``model_rate_hz`` frame by frame,
+    neither decimated nor warned about (a candidate in shadow is fed the serving model's frames)."""
+    return FASTER <= model_rate_hz / stream_rate_hz <= SLOWER
+
+
 BLOCK = 32
 """Gaps per estimate of the stream's period (about a second at the SDH-2's 32 Hz)."""
 SPAN = 4

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from runtime.background import Background
+from runtime.frame_rate import fed_as_it_comes
 from runtime.health import Health, one_line
 from runtime.model_watch import ModelWatcher, Rejection
 from runtime.output_check import output_problem
@@ -43,10 +44,6 @@ log = logging.getLogger("handover.shadow")
 
 QUEUE_WINDOWS = 32
 """Windows waiting for the candidate at most (a second of continuous mode); more are dropped and counted."""
-RATE_DECIMALS = 6
-"""Sample rates are compared to this many decimals: a rate estimated from other recordings differs in its
-last digits (a candidate trained on captured field recordings, 31.25000000001732 Hz, was refused beside a
-serving 31.250000000003443 Hz)."""
 EVENTS_KEPT = 64
 """Reported windows remembered for the robot's outcome on them (it comes seconds after the event)."""
 WAIT_S = 0.1
@@ -241,8 +238,10 @@ class Shadow:
         if problem := self.scene_check(candidate):
             return problem
         ms, mc = serving.meta, candidate.meta
-        rates = round(mc.sample_rate_hz, RATE_DECIMALS), round(ms.sample_rate_hz, RATE_DECIMALS)
-        for what, a, b in (("window", mc.T, ms.T), ("sample rate", *rates),
+        if not fed_as_it_comes(ms.sample_rate_hz, mc.sample_rate_hz):
+            return (f"its sample rate is {mc.sample_rate_hz:.2f} Hz, the serving model's {ms.sample_rate_hz:.2f} Hz: "
+                    "the serving model's frames would reach it at another rate; train it at the serving rate")
+        for what, a, b in (("window", mc.T, ms.T),
                            ("pads", list(mc.pads), list(ms.pads)), ("taxel columns", mc.n_channels, ms.n_channels)):
             if a != b:
                 return (f"its {what} is {a}, the serving model's {b}: it cannot be fed the serving model's windows; "

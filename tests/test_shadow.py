@@ -314,14 +314,17 @@ def test_promotion_is_the_documented_file_move(tmp_path):
     assert daemon.health.models_loaded == 2 and daemon.shadow.comparison.compared >= 1
 
 
-def test_a_candidate_whose_rate_differs_in_its_last_digits_runs_beside_the_serving_model(tmp_path):
-    """A rate estimated from other recordings (lab + field) is the same rate, not a reason to refuse."""
+def test_a_candidate_at_a_rate_the_stream_would_feed_as_it_comes_runs_beside_the_serving_model(tmp_path):
+    """A rate estimated from other recordings (lab + field: 32.26 against 31.25 Hz) is refused only where the
+    serving model itself would not be fed that stream frame by frame (runtime.frame_rate)."""
     serving, candidate = _Fake(Path("serving.onnx")), _Fake(Path("c.onnx"))
     serving.meta.sample_rate_hz, candidate.meta.sample_rate_hz = 31.250000000003443, 31.25000000001732
     shadow, _ = _shadow(tmp_path, candidate, serving)
     assert shadow.fit_problem(candidate) is None
-    candidate.meta.sample_rate_hz = 32.0
-    assert "its sample rate is 32.0, the serving model's 31.25" in shadow.fit_problem(candidate)
+    candidate.meta.sample_rate_hz = 32.258
+    assert shadow.fit_problem(candidate) is None
+    candidate.meta.sample_rate_hz = 70.0
+    assert "its sample rate is 70.00 Hz, the serving model's 31.25 Hz" in shadow.fit_problem(candidate)
 
 
 def test_sighup_starts_the_shadow_without_restarting_the_serving_watcher(tmp_path):
