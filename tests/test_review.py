@@ -47,7 +47,7 @@ def test_one_key_confirms_another_corrects_and_q_keeps_what_was_answered(capture
     assert labels == {stems[0]: "pull", stems[1]: "hold"}
     assert read_labels(folder) == labels  # written, not only returned
     assert "Enter: pull" in shown and "decided push" in shown and "f1 dist" in shown  # the quick look
-    # a second review asks only the unlabelled: event 3 proposes hold (kept), d corrects it to dormant; s skips 4
+    # a second review asks only the unlabelled: event 3 (kept: not a pull) proposes nothing, d labels it dormant; s skips 4
     labels, shown, _ = run_review(folder, "ds")
     assert labels[stems[2]] == "dormant" and stems[3] not in labels
     assert shown.startswith("2 of 4 captured events")
@@ -82,7 +82,7 @@ def test_accept_outcomes_labels_every_proposal_and_keeps_given_labels(capture, c
     folder, stems = capture
     (folder / LABELS_FILE).write_text(json.dumps({stems[2]: "push"}))
     assert handover(["review", str(folder), "--accept-outcomes"]) == 0
-    # taken -> pull; nothing said -> none; kept after hold -> hold, but a person said push; dropped -> none
+    # taken -> pull; nothing said -> none; kept -> none (a person said push); dropped -> none
     assert read_labels(folder) == {stems[0]: "pull", stems[2]: "push"}
     assert "1 events labelled from their outcomes" in capsys.readouterr().out
     assert handover(["review", str(folder), "--list"]) == 0
@@ -156,3 +156,11 @@ def test_a_hostile_capture_never_reaches_the_terminal_nor_crashes_nor_hangs(capt
     os.mkfifo(folder / LABELS_FILE)
     assert handover(["review", str(folder), "--list"]) == 2
     assert "not a regular file" in capsys.readouterr().err
+
+
+def test_kept_proposes_no_label_because_it_cannot_tell_push_hold_or_bump_apart():
+    """Confirming the decision on ``kept`` turned a serving model's hold-read-as-bump into a bump label."""
+    from firmware_io.recordings.field_capture import proposed_label
+    classes = ("pull", "push", "hold", "bump", "dormant")
+    assert [proposed_label("bump", w, classes) for w in ("kept", "dropped", None, "taken", "hold")] == \
+        [None, None, None, "pull", "hold"]

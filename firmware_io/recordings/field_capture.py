@@ -63,12 +63,11 @@ def outcome_problem(word: str, classes: Sequence[str]) -> str | None:
 
 def proposed_label(decision: str, outcome: str | None, classes: Sequence[str]) -> str | None:
     """The label an outcome proposes for review, or None when it cannot tell: a class name is that class;
-    ``taken`` is a pull; ``kept`` keeps a decision other than pull (the object stayed); ``dropped``
-    and an event without an outcome propose nothing a person has not confirmed."""
+    ``taken`` is a pull. ``kept`` says only that it was not a pull, so it proposes nothing: confirming the
+    decision would turn the serving model's hold-read-as-bump into a label. ``dropped`` and an event
+    without an outcome propose nothing a person has not confirmed."""
     if outcome in classes:
         return outcome
     if outcome == "taken":
         return "pull" if "pull" in classes else None
-    if outcome == "kept" and decision != "pull":
-        return decision
     return None
