@@ -118,6 +118,15 @@ def test_plot_writes_a_figure_of_each_event_asked_about(capture, tmp_path):
     assert str(tmp_path / "figs" / f"{stems[0]}.png") in shown
 
 
+def test_a_plot_folder_that_cannot_be_written_is_one_line(capture, tmp_path, capsys, monkeypatch):
+    folder, _stems = capture
+    (tmp_path / "file").write_text("")
+    monkeypatch.setattr("sys.stdin", io.StringIO("sq"))
+    assert handover(["review", str(folder), "--plot", str(tmp_path / "file")]) == 2  # was a FileExistsError traceback
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--plot" in err and "give a folder you can write" in err
+
+
 def test_a_window_decided_dormant_is_listed_as_unreported_and_waits_for_a_person(tmp_path, protocol, capsys):
     folder = tmp_path / "field"
     stems = make_capture(folder, protocol, ["pull", "dormant"], ["taken", None], unreported=(1,))

@@ -20,7 +20,7 @@ from typing import TextIO
 
 from firmware_io.recordings.recording import ACTIONS
 from firmware_io.recordings.terminal_view import trial_view
-from trainer.field_folder import CLASSES, CapturedEvent, read_events, read_labels, write_labels
+from trainer.field_folder import CLASSES, CapturedEvent, FieldFolderError, read_events, read_labels, write_labels
 
 __all__ = ["add_arguments", "main", "review"]
 
@@ -90,7 +90,11 @@ def review(folder: Path, read_key: Callable[[], str], out: TextIO, say: Callable
         if plot is not None:
             from trainer.commands.plot_cli import plot_trial
 
-            out.write(f"  {plot_trial(ev.recording, 0, plot / f'{ev.stem}.png')}\n")
+            try:
+                out.write(f"  {plot_trial(ev.recording, 0, plot / f'{ev.stem}.png')}\n")
+            except OSError as exc:  # a file, /proc, another user's folder: one line, not a traceback
+                raise FieldFolderError(f"--plot {plot}: cannot write there ({exc.strerror or exc}); give a "
+                                       "folder you can write") from None
         answer = _answer(default_label(ev, labels.get(ev.stem)), read_key, out)
         if answer is None:
             break
