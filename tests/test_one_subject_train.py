@@ -25,6 +25,7 @@ def test_one_subject_trains_exports_and_says_loso_needs_a_second(tmp_path, capsy
     notes = [line for line in captured.err.splitlines() if LOSO_NEEDS_A_SECOND_SUBJECT in line]
     assert notes == [f"handover train: {LOSO_NEEDS_A_SECOND_SUBJECT}"], captured.err
     assert "leave one subject out: not measured (leave-one-subject-out needs a second subject" in captured.out
+    assert "the product's prior: not used: one lab subject" in captured.err + captured.out  # no weight to choose
 
     model = load_model(out / "model.onnx")
     assert model.meta.evaluation["loso_unavailable"] == LOSO_NEEDS_A_SECOND_SUBJECT

@@ -247,6 +247,9 @@ def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | N
     """The prior for the lab's data set ``ds``: built, its weight chosen (``choose_weight``), the evidence added;
     the lab's data alone (and why, in ``report["off"]``) when the sensor is not the simulated SDH-2's."""
     why = prior_problem(ds)
+    if why is None and len(set(np.asarray(ds.groups).tolist())) < 2:
+        why = ("one lab subject: its weight is chosen by leaving a lab subject out, so it needs a second; trained on "
+               "the lab's data alone (record another subject to use it)")
     if why:
         say(f"the product's prior: not used: {why}")
         return PriorUse(estimator, ds, {"off": why})
