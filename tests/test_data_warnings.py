@@ -101,3 +101,38 @@ def test_the_replay_table_marks_a_partial_subject():
     lines = _replay_lines({"own_replay": replay, "partial_subjects": {"s3": "3 of 8 planned trials, no idle"}}, "x")
     assert any(line.startswith("| s3 (partial: 3 of 8 planned trials, no idle) | 3 |") for line in lines)
     assert any(line.startswith("| s1 | 3 |") for line in lines)
+
+
+def test_too_few_for_the_split_names_the_short_class_and_how_to_get_more():
+    from collections import Counter
+
+    from trainer.pipeline import _split_problem
+
+    line = _split_problem(Counter(bump=27, dormant=1, hold=27, pull=27, push=27))
+    assert "dormant is short" in line and "label more captured events dormant" in line and "--runs" not in line
+    line = _split_problem(Counter(bump=27, dormant=30, hold=1, pull=27, push=27))
+    assert "record more runs of hold (handover record --runs)" in line and "dormant" not in line.split(";")[-1]
+
+
+def test_suggested_record_commands_carry_device_and_out():
+    from trainer.data_warnings import MORE_IDLE
+    from trainer.recorded_idle import too_few_line
+
+    for text in (MORE_IDLE, too_few_line(60.0, 3, "trigger")):
+        assert "`handover record --device URL --idle-only" in text and "--out DIR`" in text
+
+
+def test_recordings_of_another_simulated_lab_than_the_prior_are_said_once():
+    from types import SimpleNamespace as Rec
+
+    from firmware_io.sim.lab import DEFAULT_LAB
+    from trainer.data_warnings import data_notes, prior_lab_line
+    from trainer.prior import PRIOR_LAB
+
+    assert PRIOR_LAB == DEFAULT_LAB
+    lab_b = [Rec(meta={"synthetic": True, "lab": "B"}, trials=[]), Rec(meta={}, trials=[])]
+    line = prior_lab_line(lab_b, PRIOR_LAB)
+    assert line.startswith("the recordings come from simulated lab B and the product's prior is simulated lab A")
+    assert prior_lab_line([Rec(meta={"synthetic": True}, trials=[]), Rec(meta={}, trials=[])], PRIOR_LAB) is None
+    assert line in data_notes(lab_b, ["a", "b"], None, prior_lab=PRIOR_LAB).lines
+    assert data_notes(lab_b, ["a", "b"], None).lines == []  # --no-prior: nothing to say

@@ -104,3 +104,32 @@ def test_labels_of_events_no_longer_in_the_folder_are_named_in_one_line(folders,
     assert [r.trials[0].action for r in recs if r.trials] == truth[1:6]
     assert said[0] == f"{field / LABELS_FILE}: 1 label name no readable event here (removed by capture.max_mb, " \
                       "moved, or corrupt); not trained on"
+
+
+def test_one_event_labelled_dormant_is_a_field_case_counted_with_the_idle_and_no_partial_subject(tmp_path):
+    """A reviewed dormant event alone is one dormant case: it must not refuse training before the idle's
+    dormant windows are counted, it is said as a field case (not "from idle"), and the capture folder's
+    subject is no partial recording of a protocol."""
+    from trainer.data_warnings import data_notes
+
+    lab = simulate_protocol(seed=4, n_subjects=2, runs=2, **ONE)
+    for rec in lab:
+        rec.save(tmp_path / "lab" / f"subject_{rec.trials[0].subject}.hrec")
+    idle_rec = simulate_idle(600.0, seed=3)
+    idle_rec.meta = {**idle_rec.meta, "subject": "s1"}  # a lab subject with idle: the others could be partial
+    idle_rec.save(tmp_path / "lab" / "idle_s1.hrec")
+    third = simulate_protocol(seed=9, n_subjects=1, runs=1, **ONE)[0]
+    stems = make_capture(tmp_path / "field", third, ["pull"] * 4, [None] * 4)
+    (tmp_path / "field" / LABELS_FILE).write_text(json.dumps({stems[0]: "dormant", stems[1]: "push"}))
+    data = (str(tmp_path / "lab"), str(tmp_path / "field"))
+    recs, names, _source, _synthetic = load_or_simulate(data, 0, print)
+    said = []
+    ds, idle = _cases(TrainOptions(data=data), recs, names, said.append)
+    assert idle is not None and idle.makes_class
+    field = ds.groups == "field-robot1"
+    assert ds.y[field].tolist().count("dormant") == 1
+    assert "1 dormant case from the field: captured events a person labelled dormant (handover review)" in said
+    counts = ds.counts()
+    assert counts.dormant == len(idle.X) and counts.trials == int((ds.y != "dormant").sum()) + 1
+    notes = data_notes(recs, names, idle)
+    assert notes.partial == {"s2": "no idle"}  # the lab's rule still holds for lab subjects

@@ -17,13 +17,14 @@ import numpy as np
 
 from firmware_io.recordings.idle_stretches import SOURCES, has_idle
 
-__all__ = ["FEW_DORMANT_WINDOWS", "data_notes", "dormant_lines", "lab_line", "partial_subjects"]
+__all__ = ["FEW_DORMANT_WINDOWS", "data_notes", "dormant_lines", "lab_line", "partial_subjects", "prior_lab_line"]
 
 FEW_DORMANT_WINDOWS = 100
 """Fewer dormant windows than this and the class is called thin. The rule of three: with n windows and
 every one read right, the data cannot exclude (95 %) that 3 in n idle windows are read as an action;
 at 100 that is 3 %. The recorder's default (3 min of idle a subject) gives 12-16 windows a subject."""
-MORE_IDLE = "`handover record --idle-only --idle-minutes 20 --subject ID` (every idle kind, in rounds of 81 s)"
+MORE_IDLE = ("`handover record --device URL --idle-only --idle-minutes 20 --subject ID --out DIR` (every idle kind, "
+             "in rounds of 81 s)")
 """The command that records more idle of every kind, as the lines say it."""
 
 
@@ -94,13 +95,17 @@ def planned_trials(meta: dict) -> int | None:
 
 
 def partial_subjects(recordings: Sequence, names: Sequence[str]) -> dict[str, str]:
-    """Subject -> what its recordings lack: fewer trials than planned, or no idle while others have idle."""
+    """Subject -> what its recordings lack: fewer trials than planned, or no idle while others have idle.
+    A daemon's captured events and idle (``meta[META_KEY]``) follow no protocol: never partial."""
+    from firmware_io.recordings.field_capture import META_KEY
     from trainer.recorded_idle import idle_pieces, subject_of
 
     trials: dict[str, int] = {}
     planned: dict[str, int] = {}
     idle: dict[str, bool] = {}
     for rec, name in zip(recordings, names, strict=True):
+        if META_KEY in rec.meta:
+            continue
         subject = subject_of(rec, Path(name).stem)
         idle[subject] = idle.get(subject, False) or bool(idle_pieces(rec))
         if rec.trials:
@@ -137,15 +142,30 @@ def lab_line(recordings: Sequence, names: Sequence[str]) -> str | None:
             "sets of people; train on one lab's files for a model of that lab")
 
 
-def data_notes(recordings: Sequence, names: Sequence[str], idle) -> DataNotes:
-    """Everything above for one training run (``idle``: ``trainer.recorded_idle.IdleWindows`` or None)."""
+def prior_lab_line(recordings: Sequence, prior_lab: str) -> str | None:
+    """One line when synthetic recordings come from a simulated lab other than the prior's (``trainer.prior``)."""
+    from firmware_io.sim.lab import lab_of
+
+    others = sorted({lab for rec in recordings if (lab := lab_of(rec.meta)) not in (None, prior_lab)})
+    if not others:
+        return None
+    return (f"the recordings come from simulated lab {', '.join(others)} and the product's prior is simulated lab "
+            f"{prior_lab} (another hand and other people): its weight is chosen on your subjects alone (0 when it "
+            "does not help them); --no-prior trains on your recordings alone")
+
+
+def data_notes(recordings: Sequence, names: Sequence[str], idle, prior_lab: str | None = None) -> DataNotes:
+    """Everything above for one training run (``idle``: ``trainer.recorded_idle.IdleWindows`` or None;
+    ``prior_lab``: the simulated lab of the prior training adds, None without one)."""
     notes = DataNotes(partial=partial_subjects(recordings, names))
     if line := lab_line(recordings, names):
+        notes.lines.append(line)
+    if prior_lab and (line := prior_lab_line(recordings, prior_lab)):
         notes.lines.append(line)
     if idle is not None and idle.makes_class:
         notes.lines += dormant_lines(idle.per_source, recorded_kinds(recordings))
     for subject, lacks in notes.partial.items():
         notes.lines.append(f"{subject} is a partial recording ({lacks}): its rows in the report say partial, not "
-                           f"their accuracy; the same `handover record ... --subject {subject}` command records "
-                           "what it lacks")
+                           f"their accuracy; the same `handover record --device URL --subject {subject} "
+                           "--out DIR` command (with its session's options) records what it lacks")
     return notes

@@ -100,10 +100,16 @@ class Dataset:
 
     @property
     def n_trials(self) -> int:
-        """Labelled trials seen, cases plus skipped (dormant windows from idle recordings are no trials)."""
+        """Labelled trials seen, cases plus skipped (dormant windows from idle recordings are no trials; an
+        event a person labelled dormant in review is one)."""
+        return int(np.sum(~self._idle_windows)) + len(self.untriggered)
+
+    @property
+    def _idle_windows(self) -> np.ndarray:
+        """Which cases are dormant windows cut from idle (no trial's: ``trigger_offsets`` -1)."""
         from trainer.dormant import DORMANT
 
-        return int(np.sum(self.y != DORMANT)) + len(self.untriggered)
+        return (self.y == DORMANT) & (self.trigger_offsets < 0)
 
     @property
     def n_untriggered(self) -> int:
@@ -111,10 +117,8 @@ class Dataset:
 
     def counts(self) -> TrainingCounts:
         """Trials and windows as every report of this data set states them (dormant windows are no trials)."""
-        from trainer.dormant import DORMANT
-
         return TrainingCounts(trials=self.n_trials, windows=len(self.y), untriggered=self.n_untriggered,
-                              dormant=int(np.sum(self.y == DORMANT)))
+                              dormant=int(np.sum(self._idle_windows)))
 
     @property
     def classes(self) -> list[str]:

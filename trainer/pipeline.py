@@ -104,8 +104,9 @@ def train(options: TrainOptions) -> TrainResult:
     recordings, names, source, synthetic = load_or_simulate(options.data, options.seed, say)
     ds, idle = _cases(options, recordings, names, say)
     from trainer.data_warnings import data_notes
+    from trainer.prior import PRIOR_LAB
 
-    notes = data_notes(recordings, names, idle)
+    notes = data_notes(recordings, names, idle, prior_lab=PRIOR_LAB if options.prior and options.data else None)
     for line in notes.lines:  # what the data can carry: seen even with --quiet
         PROGRESS.warning(f"handover train: {line}")
     selection = None
@@ -170,7 +171,10 @@ def train(options: TrainOptions) -> TrainResult:
 def _cases(options: TrainOptions, recordings: list, names: list[str], say: Callable[[str], None]):
     """The dataset training cuts from the recordings (with the recorded idle as the dormant class when asked),
     or DatasetError for recordings that give too few cases."""
+    import numpy as np
+
     from trainer.dataset import DatasetError, build_dataset, dataset_trigger, untriggered_lines
+    from trainer.dormant import DORMANT
     from trainer.recorded_idle import add_idle, idle_only_problem
 
     problem = idle_only_problem(recordings, names)
@@ -181,12 +185,16 @@ def _cases(options: TrainOptions, recordings: list, names: list[str], say: Calla
     say(f"{ds.counts().text()} {ds.summary()['untriggered_reasons'] or ''}".rstrip())
     for line in untriggered_lines(ds):
         say(f"  {line}")
-    problem = too_few_cases(ds)
+    if n := int(np.sum((ds.y == DORMANT) & (ds.trigger_offsets >= 0))):
+        say(f"{n} dormant case{'s' if n != 1 else ''} from the field: captured events a person labelled dormant "
+            "(handover review)")
+    idle = None
+    if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
+        ds, idle = add_idle(ds, recordings, names, options.seed, say, warn=PROGRESS.warning)
+    problem = too_few_cases(ds)  # counted with the idle's dormant windows: they are cases like any other
     if problem:
         raise DatasetError(problem)
-    if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
-        return add_idle(ds, recordings, names, options.seed, say, warn=PROGRESS.warning)
-    return ds, None
+    return ds, idle
 
 
 def _write_report(options: TrainOptions, out: Path, ds, embedding, metrics: dict, selection, synthetic: bool) -> None:
@@ -325,8 +333,23 @@ def _split_problem(cases) -> str | None:
         return None
     return (f"only {n} triggered cases of {k} classes ({_counts(cases)}): the evaluation's stratified "
             f"{POOLED_TEST_SIZE:.0%} test split needs each class at least twice and {k} cases on each side "
-            f"(about {math.ceil((k - 1) / POOLED_TEST_SIZE) + 1} cases); record more runs of each action "
-            "(handover record --runs)")
+            f"(about {math.ceil((k - 1) / POOLED_TEST_SIZE) + 1} cases); " + _short_advice(cases))
+
+
+def _short_advice(cases) -> str:
+    """What to record: for the classes with fewer than two cases, by name (dormant comes from idle)."""
+    from trainer.data_warnings import MORE_IDLE
+    from trainer.dormant import DORMANT
+
+    short = sorted(c for c, n in cases.items() if n < 2)
+    actions = [c for c in short if c != DORMANT]
+    said = []
+    if actions:
+        said.append(f"record more runs of {', '.join(actions)} (handover record --runs)")
+    if DORMANT in short:
+        said.append(f"dormant is short: record idle ({MORE_IDLE}) or label more captured events dormant "
+                    "(handover review)")
+    return "; ".join(said) or "record more runs of each action (handover record --runs)"
 
 
 def _counts(counter) -> str:

@@ -48,6 +48,8 @@ class PriorRecipe:
 
 
 PRIOR = PriorRecipe()
+PRIOR_LAB = "A"
+"""The simulated lab the prior comes from (``firmware_io.sim.lab``): the default simulator's."""
 RULE = ("the prior weight (prior cases per lab case) with the highest leave-one-subject-out accuracy on the lab's "
         "own cases (every lab subject held out in turn; the prior always in the training part, never scored); "
         "ties go to the larger weight")

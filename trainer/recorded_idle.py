@@ -189,9 +189,10 @@ def with_dormant(ds, idle: IdleWindows):
 
 def too_few_line(seconds: float, n_windows: int, cut: str) -> str:
     """What recorded idle with too few dormant windows costs and what to do (train's warning, report.md)."""
+    from trainer.data_warnings import MORE_IDLE
+
     return (f"{seconds / 60:.1f} min of recorded idle gave {n_windows} dormant windows (cut: {cut}; at least "
-            f"{MIN_DORMANT_WINDOWS} make the class): the model has no dormant class; record more idle, arm moves "
-            "above all (`handover record --idle-only --idle-minutes 10`)")
+            f"{MIN_DORMANT_WINDOWS} make the class): the model has no dormant class; record more idle: {MORE_IDLE}")
 
 
 def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: int, say: Callable[[str], None],
