@@ -29,7 +29,7 @@ def test_one_idle_kind_names_present_missing_and_how_to_record():
     (line,) = dormant_lines({"trigger:arm_move": 200}, ["arm_move", "quiet", "regrasp"])
     assert "one idle kind only" in line and "all arm_move" in line
     assert "quiet, regrasp recorded but the trigger fired on none" in line
-    assert "open, grasp, release not recorded" in line and "handover record --idle-only" in line
+    assert "open, grasp, release not recorded" in line and "handover record --device URL --idle-only" in line
 
 
 def test_planned_trials_read_from_the_last_session():
