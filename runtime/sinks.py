@@ -407,8 +407,7 @@ class SinkSet:
 
     def __init__(self, sinks: Iterable[Sink], instance: str = "") -> None:
         self.sinks = list(sinks)
-        self._lock = threading.Lock()
-        """Held while a line goes out: the shadow thread sends its lines through the same sinks."""
+        self._lock = threading.Lock()  # held while a line goes out: the shadow thread sends through these sinks too
         self.instance = instance
         """Stamped on every line that has none (runtime.instance_name: which daemon sent it)."""
         self.invalid = 0
