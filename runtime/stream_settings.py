@@ -10,6 +10,8 @@ first setting is the one the daemon runs it in by default (``[scene] mode = "tri
 
 from __future__ import annotations
 
+from firmware_io.recordings.idle_stretches import RECORD_IDLE_COMMAND
+
 __all__ = ["SETTINGS", "cost_lines", "describe", "served_setting", "served_settings"]
 
 SETTINGS = {
@@ -24,8 +26,7 @@ SETTINGS = {
 MAX_REAL_FALSE_PER_HOUR = 1.0
 """A setting raising more false events per hour than this on real idle signals is said to cost too much
 (the product's bar: the default onset_dormant stays below it on the real recordings, results/streams.json)."""
-RECORD_IDLE = ("record idle on the robot (`handover record --idle-only`) and train again (`handover train` measures "
-               "it on that idle)")
+RECORD_IDLE = f"record idle on the robot (`{RECORD_IDLE_COMMAND}`) and train again (`handover train` measures it on that idle)"
 
 
 def served_setting(dormant_class: str | None, trigger_kind: str, scene_mode: str = "trigger") -> str:

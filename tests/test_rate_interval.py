@@ -52,6 +52,6 @@ def test_replay_lines_give_the_interval_and_say_when_the_idle_is_short():
     lo, hi = rate_interval(3, 9.6 / 60)
     assert lines[0].startswith(f"idle: 3 false events in 9.6 min (18.8 per hour, 95 % interval {lo:.1f}-{hi:.1f};")
     assert lines[1] == ("9.6 min of idle: one false event is 6.2 per hour; record more idle "
-                        "(`handover record --idle-only ...`) for a tighter figure")
+                        "(`handover record --device URL --idle-only --idle-minutes 20 --subject ID --out DIR`) for a tighter figure")
     long = replay_lines(_replay(3, SHORT_IDLE_MIN + 1))
     assert len(long) == 2 and "95 % interval" in long[0] and long[1].startswith("real idle signals: none")

@@ -63,7 +63,7 @@ def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
     out = capsys.readouterr().out
     warnings = [line for line in out.splitlines() if line.startswith("  warning: stream setting")]
     assert [w.split(":")[1].split()[-1] for w in warnings] == ["onset_dormant", "continuous"]
-    assert all("unmeasured" in w and "handover record --idle-only" in w for w in warnings)
+    assert all("unmeasured" in w and "handover record --device URL --idle-only" in w for w in warnings)
 
 
 @pytest.mark.parametrize(("mode", "measured", "said"), [

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_io.recordings.idle_stretches import SOURCES, has_idle
+from firmware_io.recordings.idle_stretches import RECORD_IDLE_COMMAND, SOURCES, has_idle
 
 __all__ = ["FEW_DORMANT_WINDOWS", "data_notes", "dormant_lines", "lab_line", "partial_subjects", "prior_lab_line"]
 
@@ -23,8 +23,7 @@ FEW_DORMANT_WINDOWS = 100
 """Fewer dormant windows than this and the class is called thin. The rule of three: with n windows and
 every one read right, the data cannot exclude (95 %) that 3 in n idle windows are read as an action;
 at 100 that is 3 %. The recorder's default (3 min of idle a subject) gives 12-16 windows a subject."""
-MORE_IDLE = ("`handover record --device URL --idle-only --idle-minutes 20 --subject ID --out DIR` (every idle kind, "
-             "in rounds of 81 s)")
+MORE_IDLE = f"`{RECORD_IDLE_COMMAND}` (every idle kind, in rounds of 81 s)"
 """The command that records more idle of every kind, as the lines say it."""
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.recordings import arm_marks
+from firmware_io.recordings.idle_stretches import RECORD_IDLE_COMMAND
 from firmware_io.recordings.recording import Recording
 from trainer import streams_eval as se
 from trainer.rate_interval import rate_interval
@@ -252,7 +253,7 @@ def replay_lines(r: dict | None) -> list[str]:
         minutes = r["idle_hours"] * 60
         if minutes < SHORT_IDLE_MIN:
             lines.append(f"{minutes:.1f} min of idle: one false event is {1 / r['idle_hours']:.1f} per hour; record more "
-                         "idle (`handover record --idle-only ...`) for a tighter figure")
+                         f"idle (`{RECORD_IDLE_COMMAND}`) for a tighter figure")
         arm = r.get("with_arm_messages")
         if arm:
             lines.append(f"idle with the robot's 'arm moving' / 'arm still' over the arm_move stretches: "

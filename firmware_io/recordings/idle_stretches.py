@@ -118,7 +118,10 @@ def idle_meta(n_frames: int, stretches: Sequence[dict]) -> dict:
             "source_codes": stretch_codes(n_frames, stretches).tolist()}
 
 
+RECORD_IDLE_COMMAND = "handover record --device URL --idle-only --idle-minutes 20 --subject ID --out DIR"
+"""The command that records more idle of every kind, as every hint writes it (it runs when copied)."""
+
 __all__ = [
-    "CYCLE", "DEFAULT_IDLE_MINUTES", "SOURCES", "IdleSlot", "codes_problem", "has_idle", "idle_meta", "idle_plan",
+    "CYCLE", "DEFAULT_IDLE_MINUTES", "RECORD_IDLE_COMMAND", "SOURCES", "IdleSlot", "codes_problem", "has_idle", "idle_meta", "idle_plan",
     "stretches_of"
 ]
