@@ -45,14 +45,17 @@ def _handover(argv: list[str]) -> tuple[int, str]:
     return code, buf.getvalue()
 
 
-def record(folder: Path, lab: str | None, seeds, runs: int, say) -> None:
+def record(folder: Path, lab: str | None, seeds, runs: int, say, idle_min: float | None = None) -> list[str]:
+    """README step 2's ``handover record`` of each scripted subject ``s<seed>`` into ``folder``; their names."""
     for seed in seeds:
-        say(f"own_prior: recording subject://?seed={seed}{'&lab=' + lab if lab else ''} x {runs} run(s) ...")
+        say(f"recording subject://?seed={seed}{'&lab=' + lab if lab else ''} x {runs} run(s) (synthetic) ...")
         device = f"subject://?seed={seed}&speed=max" + (f"&lab={lab}" if lab else "")
+        idle = [] if idle_min is None else ["--idle-minutes", str(idle_min)]
         code, _ = _handover(["record", "--device", device, "--subject", f"s{seed}", "--out", str(folder), "--runs",
-                             str(runs), "--auto", "--gap", "0", "--countdown", "0", "--quiet", "--no-look"])
+                             str(runs), "--auto", "--gap", "0", "--countdown", "0", "--quiet", "--no-look", *idle])
         if code != 0:
             raise RuntimeError(f"handover record of {device} failed (exit {code})")
+    return [f"s{seed}" for seed in seeds]
 
 
 def demo(model: Path | None, lab: str | None, work: Path) -> dict:
@@ -136,7 +139,9 @@ def _demo_cells(d: dict | None) -> str:
 
 
 def _early_classes(rule: dict) -> str:
-    return "" if rule.get("classes") is None else f" ({', '.join(rule['classes']) or 'none'} early)"
+    from trainer.early_report import who_comes_early
+
+    return f" ({who_comes_early(rule)})"
 
 
 def markdown(r: dict) -> list[str]:

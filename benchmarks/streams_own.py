@@ -17,13 +17,12 @@ Writes results/streams_own.json/.md and its headline keys into results/streams.j
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.own_prior import record
 from firmware_io.sim.constants import FRAME_PERIOD_S
 from trainer import streams_eval as se
 from trainer.early import rule_in_words
@@ -51,25 +50,6 @@ OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events
             "own_model_real_idle_false_events_per_hour", "own_model_dormant_cut",
             "own_model_real_idle_trained_false_events_per_hour")
 """The headline keys this bench writes into results/streams.json too."""
-
-
-def record_subjects(folder: Path, s: dict, say) -> list[str]:
-    """``handover record`` of each scripted subject into ``folder`` (its prompts swallowed)."""
-    from runtime.cli import main as handover
-
-    names = []
-    for seed in SUBJECT_SEEDS:
-        name = f"s{seed}"
-        say(f"streams_own: recording scripted subject {name} (synthetic, seed {seed}) ...")
-        idle = [] if s["idle_min"] is None else ["--idle-minutes", str(s["idle_min"])]
-        with contextlib.redirect_stdout(io.StringIO()):
-            code = handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name,
-                             "--out", str(folder), "--runs", str(s["runs"]), "--auto", "--gap", "0", "--countdown", "0",
-                             "--quiet", "--no-look", *idle])  # README step 2's command (--quiet, --no-look: no voice)
-        if code != 0:
-            raise RuntimeError(f"recording scripted subject {name} failed (exit {code})")
-        names.append(name)
-    return names
 
 
 def cut_models(folder: Path, work: Path, seed: int, say) -> dict:
@@ -189,7 +169,7 @@ def run(args) -> dict:
     with tempfile.TemporaryDirectory(prefix="handover-streams-own-") as tmp:
         work = Path(tmp)
         data = work / "data"
-        subjects = record_subjects(data, s, say)
+        subjects = record(data, None, SUBJECT_SEEDS, s["runs"], say, s["idle_min"])
         val = validation(cut_models(data, work, args.seed, say), args.seed + VAL_OFFSET, s, say)
         chosen = choose(val)
         say(f"streams_own: chosen dormant cut on validation: {chosen} (in code: {DORMANT_CUT})")

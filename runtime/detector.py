@@ -455,10 +455,7 @@ class Detector:
         if model is None or model.early is None or self.scene.mode != "trigger":
             return None
         early = self.scene.events if self.scene.early_events is None else self.scene.early_events
-        trained = model.early.classes  # the classes training let come early (None: all)
-        return EarlyRule(model.early, frozenset(i for i, c in enumerate(model.meta.classes)
-                                                if c in early and c in self.scene.events
-                                                and (trained is None or c in trained)))
+        return EarlyRule(model.early, model.meta.classes, frozenset(c for c in early if c in self.scene.events))
 
     def _arm_frames(self) -> tuple[int, int]:
         return arm_frames(1.0 / self.period_s, self.control.arm_settle_s, self.control.arm_max_move_s)

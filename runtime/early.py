@@ -4,13 +4,15 @@ Why: the full window makes the robot wait about half a second, while a firm pull
 frames. Early heads are extra outputs of the same graph (``label_at_<p>``, ``scores_at_<p>``), each
 trained on the first ``p`` frames of the window (the LAST ``p`` rows of its input, so the ring's newest
 T frames serve every point). The metadata key ``early`` (``EarlySpec``; docs/EARLY.md) holds the points,
-each head's Platt calibration of its score margin, the probability ``threshold`` to report at and
-whether a head must ``agree`` with the previous one; at T the full model answers, always.
+each head's Platt calibration of its score margin, the probability ``threshold`` to report at (higher
+for the classes in ``stricter``) and whether a head must ``agree`` with the previous one; at T the full
+model answers, always.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +59,9 @@ class EarlySpec:
     agree: bool
     classes: tuple[str, ...] | None = None
     """The classes training allows to be reported early (None: every reported class); the others wait for T."""
+    stricter: tuple[tuple[str, float], ...] = ()
+    """Classes whose early reports need more confidence than ``threshold`` (a hold resembles the start of
+    a pull for a few frames: reported early only when its head is surer), as (class, probability)."""
 
     @classmethod
     def from_meta(cls, value: object, T: int) -> EarlySpec:
@@ -85,13 +90,26 @@ class EarlySpec:
         classes = value.get("classes")
         if classes is not None and (not isinstance(classes, list) or not all(isinstance(c, str) for c in classes)):
             raise EarlySpecError(f"{EARLY_KEY}.classes must be a list of class names (or absent), got {classes!r}")
+        stricter = value.get("stricter", {})
+        if (not isinstance(stricter, dict) or not all(isinstance(c, str) for c in stricter)
+                or not all(_finite(t) and float(threshold) <= float(t) <= NEVER for t in stricter.values())):
+            raise EarlySpecError(f"{EARLY_KEY}.stricter must map class names to probabilities from threshold to "
+                                 f"{NEVER} (or be absent), got {stricter!r}")
         return cls(tuple(points), tuple((float(a), float(b)) for a, b in calib), float(threshold), agree,
-                   None if classes is None else tuple(classes))
+                   None if classes is None else tuple(classes), tuple((c, float(t)) for c, t in stricter.items()))
 
     def to_meta(self) -> dict:
         return {"points": list(self.points), "calibration": [list(c) for c in self.calibration],
                 "threshold": self.threshold, "agree": self.agree,
-                **({} if self.classes is None else {"classes": list(self.classes)})}
+                **({} if self.classes is None else {"classes": list(self.classes)}),
+                **({"stricter": dict(self.stricter)} if self.stricter else {})}
+
+    def needs(self, class_names: Sequence[str]) -> np.ndarray:
+        """The confidence each class (by index) needs to be reported early: ``threshold``, a ``stricter``
+        one, or ``NEVER`` for a class training keeps to T."""
+        stricter = dict(self.stricter)
+        return np.asarray([NEVER if self.classes is not None and c not in self.classes
+                           else max(self.threshold, stricter.get(c, 0.0)) for c in class_names])
 
     def confidence(self, index: int, scores: np.ndarray, label: int) -> float:
         """Calibrated probability that head ``index`` (of ``points``) is right, from one row of scores."""
@@ -110,12 +128,14 @@ def _sigmoid(z: float) -> float:
 class EarlyRule:
     """One event's early decisions: per point, whether to report now (one report per event).
 
-    ``early_classes``: the classes that may be reported before T (None: all); a scene that must
+    ``early_classes``: the classes (by name) the scene lets come before T (None: all); a scene that must
     release on a pull but may wait on a bump lists only ``pull`` (``scene.early_events``)."""
 
-    def __init__(self, spec: EarlySpec, early_classes: frozenset[int] | None = None) -> None:
+    def __init__(self, spec: EarlySpec, class_names: Sequence[str], early_classes: frozenset[str] | None = None
+                 ) -> None:
         self.spec = spec
-        self.early_classes = early_classes
+        self._need = [NEVER if early_classes is not None and c not in early_classes else need
+                      for c, need in zip(class_names, spec.needs(class_names), strict=True)]
         self._index = {p: i for i, p in enumerate(spec.points)}
 
     def index_of(self, point: int) -> int:
@@ -125,9 +145,8 @@ class EarlyRule:
     def report_now(self, index: int, label: int, scores: np.ndarray, previous: int) -> bool:
         """Whether head ``index``'s answer ``label`` is safe to report (``previous``: the label of the
         head before it for this event, -1 when none)."""
-        spec = self.spec
-        if self.early_classes is not None and label not in self.early_classes:
+        if not 0 <= label < len(self._need) or self._need[label] >= NEVER:
             return False
-        if spec.agree and label != previous:
+        if self.spec.agree and label != previous:
             return False
-        return spec.confidence(index, scores, label) >= spec.threshold
+        return self.spec.confidence(index, scores, label) >= self._need[label]

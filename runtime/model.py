@@ -255,11 +255,12 @@ class LoadedModel:
         self._drop_contradicting_heads()
 
     def _drop_contradicting_heads(self) -> None:
-        """An early head decides an event alone, so one that would report a class the full model does not
-        give, on more than two in three warm-up windows, is disabled (a head that always says bump with
-        certainty against a full model that says pull decided every event after a few frames; honest
-        heads differ on two or three of these synthetic windows); the full model still serves and
-        ``early_note`` says why."""
+        """An early head decides an event alone, so one that cannot tell windows apart (the same class,
+        with the certainty to report, on every warm-up window where the full model gives more than one)
+        is disabled: a head that always said bump against a full model that says pull decided every event
+        after a few frames. Disagreeing on some of these synthetic windows is no fault: a head sees only
+        their first frames, and on a hand with other gains (lab B) an honest 4-frame head differed on 5 of 7.
+        The full model still serves and ``early_note`` says why."""
         if self.early is None:
             return
         windows = probe_windows(self.meta.T, self.meta.n_channels, self.meta.fullscale)
@@ -267,15 +268,16 @@ class LoadedModel:
         spec, keep, against = self.early, [], []
         for index in range(len(spec.points)):
             labels, scores = self.run_head(index, windows)
-            contradicts = sum(int(label) != int(want) and spec.confidence(index, row, int(label)) >= spec.threshold
-                              for label, row, want in zip(labels, scores, full, strict=True))
-            (against if 3 * contradicts > 2 * len(windows) else keep).append(index)
+            sure = [spec.confidence(index, row, int(label)) >= spec.threshold
+                    for label, row in zip(labels, scores, strict=True)]
+            blind = all(sure) and len(set(labels.tolist())) == 1 and set(full.tolist()) != set(labels.tolist())
+            (against if blind else keep).append(index)
         if not against:
             return
         self.early_note = (f"model {self.model_id}: early heads at {', '.join(str(spec.points[i]) for i in against)} "
-                           f"frames disabled: they would report another class than the full model, with the certainty "
-                           f"to report, on more than two in three of {len(windows)} warm-up windows; the full model decides "
-                           "those events")
+                           f"frames disabled: they report one class with the certainty to report on every one of "
+                           f"{len(windows)} warm-up windows, where the full model's answers differ; the full model "
+                           "decides those events")
         self._head_sessions = [self._head_sessions[i] for i in keep]
         self._head_outputs = [self._head_outputs[i] for i in keep]
         self.early = EarlySpec(tuple(spec.points[i] for i in keep), tuple(spec.calibration[i] for i in keep),

@@ -96,7 +96,7 @@ def test_windows_say_what_runs_at_a_frame_without_changing_and_a_frame_past_one_
     it has; a window whose last frame never came is dropped and the next one's heads still answer."""
     never = -(1 << 62)
     windows = Windows()
-    windows.T, windows.early = 15, EarlyRule(EarlySpec((4, 8), ((1.0, 0.0), (1.0, 0.0)), 0.5, False))
+    windows.T, windows.early = 15, EarlyRule(EarlySpec((4, 8), ((1.0, 0.0), (1.0, 0.0)), 0.5, False), ("pull",))
     windows.open(20)  # frames 6..20
     windows.open(28)  # frames 14..28: its heads at frames 17 and 21
     assert windows.runs_at(9, 15, never) == 0 and windows.runs_at(13, 15, never) == 1

@@ -21,6 +21,7 @@ def test_spec_round_trips_and_refuses_nonsense():
     for bad, word in [({**SPEC, "points": [8, 4]}, "ascend"), ({**SPEC, "points": [4, 15]}, "T-1"),
                       ({**SPEC, "calibration": [[1.0, 0.0]]}, "one [a, b] pair"),
                       ({**SPEC, "threshold": 2.0}, "probability"), ({**SPEC, "agree": "yes"}, "true or false"),
+                      ({**SPEC, "stricter": {"a": 0.1}}, "from threshold"), ({**SPEC, "stricter": [1]}, "map class"),
                       ([4, 8], "object")]:
         with pytest.raises(EarlySpecError, match=word.replace("[", r"\[").replace("]", r"\]")):
             EarlySpec.from_meta(bad, T=15)
@@ -30,15 +31,22 @@ def test_rule_reports_on_confidence_agreement_and_allowed_classes():
     spec = EarlySpec.from_meta(SPEC, T=15)
     sure, unsure = np.array([3.2, 0.1, 1.0]), np.array([1.1, 0.9, 1.0])
     assert margin(sure, 0) == pytest.approx(2.2) and margin(unsure, 0) == pytest.approx(0.1)
-    rule = EarlyRule(spec)
+    names = ("a", "b", "c")
+    rule = EarlyRule(spec, names)
     assert rule.index_of(4) == 0 and rule.index_of(8) == 1 and rule.index_of(5) == -1
     assert rule.report_now(0, 0, sure, -1)  # sigmoid(4.4) > 0.8
     assert not rule.report_now(0, 0, unsure, -1)  # sigmoid(0.2) < 0.8
-    assert not EarlyRule(spec, frozenset({1})).report_now(0, 0, sure, -1)  # class 0 must wait for T
-    agree = EarlyRule(EarlySpec(spec.points, spec.calibration, spec.threshold, True))
+    assert not EarlyRule(spec, names, frozenset({"b"})).report_now(0, 0, sure, -1)  # the scene keeps a to T
+    trained = EarlySpec(spec.points, spec.calibration, spec.threshold, False, ("b", "c"))
+    assert not EarlyRule(trained, names).report_now(0, 0, sure, -1)  # training kept a to T
+    stricter = EarlySpec(spec.points, spec.calibration, spec.threshold, False, None, (("a", 0.99),))
+    assert EarlySpec.from_meta(stricter.to_meta(), T=15) == stricter
+    assert not EarlyRule(stricter, names).report_now(0, 0, sure, -1)  # sigmoid(4.4) < 0.99
+    assert EarlyRule(stricter, names).report_now(0, 0, np.array([4.0, 0.1, 1.0]), -1)  # sigmoid(6) > 0.99
+    agree = EarlyRule(EarlySpec(spec.points, spec.calibration, spec.threshold, True), names)
     assert not agree.report_now(0, 0, sure, -1) and agree.report_now(1, 0, sure, 0)
     assert not agree.report_now(1, 0, sure, 2)
-    never = EarlyRule(EarlySpec(spec.points, spec.calibration, NEVER, False))
+    never = EarlyRule(EarlySpec(spec.points, spec.calibration, NEVER, False), names)
     assert not never.report_now(0, 0, np.array([1e6, 0.0, 0.0]), -1)
 
 
@@ -58,7 +66,7 @@ def test_platt_and_rule_choice_on_made_up_answers():
     assert choice.full_accuracy == 1.0 and choice.accuracy >= 0.98
     assert choice.mean_frames < 15  # the margin tells right from wrong, so it reports early
     _, said = cascade(np.stack([lab4, lab8]), confidences(np.stack([m4, m8]), choice.spec.calibration),
-                          truth, choice.spec.threshold, choice.spec.agree)
+                          truth, np.full(3, choice.spec.threshold), choice.spec.agree)
     assert np.mean(said == truth) == pytest.approx(choice.accuracy)
     useless = choose_rule(np.stack([(truth + 1) % 3] * 2), np.stack([m4, m8]), truth.copy(), truth, (4, 8), 15)
     assert useless.spec.threshold == NEVER and useless.mean_frames == 15  # wrong heads: always wait for T
@@ -501,3 +509,26 @@ def test_a_subject_too_small_for_a_training_part_skips_early_decisions_naming_it
                                 said.append)
     assert heads is None and ev["skipped"].startswith("leaving out s1 and s2 would train on s9 alone (1 case, all pull)")
     assert said == [f"early decisions skipped: {ev['skipped']}"]
+
+
+def test_a_class_whose_early_answers_cost_accuracy_comes_early_at_a_stricter_threshold():
+    """Holds waited for T on every lab model (the slowest tenth of its events) because one threshold for all
+    classes either let a head's unsure holds through or held every class back; a waiting class may now come
+    early at a higher threshold of its own."""
+    from trainer.early import cascade, choose_rule, confidences
+
+    rng = np.random.default_rng(1)
+    n = 900
+    truth = rng.integers(0, 3, n)
+    margin = np.where(truth == 0, rng.uniform(2.0, 4.0, n), rng.uniform(0.0, 2.0, n))
+    label = np.where((truth != 0) & (margin < 0.3), 3 - truth, truth)  # 1 <-> 2 when unsure
+    decoy = (truth == 1) & (margin > 0.3) & (rng.random(n) < 0.5)
+    label = np.where(decoy, 0, label)  # some sure-looking pulls read as holds
+    choice = choose_rule(label[None], margin[None], truth.copy(), truth, (4,), 15, classes=["hold", "pull", "push"])
+    assert choice.spec.classes is None and [c for c, _ in choice.spec.stricter] == ["hold"]  # every class early
+    assert dict(choice.spec.stricter)["hold"] > choice.spec.threshold
+    where, said = cascade(label[None], confidences(margin[None], choice.spec.calibration), truth,
+                          choice.spec.needs(["hold", "pull", "push"]), choice.spec.agree)
+    assert np.mean(said == truth) >= 0.98 and np.mean(where[truth == 0] == 0) > 0.9  # holds come early, surer
+    one = choose_rule(label[None], margin[None], truth.copy(), truth, (4,), 15)  # one threshold for all classes
+    assert choice.mean_frames < one.mean_frames

@@ -40,6 +40,7 @@ __all__ = [
     "head_factory",
     "part_problem",
     "platt",
+    "reported_needs",
     "rule_in_words"
 ]
 
@@ -159,22 +160,22 @@ def confidences(margins: np.ndarray, calibration: Sequence[tuple[float, float]])
     return expit(ab[:, :1] * margins + ab[:, 1:])  # no overflow warning for a large margin
 
 
-def cascade(labels: np.ndarray, conf: np.ndarray, full: np.ndarray, threshold: float, agree: bool,
-            allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def cascade(labels: np.ndarray, conf: np.ndarray, full: np.ndarray, needs: np.ndarray, agree: bool
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Where the rule reports each case (index of the point, ``len(points)`` = T) and what it says.
 
     ``labels``/``conf``: ``[n_points, n]`` of the early heads; ``full``: the full model's labels;
-    ``allowed``: bool per class index, the classes that may be reported early (None: all)."""
+    ``needs``: per class index, the confidence it needs to be reported early (``EarlySpec.needs``;
+    ``NEVER``: the class waits for T)."""
     n_points, n = labels.shape
+    needs = np.asarray(needs, dtype=np.float64)
     where = np.full(n, n_points, dtype=np.int64)
     said = full.copy()
     open_ = np.ones(n, dtype=bool)
     for k in range(n_points):
-        ok = open_ & (conf[k] >= threshold)
+        ok = open_ & (conf[k] >= needs[labels[k]])
         if agree:
             ok &= labels[k] == labels[k - 1] if k > 0 else False
-        if allowed is not None:
-            ok &= allowed[labels[k]]
         where[ok], said[ok] = k, labels[k][ok]
         open_ &= ~ok
     return where, said
@@ -197,6 +198,12 @@ def case_kinds(truth: np.ndarray, dormant: int = -1) -> dict[str, np.ndarray]:
     if dormant >= 0 and (~actions).any():
         kinds["dormant"] = ~actions
     return kinds
+
+
+def reported_needs(spec: EarlySpec, classes: Sequence[str]) -> np.ndarray:
+    """``spec.needs`` with the dormant class never reported early (the daemon leaves a dormant answer to
+    the next head, or to T)."""
+    return np.asarray([NEVER if c == DORMANT else need for c, need in zip(classes, spec.needs(classes), strict=True)])
 
 
 def rule_in_words(target_loss: float = TARGET_LOSS) -> str:
@@ -231,23 +238,49 @@ def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth
     kinds = {k: m for k, m in case_kinds(truth, dormant).items() if m.any()}
     full_acc = float(np.mean(full == truth))
     full_kinds = {k: float(np.mean(full[m] == truth[m])) for k, m in kinds.items()}
-    grid = []
+
+    def row(needs: np.ndarray, threshold: float, agree: bool) -> dict:
+        where, said = cascade(labels, conf, full, needs, agree)
+        early = [c for c in range(n) if needs[c] < NEVER]
+        return {"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
+                **{f"{k}_accuracy": float(np.mean(said[m] == truth[m])) for k, m in kinds.items()},
+                "mean_frames": float(frames[where].mean()), "needs": needs,
+                "classes": (None if classes is None or not early or len(early) == n - (dormant >= 0)
+                            else [classes[c] for c in early])}
+
+    def feasible(r: dict) -> bool:
+        return (r["accuracy"] >= full_acc - target_loss - 1e-12
+                and all(r[f"{k}_accuracy"] >= full_kinds[k] - target_loss - 1e-12 for k in kinds))
+
+    def key(r: dict) -> tuple:
+        return (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"], int(np.sum(r["needs"] >= NEVER)))
+
+    grid, starts = [], []
     for subset in early_class_sets(n, dormant, classes is not None):
-        allowed = (None if dormant < 0 else np.arange(n) != dormant) if subset is None else np.isin(np.arange(n), subset)
+        allowed = (np.arange(n) != dormant) if subset is None else np.isin(np.arange(n), subset)
         for agree in (False, True):
-            for threshold in (*THRESHOLDS, NEVER):
-                where, said = cascade(labels, conf, full, threshold, agree, allowed)
-                grid.append({"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
-                             **{f"{k}_accuracy": float(np.mean(said[m] == truth[m])) for k, m in kinds.items()},
-                             "mean_frames": float(frames[where].mean()),
-                             "classes": None if subset is None else [classes[c] for c in subset]})
-    feasible = [r for r in grid if r["accuracy"] >= full_acc - target_loss - 1e-12
-                and all(r[f"{k}_accuracy"] >= full_kinds[k] - target_loss - 1e-12 for k in kinds)]
-    best = min(feasible, key=lambda r: (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"],
-                                        -len(r["classes"] if r["classes"] is not None else range(n))), default=None)
-    assert best is not None  # NEVER reproduces the full window's accuracy
-    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]),
-                     None if best["classes"] is None else tuple(best["classes"]))
+            rows = [row(np.where(allowed, threshold, NEVER), threshold, agree) for threshold in (*THRESHOLDS, NEVER)]
+            grid += rows
+            starts.append(min(filter(feasible, rows), key=key))  # NEVER reproduces the full window's accuracy
+    finals = []
+    for best in starts if classes is not None else []:  # a waiting class may still come early, surer
+        while best["threshold"] < NEVER:
+            stricter = [row(np.where(np.arange(n) == c, t, best["needs"]), best["threshold"], best["agree"])
+                        for c in range(n) if c != dormant and best["needs"][c] >= NEVER
+                        for t in THRESHOLDS if t > best["threshold"]]
+            grid += stricter
+            found = min(filter(feasible, stricter), key=key, default=None)
+            if found is None or found["mean_frames"] >= best["mean_frames"]:
+                break
+            best = found
+        finals.append(best)
+    best = min(finals or starts, key=key)
+    threshold, needs = float(best["threshold"]), best["needs"]
+    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), threshold, bool(best["agree"]),
+                     None if best["classes"] is None else tuple(best["classes"]),
+                     tuple((classes[c], float(needs[c])) for c in range(n) if threshold < needs[c] < NEVER))
+    for r in grid:
+        r["needs"] = {classes[c] if classes else str(c): float(v) for c, v in enumerate(r["needs"]) if v < NEVER}
     return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
 
 
@@ -291,10 +324,7 @@ def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], 
         lab, mar = answers(fits.models(frozenset({g})), all_points, fits.X[test], classes)
         labels[:, test] = lab
         conf = confidences(mar[:-1], choice.spec.calibration)
-        allowed = None if fits.dormant < 0 else np.arange(len(classes)) != fits.dormant
-        if choice.spec.classes is not None:
-            allowed = np.isin(classes, choice.spec.classes)
-        w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.threshold, choice.spec.agree, allowed)
+        w, s = cascade(lab[:-1], conf, lab[-1], reported_needs(choice.spec, classes), choice.spec.agree)
         where[test], said[test] = w, s
         rules.append({"held_out": str(g), **choice.spec.to_meta(), "inner_accuracy": choice.accuracy,
                       "inner_full_accuracy": choice.full_accuracy, "inner_mean_frames": choice.mean_frames})
@@ -333,7 +363,7 @@ class EarlyHeads:
 def fold_heads(fits: Fits, rules: Sequence[dict]) -> dict[str, EarlyHeads]:
     """The nested evaluation's heads and rule for each held-out group (``evaluate``'s ``rules``): fitted
     already, so the held-out replay scores early reports without new fits."""
-    keys = ("points", "calibration", "threshold", "agree", "classes")
+    keys = ("points", "calibration", "threshold", "agree", "classes", "stricter")
     return {r["held_out"]: EarlyHeads(fits.models(frozenset({r["held_out"]}), full=False),
                                       EarlySpec.from_meta({k: r[k] for k in keys if k in r}, fits.T)) for r in rules}
 

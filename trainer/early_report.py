@@ -7,7 +7,7 @@ from pathlib import Path
 
 from trainer.early import rule_in_words
 
-__all__ = ["console_line", "markdown_lines", "plot_curve"]
+__all__ = ["console_line", "markdown_lines", "plot_curve", "who_comes_early"]
 
 
 def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
@@ -18,7 +18,7 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
     points = ev["points"]
     op = ev["operating_point"]
     rule = ev["rule"]
-    early = "" if rule.get("classes") is None else f" for {', '.join(rule['classes']) or 'no class'} (the others wait for T)"
+    early = f" ({who_comes_early(rule)})"
     lines = ["## Early decisions", "",
              f"Heads of the default kind at {', '.join(map(str, points[:-1]))} frames after the window's start, the "
              f"full model at {points[-1]}. The rule in the model file: report when the calibrated confidence reaches "
@@ -36,14 +36,22 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
     return lines
 
 
+def who_comes_early(rule: dict) -> str:
+    """Which classes a rule (``EarlySpec.to_meta``) reports early, with the confidence of a surer one."""
+    stricter, classes = rule.get("stricter", {}), rule.get("classes")
+    if classes is None:
+        return "every class early" + "".join(f", {c} at {t:g}" for c, t in stricter.items())
+    names = [f"{c} at {stricter[c]:g}" if c in stricter else c for c in classes]
+    return f"{', '.join(names) or 'no class'} early, the others wait for T"
+
+
 def console_line(ev: dict | None) -> str | None:
     """The early rule and where the nested evaluation reported, in one line for train's console."""
     if not ev or ev.get("skipped"):
         return None if not ev else f"early decisions: not fitted ({ev['skipped']})"
     rule, op = ev["rule"], ev["operating_point"]
-    who = ", ".join(rule["classes"]) if rule.get("classes") is not None else "every class"
     at = ", ".join(f"{p}: {n}" for p, n in op["reported_at"].items())
-    return (f"early decisions: report at confidence {rule['threshold']:g} ({who} early); nested leave one subject "
+    return (f"early decisions: report at confidence {rule['threshold']:g} ({who_comes_early(rule)}); nested leave one subject "
             f"out reported at frames {at} (accuracy {op['accuracy']:.1%}, full window {ev['full_accuracy']:.1%})")
 
 
