@@ -4,9 +4,8 @@ Why: the full window makes the robot wait about half a second, while a firm pull
 frames. Early heads are extra outputs of the same graph (``label_at_<p>``, ``scores_at_<p>``), each
 trained on the first ``p`` frames of the window (the LAST ``p`` rows of its input, so the ring's newest
 T frames serve every point). The metadata key ``early`` (``EarlySpec``; docs/EARLY.md) holds the points,
-each head's Platt calibration of its score margin, the probability ``threshold`` to report at (higher
-for the classes in ``stricter``) and whether a head must ``agree`` with the previous one; at T the full
-model answers, always.
+each head's Platt calibration of its score margin, the probability ``threshold`` to report at and
+whether a head must ``agree`` with the previous one; at T the full model answers, always.
 """
 
 from __future__ import annotations
@@ -59,9 +58,6 @@ class EarlySpec:
     agree: bool
     classes: tuple[str, ...] | None = None
     """The classes training allows to be reported early (None: every reported class); the others wait for T."""
-    stricter: tuple[tuple[str, float], ...] = ()
-    """Classes whose early reports need more confidence than ``threshold`` (a hold resembles the start of
-    a pull for a few frames: reported early only when its head is surer), as (class, probability)."""
 
     @classmethod
     def from_meta(cls, value: object, T: int) -> EarlySpec:
@@ -90,26 +86,19 @@ class EarlySpec:
         classes = value.get("classes")
         if classes is not None and (not isinstance(classes, list) or not all(isinstance(c, str) for c in classes)):
             raise EarlySpecError(f"{EARLY_KEY}.classes must be a list of class names (or absent), got {classes!r}")
-        stricter = value.get("stricter", {})
-        if (not isinstance(stricter, dict) or not all(isinstance(c, str) for c in stricter)
-                or not all(_finite(t) and float(threshold) <= float(t) <= NEVER for t in stricter.values())):
-            raise EarlySpecError(f"{EARLY_KEY}.stricter must map class names to probabilities from threshold to "
-                                 f"{NEVER} (or be absent), got {stricter!r}")
         return cls(tuple(points), tuple((float(a), float(b)) for a, b in calib), float(threshold), agree,
-                   None if classes is None else tuple(classes), tuple((c, float(t)) for c, t in stricter.items()))
+                   None if classes is None else tuple(classes))
 
     def to_meta(self) -> dict:
         return {"points": list(self.points), "calibration": [list(c) for c in self.calibration],
                 "threshold": self.threshold, "agree": self.agree,
-                **({} if self.classes is None else {"classes": list(self.classes)}),
-                **({"stricter": dict(self.stricter)} if self.stricter else {})}
+                **({} if self.classes is None else {"classes": list(self.classes)})}
 
     def needs(self, class_names: Sequence[str]) -> np.ndarray:
-        """The confidence each class (by index) needs to be reported early: ``threshold``, a ``stricter``
-        one, or ``NEVER`` for a class training keeps to T."""
-        stricter = dict(self.stricter)
-        return np.asarray([NEVER if self.classes is not None and c not in self.classes
-                           else max(self.threshold, stricter.get(c, 0.0)) for c in class_names])
+        """The confidence each class (by index) needs to be reported early: ``threshold``, or ``NEVER``
+        for a class training keeps to T."""
+        return np.asarray([NEVER if self.classes is not None and c not in self.classes else self.threshold
+                           for c in class_names])
 
     def confidence(self, index: int, scores: np.ndarray, label: int) -> float:
         """Calibrated probability that head ``index`` (of ``points``) is right, from one row of scores."""

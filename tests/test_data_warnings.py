@@ -71,7 +71,7 @@ def test_train_says_thin_dormant_class_and_partial_subject(trained, capsys):
 def test_console_names_them_even_when_quiet(tmp_path, capsys, trained):
     data = trained.parent / "data"
     code = handover(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--no-sweep", "--repeats", "2",
-                     "--no-replay", "--early", "off", "--no-onnx", "--quiet"])
+                     "--no-replay", "--early", "off", "--no-onnx", "--no-prior", "--quiet"])  # the fixture trains with it
     err = capsys.readouterr().err
     assert code == 0
     assert "handover train: s3 is a partial recording (3 of 8 planned trials, no idle)" in err

@@ -21,7 +21,6 @@ def test_spec_round_trips_and_refuses_nonsense():
     for bad, word in [({**SPEC, "points": [8, 4]}, "ascend"), ({**SPEC, "points": [4, 15]}, "T-1"),
                       ({**SPEC, "calibration": [[1.0, 0.0]]}, "one [a, b] pair"),
                       ({**SPEC, "threshold": 2.0}, "probability"), ({**SPEC, "agree": "yes"}, "true or false"),
-                      ({**SPEC, "stricter": {"a": 0.1}}, "from threshold"), ({**SPEC, "stricter": [1]}, "map class"),
                       ([4, 8], "object")]:
         with pytest.raises(EarlySpecError, match=word.replace("[", r"\[").replace("]", r"\]")):
             EarlySpec.from_meta(bad, T=15)
@@ -39,10 +38,6 @@ def test_rule_reports_on_confidence_agreement_and_allowed_classes():
     assert not EarlyRule(spec, names, frozenset({"b"})).report_now(0, 0, sure, -1)  # the scene keeps a to T
     trained = EarlySpec(spec.points, spec.calibration, spec.threshold, False, ("b", "c"))
     assert not EarlyRule(trained, names).report_now(0, 0, sure, -1)  # training kept a to T
-    stricter = EarlySpec(spec.points, spec.calibration, spec.threshold, False, None, (("a", 0.99),))
-    assert EarlySpec.from_meta(stricter.to_meta(), T=15) == stricter
-    assert not EarlyRule(stricter, names).report_now(0, 0, sure, -1)  # sigmoid(4.4) < 0.99
-    assert EarlyRule(stricter, names).report_now(0, 0, np.array([4.0, 0.1, 1.0]), -1)  # sigmoid(6) > 0.99
     agree = EarlyRule(EarlySpec(spec.points, spec.calibration, spec.threshold, True), names)
     assert not agree.report_now(0, 0, sure, -1) and agree.report_now(1, 0, sure, 0)
     assert not agree.report_now(1, 0, sure, 2)
@@ -511,24 +506,22 @@ def test_a_subject_too_small_for_a_training_part_skips_early_decisions_naming_it
     assert said == [f"early decisions skipped: {ev['skipped']}"]
 
 
-def test_a_class_whose_early_answers_cost_accuracy_comes_early_at_a_stricter_threshold():
-    """Holds waited for T on every lab model (the slowest tenth of its events) because one threshold for all
-    classes either let a head's unsure holds through or held every class back; a waiting class may now come
-    early at a higher threshold of its own."""
-    from trainer.early import cascade, choose_rule, confidences
+def test_a_rule_fitted_once_searches_c_once_per_point(early_model, monkeypatch):
+    """The demo's stream model searched C again for every held-out fold of every head: most of its training time."""
+    from trainer import classifier, early
 
-    rng = np.random.default_rng(1)
-    n = 900
-    truth = rng.integers(0, 3, n)
-    margin = np.where(truth == 0, rng.uniform(2.0, 4.0, n), rng.uniform(0.0, 2.0, n))
-    label = np.where((truth != 0) & (margin < 0.3), 3 - truth, truth)  # 1 <-> 2 when unsure
-    decoy = (truth == 1) & (margin > 0.3) & (rng.random(n) < 0.5)
-    label = np.where(decoy, 0, label)  # some sure-looking pulls read as holds
-    choice = choose_rule(label[None], margin[None], truth.copy(), truth, (4,), 15, classes=["hold", "pull", "push"])
-    assert choice.spec.classes is None and [c for c, _ in choice.spec.stricter] == ["hold"]  # every class early
-    assert dict(choice.spec.stricter)["hold"] > choice.spec.threshold
-    where, said = cascade(label[None], confidences(margin[None], choice.spec.calibration), truth,
-                          choice.spec.needs(["hold", "pull", "push"]), choice.spec.agree)
-    assert np.mean(said == truth) >= 0.98 and np.mean(where[truth == 0] == 0) > 0.9  # holds come early, surer
-    one = choose_rule(label[None], margin[None], truth.copy(), truth, (4,), 15)  # one threshold for all classes
-    assert choice.mean_frames < one.mean_frames
+    _, ds, _, _ = early_model
+    searches = []
+    real = classifier.choose_svm_params
+    monkeypatch.setattr(classifier, "choose_svm_params",
+                        lambda f, y, kernel, C=None, *a, **k: searches.append(C is None) or real(f, y, kernel, C, *a, **k))
+    make = early.head_factory(ds.pad_sizes)
+    fits = early.Fits(ds.X, ds.y, ds.groups, (4, 8), make, make)
+    fits.searched_once = True
+    heads = early.fit_early(ds.X, ds.y, ds.groups, make, make, (4, 8), fits=fits)
+    groups = sorted(set(ds.groups.tolist()))
+    assert sum(searches) == 3  # one search per point and the full window; each fold takes their C
+    for g in groups:
+        fold = fits.models(frozenset({g}))
+        assert [m.svm_.C for m in fold] == [m.svm_.C for m in fits.models(frozenset())]
+    assert heads.spec.points == (4, 8) and len(heads.models) == 2

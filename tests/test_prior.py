@@ -175,10 +175,10 @@ def test_prior_and_evidence_join_training_and_the_replay_scores_early_reports(re
 def test_console_says_the_early_rule_and_where_it_reported():
     from trainer.early_report import console_line
 
-    ev = {"rule": {"threshold": 0.95, "classes": ["pull", "push", "hold"], "stricter": {"hold": 0.99}},
-          "full_accuracy": 0.98, "operating_point": {"reported_at": {"4": 50, "15": 20}, "accuracy": 0.97}}
+    ev = {"rule": {"threshold": 0.95, "classes": ["pull", "push"]}, "full_accuracy": 0.98,
+          "operating_point": {"reported_at": {"4": 50, "15": 20}, "accuracy": 0.97}}
     line = console_line(ev)
-    assert "0.95 (pull, push, hold at 0.99 early, the others wait for T)" in line and "4: 50, 15: 20" in line
+    assert "0.95 (pull, push early, the others wait for T)" in line and "4: 50, 15: 20" in line
     assert console_line(None) is None and "not fitted (why)" in console_line({"skipped": "why"})
 
 

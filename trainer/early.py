@@ -107,6 +107,10 @@ class Fits:
         self._models: dict[frozenset, list] = {}
         self.per_class = False
         """Whether the rule also chooses which actions may come early (``choose_rule``'s ``classes``)."""
+        self.searched_once = False
+        """Whether models trained without some groups take the C (and gamma) the model on every group chose
+        instead of searching again: for a rule fitted once (``fit_early``), not for ``evaluate``'s nested
+        report (the held-out group would then have helped choose them)."""
 
     def models(self, excluded: frozenset, full: bool = True) -> list:
         """The heads (and with ``full`` the full model) trained on every group but ``excluded``."""
@@ -115,8 +119,10 @@ class Fits:
         want = len(self.all_points) if full else len(self.points)
         for k in range(len(have), want):
             p = self.all_points[k]
-            make = self.make if p < self.T else self.make_full
-            have.append(make(p).fit(self.X[kept][:, :, :p], self.y[kept]))
+            model = (self.make if p < self.T else self.make_full)(p)
+            if self.searched_once and excluded:
+                model.set_params(**self.models(frozenset(), full=k == len(self.points))[k].best_params_)
+            have.append(model.fit(self.X[kept][:, :, :p], self.y[kept]))
         return have[:want]
 
     def out_of_fold(self, excluded: frozenset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -238,49 +244,23 @@ def choose_rule(labels: np.ndarray, margins: np.ndarray, full: np.ndarray, truth
     kinds = {k: m for k, m in case_kinds(truth, dormant).items() if m.any()}
     full_acc = float(np.mean(full == truth))
     full_kinds = {k: float(np.mean(full[m] == truth[m])) for k, m in kinds.items()}
-
-    def row(needs: np.ndarray, threshold: float, agree: bool) -> dict:
-        where, said = cascade(labels, conf, full, needs, agree)
-        early = [c for c in range(n) if needs[c] < NEVER]
-        return {"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
-                **{f"{k}_accuracy": float(np.mean(said[m] == truth[m])) for k, m in kinds.items()},
-                "mean_frames": float(frames[where].mean()), "needs": needs,
-                "classes": (None if classes is None or not early or len(early) == n - (dormant >= 0)
-                            else [classes[c] for c in early])}
-
-    def feasible(r: dict) -> bool:
-        return (r["accuracy"] >= full_acc - target_loss - 1e-12
-                and all(r[f"{k}_accuracy"] >= full_kinds[k] - target_loss - 1e-12 for k in kinds))
-
-    def key(r: dict) -> tuple:
-        return (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"], int(np.sum(r["needs"] >= NEVER)))
-
-    grid, starts = [], []
+    grid = []
     for subset in early_class_sets(n, dormant, classes is not None):
         allowed = (np.arange(n) != dormant) if subset is None else np.isin(np.arange(n), subset)
         for agree in (False, True):
-            rows = [row(np.where(allowed, threshold, NEVER), threshold, agree) for threshold in (*THRESHOLDS, NEVER)]
-            grid += rows
-            starts.append(min(filter(feasible, rows), key=key))  # NEVER reproduces the full window's accuracy
-    finals = []
-    for best in starts if classes is not None else []:  # a waiting class may still come early, surer
-        while best["threshold"] < NEVER:
-            stricter = [row(np.where(np.arange(n) == c, t, best["needs"]), best["threshold"], best["agree"])
-                        for c in range(n) if c != dormant and best["needs"][c] >= NEVER
-                        for t in THRESHOLDS if t > best["threshold"]]
-            grid += stricter
-            found = min(filter(feasible, stricter), key=key, default=None)
-            if found is None or found["mean_frames"] >= best["mean_frames"]:
-                break
-            best = found
-        finals.append(best)
-    best = min(finals or starts, key=key)
-    threshold, needs = float(best["threshold"]), best["needs"]
-    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), threshold, bool(best["agree"]),
-                     None if best["classes"] is None else tuple(best["classes"]),
-                     tuple((classes[c], float(needs[c])) for c in range(n) if threshold < needs[c] < NEVER))
-    for r in grid:
-        r["needs"] = {classes[c] if classes else str(c): float(v) for c, v in enumerate(r["needs"]) if v < NEVER}
+            for threshold in (*THRESHOLDS, NEVER):
+                where, said = cascade(labels, conf, full, np.where(allowed, threshold, NEVER), agree)
+                grid.append({"threshold": threshold, "agree": agree, "accuracy": float(np.mean(said == truth)),
+                             **{f"{k}_accuracy": float(np.mean(said[m] == truth[m])) for k, m in kinds.items()},
+                             "mean_frames": float(frames[where].mean()),
+                             "classes": None if subset is None else [classes[c] for c in subset]})
+    feasible = [r for r in grid if r["accuracy"] >= full_acc - target_loss - 1e-12
+                and all(r[f"{k}_accuracy"] >= full_kinds[k] - target_loss - 1e-12 for k in kinds)]
+    best = min(feasible, key=lambda r: (round(r["mean_frames"], 9), -r["accuracy"], -r["threshold"], -r["agree"],
+                                        -len(r["classes"] if r["classes"] is not None else range(n))), default=None)
+    assert best is not None  # NEVER reproduces the full window's accuracy
+    spec = EarlySpec(tuple(int(p) for p in points), tuple(calibration), float(best["threshold"]), bool(best["agree"]),
+                     None if best["classes"] is None else tuple(best["classes"]))
     return RuleChoice(spec, best["accuracy"], full_acc, best["mean_frames"], grid)
 
 
@@ -363,7 +343,7 @@ class EarlyHeads:
 def fold_heads(fits: Fits, rules: Sequence[dict]) -> dict[str, EarlyHeads]:
     """The nested evaluation's heads and rule for each held-out group (``evaluate``'s ``rules``): fitted
     already, so the held-out replay scores early reports without new fits."""
-    keys = ("points", "calibration", "threshold", "agree", "classes", "stricter")
+    keys = ("points", "calibration", "threshold", "agree", "classes")
     return {r["held_out"]: EarlyHeads(fits.models(frozenset({r["held_out"]}), full=False),
                                       EarlySpec.from_meta({k: r[k] for k in keys if k in r}, fits.T)) for r in rules}
 
@@ -412,7 +392,9 @@ def fit_stream_heads(protocol, dds, pads, seed: int, points: Sequence[int] = EAR
     if log:
         log(f"early heads at {', '.join(map(str, points))} frames on {len(y)} windows, rule by leave-one-subject-out ...")
     make = head_factory(dds.pad_sizes, seed=seed, fullscale=dds.fullscale)
-    heads = fit_early(X, y, groups, make, make, points, target_loss)
+    fits = Fits(X, y, groups, tuple(p for p in points if p < X.shape[2]), make, make)
+    fits.searched_once = True  # a fold's C search repeated per held-out fold was most of the demo's training
+    heads = fit_early(X, y, groups, make, make, points, target_loss, fits)
     if log and heads.choice is not None:
         c = heads.choice
         log(f"early rule: threshold {heads.spec.threshold:g}, agree {heads.spec.agree}: cross-validated accuracy "

@@ -37,12 +37,9 @@ def markdown_lines(ev: dict, synthetic: bool) -> list[str]:
 
 
 def who_comes_early(rule: dict) -> str:
-    """Which classes a rule (``EarlySpec.to_meta``) reports early, with the confidence of a surer one."""
-    stricter, classes = rule.get("stricter", {}), rule.get("classes")
-    if classes is None:
-        return "every class early" + "".join(f", {c} at {t:g}" for c, t in stricter.items())
-    names = [f"{c} at {stricter[c]:g}" if c in stricter else c for c in classes]
-    return f"{', '.join(names) or 'no class'} early, the others wait for T"
+    """Which classes a rule (``EarlySpec.to_meta``) reports early."""
+    classes = rule.get("classes")
+    return "every class early" if classes is None else f"{', '.join(classes) or 'no class'} early, the others wait for T"
 
 
 def console_line(ev: dict | None) -> str | None:
