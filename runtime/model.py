@@ -11,6 +11,7 @@ import hashlib
 import json
 import threading
 import time
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -280,8 +281,8 @@ class LoadedModel:
                            "decides those events")
         self._head_sessions = [self._head_sessions[i] for i in keep]
         self._head_outputs = [self._head_outputs[i] for i in keep]
-        self.early = EarlySpec(tuple(spec.points[i] for i in keep), tuple(spec.calibration[i] for i in keep),
-                               spec.threshold, spec.agree) if keep else None
+        self.early = replace(spec, points=tuple(spec.points[i] for i in keep),
+                             calibration=tuple(spec.calibration[i] for i in keep)) if keep else None
 
 
 def _aligned(shape: tuple[int, ...]) -> np.ndarray:

@@ -525,3 +525,25 @@ def test_a_rule_fitted_once_searches_c_once_per_point(early_model, monkeypatch):
         fold = fits.models(frozenset({g}))
         assert [m.svm_.C for m in fold] == [m.svm_.C for m in fits.models(frozenset())]
     assert heads.spec.points == (4, 8) and len(heads.models) == 2
+
+
+def test_disabling_one_head_keeps_the_classes_training_allows_early(tmp_path):
+    """The warm-up rebuilt the spec of the heads it kept without ``classes``: a model that keeps bump for
+    the full window then let every class come early from its remaining heads."""
+    import onnx
+
+    from runtime.model import load_model
+
+    proto = onnx.load_from_string(_tiny_with_lying_heads([4]))
+    honest = onnx.load_from_string(_tiny_with_heads(15, [8]))
+    proto.graph.node.extend(n for n in honest.graph.node if n.output[0].endswith("_at_8"))
+    proto.graph.output.extend(o for o in honest.graph.output if o.name.endswith("_at_8"))
+    meta = json.loads(proto.metadata_props[0].value)
+    meta["early"].update(points=[4, 8], calibration=[[1.0, 0.0]] * 2, classes=["pull", "push"])
+    proto.metadata_props[0].value = json.dumps(meta)
+    path = tmp_path / "half.onnx"
+    path.write_bytes(proto.SerializeToString())
+    model = load_model(path)
+    assert "early heads at 4 frames disabled" in model.early_note
+    assert model.early.points == (8,) and model.early.classes == ("pull", "push")
+
