@@ -60,8 +60,9 @@ class EarlySpec:
     """The classes training allows to be reported early (None: every reported class); the others wait for T."""
 
     @classmethod
-    def from_meta(cls, value: object, T: int) -> EarlySpec:
-        """Validate the ``early`` metadata object against the window length ``T``."""
+    def from_meta(cls, value: object, T: int, class_names: Sequence[str] | None = None) -> EarlySpec:
+        """Validate the ``early`` metadata object against the window length ``T`` (and the model's
+        ``class_names``: a name it lacks would keep that class to T, silently)."""
         if not isinstance(value, dict):
             raise EarlySpecError(f"{EARLY_KEY} must be an object, got {type(value).__name__}")
         points, calib = value.get("points"), value.get("calibration")
@@ -86,6 +87,9 @@ class EarlySpec:
         classes = value.get("classes")
         if classes is not None and (not isinstance(classes, list) or not all(isinstance(c, str) for c in classes)):
             raise EarlySpecError(f"{EARLY_KEY}.classes must be a list of class names (or absent), got {classes!r}")
+        if classes is not None and class_names is not None and (alien := [c for c in classes if c not in class_names]):
+            raise EarlySpecError(f"{EARLY_KEY}.classes names {', '.join(map(repr, alien))}, not a class of the model "
+                                 f"({', '.join(class_names)}); re-export the model")
         return cls(tuple(points), tuple((float(a), float(b)) for a, b in calib), float(threshold), agree,
                    None if classes is None else tuple(classes))
 

@@ -215,7 +215,7 @@ def early_spec(meta: ModelMeta) -> EarlySpec | None:
     if EARLY_KEY not in meta.extra:
         return None
     try:
-        return EarlySpec.from_meta(meta.extra[EARLY_KEY], meta.T)
+        return EarlySpec.from_meta(meta.extra[EARLY_KEY], meta.T, meta.classes)
     except EarlySpecError as exc:
         raise ModelContractError(f"metadata: {exc}") from None
 

@@ -547,3 +547,22 @@ def test_disabling_one_head_keeps_the_classes_training_allows_early(tmp_path):
     assert "early heads at 4 frames disabled" in model.early_note
     assert model.early.points == (8,) and model.early.classes == ("pull", "push")
 
+
+def test_early_classes_the_model_does_not_have_are_refused_in_one_line(tmp_path):
+    """A broken export naming ``Pull`` (or a class of another model) let no class come early, silently:
+    names are matched against the model's classes, so a name it lacks is refused like other bad metadata."""
+    import onnx
+
+    from runtime.model import ModelContractError, load_model
+
+    proto = onnx.load_from_string(_tiny_with_heads(15, [4, 8]))
+    meta = json.loads(proto.metadata_props[0].value)
+    meta["early"]["classes"] = ["Pull", "push"]
+    proto.metadata_props[0].value = json.dumps(meta)
+    path = tmp_path / "typo.onnx"
+    path.write_bytes(proto.SerializeToString())
+    with pytest.raises(ModelContractError, match=r"early.classes names 'Pull', not a class of the model") as info:
+        load_model(path)
+    assert "\n" not in str(info.value)
+    with pytest.raises(EarlySpecError, match="not a class of the model"):
+        EarlySpec.from_meta({**SPEC, "classes": ["dormant"]}, T=15, class_names=("pull", "push"))
