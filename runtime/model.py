@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from firmware_io.errors import HandoverError
-from runtime.early import EarlySpec, head_outputs
+from runtime.early import NEVER, EarlySpec, head_outputs
 from runtime.health import one_line
 from runtime.model_meta import (
     ALLOWED_DOMAINS,
@@ -261,15 +261,20 @@ class LoadedModel:
         is disabled: a head that always said bump against a full model that says pull decided every event
         after a few frames. Disagreeing on some of these synthetic windows is no fault: a head sees only
         their first frames, and on a hand with other gains (lab B) an honest 4-frame head differed on 5 of 7.
+        Only answers the rule could report count: a dormant one, or one of a class training keeps to T, decides
+        no event (a stream model's 4-frame head is sure of dormant on most of these windows).
         The full model still serves and ``early_note`` says why."""
         if self.early is None:
             return
-        windows = probe_windows(self.meta.T, self.meta.n_channels, self.meta.fullscale)
+        meta = self.meta
+        windows = probe_windows(meta.T, meta.n_channels, meta.fullscale)
         full = self.run_trusted(windows)[0]
         spec, keep, against = self.early, [], []
+        need = [NEVER if c == meta.dormant_class else n for c, n in zip(meta.classes, spec.needs(meta.classes),
+                                                                        strict=True)]
         for index in range(len(spec.points)):
             labels, scores = self.run_head(index, windows)
-            sure = [spec.confidence(index, row, int(label)) >= spec.threshold
+            sure = [spec.confidence(index, row, int(label)) >= need[int(label)]
                     for label, row in zip(labels, scores, strict=True)]
             blind = all(sure) and len(set(labels.tolist())) == 1 and set(full.tolist()) != set(labels.tolist())
             (against if blind else keep).append(index)

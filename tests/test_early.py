@@ -539,13 +539,13 @@ def test_disabling_one_head_keeps_the_classes_training_allows_early(tmp_path):
     proto.graph.node.extend(n for n in honest.graph.node if n.output[0].endswith("_at_8"))
     proto.graph.output.extend(o for o in honest.graph.output if o.name.endswith("_at_8"))
     meta = json.loads(proto.metadata_props[0].value)
-    meta["early"].update(points=[4, 8], calibration=[[1.0, 0.0]] * 2, classes=["pull", "push"])
+    meta["early"].update(points=[4, 8], calibration=[[1.0, 0.0]] * 2, classes=["pull", "bump"])
     proto.metadata_props[0].value = json.dumps(meta)
     path = tmp_path / "half.onnx"
     path.write_bytes(proto.SerializeToString())
     model = load_model(path)
     assert "early heads at 4 frames disabled" in model.early_note
-    assert model.early.points == (8,) and model.early.classes == ("pull", "push")
+    assert model.early.points == (8,) and model.early.classes == ("pull", "bump")
 
 
 def test_early_classes_the_model_does_not_have_are_refused_in_one_line(tmp_path):
@@ -566,3 +566,44 @@ def test_early_classes_the_model_does_not_have_are_refused_in_one_line(tmp_path)
     assert "\n" not in str(info.value)
     with pytest.raises(EarlySpecError, match="not a class of the model"):
         EarlySpec.from_meta({**SPEC, "classes": ["dormant"]}, T=15, class_names=("pull", "push"))
+
+
+def _tiny_with_sure_heads(points: list[int], sure: str, early_classes: list[str] | None = None) -> bytes:
+    """A tiny stream model (the actions and dormant; its full answer is pull) whose early heads say
+    ``sure`` with certainty, always."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from tests.tiny_models import CLASSES, tiny_model_bytes
+
+    classes = (*CLASSES, "dormant")
+    proto = onnx.load_from_string(tiny_model_bytes(classes=classes, dormant_class="dormant"))
+    proto.graph.initializer.append(helper.make_tensor("certain", TensorProto.FLOAT, [len(classes)],
+                                                      [100.0 * (c == sure) for c in classes]))
+    for p in points:
+        proto.graph.node.extend([helper.make_node("Add", ["scores", "certain"], [f"scores_at_{p}"]),
+                                 helper.make_node("ArgMax", [f"scores_at_{p}"], [f"label_at_{p}"], axis=1, keepdims=0)])
+        proto.graph.output.extend([helper.make_tensor_value_info(f"label_at_{p}", TensorProto.INT64, ["N"]),
+                                   helper.make_tensor_value_info(f"scores_at_{p}", TensorProto.FLOAT,
+                                                                 ["N", len(classes)])])
+    meta = json.loads(proto.metadata_props[0].value)
+    meta["early"] = {"points": points, "calibration": [[1.0, 0.0]] * len(points), "threshold": 0.9, "agree": False,
+                     **({} if early_classes is None else {"classes": early_classes})}
+    proto.metadata_props[0].value = json.dumps(meta)
+    return proto.SerializeToString()
+
+
+def test_heads_sure_of_a_class_never_reported_early_are_kept(tmp_path):
+    """The warm-up disabled a head sure of dormant on every probe window (a stream model's 4-frame head says
+    dormant on most of them): a dormant answer, or one of a class training keeps to T, is never reported
+    early, so such a head decides no event; the check is about the answers the rule could report."""
+    from runtime.model import load_model
+
+    for name, sure, early_classes in (("dormant", "dormant", None), ("kept", "bump", ["pull", "push"])):
+        path = tmp_path / f"{name}.onnx"
+        path.write_bytes(_tiny_with_sure_heads([4, 8], sure, early_classes))
+        model = load_model(path)
+        assert model.early_note is None and model.early.points == (4, 8), name
+    path = tmp_path / "bump.onnx"
+    path.write_bytes(_tiny_with_sure_heads([4, 8], "bump"))
+    assert load_model(path).early is None  # a head sure of a class it may report still is disabled
