@@ -62,8 +62,7 @@ def ours(Xtr, ytr, gtr, Xte, yte, pad_sizes, pad_shapes, seed: int) -> dict:
     truth = np.asarray([classes.index(str(c)) if str(c) in classes else -1 for c in yte])
     labels, margins = early.answers([*heads.models, full], (*points, n), Xte, classes)
     conf = early.confidences(margins[:-1], heads.spec.calibration)
-    where, said = early.cascade(labels[:-1], conf, labels[-1], early.reported_needs(heads.spec, classes),
-                                heads.spec.agree)
+    where, said = early.cascade(labels[:-1], conf, labels[-1], heads.spec.needs(classes), heads.spec.agree)
     frames = np.asarray([*points, n])[where]
     at = {str(p): float(np.mean(labels[k] == truth)) for k, p in enumerate((*points, n)) if p in SHOWN or p == n}
     return {"at": at, "accuracy": float(np.mean(said == truth)), "mean_frames": float(frames.mean()),

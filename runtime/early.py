@@ -98,11 +98,12 @@ class EarlySpec:
                 "threshold": self.threshold, "agree": self.agree,
                 **({} if self.classes is None else {"classes": list(self.classes)})}
 
-    def needs(self, class_names: Sequence[str]) -> np.ndarray:
-        """The confidence each class (by index) needs to be reported early: ``threshold``, or ``NEVER``
-        for a class training keeps to T."""
-        return np.asarray([NEVER if self.classes is not None and c not in self.classes else self.threshold
-                           for c in class_names])
+    def needs(self, class_names: Sequence[str], dormant: str | None = None) -> np.ndarray:
+        """The confidence each class (by index) needs to be reported early: ``threshold``, or ``NEVER`` for
+        a class training keeps to T and for ``dormant`` (a dormant answer leaves the window to the next
+        head, or to T)."""
+        return np.asarray([NEVER if c == dormant or (self.classes is not None and c not in self.classes)
+                           else self.threshold for c in class_names])
 
     def confidence(self, index: int, scores: np.ndarray, label: int) -> float:
         """Calibrated probability that head ``index`` (of ``points``) is right, from one row of scores."""

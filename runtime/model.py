@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from firmware_io.errors import HandoverError
-from runtime.early import NEVER, EarlySpec, head_outputs
+from runtime.early import EarlySpec, head_outputs
 from runtime.health import one_line
 from runtime.model_meta import (
     ALLOWED_DOMAINS,
@@ -270,8 +270,7 @@ class LoadedModel:
         windows = probe_windows(meta.T, meta.n_channels, meta.fullscale)
         full = self.run_trusted(windows)[0]
         spec, keep, against = self.early, [], []
-        need = [NEVER if c == meta.dormant_class else n for c, n in zip(meta.classes, spec.needs(meta.classes),
-                                                                        strict=True)]
+        need = spec.needs(meta.classes, meta.dormant_class)
         for index in range(len(spec.points)):
             labels, scores = self.run_head(index, windows)
             sure = [spec.confidence(index, row, int(label)) >= need[int(label)]

@@ -40,7 +40,6 @@ __all__ = [
     "head_factory",
     "part_problem",
     "platt",
-    "reported_needs",
     "rule_in_words"
 ]
 
@@ -206,12 +205,6 @@ def case_kinds(truth: np.ndarray, dormant: int = -1) -> dict[str, np.ndarray]:
     return kinds
 
 
-def reported_needs(spec: EarlySpec, classes: Sequence[str]) -> np.ndarray:
-    """``spec.needs`` with the dormant class never reported early (the daemon leaves a dormant answer to
-    the next head, or to T)."""
-    return np.asarray([NEVER if c == DORMANT else need for c, need in zip(classes, spec.needs(classes), strict=True)])
-
-
 def rule_in_words(target_loss: float = TARGET_LOSS) -> str:
     """The rule in words, for the reports that state it (trainer.early_report, the streams_own bench)."""
     return ("the early report rule (threshold on the calibrated confidence, agree or not) with the fewest mean "
@@ -304,7 +297,7 @@ def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], 
         lab, mar = answers(fits.models(frozenset({g})), all_points, fits.X[test], classes)
         labels[:, test] = lab
         conf = confidences(mar[:-1], choice.spec.calibration)
-        w, s = cascade(lab[:-1], conf, lab[-1], reported_needs(choice.spec, classes), choice.spec.agree)
+        w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.needs(classes, DORMANT), choice.spec.agree)
         where[test], said[test] = w, s
         rules.append({"held_out": str(g), **choice.spec.to_meta(), "inner_accuracy": choice.accuracy,
                       "inner_full_accuracy": choice.full_accuracy, "inner_mean_frames": choice.mean_frames})
