@@ -18,6 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from trainer.early_report import who_comes_early
 from trainer.measure import command_line, load_average, machine_info, write_results
 
 NAME = "own_prior"
@@ -138,12 +139,6 @@ def _demo_cells(d: dict | None) -> str:
             f"{'-' if med is None else f'{med:.0f}'} | {'-' if p90 is None else f'{p90:.0f}'}")
 
 
-def _early_classes(rule: dict) -> str:
-    from trainer.early_report import who_comes_early
-
-    return f" ({who_comes_early(rule)})"
-
-
 def markdown(r: dict) -> list[str]:
     lines = ["# A lab's own model with the product's prior (**synthetic**)", "",
              f"Command: `{r['command']}`; {r['seconds']:.0f} s on {r['machine'].get('cpu', '?')} "
@@ -168,7 +163,7 @@ def markdown(r: dict) -> list[str]:
             lines.append(f"| {row['name']} | {'prior + own' if key == 'prior' else 'own only (--no-prior)'} | "
                          f"{_demo_cells(t['demo'])} | {p.get('weight', '-')} | "
                          f"{'-' if loso is None else f'{loso:.1%}'} | "
-                         f"{rule.get('threshold', '-')}{_early_classes(rule)} | {rep.get('right')}/{rep.get('events')} | "
+                         f"{rule.get('threshold', '-')} ({who_comes_early(rule)}) | {rep.get('right')}/{rep.get('events')} | "
                          f"{'-' if fph is None else f'{fph:.1f}'} |")
     if r.get("demo_model_on_lab_b"):
         lines.append(f"| lab B session | the demo's simulator-trained model | {_demo_cells(r['demo_model_on_lab_b'])} "

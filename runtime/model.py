@@ -116,7 +116,7 @@ class LoadedModel:
         self._options: Any = None
         """onnxruntime RunOptions of every run, made on the first one (``end_decision`` ends it)."""
         self.early_note: str | None = None
-        """Why the warm-up disabled early heads the file carries (``_drop_contradicting_heads``), or None."""
+        """Why the warm-up disabled early heads the file carries (``_drop_blind_heads``), or None."""
 
     def __repr__(self) -> str:
         return f"LoadedModel({self.path.name}, id={self.model_id}, classes={list(self.meta.classes)})"
@@ -253,9 +253,9 @@ class LoadedModel:
                             1.0 / meta.sample_rate_hz, budget_fraction)
             if problem:
                 raise ModelContractError(f"model {self.path}: early head at {point} frames {problem}")
-        self._drop_contradicting_heads()
+        self._drop_blind_heads()
 
-    def _drop_contradicting_heads(self) -> None:
+    def _drop_blind_heads(self) -> None:
         """An early head decides an event alone, so one that cannot tell windows apart (the same class,
         with the certainty to report, on every warm-up window where the full model gives more than one)
         is disabled: a head that always said bump against a full model that says pull decided every event

@@ -185,7 +185,7 @@ def _cases(options: TrainOptions, recordings: list, names: list[str], say: Calla
     say(f"{ds.counts().text()} {ds.summary()['untriggered_reasons'] or ''}".rstrip())
     for line in untriggered_lines(ds):
         say(f"  {line}")
-    if n := int(np.sum((ds.y == DORMANT) & (ds.trigger_offsets >= 0))):
+    if n := int(np.sum(ds.y == DORMANT)) - ds.counts().dormant:  # counts: the dormant windows cut from idle
         say(f"{n} dormant case{'s' if n != 1 else ''} from the field: captured events a person labelled dormant "
             "(handover review)")
     idle = None
