@@ -134,5 +134,7 @@ def test_recordings_of_another_simulated_lab_than_the_prior_are_said_once():
     line = prior_lab_line(lab_b, PRIOR_LAB)
     assert line.startswith("the recordings come from simulated lab B and the product's prior is simulated lab A")
     assert prior_lab_line([Rec(meta={"synthetic": True}, trials=[]), Rec(meta={}, trials=[])], PRIOR_LAB) is None
+    mixed = prior_lab_line([*lab_b, Rec(meta={"synthetic": True}, trials=[])], PRIOR_LAB)  # said, not "the recordings"
+    assert mixed.startswith("1 of 2 simulated recordings come from simulated lab B")
     assert line in data_notes(lab_b, ["a", "b"], None, prior_lab=PRIOR_LAB).lines
     assert data_notes(lab_b, ["a", "b"], None).lines == []  # --no-prior: nothing to say

@@ -145,10 +145,14 @@ def prior_lab_line(recordings: Sequence, prior_lab: str) -> str | None:
     """One line when synthetic recordings come from a simulated lab other than the prior's (``trainer.prior``)."""
     from firmware_io.sim.lab import lab_of
 
-    others = sorted({lab for rec in recordings if (lab := lab_of(rec.meta)) not in (None, prior_lab)})
+    labs = [lab_of(rec.meta) for rec in recordings]
+    others = sorted({lab for lab in labs if lab not in (None, prior_lab)})
     if not others:
         return None
-    return (f"the recordings come from simulated lab {', '.join(others)} and the product's prior is simulated lab "
+    simulated = [lab for lab in labs if lab is not None]
+    n = sum(lab in others for lab in simulated)  # mixed with the prior's own lab: say how many
+    who = "the recordings come" if n == len(simulated) else f"{n} of {len(simulated)} simulated recordings come"
+    return (f"{who} from simulated lab {', '.join(others)} and the product's prior is simulated lab "
             f"{prior_lab} (another hand and other people): its weight is chosen on your subjects alone (0 when it "
             "does not help them); --no-prior trains on your recordings alone")
 
