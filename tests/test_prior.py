@@ -159,8 +159,12 @@ def test_no_prior_trains_on_the_lab_data_alone(recorded, tmp_path, monkeypatch):
     assert "The product's prior" not in (tmp_path / "r" / "report.md").read_text()
 
 
-def test_prior_and_evidence_join_training_and_the_replay_scores_early_reports(recorded, tmp_path, monkeypatch):
+def test_prior_and_evidence_join_training_and_the_replay_scores_early_reports(recorded, tmp_path, monkeypatch, capsys):
+    capsys.readouterr()
     metrics = _train(recorded, tmp_path / "r", monkeypatch)
+    console = capsys.readouterr().out  # --quiet drops progress, not the result: the headline keeps these lines
+    assert "the product's prior (" in console and "<- chosen" in console, console
+    assert "early decisions: report at confidence" in console and "held-out replay through the daemon" in console
     p = metrics["prior"]
     assert [r["weight"] for r in p["candidates"]] == list(TINY.weights)
     assert p["prior_cases"]["protocol"] > 0 and any(k.startswith("idle:") for k in p["prior_cases"])

@@ -30,6 +30,8 @@ class TrainResult:
     metrics: dict
     onnx_written: bool
     """False when the export was asked for and failed (the report is still written)."""
+    headline: str = ""
+    """The result for a terminal (``train_outputs.headline``): the command prints it, a library caller may."""
 
     @property
     def exit_code(self) -> int:
@@ -162,10 +164,7 @@ def train(options: TrainOptions) -> TrainResult:
     say("writing figures and the report ...")
     metrics["seconds"] = round(time.perf_counter() - t0, 1)
     _write_report(options, out, ds, embedding, metrics, selection, synthetic)
-    if not options.quiet:
-        print(headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx), flush=True,
-              file=sys.stderr if options.json else sys.stdout)
-    return TrainResult(out, metrics, onnx_ok)
+    return TrainResult(out, metrics, onnx_ok, headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx))
 
 
 def _cases(options: TrainOptions, recordings: list, names: list[str], say: Callable[[str], None]):

@@ -34,8 +34,8 @@ class OptionsError(HandoverError, ValueError):
 @dataclass(frozen=True)
 class TrainOptions:
     """Every option of ``handover train`` (the field names are the command's, ``--no-per-pad`` is
-    ``per_pad=False``). ``quiet`` silences progress on stderr; ``json`` sends the headline to stderr
-    (the command prints the metrics as JSON on stdout)."""
+    ``per_pad=False``). ``quiet`` silences progress on stderr; ``json``: the command prints the metrics as
+    JSON on stdout (and the headline on stderr unless ``quiet``)."""
 
     data: tuple[str, ...] | None = None
     """Folders of recordings or capture folders (``--data`` given once per folder); None: simulate."""

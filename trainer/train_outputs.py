@@ -1,5 +1,5 @@
 """What a training run leaves behind: the metrics, the model files with their card, the figures
-and the headline on the terminal (``trainer.pipeline.train`` calls these in that order)."""
+and the headline for the terminal (``trainer.pipeline.train`` calls these in that order)."""
 
 from __future__ import annotations
 

@@ -123,6 +123,7 @@ def train_model(args: argparse.Namespace, out: Path) -> Path:
         raise RuntimeError("training did not produce model.onnx (see the messages above)")
     stamp.write_text(json.dumps(wanted))
     metrics = result.metrics
+    _say(args, result.headline)
     _say(args, f"      synthetic data: {metrics['n_cases']} cases ({metrics['n_untriggered']} trials never "
                f"triggered); leave-one-subject-out accuracy {metrics['loso_accuracy']:.1%}, pooled 80/20 "
                f"{pooled_text(metrics['config1'])}; report {report / 'report.md'}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, trigger_level
@@ -105,7 +106,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "HANDOVER_SHARED_DATA) through the model: false events per hour (default: for real "
                         "recordings, where the folder is present; about a minute)")
     add_json(parser, "the metrics")
-    add_quiet(parser, "no progress bars or messages on stderr")
+    add_quiet(parser, "no progress bars or messages: the result only (the headline: accuracies, the prior's weight, "
+              "the early rule, the replay; with --json the JSON) and what the data can carry")
 
 
 def options_from_args(args: argparse.Namespace) -> TrainOptions:
@@ -142,6 +144,8 @@ def run(options: TrainOptions) -> int:
         raise HandoverError(str(exc)) from exc
     except ValueError as exc:  # from the estimators: data they cannot fit
         raise HandoverError(f"cannot train: {exc}") from exc
+    if not (options.quiet and options.json):  # --quiet drops progress, not the result (with --json: the JSON)
+        print(result.headline, flush=True, file=sys.stderr if options.json else sys.stdout)
     if options.json:
         metrics = result.metrics
         print(json.dumps({k: v for k, v in metrics.items() if not isinstance(v, dict) or k in (
