@@ -67,7 +67,7 @@ def demo(model: Path | None, lab: str | None, work: Path) -> dict:
     code, text = _handover(argv)
     if code != 0:
         raise RuntimeError(f"handover {' '.join(argv)} failed (exit {code})")
-    d = json.loads(text.strip().splitlines()[-1])
+    d = json.loads(text)  # with --json stdout is the summary alone
     return {k: d.get(k) for k in ("events_expected", "events_correct", "events_missed", "false_events",
                                   "repeat_events", "report_minus_onset_frames", "wrong_events", "missed_events")}
 

@@ -24,7 +24,7 @@ def demo_summary(tmp_path_factory) -> dict:
         capture_output=True, text=True, timeout=1200,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return json.loads(proc.stdout)  # with --json stdout is the JSON alone (events on stderr): `> x.json` parses
 
 
 def test_demo_reports_every_summary_key(demo_summary):

@@ -142,7 +142,7 @@ def test_demo_plays_lab_bs_session_to_a_given_model(tmp_path, capsys):
                      "--out", str(tmp_path / "demo")])
     out = capsys.readouterr().out
     assert code == 0
-    summary = json.loads(out.strip().splitlines()[-1])
+    summary = json.loads(out)  # stdout is the JSON alone
     assert summary["lab"] == "B" and summary["events_expected"] == 4 and summary["synthetic"] is True
 
 

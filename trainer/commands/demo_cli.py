@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "same scripted session instead of training one: compare your model with the demo's on the "
                         "same events (the stream setting follows the model: onset_dormant with a dormant class, "
                         "else its recorded trigger; --setting continuous classifies every frame)")
-    add_json(parser)
+    add_json(parser, "the summary (stdout holds it alone; the events and steps go to stderr)")
     add_quiet(parser, "only the summary")
 
 
