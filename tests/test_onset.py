@@ -98,6 +98,18 @@ def test_one_trigger_per_interaction_while_the_pressure_wobbles():
     assert trig.state == ARMED  # settled again after the interaction: ready for the next one
 
 
+@pytest.mark.parametrize("jitter, armed", [(0.015, True), (0.025, False)])
+def test_a_held_grasp_jittering_on_noise_settles_but_one_moving_more_does_not(jitter, armed):
+    levels = np.full((200, 3), 1500.0)
+    levels[:20] = 0.0  # an empty hand, then a grasp whose every pad swings +-jitter from frame to frame
+    levels[20:] *= 1.0 + jitter * (-1.0) ** np.arange(180)[:, None]  # 3 % per frame: over the strict 2 %
+    trig = _trigger()
+    states = [(trig.update(row, i), trig.state)[1] for i, row in enumerate(rows_of(levels))]
+    settle_frames = round(resolve_trigger(TriggerConfig(kind="onset")).settle_s * RATE)
+    assert (ARMED in states) == armed
+    assert not armed or states.index(ARMED) <= 21 + 2 * settle_frames  # twice the strict test's time
+
+
 def test_robot_grasp_closed_arms_at_once_and_open_disarms():
     levels = grasp_levels(200, close=20)
     levels[40:, 2] *= 1.0 + 0.3 * np.clip((np.arange(160)) / 5.0, 0, 1)[:, None].ravel()  # acts as the close ends
