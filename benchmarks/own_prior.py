@@ -18,6 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from runtime.event_rate import rate_text
 from trainer.early_report import who_comes_early
 from trainer.measure import command_line, load_average, machine_info, write_results
 
@@ -149,7 +150,7 @@ def markdown(r: dict) -> list[str]:
              "subjects; lab B's hand and people for lab B). The prior's weight and the early rule were chosen inside "
              "`handover train` by cross-validation on the recordings, never on the demo's session.", "",
              "| recording | training | demo right | outside any event | onset to report median (frames) | p90 | "
-             "prior weight | LOSO (lab cases) | early rule | held-out replay: right | idle false / h |",
+             "prior weight | LOSO (lab cases) | early rule | held-out replay: right | idle false events |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in r["cases"]:
         for key in ("prior", "no_prior"):
@@ -159,12 +160,12 @@ def markdown(r: dict) -> list[str]:
             p = t.get("prior") or {}
             rule = t.get("early_rule") or {}
             rep = t.get("replay") or {}
-            fph, loso = rep.get("false_per_hour"), t["loso_accuracy"]
+            loso = t["loso_accuracy"]
             lines.append(f"| {row['name']} | {'prior + own' if key == 'prior' else 'own only (--no-prior)'} | "
                          f"{_demo_cells(t['demo'])} | {p.get('weight', '-')} | "
                          f"{'-' if loso is None else f'{loso:.1%}'} | "
                          f"{rule.get('threshold', '-')} ({who_comes_early(rule)}) | {rep.get('right')}/{rep.get('events')} | "
-                         f"{'-' if fph is None else f'{fph:.1f}'} |")
+                         f"{rate_text(rep.get('false_events') or 0, rep.get('idle_hours'))} |")
     if r.get("demo_model_on_lab_b"):
         lines.append(f"| lab B session | the demo's simulator-trained model | {_demo_cells(r['demo_model_on_lab_b'])} "
                      "| - | - | - | - | - |")

@@ -42,15 +42,15 @@ def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
     """One line per setting (default: every one the model serves) whose false events per hour on real idle
     signals are unmeasured, above ``MAX_REAL_FALSE_PER_HOUR``, or measured on too few hours to show it is
     below (fewer than one event at the bar), with what to do; none for one below."""
+    from runtime.event_rate import rate_text
     from runtime.model_meta import real_false_events
 
     measured = real_false_events(meta)
     enough = 1.0 / MAX_REAL_FALSE_PER_HOUR  # hours in which one false event is the bar itself
-    fine = {k: v["per_hour"] for k, v in measured.items()
-            if v["per_hour"] <= MAX_REAL_FALSE_PER_HOUR and v["hours"] >= enough}
+    fine = {k: v for k, v in measured.items() if v["per_hour"] <= MAX_REAL_FALSE_PER_HOUR and v["hours"] >= enough}
     lines = []
     for name in settings or served_settings(meta.dormant_class, meta.trigger):
-        others = [f"serve {k} ({v:.2f} per hour)" for k, v in fine.items() if k != name]
+        others = [f"serve {k} ({rate_text(v['events'], v['hours'], 2)})" for k, v in fine.items() if k != name]
         if name == "continuous" and not others:  # the trigger asks the model far less often (results/streams.json)
             others = ['serve it with the trigger ([scene] mode = "trigger"): on the real recordings continuous mode '
                       "raised far more false events than onset_dormant (results/streams.md)"]
@@ -60,9 +60,9 @@ def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
             lines.append(f"stream setting {name}: false events on real idle signals unmeasured for this model ({why}); "
                          + "; or ".join([RECORD_IDLE, *others]))
         elif (m := measured[name])["per_hour"] > MAX_REAL_FALSE_PER_HOUR:
-            lines.append(f"stream setting {name}: {m['per_hour']:.2f} false events per hour on real idle signals "
-                         f"({m['events']} in {m['hours']:.2f} h: {m['data']}), above {MAX_REAL_FALSE_PER_HOUR:g} per "
-                         "hour; " + "; or ".join([*others, RECORD_IDLE.replace("record idle", "record more idle")]))
+            lines.append(f"stream setting {name}: false events {rate_text(m['events'], m['hours'], 2)} on real idle "
+                         f"signals ({m['data']}), above {MAX_REAL_FALSE_PER_HOUR:g} per hour; "
+                         + "; or ".join([*others, RECORD_IDLE.replace("record idle", "record more idle")]))
         elif m["hours"] < enough:
             lines.append(f"stream setting {name}: {m['events']} false events in only {m['hours']:.2f} h of real idle "
                          f"({m['data']}): one event there is {1 / m['hours']:.1f} per hour, so it cannot show the "

@@ -50,8 +50,17 @@ def _replay(false_events: int, minutes: float) -> dict:
 def test_replay_lines_give_the_interval_and_say_when_the_idle_is_short():
     lines = replay_lines(_replay(3, 9.6))
     lo, hi = rate_interval(3, 9.6 / 60)
-    assert lines[0].startswith(f"idle: 3 false events in 9.6 min (18.8 per hour, 95 % interval {lo:.1f}-{hi:.1f};")
+    assert lines[0].startswith(f"idle: false events 18.8/h (3 in 0.16 h), 95 % interval {lo:.1f}-{hi:.1f}/h (9.6 min: ")
     assert lines[1] == ("9.6 min of idle: one false event is 6.2 per hour; record more idle "
                         "(`handover record --device URL --idle-only --idle-minutes 20 --subject ID --out DIR`) for a tighter figure")
     long = replay_lines(_replay(3, SHORT_IDLE_MIN + 1))
     assert len(long) == 2 and "95 % interval" in long[0] and long[1].startswith("real idle signals: none")
+
+
+def test_a_rate_is_written_with_its_count_and_hours():
+    from runtime.event_rate import rate_text
+
+    assert rate_text(4, 0.16066) == "24.9/h (4 in 0.16 h)"  # results/streams_own.md's held-out replay
+    assert rate_text(1, 2.16, 2) == "0.46/h (1 in 2.16 h)"
+    assert rate_text(0, 0.8 / 60) == "0.0/h (0 in 0.013 h)"
+    assert rate_text(3, 0.0) == rate_text(3, None) == "-/h (none observed)"

@@ -56,9 +56,9 @@ def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
     assert handover(["inspect", str(_model(tmp_path / "a", {"onset_dormant": BELOW, "continuous": ABOVE}))]) == 0
     out = capsys.readouterr().out
     warnings = [line for line in out.splitlines() if line.startswith("  warning: stream setting")]
-    assert len(warnings) == 1 and "continuous: 155.70 false events per hour" in warnings[0], out
-    assert "above 1 per hour" in warnings[0] and "serve onset_dormant (0.40 per hour)" in warnings[0]
-    assert "  real idle: onset_dormant 0.40 false events per hour (1 in 2.50 h: held-out real idle)" in out
+    assert len(warnings) == 1 and "continuous: false events 155.89/h (463 in 2.97 h)" in warnings[0], out
+    assert "above 1 per hour" in warnings[0] and "serve onset_dormant (0.40/h (1 in 2.50 h))" in warnings[0]
+    assert "  real idle: onset_dormant false events 0.40/h (1 in 2.50 h): held-out real idle" in out
     assert handover(["inspect", str(_model(tmp_path / "b", None))]) == 0
     out = capsys.readouterr().out
     warnings = [line for line in out.splitlines() if line.startswith("  warning: stream setting")]
@@ -68,11 +68,11 @@ def test_inspect_says_unmeasured_and_above_not_below(tmp_path, capsys):
 
 @pytest.mark.parametrize(("mode", "measured", "said"), [
     ("trigger", {"onset_dormant": BELOW, "continuous": ABOVE}, None),
-    ("continuous", {"onset_dormant": BELOW, "continuous": ABOVE}, "continuous: 155.70 false events per hour"),
+    ("continuous", {"onset_dormant": BELOW, "continuous": ABOVE}, "continuous: false events 155.89/h (463 in 2.97 h)"),
     ("trigger", None, "onset_dormant: false events on real idle signals unmeasured"),
-    ("continuous", {"continuous": ABOVE}, 'continuous: 155.70 false events per hour on real idle signals (463 in 2.97 h: '
+    ("continuous", {"continuous": ABOVE}, 'continuous: false events 155.89/h (463 in 2.97 h) on real idle signals ('
      'the real recordings), above 1 per hour; serve it with the trigger ([scene] mode = "trigger")'),
-    ("trigger", {"onset_dormant": {**BELOW, "per_hour": 1.6, "events": 4}}, "onset_dormant: 1.60 false events"),
+    ("trigger", {"onset_dormant": {**BELOW, "per_hour": 1.6, "events": 4}}, "onset_dormant: false events 1.60/h (4 in 2.50 h)"),
     ("trigger", {"onset_dormant": {**BELOW, "per_hour": 0.0, "events": 0, "hours": 0.15}},
      "onset_dormant: 0 false events in only 0.15 h of real idle"),
 ])
@@ -100,7 +100,7 @@ def test_train_console_says_whether_real_idle_was_measured():
     assert "real idle signals: none (every idle recording is synthetic)" in replay_lines(base)[-1]
     real = {"mode": "onset_dormant", "recordings": 2, "hours": hours, "events": 1, "per_hour": 5.0}
     line = replay_lines({**base, "real_idle": real})[-1]
-    assert line.startswith("real idle signals (2 recordings not synthetic, 12.0 min): 1 false events, 5.00 per hour")
+    assert line.startswith("real idle signals (2 recordings not synthetic): false events 5.00/h (1 in 0.2 h) in onset_dormant")
 
 
 @pytest.mark.realdata

@@ -20,6 +20,7 @@ from firmware_io.frame_timing import NOMINAL_PERIOD_S
 from firmware_io.recordings import arm_marks
 from firmware_io.recordings.idle_stretches import RECORD_IDLE_COMMAND
 from firmware_io.recordings.recording import Recording
+from runtime.event_rate import rate_text
 from trainer import streams_eval as se
 from trainer.rate_interval import rate_interval
 from trainer.recorded_idle import idle_pieces, subject_of
@@ -248,8 +249,8 @@ def replay_lines(r: dict | None) -> list[str]:
         by = ", ".join(f"{k} {v['false_events']} in {v['hours'] * 60:.1f} min"
                        for k, v in r["idle_by_source"].items())
         ci = r.get("false_per_hour_95") or rate_interval(r["false_events"], r["idle_hours"])
-        lines.append(f"idle: {r['false_events']} false events in {r['idle_hours'] * 60:.1f} min "
-                     f"({r['false_per_hour']:.1f} per hour, 95 % interval {ci[0]:.1f}-{ci[1]:.1f}; {by})")
+        lines.append(f"idle: false events {rate_text(r['false_events'], r['idle_hours'])}, 95 % interval "
+                     f"{ci[0]:.1f}-{ci[1]:.1f}/h ({r['idle_hours'] * 60:.1f} min: {by})")
         minutes = r["idle_hours"] * 60
         if minutes < SHORT_IDLE_MIN:
             lines.append(f"{minutes:.1f} min of idle: one false event is {1 / r['idle_hours']:.1f} per hour; record more "
@@ -257,16 +258,16 @@ def replay_lines(r: dict | None) -> list[str]:
         arm = r.get("with_arm_messages")
         if arm:
             lines.append(f"idle with the robot's 'arm moving' / 'arm still' over the arm_move stretches: "
-                         f"{arm['false_events']} false events ({arm['false_per_hour']:.1f} per hour; during arm moves "
-                         f"{arm['arm_move_false_events']})")
+                         f"false events {rate_text(arm['false_events'], r['idle_hours'])}; during arm moves "
+                         f"{arm['arm_move_false_events']}")
     else:
         lines.append("idle: none recorded, so false events per hour are not measured (handover record records idle "
                      "after the trials)")
     real = r.get("real_idle")
     if not real and not r["idle_hours"]:
         return lines
-    lines.append(f"real idle signals ({real['recordings']} recordings not synthetic, {real['hours'] * 60:.1f} min): "
-                 + ", ".join(f"{v['events']} false events, {v['per_hour']:.2f} per hour in {k}"
+    lines.append(f"real idle signals ({real['recordings']} recordings not synthetic): "
+                 + ", ".join(f"false events {rate_text(v['events'], v['hours'], 2)} in {k}"
                              for k, v in (real.get("settings") or {real["mode"]: real}).items())
                  + ", written into the model (handover inspect)" if real else
                  "real idle signals: none (every idle recording is synthetic), so the model's real false events per "
@@ -305,6 +306,5 @@ def real_idle(model, root: Path, say, files: Sequence[Path] | None = None, mode:
 
 def real_idle_line(r: dict) -> str:
     """The real recordings without a handover in one line."""
-    rate = "-" if r["false_per_hour"] is None else f"{r['false_per_hour']:.2f}"
-    return (f"  real SDH-2 recordings without a handover ({r['root']}, {r['hours']:.2f} h): {r['events']} false "
-            f"events, {rate} per hour ({r['mode']})")
+    return (f"  real SDH-2 recordings without a handover ({r['root']}): false events "
+            f"{rate_text(r['events'], r['hours'], 2)} ({r['mode']})")

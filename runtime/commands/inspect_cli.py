@@ -11,6 +11,7 @@ import argparse
 import json
 
 from firmware_io.commands.options import add_json
+from runtime.event_rate import rate_text
 from runtime.training_counts import TrainingCounts
 
 __all__ = ["add_arguments", "main"]
@@ -132,8 +133,8 @@ def _text(c: dict) -> str:
         f"model {c['path']} (id {c['model_id']})",
         f"  detects: {', '.join(c['detects'])}" + (f" (dormant class: {c['dormant_class']})" if c["dormant_class"] else ""),
         f"  stream settings: {c['stream_settings_text']}",
-        *(f"  real idle: {k} {v['per_hour']:.2f} false events per hour ({v['events']} in {v['hours']:.2f} h: "
-          f"{v['data']})" for k, v in c["real_false_events"].items()),
+        *(f"  real idle: {k} false events {rate_text(v['events'], v['hours'], 2)}: {v['data']}"
+          for k, v in c["real_false_events"].items()),
         *(f"  warning: {line}" for line in c["stream_setting_warnings"]),
         f"  pads: {','.join(str(p) for p in c['pads'])}{_pad_name(c['pads'])} ({c['n_channels']} taxels: "
         f"{', '.join(str(s) for s in c['pad_sizes'])}); serves with scene.pads = \"model\" or this selection",
