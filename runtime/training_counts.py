@@ -1,4 +1,5 @@
-"""How much a model was trained on: labelled trials, the windows cut from them, dormant windows from idle.
+"""How much a model was trained on: labelled trials, the windows cut from them, dormant windows from idle,
+and the windows the product's prior (simulated, trainer/prior.py) added to the lab's.
 
 Trials and windows differ (a trial may give no window or several; idle gives windows that are no
 trial), so they must never be printed under each other's name: every place words them with
@@ -25,11 +26,16 @@ class TrainingCounts:
     """Labelled trials that gave no window (listed with their reasons by the trainer)."""
     dormant: int = 0
     """Windows of the dormant class, cut from idle (no trial's)."""
+    prior: int = 0
+    """Simulated windows the product's prior added to these (none counted in ``windows``)."""
+    prior_dormant: int = 0
+    """Of ``prior``, the dormant ones."""
 
     def to_meta(self) -> dict:
-        """The model metadata's ``training`` keys (``dormant_windows`` only when the model has them)."""
+        """The model metadata's ``training`` keys (``dormant_windows``, ``prior_*`` only when the model has them)."""
         meta = {"n_trials": self.trials, "n_cases": self.windows, "n_untriggered": self.untriggered}
-        return meta | ({"dormant_windows": self.dormant} if self.dormant else {})
+        return (meta | ({"dormant_windows": self.dormant} if self.dormant else {})
+                | ({"prior_windows": self.prior, "prior_dormant_windows": self.prior_dormant} if self.prior else {}))
 
     @classmethod
     def from_meta(cls, training: Mapping) -> TrainingCounts:
@@ -49,10 +55,20 @@ class TrainingCounts:
             windows, dormant = None, 0
         if trials is not None and untriggered > trials:
             trials, untriggered = None, 0
-        return cls(trials=trials, windows=windows, untriggered=untriggered, dormant=dormant)
+        prior, prior_dormant = count("prior_windows") or 0, count("prior_dormant_windows") or 0
+        if prior_dormant > prior:
+            prior, prior_dormant = 0, 0
+        return cls(trials=trials, windows=windows, untriggered=untriggered, dormant=dormant, prior=prior,
+                   prior_dormant=prior_dormant)
 
     def text(self) -> str:
-        """``70 windows: 48 from 48 labelled trials + 22 dormant windows from idle`` and its shorter forms."""
+        """``70 windows: 48 from 48 labelled trials + 22 dormant windows from idle`` and its shorter forms, then
+        ``; plus 210 simulated windows of the product's prior (90 dormant)`` when the prior joined."""
+        prior = (f"; plus {self.prior} simulated windows of the product's prior ({self.prior_dormant} dormant)"
+                 if self.prior else "")
+        return self._own() + prior
+
+    def _own(self) -> str:
         if self.windows is None:
             return ("an unknown number of windows (not recorded)" if self.trials is None
                     else f"{self.trials} labelled trials (how many windows they gave was not recorded)")

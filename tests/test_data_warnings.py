@@ -25,6 +25,13 @@ def test_few_windows_state_the_number_and_why():
     assert dormant_lines({"trigger:arm_move": 80, "trigger:quiet": FEW_DORMANT_WINDOWS}, []) == []
 
 
+def test_the_prior_s_dormant_windows_are_named_beside_the_lab_s():
+    (line,) = dormant_lines({"trigger:arm_move": 200}, ["arm_move"], {"evidence:trigger:quiet": 40, "idle:trigger:arm_move": 60})
+    assert line.startswith("the dormant class rests on 200 windows of your idle and 100 of the simulator's (the "
+                           "product's prior: arm_move 60, quiet 40; another hand than yours): your idle gave one idle "
+                           "kind only (its 200 windows are all arm_move)"), line
+
+
 def test_one_idle_kind_names_present_missing_and_how_to_record():
     (line,) = dormant_lines({"trigger:arm_move": 200}, ["arm_move", "quiet", "regrasp"])
     assert "one idle kind only" in line and "all arm_move" in line
@@ -58,7 +65,12 @@ def test_train_says_thin_dormant_class_and_partial_subject(trained, capsys):
     metrics = json.loads((trained / "metrics.json").read_text())
     assert metrics["partial_subjects"] == {"s3": "3 of 8 planned trials, no idle"}
     notes = metrics["data_notes"]
-    assert any("dormant class rests on" in n and "windows (fewer than" in n for n in notes), notes
+    (thin,) = [n for n in notes if "fewer than" in n]
+    # the lab's windows and the prior's (simulated) that train the class too, both named
+    lab, sim = metrics["idle"]["dormant_windows"], metrics["prior_dormant_windows"]
+    assert thin.startswith(f"the dormant class rests on {lab} windows of your idle and {sim} of the simulator's "
+                           "(the product's prior: arm_move "), thin
+    assert f"fewer than {FEW_DORMANT_WINDOWS} of your own" in thin and sim > 0
     assert any(n.startswith("s3 is a partial recording (3 of 8 planned trials, no idle)") for n in notes)
     text = (trained / "report.md").read_text()
     for n in notes:

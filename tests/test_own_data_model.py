@@ -211,7 +211,9 @@ def test_inspect_and_the_train_report_count_the_same_windows(trained, capsys):
     assert handover(["inspect", str(trained / "model.onnx")]) == 0
     card = re.search(r"trained on: (.*?), data ", capsys.readouterr().out).group(1)
     assert card == (f"{metrics['n_cases']} windows: {metrics['n_trials']} from {metrics['n_trials']} labelled "
-                    f"trials + {dormant} dormant windows from idle")
+                    f"trials + {dormant} dormant windows from idle; plus {metrics['prior_windows']} simulated windows "
+                    f"of the product's prior ({metrics['prior_dormant_windows']} dormant)")  # what came from where
+    assert metrics["prior_windows"] > metrics["prior_dormant_windows"] > 0
     assert f"- trained on {card}\n" in (trained / "report.md").read_text()
 
 

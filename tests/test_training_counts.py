@@ -37,3 +37,13 @@ def test_the_counts_a_trainer_writes_read_back_as_written():
     counts = TrainingCounts(trials=48, windows=70, untriggered=2, dormant=22)
     assert TrainingCounts.from_meta(counts.to_meta()) == counts
     assert counts.text() == "70 windows: 48 from 48 labelled trials (2 gave no window) + 22 dormant windows from idle"
+
+
+def test_the_prior_s_windows_are_said_beside_the_lab_s():
+    counts = TrainingCounts(trials=108, windows=144, dormant=36, prior=432, prior_dormant=120)
+    assert TrainingCounts.from_meta(counts.to_meta()) == counts
+    assert counts.text() == ("144 windows: 108 from 108 labelled trials + 36 dormant windows from idle; plus 432 "
+                             "simulated windows of the product's prior (120 dormant)")
+    assert "prior_windows" not in TrainingCounts(trials=1, windows=1).to_meta()  # none without the prior
+    odd = TrainingCounts.from_meta(counts.to_meta() | {"prior_dormant_windows": 500})
+    assert odd.prior == 0 and "prior" not in odd.text()

@@ -40,18 +40,30 @@ def _kind(origin: str) -> str:
     return origin.rsplit(":", 1)[-1]
 
 
-def dormant_lines(per_origin: dict[str, int], recorded: Sequence[str]) -> list[str]:
-    """Lines when the dormant class rests on few windows or on one idle kind (``per_origin``: windows per
-    origin; ``recorded``: the idle kinds the recordings hold)."""
+def _by_kind(per_origin: dict[str, int]) -> dict[str, int]:
     kinds: dict[str, int] = {}
     for origin, n in per_origin.items():
         kinds[_kind(origin)] = kinds.get(_kind(origin), 0) + int(n)
+    return kinds
+
+
+def dormant_lines(per_origin: dict[str, int], recorded: Sequence[str], prior: dict[str, int] | None = None
+                  ) -> list[str]:
+    """Lines when the lab's dormant windows are few or of one idle kind (``per_origin``: the lab's windows per
+    origin; ``recorded``: the idle kinds the recordings hold; ``prior``: the simulator's dormant windows the
+    model is fit on too, by origin). Counted on the lab's windows: the prior's come from the simulator's hand,
+    not the lab's, and are never scored; the lines name both, so they say what the class rests on."""
+    kinds = _by_kind(per_origin)
     total = sum(kinds.values())
+    sim = _by_kind(prior or {})
+    rests = f"the dormant class rests on {total} windows of your idle" + (
+        f" and {sum(sim.values())} of the simulator's (the product's prior: "
+        + ", ".join(f"{k} {n}" for k, n in sorted(sim.items())) + "; another hand than yours)" if sim else "")
     lines = []
     if total < FEW_DORMANT_WINDOWS:
-        lines.append(f"the dormant class rests on {total} windows (fewer than {FEW_DORMANT_WINDOWS}): even with every "
-                     f"one read right, the data cannot exclude that {min(1.0, 3 / max(total, 1)):.0%} of idle windows "
-                     f"are read as an action (95 %, rule of three); record more idle: {MORE_IDLE}")
+        lines.append(f"{rests}: fewer than {FEW_DORMANT_WINDOWS} of your own; even with every one read right, your "
+                     f"data cannot exclude that {min(1.0, 3 / max(total, 1)):.0%} of your idle windows are read as an "
+                     f"action (95 %, rule of three); record more idle: {MORE_IDLE}")
     if len(kinds) == 1:
         (only,) = kinds
         missing = [k for k in SOURCES if k != only]
@@ -60,10 +72,10 @@ def dormant_lines(per_origin: dict[str, int], recorded: Sequence[str]) -> list[s
         why = []
         if quiet:
             why.append(f"{', '.join(quiet)} recorded but the trigger fired on none of them (a model served in "
-                       "continuous mode meets them untrained)")
+                       "continuous mode meets them untrained on your hand)")
         if absent:
             why.append(f"{', '.join(absent)} not recorded ({MORE_IDLE} records them)")
-        lines.append(f"the dormant class rests on one idle kind only: its {total} windows are all {only}; "
+        lines.append(f"{rests}: your idle gave one idle kind only (its {total} windows are all {only}); "
                      + "; ".join(why))
     return lines
 
@@ -157,16 +169,18 @@ def prior_lab_line(recordings: Sequence, prior_lab: str) -> str | None:
             "does not help them); --no-prior trains on your recordings alone")
 
 
-def data_notes(recordings: Sequence, names: Sequence[str], idle, prior_lab: str | None = None) -> DataNotes:
+def data_notes(recordings: Sequence, names: Sequence[str], idle, prior_lab: str | None = None,
+               prior_dormant: dict[str, int] | None = None) -> DataNotes:
     """Everything above for one training run (``idle``: ``trainer.recorded_idle.IdleWindows`` or None;
-    ``prior_lab``: the simulated lab of the prior training adds, None without one)."""
+    ``prior_lab``: the simulated lab of the prior training adds, None without one; ``prior_dormant``: the
+    simulated dormant windows the model is fit on besides the lab's, by origin)."""
     notes = DataNotes(partial=partial_subjects(recordings, names))
     if line := lab_line(recordings, names):
         notes.lines.append(line)
     if prior_lab and (line := prior_lab_line(recordings, prior_lab)):
         notes.lines.append(line)
     if idle is not None and idle.makes_class:
-        notes.lines += dormant_lines(idle.per_source, recorded_kinds(recordings))
+        notes.lines += dormant_lines(idle.per_source, recorded_kinds(recordings), prior_dormant)
     for subject, lacks in notes.partial.items():
         notes.lines.append(f"{subject} is a partial recording ({lacks}): its rows in the report say partial, not "
                            f"their accuracy; the same `handover record --device URL --subject {subject} "

@@ -105,12 +105,6 @@ def train(options: TrainOptions) -> TrainResult:
     out.mkdir(parents=True, exist_ok=True)
     recordings, names, source, synthetic = load_or_simulate(options.data, options.seed, say)
     ds, idle = _cases(options, recordings, names, say)
-    from trainer.data_warnings import data_notes
-    from trainer.prior import PRIOR_LAB
-
-    notes = data_notes(recordings, names, idle, prior_lab=PRIOR_LAB if options.prior and options.data else None)
-    for line in notes.lines:  # what the data can carry: seen even with --quiet
-        PROGRESS.warning(f"handover train: {line}")
     selection = None
     if options.select:
         from trainer.select import select_model
@@ -125,6 +119,7 @@ def train(options: TrainOptions) -> TrainResult:
 
         prior = use_prior(estimator, ds, say)
         estimator, ds = prior.estimator, prior.ds  # the lab's cases (+ the evidence windows) and the prior
+    notes = _data_notes(options, recordings, names, idle, prior, len(lab.y))
     say("training the final model on all cases ...")
     model = estimator.fit(ds.X, ds.y)
     evaluation = evaluate(options, lab, estimator, say)  # scored on the lab's own cases only
@@ -146,6 +141,7 @@ def train(options: TrainOptions) -> TrainResult:
         replay = held_out_replay(ds, estimator, recordings, names, say, heads_of=heads.folds if heads else None)
     metrics = metrics_of(options, lab, model, evaluation, sweep, selection, source=source, synthetic=synthetic)
     metrics["prior"] = prior.report if prior else None
+    metrics |= prior.counts(lab.counts()).to_meta() if prior else {}  # what came from the simulator, beside the lab's
     metrics["idle"] = idle and {"seconds": round(idle.seconds, 1), "dormant_windows": len(idle.X),
                                 "dormant_class": idle.makes_class, "per_origin": idle.per_source,
                                 "notes": idle.notes, "cut": idle.cut}
@@ -165,6 +161,19 @@ def train(options: TrainOptions) -> TrainResult:
     metrics["seconds"] = round(time.perf_counter() - t0, 1)
     _write_report(options, out, ds, embedding, metrics, selection, synthetic)
     return TrainResult(out, metrics, onnx_ok, headline(metrics, out, onnx_written=onnx_ok and not options.no_onnx))
+
+
+def _data_notes(options: TrainOptions, recordings: list, names: list[str], idle, prior, n_lab: int):
+    """What the data can carry (trainer.data_warnings), on the console even with --quiet; the dormant class
+    counted with the prior's simulated windows beside the lab's (``prior``: a ``trainer.prior.PriorUse``)."""
+    from trainer.data_warnings import data_notes
+    from trainer.prior import PRIOR_LAB
+
+    notes = data_notes(recordings, names, idle, prior_lab=PRIOR_LAB if options.prior and options.data else None,
+                       prior_dormant=prior.simulated(n_lab)[1] if prior else None)
+    for line in notes.lines:
+        PROGRESS.warning(f"handover train: {line}")
+    return notes
 
 
 def _cases(options: TrainOptions, recordings: list, names: list[str], say: Callable[[str], None]):

@@ -244,6 +244,26 @@ class PriorUse:
     def wrap(self, estimator):
         return estimator if self.prior is None else WithPrior(estimator, self.prior, self.weight)
 
+    def simulated(self, n_lab: int) -> tuple[int, dict[str, int]]:
+        """What the final model's fit takes from the simulator besides the lab's first ``n_lab`` cases: the
+        evidence stream's windows and the prior's sample at the chosen weight (``PriorCases.sample``, as
+        ``WithPrior.fit`` draws it): (windows, dormant windows by origin)."""
+        if self.prior is None:
+            return 0, {}
+        y = np.asarray(self.ds.y).astype(str)
+        at = self.prior.sample(self.weight, len(y), set(y.tolist()))
+        dormant = np.concatenate([np.asarray(self.ds.poses)[n_lab:][y[n_lab:] == DORMANT],
+                                  self.prior.origin[at][self.prior.y[at] == DORMANT]])
+        names, n = np.unique(dormant.astype(str), return_counts=True)
+        return len(y) - n_lab + len(at), {str(k): int(v) for k, v in zip(names, n, strict=True)}
+
+    def counts(self, lab):
+        """``lab`` (the lab's ``runtime.training_counts.TrainingCounts``) with the simulated windows beside it."""
+        from dataclasses import replace
+
+        windows, dormant = self.simulated(lab.windows or 0)
+        return replace(lab, prior=windows, prior_dormant=sum(dormant.values()))
+
 
 def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | None = None) -> PriorUse:
     """The prior for the lab's data set ``ds``: built, its weight chosen (``choose_weight``), the evidence added;

@@ -227,7 +227,7 @@ def _data_lines(metrics: dict) -> list[str]:
         f"- pads {ds['pads']} ({metrics['pads']}), {sum(ds['pad_sizes'])} taxel series per case, "
         f"T = {metrics['T']} frames at {ds['sample_rate_hz']:.1f} Hz",
         trigger_line(ds),
-        f"- trained on {TrainingCounts.from_meta(ds).text()}",
+        f"- trained on {TrainingCounts.from_meta(metrics).text()}",
         f"- **labelled trials that gave no window: {ds['n_untriggered']}** {ds['untriggered_reasons'] or ''} "
         "(listed in metrics.json, not padded, not in any split)",
         f"- cases per class: {ds['per_class']}; per subject: {ds['per_subject']}",

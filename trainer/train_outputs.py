@@ -80,6 +80,7 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
 
     # where the recordings are, so `handover verify MODEL` checks against the user's own data by default
     folder = {"data_folder": str(Path(options.data[0]).resolve())} if options.data else {}
+    from runtime.training_counts import TrainingCounts
     from trainer.dormant import DORMANT
 
     return real_false_meta(metrics.get("own_replay")) | dataset_metadata(
@@ -96,8 +97,9 @@ def model_metadata(options: TrainOptions, ds, metrics: dict) -> dict:
             "support_vectors_at_bound": metrics["svm_margin"]["share_at_bound"],
             **({"idle_seconds": metrics["idle"]["seconds"]} if metrics.get("idle") else {}),
             **({"dormant_cut": metrics["idle"]["cut"]} if (metrics.get("idle") or {}).get("dormant_class") else {}),
-            **({"prior": {k: metrics["prior"][k] for k in ("weight", "recipe", "prior_cases")}}
+            **({"prior": {k: metrics["prior"][k] for k in ("weight", "recipe")}}
                if (metrics.get("prior") or {}).get("recipe") else {}),
+            **TrainingCounts.from_meta(metrics).to_meta(),  # the lab's windows and the prior's (simulated) beside them
         },
         evaluation={
             "synthetic": metrics["synthetic"],

@@ -113,7 +113,8 @@ def _svm(c: dict) -> str:
     return f"  SVM: {c['kernel']} kernel" + (f", {', '.join(parts)}" if parts else "")
 
 
-SHOWN_TRAINING = ("n_trials", "n_cases", "n_untriggered", "dormant_windows", "level_features", "data_fingerprint", "date", "project_version", "C", "gamma")
+SHOWN_TRAINING = ("n_trials", "n_cases", "n_untriggered", "dormant_windows", "prior_windows", "prior_dormant_windows",
+                  "level_features", "data_fingerprint", "date", "project_version", "C", "gamma")
 """Training keys the card shows in its own words (C and gamma are on the SVM line)."""
 
 
