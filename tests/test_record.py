@@ -131,12 +131,23 @@ def test_sparkline_shares_a_scale_and_squeezes_to_width():
 # -- sessions -------------------------------------------------------------------------------------
 def test_full_short_session_records_every_trial_once(tmp_path, capsys):
     assert record(tmp_path, "--auto") == 0
-    out = capsys.readouterr().out
-    assert "Go: pull!" in out and "session complete" in out and "f1 dist |" in out
+    out = capsys.readouterr().out.strip().splitlines()  # --quiet --auto: the final summary line only
+    assert len(out) == 1 and out[0].startswith("session complete: 4 trials"), out
     rec = Recording.load(tmp_path / "subject_s1.hrec")
     assert keys(rec) == [("down", "ball", a, 1) for a in ACTIONS]
     assert rec.meta["subject"] == "s1" and rec.meta["synthetic"] is True
     assert_consistent(rec)
+
+
+def test_without_quiet_the_session_says_each_step(tmp_path, capsys, monkeypatch):
+    from trainer.commands import record_cli
+
+    monkeypatch.setattr(record_cli.shutil, "which", lambda _name: None)  # no voice, whatever is installed
+    args = [a for a in SHORT if a != "--quiet"]
+    assert handover(["record", "--device", f"subject://?seed=3&speed={SPEED}", "--subject", "s1", "--out",
+                     str(tmp_path), *args, "--auto", "--max-trials", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "Go: pull!" in out and "f1 dist |" in out and "2 of 4 trials done" in out
 
 
 def on_third_go(subject: ScriptedSubject, act: Callable[[], None]) -> Callable:
@@ -201,7 +212,7 @@ def test_max_trials_then_rerun_completes(tmp_path, capsys):
     assert record(tmp_path, "--auto", "--max-trials", "1") == 0
     assert "1 of 4 trials done" in capsys.readouterr().out
     assert record(tmp_path, "--auto") == 0
-    assert "1 of 4 trials already" in capsys.readouterr().out
+    assert "session complete: 4 trials" in capsys.readouterr().out
     assert sorted(keys(Recording.load(tmp_path / "subject_s1.hrec"))) == sorted(KEYS)
 
 

@@ -61,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--control", default=None, metavar="SOCKET",
                         help="Unix datagram socket (path or @name) on which the robot says 'arm moving' / 'arm still', "
                              "as to the daemon's [control] socket; the marks are stored with the recording")
-    parser.add_argument("--quiet", action="store_true", help="no voice (espeak-ng)")
+    parser.add_argument("--quiet", action="store_true", help="no voice (espeak-ng); with --auto also no lines per "
+                        "trial or stretch, the final summary line only (a prompted session still shows its instructions)")
     parser.add_argument("--no-look", action="store_true", help="no per-pad sparklines after each trial")
 
 
@@ -219,11 +220,15 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
     if subject is not None:
         store.meta.update(subject.meta)
 
+    def show(text: str) -> None:
+        if not (args.quiet and args.auto):  # a person at the hand needs the instructions; a script the result only
+            print(text, flush=True)
+
     def say(text: str) -> None:
-        print(text, flush=True)
+        show(text)
         voice.say(text)
 
-    io = SessionIO(say=say, show=lambda text: print(text, flush=True), ask=_ask,
+    io = SessionIO(say=say, show=show, ask=_ask,
                    cue=subject.cue if subject is not None else (lambda kind, slot: None))
     info = {"device": client.url, "controller": _controller_info(client)}
     resume = "run the same command again to resume"
