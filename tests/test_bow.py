@@ -116,3 +116,20 @@ def test_two_d_input_is_one_channel():
     a = BagOfWords(n_words=3, window=3, random_state=0).fit(X2)
     b = BagOfWords(n_words=3, window=3, random_state=0).fit(X2[:, None, :])
     np.testing.assert_array_equal(a.transform(X2), b.transform(X2[:, None, :]))
+
+
+def test_histograms_read_the_words_of_active_series_alone():
+    """transform finds words for the active series only (most taxels of a window are untouched): the same
+    histograms as every series' words weighted by the all-zero rule."""
+    from trainer.bow import active_words, as_cases, word_histograms
+
+    rng = np.random.default_rng(1)
+    X = rng.integers(0, 300, size=(30, 12, 9)).astype(float)
+    X[rng.random((30, 12)) < 0.7] = 0.0
+    bow = BagOfWords(n_words=4, window=3, per_pad=True, pad_sizes=(6, 6), random_state=0).fit(X)
+    active = active_series(as_cases(X))
+    every, _ = nearest_words(derivative_windows(X, 3), bow.codebook_)
+    assert not active.all() and active.any()
+    np.testing.assert_array_equal(active_words(X, active, bow.codebook_)[active], every[active])
+    np.testing.assert_array_equal(bow.transform(X), word_histograms(every, active, (6, 6), 4))
+    assert nearest_words(derivative_windows(X, 3), bow.codebook_, margins=False)[1] is None

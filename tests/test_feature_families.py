@@ -222,3 +222,26 @@ def test_hand_bounds_are_at_each_features_own_scale(tmp_path):
     assert np.all(np.abs(hist - ref) <= 1e-6 + SAFETY * model.feature_error_bounds(X) + 1e-6 * np.abs(ref))
     report = compare(model, runner, frames_of(X), ["held"] * len(X))
     assert report.ok and report.features == "feature vector"
+
+
+@pytest.mark.parametrize("families", FAMILY_MIXES, ids="+".join)
+def test_case_features_computed_once_serve_any_subsets_fit(families, cases):
+    """trainer.early.Fits fits and answers many subsets of one data set from features computed once: only
+    where no family learns from the cases (else None), and then the very model a fit on the cases gives."""
+    X, y = cases
+    model = FeatureSVC(families=families, pad_sizes=PAD_SIZES, random_state=0)
+    every = model.case_features(X)
+    if {"bow", "rocket"} & set(families):
+        assert every is None
+        with pytest.raises(ValueError, match="learn from the training cases"):
+            FeatureSVC(families=families, pad_sizes=PAD_SIZES).fit(X, y, features=np.zeros((len(X), 1)))
+        return
+    part = np.arange(len(X)) % 3 != 0
+    plain = FeatureSVC(families=families, pad_sizes=PAD_SIZES, random_state=0).fit(X[part], y[part])
+    given = FeatureSVC(families=families, pad_sizes=PAD_SIZES, random_state=0).fit(X[part], y[part], features=every[part])
+    np.testing.assert_array_equal(every[~part], plain.transform_histograms(X[~part]))
+    np.testing.assert_array_equal(given.svm_.dual_coef_, plain.svm_.dual_coef_)
+    assert given.best_params_ == plain.best_params_
+    scores, labels = given.scores_and_labels(X[~part], every[~part])
+    np.testing.assert_array_equal(scores, plain.decision_function(X[~part]))
+    np.testing.assert_array_equal(labels, plain.predict(X[~part]))

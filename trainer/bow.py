@@ -30,7 +30,7 @@ from sklearn.utils.validation import check_is_fitted
 from trainer.defaults import PAPER_MODEL
 
 __all__ = [
-    "BagOfWords", "active_series", "as_cases", "channel_groups", "check_case_shape", "derivative_windows",
+    "BagOfWords", "active_series", "active_words", "as_cases", "channel_groups", "check_case_shape", "derivative_windows",
     "level_features", "nearest_words"
 ]
 
@@ -88,20 +88,22 @@ def derivative_windows(X: np.ndarray, window: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(deriv, window, axis=2)
 
 
-def nearest_words(windows: np.ndarray, codebook: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def nearest_words(windows: np.ndarray, codebook: np.ndarray, margins: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
     """Nearest codeword of each window and the squared-distance margin to the runner-up.
 
     ``windows``: ``(..., W)``; returns ``words`` int64 ``(...)`` (ties -> lowest index) and
     ``margins`` float64 ``(...)`` = second-smallest minus smallest squared distance (0 at a tie,
-    inf with a single word). Distances are computed as sums of squared differences, not by the
-    expanded dot-product form, so the reference does not lose precision.
+    inf with a single word; None when not asked for: the histograms need the words alone). Distances
+    are computed as sums of squared differences, not by the expanded dot-product form, so the
+    reference does not lose precision.
     """
     codebook = np.asarray(codebook, dtype=np.float64)
     shape = windows.shape[:-1]
     flat = np.asarray(windows, dtype=np.float64).reshape(-1, windows.shape[-1])
     n_words = codebook.shape[0]
     words = np.empty(len(flat), dtype=np.int64)
-    margins = np.empty(len(flat), dtype=np.float64)
+    runner_up = np.empty(len(flat), dtype=np.float64) if margins else None
     step = max(1, _CHUNK_ELEMENTS // max(1, n_words * flat.shape[1]))
     for start in range(0, len(flat), step):
         block = flat[start : start + step]
@@ -111,12 +113,25 @@ def nearest_words(windows: np.ndarray, codebook: np.ndarray) -> tuple[np.ndarray
             dist[:, k] = np.einsum("ij,ij->i", diff, diff)
         best = np.argmin(dist, axis=1)
         words[start : start + step] = best
+        if runner_up is None:
+            continue
         if n_words > 1:
             part = np.partition(dist, 1, axis=1)
-            margins[start : start + step] = part[:, 1] - part[:, 0]
+            runner_up[start : start + step] = part[:, 1] - part[:, 0]
         else:
-            margins[start : start + step] = np.inf
-    return words.reshape(shape), margins.reshape(shape)
+            runner_up[start : start + step] = np.inf
+    return words.reshape(shape), None if runner_up is None else runner_up.reshape(shape)
+
+
+def active_words(X: np.ndarray, active: np.ndarray, codebook: np.ndarray) -> np.ndarray:
+    """``nearest_words`` of the active series' windows, int64 ``(n, c, S)``; an inactive series' words
+    are 0 (the histograms give them no weight; most taxels of a window are untouched, so this skips most
+    of the distances)."""
+    n_windows = X.shape[2] - codebook.shape[1]
+    words = np.zeros((*active.shape, max(n_windows, 0)), dtype=np.int64)
+    words[active] = nearest_words(derivative_windows(X[active][:, None, :], codebook.shape[1])[:, 0], codebook,
+                                  margins=False)[0]
+    return words
 
 
 def soft_assignment_sums(windows: np.ndarray, codebook: np.ndarray, tau: float) -> np.ndarray:
@@ -332,13 +347,12 @@ class BagOfWords(TransformerMixin, BaseEstimator):
         active = active_series(X)
         parts = []
         for length, codebook, tau in self.scales():
-            windows = derivative_windows(X, length)
             if self.assignment == "soft":
+                windows = derivative_windows(X, length)
                 sums = soft_assignment_sums(windows, codebook, tau)
                 parts.append(grouped_histograms(sums, active, self.pad_sizes_, windows.shape[2]))
             else:
-                words, _ = nearest_words(windows, codebook)
-                parts.append(word_histograms(words, active, self.pad_sizes_, len(codebook)))
+                parts.append(word_histograms(active_words(X, active, codebook), active, self.pad_sizes_, len(codebook)))
         if self.level_features:
             parts.append(level_features(X, self.level_groups_, float(self.fullscale)))
         return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]

@@ -88,7 +88,8 @@ def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, 
         defaults = {"C": DEFAULT_C, "gamma": scale} if kernel == "rbf" else {"C": DEFAULT_C}
         return {**defaults, **fixed}
     cv = StratifiedKFold(n_splits=n_splits, shuffle=True, random_state=0)
-    search = GridSearchCV(SVC(kernel=kernel, **fixed), grid, cv=cv, n_jobs=1)
+    # refit=False: the caller fits the final SVC itself (a refit here was one more fit on every case, unused)
+    search = GridSearchCV(SVC(kernel=kernel, **fixed), grid, cv=cv, n_jobs=1, refit=False)
     search.fit(features, y)
     return {**fixed, **{k: float(v) for k, v in search.best_params_.items()}}
 
@@ -141,6 +142,12 @@ class SVMHead:
         """Class labels, decided by one-vs-one votes (ties -> the class listed first)."""
         features = self.svm_input(self.transform_histograms(X))
         return self.svm_.predict(features)
+
+    def scores_and_labels(self, X, features: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``decision_function(X)`` and ``predict(X)`` from one pass of the features (``features``: those of
+        ``X``, computed before)."""
+        features = self.svm_input(self.transform_histograms(X) if features is None else features)
+        return self.svm_.decision_function(features), self.svm_.predict(features)
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()

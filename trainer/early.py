@@ -68,20 +68,23 @@ def head_factory(pad_sizes: Sequence[int], pad_shapes=None, seed: int = 0, fulls
         c_grid=HEAD_C_GRID)
 
 
-def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Sequence[str]
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """Labels (indices into ``classes``) ``[n_points, n]`` and score margins ``[n_points, n]``."""
+def answers(models: Sequence, points: Sequence[int], X: np.ndarray, classes: Sequence[str],
+            features: Sequence[np.ndarray | None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Labels (indices into ``classes``) ``[n_points, n]`` and score margins ``[n_points, n]``;
+    ``features``: per model, its features of ``X`` computed before (``FeatureSVC.case_features``) or None."""
     index = {c: i for i, c in enumerate(classes)}
     labels = np.zeros((len(points), len(X)), dtype=np.int64)
     margins = np.zeros((len(points), len(X)))
     for k, (model, p) in enumerate(zip(models, points, strict=True)):
-        Xp = X[:, :, :p]
-        scores = np.asarray(model.decision_function(Xp), dtype=np.float64)
+        given = None if features is None else features[k]
+        scores, predicted = (model.scores_and_labels(X[:, :, :p], given) if hasattr(model, "scores_and_labels")
+                             else (model.decision_function(X[:, :, :p]), model.predict(X[:, :, :p])))
+        scores = np.asarray(scores, dtype=np.float64)
         if scores.ndim == 1:  # two classes: one decision value; the graph's ovr-style pair (votes + confidence)
             c = np.abs(scores) / (3.0 * (np.abs(scores) + 1.0))
             scores = np.stack([(scores <= 0) + np.where(scores <= 0, c, -c), (scores > 0) + np.where(scores > 0, c, -c)],
                               axis=1)
-        pred = [index[str(c)] for c in model.predict(Xp)]
+        pred = [index[str(c)] for c in predicted]
         own = [list(model.classes_).index(classes[i]) for i in pred]
         labels[k] = pred
         margins[k] = [margin_of(scores[j], own[j]) for j in range(len(X))]
@@ -110,6 +113,19 @@ class Fits:
         """Whether models trained without some groups take the C (and gamma) the model on every group chose
         instead of searching again: for a rule fitted once (``fit_early``), not for ``evaluate``'s nested
         report (the held-out group would then have helped choose them)."""
+        self._features: dict[int, np.ndarray | None] = {}
+        """Per point, every case's features where the model's depend on the case alone (``case_features``):
+        computed once, not in each of the many fits and answers on subsets of these cases."""
+
+    def _case_features(self, k: int, model) -> np.ndarray | None:
+        if k not in self._features:
+            compute = getattr(model, "case_features", None)  # None: e.g. a head trained with the prior
+            self._features[k] = None if compute is None else compute(self.X[:, :, :self.all_points[k]])
+        return self._features[k]
+
+    def features_of(self, rows) -> list[np.ndarray | None]:
+        """Per point (of models fitted before), the features of the cases ``rows`` (or None): ``answers``."""
+        return [None if (f := self._features.get(k)) is None else f[rows] for k in range(len(self.all_points))]
 
     def models(self, excluded: frozenset, full: bool = True) -> list:
         """The heads (and with ``full`` the full model) trained on every group but ``excluded``."""
@@ -121,7 +137,9 @@ class Fits:
             model = (self.make if p < self.T else self.make_full)(p)
             if self.searched_once and excluded:
                 model.set_params(**self.models(frozenset(), full=k == len(self.points))[k].best_params_)
-            have.append(model.fit(self.X[kept][:, :, :p], self.y[kept]))
+            features = self._case_features(k, model)
+            given = {} if features is None else {"features": features[kept]}
+            have.append(model.fit(self.X[kept, :, :p], self.y[kept], **given))
         return have[:want]
 
     def out_of_fold(self, excluded: frozenset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -136,7 +154,8 @@ class Fits:
         for g in names:
             at = self.groups[index] == g
             models = self.models(excluded | {g})
-            labels[:, at], margins[:, at] = answers(models, self.all_points, self.X[index[at]], self.classes)
+            labels[:, at], margins[:, at] = answers(models, self.all_points, self.X[index[at]], self.classes,
+                                                    self.features_of(index[at]))
         return labels, margins, index
 
 
@@ -294,7 +313,7 @@ def evaluate(fits: Fits, target_loss: float = TARGET_LOSS, say: Callable[[str], 
             say(f"early decisions: outer fold {i + 1}/{len(names)} (held out {g}) ...")
         test = fits.groups == g
         choice = fit_rule(fits, frozenset({g}), target_loss)
-        lab, mar = answers(fits.models(frozenset({g})), all_points, fits.X[test], classes)
+        lab, mar = answers(fits.models(frozenset({g})), all_points, fits.X[test], classes, fits.features_of(test))
         labels[:, test] = lab
         conf = confidences(mar[:-1], choice.spec.calibration)
         w, s = cascade(lab[:-1], conf, lab[-1], choice.spec.needs(classes, DORMANT), choice.spec.agree)

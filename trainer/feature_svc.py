@@ -17,7 +17,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.validation import check_is_fitted
 
-from trainer.bow import BagOfWords, check_case_shape
+from trainer.bow import BagOfWords, as_cases, check_case_shape
 from trainer.classifier import SVMHead, check_training_data
 from trainer.defaults import DEFAULT_MODEL
 from trainer.feature_weighting import check_feature_weighting, feature_weights
@@ -78,15 +78,18 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
             return ContactImage(pad_sizes=sizes, pad_shapes=self.pad_shapes, fullscale=self.fullscale)
         raise ValueError(f"unknown feature family {name!r}; choose from {', '.join(FAMILIES)}")
 
-    def fit(self, X, y):
+    def fit(self, X, y, features: np.ndarray | None = None):
+        """``features``: ``case_features(X)`` computed before (not None only for such families): the
+        families are fitted on the layout and the SVM on these features, as they would be computed."""
         X, y, self.classes_ = check_training_data(self, X, y)
-        names = tuple(self.families)
-        if not names or len(set(names)) != len(names):
-            raise ValueError(f"families must be distinct names from {FAMILIES}, got {self.families!r}")
+        names = self._names()
         check_feature_weighting(self.feature_weighting)
         _, self.n_channels_, self.n_timepoints_ = X.shape
         self.n_features_in_ = self.n_channels_ * self.n_timepoints_
-        self.blocks_ = [(name, self._family(name).fit(X, y)) for name in names]
+        if features is not None and not self._per_case():
+            raise ValueError(f"features given, but the families {names} learn from the training cases")
+        fit_on = (X, y) if features is None else (X[:1], y[:1])  # per-case families learn the layout alone
+        self.blocks_ = [(name, self._family(name).fit(*fit_on)) for name in names]
         start = 0
         for name, block in self.blocks_:
             if name == "bow":
@@ -94,9 +97,27 @@ class FeatureSVC(SVMHead, ClassifierMixin, BaseEstimator):
                 self.bow_slice_ = slice(start, start + block.n_features_out_)
             start += block.n_features_out_
         sizes = [block.n_features_out_ for _, block in self.blocks_]
-        self._fit_scaled_svm(self.transform_histograms(X), y,
+        self._fit_scaled_svm(self.transform_histograms(X) if features is None else features, y,
                              weigh=lambda scaled: feature_weights(scaled, sizes, self.feature_weighting))
         return self
+
+    def _names(self) -> tuple[str, ...]:
+        names = tuple(self.families)
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"families must be distinct names from {FAMILIES}, got {self.families!r}")
+        return names
+
+    def _per_case(self) -> bool:
+        return not any(getattr(self._family(name), "learns_from_cases", True) for name in self._names())
+
+    def case_features(self, X) -> np.ndarray | None:
+        """Each case's features (``transform_histograms``) when they depend on that case alone (no family
+        learns from training cases, e.g. no codebook), else None: then features computed once serve the
+        fit and the answers of any subset of ``X`` (``trainer.early.Fits``: many subsets of one data set)."""
+        if not self._per_case():
+            return None
+        X = as_cases(X)
+        return np.concatenate([self._family(name).fit(X[:1]).transform(X) for name in self._names()], axis=1)
 
     def transform_histograms(self, X) -> np.ndarray:
         """The concatenated features before scaling (the graph's ``histogram`` tensor)."""

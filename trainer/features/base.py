@@ -93,6 +93,10 @@ def columns_in_order(columns: np.ndarray, width: int) -> bool:
 class FeatureFamily(TransformerMixin, BaseEstimator):
     """Base of the feature families: input checks, pad layout, fitted shape."""
 
+    learns_from_cases = False
+    """Whether ``fit`` learns from the training cases (not just their layout): when not, a case's features
+    depend on that case alone and serve any fit that contains it (``FeatureSVC.case_features``)."""
+
     def _layout(self, n_channels: int) -> list[tuple[int, int]]:
         sizes = self.pad_sizes if self.pad_sizes is not None else (n_channels,)
         if any(not float(s).is_integer() or int(s) <= 0 for s in sizes):

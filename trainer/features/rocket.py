@@ -66,6 +66,8 @@ class RandomConvPPV(FeatureFamily):
     Fitted: ``biases_`` ``(D, 84, n_biases, S)``.
     """
 
+    learns_from_cases = True  # the biases are quantiles of the training cases' outputs
+
     def __init__(self, dilations=(1, 2), n_biases: int = 1, random_state=0, pad_sizes=None, pad_shapes=None,
                  fullscale: float = 4095.0):
         self.dilations = dilations
