@@ -203,7 +203,9 @@ def sweep(make_estimator: Callable[[dict], object], points: Sequence[tuple[dict,
 
 
 def tsne_embedding(features: np.ndarray, seed: int = 0) -> np.ndarray:
-    """2-D t-SNE of the histograms (the paper's separability picture)."""
+    """2-D t-SNE of the histograms (the paper's separability picture). One thread: the same embedding as
+    with two, and each of its 1000 gradient steps is a parallel region, so a second thread waiting for a
+    busy core at every step made a few dozen cases take 20 s (0.3 s alone)."""
     from sklearn.manifold import TSNE
 
     features = np.asarray(features, dtype=np.float64)
@@ -211,5 +213,5 @@ def tsne_embedding(features: np.ndarray, seed: int = 0) -> np.ndarray:
         # no spread at all: sklearn divides by it and crashes the process (SIGSEGV); all cases are one point
         return np.zeros((len(features), 2))
     perplexity = float(min(30, max(2, (len(features) - 1) // 3)))
-    with threadpool_limits(N_JOBS):
+    with threadpool_limits(1):
         return TSNE(n_components=2, perplexity=perplexity, init="pca", random_state=seed).fit_transform(features)
