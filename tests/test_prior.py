@@ -201,3 +201,21 @@ def test_another_sensor_trains_alone_and_says_so():
     use = P.use_prior("estimator", other, said.append)
     assert use.estimator == "estimator" and use.ds is other and use.report == {"off": why} and len(said) == 1
     assert use.wrap("head") == "head"
+
+
+@pytest.mark.parametrize("weight", [0.0, 1.0])
+def test_when_the_lab_data_alone_wins_no_simulated_window_joins(weight, monkeypatch):
+    rng = np.random.default_rng(4)
+    X, y, groups = _lab(rng)
+    ds, prior = _ds(X, y, groups), _prior(rng)
+    monkeypatch.setattr(P, "prior_problem", lambda _ds: None)
+    monkeypatch.setattr(P, "build_prior", lambda *_a: prior)
+    monkeypatch.setattr(P, "choose_weight", lambda *_a: P.PriorChoice(weight, [], prior))
+    with_evidence = _ds(X[:5], y[:5], groups[:5])
+    monkeypatch.setattr(P, "evidence", lambda *_a: with_evidence)
+    use = P.use_prior(Centroid(), ds, lambda _: None)
+    if weight == 0:  # the candidate chosen is the model trained: the lab's cases, no evidence windows, no prior
+        assert use.ds is ds and type(use.estimator) is Centroid and use.wrap("head") == "head"
+        assert use.report["evidence_windows"] == 0 and "alone" in " ".join(P.markdown_lines(use.report, True))
+    else:
+        assert use.ds is with_evidence and isinstance(use.estimator, P.WithPrior)

@@ -278,10 +278,13 @@ def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | N
     recipe = recipe or PRIOR
     prior = build_prior(ds, say, recipe)
     choice = choose_weight(estimator, ds, prior, say)
-    fit_on = evidence(ds, recipe)
+    alone = choice.weight == 0  # the lab's data alone won: the model is that candidate, no simulated window joins
+    fit_on = ds if alone else evidence(ds, recipe)
     report = {**choice.to_dict(), "evidence_windows": len(fit_on.y) - len(ds.y), "lab_cases": len(ds.y)}
     for line in choice_lines(report):
         say(line)
+    if alone:
+        return PriorUse(estimator, ds, report)
     return PriorUse(WithPrior(estimator, prior, choice.weight), fit_on, report, prior, choice.weight)
 
 
@@ -291,10 +294,15 @@ def markdown_lines(report: dict, synthetic: bool) -> list[str]:
     if report.get("off"):
         return [*lines, f"Not used: {report['off']}.", ""]
     tag = " (**synthetic**)" if synthetic else ""
-    lines += [f"Training cases: the lab's {report['lab_cases']} cases, {report['evidence_windows']} dormant windows of "
-              f"a simulated idle stream dealt to the lab's subjects' folds (the early rule's evidence), and the "
-              f"prior ({report['recipe']}: {', '.join(f'{k} {v}' for k, v in report['prior_cases'].items())}), "
-              f"{report['weight']:g} prior cases per lab case (trainer/prior.py). Chosen as {report['rule']}{tag}:", "",
+    if report["weight"] == 0:
+        cases = (f"the lab's {report['lab_cases']} cases alone: the lab's data alone won, so neither the prior "
+                 f"({report['recipe']}) nor its evidence windows join")
+    else:
+        cases = (f"the lab's {report['lab_cases']} cases, {report['evidence_windows']} dormant windows of a simulated "
+                 f"idle stream dealt to the lab's subjects' folds (the early rule's evidence), and the prior "
+                 f"({report['recipe']}: {', '.join(f'{k} {v}' for k, v in report['prior_cases'].items())}), "
+                 f"{report['weight']:g} prior cases per lab case")
+    lines += [f"Training cases: {cases} (trainer/prior.py). Chosen as {report['rule']}{tag}:", "",
               "| training | leave one lab subject out | actions | dormant | per subject |", "|---|---:|---:|---:|---|"]
     for r in report["candidates"]:
         name = "the lab's data alone" if r["weight"] == 0 else f"prior x{r['weight']:g} + the lab's"
