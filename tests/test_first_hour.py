@@ -6,6 +6,8 @@ The data are the simulated hand's (synthetic); the models are trained here, smal
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -82,7 +84,11 @@ def trained(tmp_path_factory) -> Path:
     """`handover simulate` (small) then `handover train --data` (small): the report folder."""
     work = tmp_path_factory.mktemp("first-hour")
     assert handover(["simulate", "--out", str(work / "rec"), "--subjects", "2", "--runs", "1"]) == 0
-    assert handover(["train", "--data", str(work / "rec"), "--out", str(work / "report"), *SMALL_TRAIN]) == 0
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):  # train's console, read by a test below
+        assert handover(["train", "--data", str(work / "rec"), "--out", str(work / "report"), *SMALL_TRAIN]) == 0
+    (work / "train.out").write_text(out.getvalue())
+    (work / "train.err").write_text(err.getvalue())
     return work / "report"
 
 
@@ -104,17 +110,16 @@ def test_readme_path_simulate_train_drop_run_events(trained, tmp_path):
 
 def test_train_prints_its_headline_without_carriage_returns(trained, tmp_path, capsys):
     rec = trained.parent / "rec"
-    assert handover(["train", "--data", str(rec), "--out", str(tmp_path / "r"), *SMALL_TRAIN]) == 0
-    out, err = capsys.readouterr()
+    out, err = ((trained.parent / f"train.{k}").read_text() for k in ("out", "err"))  # the fixture's train
     assert "leave one subject out:" in out and "pooled 80/20:" in out
     # K (words) and W (derivative window) are named only when the model has the BoW family
     from trainer.defaults import DEFAULT_MODEL
 
     assert ("K=6 W=" in out) == ("bow" in DEFAULT_MODEL["families"]), out
     assert handover(["train", "--data", str(rec), "--out", str(tmp_path / "b"), "--features", "bow",
-                     *SMALL_TRAIN, "--no-onnx"]) == 0
+                     *SMALL_TRAIN, "--no-onnx", "--no-prior", "--early", "off", "--no-replay"]) == 0  # the headline only
     assert "features bow, K=6 W=7 T=15" in capsys.readouterr().out
-    assert f"model:  {tmp_path / 'r' / 'model.onnx'}" in out and f"report: {tmp_path / 'r' / 'report.md'}" in out
+    assert f"model:  {trained / 'model.onnx'}" in out and f"report: {trained / 'report.md'}" in out
     assert "\r" not in err  # stderr is not a terminal here: no progress bars
 
 
