@@ -71,7 +71,8 @@ def test_trained_model_is_deterministic_for_a_seed(tiny_data, tmp_path):
         out = tmp_path / name
         assert handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "all", "--K", "5",
                          "--W", "4", "--T", "10", "--repeats", "2", "--no-sweep", "--no-onnx", "--fraction", "0.15", "--quiet",
-                     "--no-prior"]) == 0  # export is the question here; tests/test_prior.py covers the prior
+                         "--no-prior", "--no-replay"]) == 0  # the model is the question (the replay reads it, after);
+        # tests/test_prior.py covers the prior
         saved = joblib.load(out / "model.joblib")
         assert set(saved) == {"model", "metadata", "early"} and saved["metadata"]["pads"] == [0, 1, 2, 3, 4, 5]
         models.append(saved["model"])
@@ -117,7 +118,7 @@ def test_failed_onnx_export_fails_the_command(tiny_data, tmp_path, capsys):
     (out / "model.onnx").mkdir(parents=True)  # the export cannot replace a directory
     rc = handover(["train", "--data", str(tiny_data), "--out", str(out), "--pads", "distal", "--K", "4",
                    "--windows", "3,5", "--T", "10", "--repeats", "2", "--no-sweep", "--fraction", "0.15", "--quiet",
-                   "--no-prior"])
+                   "--no-prior", "--early", "off", "--no-replay"])  # the export's failure is the question
     err = capsys.readouterr().err
     assert rc == 1 and "model.onnx not written" in err
     metrics = json.loads((out / "metrics.json").read_text())  # the report is still written
