@@ -163,7 +163,7 @@ def run(args) -> dict:
     t_start = time.perf_counter()
     duration = args.duration if args.duration is not None else (3.0 if args.quick else 120.0)
     n_windows = max(4, int(duration * 32 / (15 + tap_gap())))
-    paced_decisions = 30 if args.quick else 1000
+    paced_decisions = 16 if args.quick else 1000  # quick: every stage and block seen, not a distribution
     rounds = 200 if args.quick else 3000
     result: dict = {"synthetic": True, "deadline_us": DEADLINE_US}
     with tempfile.TemporaryDirectory(prefix="handover-latency-") as tmp:

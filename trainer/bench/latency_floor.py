@@ -48,17 +48,17 @@ class Interference:
     def steady_job(self, job_us: float, seed: int = 0, n: int = 200_000) -> dict:
         """p50/p99/p99.9 of the wall time of a job needing ``job_us`` of the core, started at ``n``
         random moments: it is stretched by every gap that begins before it ends."""
-        job_s, at, taken = job_us * 1e-6, self.at, self.taken
-        out = np.empty(n)
+        job_s, at, taken = job_us * 1e-6, np.asarray(self.at), np.asarray(self.taken)
         starts = np.random.default_rng(seed).uniform(0.0, max(self.spun - 10 * job_s, job_s), n)
-        for k, s in enumerate(starts):
-            i = int(np.searchsorted(at, s))
-            end = s + job_s
-            while i < len(at) and at[i] < end:
-                end += taken[i]
-                i += 1
-            out[k] = end - s
-        return percentiles(out * 1e6)
+        i = np.searchsorted(at, starts)
+        end = starts + job_s
+        hit = np.flatnonzero(i < len(at))  # all starts at once, each adding its gaps in order (a loop per start took s)
+        while hit.size:
+            hit = hit[at[i[hit]] < end[hit]]
+            end[hit] += taken[i[hit]]
+            i[hit] += 1
+            hit = hit[i[hit] < len(at)]
+        return percentiles((end - starts) * 1e6)
 
 
 def interference(seconds: float) -> Interference:
