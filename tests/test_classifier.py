@@ -136,3 +136,83 @@ def test_one_frame_cases_are_refused_in_one_line():
     X, y = np.zeros((8, 78, 1)), np.array([0, 1] * 4)
     with pytest.raises(ValueError, match=r"cases need at least 2 frames .* got 1 frame"):
         default_classifier([78]).fit(X, y)
+
+
+# -- the iteration cap (MAX_ITER) -------------------------------------------------------------------------
+def _not_separable(n: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Labels independent of the points: at C = 1e6 a linear libsvm fit takes 16 M iterations uncapped (n=20)."""
+    return np.random.default_rng(0).normal(size=(n, 2)), np.arange(n) % 2
+
+
+def test_a_fit_that_does_not_converge_stops_at_the_cap():
+    from sklearn.exceptions import ConvergenceWarning
+
+    from trainer.classifier import MAX_ITER, converged, svc
+
+    X, y = _not_separable()
+    with pytest.warns(ConvergenceWarning):
+        longer = svc("linear", C=1e6).set_params(max_iter=2 * MAX_ITER).fit(X, y)
+        capped = svc("linear", C=1e6).fit(X, y)
+    assert int(longer.n_iter_.max()) == 2 * MAX_ITER, "uncapped, this fit takes more than the cap"
+    assert int(capped.n_iter_.max()) == MAX_ITER and not converged(capped)
+    easy = svc("linear", C=1.0).fit(X, y)
+    assert converged(easy) and int(easy.n_iter_.max()) < MAX_ITER
+
+
+def test_the_search_ranks_unconverged_candidates_last_and_says_so():
+    from trainer.classifier import choose_svm_params
+
+    X, y = _not_separable(30)
+    params, note = choose_svm_params(X, y, "linear", c_grid=(1e6, 1.0))
+    assert params == {"C": 1.0}
+    assert note.startswith("SVM search: 1 of 2 candidates stopped at") and "(C=1e+06)" in note and "\n" not in note
+
+
+def test_ties_and_unconverged_candidates_in_the_choice():
+    """An unconverged candidate loses even with the best score; among converged ones the best score, then
+    the first (the harder margin) wins; with nothing converged, the most folds converged."""
+    from trainer.classifier import _best_candidate
+
+    params = [{"C": 1e6}, {"C": 1e4}, {"C": 100.0}, {"C": 1.0}]
+
+    def best(done, accuracy):
+        results = {"params": params, "mean_test_converged": np.array(done), "mean_test_accuracy": np.array(accuracy)}
+        return _best_candidate(results, {})
+
+    assert best([1, 1, 1, 1], [0.8, 0.9, 0.9, 0.7]) == ({"C": 1e4}, None)
+    chosen, note = best([2 / 3, 1, 1, 1], [0.95, 0.9, 0.9, 0.7])
+    assert chosen == {"C": 1e4} and "1 of 4 candidates" in note and "(C=1e+06)" in note
+    assert best([0, 1 / 3, 0, 0], [0.9, 0.5, 0.9, 0.9])[0] == {"C": 1e4}
+
+
+def test_a_capped_final_fit_is_noted_and_warned():
+    from sklearn.exceptions import ConvergenceWarning
+
+    from trainer.flat import FlatSVC
+
+    X, y = _not_separable()
+    with pytest.warns(ConvergenceWarning, match="stopped at"):
+        model = FlatSVC(kernel="linear", C=1e6).fit(X.reshape(-1, 1, 2), y)
+    assert len(model.svm_notes_) == 1 and model.svm_notes_[0].startswith("SVM fit (C=1e+06) stopped at")
+    assert FlatSVC(kernel="linear", C=1.0).fit(X.reshape(-1, 1, 2), y).svm_notes_ == []
+
+
+def test_training_says_a_capped_final_fit_in_one_line_and_in_the_report(capsys):
+    import warnings
+    from types import SimpleNamespace
+
+    from sklearn.exceptions import ConvergenceWarning
+
+    from trainer.flat import FlatSVC
+    from trainer.pipeline import _fit_final
+    from trainer.report import _model_lines
+
+    X, y = _not_separable()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConvergenceWarning)  # said as a console line, not a Python warning
+        model = _fit_final(FlatSVC(kernel="linear", C=1e6), SimpleNamespace(X=X.reshape(-1, 1, 2), y=y))
+    (note,) = model.svm_notes_
+    assert capsys.readouterr().err.splitlines() == [f"handover train: {note}"]
+    lines = _model_lines({"families": ["hand"], "T": 2, "kernel": "linear", "best_params": model.best_params_,
+                          "svm_notes": model.svm_notes_})
+    assert any(note in line for line in lines)

@@ -8,10 +8,12 @@ a (practically) hard margin can win. Whether the fit *is* hard-margin is a fact 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.exceptions import ConvergenceWarning
 from sklearn.model_selection import GridSearchCV, StratifiedKFold
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
@@ -21,7 +23,7 @@ from sklearn.utils.validation import assert_all_finite, check_is_fitted, column_
 from trainer.bow import BagOfWords, as_cases
 from trainer.defaults import PAPER_MODEL
 
-__all__ = ["C_GRID", "BowSVC", "SVMHead", "check_training_data", "margin_report"]
+__all__ = ["C_GRID", "MAX_ITER", "BowSVC", "SVMHead", "check_training_data", "converged", "margin_report", "svc"]
 
 C_GRID = (1e6, 1e4, 1000.0, 100.0, 10.0, 1.0)
 """Candidate C, largest first, up to 1e6 (a hard margin in practice when the training cases are
@@ -37,6 +39,29 @@ DEFAULT_C = 100.0
 """Used when a search is impossible (a class with a single training case)."""
 
 CV_FOLDS = 3
+
+MAX_ITER = 1_000_000
+"""libsvm iterations (per one-vs-one problem) any SVC of the trainer may take. scikit-learn's default is no
+limit, and at a large C on cases that are not separable libsvm can take millions (minutes a fit); the
+product's trainings converge in far fewer, so their models are unchanged (results/svm_max_iter.md)."""
+
+
+def svc(kernel: str, **params) -> SVC:
+    """Every SVC of the trainer (searched and final fits): one-vs-one, "ovr" scores, at most MAX_ITER iterations."""
+    return SVC(kernel=kernel, decision_function_shape="ovr", max_iter=MAX_ITER, **params)
+
+
+def converged(svm: SVC) -> bool:
+    """False when libsvm stopped at the iteration cap in some one-vs-one problem (not the SVM of its C)."""
+    return svm.max_iter < 0 or int(np.max(svm.n_iter_)) < svm.max_iter
+
+
+def _converged_score(estimator, X, y) -> float:
+    return float(converged(estimator))
+
+
+def _params_text(params: dict) -> str:
+    return " ".join(f"{k}={v:.3g}" for k, v in params.items() if isinstance(v, float))
 
 
 def check_training_data(estimator, X, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -62,8 +87,9 @@ def check_training_data(estimator, X, y) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, gamma=None,
-                      c_grid: tuple[float, ...] | None = None) -> dict:
-    """C (and gamma for rbf) by a stratified 3-fold grid search on these training features only.
+                      c_grid: tuple[float, ...] | None = None) -> tuple[dict, str | None]:
+    """C (and gamma for rbf) by a stratified 3-fold grid search on these training features only, and a line
+    naming the candidates that did not converge (``_best_candidate``), else None.
 
     Given values are kept; the grid covers only what is None (C from ``c_grid``, default ``C_GRID``).
     With a class of one case no search is possible and DEFAULT_C / sklearn's "scale" gamma are used.
@@ -81,17 +107,47 @@ def choose_svm_params(features: np.ndarray, y: np.ndarray, kernel: str, C=None, 
         else:
             fixed["gamma"] = gamma
     if not grid:
-        return fixed
+        return fixed, None
     _, counts = np.unique(y, return_counts=True)
     n_splits = min(CV_FOLDS, int(counts.min()))
     if n_splits < 2:
         defaults = {"C": DEFAULT_C, "gamma": scale} if kernel == "rbf" else {"C": DEFAULT_C}
-        return {**defaults, **fixed}
+        return {**defaults, **fixed}, None
     cv = StratifiedKFold(n_splits=n_splits, shuffle=True, random_state=0)
     # refit=False: the caller fits the final SVC itself (a refit here was one more fit on every case, unused)
-    search = GridSearchCV(SVC(kernel=kernel, **fixed), grid, cv=cv, n_jobs=1, refit=False)
-    search.fit(features, y)
-    return {**fixed, **{k: float(v) for k, v in search.best_params_.items()}}
+    search = GridSearchCV(svc(kernel, **fixed), grid, cv=cv, n_jobs=1, refit=False,
+                          scoring={"accuracy": "accuracy", "converged": _converged_score})
+    with warnings.catch_warnings():  # a capped fit is counted by its candidate and said once, below
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        search.fit(features, y)
+    return _best_candidate(search.cv_results_, fixed)
+
+
+def _best_candidate(results: dict, fixed: dict) -> tuple[dict, str | None]:
+    """The candidate converged in the most folds, then of best mean accuracy, then the first (the harder margin).
+
+    A fit stopped at MAX_ITER is not the SVM of its C, so its score does not measure that C; and the
+    unconverged ones are the large C, first in the grid, which win ties. So they rank below every
+    candidate that converged and one line says which they were (they win only if none converged).
+    """
+    done, accuracy = results["mean_test_converged"], results["mean_test_accuracy"]
+    best = max(range(len(done)), key=lambda i: (done[i], accuracy[i]))
+    chosen = {**fixed, **{k: float(v) for k, v in results["params"][best].items()}}
+    capped = [_params_text(p) for p, d in zip(results["params"], done, strict=True) if d < 1.0]
+    note = None if not capped else (
+        f"SVM search: {len(capped)} of {len(done)} candidates stopped at {MAX_ITER} libsvm iterations without "
+        f"converging in some fold ({', '.join(capped)}) and ranked below the converged ones; chose {_params_text(chosen)}")
+    return chosen, note
+
+
+def fit_svc(features: np.ndarray, y: np.ndarray, kernel: str, params: dict) -> tuple[SVC, str | None]:
+    """The final SVC on all cases, and a line when it stopped at MAX_ITER (an approximate solution)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        svm = svc(kernel, **params).fit(features, y)
+    return svm, None if converged(svm) else (
+        f"SVM fit ({_params_text(params)}) stopped at {MAX_ITER} libsvm iterations without converging: the model is "
+        "an approximate solution (a smaller C converges sooner)")
 
 
 def margin_report(svm) -> dict:
@@ -129,9 +185,17 @@ class SVMHead:
         self.scaler_ = StandardScaler().fit(features)
         if weigh is not None:
             self.scaler_.scale_ = self.scaler_.scale_ / weigh(self.scaler_.transform(features))
-        scaled = self.scaler_.transform(features)
-        self.best_params_ = choose_svm_params(scaled, y, self.kernel, self.C, self.gamma, getattr(self, "c_grid", None))
-        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_).fit(scaled, y)
+        self._fit_svm(self.scaler_.transform(features), y)
+
+    def _fit_svm(self, features: np.ndarray, y: np.ndarray) -> None:
+        """Choose C/gamma and fit the SVC: ``best_params_``, ``svm_``, and ``svm_notes_``: a line for each fit
+        that stopped at MAX_ITER (none when all converged), also raised as a ConvergenceWarning."""
+        self.best_params_, search_note = choose_svm_params(features, y, self.kernel, self.C, self.gamma,
+                                                           getattr(self, "c_grid", None))
+        self.svm_, fit_note = fit_svc(features, y, self.kernel, self.best_params_)
+        self.svm_notes_ = [note for note in (search_note, fit_note) if note]
+        for note in self.svm_notes_:
+            warnings.warn(note, ConvergenceWarning, stacklevel=3)
 
     def decision_function(self, X) -> np.ndarray:
         """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""
@@ -215,10 +279,7 @@ class BowSVC(SVMHead, ClassifierMixin, BaseEstimator):
         ).fit(X)
         hist = self.bow_.transform(X)
         self.scaler_ = StandardScaler().fit(hist) if self.scale_features else None
-        features = self.svm_input(hist)
-        self.best_params_ = choose_svm_params(features, y, self.kernel, self.C, self.gamma)
-        self.svm_ = SVC(kernel=self.kernel, decision_function_shape="ovr", **self.best_params_)
-        self.svm_.fit(features, y)
+        self._fit_svm(self.svm_input(hist), y)
         self.n_features_in_ = self.bow_.n_features_in_
         return self
 

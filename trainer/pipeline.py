@@ -121,7 +121,7 @@ def train(options: TrainOptions) -> TrainResult:
         estimator, ds = prior.estimator, prior.ds  # the lab's cases (+ the evidence windows) and the prior
     notes = _data_notes(options, recordings, names, idle, prior, len(lab.y))
     say("training the final model on all cases ...")
-    model = estimator.fit(ds.X, ds.y)
+    model = _fit_final(estimator, ds)
     evaluation = evaluate(options, lab, estimator, say)  # scored on the lab's own cases only
     heads, early_metrics = fit_early_heads(options, with_actions(ds), estimator, say,
                                            wrap=prior.wrap if prior else None)
@@ -174,6 +174,21 @@ def _data_notes(options: TrainOptions, recordings: list, names: list[str], idle,
     for line in notes.lines:
         PROGRESS.warning(f"handover train: {line}")
     return notes
+
+
+def _fit_final(estimator, ds):
+    """The exported model on all cases. A fit that stopped at the SVM's iteration cap (trainer.classifier.MAX_ITER)
+    says so in one line, seen even with --quiet (report.md repeats it), instead of a Python warning."""
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        model = estimator.fit(ds.X, ds.y)
+    for line in getattr(model, "svm_notes_", []):
+        PROGRESS.warning(f"handover train: {line}")
+    return model
 
 
 def _cases(options: TrainOptions, recordings: list, names: list[str], say: Callable[[str], None]):

@@ -255,6 +255,7 @@ def _model_lines(metrics: dict) -> list[str]:
         f"C/gamma of the final model {metrics['best_params']} (chosen by stratified 3-fold search on "
         "the training cases of each fit). The final model is trained on all cases.",
         *_margin_lines(metrics.get("svm_margin")),
+        *(f"- **{line}** (trainer/classifier.py, MAX_ITER)" for line in metrics.get("svm_notes", [])),
     ]
 
 

@@ -44,6 +44,7 @@ def metrics_of(options: TrainOptions, ds, model, evaluation: dict, sweep: dict |
         "trigger": ds.trigger.to_meta(), "trigger_hysteresis": ds.hysteresis, "seed": options.seed,
         "best_params": model.best_params_,
         "svm_margin": margin_report(model.svm_),
+        "svm_notes": list(getattr(model, "svm_notes_", [])),
         **ds.counts().to_meta(),
         "n_windows_before_onset": ds.windows_before_onset,
         "untriggered": [s.to_dict() for s in ds.untriggered],
