@@ -8,10 +8,10 @@ install.
 
 from __future__ import annotations
 
-__all__ = ["hours_text", "rate_text"]
+__all__ = ["rate_text"]
 
 
-def hours_text(hours: float) -> str:
+def _hours_text(hours: float) -> str:
     """``0.16 h``, ``2.16 h``: two significant digits below an hour (0.013 h stays readable), else two decimals."""
     return f"{hours:.2f} h" if hours >= 1.0 else f"{hours:.2g} h"
 
@@ -20,4 +20,4 @@ def rate_text(events: int, hours: float | None, digits: int = 1) -> str:
     """``24.9/h (4 in 0.16 h)``; ``-/h (none observed)`` when no time was observed."""
     if not hours or hours <= 0.0:
         return "-/h (none observed)"
-    return f"{events / hours:.{digits}f}/h ({events} in {hours_text(hours)})"
+    return f"{events / hours:.{digits}f}/h ({events} in {_hours_text(hours)})"
