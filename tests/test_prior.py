@@ -219,3 +219,27 @@ def test_when_the_lab_data_alone_wins_no_simulated_window_joins(weight, monkeypa
         assert use.report["evidence_windows"] == 0 and "alone" in " ".join(P.markdown_lines(use.report, True))
     else:
         assert use.ds is with_evidence and isinstance(use.estimator, P.WithPrior)
+
+
+def test_the_prior_idle_is_cut_once_per_cut_and_shared_read_only():
+    """Every train of one process (the suite, the own_prior bench) with the same T, pads and trigger reads
+    the same cut of the prior's idle instead of running the trigger over its frames again."""
+    from types import SimpleNamespace
+
+    from firmware_io.layout import SensorLayout
+    from runtime.trigger_settings import resolve_trigger
+
+    sdh2 = SensorLayout.sdh2()
+    pads = (0, 1)
+
+    def ds(T: int):
+        return SimpleNamespace(T=T, pads=pads, trigger=resolve_trigger(), fullscale=4095.0,
+                               pad_sizes=tuple(len(sdh2.columns([p])) for p in pads))
+
+    X, origin = P._dormant_windows(TINY, "evidence", ds(15))
+    again = P._dormant_windows(TINY, "evidence", ds(15))
+    assert again[0] is X and again[1] is origin and X.shape[1:] == (sum(ds(15).pad_sizes), 15) and len(X)
+    with pytest.raises(ValueError, match="read-only"):
+        X[0, 0, 0] = 1.0
+    shorter = P._dormant_windows(TINY, "evidence", ds(10))[0]
+    assert shorter is not X and shorter.shape[2] == 10

@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from sklearn.base import BaseEstimator, clone
@@ -132,12 +133,36 @@ def _simulated(recipe: PriorRecipe) -> tuple[list, list, list]:
     return protocol, parts(recipe.idle_minutes, 0), parts(recipe.evidence_minutes, n_idle)
 
 
-def _dormant_windows(idle: Sequence, ds, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Dormant windows of simulated idle streams for ``ds`` (its pads, T, trigger), cut as the lab's idle."""
+class _Cut(NamedTuple):
+    """What of the lab's data set cuts the prior's idle (all ``recorded_idle_windows`` reads of it)."""
+
+    T: int
+    pads: tuple[int, ...]
+    trigger: object
+    pad_sizes: tuple[int, ...]
+    fullscale: float
+
+
+def _dormant_windows(recipe: PriorRecipe, name: str, ds) -> tuple[np.ndarray, np.ndarray]:
+    """Dormant windows of the prior's simulated idle (``name``: "idle" or the "evidence" stream) for ``ds``
+    (its pads, T, trigger), cut as the lab's idle."""
+    return _cut_windows(recipe, name, _Cut(int(ds.T), tuple(int(p) for p in ds.pads), ds.trigger,
+                                           tuple(int(s) for s in ds.pad_sizes), float(ds.fullscale)))
+
+
+@functools.lru_cache(maxsize=8)
+def _cut_windows(recipe: PriorRecipe, name: str, cut: _Cut) -> tuple[np.ndarray, np.ndarray]:
+    """Kept for the process, as ``_simulated`` keeps the streams: a cut runs the trigger over every frame of
+    80 simulated minutes (a quarter of a train's time), the same for every train of one process with the
+    same T, pads and trigger (the tests, the own_prior bench). Read-only: the callers share them."""
     from trainer.recorded_idle import DORMANT_CUT, recorded_idle_windows
 
-    w = recorded_idle_windows(list(idle), [f"{name}{k}" for k in range(len(idle))], ds, 0, DORMANT_CUT)
-    return w.X, np.asarray([f"{name}:{o}" for o in w.origin.tolist()])
+    _, idle, more = _simulated(recipe)
+    idle = idle if name == "idle" else more
+    w = recorded_idle_windows(list(idle), [f"{name}{k}" for k in range(len(idle))], cut, 0, DORMANT_CUT)
+    X, origin = w.X, np.asarray([f"{name}:{o}" for o in w.origin.tolist()])
+    X.flags.writeable = origin.flags.writeable = False
+    return X, origin
 
 
 def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = None) -> PriorCases:
@@ -147,11 +172,11 @@ def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = Non
     from trainer.dataset import build_dataset
 
     say(f"the product's prior: simulating ({recipe.describe()}) ...")
-    protocol, idle, _ = _simulated(recipe)
+    protocol = _simulated(recipe)[0]
     sim = build_dataset(protocol, T=ds.T, pads=list(ds.pads), trigger=ds.trigger)
     X, y, origin = [sim.X], [sim.y.astype(str)], [np.full(len(sim.y), "protocol")]
     if DORMANT in set(ds.y.tolist()):
-        dx, do = _dormant_windows(idle, ds, "idle")
+        dx, do = _dormant_windows(recipe, "idle", ds)
         X, y, origin = [*X, dx], [*y, np.full(len(dx), DORMANT)], [*origin, do]
     return PriorCases(np.concatenate(X).astype(np.float32), np.concatenate(y), np.concatenate(origin), recipe)
 
@@ -163,8 +188,8 @@ def evidence(ds, recipe: PriorRecipe | None = None):
 
     if DORMANT not in set(ds.y.tolist()):
         return ds
-    _, _, idle = _simulated(recipe or PRIOR)
-    X, origin = _dormant_windows(idle, ds, "evidence")
+    idle = _simulated(recipe or PRIOR)[2]
+    X, origin = _dormant_windows(recipe or PRIOR, "evidence", ds)
     subjects = sorted(set(ds.groups[ds.y != DORMANT].tolist())) or sorted(set(ds.groups.tolist()))
     groups = np.asarray([subjects[k % len(subjects)] for k in range(len(X))])
     seconds = sum(r.n_frames * r.period_s() for r in idle)
