@@ -5,8 +5,8 @@ This trigger measures each pad's summed pressure against a baseline that follows
 
 - ``open``: the scene reads (almost) nothing;
 - ``settling``: contact, but still moving; arms once every pad changed by less than ``settle_change``
-  for ``settle_frames`` frames in a row, or by less than ``NOISY_SETTLE`` times that for ``NOISY_SETTLE``
-  times as long (and ``refractory_frames`` after the last trigger);
+  for ``settle_frames`` frames in a row, or by less than twice that for three times as long
+  (``NOISY_SETTLE``; and ``refractory_frames`` after the last trigger);
 - ``armed``: Holt's linear tracker (level + trend per pad, ``tau_frames``) follows creep and drift (real
   pads creep far more than the simulator's); fires when a pad departs from the prediction by ``change``
   of its level (at least ``change x floor``), read as a change of force where the grasp compresses the
@@ -28,10 +28,10 @@ __all__ = ["COMPRESSION_CAP", "MIN_GRASP_FINGERS", "RUBBER_HILL_N", "OnsetTrigge
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
 TREND_GAIN = 0.25
 """The trend takes this share of the level's correction (Holt's beta)."""
-NOISY_SETTLE = 2
+NOISY_SETTLE = (2, 3)
 """A held grasp on a noisy hand moves by about ``settle_change`` from frame to frame on sensor noise alone
-(simulated lab B), so it may never pass the strict test; a grasp that changed by less than this many
-times ``settle_change`` for this many times ``settle_frames`` has settled too (a closing hand moves more).
+(simulated lab B), so it may never pass the strict test; a grasp that changed by less than the first
+times ``settle_change`` for the second times ``settle_frames`` has settled too (a closing hand moves more).
 Chosen by the rule in docs/TRIGGER_DEFAULTS.md."""
 RELEASE_RISE = 1.0
 """A departure whose largest rise is below this share of ``change`` counts as a release: the hand
@@ -144,7 +144,7 @@ class OnsetTrigger:
         """The robot said its grasp is released: no self-arming until the hand is seen empty."""
         self.quiet = 0
         self.held = 0
-        """Frames in a row every pad changed by less than ``NOISY_SETTLE x settle_change``."""
+        """Frames in a row every pad changed by less than ``NOISY_SETTLE[0] x settle_change``."""
         self.last_trigger = -(1 << 62)
         self.level = 0.0
         self.releases = 0
@@ -205,9 +205,10 @@ class OnsetTrigger:
         np.abs(self._dev, out=self._dev)
         self.level = float((self._dev / self._scale).max())
         self.quiet = self.quiet + 1 if self.level < self.settle_change else 0
-        self.held = self.held + 1 if self.level < NOISY_SETTLE * self.settle_change else 0
+        change, time = NOISY_SETTLE
+        self.held = self.held + 1 if self.level < change * self.settle_change else 0
         self._prev[:] = p
-        settled = self.quiet >= self.settle_frames or self.held >= NOISY_SETTLE * self.settle_frames
+        settled = self.quiet >= self.settle_frames or self.held >= time * self.settle_frames
         if settled and number - self.last_trigger >= self.refractory_frames:
             self._arm(row, p)
 
