@@ -152,7 +152,7 @@ KEYS: tuple[Key, ...] = (
     Key("trigger.contact", float, 0.02, "onset: summed scene pressure below this x full scale is an empty hand",
         range=(0.0, 1.0), recorded=True, config=False),
     Key("trigger.settle_change", float, 0.02, "onset: settled = no pad changed by this share of its level from one "
-        "frame to the next for settle_s (or by less than twice this for twice settle_s: a noisy hand)", range=(0.0, 1.0), recorded=True, config=False),
+        "frame to the next for settle_s (or by less than twice this for three times settle_s: a noisy hand)", range=(0.0, 1.0), recorded=True, config=False),
 
     Key("continuous.confirm_frames", int, 10, "a class is reported after winning this many frames in a row",
         range=(1, 1000)),
