@@ -134,6 +134,17 @@ def _missing_module_line(name: str, exc: ModuleNotFoundError) -> str:
     return f"handover {name}: needs the Python package {missing!r}, which is not installed{hint}"
 
 
+def _one_line_warnings(name: str) -> None:
+    """A library's warning on the console is one line that names the command, not Python's two (the
+    message and a source line a user cannot act on)."""
+    import warnings
+
+    def one_line(message, category, *_args, **_kwargs) -> str:
+        return f"handover {name}: {category.__name__}: {message}\n"
+
+    warnings.formatwarning = one_line
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help", "help"):
@@ -153,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"handover: unknown command {name!r}; {hint}'handover --help' lists the commands", file=sys.stderr)
         return 2
     module_name, _help, extra = COMMANDS[name]
+    _one_line_warnings(name)
     if missing := missing_packages(extra):
         print(f"handover {name}: needs the extra [{extra}] (missing: {', '.join(missing)}); {install_hint(extra)}",
               file=sys.stderr)

@@ -73,3 +73,12 @@ def test_bench_summary_names_every_benchmark():
 
     summary = cli.COMMANDS["bench"][1]
     assert [name for name in BENCHMARKS if name not in summary] == [], summary
+
+
+def test_a_library_warning_is_one_line_naming_the_command(monkeypatch, tmp_path, capsys):
+    import warnings
+
+    monkeypatch.setattr(warnings, "formatwarning", warnings.formatwarning)  # restored after the test
+    cli.main(["inspect", str(tmp_path / "none.onnx")])
+    said = warnings.formatwarning("SVM search: 1 of 4 candidates stopped", UserWarning, "classifier.py", 198)
+    assert said == "handover inspect: UserWarning: SVM search: 1 of 4 candidates stopped\n", said
