@@ -47,6 +47,9 @@ __all__ = [
     "session_options"
 ]
 
+WRITE_AGAIN = "copy it again from where it was trained, or train it again (handover train writes report/model.onnx)"
+"""What to do about a model file that is not a whole ONNX model: its bytes are lost, only a copy helps."""
+
 WARM_UP_BOUND_S = 10.0
 """Longest a model's whole warm-up may take (a few dozen decisions; the slowest model a budget lets
 through takes well under a second)."""
@@ -311,14 +314,14 @@ def _read(path: Path, max_bytes: int) -> tuple[bytes, Any]:
     if len(data) > max_bytes:
         raise ModelContractError(f"{where}: {len(data)} bytes exceeds the limit of {max_bytes}")
     if not data:
-        raise ModelUnreadableError(f"{where}: empty file")
+        raise ModelUnreadableError(f"{where}: empty file; {WRITE_AGAIN}")
     try:
         wire = summarize(data)
     except WireError as exc:
         other = other_file_kind(data)
         if other:
             raise ModelUnreadableError(f"{where}: this is {other}; give a .onnx model") from exc
-        raise ModelUnreadableError(f"{where}: not an ONNX model or truncated ({exc})") from exc
+        raise ModelUnreadableError(f"{where}: not an ONNX model or truncated ({exc}); {WRITE_AGAIN}") from exc
     if wire.external_data:
         raise ModelContractError(f"{where}: references external data; a model must be one self-contained file")
     if wire.nan_initializers:

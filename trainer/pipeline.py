@@ -81,7 +81,8 @@ def _read_folder(folder: str) -> tuple[list, list[str]]:
         return field_recordings(folder, PROGRESS.warning)
     paths = find_recordings(folder)
     if not paths:
-        raise FileNotFoundError(f"{folder}: no .hrec recordings in this folder")
+        raise FileNotFoundError(f"{folder}: no .hrec recordings in this folder; record some with `handover record` "
+                                f"(README step 2) or import them with `handover import`")
     return load_all(paths), [p.name for p in paths]
 
 
