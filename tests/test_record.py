@@ -553,3 +553,13 @@ def test_plot_writes_a_figure_and_lists_trials(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert handover(["plot", str(path), "--trial", "9"]) == 2
     assert handover(["plot", str(tmp_path / "missing.hrec")]) == 2
+
+
+def test_the_session_line_names_the_flagged_trials_and_how_to_look_at_one():
+    from trainer.commands.record_cli import _flagged_text
+
+    assert _flagged_text([], "s1.hrec") == ""
+    said = _flagged_text([6, 9], "data/s1.hrec")
+    assert said == (", 2 flagged (trial 7, 10): training gets no case from them; look at one with "
+                    "`handover plot data/s1.hrec --trial 7`")
+    assert "(trial 1, 2, 3, 4, 5 ...)" in _flagged_text(list(range(8)), "x.hrec")

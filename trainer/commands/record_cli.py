@@ -247,8 +247,7 @@ def _record(args: argparse.Namespace, client, subject, plan, opts, voice: Voice)
         raise HandoverError(str(exc)) from None
     except KeyboardInterrupt:
         raise Interrupted(f"interrupted; {_saved(store)}; {resume}") from None
-    flagged = (f", {len(result.flagged)} flagged: training gets no case from them (handover plot shows one)"
-               if result and result.flagged else "")
+    flagged = _flagged_text(result.flagged, store.path) if result else ""
     if result is not None and not result.complete:
         print(f"session stopped ({result.stopped}): {result.done} of {result.planned} trials done; "
               f"{_saved(store)}{flagged}; run the same command again to continue")
@@ -311,6 +310,16 @@ def _subject_person(url: object) -> str | None:
     except UnknownLab:  # a stored URL from elsewhere: compared as written
         lab = query["lab"][0]
     return f"seed={query.get('seed', ['0'])[0]}" + ("" if lab == DEFAULT_LAB else f"&lab={lab}")
+
+
+def _flagged_text(flagged: list[int], path) -> str:
+    """Which trials (1-based, as ``handover plot --trial`` counts them) training gets no case from, and how to
+    look at one; "" when none."""
+    if not flagged:
+        return ""
+    shown = ", ".join(str(i + 1) for i in flagged[:5]) + (" ..." if len(flagged) > 5 else "")
+    return (f", {len(flagged)} flagged (trial {shown}): training gets no case from them; look at one with "
+            f"`handover plot {path} --trial {flagged[0] + 1}`")
 
 
 def _saved(store) -> str:
