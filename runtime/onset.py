@@ -121,6 +121,8 @@ class OnsetTrigger:
         self.alpha = 1.0 / float(tau_frames)
         self.settle_frames = int(settle_frames)
         self.settle_change = float(settle_change)
+        self._noisy_change = NOISY_SETTLE[0] * self.settle_change
+        self._noisy_frames = NOISY_SETTLE[1] * self.settle_frames
         self.refractory_frames = int(refractory_frames)
         self.window = int(window)
         self.pre_frames = int(pre_frames)
@@ -205,10 +207,9 @@ class OnsetTrigger:
         np.abs(self._dev, out=self._dev)
         self.level = float((self._dev / self._scale).max())
         self.quiet = self.quiet + 1 if self.level < self.settle_change else 0
-        change, time = NOISY_SETTLE
-        self.held = self.held + 1 if self.level < change * self.settle_change else 0
+        self.held = self.held + 1 if self.level < self._noisy_change else 0
         self._prev[:] = p
-        settled = self.quiet >= self.settle_frames or self.held >= time * self.settle_frames
+        settled = self.quiet >= self.settle_frames or self.held >= self._noisy_frames
         if settled and number - self.last_trigger >= self.refractory_frames:
             self._arm(row, p)
 

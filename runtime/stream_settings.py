@@ -11,6 +11,7 @@ first setting is the one the daemon runs it in by default (``[scene] mode = "tri
 from __future__ import annotations
 
 from firmware_io.recordings.idle_stretches import RECORD_IDLE_COMMAND
+from runtime.event_rate import rate_text
 
 __all__ = ["SETTINGS", "cost_lines", "describe", "served_setting", "served_settings"]
 
@@ -42,7 +43,6 @@ def cost_lines(meta, settings: list[str] | None = None) -> list[str]:
     """One line per setting (default: every one the model serves) whose false events per hour on real idle
     signals are unmeasured, above ``MAX_REAL_FALSE_PER_HOUR``, or measured on too few hours to show it is
     below (fewer than one event at the bar), with what to do; none for one below."""
-    from runtime.event_rate import rate_text
     from runtime.model_meta import real_false_events
 
     measured = real_false_events(meta)

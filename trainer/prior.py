@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -284,8 +284,6 @@ class PriorUse:
 
     def counts(self, lab):
         """``lab`` (the lab's ``runtime.training_counts.TrainingCounts``) with the simulated windows beside it."""
-        from dataclasses import replace
-
         windows, dormant = self.simulated(lab.windows or 0)
         return replace(lab, prior=windows, prior_dormant=sum(dormant.values()))
 
