@@ -5,8 +5,9 @@ This trigger measures each pad's summed pressure against a baseline that follows
 
 - ``open``: the scene reads (almost) nothing;
 - ``settling``: contact, but still moving; arms once every pad changed by less than ``settle_change``
-  for ``settle_frames`` frames in a row, or by less than twice that for three times as long
-  (``NOISY_SETTLE``; and ``refractory_frames`` after the last trigger);
+  for ``settle_frames`` frames in a row, or by less than twice that for three times as long and by
+  less than that in all over that time (``NOISY_SETTLE``; and ``refractory_frames`` after the last
+  trigger);
 - ``armed``: Holt's linear tracker (level + trend per pad, ``tau_frames``) follows creep and drift (real
   pads creep far more than the simulator's); fires when a pad departs from the prediction by ``change``
   of its level (at least ``change x floor``), read as a change of force where the grasp compresses the
@@ -31,7 +32,9 @@ TREND_GAIN = 0.25
 NOISY_SETTLE = (2, 3)
 """A held grasp on a noisy hand moves by about ``settle_change`` from frame to frame on sensor noise alone
 (simulated lab B), so it may never pass the strict test; a grasp that changed by less than the first
-times ``settle_change`` for the second times ``settle_frames`` has settled too (a closing hand moves more).
+times ``settle_change`` for the second times ``settle_frames`` has settled too (a closing hand moves more),
+if over that span it moved by less than the same bound in all: noise swings back and forth, a hand
+squeezing steadily does not (at 2-4 % per frame it would arm mid-squeeze and fire on its own grasp).
 Chosen by the rule in docs/TRIGGER_DEFAULTS.md."""
 RELEASE_RISE = 1.0
 """A departure whose largest rise is below this share of ``change`` counts as a release: the hand
@@ -128,9 +131,11 @@ class OnsetTrigger:
         self.pre_frames = int(pre_frames)
         self._p = np.zeros(n, dtype=np.float64)
         self._prev = np.zeros(n, dtype=np.float64)
+        self._held_from = np.zeros(n, dtype=np.float64)
+        """The pads' pressure where the current ``held`` span began (its net change must stay small)."""
         self._base = np.zeros(n, dtype=np.float64)
         self._trend = np.zeros(n, dtype=np.float64)
-        """Per-frame change of the settled grasp (creep), started while settling, tracked while armed."""
+        """Per-frame change of the settled grasp (creep): zero when the trigger arms, tracked while armed."""
         self._dev = np.zeros(n, dtype=np.float64)
         self._error = np.zeros(n, dtype=np.float64)
         self._scale = np.zeros(n, dtype=np.float64)
@@ -207,11 +212,26 @@ class OnsetTrigger:
         np.abs(self._dev, out=self._dev)
         self.level = float((self._dev / self._scale).max())
         self.quiet = self.quiet + 1 if self.level < self.settle_change else 0
-        self.held = self.held + 1 if self.level < self._noisy_change else 0
+        if self.level >= self._noisy_change:
+            self.held = 0
+        elif self.held == 0:
+            self._held_from[:] = self._prev
+            self.held = 1
+        else:
+            self.held += 1
         self._prev[:] = p
-        settled = self.quiet >= self.settle_frames or self.held >= self._noisy_frames
+        settled = self.quiet >= self.settle_frames or (self.held >= self._noisy_frames and self._held_still(p))
         if settled and number - self.last_trigger >= self.refractory_frames:
             self._arm(row, p)
+
+    def _held_still(self, p: np.ndarray) -> bool:
+        """Whether the grasp moved by less than the noisy bound over the whole ``held`` span; if not,
+        the span starts again here (a steady squeeze never passes)."""
+        net = np.abs(p - self._held_from) / np.maximum(self._held_from, self.floor)
+        if float(net.max()) < self._noisy_change:
+            return True
+        self.held = 0
+        return False
 
     def _arm(self, row: np.ndarray, p: np.ndarray) -> None:
         """Watch the settled grasp ``p`` from here; count the fingers it touches (``MIN_GRASP_FINGERS``)."""

@@ -110,6 +110,16 @@ def test_a_held_grasp_jittering_on_noise_settles_but_one_moving_more_does_not(ji
     assert not armed or states.index(ARMED) == 20 + 3 * settle_frames  # three times the strict test's time
 
 
+@pytest.mark.parametrize("rate", [0.025, 0.03, 0.039])
+def test_a_hand_squeezing_steadily_under_the_noisy_bound_does_not_fire_on_its_own_grasp(rate):
+    t = np.arange(300)
+    levels = 600.0 * (1.0 + rate) ** np.clip(t - 20, 0, 60)[:, None] * np.ones((1, 3))  # 60 frames of squeeze, then held
+    levels[:20] = 0.0  # every pad moves under 2 x settle_change per frame, but always the same way: not noise
+    trig = _trigger()
+    states = [(trig.update(row, i), trig.state)[1] for i, row in enumerate(rows_of(levels))]
+    assert ARMED in states and states.index(ARMED) > 80  # armed on the held grasp, not mid-squeeze (nothing fired)
+
+
 def test_robot_grasp_closed_arms_at_once_and_open_disarms():
     levels = grasp_levels(200, close=20)
     levels[40:, 2] *= 1.0 + 0.3 * np.clip((np.arange(160)) / 5.0, 0, 1)[:, None].ravel()  # acts as the close ends
