@@ -6,7 +6,7 @@ This trigger measures each pad's summed pressure against a baseline that follows
 - ``open``: the scene reads (almost) nothing;
 - ``settling``: contact, but still moving; arms once every pad changed by less than ``settle_change``
   for ``settle_frames`` frames in a row, or by less than twice that for three times as long and by
-  less than that in all over that time (``NOISY_SETTLE``; and ``refractory_frames`` after the last
+  less than that per frame on average (``NOISY_SETTLE``; and ``refractory_frames`` after the last
   trigger);
 - ``armed``: Holt's linear tracker (level + trend per pad, ``tau_frames``) follows creep and drift (real
   pads creep far more than the simulator's); fires when a pad departs from the prediction by ``change``
@@ -33,8 +33,8 @@ NOISY_SETTLE = (2, 3)
 """A held grasp on a noisy hand moves by about ``settle_change`` from frame to frame on sensor noise alone
 (simulated lab B), so it may never pass the strict test; a grasp that changed by less than the first
 times ``settle_change`` for the second times ``settle_frames`` has settled too (a closing hand moves more),
-if over that span it moved by less than the same bound in all: noise swings back and forth, a hand
-squeezing steadily does not (at 2-4 % per frame it would arm mid-squeeze and fire on its own grasp).
+if over that span its net change stayed under ``settle_change`` per frame: noise swings back and forth, a
+hand squeezing steadily does not (at 2-4 % per frame it armed mid-squeeze and fired on its own grasp).
 Chosen by the rule in docs/TRIGGER_DEFAULTS.md."""
 RELEASE_RISE = 1.0
 """A departure whose largest rise is below this share of ``change`` counts as a release: the hand
@@ -225,10 +225,10 @@ class OnsetTrigger:
             self._arm(row, p)
 
     def _held_still(self, p: np.ndarray) -> bool:
-        """Whether the grasp moved by less than the noisy bound over the whole ``held`` span; if not,
-        the span starts again here (a steady squeeze never passes)."""
+        """Whether the grasp's net change over the ``held`` span is under ``settle_change`` per frame; if
+        not, the span starts again here (a steady squeeze never passes)."""
         net = np.abs(p - self._held_from) / np.maximum(self._held_from, self.floor)
-        if float(net.max()) < self._noisy_change:
+        if float(net.max()) < self.settle_change * self.held:
             return True
         self.held = 0
         return False
