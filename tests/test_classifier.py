@@ -185,6 +185,23 @@ def test_ties_and_unconverged_candidates_in_the_choice():
     assert best([0, 1 / 3, 0, 0], [0.9, 0.5, 0.9, 0.9])[0] == {"C": 1e4}
 
 
+def test_candidates_capped_in_the_search_are_noted_but_not_warned_when_the_chosen_fit_converged():
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+
+    from trainer.flat import FlatSVC
+
+    X, y = _not_separable(30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConvergenceWarning)
+        model = FlatSVC(kernel="linear")
+        model.c_grid = (1e6, 1.0)  # the search's grid (SVMHead reads it where an estimator has one)
+        model.fit(X.reshape(-1, 1, 2), y)
+    assert model.best_params_ == {"C": 1.0} and len(model.svm_notes_) == 1
+    assert model.svm_notes_[0].startswith("SVM search: 1 of 2 candidates stopped at")
+
+
 def test_a_capped_final_fit_is_noted_and_warned():
     from sklearn.exceptions import ConvergenceWarning
 

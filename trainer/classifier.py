@@ -189,13 +189,14 @@ class SVMHead:
 
     def _fit_svm(self, features: np.ndarray, y: np.ndarray) -> None:
         """Choose C/gamma and fit the SVC: ``best_params_``, ``svm_``, and ``svm_notes_``: a line for each fit
-        that stopped at MAX_ITER (none when all converged), also raised as a ConvergenceWarning."""
+        that stopped at MAX_ITER (none when all converged), for the report. Only a capped final fit is raised
+        as a ConvergenceWarning: candidates the search ranked last for it leave the model as good as ever."""
         self.best_params_, search_note = choose_svm_params(features, y, self.kernel, self.C, self.gamma,
                                                            getattr(self, "c_grid", None))
         self.svm_, fit_note = fit_svc(features, y, self.kernel, self.best_params_)
         self.svm_notes_ = [note for note in (search_note, fit_note) if note]
-        for note in self.svm_notes_:
-            warnings.warn(note, ConvergenceWarning, stacklevel=3)
+        if fit_note:
+            warnings.warn(fit_note, ConvergenceWarning, stacklevel=3)
 
     def decision_function(self, X) -> np.ndarray:
         """sklearn-style one-vs-rest scores of the SVC (ovo votes + bounded confidences)."""

@@ -178,17 +178,21 @@ def _data_notes(options: TrainOptions, recordings: list, names: list[str], idle,
 
 
 def _fit_final(estimator, ds):
-    """The exported model on all cases. A fit that stopped at the SVM's iteration cap (trainer.classifier.MAX_ITER)
-    says so in one line, seen even with --quiet (report.md repeats it), instead of a Python warning."""
+    """The exported model on all cases. A final fit that stopped at the SVM's iteration cap
+    (trainer.classifier.MAX_ITER) says so in one line, seen even with --quiet, instead of a Python warning;
+    report.md lists every capped fit, the search's candidates too."""
     import warnings
 
     from sklearn.exceptions import ConvergenceWarning
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConvergenceWarning)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
         model = estimator.fit(ds.X, ds.y)
-    for line in getattr(model, "svm_notes_", []):
-        PROGRESS.warning(f"handover train: {line}")
+    for w in caught:
+        if issubclass(w.category, ConvergenceWarning):
+            PROGRESS.warning(f"handover train: {w.message}")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return model
 
 
