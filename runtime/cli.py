@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
+from firmware_io.commands.options import settle_out_folders
 from firmware_io.errors import HandoverError
 
 __all__ = ["COMMANDS", "HelpFormatter", "OneLineParser", "build_parser", "main", "shows_default"]
@@ -169,10 +170,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"handover {name}: needs the extra [{extra}] (missing: {', '.join(missing)}); {install_hint(extra)}",
               file=sys.stderr)
         return 2
+    code = 1
     try:
         module = importlib.import_module(module_name)
         args = build_parser(name, module).parse_args(rest)
-        return int(module.main(args) or 0)
+        code = int(module.main(args) or 0)
+        return code
     except ModuleNotFoundError as exc:  # a package imported only when the command needs it
         if (exc.name or "").split(".")[0] in OWN_PACKAGES:
             raise  # a broken checkout, not a missing extra
@@ -186,7 +189,10 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:  # `handover dump sim:// | head`: the reader has seen enough
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        code = 0
         return 0
+    finally:
+        settle_out_folders(failed=code != 0)
 
 
 if __name__ == "__main__":

@@ -309,8 +309,13 @@ def _read(path: Path, max_bytes: int) -> tuple[bytes, Any]:
         if size > max_bytes:
             raise ModelContractError(f"{where}: {size} bytes exceeds the limit of {max_bytes}")
         data = path.read_bytes()
+    except IsADirectoryError:
+        inside = sorted(p.name for p in path.glob("*.onnx"))[:3]
+        raise ModelContractError(f"{where}: a folder, not a model file; give the .onnx file"
+                                 + (f" in it ({', '.join(inside)})" if inside else "")) from None
     except OSError as exc:
-        raise ModelContractError(f"{where}: cannot read ({exc.strerror or exc})") from exc
+        raise ModelContractError(f"{where}: cannot read ({exc.strerror or exc}); check the path and that this user "
+                                 "may read the file") from exc
     if len(data) > max_bytes:
         raise ModelContractError(f"{where}: {len(data)} bytes exceeds the limit of {max_bytes}")
     if not data:

@@ -113,3 +113,33 @@ def test_a_trigger_level_outside_0_1_is_refused_as_it_is_read(argv, level, capsy
     err = capsys.readouterr().err
     assert stop.value.code == 2 and err.count("\n") == 1
     assert f"argument --fraction: must be a fraction of full scale in (0, 1), e.g. 0.15, got '{level}'" in err
+
+
+def test_a_failed_command_takes_back_the_empty_out_folder_it_made_and_keeps_others(tmp_path, capsys):
+    from runtime.cli import main
+
+    data = tmp_path / "data"
+    data.mkdir()
+    (tmp_path / "kept").mkdir()
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "new" / "report")]) == 2
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "kept")]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "kept"]
+    assert "no .hrec recordings" in capsys.readouterr().err
+
+
+def test_wrong_paths_say_what_to_give_instead(tmp_path, capsys):
+    from runtime.cli import main
+
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "model.onnx").write_bytes(b"")
+    (tmp_path / "bad.hrec").write_bytes(b"junk")
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "bad.hrec").write_bytes(b"junk")
+    assert main(["inspect", str(tmp_path / "m")]) == 2
+    assert main(["train", "--data", str(tmp_path / "bad.hrec"), "--out", str(tmp_path / "r")]) == 2
+    assert main(["train", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "r")]) == 2
+    said = capsys.readouterr().err.splitlines()
+    assert said[0].endswith("a folder, not a model file; give the .onnx file in it (model.onnx)"), said
+    assert said[1].endswith(f"a file, not a folder; give the folder that holds the recordings ({tmp_path})"), said
+    assert said[2].endswith(f"move it out of {tmp_path / 'd'} (or record it again) and train again"), said
+    assert not (tmp_path / "r").exists()

@@ -74,7 +74,7 @@ def load_or_simulate(data: Sequence[str] | None, seed: int, say: Callable[[str],
 def _read_folder(folder: str) -> tuple[list, list[str]]:
     """A capture folder's confirmed events and idle (its lines seen even with --quiet), else every
     recording of the folder."""
-    from firmware_io.recordings.recording import find_recordings, load_all
+    from firmware_io.recordings.recording import RecordingError, find_recordings, load_all
     from trainer.field_folder import field_recordings, is_capture_folder
 
     if is_capture_folder(folder):
@@ -83,7 +83,10 @@ def _read_folder(folder: str) -> tuple[list, list[str]]:
     if not paths:
         raise FileNotFoundError(f"{folder}: no .hrec recordings in this folder; record some with `handover record` "
                                 f"(README step 2) or import them with `handover import`")
-    return load_all(paths), [p.name for p in paths]
+    try:
+        return load_all(paths), [p.name for p in paths]
+    except RecordingError as exc:
+        raise RecordingError(f"{exc}; move it out of {folder} (or record it again) and train again") from None
 
 
 def looks_simulated(meta: dict) -> bool:

@@ -7,6 +7,7 @@ here, and a range check is a ``type=`` so a wrong value is argparse's one line b
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import sys
@@ -18,7 +19,7 @@ from firmware_io.errors import HandoverError
 from firmware_io.trigger_level import PAPER_FRACTION, is_trigger_level
 
 __all__ = ["PROGRESS", "add_json", "add_out", "add_quiet", "add_seed", "int_in", "out_folder", "positive_float",
-           "positive_int", "progress_to", "trigger_level"]
+           "positive_int", "progress_to", "settle_out_folders", "trigger_level"]
 
 PROGRESS = logging.getLogger("handover.progress")
 """The one progress path of every command: plain lines on stderr (the daemon's log keeps its own format)."""
@@ -119,6 +120,20 @@ def trigger_level(text: str) -> float:
     return value
 
 
+_MADE: list[Path] = []
+"""Folders ``out_folder`` created in this process, the deepest first (``settle_out_folders``)."""
+
+
+def settle_out_folders(failed: bool) -> None:
+    """At a command's end: if it ``failed``, remove the folders ``out_folder`` created that are still empty
+    (no empty ``--out`` left behind; one with files in it stays); either way forget them."""
+    while _MADE:
+        made = _MADE.pop(0)
+        if failed:
+            with contextlib.suppress(OSError):
+                made.rmdir()
+
+
 def out_folder(folder: str | Path, option: str = "--out") -> Path:
     """Create ``folder`` (and its parents) and check it takes files, before any work; HandoverError if not."""
     if not str(folder).strip():  # Path("") is the current folder: an empty option is a slip, not a choice
@@ -128,8 +143,10 @@ def out_folder(folder: str | Path, option: str = "--out") -> Path:
     if blocker is not None and not blocker.is_dir():  # the folder itself or one it would be made in
         raise HandoverError(f"{option} {path}: {blocker} is a file, not a folder; choose a folder (it is created if "
                             "missing)")
+    missing = [p for p in (path, *path.parents) if not p.exists()]  # the deepest first
     try:
         path.mkdir(parents=True, exist_ok=True)
+        _MADE.extend(missing)
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
             pass
     except OSError as exc:

@@ -347,6 +347,9 @@ def remove_stale_temps(path: str | os.PathLike) -> None:
 def find_recordings(folder: str | os.PathLike) -> list[Path]:
     """All recording files in a folder (sorted); a missing folder raises RecordingError."""
     folder = Path(folder)
+    if folder.is_file():
+        raise RecordingError(f"{folder}: a file, not a folder; give the folder that holds the recordings "
+                             f"({folder.parent})")
     if not folder.is_dir():
         raise RecordingError(f"{folder}: no such folder")
     return sorted(p for p in folder.iterdir() if p.suffix == SUFFIX and not p.name.startswith("."))
