@@ -133,8 +133,8 @@ def train(options: TrainOptions) -> TrainResult:
     if not options.no_sweep and "bow" in options.families:
         sweep = _sweeps(options, recordings, out, say)
     elif not options.no_sweep:  # K and W are the BoW family's; its sweep says nothing about this model
-        say(f"no K/W/T sweep: it sweeps the BoW family, and this model is {'+'.join(options.families)} "
-            "(`handover sweep` runs it on its own)")
+        say(f"no codebook sweep: it measures the paper's Bag-of-Words features, and this model uses "
+            f"{'+'.join(options.families)} (`handover sweep` runs it on its own)")
     say(f"t-SNE of the {report.features_label(getattr(model, 'families', ('bow',)))} ...")
     embedding = tsne_embedding(model.transform_histograms(ds.X), seed=options.seed)
     replay = None

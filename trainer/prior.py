@@ -246,7 +246,7 @@ def choice_lines(choice: dict | None) -> list[str]:
     def pct(v: float | None) -> str:
         return "-" if v is None else f"{v:.1%}"
 
-    lines = [f"the product's prior ({choice['recipe']}; cases {', '.join(f'{k} {v}' for k, v in choice['prior_cases'].items())}):"]
+    lines = [f"the product's prior ({choice['recipe']}; {prior_cases_text(choice['prior_cases'])}):"]
     for r in choice["candidates"]:
         name = "lab's data alone" if r["weight"] == 0 else f"prior x{r['weight']:g} + lab"
         lines.append(f"  {name:<20} leave one lab subject out {pct(r['accuracy'])} (actions {pct(r['actions'])}, "
@@ -288,6 +288,15 @@ class PriorUse:
         return replace(lab, prior=windows, prior_dormant=sum(dormant.values()))
 
 
+def prior_cases_text(counts: dict[str, int]) -> str:
+    """``538 protocol windows, 55 idle (arm_move 54, quiet 1)`` from ``Prior.counts()``."""
+    from trainer.recorded_idle import idle_kinds_text
+
+    idle = {k: v for k, v in counts.items() if k.startswith("idle:")}
+    rest = ", ".join(f"{v} {k} windows" for k, v in counts.items() if k not in idle)
+    return rest + (f", {sum(idle.values())} idle ({idle_kinds_text(idle)})" if idle else "")
+
+
 def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | None = None) -> PriorUse:
     """The prior for the lab's data set ``ds``: built, its weight chosen (``choose_weight``), the evidence added;
     the lab's data alone (and why, in ``report["off"]``) when the sensor is not the simulated SDH-2's."""
@@ -323,7 +332,7 @@ def markdown_lines(report: dict, synthetic: bool) -> list[str]:
     else:
         cases = (f"the lab's {report['lab_cases']} cases, {report['evidence_windows']} dormant windows of a simulated "
                  f"idle stream dealt to the lab's subjects' folds (the early rule's evidence), and the prior "
-                 f"({report['recipe']}: {', '.join(f'{k} {v}' for k, v in report['prior_cases'].items())}), "
+                 f"({report['recipe']}: {prior_cases_text(report['prior_cases'])}), "
                  f"{report['weight']:g} prior cases per lab case")
     lines += [f"Training cases: {cases} (trainer/prior.py). Chosen as {report['rule']}{tag}:", "",
               "| training | leave one lab subject out | actions | dormant | per subject |", "|---|---:|---:|---:|---|"]
