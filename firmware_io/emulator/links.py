@@ -342,14 +342,6 @@ class EmulatedCp2110:
             self._pending.clear()
         return len(report)
 
-    def get_feature_report(self, report_id: int, max_length: int) -> list[int]:
-        self._check()
-        if report_id == 0x41:
-            return [0x41, int(self.uart_enabled)]
-        if report_id == 0x50 and self.uart_config:
-            return list(struct.pack(">BIBBBB", 0x50, *self.uart_config))
-        return [report_id]
-
     def write(self, data) -> int:
         self._check()
         report = bytes(data)
