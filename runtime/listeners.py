@@ -37,18 +37,6 @@ class DecisionTimings:
     serialised: float | None = None
     sent: float | None = None
 
-    def stages_us(self) -> dict[str, float]:
-        """Microseconds per stage (only the stages this decision went through)."""
-        marks = [("to_inference", self.started), ("window", self.windowed), ("inference", self.decided), ("output_check", self.checked),
-                 ("event_build", self.built), ("serialise", self.serialised), ("sink_send", self.sent)]
-        out, last = {}, self.received
-        for name, t in marks:
-            if t is None:
-                break
-            out[name] = (t - last) * 1e6
-            last = t
-        return out
-
 
 class FrameListener:
     """Base listener: override what you need (both do nothing here)."""
