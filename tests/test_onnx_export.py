@@ -5,7 +5,6 @@ from __future__ import annotations
 import joblib
 import numpy as np
 import onnx
-import onnxruntime as ort
 import pytest
 
 from runtime.cli import main as handover
@@ -100,19 +99,6 @@ def test_metadata_contradicting_the_model_is_refused(rbf_model, tmp_path):
         export_onnx(rbf_model, tmp_path / "m.onnx", {"T": 99, "pads": [1, 3], "pad_sizes": [6, 10],
                                                      "training": {"data_fingerprint": "x", "n_trials": 1}})
     assert not (tmp_path / "m.onnx").exists()
-
-
-def test_skl2onnx_converts_bag_of_words(rbf_model):
-    from skl2onnx import to_onnx
-
-    from trainer.onnx_export import register_skl2onnx
-
-    register_skl2onnx()
-    X, _ = synthetic_cases(n=20, seed=5)
-    proto = to_onnx(rbf_model.bow_, X[:1].astype(np.float32), target_opset=OPSET)
-    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
-    (hist,) = session.run(None, {session.get_inputs()[0].name: X.astype(np.float32)})
-    np.testing.assert_allclose(hist, rbf_model.bow_.transform(X), atol=1e-6)
 
 
 def test_export_cli(rbf_model, tmp_path, capsys):

@@ -12,9 +12,9 @@ Graph (standard ``ai.onnx`` domain only, opset 17, IR 8), the float64 reference 
    and level features join through one Concat into ``histogram``;
 5. the SVM (``trainer.svm_head``), the scaler folded in; ``label`` = first class with the most votes.
 
-This replaces skl2onnx's ``SVMClassifier`` and its long node chain; ``register_skl2onnx`` lets a
-``BagOfWords`` in a scikit-learn pipeline convert. The derivative is explicit by default: folded, the
-dot products run on raw values up to 4095 and float32 error grows with them (``trainer.numerics``).
+This replaces skl2onnx's ``SVMClassifier`` and its long node chain. The derivative is explicit by
+default: folded, the dot products run on raw values up to 4095 and float32 error grows with them
+(``trainer.numerics``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from runtime.model import CODEWORD_KERNEL
 __all__ = [
     "FEATURE_COLUMNS", "FEATURE_SCALES", "HISTOGRAM", "IR_VERSION", "OPSET", "build_graph", "export_onnx",
     "feature_columns", "feature_scales", "features_nodes", "folded_codebook", "model_metadata", "model_shape",
-    "register_skl2onnx", "svm_pair_coefficients", "vote_matrices"
+    "svm_pair_coefficients", "vote_matrices"
 ]
 
 OPSET = 17
@@ -400,29 +400,3 @@ def export_onnx(model, path: str | Path, metadata: dict, fold_derivative: bool =
         raise
     return path
 
-
-# -- skl2onnx registration ----------------------------------------------------------------------
-def register_skl2onnx() -> None:
-    """Let skl2onnx convert a fitted BagOfWords (input float32 ``[N, C, T]``, the aeon layout it is
-    fitted on) to its float32 histogram, with the same nodes as the exported graph."""
-    from skl2onnx import update_registered_converter
-    from skl2onnx.common.data_types import FloatTensorType
-
-    from trainer.bow import BagOfWords
-
-    def shape_calculator(operator):
-        n = operator.inputs[0].get_first_dimension()
-        operator.outputs[0].type = FloatTensorType([n, operator.raw_operator.n_features_out_])
-
-    def converter(scope, operator, container):
-        bow = operator.raw_operator
-        g = _Graph(prefix=scope.get_unique_variable_name("bow") + "_")
-        frames = g.op("Transpose", [operator.inputs[0].full_name], "frames", perm=[0, 2, 1])  # [N, C, T] -> [N, T, C]
-        hist = features_nodes(g, frames, bow)
-        g.op("Identity", [hist], outputs=[operator.outputs[0].full_name])
-        for init in g.initializers:
-            container.initializers.append(init)
-        for node in g.nodes:
-            container.nodes.append(node)
-
-    update_registered_converter(BagOfWords, "HandoverBagOfWords", shape_calculator, converter)
