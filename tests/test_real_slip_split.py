@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from trainer.real_tasks import first_part_split, temporal_blocks
+from trainer.real_tasks import temporal_blocks
 
 
 def _toy():
@@ -18,12 +18,6 @@ def test_blocks_follow_time_order_and_keep_chunks_whole():
     assert blocks.tolist() == [0, 0, 0, 1, 1, 2, 2, 0, 0, 0, 0, 1]  # class b has 2 chunks: no third block
     for c in set(chunks):
         assert len(set(blocks[chunks == c])) == 1
-
-
-def test_former_split_is_the_first_part_of_each_class():
-    y, chunks = _toy()
-    train, test = first_part_split(y, chunks)
-    assert sorted(set(chunks[train])) == ["a#0", "a#1", "b#0"] and sorted(set(chunks[test])) == ["a#2", "b#1"]
 
 
 @pytest.mark.realdata

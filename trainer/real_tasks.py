@@ -18,7 +18,7 @@ import numpy as np
 
 __all__ = [
     "CHUNK_FRAMES", "CONTACT_FRACTION", "FULLSCALE", "STRIDE", "RealTask", "T",
-    "cut_windows", "first_part_split", "grouped_task", "real_tasks", "temporal_blocks"
+    "cut_windows", "grouped_task", "real_tasks", "temporal_blocks"
 ]
 
 T = 15
@@ -151,8 +151,8 @@ SLIP_FOLDS = 3
 SLIP_SPLIT = (f"temporal blocks: each file's contact chunks in time order cut into {SLIP_FOLDS} consecutive blocks; "
               f"fold i tests block i of every file and trains on the rest (every chunk is tested once)")
 """real_slip's split. Until 2026-11-24 it was one split (first 60 % of each file's chunks train, the rest
-test: ``first_part_split``), decided by one test chunk (results/slip_diagnosis.md); blocked folds keep
-time order inside each block and test every chunk once, so the figure has a spread. Thin all the same:
+test), decided by one test chunk (results/slip_diagnosis.md); blocked folds keep time order inside each
+block and test every chunk once, so the figure has a spread. Thin all the same:
 slip_down has two chunks, so the third block tests none of it, and the task rests on eight chunks."""
 
 
@@ -170,13 +170,6 @@ def temporal_blocks(y: np.ndarray, chunks: np.ndarray, n_blocks: int) -> np.ndar
             for k in part:
                 out[chunks == order[k]] = b
     return out
-
-
-def first_part_split(y: np.ndarray, chunks: np.ndarray, share: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
-    """real_slip's former split: the first ``share`` of each class's chunks train, the rest test."""
-    first = {c for order in class_chunks(y, chunks).values() for c in order[: max(1, round(share * len(order)))]}
-    in_first = np.isin(chunks, list(first))
-    return np.flatnonzero(in_first), np.flatnonzero(~in_first)
 
 
 LONG_FRAMES, LONG_STRIDE, LONG_FOLDS = 30, 15, 5
