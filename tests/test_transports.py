@@ -24,7 +24,6 @@ from firmware_io.transports import (
     Transport,
     TransportError,
     open_transport,
-    register_transport,
     validate_url,
 )
 from firmware_io.transports.emulated import EmulatedTransport
@@ -101,19 +100,6 @@ def test_missing_libusb_backend_is_explained():
         pytest.skip("libusb is installed here; the message is for machines without it")
     with pytest.raises(MissingDependency, match=r"libusb-1\.0"):
         open_transport("usb://0403:6001")
-
-
-def test_register_transport_adds_a_scheme(rec):
-    from firmware_io.transports.emulated import EmulatedTransport
-
-    class Loopback(EmulatedTransport):
-        @classmethod
-        def from_url(cls, parsed, **opts):
-            return cls(DeviceEmulator(rec, speed=None), parsed.url)
-
-    register_transport("loop-test", Loopback)
-    with open_transport("loop-test://") as t:
-        assert isinstance(t, Loopback)
 
 
 def test_subject_scheme_goes_through_the_registry():

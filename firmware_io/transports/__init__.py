@@ -12,7 +12,7 @@
 =====================================  =============================================================
 
 Each scheme maps to ``"module:Class"``; the module is imported only when the scheme is used,
-so pyusb and hidapi are needed only by those who use them. ``register_transport`` adds one.
+so pyusb and hidapi are needed only by those who use them.
 Every scheme goes through this one table, and each transport class checks its own URL
 (``Transport.url_settings``): opening and validating cannot disagree.
 """
@@ -43,11 +43,10 @@ __all__ = [
     "TransportError",
     "device_key",
     "open_transport",
-    "register_transport",
     "validate_url",
 ]
 
-TRANSPORTS: dict[str, str | type] = {
+TRANSPORTS: dict[str, str] = {
     "serial": "firmware_io.transports.serial_port:SerialTransport",
     "tcp": "firmware_io.transports.tcp:TcpTransport",
     "usb": "firmware_io.transports.usb:UsbTransport",
@@ -58,11 +57,6 @@ TRANSPORTS: dict[str, str | type] = {
 }
 
 _WINDOWS_PORT = re.compile(r"^COM\d+$", re.IGNORECASE)
-
-
-def register_transport(scheme: str, target: str | type) -> None:
-    """Add or replace a scheme: ``target`` is a Transport class or ``"module:Class"``."""
-    TRANSPORTS[scheme.lower()] = target
 
 
 def _normalise(url: str) -> str:
@@ -79,8 +73,6 @@ def _load(scheme: str, url: str) -> type:
         known = ", ".join(f"{s}://" for s in TRANSPORTS)
         where = f"unknown scheme {scheme + '://'!r}" if scheme else "no scheme"
         raise TransportError(f"{url}: {where}; use one of {known} or a /dev path")
-    if not isinstance(target, str):
-        return target
     module_name, _, class_name = target.partition(":")
     module = importlib.import_module(module_name)
     return getattr(module, class_name)
@@ -102,13 +94,10 @@ def validate_url(url: str) -> ParsedURL:
 
     Raises the TransportError (MissingDependency for a missing package) that ``open_transport``
     would raise for the same mistake, so a bad URL is a config error, not an endless retry.
-    Each transport class checks its own URL (``check_url``); a class registered with
-    ``register_transport`` that has no ``check_url`` gets only its scheme checked.
+    Each transport class checks its own URL (``check_url``).
     """
     parsed = _parse(url)
-    check = getattr(_load(parsed.scheme, parsed.url), "check_url", None)
-    if callable(check):
-        check(parsed)
+    _load(parsed.scheme, parsed.url).check_url(parsed)
     return parsed
 
 
