@@ -41,7 +41,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
 }
 
 EXTRA_PACKAGES: dict[str, tuple[str, ...]] = {
-    "train": ("sklearn", "skl2onnx", "onnx", "matplotlib", "tqdm", "joblib"),
+    "train": ("sklearn", "onnx", "matplotlib", "tqdm", "joblib"),
     "usb": ("usb", "hid"),
     "bench": ("aeon",),
 }

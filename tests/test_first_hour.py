@@ -209,7 +209,7 @@ def test_dev_handover_is_the_command_so_signals_reach_it(tmp_path):
 
 BLOCK_EXTRAS = """
 import sys
-for name in ("sklearn", "skl2onnx", "onnx", "matplotlib", "tqdm", "joblib", "rosbags", "aeon"):
+for name in ("sklearn", "onnx", "matplotlib", "tqdm", "joblib", "rosbags", "aeon"):
     sys.modules[name] = None  # as absent as in `pip install tactile-handover` without extras
 from runtime.cli import main
 sys.exit(main(sys.argv[1:]))

@@ -16,7 +16,7 @@ from pathlib import Path
 from tests.tiny_models import tiny_model_bytes, write_model
 
 ROOT = Path(__file__).resolve().parents[1]
-HEAVY = ("sklearn", "scipy", "matplotlib", "onnx", "skl2onnx", "trainer", "tqdm", "joblib", "rosbags",
+HEAVY = ("sklearn", "scipy", "matplotlib", "onnx", "trainer", "tqdm", "joblib", "rosbags",
          "rclpy", "std_msgs", "sensor_msgs", "diagnostic_msgs", "runtime.ros2", "runtime.ros2_node")
 
 _DRIVER = """

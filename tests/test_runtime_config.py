@@ -154,7 +154,7 @@ def test_check_never_imports_training_packages(tmp_path):
     cfg.write_text(f'[device]\nurl = "sim://"\n[model]\nfolder = "{models}"\n')
     code = (
         "import sys; from runtime.cli import main; rc = main(['run', '--config', sys.argv[1], '--check']);"
-        "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('sklearn', 'matplotlib', 'onnx', 'skl2onnx'));"
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('sklearn', 'matplotlib', 'onnx'));"
         "print('HEAVY', bad); sys.exit(rc)"
     )
     proc = subprocess.run([sys.executable, "-c", code, str(cfg)], cwd=ROOT, capture_output=True, text=True, timeout=60)
