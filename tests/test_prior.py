@@ -182,7 +182,7 @@ def test_console_says_the_early_rule_and_where_it_reported():
     ev = {"rule": {"threshold": 0.95, "classes": ["pull", "push"]}, "full_accuracy": 0.98,
           "operating_point": {"reported_at": {"4": 50, "15": 20}, "accuracy": 0.97}}
     line = console_line(ev)
-    assert "0.95 (pull, push early, the others wait for T)" in line and "4: 50, 15: 20" in line
+    assert "0.95 (pull, push early, the others wait for T)" in line and "answered 50 at frame 4, 20 at the full window (15)" in line
     assert console_line(None) is None and "not fitted (why)" in console_line({"skipped": "why"})
 
 

@@ -560,6 +560,8 @@ def test_the_session_line_names_the_flagged_trials_and_how_to_look_at_one():
 
     assert _flagged_text([], "s1.hrec") == ""
     said = _flagged_text([6, 9], "data/s1.hrec")
-    assert said == (", 2 flagged (trial 7, 10): training gets no case from them; look at one with "
+    assert said == (", 2 flagged (trials 7, 10): training gets no case from them; look at one with "
                     "`handover plot data/s1.hrec --trial 7`")
-    assert "(trial 1, 2, 3, 4, 5 ...)" in _flagged_text(list(range(8)), "x.hrec")
+    assert "(trials 1, 2, 3, 4, 5 ...)" in _flagged_text(list(range(8)), "x.hrec")
+    assert _flagged_text([6], "s1.hrec") == (", 1 flagged (trial 7): training gets no case from it; look at it with "
+                                             "`handover plot s1.hrec --trial 7`")

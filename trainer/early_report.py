@@ -47,9 +47,12 @@ def console_line(ev: dict | None) -> str | None:
     if not ev or ev.get("skipped"):
         return None if not ev else f"early decisions: not fitted ({ev['skipped']})"
     rule, op = ev["rule"], ev["operating_point"]
-    at = ", ".join(f"{p}: {n}" for p, n in op["reported_at"].items())
-    return (f"early decisions: report at confidence {rule['threshold']:g} ({who_comes_early(rule)}); nested leave one subject "
-            f"out reported at frames {at} (accuracy {op['accuracy']:.1%}, full window {ev['full_accuracy']:.1%})")
+    *early, (T, at_T) = op["reported_at"].items()
+    at = ", ".join([*(f"{n} at frame {p}" for p, n in early), f"{at_T} at the full window ({T})"])
+    n = sum(op["reported_at"].values())
+    return (f"early decisions: report at confidence {rule['threshold']:g} ({who_comes_early(rule)}); in a nested leave "
+            f"one subject out over {n} cases (the lab's, and any idle windows of the prior's evidence) the rule "
+            f"answered {at}: accuracy {op['accuracy']:.1%}, against {ev['full_accuracy']:.1%} all at the full window")
 
 
 def plot_curve(ev: dict, path: Path, synthetic: bool) -> Path:

@@ -213,8 +213,8 @@ def _cases(options: TrainOptions, recordings: list, names: list[str], say: Calla
         raise DatasetError(problem)
     ds = build_dataset(recordings, T=options.T, pads=options.pads,
                        trigger=dataset_trigger(options.trigger, options.fraction))
-    say(f"{ds.counts().text()} {ds.summary()['untriggered_reasons'] or ''}".rstrip())
-    for line in untriggered_lines(ds):
+    say(ds.counts().text())
+    for line in untriggered_lines(ds):  # the trials that gave no window, with their reasons
         say(f"  {line}")
     if n := int(np.sum(ds.y == DORMANT)) - ds.counts().dormant:  # counts: the dormant windows cut from idle
         say(f"{n} dormant case{'s' if n != 1 else ''} from the field: captured events a person labelled dormant "

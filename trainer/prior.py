@@ -246,7 +246,7 @@ def choice_lines(choice: dict | None) -> list[str]:
     def pct(v: float | None) -> str:
         return "-" if v is None else f"{v:.1%}"
 
-    lines = [f"the product's prior ({choice['recipe']}; {prior_cases_text(choice['prior_cases'])}):"]
+    lines = [f"the product's prior ({choice['recipe']}; a pool of {prior_cases_text(choice['prior_cases'])}):"]
     for r in choice["candidates"]:
         name = "lab's data alone" if r["weight"] == 0 else f"prior x{r['weight']:g} + lab"
         lines.append(f"  {name:<20} leave one lab subject out {pct(r['accuracy'])} (actions {pct(r['actions'])}, "
@@ -317,6 +317,10 @@ def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | N
         say(line)
     if alone:
         return PriorUse(estimator, ds, report)
+    y = np.asarray(fit_on.y).astype(str)
+    drawn = len(prior.sample(choice.weight, len(y), set(y.tolist())))  # as WithPrior.fit draws them
+    say(f"  the final model: the lab's {len(ds.y)} cases, {report['evidence_windows']} simulated idle windows (the "
+        f"early rule's evidence) and {drawn} cases drawn from the pool ({choice.weight:g} per case before them)")
     return PriorUse(WithPrior(estimator, prior, choice.weight), fit_on, report, prior, choice.weight)
 
 
@@ -333,7 +337,7 @@ def markdown_lines(report: dict, synthetic: bool) -> list[str]:
         cases = (f"the lab's {report['lab_cases']} cases, {report['evidence_windows']} dormant windows of a simulated "
                  f"idle stream dealt to the lab's subjects' folds (the early rule's evidence), and the prior "
                  f"({report['recipe']}: {prior_cases_text(report['prior_cases'])}), "
-                 f"{report['weight']:g} prior cases per lab case")
+                 f"{report['weight']:g} prior cases drawn per training case (the lab's and the evidence's)")
     lines += [f"Training cases: {cases} (trainer/prior.py). Chosen as {report['rule']}{tag}:", "",
               "| training | leave one lab subject out | actions | dormant | per subject |", "|---|---:|---:|---:|---|"]
     for r in report["candidates"]:

@@ -228,7 +228,8 @@ def _data_lines(metrics: dict) -> list[str]:
         f"T = {metrics['T']} frames at {ds['sample_rate_hz']:.1f} Hz",
         trigger_line(ds),
         f"- trained on {TrainingCounts.from_meta(metrics).text()}",
-        f"- **labelled trials that gave no window: {ds['n_untriggered']}** {ds['untriggered_reasons'] or ''} "
+        f"- **labelled trials that gave no window: {ds['n_untriggered']}** "
+        f"{''.join(f'({k}: {v}) ' for k, v in (ds['untriggered_reasons'] or {}).items())}"
         "(listed in metrics.json, not padded, not in any split)",
         f"- cases per class: {ds['per_class']}; per subject: {ds['per_subject']}",
         *_idle_lines(metrics.get("idle")),

@@ -318,8 +318,9 @@ def _flagged_text(flagged: list[int], path) -> str:
     if not flagged:
         return ""
     shown = ", ".join(str(i + 1) for i in flagged[:5]) + (" ..." if len(flagged) > 5 else "")
-    return (f", {len(flagged)} flagged (trial {shown}): training gets no case from them; look at one with "
-            f"`handover plot {path} --trial {flagged[0] + 1}`")
+    one = len(flagged) == 1
+    return (f", {len(flagged)} flagged (trial{'' if one else 's'} {shown}): training gets no case from "
+            f"{'it' if one else 'them'}; look at {'it' if one else 'one'} with `handover plot {path} --trial {flagged[0] + 1}`")
 
 
 def _saved(store) -> str:
