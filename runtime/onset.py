@@ -6,8 +6,8 @@ This trigger measures each pad's summed pressure against a baseline that follows
 - ``open``: the scene reads (almost) nothing;
 - ``settling``: contact, but still moving; arms once every pad changed by less than ``settle_change``
   for ``settle_frames`` frames in a row, or by less than twice that for three times as long and by
-  less than that per frame on average (``NOISY_SETTLE``; and ``refractory_frames`` after the last
-  trigger);
+  less than a quarter of it per frame on average (``NOISY_SETTLE``; and ``refractory_frames`` after the
+  last trigger);
 - ``armed``: Holt's linear tracker (level + trend per pad, ``tau_frames``) follows creep and drift (real
   pads creep far more than the simulator's); fires when a pad departs from the prediction by ``change``
   of its level (at least ``change x floor``), read as a change of force where the grasp compresses the
@@ -29,13 +29,14 @@ __all__ = ["COMPRESSION_CAP", "MIN_GRASP_FINGERS", "RUBBER_HILL_N", "OnsetTrigge
 OPEN, SETTLING, ARMED = "open", "settling", "armed"
 TREND_GAIN = 0.25
 """The trend takes this share of the level's correction (Holt's beta)."""
-NOISY_SETTLE = (2, 3)
+NOISY_SETTLE = (2, 3, 0.25)
 """A held grasp on a noisy hand moves by about ``settle_change`` from frame to frame on sensor noise alone
 (simulated lab B), so it may never pass the strict test; a grasp that changed by less than the first
 times ``settle_change`` for the second times ``settle_frames`` has settled too (a closing hand moves more),
-if over that span its net change stayed under ``settle_change`` per frame: noise swings back and forth, a
-hand squeezing steadily does not (at 2-4 % per frame it armed mid-squeeze and fired on its own grasp).
-Chosen by the rule in docs/TRIGGER_DEFAULTS.md."""
+if its net change over the span stayed under the third times ``settle_change`` per frame (for at most
+that many frames): noise swings back and forth, a hand squeezing steadily does not (without this test, a squeeze of
+1-4 % per frame armed mid-squeeze and fired on the hand's own grasp). Chosen by the rule in
+docs/TRIGGER_DEFAULTS.md."""
 RELEASE_RISE = 1.0
 """A departure whose largest rise is below this share of ``change`` counts as a release: the hand
 letting go or re-seating its grasp (one pad losing pressure while another wobbles up), not a person.
@@ -126,6 +127,7 @@ class OnsetTrigger:
         self.settle_change = float(settle_change)
         self._noisy_change = NOISY_SETTLE[0] * self.settle_change
         self._noisy_frames = NOISY_SETTLE[1] * self.settle_frames
+        self._noisy_drift = NOISY_SETTLE[2] * self.settle_change
         self.refractory_frames = int(refractory_frames)
         self.window = int(window)
         self.pre_frames = int(pre_frames)
@@ -225,10 +227,11 @@ class OnsetTrigger:
             self._arm(row, p)
 
     def _held_still(self, p: np.ndarray) -> bool:
-        """Whether the grasp's net change over the ``held`` span is under ``settle_change`` per frame; if
-        not, the span starts again here (a steady squeeze never passes)."""
+        """Whether the grasp's net change over the ``held`` span is under ``NOISY_SETTLE``'s drift per frame
+        (counted over at most the test's frames, however long the refractory time kept it waiting); if not,
+        the span starts again here (a steady squeeze never passes)."""
         net = np.abs(p - self._held_from) / np.maximum(self._held_from, self.floor)
-        if float(net.max()) < self.settle_change * self.held:
+        if float(net.max()) < self._noisy_drift * min(self.held, self._noisy_frames):
             return True
         self.held = 0
         return False

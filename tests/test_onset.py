@@ -120,6 +120,22 @@ def test_a_hand_squeezing_steadily_under_the_noisy_bound_does_not_fire_on_its_ow
     assert ARMED in states and states.index(ARMED) > 80  # armed on the held grasp, not mid-squeeze (nothing fired)
 
 
+def test_a_noisy_hand_squeezing_slowly_or_squeezing_after_a_push_does_not_fire_on_its_own_grasp():
+    """Two streams of an attacker: a noisy grasp tightening 1.25 % per frame (it passed the per-frame tests
+    and armed mid-squeeze, firing 3 times in 6 s), and a push followed by the hand squeezing 3 % per frame
+    (the span's bound grew while the refractory time kept the trigger settling, and it fired again)."""
+    t = np.arange(260, dtype=float)
+    close = np.clip((t - 20) / 10, 0, 1)
+    close = close * close * (3 - 2 * close)
+    noise = 1 + np.random.default_rng(0).uniform(-0.015, 0.015, (260, 3))
+    slow = np.repeat((400 * close * 1.0125 ** np.clip(t - 30, 0, None))[:, None], 3, 1) * noise
+    assert fires(_trigger(), rows_of(slow[:200])) == []
+    pushed = np.repeat((400 * close)[:, None], 3, 1)
+    pushed[100:] *= 1.3  # a person pushes at 100 ...
+    pushed *= (1.03 ** np.clip(t - 130, 0, 30))[:, None]  # ... then the hand alone squeezes 3 % per frame
+    assert fires(_trigger(), rows_of(pushed)) == [100]
+
+
 def test_robot_grasp_closed_arms_at_once_and_open_disarms():
     levels = grasp_levels(200, close=20)
     levels[40:, 2] *= 1.0 + 0.3 * np.clip((np.arange(160)) / 5.0, 0, 1)[:, None].ravel()  # acts as the close ends
