@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import stat
 import threading
 import time
 from dataclasses import replace
@@ -300,19 +302,33 @@ def _aligned(shape: tuple[int, ...]) -> np.ndarray:
     return raw[start : start + n].reshape(shape)
 
 
+def _read_regular(path: Path, where: str, max_bytes: int) -> bytes:
+    """At most ``max_bytes + 1`` bytes of a regular file. Opened without blocking and checked by its own
+    descriptor: a FIFO would wait for a writer forever and a device (/dev/zero) has no size to trust."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            inside = sorted(p.name for p in path.glob("*.onnx"))[:3]
+            raise ModelContractError(f"{where}: a folder, not a model file; give the .onnx file"
+                                     + (f" in it ({', '.join(inside)})" if inside else ""))
+        if not stat.S_ISREG(st.st_mode):
+            raise ModelContractError(f"{where}: not a regular file (a device, FIFO or socket); give the .onnx file "
+                                     "handover train wrote")
+        if st.st_size > max_bytes:
+            raise ModelContractError(f"{where}: {st.st_size} bytes exceeds the limit of {max_bytes}")
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            return fh.read(max_bytes + 1)
+    finally:
+        os.close(fd)
+
+
 def _read(path: Path, max_bytes: int) -> tuple[bytes, Any]:
     """The file's bytes and wire summary, refused before onnxruntime sees them (too big, empty, not
     ONNX, external data, NaN constants, foreign operators)."""
     where = f"model {path}"
     try:
-        size = path.stat().st_size
-        if size > max_bytes:
-            raise ModelContractError(f"{where}: {size} bytes exceeds the limit of {max_bytes}")
-        data = path.read_bytes()
-    except IsADirectoryError:
-        inside = sorted(p.name for p in path.glob("*.onnx"))[:3]
-        raise ModelContractError(f"{where}: a folder, not a model file; give the .onnx file"
-                                 + (f" in it ({', '.join(inside)})" if inside else "")) from None
+        data = _read_regular(path, where, max_bytes)
     except OSError as exc:
         raise ModelContractError(f"{where}: cannot read ({exc.strerror or exc}); check the path and that this user "
                                  "may read the file") from exc

@@ -123,7 +123,13 @@ def test_a_failed_command_takes_back_the_empty_out_folder_it_made_and_keeps_othe
     (tmp_path / "kept").mkdir()
     assert main(["train", "--data", str(data), "--out", str(tmp_path / "new" / "report")]) == 2
     assert main(["train", "--data", str(data), "--out", str(tmp_path / "kept")]) == 2
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "kept"]
+    (tmp_path / "old" / "a").mkdir(parents=True)  # named through a folder that does not exist: only that is new
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "gone" / ".." / "old" / "a")]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "kept", "old"] and (tmp_path / "old" / "a").is_dir()
+    from firmware_io.commands.options import _to_make
+
+    real = tmp_path.resolve()
+    assert _to_make(tmp_path / "new" / "deep") == [real / "new" / "deep", real / "new"]
     assert "no .hrec recordings" in capsys.readouterr().err
 
 
@@ -143,3 +149,21 @@ def test_wrong_paths_say_what_to_give_instead(tmp_path, capsys):
     assert said[1].endswith(f"a file, not a folder; give the folder that holds the recordings ({tmp_path})"), said
     assert said[2].endswith(f"move it out of {tmp_path / 'd'} (or record it again) and train again"), said
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="no FIFOs on this system")
+def test_devices_and_fifos_are_refused_as_models_and_recordings_without_blocking(tmp_path, capsys):
+    import os
+
+    from runtime.cli import main
+
+    os.mkfifo(tmp_path / "fifo.onnx")
+    data = tmp_path / "data"
+    data.mkdir()
+    os.mkfifo(data / "a.hrec")
+    (tmp_path / "zero.onnx").symlink_to("/dev/zero")
+    assert main(["inspect", str(tmp_path / "fifo.onnx")]) == 2  # opened without waiting for a writer
+    assert main(["inspect", str(tmp_path / "zero.onnx")]) == 2  # never read whole
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "r")]) == 2
+    said = capsys.readouterr().err.splitlines()
+    assert len(said) == 3 and all("not a regular file (a device, FIFO or socket)" in line for line in said), said

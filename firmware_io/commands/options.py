@@ -10,6 +10,7 @@ import argparse
 import contextlib
 import logging
 import math
+import os
 import sys
 import tempfile
 from collections.abc import Callable
@@ -134,6 +135,13 @@ def settle_out_folders(failed: bool) -> None:
                 made.rmdir()
 
 
+def _to_make(path: Path) -> list[Path]:
+    """The folders ``path.mkdir(parents=True)`` will create, resolved and the deepest first: in
+    ``new/../old`` only ``new`` (``old`` was there before and must outlive a failed command)."""
+    real = [Path(os.path.realpath(Path(*path.parts[:i]))) for i in range(1, len(path.parts) + 1)]
+    return list(dict.fromkeys(p for p in reversed(real) if not p.exists()))
+
+
 def out_folder(folder: str | Path, option: str = "--out") -> Path:
     """Create ``folder`` (and its parents) and check it takes files, before any work; HandoverError if not."""
     if not str(folder).strip():  # Path("") is the current folder: an empty option is a slip, not a choice
@@ -143,8 +151,8 @@ def out_folder(folder: str | Path, option: str = "--out") -> Path:
     if blocker is not None and not blocker.is_dir():  # the folder itself or one it would be made in
         raise HandoverError(f"{option} {path}: {blocker} is a file, not a folder; choose a folder (it is created if "
                             "missing)")
-    missing = [p for p in (path, *path.parents) if not p.exists()]  # the deepest first
     try:
+        missing = _to_make(path)
         path.mkdir(parents=True, exist_ok=True)
         _MADE.extend(missing)
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):

@@ -19,6 +19,7 @@ import io
 import json
 import os
 import re
+import stat
 import tempfile
 import zipfile
 from collections.abc import Iterable, Sequence
@@ -229,6 +230,8 @@ class Recording:
         declares, JSON nesting): a hostile or damaged file is refused, never read into memory whole."""
         path = Path(path)
         try:
+            if problem := _not_a_file(path.stat()):  # before zipfile seeks a FIFO or reads /dev/zero whole
+                raise RecordingError(f"{path}: {problem}")
             with zipfile.ZipFile(path, "r") as zf:
                 header = _read_header(zf, path)
                 n_frames, n_taxels = _declared_size(header, path)
@@ -342,6 +345,15 @@ def remove_stale_temps(path: str | os.PathLike) -> None:
                     and entry.stat(follow_symlinks=False).st_uid == os.geteuid()):
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(entry.path)
+
+
+def _not_a_file(st: os.stat_result) -> str | None:
+    """Why a path's stat is no recording file (a folder is said where it is opened), or None."""
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        return "not a regular file (a device, FIFO or socket), not a recording"
+    if stat.S_ISREG(st.st_mode) and st.st_size == 0:
+        return "empty file, not a recording (nothing was saved in it)"
+    return None
 
 
 def find_recordings(folder: str | os.PathLike) -> list[Path]:
