@@ -116,6 +116,39 @@ def _svm(c: dict) -> str:
 SHOWN_TRAINING = ("n_trials", "n_cases", "n_untriggered", "dormant_windows", "prior_windows", "prior_dormant_windows",
                   "level_features", "data_fingerprint", "date", "project_version", "C", "gamma")
 """Training keys the card shows in its own words (C and gamma are on the SVM line)."""
+JSON_ONLY = ("data_folder", "dormant_cut", "hard_margin", "support_vectors_at_bound", "config1_split", "synthetic")
+"""Keys a lab engineer does not need on the card's text (``--json`` has every key)."""
+
+
+def _training_extra(tr: dict) -> str:
+    """The training keys beyond the counts, in words where they have some."""
+    words = {"data": lambda v: str(v), "seed": lambda v: f"seed {v}",
+             "idle_seconds": lambda v: f"{float(v) / 60:.1f} min of recorded idle",
+             "prior": lambda v: f"the product's prior at weight {_value('weight', v.get('weight'))}"
+             if isinstance(v, dict) else f"prior: {v}"}
+    parts = [words[k](v) if k in words else f"{k}: {_value(k, v)}" for k, v in tr.items()
+             if k not in SHOWN_TRAINING and k not in JSON_ONLY]
+    return "".join(f", {p}" for p in parts) + ("; synthetic data" if tr.get("synthetic") else "")
+
+
+def _accuracy(ev: dict) -> str:
+    """How the trainer scored the model, in words where the key is the trainer's own."""
+    if not ev:
+        return "not recorded"
+    words = {"loso_accuracy": "leave one subject out", "baseline_loso_accuracy": "hand-designed baseline (same folds)",
+             "config1_accuracy_mean": "pooled 80/20 split"}
+    parts = []
+    first = ("loso_accuracy", "loso_per_subject", "config1_accuracy_mean", "baseline_loso_accuracy")
+    for k, v in sorted(ev.items(), key=lambda kv: first.index(kv[0]) if kv[0] in first else len(first)):
+        if k in JSON_ONLY or k == "config1_accuracy_std":
+            continue
+        if k == "loso_per_subject":
+            parts.append(f"per subject {_value(k, v)}")
+        elif k == "config1_accuracy_mean" and ev.get("config1_accuracy_std") is not None:
+            parts.append(f"{words[k]} {_value(k, v)} +/- {_value('config1_accuracy_std', ev['config1_accuracy_std'])}")
+        else:
+            parts.append(f"{words.get(k, k)} {_value(k, v)}")
+    return "; ".join(parts) + ("; synthetic data" if ev.get("synthetic") else "")
 
 
 def _trigger(trig: dict, fullscale: float) -> str:
@@ -144,11 +177,9 @@ def _text(c: dict) -> str:
         _features(c),
         _svm(c),
         f"  trained on: {TrainingCounts.from_meta(tr).text()}, data {str(tr.get('data_fingerprint'))[:16]}, "
-        f"{tr.get('date')}, project {tr.get('project_version')}"
-        + "".join(f", {k}: {_value(k, v)}" for k, v in tr.items() if k not in SHOWN_TRAINING),
-        "  accuracy: " + ("; ".join(f"{k}: {_value(k, v)}" for k, v in ev.items()) if ev else "not recorded"),
+        f"{tr.get('date')}, project {tr.get('project_version')}" + _training_extra(tr),
+        f"  accuracy: {_accuracy(ev)}",
         f"  graph: {c['graph']['n_nodes']} nodes, {c['graph']['n_bytes']} bytes, opset {c['graph'].get('opset')}",
-        f"  scores: {c['score']}",
     ]
     if c.get("early"):
         e = c["early"]
