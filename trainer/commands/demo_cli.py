@@ -235,7 +235,12 @@ def run_session(args: argparse.Namespace, model_dir: Path, speed: float | None, 
         daemon.run()
     finally:
         server.stop()
-    return {**_summary(args, daemon, events.decisions, session.trials), "real_time": speed == 1.0}
+    summary = {**_summary(args, daemon, events.decisions, session.trials), "real_time": speed == 1.0}
+    if speed != 1.0:  # in the JSON too: missed deadlines there are the replay's bursts, not the daemon's time
+        summary["latency_note"] = (f"replayed at speed {summary['replayed_at']}: frames arrive in bursts and a "
+                                   "frame's arrival -> decision includes the frames queued before it; at speed 1.0 "
+                                   "it is the daemon's own time")
+    return summary
 
 
 def _daemon_config(args: argparse.Namespace, url: str, model_dir: Path):
@@ -323,9 +328,8 @@ def _print_summary(s: dict) -> None:
     print(f"  latency frame arrival -> decision over {s['decisions']} decisions: median {us(s['latency_p50_us'])}, "
           f"p99 {us(s['latency_p99_us'])}, max {us(s['latency_max_us'])}; deadline {s['deadline_us']:.0f} us; "
           f"missed deadlines {s['missed_deadlines']}")
-    if not s.get("real_time", True):
-        print(f"  (replayed at speed {s['replayed_at']}: frames arrive in bursts and a frame's arrival -> decision "
-              "includes the frames queued before it; at speed 1.0 it is the daemon's own time)")
+    if s.get("latency_note"):
+        print(f"  ({s['latency_note']})")
     print(f"  frames: {s['frames_received']} received, {s['frames_dropped']} dropped, {s['crc_errors']} CRC errors")
     if s.get("models_taken_out"):  # else a session that lost its model reads as a model that misses events
         print(f"  the model was taken out of service during the session ({s['last_error']}): the events after it "
