@@ -130,7 +130,9 @@ def test_over_an_emulated_ftdi_bridge_unplugged_and_replugged(models):
     from firmware_io.emulator.links import EmulatedUsbBackend
 
     pytest.importorskip("usb")
-    emulator = DeviceEmulator(load_source("sim", seed=0, events=N_EVENTS), faults=FaultPlan(disconnect_after=40))
+    # replug power-cycles the controller: a 1 s boot (not the real 8 s) is the same deaf-then-answer path
+    emulator = DeviceEmulator(load_source("sim", seed=0, events=N_EVENTS), faults=FaultPlan(disconnect_after=40),
+                              boot_s=1.0, boot_query_s=0.5)
     backend = EmulatedUsbBackend(emulator)
     stop = threading.Event()
 
