@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import tempfile
@@ -52,6 +53,49 @@ def dsa_files() -> list[Path]:
 
 def bag_files() -> list[Path]:
     return sorted(SDH2_DATA.rglob("*.bag")) if SDH2_DATA.is_dir() else []
+
+
+SCRIPTED_SUBJECT_ARGS = ["--poses", "down", "--objects", "ball", "--auto", "--retries", "0", "--gap", "0", "--quiet",
+                         "--no-look", "--runs", "2", "--idle-minutes", "3"]
+"""One pose, one object, 4 actions x 2 runs and three minutes of idle: the scripted subjects that
+tests/test_prior.py and tests/test_data_warnings.py both train on."""
+
+
+def scripted_subjects(tmp_path_factory: pytest.TempPathFactory, out: Path, seeds: dict[str, int]) -> Path:
+    """``out`` with ``subject_NAME.hrec`` for each name: seed (``SCRIPTED_SUBJECT_ARGS``), each recorded once
+    per run and copied. The recording is deterministic and takes seconds a subject (its idle is simulated),
+    so modules that need the same subjects share it, across xdist workers too (a lock in the run's folder)."""
+    from runtime.cli import main as handover
+
+    base = tmp_path_factory.getbasetemp()
+    store = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "scripted-subjects"
+    store.mkdir(exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, seed in seeds.items():
+        kept = store / f"seed{seed}" / f"subject_{name}.hrec"
+        with _locked(store / f"seed{seed}-{name}.lock"):
+            if not kept.is_file():
+                fresh = store / f"seed{seed}-{name}.partial"
+                shutil.rmtree(fresh, ignore_errors=True)
+                assert handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name,
+                                 "--out", str(fresh), *SCRIPTED_SUBJECT_ARGS]) == 0
+                kept.parent.mkdir(exist_ok=True)
+                os.replace(fresh / f"subject_{name}.hrec", kept)
+        shutil.copyfile(kept, out / kept.name)
+    return out
+
+
+@contextlib.contextmanager
+def _locked(path: Path):
+    """An exclusive lock on ``path`` (another worker waits for the recording it holds)."""
+    import fcntl
+
+    with open(path, "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 LONGEST_FIRST = ("tests/test_demo.py",)

@@ -10,6 +10,7 @@ import json
 import pytest
 
 from runtime.cli import main as handover
+from tests.conftest import scripted_subjects
 from trainer.data_warnings import FEW_DORMANT_WINDOWS, dormant_lines, planned_trials
 
 TINY = ["--poses", "down", "--objects", "ball", "--auto", "--retries", "0", "--gap", "0", "--quiet", "--no-look"]
@@ -53,8 +54,7 @@ def trained(tmp_path_factory):
     """Two complete subjects with 3 min of idle, a third stopped after 3 of 8 trials (no idle)."""
     root = tmp_path_factory.mktemp("warn")
     data = root / "data"
-    for name, seed in (("s1", 0), ("s2", 1)):
-        assert record(data, name, seed, "--runs", "2", "--idle-minutes", "3") == 0
+    scripted_subjects(tmp_path_factory, data, {"s1": 0, "s2": 1})  # test_prior's first two, recorded once
     assert record(data, "s3", 2, "--runs", "2", "--max-trials", "3") == 0
     report = root / "report"
     with contextlib.redirect_stderr(io.StringIO()) as err:  # the console's lines, read by a test below

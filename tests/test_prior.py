@@ -129,14 +129,9 @@ def test_console_prints_onset_to_report_in_frames_and_ms():
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     """Three scripted subjects (one pose, one object, 4 actions x 2 runs) with three minutes of idle each."""
-    from runtime.cli import main as handover
+    from tests.conftest import scripted_subjects
 
-    out = tmp_path_factory.mktemp("prior") / "data"
-    for name, seed in (("s1", 0), ("s2", 1), ("s3", 2)):
-        assert handover(["record", "--device", f"subject://?seed={seed}&speed=max", "--subject", name, "--out",
-                         str(out), "--poses", "down", "--objects", "ball", "--auto", "--retries", "0", "--gap", "0",
-                         "--quiet", "--no-look", "--runs", "2", "--idle-minutes", "3"]) == 0
-    return out
+    return scripted_subjects(tmp_path_factory, tmp_path_factory.mktemp("prior") / "data", {"s1": 0, "s2": 1, "s3": 2})
 
 
 def _train(data, out, monkeypatch, *extra):
