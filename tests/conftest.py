@@ -55,10 +55,11 @@ def bag_files() -> list[Path]:
     return sorted(SDH2_DATA.rglob("*.bag")) if SDH2_DATA.is_dir() else []
 
 
+SCRIPTED_IDLE_MINUTES = 3
 SCRIPTED_SUBJECT_ARGS = ["--poses", "down", "--objects", "ball", "--auto", "--retries", "0", "--gap", "0", "--quiet",
-                         "--no-look", "--runs", "2", "--idle-minutes", "3"]
+                         "--no-look", "--runs", "2", "--idle-minutes", str(SCRIPTED_IDLE_MINUTES)]
 """One pose, one object, 4 actions x 2 runs and three minutes of idle: the scripted subjects that
-tests/test_prior.py and tests/test_data_warnings.py both train on."""
+tests/test_prior.py, tests/test_data_warnings.py and tests/test_own_data_model.py train on."""
 
 
 def scripted_subjects(tmp_path_factory: pytest.TempPathFactory, out: Path, seeds: dict[str, int]) -> Path:

@@ -16,6 +16,7 @@ import pytest
 from firmware_io.recordings.idle_stretches import CYCLE, SOURCES, idle_plan, stretches_of
 from firmware_io.recordings.recording import Recording
 from runtime.cli import main as handover
+from tests.conftest import SCRIPTED_IDLE_MINUTES, scripted_subjects
 
 TINY = ["--poses", "down", "--objects", "ball", "--auto", "--retries", "0", "--gap", "0", "--quiet", "--no-look"]
 
@@ -39,10 +40,9 @@ def test_idle_plan_keeps_the_mix_at_any_length():
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """Two scripted subjects (4 actions x 2 runs each) with two rounds of idle, and one idle-only session."""
-    out = tmp_path_factory.mktemp("own") / "data"
-    for name, seed in (("s1", 0), ("s2", 1)):
-        assert record(out, name, seed, "--runs", "2", "--idle-minutes", "2.5") == 0
+    """Two scripted subjects (4 actions x 2 runs each) with three minutes of idle (test_prior's and
+    test_data_warnings' first two, recorded once), and one idle-only session."""
+    out = scripted_subjects(tmp_path_factory, tmp_path_factory.mktemp("own") / "data", {"s1": 0, "s2": 1})
     assert record(out, "idle1", 5, "--idle-only", "--idle-minutes", "1") == 0
     return out
 
@@ -51,7 +51,7 @@ def test_recorded_idle_stretches_are_labelled_like_the_simulators(recorded):
     rec = Recording.load(recorded / "subject_s1.hrec")
     assert len(rec.trials) == 8
     stretches = stretches_of(rec.meta)
-    assert [s["source"] for s in stretches] == [s.source for s in idle_plan(2.5)]
+    assert [s["source"] for s in stretches] == [s.source for s in idle_plan(SCRIPTED_IDLE_MINUTES)]
     assert rec.meta["sources"] == list(SOURCES)
     code = np.asarray(rec.meta["source_codes"])
     for tr in rec.trials:
