@@ -67,9 +67,15 @@ def pad_pressure(cells_x: int, cells_y: int, force: np.ndarray, cx: np.ndarray, 
     ``force`` in newtons, positions and sizes in mm (x across the pad, y along it, row 0 at
     the pad's fingertip end).
     """
+    out = np.zeros((len(force), cells_y, cells_x), dtype=np.float32)
+    on = np.flatnonzero(np.asarray(force) > 0)  # an unloaded scan is zero: half of an idle stream, not computed
+    if len(on) == 0:
+        return out
+    cx, cy, wx, wy, sigma, tilt = (np.asarray(a)[on] for a in (cx, cy, wx, wy, sigma, tilt))
     xs, ys = taxel_centres(cells_x), taxel_centres(cells_y)
     px = axis_profile(xs, cx, wx, sigma)
     py = tilt_profile(axis_profile(ys, cy, wy, sigma), ys, cy, wy, tilt)
     # N / mm^2 = MPa -> kPa
-    scale = (1000.0 * np.clip(force, 0.0, None))[:, None, None]
-    return (scale * py[:, :, None] * px[:, None, :]).astype(np.float32)
+    scale = (1000.0 * np.asarray(force)[on])[:, None, None]
+    out[on] = scale * py[:, :, None] * px[:, None, :]
+    return out

@@ -54,7 +54,9 @@ class HandSensor:
 def response(pressure_kpa: np.ndarray, gain: np.ndarray, ceiling: np.ndarray) -> np.ndarray:
     """Counts above idle for a pressure (kPa); last axis = taxels. Hill curve, see constants."""
     x = (pressure_kpa * (gain / K.RESPONSE_P50_KPA)).astype(np.float32)
-    xn = np.power(x, np.float32(K.RESPONSE_HILL_N))
+    xn = np.zeros_like(x)
+    loaded = x != 0  # the power is most of a render's time and most taxels are unloaded (0 ** n = 0)
+    xn[loaded] = np.power(x[loaded], np.float32(K.RESPONSE_HILL_N))
     return ceiling * (xn / (1.0 + xn))
 
 
