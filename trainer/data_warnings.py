@@ -17,7 +17,8 @@ import numpy as np
 
 from firmware_io.recordings.idle_stretches import RECORD_IDLE_COMMAND, SOURCES, has_idle
 
-__all__ = ["FEW_DORMANT_WINDOWS", "data_notes", "dormant_lines", "lab_line", "partial_subjects", "prior_lab_line"]
+__all__ = ["FEW_DORMANT_WINDOWS", "data_notes", "dormant_lines", "idle_kinds_text", "lab_line", "partial_subjects",
+           "prior_lab_line"]
 
 FEW_DORMANT_WINDOWS = 100
 """Fewer dormant windows than this and the class is called thin. The rule of three: with n windows and
@@ -47,6 +48,11 @@ def _by_kind(per_origin: dict[str, int]) -> dict[str, int]:
     return kinds
 
 
+def idle_kinds_text(per_origin: dict[str, int]) -> str:
+    """Windows per idle kind, e.g. ``arm_move 54, quiet 1``: an origin's cut and prefix are not a reader's words."""
+    return ", ".join(f"{k} {n}" for k, n in sorted(_by_kind(per_origin).items()))
+
+
 def dormant_lines(per_origin: dict[str, int], recorded: Sequence[str], prior: dict[str, int] | None = None
                   ) -> list[str]:
     """Lines when the lab's dormant windows are few or of one idle kind (``per_origin``: the lab's windows per
@@ -57,8 +63,8 @@ def dormant_lines(per_origin: dict[str, int], recorded: Sequence[str], prior: di
     total = sum(kinds.values())
     sim = _by_kind(prior or {})
     rests = f"the dormant class rests on {total} windows of your idle" + (
-        f" and {sum(sim.values())} of the simulator's (the product's prior: "
-        + ", ".join(f"{k} {n}" for k, n in sorted(sim.items())) + "; another hand than yours)" if sim else "")
+        f" and {sum(sim.values())} of the simulator's (the product's prior: {idle_kinds_text(sim)}; another hand "
+        "than yours)" if sim else "")
     lines = []
     if total < FEW_DORMANT_WINDOWS:
         lines.append(f"{rests}: fewer than {FEW_DORMANT_WINDOWS} of your own; even with every one read right, your "

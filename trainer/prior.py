@@ -80,6 +80,12 @@ class PriorCases:
             return np.zeros(0, dtype=np.int64)
         return np.sort(np.random.default_rng(self.recipe.seed).choice(pool, size=n, replace=False))
 
+    def draw(self, weight: float, y) -> np.ndarray:
+        """``sample`` for training labels ``y``: ``weight`` prior cases per case, of ``y``'s classes (the one draw
+        ``WithPrior.fit``, ``PriorUse.simulated`` and train's line all mean)."""
+        y = np.asarray(y).astype(str)
+        return self.sample(weight, len(y), set(y.tolist()))
+
 
 class WithPrior(BaseEstimator):
     """``estimator`` trained on the given cases plus ``weight`` prior cases per case (``PriorCases.sample``).
@@ -95,7 +101,7 @@ class WithPrior(BaseEstimator):
     def fit(self, X, y):
         X, y = np.asarray(X), np.asarray(y).astype(str)
         model = clone(self.estimator)
-        at = self.prior.sample(self.weight, len(y), set(y.tolist())) if self.prior is not None else []
+        at = self.prior.draw(self.weight, y) if self.prior is not None else []
         if not len(at):
             return model.fit(X, y)
         Xp = self.prior.X[at][:, :, :X.shape[2]]
@@ -276,7 +282,7 @@ class PriorUse:
         if self.prior is None:
             return 0, {}
         y = np.asarray(self.ds.y).astype(str)
-        at = self.prior.sample(self.weight, len(y), set(y.tolist()))
+        at = self.prior.draw(self.weight, y)
         dormant = np.concatenate([np.asarray(self.ds.poses)[n_lab:][y[n_lab:] == DORMANT],
                                   self.prior.origin[at][self.prior.y[at] == DORMANT]])
         names, n = np.unique(dormant.astype(str), return_counts=True)
@@ -290,7 +296,7 @@ class PriorUse:
 
 def prior_cases_text(counts: dict[str, int]) -> str:
     """``538 protocol windows, 55 idle (arm_move 54, quiet 1)`` from ``Prior.counts()``."""
-    from trainer.recorded_idle import idle_kinds_text
+    from trainer.data_warnings import idle_kinds_text
 
     idle = {k: v for k, v in counts.items() if k.startswith("idle:")}
     rest = ", ".join(f"{v} {k} windows" for k, v in counts.items() if k not in idle)
@@ -317,10 +323,9 @@ def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | N
         say(line)
     if alone:
         return PriorUse(estimator, ds, report)
-    y = np.asarray(fit_on.y).astype(str)
-    drawn = len(prior.sample(choice.weight, len(y), set(y.tolist())))  # as WithPrior.fit draws them
     say(f"  the final model: the lab's {len(ds.y)} cases, {report['evidence_windows']} simulated idle windows (the "
-        f"early rule's evidence) and {drawn} cases drawn from the pool ({choice.weight:g} per case before them)")
+        f"early rule's evidence) and {len(prior.draw(choice.weight, fit_on.y))} cases drawn from the pool "
+        f"({choice.weight:g} per case before them)")
     return PriorUse(WithPrior(estimator, prior, choice.weight), fit_on, report, prior, choice.weight)
 
 

@@ -20,7 +20,7 @@ from firmware_io.recordings.idle_stretches import has_idle, stretches_of
 from firmware_io.recordings.recording import Recording
 from trainer.dormant import DORMANT
 
-__all__ = ["add_idle", "idle_kinds_text", "idle_only_problem", "idle_pieces", "subject_of", "too_few_line"]
+__all__ = ["add_idle", "idle_only_problem", "idle_pieces", "subject_of", "too_few_line"]
 
 STREAMS_RESULTS = Path(__file__).resolve().parents[1] / "results" / "streams.json"
 """Where ``./dev bench streams`` writes the measured stream figures (a source checkout)."""
@@ -187,16 +187,6 @@ def with_dormant(ds, idle: IdleWindows):
         hysteresis=ds.hysteresis, trigger=ds.trigger)
 
 
-def idle_kinds_text(counts: dict[str, int]) -> str:
-    """Windows per idle kind, e.g. ``arm_move 54, quiet 1``: an origin's cut and its ``idle:`` prefix (how a
-    window was made, for the metrics) are not a reader's words."""
-    kinds: dict[str, int] = {}
-    for origin, n in counts.items():
-        kind = origin.split(":")[-1]
-        kinds[kind] = kinds.get(kind, 0) + n
-    return ", ".join(f"{k} {v}" for k, v in sorted(kinds.items()))
-
-
 def too_few_line(seconds: float, n_windows: int, cut: str) -> str:
     """What recorded idle with too few dormant windows costs and what to do (train's warning, report.md)."""
     from trainer.data_warnings import MORE_IDLE
@@ -221,6 +211,8 @@ def add_idle(ds, recordings: Sequence[Recording], names: Sequence[str], seed: in
     if not idle.makes_class:
         warn(too_few_line(idle.seconds, len(idle.X), cut))
         return ds, idle
+    from trainer.data_warnings import idle_kinds_text
+
     say(f"{idle.seconds / 60:.1f} min of recorded idle: {len(idle.X)} dormant windows "
         f"({idle_kinds_text(idle.per_source)})")
     return with_dormant(ds, idle), idle

@@ -243,8 +243,6 @@ class Recording:
             raise RecordingError(f"{path}: refused: {exc}") from None
         except FileNotFoundError:
             raise RecordingError(f"{path}: no such file") from None
-        except IsADirectoryError:
-            raise RecordingError(f"{path}: is a folder, not a recording") from None
         except zipfile.BadZipFile as exc:
             raise RecordingError(f"{path}: not a handover recording or truncated ({exc})") from None
         except (OSError, EOFError, ValueError, KeyError, NotImplementedError, RuntimeError) as exc:
@@ -348,12 +346,12 @@ def remove_stale_temps(path: str | os.PathLike) -> None:
 
 
 def _not_a_file(st: os.stat_result) -> str | None:
-    """Why a path's stat is no recording file (a folder is said where it is opened), or None."""
-    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+    """Why a path's stat is no recording file, or None."""
+    if stat.S_ISDIR(st.st_mode):
+        return "is a folder, not a recording"
+    if not stat.S_ISREG(st.st_mode):
         return "not a regular file (a device, FIFO or socket), not a recording"
-    if stat.S_ISREG(st.st_mode) and st.st_size == 0:
-        return "empty file, not a recording (nothing was saved in it)"
-    return None
+    return "empty file, not a recording (nothing was saved in it)" if st.st_size == 0 else None
 
 
 def find_recordings(folder: str | os.PathLike) -> list[Path]:
