@@ -4,7 +4,8 @@ reloads; writes ``results/soak.json`` and ``.md``.
 
 The daemon is ``handover run`` in its own process (``benchmarks.soak_daemon`` adds only a log
 of the frames it handled); the emulator serves the simulated hand's session (synthetic data) in a
-loop over TCP. Accounting:
+loop over TCP. Accounting (a handled frame is the last one sent with its device stamp before it
+arrived: every TCP drop power-cycles the emulated controller, whose clock restarts, so stamps recur):
 
 - a frame is lost when the emulator sent it and the daemon never handled it; it counts as lost
   *inside* an injected fault when it was sent between the fault's start (less 0.25 s) and the
@@ -294,14 +295,13 @@ def account(soak: Soak) -> dict:
     from benchmarks import soak_account as A
     from benchmarks.soak_daemon import read_frame_log
 
-    stamps, times = read_frame_log(soak.frame_log)
-    received = dict(zip(stamps, times, strict=True))
     sent = list(soak.emulator.sent)
-    windows = A.fault_windows(soak.faults, sent, received)
+    handled = A.which_sent(sent, *read_frame_log(soak.frame_log))
+    windows = A.fault_windows(soak.faults, sent, handled)
     t0, t_end = soak.t0, soak.t_end
     out: dict = {}
-    out.update(A.frame_figures(sent, received, windows, t0, t_end))
-    out.update(A.event_figures(sent, received, windows, soak.listener.events, soak.reference,
+    out.update(A.frame_figures(sent, handled, windows, t0, t_end))
+    out.update(A.event_figures(sent, handled, windows, soak.listener.events, soak.reference,
                                soak.recording.n_frames, t0, t_end, history=int(CLEAN_HISTORY_S * NOMINAL_RATE_HZ)))
     out.update(A.fault_figures(soak.faults, t0))
     out.update(A.watchdog_figures(soak.notify.pings, soak.faults, t0, t_end, WATCHDOG_S))

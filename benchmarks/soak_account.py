@@ -4,6 +4,7 @@ have fired. Pure functions over the run's logs (see benchmarks/soak.py for the r
 
 from __future__ import annotations
 
+import bisect
 import math
 import statistics
 
@@ -14,13 +15,30 @@ SETTLE_S = 5.0
 RECOVERY_LIMIT_S = 120.0
 
 
-def fault_windows(faults, sent: list[tuple[int, float]], received: dict[int, float]) -> list[tuple[float, float]]:
-    """Set each fault's ``recovered_at`` (first frame handled that was sent after the fault
-    ended) and return the send-time windows inside which a loss is the fault's."""
-    fresh = sorted((t_sent, received[stamp]) for stamp, t_sent in sent if stamp in received)
-    sent_times = [t for t, _ in fresh]
-    import bisect
+def which_sent(sent: list[tuple[int, float, int]], stamps, times) -> dict[int, float]:
+    """Which frame of ``sent`` (its index) each arrival (device stamp, time) was -> the first arrival.
 
+    A stamp names no frame of the run alone: a power-cycled controller restarts its clock (every TCP
+    drop is a power cycle), so stamps recur, a boot (8 s) or more apart. An arrival was the last frame
+    sent with its stamp before it arrived."""
+    sends: dict[int, list[int]] = {}
+    for k, (stamp, _, _) in enumerate(sent):
+        sends.setdefault(stamp, []).append(k)
+    out: dict[int, float] = {}
+    for stamp, t in zip(stamps, times, strict=True):
+        ks = sends.get(int(stamp), [])
+        j = bisect.bisect_right([sent[k][1] for k in ks], t) - 1
+        if j >= 0:
+            out.setdefault(ks[j], t)
+    return out
+
+
+def fault_windows(faults, sent: list[tuple[int, float, int]], handled: dict[int, float]) -> list[tuple[float, float]]:
+    """Set each fault's ``recovered_at`` (first frame handled that was sent after the fault
+    ended) and return the send-time windows inside which a loss is the fault's. ``handled``: index
+    in ``sent`` -> arrival time (``which_sent``)."""
+    fresh = sorted((sent[k][1], t_recv) for k, t_recv in handled.items())
+    sent_times = [t for t, _ in fresh]
     windows = []
     for f in faults:
         k = bisect.bisect_right(sent_times, f.end)
@@ -37,35 +55,34 @@ def _inside(t: float, windows: list[tuple[float, float]]) -> bool:
     return any(a <= t <= b for a, b in windows)
 
 
-def frame_figures(sent, received, windows, t0: float, t_end: float) -> dict:
+def frame_figures(sent, handled, windows, t0: float, t_end: float) -> dict:
     """frames_expected, lost inside and outside the injected faults (with the first few outside)."""
-    counted = [(s, t) for s, t in sent if t0 + SETTLE_S <= t <= t_end - 2.0]
-    lost = [(s, t) for s, t in counted if s not in received]
-    outside = [(s, round(t - t0, 2)) for s, t in lost if not _inside(t, windows)]
-    return {"frames_expected": len(counted), "frames_handled": sum(1 for s, _ in counted if s in received),
+    counted = [k for k, (_, t, _) in enumerate(sent) if t0 + SETTLE_S <= t <= t_end - 2.0]
+    lost = [sent[k][1] for k in counted if k not in handled]
+    outside = [round(t - t0, 2) for t in lost if not _inside(t, windows)]
+    return {"frames_expected": len(counted), "frames_handled": len(counted) - len(lost),
             "frames_lost": len(lost), "frames_lost_inside_injected_faults": len(lost) - len(outside),
             "frames_lost_outside_injected_faults": len(outside), "lost_outside_examples": outside[:10]}
 
 
-def event_figures(sent, received, windows, events, reference: set[int], n_frames: int, t0: float,
+def event_figures(sent, handled, windows, events, reference: set[int], n_frames: int, t0: float,
                   t_end: float, history: int) -> dict:
-    """events_expected (reference decisions with a clean, fully handled history), events_lost."""
-    stamps = [s for s, _ in sent]
-    seq_of = {s: k for k, s in enumerate(stamps)}
-    reported = {int(ev.get("device_time_ms", -1)) for _, ev in events}
+    """events_expected (reference decisions with a clean, fully handled history), events_lost.
+    ``reference`` holds recording indices: a sent frame's is its sequence number (the third item)
+    modulo ``n_frames``, not its place in ``sent`` (the frames of an outage are skipped, not sent)."""
+    reported = which_sent(sent, [int(ev.get("device_time_ms", -1)) for _, ev in events], [t for t, _ in events])
     expected = lost = 0
     missing: list[float] = []
-    for k, (stamp, t) in enumerate(sent):
-        if k % n_frames not in reference or k < history or not (t0 + SETTLE_S <= t <= t_end - 2.0):
+    for k, (_, t, seq) in enumerate(sent):
+        if seq % n_frames not in reference or k < history or not (t0 + SETTLE_S <= t <= t_end - 2.0):
             continue
-        span = sent[k - history : k + 1]
-        if any(s not in received or _inside(ts, windows) for s, ts in span):
+        if any(j not in handled or _inside(sent[j][1], windows) for j in range(k - history, k + 1)):
             continue
         expected += 1
-        if stamp not in reported:
+        if k not in reported:
             lost += 1
             missing.append(round(t - t0, 2))
-    unexpected = sum(1 for s in reported if s in seq_of and seq_of[s] % n_frames not in reference)
+    unexpected = sum(1 for k in reported if sent[k][2] % n_frames not in reference)
     return {"events_reported": len(events), "events_expected": expected, "events_lost": lost,
             "events_lost_at_s": missing[:10], "events_outside_reference": unexpected}
 

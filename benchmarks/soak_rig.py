@@ -2,10 +2,10 @@
 schedule, a listener for sd_notify datagrams (watchdog pings), and an RSS sampler.
 
 The emulator is the project's DeviceEmulator behind its TCP server; a subclass only records what
-it sent (device stamp and time of every frame) and adds the two faults a schedule needs that a
-probability plan cannot give: bursts (every frame of the next N corrupted, truncated or preceded
-by garbage) and a garbage stream (0xAA at about the serial line's byte rate, commands ignored:
-a wrong baud rate or another device on the line).
+it sent (device stamp, time and sequence number of every frame) and adds the two faults a schedule
+needs that a probability plan cannot give: bursts (every frame of the next N corrupted, truncated
+or preceded by garbage) and a garbage stream (0xAA at about the serial line's byte rate, commands
+ignored: a wrong baud rate or another device on the line).
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ class ScheduledEmulator(DeviceEmulator):
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.sent: list[tuple[int, float]] = []  # (device stamp ms, monotonic time) per frame emitted
+        self.sent: list[tuple[int, float, int]] = []
+        """(device stamp ms as on the wire, monotonic time, sequence number) of every frame emitted."""
         self._burst_kind = ""
         self._burst_left = 0
         self.garbage_until = 0.0
@@ -86,21 +87,17 @@ class ScheduledEmulator(DeviceEmulator):
         return super().seconds_until_output(now)
 
     def _emit_frame(self, now: float) -> None:
-        seq = self._next
-        loops, i = divmod(seq, self.recording.n_frames)
-        stamp = self.start_ms + loops * round(self._loop_period * 1000) + int(self._rel_ms[i])
-        self.sent.append((stamp, now))
-        super()._emit_frame(now)
-
-    def _inject(self, packet: bytearray, now: float) -> None:
+        """Record the stamp the frame carries on the wire (``stamp_of``: the device clock restarts at
+        every power cycle, which every TCP drop is) and give it the burst's damage, if one is on."""
+        self.sent.append((self.stamp_of(self._next), now, self._next))
         if self._burst_left <= 0:
-            super()._inject(packet, now)
+            super()._emit_frame(now)
             return
         self._burst_left -= 1
         saved = self.faults
         self.faults = FaultPlan(**{self._burst_kind: 1.0})
         try:
-            super()._inject(packet, now)
+            super()._emit_frame(now)
         finally:
             self.faults = saved
 
