@@ -126,6 +126,7 @@ def test_train_prints_its_headline_without_carriage_returns(trained, tmp_path, c
 def test_inspect_card_is_rounded_and_names_the_per_pad_setting(trained, capsys):
     assert handover(["inspect", str(trained / "model.onnx")]) == 0
     card = capsys.readouterr().out
+    from runtime.config_keys import key
     from trainer.defaults import DEFAULT_MODEL
 
     # the product default: its feature families per pad, its kernel
@@ -133,7 +134,8 @@ def test_inspect_card_is_rounded_and_names_the_per_pad_setting(trained, capsys):
     assert f"SVM: {DEFAULT_MODEL['kernel']} kernel" in card
     assert ("gamma" in card) == (DEFAULT_MODEL["kernel"] == "rbf")  # a linear SVM has none
     # the trigger that cut its windows: train's default is the onset trigger, not the paper's 15 %
-    assert "onset trigger (a pad departing by 12 %" in card and "% of 4095" not in card, card
+    change = round(100 * key("trigger.change").default)
+    assert f"onset trigger (a pad departing by {change} %" in card and "% of 4095" not in card, card
     # no raw floats: at most 4 significant digits after the point (gamma 0.000641 is rounded)
     assert not re.search(r"\d\.0*[1-9]\d{4,}", card), card
 

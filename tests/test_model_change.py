@@ -14,7 +14,7 @@ CLASSES = ("pull", "push", "hold", "bump")
 def test_trigger_kind_pads_and_classes_changes_are_each_named():
     old = served(ONSET, (1, 3, 5), CLASSES)
     line = swap_warning("paper.onnx", old, served(PAPER, (0, 1, 2, 3, 4, 5), (*CLASSES, "dormant")))
-    assert "trigger onset (change 0.12, floor 0.25, refractory_s 1.5) -> threshold (fraction 0.15" in line
+    assert f"trigger onset (change {ONSET.change:g}, floor 0.25, refractory_s 1.5) -> threshold (fraction 0.15" in line
     assert "pads [1, 3, 5] -> [0, 1, 2, 3, 4, 5]" in line
     assert "classes ['pull', 'push', 'hold', 'bump'] -> ['pull', 'push', 'hold', 'bump', 'dormant']" in line
 
