@@ -262,6 +262,8 @@ class ModelWatcher:
                     self.withdrawn = True
             return None
         st, model = accepted
+        if self.current is not None:  # passed over for a newer one: weighed again if that one leaves
+            self._skipped.add(self.current)
         self.current = st
         self._accepted_states[st.path] = st
         self.accepted.append(st.path)

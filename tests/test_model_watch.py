@@ -41,6 +41,26 @@ def test_startup_serves_the_newest_valid(tmp_path):
     assert [r.path.name for r in w.rejections] == ["newest-broken.onnx"]
 
 
+def test_removing_the_serving_file_serves_the_newest_valid_file_left_also_one_that_served_before(tmp_path):
+    """docs/GUIDE.md's rollback, remove the newer file: the files this watcher once served and then
+    replaced were never weighed again, so the folder was taken as holding none that can serve."""
+    now = time.time() - 1000
+    write_model(tmp_path, "a.onnx", tiny_model_bytes(tag="a"), mtime=now)
+    w = _watcher(tmp_path)
+    assert w.poll(require_stable=False).path.name == "a.onnx"
+    for k, (name, data) in enumerate([("b.onnx", tiny_model_bytes(tag="b")), ("broken.onnx", b"not a model"),
+                                      ("a2.onnx", tiny_model_bytes(tag="a2")), ("b2.onnx", tiny_model_bytes(tag="b2"))]):
+        write_model(tmp_path, name, data, mtime=now + 8 * (k + 1))
+        w.poll(), w.poll()
+    assert w.current.path.name == "b2.onnx"
+    (tmp_path / "b2.onnx").unlink()
+    w.poll()
+    assert w.take().path.name == "a2.onnx" and not w.withdrawn
+    (tmp_path / "a2.onnx").unlink()
+    w.poll()
+    assert w.take().path.name == "b.onnx"
+
+
 def test_a_file_is_taken_only_when_stable_across_two_polls(tmp_path):
     w = _watcher(tmp_path)
     assert w.poll() is None
