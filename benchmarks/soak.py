@@ -4,8 +4,10 @@ reloads; writes ``results/soak.json`` and ``.md``.
 
 The daemon is ``handover run`` in its own process (``benchmarks.soak_daemon`` adds only a log
 of the frames it handled); the emulator serves the simulated hand's session (synthetic data) in a
-loop over TCP. Accounting (a handled frame is the last one sent with its device stamp before it
-arrived: every TCP drop power-cycles the emulated controller, whose clock restarts, so stamps recur):
+loop over TCP. One fault at a time: the next waits until the daemon recovered from the last and
+then streamed clean for a while (benchmarks/soak_schedule.py). Accounting (a handled frame is the
+last one sent with its device stamp before it arrived: every TCP drop power-cycles the emulated
+controller, whose clock restarts, so stamps recur):
 
 - a frame is lost when the emulator sent it and the daemon never handled it; it counts as lost
   *inside* an injected fault when it was sent between the fault's start (less 0.25 s) and the
@@ -23,16 +25,15 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmarks import soak_rig
+from benchmarks.soak_schedule import CLEAN_HISTORY_S, Fault, Plan, Schedule
 from firmware_io.frame_timing import NOMINAL_RATE_HZ, nominal_stamp_ms
 from trainer.bench import harness
 from trainer.measure import load_average, load_note, machine_info, train_default_model, write_results
@@ -41,39 +42,6 @@ NAME = "soak"
 WATCHDOG_S = 10.0
 """deploy/handover.service's WatchdogSec."""
 STALL_TIMEOUT_S = 2.0
-CLEAN_HISTORY_S = 4.0
-"""An event is expected only where the daemon handled every frame of this long before it, clean."""
-FAULT_KINDS = ("disconnect", "stall_short", "crc", "stall_long", "garbage_burst", "drop", "garbage_stream", "hang")
-SWAPS = ("good_b", "truncated", "good_a", "random_bytes", "good_b", "rollback", "empty", "world_writable")
-"""Model drops in turn: good ones, broken ones (which must leave the model in use serving) and a
-rollback (model a copied with an old mtime while b serves: a must serve)."""
-
-
-@dataclass
-class Fault:
-    kind: str
-    start: float
-    end: float = 0.0
-    recovered_at: float | None = None
-    detail: dict = field(default_factory=dict)
-
-
-@dataclass
-class Plan:
-    """When things happen, scaled to the run's length (an hour: a fault a minute, a swap every
-    2.5 min, a reload every 4 min; a short smoke run squeezes them, hangs need two minutes)."""
-
-    seconds: float
-    fault_every: float
-    swap_every: float
-    hup_every: float
-    hangs: bool
-
-    @classmethod
-    def for_hours(cls, hours: float) -> Plan:
-        s = hours * 3600.0
-        return cls(seconds=s, fault_every=min(60.0, max(6.0, s / 50)), swap_every=min(150.0, max(8.0, s / 20)),
-                   hup_every=min(240.0, max(10.0, s / 12)), hangs=s >= 120)
 
 
 def _config_text(url: str, models: Path, udp_port: int, health: Path, log_level: str) -> str:
@@ -136,6 +104,8 @@ class Soak:
         self.expected_model = self.ids["a"]
         old = time.time() - 86400
         os.utime(self.models / "a.onnx", (old, old))  # a's mtime is older than b's will ever be
+        self.good = [(self.models / "a.onnx", "a")]
+        """The valid files in the folder (path, model), oldest first: the last serves."""
 
     def start(self) -> None:
         self.emulator = soak_rig.ScheduledEmulator(self.recording, speed=1.0, loop=True, seed=self.args.seed)
@@ -167,28 +137,25 @@ class Soak:
 
     # -- the schedule ---------------------------------------------------------------------------
     def run_schedule(self) -> None:
-        p = self.plan
-        next_fault, next_swap, next_hup, next_rss = p.fault_every / 2, p.swap_every, p.hup_every, 0.0
-        kinds = [k for k in FAULT_KINDS if k != "hang" or p.hangs]
-        n_fault = n_swap = 0
+        """Drive the schedule (benchmarks/soak_schedule.py) until the run's end, following the frames
+        the daemon handles (a fault waits for the one before it to be over)."""
+        from benchmarks.soak_daemon import FrameLogTail
+
+        p, schedule, tail = self.plan, Schedule(self.plan, t0=self.t0), FrameLogTail(self.frame_log)
         last_say = 0.0
         while (t := time.monotonic() - self.t0) < p.seconds:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"the daemon exited ({self.proc.returncode}): {self.stderr_path.read_text()[-400:]}")
-            if t >= next_rss:
+            if t >= 10.0 * len(self.rss):
                 self.rss.append((t, soak_rig.rss_mb(self.proc.pid) or float("nan")))
-                next_rss += 10.0
-            if t >= next_fault and t < p.seconds - min(30.0, 3 * p.fault_every):
-                self.inject(kinds[n_fault % len(kinds)])
-                n_fault += 1
-                next_fault = time.monotonic() - self.t0 + p.fault_every
-            elif t >= next_swap and t < p.seconds - 20:
-                self.swap(SWAPS[n_swap % len(SWAPS)])
-                n_swap += 1
-                next_swap += p.swap_every
-            elif t >= next_hup and t < p.seconds - 20:
+            self._follow(tail, schedule)
+            action, what = schedule.due() or ("", "")
+            if action == "fault":
+                schedule.injected(self.inject(what))
+            elif action == "swap":
+                self.swap(what)
+            elif action == "reload":
                 self.reload()
-                next_hup += p.hup_every
             self.check_swaps()
             if t - last_say >= 300:
                 last_say = t
@@ -196,7 +163,22 @@ class Soak:
                          f"{len(self.swaps)} swaps, {len(self.listener.events)} events")
             time.sleep(0.2)
 
-    def inject(self, kind: str) -> None:
+    def _follow(self, tail, schedule: Schedule) -> None:
+        """Tell the schedule which frames the daemon handled since the last look (which were sent
+        when: the last minute of the send log is enough, a frame arrives seconds after it is sent)."""
+        from benchmarks.soak_account import which_sent
+
+        stamps, times = tail.read()
+        if not stamps:
+            return
+        sent = self.emulator.sent
+        lo = max(0, len(sent) - int(60 * NOMINAL_RATE_HZ))
+        recent = sent[lo:]
+        for k, arrival in sorted(which_sent(recent, stamps, times).items()):
+            schedule.handled(recent[k][1], arrival)
+
+    def inject(self, kind: str) -> Fault:
+        """Start fault ``kind``; a burst or a hang returns once it is over, the others at once."""
         emu, now = self.emulator, time.monotonic()
         fault = Fault(kind, now)
         if kind == "disconnect":
@@ -224,23 +206,21 @@ class Soak:
             fault.end = time.monotonic()
             fault.detail["stopped_s"] = hang_s
         self.faults.append(fault)
+        return fault
 
     def swap(self, what: str) -> None:
-        """Drop a file the documented way (temp name, rename), or a broken one, or roll back."""
+        """Drop a file the documented way (temp name, rename), or a broken one, or roll back as
+        docs/GUIDE.md says: remove the newest file (the newest valid file left serves)."""
         now = time.monotonic()
         name = f"{len(self.swaps):03d}-{what}.onnx"
         expect = None
         if what in ("good_a", "good_b"):
             harness.install_model(self.model_a if what == "good_a" else self.model_b, self.models, name)
+            self.good.append((self.models / name, what[-1]))
             expect = self.ids[what[-1]]
-        elif what == "rollback":  # cp -p of model a: an old mtime, dropped last
-            tmp = self.models / f".{name}.tmp"
-            shutil.copy2(self.model_a, tmp)
-            old = time.time() - 86400 * 30
-            os.utime(tmp, (old, old))
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, self.models / name)
-            expect = self.ids["a"]
+        elif what == "rollback" and len(self.good) > 1:
+            os.remove(self.good.pop()[0])
+            expect = self.ids[self.good[-1][1]]
         else:
             data = self.model_b.read_bytes()
             body = {"truncated": data[: len(data) // 2], "random_bytes": os.urandom(len(data)), "empty": b"",
@@ -334,8 +314,8 @@ def run(args) -> dict:
         soak.prepare_models()
         soak.start()
         soak.reference = reference_events(soak.model_a, soak.recording, soak._config("warning"))
-        say(f"soak: {hours * 60:.1f} min at 32 Hz against the emulator ({soak.server.url}); faults every "
-            f"{soak.plan.fault_every:.0f} s, model drops every {soak.plan.swap_every:.0f} s, "
+        say(f"soak: {hours * 60:.1f} min at 32 Hz against the emulator ({soak.server.url}); a fault every "
+            f"{soak.plan.fault_every:.0f} s or once the last recovered and streamed clean, model drops every {soak.plan.swap_every:.0f} s, "
             f"SIGHUP every {soak.plan.hup_every:.0f} s")
         try:
             soak.run_schedule()

@@ -44,14 +44,31 @@ def main(argv: list[str]) -> int:
 
 def read_frame_log(path) -> tuple[list[int], list[float]]:
     """Device stamps (ms) and arrival times of every frame the daemon handled."""
-    with open(path, "rb") as fh:
-        data = fh.read()
-    n = len(data) // RECORD.size
-    stamps, times = [], []
-    for stamp, t in RECORD.iter_unpack(data[: n * RECORD.size]):
-        stamps.append(stamp)
-        times.append(t)
-    return stamps, times
+    return FrameLogTail(path).read()
+
+
+class FrameLogTail:
+    """The frame log read as it grows (the soak's schedule follows the daemon while it runs): each
+    ``read`` returns the whole records appended since the last one."""
+
+    def __init__(self, path) -> None:
+        self.path, self.offset = path, 0
+
+    def read(self) -> tuple[list[int], list[float]]:
+        """Device stamps (ms) and arrival times of the frames logged since the last read."""
+        try:
+            with open(self.path, "rb") as fh:
+                fh.seek(self.offset)
+                data = fh.read()
+        except FileNotFoundError:
+            return [], []
+        n = len(data) // RECORD.size
+        self.offset += n * RECORD.size
+        stamps, times = [], []
+        for stamp, t in RECORD.iter_unpack(data[: n * RECORD.size]):
+            stamps.append(stamp)
+            times.append(t)
+        return stamps, times
 
 
 if __name__ == "__main__":
