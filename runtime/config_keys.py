@@ -128,7 +128,7 @@ KEYS: tuple[Key, ...] = (
     Key("trigger.kind", str, "onset", "onset: the person acts on the settled grasp (chosen in results/streams.md); "
         "threshold: the paper's fixed level", choices=("onset", "threshold"), optional=True, recorded=True),
     # How the onset defaults were chosen: docs/TRIGGER_DEFAULTS.md.
-    Key("trigger.change", float, 0.10, "onset: a pad departing by this share of the settled grasp fires",
+    Key("trigger.change", float, 0.12, "onset: a pad departing by this share of the settled grasp fires",
         range=(0.001, 0.99), optional=True, recorded=True),
     Key("trigger.track_tau_s", float, 1.0, "onset: the baseline follows slower changes (creep, drift)",
         range=(0.05, 600.0), optional=True, recorded=True),

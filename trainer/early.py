@@ -43,9 +43,8 @@ __all__ = [
     "rule_in_words"
 ]
 
-EARLY_POINTS = (4, 5, 6, 8, 11)
-"""Frames after the window's start at which a head decides (the full model answers at T); chosen on validation
-by the rule in docs/EARLY.md ("The points")."""
+EARLY_POINTS = (4, 6, 8, 11)
+"""Frames after the window's start at which a head decides (the full model answers at T)."""
 TARGET_LOSS = 0.02
 """The rule may lose at most this much accuracy against the full window (cross-validated), on every
 kind of case (``case_kinds``)."""
