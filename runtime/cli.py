@@ -137,11 +137,18 @@ def _missing_module_line(name: str, exc: ModuleNotFoundError) -> str:
 
 def _one_line_warnings(name: str) -> None:
     """A library's warning on the console is one line that names the command, not Python's two (the
-    message and a source line a user cannot act on)."""
+    message and a source line a user cannot act on); said once per command, however many places raise it
+    (two capped SVM fits printed the same line twice)."""
     import warnings
 
+    said: set[str] = set()
+
     def one_line(message, category, *_args, **_kwargs) -> str:
-        return f"handover {name}: {category.__name__}: {message}\n"
+        line = f"handover {name}: {category.__name__}: {message}\n"
+        if line in said:
+            return ""
+        said.add(line)
+        return line
 
     warnings.formatwarning = one_line
 

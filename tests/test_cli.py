@@ -82,3 +82,5 @@ def test_a_library_warning_is_one_line_naming_the_command(monkeypatch, tmp_path,
     cli.main(["inspect", str(tmp_path / "none.onnx")])
     said = warnings.formatwarning("SVM search: 1 of 4 candidates stopped", UserWarning, "classifier.py", 198)
     assert said == "handover inspect: UserWarning: SVM search: 1 of 4 candidates stopped\n", said
+    again = warnings.formatwarning("SVM search: 1 of 4 candidates stopped", UserWarning, "early.py", 140)
+    assert again == "", "the same line from another place is said once"

@@ -221,9 +221,13 @@ def test_demo_scores_a_given_model(trained, tmp_path, capsys):
     code = handover(["demo", "--model", str(trained / "model.onnx"), "--speed", "max", "--json", "--events", "8",
                      "--out", str(tmp_path / "demo")])
     assert code == 0
-    summary = json.loads(capsys.readouterr().out)
+    out, err = capsys.readouterr()
+    summary = json.loads(out)
     assert summary["setting"] == "onset_dormant" and summary["events_expected"] == 8
     assert summary["model"] == str(trained / "model.onnx")
+    steps = [line[:6] for line in err.splitlines() if line.startswith("[")]
+    assert steps[:3] == ["[1-2/4", "[3/4] ", "[4/4] "], err  # a given model's steps start at the first, not at [3/4]
+    assert "no simulation, no training), served in setting onset_dormant" in err
 
 
 def test_demo_with_a_model_that_is_not_one_is_one_line(tmp_path, capsys):

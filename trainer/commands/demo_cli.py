@@ -95,6 +95,8 @@ def given_model(args: argparse.Namespace) -> Path:
     args.model_setting = served[0]
     if args.pads == "all":
         args.pads = ",".join(str(p) for p in meta.pads)
+    _say(args, f"[1-2/4] your model {path} (id {model.model_id}; no simulation, no training), served in setting "
+               f"{setting_of(args)}")
     return path
 
 
