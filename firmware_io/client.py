@@ -68,6 +68,7 @@ class DSAClient(CommandExchange):
         auto_reconnect: bool = True,
         restart_stalled_s: float | None = RESTART_STALLED_S,
         transport_opts: dict | None = None,
+        on_wait: Callable[[str], None] | None = None,
     ) -> None:
         self._source = source
         self._transport: Transport | None = source if isinstance(source, Transport) else None
@@ -87,6 +88,9 @@ class DSAClient(CommandExchange):
         self._recovery = PushRecovery(restart_stalled_s)
         """When to send the push start again on an open link gone silent (``client_recovery``)."""
         self.transport_opts = dict(transport_opts or {})
+        self.on_wait = on_wait
+        """Told once per open, when the first stop goes unanswered, what the open now waits for and how long
+        at most (``_waiting_line``): a booting controller keeps a console silent for 8 s, which looks hung."""
 
         self.parser = StreamParser()
         self.controller: ControllerInfo | None = None
@@ -138,7 +142,11 @@ class DSAClient(CommandExchange):
     def _open(self) -> SensorLayout:
         self._ensure_transport()
         self.streaming = False
-        acked = self._send_stop(self.stop_tries)
+        acked = self._send_stop(1)
+        if not acked:
+            if self.on_wait is not None:
+                self.on_wait(self._waiting_line())
+            acked = self._send_stop(self.stop_tries - 1)
         while not acked and self._booting_maybe() and self._open_deadline - time.monotonic() > self.gap_timeout:
             acked = self._send_stop(1)
         self._flush(first_wait=self.flush_quiet if acked else self.flush_max)
@@ -152,6 +160,13 @@ class DSAClient(CommandExchange):
             for m in range(self.sensor.nb_matrices)
         ]
         return self._use_layout(SensorLayout.from_matrix_infos(r.to_matrix_info(i) for i, r in enumerate(self.matrices)))
+
+    def _waiting_line(self) -> str:
+        """What an open whose first stop went unanswered waits for, and the most it waits (its deadline)."""
+        left = max(0.0, self._open_deadline - time.monotonic())
+        why = " (one just powered on, or reset by its last host leaving, answers after about 8 s)"
+        return (f"{self.url}: no answer yet; waiting up to {left:.0f} s for the controller to answer"
+                f"{why if self._booting_maybe() else ''} ...")
 
     def _booting_maybe(self) -> bool:
         """Nothing but power-up queries came since the open began: a controller that was just powered

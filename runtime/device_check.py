@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from runtime.health import one_line
@@ -53,8 +54,10 @@ class DeviceProbe:
                 + (f"; {self.errors}" if self.errors else ""))
 
 
-def probe_device(url: str, seconds: float = PROBE_S, client_factory=None) -> DeviceProbe:
-    """Open ``url``, stream for ``seconds``, close. Never raises: a failure is ``problem``."""
+def probe_device(url: str, seconds: float = PROBE_S, client_factory=None,
+                 on_wait: Callable[[str], None] | None = None) -> DeviceProbe:
+    """Open ``url``, stream for ``seconds``, close. Never raises: a failure is ``problem``. ``on_wait`` hears the
+    client's line when the open waits for a silent controller (``DSAClient.on_wait``: a boot takes 8 s)."""
     if client_factory is None:
         from firmware_io.client import DSAClient
         from firmware_io.transports import TransportError, validate_url
@@ -65,7 +68,7 @@ def probe_device(url: str, seconds: float = PROBE_S, client_factory=None) -> Dev
         bound = PROBE_CONNECT_S if asked is None else min(PROBE_CONNECT_S, float(asked))
 
         def client_factory(u: str):
-            return DSAClient(u, auto_reconnect=False, transport_opts={"connect_timeout": bound})
+            return DSAClient(u, auto_reconnect=False, transport_opts={"connect_timeout": bound}, on_wait=on_wait)
 
     probe = DeviceProbe(url)
     client = None

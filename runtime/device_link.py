@@ -79,7 +79,7 @@ class DeviceLink:
         self.device = device
         self.health = health
         self.notifier = notifier
-        self.client_factory = client_factory or default_client
+        self.client_factory = client_factory or (lambda url: default_client(url, on_wait=self._waiting))
         self._should_stop: Callable[[], bool] = lambda: False
         self.scene = ""
         """The scene's pads, for the log lines (the owner keeps it current)."""
@@ -166,6 +166,12 @@ class DeviceLink:
             log.error("device %s: connecting has not completed in %g s; no longer feeding the watchdog "
                       "(systemd restarts the service)", self.device.url, self.connect_bound_s)
         return self._should_stop()
+
+    def _waiting(self, line: str) -> None:
+        """The client's line when an open waits for a silent controller (a boot: seconds with no log line
+        look hung); said on the first attempt of an outage only, the later ones are the retry notes'."""
+        if self.retry_notes.attempts == 0:
+            log.info("device %s", line)
 
     def connect(self, should_stop: Callable[[], bool] = lambda: False) -> Linked:
         """One attempt to open the device; ``should_stop()`` is asked between reads of a slow open (True
@@ -313,9 +319,9 @@ REFUSALS = ("crc_errors", "decode_errors", "frames_implausible")
 """The client's counts of frames that arrived whole but were not used."""
 
 
-def default_client(url: str) -> DeviceClient:
+def default_client(url: str, on_wait: Callable[[str], None] | None = None) -> DeviceClient:
     # The daemon reconnects itself (with backoff, answering SIGTERM and the watchdog meanwhile).
-    return DSAClient(url, auto_reconnect=False)
+    return DSAClient(url, auto_reconnect=False, on_wait=on_wait)
 
 
 def fatal_device_error(url: str, exc: BaseException) -> str | None:

@@ -87,3 +87,21 @@ def test_the_device_check_waits_for_a_tcp_connection_at_most_its_bound(monkeypat
     probe_device("tcp://192.0.2.7:13000")
     assert asked[1:] == [0.5, PROBE_CONNECT_S]
     assert probe_device("tcp://192.0.2.7:99999").problem.startswith("cannot read it: ")
+
+
+def test_check_device_says_what_it_waits_for_while_the_controller_boots(tmp_path):
+    """A check right after another host left (the controller resets and is deaf while it boots, 8 s on
+    the robot) sat silent after "opening ..."; it says it waits, for what and how long at most."""
+    emulator = DeviceEmulator(load_source("sim", seed=0, events=4), speed=1.0, boot_s=1.5, boot_query_s=1.2)
+    emulator.power_cycle()
+    server = TcpEmulatorServer(emulator).start()
+    try:
+        proc = _check(tmp_path, server.url, "--device")
+    finally:
+        server.stop()
+    assert proc.returncode == 0, proc.stderr
+    lines = [x for x in proc.stdout.splitlines() if x.startswith(("opening", "device"))]
+    assert lines[0].startswith("opening") and len(lines) == 3, lines
+    assert re.fullmatch(rf"device {re.escape(server.url)}: no answer yet; waiting up to \d+ s for the controller "
+                        r"to answer \(.*about 8 s\) \.\.\.", lines[1]), lines
+    assert " frames in " in lines[2], lines

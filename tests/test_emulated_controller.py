@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import firmware_io.client as client_module
+import firmware_io.client_exchange as exchange_module
 from firmware_io.client import DSAClient, DSATimeout
 from firmware_io.client_recovery import BOOT_READY_S
 from firmware_io.emulator.device import DeviceEmulator
@@ -214,3 +215,46 @@ def test_a_host_opens_a_controller_its_predecessor_left_booting(rec):
         second.close()
     finally:
         server.stop()
+
+
+class ClockedLink(Transport):
+    """The emulator as a link on the test's clock: a read that would block moves the clock instead."""
+
+    url = "clocked://"
+
+    def __init__(self, emulator: DeviceEmulator, clock: ManualClock) -> None:
+        self.emulator, self.clock = emulator, clock
+
+    def write(self, data: bytes) -> None:
+        self.emulator.feed(data)
+
+    def read(self, max_bytes: int = 4096, timeout: float = 0.1) -> bytes:
+        data = self.emulator.read(max_bytes)
+        if data or timeout <= 0:
+            return data
+        due = self.emulator.seconds_until_output()
+        self.clock.t += max(1e-3, timeout if due is None else min(timeout, due))  # a tick that moves the clock
+        return self.emulator.read(max_bytes)
+
+
+@pytest.mark.timeout(30)
+def test_an_open_that_waits_for_a_booting_controller_says_so_once_when_the_wait_begins(monkeypatch, rec):
+    """``run --check --device`` and the daemon after another host left: 8 s of boot with no line between
+    "ready" and "connected" looked hung. The open says, once, that it waits and how long at most,
+    as soon as the first stop goes unanswered (1 s), not when the controller answers (about 9 s)."""
+    clock = ManualClock(0.0)
+    quiet = types.SimpleNamespace(monotonic=clock, sleep=time.sleep)
+    monkeypatch.setattr(client_module, "time", quiet)
+    monkeypatch.setattr(exchange_module, "time", quiet)
+    emulator = DeviceEmulator(rec, clock=clock, speed=1.0)
+    emulator.power_cycle()  # the host before left: deaf until 8.0, ESC[5n from 7.0
+    said: list[tuple[float, str]] = []
+    client = DSAClient(ClockedLink(emulator, clock), on_wait=lambda line: said.append((clock.t, line)))
+    assert client.open().n_taxels == rec.layout.n_taxels and clock.t >= 8.0
+    assert len(said) == 1, said
+    at, line = said[0]
+    assert at <= client.gap_timeout + 0.01, said
+    assert "waiting up to 9 s for the controller to answer" in line and "about 8 s" in line, line
+    said.clear()
+    client.open()  # an awake controller: no line
+    assert not said

@@ -114,3 +114,31 @@ def test_every_call_the_link_makes_on_its_client_is_declared_in_its_protocol():
 
     called = set(re.findall(r"self\.client\.(\w+)\(", inspect.getsource(module)))
     assert called and called <= {name for name in vars(DeviceClient) if not name.startswith("_")}, called
+
+
+def test_the_daemon_logs_the_clients_wait_for_a_silent_controller_on_an_outages_first_attempt_only(monkeypatch, caplog):
+    """Between "ready" and "connected" a booting controller kept the log silent for 8 s; the client's
+    line says what the open waits for. Later attempts of the same outage are the retry notes' (rare)."""
+    import logging
+
+    import runtime.device_link as module
+    from firmware_io.client import DSATimeout
+
+    class Booting:
+        def __init__(self, url, auto_reconnect, on_wait) -> None:
+            self.url, self.on_wait = url, on_wait
+
+        def open(self, should_stop):
+            self.on_wait(f"{self.url}: no answer yet; waiting up to 9 s for the controller to answer ...")
+            raise DSATimeout(f"{self.url}: open did not complete within 10 s")
+
+        def close(self, **_) -> None:
+            pass
+
+    monkeypatch.setattr(module, "DSAClient", Booting)
+    link = DeviceLink(DeviceConfig(url="tcp://10.0.0.9:13000"), Health(), Notifier({}))
+    with caplog.at_level(logging.INFO, logger="handover.daemon"):
+        link.connect()
+        link.connect()
+    said = [r.getMessage() for r in caplog.records if "waiting" in r.getMessage()]
+    assert said == ["device tcp://10.0.0.9:13000: no answer yet; waiting up to 9 s for the controller to answer ..."]

@@ -207,7 +207,7 @@ def _check_device(cfg) -> int:
         print(f"{PROG}: {held}; not opened (stop that daemon to check the device)", file=sys.stderr)
         return 1
     print(f"opening {cfg.device.url} for {PROBE_S:g} s ...", flush=True)
-    probe = probe_device(cfg.device.url)
+    probe = probe_device(cfg.device.url, on_wait=lambda line: print(f"device {line}", flush=True))
     if probe.problem:
         print(f"{PROG}: {probe.line()}", file=sys.stderr)
         return 1
