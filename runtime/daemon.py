@@ -282,13 +282,17 @@ class Daemon:
     def _announce(self, announcement: ModelAnnouncement) -> None:
         self.sinks.emit(announcement)
 
-    def _apply(self, model: Any = _KEEP, layout: SensorLayout | None = None, cfg: Config | None = None) -> None:
+    def _apply(self, model: Any = _KEEP, layout: SensorLayout | None = None, cfg: Config | None = None,
+               lost: bool = False) -> None:
         """The one place the detector changes: the model the slot chose (or None), the layout of a device
-        that began to stream (the history is new), the settings of a reloaded config. Between frames only."""
+        that began to stream (the history is new), the settings of a reloaded config, a stream that broke
+        off (``lost``: its history ends). Between frames only."""
         if model is not _KEEP:
             self.detector.swap(model)
         if layout is not None:
             self.detector.fit(layout)
+        if lost:
+            self.detector.restart()
         if cfg is not None:
             self.detector.configure(cfg.scene, cfg.trigger, cfg.continuous, cfg.control)
 
@@ -301,6 +305,14 @@ class Daemon:
     def _stream_began(self, layout: SensorLayout) -> None:
         self.models.fit_layout(layout)
         self._apply(layout=layout)
+
+    def _link_lost(self) -> None:
+        """The link failed: no real-time priority until frames flow again, and the stream's history ends
+        now, not at the reconnect (which restarts it anyway): its open windows never get their last
+        frames, and held a model dropped or a reload sent during the outage back (``windows_hold``)
+        until the device was back, up to ``HOLD_LIMIT_S``; a rollback in that time never served."""
+        self.hot_thread.lower()
+        self._apply(lost=True)
 
     def _connecting(self) -> bool:
         """Whether to cancel a slow open (SIGTERM); meanwhile the health file is written and a model dropped
@@ -453,8 +465,8 @@ class Daemon:
                     continue
                 frame = read()
                 if frame is None:
-                    if not link.connected:  # the link failed: no real-time priority until frames flow again
-                        self.hot_thread.lower()
+                    if not link.connected:
+                        self._link_lost()
                     continue
                 if not self.hot_thread.applied:
                     self._hot_thread_raise()

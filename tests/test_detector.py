@@ -184,6 +184,54 @@ def test_windows_that_keep_opening_hold_a_swap_or_reload_back_at_most_the_limit(
     assert other.windows_hold(t + 3 * HOLD_LIMIT_S)  # a fresh hold starts its own clock
 
 
+def test_a_model_dropped_while_the_device_is_away_serves_at_once_though_a_window_was_open(tmp_path):
+    """The link failed with a window open: its last frames never come (the reconnect restarts the
+    history), yet it held the model dropped during the outage back until the device was back or
+    HOLD_LIMIT_S (10 s) passed; the soak's rollback in that time removed the file before it served."""
+    from firmware_io.transports import DeviceUnavailable
+
+    models = tmp_path / "models"
+    models.mkdir()
+    write_model(models, "m.onnx", tiny_model_bytes())
+    away = threading.Event()
+
+    class UnpluggedMidWindow:
+        """Streams two pushes; unplugged (and gone) once a window is open, as a model is dropped."""
+
+        def __init__(self) -> None:
+            self.frames = _frames(_pushes())
+
+        def open(self, should_stop=None) -> SensorLayout:
+            if away.is_set():  # the link reopens the client it has
+                raise DeviceUnavailable("cannot connect: Connection refused")
+            return LAYOUT
+
+        def start(self, should_stop=None) -> None:
+            pass
+
+        def read_frame(self, timeout: float) -> Frame | None:
+            if daemon.detector.window_open:
+                away.set()
+                write_model(models, "newer.onnx", tiny_model_bytes(tag="newer"))
+                raise ConnectionError("unplugged")
+            return next(self.frames, None)
+
+        def close(self, stop_timeout=None) -> None:
+            pass
+
+    cfg = config_from_dict({"device": {"url": "tcp://127.0.0.1:9", "reconnect_min_s": 0.05, "reconnect_max_s": 0.2},
+                            "model": {"folder": str(models), "poll_interval_s": 0.05}, "sinks": {"stdout": False}})
+    daemon = Daemon(cfg, client_factory=lambda url: UnpluggedMidWindow())
+    runner = threading.Thread(target=daemon.run, daemon=True)
+    runner.start()
+    try:
+        served = wait_for(lambda: away.is_set() and Path(daemon.model.path).name == "newer.onnx", timeout=3.0)
+    finally:
+        daemon.request_stop()
+        runner.join(timeout=5)
+    assert served and not daemon.link.connected
+
+
 def _nan_when_pressed_at(rate_hz: float) -> bytes:
     """A continuous-mode model at ``rate_hz`` that passes every static check but answers NaN scores
     (sqrt of a negative number) once the frames' mean exceeds 1, i.e. on the first press."""
