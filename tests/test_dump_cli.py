@@ -158,3 +158,23 @@ def test_a_device_that_dies_mid_dump_still_gets_the_summary_of_what_came(capsys)
     assert code == 1
     assert json.loads(out.splitlines()[-1])["frames"] == 3  # the frames shown are summed up, not lost
     assert len(err.splitlines()) == 1 and "closed the connection" in err, err
+
+
+def test_a_controller_that_boots_is_waited_for_and_said_on_stderr(capsys):
+    """Right after another host left, an SDH-2 behind Ethernet resets and is deaf while it boots (8 s on the
+    robot, 1.5 s here): dump said nothing meanwhile; it says what it waits for, once."""
+    from firmware_io.emulator.device import DeviceEmulator
+    from firmware_io.emulator.frame_source import load_source
+    from firmware_io.emulator.server import TcpEmulatorServer
+
+    emulator = DeviceEmulator(load_source("sim", seed=0, events=2), speed=1.0, boot_s=1.5, boot_query_s=1.2)
+    emulator.power_cycle()
+    server = TcpEmulatorServer(emulator).start()
+    try:
+        code = main(["dump", server.url, "--frames", "2", "--all-frames", "--json"])
+    finally:
+        server.stop()
+    out, err = capsys.readouterr()
+    assert code == 0 and json.loads(out.splitlines()[-1])["frames"] == 2
+    waits = [line for line in err.splitlines() if "no answer yet" in line]
+    assert len(waits) == 1 and waits[0].startswith(f"handover dump: {server.url}: no answer yet; waiting up to"), err

@@ -185,7 +185,7 @@ def _connect(device: str, trial_seconds: float):
 
     parsed = validate_url(device)
     if parsed.scheme != SUBJECT_SCHEME:
-        return DSAClient(device), None
+        return DSAClient(device, on_wait=lambda line: print(f"handover record: {line}", file=sys.stderr, flush=True)), None
     from firmware_io.sim.scripted_subject import ScriptedSubject
 
     subject = ScriptedSubject.from_url(parsed)
