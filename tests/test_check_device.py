@@ -54,6 +54,7 @@ def test_check_device_reports_frames_and_rate_of_the_emulator(tmp_path):
     frames, rate, device_hz = int(m.group(1)), float(m.group(3)), float(m.group(4))
     assert frames >= 30 and 20 <= rate <= 40 and abs(device_hz - 32) < 2, line
     assert "not checked: the device itself" not in proc.stdout and "not checked: whether the UDP" in proc.stdout
+    assert proc.stdout.strip().splitlines()[-1] == line, "the device's verdict is the last line, after the lists"
 
 
 def test_check_device_with_nothing_listening_is_one_line_and_exit_1(tmp_path):

@@ -566,3 +566,17 @@ def test_the_session_line_names_the_flagged_trials_and_how_to_look_at_one():
     assert "(trials 1, 2, 3, 4, 5 ...)" in _flagged_text(list(range(8)), "x.hrec")
     assert _flagged_text([6], "s1.hrec") == (", 1 flagged (trial 7): training gets no case from it; look at it with "
                                              "`handover plot s1.hrec --trial 7`")
+
+
+def test_what_was_saved_is_counted_in_words(tmp_path):
+    """A session killed after one trial said "1 trials saved"."""
+    from types import SimpleNamespace
+
+    from trainer.commands.record_cli import _saved
+
+    path = tmp_path / "subject_s1.hrec"
+    path.write_bytes(b"x")
+    one = SimpleNamespace(path=path, n_trials=1, n_idle=1, idle_seconds=lambda: 81.0)
+    assert _saved(one) == f"1 trial and 1 idle stretch (1.4 min) saved in {path}"
+    two = SimpleNamespace(path=path, n_trials=2, n_idle=0, idle_seconds=lambda: 0.0)
+    assert _saved(two) == f"2 trials saved in {path}"

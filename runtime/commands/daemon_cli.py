@@ -46,9 +46,9 @@ def main(args: argparse.Namespace) -> int:
     logging.getLogger("handover").setLevel(cfg.log_level.upper())
     if args.check:
         code = _check(cfg, require_model=args.require_model)
-        device_code = _check_device(cfg) if args.device else 0
         print(CHECKED)
-        print(NOT_CHECKED_WITH_DEVICE if args.device else NOT_CHECKED)
+        print(NOT_CHECKED_WITH_DEVICE if args.device else NOT_CHECKED, flush=True)
+        device_code = _check_device(cfg) if args.device else 0  # the device's verdict comes last, not buried
         return code or device_code
     from runtime import instance_lock
 
@@ -195,7 +195,8 @@ CHECKED = ("checked: config keys and values; the device URL's form; the model fo
 NOT_CHECKED = ("not checked: the device itself (add --device to open it for a few seconds); whether the UDP and Unix "
                "destinations listen; who sends on the control socket; the real-time priority")
 NOT_CHECKED_WITH_DEVICE = NOT_CHECKED.replace("the device itself (add --device to open it for a few seconds); ", "")
-"""What ``--check`` looked at and what it did not, said after its verdict (a valid config is not a working daemon)."""
+"""What ``--check`` looked at and what it did not, said after the config's verdict (a valid config is not a working
+daemon) and before the device's (with ``--device``, the last thing on screen)."""
 
 
 def _check_device(cfg) -> int:

@@ -327,8 +327,9 @@ def _saved(store) -> str:
     """What the file holds; before the first save there is no file to name as holding 0 trials."""
     if not store.path.exists():
         return f"nothing saved yet ({store.path} was not written)"
-    idle = f" and {store.n_idle} idle stretches ({store.idle_seconds() / 60:.1f} min)" if store.n_idle else ""
-    return f"{store.n_trials} trials{idle} saved in {store.path}"
+    idle = (f" and {store.n_idle} idle stretch{'' if store.n_idle == 1 else 'es'} ({store.idle_seconds() / 60:.1f} min)"
+            if store.n_idle else "")
+    return f"{store.n_trials} trial{'' if store.n_trials == 1 else 's'}{idle} saved in {store.path}"
 
 
 def _controller_info(client) -> dict:
