@@ -178,3 +178,11 @@ def test_a_controller_that_boots_is_waited_for_and_said_on_stderr(capsys):
     assert code == 0 and json.loads(out.splitlines()[-1])["frames"] == 2
     waits = [line for line in err.splitlines() if "no answer yet" in line]
     assert len(waits) == 1 and waits[0].startswith(f"handover dump: {server.url}: no answer yet; waiting up to"), err
+
+
+def test_a_boot_is_counted_apart_from_the_streams_errors():
+    from firmware_io.commands.dump_cli import _errors
+
+    said = _errors({"crc_errors": 1, "boot_queries": 3, "timeouts": 4})
+    assert said == ("crc_errors 1, bad_headers 0, packets_dropped 0, bytes_dropped 0, decode_errors 0; "
+                    "link: boot_queries 3, reconnects 0, timeouts 4")

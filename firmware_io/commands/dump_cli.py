@@ -224,9 +224,11 @@ class IdleSkip:
 
 
 def _errors(stats: dict) -> str:
-    keys = ("crc_errors", "bad_headers", "packets_dropped", "bytes_dropped", "decode_errors", "boot_queries",
-            "reconnects", "timeouts")
-    return ", ".join(f"{k} {stats.get(k, 0)}" for k in keys)
+    """The byte stream's errors, then the link's counts apart: a controller that boots asks for the terminal
+    and leaves the open's first requests unanswered (timeouts) without anything being wrong."""
+    errors = ("crc_errors", "bad_headers", "packets_dropped", "bytes_dropped", "decode_errors")
+    link = ("boot_queries", "reconnects", "timeouts")
+    return "; link: ".join(", ".join(f"{k} {stats.get(k, 0)}" for k in keys) for keys in (errors, link))
 
 
 def _stderr(text: str) -> None:
