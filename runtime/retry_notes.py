@@ -11,10 +11,12 @@ import re
 import time
 from collections.abc import Callable
 
-__all__ = ["RetryNotes"]
+__all__ = ["QUIET", "RetryNotes"]
 
 REPEAT_NOTES_S = (60.0, 600.0, 3600.0)
 """The same failure is logged again this long after it began; after the last step, once per last step."""
+QUIET = f" (and again quietly: the next line after {REPEAT_NOTES_S[0]:.0f} s, or at once for a new reason)"
+"""Said with an outage's first line: a console silent for the next minute is the daemon retrying, not hung."""
 
 
 class RetryNotes:
@@ -45,7 +47,7 @@ class RetryNotes:
             self._kinds.add(kind)
             self.reason, self._reason_start, self._notes = reason, now, 0
             self._next_note = now + REPEAT_NOTES_S[0]
-            return f"{reason}; retrying in {retry_in_s:.1f} s"
+            return f"{reason}; retrying in {retry_in_s:.1f} s{QUIET}"
         self.reason = reason  # the latest words, for "last:"
         if now < self._next_note:
             return None

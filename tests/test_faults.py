@@ -23,6 +23,7 @@ import pytest
 from firmware_io.client import DSAClient
 from runtime.config import config_from_dict
 from runtime.daemon import Daemon
+from runtime.retry_notes import QUIET
 from tests.clocks import ManualClock
 from tests.tiny_models import tiny_model_bytes, write_model
 
@@ -455,14 +456,14 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
 
     first = attempts(6 * 125)  # two hours and five minutes at the 10 s backoff
     assert len(first) == 5, first  # at once, after 1, 10, 60 and 120 minutes
-    assert first[0] == "device sim://?events=4&realtime=0: cannot connect: Connection refused; retrying in 0.1 s"
+    assert first[0] == f"device sim://?events=4&realtime=0: cannot connect: Connection refused; retrying in 0.1 s{QUIET}"
     assert first[1].startswith("device sim://?events=4&realtime=0: still unreachable after 7 attempts in 60 s "
                                "(last: cannot connect: Connection refused)")
     assert "after 61 attempts in 10 min" in first[2] and "after 361 attempts in 60 min" in first[3]
     assert "after 721 attempts in 2.0 h" in first[4]
     state["reason"] = "no answer within 3 s (hand powered? cable?)"
     changed = attempts(3)
-    assert len(changed) == 1 and changed[0].endswith("no answer within 3 s (hand powered? cable?); retrying in 0.2 s")
+    assert len(changed) == 1 and changed[0].endswith(f"no answer within 3 s (hand powered? cable?); retrying in 0.2 s{QUIET}")
     state["up"] = True
     back = attempts(1)
     daemon.link.close()
@@ -472,7 +473,7 @@ def test_a_refused_device_is_logged_once_then_rarely_while_health_hears_every_at
     assert daemon.health.last_error == ""
     state["up"] = False
     again = attempts(1)
-    assert len(again) == 1 and again[0].endswith("no answer within 3 s (hand powered? cable?); retrying in 0.2 s")
+    assert len(again) == 1 and again[0].endswith(f"no answer within 3 s (hand powered? cable?); retrying in 0.2 s{QUIET}")
 
 
 def test_a_device_whose_every_frame_is_refused_says_so_at_the_stall(models, caplog):

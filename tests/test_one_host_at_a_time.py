@@ -17,7 +17,7 @@ from firmware_io.emulator.server import TcpEmulatorServer
 from firmware_io.transports import DeviceUnavailable
 from runtime.daemon import Daemon
 from runtime.device_link import SHORT_LINK_S
-from runtime.retry_notes import RetryNotes
+from runtime.retry_notes import QUIET, RetryNotes
 from tests.clocks import ManualClock
 from tests.test_faults import _config
 from tests.tiny_models import tiny_model_bytes, write_model
@@ -120,5 +120,5 @@ def test_a_flapping_link_is_logged_rarely_and_health_hears_every_drop(models, ca
     lines = [r.getMessage() for r in caplog.records if r.name == "handover.daemon"]
     assert lines == ["device sim://?events=4&realtime=0 reconnected (486 taxels, scene model)",
                      "device sim://?events=4&realtime=0: no frame for 2 s (stall) within 5 s of connecting; "
-                     "retrying in 0.2 s"], lines
+                     f"retrying in 0.2 s{QUIET}"], lines
     daemon.link.close()
