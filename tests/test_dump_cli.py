@@ -149,12 +149,7 @@ def test_a_device_that_dies_mid_dump_still_gets_the_summary_of_what_came(capsys)
     from firmware_io.emulator.server import TcpEmulatorServer
 
     device = DeviceEmulator(load_source("sim", seed=0, events=2), speed=None, faults=FaultPlan(disconnect_after=3))
-    server = TcpEmulatorServer(device).start()
-    try:
-        code = main(["dump", server.url, "--frames", "50", "--all-frames", "--json"])
-    finally:
-        server.stop()
-    out, err = capsys.readouterr()
+    code, out, err, _url = _dump(capsys, TcpEmulatorServer(device), 50)
     assert code == 1
     assert json.loads(out.splitlines()[-1])["frames"] == 3  # the frames shown are summed up, not lost
     assert len(err.splitlines()) == 1 and "closed the connection" in err, err
@@ -169,15 +164,21 @@ def test_a_controller_that_boots_is_waited_for_and_said_on_stderr(capsys):
 
     emulator = DeviceEmulator(load_source("sim", seed=0, events=2), speed=1.0, boot_s=1.5, boot_query_s=1.2)
     emulator.power_cycle()
-    server = TcpEmulatorServer(emulator).start()
+    code, out, err, url = _dump(capsys, TcpEmulatorServer(emulator), 2)
+    assert code == 0 and json.loads(out.splitlines()[-1])["frames"] == 2
+    waits = [line for line in err.splitlines() if "no answer yet" in line]
+    assert len(waits) == 1 and waits[0].startswith(f"handover dump: {url}: no answer yet; waiting up to"), err
+
+
+def _dump(capsys, server, frames: int) -> tuple[int, str, str, str]:
+    """``handover dump URL --frames N --all-frames --json`` against ``server``: exit code, stdout, stderr, URL."""
+    server.start()
     try:
-        code = main(["dump", server.url, "--frames", "2", "--all-frames", "--json"])
+        code = main(["dump", server.url, "--frames", str(frames), "--all-frames", "--json"])
     finally:
         server.stop()
     out, err = capsys.readouterr()
-    assert code == 0 and json.loads(out.splitlines()[-1])["frames"] == 2
-    waits = [line for line in err.splitlines() if "no answer yet" in line]
-    assert len(waits) == 1 and waits[0].startswith(f"handover dump: {server.url}: no answer yet; waiting up to"), err
+    return code, out, err, server.url
 
 
 def test_a_boot_is_counted_apart_from_the_streams_errors():
