@@ -415,8 +415,8 @@ def test_a_device_that_alternates_two_ways_of_failing_is_one_outage():
 
     clock = ManualClock(1000.0)
     notes = RetryNotes(clock=clock)
-    reasons = ("tcp://h:1: the device closed the connection at once", "tcp://h:1: connection lost: "
-               "Connection reset by peer at once")
+    reasons = ("tcp://h:1: the device closed the connection before any byte came", "tcp://h:1: "
+               "connection lost: Connection reset by peer before any byte came")
     lines = []
     for n in range(13):
         lines.append(notes.failed(reasons[n % 2], 5.0))

@@ -86,7 +86,8 @@ class TcpTransport(Transport):
 
     def _lost(self, what: str) -> str:
         """The line for a lost connection; closed before the first byte, it says who may hold the device."""
-        return f"{self.url}: {what} at once ({HELD_ELSEWHERE})" if not self._received else f"{self.url}: {what}"
+        return (f"{self.url}: {what} before any byte came ({HELD_ELSEWHERE})" if not self._received
+                else f"{self.url}: {what}")
 
     def _release(self) -> None:
         with contextlib.suppress(OSError):
