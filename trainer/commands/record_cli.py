@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="no prompts, fixed timing (scripted sessions, tests); a trial that gives training no "
                              "case is recorded again --retries times, then kept flagged")
     parser.add_argument("--retries", type=int, default=1, help="--auto: repeats of a trial that gives no case")
-    parser.add_argument("--max-trials", type=int, default=None, help="stop after this many trials")
+    parser.add_argument("--max-trials", type=int, default=None, help="stop after this many trial attempts (a trial recorded again counts again)")
     parser.add_argument("--idle-minutes", type=float, default=None,
                         help=f"idle recorded after the trials: the object held still, the arm moving, regrasps, the "
                              f"hand closing and opening, nobody touching it; what a model needs to stay quiet "
