@@ -62,8 +62,7 @@ def main(args: argparse.Namespace) -> int:
     emit = _json_line if args.json else None
     idle = IdleSkip(enabled=preview and not args.all_frames, emit=emit)
     tally = Tally()
-    client = DSAClient(args.url, rle=not args.raw, auto_reconnect=False,
-                       on_wait=lambda line: print(f"handover dump: {line}", file=sys.stderr, flush=True))  # a boot: 8 s silent
+    client = DSAClient(args.url, rle=not args.raw, auto_reconnect=False, on_wait=_stderr)  # a boot: 8 s silent
     try:
         layout = client.open()
         _show_layout(args.url, client, layout, emit)
