@@ -228,6 +228,12 @@ def test_demo_scores_a_given_model(trained, tmp_path, capsys):
     steps = [line[:6] for line in err.splitlines() if line.startswith("[")]
     assert steps[:3] == ["[1-2/4", "[3/4] ", "[4/4] "], err  # a given model's steps start at the first, not at [3/4]
     assert "no simulation, no training), served in setting onset_dormant" in err
+    from benchmarks.session_spread import spread  # the bench's in-process replay scores the session as the demo does
+
+    same = spread(trained / "model.onnx", None, seeds=(0,), events=8)
+    assert (same["right"], same["missed"], same["outside"]) == (
+        summary["events_correct"], summary["events_missed"], summary["false_events"]), (same, summary)
+    assert same["sessions"][0]["p90"] == summary["report_minus_onset_frames"]["p90"] and same["right"] >= 6
 
 
 def test_demo_with_a_model_that_is_not_one_is_one_line(tmp_path, capsys):
