@@ -47,16 +47,18 @@ def spread(model_path: Path, lab: str | None, robot: bool = False, seeds: tuple[
             "missed": int(sum(p["missed"] for p in per)), "outside": int(sum(p["outside"] for p in per)),
             "right_per_session": {"median": float(np.median(right)), "min": int(right.min()), "max": int(right.max())},
             "sessions_right_bar": int((right >= RIGHT_BAR).sum()),
-            "p90_per_session": {"median": float(np.median(p90)), "min": float(p90.min()), "max": float(p90.max())},
+            "p90_per_session": ({"median": float(np.median(p90)), "min": float(p90.min()), "max": float(p90.max())}
+                                if len(p90) else None),
             "sessions_p90_bar": int((p90 <= P90_BAR).sum()), "sessions": per}
 
 
 def spread_row(name: str, s: dict) -> str:
     """One markdown row of ``spread``'s figures."""
     n, r, p = len(s["sessions"]), s["right_per_session"], s["p90_per_session"]
+    p90 = "-" if p is None else f"{p['median']:.1f} ({p['min']:.0f}-{p['max']:.0f})"
     return (f"| {name} | {s['lab']} | {'yes' if s['robot_messages'] else 'no'} | {s['right']}/{s['expected']} "
             f"({s['right'] / s['expected']:.1%}) | {r['median']:.0f} ({r['min']}-{r['max']}) | "
-            f"{s['sessions_right_bar']}/{n} | {p['median']:.1f} ({p['min']:.0f}-{p['max']:.0f}) | "
+            f"{s['sessions_right_bar']}/{n} | {p90} | "
             f"{s['sessions_p90_bar']}/{n} | {s['missed']} | {s['outside']} |")
 
 
