@@ -189,7 +189,9 @@ def spread_lines(r: dict) -> list[str]:
              f"Sessions of seeds {SEEDS[0]}, {SEEDS[1]}-{SEEDS[-1]} (0 is the demo's; 1 and 2 are left out: the trigger's "
              "settings were chosen on them), each replayed in process through the daemon's code in the model's "
              "setting (benchmarks/session_spread.py). 'Robot says grasp closed': the robot's `grasp closed` / `grasp "
-             "open` messages (docs/GUIDE.md), which arm the trigger at once instead of waiting for the grasp to settle.",
+             "open` messages (docs/GUIDE.md), which arm the trigger at once instead of waiting for the grasp to settle "
+             "(the simulated robot says it 0.6 s after first contact, trainer/streams_eval.py's robot_messages; in every "
+             "session here that is before the person acts).",
              "", *SPREAD_HEADER]
     for row in r["cases"]:
         for key, what in (("prior", "prior + own"), ("no_prior", "own only")):
