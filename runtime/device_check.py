@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from firmware_io.wire.replies import serial_text
 from runtime.health import one_line
 
 __all__ = ["PROBE_CONNECT_S", "PROBE_S", "probe_device"]
@@ -48,7 +49,7 @@ class DeviceProbe:
         if self.problem:
             return f"device {self.url}: {self.problem}"
         clock = "" if self.device_rate_hz is None else f"; {self.device_rate_hz:.1f} Hz on the device's clock"
-        serial = "" if self.sensor_serial is None else f", sensor serial {self.sensor_serial:08X}"
+        serial = "" if self.sensor_serial is None else f", sensor serial {serial_text(self.sensor_serial)}"
         return (f"device {self.url}: {self.frames} frames in {self.seconds:.1f} s ({self.rate_hz:.1f} frames/s{clock}); "
                 f"{self.n_pads} pads, {self.n_taxels} taxels, firmware {self.firmware}{serial}"
                 + (f"; {self.errors}" if self.errors else ""))
@@ -56,8 +57,9 @@ class DeviceProbe:
 
 def probe_device(url: str, seconds: float = PROBE_S, client_factory=None,
                  on_wait: Callable[[str], None] | None = None) -> DeviceProbe:
-    """Open ``url``, stream for ``seconds``, close. Never raises: a failure is ``problem``. ``on_wait`` hears the
-    client's line when the open waits for a silent controller (``DSAClient.on_wait``: a boot takes 8 s)."""
+    """Open ``url``, stream for ``seconds``, close. Never raises: a failure is ``problem``. ``on_wait`` hears each
+    wait as it starts, so the check never looks hung: the client's line when the open waits for a silent
+    controller (``DSAClient.on_wait``: a boot takes 8 s), then the read of frames and its bound."""
     if client_factory is None:
         from firmware_io.client import DSAClient
         from firmware_io.transports import TransportError, validate_url
@@ -81,6 +83,8 @@ def probe_device(url: str, seconds: float = PROBE_S, client_factory=None,
         if client.sensor is not None:
             probe.sensor_serial = int(client.sensor.serial_no)
         client.start()
+        if on_wait is not None:
+            on_wait(f"{url}: reading frames for up to {seconds:g} s ...")
         t0 = time.monotonic()
         end = t0 + seconds
         stamps: list[int] = []

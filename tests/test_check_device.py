@@ -14,6 +14,7 @@ from pathlib import Path
 from firmware_io.emulator.device import DeviceEmulator
 from firmware_io.emulator.frame_source import load_source
 from firmware_io.emulator.server import TcpEmulatorServer
+from runtime.device_check import PROBE_S
 from tests.tiny_models import tiny_model_bytes, write_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +48,7 @@ def test_check_device_reports_frames_and_rate_of_the_emulator(tmp_path):
     finally:
         server.stop()
     assert proc.returncode == 0, proc.stderr
-    line = next(x for x in proc.stdout.splitlines() if x.startswith(f"device {server.url}:"))
+    line = next(x for x in proc.stdout.splitlines() if x.startswith(f"device {server.url}:") and " frames in " in x)
     m = re.search(r"(\d+) frames in ([\d.]+) s \(([\d.]+) frames/s; ([\d.]+) Hz on the device's clock\); 6 pads, "
                   r"486 taxels, firmware 2\.9\.0\.0", line)
     assert m, line
@@ -102,7 +103,52 @@ def test_check_device_says_what_it_waits_for_while_the_controller_boots(tmp_path
         server.stop()
     assert proc.returncode == 0, proc.stderr
     lines = [x for x in proc.stdout.splitlines() if x.startswith(("opening", "device"))]
-    assert lines[0].startswith("opening") and len(lines) == 3, lines
+    assert lines[0].startswith("opening") and len(lines) == 4, lines
     assert re.fullmatch(rf"device {re.escape(server.url)}: no answer yet; waiting up to \d+ s for the controller "
                         r"to answer \(.*about 8 s\) \.\.\.", lines[1]), lines
-    assert " frames in " in lines[2], lines
+    assert lines[2] == f"device {server.url}: reading frames for up to {PROBE_S:g} s ...", lines
+    assert " frames in " in lines[3], lines
+
+
+def test_the_check_says_it_reads_frames_and_for_how_long_once_the_controller_answered():
+    """After the controller answered, the check read frames for PROBE_S with nothing on screen (4-6 s on a slow
+    machine): a user thought it hung. One line says what it does and for how long at most, before the read."""
+    from firmware_io.layout import SensorLayout
+    from runtime.device_check import PROBE_S, probe_device
+
+    said: list[str] = []
+
+    class Answering:
+        controller = sensor = None
+
+        def open(self):
+            said.append("open")
+            return SensorLayout.sdh2()
+
+        def start(self) -> None:
+            pass
+
+        def read_frame(self, timeout):
+            said.append("read")
+            raise OSError("the cable came out")
+
+        def close(self, stop_timeout) -> None:
+            pass
+
+    probe_device("tcp://10.0.0.9", client_factory=lambda url: Answering(), on_wait=said.append)
+    assert said == ["open", f"tcp://10.0.0.9: reading frames for up to {PROBE_S:g} s ...", "read"], said
+
+
+def test_dump_and_the_check_write_a_serial_number_alike(capsys):
+    """``dump`` wrote the controller's serial in decimal (12345), ``run --check --device`` the sensor's in hex
+    (00003039): the same number twice, unrecognisable. Both go through ``replies.serial_text`` now."""
+    from firmware_io.emulator.identity import DEFAULT_SERIAL
+    from firmware_io.wire.replies import serial_text
+    from runtime.cli import main
+    from runtime.device_check import probe_device
+
+    assert serial_text(DEFAULT_SERIAL) == "00003039" and serial_text(0x1D9B0057) == "1D9B0057"  # a .dsa <serial_nr>
+    assert probe_device("sim://?realtime=0", seconds=0.2).line().endswith(f", sensor serial {serial_text(DEFAULT_SERIAL)}")
+    assert main(["dump", "sim://?realtime=0", "--frames", "1", "--all-frames"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == f"sim://?realtime=0: controller firmware 2.9.0.0, serial {serial_text(DEFAULT_SERIAL)}", first

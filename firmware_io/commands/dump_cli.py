@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 from firmware_io.commands.options import add_json, positive_float, positive_int
 from firmware_io.errors import DeviceFailure, HandoverError
+from firmware_io.transports.tcp import URL_FORM
+from firmware_io.wire.replies import serial_text
 
 __all__ = ["add_arguments", "main"]
 
@@ -32,7 +34,7 @@ WAIT_NOTE_AFTER_S = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("url", help="device URL: serial:///dev/ttyUSB0, tcp://192.168.1.42:13000, usb://VID:PID, "
+    parser.add_argument("url", help=f"device URL: serial:///dev/ttyUSB0, {URL_FORM}, usb://VID:PID, "
                         "hid://VID:PID, sim://, replay://FILE, or a /dev path")
     parser.add_argument("--frames", type=positive_int, default=None,
                         help=f"stop after N frames (default: a preview of {PREVIEW_FRAMES} frames from the first "
@@ -119,7 +121,8 @@ def _show_layout(url: str, client, layout, emit) -> None:
     if emit:
         emit(header)
         return
-    print(f"{url}: controller firmware {header['firmware']}, serial {header['controller_serial']}")
+    serial = serial_text(ctrl.serial_no) if ctrl else None
+    print(f"{url}: controller firmware {header['firmware']}, serial {serial}")
     sizes = ", ".join(f"{m.index}: {m.cells_x}x{m.cells_y}" for m in layout.matrices)
     print(f"{layout.n_matrices} pads, {layout.n_taxels} taxels ({sizes})")
     print("frame   device_ms   dt_ms  " + "  ".join(f"pad{m.index:>4}" for m in layout.matrices) + "    max")

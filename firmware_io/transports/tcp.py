@@ -21,9 +21,12 @@ from firmware_io.transports.base import (
     parse_number,
 )
 
-__all__ = ["TcpTransport"]
+__all__ = ["DEFAULT_PORT", "URL_FORM", "TcpTransport"]
 
 DEFAULT_PORT = 13000
+"""The SDH-2's DSACON32m port, taken when a tcp:// URL names none."""
+URL_FORM = f"tcp://HOST[:PORT] (default port {DEFAULT_PORT})"
+"""A TCP device URL as a help text writes it: the default port is said where the URL is asked for."""
 HELD_ELSEWHERE = "another client, e.g. the daemon, may hold the device: it serves one host at a time"
 """Why a device closes or resets a connection before sending a byte (a controller serving one host)."""
 
@@ -43,7 +46,7 @@ class TcpTransport(Transport):
             raise DeviceUnavailable(f"{self.url}: no answer {within} (hand powered? cable?)") from None
         except OSError as exc:
             raise DeviceUnavailable(f"{self.url}: cannot connect: {exc.strerror or exc} (hand powered, "
-                                    "host and port right? the SDH-2 listens on 13000)") from None
+                                    f"host and port right? the SDH-2 listens on {DEFAULT_PORT})") from None
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._sock.settimeout(None)
         self._sock.setblocking(True)

@@ -11,7 +11,15 @@ from firmware_io.layout import MatrixInfo, fullscale_problem
 from firmware_io.wire.errors import ProtocolError
 from firmware_io.wire.packets import PacketId, check_reply, encode_packet, expect_size
 
-__all__ = ["ControllerInfo", "MatrixInfoReply", "MatrixMaskReply", "SensitivityReply", "SensorInfo", "ThresholdReply"]
+__all__ = ["ControllerInfo", "MatrixInfoReply", "MatrixMaskReply", "SensitivityReply", "SensorInfo", "ThresholdReply",
+           "serial_text"]
+
+
+def serial_text(serial_no: int) -> str:
+    """A controller's or sensor's serial number on screen: 8 hex digits, no ``0x`` (``1D9B0057``), as Weiss's
+    DSA-Konqueror writes ``<serial_nr>`` in a .dsa file, so a number shown can be found in a recording's header.
+    (SDHLibrary prints the field in decimal, but only in a debug dump of the whole struct.)"""
+    return f"{serial_no:08X}"
 
 
 def _reply_prologue(payload: bytes, packet_id: int, sizes: int | tuple[int, ...], what: str) -> None:

@@ -202,12 +202,12 @@ daemon) and before the device's (with ``--device``, the last thing on screen).""
 def _check_device(cfg) -> int:
     """Open the device for a few seconds (``runtime.device_check``): 0 when frames came, else 1 (one line).
     A device another daemon holds is not opened: reading it would take it from that daemon."""
-    from runtime.device_check import PROBE_S, probe_device
+    from runtime.device_check import probe_device
 
     if held := next((line for line in _held(cfg) if line.startswith("device ")), None):
         print(f"{PROG}: {held}; not opened (stop that daemon to check the device)", file=sys.stderr)
         return 1
-    print(f"opening {cfg.device.url} for {PROBE_S:g} s ...", flush=True)
+    print(f"opening {cfg.device.url} ...", flush=True)  # how long it reads is said once the controller answered
     probe = probe_device(cfg.device.url, on_wait=lambda line: print(f"device {line}", flush=True))
     if probe.problem:
         print(f"{PROG}: {probe.line()}", file=sys.stderr)

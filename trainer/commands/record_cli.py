@@ -19,6 +19,7 @@ from firmware_io.recordings.idle_stretches import DEFAULT_IDLE_MINUTES
 from firmware_io.recordings.record_session import DEFAULT_RUNS, OBJECTS, POSES, RECORD_OUT
 from firmware_io.recordings.recording import ACTIONS
 from firmware_io.recordings.trial_capture import LEAD_IN_SECONDS
+from firmware_io.transports.tcp import URL_FORM
 from firmware_io.trigger_level import PAPER_FRACTION
 
 __all__ = ["add_arguments", "main"]
@@ -29,7 +30,7 @@ IDLE_ONLY_MINUTES = 20.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", required=True,
-                        help="device URL: serial:///dev/ttyUSB0, tcp://HOST:13000, ... or subject://?seed=0 "
+                        help=f"device URL: serial:///dev/ttyUSB0, {URL_FORM}, ... or subject://?seed=0 "
                              "(emulated controller with a scripted simulated subject; synthetic data)")
     parser.add_argument("--subject", required=True, help="subject id (the file is OUT/subject_ID.hrec)")
     parser.add_argument("--out", default=RECORD_OUT, help=f"folder of the recordings (default ./{RECORD_OUT})")
