@@ -26,12 +26,12 @@ def spread(model_path: Path, lab: str | None, robot: bool = False, seeds: tuple[
     ``robot``: the robot says ``grasp closed`` / ``grasp open`` (``streams_eval.robot_messages``); ``events``:
     per session (default: the demo's)."""
     from runtime.model import load_model
-    from runtime.stream_settings import served_settings
     from trainer import streams_eval as se
     from trainer.commands.demo_cli import DEMO_EVENTS, scripted_session
+    from trainer.own_replay import stream_mode
 
     model = load_model(Path(model_path))
-    mode = served_settings(model.meta.dormant_class, model.meta.trigger)[0]
+    mode = stream_mode(bool(model.meta.dormant_class), (model.meta.trigger or {}).get("kind", "threshold"))
     per = []
     for seed in seeds:
         _, _, session = scripted_session(seed, events or DEMO_EVENTS, lab=lab)

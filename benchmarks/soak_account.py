@@ -21,13 +21,15 @@ def which_sent(sent: list[tuple[int, float, int]], stamps, times) -> dict[int, f
     A stamp names no frame of the run alone: a power-cycled controller restarts its clock (every TCP
     drop is a power cycle), so stamps recur, a boot (8 s) or more apart. An arrival was the last frame
     sent with its stamp before it arrived."""
-    sends: dict[int, list[int]] = {}
-    for k, (stamp, _, _) in enumerate(sent):
-        sends.setdefault(stamp, []).append(k)
+    sends: dict[int, tuple[list[int], list[float]]] = {}
+    for k, (stamp, t_sent, _) in enumerate(sent):
+        ks, ts = sends.setdefault(stamp, ([], []))
+        ks.append(k)
+        ts.append(t_sent)
     out: dict[int, float] = {}
     for stamp, t in zip(stamps, times, strict=True):
-        ks = sends.get(int(stamp), [])
-        j = bisect.bisect_right([sent[k][1] for k in ks], t) - 1
+        ks, ts = sends.get(int(stamp), ((), ()))
+        j = bisect.bisect_right(ts, t) - 1
         if j >= 0:
             out.setdefault(ks[j], t)
     return out
