@@ -185,10 +185,16 @@ def markdown(r: dict) -> list[str]:
 
 def spread_lines(r: dict) -> list[str]:
     """The same models over many demo sessions: how much of a row above is its session."""
+    from firmware_io.sim.session import HELD_OUT_SEED_OFFSET
+
     lines = [f"## The same models over {len(SEEDS)} demo sessions (**synthetic**)", "",
-             f"Sessions of seeds {SEEDS[0]}, {SEEDS[1]}-{SEEDS[-1]} (0 is the demo's; 1 and 2 are left out: the trigger's "
-             "settings were chosen on them), each replayed in process through the daemon's code in the model's "
-             "setting (benchmarks/session_spread.py). 'Robot says grasp closed': the robot's `grasp closed` / `grasp "
+             f"The sessions of `handover demo --seed S` for S = {SEEDS[0]}, {SEEDS[1]}-{SEEDS[-1]} (the emulator's session "
+             f"S + {HELD_OUT_SEED_OFFSET}, by people none of the recordings above hold; 0 is the demo's; 1 and 2 are left out: the "
+             "trigger's settings were chosen on them), each replayed in process through the daemon's code in the "
+             "model's setting (benchmarks/session_spread.py); `handover demo --model M --seed S [--lab B]` plays one "
+             "of them. A session's p90 is interpolated between its events' whole frames, so it may have a decimal; "
+             "p90 <= 12 is lab B's target, shown for every row. Missed: events with no report at all (the trigger "
+             "did not fire, or the model read the window as dormant). 'Robot says grasp closed': the robot's `grasp closed` / `grasp "
              "open` messages (docs/GUIDE.md), which arm the trigger at once instead of waiting for the grasp to settle "
              "(the simulated robot says it 0.6 s after first contact, trainer/streams_eval.py's robot_messages; in every "
              "session here that is before the person acts).",

@@ -55,7 +55,7 @@ def spread(model_path: Path, lab: str | None, robot: bool = False, seeds: tuple[
 def spread_row(name: str, s: dict) -> str:
     """One markdown row of ``spread``'s figures."""
     n, r, p = len(s["sessions"]), s["right_per_session"], s["p90_per_session"]
-    p90 = "-" if p is None else f"{p['median']:.1f} ({p['min']:.0f}-{p['max']:.0f})"
+    p90 = "-" if p is None else f"{p['median']:.1f} ({p['min']:.1f}-{p['max']:.1f})"
     return (f"| {name} | {s['lab']} | {'yes' if s['robot_messages'] else 'no'} | {s['right']}/{s['expected']} "
             f"({s['right'] / s['expected']:.1%}) | {r['median']:.0f} ({r['min']}-{r['max']}) | "
             f"{s['sessions_right_bar']}/{n} | {p90} | "
