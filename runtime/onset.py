@@ -15,6 +15,10 @@ This trigger measures each pad's summed pressure against a baseline that follows
   on a point contact (``MIN_CONTACT_TAXELS``) or with the grasp on one finger (``MIN_GRASP_FINGERS``)
   goes back to ``settling`` without firing.
 
+The window is dated from where the departure began, not where it crossed ``change``: from the first
+frame it passed ``START_SHARE`` of ``change``, at most ``back_frames`` before the trigger frame (a slow
+hold crosses 12 % several frames after it began; a firm pull crosses both in one frame).
+
 ``set_grasp`` (the robot's word): ``closed`` arms at once, ``open`` disarms until the hand is seen empty,
 so a lost message never deafens the trigger. ``update(row, number)`` returns the frame at which a window
 is due, or -1, like ``ThresholdTrigger``.
@@ -37,6 +41,10 @@ if its net change over the span stayed under the third times ``settle_change`` p
 that many frames): noise swings back and forth, a hand squeezing steadily does not (without this test, a squeeze of
 1-4 % per frame armed mid-squeeze and fired on the hand's own grasp). Chosen by the rule in
 docs/TRIGGER_DEFAULTS.md."""
+START_SHARE = 0.5
+"""A departure that fires is dated from the first frame of its run at or above this share of ``change`` (at
+most ``back_frames`` back): the window then holds the start of a slow departure, and its early heads answer
+sooner. Chosen with ``trigger.back_frames`` by the rule in docs/TRIGGER_DEFAULTS.md."""
 RELEASE_RISE = 1.0
 """A departure whose largest rise is below this share of ``change`` counts as a release: the hand
 letting go or re-seating its grasp (one pad losing pressure while another wobbles up), not a person.
@@ -99,11 +107,12 @@ class OnsetTrigger:
         window: int = 15,
         pre_frames: int = 0,
         pad_fingers: tuple[int, ...] | list[int] | None = None,
+        back_frames: int = 0,
     ) -> None:
         if not 0.0 < change < 1.0:
             raise ValueError("change must be in (0, 1)")
-        if pre_frames >= window:
-            raise ValueError("pre_frames must be smaller than the window")
+        if back_frames < 0 or pre_frames + back_frames >= window:
+            raise ValueError("pre_frames + back_frames must be smaller than the window")
         if settle_frames < 1 or tau_frames < 1.0:
             raise ValueError("settle_frames and tau_frames must be at least 1")
         sizes = np.asarray(pad_sizes, dtype=np.int64)
@@ -131,6 +140,12 @@ class OnsetTrigger:
         self.refractory_frames = int(refractory_frames)
         self.window = int(window)
         self.pre_frames = int(pre_frames)
+        self.back_frames = int(back_frames)
+        self._date_level = self.change * START_SHARE
+        self._since = -1
+        """The first frame of the current run at or above ``START_SHARE`` of ``change`` (-1: none)."""
+        self.back = 0
+        """Frames the last trigger's window was dated back (at most ``back_frames``)."""
         self._p = np.zeros(n, dtype=np.float64)
         self._prev = np.zeros(n, dtype=np.float64)
         self._held_from = np.zeros(n, dtype=np.float64)
@@ -204,6 +219,7 @@ class OnsetTrigger:
 
     def _start_settling(self, p: np.ndarray) -> None:
         self.state = SETTLING
+        self._since = -1
         self.quiet = self.held = 0
         self._prev[:] = p
         self._trend[:] = 0.0
@@ -239,6 +255,7 @@ class OnsetTrigger:
     def _arm(self, row: np.ndarray, p: np.ndarray) -> None:
         """Watch the settled grasp ``p`` from here; count the fingers it touches (``MIN_GRASP_FINGERS``)."""
         self.state = ARMED
+        self._since = -1
         self._base[:] = p
         self._trend[:] = 0.0
         self._gain[:] = compression(row, self._starts, self.fullscale)
@@ -261,10 +278,15 @@ class OnsetTrigger:
         self._dev *= self._gain
         rise = float(self._dev.max())
         self.level = max(rise, -float(self._dev.min()))
+        if self.level < self._date_level:
+            self._since = -1
+        elif self._since < 0:
+            self._since = number
         if self.level < self.change:
             base += self.alpha * error  # creep and drift: follow slow changes of the settled grasp
             trend += TREND_GAIN * self.alpha * error
             return -1
+        back = min(number - self._since, self.back_frames)
         self._start_settling(p)
         if rise < RELEASE_RISE * self.change:  # no pad rose: the hand lets go or re-seats, nobody pulled
             self.releases += 1
@@ -275,5 +297,5 @@ class OnsetTrigger:
         if self.grasp_fingers < self.min_fingers:  # something pressing on one finger: no object held
             self.not_held += 1
             return -1
-        self.last_trigger = number
-        return number + self.window - 1 - self.pre_frames
+        self.last_trigger, self.back = number, back
+        return number + self.window - 1 - self.pre_frames - back

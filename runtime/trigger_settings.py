@@ -89,6 +89,8 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
     recorded = dict(model_trigger or {})
     if model_trigger is not None and "kind" not in recorded:
         recorded["kind"] = "threshold"  # cut before the onset trigger existed
+    if model_trigger is not None and "back_frames" not in recorded:
+        recorded["back_frames"] = 0  # cut at the trigger frame, before windows were dated back
     default = TriggerSettings(kind=str(cfg.kind or recorded.get("kind") or DEFAULT_KIND))
     chosen: dict[str, Any] = {}
     for name in _FROM_MODEL:
@@ -115,7 +117,7 @@ def build_trigger(s: TriggerSettings, pad_sizes: tuple[int, ...] | list[int], fu
         return OnsetTrigger(pad_sizes, fullscale, change=s.change, floor=s.floor, contact=s.contact,
                             tau_frames=max(1.0, s.track_tau_s * rate_hz), settle_frames=max(1, round(s.settle_s * rate_hz)),
                             settle_change=s.settle_change, refractory_frames=refractory, window=window, pre_frames=pre,
-                            pad_fingers=pad_fingers)
+                            pad_fingers=pad_fingers, back_frames=min(int(s.back_frames), window - 1 - pre))
     return ThresholdTrigger(
         int(sum(pad_sizes)), fullscale, fraction=s.fraction, hysteresis=s.hysteresis, refractory_frames=refractory,
         window=window, pre_frames=pre, rearm_frames=max(1, math.ceil(s.rearm_quiet_s * rate_hz - 1e-9)),

@@ -62,6 +62,36 @@ def test_onset_fires_when_the_person_acts_not_at_the_close_nor_on_creep():
     assert len(out := fires(trig, rows_of(levels))) == 1 and 200 <= out[0] <= 203  # not at the close (20), not on creep
 
 
+def _pressed(n: int, start: int, rise: float, top: float = 0.3) -> np.ndarray:
+    """A clean held grasp whose pad 0 gains ``rise`` of its level per frame from ``start`` (up to ``top``)."""
+    levels = grasp_levels(n, creep=0.0)
+    levels[:, 0] *= 1.0 + np.clip((np.arange(n) - start) * rise, 0.0, top)
+    return levels
+
+
+def test_a_slow_departure_dates_its_window_from_where_it_began_and_a_fast_one_from_its_frame():
+    """A hold rising 2 % a frame crosses 12 % six frames in, 6 % three frames in: its window starts there
+    (at most ``back_frames`` back); a step crosses both at once and is not dated back."""
+    for rise, back in ((0.02, 3), (0.5, 0)):
+        trig = _trigger()
+        rows = rows_of(_pressed(200, 150, rise))
+        due = [(i, d) for i in range(200) if (d := trig.update(rows[i], i)) >= 0]
+        assert len(due) == 1 and trig.back == back
+        fired, end = due[0]
+        assert end - 15 + 1 == fired - back
+    capped = build_trigger(resolve_trigger(TriggerConfig(kind="onset")), PADS, 4095.0, 15, RATE)
+    capped.back_frames = 1
+    rows = rows_of(_pressed(200, 150, 0.015))  # dated back further without the cap
+    assert fires(capped, rows) and capped.back == 1
+
+
+def test_a_model_that_records_no_back_frames_is_served_as_it_was_cut():
+    assert resolve_trigger(None, {"kind": "onset", "change": 0.12}).back_frames == 0
+    assert resolve_trigger().back_frames == 3 and resolve_trigger(None, {"kind": "onset", "back_frames": 2}).back_frames == 2
+    with pytest.raises(ValueError, match="back_frames"):
+        OnsetTrigger(PADS, 4095.0, 0.12, 0.25, 0.02, 32.0, 6, 0.02, window=15, pre_frames=10, back_frames=5)
+
+
 def test_the_hand_letting_go_is_not_an_event():
     levels = grasp_levels(300)
     levels[200:] *= np.clip(1.0 - (np.arange(100) / 10.0), 0, 1)[:, None]  # the hand opens at 200

@@ -219,7 +219,7 @@ def dataset_trigger(kind: str | None = None, fraction: float | None = None,
 
 def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, settings: TriggerSettings,
                 T: int, rate_hz: float, pad_fingers: Sequence[int] | None = None) -> tuple[int, str | None]:
-    """(frame where the daemon's onset trigger fires within this trial, or -1; why not, or None).
+    """(frame the daemon's onset trigger dates its window from within this trial, or -1; why not, or None).
 
     The trigger is told the grasp is settled at the first frame (a protocol trial starts on the
     held object); a trial that starts with an empty hand is settled by the trigger itself.
@@ -229,7 +229,7 @@ def onset_start(frames: np.ndarray, pad_sizes: Sequence[int], fullscale: float, 
     rows = frames.astype(np.float32)
     for i in range(len(rows)):
         if trig.update(rows[i], i) >= 0:
-            return i, None
+            return i - trig.back, None
     return -1, f"{NEVER}: no pad departed by {settings.change:.0%} from the settled grasp"
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from firmware_io.recordings.recording import Recording
 from runtime.training_counts import TrainingCounts
-from trainer.dataset import fingerprint, frames_before_trigger
+from trainer.dataset import fingerprint
 from trainer.defaults import PAPER_MODEL, paper_classifier
 
 __all__ = [
@@ -177,14 +177,13 @@ def trigger_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, setting
                     fullscale: float, pad_fingers: Sequence[int] | None = None,
                     group_of: Sequence[str] | None = None) -> tuple[list, list, list]:
     """Dormant windows where the daemon's trigger fires on idle streams: what a trigger-mode model
-    with a dormant class is asked about while nobody interacts (the trigger's cut, ``pre_frames``
-    before its frame, as the daemon and ``trainer.dataset`` cut). Each stream is fed from its first
+    with a dormant class is asked about while nobody interacts (the window its ``update`` says ends,
+    as the daemon and ``trainer.dataset`` cut). Each stream is fed from its first
     frame to a fresh trigger that finds the settled grasp itself (no robot messages). Returns
     windows, origins (``trigger:<source of the firing frame>``) and groups (``group_of[r]`` or ``idle``).
     """
     from runtime.trigger_settings import build_trigger
 
-    pre = frames_before_trigger(settings, T)
     X, origin, groups = [], [], []
     for r, rec in enumerate(idle):
         rate = 1.0 / rec.period_s()
@@ -193,9 +192,11 @@ def trigger_windows(idle: Sequence[Recording], cols: np.ndarray, T: int, setting
         code = rec.meta.get("source_codes")
         names = rec.meta.get("sources", ())
         for i in range(len(frames)):
-            if trig.update(frames[i], i) < 0 or i - pre < 0 or i - pre + T > len(frames):
+            due = trig.update(frames[i], i)
+            start = due - T + 1  # the window the daemon cuts (pre_frames and back_frames before the trigger frame)
+            if due < 0 or start < 0 or start + T > len(frames):
                 continue
-            X.append(frames[i - pre:i - pre + T].T)
+            X.append(frames[start:start + T].T)
             source = names[code[i]] if code is not None and 0 <= code[i] < len(names) else "idle"
             origin.append(f"trigger:{source}")
             groups.append(group_of[r] if group_of is not None else "idle")
