@@ -31,7 +31,7 @@ DORMANT_CUTS = ("trigger", "in_view", "both")
 model's own trigger fires on the idle stretches (``trigger_windows``: the windows a trigger-mode
 model is asked about while nobody interacts), every window stratified by the idle source in view
 (``idle_windows``, as ``./dev bench dormant`` trains for continuous mode), or both."""
-DORMANT_CUT = "both"
+DORMANT_CUT = "trigger"
 """The cut ``handover train`` uses; chosen by the rule of ``benchmarks.streams_own`` on validation
 streams (results/streams_own.md), never on the demo's session or the test streams."""
 MIN_DORMANT_WINDOWS = 10
