@@ -4,7 +4,7 @@
    ``handover record`` (a short protocol: every pose, object and action, ``runs`` runs, plus the
    default idle stretches);
 2. the cut of dormant windows (``trainer.recorded_idle.DORMANT_CUTS``) is chosen by ``CRITERION``
-   on validation streams (seed + 2): each cut's model replayed through the daemon;
+   on validation streams (seed + 2): each cut's models (these subjects, and lab B's) replayed through the daemon;
 3. ``handover train`` on the recordings (the product path, with the cut in code) exports the model;
    its held-out replay is taken from the training metrics;
 4. that model on the test streams of ``./dev bench streams`` (seed + 1: the same synthetic idle
@@ -32,6 +32,8 @@ NAME = "streams_own"
 SUBJECT_SEEDS = (10, 11, 12)
 """Seeds of the recorded scripted subjects: other people than the simulated protocol's training
 subjects (seed 0), the streams' subjects (seeds 1, 2) and the demo's (seed 1000)."""
+LAB_B_SEEDS = (1, 2, 3)
+"""Lab B's subjects for choosing the cut (own_prior's lab B recipe: a hand and people the prior does not know)."""
 SIZES = {
     "full": {"runs": 3, "idle_min": None, "val_events": 120, "val_idle_h": 0.25, "test_events": 100,
              "test_idle_h": 1.0},
@@ -40,9 +42,11 @@ SIZES = {
 }
 """``idle_min`` None: the recorder's default."""
 CRITERION = ("utility = right first reports - wrong first reports - repeats - reports outside any event on a "
-             "validation session (demo_script(val_events, seed + 2), synthetic) - false events on the validation "
-             "idle stream (seed + 2); every bad report costs what a good one gains (the streams bench's rule); "
-             "ties: the cut in code")
+             "validation session (demo_script(val_events, seed + 2), synthetic) played by each simulated lab, each "
+             "scored with that lab's own model (lab A: the subjects below; lab B: subject://?seed=1, 2, 3&lab=B, 1 run each), trained "
+             "with the cut the way handover train trains (prior, early rule) - false events of lab A's model on "
+             "the validation idle stream (seed + 2; the idle simulator has lab A's hand only); every bad report "
+             "costs what a good one gains (the streams bench's rule); ties: the cut in code")
 OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events_per_hour_arm_messages",
             "own_model_idle_false_events_per_hour_full_window", "own_model_arm_move_false_events_per_hour",
             "own_model_arm_move_false_events_per_hour_arm_messages",
@@ -53,48 +57,50 @@ OWN_KEYS = ("own_model_idle_false_events_per_hour", "own_model_idle_false_events
 
 
 def cut_models(folder: Path, work: Path, seed: int, say) -> dict:
-    """One loaded model per dormant cut, trained on the recordings as ``handover train`` would."""
-    from firmware_io.recordings.recording import find_recordings, load_all
+    """One loaded model per dormant cut, each trained as ``handover train --dormant-cut CUT`` trains it (the
+    product's prior and early rule included)."""
     from runtime.model import load_model
-    from trainer.dataset import build_dataset, dataset_trigger
-    from trainer.dormant import DORMANT
-    from trainer.model_meta import dataset_metadata
-    from trainer.onnx_export import export_onnx
-    from trainer.recorded_idle import DORMANT_CUTS, add_idle
-    from trainer.train_options import TrainOptions, build_estimator
+    from trainer.pipeline import train
+    from trainer.recorded_idle import DORMANT_CUTS
+    from trainer.train_options import TrainOptions
 
-    paths = find_recordings(folder)
-    recs = load_all(paths)
-    ds0 = build_dataset(recs, trigger=dataset_trigger())
-    options = TrainOptions(data=str(folder), seed=seed)
     out = {}
     for cut in DORMANT_CUTS:
-        say(f"streams_own: training with dormant windows cut '{cut}' ...")
-        ds, idle = add_idle(ds0, recs, [p.name for p in paths], seed, lambda text: None, cut=cut)
-        model = build_estimator(options, ds).fit(ds.X, ds.y)
-        meta = dataset_metadata(ds, training={"dormant_cut": cut}, dormant_class=DORMANT if idle and idle.makes_class else None)
-        out[cut] = load_model(export_onnx(model, work / f"cut-{cut}.onnx", meta), warm_up=False)
+        say(f"streams_own: handover train --dormant-cut {cut} on {folder.name} ...")
+        report = work / f"cut-{folder.name}-{cut}"
+        train(TrainOptions(data=str(folder), out=str(report), no_sweep=True, repeats=2, quiet=True, seed=seed,
+                           replay=False, real_idle=False, dormant_cut=cut))
+        out[cut] = load_model(report / "model.onnx", warm_up=False)
     return out
 
 
 def validation(models: dict, seed: int, s: dict, say) -> dict:
-    """Each cut's model on the validation session and idle stream; the utility of ``CRITERION``."""
+    """Each cut's models (``models[lab][cut]``) on their lab's validation session, lab A's also on the validation
+    idle stream (the idle simulator has one hand); the utility of ``CRITERION``, summed over the labs."""
     from firmware_io.sim import demo_script, simulate_session
     from firmware_io.sim.idle import simulate_idle
+    from firmware_io.sim.lab import get_lab
 
-    say(f"streams_own: validation session ({s['val_events']} events) and idle stream (synthetic, seed {seed}) ...")
-    session = simulate_session(demo_script(s["val_events"], seed=seed), seed=seed)
+    say(f"streams_own: validation sessions ({s['val_events']} events per lab) and idle stream (synthetic, seed {seed}) ...")
     idle = simulate_idle(3600.0 * s["val_idle_h"], seed=seed, part=0)
     names = se.source_names(idle, idle.n_frames)
-    out = {}
-    for cut, model in models.items():
-        mode = "onset_dormant" if model.meta.dormant_class else "onset"
-        o = se.session_outcomes(se.replay(session, model, mode), session.trials)
-        i = se.score(se.replay(idle, model, mode), [], idle.n_frames, FRAME_PERIOD_S, names)
-        wrong = o["detected"] - o["correct"]
-        out[cut] = {"mode": mode, "session": {k: o[k] for k in ("expected", "correct", "missed", "outside", "repeats")},
-                    "session_wrong": wrong, "idle_false_events": i["false_events"], "idle_hours": i["idle_hours"],
-                    "utility": o["correct"] - wrong - o["repeats"] - o["outside"] - i["false_events"]}
+    out: dict = {}
+    for lab, by_cut in models.items():
+        script = demo_script(s["val_events"], seed=seed, objects=get_lab(lab).objects)
+        session = simulate_session(script, seed=seed, lab=lab)
+        for cut, model in by_cut.items():
+            mode = "onset_dormant" if model.meta.dormant_class else "onset"
+            o = se.session_outcomes(se.replay(session, model, mode), session.trials)
+            i = se.score(se.replay(idle, model, mode), [], idle.n_frames, FRAME_PERIOD_S, names) if lab == "A" else None
+            wrong = o["detected"] - o["correct"]
+            false = i["false_events"] if i else 0
+            row = {"mode": mode, "session": {k: o[k] for k in ("expected", "correct", "missed", "outside", "repeats")},
+                   "session_wrong": wrong, "idle_false_events": i["false_events"] if i else None,
+                   "idle_hours": i["idle_hours"] if i else None,
+                   "utility": o["correct"] - wrong - o["repeats"] - o["outside"] - false}
+            v = out.setdefault(cut, {"labs": {}, "utility": 0})
+            v["labs"][lab] = row
+            v["utility"] += row["utility"]
     return out
 
 
@@ -170,7 +176,10 @@ def run(args) -> dict:
         work = Path(tmp)
         data = work / "data"
         subjects = record(data, None, SUBJECT_SEEDS, s["runs"], say, s["idle_min"])
-        val = validation(cut_models(data, work, args.seed, say), args.seed + VAL_OFFSET, s, say)
+        lab_b = work / "lab_b"
+        record(lab_b, "B", LAB_B_SEEDS, 1, say, s["idle_min"])
+        models = {"A": cut_models(data, work, args.seed, say), "B": cut_models(lab_b, work, args.seed, say)}
+        val = validation(models, args.seed + VAL_OFFSET, s, say)
         chosen = choose(val)
         say(f"streams_own: chosen dormant cut on validation: {chosen} (in code: {DORMANT_CUT})")
         say("streams_own: handover train on the recordings ...")

@@ -77,14 +77,15 @@ def markdown(r: dict) -> list[str]:
         "",
         f"Rule: {r['criterion']}.",
         "",
-        "| cut | mode | session right | wrong | missed | outside | idle false events | utility |",
-        "|---|---|---|---|---|---|---|---|",
+        "| cut | lab | mode | session right | wrong | missed | outside | idle false events | utility | utility, both labs |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for cut, v in r["validation"].items():
-        sess = v["session"]
-        lines.append(f"| {cut} | {v['mode']} | {sess['correct']}/{sess['expected']} | {v['session_wrong']} | "
-                     f"{sess['missed']} | {sess['outside']} | {v['idle_false_events']} in {v['idle_hours']:.2f} h | "
-                     f"{v['utility']} |")
+        for lab, row in v["labs"].items():
+            sess = row["session"]
+            idle = "-" if row["idle_false_events"] is None else f"{row['idle_false_events']} in {row['idle_hours']:.2f} h"
+            lines.append(f"| {cut} | {lab} | {row['mode']} | {sess['correct']}/{sess['expected']} | {row['session_wrong']} | "
+                         f"{sess['missed']} | {sess['outside']} | {idle} | {row['utility']} | {v['utility']} |")
     same = r["dormant_cut_chosen"] == r["own_model_dormant_cut"]
     lines += ["", f"Chosen: `{r['dormant_cut_chosen']}`; `handover train` uses `{r['own_model_dormant_cut']}` "
               f"(trainer/recorded_idle.py DORMANT_CUT){'' if same else ' -- they differ: change the code or the rule'}.",

@@ -121,7 +121,7 @@ def train(options: TrainOptions) -> TrainResult:
     if options.prior and options.data:
         from trainer.prior import use_prior
 
-        prior = use_prior(estimator, ds, say)
+        prior = use_prior(estimator, ds, say, dormant_cut=options.dormant_cut)
         estimator, ds = prior.estimator, prior.ds  # the lab's cases (+ the evidence windows) and the prior
     notes = _data_notes(options, recordings, names, idle, prior, len(lab.y))
     say("training the final model on all cases ...")
@@ -221,7 +221,7 @@ def _cases(options: TrainOptions, recordings: list, names: list[str], say: Calla
             "(handover review)")
     idle = None
     if options.dormant and options.data:  # lines about problems in the user's idle data are seen even with --quiet
-        ds, idle = add_idle(ds, recordings, names, options.seed, say, warn=PROGRESS.warning)
+        ds, idle = add_idle(ds, recordings, names, options.seed, say, cut=options.dormant_cut, warn=PROGRESS.warning)
     problem = too_few_cases(ds)  # counted with the idle's dormant windows: they are cases like any other
     if problem:
         raise DatasetError(problem)

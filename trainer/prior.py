@@ -22,6 +22,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, clone
 
 from trainer.dormant import DORMANT
+from trainer.recorded_idle import DORMANT_CUT
 
 __all__ = ["PRIOR", "PriorCases", "PriorRecipe", "WithPrior", "choice_lines", "choose_weight", "evidence",
            "markdown_lines", "prior_problem", "use_prior"]
@@ -147,13 +148,14 @@ class _Cut(NamedTuple):
     trigger: object
     pad_sizes: tuple[int, ...]
     fullscale: float
+    dormant_cut: str
 
 
-def _dormant_windows(recipe: PriorRecipe, name: str, ds) -> tuple[np.ndarray, np.ndarray]:
+def _dormant_windows(recipe: PriorRecipe, name: str, ds, dormant_cut: str) -> tuple[np.ndarray, np.ndarray]:
     """Dormant windows of the prior's simulated idle (``name``: "idle" or the "evidence" stream) for ``ds``
-    (its pads, T, trigger), cut as the lab's idle."""
+    (its pads, T, trigger), cut as the lab's idle (``dormant_cut``: trainer.recorded_idle.DORMANT_CUTS)."""
     return _cut_windows(recipe, name, _Cut(int(ds.T), tuple(int(p) for p in ds.pads), ds.trigger,
-                                           tuple(int(s) for s in ds.pad_sizes), float(ds.fullscale)))
+                                           tuple(int(s) for s in ds.pad_sizes), float(ds.fullscale), dormant_cut))
 
 
 @functools.lru_cache(maxsize=8)
@@ -161,17 +163,18 @@ def _cut_windows(recipe: PriorRecipe, name: str, cut: _Cut) -> tuple[np.ndarray,
     """Kept for the process, as ``_simulated`` keeps the streams: a cut runs the trigger over every frame of
     80 simulated minutes (a quarter of a train's time), the same for every train of one process with the
     same T, pads and trigger (the tests, the own_prior bench). Read-only: the callers share them."""
-    from trainer.recorded_idle import DORMANT_CUT, recorded_idle_windows
+    from trainer.recorded_idle import recorded_idle_windows
 
     _, idle, more = _simulated(recipe)
     idle = idle if name == "idle" else more
-    w = recorded_idle_windows(list(idle), [f"{name}{k}" for k in range(len(idle))], cut, 0, DORMANT_CUT)
+    w = recorded_idle_windows(list(idle), [f"{name}{k}" for k in range(len(idle))], cut, 0, cut.dormant_cut)
     X, origin = w.X, np.asarray([f"{name}:{o}" for o in w.origin.tolist()])
     X.flags.writeable = origin.flags.writeable = False
     return X, origin
 
 
-def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = None) -> PriorCases:
+def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = None,
+                dormant_cut: str = DORMANT_CUT) -> PriorCases:
     """The prior's cases for the lab's data set ``ds``: the protocol cut by ``ds``'s trigger, T and pads,
     and (when ``ds`` has a dormant class) dormant windows of the simulated idle."""
     recipe = recipe or PRIOR
@@ -182,12 +185,12 @@ def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = Non
     sim = build_dataset(protocol, T=ds.T, pads=list(ds.pads), trigger=ds.trigger)
     X, y, origin = [sim.X], [sim.y.astype(str)], [np.full(len(sim.y), "protocol")]
     if DORMANT in set(ds.y.tolist()):
-        dx, do = _dormant_windows(recipe, "idle", ds)
+        dx, do = _dormant_windows(recipe, "idle", ds, dormant_cut)
         X, y, origin = [*X, dx], [*y, np.full(len(dx), DORMANT)], [*origin, do]
     return PriorCases(np.concatenate(X).astype(np.float32), np.concatenate(y), np.concatenate(origin), recipe)
 
 
-def evidence(ds, recipe: PriorRecipe | None = None):
+def evidence(ds, recipe: PriorRecipe | None = None, dormant_cut: str = DORMANT_CUT):
     """``ds`` plus the evidence stream's dormant windows, dealt round-robin to the lab's subjects' folds
     (so leave-one-subject-out holds each out with a subject); ``ds`` itself without a dormant class."""
     from trainer.recorded_idle import IdleWindows, with_dormant
@@ -195,7 +198,7 @@ def evidence(ds, recipe: PriorRecipe | None = None):
     if DORMANT not in set(ds.y.tolist()):
         return ds
     idle = _simulated(recipe or PRIOR)[2]
-    X, origin = _dormant_windows(recipe or PRIOR, "evidence", ds)
+    X, origin = _dormant_windows(recipe or PRIOR, "evidence", ds, dormant_cut)
     subjects = sorted(set(ds.groups[ds.y != DORMANT].tolist())) or sorted(set(ds.groups.tolist()))
     groups = np.asarray([subjects[k % len(subjects)] for k in range(len(X))])
     seconds = sum(r.n_frames * r.period_s() for r in idle)
@@ -303,7 +306,8 @@ def prior_cases_text(counts: dict[str, int]) -> str:
     return rest + (f", {sum(idle.values())} idle ({idle_kinds_text(idle)})" if idle else "")
 
 
-def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | None = None) -> PriorUse:
+def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | None = None,
+              dormant_cut: str = DORMANT_CUT) -> PriorUse:
     """The prior for the lab's data set ``ds``: built, its weight chosen (``choose_weight``), the evidence added;
     the lab's data alone (and why, in ``report["off"]``) when the sensor is not the simulated SDH-2's."""
     why = prior_problem(ds)
@@ -314,10 +318,10 @@ def use_prior(estimator, ds, say: Callable[[str], None], recipe: PriorRecipe | N
         say(f"the product's prior: not used: {why}")
         return PriorUse(estimator, ds, {"off": why})
     recipe = recipe or PRIOR
-    prior = build_prior(ds, say, recipe)
+    prior = build_prior(ds, say, recipe, dormant_cut)
     choice = choose_weight(estimator, ds, prior, say)
     alone = choice.weight == 0  # the lab's data alone won: the model is that candidate, no simulated window joins
-    fit_on = ds if alone else evidence(ds, recipe)
+    fit_on = ds if alone else evidence(ds, recipe, dormant_cut)
     report = {**choice.to_dict(), "evidence_windows": len(fit_on.y) - len(ds.y), "lab_cases": len(ds.y)}
     for line in choice_lines(report):
         say(line)

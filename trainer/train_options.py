@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 from firmware_io.errors import HandoverError
 from trainer.defaults import BOW_ALONE_KERNEL, DEFAULT_MODEL
 from trainer.feature_weighting import FEATURE_WEIGHTINGS
+from trainer.recorded_idle import DORMANT_CUT, DORMANT_CUTS
 
 __all__ = [
     "ASSIGNMENTS", "FEATURE_WEIGHTING_CHOICES", "KERNELS", "TRIGGERS", "OptionsError", "TrainOptions",
@@ -81,6 +82,8 @@ class TrainOptions:
     cross-validation on the lab's subjects; False: the lab's data alone."""
     early: str = "on"
     """``on``: early heads and their report rule in the model (trainer.early); ``off``: the full window only."""
+    dormant_cut: str = DORMANT_CUT
+    """How the dormant windows are cut from the idle, the lab's and the prior's (trainer.recorded_idle.DORMANT_CUTS)."""
     json: bool = False
     quiet: bool = False
 
@@ -167,6 +170,7 @@ class TrainOptions:
             raise OptionsError("--feature-weighting applies to the feature families, not to bow alone")
         for name, value, allowed in (("--kernel", self.kernel, KERNELS), ("--assignment", self.assignment, ASSIGNMENTS),
                                      ("--trigger", self.trigger, TRIGGERS), ("--early", self.early, EARLY),
+                                     ("--dormant-cut", self.dormant_cut, DORMANT_CUTS),
                                      ("--feature-weighting", self.feature_weighting, FEATURE_WEIGHTING_CHOICES)):
             if value is not None and value not in allowed:
                 raise OptionsError(f"{name} {value!r}: use one of {', '.join(allowed)}")
@@ -195,6 +199,8 @@ class TrainOptions:
         parts.append("--per-pad" if self.per_pad else "--no-per-pad")
         if self.early != "on":
             parts += ["--early", self.early]
+        if self.dormant_cut != DORMANT_CUT:
+            parts += ["--dormant-cut", self.dormant_cut]
         if self.select:
             parts.append("--select")
             if self.latency_budget_us is not None:

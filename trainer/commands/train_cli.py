@@ -17,6 +17,7 @@ from pathlib import Path
 from firmware_io.commands.options import add_json, add_out, add_quiet, add_seed, trigger_level
 from firmware_io.errors import HandoverError
 from runtime.trigger_settings import PAPER_FRACTION
+from trainer.recorded_idle import DORMANT_CUTS
 from trainer.train_options import (
     ASSIGNMENTS,
     EARLY,
@@ -101,6 +102,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="on: early heads decide 4 to 11 frames after the window's start when their calibrated "
                         "confidence allows, rule chosen by grouped cross-validation (docs/EARLY.md); off: the full "
                         "window only")
+    parser.add_argument("--dormant-cut", choices=DORMANT_CUTS, default=D.dormant_cut,
+                        help="which idle windows train the dormant class: trigger = where the trigger fires on the "
+                        "idle (what a model serving with the trigger is asked), in_view = every idle kind, both "
+                        "(for continuous mode); chosen by ./dev bench streams_own (default: %(default)s)")
     parser.add_argument("--real-idle", action=argparse.BooleanOptionalAction, default=None,
                         help="replay the real SDH-2 recordings without a handover (../shared/data, "
                         "HANDOVER_SHARED_DATA) through the model: false events per hour (default: for real "
