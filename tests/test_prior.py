@@ -171,6 +171,13 @@ def test_prior_and_evidence_join_training_and_the_replay_scores_early_reports(re
     assert "## The product's prior" in (tmp_path / "r" / "report.md").read_text()
 
 
+def test_dormant_cut_cuts_the_lab_s_idle_and_the_prior_s_alike(recorded, tmp_path, monkeypatch):
+    metrics = _train(recorded, tmp_path / "r", monkeypatch, "--dormant-cut", "in_view", "--early", "off", "--no-replay")
+    assert metrics["idle"]["cut"] == "in_view" and "--dormant-cut in_view" in metrics["command"]
+    kinds = {k for k in metrics["prior"]["prior_cases"] if k.startswith("idle:")}
+    assert len(kinds) > 1, kinds  # every idle kind in view, not only where the trigger fired (arm moves)
+
+
 def test_console_says_the_early_rule_and_where_it_reported():
     from trainer.early_report import console_line
 
@@ -231,10 +238,12 @@ def test_the_prior_idle_is_cut_once_per_cut_and_shared_read_only():
         return SimpleNamespace(T=T, pads=pads, trigger=resolve_trigger(), fullscale=4095.0,
                                pad_sizes=tuple(len(sdh2.columns([p])) for p in pads))
 
-    X, origin = P._dormant_windows(TINY, "evidence", ds(15))
-    again = P._dormant_windows(TINY, "evidence", ds(15))
+    X, origin = P._dormant_windows(TINY, "evidence", ds(15), "trigger")
+    again = P._dormant_windows(TINY, "evidence", ds(15), "trigger")
     assert again[0] is X and again[1] is origin and X.shape[1:] == (sum(ds(15).pad_sizes), 15) and len(X)
     with pytest.raises(ValueError, match="read-only"):
         X[0, 0, 0] = 1.0
-    shorter = P._dormant_windows(TINY, "evidence", ds(10))[0]
+    shorter = P._dormant_windows(TINY, "evidence", ds(10), "trigger")[0]
     assert shorter is not X and shorter.shape[2] == 10
+    every_kind = P._dormant_windows(TINY, "evidence", ds(15), "in_view")[1]
+    assert len({o.split(":")[-1] for o in every_kind.tolist()}) > len({o.split(":")[-1] for o in origin.tolist()})

@@ -186,6 +186,8 @@ def test_train_options_take_a_plain_string_of_features_and_check_the_pads():
     with pytest.raises(OptionsError, match=r"^--pads 'nine': unknown pad selection"):
         TrainOptions(pads="nine", data="somewhere").check()
     TrainOptions(pads="9", data="somewhere").check()  # recorded data: checked against its own layout once loaded
+    with pytest.raises(OptionsError, match=r"^--dormant-cut 'all': use one of trigger, in_view, both"):
+        TrainOptions(dormant_cut="all").check()
 
 
 def test_pads_no_hand_has_is_refused_before_simulating(tmp_path, capsys):
