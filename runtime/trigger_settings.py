@@ -18,7 +18,7 @@ from runtime.config_keys import key, section_keys
 
 __all__ = [
     "DEFAULT_HYSTERESIS", "DEFAULT_KIND", "HYSTERESIS_CAP", "TriggerSettings", "build_trigger",
-    "capped_hysteresis", "recorded_problems", "resolve_trigger"
+    "capped_hysteresis", "recorded_problems", "resolve_trigger", "window_start_text"
 ]
 
 _TRIGGER_KEYS = section_keys("trigger", config_only=False)
@@ -67,8 +67,17 @@ def recorded_problems(recorded: dict) -> list[str]:
         lo, hi = k.range
         number = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
         if not number or not lo <= value <= hi or (k.type is int and not isinstance(value, int)):
-            problems.append(f"trigger.{k.short} {value!r} must be a number in [{lo:g}, {hi:g}]")
+            kind = "a whole number" if k.type is int else "a number"
+            problems.append(f"trigger.{k.short} {value!r} must be {kind} in [{lo:g}, {hi:g}]")
     return problems
+
+
+def window_start_text(recorded: dict) -> str:
+    """Where a model's windows start, in words, from its recorded ``trigger`` object (as it is served)."""
+    s = resolve_trigger(None, recorded)
+    back = s.back_frames if s.kind == "onset" else 0
+    where = f"where the departure began (at most {back} frames before the trigger fired)" if back else "the trigger frame"
+    return f"window from {where}" + (f" and {s.pre_frames} frames before" if s.pre_frames else "")
 
 
 def capped_hysteresis(fraction: float, hysteresis: float = DEFAULT_HYSTERESIS) -> float:
@@ -89,7 +98,7 @@ def resolve_trigger(config: Any = None, model_trigger: dict | None = None) -> Tr
     recorded = dict(model_trigger or {})
     if model_trigger is not None and "kind" not in recorded:
         recorded["kind"] = "threshold"  # cut before the onset trigger existed
-    if model_trigger is not None and "back_frames" not in recorded:
+    if model_trigger is not None and recorded.get("back_frames") is None:
         recorded["back_frames"] = 0  # cut at the trigger frame, before windows were dated back
     default = TriggerSettings(kind=str(cfg.kind or recorded.get("kind") or DEFAULT_KIND))
     chosen: dict[str, Any] = {}

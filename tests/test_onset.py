@@ -18,7 +18,7 @@ from runtime.control import parse_message
 from runtime.daemon import Daemon
 from runtime.detector import Detector
 from runtime.onset import ARMED, COMPRESSION_CAP, OPEN, RUBBER_HILL_N, OnsetTrigger, compression
-from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, resolve_trigger
+from runtime.trigger_settings import DEFAULT_KIND, PAPER_FRACTION, build_trigger, recorded_problems, resolve_trigger
 from tests.datagrams import send_datagram
 from tests.waiting import wait_for
 
@@ -87,6 +87,8 @@ def test_a_slow_departure_dates_its_window_from_where_it_began_and_a_fast_one_fr
 
 def test_a_model_that_records_no_back_frames_is_served_as_it_was_cut():
     assert resolve_trigger(None, {"kind": "onset", "change": 0.12}).back_frames == 0
+    assert resolve_trigger(None, {"kind": "onset", "back_frames": None}).back_frames == 0
+    assert recorded_problems({"kind": "onset", "back_frames": 3.5}) == ["trigger.back_frames 3.5 must be a whole number in [0, 1000]"]
     assert resolve_trigger().back_frames == 3 and resolve_trigger(None, {"kind": "onset", "back_frames": 2}).back_frames == 2
     with pytest.raises(ValueError, match="back_frames"):
         OnsetTrigger(PADS, 4095.0, 0.12, 0.25, 0.02, 32.0, 6, 0.02, window=15, pre_frames=10, back_frames=5)

@@ -337,4 +337,4 @@ def test_the_guides_sample_summary_is_what_the_program_prints_for_the_stored_ses
     sample = next(b for b in blocks if "per class correct:" in b).strip("\n").splitlines()
     demo = json.loads((ROOT / "results" / "streams.json").read_text())["demo"]
     assert sample == summary_lines(outcome_summary(demo[demo["mode"]]), demo["mode"])
-    assert "  per class correct: bump 9/10, hold 10/10, pull 9/10, push 10/10" in sample
+    assert "  per class correct: bump 9/10, hold 10/10, pull 10/10, push 10/10" in sample

@@ -163,7 +163,8 @@ class Dataset:
 
 
 ONSET_RULE = ("runtime.onset.OnsetTrigger: armed on the trial's first frame (a settled grasp), fires when a pad's "
-              "summed pressure departs from the tracked grasp; the window starts pre_frames before the trigger")
+              "summed pressure departs from the tracked grasp; the window starts where the departure began (back_frames) "
+              "and pre_frames before that")
 THRESHOLD_RULE = ("runtime.trigger.ThresholdTrigger: rising edge; a trial above the level from its first frame "
                   "triggers only after dropping below the re-arm level")
 

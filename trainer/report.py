@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.training_counts import TrainingCounts
+from runtime.trigger_settings import window_start_text
 
 __all__ = [
     "features_label", "model_label", "pct", "plot_confusion", "plot_model_vs_baseline", "plot_sweep", "plot_tsne",
@@ -443,7 +444,7 @@ def trigger_line(ds: dict) -> str:
     trig = ds.get("trigger") or {}
     if trig.get("kind") == "onset":
         return (f"- trigger: onset (runtime/onset.py): a pad's summed pressure departs by {trig['change']:.0%} from the "
-                f"settled grasp (the trial's first frame), window from {trig['pre_frames']} frames before the trigger")
+                f"settled grasp (the trial's first frame), {window_start_text(trig)}")
     return (f"- trigger: any taxel of these pads >= {ds['trigger_fraction']:.2f} x full scale ({ds['fullscale']:.0f}), "
             "the runtime's rule (rising edge; a trial already above the level at its first frame triggers only after "
             f"dropping below {ds['trigger_fraction'] - ds.get('trigger_hysteresis', 0.0):.2f} x full scale)")

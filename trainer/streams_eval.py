@@ -318,8 +318,8 @@ def _stats(x: np.ndarray) -> dict | None:
     if len(x) == 0:
         return None
     p10, p50, p90 = np.percentile(x, [10, 50, 90])
-    return {"mean": float(x.mean()), "p10": float(p10), "median": float(p50), "p90": float(p90),
-            "min": float(x.min()), "max": float(x.max())}
+    return {k: round(float(v), 3) for k, v in  # frames: a thousandth is plenty, and 10.1 reads as 10.1
+            (("mean", x.mean()), ("p10", p10), ("median", p50), ("p90", p90), ("min", x.min()), ("max", x.max()))}
 
 
 def sum_counts(counts: Iterable[dict]) -> dict:

@@ -13,6 +13,7 @@ import json
 from firmware_io.commands.options import add_json
 from runtime.event_rate import rate_text
 from runtime.training_counts import TrainingCounts
+from runtime.trigger_settings import window_start_text
 
 __all__ = ["add_arguments", "main"]
 
@@ -155,7 +156,7 @@ def _trigger(trig: dict, fullscale: float) -> str:
     """The trigger that cut the training windows, as the daemon will serve it (no kind = threshold)."""
     if trig.get("kind", "threshold") == "onset":
         return (f"onset trigger (a pad departing by {100 * float(trig.get('change', 0)):.0f} % from the settled "
-                f"grasp, settled for {float(trig.get('settle_s', 0)):g} s)")
+                f"grasp, settled for {float(trig.get('settle_s', 0)):g} s; {window_start_text(trig)})")
     return (f"threshold trigger at {100 * float(trig.get('fraction', 0)):.0f} % of {fullscale:g}"
             + (f", hysteresis {100 * float(trig['hysteresis']):.0f} %" if "hysteresis" in trig else ""))
 

@@ -103,9 +103,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "confidence allows, rule chosen by grouped cross-validation (docs/EARLY.md); off: the full "
                         "window only")
     parser.add_argument("--dormant-cut", choices=DORMANT_CUTS, default=D.dormant_cut,
-                        help="which idle windows train the dormant class: trigger = where the trigger fires on the "
-                        "idle (what a model serving with the trigger is asked), in_view = every idle kind, both "
-                        "(for continuous mode); chosen by ./dev bench streams_own (default: %(default)s)")
+                        help="which idle windows train the dormant class, yours and the prior's: trigger = where the "
+                        "trigger fires on the idle (what a model serving with the trigger is asked); in_view = "
+                        "windows of every idle kind in view (what continuous mode asks); both = the two together "
+                        f"(default: {D.dormant_cut}, chosen by ./dev bench streams_own)")
     parser.add_argument("--real-idle", action=argparse.BooleanOptionalAction, default=None,
                         help="replay the real SDH-2 recordings without a handover (../shared/data, "
                         "HANDOVER_SHARED_DATA) through the model: false events per hour (default: for real "
