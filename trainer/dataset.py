@@ -2,7 +2,8 @@
 
 Train and serve must cut the same windows, so the trigger's settings come from the runtime's
 ``resolve_trigger`` and each labelled trial is fed frame by frame to the runtime's own trigger object;
-a case is the T frames from ``pre_frames`` before the trigger frame, as in the daemon. The onset trigger
+a case is the T frames from where the trigger dates the departure (``back_frames``) and ``pre_frames`` before
+that, as in the daemon. The onset trigger
 (the default) is told at a trial's first frame that the grasp has settled; the threshold trigger fires
 on a rising edge only. A trial that never triggers, or ends before T frames after its trigger, is
 listed in ``Dataset.untriggered`` with the reason: never dropped silently, never padded.
