@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from runtime.trigger_settings import window_start_text
 from trainer import streams_eval as se
 
 MODE_TEXT = {
@@ -78,7 +79,7 @@ def markdown(r: dict, load_text: str) -> list[str]:
               f"Onset trigger settings (runtime/config_keys.py; how they were chosen: docs/TRIGGER_DEFAULTS.md): change "
               f"{trig.get('change')}, floor {trig.get('floor')} x full scale, baseline tau {trig.get('track_tau_s')} s, "
               f"settle {trig.get('settle_s')} s (or 3 x that at twice the change on a noisy hand: `NOISY_SETTLE`), "
-              f"window from {trig.get('pre_frames')} frames before the trigger.",
+              f"{window_start_text({'kind': 'onset', **trig})}.",
               "Product rules the false events on real files led to: the daemon feeds a model at its "
               "trained period (runtime/frame_rate.py: a faster stream is decimated, a slower one gets a health line; "
               "a gap of more than 10 stream periods restarts the stream's history like a reconnect); the onset "

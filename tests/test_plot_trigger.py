@@ -47,20 +47,26 @@ def test_the_models_trigger_is_drawn_not_the_papers(rec, tmp_path):
     assert not any("15% full scale" in label for label in labels)
 
 
-def test_where_it_fires_is_where_the_training_windows_are_cut(rec, tmp_path):
-    """The same trigger object as the data set's (trainer.dataset.onset_start) on the same pads."""
+@pytest.mark.parametrize("back_frames", [None, 3])
+def test_the_drawn_window_is_where_the_training_windows_are_cut(rec, tmp_path, back_frames):
+    """The same trigger object as the data set's (trainer.dataset.onset_start) on the same pads: the window the
+    plot shades starts where training starts its case (dated back, for a model that records back_frames)."""
     from trainer.commands.plot_cli import model_trigger
     from trainer.dataset import onset_start
 
     recording, _ = rec
-    drawn = model_trigger(recording, str(_model(tmp_path, {"kind": "onset"})))
+    recorded = {"kind": "onset", **({} if back_frames is None else {"back_frames": back_frames})}
+    drawn = model_trigger(recording, str(_model(tmp_path, recorded)))
     layout = recording.layout
-    for trial in recording.trials[:8]:
+    dated = 0
+    for trial in recording.trials:
         frames, _ = recording.trial_frames(trial)
         fires = drawn.fires(frames, layout, 32.0)
         first, _ = onset_start(frames[:, layout.columns(drawn.pads)], layout.pad_sizes(drawn.pads), layout.fullscale,
                                drawn.settings, drawn.T, 32.0, layout.pad_fingers(drawn.pads))
-        assert (fires[0][0] if fires else -1) == first
+        assert (fires[0][1] if fires else -1) == first
+        dated += bool(fires) and fires[0][1] < fires[0][0]
+    assert bool(dated) == bool(back_frames), dated  # a model cut at the trigger frame is never dated back
 
 
 def test_the_legend_does_not_cover_the_curves(rec, tmp_path):

@@ -355,8 +355,8 @@ def build_dataset(
 
 @dataclass(frozen=True)
 class CaseCheck:
-    """For the recorder: ``check(frames, stamps, layout)`` -> (trigger frame, None) when ``build_dataset``
-    would cut a case from this one trial, else (-1, its reason). It runs ``build_dataset`` itself, so
+    """For the recorder: ``check(frames, stamps, layout)`` -> (the frame the trigger dates the departure from,
+    None) when ``build_dataset`` would cut a case from this one trial, else (-1, its reason). It runs ``build_dataset`` itself, so
     the recorder marks the frame training cuts at; ``str(check)`` names the cut (stored with each trial)."""
 
     settings: TriggerSettings

@@ -238,7 +238,8 @@ def _data_lines(metrics: dict) -> list[str]:
     ]
     if ds.get("trigger_minus_onset_frames"):
         d = ds["trigger_minus_onset_frames"]
-        lines.append(f"- trigger frame minus annotated action onset: median {d['median']:.0f}, "
+        lines.append("- window start (where the trigger dates the departure) minus annotated action onset: "
+                     f"median {d['median']:.0f}, "
                      f"range {d['min']}..{d['max']} frames")
     if "windows_before_onset" in ds:
         lines.append(f"- **windows that end before the annotated onset: {ds['windows_before_onset']}** of "
