@@ -17,7 +17,7 @@ import queue
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +31,7 @@ from runtime.output_check import output_problem
 from runtime.quarantine import QuarantineStore
 from runtime.shadow_stats import Comparison, judged_right
 from runtime.sinks import PROTOCOL_VERSION
+from runtime.trigger_settings import resolve_trigger
 
 if TYPE_CHECKING:
     from runtime.config import Config
@@ -94,6 +95,18 @@ class Offered:
     frame_last: int
     device_time_ms: int
     time: float
+
+
+def _trigger_problem(mine: Any, serving: Any) -> str | None:
+    """Why a candidate cut by trigger settings ``mine`` is not judged on windows cut by ``serving``'s, or None:
+    in shadow it would answer windows it was not trained on (a model from before ``back_frames``, say)."""
+    differ = [f"{k} {v!r} (the serving model's {getattr(serving, k)!r})" for k, v in asdict(mine).items()
+              if v != getattr(serving, k)]
+    if not differ:
+        return None
+    return (f"its windows were cut by another trigger: {', '.join(differ)}; on the serving model's windows it would "
+            "be judged on cuts it was not trained on: promote it without a shadow verdict (docs/GUIDE.md) or train "
+            "both with one trigger")
 
 
 class Shadow:
@@ -246,7 +259,7 @@ class Shadow:
             if a != b:
                 return (f"its {what} is {a}, the serving model's {b}: it cannot be fed the serving model's windows; "
                         "train it on the same pads, window and rate")
-        return None
+        return _trigger_problem(resolve_trigger(self.cfg.trigger, mc.trigger), resolve_trigger(self.cfg.trigger, ms.trigger))
 
     def _poll(self, watcher: ModelWatcher) -> None:
         watcher.poll(require_stable=not self._first_poll)

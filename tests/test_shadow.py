@@ -147,7 +147,7 @@ class _Fake:
     def __init__(self, path: Path, label: int = 1, gate: threading.Event | None = None, fail: bool = False) -> None:
         self.path, self.model_id = path, "f" * 12
         self.meta = SimpleNamespace(T=15, n_channels=4, sample_rate_hz=32.0, pads=(1,), classes=CLASSES,
-                                    n_classes=len(CLASSES))
+                                    n_classes=len(CLASSES), trigger={"kind": "onset", "back_frames": 3})
         self.label, self.gate, self.fail, self.runs = label, gate, fail, 0
 
     def run_trusted(self, window):
@@ -325,6 +325,18 @@ def test_a_candidate_at_a_rate_the_stream_would_feed_as_it_comes_runs_beside_the
     assert shadow.fit_problem(candidate) is None
     candidate.meta.sample_rate_hz = 70.0
     assert "its sample rate is 70.00 Hz, the serving model's 31.25 Hz" in shadow.fit_problem(candidate)
+
+
+def test_a_candidate_cut_by_another_trigger_is_not_judged_on_the_serving_model_s_windows(tmp_path):
+    """After an upgrade the serving model (cut at the trigger frame) and a new candidate (dated back) differ in
+    where their windows start: a shadow verdict on the serving model's windows would judge cuts it never saw."""
+    serving, candidate = _Fake(Path("serving.onnx")), _Fake(Path("c.onnx"))
+    serving.meta.trigger = {"kind": "onset"}  # a model from before back_frames: served at the trigger frame
+    shadow, _ = _shadow(tmp_path, candidate, serving)
+    problem = shadow.fit_problem(candidate)
+    assert "cut by another trigger: back_frames 3 (the serving model's 0)" in problem and "promote it" in problem
+    serving.meta.trigger = {"kind": "onset", "back_frames": 3}
+    assert shadow.fit_problem(candidate) is None
 
 
 def test_sighup_starts_the_shadow_without_restarting_the_serving_watcher(tmp_path):
