@@ -188,6 +188,8 @@ def test_train_options_take_a_plain_string_of_features_and_check_the_pads():
     TrainOptions(pads="9", data="somewhere").check()  # recorded data: checked against its own layout once loaded
     with pytest.raises(OptionsError, match=r"^--dormant-cut 'all': use one of trigger, in_view, both"):
         TrainOptions(dormant_cut="all").check()
+    with pytest.raises(OptionsError, match=r"^--dormant-cut both: it cuts the dormant class from recorded idle"):
+        TrainOptions(dormant_cut="both", data="somewhere", dormant=False).check()
 
 
 def test_pads_no_hand_has_is_refused_before_simulating(tmp_path, capsys):

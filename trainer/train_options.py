@@ -174,6 +174,9 @@ class TrainOptions:
                                      ("--feature-weighting", self.feature_weighting, FEATURE_WEIGHTING_CHOICES)):
             if value is not None and value not in allowed:
                 raise OptionsError(f"{name} {value!r}: use one of {', '.join(allowed)}")
+        if self.dormant_cut != DORMANT_CUT and not (self.data and self.dormant):
+            raise OptionsError(f"--dormant-cut {self.dormant_cut}: it cuts the dormant class from recorded idle; "
+                               "give --data and leave out --no-dormant")
 
     def command_line(self) -> str:
         """The exact command that reproduces this run (written at the top of the report)."""
