@@ -334,3 +334,35 @@ def test_cli_quick_run_writes_results(tmp_path, capsys):
     assert full["offline_rule_matches_daemon"] is True
     text = (tmp_path / "dormant.md").read_text()
     assert "synthetic" in text and "./dev bench dormant" in text
+
+
+def test_the_dormant_windows_training_cuts_are_the_windows_the_daemon_serves(tmp_path):
+    """``trigger_windows`` (the idle's dormant cases) and the daemon's Detector on the same idle stream, with a
+    model that dates its windows back: the same windows, frame for frame, and some of them dated back."""
+    import time
+
+    from firmware_io.client import Frame
+    from runtime.config import config_from_dict
+    from runtime.detector import Detector
+    from runtime.model import load_model
+    from runtime.trigger_settings import resolve_trigger
+    from tests.tiny_models import tiny_model_bytes, write_model
+
+    rec = simulate_idle(180.0, seed=3, part=0)
+    model = load_model(write_model(tmp_path, "m.onnx", tiny_model_bytes(trigger={"kind": "onset", "back_frames": 3})))
+    pads = list(model.meta.pads)
+    det = Detector.from_config(config_from_dict({"scene": {"pads": ",".join(map(str, pads)), "mode": "trigger"}}))
+    det.swap(model, rec.layout)
+    stamps = np.rint(rec.timestamps * 1000).astype(np.int64)
+    served, backs = [], []
+    for i in range(rec.n_frames):
+        if (d := det.feed(Frame(i, int(stamps[i]), time.perf_counter(), rec.frames[i]))) is not None:
+            served.append(d.first)
+            backs.append(det.trigger.back)
+    lay = rec.layout
+    cols = lay.columns(pads)
+    cut, _, _ = dormant.trigger_windows([rec], cols, model.meta.T, resolve_trigger(None, model.meta.trigger),
+                                        lay.pad_sizes(pads), lay.fullscale, lay.pad_fingers(pads))
+    assert len(cut) == len(served) > 0 and any(backs), backs
+    for first, window in zip(served, cut, strict=True):
+        assert np.array_equal(rec.frames[first:first + model.meta.T][:, cols].T.astype(np.float32), window)
