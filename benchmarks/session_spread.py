@@ -28,10 +28,10 @@ def spread(model_path: Path, lab: str | None, robot: bool = False, seeds: tuple[
     from runtime.model import load_model
     from trainer import streams_eval as se
     from trainer.commands.demo_cli import DEMO_EVENTS, scripted_session
-    from trainer.own_replay import stream_mode
+    from trainer.own_replay import model_stream_mode
 
     model = load_model(Path(model_path))
-    mode = stream_mode(bool(model.meta.dormant_class), (model.meta.trigger or {}).get("kind", "threshold"))
+    mode = model_stream_mode(model)
     per = []
     for seed in seeds:
         _, _, session = scripted_session(seed, events or DEMO_EVENTS, lab=lab)

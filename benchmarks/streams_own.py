@@ -27,6 +27,7 @@ from firmware_io.sim.constants import FRAME_PERIOD_S
 from trainer import streams_eval as se
 from trainer.early import rule_in_words
 from trainer.measure import command_line, load_average, machine_info, write_results
+from trainer.own_replay import model_stream_mode
 
 NAME = "streams_own"
 SUBJECT_SEEDS = (10, 11, 12)
@@ -89,7 +90,7 @@ def validation(models: dict, seed: int, s: dict, say) -> dict:
         script = demo_script(s["val_events"], seed=seed, objects=get_lab(lab).objects)
         session = simulate_session(script, seed=seed, lab=lab)
         for cut, model in by_cut.items():
-            mode = "onset_dormant" if model.meta.dormant_class else "onset"
+            mode = model_stream_mode(model)
             o = se.session_outcomes(se.replay(session, model, mode), session.trials)
             i = se.score(se.replay(idle, model, mode), [], idle.n_frames, FRAME_PERIOD_S, names) if lab == "A" else None
             wrong = o["detected"] - o["correct"]
@@ -116,7 +117,7 @@ def test_streams(model, seed: int, s: dict, say) -> dict:
     from firmware_io.sim import demo_script
     from firmware_io.sim.idle import simulate_idle, simulate_mixed
 
-    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    mode = model_stream_mode(model)
     n_parts = max(1, round(3600.0 * s["test_idle_h"] / PART_S))
     plain, arm, full, hours = [], [], [], []
     for p in range(n_parts):
@@ -151,7 +152,7 @@ def with_arm_move_rate(idle: dict, source_h: dict) -> dict:
 def demo_session(model, seed: int) -> dict:
     from trainer.commands.demo_cli import scripted_session
 
-    mode = "onset_dormant" if model.meta.dormant_class else "onset"
+    mode = model_stream_mode(model)
     session_seed, _, session = scripted_session(seed)
     o = se.session_outcomes(se.replay(session, model, mode), session.trials)
     return {"mode": mode, "seed": session_seed, **{k: o[k] for k in (

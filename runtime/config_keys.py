@@ -147,9 +147,9 @@ KEYS: tuple[Key, ...] = (
     Key("trigger.baseline_tau_s", float, 2.0, "threshold: time constant of that baseline", range=(0.01, 86400.0)),
     Key("trigger.pre_frames", int, 0, "frames before the trigger frame that belong to the window",
         range=(0, 1000), optional=True, recorded=True),
-    Key("trigger.back_frames", int, 3, "onset: a window starts where its departure began (the first frame of its unbroken "
-        "stretch at or above half of change), at most this many frames before the trigger frame and at most T - 1 - pre_frames (a model "
-        "recording none was cut at the trigger frame)",
+    Key("trigger.back_frames", int, 3, "onset: a window starts where its departure began (the first frame of its "
+        "unbroken stretch at or above half of change), at most this many frames before the trigger frame and at most "
+        "T - 1 - pre_frames (a model recording none was cut at the trigger frame)",
         range=(0, 1000), recorded=True, config=False),
     Key("trigger.floor", float, 0.25, "onset: changes are measured against at least this x full scale of summed "
         "pressure (an unloaded pad must gain a real contact)", range=(0.001, 1.0), recorded=True, config=False),

@@ -13,7 +13,8 @@ from typing import Any
 
 __all__ = ["served", "swap_warning", "trigger_text"]
 
-_SHOWN = {"onset": ("change", "floor", "back_frames", "refractory_s"), "threshold": ("fraction", "hysteresis", "refractory_s"),
+_SHOWN = {"onset": ("change", "floor", "back_frames", "refractory_s"),
+          "threshold": ("fraction", "hysteresis", "refractory_s"),
           "baseline": ("fraction", "baseline_tau_s", "refractory_s")}
 """The settings named in a trigger's text, per kind (the rest are in the model card and the config)."""
 

@@ -259,7 +259,8 @@ class Shadow:
             if a != b:
                 return (f"its {what} is {a}, the serving model's {b}: it cannot be fed the serving model's windows; "
                         "train it on the same pads, window and rate")
-        return _trigger_problem(resolve_trigger(self.cfg.trigger, mc.trigger), resolve_trigger(self.cfg.trigger, ms.trigger))
+        pinned = self.cfg.trigger
+        return _trigger_problem(resolve_trigger(pinned, mc.trigger), resolve_trigger(pinned, ms.trigger))
 
     def _poll(self, watcher: ModelWatcher) -> None:
         watcher.poll(require_stable=not self._first_poll)

@@ -76,7 +76,8 @@ def window_start_text(recorded: dict) -> str:
     """Where a model's windows start, in words, from its recorded ``trigger`` object (as it is served)."""
     s = resolve_trigger(None, recorded)
     back = s.back_frames if s.kind == "onset" else 0
-    where = f"where the departure began (at most {back} frames before the trigger fired)" if back else "the trigger frame"
+    where = (f"where the departure began (at most {back} frames before the trigger fired)" if back
+             else "the trigger frame")
     return f"window from {where}" + (f" and {s.pre_frames} frames before" if s.pre_frames else "")
 
 

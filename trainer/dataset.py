@@ -164,8 +164,8 @@ class Dataset:
 
 
 ONSET_RULE = ("runtime.onset.OnsetTrigger: armed on the trial's first frame (a settled grasp), fires when a pad's "
-              "summed pressure departs from the tracked grasp; the window starts where the departure began (back_frames) "
-              "and pre_frames before that")
+              "summed pressure departs from the tracked grasp; the window starts where the departure began "
+              "(back_frames) and pre_frames before that")
 THRESHOLD_RULE = ("runtime.trigger.ThresholdTrigger: rising edge; a trial above the level from its first frame "
                   "triggers only after dropping below the re-arm level")
 
@@ -356,8 +356,8 @@ def build_dataset(
 @dataclass(frozen=True)
 class CaseCheck:
     """For the recorder: ``check(frames, stamps, layout)`` -> (the frame the trigger dates the departure from,
-    None) when ``build_dataset`` would cut a case from this one trial, else (-1, its reason). It runs ``build_dataset`` itself, so
-    the recorder marks the frame training cuts at; ``str(check)`` names the cut (stored with each trial)."""
+    None) when ``build_dataset`` would cut a case from this one trial, else (-1, its reason). It runs
+    ``build_dataset`` itself, so the recorder marks the frame training cuts at; ``str(check)`` names the cut (stored with each trial)."""
 
     settings: TriggerSettings
     T: int

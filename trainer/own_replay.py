@@ -39,6 +39,13 @@ def stream_mode(dormant: bool, trigger_kind: str) -> str:
     return "threshold"
 
 
+def model_stream_mode(model) -> str:
+    """``stream_mode`` of a loaded model (its dormant class and the trigger kind it is served with)."""
+    from runtime.trigger_settings import resolve_trigger
+
+    return stream_mode(bool(model.meta.dormant_class), resolve_trigger(None, model.meta.trigger).kind)
+
+
 def _segment(rec: Recording, first: int, last: int, meta: dict | None = None) -> Recording:
     sl = slice(first, last + 1)
     return Recording(rec.layout, rec.frames[sl], rec.timestamps[sl], [], dict(meta or {}))

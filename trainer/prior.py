@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, clone
 
 from trainer.dormant import DORMANT
-from trainer.recorded_idle import DORMANT_CUT
+from trainer.recorded_idle import DORMANT_CUT, IdleWindows, recorded_idle_windows, with_dormant
 
 __all__ = ["PRIOR", "PriorCases", "PriorRecipe", "WithPrior", "choice_lines", "choose_weight", "evidence",
            "markdown_lines", "prior_problem", "use_prior"]
@@ -163,8 +163,6 @@ def _cut_windows(recipe: PriorRecipe, name: str, cut: _Cut) -> tuple[np.ndarray,
     """Kept for the process, as ``_simulated`` keeps the streams: a cut runs the trigger over every frame of
     80 simulated minutes (a quarter of a train's time), the same for every train of one process with the
     same T, pads and trigger (the tests, the own_prior bench). Read-only: the callers share them."""
-    from trainer.recorded_idle import recorded_idle_windows
-
     _, idle, more = _simulated(recipe)
     idle = idle if name == "idle" else more
     w = recorded_idle_windows(list(idle), [f"{name}{k}" for k in range(len(idle))], cut, 0, cut.dormant_cut)
@@ -173,11 +171,9 @@ def _cut_windows(recipe: PriorRecipe, name: str, cut: _Cut) -> tuple[np.ndarray,
     return X, origin
 
 
-def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = None,
-                dormant_cut: str = DORMANT_CUT) -> PriorCases:
+def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe, dormant_cut: str) -> PriorCases:
     """The prior's cases for the lab's data set ``ds``: the protocol cut by ``ds``'s trigger, T and pads,
     and (when ``ds`` has a dormant class) dormant windows of the simulated idle."""
-    recipe = recipe or PRIOR
     from trainer.dataset import build_dataset
 
     say(f"the product's prior: simulating ({recipe.describe()}) ...")
@@ -190,15 +186,13 @@ def build_prior(ds, say: Callable[[str], None], recipe: PriorRecipe | None = Non
     return PriorCases(np.concatenate(X).astype(np.float32), np.concatenate(y), np.concatenate(origin), recipe)
 
 
-def evidence(ds, recipe: PriorRecipe | None = None, dormant_cut: str = DORMANT_CUT):
+def evidence(ds, recipe: PriorRecipe, dormant_cut: str):
     """``ds`` plus the evidence stream's dormant windows, dealt round-robin to the lab's subjects' folds
     (so leave-one-subject-out holds each out with a subject); ``ds`` itself without a dormant class."""
-    from trainer.recorded_idle import IdleWindows, with_dormant
-
     if DORMANT not in set(ds.y.tolist()):
         return ds
-    idle = _simulated(recipe or PRIOR)[2]
-    X, origin = _dormant_windows(recipe or PRIOR, "evidence", ds, dormant_cut)
+    idle = _simulated(recipe)[2]
+    X, origin = _dormant_windows(recipe, "evidence", ds, dormant_cut)
     subjects = sorted(set(ds.groups[ds.y != DORMANT].tolist())) or sorted(set(ds.groups.tolist()))
     groups = np.asarray([subjects[k % len(subjects)] for k in range(len(X))])
     seconds = sum(r.n_frames * r.period_s() for r in idle)
