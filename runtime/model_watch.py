@@ -181,6 +181,9 @@ class ModelWatcher:
         self.withdrawn = False
         """The serving file left the folder and no file there can serve: the main loop serves none
         (``take_withdrawal``)."""
+        self._left = False
+        """The serving file left and nothing has served since: withdrawn once every file there is weighed (a
+        file changed in place is weighed polls later, when it is stable)."""
 
     def rescan(self, keep_current: bool) -> None:
         """Try every file again at the next poll (the scene changed, so a rejection may no longer
@@ -257,14 +260,15 @@ class ModelWatcher:
             if model is not None:
                 accepted = (st, model)
         if accepted is None:
-            if gone and len(stable) == len(now):  # every file there was weighed: none can serve
+            if self._left and len(stable) == len(now):  # every file there was weighed: none can serve
+                self._left = False
                 with self._lock:
                     self.withdrawn = True
             return None
         st, model = accepted
         if self.current is not None:  # passed over for a newer one: weighed again if that one leaves
             self._skipped.add(self.current)
-        self.current = st
+        self.current, self._left = st, False
         self._accepted_states[st.path] = st
         self.accepted.append(st.path)
         with self._lock:
@@ -278,7 +282,7 @@ class ModelWatcher:
                     "the folder holds now serves", self.current.path.name, self.folder)
         self._tried -= self._skipped
         self._skipped.clear()
-        self.current = None
+        self.current, self._left = None, True
 
     def take_withdrawal(self) -> bool:
         """Whether the serving model was withdrawn (once): the main loop then serves none."""

@@ -61,6 +61,20 @@ def test_removing_the_serving_file_serves_the_newest_valid_file_left_also_one_th
     assert w.take().path.name == "b.onnx"
 
 
+def test_a_serving_file_broken_in_place_is_withdrawn_once_it_is_weighed(tmp_path):
+    """Truncated (or a bad file copied over it) instead of removed: the poll that sees the change cannot weigh
+    it yet (not stable), so the withdrawal waits for the poll that can; the folder then serves none."""
+    path = write_model(tmp_path, "m.onnx", tiny_model_bytes(), mtime=time.time() - 1000)
+    w = _watcher(tmp_path)
+    assert w.poll(require_stable=False).path.name == "m.onnx" and w.take() is not None
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size // 2)
+    for _ in range(4):
+        w.poll()
+    assert w.take_withdrawal() and w.take() is None and w.current is None
+    assert not w.take_withdrawal()  # once
+
+
 def test_a_file_is_taken_only_when_stable_across_two_polls(tmp_path):
     w = _watcher(tmp_path)
     assert w.poll() is None
